@@ -1,0 +1,256 @@
+//! The decay of a stimulation level between two frames, in integer arithmetic.
+//!
+//! The reference semantics (DESIGN.md, from the authors' YARP implementation): with λ = 5,
+//! u = dt / τ and dt ≤ τ,
+//!
+//! ```text
+//! S(t) = S0 · f(u),   f(u) = 1 − e^(λ(u − 1)) + e^(−λ)
+//! ```
+//!
+//! and S(t) = 0 for dt > τ. We compute the loss g(u) = 1 − f(u) = e^(−λ) · (e^(λu) − 1) rather
+//! than f. Why: frames usually arrive much faster than τ, so u is small and f is within 1e-3 of 1;
+//! in a steady state (a connection fed at a constant rate without saturating) the level settles at
+//! σ / g, so the *relative* accuracy of g is what bounds the integrator's error. Written as a sum of
+//! positive terms g has no cancellation near u = 0.
+//!
+//! Evaluation: u (Q32) selects one of 64 segments; within a segment,
+//! g(u) = G_i + E_i · expm1(λ·r) with G_i = e^(−λ)(e^(λ i/64) − 1), E_i = e^(λ(i/64 − 1)) and r
+//! the remainder of u in the segment. `expm1` is a degree-6 Taylor polynomial (λ·r < 0.079, so its
+//! truncation error is below 5e-12 absolute). The 129 table constants are computed by `const fn`
+//! at compile time, so they cannot drift from the formula. Cost per evaluation: one 64-bit
+//! multiplication for u, seven 64-bit multiplications of operands below 2^33, divisions only by small constants (compiled to multiplications), no float.
+
+use crate::level::Level;
+
+/// λ, the decay constant of the reference implementation.
+const LAMBDA: f64 = 5.0;
+/// log2 of the number of table segments over u ∈ [0, 1].
+const SEGMENT_SHIFT: u32 = 6;
+const SEGMENTS: usize = 1 << SEGMENT_SHIFT;
+/// Width of one segment in Q32 units of u.
+const SEGMENT_BITS: u32 = 32 - SEGMENT_SHIFT;
+/// u is formed in Q56 from the elapsed time and the reciprocal of τ (see [`Decay::new`]).
+const RECIPROCAL_SHIFT: u32 = 56;
+/// 2^32 as a float, to scale table constants to Q32.
+const Q32: f64 = 4_294_967_296.0;
+
+/// e^x for |x| ≤ 5, to about 1e-14 relative, usable in `const` context: e^x = (e^(x/1024))^1024
+/// with a Taylor series for the small argument.
+const fn exp(x: f64) -> f64 {
+    let y = x / 1024.0;
+    let mut term = 1.0;
+    let mut sum = 1.0;
+    let mut k = 1;
+    while k < 10 {
+        term = term * y / k as f64;
+        sum += term;
+        k += 1;
+    }
+    let mut squarings = 0;
+    while squarings < 10 {
+        sum *= sum;
+        squarings += 1;
+    }
+    sum
+}
+
+/// `value` in Q32, rounded to nearest. `value` must be in [0, 1).
+const fn to_q32(value: f64) -> u32 {
+    (value * Q32 + 0.5) as u32
+}
+
+/// G_i = e^(−λ)(e^(λ i/64) − 1), i = 0..=64, in Q32. G_64 = 1 − e^(−λ), the loss at u = 1.
+// Evaluated at compile time: an index out of bounds would fail the build, not panic.
+#[allow(clippy::indexing_slicing)]
+const LOSS_AT: [u32; SEGMENTS + 1] = {
+    let mut table = [0; SEGMENTS + 1];
+    let mut i = 0;
+    while i <= SEGMENTS {
+        let u = i as f64 / SEGMENTS as f64;
+        table[i] = to_q32(exp(-LAMBDA) * (exp(LAMBDA * u) - 1.0));
+        i += 1;
+    }
+    table
+};
+
+/// E_i = e^(λ(i/64 − 1)), i = 0..64, in Q32: the slope factor within segment i.
+// Evaluated at compile time: an index out of bounds would fail the build, not panic.
+#[allow(clippy::indexing_slicing)]
+const SLOPE_AT: [u32; SEGMENTS] = {
+    let mut table = [0; SEGMENTS];
+    let mut i = 0;
+    while i < SEGMENTS {
+        let u = i as f64 / SEGMENTS as f64;
+        table[i] = to_q32(exp(LAMBDA * (u - 1.0)));
+        i += 1;
+    }
+    table
+};
+
+/// The loss at u = 1: what remains after exactly τ is e^(−λ) of the level.
+const LOSS_AT_ONE: u32 = LOSS_AT[SEGMENTS];
+
+/// e^r − 1 for r in [0, 0.08), r in Q32, result in Q32.
+///
+/// Horner form of r(1 + r/2(1 + r/3(1 + r/4(1 + r/5(1 + r/6))))), with the factors in Q32 held in
+/// `u64`: every factor is in [1, 1.05) (below 2^33) and r is below 2^29, so every product is below
+/// 2^62. The first omitted term, r^7/7!, is under 0.02 Q32 units.
+fn expm1_small(r: u32) -> u32 {
+    const ONE: u64 = 1 << 32;
+    let r = u64::from(r);
+    let z = ONE + r / 6;
+    let a = ONE + ((r * z) >> 32) / 5;
+    let b = ONE + ((r * a) >> 32) / 4;
+    let c = ONE + ((r * b) >> 32) / 3;
+    let d = ONE + ((r * c) >> 32) / 2;
+    // Rounded to nearest.
+    ((r * d + (1 << 31)) >> 32) as u32
+}
+
+/// g(u) = 1 − f(u) in Q32, for u in Q32 within [0, 2^32].
+fn loss(u: u64) -> u32 {
+    let segment = (u >> SEGMENT_BITS) as usize;
+    let rest = (u & ((1 << SEGMENT_BITS) - 1)) as u32;
+    match (LOSS_AT.get(segment), SLOPE_AT.get(segment)) {
+        (Some(&base), Some(&slope)) => {
+            // λ · rest, in Q32: rest < 2^26, so 5 · rest < 2^29.
+            let lambda_r = rest * LAMBDA as u32;
+            // Rounded to nearest: slope < 2^32 and expm1 < 2^29, the sum stays below 2^62.
+            let within = (u64::from(slope) * u64::from(expm1_small(lambda_r)) + (1 << 31)) >> 32;
+            // base + within ≤ G_(i+1) + a few units < 2^32.
+            base.saturating_add(within as u32)
+        }
+        // Only u = 2^32 exactly (dt = τ) reaches the last table entry.
+        _ => LOSS_AT_ONE,
+    }
+}
+
+/// A decay time τ in whole microseconds, with its reciprocal precomputed so that evaluating the
+/// decay costs no division.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub(crate) struct Decay {
+    micros: u32,
+    /// floor(2^56 / τ): u in Q56 is `elapsed · reciprocal`, at most 2^56 for elapsed ≤ τ. The
+    /// floor makes u short of the exact value by at most τ / 2^56 relative (5e-8 for τ = 1 h,
+    /// 4e-11 for τ = 3 s).
+    reciprocal: u64,
+}
+
+impl Decay {
+    /// τ = `micros`; `None` for zero. Costs one 64-bit division.
+    pub(crate) const fn new(micros: u32) -> Option<Decay> {
+        match (1u64 << RECIPROCAL_SHIFT).checked_div(micros as u64) {
+            Some(reciprocal) => Some(Decay { micros, reciprocal }),
+            None => None,
+        }
+    }
+
+    /// τ in microseconds.
+    pub(crate) const fn micros(&self) -> u32 {
+        self.micros
+    }
+
+    /// The level `elapsed` µs after it was `level`: `level · f(elapsed / τ)`, or zero once more than
+    /// τ has passed. Rounds towards the larger level by less than 1e-9.
+    pub(crate) fn apply(&self, level: Level, elapsed: u64) -> Level {
+        if elapsed > u64::from(self.micros) {
+            return Level::ZERO;
+        }
+        // elapsed ≤ τ < 2^32 and reciprocal ≤ 2^56 / τ, so the product is at most 2^56.
+        let u = elapsed.saturating_mul(self.reciprocal) >> (RECIPROCAL_SHIFT - 32);
+        let lost = (u64::from(level.raw()) * u64::from(loss(u))) >> 32;
+        // lost ≤ level because loss < 1.
+        Level::from_raw(level.raw().saturating_sub(lost as u32)).unwrap_or(Level::ZERO)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn reference_f(u: f64) -> f64 {
+        1.0 - (LAMBDA * (u - 1.0)).exp() + (-LAMBDA).exp()
+    }
+
+    #[test]
+    fn tables_match_std_exp() {
+        for (i, &g) in LOSS_AT.iter().enumerate() {
+            let u = i as f64 / SEGMENTS as f64;
+            let exact = (-LAMBDA).exp() * (LAMBDA * u).exp_m1() * Q32;
+            assert!((f64::from(g) - exact).abs() <= 1.0, "G_{i}: {g} vs {exact}");
+        }
+        for (i, &e) in SLOPE_AT.iter().enumerate() {
+            let u = i as f64 / SEGMENTS as f64;
+            let exact = (LAMBDA * (u - 1.0)).exp() * Q32;
+            assert!((f64::from(e) - exact).abs() <= 1.0, "E_{i}: {e} vs {exact}");
+        }
+    }
+
+    #[test]
+    fn worked_numbers_of_the_design_notes() {
+        // f(0) = 1, f(0.5) = 0.9246, f(0.9) = 0.4002, f(1) = e^-5.
+        let tau = Decay::new(1_000_000).unwrap();
+        for (elapsed, expected) in [(0, 1.0), (500_000, 0.9246), (900_000, 0.4002)] {
+            let got = tau.apply(Level::FULL, elapsed).to_f64();
+            // The design notes round to four decimals.
+            assert!((got - expected).abs() < 1e-4, "f({elapsed}) = {got}");
+        }
+        let at_tau = tau.apply(Level::FULL, 1_000_000).to_f64();
+        assert!((at_tau - (-5f64).exp()).abs() < 1e-8, "{at_tau}");
+        assert_eq!(tau.apply(Level::FULL, 1_000_001), Level::ZERO);
+    }
+
+    #[test]
+    fn loss_is_within_one_and_a_half_q32_units_everywhere() {
+        // g straight from its Q32 argument: a dense sweep plus every argument below 2^16. 1.5
+        // units (3.5e-10) absolute is what the steady-state argument needs: a connection fed at
+        // a constant rate settles at σ / g, so its error is at most 1.5 · 2^-32 / σ ≤ 2.3e-5.
+        let mut worst: f64 = 0.0;
+        let sweep = (0..=2_000_000u64).map(|k| k * (1 << 32) / 2_000_000);
+        for u in sweep.chain(0..1 << 16) {
+            let exact = (1.0 - reference_f(u as f64 / Q32)) * Q32;
+            let units = (f64::from(loss(u)) - exact).abs();
+            worst = worst.max(units);
+        }
+        assert!(worst <= 1.5, "g off by {worst} Q32 units");
+    }
+
+    #[test]
+    fn applied_decay_is_accurate_in_absolute_terms() {
+        // Error sources: Q31 rounding (~1e-9) and the floor of the reciprocal of τ, which makes u
+        // short by at most τ / 2^56 relative; |f'| ≤ 5, so at most 5 τ / 2^56 (2.5e-7 at 1 h).
+        for tau_us in [1u32, 1_000, 3_000_000, 60_000_000, 3_600_000_000] {
+            let decay = Decay::new(tau_us).unwrap();
+            let bound = 2e-9 + 5.0 * f64::from(tau_us) / 2f64.powi(56);
+            let steps = 20_000u64;
+            for k in 0..=steps {
+                let elapsed = u64::from(tau_us) * k / steps;
+                let exact = reference_f(elapsed as f64 / f64::from(tau_us));
+                let got = decay.apply(Level::FULL, elapsed).to_f64();
+                let error = (got - exact).abs();
+                assert!(error <= bound, "τ {tau_us} µs, dt {elapsed}: error {error:e} > {bound:e}");
+            }
+        }
+    }
+
+    #[test]
+    fn decay_never_raises_a_level() {
+        let decay = Decay::new(3_000_000).unwrap();
+        for raw in [0, 1, 2, 1 << 20, (1 << 31) - 1, 1 << 31] {
+            let level = Level::from_raw(raw).unwrap();
+            let mut previous = level;
+            for elapsed in (0..=3_000_000).step_by(7_919) {
+                let now = decay.apply(level, elapsed);
+                assert!(now <= previous, "raw {raw} at {elapsed}");
+                previous = now;
+            }
+        }
+    }
+
+    #[test]
+    fn zero_decay_time_is_refused() {
+        assert_eq!(Decay::new(0), None);
+        assert_eq!(Decay::new(1).map(|d| d.reciprocal), Some(1 << 56));
+    }
+}

@@ -1,0 +1,268 @@
+//! The table image: the bytes `pabctl compile` writes and a node loads.
+//!
+//! ```text
+//! offset size  field
+//!      0    4  magic "PABT"
+//!      4    2  format version, little endian (this is format 1)
+//!      6    1  node id the table is for
+//!      7    1  reserved, must be 0
+//!      8    4  table version, little endian (newer tables have larger versions)
+//!     12    4  body length in bytes, little endian
+//!     16    4  CRC-32/ISO-HDLC of bytes 0..16 followed by the body, little endian
+//!     20    n  body: the postcard encoding of a [`Table`]
+//! ```
+//!
+//! Why a fixed header before a postcard body: a receiver learns the length, the target node and
+//! the version from fixed offsets (to refuse a transfer early), and checks the CRC over the whole
+//! image before it parses a single field of the body. The CRC covers the header too, so no single
+//! flipped bit anywhere goes unnoticed.
+//!
+//! The loader checks, in this order: length, magic, format, reserved byte, declared length, CRC,
+//! body syntax, and every count, index and parameter of the table. It returns a [`LoadError`] for
+//! the first problem; it never panics and never reads out of bounds, whatever the bytes.
+
+use crate::crc32::Crc32;
+use crate::table::{Table, TableError};
+
+/// The first four bytes of every image.
+pub const MAGIC: [u8; 4] = *b"PABT";
+/// The format this crate writes and reads.
+pub const FORMAT_VERSION: u16 = 1;
+/// Bytes before the body.
+pub const HEADER_LEN: usize = 20;
+/// The largest image accepted, header included. A table at full capacity encodes in less.
+pub const MAX_IMAGE_LEN: usize = 32 * 1024;
+
+/// The header of an image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Header {
+    /// The node the table is for.
+    pub node_id: u8,
+    /// The table's version; a node refuses versions older than its own.
+    pub table_version: u32,
+    /// Length of the body in bytes.
+    pub body_len: u32,
+    /// CRC-32 of header bytes 0..16 and the body.
+    pub crc: u32,
+}
+
+/// A decoded, validated image.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Loaded {
+    /// Its header.
+    pub header: Header,
+    /// Its table.
+    pub table: Table,
+}
+
+/// Why an image was refused.
+#[derive(Clone, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum LoadError {
+    /// Fewer bytes than the header, or than the header says the image has.
+    Truncated {
+        /// Bytes needed.
+        needed: usize,
+        /// Bytes given.
+        got: usize,
+    },
+    /// More bytes than the header says the image has.
+    TrailingBytes {
+        /// Bytes beyond the image.
+        extra: usize,
+    },
+    /// Not an image: the first bytes are not "PABT".
+    BadMagic,
+    /// An image of a format this node does not read.
+    UnsupportedFormat {
+        /// The format found.
+        found: u16,
+    },
+    /// The reserved header byte is not zero.
+    ReservedByte,
+    /// The header declares a body larger than [`MAX_IMAGE_LEN`] allows.
+    TooLarge {
+        /// The declared body length.
+        body_len: u32,
+    },
+    /// The CRC does not match: the image was corrupted.
+    Crc {
+        /// The CRC in the header.
+        stored: u32,
+        /// The CRC of the bytes.
+        computed: u32,
+    },
+    /// The body is not a valid postcard encoding of a table (with the CRC right, this means a bug
+    /// or an incompatible writer, not corruption).
+    Body(postcard::Error),
+    /// The body decodes but leaves bytes unread.
+    BodyTrailingBytes,
+    /// The body decodes to a table that breaks a rule.
+    Table(TableError),
+}
+
+impl core::fmt::Display for LoadError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            LoadError::Truncated { needed, got } => {
+                write!(f, "image truncated: {got} bytes where {needed} are needed")
+            }
+            LoadError::TrailingBytes { extra } => {
+                write!(f, "{extra} bytes after the end of the image")
+            }
+            LoadError::BadMagic => f.write_str("not a table image (bad magic)"),
+            LoadError::UnsupportedFormat { found } => write!(
+                f,
+                "image format {found} is not supported (this node reads format {FORMAT_VERSION})"
+            ),
+            LoadError::ReservedByte => f.write_str("reserved header byte is not zero"),
+            LoadError::TooLarge { body_len } => {
+                write!(f, "body of {body_len} bytes exceeds the {MAX_IMAGE_LEN}-byte image limit")
+            }
+            LoadError::Crc { stored, computed } => write!(
+                f,
+                "CRC mismatch: header says {stored:#010x}, bytes give {computed:#010x}"
+            ),
+            LoadError::Body(error) => write!(f, "body does not decode: {error}"),
+            LoadError::BodyTrailingBytes => f.write_str("body has bytes after the table"),
+            LoadError::Table(error) => write!(f, "invalid table: {error}"),
+        }
+    }
+}
+
+/// Why an image could not be written.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum EncodeError {
+    /// The output buffer is too small.
+    BufferTooSmall,
+    /// The image would exceed [`MAX_IMAGE_LEN`].
+    TooLarge,
+    /// The table breaks a rule (it was not built through [`Table::push_port`]).
+    Table(TableError),
+}
+
+impl core::fmt::Display for EncodeError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            EncodeError::BufferTooSmall => f.write_str("output buffer too small for the image"),
+            EncodeError::TooLarge => write!(f, "image would exceed {MAX_IMAGE_LEN} bytes"),
+            EncodeError::Table(error) => write!(f, "invalid table: {error}"),
+        }
+    }
+}
+
+/// Header bytes 0..16, the part before the CRC.
+fn covered_header(node_id: u8, table_version: u32, body_len: u32) -> [u8; 16] {
+    let [f0, f1] = FORMAT_VERSION.to_le_bytes();
+    let [v0, v1, v2, v3] = table_version.to_le_bytes();
+    let [l0, l1, l2, l3] = body_len.to_le_bytes();
+    let [m0, m1, m2, m3] = MAGIC;
+    [m0, m1, m2, m3, f0, f1, node_id, 0, v0, v1, v2, v3, l0, l1, l2, l3]
+}
+
+/// Reads and checks the header alone: magic, format, reserved byte and the declared length
+/// against [`MAX_IMAGE_LEN`]. A receiver calls it on the first bytes of a transfer to refuse it
+/// early; it does not check the CRC.
+pub fn read_header(bytes: &[u8]) -> Result<Header, LoadError> {
+    let header: [u8; HEADER_LEN] = bytes
+        .get(..HEADER_LEN)
+        .and_then(|header| header.try_into().ok())
+        .ok_or(LoadError::Truncated {
+            needed: HEADER_LEN,
+            got: bytes.len(),
+        })?;
+    let [
+        m0, m1, m2, m3, f0, f1, node_id, reserved, v0, v1, v2, v3, l0, l1, l2, l3, c0, c1, c2, c3,
+    ] = header;
+    if [m0, m1, m2, m3] != MAGIC {
+        return Err(LoadError::BadMagic);
+    }
+    let format = u16::from_le_bytes([f0, f1]);
+    if format != FORMAT_VERSION {
+        return Err(LoadError::UnsupportedFormat { found: format });
+    }
+    if reserved != 0 {
+        return Err(LoadError::ReservedByte);
+    }
+    let body_len = u32::from_le_bytes([l0, l1, l2, l3]);
+    if usize::try_from(body_len).map_or(true, |len| len > MAX_IMAGE_LEN - HEADER_LEN) {
+        return Err(LoadError::TooLarge { body_len });
+    }
+    Ok(Header {
+        node_id,
+        table_version: u32::from_le_bytes([v0, v1, v2, v3]),
+        body_len,
+        crc: u32::from_le_bytes([c0, c1, c2, c3]),
+    })
+}
+
+/// Decodes and validates an image.
+///
+/// Costs one CRC pass over the image, one postcard decode and one validation pass; uses no heap
+/// and about `size_of::<Table>()` of stack for the result.
+pub fn load(bytes: &[u8]) -> Result<Loaded, LoadError> {
+    let header = read_header(bytes)?;
+    // read_header bounded body_len by MAX_IMAGE_LEN, so this cannot overflow.
+    let total = HEADER_LEN.saturating_add(header.body_len as usize);
+    if bytes.len() < total {
+        return Err(LoadError::Truncated {
+            needed: total,
+            got: bytes.len(),
+        });
+    }
+    if bytes.len() > total {
+        return Err(LoadError::TrailingBytes {
+            extra: bytes.len().saturating_sub(total),
+        });
+    }
+    let (Some(covered), Some(body)) = (bytes.get(..16), bytes.get(HEADER_LEN..)) else {
+        return Err(LoadError::Truncated {
+            needed: total,
+            got: bytes.len(),
+        });
+    };
+    let computed = Crc32::new().update(covered).update(body).finish();
+    if computed != header.crc {
+        return Err(LoadError::Crc {
+            stored: header.crc,
+            computed,
+        });
+    }
+    let (table, rest) = postcard::take_from_bytes::<Table>(body).map_err(LoadError::Body)?;
+    if !rest.is_empty() {
+        return Err(LoadError::BodyTrailingBytes);
+    }
+    table.validate().map_err(LoadError::Table)?;
+    Ok(Loaded { header, table })
+}
+
+/// Writes the image of `table` for node `node_id`, version `table_version`, into `out`, and
+/// returns its length.
+pub fn encode(
+    table: &Table,
+    node_id: u8,
+    table_version: u32,
+    out: &mut [u8],
+) -> Result<usize, EncodeError> {
+    table.validate().map_err(EncodeError::Table)?;
+    let (header, body_area) = out
+        .split_at_mut_checked(HEADER_LEN)
+        .ok_or(EncodeError::BufferTooSmall)?;
+    let body_len = postcard::to_slice(table, body_area)
+        .map_err(|_| EncodeError::BufferTooSmall)?
+        .len();
+    let total = HEADER_LEN.saturating_add(body_len);
+    if total > MAX_IMAGE_LEN {
+        return Err(EncodeError::TooLarge);
+    }
+    let body_len_field = u32::try_from(body_len).map_err(|_| EncodeError::TooLarge)?;
+    let covered = covered_header(node_id, table_version, body_len_field);
+    let body = body_area.get(..body_len).ok_or(EncodeError::BufferTooSmall)?;
+    let crc = Crc32::new().update(&covered).update(body).finish();
+    let (fields, crc_field) = header.split_at_mut(16);
+    fields.copy_from_slice(&covered);
+    crc_field.copy_from_slice(&crc.to_le_bytes());
+    Ok(total)
+}

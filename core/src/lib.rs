@@ -1,0 +1,67 @@
+//! # pab-core: port arbitration for CAN
+//!
+//! The arbitration engine of the project, shared by every runner: the boards' firmware, the Linux
+//! node and the workstation simulator run this code and nothing else decides who delivers.
+//!
+//! A node receives CAN frames. Each frame feeds the **connections** whose [`Filter`] matches its
+//! identifier; each connection has a stimulation [`Integrator`] (⟨σ, τ, τr⟩, [`Stimulation`]) that
+//! makes it **active** when enough frames arrive; each **port** has a precompiled decision
+//! ([`decision`]) that picks, from the activity mask, the one connection allowed to deliver. The
+//! [`Arbiter`] runs all this per frame.
+//!
+//! Tables come from the workstation as [`image`]s: a checked header and a postcard body that the
+//! loader validates field by field.
+//!
+//! ## Guarantees
+//!
+//! - `no_std`, no allocator, no `unsafe`. Capacities are compile-time constants (below).
+//! - No panics: no indexing, no unwrapping, no unchecked division (enforced by clippy lints on this
+//!   crate), and every arithmetic operation is either checked, saturating, or bounded by an
+//!   invariant stated next to it.
+//! - Deterministic: fixed-point integer arithmetic gives the same result on every target.
+//! - Whatever bytes arrive (as a frame or as an image), the result is a verdict or a typed error.
+
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::panic,
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::indexing_slicing,
+        clippy::unreachable,
+        clippy::todo,
+        clippy::unimplemented
+    )
+)]
+
+pub mod arbiter;
+pub mod crc32;
+mod decay;
+pub mod decision;
+pub mod filter;
+pub mod image;
+pub mod integrator;
+pub mod level;
+pub mod table;
+pub mod time;
+
+pub use arbiter::{Arbiter, PortSet, PortVerdict, Reception};
+pub use decision::{ConnectionSet, DecisionNode, NodeRef};
+pub use embedded_can::Id;
+pub use filter::Filter;
+pub use integrator::{Integrator, ParamError, Stimulation};
+pub use level::{Gain, Level};
+pub use table::{Connection, Table, TableError};
+pub use time::Instant;
+
+/// Ports per node.
+pub const MAX_PORTS: usize = 16;
+/// Connections per port: an activity mask is a `u32`.
+pub const MAX_CONNECTIONS_PER_PORT: usize = 32;
+/// Connections per node, over all its ports: every port can be full.
+pub const MAX_CONNECTIONS: usize = MAX_PORTS * MAX_CONNECTIONS_PER_PORT;
+/// Decision nodes per node, over all its ports.
+pub const MAX_DECISION_NODES: usize = 2048;

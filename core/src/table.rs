@@ -1,0 +1,374 @@
+//! A node's arbitration table: its ports, their connections and their decisions.
+//!
+//! This is both the body of a table image (postcard encodes it as it is) and what a node keeps in
+//! RAM, so a board needs no second copy to load one. Layout: connections and decision nodes are
+//! stored port after port; a port records how many of each it owns, so ranges follow from the
+//! counts and cannot overlap.
+//!
+//! Memory: `size_of::<Table>()` is about 24 KiB at the default capacities
+//! ([`crate::MAX_CONNECTIONS`] connections of 24 bytes, [`crate::MAX_DECISION_NODES`] nodes of 6).
+
+use core::ops::Range;
+
+use heapless::Vec;
+use serde::{Deserialize, Serialize};
+
+use crate::decision::{self, DecisionError, DecisionNode, NodeRef};
+use crate::filter::{Filter, FilterError};
+use crate::integrator::{ParamError, Stimulation};
+use crate::{MAX_CONNECTIONS, MAX_CONNECTIONS_PER_PORT, MAX_DECISION_NODES, MAX_PORTS};
+
+/// One connection: which frames feed it and how they stimulate it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Connection {
+    /// The frames that feed it.
+    pub filter: Filter,
+    /// ⟨σ, τ, τr⟩.
+    pub stimulation: Stimulation,
+}
+
+/// One port: how many connections and decision nodes it owns, and where its decision starts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Port {
+    connections: u8,
+    nodes: u16,
+    root: NodeRef,
+}
+
+/// A port of a table, with its slices.
+#[derive(Clone, Copy, Debug)]
+pub struct PortView<'a> {
+    /// The connections of the port; a connection's index here is its index in rules and masks.
+    pub connections: &'a [Connection],
+    /// The port's decision nodes.
+    pub nodes: &'a [DecisionNode],
+    /// The entry of the port's decision.
+    pub root: NodeRef,
+}
+
+/// A node's arbitration table. Build one with [`Table::push_port`] or load one from an image with
+/// [`crate::image::load`]; both validate everything.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Table {
+    ports: Vec<Port, MAX_PORTS>,
+    connections: Vec<Connection, MAX_CONNECTIONS>,
+    nodes: Vec<DecisionNode, MAX_DECISION_NODES>,
+}
+
+/// Why a table was refused. Ports and connections are numbered from 0, connections within their
+/// port.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum TableError {
+    /// More than [`MAX_PORTS`] ports.
+    TooManyPorts,
+    /// More than [`MAX_CONNECTIONS`] connections in all.
+    TooManyConnections,
+    /// More than [`MAX_DECISION_NODES`] decision nodes in all.
+    TooManyNodes,
+    /// A port has more than [`MAX_CONNECTIONS_PER_PORT`] connections.
+    PortTooWide {
+        /// The port.
+        port: u8,
+    },
+    /// The ports' connection counts do not add up to the number of connections.
+    ConnectionCountMismatch,
+    /// The ports' node counts do not add up to the number of decision nodes.
+    NodeCountMismatch,
+    /// A connection's stimulation parameters are invalid.
+    Parameter {
+        /// The port.
+        port: u8,
+        /// The connection within the port.
+        connection: u8,
+        /// What is wrong.
+        error: ParamError,
+    },
+    /// A connection's filter is invalid.
+    Filter {
+        /// The port.
+        port: u8,
+        /// The connection within the port.
+        connection: u8,
+        /// What is wrong.
+        error: FilterError,
+    },
+    /// A port's decision diagram is invalid.
+    Decision {
+        /// The port.
+        port: u8,
+        /// What is wrong.
+        error: DecisionError,
+    },
+}
+
+impl core::fmt::Display for TableError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            TableError::TooManyPorts => write!(f, "more than {MAX_PORTS} ports"),
+            TableError::TooManyConnections => write!(f, "more than {MAX_CONNECTIONS} connections"),
+            TableError::TooManyNodes => write!(f, "more than {MAX_DECISION_NODES} decision nodes"),
+            TableError::PortTooWide { port } => {
+                write!(f, "port {port} has more than {MAX_CONNECTIONS_PER_PORT} connections")
+            }
+            TableError::ConnectionCountMismatch => {
+                f.write_str("the ports' connection counts do not add up")
+            }
+            TableError::NodeCountMismatch => f.write_str("the ports' node counts do not add up"),
+            TableError::Parameter {
+                port,
+                connection,
+                error,
+            } => write!(f, "port {port}, connection {connection}: {error}"),
+            TableError::Filter {
+                port,
+                connection,
+                error,
+            } => write!(f, "port {port}, connection {connection}: {error}"),
+            TableError::Decision { port, error } => write!(f, "port {port}: {error}"),
+        }
+    }
+}
+
+impl Table {
+    /// A table without ports.
+    pub const fn new() -> Self {
+        Table {
+            ports: Vec::new(),
+            connections: Vec::new(),
+            nodes: Vec::new(),
+        }
+    }
+
+    /// Appends a port. Validates the connections and the decision before changing anything: on
+    /// error the table is unchanged.
+    pub fn push_port(
+        &mut self,
+        connections: &[Connection],
+        nodes: &[DecisionNode],
+        root: NodeRef,
+    ) -> Result<(), TableError> {
+        let index = u8::try_from(self.ports.len()).map_err(|_| TableError::TooManyPorts)?;
+        let port = Port {
+            connections: u8::try_from(connections.len())
+                .ok()
+                .filter(|&count| usize::from(count) <= MAX_CONNECTIONS_PER_PORT)
+                .ok_or(TableError::PortTooWide { port: index })?,
+            nodes: u16::try_from(nodes.len()).map_err(|_| TableError::TooManyNodes)?,
+            root,
+        };
+        validate_port(index, &port, connections, nodes)?;
+        if self.ports.len() >= MAX_PORTS {
+            return Err(TableError::TooManyPorts);
+        }
+        if self.connections.len().saturating_add(connections.len()) > MAX_CONNECTIONS {
+            return Err(TableError::TooManyConnections);
+        }
+        if self.nodes.len().saturating_add(nodes.len()) > MAX_DECISION_NODES {
+            return Err(TableError::TooManyNodes);
+        }
+        // Capacities were checked above, so none of these can fail.
+        self.ports
+            .push(port)
+            .map_err(|_| TableError::TooManyPorts)?;
+        self.connections
+            .extend_from_slice(connections)
+            .map_err(|_| TableError::TooManyConnections)?;
+        self.nodes
+            .extend_from_slice(nodes)
+            .map_err(|_| TableError::TooManyNodes)?;
+        Ok(())
+    }
+
+    /// Checks every count, parameter, filter and decision. The loader calls it on every table it
+    /// decodes; it costs one pass over the connections and one over the nodes.
+    pub fn validate(&self) -> Result<(), TableError> {
+        let mut connections_seen = 0usize;
+        let mut nodes_seen = 0usize;
+        for (index, port) in self.ports.iter().enumerate() {
+            let index = u8::try_from(index).map_err(|_| TableError::TooManyPorts)?;
+            if usize::from(port.connections) > MAX_CONNECTIONS_PER_PORT {
+                return Err(TableError::PortTooWide { port: index });
+            }
+            let connections = slice(&self.connections, &mut connections_seen, port.connections)
+                .ok_or(TableError::ConnectionCountMismatch)?;
+            let nodes = slice(&self.nodes, &mut nodes_seen, port.nodes)
+                .ok_or(TableError::NodeCountMismatch)?;
+            validate_port(index, port, connections, nodes)?;
+        }
+        if connections_seen != self.connections.len() {
+            return Err(TableError::ConnectionCountMismatch);
+        }
+        if nodes_seen != self.nodes.len() {
+            return Err(TableError::NodeCountMismatch);
+        }
+        Ok(())
+    }
+
+    /// The number of ports.
+    pub fn port_count(&self) -> usize {
+        self.ports.len()
+    }
+
+    /// The number of connections over all ports.
+    pub fn connection_count(&self) -> usize {
+        self.connections.len()
+    }
+
+    /// The number of decision nodes over all ports.
+    pub fn node_count(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// All connections, port after port.
+    pub fn connections(&self) -> &[Connection] {
+        &self.connections
+    }
+
+    /// All decision nodes, port after port.
+    pub fn nodes(&self) -> &[DecisionNode] {
+        &self.nodes
+    }
+
+    /// Port `index` with its slices, or `None`. Walks the ports before it (at most 16).
+    pub fn port(&self, index: usize) -> Option<PortView<'_>> {
+        self.ports().nth(index)
+    }
+
+    /// The ports in order.
+    pub fn ports(&self) -> impl Iterator<Item = PortView<'_>> {
+        self.ranges().filter_map(|(port, connections, nodes)| {
+            Some(PortView {
+                connections: self.connections.get(connections)?,
+                nodes: self.nodes.get(nodes)?,
+                root: port.root,
+            })
+        })
+    }
+
+    /// For each port, its record and the ranges of its connections and nodes.
+    pub(crate) fn ranges(&self) -> impl Iterator<Item = (Port, Range<usize>, Range<usize>)> + '_ {
+        let mut connections = 0usize;
+        let mut nodes = 0usize;
+        self.ports.iter().map(move |port| {
+            let connection_range = connections..connections.saturating_add(usize::from(port.connections));
+            let node_range = nodes..nodes.saturating_add(usize::from(port.nodes));
+            connections = connection_range.end;
+            nodes = node_range.end;
+            (*port, connection_range, node_range)
+        })
+    }
+}
+
+impl Port {
+    /// The entry of the port's decision.
+    pub const fn root(&self) -> NodeRef {
+        self.root
+    }
+}
+
+/// The next `count` items of `items` after `*seen`, advancing `*seen`.
+fn slice<'a, T>(items: &'a [T], seen: &mut usize, count: impl Into<usize>) -> Option<&'a [T]> {
+    let end = seen.checked_add(count.into())?;
+    let part = items.get(*seen..end)?;
+    *seen = end;
+    Some(part)
+}
+
+fn validate_port(
+    index: u8,
+    port: &Port,
+    connections: &[Connection],
+    nodes: &[DecisionNode],
+) -> Result<(), TableError> {
+    for (position, connection) in connections.iter().enumerate() {
+        let position = u8::try_from(position).map_err(|_| TableError::PortTooWide { port: index })?;
+        connection
+            .stimulation
+            .validate()
+            .map_err(|error| TableError::Parameter {
+                port: index,
+                connection: position,
+                error,
+            })?;
+        connection
+            .filter
+            .validate()
+            .map_err(|error| TableError::Filter {
+                port: index,
+                connection: position,
+                error,
+            })?;
+    }
+    decision::validate(nodes, port.root, port.connections)
+        .map_err(|error| TableError::Decision { port: index, error })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::level::Gain;
+
+    fn connection(id: u32) -> Connection {
+        Connection {
+            filter: Filter::exact(id, false).unwrap(),
+            stimulation: Stimulation::new(Gain::ONE, 1_000_000, 0).unwrap(),
+        }
+    }
+
+    #[test]
+    fn ports_own_consecutive_ranges() {
+        let mut table = Table::new();
+        let deliver0 = NodeRef::deliver(0).unwrap();
+        table.push_port(&[connection(1), connection(2)], &[], deliver0).unwrap();
+        table.push_port(&[connection(3)], &[], NodeRef::NOBODY).unwrap();
+        table.validate().unwrap();
+        let ports: std::vec::Vec<_> = table.ports().collect();
+        assert_eq!(ports.len(), 2);
+        assert_eq!(ports[0].connections, &[connection(1), connection(2)]);
+        assert_eq!(ports[1].connections, &[connection(3)]);
+        assert_eq!(table.port(1).map(|p| p.root), Some(NodeRef::NOBODY));
+        assert!(table.port(2).is_none());
+    }
+
+    #[test]
+    fn bad_ports_leave_the_table_unchanged() {
+        let mut table = Table::new();
+        let bad_root = NodeRef::deliver(3).unwrap();
+        assert_eq!(
+            table.push_port(&[connection(1)], &[], bad_root),
+            Err(TableError::Decision {
+                port: 0,
+                error: DecisionError::BadRoot
+            })
+        );
+        assert_eq!(table, Table::new());
+        let too_wide: std::vec::Vec<_> = (0..33).map(connection).collect();
+        assert_eq!(
+            table.push_port(&too_wide, &[], NodeRef::NOBODY),
+            Err(TableError::PortTooWide { port: 0 })
+        );
+        for _ in 0..MAX_PORTS {
+            table.push_port(&[], &[], NodeRef::NOBODY).unwrap();
+        }
+        assert_eq!(
+            table.push_port(&[], &[], NodeRef::NOBODY),
+            Err(TableError::TooManyPorts)
+        );
+    }
+
+    #[test]
+    fn full_capacity_is_expressible() {
+        // 16 ports of 32 connections each.
+        let mut table = Table::new();
+        for port in 0..MAX_PORTS as u32 {
+            let connections: std::vec::Vec<_> =
+                (0..32).map(|k| connection(port * 32 + k)).collect();
+            table.push_port(&connections, &[], NodeRef::NOBODY).unwrap();
+        }
+        table.validate().unwrap();
+        assert_eq!(table.connection_count(), 512);
+    }
+}
