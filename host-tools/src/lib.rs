@@ -1,6 +1,10 @@
 //! pabctl: the workstation side of port arbitration.
 //!
-//! Reads a network file, proves its rules consistent, compiles one table image per node and
-//! simulates the whole network with `pab-core`, the code the boards run.
+//! Reads a network file ([`network`]), proves its rules consistent ([`check`]), compiles one
+//! table image per node ([`compile`]) and simulates the whole network ([`sim`]) with `pab-core`,
+//! the code the boards run.
 
+pub mod diagnostic;
+pub mod network;
 pub mod plot;
+pub mod rule;
