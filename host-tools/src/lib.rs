@@ -4,6 +4,8 @@
 //! table image per node ([`compile`]) and simulates the whole network ([`sim`]) with `pab-core`,
 //! the code the boards run.
 
+pub mod check;
+pub mod compile;
 pub mod diagnostic;
 pub mod network;
 pub mod plot;

@@ -1,0 +1,454 @@
+//! The consistency proof of a network's rules, port by port, with binary decision diagrams.
+//!
+//! For a port with connections 0..n, connection i delivers in the activity masks of
+//! D_i = x_i ∧ Φ_i(x). The port is consistent when:
+//!
+//! - no two connections can deliver under the same mask: D_i ∧ D_j = ∅ for every i < j. A failure
+//!   comes with a counterexample mask, made minimal (no active connection can be dropped from it
+//!   without the overlap disappearing), so it reads as the smallest situation that goes wrong;
+//! - no connection whose rule is written otherwise than `false` is dead: D_i ≠ ∅.
+//!
+//! For information, it reports the masks in which nothing delivers (the port's consumer hears
+//! nobody), with minimal examples among those where some connection is active.
+//!
+//! Why BDDs: each D_i is built once in time linear in its rule; the pairwise conjunctions and the
+//! counts are then cheap even with 32 connections (2^32 masks) on a port.
+
+use std::fmt::Write as _;
+
+use biodivine_lib_bdd::{Bdd, BddValuation, BddVariable, BddVariableSet};
+
+use crate::diagnostic::Diagnostic;
+use crate::network::Network;
+use crate::rule::Rule;
+
+/// The logic of one port: a BDD variable per connection (in the port's order) and, per
+/// connection, the set D_i of masks in which it delivers.
+pub struct PortLogic {
+    /// One variable per connection, named after it.
+    pub variables: BddVariableSet,
+    /// D_i = x_i ∧ Φ_i, in the port's order.
+    pub delivers: Vec<Bdd>,
+}
+
+impl PortLogic {
+    /// Builds the logic of port `port` of `network`.
+    pub fn new(network: &Network, port: usize) -> PortLogic {
+        let names = network.port_connection_names(port);
+        let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+        let variables = BddVariableSet::new(&refs);
+        let delivers = network
+            .port_connections(port)
+            .map(|connection| {
+                let own = variables.mk_var(BddVariable::from_index(connection.index));
+                own.and(&to_bdd(&connection.rule, &variables))
+            })
+            .collect();
+        PortLogic {
+            variables,
+            delivers,
+        }
+    }
+
+    /// The number of connections.
+    pub fn len(&self) -> usize {
+        self.delivers.len()
+    }
+
+    /// Whether the port has no connections.
+    pub fn is_empty(&self) -> bool {
+        self.delivers.is_empty()
+    }
+
+    /// The masks in which some connection delivers.
+    pub fn anyone(&self) -> Bdd {
+        self.delivers
+            .iter()
+            .fold(self.variables.mk_false(), |all, d| all.or(d))
+    }
+
+    fn mask_of(&self, valuation: &BddValuation) -> u32 {
+        self.variables
+            .variables()
+            .into_iter()
+            .filter(|&variable| valuation.value(variable))
+            .fold(0, |mask, variable| mask | 1u32 << variable.to_index())
+    }
+
+    /// A satisfying mask of `set`, made minimal by clearing active connections one by one while
+    /// the mask stays in the set.
+    fn minimal_mask(&self, set: &Bdd) -> Option<u32> {
+        let mut valuation = set.sat_witness()?;
+        for variable in self.variables.variables() {
+            if valuation.value(variable) {
+                valuation.clear(variable);
+                if !set.eval_in(&valuation) {
+                    valuation.set(variable);
+                }
+            }
+        }
+        Some(self.mask_of(&valuation))
+    }
+
+    /// The set of masks that contain every connection of `mask`.
+    fn supersets(&self, mask: u32) -> Bdd {
+        self.variables
+            .variables()
+            .into_iter()
+            .filter(|variable| mask & (1 << variable.to_index()) != 0)
+            .fold(self.variables.mk_true(), |all, variable| {
+                all.and(&self.variables.mk_var(variable))
+            })
+    }
+}
+
+/// A rule as a BDD over the port's variables.
+pub fn to_bdd(rule: &Rule, variables: &BddVariableSet) -> Bdd {
+    match rule {
+        Rule::Constant(true) => variables.mk_true(),
+        Rule::Constant(false) => variables.mk_false(),
+        Rule::Active(index) => variables.mk_var(BddVariable::from_index(*index)),
+        Rule::Not(inner) => to_bdd(inner, variables).not(),
+        Rule::And(left, right) => to_bdd(left, variables).and(&to_bdd(right, variables)),
+        Rule::Or(left, right) => to_bdd(left, variables).or(&to_bdd(right, variables)),
+    }
+}
+
+/// Two connections that can deliver under the same mask.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Overlap {
+    /// The earlier connection, by index in the port.
+    pub first: usize,
+    /// The later connection, by index in the port.
+    pub second: usize,
+    /// A minimal mask under which both deliver (bit i: connection i of the port is active).
+    pub mask: u32,
+}
+
+/// What the proof found on one port.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PortReport {
+    /// The port, as an index into the network's ports.
+    pub port: usize,
+    /// Its number of connections.
+    pub connections: usize,
+    /// Every pair of connections that can both deliver.
+    pub overlaps: Vec<Overlap>,
+    /// Connections (by index in the port) that can never deliver although their rule is not
+    /// written `false`.
+    pub dead: Vec<usize>,
+    /// How many of the 2^n masks let nobody deliver (the empty mask included).
+    pub idle_masks: u64,
+    /// Minimal masks, with some connection active, in which nobody delivers (at most three).
+    pub idle_examples: Vec<u32>,
+}
+
+impl PortReport {
+    /// Whether the port passed.
+    pub fn is_consistent(&self) -> bool {
+        self.overlaps.is_empty() && self.dead.is_empty()
+    }
+
+    /// 2^n.
+    pub fn masks(&self) -> u64 {
+        1u64 << self.connections
+    }
+}
+
+/// What the proof found on the whole network.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Report {
+    /// One entry per port, in file order.
+    pub ports: Vec<PortReport>,
+}
+
+impl Report {
+    /// Whether every port passed.
+    pub fn is_consistent(&self) -> bool {
+        self.ports.iter().all(PortReport::is_consistent)
+    }
+
+    /// The failures, as diagnostics located at the rules involved, in file order.
+    pub fn errors(&self, network: &Network) -> Vec<Diagnostic> {
+        let mut errors = Vec::new();
+        for report in &self.ports {
+            let names = network.port_connection_names(report.port);
+            let connections: Vec<_> = network.port_connections(report.port).collect();
+            let port_name = network.ports.get(report.port).map_or("?", |p| p.name.as_str());
+            for overlap in &report.overlaps {
+                let (Some(first), Some(second)) =
+                    (connections.get(overlap.first), connections.get(overlap.second))
+                else {
+                    continue;
+                };
+                errors.push(network.error(
+                    second.rule_span.clone(),
+                    format!(
+                        "port `{port_name}`: {} (rule \"{}\") and {} (rule \"{}\") can both deliver when the active connections are {}",
+                        first.name,
+                        first.rule_text,
+                        second.name,
+                        second.rule_text,
+                        describe_mask(overlap.mask, &names),
+                    ),
+                ));
+            }
+            for &dead in &report.dead {
+                let Some(connection) = connections.get(dead) else {
+                    continue;
+                };
+                errors.push(network.error(
+                    connection.rule_span.clone(),
+                    format!(
+                        "port `{port_name}`: {name} can never deliver: \"{name} & ({rule})\" is false in all {} masks; write rule = \"false\" if {name} only coordinates (a virtual connection)",
+                        report.masks(),
+                        name = connection.name,
+                        rule = connection.rule_text,
+                    ),
+                ));
+            }
+        }
+        errors.sort_by_key(|error| error.position);
+        errors
+    }
+
+    /// The per-port summary `pabctl check` prints.
+    pub fn summary(&self, network: &Network) -> String {
+        let mut out = String::new();
+        for report in &self.ports {
+            let Some(port) = network.ports.get(report.port) else {
+                continue;
+            };
+            let node = network.nodes.get(port.node).map_or("?", |n| n.name.as_str());
+            let names = network.port_connection_names(report.port);
+            let _ = writeln!(
+                out,
+                "{} (node {node}): {} connection{}, {} activity masks",
+                port.name,
+                report.connections,
+                if report.connections == 1 { "" } else { "s" },
+                report.masks()
+            );
+            if report.is_consistent() {
+                let _ = writeln!(out, "  consistent: at most one connection delivers in every mask");
+            } else {
+                let _ = writeln!(
+                    out,
+                    "  INCONSISTENT: {} overlap{}, {} dead rule{}",
+                    report.overlaps.len(),
+                    if report.overlaps.len() == 1 { "" } else { "s" },
+                    report.dead.len(),
+                    if report.dead.len() == 1 { "" } else { "s" }
+                );
+            }
+            let virtuals: Vec<&str> = network
+                .port_connections(report.port)
+                .filter(|c| c.is_virtual())
+                .map(|c| c.name.as_str())
+                .collect();
+            if !virtuals.is_empty() {
+                let _ = writeln!(out, "  virtual (coordinate, never deliver): {}", virtuals.join(", "));
+            }
+            let _ = write!(
+                out,
+                "  nothing delivers in {} of {} masks",
+                report.idle_masks,
+                report.masks()
+            );
+            if report.idle_examples.is_empty() {
+                let _ = writeln!(out, " (only when no connection is active)");
+            } else {
+                let examples: Vec<String> = report
+                    .idle_examples
+                    .iter()
+                    .map(|&mask| describe_set(mask, &names))
+                    .collect();
+                let _ = writeln!(
+                    out,
+                    ", among them with some connection active, e.g. {}",
+                    examples.join(", ")
+                );
+            }
+        }
+        out
+    }
+}
+
+/// `{C1, C6}` for a mask.
+pub fn describe_set(mask: u32, names: &[String]) -> String {
+    let active: Vec<&str> = names
+        .iter()
+        .enumerate()
+        .filter(|(index, _)| mask & (1 << index) != 0)
+        .map(|(_, name)| name.as_str())
+        .collect();
+    format!("{{{}}}", active.join(", "))
+}
+
+/// `{C1, C6} (mask 0x00000021, bit i = i-th connection of the port)`.
+pub fn describe_mask(mask: u32, names: &[String]) -> String {
+    format!(
+        "{} and no other (mask {mask:#010x}, bit i = the port's i-th connection)",
+        describe_set(mask, names)
+    )
+}
+
+/// Proves every port of `network`.
+pub fn check(network: &Network) -> Report {
+    let ports = (0..network.ports.len())
+        .map(|port| check_port(network, port))
+        .collect();
+    Report { ports }
+}
+
+fn check_port(network: &Network, port: usize) -> PortReport {
+    let logic = PortLogic::new(network, port);
+    let connections: Vec<_> = network.port_connections(port).collect();
+    let mut overlaps = Vec::new();
+    for (first, d_first) in logic.delivers.iter().enumerate() {
+        for (second, d_second) in logic.delivers.iter().enumerate().skip(first + 1) {
+            let both = d_first.and(d_second);
+            if let Some(mask) = logic.minimal_mask(&both) {
+                overlaps.push(Overlap {
+                    first,
+                    second,
+                    mask,
+                });
+            }
+        }
+    }
+    let dead = logic
+        .delivers
+        .iter()
+        .enumerate()
+        .filter(|(index, d)| {
+            d.is_false() && connections.get(*index).is_some_and(|c| !c.is_virtual())
+        })
+        .map(|(index, _)| index)
+        .collect();
+    let idle = logic.anyone().not();
+    // Exact: at most 2^32 masks, well within an f64's 53-bit mantissa.
+    let idle_masks = idle.cardinality() as u64;
+    let mut idle_examples = Vec::new();
+    let some_active = logic
+        .variables
+        .variables()
+        .into_iter()
+        .fold(logic.variables.mk_false(), |any, v| any.or(&logic.variables.mk_var(v)));
+    let mut remaining = idle.and(&some_active);
+    while idle_examples.len() < 3 {
+        let Some(mask) = logic.minimal_mask(&remaining) else {
+            break;
+        };
+        idle_examples.push(mask);
+        remaining = remaining.and_not(&logic.supersets(mask));
+    }
+    PortReport {
+        port,
+        connections: logic.len(),
+        overlaps,
+        dead,
+        idle_masks,
+        idle_examples,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnostic::Source;
+
+    fn network(ports: &[(&str, &[(&str, Option<&str>)])]) -> Network {
+        let mut text = String::from("[nodes.n]\nid = 1\n");
+        let mut topic = 0;
+        for (port, connections) in ports {
+            text += &format!("[ports.\"n.{port}\"]\n");
+            for (name, rule) in connections.iter() {
+                topic += 1;
+                text += &format!("[topics.t{topic}]\ncan_id = {topic}\n");
+                text += &format!(
+                    "[connections.{name}]\ntopic = \"t{topic}\"\nport = \"n.{port}\"\nst = 1\ntc = 1\n"
+                );
+                if let Some(rule) = rule {
+                    text += &format!("rule = \"{rule}\"\n");
+                }
+            }
+        }
+        Network::parse(Source::new("net.toml", text)).unwrap()
+    }
+
+    #[test]
+    fn figure_one_is_consistent() {
+        let net = network(&[("p", &[("C1", Some("C1 & !C2")), ("C2", None)])]);
+        let report = check(&net);
+        assert!(report.is_consistent());
+        assert_eq!(report.ports[0].idle_masks, 1);
+        assert!(report.ports[0].idle_examples.is_empty());
+        assert!(report.summary(&net).contains("only when no connection is active"));
+    }
+
+    #[test]
+    fn overlaps_come_with_a_minimal_counterexample() {
+        // C1 and C3 both deliver whenever both are active, whatever C2 does.
+        let net = network(&[("p", &[("C1", Some("C1 & !C2")), ("C2", Some("false")), ("C3", None)])]);
+        let report = check(&net);
+        assert!(!report.is_consistent());
+        assert_eq!(
+            report.ports[0].overlaps,
+            vec![Overlap { first: 0, second: 2, mask: 0b101 }]
+        );
+        let errors = report.errors(&net);
+        assert_eq!(errors.len(), 1);
+        assert!(
+            errors[0].to_string().contains("C1 (rule \"C1 & !C2\") and C3 (rule \"C3\") can both deliver when the active connections are {C1, C3} and no other (mask 0x00000005"),
+            "{}",
+            errors[0]
+        );
+    }
+
+    #[test]
+    fn dead_rules_are_errors_unless_written_false() {
+        let net = network(&[("p", &[("C1", Some("C1 & !C1")), ("C2", Some("false")), ("C3", Some("!C3"))])]);
+        let report = check(&net);
+        assert_eq!(report.ports[0].dead, vec![0, 2]);
+        let errors = report.errors(&net);
+        assert!(errors[0].to_string().contains("C1 can never deliver"), "{}", errors[0]);
+        assert!(errors[1].to_string().contains("C3 can never deliver"), "{}", errors[1]);
+    }
+
+    #[test]
+    fn idle_masks_are_counted_and_exemplified() {
+        // C1 delivers only if C2 is active too; C2 never delivers: {C1} alone is idle.
+        let net = network(&[("p", &[("C1", Some("C1 & C2")), ("C2", Some("false"))])]);
+        let report = &check(&net).ports[0];
+        assert!(report.is_consistent());
+        // Idle: {}, {C1}, {C2}; C1 delivers only in {C1, C2}.
+        assert_eq!(report.idle_masks, 3);
+        assert_eq!(report.idle_examples, vec![0b01, 0b10]);
+    }
+
+    #[test]
+    fn thirty_two_connections_on_one_port() {
+        // A priority chain: Ck delivers if active and no earlier connection is.
+        let names: Vec<String> = (0..32).map(|k| format!("C{k}")).collect();
+        let rules: Vec<String> = (0..32)
+            .map(|k| {
+                let mut rule = names[k].clone();
+                for earlier in &names[..k] {
+                    rule += &format!(" & !{earlier}");
+                }
+                rule
+            })
+            .collect();
+        let connections: Vec<(&str, Option<&str>)> = names
+            .iter()
+            .zip(&rules)
+            .map(|(n, r)| (n.as_str(), Some(r.as_str())))
+            .collect();
+        let net = network(&[("p", &connections)]);
+        let report = &check(&net).ports[0];
+        assert!(report.is_consistent());
+        assert_eq!(report.masks(), 1 << 32);
+        assert_eq!(report.idle_masks, 1);
+    }
+}

@@ -1,0 +1,382 @@
+//! Compiling a checked network into one table image per node.
+//!
+//! A port's decision is the function mask → the connection i with mask ∈ D_i (or nobody). Since the
+//! D_i are disjoint (the proof of [`crate::check`]), it is built by walking all the D_i's BDDs at
+//! once, variable by variable: each distinct combination of positions becomes one node of a
+//! multi-terminal diagram; where every position is a terminal, the one D_i at "true" names the
+//! winner. Identical nodes are shared and nodes whose two children agree are skipped, so the
+//! result is the reduced, ordered diagram of the function, with children always after their
+//! parents in the array (the order [`pab_core::decision::validate`] demands).
+
+use std::collections::HashMap;
+
+use biodivine_lib_bdd::{Bdd, BddPointer, BddVariable};
+use pab_core::decision::{DecisionNode, NodeRef};
+use pab_core::image::{self, MAX_IMAGE_LEN};
+use pab_core::{Connection, MAX_DECISION_NODES, Table};
+
+use crate::check::{self, PortLogic};
+use crate::diagnostic::Diagnostic;
+use crate::network::Network;
+
+/// A port's compiled decision.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Decision {
+    /// Nodes, parents before children.
+    pub nodes: Vec<DecisionNode>,
+    /// The entry.
+    pub root: NodeRef,
+}
+
+/// Where a decision walk goes while the diagram is built (indices are not final yet).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+enum Step {
+    Node(usize),
+    Deliver(u8),
+    Nobody,
+}
+
+/// Why a port could not be compiled.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum DecisionError {
+    /// Two connections deliver under one mask (the network was not checked).
+    Inconsistent,
+    /// The diagram needs more nodes than a node can hold.
+    TooLarge,
+}
+
+struct Builder<'a> {
+    delivers: &'a [Bdd],
+    limit: usize,
+    nodes: Vec<(u8, Step, Step)>,
+    shared: HashMap<(u8, Step, Step), usize>,
+    memo: HashMap<Vec<BddPointer>, Step>,
+}
+
+impl Builder<'_> {
+    fn build(&mut self, positions: Vec<BddPointer>) -> Result<Step, DecisionError> {
+        if let Some(step) = self.memo.get(&positions) {
+            return Ok(*step);
+        }
+        let next = positions
+            .iter()
+            .zip(self.delivers)
+            .filter(|(pointer, _)| !pointer.is_terminal())
+            .map(|(pointer, bdd)| bdd.var_of(*pointer))
+            .min();
+        let step = match next {
+            None => {
+                let mut winners = positions.iter().enumerate().filter(|(_, p)| p.is_one());
+                match (winners.next(), winners.next()) {
+                    (None, _) => Step::Nobody,
+                    (Some((index, _)), None) => {
+                        Step::Deliver(u8::try_from(index).map_err(|_| DecisionError::TooLarge)?)
+                    }
+                    (Some(_), Some(_)) => return Err(DecisionError::Inconsistent),
+                }
+            }
+            Some(variable) => {
+                let follow = |high: bool| -> Vec<BddPointer> {
+                    positions
+                        .iter()
+                        .zip(self.delivers)
+                        .map(|(&pointer, bdd)| {
+                            if pointer.is_terminal() || bdd.var_of(pointer) != variable {
+                                pointer
+                            } else if high {
+                                bdd.high_link_of(pointer)
+                            } else {
+                                bdd.low_link_of(pointer)
+                            }
+                        })
+                        .collect()
+                };
+                let (low_positions, high_positions) = (follow(false), follow(true));
+                let low = self.build(low_positions)?;
+                let high = self.build(high_positions)?;
+                if low == high {
+                    low
+                } else {
+                    let var = u8::try_from(variable.to_index()).map_err(|_| DecisionError::TooLarge)?;
+                    self.node(var, low, high)?
+                }
+            }
+        };
+        self.memo.insert(positions, step);
+        Ok(step)
+    }
+
+    fn node(&mut self, var: u8, low: Step, high: Step) -> Result<Step, DecisionError> {
+        if let Some(&index) = self.shared.get(&(var, low, high)) {
+            return Ok(Step::Node(index));
+        }
+        if self.nodes.len() >= self.limit {
+            return Err(DecisionError::TooLarge);
+        }
+        let index = self.nodes.len();
+        self.nodes.push((var, low, high));
+        self.shared.insert((var, low, high), index);
+        Ok(Step::Node(index))
+    }
+}
+
+/// Compiles a port's logic into a decision of at most `limit` nodes.
+pub fn decision(logic: &PortLogic, limit: usize) -> Result<Decision, DecisionError> {
+    let mut builder = Builder {
+        delivers: &logic.delivers,
+        limit,
+        nodes: Vec::new(),
+        shared: HashMap::new(),
+        memo: HashMap::new(),
+    };
+    let roots = logic.delivers.iter().map(Bdd::root_pointer).collect();
+    let root = builder.build(roots)?;
+    // Children were created before their parents: reversing puts parents first.
+    let count = builder.nodes.len();
+    let reference = |step: Step| -> Result<NodeRef, DecisionError> {
+        match step {
+            Step::Nobody => Ok(NodeRef::NOBODY),
+            Step::Deliver(index) => NodeRef::deliver(index).ok_or(DecisionError::TooLarge),
+            Step::Node(index) => u16::try_from(count - 1 - index)
+                .ok()
+                .and_then(NodeRef::node)
+                .ok_or(DecisionError::TooLarge),
+        }
+    };
+    let nodes = builder
+        .nodes
+        .iter()
+        .rev()
+        .map(|&(var, low, high)| {
+            Ok(DecisionNode {
+                var,
+                low: reference(low)?,
+                high: reference(high)?,
+            })
+        })
+        .collect::<Result<Vec<_>, DecisionError>>()?;
+    Ok(Decision {
+        nodes,
+        root: reference(root)?,
+    })
+}
+
+/// One node's compiled table.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct CompiledNode {
+    /// The node's name in the network file.
+    pub name: String,
+    /// Its node id.
+    pub id: u8,
+    /// The table image, ready to write or push.
+    pub image: Vec<u8>,
+    /// Its ports.
+    pub ports: usize,
+    /// Its connections over all ports.
+    pub connections: usize,
+    /// Decision nodes over all ports.
+    pub decision_nodes: usize,
+    /// Nodes that one BDD per rule (the alternative representation) would need over all ports,
+    /// for comparison.
+    pub per_rule_nodes: usize,
+}
+
+/// Compiles every node of `network`. Refuses an inconsistent network with the proof's errors.
+pub fn compile(network: &Network) -> Result<Vec<CompiledNode>, Vec<Diagnostic>> {
+    let report = check::check(network);
+    if !report.is_consistent() {
+        return Err(report.errors(network));
+    }
+    network
+        .nodes
+        .iter()
+        .map(|node| compile_node(network, node))
+        .collect::<Result<Vec<_>, Diagnostic>>()
+        .map_err(|error| vec![error])
+}
+
+fn compile_node(network: &Network, node: &crate::network::Node) -> Result<CompiledNode, Diagnostic> {
+    let mut table = Table::new();
+    let mut decision_nodes = 0usize;
+    let mut per_rule_nodes = 0usize;
+    for &port_index in &node.ports {
+        let Some(port) = network.ports.get(port_index) else {
+            continue;
+        };
+        let logic = PortLogic::new(network, port_index);
+        let room = MAX_DECISION_NODES.saturating_sub(decision_nodes);
+        let compiled = decision(&logic, room).map_err(|error| {
+            network.error(
+                port.span.clone(),
+                match error {
+                    DecisionError::TooLarge => format!(
+                        "port `{}`: its decision needs more than the {room} nodes left on node `{}` (at most {MAX_DECISION_NODES} per node)",
+                        port.name, node.name
+                    ),
+                    DecisionError::Inconsistent => {
+                        format!("port `{}`: two connections deliver under one mask", port.name)
+                    }
+                },
+            )
+        })?;
+        decision_nodes += compiled.nodes.len();
+        per_rule_nodes += logic
+            .delivers
+            .iter()
+            .map(|d| d.size().saturating_sub(2))
+            .sum::<usize>();
+        let connections: Vec<Connection> = network
+            .port_connections(port_index)
+            .filter_map(|c| {
+                Some(Connection {
+                    filter: network.topics.get(c.topic)?.filter,
+                    stimulation: c.stimulation,
+                })
+            })
+            .collect();
+        table
+            .push_port(&connections, &compiled.nodes, compiled.root)
+            .map_err(|error| network.error(port.span.clone(), format!("port `{}`: {error}", port.name)))?;
+    }
+    let mut buffer = vec![0u8; MAX_IMAGE_LEN];
+    let length = image::encode(&table, node.id, network.version, &mut buffer)
+        .map_err(|error| network.error(node.span.clone(), format!("node `{}`: {error}", node.name)))?;
+    buffer.truncate(length);
+    Ok(CompiledNode {
+        name: node.name.clone(),
+        id: node.id,
+        image: buffer,
+        ports: table.port_count(),
+        connections: table.connection_count(),
+        decision_nodes,
+        per_rule_nodes,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnostic::Source;
+    use crate::rule::Rule;
+    use biodivine_lib_bdd::BddVariableSet;
+    use pab_core::ConnectionSet;
+    use proptest::prelude::*;
+
+    /// A random rule over `n` variables, depth-bounded.
+    fn arb_rule(n: usize) -> impl Strategy<Value = Rule> {
+        let leaf = prop_oneof![
+            1 => any::<bool>().prop_map(Rule::Constant),
+            6 => (0..n).prop_map(Rule::Active),
+        ];
+        leaf.prop_recursive(4, 24, 2, |inner| {
+            prop_oneof![
+                inner.clone().prop_map(|r| Rule::Not(Box::new(r))),
+                (inner.clone(), inner.clone()).prop_map(|(a, b)| Rule::And(Box::new(a), Box::new(b))),
+                (inner.clone(), inner).prop_map(|(a, b)| Rule::Or(Box::new(a), Box::new(b))),
+            ]
+        })
+    }
+
+    /// Random rules made consistent the way a designer would: connection k's rule is guarded by
+    /// "no earlier connection delivers", so random rule sets are consistent by construction.
+    fn consistent_logic(rules: &[Rule]) -> PortLogic {
+        let names: Vec<String> = (0..rules.len()).map(|k| format!("C{k}")).collect();
+        let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+        let variables = BddVariableSet::new(&refs);
+        let mut delivers: Vec<Bdd> = Vec::new();
+        for (k, rule) in rules.iter().enumerate() {
+            let own = variables.mk_var(BddVariable::from_index(k));
+            let earlier = delivers.iter().fold(variables.mk_false(), |all, d| all.or(d));
+            delivers.push(own.and(&check::to_bdd(rule, &variables)).and_not(&earlier));
+        }
+        PortLogic { variables, delivers }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(300))]
+
+        /// The compiled decision agrees with the direct evaluation of the rules on every mask.
+        #[test]
+        fn decision_matches_direct_evaluation(
+            rules in (1usize..=8).prop_flat_map(|n| proptest::collection::vec(arb_rule(n), n))
+        ) {
+            let n = rules.len();
+            let logic = consistent_logic(&rules);
+            let compiled = decision(&logic, MAX_DECISION_NODES).unwrap();
+            pab_core::decision::validate(&compiled.nodes, compiled.root, n as u8).unwrap();
+            for mask in 0u32..(1 << n) {
+                // Direct evaluation: connection k delivers iff x_k, its rule, and no earlier one.
+                let mut expected = None;
+                for (k, rule) in rules.iter().enumerate() {
+                    if mask & (1 << k) != 0 && rule.eval(u64::from(mask)) {
+                        expected = Some(k as u8);
+                        break;
+                    }
+                }
+                let got = pab_core::decision::evaluate(&compiled.nodes, compiled.root, ConnectionSet::from_bits(mask));
+                prop_assert_eq!(got, expected, "mask {:#b}", mask);
+            }
+        }
+
+        /// Wider ports, checked on random masks. Rules are guarded by strict priority (the first
+        /// active connection decides, by its own random rule), the shape of real inhibition
+        /// chains; general random rules over 32 connections have exponentially large diagrams.
+        #[test]
+        fn wide_decisions_match_direct_evaluation(
+            rules in (9usize..=32).prop_flat_map(|n| proptest::collection::vec(arb_rule(n), n)),
+            masks in proptest::collection::vec(any::<u32>(), 256)
+        ) {
+            let n = rules.len();
+            let names: Vec<String> = (0..n).map(|k| format!("C{k}")).collect();
+            let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+            let variables = BddVariableSet::new(&refs);
+            let delivers: Vec<Bdd> = rules
+                .iter()
+                .enumerate()
+                .map(|(k, rule)| {
+                    (0..k).fold(
+                        variables.mk_var(BddVariable::from_index(k)).and(&check::to_bdd(rule, &variables)),
+                        |d, j| d.and_not(&variables.mk_var(BddVariable::from_index(j))),
+                    )
+                })
+                .collect();
+            let logic = PortLogic { variables, delivers };
+            let compiled = decision(&logic, MAX_DECISION_NODES).unwrap();
+            pab_core::decision::validate(&compiled.nodes, compiled.root, n as u8).unwrap();
+            let width = if n == 32 { u32::MAX } else { (1 << n) - 1 };
+            for mask in masks.into_iter().map(|m| m & width).chain([0, width]) {
+                let expected = (mask != 0)
+                    .then(|| mask.trailing_zeros() as usize)
+                    .filter(|&first| rules[first].eval(u64::from(mask)))
+                    .map(|first| first as u8);
+                let got = pab_core::decision::evaluate(&compiled.nodes, compiled.root, ConnectionSet::from_bits(mask));
+                prop_assert_eq!(got, expected, "mask {:#x}", mask);
+            }
+        }
+    }
+
+    #[test]
+    fn figure_one_compiles_to_a_small_table() {
+        let text = "[nodes.gaze]\nid = 3\n[topics.face]\ncan_id = 0x110\n[topics.object]\ncan_id = 0x111\n[ports.\"gaze.target\"]\n[connections.C1]\ntopic = \"face\"\nport = \"gaze.target\"\nst = 0.2\ntc = 3.0\nrule = \"C1 & !C2\"\n[connections.C2]\ntopic = \"object\"\nport = \"gaze.target\"\nst = 0.2\ntc = 3.0\n";
+        let network = Network::parse(Source::new("f.toml", text)).unwrap();
+        let nodes = compile(&network).unwrap();
+        assert_eq!(nodes.len(), 1);
+        let loaded = image::load(&nodes[0].image).unwrap();
+        assert_eq!(loaded.header.node_id, 3);
+        assert_eq!(loaded.header.table_version, 1);
+        let port = loaded.table.port(0).unwrap();
+        // x0 ? (x1 ? C2 : C1) : (x1 ? C2 : nobody): three nodes.
+        assert_eq!(port.nodes.len(), 3);
+        let decide = |mask| pab_core::decision::evaluate(port.nodes, port.root, ConnectionSet::from_bits(mask));
+        assert_eq!((decide(0), decide(1), decide(2), decide(3)), (None, Some(0), Some(1), Some(1)));
+    }
+
+    #[test]
+    fn inconsistent_networks_are_refused() {
+        let text = "[nodes.n]\nid = 1\n[topics.a]\ncan_id = 1\n[topics.b]\ncan_id = 2\n[ports.\"n.p\"]\n[connections.A]\ntopic = \"a\"\nport = \"n.p\"\nst = 1\ntc = 1\n[connections.B]\ntopic = \"b\"\nport = \"n.p\"\nst = 1\ntc = 1\n";
+        let network = Network::parse(Source::new("f.toml", text)).unwrap();
+        let errors = compile(&network).unwrap_err();
+        assert_eq!(errors.len(), 1);
+        assert!(errors[0].to_string().contains("can both deliver when the active connections are {A, B}"));
+    }
+}
