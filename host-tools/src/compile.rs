@@ -10,7 +10,7 @@
 
 use std::collections::HashMap;
 
-use biodivine_lib_bdd::{Bdd, BddPointer, BddVariable};
+use biodivine_lib_bdd::{Bdd, BddPointer};
 use pab_core::decision::{DecisionNode, NodeRef};
 use pab_core::image::{self, MAX_IMAGE_LEN};
 use pab_core::{Connection, MAX_DECISION_NODES, Table};
@@ -258,7 +258,7 @@ mod tests {
     use super::*;
     use crate::diagnostic::Source;
     use crate::rule::Rule;
-    use biodivine_lib_bdd::BddVariableSet;
+    use biodivine_lib_bdd::{BddVariable, BddVariableSet};
     use pab_core::ConnectionSet;
     use proptest::prelude::*;
 

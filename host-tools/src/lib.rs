@@ -10,3 +10,4 @@ pub mod diagnostic;
 pub mod network;
 pub mod plot;
 pub mod rule;
+pub mod sim;

@@ -1,0 +1,493 @@
+//! The simulator: every node of a network on one simulated bus, in virtual time.
+//!
+//! Each node loads its compiled table image with `pab_core::image::load` and arbitrates with
+//! `pab_core::Arbiter`: the same bytes and the same code as a board, so a simulation shows what
+//! the robot will do. Nothing here decides who delivers.
+//!
+//! The bus is ideal (no transmission time, no loss) and deterministic: frames due at the same
+//! microsecond go out in CAN arbitration order (lower identifier first; a standard frame before
+//! an extended one with the same 11 base bits), then in the order of the `[[events]]`.
+//!
+//! Besides frames, the simulator evaluates each port when an activity may lapse (a microsecond
+//! after τ has passed since a connection's last accepted frame), so timelines show the moment a
+//! port changes hands even when no frame arrives then. These evaluations only read the arbiter.
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+use std::fmt::Write as _;
+use std::io::{self, Write};
+
+use embedded_can::{ExtendedId, Id, StandardId};
+use pab_core::image;
+use pab_core::{Arbiter, Instant};
+
+use crate::compile::CompiledNode;
+use crate::network::{MAX_TIME_S, Network};
+use crate::plot::{ConnectionSeries, Phase, PlotData, PortSeries, Sample};
+
+/// How to run a simulation.
+#[derive(Clone, Debug, Default)]
+pub struct Options {
+    /// Stop at this time, seconds. Default: when the last frame's effects have decayed (the last
+    /// frame plus the longest τ, or the end of the last phase, whichever is later).
+    pub until: Option<f64>,
+    /// Record stimulation samples for a plot.
+    pub samples: bool,
+}
+
+/// One row of the trace: a frame's effect on one connection it fed, after the update.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TraceRow {
+    /// When, µs.
+    pub t_us: u64,
+    /// The connection, as an index into the network's connections.
+    pub connection: usize,
+    /// Its stimulation after the frame.
+    pub level: f64,
+    /// Whether it is active after the frame.
+    pub active: bool,
+    /// Whether the frame was delivered through it.
+    pub delivered: bool,
+}
+
+/// A change of the connection selected at a port.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Change {
+    /// When, µs.
+    pub t_us: u64,
+    /// The connection whose frames get through from then on (network index), or nobody.
+    pub selected: Option<usize>,
+}
+
+/// What a simulation produced.
+#[derive(Clone, Debug)]
+pub struct Outcome {
+    /// The end of the simulated time, µs.
+    pub until_us: u64,
+    /// Frames put on the bus.
+    pub frames: usize,
+    /// Trace rows in time order, ties in the order of the connections in the file.
+    pub rows: Vec<TraceRow>,
+    /// Per port (network order), the changes of its selected connection, starting with nobody at 0.
+    pub timelines: Vec<Vec<Change>>,
+    /// Per connection (network order), stimulation samples for plots (empty unless requested).
+    pub samples: Vec<Vec<Sample>>,
+}
+
+/// Why a simulation could not run.
+#[derive(Debug)]
+pub struct SimError(pub String);
+
+impl std::fmt::Display for SimError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for SimError {}
+
+/// Seconds to µs, rounded to the nearest microsecond.
+pub fn micros(seconds: f64) -> u64 {
+    (seconds * 1e6).round().max(0.0) as u64
+}
+
+/// `t` µs as seconds with six decimals, exactly.
+pub fn seconds_text(t_us: u64) -> String {
+    format!("{}.{:06}", t_us / 1_000_000, t_us % 1_000_000)
+}
+
+struct Frame {
+    t_us: u64,
+    id: Id,
+    order: (u32, bool, u32, usize),
+}
+
+struct Station {
+    /// Node index in the network.
+    node: usize,
+    arbiter: Arbiter,
+}
+
+/// Runs `network` with the tables `compiled` (one per node, from [`crate::compile::compile`]).
+pub fn simulate(network: &Network, compiled: &[CompiledNode], options: &Options) -> Result<Outcome, SimError> {
+    let mut stations = Vec::new();
+    for (node_index, node) in network.nodes.iter().enumerate() {
+        let Some(table) = compiled.iter().find(|c| c.id == node.id) else {
+            return Err(SimError(format!("no compiled table for node `{}`", node.name)));
+        };
+        let loaded = image::load(&table.image)
+            .map_err(|error| SimError(format!("node `{}`: its image does not load: {error}", node.name)))?;
+        let arbiter = Arbiter::new(loaded.table)
+            .map_err(|error| SimError(format!("node `{}`: {error}", node.name)))?;
+        stations.push(Station {
+            node: node_index,
+            arbiter,
+        });
+    }
+    let frames = frames(network)?;
+    let until_us = match options.until {
+        Some(until) if until.is_finite() && until >= 0.0 && until <= MAX_TIME_S => micros(until),
+        Some(until) => {
+            return Err(SimError(format!("--until {until} is not a time in [0, {MAX_TIME_S}] seconds")));
+        }
+        None => default_until(network, &frames),
+    };
+    let mut run = Run {
+        network,
+        stations,
+        options,
+        rows: Vec::new(),
+        timelines: network
+            .ports
+            .iter()
+            .map(|_| vec![Change { t_us: 0, selected: None }])
+            .collect(),
+        samples: vec![Vec::new(); network.connections.len()],
+        wakes: BinaryHeap::new(),
+    };
+    let grid = (until_us / 1500).max(1);
+    let mut next_grid = 0u64;
+    let mut sent = 0usize;
+    let mut pending = frames.iter().peekable();
+    loop {
+        let next_frame = pending.peek().map(|frame| frame.t_us).filter(|&t| t <= until_us);
+        let next_wake = run.wakes.peek().map(|Reverse((t, _))| *t).filter(|&t| t <= until_us);
+        let next_sample = (options.samples && next_grid <= until_us).then_some(next_grid);
+        let Some(now) = [next_frame, next_wake, next_sample].into_iter().flatten().min() else {
+            break;
+        };
+        if next_sample == Some(now) {
+            run.sample_all(now);
+            next_grid = next_grid.saturating_add(grid);
+        }
+        while let Some(frame) = pending.next_if(|frame| frame.t_us == now) {
+            run.frame(frame);
+            sent += 1;
+        }
+        while run.wakes.peek().is_some_and(|Reverse((t, _))| *t == now) {
+            if let Some(Reverse((_, port))) = run.wakes.pop() {
+                run.wake(port, now);
+            }
+        }
+    }
+    if options.samples {
+        run.sample_all(until_us);
+    }
+    let mut rows = run.rows;
+    rows.sort_by_key(|row| (row.t_us, row.connection));
+    Ok(Outcome {
+        until_us,
+        frames: sent,
+        rows,
+        timelines: run.timelines,
+        samples: run.samples,
+    })
+}
+
+/// The frames of the network's events, in bus order.
+fn frames(network: &Network) -> Result<Vec<Frame>, SimError> {
+    let mut frames = Vec::new();
+    for (sequence, event) in network.events.iter().enumerate() {
+        let Some(topic) = network.topics.get(event.topic) else {
+            continue;
+        };
+        let filter = topic.filter;
+        let id = if filter.is_extended() {
+            ExtendedId::new(filter.id()).map(Id::Extended)
+        } else {
+            u16::try_from(filter.id()).ok().and_then(StandardId::new).map(Id::Standard)
+        }
+        .ok_or_else(|| SimError(format!("topic `{}` has an invalid CAN id", topic.name)))?;
+        // CAN arbitration compares the 11 base bits first; on a tie a standard frame wins.
+        let base = if filter.is_extended() { filter.id() >> 18 } else { filter.id() };
+        for t in event.schedule.times() {
+            frames.push(Frame {
+                t_us: micros(t),
+                id,
+                order: (base, filter.is_extended(), filter.id(), sequence),
+            });
+        }
+    }
+    frames.sort_by_key(|frame| (frame.t_us, frame.order));
+    Ok(frames)
+}
+
+fn default_until(network: &Network, frames: &[Frame]) -> u64 {
+    let longest_decay = network
+        .connections
+        .iter()
+        .map(|c| u64::from(c.stimulation.decay_us()))
+        .max()
+        .unwrap_or(0);
+    let after_frames = frames
+        .last()
+        .map_or(0, |frame| frame.t_us.saturating_add(longest_decay).saturating_add(1));
+    let after_phases = network.phases.iter().map(|p| micros(p.to)).max().unwrap_or(0);
+    // Round up to a tenth of a second.
+    after_frames.max(after_phases).div_ceil(100_000) * 100_000
+}
+
+struct Run<'a> {
+    network: &'a Network,
+    stations: Vec<Station>,
+    options: &'a Options,
+    rows: Vec<TraceRow>,
+    timelines: Vec<Vec<Change>>,
+    samples: Vec<Vec<Sample>>,
+    wakes: BinaryHeap<Reverse<(u64, usize)>>,
+}
+
+impl Run<'_> {
+    /// The network index of port `local` of station `station`.
+    fn port_of(&self, station: usize, local: u8) -> Option<usize> {
+        let node = self.stations.get(station)?.node;
+        self.network.nodes.get(node)?.ports.get(usize::from(local)).copied()
+    }
+
+    fn connection_of(&self, port: usize, local: u8) -> Option<usize> {
+        self.network.ports.get(port)?.connections.get(usize::from(local)).copied()
+    }
+
+    fn frame(&mut self, frame: &Frame) {
+        let now = Instant::from_micros(frame.t_us);
+        for station in 0..self.stations.len() {
+            if self.options.samples {
+                self.sample_ports_fed_by(station, &frame.id, frame.t_us);
+            }
+            let mut verdicts = Vec::new();
+            if let Some(entry) = self.stations.get_mut(station) {
+                entry.arbiter.receive(&frame.id, now, |verdict| verdicts.push(*verdict));
+            }
+            for verdict in verdicts {
+                let Some(port) = self.port_of(station, verdict.port) else {
+                    continue;
+                };
+                for local in verdict.fed.iter() {
+                    let Some(connection) = self.connection_of(port, local) else {
+                        continue;
+                    };
+                    let level = self
+                        .stations
+                        .get(station)
+                        .and_then(|s| s.arbiter.level(verdict.port, local, now))
+                        .map_or(0.0, |level| level.to_f64());
+                    self.rows.push(TraceRow {
+                        t_us: frame.t_us,
+                        connection,
+                        level,
+                        active: verdict.active.contains(local),
+                        delivered: verdict.delivered == Some(local),
+                    });
+                    if !verdict.resting.contains(local) {
+                        let decay = self
+                            .network
+                            .connections
+                            .get(connection)
+                            .map_or(0, |c| u64::from(c.stimulation.decay_us()));
+                        self.wakes.push(Reverse((frame.t_us + decay + 1, port)));
+                    }
+                }
+                let selected = verdict.selected.and_then(|local| self.connection_of(port, local));
+                self.note(port, frame.t_us, selected);
+            }
+            if self.options.samples {
+                self.sample_ports_fed_by(station, &frame.id, frame.t_us);
+            }
+        }
+    }
+
+    fn wake(&mut self, port: usize, t_us: u64) {
+        let Some((station, local)) = self.locate(port) else {
+            return;
+        };
+        let selected = self
+            .stations
+            .get(station)
+            .and_then(|s| s.arbiter.selected(local, Instant::from_micros(t_us)))
+            .and_then(|local| self.connection_of(port, local));
+        self.note(port, t_us, selected);
+        if self.options.samples {
+            self.sample_port(station, local, port, t_us);
+        }
+    }
+
+    /// The station and local port index of network port `port`.
+    fn locate(&self, port: usize) -> Option<(usize, u8)> {
+        let node = self.network.ports.get(port)?.node;
+        let station = self.stations.iter().position(|s| s.node == node)?;
+        let local = self.network.nodes.get(node)?.ports.iter().position(|&p| p == port)?;
+        Some((station, u8::try_from(local).ok()?))
+    }
+
+    fn note(&mut self, port: usize, t_us: u64, selected: Option<usize>) {
+        if let Some(timeline) = self.timelines.get_mut(port)
+            && timeline.last().map(|change| change.selected) != Some(selected)
+        {
+            timeline.push(Change { t_us, selected });
+        }
+    }
+
+    fn sample_all(&mut self, t_us: u64) {
+        for port in 0..self.network.ports.len() {
+            if let Some((station, local)) = self.locate(port) {
+                self.sample_port(station, local, port, t_us);
+            }
+        }
+    }
+
+    fn sample_ports_fed_by(&mut self, station: usize, id: &Id, t_us: u64) {
+        let Some(node) = self.stations.get(station).map(|s| s.node) else {
+            return;
+        };
+        let ports: Vec<usize> = self.network.nodes.get(node).map(|n| n.ports.clone()).unwrap_or_default();
+        for (local, port) in ports.into_iter().enumerate() {
+            let fed = self
+                .network
+                .port_connections(port)
+                .any(|c| self.network.topics.get(c.topic).is_some_and(|t| t.filter.matches(id)));
+            if fed && let Ok(local) = u8::try_from(local) {
+                self.sample_port(station, local, port, t_us);
+            }
+        }
+    }
+
+    fn sample_port(&mut self, station: usize, local_port: u8, port: usize, t_us: u64) {
+        let Some(entry) = self.stations.get(station) else {
+            return;
+        };
+        let now = Instant::from_micros(t_us);
+        let selected = entry.arbiter.selected(local_port, now);
+        let connections = self.network.ports.get(port).map(|p| p.connections.clone()).unwrap_or_default();
+        for (local, connection) in connections.into_iter().enumerate() {
+            let Ok(local) = u8::try_from(local) else {
+                continue;
+            };
+            let level = entry
+                .arbiter
+                .level(local_port, local, now)
+                .map_or(0.0, |level| level.to_f64());
+            if let Some(samples) = self.samples.get_mut(connection) {
+                samples.push(Sample {
+                    t: t_us as f64 / 1e6,
+                    level,
+                    selected: selected == Some(local),
+                });
+            }
+        }
+    }
+}
+
+impl Outcome {
+    /// The connection selected at port `port` at time `t_us` (network indices), from the
+    /// timeline.
+    pub fn selected_at(&self, port: usize, t_us: u64) -> Option<usize> {
+        self.timelines
+            .get(port)?
+            .iter()
+            .take_while(|change| change.t_us <= t_us)
+            .last()?
+            .selected
+    }
+
+    /// The rows of connection `connection` in [from, to) µs.
+    pub fn rows_of(&self, connection: usize, from_us: u64, to_us: u64) -> impl Iterator<Item = &TraceRow> {
+        self.rows
+            .iter()
+            .filter(move |row| row.connection == connection && (from_us..to_us).contains(&row.t_us))
+    }
+
+    /// Writes the trace as CSV: `t,port,connection,stimulation,active,delivered`.
+    pub fn write_csv(&self, network: &Network, out: &mut dyn Write) -> io::Result<()> {
+        writeln!(out, "t,port,connection,stimulation,active,delivered")?;
+        for row in &self.rows {
+            let Some(connection) = network.connections.get(row.connection) else {
+                continue;
+            };
+            let port = network.ports.get(connection.port).map_or("?", |p| p.name.as_str());
+            writeln!(
+                out,
+                "{},{port},{},{:.4},{},{}",
+                seconds_text(row.t_us),
+                connection.name,
+                row.level,
+                u8::from(row.active),
+                u8::from(row.delivered)
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Per port, the timeline of its selected connection and a count of frames per connection.
+    pub fn report(&self, network: &Network) -> String {
+        let mut out = String::new();
+        for (port_index, port) in network.ports.iter().enumerate() {
+            let node = network.nodes.get(port.node).map_or("?", |n| n.name.as_str());
+            let _ = writeln!(out, "{} (node {node})", port.name);
+            for change in self.timelines.get(port_index).into_iter().flatten() {
+                let who = change
+                    .selected
+                    .and_then(|c| network.connections.get(c))
+                    .map_or("nobody".to_string(), |c| {
+                        let topic = network.topics.get(c.topic).map_or("?", |t| t.name.as_str());
+                        format!("{} ({topic})", c.name)
+                    });
+                let _ = writeln!(out, "  {:>14}  {who}", seconds_text(change.t_us));
+            }
+            for connection in network.port_connections(port_index) {
+                let Some(index) = network.connections.iter().position(|c| std::ptr::eq(c, connection)) else {
+                    continue;
+                };
+                let rows: Vec<&TraceRow> = self.rows_of(index, 0, u64::MAX).collect();
+                let delivered = rows.iter().filter(|row| row.delivered).count();
+                let _ = writeln!(
+                    out,
+                    "    {:<8} {:>6} frames, {:>6} delivered, {:>6} discarded{}",
+                    connection.name,
+                    rows.len(),
+                    delivered,
+                    rows.len() - delivered,
+                    if connection.is_virtual() { "  (virtual)" } else { "" }
+                );
+            }
+        }
+        out
+    }
+
+    /// The data of a stimulation plot.
+    pub fn plot_data(&self, network: &Network, title: &str) -> PlotData {
+        let ports = network
+            .ports
+            .iter()
+            .enumerate()
+            .map(|(port_index, port)| PortSeries {
+                name: port.name.clone(),
+                connections: network
+                    .port_connections(port_index)
+                    .map(|c| {
+                        let index = port.connections.get(c.index).copied().unwrap_or(0);
+                        let topic = network.topics.get(c.topic).map_or("?", |t| t.name.as_str());
+                        ConnectionSeries {
+                            name: c.name.clone(),
+                            label: format!("{}  {topic}  σ {} τ {} s  {}", c.name, c.sigma, c.tau, if c.is_virtual() { "virtual".to_string() } else { c.rule_text.clone() }),
+                            samples: self.samples.get(index).cloned().unwrap_or_default(),
+                        }
+                    })
+                    .collect(),
+            })
+            .collect();
+        PlotData {
+            title: title.to_string(),
+            until: self.until_us as f64 / 1e6,
+            ports,
+            phases: network
+                .phases
+                .iter()
+                .map(|p| Phase {
+                    name: p.name.clone(),
+                    from: p.from,
+                    to: p.to,
+                })
+                .collect(),
+        }
+    }
+}
