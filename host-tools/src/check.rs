@@ -174,11 +174,15 @@ impl Report {
         for report in &self.ports {
             let names = network.port_connection_names(report.port);
             let connections: Vec<_> = network.port_connections(report.port).collect();
-            let port_name = network.ports.get(report.port).map_or("?", |p| p.name.as_str());
+            let port_name = network
+                .ports
+                .get(report.port)
+                .map_or("?", |p| p.name.as_str());
             for overlap in &report.overlaps {
-                let (Some(first), Some(second)) =
-                    (connections.get(overlap.first), connections.get(overlap.second))
-                else {
+                let (Some(first), Some(second)) = (
+                    connections.get(overlap.first),
+                    connections.get(overlap.second),
+                ) else {
                     continue;
                 };
                 errors.push(network.error(
@@ -219,7 +223,10 @@ impl Report {
             let Some(port) = network.ports.get(report.port) else {
                 continue;
             };
-            let node = network.nodes.get(port.node).map_or("?", |n| n.name.as_str());
+            let node = network
+                .nodes
+                .get(port.node)
+                .map_or("?", |n| n.name.as_str());
             let names = network.port_connection_names(report.port);
             let _ = writeln!(
                 out,
@@ -230,7 +237,10 @@ impl Report {
                 report.masks()
             );
             if report.is_consistent() {
-                let _ = writeln!(out, "  consistent: at most one connection delivers in every mask");
+                let _ = writeln!(
+                    out,
+                    "  consistent: at most one connection delivers in every mask"
+                );
             } else {
                 let _ = writeln!(
                     out,
@@ -247,7 +257,11 @@ impl Report {
                 .map(|c| c.name.as_str())
                 .collect();
             if !virtuals.is_empty() {
-                let _ = writeln!(out, "  virtual (coordinate, never deliver): {}", virtuals.join(", "));
+                let _ = writeln!(
+                    out,
+                    "  virtual (coordinate, never deliver): {}",
+                    virtuals.join(", ")
+                );
             }
             let _ = write!(
                 out,
@@ -334,7 +348,9 @@ fn check_port(network: &Network, port: usize) -> PortReport {
         .variables
         .variables()
         .into_iter()
-        .fold(logic.variables.mk_false(), |any, v| any.or(&logic.variables.mk_var(v)));
+        .fold(logic.variables.mk_false(), |any, v| {
+            any.or(&logic.variables.mk_var(v))
+        });
     let mut remaining = idle.and(&some_active);
     while idle_examples.len() < 3 {
         let Some(mask) = logic.minimal_mask(&remaining) else {
@@ -358,7 +374,10 @@ mod tests {
     use super::*;
     use crate::diagnostic::Source;
 
-    fn network(ports: &[(&str, &[(&str, Option<&str>)])]) -> Network {
+    /// A port's name and its connections' names and written rules.
+    type PortSpec<'a> = (&'a str, &'a [(&'a str, Option<&'a str>)]);
+
+    fn network(ports: &[PortSpec<'_>]) -> Network {
         let mut text = String::from("[nodes.n]\nid = 1\n");
         let mut topic = 0;
         for (port, connections) in ports {
@@ -384,18 +403,33 @@ mod tests {
         assert!(report.is_consistent());
         assert_eq!(report.ports[0].idle_masks, 1);
         assert!(report.ports[0].idle_examples.is_empty());
-        assert!(report.summary(&net).contains("only when no connection is active"));
+        assert!(
+            report
+                .summary(&net)
+                .contains("only when no connection is active")
+        );
     }
 
     #[test]
     fn overlaps_come_with_a_minimal_counterexample() {
         // C1 and C3 both deliver whenever both are active, whatever C2 does.
-        let net = network(&[("p", &[("C1", Some("C1 & !C2")), ("C2", Some("false")), ("C3", None)])]);
+        let net = network(&[(
+            "p",
+            &[
+                ("C1", Some("C1 & !C2")),
+                ("C2", Some("false")),
+                ("C3", None),
+            ],
+        )]);
         let report = check(&net);
         assert!(!report.is_consistent());
         assert_eq!(
             report.ports[0].overlaps,
-            vec![Overlap { first: 0, second: 2, mask: 0b101 }]
+            vec![Overlap {
+                first: 0,
+                second: 2,
+                mask: 0b101
+            }]
         );
         let errors = report.errors(&net);
         assert_eq!(errors.len(), 1);
@@ -408,12 +442,27 @@ mod tests {
 
     #[test]
     fn dead_rules_are_errors_unless_written_false() {
-        let net = network(&[("p", &[("C1", Some("C1 & !C1")), ("C2", Some("false")), ("C3", Some("!C3"))])]);
+        let net = network(&[(
+            "p",
+            &[
+                ("C1", Some("C1 & !C1")),
+                ("C2", Some("false")),
+                ("C3", Some("!C3")),
+            ],
+        )]);
         let report = check(&net);
         assert_eq!(report.ports[0].dead, vec![0, 2]);
         let errors = report.errors(&net);
-        assert!(errors[0].to_string().contains("C1 can never deliver"), "{}", errors[0]);
-        assert!(errors[1].to_string().contains("C3 can never deliver"), "{}", errors[1]);
+        assert!(
+            errors[0].to_string().contains("C1 can never deliver"),
+            "{}",
+            errors[0]
+        );
+        assert!(
+            errors[1].to_string().contains("C3 can never deliver"),
+            "{}",
+            errors[1]
+        );
     }
 
     #[test]

@@ -97,7 +97,8 @@ impl Builder<'_> {
                 if low == high {
                     low
                 } else {
-                    let var = u8::try_from(variable.to_index()).map_err(|_| DecisionError::TooLarge)?;
+                    let var =
+                        u8::try_from(variable.to_index()).map_err(|_| DecisionError::TooLarge)?;
                     self.node(var, low, high)?
                 }
             }
@@ -195,7 +196,10 @@ pub fn compile(network: &Network) -> Result<Vec<CompiledNode>, Vec<Diagnostic>> 
         .map_err(|error| vec![error])
 }
 
-fn compile_node(network: &Network, node: &crate::network::Node) -> Result<CompiledNode, Diagnostic> {
+fn compile_node(
+    network: &Network,
+    node: &crate::network::Node,
+) -> Result<CompiledNode, Diagnostic> {
     let mut table = Table::new();
     let mut decision_nodes = 0usize;
     let mut per_rule_nodes = 0usize;
@@ -236,11 +240,14 @@ fn compile_node(network: &Network, node: &crate::network::Node) -> Result<Compil
             .collect();
         table
             .push_port(&connections, &compiled.nodes, compiled.root)
-            .map_err(|error| network.error(port.span.clone(), format!("port `{}`: {error}", port.name)))?;
+            .map_err(|error| {
+                network.error(port.span.clone(), format!("port `{}`: {error}", port.name))
+            })?;
     }
     let mut buffer = vec![0u8; MAX_IMAGE_LEN];
-    let length = image::encode(&table, node.id, network.version, &mut buffer)
-        .map_err(|error| network.error(node.span.clone(), format!("node `{}`: {error}", node.name)))?;
+    let length = image::encode(&table, node.id, network.version, &mut buffer).map_err(|error| {
+        network.error(node.span.clone(), format!("node `{}`: {error}", node.name))
+    })?;
     buffer.truncate(length);
     Ok(CompiledNode {
         name: node.name.clone(),
@@ -271,7 +278,8 @@ mod tests {
         leaf.prop_recursive(4, 24, 2, |inner| {
             prop_oneof![
                 inner.clone().prop_map(|r| Rule::Not(Box::new(r))),
-                (inner.clone(), inner.clone()).prop_map(|(a, b)| Rule::And(Box::new(a), Box::new(b))),
+                (inner.clone(), inner.clone())
+                    .prop_map(|(a, b)| Rule::And(Box::new(a), Box::new(b))),
                 (inner.clone(), inner).prop_map(|(a, b)| Rule::Or(Box::new(a), Box::new(b))),
             ]
         })
@@ -286,10 +294,15 @@ mod tests {
         let mut delivers: Vec<Bdd> = Vec::new();
         for (k, rule) in rules.iter().enumerate() {
             let own = variables.mk_var(BddVariable::from_index(k));
-            let earlier = delivers.iter().fold(variables.mk_false(), |all, d| all.or(d));
+            let earlier = delivers
+                .iter()
+                .fold(variables.mk_false(), |all, d| all.or(d));
             delivers.push(own.and(&check::to_bdd(rule, &variables)).and_not(&earlier));
         }
-        PortLogic { variables, delivers }
+        PortLogic {
+            variables,
+            delivers,
+        }
     }
 
     proptest! {
@@ -367,8 +380,13 @@ mod tests {
         let port = loaded.table.port(0).unwrap();
         // x0 ? (x1 ? C2 : C1) : (x1 ? C2 : nobody): three nodes.
         assert_eq!(port.nodes.len(), 3);
-        let decide = |mask| pab_core::decision::evaluate(port.nodes, port.root, ConnectionSet::from_bits(mask));
-        assert_eq!((decide(0), decide(1), decide(2), decide(3)), (None, Some(0), Some(1), Some(1)));
+        let decide = |mask| {
+            pab_core::decision::evaluate(port.nodes, port.root, ConnectionSet::from_bits(mask))
+        };
+        assert_eq!(
+            (decide(0), decide(1), decide(2), decide(3)),
+            (None, Some(0), Some(1), Some(1))
+        );
     }
 
     #[test]
@@ -377,6 +395,10 @@ mod tests {
         let network = Network::parse(Source::new("f.toml", text)).unwrap();
         let errors = compile(&network).unwrap_err();
         assert_eq!(errors.len(), 1);
-        assert!(errors[0].to_string().contains("can both deliver when the active connections are {A, B}"));
+        assert!(
+            errors[0]
+                .to_string()
+                .contains("can both deliver when the active connections are {A, B}")
+        );
     }
 }

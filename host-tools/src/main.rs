@@ -13,7 +13,8 @@ use pabctl::network::Network;
 use pabctl::plot;
 use pabctl::sim::{self, Options};
 
-const ABOUT: &str = "Check, compile and simulate port-arbitration networks for CAN controller boards";
+const ABOUT: &str =
+    "Check, compile and simulate port-arbitration networks for CAN controller boards";
 
 const LONG_ABOUT: &str = "\
 Check, compile and simulate port-arbitration networks for CAN controller boards.
@@ -94,7 +95,7 @@ through at its port and orange otherwise (like Fig. 5 of the port-arbitration pa
         /// The network file (TOML).
         network: PathBuf,
         /// Stop at this time in seconds (default: once the last frame's effect has decayed).
-        #[arg(long, value_name = "SECONDS")]
+        #[arg(long, value_name = "SECONDS", allow_negative_numbers = true)]
         until: Option<f64>,
         /// Write the trace as CSV.
         #[arg(long, value_name = "FILE.csv")]
@@ -140,7 +141,11 @@ fn main() -> ExitCode {
             for error in &errors {
                 eprintln!("{error}");
             }
-            eprintln!("the rules are inconsistent: {} error{}", errors.len(), if errors.len() == 1 { "" } else { "s" });
+            eprintln!(
+                "the rules are inconsistent: {} error{}",
+                errors.len(),
+                if errors.len() == 1 { "" } else { "s" }
+            );
             ExitCode::from(1)
         }
         Err(Failure::Input(diagnostics)) => {
@@ -206,7 +211,12 @@ fn run_compile(path: &Path, output: &Path, table_version: Option<u32>) -> Result
     Ok(())
 }
 
-fn run_sim(path: &Path, until: Option<f64>, trace: Option<&Path>, plot_path: Option<&Path>) -> Result<(), Failure> {
+fn run_sim(
+    path: &Path,
+    until: Option<f64>,
+    trace: Option<&Path>,
+    plot_path: Option<&Path>,
+) -> Result<(), Failure> {
     let network = Network::load(path)?;
     let nodes = compiled(&network, None)?;
     let options = Options {
@@ -233,9 +243,12 @@ fn run_sim(path: &Path, until: Option<f64>, trace: Option<&Path>, plot_path: Opt
         println!("trace: {} ({} rows)", trace.display(), outcome.rows.len());
     }
     if let Some(plot_path) = plot_path {
-        let title = path.file_name().map_or("network".into(), |n| n.to_string_lossy().into_owned());
-        plot::render_png(&outcome.plot_data(&network, &title), plot_path)
-            .map_err(|error| Failure::Output(format!("cannot draw {}: {error:#}", plot_path.display())))?;
+        let title = path
+            .file_name()
+            .map_or("network".into(), |n| n.to_string_lossy().into_owned());
+        plot::render_png(&outcome.plot_data(&network, &title), plot_path).map_err(|error| {
+            Failure::Output(format!("cannot draw {}: {error:#}", plot_path.display()))
+        })?;
         println!("plot: {}", plot_path.display());
     }
     Ok(())
@@ -244,7 +257,8 @@ fn run_sim(path: &Path, until: Option<f64>, trace: Option<&Path>, plot_path: Opt
 /// Writes `bytes` to a temporary file beside `path`, then renames it: a failure never leaves a
 /// half-written file where a good one was.
 fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), Failure> {
-    let fail = |error: io::Error| Failure::Output(format!("cannot write {}: {error}", path.display()));
+    let fail =
+        |error: io::Error| Failure::Output(format!("cannot write {}: {error}", path.display()));
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         fs::create_dir_all(parent).map_err(fail)?;
     }

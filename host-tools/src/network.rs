@@ -326,7 +326,9 @@ impl Network {
 
     /// The names of port `port`'s connections, in order (the names of its rule variables).
     pub fn port_connection_names(&self, port: usize) -> Vec<String> {
-        self.port_connections(port).map(|c| c.name.clone()).collect()
+        self.port_connections(port)
+            .map(|c| c.name.clone())
+            .collect()
     }
 
     /// A diagnostic at `span` of the network file.
@@ -379,7 +381,10 @@ impl Builder<'_> {
         match u32::try_from(*version.get_ref()) {
             Ok(value) => value,
             Err(_) => {
-                self.error(version.span(), "version must be an integer in 0..=4294967295");
+                self.error(
+                    version.span(),
+                    "version must be an integer in 0..=4294967295",
+                );
                 1
             }
         }
@@ -390,11 +395,17 @@ impl Builder<'_> {
         let mut ids: HashMap<u8, String> = HashMap::new();
         for (name, node) in raw {
             if !is_plain_name(name.get_ref()) {
-                self.error(name.span(), format!("node name `{}`: {PLAIN_NAME}", name.get_ref()));
+                self.error(
+                    name.span(),
+                    format!("node name `{}`: {PLAIN_NAME}", name.get_ref()),
+                );
             }
             let id = node.get_ref().id.get_ref();
             let Some(id) = u8::try_from(*id).ok().filter(|id| (1..=127).contains(id)) else {
-                self.error(node.get_ref().id.span(), format!("node id {id} is not in 1..=127"));
+                self.error(
+                    node.get_ref().id.span(),
+                    format!("node id {id} is not in 1..=127"),
+                );
                 continue;
             };
             if let Some(other) = ids.get(&id) {
@@ -419,12 +430,23 @@ impl Builder<'_> {
         let mut topics: Vec<Topic> = Vec::new();
         for (name, topic) in raw {
             if !is_plain_name(name.get_ref()) {
-                self.error(name.span(), format!("topic name `{}`: {PLAIN_NAME}", name.get_ref()));
+                self.error(
+                    name.span(),
+                    format!("topic name `{}`: {PLAIN_NAME}", name.get_ref()),
+                );
             }
             let raw_topic = topic.get_ref();
             let extended = raw_topic.extended;
-            let widest = if extended { MAX_EXTENDED_ID } else { MAX_STANDARD_ID };
-            let format = if extended { "extended (29-bit)" } else { "standard (11-bit)" };
+            let widest = if extended {
+                MAX_EXTENDED_ID
+            } else {
+                MAX_STANDARD_ID
+            };
+            let format = if extended {
+                "extended (29-bit)"
+            } else {
+                "standard (11-bit)"
+            };
             let id = *raw_topic.can_id.get_ref();
             let Some(id) = u32::try_from(id).ok().filter(|&id| id <= widest) else {
                 let hint = if extended {
@@ -434,7 +456,9 @@ impl Builder<'_> {
                 };
                 self.error(
                     raw_topic.can_id.span(),
-                    format!("can_id {id:#x} does not fit a {format} id (at most {widest:#x}){hint}"),
+                    format!(
+                        "can_id {id:#x} does not fit a {format} id (at most {widest:#x}){hint}"
+                    ),
                 );
                 continue;
             };
@@ -445,7 +469,10 @@ impl Builder<'_> {
                     None => {
                         self.error(
                             mask.span(),
-                            format!("mask {:#x} does not fit a {format} id (at most {widest:#x})", mask.get_ref()),
+                            format!(
+                                "mask {:#x} does not fit a {format} id (at most {widest:#x})",
+                                mask.get_ref()
+                            ),
                         );
                         continue;
                     }
@@ -454,14 +481,21 @@ impl Builder<'_> {
             let filter = match Filter::new(id, mask, extended) {
                 Ok(filter) => filter,
                 Err(error) => {
-                    self.error(raw_topic.can_id.span(), format!("can_id {id:#x} under mask {mask:#x}: {error}"));
+                    self.error(
+                        raw_topic.can_id.span(),
+                        format!("can_id {id:#x} under mask {mask:#x}: {error}"),
+                    );
                     continue;
                 }
             };
             if let Some(other) = topics.iter().find(|other| other.filter == filter) {
                 self.error(
                     raw_topic.can_id.span(),
-                    format!("topic `{}` matches the same frames as topic `{}`", name.get_ref(), other.name),
+                    format!(
+                        "topic `{}` matches the same frames as topic `{}`",
+                        name.get_ref(),
+                        other.name
+                    ),
                 );
                 continue;
             }
@@ -474,7 +508,11 @@ impl Builder<'_> {
         topics
     }
 
-    fn ports(&mut self, raw: &IndexMap<Spanned<String>, Spanned<RawPort>>, nodes: &[Node]) -> Vec<Port> {
+    fn ports(
+        &mut self,
+        raw: &IndexMap<Spanned<String>, Spanned<RawPort>>,
+        nodes: &[Node],
+    ) -> Vec<Port> {
         let mut ports: Vec<Port> = Vec::new();
         for (name, port) in raw {
             let full = name.get_ref();
@@ -486,7 +524,10 @@ impl Builder<'_> {
                 continue;
             };
             if !is_plain_name(local) {
-                self.error(name.span(), format!("port name `{local}` in `{full}`: {PLAIN_NAME}"));
+                self.error(
+                    name.span(),
+                    format!("port name `{local}` in `{full}`: {PLAIN_NAME}"),
+                );
                 continue;
             }
             let Some(node) = nodes.iter().position(|node| node.name == node_name) else {
@@ -542,7 +583,10 @@ impl Builder<'_> {
                 let known: Vec<&str> = topics.iter().map(|topic| topic.name.as_str()).collect();
                 self.error(
                     raw_connection.topic.span(),
-                    format!("topic `{topic_name}` is not defined (topics: {})", list_or_none(&known)),
+                    format!(
+                        "topic `{topic_name}` is not defined (topics: {})",
+                        list_or_none(&known)
+                    ),
                 );
                 continue;
             };
@@ -551,7 +595,10 @@ impl Builder<'_> {
                 let known: Vec<&str> = ports.iter().map(|port| port.name.as_str()).collect();
                 self.error(
                     raw_connection.port.span(),
-                    format!("port `{port_name}` is not defined (ports: {})", list_or_none(&known)),
+                    format!(
+                        "port `{port_name}` is not defined (ports: {})",
+                        list_or_none(&known)
+                    ),
                 );
                 continue;
             };
@@ -559,7 +606,9 @@ impl Builder<'_> {
             if siblings >= MAX_CONNECTIONS_PER_PORT {
                 self.error(
                     name.span(),
-                    format!("port `{port_name}` has more than {MAX_CONNECTIONS_PER_PORT} connections"),
+                    format!(
+                        "port `{port_name}` has more than {MAX_CONNECTIONS_PER_PORT} connections"
+                    ),
                 );
                 continue;
             }
@@ -687,7 +736,10 @@ impl Builder<'_> {
         if t.is_finite() && (0.0..=MAX_TIME_S).contains(&t) {
             Some(t)
         } else {
-            self.error(value.span(), format!("{what} must be a time in [0, {MAX_TIME_S}] seconds"));
+            self.error(
+                value.span(),
+                format!("{what} must be a time in [0, {MAX_TIME_S}] seconds"),
+            );
             None
         }
     }
@@ -702,7 +754,10 @@ impl Builder<'_> {
                 let known: Vec<&str> = topics.iter().map(|topic| topic.name.as_str()).collect();
                 self.error(
                     raw_event.topic.span(),
-                    format!("topic `{topic_name}` is not defined (topics: {})", list_or_none(&known)),
+                    format!(
+                        "topic `{topic_name}` is not defined (topics: {})",
+                        list_or_none(&known)
+                    ),
                 );
                 continue;
             };
@@ -720,12 +775,21 @@ impl Builder<'_> {
                 }
                 (Some(at), None) => {
                     let times = at.get_ref();
-                    if let Some(bad) = times.iter().find(|t| !(t.is_finite() && (0.0..=MAX_TIME_S).contains(*t))) {
-                        self.error(at.span(), format!("time {bad} is not in [0, {MAX_TIME_S}] seconds"));
+                    if let Some(bad) = times
+                        .iter()
+                        .find(|t| !(t.is_finite() && (0.0..=MAX_TIME_S).contains(*t)))
+                    {
+                        self.error(
+                            at.span(),
+                            format!("time {bad} is not in [0, {MAX_TIME_S}] seconds"),
+                        );
                         continue;
                     }
                     if raw_event.from.is_some() || raw_event.to.is_some() {
-                        self.error(at.span(), "`from` and `to` go with `rate_hz`, not with `at`");
+                        self.error(
+                            at.span(),
+                            "`from` and `to` go with `rate_hz`, not with `at`",
+                        );
                         continue;
                     }
                     Schedule::At(times.clone())
@@ -733,11 +797,17 @@ impl Builder<'_> {
                 (None, Some(rate)) => {
                     let rate_hz = *rate.get_ref();
                     if !(rate_hz.is_finite() && rate_hz > 0.0) {
-                        self.error(rate.span(), "rate_hz must be a positive number of frames per second");
+                        self.error(
+                            rate.span(),
+                            "rate_hz must be a positive number of frames per second",
+                        );
                         continue;
                     }
                     let Some(to) = &raw_event.to else {
-                        self.error(event.span(), "an event with `rate_hz` needs `to` (the end time, exclusive)");
+                        self.error(
+                            event.span(),
+                            "an event with `rate_hz` needs `to` (the end time, exclusive)",
+                        );
                         continue;
                     };
                     let from = match &raw_event.from {
@@ -748,7 +818,10 @@ impl Builder<'_> {
                         continue;
                     };
                     if to_value <= from {
-                        self.error(to.span(), format!("`to` ({to_value}) must be after `from` ({from})"));
+                        self.error(
+                            to.span(),
+                            format!("`to` ({to_value}) must be after `from` ({from})"),
+                        );
                         continue;
                     }
                     Schedule::Rate {
@@ -779,11 +852,17 @@ impl Builder<'_> {
         let mut phases = Vec::new();
         for phase in raw {
             let raw_phase = phase.get_ref();
-            let (Some(from), Some(to)) = (self.time(&raw_phase.from, "from"), self.time(&raw_phase.to, "to")) else {
+            let (Some(from), Some(to)) = (
+                self.time(&raw_phase.from, "from"),
+                self.time(&raw_phase.to, "to"),
+            ) else {
                 continue;
             };
             if to <= from {
-                self.error(raw_phase.to.span(), format!("`to` ({to}) must be after `from` ({from})"));
+                self.error(
+                    raw_phase.to.span(),
+                    format!("`to` ({to}) must be after `from` ({from})"),
+                );
                 continue;
             }
             phases.push(Phase {
@@ -850,7 +929,12 @@ at = [4.0, 4.5, 5.0, 5.5, 6.0, 6.5]   # or explicit times
     }
 
     fn errors(text: &str) -> Vec<String> {
-        parse(text).unwrap_err().0.iter().map(|d| d.to_string()).collect()
+        parse(text)
+            .unwrap_err()
+            .0
+            .iter()
+            .map(|d| d.to_string())
+            .collect()
     }
 
     #[test]
@@ -861,14 +945,23 @@ at = [4.0, 4.5, 5.0, 5.5, 6.0, 6.5]   # or explicit times
         assert_eq!(network.ports[0].name, "gaze.target");
         assert_eq!(network.ports[0].connections, vec![0, 1]);
         let c1 = &network.connections[0];
-        assert_eq!(c1.rule, Rule::And(Box::new(Rule::Active(0)), Box::new(Rule::Not(Box::new(Rule::Active(1))))));
+        assert_eq!(
+            c1.rule,
+            Rule::And(
+                Box::new(Rule::Active(0)),
+                Box::new(Rule::Not(Box::new(Rule::Active(1))))
+            )
+        );
         assert!(c1.rule_written);
         let c2 = &network.connections[1];
         assert_eq!(c2.rule, Rule::Active(1));
         assert!(!c2.rule_written);
         assert_eq!(network.events[0].schedule.count(), 120);
         assert_eq!(network.events[0].schedule.times().len(), 120);
-        assert_eq!(network.events[1].schedule.times(), vec![4.0, 4.5, 5.0, 5.5, 6.0, 6.5]);
+        assert_eq!(
+            network.events[1].schedule.times(),
+            vec![4.0, 4.5, 5.0, 5.5, 6.0, 6.5]
+        );
         assert_eq!(network.version, 1);
     }
 
@@ -876,9 +969,15 @@ at = [4.0, 4.5, 5.0, 5.5, 6.0, 6.5]   # or explicit times
     fn syntax_errors_name_file_line_and_cause() {
         let errors = errors("[nodes.gaze]\nid = 3\nspeed = 4\n");
         assert_eq!(errors.len(), 1);
-        assert!(errors[0].starts_with("net.toml:3:1: error: unknown field `speed`"), "{errors:?}");
+        assert!(
+            errors[0].starts_with("net.toml:3:1: error: unknown field `speed`"),
+            "{errors:?}"
+        );
         let errors = self::errors("[nodes.gaze]\nid = \"three\"\n");
-        assert!(errors[0].starts_with("net.toml:2:6: error: invalid type"), "{errors:?}");
+        assert!(
+            errors[0].starts_with("net.toml:2:6: error: invalid type"),
+            "{errors:?}"
+        );
     }
 
     #[test]
@@ -921,7 +1020,10 @@ tc = 1.0
         ];
         assert_eq!(errors.len(), expected.len(), "{errors:#?}");
         for (error, expected) in errors.iter().zip(expected) {
-            assert!(error.starts_with(expected), "{error}\n  expected: {expected}");
+            assert!(
+                error.starts_with(expected),
+                "{error}\n  expected: {expected}"
+            );
         }
     }
 
@@ -944,29 +1046,57 @@ tc = 1.0
             "{FIGURE_1}\n[ports.\"gaze.other\"]\n[connections.C3]\ntopic = \"face_pos\"\nport = \"gaze.other\"\nst = 1\ntc = 1\nrule = \"C3 & !C1\"\n"
         );
         let errors = errors(&text);
-        assert!(errors[0].contains("`C1` is a connection of port `gaze.target`, not of `gaze.other`"), "{errors:?}");
+        assert!(
+            errors[0].contains("`C1` is a connection of port `gaze.target`, not of `gaze.other`"),
+            "{errors:?}"
+        );
     }
 
     #[test]
     fn events_are_checked() {
         let base = FIGURE_1.split("[[events]]").next().unwrap().to_string();
         let cases = [
-            ("[[events]]\ntopic = \"face_pos\"\nrate_hz = 0\nto = 1\n", "rate_hz must be a positive number"),
-            ("[[events]]\ntopic = \"face_pos\"\nrate_hz = 1\n", "needs `to`"),
-            ("[[events]]\ntopic = \"face_pos\"\nrate_hz = 1\nfrom = 2\nto = 1\n", "must be after `from`"),
-            ("[[events]]\ntopic = \"face_pos\"\nat = [1.0, -1.0]\n", "time -1 is not in"),
-            ("[[events]]\ntopic = \"face_pos\"\n", "needs `at = [times...]`"),
-            ("[[events]]\ntopic = \"face_pos\"\nrate_hz = 1e9\nto = 1000\n", "more than 10000000 frames"),
+            (
+                "[[events]]\ntopic = \"face_pos\"\nrate_hz = 0\nto = 1\n",
+                "rate_hz must be a positive number",
+            ),
+            (
+                "[[events]]\ntopic = \"face_pos\"\nrate_hz = 1\n",
+                "needs `to`",
+            ),
+            (
+                "[[events]]\ntopic = \"face_pos\"\nrate_hz = 1\nfrom = 2\nto = 1\n",
+                "must be after `from`",
+            ),
+            (
+                "[[events]]\ntopic = \"face_pos\"\nat = [1.0, -1.0]\n",
+                "time -1 is not in",
+            ),
+            (
+                "[[events]]\ntopic = \"face_pos\"\n",
+                "needs `at = [times...]`",
+            ),
+            (
+                "[[events]]\ntopic = \"face_pos\"\nrate_hz = 1e9\nto = 1000\n",
+                "more than 10000000 frames",
+            ),
         ];
         for (event, message) in cases {
             let errors = errors(&format!("{base}{event}"));
-            assert!(errors.iter().any(|e| e.contains(message)), "{event}: {errors:?}");
+            assert!(
+                errors.iter().any(|e| e.contains(message)),
+                "{event}: {errors:?}"
+            );
         }
     }
 
     #[test]
     fn rate_schedules_exclude_the_end() {
-        let schedule = Schedule::Rate { rate_hz: 10.0, from: 1.0, to: 2.0 };
+        let schedule = Schedule::Rate {
+            rate_hz: 10.0,
+            from: 1.0,
+            to: 2.0,
+        };
         let times = schedule.times();
         assert_eq!(times.len(), 10);
         assert_eq!(times[0], 1.0);

@@ -254,7 +254,8 @@ impl<'a> Parser<'a, '_> {
                 Ok(Rule::Constant(false))
             }
             Token::Name(name) => {
-                let index = (self.resolve)(name).map_err(|message| RuleError { offset, message })?;
+                let index =
+                    (self.resolve)(name).map_err(|message| RuleError { offset, message })?;
                 self.advance();
                 Ok(Rule::Active(index))
             }
@@ -286,7 +287,10 @@ impl<'a> Parser<'a, '_> {
 
 /// Parses `text`. `resolve` maps a connection name to its index in the port, or explains why the
 /// name is not allowed.
-pub fn parse(text: &str, resolve: &dyn Fn(&str) -> Result<usize, String>) -> Result<Rule, RuleError> {
+pub fn parse(
+    text: &str,
+    resolve: &dyn Fn(&str) -> Result<usize, String>,
+) -> Result<Rule, RuleError> {
     let tokens = tokenize(text)?;
     let mut parser = Parser {
         tokens,

@@ -109,14 +109,25 @@ struct Station {
 }
 
 /// Runs `network` with the tables `compiled` (one per node, from [`crate::compile::compile`]).
-pub fn simulate(network: &Network, compiled: &[CompiledNode], options: &Options) -> Result<Outcome, SimError> {
+pub fn simulate(
+    network: &Network,
+    compiled: &[CompiledNode],
+    options: &Options,
+) -> Result<Outcome, SimError> {
     let mut stations = Vec::new();
     for (node_index, node) in network.nodes.iter().enumerate() {
         let Some(table) = compiled.iter().find(|c| c.id == node.id) else {
-            return Err(SimError(format!("no compiled table for node `{}`", node.name)));
+            return Err(SimError(format!(
+                "no compiled table for node `{}`",
+                node.name
+            )));
         };
-        let loaded = image::load(&table.image)
-            .map_err(|error| SimError(format!("node `{}`: its image does not load: {error}", node.name)))?;
+        let loaded = image::load(&table.image).map_err(|error| {
+            SimError(format!(
+                "node `{}`: its image does not load: {error}",
+                node.name
+            ))
+        })?;
         let arbiter = Arbiter::new(loaded.table)
             .map_err(|error| SimError(format!("node `{}`: {error}", node.name)))?;
         stations.push(Station {
@@ -126,9 +137,11 @@ pub fn simulate(network: &Network, compiled: &[CompiledNode], options: &Options)
     }
     let frames = frames(network)?;
     let until_us = match options.until {
-        Some(until) if until.is_finite() && until >= 0.0 && until <= MAX_TIME_S => micros(until),
+        Some(until) if (0.0..=MAX_TIME_S).contains(&until) => micros(until),
         Some(until) => {
-            return Err(SimError(format!("--until {until} is not a time in [0, {MAX_TIME_S}] seconds")));
+            return Err(SimError(format!(
+                "--until {until} is not a time in [0, {MAX_TIME_S}] seconds"
+            )));
         }
         None => default_until(network, &frames),
     };
@@ -140,7 +153,12 @@ pub fn simulate(network: &Network, compiled: &[CompiledNode], options: &Options)
         timelines: network
             .ports
             .iter()
-            .map(|_| vec![Change { t_us: 0, selected: None }])
+            .map(|_| {
+                vec![Change {
+                    t_us: 0,
+                    selected: None,
+                }]
+            })
             .collect(),
         samples: vec![Vec::new(); network.connections.len()],
         wakes: BinaryHeap::new(),
@@ -150,10 +168,21 @@ pub fn simulate(network: &Network, compiled: &[CompiledNode], options: &Options)
     let mut sent = 0usize;
     let mut pending = frames.iter().peekable();
     loop {
-        let next_frame = pending.peek().map(|frame| frame.t_us).filter(|&t| t <= until_us);
-        let next_wake = run.wakes.peek().map(|Reverse((t, _))| *t).filter(|&t| t <= until_us);
+        let next_frame = pending
+            .peek()
+            .map(|frame| frame.t_us)
+            .filter(|&t| t <= until_us);
+        let next_wake = run
+            .wakes
+            .peek()
+            .map(|Reverse((t, _))| *t)
+            .filter(|&t| t <= until_us);
         let next_sample = (options.samples && next_grid <= until_us).then_some(next_grid);
-        let Some(now) = [next_frame, next_wake, next_sample].into_iter().flatten().min() else {
+        let Some(now) = [next_frame, next_wake, next_sample]
+            .into_iter()
+            .flatten()
+            .min()
+        else {
             break;
         };
         if next_sample == Some(now) {
@@ -195,11 +224,18 @@ fn frames(network: &Network) -> Result<Vec<Frame>, SimError> {
         let id = if filter.is_extended() {
             ExtendedId::new(filter.id()).map(Id::Extended)
         } else {
-            u16::try_from(filter.id()).ok().and_then(StandardId::new).map(Id::Standard)
+            u16::try_from(filter.id())
+                .ok()
+                .and_then(StandardId::new)
+                .map(Id::Standard)
         }
         .ok_or_else(|| SimError(format!("topic `{}` has an invalid CAN id", topic.name)))?;
         // CAN arbitration compares the 11 base bits first; on a tie a standard frame wins.
-        let base = if filter.is_extended() { filter.id() >> 18 } else { filter.id() };
+        let base = if filter.is_extended() {
+            filter.id() >> 18
+        } else {
+            filter.id()
+        };
         for t in event.schedule.times() {
             frames.push(Frame {
                 t_us: micros(t),
@@ -219,10 +255,15 @@ fn default_until(network: &Network, frames: &[Frame]) -> u64 {
         .map(|c| u64::from(c.stimulation.decay_us()))
         .max()
         .unwrap_or(0);
-    let after_frames = frames
-        .last()
-        .map_or(0, |frame| frame.t_us.saturating_add(longest_decay).saturating_add(1));
-    let after_phases = network.phases.iter().map(|p| micros(p.to)).max().unwrap_or(0);
+    let after_frames = frames.last().map_or(0, |frame| {
+        frame.t_us.saturating_add(longest_decay).saturating_add(1)
+    });
+    let after_phases = network
+        .phases
+        .iter()
+        .map(|p| micros(p.to))
+        .max()
+        .unwrap_or(0);
     // Round up to a tenth of a second.
     after_frames.max(after_phases).div_ceil(100_000) * 100_000
 }
@@ -241,11 +282,21 @@ impl Run<'_> {
     /// The network index of port `local` of station `station`.
     fn port_of(&self, station: usize, local: u8) -> Option<usize> {
         let node = self.stations.get(station)?.node;
-        self.network.nodes.get(node)?.ports.get(usize::from(local)).copied()
+        self.network
+            .nodes
+            .get(node)?
+            .ports
+            .get(usize::from(local))
+            .copied()
     }
 
     fn connection_of(&self, port: usize, local: u8) -> Option<usize> {
-        self.network.ports.get(port)?.connections.get(usize::from(local)).copied()
+        self.network
+            .ports
+            .get(port)?
+            .connections
+            .get(usize::from(local))
+            .copied()
     }
 
     fn frame(&mut self, frame: &Frame) {
@@ -256,7 +307,9 @@ impl Run<'_> {
             }
             let mut verdicts = Vec::new();
             if let Some(entry) = self.stations.get_mut(station) {
-                entry.arbiter.receive(&frame.id, now, |verdict| verdicts.push(*verdict));
+                entry
+                    .arbiter
+                    .receive(&frame.id, now, |verdict| verdicts.push(*verdict));
             }
             for verdict in verdicts {
                 let Some(port) = self.port_of(station, verdict.port) else {
@@ -287,7 +340,9 @@ impl Run<'_> {
                         self.wakes.push(Reverse((frame.t_us + decay + 1, port)));
                     }
                 }
-                let selected = verdict.selected.and_then(|local| self.connection_of(port, local));
+                let selected = verdict
+                    .selected
+                    .and_then(|local| self.connection_of(port, local));
                 self.note(port, frame.t_us, selected);
             }
             if self.options.samples {
@@ -315,7 +370,13 @@ impl Run<'_> {
     fn locate(&self, port: usize) -> Option<(usize, u8)> {
         let node = self.network.ports.get(port)?.node;
         let station = self.stations.iter().position(|s| s.node == node)?;
-        let local = self.network.nodes.get(node)?.ports.iter().position(|&p| p == port)?;
+        let local = self
+            .network
+            .nodes
+            .get(node)?
+            .ports
+            .iter()
+            .position(|&p| p == port)?;
         Some((station, u8::try_from(local).ok()?))
     }
 
@@ -339,12 +400,19 @@ impl Run<'_> {
         let Some(node) = self.stations.get(station).map(|s| s.node) else {
             return;
         };
-        let ports: Vec<usize> = self.network.nodes.get(node).map(|n| n.ports.clone()).unwrap_or_default();
+        let ports: Vec<usize> = self
+            .network
+            .nodes
+            .get(node)
+            .map(|n| n.ports.clone())
+            .unwrap_or_default();
         for (local, port) in ports.into_iter().enumerate() {
-            let fed = self
-                .network
-                .port_connections(port)
-                .any(|c| self.network.topics.get(c.topic).is_some_and(|t| t.filter.matches(id)));
+            let fed = self.network.port_connections(port).any(|c| {
+                self.network
+                    .topics
+                    .get(c.topic)
+                    .is_some_and(|t| t.filter.matches(id))
+            });
             if fed && let Ok(local) = u8::try_from(local) {
                 self.sample_port(station, local, port, t_us);
             }
@@ -357,7 +425,12 @@ impl Run<'_> {
         };
         let now = Instant::from_micros(t_us);
         let selected = entry.arbiter.selected(local_port, now);
-        let connections = self.network.ports.get(port).map(|p| p.connections.clone()).unwrap_or_default();
+        let connections = self
+            .network
+            .ports
+            .get(port)
+            .map(|p| p.connections.clone())
+            .unwrap_or_default();
         for (local, connection) in connections.into_iter().enumerate() {
             let Ok(local) = u8::try_from(local) else {
                 continue;
@@ -390,7 +463,12 @@ impl Outcome {
     }
 
     /// The rows of connection `connection` in [from, to) µs.
-    pub fn rows_of(&self, connection: usize, from_us: u64, to_us: u64) -> impl Iterator<Item = &TraceRow> {
+    pub fn rows_of(
+        &self,
+        connection: usize,
+        from_us: u64,
+        to_us: u64,
+    ) -> impl Iterator<Item = &TraceRow> {
         self.rows
             .iter()
             .filter(move |row| row.connection == connection && (from_us..to_us).contains(&row.t_us))
@@ -403,7 +481,10 @@ impl Outcome {
             let Some(connection) = network.connections.get(row.connection) else {
                 continue;
             };
-            let port = network.ports.get(connection.port).map_or("?", |p| p.name.as_str());
+            let port = network
+                .ports
+                .get(connection.port)
+                .map_or("?", |p| p.name.as_str());
             writeln!(
                 out,
                 "{},{port},{},{:.4},{},{}",
@@ -421,7 +502,10 @@ impl Outcome {
     pub fn report(&self, network: &Network) -> String {
         let mut out = String::new();
         for (port_index, port) in network.ports.iter().enumerate() {
-            let node = network.nodes.get(port.node).map_or("?", |n| n.name.as_str());
+            let node = network
+                .nodes
+                .get(port.node)
+                .map_or("?", |n| n.name.as_str());
             let _ = writeln!(out, "{} (node {node})", port.name);
             for change in self.timelines.get(port_index).into_iter().flatten() {
                 let who = change
@@ -434,7 +518,11 @@ impl Outcome {
                 let _ = writeln!(out, "  {:>14}  {who}", seconds_text(change.t_us));
             }
             for connection in network.port_connections(port_index) {
-                let Some(index) = network.connections.iter().position(|c| std::ptr::eq(c, connection)) else {
+                let Some(index) = network
+                    .connections
+                    .iter()
+                    .position(|c| std::ptr::eq(c, connection))
+                else {
                     continue;
                 };
                 let rows: Vec<&TraceRow> = self.rows_of(index, 0, u64::MAX).collect();
@@ -446,7 +534,11 @@ impl Outcome {
                     rows.len(),
                     delivered,
                     rows.len() - delivered,
-                    if connection.is_virtual() { "  (virtual)" } else { "" }
+                    if connection.is_virtual() {
+                        "  (virtual)"
+                    } else {
+                        ""
+                    }
                 );
             }
         }
@@ -468,7 +560,17 @@ impl Outcome {
                         let topic = network.topics.get(c.topic).map_or("?", |t| t.name.as_str());
                         ConnectionSeries {
                             name: c.name.clone(),
-                            label: format!("{}  {topic}  σ {} τ {} s  {}", c.name, c.sigma, c.tau, if c.is_virtual() { "virtual".to_string() } else { c.rule_text.clone() }),
+                            label: format!(
+                                "{}  {topic}  σ {} τ {} s  {}",
+                                c.name,
+                                c.sigma,
+                                c.tau,
+                                if c.is_virtual() {
+                                    "virtual".to_string()
+                                } else {
+                                    c.rule_text.clone()
+                                }
+                            ),
                             samples: self.samples.get(index).cloned().unwrap_or_default(),
                         }
                     })

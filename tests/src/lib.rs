@@ -22,7 +22,8 @@ pub fn example_text(name: &str) -> String {
 
 /// A network parsed from `text`, named `name` in diagnostics.
 pub fn network(name: &str, text: &str) -> Network {
-    Network::parse(Source::new(format!("{name}.toml"), text)).unwrap_or_else(|errors| panic!("{errors}"))
+    Network::parse(Source::new(format!("{name}.toml"), text))
+        .unwrap_or_else(|errors| panic!("{errors}"))
 }
 
 /// A simulated example.
@@ -38,9 +39,14 @@ impl Scenario {
     pub fn run(name: &str) -> Scenario {
         let network = network(name, &example_text(name));
         let report = check::check(&network);
-        assert!(report.is_consistent(), "{name}: {:?}", report.errors(&network));
+        assert!(
+            report.is_consistent(),
+            "{name}: {:?}",
+            report.errors(&network)
+        );
         let nodes = compile::compile(&network).unwrap_or_else(|errors| panic!("{errors:?}"));
-        let outcome = sim::simulate(&network, &nodes, &sim::Options::default()).unwrap_or_else(|error| panic!("{error}"));
+        let outcome = sim::simulate(&network, &nodes, &sim::Options::default())
+            .unwrap_or_else(|error| panic!("{error}"));
         Scenario { network, outcome }
     }
 
@@ -62,7 +68,9 @@ impl Scenario {
     }
 
     fn name_of(&self, connection: Option<usize>) -> String {
-        connection.map_or("nobody".into(), |c| self.network.connections[c].name.clone())
+        connection.map_or("nobody".into(), |c| {
+            self.network.connections[c].name.clone()
+        })
     }
 
     /// Asserts that from `from` to `to` seconds, port `port` is held by `expected` (a connection
@@ -103,7 +111,10 @@ impl Scenario {
             }
         }
         if let Some(name) = expected {
-            assert!(delivered > 0, "phase {phase}, {port}: {name} delivered no frame");
+            assert!(
+                delivered > 0,
+                "phase {phase}, {port}: {name} delivered no frame"
+            );
         }
     }
 
@@ -138,7 +149,10 @@ impl Scenario {
     pub fn expect_phases(&self, phases: &[Phase]) {
         let mut previous_end = f64::NEG_INFINITY;
         for phase in phases {
-            assert!(phase.from >= previous_end, "phases must be listed in time order");
+            assert!(
+                phase.from >= previous_end,
+                "phases must be listed in time order"
+            );
             previous_end = phase.to;
             self.expect(phase.name, phase.from, phase.to, "arm.target", phase.arm);
             self.expect(phase.name, phase.from, phase.to, "gaze.target", phase.gaze);

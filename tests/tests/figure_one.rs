@@ -55,11 +55,28 @@ fn the_trace_has_the_documented_format_and_is_deterministic() {
     // At 6.5 s both topics have a frame: rows in the connections' file order. The face's frame
     // (0x110) wins bus arbitration and goes first, before C2 is active: it is delivered; C2's
     // frame then activates C2 and is delivered too.
-    let at_6_5: Vec<&str> = lines.iter().copied().filter(|l| l.starts_with("6.500000,")).collect();
-    assert_eq!(at_6_5, ["6.500000,gaze.target,C1,1.0000,1,1", "6.500000,gaze.target,C2,1.0000,1,1"]);
+    let at_6_5: Vec<&str> = lines
+        .iter()
+        .copied()
+        .filter(|l| l.starts_with("6.500000,"))
+        .collect();
+    assert_eq!(
+        at_6_5,
+        [
+            "6.500000,gaze.target,C1,1.0000,1,1",
+            "6.500000,gaze.target,C2,1.0000,1,1"
+        ]
+    );
     assert!(lines.contains(&"6.600000,gaze.target,C1,1.0000,1,0"));
-    let times: Vec<&str> = lines[1..].iter().map(|l| l.split(',').next().unwrap()).collect();
+    let times: Vec<&str> = lines[1..]
+        .iter()
+        .map(|l| l.split(',').next().unwrap())
+        .collect();
     let mut sorted = times.clone();
-    sorted.sort_by(|a, b| a.parse::<f64>().unwrap().total_cmp(&b.parse::<f64>().unwrap()));
+    sorted.sort_by(|a, b| {
+        a.parse::<f64>()
+            .unwrap()
+            .total_cmp(&b.parse::<f64>().unwrap())
+    });
     assert_eq!(times, sorted, "rows are in time order");
 }

@@ -15,7 +15,14 @@ const fn phase(
     gaze: Option<&'static str>,
     hand: Option<&'static str>,
 ) -> Phase {
-    Phase { name, from, to, arm, gaze, hand }
+    Phase {
+        name,
+        from,
+        to,
+        arm,
+        gaze,
+        hand,
+    }
 }
 
 #[test]
@@ -59,7 +66,14 @@ const TAKE_BACK: [Phase; 5] = [
     phase("C", 54.6, 56.4, None, None, Some("C5")),
     phase("D", 61.0, 64.0, None, Some("C11"), None),
     phase("E", 64.6, 68.0, Some("C6"), Some("C8"), None),
-    phase("A after the take-back", 72.0, 78.0, Some("C14"), Some("C11"), Some("C16")),
+    phase(
+        "A after the take-back",
+        72.0,
+        78.0,
+        Some("C14"),
+        Some("C11"),
+        Some("C16"),
+    ),
 ];
 
 #[test]
@@ -92,8 +106,15 @@ fn grasped_inhibits_the_object_detector_while_the_hand_holds_the_object() {
         .outcome
         .rows_of(c1, 16_600_000, 18_000_000)
         .collect();
-    assert_eq!(rows.len(), 14, "Object Detector publishes at 10 Hz until 18 s");
-    assert!(rows.iter().all(|row| row.active && !row.delivered), "{rows:?}");
+    assert_eq!(
+        rows.len(),
+        14,
+        "Object Detector publishes at 10 Hz until 18 s"
+    );
+    assert!(
+        rows.iter().all(|row| row.active && !row.delivered),
+        "{rows:?}"
+    );
 }
 
 #[test]
@@ -101,6 +122,12 @@ fn rest_arm_is_silent_and_inactive_while_the_hand_holds_the_object() {
     let scenario = Scenario::run("take-and-return");
     for name in ["C14", "C16"] {
         let connection = scenario.connection(name);
-        assert_eq!(scenario.outcome.rows_of(connection, 16_000_000, 31_500_000).count(), 0);
+        assert_eq!(
+            scenario
+                .outcome
+                .rows_of(connection, 16_000_000, 31_500_000)
+                .count(),
+            0
+        );
     }
 }

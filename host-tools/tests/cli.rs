@@ -1,0 +1,224 @@
+//! The `pabctl` binary as a user runs it: exit statuses, messages, files written or not.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn examples() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples")
+}
+
+fn pabctl(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_pabctl"))
+        .args(args)
+        .output()
+        .expect("pabctl runs")
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+fn example(name: &str) -> String {
+    examples().join(name).display().to_string()
+}
+
+/// Take and Return with Table I's rule for C1 instead of Table III's: inconsistent.
+fn inconsistent_variant(dir: &Path) -> String {
+    let text = std::fs::read_to_string(examples().join("take-and-return.toml")).unwrap();
+    let variant = text.replace("rule = \"(C1 & !C2) & !C13\"", "rule = \"C1 & !C2\"");
+    assert_ne!(text, variant);
+    let path = dir.join("variant.toml");
+    std::fs::write(&path, variant).unwrap();
+    path.display().to_string()
+}
+
+#[test]
+fn check_exits_0_on_a_consistent_network() {
+    let output = pabctl(&["check", &example("take-and-return.toml")]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let stdout = text(&output.stdout);
+    assert!(
+        stdout.contains("arm.target (node arm): 6 connections, 64 activity masks"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("consistent (3 ports, 16 connections)"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn check_exits_1_with_the_counterexample_and_its_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = inconsistent_variant(dir.path());
+    let output = pabctl(&["check", &path]);
+    assert_eq!(output.status.code(), Some(1));
+    let stderr = text(&output.stderr);
+    let line = std::fs::read_to_string(&path)
+        .unwrap()
+        .lines()
+        .position(|l| l.contains("rule = \"(C6 & !C7) & C13\""))
+        .unwrap()
+        + 1;
+    assert!(
+        stderr.contains(&format!(
+            "{path}:{line}:8: error: port `arm.target`: C1 (rule \"C1 & !C2\") and C6"
+        )),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("{C1, C6, C13} and no other (mask 0x00000015"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("the rules are inconsistent: 1 error"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn check_exits_2_on_unreadable_or_invalid_input() {
+    let output = pabctl(&["check", "/nonexistent/net.toml"]);
+    assert_eq!(output.status.code(), Some(2));
+    assert!(text(&output.stderr).starts_with("/nonexistent/net.toml: error: cannot read"));
+
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bad.toml");
+    std::fs::write(
+        &path,
+        "[nodes.arm]\nid = 1\n[ports.\"arm.target\"]\n[connections.C1]\ntopic = \"x\"\n",
+    )
+    .unwrap();
+    let output = pabctl(&["check", path.to_str().unwrap()]);
+    assert_eq!(output.status.code(), Some(2));
+    let stderr = text(&output.stderr);
+    assert!(
+        stderr.contains("bad.toml:4:1: error: missing field `port`"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn compile_writes_one_image_per_node_and_prints_sizes() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("tables");
+    let output = pabctl(&[
+        "compile",
+        &example("take-and-return.toml"),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let stdout = text(&output.stdout);
+    for (node, id) in [("arm", 1), ("hand", 2), ("gaze", 3)] {
+        let file = out.join(format!("{node}.pab"));
+        let bytes = std::fs::read(&file).unwrap();
+        assert_eq!(&bytes[..4], b"PABT");
+        assert_eq!(bytes[6], id);
+        assert!(
+            stdout.contains(&format!(
+                "{}  {} bytes  (node id {id}",
+                file.display(),
+                bytes.len()
+            )),
+            "{stdout}"
+        );
+    }
+    assert!(!out.join("arm.pab.part").exists());
+}
+
+#[test]
+fn compile_writes_nothing_for_an_inconsistent_network() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = inconsistent_variant(dir.path());
+    let out = dir.path().join("tables");
+    let output = pabctl(&["compile", &path, "-o", out.to_str().unwrap()]);
+    assert_eq!(output.status.code(), Some(1));
+    assert!(!out.exists());
+}
+
+#[test]
+fn compile_takes_the_table_version_from_the_command_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let output = pabctl(&[
+        "compile",
+        &example("figure-1.toml"),
+        "-o",
+        dir.path().to_str().unwrap(),
+        "--table-version",
+        "42",
+    ]);
+    assert_eq!(output.status.code(), Some(0));
+    let bytes = std::fs::read(dir.path().join("gaze.pab")).unwrap();
+    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 42);
+}
+
+#[test]
+fn sim_prints_timelines_and_writes_trace_and_plot() {
+    let dir = tempfile::tempdir().unwrap();
+    let trace = dir.path().join("trace.csv");
+    let plot = dir.path().join("plot.png");
+    let output = pabctl(&[
+        "sim",
+        &example("figure-1.toml"),
+        "--trace",
+        trace.to_str().unwrap(),
+        "--plot",
+        plot.to_str().unwrap(),
+    ]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let stdout = text(&output.stdout);
+    assert!(
+        stdout.contains("       6.500000  C2 (object_pos)"),
+        "{stdout}"
+    );
+    let csv = std::fs::read_to_string(&trace).unwrap();
+    assert!(csv.starts_with(
+        "t,port,connection,stimulation,active,delivered\n0.000000,gaze.target,C1,0.2000,0,0\n"
+    ));
+    let png = std::fs::read(&plot).unwrap();
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+}
+
+#[test]
+fn sim_until_stops_early_and_rejects_nonsense() {
+    let output = pabctl(&["sim", &example("figure-1.toml"), "--until", "5"]);
+    assert_eq!(output.status.code(), Some(0));
+    let stdout = text(&output.stdout);
+    assert!(stdout.contains("until t = 5.000000 s"), "{stdout}");
+    assert!(!stdout.contains("6.500000"), "{stdout}");
+    let output = pabctl(&["sim", &example("figure-1.toml"), "--until", "-1"]);
+    assert_eq!(output.status.code(), Some(2));
+    assert!(text(&output.stderr).contains("--until -1 is not a time"));
+}
+
+#[test]
+fn unwritable_outputs_exit_3() {
+    let output = pabctl(&[
+        "sim",
+        &example("figure-1.toml"),
+        "--trace",
+        "/proc/forbidden/trace.csv",
+    ]);
+    assert_eq!(output.status.code(), Some(3));
+    assert!(text(&output.stderr).contains("cannot write /proc/forbidden/trace.csv"));
+}
+
+#[test]
+fn help_explains_the_concepts() {
+    let output = pabctl(&["--help"]);
+    assert_eq!(output.status.code(), Some(0));
+    let help = text(&output.stdout);
+    for needle in [
+        "stimulation",
+        "active",
+        "rule",
+        "virtual",
+        "[connections.NAME]",
+        "Exit status",
+    ] {
+        assert!(help.contains(needle), "--help lacks {needle}");
+    }
+    let output = pabctl(&["sim", "--help"]);
+    assert!(text(&output.stdout).contains("t,port,connection,stimulation,active,delivered"));
+}
