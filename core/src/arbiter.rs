@@ -266,9 +266,50 @@ fn activity(slots: &[Slot], now: Instant) -> ConnectionSet {
         })
 }
 
-/// The port's decision under `active`.
+/// The port's decision under `active`. Only an active connection can be selected (x_i ∧ Φ_i(x)):
+/// a valid diagram may still name an inactive one (e.g. a root that is a terminal).
 fn decide(table: &Table, layout: &Layout, active: ConnectionSet) -> Option<u8> {
     let end = layout.first_node.checked_add(layout.nodes)?;
     let nodes = table.nodes().get(layout.first_node..end)?;
-    decision::evaluate(nodes, layout.root, active)
+    decision::evaluate(nodes, layout.root, active).filter(|&index| active.contains(index))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::filter::Filter;
+    use crate::integrator::Stimulation;
+    use crate::level::Gain;
+    use crate::table::Connection;
+    use embedded_can::StandardId;
+
+    #[test]
+    fn an_inactive_connection_is_never_selected() {
+        // A valid diagram that names C0 whatever the mask (root = terminal "C0 delivers"): C0 is
+        // selected only while it is active, so that `delivered` is `selected` whenever the frame
+        // fed it.
+        let mut table = Table::new();
+        let connection = Connection {
+            filter: Filter::exact(0x110, false).unwrap(),
+            stimulation: Stimulation::new(Gain::from_raw(1 << 30).unwrap(), 1_000_000, 0).unwrap(),
+        };
+        table
+            .push_port(&[connection], &[], NodeRef::deliver(0).unwrap())
+            .unwrap();
+        let mut arbiter = Arbiter::new(table).unwrap();
+        let id = Id::Standard(StandardId::new(0x110).unwrap());
+        assert_eq!(arbiter.selected(0, Instant::from_micros(0)), None);
+        let mut verdicts = std::vec::Vec::new();
+        arbiter.receive(&id, Instant::from_micros(0), |v| verdicts.push(*v));
+        // S = 0.5: fed, inactive, not delivered, and so not selected either.
+        assert_eq!(verdicts[0].active, ConnectionSet::EMPTY);
+        assert_eq!((verdicts[0].selected, verdicts[0].delivered), (None, None));
+        // A second frame at the same instant: S = 1, active, selected and delivered.
+        arbiter.receive(&id, Instant::from_micros(0), |v| verdicts.push(*v));
+        assert_eq!(
+            (verdicts[1].selected, verdicts[1].delivered),
+            (Some(0), Some(0))
+        );
+        assert_eq!(arbiter.selected(0, Instant::from_micros(1_000_001)), None);
+    }
 }
