@@ -142,7 +142,9 @@ impl Arbiter {
                     runtime,
                     integrator: Integrator::new(),
                 };
-                slots.push(slot).map_err(|_| TableError::TooManyConnections)?;
+                slots
+                    .push(slot)
+                    .map_err(|_| TableError::TooManyConnections)?;
             }
         }
         Ok(Arbiter {
@@ -181,8 +183,10 @@ impl Arbiter {
         let connections = self.table.connections();
         for (port, layout) in self.layout.iter().enumerate() {
             let port = u8::try_from(port).unwrap_or(u8::MAX);
-            let range = layout.first_connection..layout.first_connection.saturating_add(layout.connections);
-            let (Some(slots), Some(filters)) = (self.slots.get_mut(range.clone()), connections.get(range))
+            let range =
+                layout.first_connection..layout.first_connection.saturating_add(layout.connections);
+            let (Some(slots), Some(filters)) =
+                (self.slots.get_mut(range.clone()), connections.get(range))
             else {
                 continue;
             };
@@ -202,7 +206,7 @@ impl Arbiter {
             }
             let active = activity(slots, now);
             let selected = decide(&self.table, layout, active);
-            let delivered = selected.filter(|&index| fed.contains(index) && active.contains(index));
+            let delivered = selected.filter(|&index| fed.contains(index));
             reception.fed = reception.fed.with(port);
             if delivered.is_some() {
                 reception.delivered = reception.delivered.with(port);

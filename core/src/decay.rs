@@ -229,7 +229,10 @@ mod tests {
                 let exact = reference_f(elapsed as f64 / f64::from(tau_us));
                 let got = decay.apply(Level::FULL, elapsed).to_f64();
                 let error = (got - exact).abs();
-                assert!(error <= bound, "τ {tau_us} µs, dt {elapsed}: error {error:e} > {bound:e}");
+                assert!(
+                    error <= bound,
+                    "τ {tau_us} µs, dt {elapsed}: error {error:e} > {bound:e}"
+                );
             }
         }
     }

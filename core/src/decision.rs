@@ -161,7 +161,10 @@ impl core::fmt::Display for DecisionError {
         match self {
             DecisionError::BadRoot => f.write_str("decision root refers to nothing valid"),
             DecisionError::VariableOutOfRange { node } => {
-                write!(f, "decision node {node} tests a connection the port does not have")
+                write!(
+                    f,
+                    "decision node {node} tests a connection the port does not have"
+                )
             }
             DecisionError::BadChild { node } => write!(
                 f,
@@ -173,7 +176,11 @@ impl core::fmt::Display for DecisionError {
 
 /// Checks a port's diagram: `nodes` are the port's nodes, `root` its entry and `connections` the
 /// number of connections on the port. Costs one pass over the nodes.
-pub fn validate(nodes: &[DecisionNode], root: NodeRef, connections: u8) -> Result<(), DecisionError> {
+pub fn validate(
+    nodes: &[DecisionNode],
+    root: NodeRef,
+    connections: u8,
+) -> Result<(), DecisionError> {
     let reference_ok = |reference: NodeRef, after: Option<(usize, u8)>| match reference.target() {
         Target::Nobody => true,
         Target::Deliver(index) => index < connections,
@@ -182,7 +189,9 @@ pub fn validate(nodes: &[DecisionNode], root: NodeRef, connections: u8) -> Resul
             match (nodes.get(index), after) {
                 (None, _) => false,
                 (Some(_), None) => true,
-                (Some(child), Some((parent, parent_var))) => index > parent && child.var > parent_var,
+                (Some(child), Some((parent, parent_var))) => {
+                    index > parent && child.var > parent_var
+                }
             }
         }
     };
@@ -251,9 +260,17 @@ mod tests {
             node(1, deliver(0), deliver(1)),
         ];
         validate(&nodes, at(0), 2).unwrap();
-        let cases = [(0b00, None), (0b01, Some(0)), (0b10, Some(1)), (0b11, Some(1))];
+        let cases = [
+            (0b00, None),
+            (0b01, Some(0)),
+            (0b10, Some(1)),
+            (0b11, Some(1)),
+        ];
         for (mask, expected) in cases {
-            assert_eq!(evaluate(&nodes, at(0), ConnectionSet::from_bits(mask)), expected);
+            assert_eq!(
+                evaluate(&nodes, at(0), ConnectionSet::from_bits(mask)),
+                expected
+            );
         }
     }
 
@@ -269,20 +286,35 @@ mod tests {
     #[test]
     fn cycles_and_backward_references_are_refused() {
         let cycle = [node(0, at(0), deliver(0))];
-        assert_eq!(validate(&cycle, at(0), 1), Err(DecisionError::BadChild { node: 0 }));
+        assert_eq!(
+            validate(&cycle, at(0), 1),
+            Err(DecisionError::BadChild { node: 0 })
+        );
         // Evaluation on an unvalidated cycle still terminates.
         assert_eq!(evaluate(&cycle, at(0), ConnectionSet::EMPTY), None);
-        let same_var = [node(0, at(1), NodeRef::NOBODY), node(0, NodeRef::NOBODY, deliver(0))];
-        assert_eq!(validate(&same_var, at(0), 1), Err(DecisionError::BadChild { node: 0 }));
+        let same_var = [
+            node(0, at(1), NodeRef::NOBODY),
+            node(0, NodeRef::NOBODY, deliver(0)),
+        ];
+        assert_eq!(
+            validate(&same_var, at(0), 1),
+            Err(DecisionError::BadChild { node: 0 })
+        );
         let missing = [node(0, at(7), NodeRef::NOBODY)];
-        assert_eq!(validate(&missing, at(0), 1), Err(DecisionError::BadChild { node: 0 }));
+        assert_eq!(
+            validate(&missing, at(0), 1),
+            Err(DecisionError::BadChild { node: 0 })
+        );
         let bad_var = [node(3, NodeRef::NOBODY, NodeRef::NOBODY)];
         assert_eq!(
             validate(&bad_var, at(0), 2),
             Err(DecisionError::VariableOutOfRange { node: 0 })
         );
         let bad_terminal = [node(0, NodeRef(0xFF05), NodeRef::NOBODY)];
-        assert_eq!(validate(&bad_terminal, at(0), 2), Err(DecisionError::BadChild { node: 0 }));
+        assert_eq!(
+            validate(&bad_terminal, at(0), 2),
+            Err(DecisionError::BadChild { node: 0 })
+        );
     }
 
     #[test]
@@ -290,6 +322,9 @@ mod tests {
         let set = ConnectionSet::EMPTY.with(0).with(31).with(32);
         assert_eq!(set.bits(), 0x8000_0001);
         assert!(set.contains(31) && !set.contains(32) && !set.contains(200));
-        assert_eq!(set.iter().collect::<heapless::Vec<u8, 4>>().as_slice(), &[0, 31]);
+        assert_eq!(
+            set.iter().collect::<heapless::Vec<u8, 4>>().as_slice(),
+            &[0, 31]
+        );
     }
 }

@@ -151,8 +151,17 @@ mod tests {
     #[test]
     fn invalid_filters_are_refused() {
         assert_eq!(Filter::exact(0x800, false), Err(FilterError::IdTooWide));
-        assert_eq!(Filter::exact(0x2000_0000, true), Err(FilterError::IdTooWide));
-        assert_eq!(Filter::new(0x1, 0xFFF, false), Err(FilterError::MaskTooWide));
-        assert_eq!(Filter::new(0x101, 0x7F0, false), Err(FilterError::IdOutsideMask));
+        assert_eq!(
+            Filter::exact(0x2000_0000, true),
+            Err(FilterError::IdTooWide)
+        );
+        assert_eq!(
+            Filter::new(0x1, 0xFFF, false),
+            Err(FilterError::MaskTooWide)
+        );
+        assert_eq!(
+            Filter::new(0x101, 0x7F0, false),
+            Err(FilterError::IdOutsideMask)
+        );
     }
 }

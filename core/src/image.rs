@@ -118,7 +118,10 @@ impl core::fmt::Display for LoadError {
             ),
             LoadError::ReservedByte => f.write_str("reserved header byte is not zero"),
             LoadError::TooLarge { body_len } => {
-                write!(f, "body of {body_len} bytes exceeds the {MAX_IMAGE_LEN}-byte image limit")
+                write!(
+                    f,
+                    "body of {body_len} bytes exceeds the {MAX_IMAGE_LEN}-byte image limit"
+                )
             }
             LoadError::Crc { stored, computed } => write!(
                 f,
@@ -159,7 +162,9 @@ fn covered_header(node_id: u8, table_version: u32, body_len: u32) -> [u8; 16] {
     let [v0, v1, v2, v3] = table_version.to_le_bytes();
     let [l0, l1, l2, l3] = body_len.to_le_bytes();
     let [m0, m1, m2, m3] = MAGIC;
-    [m0, m1, m2, m3, f0, f1, node_id, 0, v0, v1, v2, v3, l0, l1, l2, l3]
+    [
+        m0, m1, m2, m3, f0, f1, node_id, 0, v0, v1, v2, v3, l0, l1, l2, l3,
+    ]
 }
 
 /// Reads and checks the header alone: magic, format, reserved byte and the declared length
@@ -174,7 +179,26 @@ pub fn read_header(bytes: &[u8]) -> Result<Header, LoadError> {
             got: bytes.len(),
         })?;
     let [
-        m0, m1, m2, m3, f0, f1, node_id, reserved, v0, v1, v2, v3, l0, l1, l2, l3, c0, c1, c2, c3,
+        m0,
+        m1,
+        m2,
+        m3,
+        f0,
+        f1,
+        node_id,
+        reserved,
+        v0,
+        v1,
+        v2,
+        v3,
+        l0,
+        l1,
+        l2,
+        l3,
+        c0,
+        c1,
+        c2,
+        c3,
     ] = header;
     if [m0, m1, m2, m3] != MAGIC {
         return Err(LoadError::BadMagic);
@@ -259,7 +283,9 @@ pub fn encode(
     }
     let body_len_field = u32::try_from(body_len).map_err(|_| EncodeError::TooLarge)?;
     let covered = covered_header(node_id, table_version, body_len_field);
-    let body = body_area.get(..body_len).ok_or(EncodeError::BufferTooSmall)?;
+    let body = body_area
+        .get(..body_len)
+        .ok_or(EncodeError::BufferTooSmall)?;
     let crc = Crc32::new().update(&covered).update(body).finish();
     let (fields, crc_field) = header.split_at_mut(16);
     fields.copy_from_slice(&covered);

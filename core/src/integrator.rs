@@ -302,7 +302,10 @@ mod tests {
         assert!(integrator.is_active(&parameters, at(0.0)));
         integrator.stimulate(&parameters, at(5.0));
         assert!(!integrator.is_active(&parameters, at(5.0)));
-        assert_eq!(integrator.level(&parameters, at(5.0)), Level::from_raw(1 << 30).unwrap());
+        assert_eq!(
+            integrator.level(&parameters, at(5.0)),
+            Level::from_raw(1 << 30).unwrap()
+        );
     }
 
     #[test]
@@ -320,11 +323,17 @@ mod tests {
         assert!(Stimulation::from_seconds(0.2, 3.0, 0.0).is_ok());
         assert_eq!(Stimulation::from_seconds(0.2, 0.0, 0.0), Err(DecayTime));
         assert_eq!(Stimulation::from_seconds(0.2, -1.0, 0.0), Err(DecayTime));
-        assert_eq!(Stimulation::from_seconds(0.2, f64::NAN, 0.0), Err(DecayTime));
+        assert_eq!(
+            Stimulation::from_seconds(0.2, f64::NAN, 0.0),
+            Err(DecayTime)
+        );
         assert_eq!(Stimulation::from_seconds(0.2, 3601.0, 0.0), Err(DecayTime));
         assert_eq!(Stimulation::from_seconds(0.2, 1e-7, 0.0), Err(DecayTime));
         assert_eq!(Stimulation::from_seconds(0.2, 1.0, -0.5), Err(RestTime));
-        assert_eq!(Stimulation::from_seconds(0.2, 1.0, f64::INFINITY), Err(RestTime));
+        assert_eq!(
+            Stimulation::from_seconds(0.2, 1.0, f64::INFINITY),
+            Err(RestTime)
+        );
         assert_eq!(
             Stimulation::from_seconds(f64::NAN, 1.0, 0.0),
             Err(Gain(GainError::NotInRange))

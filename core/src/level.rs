@@ -127,7 +127,14 @@ mod tests {
     fn gains_are_validated() {
         assert_eq!(Gain::from_f64(1.0), Ok(Gain::ONE));
         assert_eq!(Gain::from_f64(0.2).map(Gain::raw), Ok(429_496_730));
-        for bad in [0.0, -0.1, 1.000_001, f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+        for bad in [
+            0.0,
+            -0.1,
+            1.000_001,
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ] {
             assert_eq!(Gain::from_f64(bad), Err(GainError::NotInRange), "{bad}");
         }
         assert_eq!(Gain::from_f64(1e-6), Err(GainError::BelowResolution));

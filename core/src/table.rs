@@ -111,7 +111,10 @@ impl core::fmt::Display for TableError {
             TableError::TooManyConnections => write!(f, "more than {MAX_CONNECTIONS} connections"),
             TableError::TooManyNodes => write!(f, "more than {MAX_DECISION_NODES} decision nodes"),
             TableError::PortTooWide { port } => {
-                write!(f, "port {port} has more than {MAX_CONNECTIONS_PER_PORT} connections")
+                write!(
+                    f,
+                    "port {port} has more than {MAX_CONNECTIONS_PER_PORT} connections"
+                )
             }
             TableError::ConnectionCountMismatch => {
                 f.write_str("the ports' connection counts do not add up")
@@ -253,7 +256,8 @@ impl Table {
         let mut connections = 0usize;
         let mut nodes = 0usize;
         self.ports.iter().map(move |port| {
-            let connection_range = connections..connections.saturating_add(usize::from(port.connections));
+            let connection_range =
+                connections..connections.saturating_add(usize::from(port.connections));
             let node_range = nodes..nodes.saturating_add(usize::from(port.nodes));
             connections = connection_range.end;
             nodes = node_range.end;
@@ -284,7 +288,8 @@ fn validate_port(
     nodes: &[DecisionNode],
 ) -> Result<(), TableError> {
     for (position, connection) in connections.iter().enumerate() {
-        let position = u8::try_from(position).map_err(|_| TableError::PortTooWide { port: index })?;
+        let position =
+            u8::try_from(position).map_err(|_| TableError::PortTooWide { port: index })?;
         connection
             .stimulation
             .validate()
@@ -322,8 +327,12 @@ mod tests {
     fn ports_own_consecutive_ranges() {
         let mut table = Table::new();
         let deliver0 = NodeRef::deliver(0).unwrap();
-        table.push_port(&[connection(1), connection(2)], &[], deliver0).unwrap();
-        table.push_port(&[connection(3)], &[], NodeRef::NOBODY).unwrap();
+        table
+            .push_port(&[connection(1), connection(2)], &[], deliver0)
+            .unwrap();
+        table
+            .push_port(&[connection(3)], &[], NodeRef::NOBODY)
+            .unwrap();
         table.validate().unwrap();
         let ports: std::vec::Vec<_> = table.ports().collect();
         assert_eq!(ports.len(), 2);
