@@ -35,13 +35,15 @@ cargo test -p pab-core --benches --locked
 
 step "examples"
 cargo build -p pabctl --release --locked
-out=target/examples
+target="${CARGO_TARGET_DIR:-target}"
+pabctl="$target/release/pabctl"
+out="$target/examples"
 mkdir -p "$out"
 for network in examples/*.toml; do
     name=$(basename "$network" .toml)
-    ./target/release/pabctl check "$network" > "$out/$name.check.txt"
-    ./target/release/pabctl compile "$network" -o "$out/$name" > "$out/$name.compile.txt"
-    ./target/release/pabctl sim "$network" --trace "$out/$name.csv" --plot "$out/$name.png" > "$out/$name.sim.txt"
+    "$pabctl" check "$network" > "$out/$name.check.txt"
+    "$pabctl" compile "$network" -o "$out/$name" > "$out/$name.compile.txt"
+    "$pabctl" sim "$network" --trace "$out/$name.csv" --plot "$out/$name.png" > "$out/$name.sim.txt"
     echo "$network: consistent, compiled, simulated ($out/$name.png)"
 done
 
