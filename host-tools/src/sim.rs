@@ -517,12 +517,8 @@ impl Outcome {
                     });
                 let _ = writeln!(out, "  {:>14}  {who}", seconds_text(change.t_us));
             }
-            for connection in network.port_connections(port_index) {
-                let Some(index) = network
-                    .connections
-                    .iter()
-                    .position(|c| std::ptr::eq(c, connection))
-                else {
+            for &index in &port.connections {
+                let Some(connection) = network.connections.get(index) else {
                     continue;
                 };
                 let rows: Vec<&TraceRow> = self.rows_of(index, 0, u64::MAX).collect();
