@@ -45,6 +45,9 @@ pub enum DecisionError {
     TooLarge,
 }
 
+/// How many distinct walk positions the builder may visit per node it may create.
+const WORK_PER_NODE: usize = 64;
+
 struct Builder<'a> {
     delivers: &'a [Bdd],
     limit: usize,
@@ -57,6 +60,11 @@ impl Builder<'_> {
     fn build(&mut self, positions: Vec<BddPointer>) -> Result<Step, DecisionError> {
         if let Some(step) = self.memo.get(&positions) {
             return Ok(*step);
+        }
+        // Distinct positions can outnumber the nodes they reduce to; bound the work as well as
+        // the result, so that a pathological rule set fails fast instead of running for hours.
+        if self.memo.len() >= self.limit.saturating_mul(WORK_PER_NODE) {
+            return Err(DecisionError::TooLarge);
         }
         let next = positions
             .iter()
@@ -214,7 +222,7 @@ fn compile_node(
                 port.span.clone(),
                 match error {
                     DecisionError::TooLarge => format!(
-                        "port `{}`: its decision needs more than the {room} nodes left on node `{}` (at most {MAX_DECISION_NODES} per node)",
+                        "port `{}`: its decision needs more than the {room} decision nodes left on node `{}` (at most {MAX_DECISION_NODES} per node); simplify the rules or split the port",
                         port.name, node.name
                     ),
                     DecisionError::Inconsistent => {
@@ -387,6 +395,32 @@ mod tests {
             (decide(0), decide(1), decide(2), decide(3)),
             (None, Some(0), Some(1), Some(1))
         );
+    }
+
+    #[test]
+    fn decisions_beyond_the_capacity_are_refused() {
+        // Connection k delivers iff x_k and an odd number of the others are active, guarded by
+        // priority: the parity makes the diagram grow with every variable.
+        let n = 24;
+        let names: Vec<String> = (0..n).map(|k| format!("C{k}")).collect();
+        let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+        let variables = BddVariableSet::new(&refs);
+        let parity = (0..n).fold(variables.mk_false(), |p, j| {
+            p.xor(&variables.mk_var(BddVariable::from_index(j)))
+        });
+        let mut delivers: Vec<Bdd> = Vec::new();
+        for k in 0..n {
+            let earlier = delivers
+                .iter()
+                .fold(variables.mk_false(), |all, d| all.or(d));
+            let own = variables.mk_var(BddVariable::from_index(k));
+            delivers.push(own.and(&parity).and_not(&earlier));
+        }
+        let logic = PortLogic {
+            variables,
+            delivers,
+        };
+        assert_eq!(decision(&logic, 64), Err(DecisionError::TooLarge));
     }
 
     #[test]
