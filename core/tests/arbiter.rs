@@ -3,11 +3,12 @@
 
 mod common;
 
+use common::{at, deliver, node, priority_chain};
+
 use common::receive;
 use embedded_can::{ExtendedId, StandardId};
 use pab_core::{
-    Arbiter, Connection, ConnectionSet, DecisionNode, Filter, Id, Instant, NodeRef, Reception,
-    Stimulation, Table,
+    Arbiter, Connection, ConnectionSet, Filter, Id, Instant, NodeRef, Reception, Stimulation, Table,
 };
 
 fn stimulation(sigma: f64, tau: f64, rest: f64) -> Stimulation {
@@ -25,18 +26,6 @@ fn exact(id: u32) -> Filter {
     Filter::exact(id, false).expect("valid filter")
 }
 
-fn node(var: u8, low: NodeRef, high: NodeRef) -> DecisionNode {
-    DecisionNode { var, low, high }
-}
-
-fn at(index: u16) -> NodeRef {
-    NodeRef::node(index).expect("node index")
-}
-
-fn deliver(index: u8) -> NodeRef {
-    NodeRef::deliver(index).expect("connection index")
-}
-
 fn std_id(raw: u16) -> Id {
     Id::Standard(StandardId::new(raw).expect("11-bit id"))
 }
@@ -49,20 +38,6 @@ fn set(indices: &[u8]) -> ConnectionSet {
     indices
         .iter()
         .fold(ConnectionSet::EMPTY, |set, &index| set.with(index))
-}
-
-/// Connection k delivers iff x_k and no lower-indexed connection is active.
-fn priority_chain(n: u8) -> Vec<DecisionNode> {
-    (0..n)
-        .map(|k| {
-            let low = if k + 1 < n {
-                at(u16::from(k) + 1)
-            } else {
-                NodeRef::NOBODY
-            };
-            node(k, low, deliver(k))
-        })
-        .collect()
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -5,6 +5,8 @@
 
 mod common;
 
+use common::{at, deliver, node, priority_chain};
+
 use std::cell::Cell;
 
 use embedded_can::{ExtendedId, StandardId};
@@ -34,18 +36,6 @@ fn standard(id: u32, stimulation: Stimulation) -> Connection {
     }
 }
 
-fn node(var: u8, low: NodeRef, high: NodeRef) -> DecisionNode {
-    DecisionNode { var, low, high }
-}
-
-fn at(index: u16) -> NodeRef {
-    NodeRef::node(index).expect("node index")
-}
-
-fn deliver(index: u8) -> NodeRef {
-    NodeRef::deliver(index).expect("connection index")
-}
-
 /// The port of the paper's Figure 1: C0 (face, 0x110) delivers iff x0 ∧ ¬x1, C1 (object, 0x111)
 /// iff x1. σ = 0.2, τ = 3 s.
 fn figure1_port() -> ([Connection; 2], [DecisionNode; 3], NodeRef) {
@@ -66,20 +56,6 @@ fn figure1_table() -> Table {
         .push_port(&connections, &nodes, root)
         .expect("valid port");
     table
-}
-
-/// Connection k delivers iff x_k and no lower-indexed connection is active.
-fn priority_chain(n: u8) -> Vec<DecisionNode> {
-    (0..n)
-        .map(|k| {
-            let low = if k + 1 < n {
-                at(u16::from(k) + 1)
-            } else {
-                NodeRef::NOBODY
-            };
-            node(k, low, deliver(k))
-        })
-        .collect()
 }
 
 /// Several ports: Figure 1, a 32-connection priority chain with every kind of filter and a spread

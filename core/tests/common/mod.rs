@@ -1,6 +1,35 @@
-//! What every test that drives an `Arbiter` checks on every frame.
+//! Shared by the core's integration tests: decision builders, and what every test that drives an
+//! `Arbiter` checks on every frame.
 
-use pab_core::{Arbiter, Id, Instant, PortVerdict, Reception};
+#![allow(dead_code)]
+
+use pab_core::{Arbiter, DecisionNode, Id, Instant, NodeRef, PortVerdict, Reception};
+
+pub fn node(var: u8, low: NodeRef, high: NodeRef) -> DecisionNode {
+    DecisionNode { var, low, high }
+}
+
+pub fn at(index: u16) -> NodeRef {
+    NodeRef::node(index).expect("node index")
+}
+
+pub fn deliver(index: u8) -> NodeRef {
+    NodeRef::deliver(index).expect("connection index")
+}
+
+/// Connection k delivers iff x_k and no lower-indexed connection is active.
+pub fn priority_chain(n: u8) -> Vec<DecisionNode> {
+    (0..n)
+        .map(|k| {
+            let low = if k + 1 < n {
+                at(u16::from(k) + 1)
+            } else {
+                NodeRef::NOBODY
+            };
+            node(k, low, deliver(k))
+        })
+        .collect()
+}
 
 /// Receives a frame and returns the reception with the verdicts, after checking that every
 /// verdict agrees with the read-only accessors at the same instant.
