@@ -1,0 +1,185 @@
+//! A classic CAN frame (up to 8 data bytes), owned and `Copy`.
+//!
+//! Every runner converts its driver's frame type to this one at the edge (the embassy FDCAN frame on
+//! a board, `socketcan::CanFrame` on Linux, the simulator's own), through the
+//! [`embedded_can::Frame`] trait that all of them implement, so the node application and the tools
+//! share one frame type.
+
+use embedded_can::{ExtendedId, Id, StandardId};
+
+use crate::filter::{MAX_EXTENDED_ID, MAX_STANDARD_ID};
+
+/// Data bytes of a classic CAN frame.
+pub const MAX_DATA_LEN: usize = 8;
+
+/// A classic CAN data or remote frame. 16 bytes; no allocation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Frame {
+    id: Id,
+    remote: bool,
+    len: u8,
+    data: [u8; MAX_DATA_LEN],
+}
+
+impl Frame {
+    /// A data frame; `None` when `data` is longer than 8 bytes.
+    pub fn data(id: impl Into<Id>, data: &[u8]) -> Option<Frame> {
+        let len = u8::try_from(data.len()).ok().filter(|&len| len <= 8)?;
+        let mut bytes = [0; MAX_DATA_LEN];
+        bytes.get_mut(..data.len())?.copy_from_slice(data);
+        Some(Frame {
+            id: id.into(),
+            remote: false,
+            len,
+            data: bytes,
+        })
+    }
+
+    /// A data frame from a full 8-byte buffer of which the first `len` bytes are sent (`len` is
+    /// clamped to 8). Infallible, for encoders that fill a fixed buffer.
+    pub fn from_buffer(id: impl Into<Id>, data: [u8; MAX_DATA_LEN], len: u8) -> Frame {
+        Frame {
+            id: id.into(),
+            remote: false,
+            len: len.min(8),
+            data,
+        }
+    }
+
+    /// A data frame with an identifier given as a raw number; `None` when the number does not fit
+    /// the format or `data` is longer than 8 bytes.
+    pub fn with_raw_id(raw: u32, extended: bool, data: &[u8]) -> Option<Frame> {
+        Frame::data(raw_id(raw, extended)?, data)
+    }
+
+    /// The identifier.
+    pub const fn id(&self) -> Id {
+        self.id
+    }
+
+    /// The identifier as a number and whether it is extended.
+    pub fn raw_id(&self) -> (u32, bool) {
+        match self.id {
+            Id::Standard(id) => (u32::from(id.as_raw()), false),
+            Id::Extended(id) => (id.as_raw(), true),
+        }
+    }
+
+    /// The data bytes (empty for a remote frame).
+    pub fn payload(&self) -> &[u8] {
+        if self.remote {
+            return &[];
+        }
+        self.data.get(..usize::from(self.len)).unwrap_or(&[])
+    }
+
+    /// Whether this is a remote (RTR) frame.
+    pub const fn is_remote(&self) -> bool {
+        self.remote
+    }
+}
+
+/// An identifier from a raw number; `None` when it does not fit the format.
+pub fn raw_id(raw: u32, extended: bool) -> Option<Id> {
+    if extended {
+        (raw <= MAX_EXTENDED_ID)
+            .then(|| ExtendedId::new(raw))
+            .flatten()
+            .map(Id::Extended)
+    } else {
+        (raw <= MAX_STANDARD_ID)
+            .then(|| u16::try_from(raw).ok().and_then(StandardId::new))
+            .flatten()
+            .map(Id::Standard)
+    }
+}
+
+impl embedded_can::Frame for Frame {
+    fn new(id: impl Into<Id>, data: &[u8]) -> Option<Self> {
+        Frame::data(id, data)
+    }
+
+    fn new_remote(id: impl Into<Id>, dlc: usize) -> Option<Self> {
+        let len = u8::try_from(dlc).ok().filter(|&len| len <= 8)?;
+        Some(Frame {
+            id: id.into(),
+            remote: true,
+            len,
+            data: [0; MAX_DATA_LEN],
+        })
+    }
+
+    fn is_extended(&self) -> bool {
+        matches!(self.id, Id::Extended(_))
+    }
+
+    fn is_remote_frame(&self) -> bool {
+        self.remote
+    }
+
+    fn id(&self) -> Id {
+        self.id
+    }
+
+    fn dlc(&self) -> usize {
+        usize::from(self.len)
+    }
+
+    fn data(&self) -> &[u8] {
+        self.payload()
+    }
+}
+
+/// Converts any [`embedded_can::Frame`] (a driver's frame) to a [`Frame`].
+pub fn from_frame(frame: &impl embedded_can::Frame) -> Frame {
+    if frame.is_remote_frame() {
+        Frame {
+            id: frame.id(),
+            remote: true,
+            len: u8::try_from(frame.dlc().min(8)).unwrap_or(8),
+            data: [0; MAX_DATA_LEN],
+        }
+    } else {
+        let data = frame.data();
+        let data = data.get(..data.len().min(MAX_DATA_LEN)).unwrap_or(&[]);
+        Frame::data(frame.id(), data).unwrap_or(Frame {
+            id: frame.id(),
+            remote: false,
+            len: 0,
+            data: [0; MAX_DATA_LEN],
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use embedded_can::Frame as _;
+
+    #[test]
+    fn data_longer_than_eight_bytes_is_refused() {
+        assert!(Frame::with_raw_id(0x10, false, &[0; 9]).is_none());
+        let frame = Frame::with_raw_id(0x10, false, &[1, 2, 3]).unwrap();
+        assert_eq!(frame.payload(), &[1, 2, 3]);
+        assert_eq!(frame.dlc(), 3);
+        assert_eq!(frame.raw_id(), (0x10, false));
+    }
+
+    #[test]
+    fn raw_ids_are_checked_against_their_format() {
+        assert!(raw_id(0x7FF, false).is_some());
+        assert!(raw_id(0x800, false).is_none());
+        assert!(raw_id(0x1FFF_FFFF, true).is_some());
+        assert!(raw_id(0x2000_0000, true).is_none());
+    }
+
+    #[test]
+    fn remote_frames_carry_no_data() {
+        let id = raw_id(0x123, false).unwrap();
+        let frame = Frame::new_remote(id, 4).unwrap();
+        assert!(frame.is_remote_frame());
+        assert_eq!(frame.dlc(), 4);
+        assert_eq!(embedded_can::Frame::data(&frame), &[] as &[u8]);
+        assert_eq!(from_frame(&frame), frame);
+    }
+}

@@ -1,0 +1,148 @@
+//! The enumerations carried in our frames. Codes are part of the wire format: never renumber one.
+
+/// Defines a `#[repr(u8/u16)]` enum with `code()`, `from_code()`, `ALL` and a description, so the
+/// wire value, the documentation and the DBC value tables come from one list.
+macro_rules! wire_enum {
+    (
+        $(#[$meta:meta])*
+        $name:ident: $repr:ty {
+            $( $(#[$vmeta:meta])* $variant:ident = $code:expr, $text:expr; )*
+        }
+    ) => {
+        $(#[$meta])*
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+        #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+        #[repr($repr)]
+        pub enum $name {
+            $( $(#[$vmeta])* $variant = $code, )*
+        }
+
+        impl $name {
+            /// Every value, in code order.
+            pub const ALL: &'static [$name] = &[$($name::$variant),*];
+
+            /// The wire code.
+            pub const fn code(self) -> $repr {
+                self as $repr
+            }
+
+            /// The value with this wire code.
+            pub fn from_code(code: $repr) -> Option<$name> {
+                $name::ALL.iter().copied().find(|value| value.code() == code)
+            }
+
+            /// A one-line description, as in `docs/can-protocol.md`.
+            pub const fn description(self) -> &'static str {
+                match self {
+                    $( $name::$variant => $text, )*
+                }
+            }
+        }
+
+        impl core::fmt::Display for $name {
+            fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+                f.write_str(self.description())
+            }
+        }
+    };
+}
+
+wire_enum! {
+    /// A node's state, in its heartbeat.
+    NodeState: u8 {
+        /// Booted without a valid table: it arbitrates nothing and delivers nothing.
+        NoTable = 0, "no table";
+        /// Arbitrating with a valid table.
+        Operational = 1, "operational";
+        /// Arbitrating, but something needs attention: the table could not be stored (it will be
+        /// lost at reboot) or the controller is error-passive or bus-off.
+        Fault = 2, "fault";
+    }
+}
+
+wire_enum! {
+    /// What a fault frame reports.
+    FaultCode: u16 {
+        /// The table found in storage at boot was refused by the loader; the node has no table.
+        /// Detail byte 0: the [`TransferStatusCode`] the loader's verdict maps to.
+        BadStoredTable = 0x0001, "stored table refused at boot";
+        /// A pushed table was refused. Detail byte 0: the [`TransferStatusCode`].
+        TableRefused = 0x0002, "pushed table refused";
+        /// A table was applied but could not be stored: the node will boot with the old one.
+        StoreFailed = 0x0003, "table could not be stored";
+        /// The controller reported a bus error. Detail byte 0: driver-specific kind.
+        BusError = 0x0010, "bus error";
+        /// Received frames were lost before the node read them.
+        RxOverrun = 0x0011, "receive overrun";
+        /// Frames to send were dropped because the transmit queue was full.
+        TxOverrun = 0x0012, "transmit overrun";
+        /// The controller is bus-off or error-passive.
+        BusOff = 0x0013, "bus-off or error-passive";
+        /// A frame of our protocol addressed to this node was malformed. Detail byte 0: its service.
+        BadCommand = 0x0020, "malformed command";
+    }
+}
+
+wire_enum! {
+    /// The outcome of a table transfer, sent to the tool.
+    TransferStatusCode: u8 {
+        /// The new table is running and stored.
+        Applied = 0x00, "applied and stored";
+        /// The node already runs this exact table (same version and CRC); nothing changed.
+        AlreadyCurrent = 0x01, "already running this table";
+        /// The new table is running but could not be stored: it will be lost at reboot.
+        AppliedNotStored = 0x02, "applied, but storing failed";
+        /// The transfer was cut: a consecutive frame came out of sequence or a new transfer
+        /// started before the end.
+        Interrupted = 0x10, "transfer interrupted";
+        /// The transfer was cut: no consecutive frame within the ISO-TP timeout (N_Cr).
+        Timeout = 0x11, "transfer timed out";
+        /// The image is larger than this node accepts; refused at the first frame.
+        TooLarge = 0x12, "image too large for this node";
+        /// The image does not start with a valid header (magic, format, lengths).
+        BadHeader = 0x13, "bad image header";
+        /// The image is for another node id.
+        WrongNode = 0x14, "image is for another node";
+        /// The image is older than the running table (or the same version with other contents).
+        OlderVersion = 0x15, "image is not newer than the running table";
+        /// The image's CRC does not match its bytes.
+        CrcMismatch = 0x16, "CRC mismatch";
+        /// The image's table is invalid or exceeds this node's capacities.
+        InvalidTable = 0x17, "table refused by the loader";
+        /// A transfer from another source is in progress.
+        Busy = 0x18, "another transfer is in progress";
+    }
+}
+
+impl TransferStatusCode {
+    /// Whether the new table is running after this outcome.
+    pub const fn is_success(self) -> bool {
+        matches!(
+            self,
+            TransferStatusCode::Applied
+                | TransferStatusCode::AlreadyCurrent
+                | TransferStatusCode::AppliedNotStored
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn codes_round_trip_and_are_unique() {
+        for state in NodeState::ALL {
+            assert_eq!(NodeState::from_code(state.code()), Some(*state));
+        }
+        for code in FaultCode::ALL {
+            assert_eq!(FaultCode::from_code(code.code()), Some(*code));
+        }
+        for status in TransferStatusCode::ALL {
+            assert_eq!(TransferStatusCode::from_code(status.code()), Some(*status));
+        }
+        assert_eq!(NodeState::from_code(3), None);
+        assert_eq!(FaultCode::from_code(0), None);
+        assert_eq!(TransferStatusCode::from_code(0xFF), None);
+    }
+}

@@ -1,0 +1,653 @@
+//! Payload codecs, one type per service. Every decoder checks the exact length and every enumerated
+//! or reserved field; a frame that fails is refused with a [`DecodeError`], never half-read.
+
+use super::{FaultCode, FrameId, NodeState, Service, TransferStatusCode};
+use crate::frame::Frame;
+
+/// A node's heartbeat (service 0x02), sent every heartbeat period (1 s by default) to
+/// [`super::BROADCAST`], followed by [`TableStatus`], [`Traffic`] and [`Errors`].
+///
+/// ```text
+/// byte 0     state (NodeState)
+/// bytes 1-3  uptime in seconds, 24-bit little endian, saturating at 2^24-1 (194 days)
+/// bytes 4-7  running table version, u32 LE (0 without a table)
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Heartbeat {
+    /// The node's state.
+    pub state: NodeState,
+    /// Seconds since boot (saturates at 2^24-1 on the wire).
+    pub uptime_s: u32,
+    /// The running table's version, 0 without one.
+    pub table_version: u32,
+}
+
+/// The running table (service 0x03).
+///
+/// ```text
+/// bytes 0-3  image CRC-32 (the CRC field of its header), u32 LE; 0 without a table
+/// bytes 4-5  image length in bytes, u16 LE
+/// byte 6     number of ports
+/// byte 7     flags: bit 0 the table is stored (the node boots with it);
+///                   bit 1 the diagnostic stream is on
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct TableStatus {
+    /// CRC-32 from the image header.
+    pub crc: u32,
+    /// Image length in bytes.
+    pub image_len: u16,
+    /// Number of ports.
+    pub ports: u8,
+    /// Whether the node will boot with this table.
+    pub stored: bool,
+    /// Whether the diagnostic stream is on.
+    pub diagnostic: bool,
+}
+
+/// Traffic counters since boot (service 0x04), wrapping at 2^32.
+///
+/// ```text
+/// bytes 0-3  frames received from the bus, u32 LE
+/// bytes 4-7  deliveries (one per port a frame was delivered to), u32 LE
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Traffic {
+    /// Frames received from the bus, of every kind.
+    pub received: u32,
+    /// Deliveries to ports.
+    pub delivered: u32,
+}
+
+/// Loss and error counters since boot (service 0x05), wrapping at 2^32.
+///
+/// ```text
+/// bytes 0-3  frames discarded: they fed at least one port and were delivered to none, u32 LE
+/// bytes 4-7  errors: bus errors, overruns, malformed frames of our protocol, u32 LE
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Errors {
+    /// Frames that lost arbitration at every port they fed.
+    pub discarded: u32,
+    /// Errors of every kind.
+    pub errors: u32,
+}
+
+/// A fault (service 0x01), to [`super::BROADCAST`] at the highest priority, at most once per code
+/// per rate-limit interval (100 ms by default); occurrences in between are counted.
+///
+/// ```text
+/// bytes 0-1  code (FaultCode), u16 LE
+/// byte 2     occurrences since the last frame with this code, saturating at 255 (at least 1)
+/// bytes 3-7  detail, code-specific, 0 where unused
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Fault {
+    /// What happened.
+    pub code: FaultCode,
+    /// How many times since the last frame with this code.
+    pub count: u8,
+    /// Code-specific detail.
+    pub detail: [u8; 5],
+}
+
+/// Flags of a [`DiagnosticSample`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DiagnosticFlags {
+    /// The connection is active (its stimulation crossed the threshold and has not decayed).
+    pub active: bool,
+    /// The connection is resting (ignoring frames during its rest time).
+    pub resting: bool,
+    /// The port's decision selects this connection: it is the current deliverer.
+    pub delivering: bool,
+    /// This is the last sample of the round (the round's samples share a sequence number).
+    pub end_of_round: bool,
+}
+
+impl DiagnosticFlags {
+    const fn bits(self) -> u8 {
+        (self.active as u8)
+            | (self.resting as u8) << 1
+            | (self.delivering as u8) << 2
+            | (self.end_of_round as u8) << 3
+    }
+
+    const fn from_bits(bits: u8) -> Option<DiagnosticFlags> {
+        if bits & !0b1111 != 0 {
+            return None;
+        }
+        Some(DiagnosticFlags {
+            active: bits & 1 != 0,
+            resting: bits & 2 != 0,
+            delivering: bits & 4 != 0,
+            end_of_round: bits & 8 != 0,
+        })
+    }
+}
+
+/// One connection's state (service 0x06), when the diagnostic stream is on. A round covers every
+/// connection of the selected ports, in port then connection order, at the requested rate.
+///
+/// ```text
+/// byte 0     port index
+/// byte 1     connection index within the port
+/// byte 2     flags: bit 0 active, bit 1 resting, bit 2 delivering, bit 3 end of round
+/// byte 3     round sequence number, wrapping
+/// bytes 4-7  stimulation S in Q1.31 (2^31 = 1.0), u32 LE
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DiagnosticSample {
+    /// The port.
+    pub port: u8,
+    /// The connection within the port.
+    pub connection: u8,
+    /// Activity and selection.
+    pub flags: DiagnosticFlags,
+    /// The round this sample belongs to.
+    pub sequence: u8,
+    /// S in Q1.31.
+    pub level: u32,
+}
+
+impl DiagnosticSample {
+    /// S as a number in [0, 1].
+    pub fn level_f32(&self) -> f32 {
+        self.level as f32 / (1u64 << 31) as f32
+    }
+}
+
+/// Switches a node's diagnostic stream (service 0x10), tool → node or broadcast.
+///
+/// ```text
+/// bytes 0-1  rounds per second, u16 LE; 0 switches the stream off; at most MAX_RATE_HZ
+/// bytes 2-3  ports to sample, bit i = port i, u16 LE
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DiagnosticControl {
+    /// Rounds per second, 0 = off.
+    pub rate_hz: u16,
+    /// Ports to sample.
+    pub ports: u16,
+}
+
+impl DiagnosticControl {
+    /// The highest rate a node accepts (a higher request is refused as malformed).
+    pub const MAX_RATE_HZ: u16 = 200;
+}
+
+/// The outcome of a table transfer (service 0x12), node → tool.
+///
+/// ```text
+/// byte 0     status (TransferStatusCode)
+/// byte 1     detail: for InvalidTable, which check failed (see docs); otherwise 0
+/// bytes 2-5  version of the table running after this transfer, u32 LE
+/// bytes 6-7  reserved, 0
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct TransferStatus {
+    /// What happened.
+    pub status: TransferStatusCode,
+    /// Status-specific detail.
+    pub detail: u8,
+    /// The version running now.
+    pub running_version: u32,
+}
+
+/// Any frame of our protocol, decoded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Message {
+    /// See [`Fault`].
+    Fault(Fault),
+    /// See [`Heartbeat`].
+    Heartbeat(Heartbeat),
+    /// See [`TableStatus`].
+    TableStatus(TableStatus),
+    /// See [`Traffic`].
+    Traffic(Traffic),
+    /// See [`Errors`].
+    Errors(Errors),
+    /// See [`DiagnosticSample`].
+    Diagnostic(DiagnosticSample),
+    /// See [`DiagnosticControl`].
+    DiagnosticControl(DiagnosticControl),
+    /// One ISO-TP frame of a table transfer (or its flow control), passed to [`crate::isotp`].
+    TableTransfer {
+        /// The frame's bytes.
+        data: [u8; 8],
+        /// How many of them the frame carried.
+        len: u8,
+    },
+    /// See [`TransferStatus`].
+    TransferStatus(TransferStatus),
+}
+
+/// Why a frame in our identifier space was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DecodeError {
+    /// Not one of our identifiers (standard, other marker or unknown service).
+    NotOurs,
+    /// A remote frame: our protocol uses none.
+    Remote,
+    /// The payload length is not the service's.
+    Length {
+        /// The service.
+        service: Service,
+        /// The length received.
+        len: u8,
+    },
+    /// An enumerated field holds an unknown code or a reserved bit or byte is set.
+    Value {
+        /// The service.
+        service: Service,
+    },
+}
+
+impl core::fmt::Display for DecodeError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            DecodeError::NotOurs => f.write_str("not a frame of the pab protocol"),
+            DecodeError::Remote => f.write_str("remote frame"),
+            DecodeError::Length { service, len } => write!(
+                f,
+                "{service:?} frame with {len} bytes, expected {}",
+                service.payload_len()
+            ),
+            DecodeError::Value { service } => {
+                write!(
+                    f,
+                    "{service:?} frame with an unknown code or reserved bits set"
+                )
+            }
+        }
+    }
+}
+
+fn u32_at(data: &[u8], at: usize) -> u32 {
+    let mut bytes = [0; 4];
+    if let Some(source) = data.get(at..at + 4) {
+        bytes.copy_from_slice(source);
+    }
+    u32::from_le_bytes(bytes)
+}
+
+fn u16_at(data: &[u8], at: usize) -> u16 {
+    let mut bytes = [0; 2];
+    if let Some(source) = data.get(at..at + 2) {
+        bytes.copy_from_slice(source);
+    }
+    u16::from_le_bytes(bytes)
+}
+
+fn byte(data: &[u8], at: usize) -> u8 {
+    data.get(at).copied().unwrap_or(0)
+}
+
+impl Message {
+    /// The service this message belongs to.
+    pub const fn service(&self) -> Service {
+        match self {
+            Message::Fault(_) => Service::Fault,
+            Message::Heartbeat(_) => Service::Heartbeat,
+            Message::TableStatus(_) => Service::TableStatus,
+            Message::Traffic(_) => Service::Traffic,
+            Message::Errors(_) => Service::Errors,
+            Message::Diagnostic(_) => Service::Diagnostic,
+            Message::DiagnosticControl(_) => Service::DiagnosticControl,
+            Message::TableTransfer { .. } => Service::TableTransfer,
+            Message::TransferStatus(_) => Service::TransferStatus,
+        }
+    }
+
+    /// The frame carrying this message from `source` to `destination`.
+    pub fn to_frame(&self, source: u8, destination: u8) -> Frame {
+        let id = FrameId::new(self.service(), source, destination).id();
+        let mut out = Writer::default();
+        match self {
+            Message::Fault(fault) => {
+                out.put(&fault.code.code().to_le_bytes());
+                out.put(&[fault.count]);
+                out.put(&fault.detail);
+            }
+            Message::Heartbeat(heartbeat) => {
+                out.put(&[heartbeat.state.code()]);
+                let [a, b, c, _] = heartbeat.uptime_s.min(0x00FF_FFFF).to_le_bytes();
+                out.put(&[a, b, c]);
+                out.put(&heartbeat.table_version.to_le_bytes());
+            }
+            Message::TableStatus(status) => {
+                out.put(&status.crc.to_le_bytes());
+                out.put(&status.image_len.to_le_bytes());
+                out.put(&[
+                    status.ports,
+                    status.stored as u8 | (status.diagnostic as u8) << 1,
+                ]);
+            }
+            Message::Traffic(traffic) => {
+                out.put(&traffic.received.to_le_bytes());
+                out.put(&traffic.delivered.to_le_bytes());
+            }
+            Message::Errors(errors) => {
+                out.put(&errors.discarded.to_le_bytes());
+                out.put(&errors.errors.to_le_bytes());
+            }
+            Message::Diagnostic(sample) => {
+                out.put(&[
+                    sample.port,
+                    sample.connection,
+                    sample.flags.bits(),
+                    sample.sequence,
+                ]);
+                out.put(&sample.level.to_le_bytes());
+            }
+            Message::DiagnosticControl(control) => {
+                out.put(&control.rate_hz.to_le_bytes());
+                out.put(&control.ports.to_le_bytes());
+            }
+            Message::TableTransfer { data, len } => {
+                out.put(data.get(..usize::from(*len)).unwrap_or(data));
+            }
+            Message::TransferStatus(status) => {
+                out.put(&[status.status.code(), status.detail]);
+                out.put(&status.running_version.to_le_bytes());
+                out.put(&[0, 0]);
+            }
+        }
+        Frame::from_buffer(id, out.buf, out.len)
+    }
+
+    /// Decodes a frame of our protocol: its addresses and its message.
+    pub fn decode(frame: &Frame) -> Result<(FrameId, Message), DecodeError> {
+        let id = FrameId::decode(&frame.id()).ok_or(DecodeError::NotOurs)?;
+        if frame.is_remote() {
+            return Err(DecodeError::Remote);
+        }
+        let service = id.service;
+        let data = frame.payload();
+        let len = u8::try_from(data.len()).unwrap_or(u8::MAX);
+        let expected = service.payload_len();
+        let length_ok = match service {
+            // ISO-TP frames may be unpadded: the transport checks their length.
+            Service::TableTransfer => !data.is_empty(),
+            _ => data.len() == expected,
+        };
+        if !length_ok {
+            return Err(DecodeError::Length { service, len });
+        }
+        let bad = DecodeError::Value { service };
+        let message = match service {
+            Service::Fault => {
+                let code = FaultCode::from_code(u16_at(data, 0)).ok_or(bad)?;
+                let mut detail = [0; 5];
+                detail.copy_from_slice(data.get(3..8).ok_or(bad)?);
+                Message::Fault(Fault {
+                    code,
+                    count: byte(data, 2),
+                    detail,
+                })
+            }
+            Service::Heartbeat => Message::Heartbeat(Heartbeat {
+                state: NodeState::from_code(byte(data, 0)).ok_or(bad)?,
+                uptime_s: u32::from_le_bytes([byte(data, 1), byte(data, 2), byte(data, 3), 0]),
+                table_version: u32_at(data, 4),
+            }),
+            Service::TableStatus => {
+                let flags = byte(data, 7);
+                if flags & !0b11 != 0 {
+                    return Err(bad);
+                }
+                Message::TableStatus(TableStatus {
+                    crc: u32_at(data, 0),
+                    image_len: u16_at(data, 4),
+                    ports: byte(data, 6),
+                    stored: flags & 1 != 0,
+                    diagnostic: flags & 2 != 0,
+                })
+            }
+            Service::Traffic => Message::Traffic(Traffic {
+                received: u32_at(data, 0),
+                delivered: u32_at(data, 4),
+            }),
+            Service::Errors => Message::Errors(Errors {
+                discarded: u32_at(data, 0),
+                errors: u32_at(data, 4),
+            }),
+            Service::Diagnostic => Message::Diagnostic(DiagnosticSample {
+                port: byte(data, 0),
+                connection: byte(data, 1),
+                flags: DiagnosticFlags::from_bits(byte(data, 2)).ok_or(bad)?,
+                sequence: byte(data, 3),
+                level: u32_at(data, 4),
+            }),
+            Service::DiagnosticControl => {
+                let rate_hz = u16_at(data, 0);
+                if rate_hz > DiagnosticControl::MAX_RATE_HZ {
+                    return Err(bad);
+                }
+                Message::DiagnosticControl(DiagnosticControl {
+                    rate_hz,
+                    ports: u16_at(data, 2),
+                })
+            }
+            Service::TableTransfer => {
+                let mut bytes = [0; 8];
+                let count = data.len().min(8);
+                bytes
+                    .get_mut(..count)
+                    .zip(data.get(..count))
+                    .map(|(to, from)| to.copy_from_slice(from))
+                    .ok_or(bad)?;
+                Message::TableTransfer { data: bytes, len }
+            }
+            Service::TransferStatus => {
+                if u16_at(data, 6) != 0 {
+                    return Err(bad);
+                }
+                Message::TransferStatus(TransferStatus {
+                    status: TransferStatusCode::from_code(byte(data, 0)).ok_or(bad)?,
+                    detail: byte(data, 1),
+                    running_version: u32_at(data, 2),
+                })
+            }
+        };
+        Ok((id, message))
+    }
+}
+
+/// Fills an 8-byte buffer; bytes beyond 8 are dropped (no encoder writes more).
+#[derive(Default)]
+struct Writer {
+    buf: [u8; 8],
+    len: u8,
+}
+
+impl Writer {
+    fn put(&mut self, bytes: &[u8]) {
+        for &value in bytes {
+            if let Some(slot) = self.buf.get_mut(usize::from(self.len)) {
+                *slot = value;
+                self.len += 1;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::protocol::BROADCAST;
+
+    fn samples() -> [Message; 9] {
+        [
+            Message::Fault(Fault {
+                code: FaultCode::TableRefused,
+                count: 3,
+                detail: [0x16, 0, 0, 0, 9],
+            }),
+            Message::Heartbeat(Heartbeat {
+                state: NodeState::Operational,
+                uptime_s: 0x12_3456,
+                table_version: 7,
+            }),
+            Message::TableStatus(TableStatus {
+                crc: 0xDEAD_BEEF,
+                image_len: 177,
+                ports: 1,
+                stored: true,
+                diagnostic: false,
+            }),
+            Message::Traffic(Traffic {
+                received: 1_000_000,
+                delivered: 42,
+            }),
+            Message::Errors(Errors {
+                discarded: 5,
+                errors: u32::MAX,
+            }),
+            Message::Diagnostic(DiagnosticSample {
+                port: 2,
+                connection: 15,
+                flags: DiagnosticFlags {
+                    active: true,
+                    resting: false,
+                    delivering: true,
+                    end_of_round: true,
+                },
+                sequence: 200,
+                level: 1 << 30,
+            }),
+            Message::DiagnosticControl(DiagnosticControl {
+                rate_hz: 20,
+                ports: 0b101,
+            }),
+            Message::TableTransfer {
+                data: [0x10, 0x14, 1, 2, 3, 4, 5, 6],
+                len: 8,
+            },
+            Message::TransferStatus(TransferStatus {
+                status: TransferStatusCode::OlderVersion,
+                detail: 0,
+                running_version: 9,
+            }),
+        ]
+    }
+
+    #[test]
+    fn every_message_round_trips() {
+        for message in samples() {
+            let frame = message.to_frame(3, BROADCAST);
+            let (id, decoded) = Message::decode(&frame).unwrap();
+            assert_eq!(decoded, message);
+            assert_eq!(id.source, 3);
+            assert_eq!(id.destination, BROADCAST);
+            assert_eq!(id.service, message.service());
+            if message.service() != Service::TableTransfer {
+                assert_eq!(frame.payload().len(), message.service().payload_len());
+            }
+        }
+    }
+
+    #[test]
+    fn payloads_are_byte_exact() {
+        let heartbeat = Message::Heartbeat(Heartbeat {
+            state: NodeState::Fault,
+            uptime_s: 0x0102_0304, // saturates to 2^24 - 1 on the wire
+            table_version: 0x0A0B_0C0D,
+        });
+        assert_eq!(
+            heartbeat.to_frame(5, BROADCAST).payload(),
+            &[2, 0xFF, 0xFF, 0xFF, 0x0D, 0x0C, 0x0B, 0x0A]
+        );
+        let status = Message::TransferStatus(TransferStatus {
+            status: TransferStatusCode::Applied,
+            detail: 0,
+            running_version: 0x0102_0304,
+        });
+        assert_eq!(status.to_frame(5, 0).payload(), &[0, 0, 4, 3, 2, 1, 0, 0]);
+        let control = Message::DiagnosticControl(DiagnosticControl {
+            rate_hz: 10,
+            ports: 0xFFFF,
+        });
+        assert_eq!(control.to_frame(0, 5).payload(), &[10, 0, 0xFF, 0xFF]);
+    }
+
+    #[test]
+    fn wrong_lengths_and_values_are_refused() {
+        for message in samples() {
+            let frame = message.to_frame(1, 0);
+            let payload = frame.payload();
+            if message.service() == Service::TableTransfer {
+                let empty = Frame::data(frame.id(), &[]).unwrap();
+                assert!(matches!(
+                    Message::decode(&empty),
+                    Err(DecodeError::Length { .. })
+                ));
+                continue;
+            }
+            for len in 0..=8 {
+                if len == payload.len() {
+                    continue;
+                }
+                let mut data = [0u8; 8];
+                data[..payload.len()].copy_from_slice(payload);
+                let short = Frame::data(frame.id(), &data[..len]).unwrap();
+                assert_eq!(
+                    Message::decode(&short),
+                    Err(DecodeError::Length {
+                        service: message.service(),
+                        len: len as u8
+                    })
+                );
+            }
+        }
+        let id = FrameId::new(Service::Heartbeat, 1, BROADCAST).id();
+        let bad_state = Frame::data(id, &[9, 0, 0, 0, 0, 0, 0, 0]).unwrap();
+        assert!(matches!(
+            Message::decode(&bad_state),
+            Err(DecodeError::Value { .. })
+        ));
+        let id = FrameId::new(Service::DiagnosticControl, 0, 1).id();
+        let too_fast = Frame::data(id, &[201, 0, 1, 0]).unwrap();
+        assert!(matches!(
+            Message::decode(&too_fast),
+            Err(DecodeError::Value { .. })
+        ));
+        let id = FrameId::new(Service::TransferStatus, 1, 0).id();
+        let reserved = Frame::data(id, &[0, 0, 1, 0, 0, 0, 0, 1]).unwrap();
+        assert!(matches!(
+            Message::decode(&reserved),
+            Err(DecodeError::Value { .. })
+        ));
+        let remote = <Frame as embedded_can::Frame>::new_remote(id, 8).unwrap();
+        assert_eq!(Message::decode(&remote), Err(DecodeError::Remote));
+    }
+
+    #[test]
+    fn arbitrary_frames_never_panic() {
+        // Every service, every length, a spread of byte patterns.
+        let mut seed = 0x1234_5678u32;
+        for _ in 0..20_000 {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            let raw = (seed & 0x1FFF_FFFF) | 0b10 << 24;
+            let len = (seed >> 29) as usize + 1;
+            let data = seed.to_le_bytes();
+            let mut bytes = [0u8; 8];
+            bytes[..4].copy_from_slice(&data);
+            bytes[4..].copy_from_slice(&data.map(|b| b.rotate_left(3)));
+            let frame = Frame::with_raw_id(raw, true, &bytes[..len.min(8)]).unwrap();
+            let _ = Message::decode(&frame);
+        }
+    }
+}

@@ -1,0 +1,285 @@
+//! The project's own frames: node heartbeat and status, faults, the diagnostic stream, its control,
+//! and table transfer. `docs/can-protocol.md` is the user-facing description of the same thing;
+//! this module is its only implementation (nodes and `pabctl` both use it).
+//!
+//! # Identifier layout (29-bit extended)
+//!
+//! ```text
+//!  28..26   25..24   23..16    15..8         7..0
+//! priority  marker   service   destination   source
+//!   0-7      0b10     8 bits    node or 0xFF  node or 0
+//! ```
+//!
+//! - **Priority** first, as in Cyphal/CAN, so that the bus itself ranks our traffic: faults (0)
+//!   win arbitration over everything else we send, the diagnostic stream (7) loses to everything.
+//! - **Marker** `0b10`: our frames occupy one quarter of the extended space, and a node tells
+//!   them from the topics it arbitrates with one mask. Any other value means "not ours".
+//! - **Service**: what the payload is ([`Service`]).
+//! - **Destination / source**: node ids are 1..=127; [`TOOL`] (0) is the workstation (`pabctl`);
+//!   [`BROADCAST`] (0xFF) as a destination addresses every node. Carrying both addresses in the
+//!   identifier is what ISO 15765-2 calls normal fixed addressing: a table transfer to node 3 and
+//!   its flow control back use the same service with the addresses swapped.
+//!
+//! Payloads are little endian and fixed length; a frame whose length differs from its service's is
+//! refused by [`Message::decode`] (never guessed at).
+
+mod codes;
+mod messages;
+
+pub use codes::{FaultCode, NodeState, TransferStatusCode};
+pub use messages::{
+    DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Fault, Heartbeat, Message,
+    TableStatus, Traffic, TransferStatus,
+};
+
+use embedded_can::{ExtendedId, Id};
+
+/// The address of the workstation tool (`pabctl`).
+pub const TOOL: u8 = 0;
+/// The destination that addresses every node.
+pub const BROADCAST: u8 = 0xFF;
+/// The largest node id.
+pub const MAX_NODE_ID: u8 = 127;
+
+/// Bits 25..24 of every identifier of ours.
+const MARKER: u32 = 0b10;
+
+/// Bus priority, 0 (wins arbitration) to 7.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Priority(u8);
+
+impl Priority {
+    /// Safety traffic: faults.
+    pub const EXCEPTIONAL: Priority = Priority(0);
+    /// Answers the tool waits for (transfer status).
+    pub const HIGH: Priority = Priority(2);
+    /// Commands from the tool.
+    pub const COMMAND: Priority = Priority(3);
+    /// Heartbeats and status.
+    pub const NOMINAL: Priority = Priority(4);
+    /// Counters.
+    pub const LOW: Priority = Priority(5);
+    /// Bulk transfer (table images).
+    pub const BULK: Priority = Priority(6);
+    /// Diagnostic stream.
+    pub const OPTIONAL: Priority = Priority(7);
+
+    /// A priority from its 3-bit value; `None` above 7.
+    pub const fn new(value: u8) -> Option<Priority> {
+        if value <= 7 {
+            Some(Priority(value))
+        } else {
+            None
+        }
+    }
+
+    /// The 3-bit value.
+    pub const fn value(self) -> u8 {
+        self.0
+    }
+}
+
+/// What a frame of ours carries (bits 23..16 of the identifier).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
+pub enum Service {
+    /// Node → all: a fault, rate-limited ([`Fault`]).
+    Fault = 0x01,
+    /// Node → all: state, uptime, table version ([`Heartbeat`]).
+    Heartbeat = 0x02,
+    /// Node → all: table CRC and size, with every heartbeat ([`TableStatus`]).
+    TableStatus = 0x03,
+    /// Node → all: frames received and delivered, with every heartbeat ([`Traffic`]).
+    Traffic = 0x04,
+    /// Node → all: frames discarded, errors, with every heartbeat ([`Errors`]).
+    Errors = 0x05,
+    /// Node → all: one connection's stimulation, when the stream is on ([`DiagnosticSample`]).
+    Diagnostic = 0x06,
+    /// Tool → node(s): switches the diagnostic stream ([`DiagnosticControl`]).
+    DiagnosticControl = 0x10,
+    /// Tool ↔ node: ISO-TP frames of a table image (tool → node) and flow control (node → tool).
+    TableTransfer = 0x11,
+    /// Node → tool: the outcome of a table transfer ([`TransferStatus`]).
+    TransferStatus = 0x12,
+}
+
+impl Service {
+    /// Every service, for tables (DBC export, documentation tests).
+    pub const ALL: [Service; 9] = [
+        Service::Fault,
+        Service::Heartbeat,
+        Service::TableStatus,
+        Service::Traffic,
+        Service::Errors,
+        Service::Diagnostic,
+        Service::DiagnosticControl,
+        Service::TableTransfer,
+        Service::TransferStatus,
+    ];
+
+    /// The service with this code.
+    pub fn from_code(code: u8) -> Option<Service> {
+        Service::ALL
+            .into_iter()
+            .find(|service| service.code() == code)
+    }
+
+    /// The 8-bit code.
+    pub const fn code(self) -> u8 {
+        self as u8
+    }
+
+    /// The priority frames of this service are sent with.
+    pub const fn priority(self) -> Priority {
+        match self {
+            Service::Fault => Priority::EXCEPTIONAL,
+            Service::TransferStatus => Priority::HIGH,
+            Service::DiagnosticControl => Priority::COMMAND,
+            Service::Heartbeat | Service::TableStatus => Priority::NOMINAL,
+            Service::Traffic | Service::Errors => Priority::LOW,
+            Service::TableTransfer => Priority::BULK,
+            Service::Diagnostic => Priority::OPTIONAL,
+        }
+    }
+
+    /// The payload length of this service's frames (ISO-TP frames are always padded to 8).
+    pub const fn payload_len(self) -> usize {
+        match self {
+            Service::DiagnosticControl => 4,
+            _ => 8,
+        }
+    }
+}
+
+/// A decoded identifier of ours.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FrameId {
+    /// Bus priority.
+    pub priority: Priority,
+    /// What the frame carries.
+    pub service: Service,
+    /// The addressed node, [`TOOL`] or [`BROADCAST`].
+    pub destination: u8,
+    /// The sender: a node or [`TOOL`].
+    pub source: u8,
+}
+
+impl FrameId {
+    /// The identifier of a `service` frame from `source` to `destination`, at the service's
+    /// priority.
+    pub const fn new(service: Service, source: u8, destination: u8) -> FrameId {
+        FrameId {
+            priority: service.priority(),
+            service,
+            destination,
+            source,
+        }
+    }
+
+    /// The 29-bit number.
+    pub const fn raw(self) -> u32 {
+        (self.priority.0 as u32) << 26
+            | MARKER << 24
+            | (self.service as u32) << 16
+            | (self.destination as u32) << 8
+            | self.source as u32
+    }
+
+    /// As an `embedded_can` identifier.
+    pub fn id(self) -> Id {
+        // Cannot fail: the priority has 3 bits, so `raw` fits 29 bits.
+        ExtendedId::new(self.raw()).map_or(Id::Extended(ExtendedId::ZERO), Id::Extended)
+    }
+
+    /// Decodes an identifier: `None` when it is a standard identifier, does not carry our marker,
+    /// or names an unknown service (a frame of a newer protocol version, say).
+    pub fn decode(id: &Id) -> Option<FrameId> {
+        let Id::Extended(id) = id else {
+            return None;
+        };
+        FrameId::from_raw(id.as_raw())
+    }
+
+    /// Decodes a raw 29-bit identifier, as [`FrameId::decode`].
+    pub fn from_raw(raw: u32) -> Option<FrameId> {
+        if raw >> 29 != 0 || (raw >> 24) & 0b11 != MARKER {
+            return None;
+        }
+        let [_, service, destination, source] = raw.to_be_bytes();
+        Some(FrameId {
+            priority: Priority(u8::try_from(raw >> 26).ok()? & 0b111),
+            service: Service::from_code(service)?,
+            destination,
+            source,
+        })
+    }
+
+    /// Whether a node with id `node` should read this frame.
+    pub fn is_for(&self, node: u8) -> bool {
+        self.destination == node || self.destination == BROADCAST
+    }
+}
+
+/// Whether `id` lies in our part of the identifier space (extended, marker `0b10`), whatever the
+/// service. Nodes never arbitrate such frames.
+pub fn is_ours(id: &Id) -> bool {
+    matches!(id, Id::Extended(id) if (id.as_raw() >> 24) & 0b11 == MARKER)
+}
+
+/// The mask and value that select all our frames, for a CAN controller's acceptance filter or a
+/// DBC comment: `raw & PROTOCOL_MASK == PROTOCOL_VALUE`.
+pub const PROTOCOL_MASK: u32 = 0b11 << 24;
+/// See [`PROTOCOL_MASK`].
+pub const PROTOCOL_VALUE: u32 = MARKER << 24;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn identifiers_round_trip_for_every_service_and_address() {
+        for service in Service::ALL {
+            for source in [0u8, 1, 3, 127] {
+                for destination in [0u8, 1, 127, BROADCAST] {
+                    let id = FrameId::new(service, source, destination);
+                    assert_eq!(FrameId::from_raw(id.raw()), Some(id));
+                    assert_eq!(FrameId::decode(&id.id()), Some(id));
+                    assert!(id.raw() <= 0x1FFF_FFFF);
+                    assert!(is_ours(&id.id()));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_layout_is_as_documented() {
+        // Heartbeat (priority 4, service 0x02) from node 3 to everyone.
+        let id = FrameId::new(Service::Heartbeat, 3, BROADCAST);
+        assert_eq!(id.raw(), 4 << 26 | 0b10 << 24 | 0x02 << 16 | 0xFF << 8 | 3);
+        assert_eq!(id.raw(), 0x1202_FF03);
+        // A fault outranks everything we send.
+        let fault = FrameId::new(Service::Fault, 127, BROADCAST).raw();
+        for service in Service::ALL {
+            if service != Service::Fault {
+                assert!(fault < FrameId::new(service, 1, 0).raw());
+            }
+        }
+    }
+
+    #[test]
+    fn foreign_identifiers_are_not_ours() {
+        let standard = Id::Standard(embedded_can::StandardId::new(0x123).unwrap());
+        assert_eq!(FrameId::decode(&standard), None);
+        assert!(!is_ours(&standard));
+        // Wrong marker.
+        assert_eq!(FrameId::from_raw(0x1102_FF03), None);
+        assert_eq!(FrameId::from_raw(0x1302_FF03), None);
+        // Unknown service.
+        assert_eq!(FrameId::from_raw(0x1277_FF03), None);
+        // Wider than 29 bits.
+        assert_eq!(FrameId::from_raw(0x2000_0000 | 0x1202_FF03), None);
+    }
+}
