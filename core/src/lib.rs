@@ -10,7 +10,7 @@
 //! [`Arbiter`] runs all this per frame.
 //!
 //! Tables come from the workstation as [`image`]s: a checked header and a postcard body that the
-//! loader validates field by field.
+//! loader validates field by field. They travel over CAN with ISO-TP ([`isotp`]), sans-I/O.
 //!
 //! ## Guarantees
 //!
@@ -44,6 +44,7 @@ pub mod decision;
 pub mod filter;
 pub mod image;
 pub mod integrator;
+pub mod isotp;
 pub mod level;
 pub mod table;
 pub mod time;
