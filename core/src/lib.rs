@@ -10,7 +10,7 @@
 //! [`Arbiter`] runs all this per frame.
 //!
 //! Tables come from the workstation as [`image`]s: a checked header and a postcard body that the
-//! loader validates field by field.
+//! loader validates field by field. They travel over CAN with ISO-TP ([`isotp`]), sans-I/O.
 //!
 //! ## Guarantees
 //!
@@ -45,6 +45,7 @@ pub mod filter;
 pub mod frame;
 pub mod image;
 pub mod integrator;
+pub mod isotp;
 pub mod level;
 pub mod protocol;
 pub mod table;

@@ -1,0 +1,398 @@
+//! The receiving side: frames in, Flow Controls and whole messages out.
+
+use super::pci::{self, FRAME_LEN, FlowStatus, FrameError, Pci, StMin};
+use super::{deadline_after, expired};
+use crate::time::Instant;
+
+/// How a [`Receiver`] paces its sender.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RxConfig {
+    /// BS sent in every Flow Control: Consecutive Frames per block, 0 for a single block (no Flow
+    /// Control after the first). Default 0.
+    pub block_size: u8,
+    /// STmin sent in every Flow Control. Default 0 (back to back).
+    pub st_min: StMin,
+    /// N_Cr: the longest wait for a Consecutive Frame after the First Frame, a Flow Control or the
+    /// previous Consecutive Frame, in microseconds. Default 1 000 000 (1 s, the standard's value).
+    pub n_cr_micros: u64,
+    /// The byte that pads Flow Controls to 8 bytes. Default 0xCC.
+    pub padding: u8,
+}
+
+impl Default for RxConfig {
+    fn default() -> Self {
+        RxConfig {
+            block_size: 0,
+            st_min: StMin::ZERO,
+            n_cr_micros: 1_000_000,
+            padding: pci::DEFAULT_PADDING,
+        }
+    }
+}
+
+/// Why a reception in progress ended without a message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum RxError {
+    /// A Consecutive Frame with an unexpected sequence number (N_WRONG_SN): a frame was lost or
+    /// repeated.
+    WrongSequenceNumber {
+        /// The sequence number expected.
+        expected: u8,
+        /// The sequence number received.
+        got: u8,
+    },
+    /// No Consecutive Frame within N_Cr (N_TIMEOUT_Cr).
+    Timeout,
+    /// A new Single or First Frame arrived (N_UNEXP_PDU): the standard ends the current reception
+    /// and starts the new one.
+    Interrupted,
+}
+
+/// Why a well-formed message was not accepted.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Refusal {
+    /// The message is longer than the receiver's buffer.
+    TooLarge {
+        /// The announced length.
+        len: u32,
+    },
+}
+
+/// Why a frame was ignored. Ignoring leaves a reception in progress untouched, as the standard
+/// says for frames with an invalid length and for unexpected Consecutive and Flow Control frames.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Ignored {
+    /// The frame does not decode.
+    Malformed(FrameError),
+    /// A Consecutive Frame while no reception is in progress.
+    UnexpectedConsecutive,
+    /// A Consecutive Frame, not the last of its message, that carries fewer than 7 bytes; or the
+    /// last one, carrying fewer bytes than remain.
+    ShortConsecutive {
+        /// Bytes the message needed from this frame.
+        needed: usize,
+        /// Bytes it carried.
+        got: usize,
+    },
+    /// A Flow Control: a receiver sends those, it does not take them.
+    FlowControl,
+}
+
+/// What the caller must do about the frame just passed to [`Receiver::on_frame`].
+#[derive(Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum RxEvent<'a> {
+    /// Nothing: a Consecutive Frame was stored, or a reception ended (see
+    /// [`RxOutcome::aborted`]).
+    Nothing,
+    /// Transmit this Flow Control (ContinueToSend) now, on the reply identifier.
+    SendFlowControl([u8; FRAME_LEN]),
+    /// A whole message. The receiver is idle again; the bytes stay valid until the next call.
+    Complete(&'a [u8]),
+    /// A Single or First Frame announced a message the receiver does not take. Transmit the
+    /// Flow Control if there is one (Overflow, after a First Frame). The receiver stays idle.
+    Refused {
+        /// Why.
+        reason: Refusal,
+        /// The Flow Control to transmit, if any.
+        flow_control: Option<[u8; FRAME_LEN]>,
+    },
+    /// The frame was ignored; count it if you like.
+    Ignored(Ignored),
+}
+
+/// The result of one frame: a reception it ended, and what to do about the frame itself.
+///
+/// Both are needed because one frame can do both: a First Frame that arrives during a reception
+/// ends that reception (`aborted: Some(Interrupted)`) and starts its own (`event:
+/// SendFlowControl`). Likewise a Consecutive Frame that arrives after N_Cr reports the timeout and
+/// is then ignored as unexpected.
+#[must_use]
+#[derive(Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RxOutcome<'a> {
+    /// The reception in progress that this frame (or the time it arrived at) ended, if any.
+    pub aborted: Option<RxError>,
+    /// What to do about the frame.
+    pub event: RxEvent<'a>,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum State {
+    Idle,
+    Receiving {
+        /// The announced length; at most `N`.
+        total: usize,
+        /// Bytes stored so far, `received < total`.
+        received: usize,
+        /// The sequence number of the next Consecutive Frame.
+        next_sn: u8,
+        /// Consecutive Frames left before the next Flow Control; `None` when BS = 0.
+        block_left: Option<u8>,
+        /// N_Cr expires at this instant.
+        deadline: Instant,
+    },
+}
+
+/// Reassembles one message at a time into an owned `[u8; N]`; `N` is the longest message taken.
+///
+/// Memory: `N` bytes plus about 48. Every call costs a few comparisons plus copying the frame's
+/// payload (at most 7 bytes). Never allocates, never panics: whatever the bytes, the result is an
+/// event. The caller routes frames (by CAN id) and transmits the Flow Controls it is handed.
+#[derive(Clone, Debug)]
+pub struct Receiver<const N: usize> {
+    config: RxConfig,
+    buffer: [u8; N],
+    state: State,
+}
+
+impl<const N: usize> Receiver<N> {
+    /// An idle receiver. Costs zeroing `N` bytes.
+    pub fn new(config: RxConfig) -> Self {
+        Receiver {
+            config,
+            buffer: [0; N],
+            state: State::Idle,
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &RxConfig {
+        &self.config
+    }
+
+    /// Handles one received frame's data field (1..=8 bytes), received at `now`.
+    ///
+    /// A reception whose N_Cr has expired at `now` is aborted first, so the outcome does not depend
+    /// on how often [`Receiver::poll`] is called. Then:
+    ///
+    /// - Single Frame: `Complete` (or `Refused` without Flow Control if longer than `N`).
+    /// - First Frame: `SendFlowControl` (CTS with the configured BS and STmin), or `Refused` with
+    ///   an Overflow Flow Control if longer than `N`.
+    /// - Consecutive Frame: stored (`Nothing`), or `SendFlowControl` after a full block, or
+    ///   `Complete` after the last; a wrong sequence number aborts the reception.
+    /// - Anything else: `Ignored`, and a reception in progress goes on.
+    ///
+    /// A Single or First Frame during a reception aborts it (`aborted: Some(Interrupted)`) and is
+    /// then handled as above.
+    pub fn on_frame(&mut self, data: &[u8], now: Instant) -> RxOutcome<'_> {
+        let mut aborted = self.poll(now);
+        let event = match pci::decode(data) {
+            Err(error) => RxEvent::Ignored(Ignored::Malformed(error)),
+            Ok((Pci::FlowControl { .. }, _)) => RxEvent::Ignored(Ignored::FlowControl),
+            Ok((Pci::Single { len }, payload)) => {
+                aborted = aborted.or(self.interrupt());
+                self.single(len, payload)
+            }
+            Ok((Pci::First { len }, payload)) => {
+                aborted = aborted.or(self.interrupt());
+                self.first(len, payload, now)
+            }
+            Ok((Pci::Consecutive { sn }, payload)) => {
+                let (error, event) = self.consecutive(sn, payload, now);
+                aborted = aborted.or(error);
+                event
+            }
+        };
+        RxOutcome { aborted, event }
+    }
+
+    /// Ends a reception in progress because a new message starts.
+    fn interrupt(&mut self) -> Option<RxError> {
+        self.abort().then_some(RxError::Interrupted)
+    }
+
+    fn single(&mut self, len: u8, payload: &[u8]) -> RxEvent<'_> {
+        match self.buffer.get_mut(..payload.len()) {
+            Some(slot) => {
+                slot.copy_from_slice(payload);
+                RxEvent::Complete(slot)
+            }
+            // Single Frames get no Flow Control, so there is no way to tell the sender.
+            None => RxEvent::Refused {
+                reason: Refusal::TooLarge {
+                    len: u32::from(len),
+                },
+                flow_control: None,
+            },
+        }
+    }
+
+    fn first(&mut self, len: u32, payload: &[u8], now: Instant) -> RxEvent<'_> {
+        let total = usize::try_from(len).ok().filter(|total| *total <= N);
+        let (Some(total), Some(slot)) = (total, self.buffer.get_mut(..payload.len())) else {
+            // FS = Overflow: the message does not fit; the sender gives up at once (N_BUFFER_OVFLW)
+            // instead of waiting N_Bs.
+            return RxEvent::Refused {
+                reason: Refusal::TooLarge { len },
+                flow_control: Some(self.flow_control(FlowStatus::Overflow)),
+            };
+        };
+        slot.copy_from_slice(payload);
+        self.state = State::Receiving {
+            total,
+            received: payload.len(),
+            // The First Frame counts as segment 0; the first Consecutive Frame carries SN = 1.
+            next_sn: 1,
+            block_left: self.fresh_block(),
+            // N_Cr runs from the Flow Control's transmission, which the caller does right away.
+            deadline: deadline_after(now, self.config.n_cr_micros),
+        };
+        RxEvent::SendFlowControl(self.flow_control(FlowStatus::ContinueToSend))
+    }
+
+    fn consecutive(
+        &mut self,
+        sn: u8,
+        payload: &[u8],
+        now: Instant,
+    ) -> (Option<RxError>, RxEvent<'_>) {
+        let State::Receiving {
+            total,
+            received,
+            next_sn,
+            block_left,
+            ..
+        } = self.state
+        else {
+            return (None, RxEvent::Ignored(Ignored::UnexpectedConsecutive));
+        };
+        if sn != next_sn {
+            // N_WRONG_SN: the standard aborts; the rest of the message's frames will be ignored as
+            // unexpected, and the sender notices at its next Flow Control wait (N_Bs) if BS > 0.
+            self.state = State::Idle;
+            return (
+                Some(RxError::WrongSequenceNumber {
+                    expected: next_sn,
+                    got: sn,
+                }),
+                RxEvent::Nothing,
+            );
+        }
+        let remaining = total.saturating_sub(received);
+        let needed = remaining.min(pci::CONSECUTIVE_DATA_LEN);
+        // Bytes after `needed` in the last frame are padding. A frame with fewer bytes than needed
+        // is ignored (invalid length); the next one then has an unexpected SN and aborts.
+        let (Some(data), Some(slot)) = (
+            payload.get(..needed),
+            self.buffer
+                .get_mut(received..received.saturating_add(needed)),
+        ) else {
+            return (
+                None,
+                RxEvent::Ignored(Ignored::ShortConsecutive {
+                    needed,
+                    got: payload.len(),
+                }),
+            );
+        };
+        slot.copy_from_slice(data);
+        let received = received.saturating_add(needed);
+        if received >= total {
+            self.state = State::Idle;
+            return match self.buffer.get(..total) {
+                Some(message) => (None, RxEvent::Complete(message)),
+                None => (None, RxEvent::Nothing),
+            };
+        }
+        // Block accounting: after BS Consecutive Frames the sender stops and waits for our next
+        // Flow Control; N_Cr then runs from that Flow Control.
+        let (block_left, event) = match block_left {
+            Some(1) => (
+                self.fresh_block(),
+                RxEvent::SendFlowControl(self.flow_control(FlowStatus::ContinueToSend)),
+            ),
+            Some(left) => (Some(left.saturating_sub(1)), RxEvent::Nothing),
+            None => (None, RxEvent::Nothing),
+        };
+        self.state = State::Receiving {
+            total,
+            received,
+            // SN counts modulo 16: ..., 14, 15, 0, 1, ...
+            next_sn: next_sn.wrapping_add(1) & 0x0F,
+            block_left,
+            deadline: deadline_after(now, self.config.n_cr_micros),
+        };
+        (None, event)
+    }
+
+    fn fresh_block(&self) -> Option<u8> {
+        match self.config.block_size {
+            0 => None,
+            bs => Some(bs),
+        }
+    }
+
+    fn flow_control(&self, status: FlowStatus) -> [u8; FRAME_LEN] {
+        pci::encode_flow_control(
+            status,
+            self.config.block_size,
+            self.config.st_min,
+            self.config.padding,
+        )
+    }
+
+    /// Aborts the reception in progress if N_Cr has expired at `now` (then `Some(Timeout)`).
+    /// Call it at [`Receiver::deadline`]. Costs one comparison.
+    pub fn poll(&mut self, now: Instant) -> Option<RxError> {
+        match self.state {
+            State::Receiving { deadline, .. } if expired(now, deadline) => {
+                self.state = State::Idle;
+                Some(RxError::Timeout)
+            }
+            _ => None,
+        }
+    }
+
+    /// When N_Cr expires for the reception in progress: the next Consecutive Frame must arrive
+    /// before. `None` when idle.
+    pub fn deadline(&self) -> Option<Instant> {
+        match self.state {
+            State::Receiving { deadline, .. } => Some(deadline),
+            State::Idle => None,
+        }
+    }
+
+    /// `(bytes received, message length)` of the reception in progress, `None` when idle.
+    pub fn in_progress(&self) -> Option<(usize, usize)> {
+        match self.state {
+            State::Receiving {
+                total, received, ..
+            } => Some((received, total)),
+            State::Idle => None,
+        }
+    }
+
+    /// The length announced by the First Frame of the reception in progress, `None` when idle.
+    ///
+    /// To refuse a message by its length: after the First Frame, call [`Receiver::abort`] instead
+    /// of transmitting the Flow Control (or transmit an Overflow Flow Control built with
+    /// [`pci::encode_flow_control`]); the sender then fails with N_Bs (or Overflow).
+    pub fn message_len(&self) -> Option<usize> {
+        self.in_progress().map(|(_, total)| total)
+    }
+
+    /// The bytes of the reception in progress received so far (empty when idle): a header can be
+    /// checked before the rest arrives, and the reception [aborted](Receiver::abort) early.
+    pub fn received(&self) -> &[u8] {
+        match self.state {
+            State::Receiving { received, .. } => self.buffer.get(..received).unwrap_or(&[]),
+            State::Idle => &[],
+        }
+    }
+
+    /// Drops the reception in progress, if any (returns whether there was one).
+    ///
+    /// The sender is not told (the standard has no frame for it mid-message): its remaining
+    /// Consecutive Frames are ignored as unexpected, and it fails on N_Bs at its next Flow Control
+    /// wait if the block size is not 0.
+    pub fn abort(&mut self) -> bool {
+        let was_receiving = matches!(self.state, State::Receiving { .. });
+        self.state = State::Idle;
+        was_receiving
+    }
+}
