@@ -14,12 +14,12 @@
 use embedded_can::Id;
 use heapless::Vec;
 
-use crate::decision::{self, ConnectionSet, NodeRef};
+use crate::decision::{self, ConnectionSet, DecisionNode, NodeRef};
 use crate::integrator::{Integrator, Runtime, Stimulated};
 use crate::level::Level;
 use crate::table::{Table, TableError};
 use crate::time::Instant;
-use crate::{MAX_CONNECTIONS, MAX_PORTS};
+use crate::{MAX_CONNECTIONS, MAX_DECISION_NODES, MAX_PORTS};
 
 /// What one frame did on one port.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -99,23 +99,31 @@ struct Slot {
     integrator: Integrator,
 }
 
-/// A node's arbitration: owns its table and the state of every connection.
+/// A node's arbitration: owns its table (of the same capacities, see [`Table`]) and the state of
+/// every connection.
 ///
-/// Memory: the table plus 48 bytes per connection of capacity (about 48 KiB in all at the default
-/// capacities; `size_of::<Arbiter>()` tells exactly).
+/// Memory: the table plus 48 bytes per connection of capacity and 40 per port of capacity on a
+/// 64-bit host (about 49 KiB in all at the default capacities, 6.3 KiB for
+/// [`crate::BoardArbiter`]; `size_of::<Arbiter<P, C, N>>()` tells exactly).
 #[derive(Clone, Debug)]
-pub struct Arbiter {
-    table: Table,
-    layout: Vec<Layout, MAX_PORTS>,
-    slots: Vec<Slot, MAX_CONNECTIONS>,
+pub struct Arbiter<
+    const PORTS: usize = MAX_PORTS,
+    const CONNECTIONS: usize = MAX_CONNECTIONS,
+    const NODES: usize = MAX_DECISION_NODES,
+> {
+    table: Table<PORTS, CONNECTIONS, NODES>,
+    layout: Vec<Layout, PORTS>,
+    slots: Vec<Slot, CONNECTIONS>,
 }
 
-impl Arbiter {
+impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
+    Arbiter<PORTS, CONNECTIONS, NODES>
+{
     /// Starts arbitrating with `table`, every connection at S = 0 and inactive.
     ///
     /// Validates the table again (it is cheap, and a `Table` can be deserialized without the
-    /// loader).
-    pub fn new(table: Table) -> Result<Arbiter, TableError> {
+    /// loader), and fails with the first [`TableError`] found. Costs one pass over the table.
+    pub fn new(table: Table<PORTS, CONNECTIONS, NODES>) -> Result<Self, TableError> {
         table.validate()?;
         let mut layout = Vec::new();
         let mut slots = Vec::new();
@@ -155,7 +163,7 @@ impl Arbiter {
     }
 
     /// The table in use.
-    pub fn table(&self) -> &Table {
+    pub fn table(&self) -> &Table<PORTS, CONNECTIONS, NODES> {
         &self.table
     }
 
@@ -205,7 +213,7 @@ impl Arbiter {
                 continue;
             }
             let active = activity(slots, now);
-            let selected = decide(&self.table, layout, active);
+            let selected = decide(self.table.nodes(), layout, active);
             let delivered = selected.filter(|&index| fed.contains(index));
             reception.fed = reception.fed.with(port);
             if delivered.is_some() {
@@ -227,7 +235,7 @@ impl Arbiter {
     /// a port that does not exist). Read-only.
     pub fn selected(&self, port: u8, now: Instant) -> Option<u8> {
         let layout = self.layout.get(usize::from(port))?;
-        decide(&self.table, layout, self.activity(port, now))
+        decide(self.table.nodes(), layout, self.activity(port, now))
     }
 
     /// Port `port`'s activity mask at `now` (empty for a port that does not exist). Read-only.
@@ -272,9 +280,9 @@ fn activity(slots: &[Slot], now: Instant) -> ConnectionSet {
 
 /// The port's decision under `active`. Only an active connection can be selected (x_i ∧ Φ_i(x)):
 /// a valid diagram may still name an inactive one (e.g. a root that is a terminal).
-fn decide(table: &Table, layout: &Layout, active: ConnectionSet) -> Option<u8> {
+fn decide(nodes: &[DecisionNode], layout: &Layout, active: ConnectionSet) -> Option<u8> {
     let end = layout.first_node.checked_add(layout.nodes)?;
-    let nodes = table.nodes().get(layout.first_node..end)?;
+    let nodes = nodes.get(layout.first_node..end)?;
     decision::evaluate(nodes, layout.root, active).filter(|&index| active.contains(index))
 }
 
@@ -292,7 +300,7 @@ mod tests {
         // A valid diagram that names C0 whatever the mask (root = terminal "C0 delivers"): C0 is
         // selected only while it is active, so that `delivered` is `selected` whenever the frame
         // fed it.
-        let mut table = Table::new();
+        let mut table: Table = Table::new();
         let connection = Connection {
             filter: Filter::exact(0x110, false).unwrap(),
             stimulation: Stimulation::new(Gain::from_raw(1 << 30).unwrap(), 1_000_000, 0).unwrap(),

@@ -3,7 +3,7 @@
 //! ```text
 //! offset size  field
 //!      0    4  magic "PABT"
-//!      4    2  format version, little endian (this is format 1)
+//!      4    2  format version, little endian (this is format 2)
 //!      6    1  node id the table is for
 //!      7    1  reserved, must be 0
 //!      8    4  table version, little endian (newer tables have larger versions)
@@ -18,16 +18,31 @@
 //! flipped bit anywhere goes unnoticed.
 //!
 //! The loader checks, in this order: length, magic, format, reserved byte, declared length, CRC,
-//! body syntax, and every count, index and parameter of the table. It returns a [`LoadError`] for
-//! the first problem; it never panics and never reads out of bounds, whatever the bytes.
+//! body syntax and the receiving table's capacities, and every count, index and parameter of the
+//! table. It returns a [`LoadError`] for the first problem; it never panics and never reads out of
+//! bounds, whatever the bytes.
+//!
+//! Format history: format 1 had no port consumers; format 2 adds one [`crate::Consumer`] per port
+//! (after its decision root). This crate reads format 2 only.
+//!
+//! The body does not depend on the capacities of the [`Table`] that was encoded (postcard prefixes
+//! each list with its length), so one image loads into any table with room for it: a node with
+//! the default capacities and a board with [`crate::BoardTable`] read the same bytes.
+
+use core::marker::PhantomData;
+
+use serde::Deserialize;
+use serde::de::{Deserializer, SeqAccess, Visitor};
 
 use crate::crc32::Crc32;
-use crate::table::{Table, TableError};
+use crate::decision::DecisionNode;
+use crate::table::{Connection, Port, Table, TableError};
+use crate::{MAX_CONNECTIONS, MAX_DECISION_NODES, MAX_PORTS};
 
 /// The first four bytes of every image.
 pub const MAGIC: [u8; 4] = *b"PABT";
 /// The format this crate writes and reads.
-pub const FORMAT_VERSION: u16 = 1;
+pub const FORMAT_VERSION: u16 = 2;
 /// Bytes before the body.
 pub const HEADER_LEN: usize = 20;
 /// The largest image accepted, header included. A table at full capacity encodes in less.
@@ -47,13 +62,30 @@ pub struct Header {
     pub crc: u32,
 }
 
-/// A decoded, validated image.
+/// A decoded, validated image, in a table of capacities `PORTS`, `CONNECTIONS`, `NODES` (the
+/// defaults are those of [`Table`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Loaded {
+pub struct Loaded<
+    const PORTS: usize = MAX_PORTS,
+    const CONNECTIONS: usize = MAX_CONNECTIONS,
+    const NODES: usize = MAX_DECISION_NODES,
+> {
     /// Its header.
     pub header: Header,
     /// Its table.
-    pub table: Table,
+    pub table: Table<PORTS, CONNECTIONS, NODES>,
+}
+
+/// How many ports, connections and decision nodes a table has, or has room for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct TableSize {
+    /// Ports.
+    pub ports: usize,
+    /// Connections over all ports.
+    pub connections: usize,
+    /// Decision nodes over all ports.
+    pub nodes: usize,
 }
 
 /// Why an image was refused.
@@ -96,6 +128,15 @@ pub enum LoadError {
     /// The body is not a valid postcard encoding of a table (with the CRC right, this means a bug
     /// or an incompatible writer, not corruption).
     Body(postcard::Error),
+    /// The body decodes, but holds more ports, connections or decision nodes than the receiving
+    /// table has room for: the image is for a node with larger capacities. (Whether the table
+    /// would otherwise be valid is not known: it was not stored.)
+    ExceedsCapacity {
+        /// What the body holds.
+        needed: TableSize,
+        /// What the receiving table holds at most.
+        capacity: TableSize,
+    },
     /// The body decodes but leaves bytes unread.
     BodyTrailingBytes,
     /// The body decodes to a table that breaks a rule.
@@ -128,6 +169,16 @@ impl core::fmt::Display for LoadError {
                 "CRC mismatch: header says {stored:#010x}, bytes give {computed:#010x}"
             ),
             LoadError::Body(error) => write!(f, "body does not decode: {error}"),
+            LoadError::ExceedsCapacity { needed, capacity } => write!(
+                f,
+                "the table needs {} ports, {} connections and {} decision nodes; this node holds at most {}, {} and {}",
+                needed.ports,
+                needed.connections,
+                needed.nodes,
+                capacity.ports,
+                capacity.connections,
+                capacity.nodes
+            ),
             LoadError::BodyTrailingBytes => f.write_str("body has bytes after the table"),
             LoadError::Table(error) => write!(f, "invalid table: {error}"),
         }
@@ -222,11 +273,17 @@ pub fn read_header(bytes: &[u8]) -> Result<Header, LoadError> {
     })
 }
 
-/// Decodes and validates an image.
+/// Decodes and validates an image into a table of capacities `PORTS`, `CONNECTIONS`, `NODES`:
+/// `image::load::<4, 64, 256>(bytes)`, or `let loaded: Loaded = image::load(bytes)?` for the
+/// default capacities.
 ///
 /// Costs one CRC pass over the image, one postcard decode and one validation pass; uses no heap
-/// and about `size_of::<Table>()` of stack for the result.
-pub fn load(bytes: &[u8]) -> Result<Loaded, LoadError> {
+/// and about `size_of::<Table<PORTS, CONNECTIONS, NODES>>()` of stack for the result. When the
+/// body does not decode, a second, storage-free decode tells [`LoadError::ExceedsCapacity`] (the
+/// table is too large for this node) from [`LoadError::Body`] (the bytes are not a table).
+pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
+    bytes: &[u8],
+) -> Result<Loaded<PORTS, CONNECTIONS, NODES>, LoadError> {
     let header = read_header(bytes)?;
     // read_header bounded body_len by MAX_IMAGE_LEN, so this cannot overflow.
     let total = HEADER_LEN.saturating_add(header.body_len as usize);
@@ -254,7 +311,26 @@ pub fn load(bytes: &[u8]) -> Result<Loaded, LoadError> {
             computed,
         });
     }
-    let (table, rest) = postcard::take_from_bytes::<Table>(body).map_err(LoadError::Body)?;
+    let (table, rest) = match postcard::take_from_bytes::<Table<PORTS, CONNECTIONS, NODES>>(body) {
+        Ok(decoded) => decoded,
+        Err(error) => {
+            let capacity = TableSize {
+                ports: PORTS,
+                connections: CONNECTIONS,
+                nodes: NODES,
+            };
+            return Err(match size_of_body(body) {
+                Some(needed)
+                    if needed.ports > capacity.ports
+                        || needed.connections > capacity.connections
+                        || needed.nodes > capacity.nodes =>
+                {
+                    LoadError::ExceedsCapacity { needed, capacity }
+                }
+                _ => LoadError::Body(error),
+            });
+        }
+    };
     if !rest.is_empty() {
         return Err(LoadError::BodyTrailingBytes);
     }
@@ -262,10 +338,58 @@ pub fn load(bytes: &[u8]) -> Result<Loaded, LoadError> {
     Ok(Loaded { header, table })
 }
 
-/// Writes the image of `table` for node `node_id`, version `table_version`, into `out`, and
-/// returns its length.
-pub fn encode(
-    table: &Table,
+/// The sizes of the lists of a table body, decoded without storing them; `None` if the body is
+/// not a table or has bytes after it. Costs one postcard decode, one element at a time.
+fn size_of_body(body: &[u8]) -> Option<TableSize> {
+    match postcard::take_from_bytes::<BodySize>(body) {
+        Ok((size, [])) => Some(TableSize {
+            ports: size.ports.0,
+            connections: size.connections.0,
+            nodes: size.nodes.0,
+        }),
+        _ => None,
+    }
+}
+
+/// A table body with each list only counted: the same fields, in the same order, as [`Table`].
+#[derive(Deserialize)]
+struct BodySize {
+    ports: Count<Port>,
+    connections: Count<Connection>,
+    nodes: Count<DecisionNode>,
+}
+
+/// The length of a list of `T`, each element decoded (so that it is checked) and dropped.
+struct Count<T>(usize, PhantomData<T>);
+
+impl<'de, T: Deserialize<'de>> Deserialize<'de> for Count<T> {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct Counter<T>(PhantomData<T>);
+        impl<'de, T: Deserialize<'de>> Visitor<'de> for Counter<T> {
+            type Value = usize;
+            fn expecting(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+                f.write_str("a list")
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<usize, A::Error> {
+                let mut count = 0usize;
+                while seq.next_element::<T>()?.is_some() {
+                    count = count.saturating_add(1);
+                }
+                Ok(count)
+            }
+        }
+        deserializer
+            .deserialize_seq(Counter(PhantomData::<T>))
+            .map(|count| Count(count, PhantomData))
+    }
+}
+
+/// Writes the image of `table` (of any capacities) for node `node_id`, version `table_version`,
+/// into `out`, and returns its length. Fails if `out` is too small, if the image would exceed
+/// [`MAX_IMAGE_LEN`] or if the table is invalid. Costs one validation pass, one postcard encode
+/// and one CRC pass.
+pub fn encode<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
+    table: &Table<PORTS, CONNECTIONS, NODES>,
     node_id: u8,
     table_version: u32,
     out: &mut [u8],

@@ -14,7 +14,9 @@
 //!
 //! ## Guarantees
 //!
-//! - `no_std`, no allocator, no `unsafe`. Capacities are compile-time constants (below).
+//! - `no_std`, no allocator, no `unsafe`. Capacities are compile-time constants: const generic
+//!   parameters of [`Table`] and [`Arbiter`], with the maxima below as defaults and a smaller
+//!   profile for boards ([`BoardTable`], [`BoardArbiter`]).
 //! - No panics: no indexing, no unwrapping, no unchecked division (enforced by clippy lints on this
 //!   crate), and every arithmetic operation is either checked, saturating, or bounded by an
 //!   invariant stated next to it.
@@ -38,6 +40,7 @@
 )]
 
 pub mod arbiter;
+pub mod consumer;
 pub mod crc32;
 mod decay;
 pub mod decision;
@@ -52,20 +55,40 @@ pub mod table;
 pub mod time;
 
 pub use arbiter::{Arbiter, PortSet, PortVerdict, Reception};
+pub use consumer::{Consumer, OutputId, OutputIdError};
 pub use decision::{ConnectionSet, DecisionNode, NodeRef};
 pub use embedded_can::Id;
 pub use filter::Filter;
 pub use frame::Frame;
 pub use integrator::{Integrator, ParamError, Stimulation};
 pub use level::{Gain, Level};
-pub use table::{Connection, Table, TableError};
+pub use table::{Connection, PortView, Table, TableError};
 pub use time::Instant;
 
-/// Ports per node.
+/// Ports per node: the default capacity of a [`Table`], and the most any table can have (a
+/// [`PortSet`] is a `u16`).
 pub const MAX_PORTS: usize = 16;
 /// Connections per port: an activity mask is a `u32`.
 pub const MAX_CONNECTIONS_PER_PORT: usize = 32;
-/// Connections per node, over all its ports: every port can be full.
+/// Connections per node, over all its ports: every port can be full. The default capacity of a
+/// [`Table`].
 pub const MAX_CONNECTIONS: usize = MAX_PORTS * MAX_CONNECTIONS_PER_PORT;
-/// Decision nodes per node, over all its ports.
+/// Decision nodes per node, over all its ports: the default capacity of a [`Table`].
 pub const MAX_DECISION_NODES: usize = 2048;
+
+/// Ports of the board profile ([`BoardTable`]).
+pub const BOARD_PORTS: usize = 4;
+/// Connections of the board profile, over all its ports.
+pub const BOARD_CONNECTIONS: usize = 64;
+/// Decision nodes of the board profile, over all its ports.
+pub const BOARD_DECISION_NODES: usize = 256;
+
+/// The table of a board with little RAM (an STM32G474 has 128 KiB): 4 ports, 64 connections,
+/// 256 decision nodes, about 3 KiB instead of about 24 KiB at the default capacities, so that a
+/// board can keep its current table running while it receives the next one. Loads any image
+/// that fits ([`image::LoadError::ExceedsCapacity`] otherwise).
+pub type BoardTable = Table<BOARD_PORTS, BOARD_CONNECTIONS, BOARD_DECISION_NODES>;
+
+/// The arbiter of a board with little RAM, around a [`BoardTable`]: about 6 KiB instead of
+/// about 49 KiB at the default capacities.
+pub type BoardArbiter = Arbiter<BOARD_PORTS, BOARD_CONNECTIONS, BOARD_DECISION_NODES>;

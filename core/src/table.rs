@@ -5,14 +5,22 @@
 //! stored port after port; a port records how many of each it owns, so ranges follow from the
 //! counts and cannot overlap.
 //!
-//! Memory: `size_of::<Table>()` is about 24 KiB at the default capacities
-//! ([`crate::MAX_CONNECTIONS`] connections of 24 bytes, [`crate::MAX_DECISION_NODES`] nodes of 6).
+//! Capacities are const generic parameters: `Table<PORTS, CONNECTIONS, NODES>` holds at most
+//! `PORTS` ports (at most [`MAX_PORTS`]), `CONNECTIONS` connections and `NODES` decision nodes over
+//! all its ports. The defaults are [`MAX_PORTS`], [`MAX_CONNECTIONS`] and [`MAX_DECISION_NODES`];
+//! [`crate::BoardTable`] is the profile for a board with little RAM. The encoding does not depend
+//! on the capacities, so one image loads into any table large enough for it.
+//!
+//! Memory: `size_of::<Table<P, C, N>>()` is about 24·C + 6·N + 16·P bytes: 24 856 bytes at the
+//! default capacities, 3 160 for [`crate::BoardTable`] (`cargo run -p pab-core --example
+//! footprint` tells exactly).
 
 use core::ops::Range;
 
 use heapless::Vec;
 use serde::{Deserialize, Serialize};
 
+use crate::consumer::{Consumer, OutputIdError};
 use crate::decision::{self, DecisionError, DecisionNode, NodeRef};
 use crate::filter::{Filter, FilterError};
 use crate::integrator::{ParamError, Stimulation};
@@ -28,13 +36,15 @@ pub struct Connection {
     pub stimulation: Stimulation,
 }
 
-/// One port: how many connections and decision nodes it owns, and where its decision starts.
+/// One port: how many connections and decision nodes it owns, where its decision starts, and who
+/// receives what it delivers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Port {
     connections: u8,
     nodes: u16,
     root: NodeRef,
+    consumer: Consumer,
 }
 
 /// A port of a table, with its slices.
@@ -46,15 +56,36 @@ pub struct PortView<'a> {
     pub nodes: &'a [DecisionNode],
     /// The entry of the port's decision.
     pub root: NodeRef,
+    /// Who receives the frames the port delivers.
+    pub consumer: Consumer,
 }
 
-/// A node's arbitration table. Build one with [`Table::push_port`] or load one from an image with
+/// A node's arbitration table, with room for `PORTS` ports, `CONNECTIONS` connections and `NODES`
+/// decision nodes. Build one with [`Table::push_port`] or load one from an image with
 /// [`crate::image::load`]; both validate everything.
-#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Table {
-    ports: Vec<Port, MAX_PORTS>,
-    connections: Vec<Connection, MAX_CONNECTIONS>,
-    nodes: Vec<DecisionNode, MAX_DECISION_NODES>,
+///
+/// `PORTS` must be at most [`MAX_PORTS`] (ports are bits of a `u16`): a larger value is a
+/// compile-time error where [`Table::new`] or [`Table::validate`] is used. Each port has at most
+/// [`MAX_CONNECTIONS_PER_PORT`] connections whatever `CONNECTIONS` is.
+///
+/// ```
+/// let board: pab_core::BoardTable = pab_core::Table::new();
+/// assert_eq!(board.port_count(), 0);
+/// ```
+///
+/// ```compile_fail
+/// // 17 ports do not fit a `PortSet`: refused when the code is built.
+/// let table: pab_core::Table<17, 8, 8> = pab_core::Table::new();
+/// ```
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Table<
+    const PORTS: usize = MAX_PORTS,
+    const CONNECTIONS: usize = MAX_CONNECTIONS,
+    const NODES: usize = MAX_DECISION_NODES,
+> {
+    ports: Vec<Port, PORTS>,
+    connections: Vec<Connection, CONNECTIONS>,
+    nodes: Vec<DecisionNode, NODES>,
 }
 
 /// Why a table was refused. Ports and connections are numbered from 0, connections within their
@@ -62,12 +93,24 @@ pub struct Table {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum TableError {
-    /// More than [`MAX_PORTS`] ports.
+    /// More ports than the table's capacity `PORTS`.
     TooManyPorts,
-    /// More than [`MAX_CONNECTIONS`] connections in all.
+    /// More connections in all than the table's capacity `CONNECTIONS`.
     TooManyConnections,
-    /// More than [`MAX_DECISION_NODES`] decision nodes in all.
+    /// More decision nodes in all than the table's capacity `NODES`.
     TooManyNodes,
+    /// [`Table::set_consumer`] named a port the table does not have.
+    NoSuchPort {
+        /// The port.
+        port: u8,
+    },
+    /// A port's consumer re-publishes on an identifier that does not fit its format.
+    Consumer {
+        /// The port.
+        port: u8,
+        /// What is wrong.
+        error: OutputIdError,
+    },
     /// A port has more than [`MAX_CONNECTIONS_PER_PORT`] connections.
     PortTooWide {
         /// The port.
@@ -107,9 +150,11 @@ pub enum TableError {
 impl core::fmt::Display for TableError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
-            TableError::TooManyPorts => write!(f, "more than {MAX_PORTS} ports"),
-            TableError::TooManyConnections => write!(f, "more than {MAX_CONNECTIONS} connections"),
-            TableError::TooManyNodes => write!(f, "more than {MAX_DECISION_NODES} decision nodes"),
+            TableError::TooManyPorts => f.write_str("more ports than the table holds"),
+            TableError::TooManyConnections => f.write_str("more connections than the table holds"),
+            TableError::TooManyNodes => f.write_str("more decision nodes than the table holds"),
+            TableError::NoSuchPort { port } => write!(f, "there is no port {port}"),
+            TableError::Consumer { port, error } => write!(f, "port {port}: consumer: {error}"),
             TableError::PortTooWide { port } => {
                 write!(
                     f,
@@ -135,9 +180,29 @@ impl core::fmt::Display for TableError {
     }
 }
 
-impl Table {
-    /// A table without ports.
+impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize> Default
+    for Table<PORTS, CONNECTIONS, NODES>
+{
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
+    Table<PORTS, CONNECTIONS, NODES>
+{
+    /// Evaluated (at compile time) wherever a table of these capacities is created or validated.
+    const CAPACITIES_FIT: () = assert!(
+        PORTS <= MAX_PORTS,
+        "a table has at most MAX_PORTS (16) ports: PortSet is a u16"
+    );
+
+    /// The capacities, as (ports, connections, decision nodes).
+    pub const CAPACITY: (usize, usize, usize) = (PORTS, CONNECTIONS, NODES);
+
+    /// A table without ports. Costs nothing; fails to compile if `PORTS` exceeds [`MAX_PORTS`].
     pub const fn new() -> Self {
+        let () = Self::CAPACITIES_FIT;
         Table {
             ports: Vec::new(),
             connections: Vec::new(),
@@ -145,8 +210,12 @@ impl Table {
         }
     }
 
-    /// Appends a port. Validates the connections and the decision before changing anything: on
-    /// error the table is unchanged.
+    /// Appends a port whose frames go to [`Consumer::Local`] (see [`Table::set_consumer`]).
+    /// Validates the connections and the decision before changing anything: on error the table is
+    /// unchanged. Fails with [`TableError::TooManyPorts`], [`TableError::TooManyConnections`] or
+    /// [`TableError::TooManyNodes`] when the capacities would be exceeded, and with the
+    /// connection's or decision's error when one is invalid. Costs one pass over the new
+    /// connections and nodes.
     pub fn push_port(
         &mut self,
         connections: &[Connection],
@@ -161,15 +230,16 @@ impl Table {
                 .ok_or(TableError::PortTooWide { port: index })?,
             nodes: u16::try_from(nodes.len()).map_err(|_| TableError::TooManyNodes)?,
             root,
+            consumer: Consumer::Local,
         };
         validate_port(index, &port, connections, nodes)?;
-        if self.ports.len() >= MAX_PORTS {
+        if self.ports.len() >= PORTS {
             return Err(TableError::TooManyPorts);
         }
-        if self.connections.len().saturating_add(connections.len()) > MAX_CONNECTIONS {
+        if self.connections.len().saturating_add(connections.len()) > CONNECTIONS {
             return Err(TableError::TooManyConnections);
         }
-        if self.nodes.len().saturating_add(nodes.len()) > MAX_DECISION_NODES {
+        if self.nodes.len().saturating_add(nodes.len()) > NODES {
             return Err(TableError::TooManyNodes);
         }
         // Capacities were checked above, so none of these can fail.
@@ -185,9 +255,25 @@ impl Table {
         Ok(())
     }
 
-    /// Checks every count, parameter, filter and decision. The loader calls it on every table it
-    /// decodes; it costs one pass over the connections and one over the nodes.
+    /// Sets who receives what port `port` delivers. Fails with [`TableError::NoSuchPort`] or
+    /// [`TableError::Consumer`] (an identifier that does not fit its format), leaving the table
+    /// unchanged. Costs a bounds check.
+    pub fn set_consumer(&mut self, port: u8, consumer: Consumer) -> Result<(), TableError> {
+        consumer
+            .validate()
+            .map_err(|error| TableError::Consumer { port, error })?;
+        let record = self
+            .ports
+            .get_mut(usize::from(port))
+            .ok_or(TableError::NoSuchPort { port })?;
+        record.consumer = consumer;
+        Ok(())
+    }
+
+    /// Checks every count, parameter, filter, consumer and decision. The loader calls it on every
+    /// table it decodes; it costs one pass over the connections and one over the nodes.
     pub fn validate(&self) -> Result<(), TableError> {
+        let () = Self::CAPACITIES_FIT;
         let mut connections_seen = 0usize;
         let mut nodes_seen = 0usize;
         for (index, port) in self.ports.iter().enumerate() {
@@ -247,6 +333,7 @@ impl Table {
                 connections: self.connections.get(connections)?,
                 nodes: self.nodes.get(nodes)?,
                 root: port.root,
+                consumer: port.consumer,
             })
         })
     }
@@ -270,6 +357,11 @@ impl Port {
     /// The entry of the port's decision.
     pub const fn root(&self) -> NodeRef {
         self.root
+    }
+
+    /// Who receives what the port delivers.
+    pub const fn consumer(&self) -> Consumer {
+        self.consumer
     }
 }
 
@@ -307,6 +399,9 @@ fn validate_port(
                 error,
             })?;
     }
+    port.consumer
+        .validate()
+        .map_err(|error| TableError::Consumer { port: index, error })?;
     decision::validate(nodes, port.root, port.connections)
         .map_err(|error| TableError::Decision { port: index, error })
 }
@@ -325,7 +420,7 @@ mod tests {
 
     #[test]
     fn ports_own_consecutive_ranges() {
-        let mut table = Table::new();
+        let mut table: Table = Table::new();
         let deliver0 = NodeRef::deliver(0).unwrap();
         table
             .push_port(&[connection(1), connection(2)], &[], deliver0)
@@ -344,7 +439,7 @@ mod tests {
 
     #[test]
     fn bad_ports_leave_the_table_unchanged() {
-        let mut table = Table::new();
+        let mut table: Table = Table::new();
         let bad_root = NodeRef::deliver(3).unwrap();
         assert_eq!(
             table.push_port(&[connection(1)], &[], bad_root),
@@ -371,7 +466,7 @@ mod tests {
     #[test]
     fn full_capacity_is_expressible() {
         // 16 ports of 32 connections each.
-        let mut table = Table::new();
+        let mut table: Table = Table::new();
         for port in 0..MAX_PORTS as u32 {
             let connections: std::vec::Vec<_> =
                 (0..32).map(|k| connection(port * 32 + k)).collect();
@@ -379,5 +474,59 @@ mod tests {
         }
         table.validate().unwrap();
         assert_eq!(table.connection_count(), 512);
+    }
+
+    #[test]
+    fn consumers_are_set_per_port_and_checked() {
+        let mut table: Table = Table::new();
+        table
+            .push_port(&[connection(1)], &[], NodeRef::NOBODY)
+            .unwrap();
+        table
+            .push_port(&[connection(2)], &[], NodeRef::NOBODY)
+            .unwrap();
+        assert_eq!(table.port(0).map(|p| p.consumer), Some(Consumer::Local));
+        let out = Consumer::Republish(crate::OutputId::new(0x300, false).unwrap());
+        table.set_consumer(1, out).unwrap();
+        assert_eq!(table.port(0).map(|p| p.consumer), Some(Consumer::Local));
+        assert_eq!(table.port(1).map(|p| p.consumer), Some(out));
+        table.validate().unwrap();
+        let before = table.clone();
+        assert_eq!(
+            table.set_consumer(2, out),
+            Err(TableError::NoSuchPort { port: 2 })
+        );
+        assert_eq!(table, before);
+    }
+
+    #[test]
+    fn small_capacities_are_enforced_by_push_port() {
+        let mut table: Table<2, 3, 1> = Table::new();
+        assert_eq!(Table::<2, 3, 1>::CAPACITY, (2, 3, 1));
+        table
+            .push_port(&[connection(1), connection(2)], &[], NodeRef::NOBODY)
+            .unwrap();
+        assert_eq!(
+            table.push_port(&[connection(3), connection(4)], &[], NodeRef::NOBODY),
+            Err(TableError::TooManyConnections)
+        );
+        let node = DecisionNode {
+            var: 0,
+            low: NodeRef::NOBODY,
+            high: NodeRef::deliver(0).unwrap(),
+        };
+        assert_eq!(
+            table.push_port(&[connection(3)], &[node, node], NodeRef::node(0).unwrap()),
+            Err(TableError::TooManyNodes)
+        );
+        table
+            .push_port(&[connection(3)], &[node], NodeRef::node(0).unwrap())
+            .unwrap();
+        assert_eq!(
+            table.push_port(&[], &[], NodeRef::NOBODY),
+            Err(TableError::TooManyPorts)
+        );
+        table.validate().unwrap();
+        assert_eq!(table.connection_count(), 3);
     }
 }

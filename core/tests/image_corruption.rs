@@ -11,16 +11,24 @@ use std::cell::Cell;
 
 use embedded_can::{ExtendedId, StandardId};
 use pab_core::crc32::{Crc32, crc32};
-use pab_core::image::{self, FORMAT_VERSION, HEADER_LEN, Header, LoadError, MAGIC, MAX_IMAGE_LEN};
+use pab_core::image::{
+    self, FORMAT_VERSION, HEADER_LEN, Header, LoadError, Loaded, MAGIC, MAX_IMAGE_LEN, TableSize,
+};
 use pab_core::integrator::MAX_TIME_US;
 use pab_core::table::TableError;
 use pab_core::{
-    Arbiter, Connection, DecisionNode, Filter, Gain, Id, Instant, MAX_CONNECTIONS_PER_PORT,
-    MAX_DECISION_NODES, MAX_PORTS, NodeRef, Reception, Stimulation, Table,
+    Arbiter, BoardTable, Connection, Consumer, DecisionNode, Filter, Gain, Id, Instant,
+    MAX_CONNECTIONS, MAX_CONNECTIONS_PER_PORT, MAX_DECISION_NODES, MAX_PORTS, NodeRef, OutputId,
+    OutputIdError, Reception, Stimulation, Table,
 };
 use proptest::prelude::*;
 use proptest::test_runner::{Config, TestRunner};
 use serde::Serialize;
+
+/// `image::load` into a table of the default capacities.
+fn load_default(bytes: &[u8]) -> Result<Loaded, LoadError> {
+    image::load(bytes)
+}
 
 // ---------------------------------------------------------------------------------------------
 // Tables built through the public API.
@@ -110,6 +118,16 @@ fn big_table() -> Table {
     table
         .push_port(&connections, &nodes, at(0))
         .expect("virtual");
+    // Two gateways: the fan-out port re-publishes on a standard id, the virtual one on an
+    // extended id.
+    let standard_out = OutputId::new(0x300, false).expect("11-bit id");
+    let extended_out = OutputId::new(0x1ABC_DEF0, true).expect("29-bit id");
+    table
+        .set_consumer(2, Consumer::Republish(standard_out))
+        .expect("port 2");
+    table
+        .set_consumer(4, Consumer::Republish(extended_out))
+        .expect("port 4");
     table.validate().expect("valid table");
     table
 }
@@ -215,7 +233,7 @@ fn exercise(table: &Table, rounds: u64) -> usize {
 #[test]
 fn valid_images_round_trip() {
     for (name, table, bytes) in images() {
-        let loaded = image::load(&bytes).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let loaded = load_default(&bytes).unwrap_or_else(|e| panic!("{name}: {e}"));
         let body_len = (bytes.len() - HEADER_LEN) as u32;
         assert_eq!(loaded.table, table, "{name}");
         assert_eq!(&bytes[..4], &MAGIC);
@@ -235,7 +253,7 @@ fn valid_images_round_trip() {
     }
     let bytes = encode(&big_table(), 0xFE, 0xDEAD_BEEF);
     assert_eq!(
-        image::load(&bytes).map(|l| l.header),
+        load_default(&bytes).map(|l| l.header),
         Ok(Header {
             node_id: 0xFE,
             table_version: 0xDEAD_BEEF,
@@ -257,12 +275,12 @@ fn a_table_at_full_capacity_fits_the_image_limit() {
         bytes.len()
     );
     assert!(bytes.len() <= MAX_IMAGE_LEN);
-    assert_eq!(image::load(&bytes).map(|l| l.table), Ok(table));
+    assert_eq!(load_default(&bytes).map(|l| l.table), Ok(table));
     // A sample of flips in the big image is still caught (the CRC covers it all).
     for bit in (0..bytes.len() * 8).step_by(997) {
         let mut flipped = bytes.clone();
         flipped[bit / 8] ^= 1 << (bit % 8);
-        assert!(image::load(&flipped).is_err(), "bit {bit}");
+        assert!(load_default(&flipped).is_err(), "bit {bit}");
     }
 }
 
@@ -336,7 +354,7 @@ fn every_single_bit_flip_is_refused_by_the_right_check() {
             flipped[bit / 8] ^= 1 << (bit % 8);
             let expected = expected_for_flip(&bytes, bit);
             assert_eq!(
-                image::load(&flipped),
+                load_default(&flipped),
                 Err(expected.clone()),
                 "{name}, bit {bit}"
             );
@@ -366,7 +384,7 @@ fn every_truncation_is_refused() {
                 bytes.len()
             };
             assert_eq!(
-                image::load(&bytes[..len]),
+                load_default(&bytes[..len]),
                 Err(LoadError::Truncated { needed, got: len }),
                 "{name}, {len} bytes"
             );
@@ -384,7 +402,7 @@ fn trailing_bytes_are_refused() {
                 let mut longer = bytes.clone();
                 longer.resize(bytes.len() + extra, fill);
                 assert_eq!(
-                    image::load(&longer),
+                    load_default(&longer),
                     Err(LoadError::TrailingBytes { extra }),
                     "{name}"
                 );
@@ -402,7 +420,7 @@ fn declared_lengths_beyond_the_limit_are_refused() {
         header[12..16].copy_from_slice(&declared.to_le_bytes());
         let expected = LoadError::TooLarge { body_len: declared };
         assert_eq!(image::read_header(&header), Err(expected.clone()));
-        assert_eq!(image::load(&header), Err(expected.clone()));
+        assert_eq!(load_default(&header), Err(expected.clone()));
         // Refused from the header alone: the receiver need not wait for the body.
         assert_eq!(image::read_header(&header[..HEADER_LEN]), Err(expected));
     }
@@ -411,7 +429,7 @@ fn declared_lengths_beyond_the_limit_are_refused() {
     header[12..16].copy_from_slice(&limit.to_le_bytes());
     assert!(image::read_header(&header).is_ok());
     assert_eq!(
-        image::load(&header),
+        load_default(&header),
         Err(LoadError::Truncated {
             needed: MAX_IMAGE_LEN,
             got: bytes.len()
@@ -433,13 +451,15 @@ struct Tally {
     body: usize,
     body_trailing: usize,
     table: usize,
+    /// Decodes, but into more than the default capacities (e.g. a port count raised past 16).
+    exceeds_capacity: usize,
     other: usize,
 }
 
 impl Tally {
     fn load(&mut self, image: &[u8], original: &Table) {
         self.loads += 1;
-        match image::load(image) {
+        match load_default(image) {
             Ok(loaded) => {
                 self.accepted += 1;
                 assert_ne!(
@@ -459,6 +479,14 @@ impl Tally {
             Err(LoadError::Body(_)) => self.body += 1,
             Err(LoadError::BodyTrailingBytes) => self.body_trailing += 1,
             Err(LoadError::Table(_)) => self.table += 1,
+            Err(LoadError::ExceedsCapacity { needed, capacity }) => {
+                assert!(
+                    needed.ports > capacity.ports
+                        || needed.connections > capacity.connections
+                        || needed.nodes > capacity.nodes
+                );
+                self.exceeds_capacity += 1;
+            }
             Err(_) => self.other += 1,
         }
     }
@@ -555,7 +583,7 @@ fn random_bytes_never_panic() {
             }
         };
         loads.set(loads.get() + 1);
-        if let Ok(loaded) = image::load(&bytes) {
+        if let Ok(loaded) = load_default(&bytes) {
             accepted.set(accepted.get() + 1);
             prop_assert!(loaded.table.validate().is_ok());
             if loaded.table != original {
@@ -592,6 +620,18 @@ struct RawPort {
     connections: u8,
     nodes: u16,
     root: NodeRef,
+    consumer: RawConsumer,
+}
+
+/// The serde shape of `Consumer`.
+#[derive(Clone, Copy, Serialize)]
+enum RawConsumer {
+    Local,
+    #[allow(dead_code)]
+    Republish {
+        raw: u32,
+        extended: bool,
+    },
 }
 
 #[derive(Clone, Copy, Serialize)]
@@ -620,12 +660,18 @@ fn postcard_bytes(value: &impl Serialize) -> Vec<u8> {
     buffer
 }
 
+fn with_consumer(mut table: RawTable, consumer: RawConsumer) -> RawTable {
+    table.ports[0].consumer = consumer;
+    table
+}
+
 fn one_port(connections: Vec<RawConnection>, nodes: Vec<DecisionNode>, root: NodeRef) -> RawTable {
     RawTable {
         ports: vec![RawPort {
             connections: connections.len() as u8,
             nodes: nodes.len() as u16,
             root,
+            consumer: RawConsumer::Local,
         }],
         connections,
         nodes,
@@ -656,7 +702,24 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
         postcard::from_bytes::<Table>(&mirror_bytes),
         Ok(real.clone())
     );
-    assert!(Arbiter::new(real).is_ok());
+    assert!(Arbiter::new(real.clone()).is_ok());
+    // ... and so does a re-publishing consumer.
+    let mut gateway = real.clone();
+    let out = OutputId::new(0x1ABC_DEF0, true).unwrap();
+    gateway.set_consumer(0, Consumer::Republish(out)).unwrap();
+    let gateway_mirror = with_consumer(
+        one_port(
+            vec![GOOD],
+            vec![node(0, NodeRef::NOBODY, deliver(0))],
+            at(0),
+        ),
+        RawConsumer::Republish {
+            raw: 0x1ABC_DEF0,
+            extended: true,
+        },
+    );
+    assert_eq!(postcard_bytes(&gateway_mirror), postcard_bytes(&gateway));
+    assert_ne!(postcard_bytes(&gateway), mirror_bytes);
 
     use pab_core::decision::DecisionError::*;
     let decision = |error| TableError::Decision { port: 0, error };
@@ -702,6 +765,7 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                     connections: 2,
                     nodes: 0,
                     root: NodeRef::NOBODY,
+                    consumer: RawConsumer::Local,
                 }],
                 connections: vec![GOOD],
                 nodes: vec![],
@@ -714,6 +778,7 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                     connections: 0,
                     nodes: 0,
                     root: NodeRef::NOBODY,
+                    consumer: RawConsumer::Local,
                 }],
                 connections: vec![GOOD],
                 nodes: vec![],
@@ -726,6 +791,7 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                     connections: 0,
                     nodes: 0,
                     root: NodeRef::NOBODY,
+                    consumer: RawConsumer::Local,
                 }],
                 connections: vec![],
                 nodes: vec![node(0, NodeRef::NOBODY, NodeRef::NOBODY)],
@@ -738,11 +804,39 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                     connections: 33,
                     nodes: 0,
                     root: NodeRef::NOBODY,
+                    consumer: RawConsumer::Local,
                 }],
                 connections: vec![GOOD; 33],
                 nodes: vec![],
             },
             TableError::PortTooWide { port: 0 },
+        ),
+        // Consumers that re-publish on an identifier too wide for its format.
+        (
+            with_consumer(
+                one_port(vec![GOOD], vec![], deliver(0)),
+                RawConsumer::Republish {
+                    raw: 0x800,
+                    extended: false,
+                },
+            ),
+            TableError::Consumer {
+                port: 0,
+                error: OutputIdError::StandardTooWide,
+            },
+        ),
+        (
+            with_consumer(
+                one_port(vec![GOOD], vec![], deliver(0)),
+                RawConsumer::Republish {
+                    raw: 0x2000_0000,
+                    extended: true,
+                },
+            ),
+            TableError::Consumer {
+                port: 0,
+                error: OutputIdError::ExtendedTooWide,
+            },
         ),
         // Parameters and filters.
         (
@@ -814,7 +908,7 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
         assert_eq!(table.validate(), Err(expected));
         // Behind a header with a right CRC, the loader refuses it the same way.
         let wrapped = with_body(&encode(&Table::new(), 0, 0), &bytes);
-        assert_eq!(image::load(&wrapped), Err(LoadError::Table(expected)));
+        assert_eq!(load_default(&wrapped), Err(LoadError::Table(expected)));
         let mut out = vec![0; MAX_IMAGE_LEN];
         assert_eq!(
             image::encode(&table, 0, 0, &mut out),
@@ -825,11 +919,130 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
 
 #[test]
 fn a_frame_on_a_table_without_ports_is_not_fed_anywhere() {
-    let mut arbiter = Arbiter::new(Table::new()).unwrap();
+    let mut arbiter: Arbiter = Arbiter::new(Table::new()).unwrap();
     let reception = arbiter.receive(
         &Id::Standard(StandardId::ZERO),
         Instant::from_micros(0),
         |_| panic!("no port, no verdict"),
     );
     assert_eq!(reception, Reception::default());
+}
+
+// ---------------------------------------------------------------------------------------------
+// Capacities and formats.
+
+#[test]
+fn an_image_loads_into_any_table_with_room_for_it() {
+    // Figure 1 (1 port, 2 connections, 3 nodes) fits the board profile and a tiny table, and
+    // decodes to the same ports there.
+    let bytes = encode(&figure1_table(), 7, 1);
+    let board = image::load::<4, 64, 256>(&bytes).expect("fits the board profile");
+    let board_again: Loaded<4, 64, 256> = image::load(&bytes).expect("same with inference");
+    assert_eq!(board, board_again);
+    let tiny = image::load::<1, 2, 3>(&bytes).expect("fits exactly");
+    let default = load_default(&bytes).expect("default capacities");
+    assert_eq!(board.header, default.header);
+    for table_ports in [
+        board.table.ports().collect::<Vec<_>>(),
+        tiny.table.ports().collect::<Vec<_>>(),
+    ] {
+        let expected: Vec<_> = default.table.ports().collect();
+        assert_eq!(table_ports.len(), expected.len());
+        for (got, want) in table_ports.iter().zip(&expected) {
+            assert_eq!(
+                (got.connections, got.nodes, got.root, got.consumer),
+                (want.connections, want.nodes, want.root, want.consumer)
+            );
+        }
+    }
+    // Re-encoding from a smaller table gives the same bytes: the body ignores capacities.
+    let board_table: BoardTable = board.table;
+    let mut out = vec![0; MAX_IMAGE_LEN];
+    let len = image::encode(&board_table, 7, 1, &mut out).expect("encodes");
+    assert_eq!(&out[..len], &bytes[..]);
+}
+
+#[test]
+fn an_image_larger_than_the_table_is_refused_with_what_it_needs() {
+    // The big table: 5 ports, 2 + 32 + 1 + 0 + 3 connections, 3 + 32 + 0 + 0 + 4 nodes.
+    let table = big_table();
+    let needed = TableSize {
+        ports: 5,
+        connections: 38,
+        nodes: 39,
+    };
+    assert_eq!(
+        (
+            table.port_count(),
+            table.connection_count(),
+            table.node_count()
+        ),
+        (needed.ports, needed.connections, needed.nodes)
+    );
+    let bytes = encode(&table, 3, 9);
+    assert_eq!(
+        image::load::<4, 8, 16>(&bytes),
+        Err(LoadError::ExceedsCapacity {
+            needed,
+            capacity: TableSize {
+                ports: 4,
+                connections: 8,
+                nodes: 16,
+            },
+        })
+    );
+    // Any one capacity too small is enough; all three just large enough load.
+    assert!(matches!(
+        image::load::<5, 38, 38>(&bytes),
+        Err(LoadError::ExceedsCapacity { .. })
+    ));
+    assert!(matches!(
+        image::load::<5, 37, 39>(&bytes),
+        Err(LoadError::ExceedsCapacity { .. })
+    ));
+    assert!(matches!(
+        image::load::<4, 38, 39>(&bytes),
+        Err(LoadError::ExceedsCapacity { .. })
+    ));
+    let exact = image::load::<5, 38, 39>(&bytes).expect("exactly enough room");
+    assert_eq!(exact.table.connections(), table.connections());
+    // The full-capacity table does not fit a board.
+    let full = encode(&full_table(), 1, 1);
+    let refused = image::load::<4, 64, 256>(&full).unwrap_err();
+    assert_eq!(
+        refused,
+        LoadError::ExceedsCapacity {
+            needed: TableSize {
+                ports: MAX_PORTS,
+                connections: MAX_CONNECTIONS,
+                nodes: MAX_DECISION_NODES,
+            },
+            capacity: TableSize {
+                ports: 4,
+                connections: 64,
+                nodes: 256,
+            },
+        }
+    );
+    assert!(refused.to_string().contains("needs 16 ports"), "{refused}");
+    // A body that does not decode at all is still a body error, whatever the capacities.
+    let garbage = with_body(&bytes, &[0x05, 0xFF, 0xFF]);
+    assert!(matches!(
+        image::load::<4, 8, 16>(&garbage),
+        Err(LoadError::Body(_))
+    ));
+    assert!(matches!(load_default(&garbage), Err(LoadError::Body(_))));
+}
+
+#[test]
+fn format_1_images_are_refused() {
+    assert_eq!(FORMAT_VERSION, 2);
+    let mut old = encode(&figure1_table(), 7, 1);
+    old[4..6].copy_from_slice(&1u16.to_le_bytes());
+    let crc = crc32(&[&old[..16], &old[HEADER_LEN..]].concat());
+    old[16..20].copy_from_slice(&crc.to_le_bytes());
+    let expected = LoadError::UnsupportedFormat { found: 1 };
+    assert_eq!(image::read_header(&old), Err(expected.clone()));
+    assert_eq!(load_default(&old), Err(expected.clone()));
+    assert_eq!(image::load::<4, 64, 256>(&old), Err(expected));
 }

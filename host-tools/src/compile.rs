@@ -13,7 +13,7 @@ use std::collections::HashMap;
 use biodivine_lib_bdd::{Bdd, BddPointer};
 use pab_core::decision::{DecisionNode, NodeRef};
 use pab_core::image::{self, MAX_IMAGE_LEN};
-use pab_core::{Connection, MAX_DECISION_NODES, Table};
+use pab_core::{Connection, Consumer, MAX_DECISION_NODES, Table, TableError};
 
 use crate::check::{self, PortLogic};
 use crate::diagnostic::Diagnostic;
@@ -208,7 +208,7 @@ fn compile_node(
     network: &Network,
     node: &crate::network::Node,
 ) -> Result<CompiledNode, Diagnostic> {
-    let mut table = Table::new();
+    let mut table: Table = Table::new();
     let mut decision_nodes = 0usize;
     let mut per_rule_nodes = 0usize;
     for &port_index in &node.ports {
@@ -246,11 +246,18 @@ fn compile_node(
                 })
             })
             .collect();
+        let port_error =
+            |error| network.error(port.span.clone(), format!("port `{}`: {error}", port.name));
         table
             .push_port(&connections, &compiled.nodes, compiled.root)
-            .map_err(|error| {
-                network.error(port.span.clone(), format!("port `{}`: {error}", port.name))
-            })?;
+            .map_err(port_error)?;
+        if port.consumer != Consumer::Local {
+            let index = u8::try_from(table.port_count().saturating_sub(1))
+                .map_err(|_| port_error(TableError::TooManyPorts))?;
+            table
+                .set_consumer(index, port.consumer)
+                .map_err(port_error)?;
+        }
     }
     let mut buffer = vec![0u8; MAX_IMAGE_LEN];
     let length = image::encode(&table, node.id, network.version, &mut buffer).map_err(|error| {
@@ -377,12 +384,27 @@ mod tests {
     }
 
     #[test]
+    fn republish_sets_the_port_consumer_in_the_image() {
+        let text = "[nodes.arm]\nid = 1\n[topics.a]\ncan_id = 0x110\n[topics.b]\ncan_id = 0x111\n[ports.\"arm.local\"]\n[ports.\"arm.target\"]\nrepublish = { can_id = 0x1ABCDEF, extended = true }\n[connections.C1]\ntopic = \"a\"\nport = \"arm.local\"\nst = 1\ntc = 1\n[connections.C2]\ntopic = \"b\"\nport = \"arm.target\"\nst = 1\ntc = 1\n";
+        let network = Network::parse(Source::new("r.toml", text)).unwrap();
+        let nodes = compile(&network).unwrap();
+        let loaded: image::Loaded = image::load(&nodes[0].image).unwrap();
+        let consumers: Vec<Consumer> = loaded.table.ports().map(|p| p.consumer).collect();
+        let out = pab_core::OutputId::new(0x1AB_CDEF, true).unwrap();
+        assert_eq!(consumers, vec![Consumer::Local, Consumer::Republish(out)]);
+        assert_eq!(
+            out.id(),
+            pab_core::Id::Extended(embedded_can::ExtendedId::new(0x1AB_CDEF).unwrap())
+        );
+    }
+
+    #[test]
     fn figure_one_compiles_to_a_small_table() {
         let text = "[nodes.gaze]\nid = 3\n[topics.face]\ncan_id = 0x110\n[topics.object]\ncan_id = 0x111\n[ports.\"gaze.target\"]\n[connections.C1]\ntopic = \"face\"\nport = \"gaze.target\"\nst = 0.2\ntc = 3.0\nrule = \"C1 & !C2\"\n[connections.C2]\ntopic = \"object\"\nport = \"gaze.target\"\nst = 0.2\ntc = 3.0\n";
         let network = Network::parse(Source::new("f.toml", text)).unwrap();
         let nodes = compile(&network).unwrap();
         assert_eq!(nodes.len(), 1);
-        let loaded = image::load(&nodes[0].image).unwrap();
+        let loaded: image::Loaded = image::load(&nodes[0].image).unwrap();
         assert_eq!(loaded.header.node_id, 3);
         assert_eq!(loaded.header.table_version, 1);
         let port = loaded.table.port(0).unwrap();

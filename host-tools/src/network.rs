@@ -14,7 +14,7 @@ use std::path::Path;
 use indexmap::IndexMap;
 use pab_core::filter::{MAX_EXTENDED_ID, MAX_STANDARD_ID};
 use pab_core::integrator::ParamError;
-use pab_core::{Filter, MAX_CONNECTIONS_PER_PORT, MAX_PORTS, Stimulation};
+use pab_core::{Consumer, Filter, MAX_CONNECTIONS_PER_PORT, MAX_PORTS, OutputId, Stimulation};
 use serde::Deserialize;
 use toml::Spanned;
 
@@ -75,8 +75,18 @@ struct RawTopic {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawPort {
+    republish: Option<Spanned<RawRepublish>>,
     #[allow(dead_code)]
     description: Option<String>,
+}
+
+/// `republish = { can_id = 0x300, extended = false }` on a port.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawRepublish {
+    can_id: Spanned<i64>,
+    #[serde(default)]
+    extended: bool,
 }
 
 #[derive(Deserialize)]
@@ -147,6 +157,9 @@ pub struct Port {
     /// Its connections, as indices into [`Network::connections`], in file order: the variables
     /// of its rules.
     pub connections: Vec<usize>,
+    /// Who receives what it delivers (`republish = { ... }` in the file; default: the node's
+    /// application only).
+    pub consumer: Consumer,
     /// Where it is defined.
     pub span: Range<usize>,
 }
@@ -549,14 +562,48 @@ impl Builder<'_> {
                 );
                 continue;
             }
+            let consumer = match &port.get_ref().republish {
+                None => Consumer::Local,
+                // A bad id is reported; the port is kept so that its connections are checked too.
+                Some(republish) => self
+                    .output_id(republish.get_ref())
+                    .map_or(Consumer::Local, Consumer::Republish),
+            };
             ports.push(Port {
                 name: full.clone(),
                 node,
                 connections: Vec::new(),
+                consumer,
                 span: port.span(),
             });
         }
         ports
+    }
+
+    /// The identifier of a `republish` table, or `None` after reporting why not.
+    fn output_id(&mut self, raw: &RawRepublish) -> Option<OutputId> {
+        let id = *raw.can_id.get_ref();
+        let (widest, format, hint) = if raw.extended {
+            (MAX_EXTENDED_ID, "an extended (29-bit)", "")
+        } else {
+            (
+                MAX_STANDARD_ID,
+                "a standard (11-bit)",
+                "; write `extended = true` for a 29-bit id",
+            )
+        };
+        let output = u32::try_from(id)
+            .ok()
+            .and_then(|id| OutputId::new(id, raw.extended).ok());
+        if output.is_none() {
+            self.error(
+                raw.can_id.span(),
+                format!(
+                    "republish can_id {id:#x} does not fit {format} id (at most {widest:#x}){hint}"
+                ),
+            );
+        }
+        output
     }
 
     fn connections(
@@ -963,6 +1010,66 @@ at = [4.0, 4.5, 5.0, 5.5, 6.0, 6.5]   # or explicit times
             vec![4.0, 4.5, 5.0, 5.5, 6.0, 6.5]
         );
         assert_eq!(network.version, 1);
+    }
+
+    #[test]
+    fn ports_may_republish_what_they_deliver() {
+        let text = FIGURE_1.replace(
+            "[ports.\"gaze.target\"]\n",
+            "[ports.\"gaze.target\"]\nrepublish = { can_id = 0x300 }\n[ports.\"gaze.other\"]\nrepublish = { can_id = 0x1ABCDEF, extended = true }\n[ports.\"gaze.third\"]\n",
+        );
+        let network = parse(&text).unwrap();
+        assert_eq!(
+            network.ports[0].consumer,
+            Consumer::Republish(OutputId::new(0x300, false).unwrap())
+        );
+        assert_eq!(
+            network.ports[1].consumer,
+            Consumer::Republish(OutputId::new(0x1AB_CDEF, true).unwrap())
+        );
+        assert_eq!(network.ports[2].consumer, Consumer::Local);
+    }
+
+    #[test]
+    fn bad_republish_values_are_reported_where_they_are() {
+        let with = |republish: &str| {
+            errors(&FIGURE_1.replace(
+                "[ports.\"gaze.target\"]\n",
+                &format!("[ports.\"gaze.target\"]\nrepublish = {republish}\n"),
+            ))
+        };
+        // The port header is on line 11, so `republish` is on line 12.
+        let errors = with("{ can_id = 0x800 }");
+        assert_eq!(errors.len(), 1, "{errors:?}");
+        assert!(
+            errors[0].starts_with(
+                "net.toml:12:24: error: republish can_id 0x800 does not fit a standard (11-bit) id (at most 0x7ff); write `extended = true`"
+            ),
+            "{errors:?}"
+        );
+        let errors = with("{ can_id = 0x20000000, extended = true }");
+        assert!(
+            errors[0].starts_with(
+                "net.toml:12:24: error: republish can_id 0x20000000 does not fit an extended (29-bit) id (at most 0x1fffffff)"
+            ),
+            "{errors:?}"
+        );
+        let errors = with("{ can_id = -1 }");
+        assert!(
+            errors[0].starts_with("net.toml:12:24: error: republish can_id"),
+            "{errors:?}"
+        );
+        let errors = with("{ can_id = 0x300, priority = 1 }");
+        assert_eq!(errors.len(), 1, "{errors:?}");
+        assert!(
+            errors[0].starts_with("net.toml:12:31: error: unknown field `priority`"),
+            "{errors:?}"
+        );
+        let errors = with("{ extended = true }");
+        assert!(
+            errors[0].starts_with("net.toml:12:13: error: missing field `can_id`"),
+            "{errors:?}"
+        );
     }
 
     #[test]

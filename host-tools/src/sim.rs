@@ -122,7 +122,7 @@ pub fn simulate(
                 node.name
             )));
         };
-        let loaded = image::load(&table.image).map_err(|error| {
+        let loaded: image::Loaded = image::load(&table.image).map_err(|error| {
             SimError(format!(
                 "node `{}`: its image does not load: {error}",
                 node.name

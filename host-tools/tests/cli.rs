@@ -222,3 +222,53 @@ fn help_explains_the_concepts() {
     let output = pabctl(&["sim", "--help"]);
     assert!(text(&output.stdout).contains("t,port,connection,stimulation,active,delivered"));
 }
+
+#[test]
+fn compile_writes_a_port_consumer_and_refuses_a_bad_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("tables");
+    let output = pabctl(&[
+        "compile",
+        &example("figure-1.toml"),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let bytes = std::fs::read(out.join("gaze.pab")).unwrap();
+    let loaded: pab_core::image::Loaded = pab_core::image::load(&bytes).unwrap();
+    let port = loaded.table.port(0).unwrap();
+    assert_eq!(
+        port.consumer,
+        pab_core::Consumer::Republish(pab_core::OutputId::new(0x300, false).unwrap())
+    );
+
+    let source = std::fs::read_to_string(examples().join("figure-1.toml")).unwrap();
+    let line = source
+        .lines()
+        .position(|l| l.starts_with("republish = "))
+        .unwrap()
+        + 1;
+    let bad = source.replace(
+        "republish = { can_id = 0x300 }",
+        "republish = { can_id = 0x1234 }",
+    );
+    assert_ne!(bad, source);
+    let path = dir.path().join("bad.toml");
+    std::fs::write(&path, bad).unwrap();
+    let bad_out = dir.path().join("bad-tables");
+    let output = pabctl(&[
+        "compile",
+        path.to_str().unwrap(),
+        "-o",
+        bad_out.to_str().unwrap(),
+    ]);
+    assert_eq!(output.status.code(), Some(2));
+    let stderr = text(&output.stderr);
+    assert!(
+        stderr.contains(&format!(
+            "bad.toml:{line}:24: error: republish can_id 0x1234 does not fit a standard (11-bit) id"
+        )),
+        "{stderr}"
+    );
+    assert!(!bad_out.join("gaze.pab").exists());
+}
