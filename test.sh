@@ -23,9 +23,11 @@ step "lints (host and board)"
 cargo clippy --workspace --all-targets --locked -- -D warnings
 cargo clippy -p pab-core --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-core --features defmt --target thumbv7em-none-eabihf --locked -- -D warnings
+cargo clippy -p pab-storage --target thumbv7em-none-eabihf --locked -- -D warnings
 
 step "pab-core for the boards (thumbv7em-none-eabihf)"
 cargo build -p pab-core --release --target thumbv7em-none-eabihf --locked
+cargo build -p pab-storage --release --target thumbv7em-none-eabihf --locked
 
 step "tests"
 cargo test --workspace --locked
