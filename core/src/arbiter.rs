@@ -250,6 +250,14 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         Some(slot.integrator.level(&slot.runtime, now))
     }
 
+    /// Whether connection `connection` of port `port` is in its rest time at `now` (ignoring
+    /// frames); `false` for a connection that does not exist. Read-only.
+    pub fn is_resting(&self, port: u8, connection: u8, now: Instant) -> bool {
+        self.port_slots(port)
+            .and_then(|slots| slots.get(usize::from(connection)))
+            .is_some_and(|slot| slot.integrator.is_resting(&slot.runtime, now))
+    }
+
     /// The number of ports.
     pub fn port_count(&self) -> usize {
         self.layout.len()

@@ -170,8 +170,9 @@ impl Integrator {
         self.active && self.elapsed(now) <= u64::from(parameters.decay.micros())
     }
 
-    /// Whether `now` falls in the rest phase that follows the end of an activity.
-    fn is_resting(&self, parameters: &Runtime, now: Instant) -> bool {
+    /// Whether `now` falls in the rest phase that follows the end of an activity (frames are then
+    /// ignored). Read-only; costs two comparisons.
+    pub fn is_resting(&self, parameters: &Runtime, now: Instant) -> bool {
         let elapsed = self.elapsed(now);
         let decay = u64::from(parameters.decay.micros());
         self.active

@@ -2,12 +2,17 @@
 //!
 //! Reads a network file ([`network`]), proves its rules consistent ([`check`]), compiles one
 //! table image per node ([`compile`]) and simulates the whole network ([`sim`]) with `pab-core`,
-//! the code the boards run.
+//! the code the boards run. On a live bus ([`bus`]) it pushes tables to the nodes ([`push`]), lists
+//! them ([`observe`]) and shows their arbitration as it happens ([`monitor`]).
 
+pub mod bus;
 pub mod check;
 pub mod compile;
 pub mod diagnostic;
+pub mod monitor;
 pub mod network;
+pub mod observe;
 pub mod plot;
+pub mod push;
 pub mod rule;
 pub mod sim;

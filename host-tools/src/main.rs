@@ -1,16 +1,25 @@
-//! `pabctl`: check, compile and simulate port-arbitration networks.
+//! `pabctl`: check, compile and simulate port-arbitration networks; push tables to the nodes on a
+//! CAN bus, list them, monitor them.
 
 use std::fs;
 use std::io::{self, BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
 use clap::{Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use pabctl::bus::{self, Bus};
 use pabctl::check;
 use pabctl::compile::{self, CompiledNode};
 use pabctl::diagnostic::{Diagnostic, Diagnostics};
 use pabctl::network::Network;
 use pabctl::plot;
+use pabctl::{monitor, observe, push};
 use pabctl::sim::{self, Options};
 
 const ABOUT: &str =
@@ -33,13 +42,16 @@ A network file (TOML) declares [nodes.NAME] (id), [topics.NAME] (can_id, extende
 README for the full reference.
 
 Exit status: 0 success; 1 the rules are inconsistent; 2 the input cannot be read or is invalid; \
-3 an output cannot be written.";
+3 an output cannot be written; 4 the bus cannot be used or a node refused or did not answer.";
 
 const AFTER_HELP: &str = "\
 Examples:
   pabctl check examples/figure-1.toml
   pabctl compile examples/take-and-return.toml -o out/tables
-  pabctl sim examples/take-and-return.toml --plot out/take-and-return.png --trace out/trace.csv";
+  pabctl sim examples/take-and-return.toml --plot out/take-and-return.png --trace out/trace.csv
+  pabctl push examples/take-and-return.toml --iface vcan0
+  pabctl nodes --iface vcan0
+  pabctl monitor examples/take-and-return.toml --iface vcan0";
 
 #[derive(Parser)]
 #[command(name = "pabctl", version, about = ABOUT, long_about = LONG_ABOUT, after_help = AFTER_HELP)]
@@ -104,6 +116,68 @@ through at its port and orange otherwise (like Fig. 5 of the port-arbitration pa
         #[arg(long, value_name = "FILE.png")]
         plot: Option<PathBuf>,
     },
+    /// Compile the network and push each node's table over CAN; wait until each node runs it.
+    #[command(long_about = "\
+Check and compile the network, then send each node its table image over ISO-TP (ISO 15765-2) on \
+--iface, one node after the other, with a progress bar. A node keeps running its old table until \
+the new one has arrived whole and passed its checks (node id, version, CRC, loader); then it \
+swaps atomically, stores the table and answers. The push of a node is done when its heartbeat \
+shows the new version and CRC.
+
+A node that refuses (older version, wrong node, corrupted image, too large...) or does not answer \
+is reported with the reason, and the command fails (exit status 4) after trying every node.")]
+    Push {
+        /// The network file (TOML).
+        network: PathBuf,
+        /// The CAN interface (vcan0, can0...).
+        #[arg(long)]
+        iface: String,
+        /// Push only to this node (by its name in the network file).
+        #[arg(long, value_name = "NAME")]
+        node: Option<String>,
+        /// The table version (default: `[network] version`, else 1). Nodes refuse versions older
+        /// than the one they run.
+        #[arg(long, value_name = "N")]
+        table_version: Option<u32>,
+    },
+    /// List the nodes on the bus from their heartbeats.
+    #[command(long_about = "\
+Listen to --iface for --listen seconds and print one line per node heard: state (no table, \
+operational, fault), uptime, table version and CRC, whether the table is stored, the frame \
+counters (received, delivered, discarded, errors) and the last fault. With a network file, \
+nodes are named.")]
+    Nodes {
+        /// The CAN interface (vcan0, can0...).
+        #[arg(long)]
+        iface: String,
+        /// Name the nodes from this network file.
+        network: Option<PathBuf>,
+        /// How long to listen, in seconds (heartbeats come every second).
+        #[arg(long, default_value_t = 2.5, value_name = "SECONDS")]
+        listen: f64,
+    },
+    /// Live view of every port: connections' stimulation, activity and who delivers.
+    #[command(long_about = "\
+Switch on the diagnostic stream of every node of the network file and draw, several times per \
+second, one bar per connection: its stimulation S, ACTIVE when it is active, resting during its \
+rest time, and \"◀ delivering\" for the connection the port lets through. Ctrl-C ends it and \
+switches the stream off.")]
+    Monitor {
+        /// The network file (TOML): names of nodes, ports and connections.
+        network: PathBuf,
+        /// The CAN interface (vcan0, can0...).
+        #[arg(long)]
+        iface: String,
+        /// Diagnostic rounds per second asked of each node (1..=200).
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u16).range(1..=200))]
+        rate: u16,
+        /// Stop after this many seconds (default: until Ctrl-C).
+        #[arg(long, value_name = "SECONDS")]
+        duration: Option<f64>,
+        /// Print each screen one after the other instead of redrawing in place.
+        #[arg(long)]
+        plain: bool,
+    },
 }
 
 /// How a command failed, and the exit status that says so.
@@ -111,6 +185,7 @@ enum Failure {
     Inconsistent(Vec<Diagnostic>),
     Input(Diagnostics),
     Output(String),
+    Bus(String),
 }
 
 impl From<Diagnostics> for Failure {
@@ -134,6 +209,24 @@ fn main() -> ExitCode {
             trace,
             plot,
         } => run_sim(&network, until, trace.as_deref(), plot.as_deref()),
+        Command::Push {
+            network,
+            iface,
+            node,
+            table_version,
+        } => run_push(&network, &iface, node.as_deref(), table_version),
+        Command::Nodes {
+            iface,
+            network,
+            listen,
+        } => run_nodes(&iface, network.as_deref(), listen),
+        Command::Monitor {
+            network,
+            iface,
+            rate,
+            duration,
+            plain,
+        } => run_monitor(&network, &iface, rate, duration, plain),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -156,7 +249,158 @@ fn main() -> ExitCode {
             eprintln!("error: {message}");
             ExitCode::from(3)
         }
+        Err(Failure::Bus(message)) => {
+            eprintln!("error: {message}");
+            ExitCode::from(4)
+        }
     }
+}
+
+fn open_bus(iface: &str) -> Result<Box<dyn Bus>, Failure> {
+    bus::open(iface).map_err(|error| Failure::Bus(error.to_string()))
+}
+
+fn bus_failure(iface: &str) -> impl Fn(io::Error) -> Failure + '_ {
+    move |error| Failure::Bus(format!("on {iface}: {error}"))
+}
+
+fn run_push(
+    path: &Path,
+    iface: &str,
+    only: Option<&str>,
+    table_version: Option<u32>,
+) -> Result<(), Failure> {
+    let network = Network::load(path)?;
+    let nodes = compiled(&network, table_version)?;
+    let selected: Vec<&CompiledNode> = match only {
+        Some(name) => {
+            let node = nodes.iter().find(|node| node.name == name).ok_or_else(|| {
+                let known: Vec<&str> = nodes.iter().map(|node| node.name.as_str()).collect();
+                Failure::Input(
+                    Diagnostic::file(
+                        path,
+                        format!("no node named {name:?} (nodes: {})", known.join(", ")),
+                    )
+                    .into(),
+                )
+            })?;
+            vec![node]
+        }
+        None => nodes.iter().collect(),
+    };
+    let mut bus = open_bus(iface)?;
+    let mut failures = 0;
+    for node in selected {
+        let header = pab_core::image::read_header(&node.image)
+            .map_err(|error| Failure::Output(format!("compiled image is invalid: {error}")))?;
+        let bar = ProgressBar::new(node.image.len() as u64).with_style(
+            ProgressStyle::with_template("{prefix:>10} [{bar:30}] {bytes}/{total_bytes} {msg}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> "),
+        );
+        bar.set_prefix(node.name.clone());
+        bar.set_message(format!("node {} <- version {}", node.id, header.table_version));
+        let outcome = push::push(
+            bus.as_mut(),
+            node.id,
+            &node.image,
+            &header,
+            push::Timeouts::default(),
+            &mut |sent, _| bar.set_position(sent as u64),
+        )
+        .map_err(bus_failure(iface))?;
+        bar.finish_and_clear();
+        let mark = if outcome.is_success() { "ok" } else { "FAILED" };
+        println!(
+            "{:>10}  node {:>3}  {} bytes  {mark}: {outcome}",
+            node.name,
+            node.id,
+            node.image.len()
+        );
+        if !outcome.is_success() {
+            failures += 1;
+        }
+    }
+    if failures > 0 {
+        return Err(Failure::Bus(format!(
+            "{failures} node{} did not take the new table",
+            plural(failures)
+        )));
+    }
+    Ok(())
+}
+
+fn run_nodes(iface: &str, network: Option<&Path>, listen: f64) -> Result<(), Failure> {
+    let names = match network {
+        Some(path) => Network::load(path)?
+            .nodes
+            .iter()
+            .map(|node| (node.id, node.name.clone()))
+            .collect(),
+        None => BTreeMap::new(),
+    };
+    if !(listen.is_finite() && listen > 0.0 && listen <= 3600.0) {
+        return Err(Failure::Input(
+            Diagnostic::file(Path::new("--listen"), "must be between 0 and 3600 seconds").into(),
+        ));
+    }
+    let mut bus = open_bus(iface)?;
+    let mut observer = observe::Observer::new();
+    observe::listen(bus.as_mut(), &mut observer, Duration::from_secs_f64(listen))
+        .map_err(bus_failure(iface))?;
+    if observer.nodes().is_empty() {
+        return Err(Failure::Bus(format!(
+            "no node heard on {iface} within {listen} s"
+        )));
+    }
+    print!(
+        "{}",
+        observe::nodes_table(&observer, &names, std::time::Instant::now())
+    );
+    Ok(())
+}
+
+fn run_monitor(
+    path: &Path,
+    iface: &str,
+    rate: u16,
+    duration: Option<f64>,
+    plain: bool,
+) -> Result<(), Failure> {
+    let network = Network::load(path)?;
+    let duration = match duration {
+        Some(seconds) if !(seconds.is_finite() && seconds > 0.0) => {
+            return Err(Failure::Input(
+                Diagnostic::file(Path::new("--duration"), "must be a positive number of seconds")
+                    .into(),
+            ));
+        }
+        other => other.map(Duration::from_secs_f64),
+    };
+    let mut bus = open_bus(iface)?;
+    let stop = Arc::new(AtomicBool::new(false));
+    let handler = stop.clone();
+    // Without a handler, Ctrl-C would leave the nodes streaming.
+    let _ = ctrlc::set_handler(move || handler.store(true, Ordering::SeqCst));
+    let stop_requested = || stop.load(Ordering::SeqCst);
+    monitor::run(
+        bus.as_mut(),
+        &network,
+        rate,
+        Duration::from_millis(200),
+        duration,
+        &stop_requested,
+        &mut |screen| {
+            if plain {
+                println!("{screen}");
+            } else {
+                print!("\x1b[H\x1b[2J{screen}");
+                let _ = io::stdout().flush();
+            }
+        },
+    )
+    .map_err(bus_failure(iface))?;
+    Ok(())
 }
 
 fn run_check(path: &Path) -> Result<(), Failure> {

@@ -385,6 +385,22 @@ impl<const N: usize> Receiver<N> {
         }
     }
 
+    /// The whole buffer. After [`RxEvent::Complete`] the message is at its start and stays there
+    /// until the next Single or First Frame: a node can store the image it just applied without a
+    /// second buffer.
+    pub fn buffer(&self) -> &[u8] {
+        &self.buffer
+    }
+
+    /// The whole buffer, writable, when idle (`None` during a reception). A node reads its stored
+    /// image into it at boot, so the transfer buffer is the only image-sized buffer it has.
+    pub fn buffer_mut(&mut self) -> Option<&mut [u8]> {
+        match self.state {
+            State::Idle => Some(&mut self.buffer),
+            State::Receiving { .. } => None,
+        }
+    }
+
     /// Drops the reception in progress, if any (returns whether there was one).
     ///
     /// The sender is not told (the standard has no frame for it mid-message): its remaining
