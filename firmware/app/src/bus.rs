@@ -1,0 +1,33 @@
+//! The seam between the application and a CAN driver: two async methods. The board wraps
+//! embassy-stm32's FDCAN, the Linux node a SocketCAN socket, the tests an in-process bus.
+
+use pab_core::Frame;
+
+/// What a driver reports instead of a frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum BusError {
+    /// Frames were lost before they were read (receive FIFO or socket buffer overflow).
+    Overrun,
+    /// The controller went error-passive.
+    ErrorPassive,
+    /// The controller went bus-off.
+    BusOff,
+    /// The controller is back to error-active after [`BusError::ErrorPassive`] or
+    /// [`BusError::BusOff`].
+    Recovered,
+    /// Any other error the controller flagged (a driver-specific code: stuff, form, ack, CRC...).
+    Other(u8),
+}
+
+/// A CAN interface as the application needs it.
+///
+/// Both futures must be cancel-safe: the runner drops a pending `receive` when a timer fires
+/// first, and no frame may be lost by that (embassy's FDCAN and async SocketCAN reads are).
+#[allow(async_fn_in_trait)]
+pub trait CanBus {
+    /// The next frame from the bus, or what went wrong instead.
+    async fn receive(&mut self) -> Result<Frame, BusError>;
+    /// Queues `frame` for transmission; an error means it was not sent.
+    async fn transmit(&mut self, frame: &Frame) -> Result<(), BusError>;
+}

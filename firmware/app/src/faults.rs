@@ -1,0 +1,124 @@
+//! Fault reporting with a rate limit: at most one frame per fault code per interval, with the
+//! number of occurrences since the previous frame, so a bus in trouble is not flooded by reports of
+//! its own trouble and no occurrence goes uncounted.
+
+use pab_core::Instant;
+use pab_core::protocol::{Fault, FaultCode};
+
+/// The default rate-limit interval: 100 ms.
+pub const DEFAULT_INTERVAL_US: u64 = 100_000;
+
+#[derive(Clone, Copy, Debug, Default)]
+struct Slot {
+    /// Occurrences not yet reported.
+    pending: u32,
+    /// Detail of the latest occurrence.
+    detail: [u8; 5],
+    /// When the last frame for this code went out.
+    last_sent: Option<Instant>,
+}
+
+/// One slot per [`FaultCode`]: 8 codes × 16 bytes.
+#[derive(Clone, Debug)]
+pub struct FaultLimiter {
+    interval_us: u64,
+    slots: [Slot; FaultCode::ALL.len()],
+}
+
+impl FaultLimiter {
+    /// A limiter sending at most one frame per code every `interval_us`.
+    pub fn new(interval_us: u64) -> Self {
+        FaultLimiter {
+            interval_us,
+            slots: [Slot::default(); FaultCode::ALL.len()],
+        }
+    }
+
+    /// Records one occurrence of `code`.
+    pub fn raise(&mut self, code: FaultCode, detail: [u8; 5]) {
+        if let Some(slot) = self.slot(code) {
+            slot.pending = slot.pending.saturating_add(1);
+            slot.detail = detail;
+        }
+    }
+
+    /// The next fault frame due at `now`, if any; marks it sent.
+    pub fn next_due(&mut self, now: Instant) -> Option<Fault> {
+        let interval = self.interval_us;
+        for (code, slot) in FaultCode::ALL.iter().zip(self.slots.iter_mut()) {
+            if slot.pending > 0 && is_due(slot.last_sent, interval, now) {
+                let fault = Fault {
+                    code: *code,
+                    count: u8::try_from(slot.pending).unwrap_or(u8::MAX),
+                    detail: slot.detail,
+                };
+                slot.pending = 0;
+                slot.last_sent = Some(now);
+                return Some(fault);
+            }
+        }
+        None
+    }
+
+    /// When the next pending fault may be sent (`None` if nothing is pending).
+    pub fn deadline(&self) -> Option<Instant> {
+        self.slots
+            .iter()
+            .filter(|slot| slot.pending > 0)
+            .map(|slot| match slot.last_sent {
+                Some(sent) => sent.wrapping_add_micros(self.interval_us),
+                None => Instant::from_micros(0),
+            })
+            .min_by_key(|instant| instant.as_micros())
+    }
+
+    fn slot(&mut self, code: FaultCode) -> Option<&mut Slot> {
+        let index = FaultCode::ALL.iter().position(|known| *known == code)?;
+        self.slots.get_mut(index)
+    }
+}
+
+fn is_due(last_sent: Option<Instant>, interval_us: u64, now: Instant) -> bool {
+    match last_sent {
+        None => true,
+        // A clock that went backwards counts as "not yet": the fault goes out one interval later.
+        Some(sent) => now
+            .micros_since(sent)
+            .is_some_and(|since| since >= interval_us),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn occurrences_within_an_interval_are_counted_in_one_frame() {
+        let mut limiter = FaultLimiter::new(100_000);
+        let t0 = Instant::from_micros(1_000);
+        limiter.raise(FaultCode::BusError, [1, 0, 0, 0, 0]);
+        let first = limiter.next_due(t0).unwrap();
+        assert_eq!((first.code, first.count), (FaultCode::BusError, 1));
+        for _ in 0..300 {
+            limiter.raise(FaultCode::BusError, [2, 0, 0, 0, 0]);
+        }
+        assert_eq!(limiter.next_due(t0.wrapping_add_micros(99_999)), None);
+        assert_eq!(limiter.deadline(), Some(t0.wrapping_add_micros(100_000)));
+        let second = limiter.next_due(t0.wrapping_add_micros(100_000)).unwrap();
+        assert_eq!((second.count, second.detail[0]), (255, 2));
+        assert_eq!(limiter.next_due(t0.wrapping_add_micros(500_000)), None);
+        assert_eq!(limiter.deadline(), None);
+    }
+
+    #[test]
+    fn codes_are_limited_independently() {
+        let mut limiter = FaultLimiter::new(100_000);
+        let now = Instant::from_micros(5);
+        limiter.raise(FaultCode::BusError, [0; 5]);
+        limiter.raise(FaultCode::TableRefused, [0x16, 0, 0, 0, 0]);
+        let a = limiter.next_due(now).unwrap();
+        let b = limiter.next_due(now).unwrap();
+        assert_ne!(a.code, b.code);
+        assert_eq!(limiter.next_due(now), None);
+    }
+}

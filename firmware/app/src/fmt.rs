@@ -1,0 +1,39 @@
+//! Logging that forwards to `defmt` on the boards and to `log` on Linux (embassy's habit), so the
+//! application logs the same way wherever it runs. With neither feature, logging compiles away.
+#![allow(unused_macros)]
+
+#[cfg(all(feature = "defmt", feature = "log"))]
+compile_error!("enable at most one of the `defmt` and `log` features");
+
+macro_rules! debug {
+    ($s:literal $(, $x:expr)* $(,)?) => {{
+        #[cfg(feature = "defmt")]
+        ::defmt::debug!($s $(, $x)*);
+        #[cfg(feature = "log")]
+        ::log::debug!($s $(, $x)*);
+        #[cfg(not(any(feature = "defmt", feature = "log")))]
+        let _ = ($( & $x ),*);
+    }};
+}
+
+macro_rules! info {
+    ($s:literal $(, $x:expr)* $(,)?) => {{
+        #[cfg(feature = "defmt")]
+        ::defmt::info!($s $(, $x)*);
+        #[cfg(feature = "log")]
+        ::log::info!($s $(, $x)*);
+        #[cfg(not(any(feature = "defmt", feature = "log")))]
+        let _ = ($( & $x ),*);
+    }};
+}
+
+macro_rules! warn {
+    ($s:literal $(, $x:expr)* $(,)?) => {{
+        #[cfg(feature = "defmt")]
+        ::defmt::warn!($s $(, $x)*);
+        #[cfg(feature = "log")]
+        ::log::warn!($s $(, $x)*);
+        #[cfg(not(any(feature = "defmt", feature = "log")))]
+        let _ = ($( & $x ),*);
+    }};
+}

@@ -1,0 +1,83 @@
+//! # pab-app: the node application
+//!
+//! What every node runs, on a board under embassy or as the Linux process `pab-node`:
+//!
+//! - arbitrates each frame from the bus with [`pab_core::Arbiter`] and hands the winner to the
+//!   port's [`Consumer`] (and re-publishes it where the table makes the port a gateway);
+//! - sends a heartbeat group every second (state, uptime, table version and CRC, counters);
+//! - reports faults, at most once per code per 100 ms with an occurrence count;
+//! - streams diagnostic samples (stimulation, activity, deliverer) when the tool asks;
+//! - receives new tables over ISO-TP, checks them whole, swaps them in atomically, stores them.
+//!
+//! The frames are those of [`pab_core::protocol`]; `docs/can-protocol.md` describes them.
+//!
+//! Structure: [`Node`] is the whole behaviour as a state machine without I/O (frames and time in,
+//! frames out); [`run`] drives it on a [`CanBus`] with a [`TableStore`]. Boards and the Linux node
+//! provide those two traits and nothing else.
+
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::panic,
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::indexing_slicing,
+        clippy::unreachable,
+        clippy::todo,
+        clippy::unimplemented
+    )
+)]
+
+#[macro_use]
+mod fmt;
+
+pub mod bus;
+mod config;
+mod diagnostic;
+mod faults;
+pub mod node;
+mod runner;
+
+pub use bus::{BusError, CanBus};
+pub use config::{Config, ConfigError};
+pub use node::{Counters, Node, Running, Step};
+pub use pab_storage::{StoreError, TableStore};
+pub use runner::{now, run};
+
+/// Re-exported so runners name one store trait.
+pub mod store {
+    pub use pab_storage::{StoreError, TableStore};
+}
+
+use pab_core::{Frame, Instant};
+
+/// Where delivered frames go on this node: the application's own use of a port (a motor loop, a
+/// gripper driver). Re-publishing for gateway ports is done by the node itself.
+pub trait Consumer {
+    /// Frame `frame`, received at `now`, was delivered at port `port`.
+    fn deliver(&mut self, port: u8, frame: &Frame, now: Instant);
+}
+
+/// No local consumer: the node only re-publishes (a pure gateway).
+impl Consumer for () {
+    fn deliver(&mut self, _port: u8, _frame: &Frame, _now: Instant) {}
+}
+
+/// Node capacities for a board (see [`pab_core::BoardArbiter`]) with an 8 KiB transfer buffer.
+pub type BoardNode = Node<
+    { pab_core::BOARD_PORTS },
+    { pab_core::BOARD_CONNECTIONS },
+    { pab_core::BOARD_DECISION_NODES },
+    8192,
+>;
+
+/// Node capacities for Linux: the full table capacities and the largest image.
+pub type FullNode = Node<
+    { pab_core::MAX_PORTS },
+    { pab_core::MAX_CONNECTIONS },
+    { pab_core::MAX_DECISION_NODES },
+    { pab_core::image::MAX_IMAGE_LEN },
+>;

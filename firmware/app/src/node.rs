@@ -1,0 +1,644 @@
+//! The node, as a state machine without I/O: frames and the time go in, frames to send and the
+//! image to store come out. The async runner ([`crate::run`]) and the tests drive the same code.
+//!
+//! Why sans-I/O: the board, the Linux process and the in-process tests differ only in how frames
+//! and time arrive. Keeping every decision here makes the tests exercise exactly what the boards
+//! run, with virtual time and byte-exact frames.
+
+use heapless::Deque;
+use pab_core::Consumer as PortConsumer;
+use pab_core::image::{self, Header, LoadError};
+use pab_core::isotp::{self, RxError, RxEvent};
+use pab_core::protocol::{
+    self, Errors, FaultCode, FrameId, Heartbeat, Message, NodeState, Service, TableStatus, Traffic,
+    TransferStatus, TransferStatusCode,
+};
+use pab_core::{Arbiter, Frame, Instant};
+
+use crate::bus::BusError;
+use crate::diagnostic::DiagnosticStream;
+use crate::faults::FaultLimiter;
+use crate::{Config, Consumer};
+
+/// Frames waiting to be sent. Heartbeat groups (4 frames), faults and transfer answers fit with
+/// room to spare; the diagnostic stream only fills what is left.
+pub const OUTBOX_LEN: usize = 16;
+/// Room the diagnostic stream leaves free in the outbox for everything else.
+const DIAGNOSTIC_RESERVE: usize = 6;
+
+/// What the runner must do after [`Node::on_frame`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Step {
+    /// Nothing beyond sending the outbox.
+    Continue,
+    /// A new table is running: store [`Node::image_to_store`], then call [`Node::stored`].
+    Store,
+}
+
+/// The running table's identity.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Running {
+    /// The image header.
+    pub header: Header,
+    /// Image length in bytes.
+    pub image_len: u32,
+    /// Whether the node will boot with it.
+    pub stored: bool,
+}
+
+/// Counters since boot, wrapping.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Counters {
+    /// Frames read from the bus.
+    pub received: u32,
+    /// Deliveries to ports.
+    pub delivered: u32,
+    /// Frames that fed a port and were delivered to none.
+    pub discarded: u32,
+    /// Bus errors, overruns, malformed frames addressed to us, dropped outgoing frames.
+    pub errors: u32,
+}
+
+/// What a transfer frame asks of the node, detached from the receiver's borrow.
+enum Event {
+    Nothing,
+    FlowControl([u8; 8]),
+    Refused(Option<[u8; 8]>),
+    Complete(usize),
+}
+
+/// A transfer in progress.
+#[derive(Clone, Copy, Debug)]
+struct Incoming {
+    source: u8,
+}
+
+/// A node: its table, its arbiter, its protocol state.
+///
+/// Capacities: `P` ports, `C` connections, `N` decision nodes (see [`pab_core::Table`]) and
+/// `IMG`, the largest image it accepts (its receive buffer). Memory is
+/// `size_of::<Node<P, C, N, IMG>>()`, dominated by the arbiter and the `IMG`-byte buffer.
+pub struct Node<const P: usize, const C: usize, const N: usize, const IMG: usize> {
+    config: Config,
+    booted: Instant,
+    arbiter: Option<Arbiter<P, C, N>>,
+    running: Option<Running>,
+    store_failed: bool,
+    bus_trouble: bool,
+    receiver: isotp::Receiver<IMG>,
+    incoming: Option<Incoming>,
+    /// The answer owed once the runner has stored the image: (source, outcome).
+    awaiting_store: Option<u8>,
+    counters: Counters,
+    next_heartbeat: Instant,
+    diagnostic: DiagnosticStream,
+    faults: FaultLimiter,
+    outbox: Deque<Frame, OUTBOX_LEN>,
+}
+
+impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C, N, IMG> {
+    /// A node without a table, booted at `now`. Its first heartbeat goes out at once.
+    pub fn new(config: Config, now: Instant) -> Self {
+        Node {
+            receiver: isotp::Receiver::new(config.isotp),
+            config,
+            booted: now,
+            arbiter: None,
+            running: None,
+            store_failed: false,
+            bus_trouble: false,
+            incoming: None,
+            awaiting_store: None,
+            counters: Counters::default(),
+            next_heartbeat: now,
+            diagnostic: DiagnosticStream::default(),
+            faults: FaultLimiter::new(config.fault_interval_us),
+            outbox: Deque::new(),
+        }
+    }
+
+    /// The buffer to read a stored image into at boot (the transfer buffer, idle at boot), so the
+    /// node needs no second `IMG`-byte buffer. Pass the bytes read to [`Node::boot`].
+    pub fn boot_buffer(&mut self) -> &mut [u8] {
+        // At boot no transfer is in progress; if one were, the empty slice reads as "no room".
+        self.receiver.buffer_mut().unwrap_or(&mut [])
+    }
+
+    /// Starts with the image found in storage: its first `len` bytes of [`Node::boot_buffer`]
+    /// (`None`: storage was empty or unreadable). A stored image that the loader refuses leaves the
+    /// node without a table and raises [`FaultCode::BadStoredTable`].
+    pub fn boot(&mut self, stored_len: Option<usize>, now: Instant) {
+        let Some(len) = stored_len else {
+            info!("no stored table");
+            return;
+        };
+        let bytes = self.receiver.buffer().get(..len).unwrap_or(&[]);
+        match load::<P, C, N>(bytes) {
+            Ok((header, arbiter)) => {
+                info!("booted with stored table version {}", header.table_version);
+                self.arbiter = Some(arbiter);
+                self.running = Some(Running {
+                    header,
+                    image_len: u32::try_from(len).unwrap_or(u32::MAX),
+                    stored: true,
+                });
+            }
+            Err((status, detail)) => {
+                warn!("stored table refused: {:?}", status);
+                self.raise(FaultCode::BadStoredTable, [status.code(), detail, 0, 0, 0]);
+            }
+        }
+        self.poll(now);
+    }
+
+    /// Handles one frame read from the bus at `now`: arbitrates it, or handles it as a frame of
+    /// our protocol. Delivered frames go to `consumer` (and are re-published where the table says
+    /// so).
+    pub fn on_frame(&mut self, frame: &Frame, now: Instant, consumer: &mut impl Consumer) -> Step {
+        self.counters.received = self.counters.received.wrapping_add(1);
+        let step = if protocol::is_ours(&frame.id()) {
+            self.on_protocol_frame(frame, now)
+        } else {
+            self.arbitrate(frame, now, consumer);
+            Step::Continue
+        };
+        self.poll(now);
+        step
+    }
+
+    /// Reports a bus error the driver saw.
+    pub fn on_bus_error(&mut self, error: BusError, now: Instant) {
+        self.counters.errors = self.counters.errors.wrapping_add(1);
+        let (code, detail) = match error {
+            BusError::Overrun => (FaultCode::RxOverrun, 0),
+            BusError::BusOff => {
+                self.bus_trouble = true;
+                (FaultCode::BusOff, 1)
+            }
+            BusError::ErrorPassive => {
+                self.bus_trouble = true;
+                (FaultCode::BusOff, 0)
+            }
+            BusError::Recovered => {
+                self.bus_trouble = false;
+                return;
+            }
+            BusError::Other(kind) => (FaultCode::BusError, kind),
+        };
+        self.raise(code, [detail, 0, 0, 0, 0]);
+        self.poll(now);
+    }
+
+    /// Reports a frame that could not be sent (the bus is congested or the controller is off).
+    pub fn on_transmit_error(&mut self, now: Instant) {
+        self.counters.errors = self.counters.errors.wrapping_add(1);
+        self.raise(FaultCode::TxOverrun, [0; 5]);
+        self.poll(now);
+    }
+
+    /// The image to store after [`Step::Store`]: the one now running.
+    pub fn image_to_store(&self) -> &[u8] {
+        let len = self.running.map_or(0, |running| running.image_len);
+        let len = usize::try_from(len).unwrap_or(0);
+        self.receiver.buffer().get(..len).unwrap_or(&[])
+    }
+
+    /// Reports the outcome of storing [`Node::image_to_store`]; answers the transfer.
+    pub fn stored(&mut self, ok: bool, now: Instant) {
+        if let Some(running) = self.running.as_mut() {
+            running.stored = ok;
+        }
+        self.store_failed = !ok;
+        let status = if ok {
+            TransferStatusCode::Applied
+        } else {
+            self.raise(FaultCode::StoreFailed, [0; 5]);
+            TransferStatusCode::AppliedNotStored
+        };
+        if let Some(source) = self.awaiting_store.take() {
+            self.answer(source, status, 0);
+        }
+        self.poll(now);
+    }
+
+    /// Emits what is due at `now` (heartbeat, faults, diagnostic samples) and handles transfer
+    /// timeouts. Call it whenever [`Node::deadline`] passes; [`Node::on_frame`] calls it too.
+    pub fn poll(&mut self, now: Instant) {
+        if self.receiver.poll(now).is_some()
+            && let Some(incoming) = self.incoming.take()
+        {
+            warn!("table transfer from {} timed out", incoming.source);
+            self.refuse(incoming.source, TransferStatusCode::Timeout, 0);
+        }
+        if now.micros_since(self.next_heartbeat).is_some() {
+            self.heartbeat(now);
+            let next = self
+                .next_heartbeat
+                .wrapping_add_micros(self.config.heartbeat_period_us);
+            // After a long stall, resume from now instead of sending a burst of heartbeats.
+            self.next_heartbeat = match next.micros_since(now) {
+                Some(_) => next,
+                None => now.wrapping_add_micros(self.config.heartbeat_period_us),
+            };
+        }
+        while self.outbox.len() < OUTBOX_LEN {
+            let Some(fault) = self.faults.next_due(now) else {
+                break;
+            };
+            self.send(Message::Fault(fault), protocol::BROADCAST);
+        }
+        if let Some(arbiter) = self.arbiter.as_ref() {
+            while self.outbox.len() + DIAGNOSTIC_RESERVE < OUTBOX_LEN {
+                let Some(sample) = self.diagnostic.next_sample(arbiter, now) else {
+                    break;
+                };
+                let frame =
+                    Message::Diagnostic(sample).to_frame(self.config.node_id, protocol::BROADCAST);
+                if self.outbox.push_back(frame).is_err() {
+                    break;
+                }
+            }
+        }
+    }
+
+    /// The latest instant by which [`Node::poll`] must run again.
+    pub fn deadline(&self, now: Instant) -> Instant {
+        let mut deadline = self.next_heartbeat;
+        let candidates = [
+            self.receiver.deadline(),
+            self.faults.deadline(),
+            self.arbiter
+                .as_ref()
+                .and_then(|_| self.diagnostic.deadline(now)),
+        ];
+        for candidate in candidates.into_iter().flatten() {
+            if candidate.micros_since(deadline).is_none() {
+                deadline = candidate;
+            }
+        }
+        deadline
+    }
+
+    /// The next frame to send, oldest first.
+    pub fn next_outgoing(&mut self) -> Option<Frame> {
+        self.outbox.pop_front()
+    }
+
+    /// The node's state, as its heartbeat reports it.
+    pub fn state(&self) -> NodeState {
+        if self.arbiter.is_none() {
+            NodeState::NoTable
+        } else if self.store_failed || self.bus_trouble {
+            NodeState::Fault
+        } else {
+            NodeState::Operational
+        }
+    }
+
+    /// The running table, if any.
+    pub fn running(&self) -> Option<Running> {
+        self.running
+    }
+
+    /// The arbiter, if a table is running (read-only: for inspection and tests).
+    pub fn arbiter(&self) -> Option<&Arbiter<P, C, N>> {
+        self.arbiter.as_ref()
+    }
+
+    /// The counters.
+    pub fn counters(&self) -> Counters {
+        self.counters
+    }
+
+    /// The node's configuration.
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+
+    fn arbitrate(&mut self, frame: &Frame, now: Instant, consumer: &mut impl Consumer) {
+        let Some(arbiter) = self.arbiter.as_mut() else {
+            return;
+        };
+        let reception = arbiter.receive(&frame.id(), now, |_| {});
+        if reception.fed.is_empty() {
+            return;
+        }
+        if reception.delivered.is_empty() {
+            self.counters.discarded = self.counters.discarded.wrapping_add(1);
+            return;
+        }
+        for port in 0..u8::try_from(P.min(16)).unwrap_or(16) {
+            if !reception.delivered.contains(port) {
+                continue;
+            }
+            self.counters.delivered = self.counters.delivered.wrapping_add(1);
+            consumer.deliver(port, frame, now);
+            let republish = arbiter
+                .table()
+                .port(usize::from(port))
+                .map(|view| view.consumer);
+            if let Some(PortConsumer::Republish(output)) = republish {
+                let copy = Frame::from_buffer(output.id(), padded(frame.payload()), dlc(frame));
+                if self.outbox.push_back(copy).is_err() {
+                    self.counters.errors = self.counters.errors.wrapping_add(1);
+                    self.faults.raise(FaultCode::TxOverrun, [1, 0, 0, 0, 0]);
+                }
+            }
+        }
+    }
+
+    fn on_protocol_frame(&mut self, frame: &Frame, now: Instant) -> Step {
+        let node_id = self.config.node_id;
+        let (id, message) = match Message::decode(frame) {
+            Ok(decoded) => decoded,
+            Err(_) => {
+                // Count malformed frames addressed to us; other nodes' business is not ours.
+                let addressed = FrameId::decode(&frame.id()).is_some_and(|id| id.is_for(node_id));
+                if addressed {
+                    self.counters.errors = self.counters.errors.wrapping_add(1);
+                    let service = FrameId::decode(&frame.id()).map_or(0, |id| id.service.code());
+                    self.raise(FaultCode::BadCommand, [service, 0, 0, 0, 0]);
+                }
+                return Step::Continue;
+            }
+        };
+        if !id.is_for(node_id) || id.source == node_id {
+            return Step::Continue;
+        }
+        match message {
+            Message::DiagnosticControl(control) => {
+                self.diagnostic.configure(control, now);
+                info!("diagnostic stream at {} Hz", control.rate_hz);
+                Step::Continue
+            }
+            // Transfers are point to point: a broadcast transfer would make every node answer
+            // flow control at once.
+            Message::TableTransfer { data, len } if id.destination == node_id => {
+                let data = data.get(..usize::from(len)).unwrap_or(&data);
+                self.on_transfer_frame(id.source, data, now)
+            }
+            _ => Step::Continue,
+        }
+    }
+
+    fn on_transfer_frame(&mut self, source: u8, data: &[u8], now: Instant) -> Step {
+        if let Some(incoming) = self.incoming
+            && incoming.source != source
+        {
+            // One transfer at a time; the other sender learns why.
+            self.answer(source, TransferStatusCode::Busy, 0);
+            return Step::Continue;
+        }
+        if self.awaiting_store.is_some() {
+            self.answer(source, TransferStatusCode::Busy, 0);
+            return Step::Continue;
+        }
+        let outcome = self.receiver.on_frame(data, now);
+        // A reception this frame ended (wrong sequence number, or a new First Frame that
+        // interrupted it, or N_Cr passed): the sender of that reception learns why.
+        let aborted = outcome.aborted;
+        let event = match outcome.event {
+            RxEvent::Nothing => Event::Nothing,
+            RxEvent::Ignored(_) => Event::Nothing,
+            RxEvent::SendFlowControl(flow_control) => Event::FlowControl(flow_control),
+            RxEvent::Refused { flow_control, .. } => Event::Refused(flow_control),
+            RxEvent::Complete(message) => Event::Complete(message.len()),
+        };
+        if let Some(error) = aborted
+            && let Some(incoming) = self.incoming.take()
+        {
+            let status = match error {
+                RxError::Timeout => TransferStatusCode::Timeout,
+                RxError::WrongSequenceNumber { .. } | RxError::Interrupted => {
+                    TransferStatusCode::Interrupted
+                }
+            };
+            self.refuse(incoming.source, status, 0);
+        }
+        match event {
+            Event::Nothing => Step::Continue,
+            Event::FlowControl(flow_control) => {
+                self.incoming = Some(Incoming { source });
+                self.send_transfer(source, flow_control);
+                Step::Continue
+            }
+            Event::Refused(flow_control) => {
+                if let Some(flow_control) = flow_control {
+                    self.send_transfer(source, flow_control);
+                }
+                self.incoming = None;
+                self.refuse(source, TransferStatusCode::TooLarge, 0);
+                Step::Continue
+            }
+            Event::Complete(len) => {
+                self.incoming = None;
+                self.apply(source, len)
+            }
+        }
+    }
+
+    /// Checks a complete image and, if it passes, swaps it in.
+    fn apply(&mut self, source: u8, len: usize) -> Step {
+        let bytes = self.receiver.buffer().get(..len).unwrap_or(&[]);
+        let verdict = check(bytes, self.config.node_id, self.running.as_ref())
+            .and_then(|()| load::<P, C, N>(bytes).map(Some));
+        match verdict {
+            Ok(Some((header, arbiter))) => {
+                // The swap: one assignment. The old arbiter ran every frame until here.
+                self.arbiter = Some(arbiter);
+                self.running = Some(Running {
+                    header,
+                    image_len: u32::try_from(len).unwrap_or(u32::MAX),
+                    stored: false,
+                });
+                self.diagnostic.restart_round();
+                self.awaiting_store = Some(source);
+                info!("table version {} applied", header.table_version);
+                Step::Store
+            }
+            Ok(None) => {
+                self.answer(source, TransferStatusCode::AlreadyCurrent, 0);
+                Step::Continue
+            }
+            Err((status, detail)) if status == TransferStatusCode::AlreadyCurrent => {
+                self.answer(source, status, detail);
+                Step::Continue
+            }
+            Err((status, detail)) => {
+                self.refuse(source, status, detail);
+                Step::Continue
+            }
+        }
+    }
+
+    fn refuse(&mut self, source: u8, status: TransferStatusCode, detail: u8) {
+        warn!("table transfer refused: {:?}", status);
+        self.answer(source, status, detail);
+        self.raise(FaultCode::TableRefused, [status.code(), detail, 0, 0, 0]);
+    }
+
+    fn answer(&mut self, source: u8, status: TransferStatusCode, detail: u8) {
+        let running_version = self
+            .running
+            .map_or(0, |running| running.header.table_version);
+        self.send(
+            Message::TransferStatus(TransferStatus {
+                status,
+                detail,
+                running_version,
+            }),
+            source,
+        );
+    }
+
+    fn send_transfer(&mut self, destination: u8, data: [u8; 8]) {
+        self.send(Message::TableTransfer { data, len: 8 }, destination);
+    }
+
+    fn heartbeat(&mut self, now: Instant) {
+        let uptime_s = now.micros_since(self.booted).map_or(0, |micros| {
+            u32::try_from(micros / 1_000_000).unwrap_or(u32::MAX)
+        });
+        let running = self.running;
+        let state = self.state();
+        let diagnostic = self.diagnostic.is_on();
+        self.send(
+            Message::Heartbeat(Heartbeat {
+                state,
+                uptime_s,
+                table_version: running.map_or(0, |r| r.header.table_version),
+            }),
+            protocol::BROADCAST,
+        );
+        self.send(
+            Message::TableStatus(TableStatus {
+                crc: running.map_or(0, |r| r.header.crc),
+                image_len: running.map_or(0, |r| u16::try_from(r.image_len).unwrap_or(u16::MAX)),
+                ports: self
+                    .arbiter
+                    .as_ref()
+                    .map_or(0, |a| u8::try_from(a.port_count()).unwrap_or(u8::MAX)),
+                stored: running.is_some_and(|r| r.stored),
+                diagnostic,
+            }),
+            protocol::BROADCAST,
+        );
+        let counters = self.counters;
+        self.send(
+            Message::Traffic(Traffic {
+                received: counters.received,
+                delivered: counters.delivered,
+            }),
+            protocol::BROADCAST,
+        );
+        self.send(
+            Message::Errors(Errors {
+                discarded: counters.discarded,
+                errors: counters.errors,
+            }),
+            protocol::BROADCAST,
+        );
+    }
+
+    fn send(&mut self, message: Message, destination: u8) {
+        let frame = message.to_frame(self.config.node_id, destination);
+        if self.outbox.push_back(frame).is_err() {
+            // Make room for protocol traffic by dropping the oldest diagnostic sample, if any.
+            let diagnostic = FrameId::new(
+                Service::Diagnostic,
+                self.config.node_id,
+                protocol::BROADCAST,
+            )
+            .id();
+            let position = self
+                .outbox
+                .iter()
+                .position(|queued| queued.id() == diagnostic);
+            if position.is_some() {
+                let mut kept: Deque<Frame, OUTBOX_LEN> = Deque::new();
+                let mut dropped = false;
+                while let Some(queued) = self.outbox.pop_front() {
+                    if !dropped && queued.id() == diagnostic {
+                        dropped = true;
+                    } else {
+                        let _ = kept.push_back(queued);
+                    }
+                }
+                self.outbox = kept;
+                let _ = self.outbox.push_back(frame);
+            } else {
+                self.counters.errors = self.counters.errors.wrapping_add(1);
+                self.faults.raise(FaultCode::TxOverrun, [0; 5]);
+            }
+        }
+    }
+
+    fn raise(&mut self, code: FaultCode, detail: [u8; 5]) {
+        self.faults.raise(code, detail);
+    }
+}
+
+/// The header checks a node makes before loading: target node, then version against the running
+/// table. `Ok(())` means "load it"; `Err(AlreadyCurrent)` means the very same table runs.
+fn check(
+    bytes: &[u8],
+    node_id: u8,
+    running: Option<&Running>,
+) -> Result<(), (TransferStatusCode, u8)> {
+    let header = image::read_header(bytes).map_err(|error| status_of(&error))?;
+    if header.node_id != node_id {
+        return Err((TransferStatusCode::WrongNode, header.node_id));
+    }
+    if let Some(running) = running {
+        let current = running.header;
+        if header.table_version == current.table_version && header.crc == current.crc {
+            return Err((TransferStatusCode::AlreadyCurrent, 0));
+        }
+        if header.table_version <= current.table_version {
+            return Err((TransferStatusCode::OlderVersion, 0));
+        }
+    }
+    Ok(())
+}
+
+/// Loads and validates an image for this node's capacities, and builds its arbiter.
+fn load<const P: usize, const C: usize, const N: usize>(
+    bytes: &[u8],
+) -> Result<(Header, Arbiter<P, C, N>), (TransferStatusCode, u8)> {
+    let loaded = image::load::<P, C, N>(bytes).map_err(|error| status_of(&error))?;
+    let arbiter = Arbiter::new(loaded.table).map_err(|_| (TransferStatusCode::InvalidTable, 0))?;
+    Ok((loaded.header, arbiter))
+}
+
+/// The transfer status (and detail byte) a loader error maps to.
+pub fn status_of(error: &LoadError) -> (TransferStatusCode, u8) {
+    match error {
+        LoadError::Crc { .. } => (TransferStatusCode::CrcMismatch, 0),
+        LoadError::Truncated { .. } => (TransferStatusCode::BadHeader, 1),
+        LoadError::TrailingBytes { .. } => (TransferStatusCode::BadHeader, 2),
+        LoadError::BadMagic => (TransferStatusCode::BadHeader, 3),
+        LoadError::UnsupportedFormat { .. } => (TransferStatusCode::BadHeader, 4),
+        LoadError::ReservedByte => (TransferStatusCode::BadHeader, 5),
+        LoadError::TooLarge { .. } => (TransferStatusCode::TooLarge, 0),
+        LoadError::Body(_) => (TransferStatusCode::InvalidTable, 1),
+        LoadError::BodyTrailingBytes => (TransferStatusCode::InvalidTable, 2),
+        LoadError::Table(_) => (TransferStatusCode::InvalidTable, 3),
+        #[allow(unreachable_patterns)]
+        _ => (TransferStatusCode::InvalidTable, 4),
+    }
+}
+
+fn padded(payload: &[u8]) -> [u8; 8] {
+    let mut data = [0; 8];
+    for (to, from) in data.iter_mut().zip(payload) {
+        *to = *from;
+    }
+    data
+}
+
+fn dlc(frame: &Frame) -> u8 {
+    u8::try_from(frame.payload().len()).unwrap_or(8)
+}

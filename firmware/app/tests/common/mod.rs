@@ -1,0 +1,261 @@
+//! An in-process bus with virtual time around one node: frames in, frames out, every decision made
+//! by the node's own code. Tables are built with pab-core and pushed with pab-core's ISO-TP sender.
+#![allow(dead_code)]
+
+use pab_app::{Config, Consumer, Node, Step};
+use pab_core::isotp::{Sender, TxConfig, TxEvent};
+use pab_core::protocol::{self, FrameId, Message, TransferStatus};
+use pab_core::{
+    Connection, Consumer as PortConsumer, DecisionNode, Filter, Frame, Instant, NodeRef, OutputId,
+    Stimulation, Table,
+};
+
+/// Board capacities: 4 ports, 64 connections, 256 decision nodes, 8 KiB images.
+pub type TestNode = Node<4, 64, 256, 8192>;
+pub type TestTable = Table<4, 64, 256>;
+
+pub const TOPIC_A: u32 = 0x100;
+pub const TOPIC_B: u32 = 0x101;
+pub const GATEWAY_OUT: u32 = 0x300;
+
+/// One port, connections in priority order (connection 0 wins over 1...), each fed by one
+/// standard id, every one with σ = 1 (active at its first frame), τ = 0.5 s, no rest.
+pub fn priority_table(ids: &[u32], republish: Option<u32>) -> TestTable {
+    let stimulation = Stimulation::from_seconds(1.0, 0.5, 0.0).unwrap();
+    let connections: Vec<Connection> = ids
+        .iter()
+        .map(|&id| Connection {
+            filter: Filter::exact(id, false).unwrap(),
+            stimulation,
+        })
+        .collect();
+    // Node k tests connection k: active → deliver k, else go on to node k+1.
+    let nodes: Vec<DecisionNode> = (0..ids.len())
+        .map(|k| DecisionNode {
+            var: k as u8,
+            high: NodeRef::deliver(k as u8).unwrap(),
+            low: if k + 1 < ids.len() {
+                NodeRef::node(k as u16 + 1).unwrap()
+            } else {
+                NodeRef::NOBODY
+            },
+        })
+        .collect();
+    let mut table = TestTable::new();
+    table
+        .push_port(&connections, &nodes, NodeRef::node(0).unwrap())
+        .unwrap();
+    if let Some(id) = republish {
+        table
+            .set_consumer(
+                0,
+                PortConsumer::Republish(OutputId::new(id, false).unwrap()),
+            )
+            .unwrap();
+    }
+    table
+}
+
+/// The image of `table` for `node_id`, version `version`.
+pub fn image<const P: usize, const C: usize, const N: usize>(
+    table: &Table<P, C, N>,
+    node_id: u8,
+    version: u32,
+) -> Vec<u8> {
+    let mut out = vec![0u8; pab_core::image::MAX_IMAGE_LEN];
+    let len = pab_core::image::encode(table, node_id, version, &mut out).unwrap();
+    out.truncate(len);
+    out
+}
+
+pub fn frame(id: u32, data: &[u8]) -> Frame {
+    Frame::with_raw_id(id, false, data).unwrap()
+}
+
+/// Frames delivered to the node's application: (port, frame, time in µs).
+#[derive(Default)]
+pub struct Deliveries(pub Vec<(u8, Frame, u64)>);
+
+impl Consumer for Deliveries {
+    fn deliver(&mut self, port: u8, frame: &Frame, now: Instant) {
+        self.0.push((port, *frame, now.as_micros()));
+    }
+}
+
+/// One node on a virtual bus.
+pub struct Harness {
+    pub node: TestNode,
+    pub now: u64,
+    /// Everything the node sent, with the time.
+    pub sent: Vec<(u64, Frame)>,
+    pub deliveries: Deliveries,
+    /// Images the node asked to store.
+    pub stored: Vec<Vec<u8>>,
+    /// Whether storing succeeds.
+    pub store_ok: bool,
+}
+
+impl Harness {
+    pub const NODE_ID: u8 = 5;
+
+    /// A node booted at t = 0 with `stored` as its stored image.
+    pub fn boot(stored: Option<&[u8]>) -> Harness {
+        let config = Config::new(Self::NODE_ID).unwrap();
+        let mut node = TestNode::new(config, Instant::from_micros(0));
+        let len = stored.map(|bytes| {
+            node.boot_buffer()[..bytes.len()].copy_from_slice(bytes);
+            bytes.len()
+        });
+        node.boot(len, Instant::from_micros(0));
+        let mut harness = Harness {
+            node,
+            now: 0,
+            sent: Vec::new(),
+            deliveries: Deliveries::default(),
+            stored: Vec::new(),
+            store_ok: true,
+        };
+        harness.drain();
+        harness
+    }
+
+    /// Runs the node's timers up to `t` µs.
+    pub fn advance_to(&mut self, t: u64) {
+        let mut polls_at_same_time = 0;
+        loop {
+            let deadline = self
+                .node
+                .deadline(Instant::from_micros(self.now))
+                .as_micros();
+            if deadline > t {
+                break;
+            }
+            if deadline <= self.now {
+                // Work due now (a diagnostic round being sent): it must finish.
+                polls_at_same_time += 1;
+                assert!(
+                    polls_at_same_time < 10_000,
+                    "the node is stuck at {} µs",
+                    self.now
+                );
+            } else {
+                polls_at_same_time = 0;
+                self.now = deadline;
+            }
+            self.node.poll(Instant::from_micros(self.now));
+            self.drain();
+        }
+        self.now = t;
+        self.node.poll(Instant::from_micros(t));
+        self.drain();
+    }
+
+    /// A frame from the bus at the current time.
+    pub fn feed(&mut self, frame: &Frame) {
+        let now = Instant::from_micros(self.now);
+        if self.node.on_frame(frame, now, &mut self.deliveries) == Step::Store {
+            self.stored.push(self.node.image_to_store().to_vec());
+            self.node.stored(self.store_ok, now);
+        }
+        self.drain();
+    }
+
+    /// A bus error reported by the driver at the current time.
+    pub fn bus_error(&mut self, error: pab_app::BusError) {
+        self.node
+            .on_bus_error(error, Instant::from_micros(self.now));
+        self.drain();
+    }
+
+    fn drain(&mut self) {
+        while let Some(frame) = self.node.next_outgoing() {
+            self.sent.push((self.now, frame));
+        }
+    }
+
+    /// Our protocol's messages the node sent since `from` µs.
+    pub fn messages_since(&self, from: u64) -> Vec<(u64, FrameId, Message)> {
+        self.sent
+            .iter()
+            .filter(|(t, _)| *t >= from)
+            .filter_map(|(t, frame)| {
+                Message::decode(frame)
+                    .ok()
+                    .map(|(id, message)| (*t, id, message))
+            })
+            .collect()
+    }
+
+    /// The transfer statuses the node sent to `source`.
+    pub fn statuses(&self, source: u8) -> Vec<TransferStatus> {
+        self.messages_since(0)
+            .into_iter()
+            .filter_map(|(_, id, message)| match message {
+                Message::TransferStatus(status) if id.destination == source => Some(status),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// Pushes `bytes` from `source` with pab-core's ISO-TP sender, one frame per 100 µs;
+    /// `tamper(index, frame data)` may change or drop (None) each transfer frame.
+    /// Returns how the sender ended.
+    pub fn push_with(
+        &mut self,
+        bytes: &[u8],
+        source: u8,
+        mut tamper: impl FnMut(usize, [u8; 8]) -> Option<[u8; 8]>,
+    ) -> TxEvent {
+        let mut sender = Sender::new(bytes, TxConfig::default()).unwrap();
+        let mut index = 0;
+        let mut seen = self.sent.len();
+        loop {
+            let event = sender.poll(Instant::from_micros(self.now));
+            match event {
+                TxEvent::Send(data) => {
+                    if let Some(data) = tamper(index, data) {
+                        let frame =
+                            Message::TableTransfer { data, len: 8 }.to_frame(source, Self::NODE_ID);
+                        self.feed(&frame);
+                    }
+                    index += 1;
+                    self.advance_to(self.now + 100);
+                }
+                TxEvent::WaitUntil(until) => {
+                    // Deliver the node's flow control, if it sent one.
+                    let mut delivered = false;
+                    while seen < self.sent.len() {
+                        let (_, frame) = self.sent[seen];
+                        seen += 1;
+                        if let Ok((id, Message::TableTransfer { data, len })) =
+                            Message::decode(&frame)
+                            && id.destination == source
+                        {
+                            {
+                                sender.on_flow_control(
+                                    &data[..len as usize],
+                                    Instant::from_micros(self.now),
+                                );
+                                delivered = true;
+                            }
+                        }
+                    }
+                    if !delivered {
+                        self.advance_to(until.as_micros().max(self.now + 1));
+                    }
+                }
+                TxEvent::Done | TxEvent::Failed(_) => return event,
+            }
+        }
+    }
+
+    pub fn push(&mut self, bytes: &[u8]) -> TxEvent {
+        self.push_with(bytes, protocol::TOOL, |_, data| Some(data))
+    }
+
+    pub fn running_version(&self) -> Option<u32> {
+        self.node
+            .running()
+            .map(|running| running.header.table_version)
+    }
+}

@@ -1,0 +1,301 @@
+//! The node application against an in-process bus with virtual time: arbitration, heartbeat,
+//! faults, diagnostic stream, gateway consumer.
+
+mod common;
+
+use common::*;
+use pab_core::protocol::{
+    self, DiagnosticControl, FaultCode, Message, NodeState, Service, TransferStatusCode,
+};
+use pab_core::{Frame, Instant};
+
+const MS: u64 = 1_000;
+const S: u64 = 1_000_000;
+
+fn heartbeats(h: &Harness) -> Vec<(u64, protocol::Heartbeat)> {
+    h.messages_since(0)
+        .into_iter()
+        .filter_map(|(t, _, m)| match m {
+            Message::Heartbeat(hb) => Some((t, hb)),
+            _ => None,
+        })
+        .collect()
+}
+
+fn faults(h: &Harness) -> Vec<(u64, protocol::Fault)> {
+    h.messages_since(0)
+        .into_iter()
+        .filter_map(|(t, _, m)| match m {
+            Message::Fault(f) => Some((t, f)),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn arbitrates_frames_and_hands_the_winners_to_the_consumer() {
+    let table = priority_table(&[TOPIC_A, TOPIC_B], None);
+    let mut h = Harness::boot(Some(&image(&table, Harness::NODE_ID, 1)));
+    assert_eq!(h.node.state(), NodeState::Operational);
+    // B alone, 10 Hz for 1 s: every frame gets through.
+    for k in 0..10 {
+        h.advance_to(k * 100 * MS);
+        h.feed(&frame(TOPIC_B, &[k as u8]));
+    }
+    assert_eq!(h.deliveries.0.len(), 10);
+    assert!(
+        h.deliveries
+            .0
+            .iter()
+            .all(|(port, f, _)| *port == 0 && f.raw_id().0 == TOPIC_B)
+    );
+    // A starts: A wins, B's frames are discarded while A is active.
+    for k in 10..20 {
+        h.advance_to(k * 100 * MS);
+        h.feed(&frame(TOPIC_A, &[0xA0, k as u8]));
+        h.advance_to(k * 100 * MS + 50 * MS);
+        h.feed(&frame(TOPIC_B, &[k as u8]));
+    }
+    let after: Vec<_> = h.deliveries.0[10..]
+        .iter()
+        .map(|(_, f, _)| f.raw_id().0)
+        .collect();
+    assert_eq!(after, vec![TOPIC_A; 10]);
+    let counters = h.node.counters();
+    assert_eq!(counters.received, 30);
+    assert_eq!(counters.delivered, 20);
+    assert_eq!(counters.discarded, 10);
+    // A stops; once it has decayed (τ = 0.5 s), B gets through again.
+    h.advance_to(2 * S + 600 * MS);
+    h.feed(&frame(TOPIC_B, &[0xBB]));
+    assert_eq!(h.deliveries.0.last().unwrap().1.payload(), &[0xBB]);
+    // Payloads reach the consumer unchanged.
+    assert_eq!(h.deliveries.0[12].1.payload(), &[0xA0, 12]);
+}
+
+#[test]
+fn without_a_table_nothing_is_delivered() {
+    let mut h = Harness::boot(None);
+    assert_eq!(h.node.state(), NodeState::NoTable);
+    h.feed(&frame(TOPIC_A, &[1]));
+    assert!(h.deliveries.0.is_empty());
+    assert_eq!(h.node.counters().received, 1);
+}
+
+#[test]
+fn heartbeat_group_every_second_with_state_version_and_counters() {
+    let table = priority_table(&[TOPIC_A], None);
+    let bytes = image(&table, Harness::NODE_ID, 7);
+    let header = pab_core::image::read_header(&bytes).unwrap();
+    let mut h = Harness::boot(Some(&bytes));
+    h.advance_to(500 * MS);
+    h.feed(&frame(TOPIC_A, &[1]));
+    h.feed(&frame(0x7FF, &[1])); // matches nothing
+    h.advance_to(3 * S + 500 * MS);
+    let beats = heartbeats(&h);
+    let times: Vec<u64> = beats.iter().map(|(t, _)| *t).collect();
+    assert_eq!(times, vec![0, S, 2 * S, 3 * S]);
+    for (t, beat) in &beats {
+        assert_eq!(beat.state, NodeState::Operational);
+        assert_eq!(beat.table_version, 7);
+        assert_eq!(u64::from(beat.uptime_s), t / S);
+    }
+    // Each heartbeat is followed by the table status and the counters, in this order.
+    let group: Vec<Service> = h
+        .messages_since(S)
+        .iter()
+        .take(4)
+        .map(|(_, id, _)| id.service)
+        .collect();
+    assert_eq!(
+        group,
+        [
+            Service::Heartbeat,
+            Service::TableStatus,
+            Service::Traffic,
+            Service::Errors
+        ]
+    );
+    let status = h
+        .messages_since(S)
+        .into_iter()
+        .find_map(|(_, _, m)| match m {
+            Message::TableStatus(s) => Some(s),
+            _ => None,
+        });
+    let status = status.unwrap();
+    assert_eq!(status.crc, header.crc);
+    assert_eq!(usize::from(status.image_len), bytes.len());
+    assert_eq!(
+        (status.ports, status.stored, status.diagnostic),
+        (1, true, false)
+    );
+    let traffic = h
+        .messages_since(S)
+        .into_iter()
+        .find_map(|(_, _, m)| match m {
+            Message::Traffic(t) => Some(t),
+            _ => None,
+        });
+    assert_eq!(traffic.unwrap().received, 2);
+    assert_eq!(traffic.unwrap().delivered, 1);
+    // All from our node, to everyone.
+    for (_, id, _) in h.messages_since(0) {
+        assert_eq!(
+            (id.source, id.destination),
+            (Harness::NODE_ID, protocol::BROADCAST)
+        );
+    }
+}
+
+#[test]
+fn diagnostic_stream_reports_levels_activity_and_the_deliverer_at_the_requested_rate() {
+    let table = priority_table(&[TOPIC_A, TOPIC_B], None);
+    let mut h = Harness::boot(Some(&image(&table, Harness::NODE_ID, 1)));
+    h.feed(&frame(TOPIC_B, &[1]));
+    let control = Message::DiagnosticControl(DiagnosticControl {
+        rate_hz: 10,
+        ports: 1,
+    })
+    .to_frame(protocol::TOOL, Harness::NODE_ID);
+    h.advance_to(100 * MS);
+    h.feed(&control);
+    h.advance_to(S + 50 * MS);
+    let samples: Vec<(u64, protocol::DiagnosticSample)> = h
+        .messages_since(100 * MS)
+        .into_iter()
+        .filter_map(|(t, _, m)| match m {
+            Message::Diagnostic(s) => Some((t, s)),
+            _ => None,
+        })
+        .collect();
+    // Rounds at 100, 200, ..., 1000 ms: ten rounds of two samples.
+    assert_eq!(samples.len(), 20, "{samples:?}");
+    for (k, pair) in samples.chunks(2).enumerate() {
+        let (t0, first) = pair[0];
+        let (t1, second) = pair[1];
+        assert_eq!(t0, 100 * MS * (k as u64 + 1));
+        assert_eq!(t1, t0);
+        assert_eq!((first.port, first.connection), (0, 0));
+        assert_eq!((second.port, second.connection), (0, 1));
+        assert!(!first.flags.end_of_round && second.flags.end_of_round);
+        assert_eq!(first.sequence, second.sequence);
+        // Values are the arbiter's at that time.
+        let arbiter = h.node.arbiter().unwrap();
+        let now = Instant::from_micros(t0);
+        assert_eq!(second.level, arbiter.level(0, 1, now).unwrap().raw());
+        assert_eq!(second.flags.active, arbiter.activity(0, now).contains(1));
+        assert_eq!(second.flags.delivering, arbiter.selected(0, now) == Some(1));
+    }
+    // B was fed at 0 with σ = 1 and τ = 0.5 s: delivering until it decays.
+    assert!(samples[1].1.flags.delivering && samples[1].1.flags.active);
+    assert!(samples[1].1.level > 0);
+    assert!(!samples[19].1.flags.active && samples[19].1.level == 0);
+    // The heartbeat says the stream is on; rate 0 switches it off.
+    let off = Message::DiagnosticControl(DiagnosticControl {
+        rate_hz: 0,
+        ports: 1,
+    })
+    .to_frame(protocol::TOOL, Harness::NODE_ID);
+    h.feed(&off);
+    let before = h.sent.len();
+    h.advance_to(3 * S);
+    assert!(
+        h.sent[before..].iter().all(
+            |(_, f)| protocol::FrameId::decode(&f.id()).unwrap().service != Service::Diagnostic
+        )
+    );
+}
+
+#[test]
+fn a_malformed_command_is_counted_and_reported_as_a_fault() {
+    let mut h = Harness::boot(None);
+    let id = protocol::FrameId::new(Service::DiagnosticControl, protocol::TOOL, Harness::NODE_ID);
+    // Rate above the maximum.
+    h.feed(&Frame::data(id.id(), &[0xFF, 0xFF, 1, 0]).unwrap());
+    // Wrong length.
+    h.advance_to(200 * MS);
+    h.feed(&Frame::data(id.id(), &[1]).unwrap());
+    // Addressed to another node: not ours to complain about.
+    let other = protocol::FrameId::new(Service::DiagnosticControl, protocol::TOOL, 9);
+    h.feed(&Frame::data(other.id(), &[1]).unwrap());
+    assert_eq!(h.node.counters().errors, 2);
+    let reported = faults(&h);
+    assert_eq!(reported.len(), 2);
+    assert!(reported.iter().all(|(_, f)| f.code == FaultCode::BadCommand
+        && f.detail[0] == Service::DiagnosticControl.code()));
+}
+
+#[test]
+fn faults_are_rate_limited_with_an_occurrence_count() {
+    let mut h = Harness::boot(None);
+    for k in 0..50 {
+        h.advance_to(k * MS);
+        h.bus_error(pab_app::BusError::Other(3));
+    }
+    h.advance_to(500 * MS);
+    let reported = faults(&h);
+    // One at once, then one per 100 ms with the occurrences in between.
+    assert_eq!(reported[0].0, 0);
+    assert_eq!(reported[0].1.count, 1);
+    assert_eq!(reported[1].0, 100 * MS);
+    assert_eq!(reported[1].1.count, 49);
+    assert_eq!(reported.len(), 2);
+    assert!(
+        reported
+            .iter()
+            .all(|(_, f)| f.code == FaultCode::BusError && f.detail[0] == 3)
+    );
+    assert_eq!(h.node.counters().errors, 50);
+}
+
+#[test]
+fn bus_off_puts_the_node_in_fault_until_it_recovers() {
+    let table = priority_table(&[TOPIC_A], None);
+    let mut h = Harness::boot(Some(&image(&table, Harness::NODE_ID, 1)));
+    h.bus_error(pab_app::BusError::BusOff);
+    assert_eq!(h.node.state(), NodeState::Fault);
+    h.advance_to(S);
+    assert_eq!(heartbeats(&h).last().unwrap().1.state, NodeState::Fault);
+    h.bus_error(pab_app::BusError::Recovered);
+    assert_eq!(h.node.state(), NodeState::Operational);
+}
+
+#[test]
+fn a_gateway_port_republishes_the_winners_frames_on_its_output_id() {
+    let table = priority_table(&[TOPIC_A, TOPIC_B], Some(GATEWAY_OUT));
+    let mut h = Harness::boot(Some(&image(&table, Harness::NODE_ID, 1)));
+    h.advance_to(10 * MS);
+    h.feed(&frame(TOPIC_A, &[1, 2, 3]));
+    h.feed(&frame(TOPIC_B, &[9, 9])); // loses: A is active
+    h.feed(&frame(TOPIC_A, &[4, 5, 6, 7, 8, 9, 10, 11]));
+    let republished: Vec<&Frame> = h
+        .sent
+        .iter()
+        .map(|(_, f)| f)
+        .filter(|f| f.raw_id() == (GATEWAY_OUT, false))
+        .collect();
+    assert_eq!(republished.len(), 2);
+    assert_eq!(republished[0].payload(), &[1, 2, 3]);
+    assert_eq!(republished[1].payload(), &[4, 5, 6, 7, 8, 9, 10, 11]);
+    // The local consumer still sees the deliveries.
+    assert_eq!(h.deliveries.0.len(), 2);
+}
+
+#[test]
+fn a_bad_stored_table_leaves_the_node_without_a_table_and_says_why() {
+    let table = priority_table(&[TOPIC_A], None);
+    let mut bytes = image(&table, Harness::NODE_ID, 3);
+    let last = bytes.len() - 1;
+    bytes[last] ^= 0x40;
+    let mut h = Harness::boot(Some(&bytes));
+    assert_eq!(h.node.state(), NodeState::NoTable);
+    h.advance_to(10 * MS);
+    let reported = faults(&h);
+    assert_eq!(reported.len(), 1);
+    assert_eq!(reported[0].1.code, FaultCode::BadStoredTable);
+    assert_eq!(
+        reported[0].1.detail[0],
+        TransferStatusCode::CrcMismatch.code()
+    );
+}
