@@ -19,8 +19,8 @@ use pabctl::compile::{self, CompiledNode};
 use pabctl::diagnostic::{Diagnostic, Diagnostics};
 use pabctl::network::Network;
 use pabctl::plot;
-use pabctl::{monitor, observe, push};
 use pabctl::sim::{self, Options};
+use pabctl::{monitor, observe, push};
 
 const ABOUT: &str =
     "Check, compile and simulate port-arbitration networks for CAN controller boards";
@@ -299,7 +299,10 @@ fn run_push(
                 .progress_chars("=> "),
         );
         bar.set_prefix(node.name.clone());
-        bar.set_message(format!("node {} <- version {}", node.id, header.table_version));
+        bar.set_message(format!(
+            "node {} <- version {}",
+            node.id, header.table_version
+        ));
         let outcome = push::push(
             bus.as_mut(),
             node.id,
@@ -371,8 +374,11 @@ fn run_monitor(
     let duration = match duration {
         Some(seconds) if !(seconds.is_finite() && seconds > 0.0) => {
             return Err(Failure::Input(
-                Diagnostic::file(Path::new("--duration"), "must be a positive number of seconds")
-                    .into(),
+                Diagnostic::file(
+                    Path::new("--duration"),
+                    "must be a positive number of seconds",
+                )
+                .into(),
             ));
         }
         other => other.map(Duration::from_secs_f64),

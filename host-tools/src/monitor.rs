@@ -1,0 +1,163 @@
+//! `pabctl monitor`: a live view of every port's connections from the nodes' diagnostic stream.
+//!
+//! The tool switches the stream on at each node of the network (DiagnosticControl), redraws the
+//! terminal a few times per second from the latest samples, and switches the stream off when it
+//! ends. Names come from the network file; values only from the nodes.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::time::{Duration, Instant};
+
+use pab_core::protocol::{self, DiagnosticControl, Message};
+
+use crate::bus::Bus;
+use crate::network::Network;
+use crate::observe::Observer;
+
+/// Samples older than this are shown as stale: the node stopped streaming or left the bus.
+pub const STALE_AFTER: Duration = Duration::from_secs(2);
+
+/// Width of a stimulation bar in characters.
+const BAR: usize = 30;
+
+/// Asks every node of `network` for `rate_hz` diagnostic rounds per second (0 stops them).
+pub fn request_stream(bus: &mut dyn Bus, network: &Network, rate_hz: u16) -> std::io::Result<()> {
+    for node in &network.nodes {
+        let control = Message::DiagnosticControl(DiagnosticControl {
+            rate_hz,
+            ports: u16::MAX,
+        });
+        bus.send(&control.to_frame(protocol::TOOL, node.id))?;
+    }
+    Ok(())
+}
+
+/// When each sample arrived, to tell live samples from stale ones.
+#[derive(Default)]
+pub struct Freshness {
+    seen: BTreeMap<(u8, u8, u8), Instant>,
+}
+
+impl Freshness {
+    /// Notes the arrival of a sample.
+    pub fn note(&mut self, node: u8, port: u8, connection: u8, at: Instant) {
+        self.seen.insert((node, port, connection), at);
+    }
+
+    fn is_fresh(&self, key: (u8, u8, u8), now: Instant) -> bool {
+        self.seen
+            .get(&key)
+            .is_some_and(|at| now.saturating_duration_since(*at) < STALE_AFTER)
+    }
+}
+
+/// The screen: per node, per port, one line per connection with its stimulation bar.
+///
+/// ```text
+/// arm (id 1)  version 1  operational
+///   arm.target
+///     C1  object_pos  [##########--------------------] 0.33
+///     C3  rest_pose   [##############################] 1.00  ACTIVE  ◀ delivering
+/// ```
+pub fn render(
+    network: &Network,
+    observer: &Observer,
+    freshness: &Freshness,
+    now: Instant,
+) -> String {
+    let mut out = String::new();
+    for node in &network.nodes {
+        let view = observer.node(node.id);
+        let header = match view.and_then(|v| v.heartbeat) {
+            Some((heartbeat, _)) => format!(
+                "version {}  {}",
+                heartbeat.table_version,
+                heartbeat.state.description()
+            ),
+            None => "not heard from".to_string(),
+        };
+        let _ = writeln!(out, "{} (id {})  {}", node.name, node.id, header);
+        for (port_index, &port) in node.ports.iter().enumerate() {
+            let _ = writeln!(out, "  {}", network.ports[port].name);
+            for connection in network.port_connections(port) {
+                let key = (
+                    node.id,
+                    u8::try_from(port_index).unwrap_or(u8::MAX),
+                    u8::try_from(connection.index).unwrap_or(u8::MAX),
+                );
+                let sample = view.and_then(|v| v.samples.get(&(key.1, key.2)));
+                let topic = &network.topics[connection.topic].name;
+                let line = match sample {
+                    Some(sample) if freshness.is_fresh(key, now) => {
+                        let level = sample.level_f32().clamp(0.0, 1.0);
+                        let filled = (level * BAR as f32).round() as usize;
+                        format!(
+                            "[{}{}] {:.2}{}{}{}",
+                            "#".repeat(filled),
+                            "-".repeat(BAR - filled.min(BAR)),
+                            level,
+                            if sample.flags.active { "  ACTIVE" } else { "" },
+                            if sample.flags.resting {
+                                "  resting"
+                            } else {
+                                ""
+                            },
+                            if sample.flags.delivering {
+                                "  ◀ delivering"
+                            } else {
+                                ""
+                            },
+                        )
+                    }
+                    Some(_) => "(stale)".to_string(),
+                    None => "(no sample)".to_string(),
+                };
+                let _ = writeln!(out, "    {:<6} {:<14} {line}", connection.name, topic);
+            }
+        }
+    }
+    out
+}
+
+/// Runs the monitor: streams at `rate_hz`, redraws every `redraw`, for `duration` (forever if
+/// `None`) or until `stop` returns true. `draw` receives each screen.
+pub fn run(
+    bus: &mut dyn Bus,
+    network: &Network,
+    rate_hz: u16,
+    redraw: Duration,
+    duration: Option<Duration>,
+    stop: &dyn Fn() -> bool,
+    draw: &mut dyn FnMut(&str),
+) -> std::io::Result<Observer> {
+    let started = Instant::now();
+    let mut observer = Observer::new();
+    let mut freshness = Freshness::default();
+    request_stream(bus, network, rate_hz)?;
+    let mut last_request = Instant::now();
+    let mut next_draw = Instant::now() + redraw;
+    loop {
+        let now = Instant::now();
+        if stop() || duration.is_some_and(|d| now.duration_since(started) >= d) {
+            break;
+        }
+        // Nodes that restart come back with the stream off: ask again now and then.
+        if now.duration_since(last_request) >= Duration::from_secs(3) {
+            request_stream(bus, network, rate_hz)?;
+            last_request = now;
+        }
+        let wait = next_draw.saturating_duration_since(now);
+        if let Some(frame) = bus.receive(wait)? {
+            let at = Instant::now();
+            if let Some((id, Message::Diagnostic(sample))) = observer.observe(&frame, at) {
+                freshness.note(id.source, sample.port, sample.connection, at);
+            }
+        }
+        if Instant::now() >= next_draw {
+            draw(&render(network, &observer, &freshness, Instant::now()));
+            next_draw += redraw;
+        }
+    }
+    request_stream(bus, network, 0)?;
+    Ok(observer)
+}

@@ -1,0 +1,156 @@
+//! What the tool knows about the nodes on a bus, built from the frames they send: heartbeat
+//! groups, faults, diagnostic samples. `pabctl nodes`, `push` and `monitor` all read the bus
+//! through an [`Observer`].
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::time::{Duration, Instant};
+
+use pab_core::Frame;
+use pab_core::protocol::{
+    DiagnosticSample, Errors, Fault, FrameId, Heartbeat, Message, TableStatus, Traffic,
+    TransferStatus,
+};
+
+/// The latest of everything a node said.
+#[derive(Clone, Debug, Default)]
+pub struct NodeView {
+    /// Its latest heartbeat and when it arrived.
+    pub heartbeat: Option<(Heartbeat, Instant)>,
+    /// Its latest table status.
+    pub table: Option<TableStatus>,
+    /// Its latest traffic counters.
+    pub traffic: Option<Traffic>,
+    /// Its latest error counters.
+    pub errors: Option<Errors>,
+    /// Its latest fault and when it arrived.
+    pub last_fault: Option<(Fault, Instant)>,
+    /// Its latest transfer status and when it arrived.
+    pub transfer: Option<(TransferStatus, Instant)>,
+    /// Its latest diagnostic sample per (port, connection).
+    pub samples: BTreeMap<(u8, u8), DiagnosticSample>,
+}
+
+/// Every node heard from, by id.
+#[derive(Clone, Debug, Default)]
+pub struct Observer {
+    nodes: BTreeMap<u8, NodeView>,
+}
+
+impl Observer {
+    /// An observer that has heard nothing.
+    pub fn new() -> Observer {
+        Observer::default()
+    }
+
+    /// Takes in one frame read at `at`; returns it decoded if it is one of ours.
+    pub fn observe(&mut self, frame: &Frame, at: Instant) -> Option<(FrameId, Message)> {
+        let (id, message) = Message::decode(frame).ok()?;
+        if id.source == pab_core::protocol::TOOL {
+            return Some((id, message));
+        }
+        let view = self.nodes.entry(id.source).or_default();
+        match message {
+            Message::Heartbeat(heartbeat) => view.heartbeat = Some((heartbeat, at)),
+            Message::TableStatus(status) => view.table = Some(status),
+            Message::Traffic(traffic) => view.traffic = Some(traffic),
+            Message::Errors(errors) => view.errors = Some(errors),
+            Message::Fault(fault) => view.last_fault = Some((fault, at)),
+            Message::TransferStatus(status) => view.transfer = Some((status, at)),
+            Message::Diagnostic(sample) => {
+                view.samples
+                    .insert((sample.port, sample.connection), sample);
+            }
+            Message::DiagnosticControl(_) | Message::TableTransfer { .. } => {}
+        }
+        Some((id, message))
+    }
+
+    /// The nodes heard from, by id.
+    pub fn nodes(&self) -> &BTreeMap<u8, NodeView> {
+        &self.nodes
+    }
+
+    /// One node.
+    pub fn node(&self, id: u8) -> Option<&NodeView> {
+        self.nodes.get(&id)
+    }
+
+    /// Forgets what node `id` said (before waiting for fresh news from it).
+    pub fn forget(&mut self, id: u8) {
+        self.nodes.remove(&id);
+    }
+}
+
+/// Reads `bus` into `observer` until `duration` has passed.
+pub fn listen(
+    bus: &mut dyn crate::bus::Bus,
+    observer: &mut Observer,
+    duration: Duration,
+) -> std::io::Result<()> {
+    let end = Instant::now() + duration;
+    while let Some(left) = end.checked_duration_since(Instant::now()) {
+        if let Some(frame) = bus.receive(left)? {
+            observer.observe(&frame, Instant::now());
+        }
+    }
+    Ok(())
+}
+
+/// The table `pabctl nodes` prints: one line per node, `names` mapping ids to the network's node
+/// names where known.
+pub fn nodes_table(observer: &Observer, names: &BTreeMap<u8, String>, now: Instant) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "{:>4}  {:<10} {:<12} {:>9} {:>8}  {:<10} {:<7} {:>10} {:>10} {:>9} {:>7}  last fault",
+        "id",
+        "name",
+        "state",
+        "uptime",
+        "version",
+        "crc",
+        "stored",
+        "received",
+        "delivered",
+        "discarded",
+        "errors"
+    );
+    for (id, view) in observer.nodes() {
+        let name = names.get(id).map_or("?", String::as_str);
+        let (state, uptime, version) = match view.heartbeat {
+            Some((heartbeat, _)) => (
+                heartbeat.state.description().to_string(),
+                format!("{} s", heartbeat.uptime_s),
+                heartbeat.table_version.to_string(),
+            ),
+            None => ("(no heartbeat)".into(), "-".into(), "-".into()),
+        };
+        let (crc, stored) = match view.table {
+            Some(table) if table.crc != 0 => (
+                format!("{:08x}", table.crc),
+                if table.stored { "yes" } else { "NO" }.to_string(),
+            ),
+            Some(_) => ("-".into(), "-".into()),
+            None => ("?".into(), "?".into()),
+        };
+        let count = |value: Option<u32>| value.map_or("?".to_string(), |v| v.to_string());
+        let fault = view.last_fault.map_or("-".to_string(), |(fault, at)| {
+            format!(
+                "{} (x{}, {:.0} s ago)",
+                fault.code.description(),
+                fault.count,
+                now.saturating_duration_since(at).as_secs_f64()
+            )
+        });
+        let _ = writeln!(
+            out,
+            "{id:>4}  {name:<10} {state:<12} {uptime:>9} {version:>8}  {crc:<10} {stored:<7} {:>10} {:>10} {:>9} {:>7}  {fault}",
+            count(view.traffic.map(|t| t.received)),
+            count(view.traffic.map(|t| t.delivered)),
+            count(view.errors.map(|e| e.discarded)),
+            count(view.errors.map(|e| e.errors)),
+        );
+    }
+    out
+}
