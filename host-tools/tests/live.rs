@@ -1,0 +1,285 @@
+//! `pabctl push`, `nodes` and `monitor` against real node code: each node is the board
+//! application (`pab-app`, full capacities) on a thread, in real time, on an in-process bus.
+//! Only the SocketCAN socket is left out (this kernel has none; the HIL suite covers it).
+
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use pab_app::{Config, FullNode, Step};
+use pab_core::Frame;
+use pab_core::protocol::TransferStatusCode;
+use pabctl::bus::Bus;
+use pabctl::bus::memory::{MemoryBus, MemoryHub};
+use pabctl::compile::{self, CompiledNode};
+use pabctl::network::Network;
+use pabctl::observe::{self, Observer};
+use pabctl::push::{self, Outcome, Timeouts};
+use pabctl::monitor;
+
+/// A node thread and what it stored.
+struct LiveNode {
+    stop: Arc<AtomicBool>,
+    stored: Arc<Mutex<Vec<Vec<u8>>>>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl LiveNode {
+    fn spawn(hub: &MemoryHub, id: u8, boot_image: Option<Vec<u8>>) -> LiveNode {
+        let stop = Arc::new(AtomicBool::new(false));
+        let stored = Arc::new(Mutex::new(Vec::new()));
+        let mut bus = hub.connect();
+        let (stop_flag, store) = (stop.clone(), stored.clone());
+        let thread = std::thread::spawn(move || {
+            run_node(&mut bus, id, boot_image, &stop_flag, &store);
+        });
+        LiveNode {
+            stop,
+            stored,
+            thread: Some(thread),
+        }
+    }
+}
+
+impl Drop for LiveNode {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+/// What `pab_app::run` does, with std time and the in-process bus.
+fn run_node(
+    bus: &mut MemoryBus,
+    id: u8,
+    boot_image: Option<Vec<u8>>,
+    stop: &AtomicBool,
+    stored: &Mutex<Vec<Vec<u8>>>,
+) {
+    let start = Instant::now();
+    let now = || pab_core::Instant::from_micros(start.elapsed().as_micros() as u64);
+    let mut node = Box::new(FullNode::new(Config::new(id).unwrap(), now()));
+    let len = boot_image.map(|image| {
+        node.boot_buffer()[..image.len()].copy_from_slice(&image);
+        image.len()
+    });
+    node.boot(len, now());
+    while !stop.load(Ordering::SeqCst) {
+        while let Some(frame) = node.next_outgoing() {
+            bus.send(&frame).unwrap();
+        }
+        let wait = node
+            .deadline(now())
+            .micros_since(now())
+            .unwrap_or(0)
+            .min(5_000);
+        match bus.receive(Duration::from_micros(wait)) {
+            Ok(Some(frame)) => {
+                if node.on_frame(&frame, now(), &mut ()) == Step::Store {
+                    stored.lock().unwrap().push(node.image_to_store().to_vec());
+                    node.stored(true, now());
+                }
+            }
+            Ok(None) => node.poll(now()),
+            Err(_) => return,
+        }
+    }
+}
+
+fn take_and_return() -> (Network, Vec<CompiledNode>) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/take-and-return.toml");
+    let network = Network::load(&path).unwrap();
+    let nodes = compile::compile(&network).unwrap();
+    (network, nodes)
+}
+
+fn header(image: &[u8]) -> pab_core::image::Header {
+    pab_core::image::read_header(image).unwrap()
+}
+
+#[test]
+fn push_reaches_every_node_which_confirms_stores_and_reports_it() {
+    let (network, compiled) = take_and_return();
+    let hub = MemoryHub::new();
+    let nodes: Vec<LiveNode> = compiled
+        .iter()
+        .map(|node| LiveNode::spawn(&hub, node.id, None))
+        .collect();
+    let mut tool = hub.connect();
+    for (node, live) in compiled.iter().zip(&nodes) {
+        let mut progress = Vec::new();
+        let outcome = push::push(
+            &mut tool,
+            node.id,
+            &node.image,
+            &header(&node.image),
+            Timeouts::default(),
+            &mut |sent, total| progress.push((sent, total)),
+        )
+        .unwrap();
+        assert_eq!(
+            outcome,
+            Outcome::Confirmed {
+                version: network.version,
+                stored: true
+            },
+            "node {}",
+            node.name
+        );
+        assert_eq!(progress.last(), Some(&(node.image.len(), node.image.len())));
+        assert_eq!(*live.stored.lock().unwrap(), vec![node.image.clone()]);
+    }
+    // `pabctl nodes`: every node, operational, with the version and CRC pushed.
+    let mut observer = Observer::new();
+    observe::listen(&mut tool, &mut observer, Duration::from_millis(1_200)).unwrap();
+    for node in &compiled {
+        let view = observer.node(node.id).expect("heard from every node");
+        let (heartbeat, _) = view.heartbeat.unwrap();
+        assert_eq!(heartbeat.state, pab_core::protocol::NodeState::Operational);
+        assert_eq!(heartbeat.table_version, network.version);
+        assert_eq!(view.table.unwrap().crc, header(&node.image).crc);
+        assert!(view.table.unwrap().stored);
+    }
+    let names = compiled.iter().map(|n| (n.id, n.name.clone())).collect();
+    let table = observe::nodes_table(&observer, &names, Instant::now());
+    for node in &compiled {
+        assert!(table.contains(&node.name), "{table}");
+    }
+    assert!(table.contains("operational"), "{table}");
+    // Pushing the same tables again changes nothing.
+    let again = push::push(
+        &mut tool,
+        compiled[0].id,
+        &compiled[0].image,
+        &header(&compiled[0].image),
+        Timeouts::default(),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert_eq!(
+        again,
+        Outcome::AlreadyCurrent {
+            version: network.version
+        }
+    );
+    assert_eq!(nodes[0].stored.lock().unwrap().len(), 1);
+}
+
+#[test]
+fn refusals_and_silence_are_reported_with_their_reason() {
+    let (network, compiled) = take_and_return();
+    let arm = &compiled[0];
+    let hub = MemoryHub::new();
+    let _arm = LiveNode::spawn(&hub, arm.id, Some(arm.image.clone()));
+    let mut tool = hub.connect();
+    // Another node's table.
+    let other = &compiled[1];
+    let outcome = push::push(
+        &mut tool,
+        arm.id,
+        &other.image,
+        &header(&other.image),
+        Timeouts::default(),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert_eq!(
+        outcome,
+        Outcome::Refused {
+            status: TransferStatusCode::WrongNode,
+            detail: other.id,
+            running_version: network.version
+        }
+    );
+    assert!(outcome.to_string().contains("another node"), "{outcome}");
+    // An older version of its own table.
+    let mut older = network.clone();
+    older.version = network.version - 1;
+    let older = compile::compile(&older).unwrap();
+    let outcome = push::push(
+        &mut tool,
+        arm.id,
+        &older[0].image,
+        &header(&older[0].image),
+        Timeouts::default(),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert!(
+        matches!(outcome, Outcome::Refused { status: TransferStatusCode::OlderVersion, .. }),
+        "{outcome:?}"
+    );
+    // Nobody home at id 99.
+    let started = Instant::now();
+    let outcome = push::push(
+        &mut tool,
+        99,
+        &arm.image,
+        &header(&arm.image),
+        Timeouts::default(),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert!(matches!(&outcome, Outcome::NoAnswer(why) if why.contains("no flow control")), "{outcome:?}");
+    assert!(started.elapsed() < Duration::from_secs(3));
+}
+
+#[test]
+fn monitor_shows_who_delivers_from_the_diagnostic_stream() {
+    let (network, compiled) = take_and_return();
+    let hub = MemoryHub::new();
+    let _nodes: Vec<LiveNode> = compiled
+        .iter()
+        .map(|node| LiveNode::spawn(&hub, node.id, Some(node.image.clone())))
+        .collect();
+    // Rest Arm publishes at 50 Hz: C14 becomes active and delivers at arm.target.
+    let publishing = Arc::new(AtomicBool::new(true));
+    let publisher = {
+        let mut bus = hub.connect();
+        let publishing = publishing.clone();
+        std::thread::spawn(move || {
+            let rest_pose = Frame::with_raw_id(0x113, false, &[0; 8]).unwrap();
+            while publishing.load(Ordering::SeqCst) {
+                bus.send(&rest_pose).unwrap();
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        })
+    };
+    let mut tool = hub.connect();
+    let mut screens = Vec::new();
+    let observer = monitor::run(
+        &mut tool,
+        &network,
+        20,
+        Duration::from_millis(100),
+        Some(Duration::from_millis(1_500)),
+        &|| false,
+        &mut |screen| screens.push(screen.to_string()),
+    )
+    .unwrap();
+    publishing.store(false, Ordering::SeqCst);
+    publisher.join().unwrap();
+    let last = screens.last().expect("the monitor drew");
+    let c14 = last.lines().find(|line| line.trim_start().starts_with("C14")).unwrap();
+    assert!(c14.contains("ACTIVE") && c14.contains("◀ delivering"), "{last}");
+    let c1 = last.lines().find(|line| line.trim_start().starts_with("C1 ")).unwrap();
+    assert!(!c1.contains("delivering"), "{last}");
+    // Every connection of every node was sampled.
+    for node in &compiled {
+        let view = observer.node(node.id).unwrap();
+        assert_eq!(view.samples.len(), node.connections, "node {}", node.name);
+    }
+    // At the end the monitor switched the streams off: no samples arrive any more.
+    std::thread::sleep(Duration::from_millis(200));
+    while tool.try_receive().is_some() {}
+    std::thread::sleep(Duration::from_millis(300));
+    let mut late = Observer::new();
+    while let Some(frame) = tool.try_receive() {
+        late.observe(&frame, Instant::now());
+    }
+    assert!(late.nodes().values().all(|view| view.samples.is_empty()));
+}
