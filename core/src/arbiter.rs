@@ -14,6 +14,7 @@
 use embedded_can::Id;
 use heapless::Vec;
 
+use crate::decay::Decay;
 use crate::decision::{self, ConnectionSet, DecisionNode, NodeRef};
 use crate::integrator::{Integrator, Runtime, Stimulated};
 use crate::level::Level;
@@ -92,18 +93,19 @@ struct Layout {
     root: NodeRef,
 }
 
-/// One connection's run-time state.
+/// One connection's run-time state: its integrator and τ's evaluation form. The rest of its
+/// parameters (σ, τr) are read from the table, which the frame's filter test has just read.
 #[derive(Clone, Copy, Debug)]
 struct Slot {
-    runtime: Runtime,
+    decay: Decay,
     integrator: Integrator,
 }
 
 /// A node's arbitration: owns its table (of the same capacities, see [`Table`]) and the state of
 /// every connection.
 ///
-/// Memory: the table plus 48 bytes per connection of capacity and 40 per port of capacity on a
-/// 64-bit host (about 49 KiB in all at the default capacities, 6.3 KiB for
+/// Memory: the table plus 32 bytes per connection of capacity and 40 per port of capacity on a
+/// 64-bit host (about 41 KiB in all at the default capacities, 5.3 KiB for
 /// [`crate::BoardArbiter`]; `size_of::<Arbiter<P, C, N>>()` tells exactly).
 #[derive(Clone, Debug)]
 pub struct Arbiter<
@@ -147,7 +149,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                     }
                 })?;
                 let slot = Slot {
-                    runtime,
+                    decay: runtime.decay(),
                     integrator: Integrator::new(),
                 };
                 slots
@@ -204,7 +206,11 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 if connection.filter.matches(id) {
                     let index = u8::try_from(index).unwrap_or(u8::MAX);
                     fed = fed.with(index);
-                    if slot.integrator.stimulate(&slot.runtime, now) == Stimulated::Resting {
+                    if slot
+                        .integrator
+                        .stimulate_with(&connection.stimulation, &slot.decay, now)
+                        == Stimulated::Resting
+                    {
                         resting = resting.with(index);
                     }
                 }
@@ -247,15 +253,24 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// The stimulation level of connection `connection` of port `port` at `now`. Read-only.
     pub fn level(&self, port: u8, connection: u8, now: Instant) -> Option<Level> {
         let slot = self.port_slots(port)?.get(usize::from(connection))?;
-        Some(slot.integrator.level(&slot.runtime, now))
+        Some(slot.integrator.level_with(&slot.decay, now))
     }
 
     /// Whether connection `connection` of port `port` is in its rest time at `now` (ignoring
     /// frames); `false` for a connection that does not exist. Read-only.
     pub fn is_resting(&self, port: u8, connection: u8, now: Instant) -> bool {
-        self.port_slots(port)
-            .and_then(|slots| slots.get(usize::from(connection)))
-            .is_some_and(|slot| slot.integrator.is_resting(&slot.runtime, now))
+        let rest_us = self
+            .table
+            .port(usize::from(port))
+            .and_then(|view| view.connections.get(usize::from(connection)))
+            .map(|connection| connection.stimulation.rest_us());
+        let slot = self
+            .port_slots(port)
+            .and_then(|slots| slots.get(usize::from(connection)));
+        match (slot, rest_us) {
+            (Some(slot), Some(rest_us)) => slot.integrator.is_resting(&slot.decay, rest_us, now),
+            _ => false,
+        }
     }
 
     /// The number of ports.
@@ -280,7 +295,7 @@ fn activity(slots: &[Slot], now: Instant) -> ConnectionSet {
     slots
         .iter()
         .enumerate()
-        .filter(|(_, slot)| slot.integrator.is_active(&slot.runtime, now))
+        .filter(|(_, slot)| slot.integrator.is_active_with(&slot.decay, now))
         .fold(ConnectionSet::EMPTY, |set, (index, _)| {
             set.with(u8::try_from(index).unwrap_or(u8::MAX))
         })

@@ -162,33 +162,50 @@ impl Integrator {
 
     /// S(now). Read-only; costs one decay evaluation.
     pub fn level(&self, parameters: &Runtime, now: Instant) -> Level {
-        parameters.decay.apply(self.level, self.elapsed(now))
+        self.level_with(&parameters.decay, now)
     }
 
     /// x(now): active from S reaching 1 until τ has passed without an accepted frame.
     pub fn is_active(&self, parameters: &Runtime, now: Instant) -> bool {
-        self.active && self.elapsed(now) <= u64::from(parameters.decay.micros())
-    }
-
-    /// Whether `now` falls in the rest phase that follows the end of an activity (frames are then
-    /// ignored). Read-only; costs two comparisons.
-    pub fn is_resting(&self, parameters: &Runtime, now: Instant) -> bool {
-        let elapsed = self.elapsed(now);
-        let decay = u64::from(parameters.decay.micros());
-        self.active
-            && elapsed > decay
-            && elapsed <= decay.saturating_add(u64::from(parameters.stimulation.rest_us))
+        self.is_active_with(&parameters.decay, now)
     }
 
     /// Applies a frame that arrived at `now`.
     pub fn stimulate(&mut self, parameters: &Runtime, now: Instant) -> Stimulated {
-        if self.is_resting(parameters, now) {
+        self.stimulate_with(&parameters.stimulation, &parameters.decay, now)
+    }
+
+    /// [`Integrator::level`] with τ's evaluation form alone (the arbiter keeps the parameters in
+    /// its table and only the decay beside the integrator).
+    pub(crate) fn level_with(&self, decay: &Decay, now: Instant) -> Level {
+        decay.apply(self.level, self.elapsed(now))
+    }
+
+    /// [`Integrator::is_active`] with τ's evaluation form alone.
+    pub(crate) fn is_active_with(&self, decay: &Decay, now: Instant) -> bool {
+        self.active && self.elapsed(now) <= u64::from(decay.micros())
+    }
+
+    /// Whether `now` falls in the rest phase that follows the end of an activity.
+    pub(crate) fn is_resting(&self, decay: &Decay, rest_us: u32, now: Instant) -> bool {
+        let elapsed = self.elapsed(now);
+        let decay = u64::from(decay.micros());
+        self.active && elapsed > decay && elapsed <= decay.saturating_add(u64::from(rest_us))
+    }
+
+    /// [`Integrator::stimulate`] with the parameters and τ's evaluation form apart. `decay` must
+    /// be built from `stimulation`'s τ.
+    pub(crate) fn stimulate_with(
+        &mut self,
+        stimulation: &Stimulation,
+        decay: &Decay,
+        now: Instant,
+    ) -> Stimulated {
+        if self.is_resting(decay, stimulation.rest_us, now) {
             return Stimulated::Resting;
         }
-        let was_active = self.is_active(parameters, now);
-        let level = self
-            .level(parameters, now)
-            .saturating_add(parameters.stimulation.gain);
+        let was_active = self.is_active_with(decay, now);
+        let level = self.level_with(decay, now).saturating_add(stimulation.gain);
         *self = Integrator {
             level,
             last: now,
@@ -223,6 +240,11 @@ impl Runtime {
     /// The parameters it was built from.
     pub const fn stimulation(&self) -> &Stimulation {
         &self.stimulation
+    }
+
+    /// τ's evaluation form.
+    pub(crate) const fn decay(&self) -> Decay {
+        self.decay
     }
 }
 

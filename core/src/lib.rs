@@ -89,6 +89,6 @@ pub const BOARD_DECISION_NODES: usize = 256;
 /// that fits ([`image::LoadError::ExceedsCapacity`] otherwise).
 pub type BoardTable = Table<BOARD_PORTS, BOARD_CONNECTIONS, BOARD_DECISION_NODES>;
 
-/// The arbiter of a board with little RAM, around a [`BoardTable`]: about 6 KiB instead of
-/// about 49 KiB at the default capacities.
+/// The arbiter of a board with little RAM, around a [`BoardTable`]: about 5.3 KiB instead of
+/// about 41 KiB at the default capacities.
 pub type BoardArbiter = Arbiter<BOARD_PORTS, BOARD_CONNECTIONS, BOARD_DECISION_NODES>;
