@@ -1,0 +1,174 @@
+//! The async runner, as the boards and the Linux node run it: `pab_app::run` on a bus, with the
+//! real flash store (`pab-storage`'s `FlashStore`) over an in-memory NOR flash, in real time on
+//! embassy's std time driver. A table pushed while it runs is stored, and a node started again
+//! on the same flash boots with it.
+
+mod common;
+
+use std::time::Duration;
+
+use common::*;
+use embassy_futures::select::{Either, select};
+use futures::StreamExt;
+use futures::channel::mpsc::{UnboundedReceiver, UnboundedSender, unbounded};
+use pab_app::{BusError, CanBus, Config, TableStore};
+use pab_core::isotp::{Sender, TxConfig, TxEvent};
+use pab_core::protocol::{self, Message, TransferStatusCode};
+use pab_core::{Frame, Instant};
+use pab_storage::FlashStore;
+use pab_storage::testing::MemFlash;
+
+/// The G474's geometry: 4 KiB pages, 8-byte writes; 64 KiB.
+type Flash = MemFlash<16, 4096, 8>;
+
+struct ChannelBus {
+    incoming: UnboundedReceiver<Frame>,
+    outgoing: UnboundedSender<Frame>,
+}
+
+impl CanBus for ChannelBus {
+    async fn receive(&mut self) -> Result<Frame, BusError> {
+        self.incoming.next().await.ok_or(BusError::Other(0))
+    }
+
+    async fn transmit(&mut self, frame: &Frame) -> Result<(), BusError> {
+        self.outgoing
+            .unbounded_send(*frame)
+            .map_err(|_| BusError::Other(1))
+    }
+}
+
+fn store(flash: Flash) -> FlashStore<Flash> {
+    FlashStore::new(flash, 0..16 * 4096, 8192).unwrap()
+}
+
+fn now() -> Instant {
+    pab_app::now()
+}
+
+/// The next of our messages from the node, skipping others, within 3 s.
+async fn next_message(from_node: &mut UnboundedReceiver<Frame>) -> (protocol::FrameId, Message) {
+    let deadline = embassy_time::Instant::now() + embassy_time::Duration::from_secs(3);
+    loop {
+        let frame = match select(from_node.next(), embassy_time::Timer::at(deadline)).await {
+            Either::First(Some(frame)) => frame,
+            Either::First(None) => panic!("the node hung up"),
+            Either::Second(()) => panic!("the node said nothing for 3 s"),
+        };
+        if let Ok(decoded) = Message::decode(&frame) {
+            return decoded;
+        }
+    }
+}
+
+/// Pushes `image` over ISO-TP from the tool; returns the node's transfer status.
+async fn push(
+    image: &[u8],
+    to_node: &UnboundedSender<Frame>,
+    from_node: &mut UnboundedReceiver<Frame>,
+) -> protocol::TransferStatus {
+    let mut sender = Sender::new(image, TxConfig::default()).unwrap();
+    loop {
+        match sender.poll(now()) {
+            TxEvent::Send(data) => {
+                let frame = Message::TableTransfer { data, len: 8 }
+                    .to_frame(protocol::TOOL, Harness::NODE_ID);
+                to_node.unbounded_send(frame).unwrap();
+            }
+            TxEvent::WaitUntil(_) => {
+                // Wait for the flow control (or an early answer).
+                match next_message(from_node).await {
+                    (id, Message::TableTransfer { data, len }) if id.destination == protocol::TOOL => {
+                        sender.on_flow_control(&data[..len as usize], now());
+                    }
+                    (_, Message::TransferStatus(status)) => return status,
+                    _ => {}
+                }
+            }
+            TxEvent::Done => break,
+            TxEvent::Failed(error) => panic!("transfer failed: {error:?}"),
+        }
+    }
+    loop {
+        if let (id, Message::TransferStatus(status)) = next_message(from_node).await {
+            assert_eq!(id.destination, protocol::TOOL);
+            return status;
+        }
+    }
+}
+
+/// Runs a node on `flash` while `script` talks to it; returns the flash.
+fn with_running_node<F, Fut>(flash: Flash, script: F) -> Flash
+where
+    F: FnOnce(UnboundedSender<Frame>, UnboundedReceiver<Frame>) -> Fut,
+    Fut: std::future::Future<Output = ()>,
+{
+    let (to_node, incoming) = unbounded();
+    let (outgoing, from_node) = unbounded();
+    let mut bus = ChannelBus { incoming, outgoing };
+    let mut store = store(flash);
+    let mut node = Box::new(TestNode::new(Config::new(Harness::NODE_ID).unwrap(), now()));
+    futures::executor::block_on(async {
+        match select(
+            pab_app::run(&mut node, &mut bus, &mut store, &mut ()),
+            script(to_node, from_node),
+        )
+        .await
+        {
+            Either::First(never) => match never {},
+            Either::Second(()) => {}
+        }
+    });
+    store.into_flash()
+}
+
+#[test]
+fn a_pushed_table_is_stored_in_flash_and_the_node_boots_with_it() {
+    let v1 = image(&priority_table(&[TOPIC_A], None), Harness::NODE_ID, 1);
+    let v2 = image(&priority_table(&[TOPIC_B, TOPIC_A], None), Harness::NODE_ID, 2);
+    let mut flash_store = store(Flash::new());
+    futures::executor::block_on(flash_store.save(&v1)).unwrap();
+    let flash = flash_store.into_flash();
+
+    // First life: boots with v1, takes v2.
+    let (v1_crc, v2_bytes) = (pab_core::image::read_header(&v1).unwrap().crc, v2.clone());
+    let flash = with_running_node(flash, |to_node, mut from_node| async move {
+        let (id, first) = next_message(&mut from_node).await;
+        assert_eq!(id.source, Harness::NODE_ID);
+        assert!(matches!(first, Message::Heartbeat(hb) if hb.table_version == 1), "{first:?}");
+        assert!(matches!(next_message(&mut from_node).await.1,
+            Message::TableStatus(s) if s.crc == v1_crc && s.stored));
+        let status = push(&v2_bytes, &to_node, &mut from_node).await;
+        assert_eq!(status.status, TransferStatusCode::Applied);
+        assert_eq!(status.running_version, 2);
+        // The new table arbitrates at once: B is delivered... and re-published nowhere (local).
+        to_node.unbounded_send(frame(TOPIC_B, &[1])).unwrap();
+        embassy_time::Timer::after(embassy_time::Duration::from_millis(20)).await;
+    });
+
+    // The flash holds v2 now.
+    let mut reopened = store(flash);
+    let mut buf = vec![0u8; 8192];
+    let loaded = futures::executor::block_on(reopened.load(&mut buf)).unwrap();
+    assert_eq!(loaded, Some(&v2[..]));
+    let flash = reopened.into_flash();
+
+    // Second life: boots with v2.
+    let v2_crc = pab_core::image::read_header(&v2).unwrap().crc;
+    with_running_node(flash, |_to_node, mut from_node| async move {
+        let (_, first) = next_message(&mut from_node).await;
+        assert!(matches!(first, Message::Heartbeat(hb) if hb.table_version == 2), "{first:?}");
+        assert!(matches!(next_message(&mut from_node).await.1,
+            Message::TableStatus(s) if s.crc == v2_crc && s.stored));
+    });
+    let _ = Duration::ZERO;
+}
+
+#[test]
+fn an_empty_flash_boots_without_a_table() {
+    with_running_node(Flash::new(), |_to_node, mut from_node| async move {
+        let (_, first) = next_message(&mut from_node).await;
+        assert!(matches!(first,
+            Message::Heartbeat(hb) if hb.state == protocol::NodeState::NoTable && hb.table_version == 0));
+    });
+}
