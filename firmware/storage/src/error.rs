@@ -35,28 +35,13 @@ pub enum LayoutError {
     RangeOutOfBounds,
     /// The slot size is zero or not a whole number of erase pages.
     SlotSizeNotPageMultiple,
-    /// Two slots and a commit log of at least two pages do not fit in the range.
+    /// The range is not a whole number of slots.
+    RangeNotSlotMultiple,
+    /// The range holds fewer than two slots.
     RangeTooSmall,
     /// The flash's read or write size does not divide the store's 256-byte transfer buffer, or
     /// its erase size is not a multiple of them.
     UnsupportedGeometry,
-    /// `sequential-storage` refused the commit log's range (pages too small, words too large).
-    LogRefused,
-}
-
-/// What the commit log (`sequential-storage`) reported.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum LogErrorKind {
-    /// The log's pages hold data that is not a log, and repairing them failed (for example a
-    /// range full of unrelated bytes).
-    Corrupted,
-    /// The log is full (cannot happen with two keys and two pages unless the flash misbehaves).
-    Full,
-    /// A commit record did not decode (unknown record format).
-    BadRecord,
-    /// Any other report of the log crate (a buffer or logic error on its side).
-    Internal,
 }
 
 /// Why a [`crate::TableStore`] operation failed.
@@ -67,12 +52,12 @@ pub enum StoreError {
     Flash(FlashErrorKind),
     /// The flash range given to [`crate::FlashStore::new`] cannot hold a store.
     Layout(LayoutError),
-    /// The image is larger than a slot.
+    /// The image is larger than a slot holds (the slot size less its header).
     ImageTooLarge {
         /// Bytes of the image.
         len: usize,
-        /// Bytes of a slot.
-        slot_size: u32,
+        /// The largest image a slot holds, in bytes ([`crate::FlashStore::capacity`]).
+        capacity: u32,
     },
     /// The buffer given to `load` is smaller than the stored image.
     BufferTooSmall {
@@ -81,12 +66,14 @@ pub enum StoreError {
         /// Bytes of the buffer.
         got: usize,
     },
-    /// Images were committed, but no committed slot holds the bytes its commit describes (the
-    /// flash was altered behind the store's back: both copies are damaged).
+    /// Images were committed (at least one slot header verifies), but no committed slot holds
+    /// the bytes its header describes: the flash was altered behind the store's back.
     Corrupt,
-    /// The commit log failed.
-    Log(LogErrorKind),
-    /// After programming, the slot does not read back as the image (a failing flash).
+    /// The newest slot's sequence number is `u32::MAX`, so no newer one can be written. Four
+    /// billion saves are beyond any flash's endurance: in practice the range holds a header
+    /// planted by something else. [`crate::FlashStore::format`] clears it.
+    SequenceExhausted,
+    /// After programming, the slot does not read back as written (a failing flash).
     VerifyFailed,
 }
 
@@ -108,20 +95,9 @@ impl core::fmt::Display for LayoutError {
             LayoutError::SlotSizeNotPageMultiple => {
                 "slot size not a positive whole number of erase pages"
             }
-            LayoutError::RangeTooSmall => "range smaller than two slots and two log pages",
+            LayoutError::RangeNotSlotMultiple => "range not a whole number of slots",
+            LayoutError::RangeTooSmall => "range smaller than two slots",
             LayoutError::UnsupportedGeometry => "unsupported read, write or erase size",
-            LayoutError::LogRefused => "commit log refused its range",
-        })
-    }
-}
-
-impl core::fmt::Display for LogErrorKind {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str(match self {
-            LogErrorKind::Corrupted => "corrupted beyond repair",
-            LogErrorKind::Full => "full",
-            LogErrorKind::BadRecord => "commit record does not decode",
-            LogErrorKind::Internal => "internal error",
         })
     }
 }
@@ -131,30 +107,22 @@ impl core::fmt::Display for StoreError {
         match self {
             StoreError::Flash(kind) => write!(f, "flash: {kind}"),
             StoreError::Layout(error) => write!(f, "store layout: {error}"),
-            StoreError::ImageTooLarge { len, slot_size } => {
-                write!(f, "image of {len} bytes exceeds the {slot_size}-byte slot")
+            StoreError::ImageTooLarge { len, capacity } => {
+                write!(
+                    f,
+                    "image of {len} bytes exceeds the {capacity} bytes a slot holds"
+                )
             }
             StoreError::BufferTooSmall { needed, got } => {
                 write!(f, "buffer of {got} bytes, the stored image has {needed}")
             }
             StoreError::Corrupt => f.write_str("no committed image verifies (flash corrupted)"),
-            StoreError::Log(kind) => write!(f, "commit log: {kind}"),
+            StoreError::SequenceExhausted => {
+                f.write_str("sequence numbers exhausted (format the range)")
+            }
             StoreError::VerifyFailed => f.write_str("slot does not read back as written"),
         }
     }
 }
 
 impl core::error::Error for StoreError {}
-
-impl<E: NorFlashError> From<sequential_storage::Error<E>> for StoreError {
-    fn from(error: sequential_storage::Error<E>) -> Self {
-        use sequential_storage::Error;
-        match error {
-            Error::Storage { value, .. } => StoreError::Flash(FlashErrorKind::of(&value)),
-            Error::Corrupted { .. } => StoreError::Log(LogErrorKind::Corrupted),
-            Error::FullStorage => StoreError::Log(LogErrorKind::Full),
-            Error::SerializationError(_) => StoreError::Log(LogErrorKind::BadRecord),
-            _ => StoreError::Log(LogErrorKind::Internal),
-        }
-    }
-}

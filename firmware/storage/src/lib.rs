@@ -10,10 +10,11 @@
 //! - After [`TableStore::save`] returned `Ok`, every later [`TableStore::load`] (after any number
 //!   of power losses) returns exactly the saved bytes, until the next successful `save`.
 //! - If power is lost at any point during a `save` (or the save fails), the next `load` returns
-//!   exactly the previous image or exactly the new one; never a mixture, never a truncation.
+//!   exactly the previous image or exactly the new one; never a mixture, never a truncation,
+//!   never nothing.
 //! - `load` never returns bytes whose CRC-32 differs from the one recorded at commit time: if
-//!   the newest committed copy was damaged afterwards (a flipped bit), it returns the previous
-//!   committed image, which the store keeps intact; if both are damaged, [`StoreError::Corrupt`].
+//!   the newest committed copy was damaged afterwards (a flipped bit), it returns the newest
+//!   older copy that still verifies; if no committed copy verifies, [`StoreError::Corrupt`].
 //! - Whatever the flash holds (erased, garbage, another program's data), `load` and `save` answer
 //!   with a value or a typed [`StoreError`]; nothing panics (no `unsafe`, no indexing, no
 //!   unwrapping: enforced by lints).
@@ -21,82 +22,126 @@
 //! The image format is not this crate's business: it stores bytes. The firmware checks what
 //! `load` returns with [`pab_core::image::load`] before using it.
 //!
-//! ## Layout and algorithm
+//! ## Layout: a ring of self-describing slots
 //!
-//! The range given to [`FlashStore::new`] is split into:
+//! The range given to [`FlashStore::new`] is divided into K = `range.len() / slot_size` ≥ 2
+//! equal slots, each a whole number of erase pages. A slot starts with a header, then holds the
+//! image:
 //!
 //! ```text
-//! | slot 0 (slot_size) | slot 1 (slot_size) | commit log (the rest, >= 2 erase pages) |
+//! | slot 0                      | slot 1                      | ... | slot K-1 |
+//! | header | image | (unused)   | header | image | (unused)   |
 //! ```
 //!
-//! The **commit log** is a `sequential-storage` map with one key per slot; the value is a commit
-//! record `{format, sequence number, length, CRC-32 of the image}` (13 bytes). The map keeps, for
-//! each slot, the newest record written for it, and `sequential-storage` makes each record write
-//! atomic across power loss (CRC-protected items, repaired on the next access) and spreads its
-//! page erases over the log's pages (it appends, and erases a page only when it wraps around).
+//! The header (24 bytes, little endian; it occupies the first 24 bytes rounded up to the flash's
+//! write size, so on the STM32G4 exactly three double words) holds: magic `PABS`, format (u16,
+//! 1), reserved (u16, 0), **sequence number** (u32), **image length** (u32), **CRC-32 of the
+//! image** (u32), and the CRC-32 of the 20 bytes before it (all CRCs are
+//! [`pab_core::crc32`]). A slot is *committed* when its header verifies and its length fits the
+//! slot; it is *valid* when, moreover, its image matches the image CRC.
 //!
 //! `save(image)`:
 //!
-//! 1. Find the *current* image: the record with the highest sequence number whose slot matches
-//!    its length and CRC, else the other record if it matches (exactly what `load` returns).
-//! 2. Write into the **other** slot: erase only the pages the image needs, program it in 256-byte
-//!    chunks aligned to the flash's write size (the last word padded with 0xFF), read it back and
-//!    compare ([`StoreError::VerifyFailed`] otherwise).
-//! 3. Append the record `{sequence = highest + 1, length, CRC}` for that slot to the log. This
-//!    single small write is the commit point: before it, `load` still finds the current image
-//!    (the target slot's old record no longer matches its half-written contents, so it is
-//!    skipped); after it, `load` finds the new one.
+//! 1. Read every header. The new sequence number is the highest committed one plus one. The
+//!    *current* slot is the valid slot with the highest sequence number (what `load` returns).
+//! 2. The target is the slot after the current one in ring order (after the newest committed
+//!    one if nothing is valid, slot 0 on an empty range). With K ≥ 2 it is never the current
+//!    slot, so the image `load` returns now is never touched.
+//! 3. Erase only the target's pages that header and image occupy (`ceil((24 + len) / page)`),
+//!    first page first, which invalidates the target's old header.
+//! 4. Program the image after the header area, in 256-byte chunks (the last word padded with
+//!    0xFF), read it back and compare ([`StoreError::VerifyFailed`] otherwise).
+//! 5. Program the header, read it back. **This write is the commit**: before it completes, the
+//!    target has no header that verifies (erased, or cut mid-write: the header CRC, stored in
+//!    its last word, fails) and `load` returns the current image; after it, the target is the
+//!    newest valid slot and `load` returns the new image.
 //!
-//! `load(buf)`: read both records; try them newest first; for each, read the slot into `buf`,
-//! compute the CRC of exactly those bytes and return them if it matches. So `load` **falls back to
-//! the previous commit** when the newest one does not verify.
+//! `load(buf)`: read every header; try the committed slots from the highest sequence number
+//! down; return the first whose image matches its CRC. No committed slot at all (an erased
+//! range, garbage, a first save cut before its commit) gives `Ok(None)`; committed slots none of
+//! which verifies give [`StoreError::Corrupt`] (the flash was altered behind the store's back:
+//! power loss alone never does that, since a save never touches the current slot). Ties of
+//! sequence numbers (only possible in planted data) are broken by the higher slot index.
 //!
-//! Choices that differ from a plain A/B scheme, and why:
+//! Sequence numbers are plain `u32`, compared as numbers (no wrap-around): after 4 294 967 295
+//! saves a store answers [`StoreError::SequenceExhausted`] until it is formatted. The flash wears
+//! out five orders of magnitude earlier, so in practice only a planted header reaches it.
 //!
-//! - The target of a save is the slot *not holding the image `load` returns* (step 1), rather
-//!   than the slot not referenced by the newest record. When the newest copy has been damaged and
-//!   `load` falls back to the older one, overwriting that older one (the only good copy) would
-//!   leave nothing to boot if power were lost during the save.
-//! - A save erases only the pages its image occupies (`ceil(len / page)`), not the whole slot: a
-//!   typical image (a few hundred bytes) costs one page erase per save, and the slots can be sized
-//!   for the largest image without making small saves slower or wear the flash more.
-//! - The commit record lives in the log, not in the slot: the slot is plain image bytes, and the
-//!   atomic, wear-levelled append of `sequential-storage` is used exactly where it helps (small,
-//!   frequent records).
+//! ### Why the header is at the start of the slot
 //!
-//! Wear: every save erases the first `ceil(len / page)` pages of one slot, alternating between the
-//! slots, so each slot page is erased once every two saves of images that reach it; the log adds
-//! about one erase per `(page - 16) / 24` saves (170 records per 4 KiB page with 8-byte words),
-//! spread evenly over its pages. With the STM32G4's 10 000 guaranteed erase cycles per page, that
-//! is at least 20 000 saves, far more than a robot's table pushes.
+//! The header is written last in program order whatever its place; its place decides the erases.
+//! At the start, a save erases only the pages `24 + len` bytes need: a small image costs one
+//! page erase, and the page that holds the old header is erased first, so a slot never carries a
+//! header over image bytes that are being rewritten. At the end of the slot, every save would
+//! also erase the slot's last page, doubling the erases of small images. `load` reads K small
+//! headers at fixed places, and a slot describes itself: no other area of flash (no log, no
+//! index) has to be consistent with it.
+//!
+//! ### NOR flash rules, and the STM32G4
+//!
+//! The G4 programs double words (8 bytes), refuses to program a double word that is not erased
+//! (unless with all zeros), and keeps an ECC per double word. The store programs every double
+//! word of a slot at most once between two erases (image, padding and header never share a
+//! word: the header area is a whole number of words and the image starts after it), so it never
+//! asks for a refused program. A cut program leaves a *partially programmed* word, a cut erase
+//! a *partially erased* page; either way the bytes are garbage to the store: a cut image write
+//! comes before the header exists, and a cut header write leaves a header whose CRC fails, so
+//! the slot is skipped (a pseudo-random pattern passing a CRC-32 has a chance of 2^-32, and the
+//! image CRC must also pass).
+//!
+//! **Board-level concern, not handled here.** On the G4, *reading* a double word whose
+//! programming or erase was cut can hit a double ECC error: the flash sets `ECCD` in
+//! `FLASH_ECCR` and raises an NMI (RM0440, "Error code correction"). `load` and `save` read
+//! every slot's header, so after a cut header write or a cut erase the next boot reads such a
+//! word (image words are read only behind a header that verifies, that is, after a complete
+//! image write). The store cannot catch
+//! this: it happens below `NorFlash::read`. The board crate must make that read survive: check
+//! whether its HAL's flash driver handles flash ECC errors; if not, install an NMI handler that,
+//! when `ECCD` is set and the failing address (`FLASH_ECCR.ADDR_ECC`) lies inside the store's
+//! range, clears `ECCD` and returns, so the read completes with unreliable bytes that the
+//! header or image CRC then rejects (any other NMI: halt as before). Without it a board can hang
+//! at boot after a power cut during a save. `MemFlash` reads cut words without fault, so the
+//! tests here cover the store's logic, not this handler; it must be tested on the board (cut
+//! power during saves, or program a word twice to provoke ECCD).
+//!
+//! ## Wear
+//!
+//! Each save erases `ceil((24 + len) / page)` pages of one slot, and the slots take turns, so
+//! each page is erased at most once every K saves. On the G474 layout below (K = 5, 4 KiB
+//! pages), an image up to 4 072 bytes costs one page erase per save and an image up to 8 168
+//! bytes two; either way each page is erased once per 5 saves: with the G4's 10 000 guaranteed
+//! cycles, at least 50 000 saves. Measured (`tests/wear.rs`): 1 000 saves of small images erase
+//! the first page of each of the 5 slots 200 times and nothing else.
 //!
 //! ## Recommended layout on the STM32G474 (512 KiB, single bank: 4 KiB pages, 8-byte words)
 //!
 //! The firmware must leave the range out of the linker's `FLASH` region (a `memory.x` whose
 //! `FLASH` length stops at the range's start) so that no code lands there.
 //!
-//! - **40 KiB** (`0x7_6000..0x8_0000`, offsets from the flash base `0x0800_0000`): slots of
-//!   16 KiB (4 pages) at `0x7_6000` and `0x7_A000`, log of 8 KiB (2 pages) at `0x7_E000`:
-//!   `FlashStore::new(flash, 0x7_6000..0x8_0000, 16 * 1024)`. Holds images up to 16 KiB: every
-//!   example network (the largest node image is 177 bytes) and about half a node's capacity.
-//! - **64 KiB** (`0x7_0000..0x8_0000`): slots of 28 KiB (7 pages), log of 8 KiB. Holds a node at
-//!   full capacity (26 745 bytes).
-//! - **72 KiB** (`0x6_E000..0x8_0000`): slots of 32 KiB, log of 8 KiB. Holds any image the format
-//!   allows ([`pab_core::image::MAX_IMAGE_LEN`]).
+//! - **40 KiB, 5 slots of 8 KiB** (`0x7_6000..0x8_0000`, offsets from the flash base
+//!   `0x0800_0000`): `FlashStore::new(flash, 0x7_6000..0x8_0000, 8 * 1024)`. Holds images up to
+//!   8 168 bytes ([`FlashStore::capacity`]): the board's images (a few KiB at most; the largest
+//!   example node image is 177 bytes); 50 000 saves at least.
+//! - If a board must store images of a full 8 KiB receive buffer (8 192 bytes, 24 more than an
+//!   8 KiB slot holds): **48 KiB, 4 slots of 12 KiB** (`0x7_4000..0x8_0000`), 12 264 bytes per
+//!   image, 40 000 saves at least.
+//! - Any image the format allows ([`pab_core::image::MAX_IMAGE_LEN`], 32 KiB): slots of 36 KiB,
+//!   at least two (72 KiB); three (108 KiB) if the flash can spare it.
+//!
+//! More slots only add endurance (and a few header reads at boot); two slots are enough for the
+//! guarantee.
 //!
 //! embassy-stm32's flash driver for the G4 is blocking; wrap it in
 //! `embassy_embedded_hal::adapter::BlockingAsync` to get the async [`NorFlash`] this store takes.
-//! One hardware caveat that no test here can model: the G4's flash has ECC, and reading a double
-//! word whose programming was cut by a power loss can raise a double-ECC error (an NMI). The
-//! board's NMI handler must clear `ECCD` for addresses inside the store's range and let the read
-//! fail (the CRC then rejects the slot) instead of halting.
 //!
 //! ## Testing
 //!
-//! The `mem-flash` feature adds [`testing::MemFlash`], an in-memory NOR flash that enforces NOR
-//! semantics, counts erases per page and simulates a power loss in the middle of any program or
-//! erase call. The crate's tests cut the power at every operation of a save, from many log states,
-//! reboot, and check that `load` returns exactly the old or the new image.
+//! The `mem-flash` feature adds [`testing::MemFlash`], an in-memory NOR flash that enforces the
+//! G4's rules, counts erases per page and simulates a power loss in the middle of any program or
+//! erase call (partially programmed words, partially erased pages). The crate's tests cut the
+//! power at every program and erase call of a save, after every save of histories of hundreds
+//! of saves (the ring wraps many times), reboot, and check that `load` returns exactly the old
+//! or the new image and that the store goes on working.
 
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
@@ -118,14 +163,12 @@ mod error;
 #[cfg(feature = "mem-flash")]
 pub mod testing;
 
-pub use error::{FlashErrorKind, LayoutError, LogErrorKind, StoreError};
+pub use error::{FlashErrorKind, LayoutError, StoreError};
 
 use core::ops::Range;
 
 use embedded_storage_async::nor_flash::NorFlash;
-use pab_core::crc32::Crc32;
-use sequential_storage::cache::{Cache, Uncached};
-use sequential_storage::map::{MapConfig, MapStorage, SerializationError, Value};
+use pab_core::crc32::{Crc32, crc32};
 
 /// Where a node keeps its latest accepted table image.
 ///
@@ -142,114 +185,80 @@ pub trait TableStore {
 
 /// Bytes moved per flash read or write: the stack buffer of `load` and `save`.
 const CHUNK: usize = 256;
-/// Bytes of a serialized commit record.
-const RECORD_LEN: usize = 13;
-/// The commit record format this crate writes.
-const RECORD_FORMAT: u8 = 1;
-/// The log's work buffer: key and record, rounded up to the largest word `sequential-storage`
-/// supports (32 bytes).
-const LOG_BUFFER: usize = 64;
+/// The slot header's magic bytes ("PAB slot").
+const SLOT_MAGIC: [u8; 4] = *b"PABS";
+/// The slot header format this crate writes and reads.
+const SLOT_FORMAT: u16 = 1;
+/// Bytes of a slot header (before rounding up to the flash's write size).
+const HEADER_LEN: usize = 24;
 
-/// A commit: slot `key` holds `len` bytes whose CRC-32 is `crc`, committed as number `sequence`.
+/// A slot header: the slot holds `len` image bytes whose CRC-32 is `crc`, committed as number
+/// `sequence`.
+///
+/// On flash (little endian): magic `PABS` (4), format (u16), reserved (u16, 0), sequence (u32),
+/// length (u32), CRC-32 of the image (u32), CRC-32 of the 20 bytes before it (u32).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-struct Record {
+struct Header {
     sequence: u32,
     len: u32,
     crc: u32,
 }
 
-impl<'a> Value<'a> for Record {
-    fn serialize_into(&self, buffer: &mut [u8]) -> Result<usize, SerializationError> {
-        let out = buffer
-            .get_mut(..RECORD_LEN)
-            .ok_or(SerializationError::BufferTooSmall)?;
-        let [s0, s1, s2, s3] = self.sequence.to_le_bytes();
-        let [l0, l1, l2, l3] = self.len.to_le_bytes();
-        let [c0, c1, c2, c3] = self.crc.to_le_bytes();
-        out.copy_from_slice(&[
-            RECORD_FORMAT,
-            s0,
-            s1,
-            s2,
-            s3,
-            l0,
-            l1,
-            l2,
-            l3,
-            c0,
-            c1,
-            c2,
-            c3,
-        ]);
-        Ok(RECORD_LEN)
-    }
-
-    fn deserialize_from(buffer: &'a [u8]) -> Result<(Self, usize), SerializationError> {
-        let bytes: [u8; RECORD_LEN] = buffer
-            .get(..RECORD_LEN)
-            .and_then(|bytes| bytes.try_into().ok())
-            .ok_or(SerializationError::BufferTooSmall)?;
-        let [format, s0, s1, s2, s3, l0, l1, l2, l3, c0, c1, c2, c3] = bytes;
-        if format != RECORD_FORMAT {
-            return Err(SerializationError::InvalidFormat);
+impl Header {
+    fn encode(&self) -> [u8; HEADER_LEN] {
+        let mut out = [0u8; HEADER_LEN];
+        let fields = [
+            u32::from_le_bytes(SLOT_MAGIC),
+            u32::from(SLOT_FORMAT),
+            self.sequence,
+            self.len,
+            self.crc,
+        ];
+        for (bytes, field) in out.chunks_exact_mut(4).zip(fields) {
+            bytes.copy_from_slice(&field.to_le_bytes());
         }
-        Ok((
-            Record {
-                sequence: u32::from_le_bytes([s0, s1, s2, s3]),
-                len: u32::from_le_bytes([l0, l1, l2, l3]),
-                crc: u32::from_le_bytes([c0, c1, c2, c3]),
-            },
-            RECORD_LEN,
-        ))
+        let (body, tail) = out.split_at_mut(HEADER_LEN - 4);
+        tail.copy_from_slice(&crc32(body).to_le_bytes());
+        out
+    }
+
+    /// The header in `bytes`, if its magic, format and CRC check.
+    fn decode(bytes: &[u8; HEADER_LEN]) -> Option<Header> {
+        let mut words = [0u32; HEADER_LEN / 4];
+        for (word, bytes) in words.iter_mut().zip(bytes.chunks_exact(4)) {
+            *word = u32::from_le_bytes(bytes.try_into().ok()?);
+        }
+        let [magic, format, sequence, len, crc, header_crc] = words;
+        let body = bytes.get(..HEADER_LEN - 4)?;
+        let ok = magic == u32::from_le_bytes(SLOT_MAGIC)
+            && format == u32::from(SLOT_FORMAT)
+            && header_crc == crc32(body);
+        ok.then_some(Header { sequence, len, crc })
     }
 }
 
-/// The two slots' records, newest first.
-#[derive(Clone, Copy, Debug, Default)]
-struct Commits {
-    /// `(slot, record)` pairs, newest first.
-    ordered: [Option<(u8, Record)>; 2],
-}
-
-impl Commits {
-    fn new(slot0: Option<Record>, slot1: Option<Record>) -> Self {
-        let ordered = match (slot0, slot1) {
-            (Some(a), Some(b)) if b.sequence > a.sequence => [Some((1, b)), Some((0, a))],
-            (Some(a), Some(b)) => [Some((0, a)), Some((1, b))],
-            (Some(a), None) => [Some((0, a)), None],
-            (None, Some(b)) => [Some((1, b)), None],
-            (None, None) => [None, None],
-        };
-        Commits { ordered }
-    }
-
-    fn iter(&self) -> impl Iterator<Item = (u8, Record)> + '_ {
-        self.ordered.iter().flatten().copied()
-    }
-
-    fn highest_sequence(&self) -> Option<u32> {
-        self.iter().map(|(_, record)| record.sequence).max()
-    }
-}
-
-/// A [`TableStore`] in a range of NOR flash: two image slots and a commit log (see the crate
+/// A [`TableStore`] in a range of NOR flash: a ring of self-describing slots (see the crate
 /// documentation for the layout, the algorithm and the guarantees).
 pub struct FlashStore<F: NorFlash> {
-    log: MapStorage<u8, F, Cache<Uncached, Uncached, Uncached, u8>>,
-    slots: [u32; 2],
+    flash: F,
+    start: u32,
+    slots: u32,
     slot_size: u32,
+    /// Bytes reserved for the header at the start of each slot: `HEADER_LEN` rounded up to the
+    /// flash's write and read sizes.
+    header_area: u32,
 }
 
 impl<F: NorFlash> FlashStore<F> {
-    /// A store in `range` of `flash` (offsets as the driver counts them), with two slots of
-    /// `slot_size` bytes at its start and the commit log in the rest.
+    /// A store in `range` of `flash` (offsets as the driver counts them), divided into
+    /// `range.len() / slot_size` slots (at least two).
     ///
-    /// `range` must start and end on erase-page boundaries and lie inside the flash; `slot_size`
-    /// must be a positive whole number of erase pages; at least two pages must remain for the log.
-    /// Touches no flash: a new store over an erased range simply has nothing committed yet.
+    /// `range` must start and end on erase-page boundaries, lie inside the flash and be a whole
+    /// number of slots; `slot_size` must be a positive whole number of erase pages. Touches no
+    /// flash: a new store over an erased range simply has nothing committed yet.
     pub fn new(flash: F, range: Range<u32>, slot_size: u32) -> Result<Self, StoreError> {
-        let page = u32::try_from(F::ERASE_SIZE)
-            .map_err(|_| StoreError::Layout(LayoutError::UnsupportedGeometry))?;
+        let geometry = StoreError::Layout(LayoutError::UnsupportedGeometry);
+        let page = u32::try_from(F::ERASE_SIZE).map_err(|_| geometry)?;
         let geometry_ok = F::ERASE_SIZE > 0
             && F::WRITE_SIZE > 0
             && F::READ_SIZE > 0
@@ -258,8 +267,11 @@ impl<F: NorFlash> FlashStore<F> {
             && F::ERASE_SIZE.is_multiple_of(F::WRITE_SIZE)
             && F::ERASE_SIZE.is_multiple_of(F::READ_SIZE);
         if !geometry_ok {
-            return Err(StoreError::Layout(LayoutError::UnsupportedGeometry));
+            return Err(geometry);
         }
+        // Both sizes divide 256, so they are powers of two and the larger is a multiple of both.
+        let header_area = HEADER_LEN.next_multiple_of(F::WRITE_SIZE.max(F::READ_SIZE));
+        let header_area = u32::try_from(header_area).map_err(|_| geometry)?;
         let capacity = u32::try_from(flash.capacity()).unwrap_or(u32::MAX);
         if range.start >= range.end || range.end > capacity {
             return Err(StoreError::Layout(LayoutError::RangeOutOfBounds));
@@ -270,80 +282,120 @@ impl<F: NorFlash> FlashStore<F> {
         if slot_size == 0 || !slot_size.is_multiple_of(page) {
             return Err(StoreError::Layout(LayoutError::SlotSizeNotPageMultiple));
         }
-        let log_start = slot_size
-            .checked_mul(2)
-            .and_then(|slots| range.start.checked_add(slots))
-            .ok_or(StoreError::Layout(LayoutError::RangeTooSmall))?;
-        let log_pages = range.end.saturating_sub(log_start) / page;
-        if log_start >= range.end || log_pages < 2 {
+        let len = range.end - range.start;
+        let slots = len / slot_size;
+        if slots < 2 {
             return Err(StoreError::Layout(LayoutError::RangeTooSmall));
         }
-        let config = MapConfig::<F>::try_new(log_start..range.end)
-            .map_err(|_| StoreError::Layout(LayoutError::LogRefused))?;
+        if !len.is_multiple_of(slot_size) {
+            return Err(StoreError::Layout(LayoutError::RangeNotSlotMultiple));
+        }
         Ok(FlashStore {
-            log: MapStorage::new(flash, config, Cache::new_uncached()),
-            // log_start did not overflow, so neither does this.
-            slots: [range.start, range.start.saturating_add(slot_size)],
+            flash,
+            start: range.start,
+            slots,
             slot_size,
+            header_area,
         })
     }
 
-    /// The largest image a slot holds, in bytes.
+    /// The size of a slot, in bytes (as given to [`Self::new`]).
     pub fn slot_size(&self) -> u32 {
         self.slot_size
+    }
+
+    /// The number of slots in the ring (at least two).
+    pub fn slot_count(&self) -> u32 {
+        self.slots
+    }
+
+    /// The largest image a slot holds, in bytes: the slot size less its header (24 bytes, or the
+    /// flash's write size if larger).
+    pub fn capacity(&self) -> u32 {
+        self.slot_size.saturating_sub(self.header_area)
     }
 
     /// The flash, for inspection (tests, diagnostics). Writing to the store's range through it
     /// voids the guarantees.
     pub fn flash_mut(&mut self) -> &mut F {
-        self.log.flash()
+        &mut self.flash
     }
 
-    /// Erases the whole range (both slots and the log): the store then holds nothing and the next
-    /// `load` returns `Ok(None)`. For a range that held something else before (a `load` that
-    /// answers [`StoreError::Log`]`(`[`LogErrorKind::Corrupted`]`)`), or to forget the table.
+    /// Erases the whole range: the store then holds nothing and the next `load` returns
+    /// `Ok(None)`. To forget the table, or to clear a range that another program used (a `load`
+    /// answering [`StoreError::Corrupt`] or [`StoreError::SequenceExhausted`]).
     pub async fn format(&mut self) -> Result<(), StoreError> {
-        self.log.erase_all().await?;
-        let end = self.slots[1].saturating_add(self.slot_size);
-        self.log
-            .flash()
-            .erase(self.slots[0], end)
+        // `new` checked that the range (slots * slot_size bytes from start) lies in the flash.
+        let end = self
+            .start
+            .saturating_add(self.slots.saturating_mul(self.slot_size));
+        self.flash
+            .erase(self.start, end)
             .await
             .map_err(|e| StoreError::Flash(FlashErrorKind::of(&e)))
     }
 
     /// Gives the flash back.
     pub fn into_flash(self) -> F {
-        self.log.destroy().0
+        self.flash
     }
 
-    fn slot_start(&self, slot: u8) -> u32 {
-        if slot == 0 {
-            self.slots[0]
-        } else {
-            self.slots[1]
+    fn slot_start(&self, slot: u32) -> u32 {
+        // slot < slots, and slots * slot_size bytes from start lie in the flash.
+        self.start
+            .saturating_add(slot.saturating_mul(self.slot_size))
+    }
+
+    /// The slot's header, if it verifies and describes an image that fits the slot.
+    async fn header(&mut self, slot: u32) -> Result<Option<Header>, StoreError> {
+        let mut bytes = [0u8; CHUNK];
+        let area = bytes
+            .get_mut(..self.header_area as usize)
+            .ok_or(StoreError::Layout(LayoutError::UnsupportedGeometry))?;
+        self.flash
+            .read(self.slot_start(slot), area)
+            .await
+            .map_err(|e| StoreError::Flash(FlashErrorKind::of(&e)))?;
+        let header = area
+            .get(..HEADER_LEN)
+            .and_then(|bytes| bytes.try_into().ok())
+            .and_then(Header::decode);
+        Ok(header.filter(|header| header.len <= self.capacity()))
+    }
+
+    /// Among the slots whose header verifies, the one with the greatest `(sequence, slot)` below
+    /// `bound` (all of them if `None`): the newest commits first, one per call.
+    async fn newest_below(
+        &mut self,
+        bound: Option<(u32, u32)>,
+    ) -> Result<Option<(u32, Header)>, StoreError> {
+        let mut best: Option<(u32, Header)> = None;
+        for slot in 0..self.slots {
+            let Some(header) = self.header(slot).await? else {
+                continue;
+            };
+            let key = (header.sequence, slot);
+            if bound.is_some_and(|bound| key >= bound) {
+                continue;
+            }
+            if best.is_none_or(|(best_slot, best)| key > (best.sequence, best_slot)) {
+                best = Some((slot, header));
+            }
         }
+        Ok(best)
     }
 
-    async fn commits(&mut self) -> Result<Commits, StoreError> {
-        let mut buffer = [0u8; LOG_BUFFER];
-        let slot0 = self.log.fetch_item::<Record>(&mut buffer, &0).await?;
-        let slot1 = self.log.fetch_item::<Record>(&mut buffer, &1).await?;
-        Ok(Commits::new(slot0, slot1))
-    }
-
-    /// Reads `out.len()` bytes of the slot starting at `start` (`out` no longer than the slot).
-    async fn read_slot(&mut self, start: u32, out: &mut [u8]) -> Result<(), StoreError> {
+    /// Reads `out.len()` bytes from `address` (inside a slot; `out` no longer than the slot).
+    async fn read_at(&mut self, address: u32, out: &mut [u8]) -> Result<(), StoreError> {
         let mut chunk = [0u8; CHUNK];
-        let mut address = start;
+        let mut address = address;
         for piece in out.chunks_mut(CHUNK) {
-            // Reads whole READ_SIZE units; the slot is a multiple of them, so this stays inside.
+            // Reads whole READ_SIZE units; slots are multiples of them, so this stays inside.
             let aligned = piece.len().next_multiple_of(F::READ_SIZE);
             let area = chunk
                 .get_mut(..aligned)
                 .ok_or(StoreError::Layout(LayoutError::UnsupportedGeometry))?;
-            self.log
-                .flash()
+            self.flash
                 .read(address, area)
                 .await
                 .map_err(|e| StoreError::Flash(FlashErrorKind::of(&e)))?;
@@ -356,48 +408,31 @@ impl<F: NorFlash> FlashStore<F> {
         Ok(())
     }
 
-    /// True if the slot holds `record.len` bytes with CRC `record.crc`. Streams the slot through
-    /// a chunk buffer (no caller buffer needed).
-    async fn verifies(&mut self, slot: u8, record: Record) -> Result<bool, StoreError> {
-        if record.len > self.slot_size {
-            return Ok(false);
-        }
-        let start = self.slot_start(slot);
+    /// True if the slot's image area holds `header.len` bytes with CRC `header.crc`. Streams
+    /// the slot through a chunk buffer (no caller buffer needed).
+    async fn image_verifies(&mut self, slot: u32, header: Header) -> Result<bool, StoreError> {
+        let start = self.slot_start(slot).saturating_add(self.header_area);
         let mut chunk = [0u8; CHUNK];
         let mut crc = Crc32::new();
         let mut done = 0u32;
-        while done < record.len {
-            let len = (record.len - done).min(CHUNK as u32) as usize;
+        while done < header.len {
+            let len = (header.len - done).min(CHUNK as u32) as usize;
             let piece = chunk
                 .get_mut(..len)
                 .ok_or(StoreError::Layout(LayoutError::UnsupportedGeometry))?;
-            self.read_slot(start.saturating_add(done), piece).await?;
+            self.read_at(start.saturating_add(done), piece).await?;
             crc = crc.update(piece);
             done = done.saturating_add(CHUNK as u32);
         }
-        Ok(crc.finish() == record.crc)
+        Ok(crc.finish() == header.crc)
     }
 
-    /// Erases the pages `len` bytes of the slot need, programs `image` and reads it back.
-    async fn write_slot(&mut self, slot: u8, image: &[u8]) -> Result<(), StoreError> {
-        let start = self.slot_start(slot);
-        let flash_error = |e: F::Error| StoreError::Flash(FlashErrorKind::of(&e));
-        // `image.len() <= slot_size`, checked by the caller, so these fit in u32.
-        let len = u32::try_from(image.len()).map_err(|_| StoreError::ImageTooLarge {
-            len: image.len(),
-            slot_size: self.slot_size,
-        })?;
-        let erase_len = len.next_multiple_of(F::ERASE_SIZE as u32);
-        if erase_len > 0 {
-            self.log
-                .flash()
-                .erase(start, start.saturating_add(erase_len))
-                .await
-                .map_err(flash_error)?;
-        }
+    /// Programs `bytes` at `address` (write-size aligned) in chunks, the last word padded with
+    /// 0xFF, then reads them back.
+    async fn program(&mut self, address: u32, bytes: &[u8]) -> Result<(), StoreError> {
         let mut chunk = [0xFFu8; CHUNK];
-        let mut address = start;
-        for piece in image.chunks(CHUNK) {
+        let mut at = address;
+        for piece in bytes.chunks(CHUNK) {
             let padded = piece.len().next_multiple_of(F::WRITE_SIZE);
             let area = chunk
                 .get_mut(..padded)
@@ -405,23 +440,22 @@ impl<F: NorFlash> FlashStore<F> {
             area.fill(0xFF);
             let (data, _) = area.split_at_mut(piece.len());
             data.copy_from_slice(piece);
-            self.log
-                .flash()
-                .write(address, area)
+            self.flash
+                .write(at, area)
                 .await
-                .map_err(flash_error)?;
-            address = address.saturating_add(CHUNK as u32);
+                .map_err(|e| StoreError::Flash(FlashErrorKind::of(&e)))?;
+            at = at.saturating_add(CHUNK as u32);
         }
-        let mut address = start;
-        for piece in image.chunks(CHUNK) {
+        let mut at = address;
+        for piece in bytes.chunks(CHUNK) {
             let area = chunk
                 .get_mut(..piece.len())
                 .ok_or(StoreError::Layout(LayoutError::UnsupportedGeometry))?;
-            self.read_slot(address, area).await?;
+            self.read_at(at, area).await?;
             if area != piece {
                 return Err(StoreError::VerifyFailed);
             }
-            address = address.saturating_add(CHUNK as u32);
+            at = at.saturating_add(CHUNK as u32);
         }
         Ok(())
     }
@@ -429,24 +463,29 @@ impl<F: NorFlash> FlashStore<F> {
 
 impl<F: NorFlash> TableStore for FlashStore<F> {
     async fn load<'b>(&mut self, buf: &'b mut [u8]) -> Result<Option<&'b [u8]>, StoreError> {
-        let commits = self.commits().await?;
-        let mut any = false;
-        for (slot, record) in commits.iter() {
-            any = true;
-            if record.len > self.slot_size {
-                continue;
-            }
-            let len = record.len as usize;
+        let mut bound = None;
+        let mut committed = false;
+        while let Some((slot, header)) = self.newest_below(bound).await? {
+            committed = true;
+            bound = Some((header.sequence, slot));
+            let len = header.len as usize;
             let got = buf.len();
-            let Some(area) = buf.get_mut(..len) else {
-                return Err(StoreError::BufferTooSmall { needed: len, got });
-            };
-            self.read_slot(self.slot_start(slot), area).await?;
-            if Crc32::new().update(area).finish() == record.crc {
-                return Ok(buf.get(..len));
+            let image = self.slot_start(slot).saturating_add(self.header_area);
+            match buf.get_mut(..len) {
+                Some(area) => {
+                    self.read_at(image, area).await?;
+                    if crc32(area) == header.crc {
+                        return Ok(buf.get(..len));
+                    }
+                }
+                None => {
+                    if self.image_verifies(slot, header).await? {
+                        return Err(StoreError::BufferTooSmall { needed: len, got });
+                    }
+                }
             }
         }
-        if any {
+        if committed {
             Err(StoreError::Corrupt)
         } else {
             Ok(None)
@@ -456,42 +495,55 @@ impl<F: NorFlash> TableStore for FlashStore<F> {
     async fn save(&mut self, image: &[u8]) -> Result<(), StoreError> {
         let too_large = StoreError::ImageTooLarge {
             len: image.len(),
-            slot_size: self.slot_size,
+            capacity: self.capacity(),
         };
         let len = u32::try_from(image.len()).map_err(|_| too_large)?;
-        if len > self.slot_size {
+        if len > self.capacity() {
             return Err(too_large);
         }
-        let commits = self.commits().await?;
+        // The highest committed sequence number (image intact or not), so the new one is above
+        // every header in the range; then the slot of the image `load` returns now.
+        let newest = self.newest_below(None).await?;
         let mut current = None;
-        for (slot, record) in commits.iter() {
-            if self.verifies(slot, record).await? {
+        let mut candidate = newest;
+        while let Some((slot, header)) = candidate {
+            if self.image_verifies(slot, header).await? {
                 current = Some(slot);
                 break;
             }
+            candidate = self.newest_below(Some((header.sequence, slot))).await?;
         }
-        // The slot not holding what `load` returns now; with nothing loadable, the slot the newest
-        // record does not reference (or slot 0).
-        let target = match current {
-            Some(slot) => slot ^ 1,
-            None => commits
-                .ordered
-                .first()
-                .copied()
-                .flatten()
-                .map_or(0, |(slot, _)| slot ^ 1),
+        // The slot after the current image in ring order: never the current image's slot (there
+        // are at least two). With nothing loadable, the slot after the newest header.
+        let after = current.or(newest.map(|(slot, _)| slot));
+        let target = after.map_or(0, |slot| slot.saturating_add(1) % self.slots);
+        let sequence = match newest {
+            Some((_, header)) => header
+                .sequence
+                .checked_add(1)
+                .ok_or(StoreError::SequenceExhausted)?,
+            None => 1,
         };
-        let sequence = commits
-            .highest_sequence()
-            .map_or(1, |highest| highest.saturating_add(1));
-        self.write_slot(target, image).await?;
-        let record = Record {
+        let start = self.slot_start(target);
+        let flash_error = |e: F::Error| StoreError::Flash(FlashErrorKind::of(&e));
+        // Erase the pages header and image occupy (len <= capacity, so this stays in the slot);
+        // the old header goes first, with the first page.
+        let used = self
+            .header_area
+            .saturating_add(len)
+            .next_multiple_of(F::ERASE_SIZE as u32);
+        self.flash
+            .erase(start, start.saturating_add(used))
+            .await
+            .map_err(flash_error)?;
+        self.program(start.saturating_add(self.header_area), image)
+            .await?;
+        // The commit: the header, programmed last.
+        let header = Header {
             sequence,
             len,
-            crc: Crc32::new().update(image).finish(),
+            crc: crc32(image),
         };
-        let mut buffer = [0u8; LOG_BUFFER];
-        self.log.store_item(&mut buffer, &target, &record).await?;
-        Ok(())
+        self.program(start, &header.encode()).await
     }
 }

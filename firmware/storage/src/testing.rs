@@ -10,10 +10,8 @@
 //!   erased** (all 0xFF) **or be written with zeros**; otherwise the write fails with
 //!   [`MemFlashError::NotErased`] and changes nothing. This is the STM32G4's rule (RM0440: PROGERR
 //!   when the double word is not erased, except when all zeros are written). An AND semantics
-//!   would hide double writes that the board refuses, so this flash refuses them. The zero
-//!   exception matters: after a power cut in the middle of a page-state word of its log,
-//!   `sequential-storage` programs that word again with zeros (tests found this; a flash that
-//!   refuses that too would need the log page erased).
+//!   would hide double writes that the board refuses, so this flash refuses them. (`FlashStore`
+//!   never needs the zero exception: it programs each word once between erases.)
 //! - misaligned or out-of-range accesses fail with [`MemFlashError::NotAligned`] or
 //!   [`MemFlashError::OutOfBounds`] (reads are byte-granular: `READ_SIZE` is 1, as on the G4).
 //!
@@ -24,6 +22,10 @@
 //!   leaves the next word *half programmed* (only some of the bits that should clear do);
 //! - an erase erases a pseudo-random number of its pages, then leaves the next page *half
 //!   erased* (random bits of its old contents set to 1).
+//!
+//! How many bits of a cut word or page went wrong varies from cut to cut: about half of them,
+//! one in eight, seven in eight, or none, so that garbage, nearly finished and nearly untouched
+//! contents are all exercised.
 //!
 //! Every later call (reads too) fails with `PowerLost` until [`MemFlash::reboot`], which keeps
 //! the memory as it is, like a board that comes back up. The pseudo-random choices come from a
@@ -232,6 +234,21 @@ impl<const PAGES: usize, const ERASE_SIZE: usize, const WRITE_SIZE: usize>
     }
 }
 
+/// A pseudo-random byte with about half of its bits set (`density` 0), one in eight (1), none (2)
+/// or seven in eight (3).
+fn noise(state: &mut u64, density: usize) -> u8 {
+    let sparse = |state: &mut u64| {
+        let (a, b, c) = (next_random(state), next_random(state), next_random(state));
+        ((a & b & c) >> 32) as u8
+    };
+    match density {
+        0 => (next_random(state) >> 32) as u8,
+        1 => sparse(state),
+        2 => 0,
+        _ => !sparse(state),
+    }
+}
+
 /// xorshift64: enough to scatter failure points; not for anything else.
 fn next_random(state: &mut u64) -> u64 {
     let mut x = *state;
@@ -308,12 +325,13 @@ impl<const PAGES: usize, const ERASE_SIZE: usize, const WRITE_SIZE: usize> NorFl
         // Half erased: random bits of the old contents went to 1 (a few pages untouched after).
         let half = first.saturating_add(complete);
         if half < first.saturating_add(count) {
+            let density = self.random_below(4);
             let mut rng = self.rng;
             if let (Some(memory), Some(erases)) =
                 (self.pages.get_mut(half), self.erases.get_mut(half))
             {
                 for byte in memory.iter_mut() {
-                    *byte |= (next_random(&mut rng) >> 32) as u8;
+                    *byte |= noise(&mut rng, density);
                 }
                 *erases = erases.saturating_add(1);
             }
@@ -355,11 +373,13 @@ impl<const PAGES: usize, const ERASE_SIZE: usize, const WRITE_SIZE: usize> NorFl
             return Ok(());
         }
         // The next word half programmed: only some of the bits that should clear did.
+        let density = self.random_below(4);
         let mut rng = self.rng;
         for (k, &value) in bytes.iter().enumerate().skip(programmed).take(WRITE_SIZE) {
-            let noise = (next_random(&mut rng) >> 32) as u8;
+            // The bits of `value` that stay 1 although they should have cleared.
+            let missed = noise(&mut rng, density);
             if let Some(byte) = self.byte_mut(u32::try_from(start.saturating_add(k)).unwrap_or(0)) {
-                *byte &= value | noise;
+                *byte &= value | missed;
             }
         }
         self.rng = rng;

@@ -1,5 +1,5 @@
-//! Erase counts over many saves: each save erases the pages of one slot its image needs
-//! (alternating slots), and the commit log's erases are spread evenly over its pages.
+//! Erase counts over many saves: each save erases the pages of one slot that its header and
+//! image need, and the slots take turns (each page erased once every K saves).
 
 mod common;
 
@@ -13,15 +13,28 @@ fn erase_counts_over_1000_saves() {
         save(&mut store, if k % 2 == 0 { &v1 } else { &v2 }).expect("save");
     }
     let counts = *store.flash_mut().erase_counts();
-    println!("erase counts per 4 KiB page after 1000 saves: {counts:?}");
-    // Slot 0 = pages 0..4, slot 1 = pages 4..8: small images use the first page of each.
-    assert_eq!(counts[0], 500);
-    assert_eq!(counts[4], 500);
-    assert!(counts[1..4].iter().chain(&counts[5..8]).all(|&c| c == 0));
-    // The log's two pages: spread evenly, a handful each.
-    let log = &counts[8..10];
-    let (min, max) = (*log.iter().min().unwrap(), *log.iter().max().unwrap());
-    assert!(max - min <= 1 && (1..=10).contains(&max), "{log:?}");
+    println!("erase counts per 4 KiB page after 1000 saves of small images: {counts:?}");
+    // 5 slots of 2 pages: small images use the first page of each slot, in turn.
+    for (page, &count) in counts.iter().enumerate() {
+        let expected = if page % 2 == 0 { 1000 / BOARD_SLOTS } else { 0 };
+        assert_eq!(count, expected, "page {page}: {counts:?}");
+    }
+}
+
+#[test]
+fn erase_counts_of_two_page_images() {
+    let (a, b) = (image_ports(5, 1), image_ports(5, 2));
+    assert!(a.len() as u32 + BOARD_HEADER > 4096);
+    let mut store = store(BoardFlash::new(), BOARD_RANGE, BOARD_SLOT);
+    for k in 0..1000 {
+        save(&mut store, if k % 2 == 0 { &a } else { &b }).expect("save");
+    }
+    let counts = *store.flash_mut().erase_counts();
+    println!("erase counts per 4 KiB page after 1000 saves of 4.8 KB images: {counts:?}");
+    assert!(
+        counts.iter().all(|&count| count == 1000 / BOARD_SLOTS),
+        "{counts:?}"
+    );
 }
 
 #[test]
@@ -33,7 +46,8 @@ fn erase_counts_small_pages() {
     }
     let counts = *store.flash_mut().erase_counts();
     println!("erase counts per 256 B page after 1000 saves: {counts:?}");
-    let log = &counts[4..7];
-    let (min, max) = (*log.iter().min().unwrap(), *log.iter().max().unwrap());
-    assert!(max - min <= 1, "{log:?}");
+    for (page, &count) in counts.iter().enumerate() {
+        let expected = if page % 2 == 0 { 1000 / SMALL_SLOTS } else { 0 };
+        assert_eq!(count, expected, "page {page}: {counts:?}");
+    }
 }

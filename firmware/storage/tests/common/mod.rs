@@ -9,20 +9,25 @@ use pab_core::{Connection, DecisionNode, Filter, NodeRef, Stimulation, Table};
 use pab_storage::testing::MemFlash;
 use pab_storage::{FlashStore, StoreError, TableStore};
 
-/// The STM32G474 in single-bank mode: 4 KiB pages, 8-byte words; the 40 KiB the board gives.
+/// The STM32G474 in single-bank mode: 4 KiB pages, 8-byte words; the recommended 40 KiB, 5 slots
+/// of 8 KiB.
 pub type BoardFlash = MemFlash<10, 4096, 8>;
 pub const BOARD_RANGE: core::ops::Range<u32> = 0..10 * 4096;
-pub const BOARD_SLOT: u32 = 16 * 1024;
+pub const BOARD_SLOT: u32 = 8 * 1024;
+pub const BOARD_SLOTS: u32 = 5;
+/// Bytes of a slot header on the board (24 bytes, three double words).
+pub const BOARD_HEADER: u32 = 24;
 
-/// Small pages, so that the commit log wraps around every few saves (10 records per page).
-pub type SmallFlash = MemFlash<7, 256, 4>;
-pub const SMALL_RANGE: core::ops::Range<u32> = 0..7 * 256;
+/// Small pages and 4-byte words: 4 slots of 2 pages, images span pages.
+pub type SmallFlash = MemFlash<8, 256, 4>;
+pub const SMALL_RANGE: core::ops::Range<u32> = 0..8 * 256;
 pub const SMALL_SLOT: u32 = 512;
+pub const SMALL_SLOTS: u32 = 4;
 
-/// The board's 64 KiB layout, for a full-capacity image.
+/// 64 KiB in 4 slots of 16 KiB, for a 15 KB image.
 pub type LargeFlash = MemFlash<16, 4096, 8>;
 pub const LARGE_RANGE: core::ops::Range<u32> = 0..16 * 4096;
-pub const LARGE_SLOT: u32 = 28 * 1024;
+pub const LARGE_SLOT: u32 = 16 * 1024;
 
 fn node(var: u8, low: NodeRef, high: NodeRef) -> DecisionNode {
     DecisionNode { var, low, high }
@@ -82,21 +87,37 @@ pub fn image_v2() -> Vec<u8> {
 /// A node with every connection it can have (16 ports of 32, priority chains, wide fields): about
 /// 15 KB, four 4 KiB pages.
 pub fn image_large(version: u32) -> Vec<u8> {
+    image_ports(16, version)
+}
+
+/// `ports` ports of 32 wide connections each (priority chains): about 950 bytes a port.
+pub fn image_ports(ports: u32, version: u32) -> Vec<u8> {
     let mut table = Table::new();
-    for port in 0..16u32 {
-        let connections: Vec<Connection> = (0..32u32)
-            .map(|k| {
-                wide_connection(
-                    0x1800_0000 + port * 0x1_0000 + k * 8,
-                    3000.0 + f64::from(version),
-                )
-            })
-            .collect();
-        table
-            .push_port(&connections, &priority_chain(32), at(0))
-            .expect("port");
+    for port in 0..ports {
+        push_wide_port(&mut table, port, 32, version);
     }
     encode(&table, 3, version)
+}
+
+/// One port of `connections` (1..=32) wide connections: about 30 bytes a connection.
+pub fn image_connections(connections: u8, version: u32) -> Vec<u8> {
+    let mut table = Table::new();
+    push_wide_port(&mut table, 0, connections, version);
+    encode(&table, 3, version)
+}
+
+fn push_wide_port(table: &mut Table, port: u32, connections: u8, version: u32) {
+    let list: Vec<Connection> = (0..u32::from(connections))
+        .map(|k| {
+            wide_connection(
+                0x1800_0000 + port * 0x1_0000 + k * 8,
+                3000.0 + f64::from(version),
+            )
+        })
+        .collect();
+    table
+        .push_port(&list, &priority_chain(connections), at(0))
+        .expect("port");
 }
 
 fn priority_chain(n: u8) -> Vec<DecisionNode> {
