@@ -315,7 +315,10 @@ fn resting_connections_ignore_frames_and_are_reported() {
     assert!(!arbiter.is_resting(0, 0, micros(0)), "never stimulated");
     let (_, v) = receive(&mut arbiter, std_id(0x500), micros(0));
     assert_eq!((v[0].delivered, v[0].resting), (Some(0), set(&[])));
-    assert!(!arbiter.is_resting(0, 0, micros(1_000_000)), "still active at τ");
+    assert!(
+        !arbiter.is_resting(0, 0, micros(1_000_000)),
+        "still active at τ"
+    );
     // The activity ends after 1 s; frames up to 3 s are ignored. The port's decision names C0
     // whatever the mask, yet a resting C0 is not selected: its frames do not get through.
     for t in [1_000_001, 2_000_000, 3_000_000] {
@@ -330,7 +333,10 @@ fn resting_connections_ignore_frames_and_are_reported() {
         assert!(arbiter.is_resting(0, 0, micros(t)), "{t}");
     }
     assert!(!arbiter.is_resting(0, 0, micros(3_000_001)));
-    assert!(!arbiter.is_resting(0, 1, micros(2_000_000)), "no such connection");
+    assert!(
+        !arbiter.is_resting(0, 1, micros(2_000_000)),
+        "no such connection"
+    );
     assert!(!arbiter.is_resting(1, 0, micros(2_000_000)), "no such port");
     let (_, v) = receive(&mut arbiter, std_id(0x500), micros(3_000_001));
     assert_eq!((v[0].delivered, v[0].resting), (Some(0), set(&[])));

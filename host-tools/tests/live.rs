@@ -14,10 +14,10 @@ use pab_core::protocol::TransferStatusCode;
 use pabctl::bus::Bus;
 use pabctl::bus::memory::{MemoryBus, MemoryHub};
 use pabctl::compile::{self, CompiledNode};
+use pabctl::monitor;
 use pabctl::network::Network;
 use pabctl::observe::{self, Observer};
 use pabctl::push::{self, Outcome, Timeouts};
-use pabctl::monitor;
 
 /// A node thread and what it stored.
 struct LiveNode {
@@ -210,7 +210,13 @@ fn refusals_and_silence_are_reported_with_their_reason() {
     )
     .unwrap();
     assert!(
-        matches!(outcome, Outcome::Refused { status: TransferStatusCode::OlderVersion, .. }),
+        matches!(
+            outcome,
+            Outcome::Refused {
+                status: TransferStatusCode::OlderVersion,
+                ..
+            }
+        ),
         "{outcome:?}"
     );
     // Nobody home at id 99.
@@ -224,7 +230,10 @@ fn refusals_and_silence_are_reported_with_their_reason() {
         &mut |_, _| {},
     )
     .unwrap();
-    assert!(matches!(&outcome, Outcome::NoAnswer(why) if why.contains("no flow control")), "{outcome:?}");
+    assert!(
+        matches!(&outcome, Outcome::NoAnswer(why) if why.contains("no flow control")),
+        "{outcome:?}"
+    );
     assert!(started.elapsed() < Duration::from_secs(3));
 }
 
@@ -264,9 +273,18 @@ fn monitor_shows_who_delivers_from_the_diagnostic_stream() {
     publishing.store(false, Ordering::SeqCst);
     publisher.join().unwrap();
     let last = screens.last().expect("the monitor drew");
-    let c14 = last.lines().find(|line| line.trim_start().starts_with("C14")).unwrap();
-    assert!(c14.contains("ACTIVE") && c14.contains("◀ delivering"), "{last}");
-    let c1 = last.lines().find(|line| line.trim_start().starts_with("C1 ")).unwrap();
+    let c14 = last
+        .lines()
+        .find(|line| line.trim_start().starts_with("C14"))
+        .unwrap();
+    assert!(
+        c14.contains("ACTIVE") && c14.contains("◀ delivering"),
+        "{last}"
+    );
+    let c1 = last
+        .lines()
+        .find(|line| line.trim_start().starts_with("C1 "))
+        .unwrap();
     assert!(!c1.contains("delivering"), "{last}");
     // Every connection of every node was sampled.
     for node in &compiled {

@@ -54,7 +54,12 @@ where
                     node.stored(ok, now());
                 }
             }
-            Either::First(Err(error)) => node.on_bus_error(error, now()),
+            Either::First(Err(error)) => {
+                node.on_bus_error(error, now());
+                // A driver that fails at once, again and again (a closed socket, a controller
+                // stuck bus-off), must not turn this loop into a busy loop.
+                Timer::after_millis(1).await;
+            }
             Either::Second(()) => node.poll(now()),
         }
     }

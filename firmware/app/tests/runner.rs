@@ -5,8 +5,6 @@
 
 mod common;
 
-use std::time::Duration;
-
 use common::*;
 use embassy_futures::select::{Either, select};
 use futures::StreamExt;
@@ -78,7 +76,9 @@ async fn push(
             TxEvent::WaitUntil(_) => {
                 // Wait for the flow control (or an early answer).
                 match next_message(from_node).await {
-                    (id, Message::TableTransfer { data, len }) if id.destination == protocol::TOOL => {
+                    (id, Message::TableTransfer { data, len })
+                        if id.destination == protocol::TOOL =>
+                    {
                         sender.on_flow_control(&data[..len as usize], now());
                     }
                     (_, Message::TransferStatus(status)) => return status,
@@ -125,7 +125,11 @@ where
 #[test]
 fn a_pushed_table_is_stored_in_flash_and_the_node_boots_with_it() {
     let v1 = image(&priority_table(&[TOPIC_A], None), Harness::NODE_ID, 1);
-    let v2 = image(&priority_table(&[TOPIC_B, TOPIC_A], None), Harness::NODE_ID, 2);
+    let v2 = image(
+        &priority_table(&[TOPIC_B, TOPIC_A], None),
+        Harness::NODE_ID,
+        2,
+    );
     let mut flash_store = store(Flash::new());
     futures::executor::block_on(flash_store.save(&v1)).unwrap();
     let flash = flash_store.into_flash();
@@ -135,7 +139,10 @@ fn a_pushed_table_is_stored_in_flash_and_the_node_boots_with_it() {
     let flash = with_running_node(flash, |to_node, mut from_node| async move {
         let (id, first) = next_message(&mut from_node).await;
         assert_eq!(id.source, Harness::NODE_ID);
-        assert!(matches!(first, Message::Heartbeat(hb) if hb.table_version == 1), "{first:?}");
+        assert!(
+            matches!(first, Message::Heartbeat(hb) if hb.table_version == 1),
+            "{first:?}"
+        );
         assert!(matches!(next_message(&mut from_node).await.1,
             Message::TableStatus(s) if s.crc == v1_crc && s.stored));
         let status = push(&v2_bytes, &to_node, &mut from_node).await;
@@ -155,20 +162,68 @@ fn a_pushed_table_is_stored_in_flash_and_the_node_boots_with_it() {
 
     // Second life: boots with v2.
     let v2_crc = pab_core::image::read_header(&v2).unwrap().crc;
-    with_running_node(flash, |_to_node, mut from_node| async move {
+    with_running_node(flash, |to_node, mut from_node| async move {
+        let _bus_open = to_node;
         let (_, first) = next_message(&mut from_node).await;
-        assert!(matches!(first, Message::Heartbeat(hb) if hb.table_version == 2), "{first:?}");
+        assert!(
+            matches!(first, Message::Heartbeat(hb) if hb.table_version == 2),
+            "{first:?}"
+        );
         assert!(matches!(next_message(&mut from_node).await.1,
             Message::TableStatus(s) if s.crc == v2_crc && s.stored));
     });
-    let _ = Duration::ZERO;
 }
 
 #[test]
 fn an_empty_flash_boots_without_a_table() {
-    with_running_node(Flash::new(), |_to_node, mut from_node| async move {
+    with_running_node(Flash::new(), |to_node, mut from_node| async move {
+        // Keep the bus open while the node runs.
+        let _bus_open = to_node;
         let (_, first) = next_message(&mut from_node).await;
         assert!(matches!(first,
             Message::Heartbeat(hb) if hb.state == protocol::NodeState::NoTable && hb.table_version == 0));
     });
+}
+
+/// A driver that fails at once, forever.
+struct BrokenBus {
+    receives: u32,
+}
+
+impl CanBus for BrokenBus {
+    async fn receive(&mut self) -> Result<Frame, BusError> {
+        self.receives += 1;
+        Err(BusError::BusOff)
+    }
+
+    async fn transmit(&mut self, _frame: &Frame) -> Result<(), BusError> {
+        Err(BusError::BusOff)
+    }
+}
+
+#[test]
+fn a_bus_that_keeps_failing_does_not_make_the_node_spin() {
+    let mut bus = BrokenBus { receives: 0 };
+    let mut store = store(Flash::new());
+    let mut node = Box::new(TestNode::new(Config::new(Harness::NODE_ID).unwrap(), now()));
+    futures::executor::block_on(async {
+        let window = embassy_time::Timer::after(embassy_time::Duration::from_millis(100));
+        match select(
+            pab_app::run(&mut node, &mut bus, &mut store, &mut ()),
+            window,
+        )
+        .await
+        {
+            Either::First(never) => match never {},
+            Either::Second(()) => {}
+        }
+    });
+    // One attempt per millisecond at most (and at least a few: it keeps trying).
+    assert!(
+        (5..=110).contains(&bus.receives),
+        "{} receives in 100 ms",
+        bus.receives
+    );
+    assert_eq!(node.state(), protocol::NodeState::NoTable);
+    assert!(node.counters().errors >= 5);
 }

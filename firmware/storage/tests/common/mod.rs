@@ -156,7 +156,12 @@ pub fn load<F: embedded_storage_async::nor_flash::NorFlash>(
     let mut buf = vec![0u8; image::MAX_IMAGE_LEN];
     let loaded = block_on(store.load(&mut buf))?.map(<[u8]>::to_vec);
     if let Some(bytes) = &loaded {
-        image::load(bytes).expect("the store returns valid images only");
+        image::load::<
+            { pab_core::MAX_PORTS },
+            { pab_core::MAX_CONNECTIONS },
+            { pab_core::MAX_DECISION_NODES },
+        >(bytes)
+        .expect("the store returns valid images only");
     }
     Ok(loaded)
 }
