@@ -4,7 +4,8 @@
 # It installs what it needs (the Cortex-M target, rustfmt, clippy) with rustup, then checks
 # formatting and lints, builds the core for the boards, runs all tests (unit, property,
 # end-to-end, command line), runs each benchmark once in test mode, and runs every example
-# through `pabctl check` and `pabctl sim` (plots and traces land in target/examples/).
+# through `pabctl check` and `pabctl sim` (plots and traces land in target/examples/), and checks
+# the DBC export with cantools (in a venv made by scripts/python-env.sh from requirements-dev.txt).
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -48,5 +49,12 @@ for network in examples/*.toml; do
     "$pabctl" sim "$network" --trace "$out/$name.csv" --plot "$out/$name.png" > "$out/$name.sim.txt"
     echo "$network: consistent, compiled, simulated ($out/$name.png)"
 done
+
+step "DBC export, decoded by cantools"
+# The venv holds the pinned requirements-dev.txt (cantools); creating it needs PyPI once.
+# A missing python3, venv or cantools fails the run: this step is never skipped.
+venv=$(scripts/python-env.sh)
+"$pabctl" dbc examples/take-and-return.toml -o "$out/take-and-return.dbc"
+"$venv/bin/python" host-tools/tests/dbc_cantools.py "$out/take-and-return.dbc"
 
 step "all passed in $(( $(date +%s) - started )) s"

@@ -1,13 +1,15 @@
 //! pabctl: the workstation side of port arbitration.
 //!
 //! Reads a network file ([`network`]), proves its rules consistent ([`check`]), compiles one
-//! table image per node ([`compile`]) and simulates the whole network ([`sim`]) with `pab-core`,
-//! the code the boards run. On a live bus ([`bus`]) it pushes tables to the nodes ([`push`]), lists
-//! them ([`observe`]) and shows their arbitration as it happens ([`monitor`]).
+//! table image per node ([`compile`]), simulates the whole network ([`sim`]) with `pab-core`,
+//! the code the boards run, and describes its traffic as a DBC file ([`dbc`]). On a live bus
+//! ([`bus`]) it pushes tables to the nodes ([`push`]), lists them ([`observe`]) and shows their
+//! arbitration as it happens ([`monitor`]).
 
 pub mod bus;
 pub mod check;
 pub mod compile;
+pub mod dbc;
 pub mod diagnostic;
 pub mod monitor;
 pub mod network;

@@ -16,14 +16,15 @@ use indicatif::{ProgressBar, ProgressStyle};
 use pabctl::bus::{self, Bus};
 use pabctl::check;
 use pabctl::compile::{self, CompiledNode};
+use pabctl::dbc;
 use pabctl::diagnostic::{Diagnostic, Diagnostics};
 use pabctl::network::Network;
 use pabctl::plot;
 use pabctl::sim::{self, Options};
 use pabctl::{monitor, observe, push};
 
-const ABOUT: &str =
-    "Check, compile and simulate port-arbitration networks for CAN controller boards";
+const ABOUT: &str = "Check, compile and simulate port-arbitration networks for CAN controller boards, \
+     and describe their traffic as DBC";
 
 const LONG_ABOUT: &str = "\
 Check, compile and simulate port-arbitration networks for CAN controller boards.
@@ -51,7 +52,8 @@ Examples:
   pabctl sim examples/take-and-return.toml --plot out/take-and-return.png --trace out/trace.csv
   pabctl push examples/take-and-return.toml --iface vcan0
   pabctl nodes --iface vcan0
-  pabctl monitor examples/take-and-return.toml --iface vcan0";
+  pabctl monitor examples/take-and-return.toml --iface vcan0
+  pabctl dbc examples/take-and-return.toml -o out/take-and-return.dbc";
 
 #[derive(Parser)]
 #[command(name = "pabctl", version, about = ABOUT, long_about = LONG_ABOUT, after_help = AFTER_HELP)]
@@ -178,6 +180,33 @@ switches the stream off.")]
         #[arg(long)]
         plain: bool,
     },
+    /// Write a DBC file describing the network's traffic (pab protocol frames and topics).
+    #[command(long_about = "\
+Write a DBC file (for cantools, SavvyCAN, Wireshark, CANdb++) that decodes a capture of the \
+network's bus:
+
+- the pab protocol's own frames (docs/can-protocol.md), one message per service and node: \
+PAB_<Service>_<node> for Heartbeat, TableStatus, Traffic, Errors, Fault, Diagnostic (node to all) \
+and TransferStatus (node to tool), and PAB_DiagnosticControl_<node> and PAB_DiagnosticControl_all \
+(tool to node, tool to all). Value tables name the node states, fault codes and transfer \
+statuses; the diagnostic level is scaled to 0..1. Table transfers (ISO-TP, service 0x11) are not \
+signals: their ids are in the node comments.
+- each topic of the network, named after it, on its can_id (a masked topic: its base id only), \
+with 8 one-byte signals data0..data7: the payload is the publisher's.
+
+DBC node PABCTL is the workstation tool; node names are the network's (made C identifiers: other \
+characters become _, a leading digit gets node_). Extended ids are written with bit 31 set, as DBC \
+does. -o - writes to standard output.
+
+Exit status: 0 written; 2 unreadable or invalid file (a topic inside the protocol's id space, \
+extended with bits 25..24 = 0b10, is an error); 3 the output cannot be written.")]
+    Dbc {
+        /// The network file (TOML).
+        network: PathBuf,
+        /// The DBC file to write, or - for standard output.
+        #[arg(short, long, value_name = "FILE.dbc")]
+        output: PathBuf,
+    },
 }
 
 /// How a command failed, and the exit status that says so.
@@ -227,6 +256,7 @@ fn main() -> ExitCode {
             duration,
             plain,
         } => run_monitor(&network, &iface, rate, duration, plain),
+        Command::Dbc { network, output } => run_dbc(&network, &output),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -501,6 +531,30 @@ fn run_sim(
         })?;
         println!("plot: {}", plot_path.display());
     }
+    Ok(())
+}
+
+fn run_dbc(path: &Path, output: &Path) -> Result<(), Failure> {
+    let network = Network::load(path)?;
+    let database = dbc::build(&network)?;
+    let text = database.render();
+    if output.as_os_str() == "-" {
+        let mut stdout = io::stdout().lock();
+        return stdout
+            .write_all(text.as_bytes())
+            .and_then(|()| stdout.flush())
+            .map_err(|error| Failure::Output(format!("cannot write to standard output: {error}")));
+    }
+    write_atomically(output, text.as_bytes())?;
+    println!(
+        "{}  {} messages  ({} node{} and the tool, {} topic{})",
+        output.display(),
+        database.messages.len(),
+        network.nodes.len(),
+        plural(network.nodes.len()),
+        network.topics.len(),
+        plural(network.topics.len()),
+    );
     Ok(())
 }
 

@@ -272,3 +272,88 @@ fn compile_writes_a_port_consumer_and_refuses_a_bad_one() {
     );
     assert!(!bad_out.join("gaze.pab").exists());
 }
+
+#[test]
+fn dbc_writes_the_protocol_and_topic_messages() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("sub/take-and-return.dbc");
+    let output = pabctl(&[
+        "dbc",
+        &example("take-and-return.toml"),
+        "-o",
+        &path.display().to_string(),
+    ]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    assert!(
+        text(&output.stdout).contains("33 messages"),
+        "{}",
+        text(&output.stdout)
+    );
+    let dbc = std::fs::read_to_string(&path).unwrap();
+    assert!(dbc.starts_with("VERSION \"\""), "{dbc}");
+    assert!(dbc.contains("BU_: PABCTL arm hand gaze\n"), "{dbc}");
+    // Heartbeat of gaze (node 3): 0x1202FF03 with the extended flag.
+    let heartbeat = pab_core::protocol::FrameId::new(
+        pab_core::protocol::Service::Heartbeat,
+        3,
+        pab_core::protocol::BROADCAST,
+    )
+    .raw();
+    assert!(
+        dbc.contains(&format!(
+            "BO_ {} PAB_Heartbeat_gaze: 8 gaze\n",
+            heartbeat | 0x8000_0000
+        )),
+        "{dbc}"
+    );
+    assert!(dbc.contains("BO_ 272 object_pos: 8 Vector__XXX\n"), "{dbc}");
+    // Diagnostic control from the tool to all: 0x0E10FF00, 4 bytes.
+    assert!(
+        dbc.contains("BO_ 2383478528 PAB_DiagnosticControl_all: 4 PABCTL\n"),
+        "{dbc}"
+    );
+    assert!(!dbc.contains("TableTransfer_"), "{dbc}");
+    assert!(!dir.path().join("sub/take-and-return.dbc.part").exists());
+
+    let stdout = pabctl(&["dbc", &example("take-and-return.toml"), "-o", "-"]);
+    assert_eq!(stdout.status.code(), Some(0));
+    assert_eq!(text(&stdout.stdout), dbc);
+}
+
+#[test]
+fn dbc_exit_statuses() {
+    let dir = tempfile::tempdir().unwrap();
+    // Invalid input: 2, with file:line:col.
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(
+        &bad,
+        "[nodes.arm]\nid = 1\n[topics.ours]\ncan_id = 0x1202FF03\nextended = true\n",
+    )
+    .unwrap();
+    let output = pabctl(&[
+        "dbc",
+        &bad.display().to_string(),
+        "-o",
+        &dir.path().join("x.dbc").display().to_string(),
+    ]);
+    assert_eq!(output.status.code(), Some(2));
+    let stderr = text(&output.stderr);
+    assert!(
+        stderr.contains(&format!("{}:3:1: error: topic `ours`", bad.display())),
+        "{stderr}"
+    );
+    assert!(!dir.path().join("x.dbc").exists());
+    // Unwritable output: 3.
+    let output = pabctl(&[
+        "dbc",
+        &example("figure-1.toml"),
+        "-o",
+        &dir.path().join("bad.toml/x.dbc").display().to_string(),
+    ]);
+    assert_eq!(output.status.code(), Some(3), "{}", text(&output.stderr));
+    // Help explains the conventions.
+    let help = pabctl(&["dbc", "--help"]);
+    let help = text(&help.stdout);
+    assert!(help.contains("PAB_<Service>_<node>"), "{help}");
+    assert!(help.contains("data0..data7"), "{help}");
+}

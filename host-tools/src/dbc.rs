@@ -1,0 +1,820 @@
+//! A DBC description of a network's traffic, for cantools, SavvyCAN, Wireshark and the like.
+//!
+//! Two kinds of messages:
+//!
+//! - **The project's own frames** (`docs/can-protocol.md`), one message per (service, node): the
+//!   node → all services (heartbeat, table status, traffic, errors, fault, diagnostic samples),
+//!   the transfer status each node sends to the tool, and the diagnostic control the tool sends
+//!   to each node (and to all nodes). Identifiers come from [`FrameId::raw`], the same code the
+//!   nodes run; nothing here recomputes the layout. Table transfer frames (ISO-TP) are not
+//!   signals: they are only named in the comments.
+//! - **The network's topics**, one message per topic named after it, with eight one-byte signals
+//!   `data0`..`data7`: what a topic carries is its publisher's business, but a capture then shows
+//!   which topic each frame belongs to, and frames shorter than 8 bytes still decode byte by byte
+//!   (cantools: `allow_truncated=True`).
+//!
+//! Conventions: extended identifiers are written `raw | 0x8000_0000` (the DBC convention);
+//! every payload is little endian (`@1+`); enumerations get `VAL_` tables from the enums'
+//! `ALL` and `description()`; the heartbeat and its status frames carry `GenMsgCycleTime` 1000.
+
+use std::collections::HashSet;
+use std::fmt::Write as _;
+
+use pab_core::protocol::{
+    BROADCAST, FaultCode, FrameId, NodeState, PROTOCOL_MASK, PROTOCOL_VALUE, Service, TOOL,
+    TransferStatusCode,
+};
+
+use crate::diagnostic::Diagnostics;
+use crate::network::Network;
+
+/// The DBC node name of the workstation tool.
+pub const TOOL_NODE: &str = "PABCTL";
+/// The DBC placeholder for "no node / unknown node".
+pub const UNKNOWN_NODE: &str = "Vector__XXX";
+/// The flag DBC files set on extended identifiers.
+pub const EXTENDED_FLAG: u32 = 0x8000_0000;
+/// 2^-31: the scale of a Q1.31 level, written exactly.
+pub const Q31_FACTOR: &str = "0.0000000004656612873077392578125";
+
+/// One signal of a message.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DbcSignal {
+    /// Its name (a C identifier).
+    pub name: String,
+    /// Its least significant bit (little endian numbering: byte * 8 + bit).
+    pub start: u32,
+    /// Its width in bits.
+    pub len: u32,
+    /// The scale, as written.
+    pub factor: &'static str,
+    /// The largest physical value, as written.
+    pub max: String,
+    /// Its unit.
+    pub unit: &'static str,
+    /// Its value table: code, description.
+    pub values: Vec<(u32, &'static str)>,
+    /// What it means.
+    pub comment: String,
+}
+
+/// One message.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DbcMessage {
+    /// The identifier as a DBC file writes it (extended ones with [`EXTENDED_FLAG`]).
+    pub id: u32,
+    /// Its name (a C identifier, unique in the file).
+    pub name: String,
+    /// Its length in bytes.
+    pub dlc: u8,
+    /// The sending node, or [`UNKNOWN_NODE`].
+    pub transmitter: String,
+    /// The receiving nodes (at least one; [`UNKNOWN_NODE`] if none is known).
+    pub receivers: Vec<String>,
+    /// Its signals.
+    pub signals: Vec<DbcSignal>,
+    /// What it is.
+    pub comment: String,
+    /// The period in milliseconds, for periodic messages.
+    pub cycle_ms: Option<u32>,
+}
+
+/// A whole DBC database.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Dbc {
+    /// Node names: [`TOOL_NODE`], then the network's nodes in file order.
+    pub nodes: Vec<String>,
+    /// A comment per node, in the order of `nodes`.
+    pub node_comments: Vec<String>,
+    /// The messages: protocol messages node by node, then diagnostic control, then topics.
+    pub messages: Vec<DbcMessage>,
+    /// The comment on the whole database.
+    pub comment: String,
+}
+
+/// Turns `name` into a C identifier: characters other than ASCII letters, digits and `_` become
+/// `_`, and a name that would start with a digit (or be empty) gets `prefix` in front.
+pub fn identifier(name: &str, prefix: &str) -> String {
+    let mut out: String = name
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+        .collect();
+    if out.is_empty() || out.starts_with(|c: char| c.is_ascii_digit()) {
+        out.insert_str(0, prefix);
+    }
+    out
+}
+
+/// Makes names unique: the first keeps its name, later ones get `_2`, `_3`, ...
+struct Names(HashSet<String>);
+
+impl Names {
+    fn unique(&mut self, name: String) -> String {
+        if self.0.insert(name.clone()) {
+            return name;
+        }
+        let mut n = 2;
+        loop {
+            let candidate = format!("{name}_{n}");
+            if self.0.insert(candidate.clone()) {
+                return candidate;
+            }
+            n += 1;
+        }
+    }
+}
+
+fn extended(frame: FrameId) -> u32 {
+    frame.raw() | EXTENDED_FLAG
+}
+
+fn signal(name: &str, start: u32, len: u32, comment: &str) -> DbcSignal {
+    DbcSignal {
+        name: name.to_string(),
+        start,
+        len,
+        factor: "1",
+        max: ((1u64 << len) - 1).to_string(),
+        unit: "",
+        values: Vec::new(),
+        comment: comment.to_string(),
+    }
+}
+
+fn with_unit(mut signal: DbcSignal, unit: &'static str) -> DbcSignal {
+    signal.unit = unit;
+    signal
+}
+
+fn with_values(mut signal: DbcSignal, values: Vec<(u32, &'static str)>) -> DbcSignal {
+    if let Some(max) = values.iter().map(|(code, _)| *code).max() {
+        signal.max = max.to_string();
+    }
+    signal.values = values;
+    signal
+}
+
+/// The value table of [`NodeState`].
+pub fn node_states() -> Vec<(u32, &'static str)> {
+    NodeState::ALL
+        .iter()
+        .map(|s| (u32::from(s.code()), s.description()))
+        .collect()
+}
+
+/// The value table of [`FaultCode`].
+pub fn fault_codes() -> Vec<(u32, &'static str)> {
+    FaultCode::ALL
+        .iter()
+        .map(|c| (u32::from(c.code()), c.description()))
+        .collect()
+}
+
+/// The value table of [`TransferStatusCode`].
+pub fn transfer_status_codes() -> Vec<(u32, &'static str)> {
+    TransferStatusCode::ALL
+        .iter()
+        .map(|c| (u32::from(c.code()), c.description()))
+        .collect()
+}
+
+/// The signals of a service's payload, as `docs/can-protocol.md` lays them out; `None` for table
+/// transfer (ISO-TP segments, not a fixed layout).
+pub fn service_signals(service: Service) -> Option<Vec<DbcSignal>> {
+    Some(match service {
+        Service::Fault => {
+            let mut signals = vec![
+                with_values(
+                    signal("code", 0, 16, "what happened (FaultCode)"),
+                    fault_codes(),
+                ),
+                signal(
+                    "count",
+                    16,
+                    8,
+                    "occurrences since the last frame with this code, at least 1, saturating at 255",
+                ),
+            ];
+            let details = [
+                "detail byte 0: for BadStoredTable and TableRefused the TransferStatusCode of the \
+                 verdict; for BusError a driver-specific kind; for BadCommand the service code of \
+                 the malformed frame; otherwise 0",
+                "detail byte 1, code-specific, 0 where unused",
+                "detail byte 2, code-specific, 0 where unused",
+                "detail byte 3, code-specific, 0 where unused",
+                "detail byte 4, code-specific, 0 where unused",
+            ];
+            for (i, comment) in (0u32..).zip(details) {
+                signals.push(signal(&format!("detail{i}"), 24 + 8 * i, 8, comment));
+            }
+            signals
+        }
+        Service::Heartbeat => vec![
+            with_values(signal("state", 0, 8, "the node's state"), node_states()),
+            with_unit(
+                signal(
+                    "uptime",
+                    8,
+                    24,
+                    "seconds since boot, saturating at 2^24-1 (194 days)",
+                ),
+                "s",
+            ),
+            signal(
+                "table_version",
+                32,
+                32,
+                "version of the running table, 0 without a table",
+            ),
+        ],
+        Service::TableStatus => vec![
+            signal(
+                "crc",
+                0,
+                32,
+                "CRC-32 of the running image (its header's CRC field), 0 without a table",
+            ),
+            with_unit(signal("image_len", 32, 16, "image length"), "B"),
+            signal("ports", 48, 8, "number of ports of the table"),
+            signal(
+                "stored",
+                56,
+                1,
+                "1: the table is stored, the node boots with it",
+            ),
+            signal("diagnostic", 57, 1, "1: the diagnostic stream is on"),
+        ],
+        Service::Traffic => vec![
+            signal(
+                "received",
+                0,
+                32,
+                "frames received from the bus since boot, wrapping",
+            ),
+            signal(
+                "delivered",
+                32,
+                32,
+                "deliveries since boot (one per port a frame was delivered to), wrapping",
+            ),
+        ],
+        Service::Errors => vec![
+            signal(
+                "discarded",
+                0,
+                32,
+                "frames that fed at least one port and were delivered to none, since boot, wrapping",
+            ),
+            signal(
+                "errors",
+                32,
+                32,
+                "bus errors, overruns and malformed frames of the protocol, since boot, wrapping",
+            ),
+        ],
+        Service::Diagnostic => vec![
+            signal("port", 0, 8, "port index in the node's table"),
+            signal("connection", 8, 8, "connection index within the port"),
+            signal("active", 16, 1, "1: the connection is active"),
+            signal("resting", 17, 1, "1: the connection is in its rest time"),
+            signal(
+                "delivering",
+                18,
+                1,
+                "1: the port's decision selects this connection",
+            ),
+            signal("end_of_round", 19, 1, "1: the last sample of the round"),
+            signal(
+                "sequence",
+                24,
+                8,
+                "round sequence number, shared by the round's samples, wrapping",
+            ),
+            DbcSignal {
+                name: "level".into(),
+                start: 32,
+                len: 32,
+                factor: Q31_FACTOR,
+                max: "1".into(),
+                unit: "S",
+                values: Vec::new(),
+                comment: "stimulation S in 0..1 (Q1.31 on the wire: raw 2^31 = 1.0)".into(),
+            },
+        ],
+        Service::DiagnosticControl => vec![
+            DbcSignal {
+                max: "200".into(),
+                ..with_unit(
+                    signal(
+                        "rate",
+                        0,
+                        16,
+                        "rounds per second, 0 switches the stream off, at most 200",
+                    ),
+                    "Hz",
+                )
+            },
+            signal("ports", 16, 16, "ports to sample: bit i = port i"),
+        ],
+        Service::TableTransfer => return None,
+        Service::TransferStatus => vec![
+            with_values(
+                signal("status", 0, 8, "the outcome of the transfer"),
+                transfer_status_codes(),
+            ),
+            signal(
+                "detail",
+                8,
+                8,
+                "for InvalidTable, which check of the loader failed; otherwise 0",
+            ),
+            signal(
+                "running_version",
+                16,
+                32,
+                "version of the table running after this transfer",
+            ),
+        ],
+    })
+}
+
+fn service_comment(service: Service) -> &'static str {
+    match service {
+        Service::Fault => {
+            "Fault (service 0x01, priority 0): sent when it happens, at most once per code per \
+             100 ms; occurrences in between are counted."
+        }
+        Service::Heartbeat => {
+            "Heartbeat (service 0x02, priority 4): every heartbeat period (1 s by default), \
+             followed by TableStatus, Traffic and Errors."
+        }
+        Service::TableStatus => {
+            "TableStatus (service 0x03, priority 4): the running table, after every heartbeat."
+        }
+        Service::Traffic => {
+            "Traffic (service 0x04, priority 5): counters since boot, after every heartbeat."
+        }
+        Service::Errors => {
+            "Errors (service 0x05, priority 5): loss and error counters since boot, after every \
+             heartbeat."
+        }
+        Service::Diagnostic => {
+            "Diagnostic (service 0x06, priority 7): one connection's stimulation; while the \
+             stream is on, one round (a sample per connection of the selected ports, one \
+             sequence number, the last flagged end_of_round) at the requested rate."
+        }
+        Service::DiagnosticControl => {
+            "DiagnosticControl (service 0x10, priority 3): switches the diagnostic stream; the \
+             node refuses rates above 200."
+        }
+        Service::TableTransfer => "",
+        Service::TransferStatus => {
+            "TransferStatus (service 0x12, priority 2): the outcome of a table transfer, to the \
+             tool."
+        }
+    }
+}
+
+/// The DBC database of `network`. Fails, with a diagnostic at the topic, if a topic lies in the
+/// protocol's identifier space (extended, bits 25..24 = 0b10): nodes never arbitrate such frames.
+pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
+    let mut errors = Vec::new();
+    let mut node_names = Names(HashSet::from([TOOL_NODE.to_string()]));
+    let mut nodes = vec![TOOL_NODE.to_string()];
+    let mut node_comments =
+        vec!["The workstation tool (pabctl), address 0 in the pab protocol.".to_string()];
+    for node in &network.nodes {
+        nodes.push(node_names.unique(identifier(&node.name, "node_")));
+        let transfer = FrameId::new(Service::TableTransfer, TOOL, node.id).raw();
+        let flow = FrameId::new(Service::TableTransfer, node.id, TOOL).raw();
+        node_comments.push(format!(
+            "Node `{}`, id {} ({} port{}). Table images reach it by ISO-TP (ISO 15765-2) on \
+             service 0x11, not described here: data 0x{transfer:08X} (tool to node), flow control \
+             0x{flow:08X} (node to tool).",
+            node.name,
+            node.id,
+            node.ports.len(),
+            if node.ports.len() == 1 { "" } else { "s" },
+        ));
+    }
+
+    let mut names = Names(HashSet::new());
+    let mut messages = Vec::new();
+    let periodic = [
+        Service::Heartbeat,
+        Service::TableStatus,
+        Service::Traffic,
+        Service::Errors,
+    ];
+    for (node, dbc_node) in network.nodes.iter().zip(nodes.iter().skip(1)) {
+        for service in Service::ALL {
+            let destination = match service {
+                Service::DiagnosticControl | Service::TableTransfer => continue,
+                Service::TransferStatus => TOOL,
+                _ => BROADCAST,
+            };
+            let Some(signals) = service_signals(service) else {
+                continue;
+            };
+            let frame = FrameId::new(service, node.id, destination);
+            messages.push(DbcMessage {
+                id: extended(frame),
+                name: names.unique(format!("PAB_{service:?}_{dbc_node}")),
+                dlc: service.payload_len() as u8,
+                transmitter: dbc_node.clone(),
+                receivers: vec![TOOL_NODE.to_string()],
+                signals,
+                comment: format!(
+                    "{} From node `{}` (id {}) to {}.",
+                    service_comment(service),
+                    node.name,
+                    node.id,
+                    if destination == TOOL {
+                        "the tool (0)"
+                    } else {
+                        "all (0xFF)"
+                    }
+                ),
+                cycle_ms: periodic.contains(&service).then_some(1000),
+            });
+        }
+    }
+    let control = Service::DiagnosticControl;
+    let targets = network
+        .nodes
+        .iter()
+        .zip(nodes.iter().skip(1))
+        .map(|(node, dbc_node)| (node.id, dbc_node.clone(), format!("node `{}`", node.name)))
+        .chain([(BROADCAST, "all".to_string(), "all nodes (0xFF)".to_string())]);
+    for (destination, suffix, whom) in targets {
+        let receivers = if destination == BROADCAST {
+            nodes.iter().skip(1).cloned().collect::<Vec<_>>()
+        } else {
+            vec![suffix.clone()]
+        };
+        messages.push(DbcMessage {
+            id: extended(FrameId::new(control, TOOL, destination)),
+            name: names.unique(format!("PAB_{control:?}_{suffix}")),
+            dlc: control.payload_len() as u8,
+            transmitter: TOOL_NODE.to_string(),
+            receivers: if receivers.is_empty() {
+                vec![UNKNOWN_NODE.to_string()]
+            } else {
+                receivers
+            },
+            signals: service_signals(control).unwrap_or_default(),
+            comment: format!("{} From the tool to {whom}.", service_comment(control)),
+            cycle_ms: None,
+        });
+    }
+
+    let mut seen_ids: Vec<(u32, usize)> = Vec::new();
+    for topic in &network.topics {
+        let filter = topic.filter;
+        if filter.is_extended() && filter.id() & PROTOCOL_MASK == PROTOCOL_VALUE {
+            errors.push(network.error(
+                topic.span.clone(),
+                format!(
+                    "topic `{}`: can_id {:#x} lies in the pab protocol's identifier space \
+                     (extended, bits 25..24 = 0b10); nodes never arbitrate such frames",
+                    topic.name,
+                    filter.id()
+                ),
+            ));
+            continue;
+        }
+        let id = if filter.is_extended() {
+            filter.id() | EXTENDED_FLAG
+        } else {
+            filter.id()
+        };
+        let feeds: Vec<String> = network
+            .connections
+            .iter()
+            .filter(|c| network.topics.get(c.topic).map(|t| &t.name) == Some(&topic.name))
+            .filter_map(|c| {
+                network
+                    .ports
+                    .get(c.port)
+                    .map(|port| format!("{} ({})", c.name, port.name))
+            })
+            .collect();
+        let mut receivers: Vec<String> = Vec::new();
+        for connection in network
+            .connections
+            .iter()
+            .filter(|c| network.topics.get(c.topic).map(|t| &t.name) == Some(&topic.name))
+        {
+            let node = network
+                .ports
+                .get(connection.port)
+                .and_then(|port| nodes.get(port.node + 1));
+            if let Some(node) = node.filter(|node| !receivers.contains(node)) {
+                receivers.push(node.clone());
+            }
+        }
+        if receivers.is_empty() {
+            receivers.push(UNKNOWN_NODE.to_string());
+        }
+        let widest = if filter.is_extended() {
+            0x1FFF_FFFF
+        } else {
+            0x7FF
+        };
+        let mut comment = format!(
+            "Topic `{}`: {} id 0x{:X}",
+            topic.name,
+            if filter.is_extended() {
+                "extended"
+            } else {
+                "standard"
+            },
+            filter.id()
+        );
+        if filter.mask() != widest {
+            let _ = write!(
+                comment,
+                " under mask 0x{:X} (every id with (id & mask) == 0x{:X} belongs to it; only \
+                 this one is listed)",
+                filter.mask(),
+                filter.id()
+            );
+        }
+        comment.push_str(
+            ". Its payload is its publisher's: shown as raw bytes data0..data7 (DLC may be \
+             shorter than 8).",
+        );
+        if !feeds.is_empty() {
+            let _ = write!(comment, " Feeds {}.", feeds.join(", "));
+        }
+        if let Some(&(_, first)) = seen_ids.iter().find(|(seen, _)| *seen == id) {
+            // Two topics with one base id and different masks: DBC allows one message per id.
+            if let Some(message) = messages.get_mut(first) {
+                let _ = write!(message.comment, " Also topic `{}`: {comment}", topic.name);
+            }
+            continue;
+        }
+        seen_ids.push((id, messages.len()));
+        messages.push(DbcMessage {
+            id,
+            name: names.unique(identifier(&topic.name, "topic_")),
+            dlc: 8,
+            transmitter: UNKNOWN_NODE.to_string(),
+            receivers,
+            signals: (0..8u32)
+                .map(|i| signal(&format!("data{i}"), 8 * i, 8, &format!("payload byte {i}")))
+                .collect(),
+            comment,
+            cycle_ms: None,
+        });
+    }
+    if !errors.is_empty() {
+        return Err(Diagnostics(errors));
+    }
+    Ok(Dbc {
+        nodes,
+        node_comments,
+        messages,
+        comment: format!(
+            "Generated by pabctl dbc from {}. Messages PAB_* are the pab protocol \
+             (docs/can-protocol.md): 29-bit ids, priority in bits 28..26, marker 0b10 in bits \
+             25..24 (raw & 0x{PROTOCOL_MASK:08X} == 0x{PROTOCOL_VALUE:08X}), service in 23..16, \
+             destination in 15..8, source in 7..0. Table transfers (service 0x11, ISO-TP) are \
+             not listed: see the node comments for their ids. The other messages are the \
+             network's topics.",
+            network.source.path().display()
+        ),
+    })
+}
+
+/// Strips what a DBC string cannot hold.
+fn text(s: &str) -> String {
+    s.replace('"', "'").replace(['\n', '\r'], " ")
+}
+
+impl Dbc {
+    /// The DBC text.
+    pub fn render(&self) -> String {
+        let mut out = String::new();
+        // Writing to a String cannot fail.
+        let _ = self.write(&mut out);
+        out
+    }
+
+    fn write(&self, out: &mut String) -> std::fmt::Result {
+        writeln!(out, "VERSION \"\"")?;
+        writeln!(out)?;
+        writeln!(out)?;
+        writeln!(out, "NS_ :")?;
+        for keyword in [
+            "NS_DESC_",
+            "CM_",
+            "BA_DEF_",
+            "BA_",
+            "VAL_",
+            "BA_DEF_DEF_",
+            "VAL_TABLE_",
+            "SIG_VALTYPE_",
+            "BO_TX_BU_",
+        ] {
+            writeln!(out, "\t{keyword}")?;
+        }
+        writeln!(out)?;
+        writeln!(out, "BS_:")?;
+        writeln!(out)?;
+        writeln!(out, "BU_: {}", self.nodes.join(" "))?;
+        writeln!(out)?;
+        for message in &self.messages {
+            writeln!(out)?;
+            writeln!(
+                out,
+                "BO_ {} {}: {} {}",
+                message.id, message.name, message.dlc, message.transmitter
+            )?;
+            for signal in &message.signals {
+                writeln!(
+                    out,
+                    " SG_ {} : {}|{}@1+ ({},0) [0|{}] \"{}\" {}",
+                    signal.name,
+                    signal.start,
+                    signal.len,
+                    signal.factor,
+                    signal.max,
+                    signal.unit,
+                    message.receivers.join(",")
+                )?;
+            }
+        }
+        writeln!(out)?;
+        writeln!(out)?;
+        writeln!(out, "CM_ \"{}\";", text(&self.comment))?;
+        for (node, comment) in self.nodes.iter().zip(&self.node_comments) {
+            writeln!(out, "CM_ BU_ {node} \"{}\";", text(comment))?;
+        }
+        for message in &self.messages {
+            writeln!(
+                out,
+                "CM_ BO_ {} \"{}\";",
+                message.id,
+                text(&message.comment)
+            )?;
+            for signal in &message.signals {
+                writeln!(
+                    out,
+                    "CM_ SG_ {} {} \"{}\";",
+                    message.id,
+                    signal.name,
+                    text(&signal.comment)
+                )?;
+            }
+        }
+        writeln!(out, "BA_DEF_ BO_ \"GenMsgCycleTime\" INT 0 65535;")?;
+        writeln!(out, "BA_DEF_DEF_ \"GenMsgCycleTime\" 0;")?;
+        for message in &self.messages {
+            if let Some(cycle) = message.cycle_ms {
+                writeln!(out, "BA_ \"GenMsgCycleTime\" BO_ {} {cycle};", message.id)?;
+            }
+        }
+        for message in &self.messages {
+            for signal in message.signals.iter().filter(|s| !s.values.is_empty()) {
+                write!(out, "VAL_ {} {}", message.id, signal.name)?;
+                for (code, description) in &signal.values {
+                    write!(out, " {code} \"{}\"", text(description))?;
+                }
+                writeln!(out, " ;")?;
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnostic::Source;
+
+    const NET: &str = r#"
+[nodes.arm]
+id = 1
+[nodes.2nd-hand]
+id = 2
+[topics.object_pos]
+can_id = 0x110
+[topics.wide]
+can_id = 0x1A0000
+extended = true
+mask = 0x1FFF0000
+[ports."arm.target"]
+[ports."2nd-hand.command"]
+[connections.C1]
+topic = "object_pos"
+port = "arm.target"
+st = 0.2
+tc = 3.0
+[connections.C2]
+topic = "object_pos"
+port = "2nd-hand.command"
+st = 0.2
+tc = 3.0
+"#;
+
+    fn network(text: &str) -> Network {
+        Network::parse(Source::new("net.toml", text)).unwrap()
+    }
+
+    #[test]
+    fn identifiers_are_c_identifiers() {
+        assert_eq!(identifier("arm", "n_"), "arm");
+        assert_eq!(identifier("2nd-hand", "n_"), "n_2nd_hand");
+        assert_eq!(identifier("", "n_"), "n_");
+    }
+
+    #[test]
+    fn messages_per_node_service_and_topic() {
+        let dbc = build(&network(NET)).unwrap();
+        assert_eq!(dbc.nodes, ["PABCTL", "arm", "node_2nd_hand"]);
+        let find = |name: &str| {
+            dbc.messages
+                .iter()
+                .find(|m| m.name == name)
+                .unwrap_or_else(|| panic!("no message {name}"))
+        };
+        let heartbeat = find("PAB_Heartbeat_arm");
+        assert_eq!(
+            heartbeat.id,
+            FrameId::new(Service::Heartbeat, 1, BROADCAST).raw() | EXTENDED_FLAG
+        );
+        assert_eq!(heartbeat.id, 0x9202_FF01);
+        assert_eq!(heartbeat.cycle_ms, Some(1000));
+        let status = find("PAB_TransferStatus_node_2nd_hand");
+        assert_eq!(
+            status.id,
+            FrameId::new(Service::TransferStatus, 2, TOOL).raw() | EXTENDED_FLAG
+        );
+        let control = find("PAB_DiagnosticControl_arm");
+        assert_eq!(control.dlc, 4);
+        assert_eq!(control.transmitter, "PABCTL");
+        assert_eq!(control.receivers, ["arm"]);
+        let all = find("PAB_DiagnosticControl_all");
+        assert_eq!(
+            all.id,
+            FrameId::new(Service::DiagnosticControl, TOOL, BROADCAST).raw() | EXTENDED_FLAG
+        );
+        // 7 services per node, diagnostic control per node and broadcast, 2 topics.
+        assert_eq!(dbc.messages.len(), 2 * 7 + 3 + 2);
+        assert!(
+            !dbc.messages
+                .iter()
+                .any(|m| m.name.contains("TableTransfer"))
+        );
+        let topic = find("object_pos");
+        assert_eq!(topic.id, 0x110);
+        assert_eq!(topic.receivers, ["arm", "node_2nd_hand"]);
+        assert_eq!(topic.signals.len(), 8);
+        let wide = find("wide");
+        assert_eq!(wide.id, 0x1A_0000 | EXTENDED_FLAG);
+        assert!(wide.comment.contains("mask 0x1FFF0000"), "{}", wide.comment);
+        // Every signal fits its message and no two overlap.
+        for message in &dbc.messages {
+            let mut used = 0u64;
+            for signal in &message.signals {
+                assert!(signal.start + signal.len <= 8 * u32::from(message.dlc));
+                let bits = ((1u128 << signal.len) - 1) << signal.start;
+                assert_eq!(used & bits as u64, 0, "{} overlaps", signal.name);
+                used |= bits as u64;
+            }
+        }
+    }
+
+    #[test]
+    fn the_text_has_the_dbc_sections() {
+        let text = build(&network(NET)).unwrap().render();
+        assert!(text.contains("BU_: PABCTL arm node_2nd_hand\n"), "{text}");
+        assert!(
+            text.contains("BO_ 2449669889 PAB_Heartbeat_arm: 8 arm\n"),
+            "{text}"
+        );
+        assert!(text.contains(" SG_ uptime : 8|24@1+ (1,0) [0|16777215] \"s\" PABCTL\n"));
+        assert!(text.contains(&format!(
+            " SG_ level : 32|32@1+ ({Q31_FACTOR},0) [0|1] \"S\""
+        )));
+        assert!(
+            text.contains("VAL_ 2449669889 state 0 \"no table\" 1 \"operational\" 2 \"fault\" ;\n")
+        );
+        assert!(text.contains("BA_ \"GenMsgCycleTime\" BO_ 2449669889 1000;\n"));
+        assert!(text.contains("BO_ 272 object_pos: 8 Vector__XXX\n"));
+    }
+
+    #[test]
+    fn topics_in_the_protocol_space_are_refused() {
+        let text = NET.replace("can_id = 0x1A0000", "can_id = 0x12020000");
+        let text = text.replace("mask = 0x1FFF0000", "mask = 0x1FFFFFFF");
+        let errors = build(&network(&text)).unwrap_err();
+        let message = errors.to_string();
+        assert!(
+            message.starts_with("net.toml:8:1: error: topic `wide`"),
+            "{message}"
+        );
+        assert!(message.contains("identifier space"), "{message}");
+    }
+}

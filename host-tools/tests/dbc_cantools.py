@@ -1,0 +1,178 @@
+#!/usr/bin/env python3
+"""Checks a DBC file written by `pabctl dbc` for examples/take-and-return.toml with cantools.
+
+    python host-tools/tests/dbc_cantools.py target/examples/take-and-return.dbc
+
+The expected identifiers and payload bytes are built here from the layout documented in
+docs/can-protocol.md, not from pabctl's code: this is what a user decoding a capture relies on.
+Exits 0 when every check passes, 1 with the failures listed otherwise (2 if cantools is missing).
+"""
+
+import sys
+
+try:
+    import cantools
+except ImportError as error:  # never skip silently
+    print(f"error: cantools is not installed ({error}); run scripts/python-env.sh", file=sys.stderr)
+    sys.exit(2)
+
+# docs/can-protocol.md, "Identifiers": priority 28..26, marker 0b10 in 25..24, service 23..16,
+# destination 15..8, source 7..0; tool 0, broadcast 0xFF.
+TOOL, BROADCAST = 0x00, 0xFF
+SERVICES = {  # name: (code, priority)
+    "Fault": (0x01, 0),
+    "Heartbeat": (0x02, 4),
+    "TableStatus": (0x03, 4),
+    "Traffic": (0x04, 5),
+    "Errors": (0x05, 5),
+    "Diagnostic": (0x06, 7),
+    "DiagnosticControl": (0x10, 3),
+    "TableTransfer": (0x11, 6),
+    "TransferStatus": (0x12, 2),
+}
+NODES = {"arm": 1, "hand": 2, "gaze": 3}  # examples/take-and-return.toml
+TOPICS = {
+    "object_pos": 0x110,
+    "face_pos": 0x111,
+    "look_target": 0x112,
+    "rest_pose": 0x113,
+    "grasp_cmd": 0x120,
+    "release_cmd": 0x121,
+    "rest_open": 0x122,
+    "grasped": 0x130,
+}
+
+failures = []
+
+
+def check(condition, message):
+    if not condition:
+        failures.append(message)
+
+
+def frame_id(service, source, destination):
+    code, priority = SERVICES[service]
+    return priority << 26 | 0b10 << 24 | code << 16 | destination << 8 | source
+
+
+def main(path):
+    db = cantools.database.load_file(path, strict=True)
+
+    # Identifiers and names.
+    check(frame_id("Heartbeat", 3, BROADCAST) == 0x1202FF03, "the documented example id")
+    expected = {}
+    for node, node_id in NODES.items():
+        for service in ("Fault", "Heartbeat", "TableStatus", "Traffic", "Errors", "Diagnostic"):
+            expected[f"PAB_{service}_{node}"] = (frame_id(service, node_id, BROADCAST), True)
+        expected[f"PAB_TransferStatus_{node}"] = (frame_id("TransferStatus", node_id, TOOL), True)
+        expected[f"PAB_DiagnosticControl_{node}"] = (
+            frame_id("DiagnosticControl", TOOL, node_id),
+            True,
+        )
+    expected["PAB_DiagnosticControl_all"] = (frame_id("DiagnosticControl", TOOL, BROADCAST), True)
+    for topic, can_id in TOPICS.items():
+        expected[topic] = (can_id, False)
+    actual = {m.name: (m.frame_id, m.is_extended_frame) for m in db.messages}
+    for name, (can_id, extended) in expected.items():
+        got = actual.get(name)
+        check(got == (can_id, extended), f"{name}: expected id {can_id:#x} extended={extended}, got {got}")
+    extra = set(actual) - set(expected)
+    check(not extra, f"unexpected messages: {sorted(extra)}")
+    table_transfer = SERVICES["TableTransfer"][0]
+    check(
+        not any(m.is_extended_frame and (m.frame_id >> 16) & 0xFF == table_transfer for m in db.messages),
+        "no message for table transfer (ISO-TP)",
+    )
+    check({n.name for n in db.nodes} == {"PABCTL", *NODES}, f"nodes: {[n.name for n in db.nodes]}")
+
+    def decode(name, data, **options):
+        message = db.get_message_by_name(name)
+        return message, db.decode_message(message.frame_id, bytes(data), **options)
+
+    # Heartbeat from node 3: state 1 (operational), uptime 0x123456 s, table version 7.
+    data = [1, 0x56, 0x34, 0x12, 7, 0, 0, 0]
+    message, values = decode("PAB_Heartbeat_gaze", data)
+    check(str(values["state"]) == "operational", f"heartbeat state: {values['state']!r}")
+    check(values["uptime"] == 0x123456, f"heartbeat uptime: {values['uptime']}")
+    check(values["table_version"] == 7, f"heartbeat version: {values['table_version']}")
+    check(message.cycle_time == 1000, f"heartbeat cycle time: {message.cycle_time}")
+    encoded = message.encode({"state": 1, "uptime": 0x123456, "table_version": 7})
+    check(list(encoded) == data, f"heartbeat encodes to {encoded.hex()}")
+    states = {int(k): str(v) for k, v in message.get_signal_by_name("state").choices.items()}
+    check(states == {0: "no table", 1: "operational", 2: "fault"}, f"node states: {states}")
+
+    # Fault from node 1: TableRefused (0x0002), 3 occurrences, detail byte 0 = CrcMismatch (0x16).
+    _, values = decode("PAB_Fault_arm", [0x02, 0x00, 3, 0x16, 0, 0, 0, 9])
+    check(str(values["code"]) == "pushed table refused", f"fault code: {values['code']!r}")
+    check(values["count"] == 3 and values["detail0"] == 0x16 and values["detail4"] == 9, f"fault: {values}")
+    _, values = decode("PAB_Fault_arm", [0x13, 0x00, 1, 0, 0, 0, 0, 0])
+    check(str(values["code"]) == "bus-off or error-passive", f"fault code 0x13: {values['code']!r}")
+
+    # Table status of node 2: CRC 0xDEADBEEF, 177 bytes, 1 port, stored, stream off.
+    _, values = decode("PAB_TableStatus_hand", [0xEF, 0xBE, 0xAD, 0xDE, 177, 0, 1, 0b01])
+    check(
+        (values["crc"], values["image_len"], values["ports"], values["stored"], values["diagnostic"])
+        == (0xDEADBEEF, 177, 1, 1, 0),
+        f"table status: {values}",
+    )
+
+    # Traffic and errors counters.
+    _, values = decode("PAB_Traffic_arm", [0x40, 0x42, 0x0F, 0x00, 42, 0, 0, 0])
+    check((values["received"], values["delivered"]) == (1_000_000, 42), f"traffic: {values}")
+    _, values = decode("PAB_Errors_arm", [5, 0, 0, 0, 0xFF, 0xFF, 0xFF, 0xFF])
+    check((values["discarded"], values["errors"]) == (5, 0xFFFFFFFF), f"errors: {values}")
+
+    # Diagnostic sample: port 2, connection 15, active + delivering + end of round, sequence 200,
+    # S = 0.5 (2^30 in Q1.31).
+    level = (1 << 30).to_bytes(4, "little")
+    _, values = decode("PAB_Diagnostic_gaze", [2, 15, 0b1101, 200, *level])
+    check(
+        (values["port"], values["connection"], values["active"], values["resting"])
+        == (2, 15, 1, 0),
+        f"diagnostic indices and flags: {values}",
+    )
+    check(values["delivering"] == 1 and values["end_of_round"] == 1, f"diagnostic flags: {values}")
+    check(values["sequence"] == 200, f"diagnostic sequence: {values}")
+    check(abs(values["level"] - 0.5) < 1e-9, f"diagnostic level: {values['level']}")
+    _, values = decode("PAB_Diagnostic_gaze", [0, 0, 0, 0, *(1 << 31).to_bytes(4, "little")])
+    check(abs(values["level"] - 1.0) < 1e-9, f"diagnostic level 1.0: {values['level']}")
+
+    # Diagnostic control to node 2: 20 rounds/s, ports 0 and 2; 4 bytes.
+    message, values = decode("PAB_DiagnosticControl_hand", [20, 0, 0b101, 0])
+    check(message.length == 4, f"diagnostic control length: {message.length}")
+    check((values["rate"], values["ports"]) == (20, 0b101), f"diagnostic control: {values}")
+    check(message.senders == ["PABCTL"], f"diagnostic control sender: {message.senders}")
+
+    # Transfer status from node 1: OlderVersion (0x15), running version 9.
+    _, values = decode("PAB_TransferStatus_arm", [0x15, 0, 9, 0, 0, 0, 0, 0])
+    check(
+        str(values["status"]) == "image is not newer than the running table",
+        f"transfer status: {values['status']!r}",
+    )
+    check(values["running_version"] == 9, f"transfer status version: {values}")
+    _, values = decode("PAB_TransferStatus_arm", [0x00, 0, 1, 2, 0, 0, 0, 0])
+    check(str(values["status"]) == "applied and stored", f"transfer status 0: {values['status']!r}")
+    check(values["running_version"] == 0x0201, f"transfer status version: {values}")
+
+    # A topic: raw bytes; a shorter frame decodes with allow_truncated.
+    message, values = decode("object_pos", [1, 2, 3, 4, 5, 6, 7, 8])
+    check([values[f"data{i}"] for i in range(8)] == [1, 2, 3, 4, 5, 6, 7, 8], f"topic: {values}")
+    check(set(message.receivers) == {"arm", "gaze"}, f"object_pos receivers: {message.receivers}")
+    _, values = decode("grasp_cmd", [0xAA, 0xBB], allow_truncated=True)
+    check(values == {"data0": 0xAA, "data1": 0xBB}, f"truncated topic: {values}")
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 2:
+        print(__doc__, file=sys.stderr)
+        sys.exit(2)
+    try:
+        main(sys.argv[1])
+    except Exception as error:  # a missing message, an undecodable frame: report, with what came before
+        failures.append(f"{type(error).__name__}: {error}")
+    for failure in failures:
+        print(f"FAIL: {failure}", file=sys.stderr)
+    if failures:
+        print(f"{len(failures)} check(s) failed", file=sys.stderr)
+        sys.exit(1)
+    print(f"{sys.argv[1]}: cantools {cantools.__version__} decodes every message as documented")
