@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Runs every check and test of the project, from a fresh clone on a fresh machine:
 #   ./test.sh
-# It installs what it needs (the Cortex-M target, rustfmt, clippy) with rustup, then checks
-# formatting and lints, builds the core for the boards, runs all tests (unit, property,
-# end-to-end, command line), runs each benchmark once in test mode, and runs every example
+# It installs what it needs (the Cortex-M target, rustfmt, clippy, llvm-tools) with rustup, then
+# checks formatting and lints, builds the core and the NUCLEO-G474RE firmware (and prints its
+# flash and RAM size), runs all tests (unit, property, end-to-end, command line, the node
+# application on an in-process bus), runs each benchmark once in test mode, runs every example
 # through `pabctl check` and `pabctl sim` (plots and traces land in target/examples/), and checks
 # the DBC export with cantools (in a venv made by scripts/python-env.sh from requirements-dev.txt).
 set -euo pipefail
@@ -14,24 +15,31 @@ started=$(date +%s)
 
 step "toolchain"
 rustup target add thumbv7em-none-eabihf
-rustup component add rustfmt clippy
+rustup component add rustfmt clippy llvm-tools
 cargo --version
 
 step "formatting"
 cargo fmt --all -- --check
 
 step "lints (host and board)"
-cargo clippy --workspace --all-targets --locked -- -D warnings
+# Host crates: the workspace's default members (every crate but the boards; `--workspace` would
+# pull the Cortex-M firmware into a host build).
+cargo clippy --all-targets --locked -- -D warnings
 cargo clippy -p pab-core --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-core --features defmt --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-storage --target thumbv7em-none-eabihf --locked -- -D warnings
+cargo clippy -p pab-fw-g474 --target thumbv7em-none-eabihf --release --locked -- -D warnings
 
 step "pab-core for the boards (thumbv7em-none-eabihf)"
 cargo build -p pab-core --release --target thumbv7em-none-eabihf --locked
 cargo build -p pab-storage --release --target thumbv7em-none-eabihf --locked
 
+step "firmware for the NUCLEO-G474RE (pab-fw-g474)"
+cargo build -p pab-fw-g474 --release --target thumbv7em-none-eabihf --locked
+scripts/firmware-size.sh
+
 step "tests"
-cargo test --workspace --locked
+cargo test --locked
 
 step "benchmarks, once each in test mode"
 cargo test -p pab-core --benches --locked

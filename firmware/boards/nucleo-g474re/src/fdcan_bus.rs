@@ -1,0 +1,137 @@
+//! The application's [`CanBus`] over embassy-stm32's FDCAN driver in buffered mode.
+//!
+//! Receiving: the FDCAN interrupt drains the hardware RX FIFO (3 frames on the G4) into a
+//! [`RxQueue`] of [`RX_QUEUE`] entries, so frames that arrive while the node task is busy
+//! (arbitrating, waiting to transmit) wait there instead of overflowing the hardware FIFO.
+//!
+//! **Cancel safety.** The runner drops a pending [`CanBus::receive`] when its timer fires first.
+//! `receive` awaits `BufferedCan::read`, which is `Channel::receive` on that queue: it takes an
+//! entry out of the channel only in the poll that returns it, so dropping the future before it
+//! completed leaves every frame in the queue for the next call. The periodic check of the
+//! controller state in between keeps its memory in `self.mode`, updated only in the poll that
+//! returns the change, so no transition is lost either.
+//!
+//! Transmitting: frames go into a [`TxQueue`] that the interrupt feeds into the controller's TX
+//! FIFO (FIFO mode: frames leave in the order they were queued, which ISO-TP needs, and a full
+//! FIFO never aborts a pending frame as the driver's priority mode would). When the queue stays
+//! full for [`TX_TIMEOUT`] (nobody acknowledges, bus-off) the frame is dropped and reported, so
+//! the node keeps reading instead of blocking behind a dead bus.
+//!
+//! Errors: the driver reports protocol errors (the controller's last error code: stuff, form,
+//! acknowledge, bit, CRC) as they are seen; error-passive and bus-off are states it does not
+//! report, so `receive` also looks at the controller state every [`STATE_POLL`] and reports each
+//! change (`ErrorPassive`, `BusOff`, `Recovered`). Bus-off recovery is automatic (the driver
+//! restarts the controller after the bus-off sequence). Known limit: when the RX queue is full
+//! the interrupt drops frames silently (the driver does not count them), so no
+//! [`BusError::Overrun`] is reported for them.
+
+use embassy_futures::select::{Either, select};
+use embassy_stm32::can::enums::BusErrorMode;
+use embassy_stm32::can::{self, BufferedCan};
+use embassy_time::{Duration, Timer, with_timeout};
+use pab_app::{BusError, CanBus};
+use pab_core::Frame;
+
+/// Frames the RX queue holds (about 8 ms of a fully loaded bus at 500 kbit/s).
+pub const RX_QUEUE: usize = 32;
+/// Frames the TX queue holds (a heartbeat group and an ISO-TP flow control with room to spare).
+pub const TX_QUEUE: usize = 16;
+/// How long `transmit` waits for room in the TX queue before it drops the frame.
+pub const TX_TIMEOUT: Duration = Duration::from_millis(10);
+/// How often `receive` looks at the controller state (error-active, error-passive, bus-off).
+pub const STATE_POLL: Duration = Duration::from_millis(50);
+
+/// The receive queue's storage (a `static`: the driver keeps a reference).
+pub type RxQueue = can::RxBuf<RX_QUEUE>;
+/// The transmit queue's storage.
+pub type TxQueue = can::TxBuf<TX_QUEUE>;
+
+/// The controller state as last reported to the node.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Mode {
+    Active,
+    Passive,
+    Off,
+}
+
+/// FDCAN1 as the node's bus.
+pub struct FdcanBus {
+    can: BufferedCan<'static, TX_QUEUE, RX_QUEUE>,
+    mode: Mode,
+}
+
+impl FdcanBus {
+    /// Wraps a started, buffered FDCAN instance.
+    pub fn new(can: BufferedCan<'static, TX_QUEUE, RX_QUEUE>) -> Self {
+        FdcanBus {
+            can,
+            mode: Mode::Active,
+        }
+    }
+
+    /// The controller state's change since the last report, as the error to report; `None` if
+    /// it did not change.
+    fn state_change(&mut self) -> Option<BusError> {
+        let mode = match self.can.properties().bus_error_mode() {
+            BusErrorMode::ErrorActive => Mode::Active,
+            BusErrorMode::ErrorPassive => Mode::Passive,
+            BusErrorMode::BusOff => Mode::Off,
+        };
+        if mode == self.mode {
+            return None;
+        }
+        self.mode = mode;
+        Some(match mode {
+            Mode::Active => BusError::Recovered,
+            Mode::Passive => BusError::ErrorPassive,
+            Mode::Off => BusError::BusOff,
+        })
+    }
+}
+
+impl CanBus for FdcanBus {
+    async fn receive(&mut self) -> Result<Frame, BusError> {
+        loop {
+            if let Some(change) = self.state_change() {
+                return Err(change);
+            }
+            match select(self.can.read(), Timer::after(STATE_POLL)).await {
+                Either::First(Ok(envelope)) => {
+                    return Ok(pab_core::frame::from_frame(&envelope.frame));
+                }
+                Either::First(Err(error)) => return Err(protocol_error(&error)),
+                Either::Second(()) => {}
+            }
+        }
+    }
+
+    async fn transmit(&mut self, frame: &Frame) -> Result<(), BusError> {
+        let outgoing = if frame.is_remote() {
+            can::frame::Frame::new_remote(frame.id(), frame.payload().len())
+        } else {
+            can::frame::Frame::new_data(frame.id(), frame.payload())
+        };
+        let Ok(outgoing) = outgoing else {
+            // Unreachable for a pab_core::Frame (at most 8 bytes, valid id); reported all the same.
+            return Err(BusError::Other(0xFF));
+        };
+        with_timeout(TX_TIMEOUT, self.can.write(outgoing))
+            .await
+            .map_err(|_| BusError::Overrun)
+    }
+}
+
+/// The driver's protocol errors as [`BusError::Other`], with the FDCAN's last-error-code number
+/// as the detail byte (1 stuff, 2 form, 3 acknowledge, 4 bit recessive, 5 bit dominant, 6 CRC).
+fn protocol_error(error: &can::enums::BusError) -> BusError {
+    use can::enums::BusError as Driver;
+    BusError::Other(match error {
+        Driver::Stuff => 1,
+        Driver::Form => 2,
+        Driver::Acknowledge => 3,
+        Driver::BitRecessive => 4,
+        Driver::BitDominant => 5,
+        Driver::Crc => 6,
+        Driver::Software => 7,
+    })
+}

@@ -1,0 +1,233 @@
+//! # pab-fw-g474: the pab node on a NUCLEO-G474RE
+//!
+//! The node application of `pab-app` (arbitration, heartbeat, faults, diagnostic stream, table
+//! transfers) on an STM32G474RE, with:
+//!
+//! - **CAN**: FDCAN1 on PA11 (RX) / PA12 (TX), classic CAN at [`BITRATE`] (500 kbit/s), every
+//!   standard and extended frame (data and remote) accepted into RX FIFO 0, through
+//!   [`fdcan_bus::FdcanBus`]. The FDCAN kernel clock is the 24 MHz crystal (HSE), so the bit
+//!   timing is exact and independent of the system clock (170 MHz from the PLL).
+//! - **Table store**: the top 40 KiB of flash ([`STORE_RANGE`]), the layout `pab-storage`
+//!   recommends; `memory.x` ends the program's FLASH region where it starts.
+//! - **Node id**: [`NODE_ID`], compiled in from the `PAB_NODE_ID` environment variable
+//!   (default 1): `PAB_NODE_ID=2 cargo fw-g474`. An invalid value is a compile error.
+//! - **LED**: LD2 (PA5) blinks at 1 Hz while the executor runs.
+//! - **Log**: defmt over RTT (`probe-rs run` prints it); `DEFMT_LOG=debug` at build time shows
+//!   every delivered frame.
+//!
+//! Build and flash: `cargo run --release -p pab-fw-g474 --target thumbv7em-none-eabihf` (the root
+//! `.cargo/config.toml` sets probe-rs as the runner). The chip must be in single-bank mode
+//! (option bit DBANK = 0); see the README's "Boards" section.
+
+#![no_std]
+#![no_main]
+
+mod consumer;
+mod fdcan_bus;
+
+use core::num::{NonZeroU8, NonZeroU16};
+use core::ops::Range;
+
+use defmt::{info, unwrap};
+use embassy_embedded_hal::adapter::BlockingAsync;
+use embassy_executor::Spawner;
+use embassy_stm32::can::config::{
+    FrameTransmissionConfig, GlobalFilter, NominalBitTiming, NonMatchingFilter, TxBufferMode,
+};
+use embassy_stm32::can::{self, CanConfigurator, OperatingMode};
+use embassy_stm32::flash::{Blocking, Flash};
+use embassy_stm32::gpio::{Level, Output, Speed};
+use embassy_stm32::peripherals::FDCAN1;
+use embassy_stm32::time::Hertz;
+use embassy_stm32::{bind_interrupts, rcc};
+use embassy_time::Timer;
+use pab_storage::FlashStore;
+use static_cell::StaticCell;
+use {defmt_rtt as _, panic_probe as _};
+
+use consumer::BoardConsumer;
+use fdcan_bus::{FdcanBus, RxQueue, TxQueue};
+
+/// This node's id (1..=127): `PAB_NODE_ID` at build time, 1 without it. Tables pushed to the
+/// node must be compiled for this id.
+pub const NODE_ID: u8 = parse_node_id(option_env!("PAB_NODE_ID"));
+
+/// The nominal bit rate of the bus, bit/s.
+pub const BITRATE: u32 = 500_000;
+
+/// The NUCLEO-G474RE's crystal (X3, 24 MHz): the HSE, and the FDCAN kernel clock.
+const HSE_HZ: u32 = 24_000_000;
+
+/// Time quanta per bit: 1 (sync) + [`SEG1`] + [`SEG2`] = 16, sample point at 14/16 = 87.5 %
+/// (CiA 301's recommendation for 500 kbit/s).
+const TQ_PER_BIT: u32 = 16;
+const SEG1: u8 = 13;
+const SEG2: u8 = 2;
+/// Resynchronization jump width, in time quanta (at most [`SEG2`]).
+const SJW: u8 = 2;
+const _: () = assert!(1 + SEG1 as u32 + SEG2 as u32 == TQ_PER_BIT && SJW <= SEG2);
+/// Clock cycles per time quantum: 24 MHz / (500 kbit/s * 16) = 3.
+const PRESCALER: u32 = HSE_HZ / (BITRATE * TQ_PER_BIT);
+const _: () = assert!(
+    PRESCALER >= 1 && PRESCALER <= 512 && PRESCALER * BITRATE * TQ_PER_BIT == HSE_HZ,
+    "BITRATE must divide 24 MHz / 16 (e.g. 125, 250 or 500 kbit/s); 1 Mbit/s needs 12 or 24 quanta"
+);
+
+/// The table store: offsets from the flash base (0x0800_0000) as the flash driver counts them,
+/// so 0x0807_6000..0x0808_0000, the top 40 KiB. `memory.x` ends FLASH at 0x0807_6000 (472 KiB).
+pub const STORE_RANGE: Range<u32> = 0x7_6000..0x8_0000;
+/// Two image slots of 16 KiB (4 pages) each, then an 8 KiB commit log (2 pages). The node's
+/// transfer buffer is 8 KiB, so every image it can receive fits a slot.
+pub const STORE_SLOT_SIZE: u32 = 16 * 1024;
+const _: () = assert!(STORE_SLOT_SIZE as usize >= 8192);
+
+/// The store over the internal flash.
+type Store = FlashStore<BlockingAsync<Flash<'static, Blocking>>>;
+
+bind_interrupts!(struct Irqs {
+    FDCAN1_IT0 => can::IT0InterruptHandler<FDCAN1>;
+    FDCAN1_IT1 => can::IT1InterruptHandler<FDCAN1>;
+});
+
+/// The node (arbiter, tables, an 8 KiB transfer buffer): in a `static`, not in a task's future.
+static NODE: StaticCell<pab_app::BoardNode> = StaticCell::new();
+static RX_QUEUE: StaticCell<RxQueue> = StaticCell::new();
+static TX_QUEUE: StaticCell<TxQueue> = StaticCell::new();
+
+#[embassy_executor::main]
+async fn main(spawner: Spawner) {
+    let p = embassy_stm32::init(clocks());
+    info!(
+        "pab node {} on NUCLEO-G474RE, CAN {} kbit/s",
+        NODE_ID,
+        BITRATE / 1000
+    );
+
+    spawner.spawn(unwrap!(blink(Output::new(p.PA5, Level::Low, Speed::Low))));
+
+    let mut can = CanConfigurator::new(p.FDCAN1, p.PA11, p.PA12, Irqs);
+    let config = can
+        .config()
+        .set_nominal_bit_timing(NominalBitTiming {
+            prescaler: unwrap!(NonZeroU16::new(PRESCALER as u16)),
+            seg1: unwrap!(NonZeroU8::new(SEG1)),
+            seg2: unwrap!(NonZeroU8::new(SEG2)),
+            sync_jump_width: unwrap!(NonZeroU8::new(SJW)),
+        })
+        .set_frame_transmit(FrameTransmissionConfig::ClassicCanOnly)
+        // Frames leave in the order they were queued (ISO-TP), none is ever aborted.
+        .set_tx_buffer_mode(TxBufferMode::Fifo)
+        .set_global_filter(
+            GlobalFilter::default()
+                .set_handle_standard_frames(NonMatchingFilter::IntoRxFifo0)
+                .set_handle_extended_frames(NonMatchingFilter::IntoRxFifo0)
+                .set_reject_remote_standard_frames(false)
+                .set_reject_remote_extended_frames(false),
+        )
+        .set_automatic_retransmit(true)
+        .set_automatic_bus_off_recovery(true);
+    can.set_config(config);
+    let can = can
+        .start(OperatingMode::NormalOperationMode)
+        .buffered(TX_QUEUE.init(TxQueue::new()), RX_QUEUE.init(RxQueue::new()));
+    let bus = FdcanBus::new(can);
+
+    let flash = BlockingAsync::new(Flash::new_blocking(p.FLASH));
+    let store = unwrap!(FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE));
+
+    let config = unwrap!(pab_app::Config::new(NODE_ID));
+    // `init_with` lets the compiler build the node (15 KiB) directly in the static; should it go
+    // through a temporary on the stack instead, that happens once, at boot, with ~110 KiB free.
+    let node = NODE.init_with(|| pab_app::BoardNode::new(config, pab_app::now()));
+    spawner.spawn(unwrap!(node_task(node, bus, store, BoardConsumer::new())));
+}
+
+/// HSE 24 MHz; SYSCLK 170 MHz from the PLL (24 / 6 * 85 / 2), boost mode; FDCAN on the HSE.
+fn clocks() -> embassy_stm32::Config {
+    let mut config = embassy_stm32::Config::default();
+    config.rcc.hse = Some(rcc::Hse {
+        freq: Hertz(HSE_HZ),
+        mode: rcc::HseMode::Oscillator,
+    });
+    config.rcc.pll = Some(rcc::Pll {
+        source: rcc::PllSource::HSE,
+        prediv: rcc::PllPreDiv::DIV6,
+        mul: rcc::PllMul::MUL85,
+        divp: None,
+        divq: None,
+        divr: Some(rcc::PllRDiv::DIV2),
+    });
+    config.rcc.sys = rcc::Sysclk::PLL1_R;
+    config.rcc.boost = true;
+    config.rcc.mux.fdcansel = rcc::mux::Fdcansel::HSE;
+    config
+}
+
+/// Runs the node forever.
+#[embassy_executor::task]
+async fn node_task(
+    node: &'static mut pab_app::BoardNode,
+    mut bus: FdcanBus,
+    mut store: Store,
+    mut consumer: BoardConsumer,
+) {
+    pab_app::run(node, &mut bus, &mut store, &mut consumer).await
+}
+
+/// LD2 blinks at 1 Hz: the executor is alive.
+#[embassy_executor::task]
+async fn blink(mut led: Output<'static>) {
+    loop {
+        led.toggle();
+        Timer::after_millis(500).await;
+    }
+}
+
+/// The flash's double-ECC error (a double word whose programming a power loss cut) raises an NMI.
+/// Inside the table store that is expected after a power loss during a save: clear the flag and
+/// return, so the read completes with bad bytes that the store's CRC rejects (it then falls back
+/// to the other slot). Anywhere else it is a real fault: halt.
+#[cortex_m_rt::exception]
+unsafe fn NonMaskableInt() {
+    let flash = embassy_stm32::pac::FLASH;
+    let eccr = flash.eccr().read();
+    // Single-bank mode: ADDR_ECC is the byte offset of the failing double word in the flash.
+    if eccr.eccd() && STORE_RANGE.contains(&eccr.addr_ecc()) {
+        // ECCD is write-1-to-clear; writing 0 to the other bits leaves ECCC alone and keeps the
+        // ECC-correction interrupt disabled (its reset state, which embassy does not change).
+        flash.eccr().write(|w| w.set_eccd(true));
+        return;
+    }
+    defmt::panic!(
+        "NMI (flash ECCR {=u32:#x}): double ECC error outside the table store, or a clock failure",
+        eccr.0
+    );
+}
+
+/// `PAB_NODE_ID` as a node id, at compile time: 1 without it; a decimal number in 1..=127.
+const fn parse_node_id(text: Option<&str>) -> u8 {
+    let Some(text) = text else {
+        return 1;
+    };
+    let digits = text.as_bytes();
+    assert!(
+        !digits.is_empty() && digits.len() <= 3,
+        "PAB_NODE_ID must be a decimal number in 1..=127"
+    );
+    let mut value: u32 = 0;
+    let mut i = 0;
+    while i < digits.len() {
+        let digit = digits[i];
+        assert!(
+            digit.is_ascii_digit(),
+            "PAB_NODE_ID must be a decimal number in 1..=127"
+        );
+        value = value * 10 + (digit - b'0') as u32;
+        i += 1;
+    }
+    assert!(
+        value >= 1 && value <= pab_core::protocol::MAX_NODE_ID as u32,
+        "PAB_NODE_ID must be a decimal number in 1..=127"
+    );
+    value as u8
+}
