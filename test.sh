@@ -28,6 +28,7 @@ cargo clippy --all-targets --locked -- -D warnings
 cargo clippy -p pab-core --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-core --features defmt --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-storage --target thumbv7em-none-eabihf --locked -- -D warnings
+cargo clippy -p pab-app --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-fw-g474 --target thumbv7em-none-eabihf --release --locked -- -D warnings
 
 step "pab-core for the boards (thumbv7em-none-eabihf)"
