@@ -440,13 +440,17 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         }
     }
 
-    /// Checks a complete image and, if it passes, swaps it in.
+    /// Checks a complete image in the documented order (header, node id, CRC and loader, then
+    /// version) and, if it passes, swaps it in.
     fn apply(&mut self, source: u8, len: usize) -> Step {
         let bytes = self.receiver.buffer().get(..len).unwrap_or(&[]);
-        let verdict = check(bytes, self.config.node_id, self.running.as_ref())
-            .and_then(|()| load::<P, C, N>(bytes).map(Some));
+        let verdict = check_target(bytes, self.config.node_id)
+            .and_then(|()| load::<P, C, N>(bytes))
+            .and_then(|(header, arbiter)| {
+                check_version(&header, self.running.as_ref()).map(|()| (header, arbiter))
+            });
         match verdict {
-            Ok(Some((header, arbiter))) => {
+            Ok((header, arbiter)) => {
                 // The swap: one assignment. The old arbiter ran every frame until here.
                 self.arbiter = Some(arbiter);
                 self.running = Some(Running {
@@ -459,12 +463,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 info!("table version {} applied", header.table_version);
                 Step::Store
             }
-            Ok(None) => {
-                self.answer(source, TransferStatusCode::AlreadyCurrent, 0);
-                Step::Continue
-            }
-            Err((status, detail)) if status == TransferStatusCode::AlreadyCurrent => {
-                self.answer(source, status, detail);
+            Err((TransferStatusCode::AlreadyCurrent, detail)) => {
+                self.answer(source, TransferStatusCode::AlreadyCurrent, detail);
                 Step::Continue
             }
             Err((status, detail)) => {
@@ -581,17 +581,21 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     }
 }
 
-/// The header checks a node makes before loading: target node, then version against the running
-/// table. `Ok(())` means "load it"; `Err(AlreadyCurrent)` means the very same table runs.
-fn check(
-    bytes: &[u8],
-    node_id: u8,
-    running: Option<&Running>,
-) -> Result<(), (TransferStatusCode, u8)> {
+/// The header checks a node makes before loading: a readable header, for this node.
+fn check_target(bytes: &[u8], node_id: u8) -> Result<(), (TransferStatusCode, u8)> {
     let header = image::read_header(bytes).map_err(|error| status_of(&error))?;
     if header.node_id != node_id {
         return Err((TransferStatusCode::WrongNode, header.node_id));
     }
+    Ok(())
+}
+
+/// The version rule: only a newer table replaces the running one; the very same table is
+/// `AlreadyCurrent` (nothing to do).
+fn check_version(
+    header: &Header,
+    running: Option<&Running>,
+) -> Result<(), (TransferStatusCode, u8)> {
     if let Some(running) = running {
         let current = running.header;
         if header.table_version == current.table_version && header.crc == current.crc {
@@ -626,8 +630,7 @@ pub fn status_of(error: &LoadError) -> (TransferStatusCode, u8) {
         LoadError::Body(_) => (TransferStatusCode::InvalidTable, 1),
         LoadError::BodyTrailingBytes => (TransferStatusCode::InvalidTable, 2),
         LoadError::Table(_) => (TransferStatusCode::InvalidTable, 3),
-        #[allow(unreachable_patterns)]
-        _ => (TransferStatusCode::InvalidTable, 4),
+        LoadError::ExceedsCapacity { .. } => (TransferStatusCode::InvalidTable, 4),
     }
 }
 

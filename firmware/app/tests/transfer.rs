@@ -146,6 +146,18 @@ fn a_corrupted_image_is_refused_by_its_crc() {
 }
 
 #[test]
+fn the_crc_is_checked_before_the_version() {
+    // A corrupted image is reported as corrupted, whatever version its header claims.
+    let mut h = running_v1();
+    let mut old = image(&priority_table(&[TOPIC_B], None), Harness::NODE_ID, 0);
+    let last = old.len() - 1;
+    old[last] ^= 0x10;
+    h.push(&old);
+    refused_with(&h, TransferStatusCode::CrcMismatch);
+    assert_still_v1(&mut h);
+}
+
+#[test]
 fn a_frame_corrupted_in_flight_is_refused_by_the_crc() {
     let mut h = running_v1();
     let bytes = v2();
@@ -182,6 +194,11 @@ fn a_table_beyond_the_nodes_capacities_is_refused_by_the_loader() {
     let bytes = image(&table, Harness::NODE_ID, 2);
     assert_eq!(h.push(&bytes), TxEvent::Done);
     refused_with(&h, TransferStatusCode::InvalidTable);
+    assert_eq!(
+        last_status(&h).detail,
+        4,
+        "detail 4: exceeds this node's capacities"
+    );
     assert_still_v1(&mut h);
 }
 
