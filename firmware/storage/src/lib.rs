@@ -189,8 +189,10 @@ const CHUNK: usize = 256;
 const SLOT_MAGIC: [u8; 4] = *b"PABS";
 /// The slot header format this crate writes and reads.
 const SLOT_FORMAT: u16 = 1;
-/// Bytes of a slot header (before rounding up to the flash's write size).
-const HEADER_LEN: usize = 24;
+/// Bytes of a slot header, before rounding up to the flash's write size (a multiple of 8 already):
+/// a slot of `s` bytes holds images of up to `s - SLOT_HEADER_LEN` bytes.
+pub const SLOT_HEADER_LEN: usize = 24;
+const HEADER_LEN: usize = SLOT_HEADER_LEN;
 
 /// A slot header: the slot holds `len` image bytes whose CRC-32 is `crc`, committed as number
 /// `sequence`.

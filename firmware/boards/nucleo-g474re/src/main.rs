@@ -7,8 +7,8 @@
 //!   standard and extended frame (data and remote) accepted into RX FIFO 0, through
 //!   [`fdcan_bus::FdcanBus`]. The FDCAN kernel clock is the 24 MHz crystal (HSE), so the bit
 //!   timing is exact and independent of the system clock (170 MHz from the PLL).
-//! - **Table store**: the top 40 KiB of flash ([`STORE_RANGE`]), the layout `pab-storage`
-//!   recommends; `memory.x` ends the program's FLASH region where it starts.
+//! - **Table store**: the top 48 KiB of flash ([`STORE_RANGE`]), a ring of four 12 KiB slots
+//!   (`pab-storage`); `memory.x` ends the program's FLASH region where it starts.
 //! - **Node id**: [`NODE_ID`], compiled in from the `PAB_NODE_ID` environment variable
 //!   (default 1): `PAB_NODE_ID=2 cargo fw-g474`. An invalid value is a compile error.
 //! - **LED**: LD2 (PA5) blinks at 1 Hz while the executor runs.
@@ -74,12 +74,16 @@ const _: () = assert!(
 );
 
 /// The table store: offsets from the flash base (0x0800_0000) as the flash driver counts them,
-/// so 0x0807_6000..0x0808_0000, the top 40 KiB. `memory.x` ends FLASH at 0x0807_6000 (472 KiB).
-pub const STORE_RANGE: Range<u32> = 0x7_6000..0x8_0000;
-/// Two image slots of 16 KiB (4 pages) each, then an 8 KiB commit log (2 pages). The node's
-/// transfer buffer is 8 KiB, so every image it can receive fits a slot.
-pub const STORE_SLOT_SIZE: u32 = 16 * 1024;
-const _: () = assert!(STORE_SLOT_SIZE as usize >= 8192);
+/// so 0x0807_4000..0x0808_0000, the top 48 KiB. `memory.x` ends FLASH at 0x0807_4000 (464 KiB).
+pub const STORE_RANGE: Range<u32> = 0x7_4000..0x8_0000;
+/// A ring of four slots of 12 KiB (3 pages) each: every slot holds its 24-byte header and any
+/// image the node's 8 KiB transfer buffer can receive; each page is erased once per four saves.
+pub const STORE_SLOT_SIZE: u32 = 12 * 1024;
+const _: () = assert!(
+    STORE_SLOT_SIZE as usize >= 8192 + pab_storage::SLOT_HEADER_LEN
+        && (STORE_RANGE.end - STORE_RANGE.start) % STORE_SLOT_SIZE == 0,
+    "a slot must hold the largest image plus its header, and the range whole slots"
+);
 
 /// The store over the internal flash.
 type Store = FlashStore<BlockingAsync<Flash<'static, Blocking>>>;
