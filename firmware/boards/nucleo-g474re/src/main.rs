@@ -81,7 +81,7 @@ pub const STORE_RANGE: Range<u32> = 0x7_4000..0x8_0000;
 pub const STORE_SLOT_SIZE: u32 = 12 * 1024;
 const _: () = assert!(
     STORE_SLOT_SIZE as usize >= 8192 + pab_storage::SLOT_HEADER_LEN
-        && (STORE_RANGE.end - STORE_RANGE.start) % STORE_SLOT_SIZE == 0,
+        && (STORE_RANGE.end - STORE_RANGE.start).is_multiple_of(STORE_SLOT_SIZE),
     "a slot must hold the largest image plus its header, and the range whole slots"
 );
 
