@@ -21,6 +21,6 @@ flash=$(( text + data ))
 ram=$(( data + bss ))
 echo "flash = text+data, RAM = data+bss (static)"
 awk -v flash="$flash" -v ram="$ram" 'BEGIN {
-    printf "pab-fw-g474 (NUCLEO-G474RE): flash %d bytes (%.1f KiB of the 472 KiB program region, 512 KiB chip), RAM %d bytes (%.1f KiB of 128 KiB; the rest is the stack)\n",
+    printf "pab-fw-g474 (NUCLEO-G474RE): flash %d bytes (%.1f KiB of the 464 KiB program region, 512 KiB chip), RAM %d bytes (%.1f KiB of 128 KiB; the rest is the stack)\n",
         flash, flash / 1024, ram, ram / 1024
 }'
