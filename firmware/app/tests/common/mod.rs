@@ -198,13 +198,14 @@ impl Harness {
     }
 
     /// Pushes `bytes` from `source` with pab-core's ISO-TP sender, one frame per 100 µs;
-    /// `tamper(index, frame data)` may change or drop (None) each transfer frame.
+    /// `tamper(harness, index, frame data)` runs before each transfer frame: it may change or
+    /// drop (None) the frame, and use the harness (feed other frames between transfer frames).
     /// Returns how the sender ended.
     pub fn push_with(
         &mut self,
         bytes: &[u8],
         source: u8,
-        mut tamper: impl FnMut(usize, [u8; 8]) -> Option<[u8; 8]>,
+        mut tamper: impl FnMut(&mut Harness, usize, [u8; 8]) -> Option<[u8; 8]>,
     ) -> TxEvent {
         let mut sender = Sender::new(bytes, TxConfig::default()).unwrap();
         let mut index = 0;
@@ -213,7 +214,7 @@ impl Harness {
             let event = sender.poll(Instant::from_micros(self.now));
             match event {
                 TxEvent::Send(data) => {
-                    if let Some(data) = tamper(index, data) {
+                    if let Some(data) = tamper(self, index, data) {
                         let frame =
                             Message::TableTransfer { data, len: 8 }.to_frame(source, Self::NODE_ID);
                         self.feed(&frame);
@@ -250,7 +251,7 @@ impl Harness {
     }
 
     pub fn push(&mut self, bytes: &[u8]) -> TxEvent {
-        self.push_with(bytes, protocol::TOOL, |_, data| Some(data))
+        self.push_with(bytes, protocol::TOOL, |_, _, data| Some(data))
     }
 
     pub fn running_version(&self) -> Option<u32> {
