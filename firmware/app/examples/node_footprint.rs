@@ -1,4 +1,4 @@
-//! The static RAM a node needs, per capacity set: `cargo run -p pab-app --example footprint`.
+//! The static RAM a node needs, per capacity set: `cargo run -p pab-app --example node_footprint`.
 //!
 //! A board keeps its node in a `static` (`pab-fw-g474` does), so this is part of the firmware's
 //! `.bss`; the Linux node keeps it on the heap.
