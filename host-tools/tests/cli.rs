@@ -357,3 +357,47 @@ fn dbc_exit_statuses() {
     assert!(help.contains("PAB_<Service>_<node>"), "{help}");
     assert!(help.contains("data0..data7"), "{help}");
 }
+
+#[test]
+fn bus_commands_name_a_missing_interface_and_exit_4() {
+    let figure = example("figure-1.toml");
+    for args in [
+        vec!["push", &figure, "--iface", "pabnosuch0"],
+        vec!["nodes", "--iface", "pabnosuch0"],
+        vec![
+            "monitor",
+            &figure,
+            "--iface",
+            "pabnosuch0",
+            "--duration",
+            "1",
+        ],
+    ] {
+        let output = pabctl(&args);
+        assert_eq!(output.status.code(), Some(4), "{args:?}");
+        let stderr = text(&output.stderr);
+        assert!(
+            stderr.contains("cannot open CAN interface \"pabnosuch0\""),
+            "{stderr}"
+        );
+        assert!(stderr.contains("type vcan"), "{stderr}");
+    }
+}
+
+#[test]
+fn push_to_an_unknown_node_name_lists_the_nodes() {
+    let output = pabctl(&[
+        "push",
+        &example("take-and-return.toml"),
+        "--iface",
+        "pabnosuch0",
+        "--node",
+        "elbow",
+    ]);
+    assert_eq!(output.status.code(), Some(2));
+    let stderr = text(&output.stderr);
+    assert!(
+        stderr.contains("no node named \"elbow\" (nodes: arm, hand, gaze)"),
+        "{stderr}"
+    );
+}
