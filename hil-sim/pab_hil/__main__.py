@@ -1,0 +1,228 @@
+"""pab-hil: hardware-in-the-loop for pab nodes on a SocketCAN bus.
+
+  python -m pab_hil run take-and-return --iface vcan0 --plot out.png
+  python -m pab_hil suite            (what hil-sim/run-hil runs)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from .nodes import REPO, TAKE_AND_RETURN, MissingBinary
+
+SCENARIOS = {
+    "take-and-return": "A to F: the robot takes the object the person shows and hands it back",
+    "take-back": "the person takes the object back while the arm approaches: back to A",
+}
+DEFAULT_OUT = Path(os.environ.get("CARGO_TARGET_DIR", REPO / "target")) / "hil"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m pab_hil",
+        description="Hardware-in-the-loop for pab nodes: pab-node processes on a SocketCAN bus, "
+        "the Take and Return world and its seven behaviours in python-can, closed loop.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    run = commands.add_parser(
+        "run",
+        help="run one scenario on a bus and save its candump log and stimulation plot",
+        description="Starts Arm, Hand and Gaze Control as pab-node processes on IFACE, pushes "
+        "their tables with `pabctl push`, forks the seven behaviours of Figure 4, and lets the "
+        "world run until the scenario ends. Writes OUT/bus.log (candump -L format: replay it "
+        "with `canplayer -I`), OUT/phases.txt, the nodes' logs, and the plot.\n\nScenarios:\n"
+        + "\n".join(f"  {name:18} {text}" for name, text in SCENARIOS.items()),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    run.add_argument("scenario", choices=SCENARIOS)
+    run.add_argument("--iface", default="vcan0", help="SocketCAN interface (default: vcan0)")
+    run.add_argument("--network", type=Path, default=TAKE_AND_RETURN,
+                     help="network file to push (default: examples/take-and-return.toml)")
+    run.add_argument("--out", type=Path, default=None,
+                     help="directory for the log and the nodes' stores (default: target/hil/<scenario>)")
+    run.add_argument("--plot", type=Path, default=None,
+                     help="draw the stimulation levels from the nodes' diagnostic stream here (PNG)")
+    run.add_argument("--timeout", type=float, default=90.0,
+                     help="give up after this many seconds (default: 90)")
+
+    suite = commands.add_parser(
+        "suite",
+        help="run the HIL pytest suite on vcan0, or in a micro-VM where the kernel has no vcan",
+        description="Picks where the suite runs and says which: an existing vcan0; a vcan0 it "
+        "creates (root, kernel with vcan); else a QEMU micro-VM with Debian's kernel (KVM when it "
+        "boots, else software emulation). Extra arguments go to pytest. Exits with pytest's status.",
+    )
+    suite.add_argument("--out", type=Path, default=DEFAULT_OUT,
+                       help=f"results directory (default: {DEFAULT_OUT})")
+    suite.add_argument("--way", choices=["auto", "host", "vm"], default="auto",
+                       help="force the host's vcan0 or the micro-VM (default: auto)")
+    suite.add_argument("--timeout", type=float, default=900.0,
+                       help="stop the micro-VM after this many seconds (default: 900)")
+    suite.add_argument("--command", default=None, metavar="CMD",
+                       help="run this shell command instead of pytest, where the suite would run "
+                       "(e.g. --command 'python -m pab_hil run take-and-return --plot "
+                       "target/hil/take-and-return.png' on a machine without vcan)")
+    suite.add_argument("pytest_args", nargs=argparse.REMAINDER,
+                       help="passed to pytest (after --)")
+
+    args = parser.parse_args(argv)
+    try:
+        if args.command == "run":
+            return run_scenario(args)
+        return run_suite(args)
+    except MissingBinary as error:
+        print(f"pab-hil: {error}", file=sys.stderr)
+        return 2
+
+
+def run_scenario(args) -> int:
+    from .person import TakeAndReturn
+    from .plot import plot_session
+    from .scenario import ScenarioError, Session
+
+    out = args.out or DEFAULT_OUT / args.scenario
+    if out.exists():
+        shutil.rmtree(out)  # a run starts with empty node stores
+    person = TakeAndReturn(takes_back=args.scenario == "take-back")
+    print(f"pab-hil: {args.scenario} on {args.iface}; results in {out}")
+    started = time.monotonic()
+    status = 0
+    session = Session(args.iface, out, network=args.network, person=person,
+                      progress=lambda line: print(f"  {line}", flush=True))
+    try:
+        with session:
+            done = _scenario_done(args.scenario, session)
+            last = ""
+            deadline = time.monotonic() + args.timeout
+            while not done():
+                if time.monotonic() > deadline:
+                    raise ScenarioError(f"{args.scenario} did not end within {args.timeout:.0f} s")
+                phases = " ".join(session.phases.sequence())
+                if phases != last:
+                    print(f"  {session.world.now():6.1f} s  phases {phases}", flush=True)
+                    last = phases
+                time.sleep(0.1)
+    except ScenarioError as error:
+        print(f"pab-hil: {error}", file=sys.stderr)
+        status = 1
+    print(session.phase_report())
+    print(f"pab-hil: candump log {session.log_path} ({time.monotonic() - started:.1f} s)")
+    if args.plot:
+        plot_session(session, args.plot, title=f"{args.scenario} on {args.iface}")
+        print(f"pab-hil: stimulation plot {args.plot}")
+    return status
+
+
+def _scenario_done(name: str, session):
+    from . import world as w
+
+    def back_to_rest() -> bool:
+        s = session.world.snapshot()
+        return (
+            session.phases.sequence()[-1:] == ["A"]
+            and len(session.phases.sequence()) > 1
+            and s.holder == w.PERSON_KEEPS
+            and not s.face_present
+        )
+
+    return back_to_rest
+
+
+# -- the suite -------------------------------------------------------------------------------
+
+
+def run_suite(args) -> int:
+    from . import vm
+
+    out: Path = args.out.resolve()
+    if out.exists():
+        shutil.rmtree(out)
+    out.mkdir(parents=True)
+    extra = [a for a in args.pytest_args if a != "--"]
+    way = args.way
+    if way == "auto":
+        way = "host" if _host_vcan("vcan0") else "vm"
+    elif way == "host" and not _host_vcan("vcan0"):
+        print("run-hil: no vcan0 on this machine and none can be created", file=sys.stderr)
+        return 2
+    pytest = [sys.executable, "-m", "pytest", str(REPO / "hil-sim" / "tests"),
+              "--iface", "vcan0", "--hil-out", str(out), "-ra", *extra]
+    if args.command:
+        # The venv's python first on PATH, so `python -m pab_hil ...` works as typed.
+        command = f"PATH={shlex.quote(str(Path(sys.executable).parent))}:$PATH; {args.command}"
+    else:
+        command = " ".join(shlex.quote(a) for a in pytest)
+    started = time.monotonic()
+    if way == "host":
+        vm.say("using this machine's vcan0")
+        status = subprocess.run(["/bin/sh", "-c", command], cwd=REPO).returncode
+        way_text = "this machine's vcan0"
+    else:
+        vm.say("no vcan0 on this machine (kernel without SocketCAN): running the suite in a micro-VM")
+        mpl = out / ".matplotlib"
+        # Build matplotlib's font cache here: in the guest it would take a minute of emulation.
+        subprocess.run([sys.executable, "-c", "import matplotlib.pyplot"],
+                       env=dict(os.environ, MPLCONFIGDIR=str(mpl)), check=True)
+        job = "\n".join([
+            "# Written by pab_hil suite; run by the micro-VM's /init, chrooted into the host's root.",
+            f"export PATH={shlex.quote(os.environ.get('PATH', '/usr/bin:/bin'))}",
+            "export HOME=/tmp PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1",
+            f"export MPLCONFIGDIR={shlex.quote(str(mpl))}",
+            *(f"export {name}={shlex.quote(os.environ[name])}"
+              for name in ("PAB_BIN_DIR", "CARGO_TARGET_DIR") if name in os.environ),
+            "export PAB_HIL_WAY='micro-VM'",
+            f"cd {shlex.quote(str(REPO))}",
+            "ip link show vcan0 | head -1",
+            command + (" --color=no" if not args.command else ""),
+            "",
+        ])
+        outcome = vm.run(job, out, out / ".." / "hil-vm", timeout_s=args.timeout)
+        status = outcome.status
+        way_text = f"micro-VM, {outcome.accel}, booted in {outcome.boot_s:.1f} s"
+    elapsed = time.monotonic() - started
+    _print_figures(out)
+    what = f"`{args.command}`" if args.command else "HIL suite"
+    verdict = "passed" if status == 0 else f"FAILED (status {status})"
+    print(f"run-hil: {what} {verdict} in {elapsed:.0f} s ({way_text}); results in {out}")
+    return status
+
+
+def _host_vcan(name: str) -> bool:
+    """Whether `name` exists, creating it (root, kernel with vcan) if it can."""
+    if Path(f"/sys/class/net/{name}").exists():
+        return True
+    if os.geteuid() != 0 or shutil.which("ip") is None:
+        return False
+    if shutil.which("modprobe"):
+        subprocess.run(["modprobe", "vcan"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    added = subprocess.run(["ip", "link", "add", "dev", name, "type", "vcan"],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    if added.returncode != 0:
+        return False
+    subprocess.run(["ip", "link", "set", "up", name], check=True)
+    print(f"run-hil: created {name}")
+    return True
+
+
+def _print_figures(out: Path) -> None:
+    figures = sorted((out / "figures").glob("*.json")) if (out / "figures").exists() else []
+    for path in figures:
+        data = json.loads(path.read_text())
+        print(f"run-hil: figure {path.stem}: " + ", ".join(f"{k} {v}" for k, v in data.items()))
+    boot = out / "vm-boot.txt"
+    if boot.exists():
+        print(f"run-hil: figure micro-VM boot to first test: {boot.read_text().strip()}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,49 @@
+"""Figures from a candump log: what the bus itself shows, by kernel timestamps."""
+
+from __future__ import annotations
+
+import statistics
+from dataclasses import dataclass
+from pathlib import Path
+
+import can
+
+
+@dataclass(frozen=True)
+class Latency:
+    """Behaviour frame -> the node's re-published frame with the same payload."""
+
+    count: int
+    unmatched: int  # re-published frames whose payload no topic frame carried before
+    median_ms: float
+    p99_ms: float
+    max_ms: float
+
+
+def read_log(path: Path) -> list[can.Message]:
+    return list(can.CanutilsLogReader(str(path)))
+
+
+def gateway_latency(messages: list[can.Message], topics: set[int], gateway_id: int) -> Latency:
+    """For each frame on `gateway_id`, the delay since the latest frame on one of `topics` with the
+    same payload (payloads carry a publisher id and sequence number, so they match one frame)."""
+    last_seen: dict[bytes, float] = {}
+    delays: list[float] = []
+    unmatched = 0
+    for message in messages:
+        if message.is_extended_id:
+            continue
+        data = bytes(message.data)
+        if message.arbitration_id in topics:
+            last_seen[data] = message.timestamp
+        elif message.arbitration_id == gateway_id:
+            published = last_seen.get(data)
+            if published is None:
+                unmatched += 1
+            else:
+                delays.append((message.timestamp - published) * 1000.0)
+    if not delays:
+        return Latency(0, unmatched, float("nan"), float("nan"), float("nan"))
+    delays.sort()
+    p99 = delays[min(len(delays) - 1, round(0.99 * (len(delays) - 1)))]
+    return Latency(len(delays), unmatched, statistics.median(delays), p99, delays[-1])

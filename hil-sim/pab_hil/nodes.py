@@ -1,0 +1,162 @@
+"""The controller nodes as `pab-node` processes, and `pabctl` for pushing their tables.
+
+Both are the project's own binaries, found in `$PAB_BIN_DIR`, else in the workspace's cargo
+target directory (`$CARGO_TARGET_DIR` or `target/`, debug profile). Nothing here imitates them.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+EXAMPLES = REPO / "examples"
+TAKE_AND_RETURN = EXAMPLES / "take-and-return.toml"
+
+# The network's controller nodes: name -> node id (the [nodes] of the network file).
+NODE_IDS = {"arm": 1, "hand": 2, "gaze": 3}
+
+# The HIL nodes beat four times a second, so that `pabctl push` (which waits for the heartbeat
+# showing the new table) and `pabctl nodes` answer quickly.
+HEARTBEAT_MS = 250
+
+
+class MissingBinary(RuntimeError):
+    pass
+
+
+def binary(name: str) -> Path:
+    """The path of one of the project's binaries, or a MissingBinary that says how to build it."""
+    if "PAB_BIN_DIR" in os.environ:
+        directory = Path(os.environ["PAB_BIN_DIR"])
+    else:
+        target = Path(os.environ.get("CARGO_TARGET_DIR", REPO / "target"))
+        directory = target / "debug"
+    path = directory / name
+    if not path.is_file():
+        raise MissingBinary(
+            f"{path} not found: build it with `cargo build -p pab-node -p pabctl` "
+            "(or point PAB_BIN_DIR at the directory that holds pab-node and pabctl)"
+        )
+    return path
+
+
+@dataclass
+class NodeProcess:
+    """One `pab-node` process; its log goes to `<log_dir>/<name>.log`."""
+
+    name: str
+    node_id: int
+    iface: str
+    store: Path
+    log_dir: Path
+    process: subprocess.Popen | None = None
+
+    def start(self) -> None:
+        self.store.mkdir(parents=True, exist_ok=True)
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        log = open(self.log_dir / f"{self.name}.log", "ab")
+        self.process = subprocess.Popen(
+            [
+                str(binary("pab-node")),
+                "--iface", self.iface,
+                "--node-id", str(self.node_id),
+                "--store", str(self.store),
+                "--heartbeat-ms", str(HEARTBEAT_MS),
+            ],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
+        log.close()
+        # A node that cannot start (no interface...) exits at once with status 2: say so here.
+        time.sleep(0.2)
+        if self.process.poll() is not None:
+            raise RuntimeError(
+                f"pab-node {self.name} exited with status {self.process.returncode}: "
+                + (self.log_dir / f"{self.name}.log").read_text(errors="replace")[-2000:]
+            )
+
+    @property
+    def pid(self) -> int | None:
+        return self.process.pid if self.process else None
+
+    def running(self) -> bool:
+        return self.process is not None and self.process.poll() is None
+
+    def kill(self) -> None:
+        """SIGKILL, as a power cut would stop a board: no chance to tidy up."""
+        if self.running():
+            self.process.send_signal(signal.SIGKILL)
+            self.process.wait(timeout=10)
+
+    def stop(self) -> None:
+        if self.running():
+            self.process.terminate()
+            try:
+                self.process.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait(timeout=5)
+
+
+class Nodes:
+    """The network's nodes, started together, each with its own table store."""
+
+    def __init__(self, iface: str, work_dir: Path, node_ids: dict[str, int] = NODE_IDS) -> None:
+        self.by_name = {
+            name: NodeProcess(name, node_id, iface, work_dir / "store" / name, work_dir / "logs")
+            for name, node_id in node_ids.items()
+        }
+
+    def __getitem__(self, name: str) -> NodeProcess:
+        return self.by_name[name]
+
+    def start(self) -> None:
+        for node in self.by_name.values():
+            node.start()
+
+    def stop(self) -> None:
+        for node in self.by_name.values():
+            node.stop()
+
+
+@dataclass
+class PushResult:
+    returncode: int
+    output: str
+
+    @property
+    def ok(self) -> bool:
+        return self.returncode == 0
+
+
+def push(
+    network: Path,
+    iface: str,
+    node: str | None = None,
+    table_version: int | None = None,
+    timeout: float = 120.0,
+) -> PushResult:
+    """`pabctl push`: the real path a table takes to a node (ISO-TP, then the node's checks)."""
+    command = [str(binary("pabctl")), "push", str(network), "--iface", iface]
+    if node is not None:
+        command += ["--node", node]
+    if table_version is not None:
+        command += ["--table-version", str(table_version)]
+    result = subprocess.run(
+        command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, timeout=timeout, text=True
+    )
+    return PushResult(result.returncode, result.stdout)
+
+
+def compile_images(network: Path, output: Path, table_version: int | None = None) -> dict[str, bytes]:
+    """`pabctl compile`: each node's table image, by node name."""
+    command = [str(binary("pabctl")), "compile", str(network), "--output", str(output)]
+    if table_version is not None:
+        command += ["--table-version", str(table_version)]
+    subprocess.run(command, check=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, timeout=60)
+    return {path.stem: path.read_bytes() for path in output.glob("*.pab")}

@@ -1,0 +1,217 @@
+"""The node frames the harness reads and the one it writes (the diagnostic stream's switch).
+
+Decoding only: the layouts are those of `docs/can-protocol.md`, whose only implementation is
+`pab_core::protocol`. Nothing here arbitrates; the nodes do, and tell us what they decided.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+PROTOCOL_MASK = 0x0300_0000
+PROTOCOL_VALUE = 0x0200_0000
+TOOL = 0
+BROADCAST = 0xFF
+
+FAULT = 0x01
+HEARTBEAT = 0x02
+TABLE_STATUS = 0x03
+TRAFFIC = 0x04
+ERRORS = 0x05
+DIAGNOSTIC = 0x06
+DIAGNOSTIC_CONTROL = 0x10
+TABLE_TRANSFER = 0x11
+TRANSFER_STATUS = 0x12
+
+PRIORITY = {
+    FAULT: 0,
+    HEARTBEAT: 4,
+    TABLE_STATUS: 4,
+    TRAFFIC: 5,
+    ERRORS: 5,
+    DIAGNOSTIC: 7,
+    DIAGNOSTIC_CONTROL: 3,
+    TABLE_TRANSFER: 6,
+    TRANSFER_STATUS: 2,
+}
+
+NODE_STATES = {0: "no table", 1: "operational", 2: "fault"}
+
+TRANSFER_STATUS_CODES = {
+    0x00: "Applied",
+    0x01: "AlreadyCurrent",
+    0x02: "AppliedNotStored",
+    0x10: "Interrupted",
+    0x11: "Timeout",
+    0x12: "TooLarge",
+    0x13: "BadHeader",
+    0x14: "WrongNode",
+    0x15: "OlderVersion",
+    0x16: "CrcMismatch",
+    0x17: "InvalidTable",
+    0x18: "Busy",
+}
+
+
+def frame_id(service: int, source: int, destination: int) -> int:
+    """The 29-bit identifier of one of our frames."""
+    return (
+        PRIORITY[service] << 26
+        | 0b10 << 24
+        | service << 16
+        | destination << 8
+        | source
+    )
+
+
+@dataclass(frozen=True)
+class FrameId:
+    service: int
+    destination: int
+    source: int
+
+    @staticmethod
+    def decode(arbitration_id: int, is_extended: bool) -> "FrameId | None":
+        """Our identifier's fields, or None for any frame outside our identifier space."""
+        if not is_extended or arbitration_id & PROTOCOL_MASK != PROTOCOL_VALUE:
+            return None
+        return FrameId(
+            service=(arbitration_id >> 16) & 0xFF,
+            destination=(arbitration_id >> 8) & 0xFF,
+            source=arbitration_id & 0xFF,
+        )
+
+
+@dataclass(frozen=True)
+class Heartbeat:
+    state: str
+    uptime_s: int
+    table_version: int
+
+    @staticmethod
+    def decode(data: bytes) -> "Heartbeat":
+        _expect(data, 8, "Heartbeat")
+        state = NODE_STATES.get(data[0], f"unknown state {data[0]}")
+        uptime = data[1] | data[2] << 8 | data[3] << 16
+        (version,) = struct.unpack_from("<I", data, 4)
+        return Heartbeat(state, uptime, version)
+
+
+@dataclass(frozen=True)
+class TableStatus:
+    crc: int
+    length: int
+    ports: int
+    stored: bool
+    streaming: bool
+
+    @staticmethod
+    def decode(data: bytes) -> "TableStatus":
+        _expect(data, 8, "TableStatus")
+        crc, length, ports, flags = struct.unpack("<IHBB", data)
+        return TableStatus(crc, length, ports, bool(flags & 1), bool(flags & 2))
+
+
+@dataclass(frozen=True)
+class Traffic:
+    received: int
+    delivered: int
+
+    @staticmethod
+    def decode(data: bytes) -> "Traffic":
+        _expect(data, 8, "Traffic")
+        return Traffic(*struct.unpack("<II", data))
+
+
+@dataclass(frozen=True)
+class Errors:
+    discarded: int
+    errors: int
+
+    @staticmethod
+    def decode(data: bytes) -> "Errors":
+        _expect(data, 8, "Errors")
+        return Errors(*struct.unpack("<II", data))
+
+
+@dataclass(frozen=True)
+class DiagnosticSample:
+    """One connection's state in one round of a node's diagnostic stream."""
+
+    port: int
+    connection: int
+    active: bool
+    resting: bool
+    delivering: bool
+    end_of_round: bool
+    sequence: int
+    level: float
+
+    @staticmethod
+    def decode(data: bytes) -> "DiagnosticSample":
+        _expect(data, 8, "Diagnostic")
+        port, connection, flags, sequence, raw = struct.unpack("<BBBBI", data)
+        return DiagnosticSample(
+            port,
+            connection,
+            bool(flags & 1),
+            bool(flags & 2),
+            bool(flags & 4),
+            bool(flags & 8),
+            sequence,
+            raw / 2**31,
+        )
+
+
+@dataclass(frozen=True)
+class TransferStatus:
+    status: str
+    detail: int
+    version: int
+
+    @staticmethod
+    def decode(data: bytes) -> "TransferStatus":
+        _expect(data, 8, "TransferStatus")
+        code, detail, version = struct.unpack_from("<BBI", data)
+        return TransferStatus(TRANSFER_STATUS_CODES.get(code, f"code {code}"), detail, version)
+
+
+@dataclass(frozen=True)
+class Fault:
+    code: int
+    occurrences: int
+    detail: bytes
+
+    @staticmethod
+    def decode(data: bytes) -> "Fault":
+        _expect(data, 8, "Fault")
+        (code,) = struct.unpack_from("<H", data)
+        return Fault(code, data[2], bytes(data[3:8]))
+
+
+def diagnostic_control(rate_hz: int, ports: int = 0xFFFF) -> bytes:
+    """The payload that switches a node's diagnostic stream (0 Hz: off)."""
+    if not 0 <= rate_hz <= 200:
+        raise ValueError(f"diagnostic rate {rate_hz} Hz is outside 0..=200")
+    return struct.pack("<HH", rate_hz, ports)
+
+
+DECODERS = {
+    HEARTBEAT: Heartbeat.decode,
+    TABLE_STATUS: TableStatus.decode,
+    TRAFFIC: Traffic.decode,
+    ERRORS: Errors.decode,
+    DIAGNOSTIC: DiagnosticSample.decode,
+    TRANSFER_STATUS: TransferStatus.decode,
+    FAULT: Fault.decode,
+}
+
+
+class MalformedFrame(ValueError):
+    pass
+
+
+def _expect(data: bytes, length: int, what: str) -> None:
+    if len(data) != length:
+        raise MalformedFrame(f"{what} frame with {len(data)} bytes (expected {length})")
