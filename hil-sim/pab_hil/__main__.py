@@ -66,8 +66,8 @@ def main(argv: list[str] | None = None) -> int:
                        help=f"results directory (default: {DEFAULT_OUT})")
     suite.add_argument("--way", choices=["auto", "host", "vm"], default="auto",
                        help="force the host's vcan0 or the micro-VM (default: auto)")
-    suite.add_argument("--timeout", type=float, default=900.0,
-                       help="stop the micro-VM after this many seconds (default: 900)")
+    suite.add_argument("--timeout", type=float, default=600.0,
+                       help="stop the micro-VM after this many seconds (default: 600)")
     suite.add_argument("--command", default=None, metavar="CMD",
                        help="run this shell command instead of pytest, where the suite would run "
                        "(e.g. --command 'python -m pab_hil run take-and-return --plot "
@@ -82,6 +82,9 @@ def main(argv: list[str] | None = None) -> int:
         return run_suite(args)
     except MissingBinary as error:
         print(f"pab-hil: {error}", file=sys.stderr)
+        return 2
+    except RuntimeError as error:  # vm.VmError among them: what failed, not a traceback
+        print(f"run-hil: error: {error}", file=sys.stderr)
         return 2
 
 
@@ -169,6 +172,9 @@ def run_suite(args) -> int:
         way_text = "this machine's vcan0"
     else:
         vm.say("no vcan0 on this machine (kernel without SocketCAN): running the suite in a micro-VM")
+        # Bytecode for the harness now: the guest sees the sources read-only and would compile
+        # them at every import, under emulation.
+        subprocess.run([sys.executable, "-m", "compileall", "-q", str(REPO / "hil-sim")], check=True)
         mpl = out / ".matplotlib"
         # Build matplotlib's font cache here: in the guest it would take a minute of emulation.
         subprocess.run([sys.executable, "-c", "import matplotlib.pyplot"],

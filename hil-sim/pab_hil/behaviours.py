@@ -132,7 +132,7 @@ class BehaviourProcesses:
     def __init__(self, world: w.World, iface: str, names=None) -> None:
         context = multiprocessing.get_context("fork")
         self.processes: dict[str, multiprocessing.Process] = {}
-        for name in names or BEHAVIOURS:
+        for name in BEHAVIOURS if names is None else names:
             process = context.Process(
                 target=publish_forever,
                 args=(BEHAVIOURS[name], world, iface),

@@ -1,14 +1,17 @@
 """The controller nodes as `pab-node` processes, and `pabctl` for pushing their tables.
 
 Both are the project's own binaries, found in `$PAB_BIN_DIR`, else in the workspace's cargo
-target directory (`$CARGO_TARGET_DIR` or `target/`, debug profile). Nothing here imitates them.
+target directory (`$CARGO_TARGET_DIR` or `target/`, release profile: the figures are a product's,
+not a debug build's). Nothing here imitates them.
 """
 
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,11 +38,11 @@ def binary(name: str) -> Path:
         directory = Path(os.environ["PAB_BIN_DIR"])
     else:
         target = Path(os.environ.get("CARGO_TARGET_DIR", REPO / "target"))
-        directory = target / "debug"
+        directory = target / "release"
     path = directory / name
     if not path.is_file():
         raise MissingBinary(
-            f"{path} not found: build it with `cargo build -p pab-node -p pabctl` "
+            f"{path} not found: build it with `cargo build --release -p pab-node -p pabctl` "
             "(or point PAB_BIN_DIR at the directory that holds pab-node and pabctl)"
         )
     return path
@@ -107,8 +110,11 @@ class Nodes:
     """The network's nodes, started together, each with its own table store."""
 
     def __init__(self, iface: str, work_dir: Path, node_ids: dict[str, int] = NODE_IDS) -> None:
+        # The stores live in a local temporary directory: a node answers a push only once the
+        # table is stored, and a results directory may be a slow network share (the micro-VM's).
+        self.store_root = Path(tempfile.mkdtemp(prefix="pab-hil-store-"))
         self.by_name = {
-            name: NodeProcess(name, node_id, iface, work_dir / "store" / name, work_dir / "logs")
+            name: NodeProcess(name, node_id, iface, self.store_root / name, work_dir / "logs")
             for name, node_id in node_ids.items()
         }
 
@@ -122,6 +128,7 @@ class Nodes:
     def stop(self) -> None:
         for node in self.by_name.values():
             node.stop()
+        shutil.rmtree(self.store_root, ignore_errors=True)
 
 
 @dataclass

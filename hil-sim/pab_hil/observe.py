@@ -5,6 +5,7 @@ them) and the nodes' status frames (decoded, for the tests)."""
 from __future__ import annotations
 
 import multiprocessing
+import socket
 import threading
 import time
 from collections import defaultdict
@@ -15,6 +16,8 @@ import can
 
 from . import protocol as p
 from . import world as w
+
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
 
 
 @dataclass
@@ -142,13 +145,23 @@ class Recorder:
 
     def close(self) -> None:
         self._stop.set()
-        self.process.join(timeout=10)
+        # It may be seconds behind after a flood: let it drain the kernel's queue to the file.
+        self.process.join(timeout=120)
         if self.process.is_alive():
             self.process.kill()
 
 
+# A CAN frame costs about 1 KiB of a socket's receive buffer; the default (~200 KiB) overflows in
+# a fraction of a second of flood while the recorder (Python) is busy writing.
+RECORDER_BUFFER = 64 << 20
+
+
 def _record(iface: str, log_path: Path, ready, stop) -> None:
     bus = can.Bus(interface="socketcan", channel=iface)
+    try:  # root may exceed net.core.rmem_max; others get what rmem_max allows
+        bus.socket.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, RECORDER_BUFFER)
+    except OSError:
+        bus.socket.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECORDER_BUFFER)
     # `.log` is candump's -L format: "(1700000000.123456) vcan0 110#0102030405060708 R".
     writer = can.CanutilsLogWriter(str(log_path), channel=iface)
     ready.set()

@@ -47,6 +47,8 @@ def plot_session(session, path: Path, title: str) -> None:
     fig, axes = plt.subplots(len(NODE_IDS) + 1, 1, figsize=(13, 10), sharex=True,
                              gridspec_kw={"height_ratios": [3] * len(NODE_IDS) + [0.6]})
     every = observe.samples(session.log_path, session.world.epoch)
+    if every:  # the run's end, not the (later) moment of drawing
+        end = max(s.time for s in every)
     for ax, (node, node_id) in zip(axes, NODE_IDS.items()):
         samples = [s for s in every if s.node == node_id]
         series: dict[tuple[int, int], list] = {}
@@ -68,6 +70,8 @@ def plot_session(session, path: Path, title: str) -> None:
     strip = axes[-1]
     for current, following in zip(changes, changes[1:] + [None]):
         stop = following.time if following else end
+        if stop <= current.time:
+            continue
         strip.axvspan(current.time, stop, color=PHASE_COLOURS.get(current.phase, "#fff"))
         if current.phase != "-" and stop - current.time > 0.3:
             strip.text((current.time + stop) / 2, 0.5, current.phase, ha="center", va="center")

@@ -40,6 +40,7 @@ class Session:
         network: Path = TAKE_AND_RETURN,
         person: TakeAndReturn | None = None,
         progress: Callable[[str], None] | None = None,
+        behaviours: tuple[str, ...] | None = None,
     ) -> None:
         self.iface = iface
         self.out_dir = out_dir
@@ -50,6 +51,7 @@ class Session:
         self.world = World()
         self.phases = PhaseLog()
         self.nodes = Nodes(iface, out_dir)
+        self.behaviour_names = behaviours  # None: all seven
         self.behaviours: BehaviourProcesses | None = None
         self.recorder: Recorder | None = None
         self.listening: Listening | None = None
@@ -85,7 +87,7 @@ class Session:
         if not result.ok:
             raise ScenarioError(f"pabctl push failed (status {result.returncode}):\n{result.output}")
         self.progress(f"tables pushed with pabctl push {self.network.name}")
-        self.behaviours = BehaviourProcesses(self.world, self.iface)
+        self.behaviours = BehaviourProcesses(self.world, self.iface, self.behaviour_names)
         self.world.set_person(self.person)
         self.world.epoch = time.time()  # the scenario's time 0: the behaviours start
         self.behaviours.start()

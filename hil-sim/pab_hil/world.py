@@ -119,7 +119,11 @@ class World:
     """The shared state, and its dynamics (stepped by the harness process only)."""
 
     def __init__(self) -> None:
-        self._state = multiprocessing.Array("d", len(_FIELDS))
+        # A seqlock, not a lock: behaviour processes read while the harness writes, and a reader
+        # killed mid-read (the tests kill behaviours) must not leave anything held. Slot 0 is the
+        # sequence number, odd while a write is under way; the harness is the only writer.
+        self._state = multiprocessing.RawArray("d", 1 + len(_FIELDS))
+        self._write_lock = threading.Lock()  # the harness's writers (world and bus threads)
         self._lock = threading.Lock()  # guards the fields below (harness threads)
         self.epoch = time.time()
         self.deliveries = Deliveries()
@@ -140,8 +144,12 @@ class World:
     # -- reading (any process) -----------------------------------------------------------------
 
     def snapshot(self) -> Snapshot:
-        with self._state.get_lock():
-            values = self._state[:]
+        while True:
+            before = self._state[0]
+            values = self._state[1:]
+            if before == self._state[0] and int(before) % 2 == 0:
+                break
+            time.sleep(0)  # a write is under way: let the writer finish
         get = lambda name: values[_INDEX[name]]  # noqa: E731
         vec = lambda prefix: (get(prefix + "_x"), get(prefix + "_y"), get(prefix + "_z"))  # noqa: E731
         return Snapshot(
@@ -229,13 +237,16 @@ class World:
             self._person.step(self, self.snapshot())
 
     def _set_many(self, **values) -> None:
-        with self._state.get_lock():
+        state = self._state
+        with self._write_lock:
+            state[0] += 1  # odd: readers retry
             for name, value in values.items():
                 if isinstance(value, tuple):
                     for axis, component in zip("xyz", value):
-                        self._state[_INDEX[f"{name}_{axis}"]] = component
+                        state[1 + _INDEX[f"{name}_{axis}"]] = component
                 else:
-                    self._state[_INDEX[name]] = float(value)
+                    state[1 + _INDEX[name]] = float(value)
+            state[0] += 1
 
 
 # -- payloads ----------------------------------------------------------------------------------

@@ -16,6 +16,19 @@ from pab_hil.nodes import REPO
 from pab_hil.scenario import Session
 
 
+_first_test_seen = False
+
+
+def pytest_runtest_setup(item):
+    """Marks the first test on the terminal: run-hil times the micro-VM's boot up to here."""
+    global _first_test_seen
+    if not _first_test_seen:
+        _first_test_seen = True
+        capture = item.config.pluginmanager.get_plugin("capturemanager")
+        with capture.global_and_fixture_disabled():
+            print(f"\npab-hil: first test starting ({item.nodeid})", flush=True)
+
+
 def pytest_addoption(parser):
     parser.addoption("--iface", default=os.environ.get("PAB_HIL_IFACE", "vcan0"),
                      help="SocketCAN interface for the HIL tests (default: vcan0)")

@@ -55,8 +55,10 @@ def test_killed_object_detector_decays_and_rest_arm_and_look_around_take_over(se
     arm_samples = [s for s in session.samples(NODE_IDS["arm"])
                    if s.sample.port == 0 and s.sample.connection == 0]
     after = [s for s in arm_samples if s.time > last_object - session.world.epoch]
-    assert any(s.sample.active for s in after), "C1 should still be active just after the kill"
-    inactive = [s for s in after if not s.sample.active]
+    # The first rounds may predate the node's handling of the last frame (kernel timestamps).
+    active = [i for i, s in enumerate(after) if s.sample.active]
+    assert active, "C1 should still be active just after the kill"
+    inactive = [s for s in after[active[0]:] if not s.sample.active]
     assert inactive, "C1 never became inactive in the arm node's diagnostic stream"
     assert inactive[0].sample.level == 0.0
     became_inactive = inactive[0].time - (last_object - session.world.epoch)

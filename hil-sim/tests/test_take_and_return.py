@@ -6,7 +6,6 @@ from __future__ import annotations
 from pab_hil import analysis, behaviours as b, world as w
 from pab_hil.person import TakeAndReturn
 from pab_hil.phases import driver
-from pab_hil.plot import plot_session
 
 
 def test_phases_a_to_f_end_with_the_object_handed_to_the_person(session_for, out_dir, figures):
@@ -26,6 +25,8 @@ def test_phases_a_to_f_end_with_the_object_handed_to_the_person(session_for, out
     assert end.holder == w.PERSON_KEEPS, session.phase_report()
     assert end.hand_open
     session.close()
+    from pab_hil.plot import plot_session  # matplotlib: imported only when a test draws
+
     plot_session(session, out_dir / "take-and-return.png", title="take and return, closed loop")
 
     # What the bus shows: every frame the arm node re-published carries a payload some behaviour
