@@ -182,7 +182,7 @@ def run_suite(args) -> int:
         job = "\n".join([
             "# Written by pab_hil suite; run by the micro-VM's /init, chrooted into the host's root.",
             f"export PATH={shlex.quote(os.environ.get('PATH', '/usr/bin:/bin'))}",
-            "export HOME=/tmp PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1",
+            "export HOME=/run/home TMPDIR=/run/tmp PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1",
             f"export MPLCONFIGDIR={shlex.quote(str(mpl))}",
             *(f"export {name}={shlex.quote(os.environ[name])}"
               for name in ("PAB_BIN_DIR", "CARGO_TARGET_DIR") if name in os.environ),
