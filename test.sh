@@ -7,7 +7,8 @@
 # application on an in-process bus), runs each benchmark once in test mode, runs every example
 # through `pabctl check` and `pabctl sim` (plots and traces land in target/examples/), and checks
 # the DBC export with cantools (in a venv made by scripts/python-env.sh from requirements-dev.txt),
-# and runs the hardware-in-the-loop suite (hil-sim/run-hil: on vcan0, or in a micro-VM).
+# runs the HIL harness's own unit tests (hil-sim/unit), and runs the hardware-in-the-loop suite
+# (hil-sim/run-hil: on vcan0, or in a micro-VM; PAB_HIL_ACCEL=auto|kvm|tcg picks its accelerator).
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -66,6 +67,11 @@ step "DBC export, decoded by cantools"
 venv=$(scripts/python-env.sh)
 "$pabctl" dbc examples/take-and-return.toml -o "$out/take-and-return.dbc"
 "$venv/bin/python" host-tools/tests/dbc_cantools.py "$out/take-and-return.dbc"
+
+step "hardware-in-the-loop harness, host-side unit tests (hil-sim/unit)"
+# The micro-VM's accelerator decision against stand-ins for QEMU, and the guest kernel's module
+# resolution: no QEMU, no bus.
+"$venv/bin/python" -m pytest hil-sim/unit -q
 
 step "hardware-in-the-loop: hil-sim/run-hil"
 # pab-node processes on a SocketCAN vcan0, the Take and Return behaviours and world in python-can.

@@ -59,8 +59,15 @@ def main(argv: list[str] | None = None) -> int:
         "suite",
         help="run the HIL pytest suite on vcan0, or in a micro-VM where the kernel has no vcan",
         description="Picks where the suite runs and says which: an existing vcan0; a vcan0 it "
-        "creates (root, kernel with vcan); else a QEMU micro-VM with Debian's kernel (KVM when it "
-        "boots, else software emulation). Extra arguments go to pytest. Exits with pytest's status.",
+        "creates (root, kernel with vcan); else a QEMU micro-VM with the distribution's kernel. "
+        "Extra arguments go to pytest. Exits with pytest's status.",
+        epilog="environment:\n"
+        "  PAB_HIL_ACCEL=auto|kvm|tcg  the micro-VM's accelerator (default auto: KVM if /dev/kvm\n"
+        "                              is usable and the guest starts under it, else software\n"
+        "                              emulation, TCG; any KVM failure before the guest's first\n"
+        "                              line falls back, with one line saying why). kvm: KVM or\n"
+        "                              fail. tcg: never try KVM.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     suite.add_argument("--out", type=Path, default=DEFAULT_OUT,
                        help=f"results directory (default: {DEFAULT_OUT})")
@@ -148,6 +155,7 @@ def _back_to_rest(session):
 def run_suite(args) -> int:
     from . import vm
 
+    vm.accel_mode()  # a mistyped PAB_HIL_ACCEL fails now, not after the build of the guest
     out: Path = args.out.resolve()
     if out.exists():
         shutil.rmtree(out)
