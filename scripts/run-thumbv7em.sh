@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# Cargo's runner for thumbv7em-none-eabihf (.cargo/config.toml): `cargo run --target
+# thumbv7em-none-eabihf -p <board>` ends here with the ELF as first argument.
+#   - the emulated board's binaries (pab-fw-an386*, pab-an386-*) run in QEMU's mps2-an386, with
+#     semihosting (their console and exit status) on this terminal; extra arguments go to QEMU;
+#   - anything else is flashed to a NUCLEO-G474RE with probe-rs, which prints its defmt log.
+set -euo pipefail
+elf="$1"
+shift
+case "$(basename "$elf")" in
+    pab-fw-an386* | pab-an386-*)
+        if ! command -v qemu-system-arm > /dev/null; then
+            echo "run-thumbv7em: qemu-system-arm is missing (Debian: apt-get install qemu-system-arm)" >&2
+            exit 2
+        fi
+        exec qemu-system-arm -M mps2-an386 -nographic -monitor none \
+            -semihosting-config enable=on,target=native -kernel "$elf" "$@"
+        ;;
+    *)
+        exec probe-rs run --chip STM32G474RETx "$elf" "$@"
+        ;;
+esac
