@@ -1,4 +1,4 @@
-"""The guest kernel's modules: which to load, in which order, from the package's own modules.dep,
+"""The guest kernel's modules: which to load, in which order, from each module's own .modinfo,
 whatever the kernel version calls them or however it compresses them; and the static-busybox
 check. Synthetic package trees: no download."""
 
@@ -15,48 +15,65 @@ from pab_hil.vm import initramfs, kernel as k
 
 VERSION = "6.99.0-1-amd64"
 
-# A modules.dep in the style of a 6.12 kernel: fscache folded into netfs, xz-compressed modules,
-# virtio built in, dependencies listed in modprobe's order (not necessarily load order).
-MODULES_DEP = """\
-kernel/drivers/virtio/virtio_pci.ko.xz: kernel/drivers/virtio/virtio_pci_modern_dev.ko.xz kernel/drivers/virtio/virtio_pci_legacy_dev.ko.xz kernel/drivers/virtio/virtio_ring.ko.xz
-kernel/drivers/virtio/virtio_pci_modern_dev.ko.xz:
-kernel/drivers/virtio/virtio_pci_legacy_dev.ko.xz:
-kernel/drivers/virtio/virtio_ring.ko.xz:
-kernel/net/9p/9pnet_virtio.ko.xz: kernel/net/9p/9pnet.ko.xz kernel/drivers/virtio/virtio_ring.ko.xz
-kernel/net/9p/9pnet.ko.xz:
-kernel/fs/9p/9p.ko.xz: kernel/fs/netfs/netfs.ko.xz kernel/net/9p/9pnet.ko.xz
-kernel/fs/netfs/netfs.ko.xz:
-kernel/net/can/can-raw.ko.xz: kernel/net/can/can.ko.xz
-kernel/net/can/can.ko.xz:
-kernel/net/can/can-gw.ko.xz: kernel/net/can/can.ko.xz
-kernel/drivers/net/can/vcan.ko.xz:
-kernel/drivers/net/can/slcan/slcan.ko.xz: kernel/drivers/net/can/dev/can-dev.ko.xz
-kernel/drivers/net/can/dev/can-dev.ko.xz:
-kernel/drivers/unrelated.ko.xz:
-"""
+# Modules in the style of a 6.12 kernel: fscache folded into netfs, virtio built in, xz-compressed
+# files; each one's dependencies, as its .modinfo `depends=` lists them.
+MODULES = {
+    "kernel/drivers/virtio/virtio_pci": "virtio_pci_modern_dev,virtio_pci_legacy_dev,virtio_ring",
+    "kernel/drivers/virtio/virtio_pci_modern_dev": "",
+    "kernel/drivers/virtio/virtio_pci_legacy_dev": "",
+    "kernel/drivers/virtio/virtio_ring": "",
+    "kernel/net/9p/9pnet_virtio": "9pnet,virtio_ring",
+    "kernel/net/9p/9pnet": "",
+    "kernel/fs/9p/9p": "netfs,9pnet",
+    "kernel/fs/netfs/netfs": "",
+    "kernel/net/can/can-raw": "can",
+    "kernel/net/can/can": "",
+    "kernel/net/can/can-gw": "can",
+    "kernel/drivers/net/can/vcan": "",
+    "kernel/drivers/net/can/slcan/slcan": "can-dev",
+    "kernel/drivers/net/can/dev/can-dev": "",
+    "kernel/drivers/unrelated": "",
+}
 BUILTIN = "kernel/drivers/virtio/virtio.ko\n"
 
 
-def make_tree(root: Path, dep: str = MODULES_DEP, compress=lzma.compress) -> Path:
+def module_elf(depends: str) -> bytes:
+    """A minimal ELF64 relocatable with a .modinfo section, as modpost writes it."""
+    modinfo = b"license=GPL\0" + b"depends=" + depends.encode() + b"\0" + b"vermagic=6.99\0"
+    shstrtab = b"\0.modinfo\0.shstrtab\0"
+    body = modinfo + shstrtab
+    shoff = 64 + len(body)
+    header = bytearray(64)
+    header[:7] = b"\x7fELF\x02\x01\x01"
+    struct.pack_into("<HHI", header, 0x10, 1, 62, 1)  # ET_REL, x86-64
+    struct.pack_into("<Q", header, 0x28, shoff)
+    struct.pack_into("<HHHHHH", header, 0x34, 64, 0, 0, 64, 3, 2)
+    def section(name: int, kind: int, offset: int, size: int) -> bytes:
+        return struct.pack("<IIQQQQIIQQ", name, kind, 0, 0, offset, size, 0, 0, 1, 0)
+    sections = (section(0, 0, 0, 0) + section(1, 1, 64, len(modinfo))
+                + section(10, 3, 64 + len(modinfo), len(shstrtab)))
+    return bytes(header) + body + sections
+
+
+def make_tree(root: Path, suffix: str = ".ko.xz", compress=lzma.compress,
+              modules: dict[str, str] = MODULES) -> Path:
     base = root / "lib/modules" / VERSION
     base.mkdir(parents=True)
-    (base / "modules.dep").write_text(dep)
     (base / "modules.builtin").write_text(BUILTIN)
-    for line in dep.splitlines():
-        path = line.partition(":")[0]
-        file = base / path
+    for path, depends in modules.items():
+        file = base / (path + suffix)
         file.parent.mkdir(parents=True, exist_ok=True)
-        file.write_bytes(compress(b"\x7fELF module " + path.encode()))
+        file.write_bytes(compress(module_elf(depends)))
     return root
 
 
 def test_every_module_comes_after_its_dependencies(tmp_path):
-    modules, builtin = k._index([make_tree(tmp_path)], VERSION)
-    order = k.load_order(modules, builtin)
+    files, builtin = k._index([make_tree(tmp_path)], VERSION)
+    order = k.load_order(files, builtin)
     assert set(order) >= {k._norm(name) for name in k.WANTED}
     assert "unrelated" not in order and "virtio" not in order  # not wanted; built in
     for name in order:
-        for dependency in modules[name][1]:
+        for dependency in k.modinfo_depends(k._decompress(files[name])):
             assert order.index(dependency) < order.index(name), (dependency, name)
 
 
@@ -65,25 +82,23 @@ def test_modules_are_decompressed_for_busybox_insmod(tmp_path):
     plain = k._plain_modules([tree], VERSION, tmp_path / "plain")
     assert [path.stem for path in plain] == k.load_order(*k._index([tree], VERSION))
     for path in plain:
-        assert path.suffix == ".ko" and path.read_bytes().startswith(b"\x7fELF module kernel/")
+        assert path.suffix == ".ko" and path.read_bytes().startswith(b"\x7fELF")
 
 
 def test_gzip_and_plain_modules_too(tmp_path):
     for compress, suffix in ((gzip.compress, ".ko.gz"), (lambda data: data, ".ko")):
         root = tmp_path / suffix
-        tree = make_tree(root, MODULES_DEP.replace(".ko.xz", suffix), compress)
-        plain = k._plain_modules([tree], VERSION, root / "plain")
+        plain = k._plain_modules([make_tree(root, suffix, compress)], VERSION, root / "plain")
         assert all(path.read_bytes().startswith(b"\x7fELF") for path in plain)
 
 
 def test_a_kernel_without_vcan_is_named(tmp_path):
-    dep = "\n".join(line for line in MODULES_DEP.splitlines() if "vcan" not in line) + "\n"
-    tree = make_tree(tmp_path, dep)
-    assert k._missing([tree], VERSION) == ["vcan"]
+    modules = {path: deps for path, deps in MODULES.items() if "vcan" not in path}
+    assert k._missing([make_tree(tmp_path, modules=modules)], VERSION) == ["vcan"]
 
 
 def test_modules_split_over_two_packages_are_found(tmp_path):
-    # Ubuntu: the image package's modules.dep lists files a modules package carries.
+    # Ubuntu: the kernel's modules come in more than one package.
     image = make_tree(tmp_path / "image")
     extra = tmp_path / "extra"
     moved = image / "lib/modules" / VERSION / "kernel/drivers/net/can/vcan.ko.xz"
@@ -92,13 +107,19 @@ def test_modules_split_over_two_packages_are_found(tmp_path):
     moved.rename(target)
     assert k._missing([image], VERSION) == ["vcan"]
     assert k._missing([image, extra], VERSION) == []
+    assert "vcan" in k.load_order(*k._index([image, extra], VERSION))
 
 
 def test_a_dependency_cycle_is_an_error_not_a_hang(tmp_path):
-    dep = MODULES_DEP.replace("kernel/net/can/can.ko.xz:\n",
-                              "kernel/net/can/can.ko.xz: kernel/net/can/can-raw.ko.xz\n")
+    modules = dict(MODULES, **{"kernel/net/can/can": "can-raw"})
     with pytest.raises(k.KernelError, match="cycle: can_raw -> can -> can_raw"):
-        k.load_order(*k._index([make_tree(tmp_path, dep)], VERSION))
+        k.load_order(*k._index([make_tree(tmp_path, modules=modules)], VERSION))
+
+
+def test_a_missing_dependency_is_named(tmp_path):
+    modules = dict(MODULES, **{"kernel/net/can/can-gw": "can,nosuch"})
+    with pytest.raises(k.KernelError, match="module nosuch is neither"):
+        k.load_order(*k._index([make_tree(tmp_path, modules=modules)], VERSION))
 
 
 def elf64(program_header_types: list[int]) -> bytes:

@@ -2,8 +2,9 @@
 
 Which package: Debian's `linux-image-amd64` metapackage (its `linux-image-<version>` dependency);
 on Ubuntu, whose kernels are split, `linux-image-virtual`/`linux-image-generic` plus the matching
-`linux-modules-<version>` (and `-extra`) packages. Which modules, in which order: read from the
-package's own `modules.dep`, not from a list written for one kernel version (module names and
+`linux-modules-<version>` (and `-extra`) packages. Which modules, in which order: each module's own
+`depends=` (its .modinfo section, what depmod reads; the packages ship no modules.dep, depmod
+makes it at install time), not a list written for one kernel version (module names and
 dependencies move between releases: `fscache` folded into `netfs` in 6.x, say), skipping what
 `modules.builtin` says is built in. Compressed modules (`.ko.xz`, `.ko.zst`, `.ko.gz`) are
 decompressed here, because busybox's insmod only loads plain ELF objects.
@@ -21,7 +22,7 @@ from pathlib import Path
 
 from . import debian
 
-# What the guest needs, by module name; their dependencies are added from modules.dep.
+# What the guest needs, by module name; their dependencies are added from each module's depends=.
 #   9p over virtio: the host's root and the results directory;
 #   can-raw, vcan: the bus; can-gw and slcan: a board's serial-line CAN adapter, routed to vcan0.
 WANTED = ("virtio_pci", "9pnet_virtio", "9p", "can_raw", "vcan", "can_gw", "slcan")
@@ -87,7 +88,7 @@ def prepare(cache: Path) -> Kernel:
         raise KernelError(f"{image_package} holds {len(vmlinuzes)} kernels in /boot, expected one")
     version = vmlinuzes[0].name.removeprefix("vmlinuz-")
     trees = [root]
-    if not (root / "lib/modules" / version / "modules.dep").exists() or _missing(trees, version):
+    if _missing(trees, version):
         # Ubuntu: the image package has the kernel, the modules come in their own packages.
         for extra in (f"linux-modules-{version}", f"linux-modules-extra-{version}"):
             if debian.known(extra):
@@ -124,41 +125,53 @@ def _module_name(path: str) -> str:
     return _norm(base.split(".ko", 1)[0])
 
 
-def _index(trees: list[Path], version: str) -> tuple[dict[str, tuple[Path | None, list[str]]], set[str]]:
-    """name -> (file, dependency names) from the trees' modules.dep; the built-in names.
+def modinfo_depends(module: bytes) -> list[str]:
+    """The `depends=` list of a kernel module's .modinfo section (what modpost wrote and depmod
+    reads): the modules it needs loaded first."""
+    if module[:4] != b"\x7fELF" or module[4] != 2 or module[5] != 1:
+        raise KernelError("not a little-endian ELF64 kernel module")
 
-    modules.dep names files relative to lib/modules/<version>/. On Ubuntu the image package's
-    modules.dep also lists the files of the modules packages, so each path is looked up in every
-    tree; a listed module whose file no tree has maps to None."""
-    relative: dict[str, tuple[str, list[str]]] = {}
+    def field(offset: int, size: int) -> int:
+        return int.from_bytes(module[offset:offset + size], "little")
+
+    shoff, shentsize, shnum, shstrndx = field(0x28, 8), field(0x3A, 2), field(0x3C, 2), field(0x3E, 2)
+    sections = [(field(shoff + i * shentsize, 4), field(shoff + i * shentsize + 0x18, 8),
+                 field(shoff + i * shentsize + 0x20, 8)) for i in range(shnum)]
+    if shstrndx >= len(sections):
+        raise KernelError("kernel module without a section name table")
+    names_offset = sections[shstrndx][1]
+    for name_at, offset, size in sections:
+        end = module.find(b"\0", names_offset + name_at)
+        if module[names_offset + name_at:end] == b".modinfo":
+            for entry in module[offset:offset + size].split(b"\0"):
+                if entry.startswith(b"depends="):
+                    listed = entry[len(b"depends="):].decode()
+                    return [_norm(name) for name in listed.split(",") if name]
+            return []
+    raise KernelError("kernel module without a .modinfo section")
+
+
+def _index(trees: list[Path], version: str) -> tuple[dict[str, Path], set[str]]:
+    """name -> module file, over every tree (the first tree that has it wins); the built-in
+    names (modules.builtin: parts of the kernel image, nothing to load)."""
+    files: dict[str, Path] = {}
     builtin: set[str] = set()
     for tree in trees:
         base = tree / "lib/modules" / version
-        dep = base / "modules.dep"
-        if dep.exists():
-            for line in dep.read_text().splitlines():
-                module, colon, deps = line.partition(":")
-                if colon:
-                    relative[_module_name(module)] = (module.strip(),
-                                                      [_module_name(d) for d in deps.split()])
+        for path in sorted(base.rglob("*.ko*")):
+            files.setdefault(_module_name(path.name), path)
         listed = base / "modules.builtin"
         if listed.exists():
             builtin.update(_module_name(line) for line in listed.read_text().split())
-    modules: dict[str, tuple[Path | None, list[str]]] = {}
-    for name, (path, deps) in relative.items():
-        found = next((tree / "lib/modules" / version / path for tree in trees
-                      if (tree / "lib/modules" / version / path).exists()), None)
-        modules[name] = (found, deps)
-    return modules, builtin
+    return files, builtin
 
 
 def _missing(trees: list[Path], version: str) -> list[str]:
-    modules, builtin = _index(trees, version)
-    return [name for name in WANTED
-            if name not in builtin and modules.get(name, (None, []))[0] is None]
+    files, builtin = _index(trees, version)
+    return [name for name in WANTED if name not in builtin and name not in files]
 
 
-def load_order(modules: dict[str, tuple[Path | None, list[str]]], builtin: set[str]) -> list[str]:
+def load_order(files: dict[str, Path], builtin: set[str]) -> list[str]:
     """The wanted modules and their dependencies, each after everything it depends on."""
     order: list[str] = []
     seen: set[str] = set()
@@ -167,10 +180,10 @@ def load_order(modules: dict[str, tuple[Path | None, list[str]]], builtin: set[s
         if name in seen or name in builtin:
             return
         if name in chain:
-            raise KernelError(f"modules.dep has a cycle: {' -> '.join(chain + (name,))}")
-        if modules.get(name, (None, []))[0] is None:
+            raise KernelError(f"module dependencies form a cycle: {' -> '.join(chain + (name,))}")
+        if name not in files:
             raise KernelError(f"module {name} is neither in the kernel's packages nor built in")
-        for dependency in modules[name][1]:
+        for dependency in modinfo_depends(_decompress(files[name])):
             visit(dependency, chain + (name,))
         seen.add(name)
         order.append(name)
@@ -182,15 +195,13 @@ def load_order(modules: dict[str, tuple[Path | None, list[str]]], builtin: set[s
 
 def _plain_modules(trees: list[Path], version: str, into: Path) -> list[Path]:
     """The modules to load, decompressed into `into` as <name>.ko, in load order."""
-    modules, builtin = _index(trees, version)
+    files, builtin = _index(trees, version)
     into.mkdir(parents=True, exist_ok=True)
     plain = []
-    for name in load_order(modules, builtin):
-        source = modules[name][0]
-        assert source is not None  # load_order refuses modules without a file
+    for name in load_order(files, builtin):
         target = into / f"{name}.ko"
         if not target.exists():
-            target.write_bytes(_decompress(source))
+            target.write_bytes(_decompress(files[name]))
         plain.append(target)
     return plain
 
