@@ -181,6 +181,14 @@ def run_suite(args) -> int:
         way_text = "this machine's vcan0"
     else:
         vm.say("no vcan0 on this machine (kernel without SocketCAN): running the suite in a micro-VM")
+        # The guest mounts its scratch space over /run (see vm/init): what lives there on the
+        # host would be hidden from the job.
+        for what, path in (("the sources", REPO), ("the results directory", out),
+                           ("the Python venv", Path(sys.prefix))):
+            if path.resolve().is_relative_to("/run"):
+                print(f"run-hil: error: {what} ({path}) are under /run, which the micro-VM "
+                      "covers with its scratch space: use a directory elsewhere", file=sys.stderr)
+                return 2
         # Bytecode for the harness now: the guest sees the sources read-only and would compile
         # them at every import, under emulation.
         subprocess.run([sys.executable, "-m", "compileall", "-q", str(REPO / "hil-sim")], check=True)
