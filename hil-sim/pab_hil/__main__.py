@@ -186,7 +186,7 @@ def run_suite(args) -> int:
         for what, path in (("the sources", REPO), ("the results directory", out),
                            ("the Python venv", Path(sys.prefix))):
             if path.resolve().is_relative_to("/run"):
-                print(f"run-hil: error: {what} ({path}) are under /run, which the micro-VM "
+                print(f"run-hil: error: {what} ({path}) lies under /run, which the micro-VM "
                       "covers with its scratch space: use a directory elsewhere", file=sys.stderr)
                 return 2
         # Bytecode for the harness now: the guest sees the sources read-only and would compile
