@@ -2,10 +2,11 @@
 # Runs every check and test of the project, from a fresh clone on a fresh machine:
 #   ./test.sh
 # It installs what it needs (the Cortex-M target, rustfmt, clippy, llvm-tools) with rustup, then
-# checks formatting and lints, builds the core and the NUCLEO-G474RE firmware (and prints its
-# flash and RAM size), runs all tests (unit, property, end-to-end, command line, the node
-# application on an in-process bus), runs each benchmark once in test mode, runs every example
-# through `pabctl check` and `pabctl sim` (plots and traces land in target/examples/), and checks
+# checks formatting and lints, builds the core, the NUCLEO-G474RE firmware and the emulated
+# board's (and prints their flash and RAM sizes), runs all tests (unit, property, end-to-end,
+# command line, the node application on an in-process bus), runs each benchmark once in test
+# mode, runs every example through `pabctl check` and `pabctl sim` (plots and traces land in
+# target/examples/), and checks
 # the DBC export with cantools (in a venv made by scripts/python-env.sh from requirements-dev.txt),
 # runs the HIL harness's own unit tests (hil-sim/unit), and runs the hardware-in-the-loop suite
 # (hil-sim/run-hil: on vcan0, or in a micro-VM; PAB_HIL_ACCEL=auto|kvm|tcg picks its accelerator).
@@ -32,13 +33,16 @@ cargo clippy -p pab-core --features defmt --target thumbv7em-none-eabihf --locke
 cargo clippy -p pab-storage --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-app --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-fw-g474 --target thumbv7em-none-eabihf --release --locked -- -D warnings
+cargo clippy -p pab-slcan --target thumbv7em-none-eabihf --locked -- -D warnings
+cargo clippy -p pab-fw-an386 --target thumbv7em-none-eabihf --release --locked -- -D warnings
 
 step "pab-core for the boards (thumbv7em-none-eabihf)"
 cargo build -p pab-core --release --target thumbv7em-none-eabihf --locked
 cargo build -p pab-storage --release --target thumbv7em-none-eabihf --locked
 
-step "firmware for the NUCLEO-G474RE (pab-fw-g474)"
+step "firmware for the NUCLEO-G474RE (pab-fw-g474) and the emulated Cortex-M4 (pab-fw-an386)"
 cargo build -p pab-fw-g474 --release --target thumbv7em-none-eabihf --locked
+cargo build -p pab-fw-an386 --release --target thumbv7em-none-eabihf --locked
 scripts/firmware-size.sh
 
 step "tests"

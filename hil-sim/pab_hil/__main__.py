@@ -153,7 +153,7 @@ def _back_to_rest(session):
 
 
 def run_suite(args) -> int:
-    from . import vm
+    from . import board, vm
 
     vm.accel_mode()  # a mistyped PAB_HIL_ACCEL fails now, not after the build of the guest
     out: Path = args.out.resolve()
@@ -202,14 +202,23 @@ def run_suite(args) -> int:
             "export HOME=/run/home TMPDIR=/run/tmp PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1",
             f"export MPLCONFIGDIR={shlex.quote(str(mpl))}",
             *(f"export {name}={shlex.quote(os.environ[name])}"
-              for name in ("PAB_BIN_DIR", "CARGO_TARGET_DIR") if name in os.environ),
+              for name in ("PAB_BIN_DIR", "CARGO_TARGET_DIR", "PAB_BOARD_ELF") if name in os.environ),
             "export PAB_HIL_WAY='micro-VM'",
+            # The emulated board's QEMU runs here, on the host (see pab_hil.board): its UART0
+            # is the guest's ttyS1, and the guest asks for it on ttyS2.
+            f"export {board.UART_ENV}=/dev/ttyS1 {board.CONTROL_ENV}=/dev/ttyS2",
             f"cd {shlex.quote(str(REPO))}",
             "ip link show vcan0 | head -1",
             command + (" --color=no" if not args.command else ""),
             "",
         ])
-        outcome = vm.run(job, out, out / ".." / "hil-vm", timeout_s=args.timeout)
+        boards = board.HostBoards()
+        boards.start()
+        try:
+            outcome = vm.run(job, out, out / ".." / "hil-vm", timeout_s=args.timeout,
+                             serials=boards.serials)
+        finally:
+            boards.close()
         status = outcome.status
         way_text = f"micro-VM, {outcome.accel}, booted in {outcome.boot_s:.1f} s"
     elapsed = time.monotonic() - started
