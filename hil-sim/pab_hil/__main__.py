@@ -16,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from .nodes import REPO, TAKE_AND_RETURN, MissingBinary
+from .nodes import NODE_IDS, REPO, TAKE_AND_RETURN, MissingBinary
 
 SCENARIOS = {
     "take-and-return": "A to F: the robot takes the object the person shows and hands it back",
@@ -54,6 +54,12 @@ def main(argv: list[str] | None = None) -> int:
                      help="draw the stimulation levels from the nodes' diagnostic stream here (PNG)")
     run.add_argument("--timeout", type=float, default=90.0,
                      help="give up after this many seconds (default: 90)")
+    run.add_argument("--board", action="append", choices=sorted(NODE_IDS), default=[],
+                     metavar="NODE",
+                     help="run this node as the emulated Cortex-M4 board (pab-fw-an386 in "
+                     "qemu-system-arm, bridged with slcand and cangw) instead of pab-node; "
+                     "repeatable on a workstation (the micro-VM has one). Needs root, can-utils, "
+                     "qemu-system-arm, the slcan and can-gw modules")
 
     suite = commands.add_parser(
         "suite",
@@ -108,7 +114,8 @@ def run_scenario(args) -> int:
     started = time.monotonic()
     status = 0
     session = Session(args.iface, out, network=args.network, person=person,
-                      progress=lambda line: print(f"  {line}", flush=True))
+                      progress=lambda line: print(f"  {line}", flush=True),
+                      boards=tuple(args.board))
     try:
         with session:
             done = _back_to_rest(session)

@@ -112,11 +112,14 @@ class Nodes:
 
     def __init__(self, iface: str, work_dir: Path, node_ids: dict[str, int] = NODE_IDS,
                  boards: tuple[str, ...] = ()) -> None:
-        from .board import BoardNode
+        from .board import UART_ENV, BoardNode
 
         unknown = set(boards) - set(node_ids)
         if unknown:
             raise ValueError(f"no node named {', '.join(sorted(unknown))} in {sorted(node_ids)}")
+        if len(boards) > 1 and os.environ.get(UART_ENV):
+            raise ValueError("in the micro-VM the host serves one emulated board (one serial "
+                             "port): run one node as the board")
         # The stores live in a local temporary directory: a node answers a push only once the
         # table is stored, and a results directory may be a slow network share (the micro-VM's).
         self.store_root = Path(tempfile.mkdtemp(prefix="pab-hil-store-"))
