@@ -10,7 +10,8 @@
 //! - **Transmitting**: each frame of the node becomes one line (`format_frame`), queued whole in
 //!   the UART's transmit ring; when the ring stays full for [`TX_TIMEOUT`] (nobody reads the
 //!   line) the frame is dropped and reported. While the host has closed the channel (`C`), the
-//!   node's frames are dropped and reported ([`BusError::Other`]`(`[`CHANNEL_CLOSED`]`)`), as a
+//!   node's frames are dropped and reported (`Err(`[`BusError::Other`]`(`[`CHANNEL_CLOSED`]`))`;
+//!   the runner counts every failed transmission as a `TxOverrun` fault), as a
 //!   controller that is off the bus.
 //!
 //! **Cancel safety.** The runner drops a pending `receive` when its timer fires. All of the
@@ -34,7 +35,8 @@ use crate::uart;
 pub const MALFORMED_LINE: u8 = 0x20;
 /// [`BusError::Other`] detail: a line from the host longer than any SLCAN command.
 pub const LINE_TOO_LONG: u8 = 0x21;
-/// [`BusError::Other`] detail: the node sent a frame while the host had closed the channel.
+/// What `transmit` returns, as [`BusError::Other`], for a frame the node sent while the host had
+/// closed the channel.
 pub const CHANNEL_CLOSED: u8 = 0x22;
 /// How long `transmit` waits for room in the UART's transmit ring before it drops the frame.
 pub const TX_TIMEOUT: Duration = Duration::from_millis(10);
