@@ -30,6 +30,9 @@ pub enum Interrupt {
     DUALTIMER = 10,
     /// An overrun of any UART.
     UARTOVF = 12,
+    /// The last line, which no peripheral raises unless the firmware enables it (none does):
+    /// pended in software, for embassy's interrupt executor.
+    SOFTWARE = 31,
 }
 
 // SAFETY: every variant is a line number of the AN386 (below its 32 interrupts).
@@ -55,6 +58,7 @@ unsafe extern "C" {
     fn TIMER1();
     fn DUALTIMER();
     fn UARTOVF();
+    fn SOFTWARE();
     fn DefaultHandler();
 }
 
@@ -74,8 +78,19 @@ pub static __INTERRUPTS: [Vector; LINES] = {
     table[Interrupt::TIMER1 as usize] = TIMER1;
     table[Interrupt::DUALTIMER as usize] = DUALTIMER;
     table[Interrupt::UARTOVF as usize] = UARTOVF;
+    table[Interrupt::SOFTWARE as usize] = SOFTWARE;
     table
 };
+
+/// Sets `interrupt`'s priority (0 highest; the top bits count, the AN386 has at least 3).
+pub fn set_priority(interrupt: Interrupt, priority: u8) {
+    // SAFETY: changing a priority cannot break a critical section (cortex-m's single-core
+    // critical sections mask all interrupts, whatever their priority).
+    unsafe {
+        let mut peripherals = cortex_m::Peripherals::steal();
+        peripherals.NVIC.set_priority(interrupt, priority);
+    }
+}
 
 /// Enables `interrupt` in the NVIC.
 pub fn enable(interrupt: Interrupt) {

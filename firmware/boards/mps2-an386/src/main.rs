@@ -1,7 +1,8 @@
 //! # pab-fw-an386: the pab node on the emulated Cortex-M4 (QEMU `mps2-an386`)
 //!
 //! The node application of `pab-app` (arbitration, heartbeat, faults, diagnostic stream, table
-//! transfers), as on the NUCLEO-G474RE, under embassy's Cortex-M executor, with:
+//! transfers), as on the NUCLEO-G474RE, under embassy's Cortex-M executor (the interrupt
+//! executor: see [`EXECUTOR`]), with:
 //!
 //! - **CAN**: SLCAN on UART0 ([`pab_fw_an386::slcan_bus`]); on the host, `slcand` attaches the
 //!   kernel's `slcan` driver to QEMU's pseudo-terminal and `cangw` routes `slcan0` to the bus.
@@ -20,7 +21,8 @@
 #![no_main]
 
 use embassy_embedded_hal::adapter::BlockingAsync;
-use embassy_executor::Spawner;
+use embassy_executor::InterruptExecutor;
+use pab_fw_an386::interrupts::{self, Interrupt};
 use pab_fw_an386::ram_flash::{RamFlash, STORE_LEN};
 use pab_fw_an386::slcan_bus::SlcanBus;
 use pab_fw_an386::time_driver::TimeDriver;
@@ -49,8 +51,17 @@ embassy_time_driver::time_driver_impl!(static TIME: TimeDriver = TimeDriver::new
 /// The node (arbiter, tables, an 8 KiB transfer buffer): in a `static`, not in a task's future.
 static NODE: StaticCell<pab_app::BoardNode> = StaticCell::new();
 
-#[embassy_executor::main]
-async fn main(spawner: Spawner) {
+/// The executor: embassy's interrupt executor on [`Interrupt::SOFTWARE`], below the devices'
+/// interrupts (priority 0), which preempt the tasks. Why not the thread executor: it idles in
+/// WFE, which QEMU 7.2 (Debian 12's) treats as a yield, not a sleep, so an idle board would keep a
+/// host core busy; thread mode here sleeps in WFI, which QEMU does honour, and the executor runs
+/// in its interrupt when there is work.
+static EXECUTOR: InterruptExecutor = InterruptExecutor::new();
+/// Priority of the executor's interrupt: the lowest (the devices keep 0, the highest).
+const EXECUTOR_PRIORITY: u8 = 0xE0;
+
+#[cortex_m_rt::entry]
+fn main() -> ! {
     logger::init(log::LevelFilter::Info);
     TIME.start();
     uart::init();
@@ -68,9 +79,15 @@ async fn main(spawner: Spawner) {
     };
     let bus = SlcanBus::new(hex4(NODE_ID));
     let node = NODE.init_with(|| pab_app::BoardNode::new(config, pab_app::now()));
+
+    interrupts::set_priority(Interrupt::SOFTWARE, EXECUTOR_PRIORITY);
+    let spawner = EXECUTOR.start(Interrupt::SOFTWARE);
     match node_task(node, bus, store) {
         Ok(task) => spawner.spawn(task),
         Err(_) => fail(format_args!("cannot spawn the node task")),
+    }
+    loop {
+        cortex_m::asm::wfi();
     }
 }
 
@@ -111,6 +128,12 @@ extern "C" fn UART0RX() {
 #[unsafe(no_mangle)]
 extern "C" fn UART0TX() {
     uart::on_tx_interrupt();
+}
+
+#[unsafe(no_mangle)]
+extern "C" fn SOFTWARE() {
+    // SAFETY: this is the interrupt `EXECUTOR` was started on.
+    unsafe { EXECUTOR.on_interrupt() }
 }
 
 #[panic_handler]
