@@ -131,7 +131,7 @@ interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a rea
     #[command(long_about = "\
 Run a recorded CAN capture through the network's tables, in virtual time: every node of the \
 network arbitrates the capture's frames with the same code the boards run, at the capture's own \
-timestamps (time 0 = the capture's first frame). What would this table have let through on \
+timestamps (time 0 = the capture's earliest frame). What would this table have let through on \
 yesterday's traffic? Prints, per port, who gets through whenever that changes, and per \
 connection how many frames it received and delivered, like `pabctl sim`.
 
@@ -160,8 +160,8 @@ the Linux node and the board firmware (see the README, \"Replay records\").
 --board-job writes the tables and the frames replayed for pab-an386-replay, the same replay on \
 the emulated Cortex-M4 (QEMU mps2-an386), which writes the same records:
   pabctl replay NET.toml CAPTURE.log --records sim.txt --board-job job.bin
-  cargo run --release -p pab-fw-an386 --target thumbv7em-none-eabihf --bin pab-an386-replay \
-    -- -append \"job.bin board.txt\"
+  cargo run --release -p pab-fw-an386 --target thumbv7em-none-eabihf \\
+      --bin pab-an386-replay -- -append \"job.bin board.txt\"
   cmp sim.txt board.txt
 
 Exit status: 0 replayed; 1 the rules are inconsistent; 2 the network or the capture cannot be \
@@ -171,7 +171,8 @@ Examples:
   candump -L can0 > yesterday.log                  # record a day of traffic
   pabctl replay arm-v2.toml yesterday.log          # what would version 2 have let through?
   pabctl replay arm-v2.toml yesterday.log --trace v2.csv --plot v2.png
-  pabctl sim examples/figure-1.toml --candump fig1.log && pabctl replay examples/figure-1.toml fig1.log")]
+  pabctl sim examples/figure-1.toml --candump fig1.log     # a simulated bus, as a capture
+  pabctl replay examples/figure-1.toml fig1.log")]
     Replay {
         /// The network file (TOML).
         network: PathBuf,
