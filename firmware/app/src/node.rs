@@ -13,7 +13,7 @@ use pab_core::protocol::{
     self, Errors, FaultCode, FrameId, Heartbeat, Message, NodeState, Service, TableStatus, Traffic,
     TransferStatus, TransferStatusCode,
 };
-use pab_core::{Arbiter, Frame, Instant};
+use pab_core::{Arbiter, Frame, Instant, PortVerdict};
 
 use crate::bus::BusError;
 use crate::diagnostic::DiagnosticStream;
@@ -156,7 +156,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
 
     /// Handles one frame read from the bus at `now`: arbitrates it, or handles it as a frame of
     /// our protocol. Delivered frames go to `consumer` (and are re-published where the table says
-    /// so).
+    /// so); a consumer that observes verdicts ([`Consumer::OBSERVES_VERDICTS`]) sees each one
+    /// first. Protocol frames are never arbitrated.
     pub fn on_frame(&mut self, frame: &Frame, now: Instant, consumer: &mut impl Consumer) -> Step {
         self.counters.received = self.counters.received.wrapping_add(1);
         let step = if protocol::is_ours(&frame.id()) {
@@ -318,11 +319,25 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         &self.config
     }
 
-    fn arbitrate(&mut self, frame: &Frame, now: Instant, consumer: &mut impl Consumer) {
+    fn arbitrate<K: Consumer>(&mut self, frame: &Frame, now: Instant, consumer: &mut K) {
         let Some(arbiter) = self.arbiter.as_mut() else {
             return;
         };
-        let reception = arbiter.receive(&frame.id(), now, |_| {});
+        // Two calls, so that a consumer that does not observe (`OBSERVES_VERDICTS` is a
+        // constant) runs exactly the plain arbitration: the other branch is compiled out.
+        let reception = if K::OBSERVES_VERDICTS {
+            // A frame feeds each port at most once: P entries always suffice.
+            let mut verdicts: heapless::Vec<PortVerdict, P> = heapless::Vec::new();
+            let reception = arbiter.receive(&frame.id(), now, |verdict| {
+                let _ = verdicts.push(*verdict);
+            });
+            for verdict in &verdicts {
+                consumer.verdict(frame, now, verdict, arbiter);
+            }
+            reception
+        } else {
+            arbiter.receive(&frame.id(), now, |_| {})
+        };
         if reception.fed.is_empty() {
             return;
         }
