@@ -91,6 +91,6 @@ step "hardware-in-the-loop: hil-sim/run-hil"
 hil-sim/run-hil
 
 step "the fresh HIL log of Take and Return through the three runners"
-scripts/cross-runner.sh target/hil/test_phases_a_to_f_end_with_the_object_handed_to_the_person/bus.log
+scripts/cross-runner.sh "${CARGO_TARGET_DIR:-target}/hil/test_phases_a_to_f_end_with_the_object_handed_to_the_person/bus.log"
 
 step "all passed in $(( $(date +%s) - started )) s"
