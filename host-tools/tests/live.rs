@@ -488,3 +488,27 @@ fn an_applied_without_the_heartbeat_is_not_confirmed() {
         "not confirmed: no heartbeat within 0.8 s"
     );
 }
+
+#[test]
+fn nodes_shows_why_a_node_booted_without_a_table_even_long_after_its_boot() {
+    // Node 2 started with the arm's table (compiled for node 1).
+    let (_, compiled) = take_and_return();
+    let hub = MemoryHub::new();
+    let _hand = LiveNode::spawn(&hub, 2, Some(compiled[0].image.clone()));
+    let mut tool = hub.connect();
+    // The tool comes later than the boot.
+    std::thread::sleep(Duration::from_millis(1_200));
+    while tool.try_receive().is_some() {}
+    let mut observer = Observer::new();
+    observe::listen(&mut tool, &mut observer, Duration::from_millis(1_200)).unwrap();
+    let table = observe::nodes_table(&observer, &Default::default(), Instant::now());
+    let line = table
+        .lines()
+        .find(|line| line.trim_start().starts_with("2 "))
+        .unwrap_or_else(|| panic!("node 2 heard:\n{table}"));
+    assert!(line.contains("no table"), "{table}");
+    assert!(
+        line.contains("stored table refused at boot: image is for another node (node 1)"),
+        "{table}"
+    );
+}

@@ -41,10 +41,16 @@ struct Args {
     /// This node's id, 1..=127; pushed tables must be compiled for it.
     #[arg(long, value_parser = clap::value_parser!(u8).range(1..=127))]
     node_id: u8,
-    /// Boot with this table image (from `pabctl compile`) instead of the stored one.
+    /// Boot with this table image (from `pabctl compile`) instead of the stored one. It must be
+    /// a regular file of at most 32768 bytes (anything else stops the start, exit status 2). An
+    /// image for another node id is refused at boot, as a push of it would be: the node starts
+    /// without a table and raises a BadStoredTable fault.
     #[arg(long, value_name = "FILE.pab")]
     table: Option<PathBuf>,
-    /// Directory where pushed tables are stored (created if missing). Without it, a pushed table
+    /// Directory where pushed tables are stored (created if missing), as DIR/table.pab; the node
+    /// boots with it. If DIR/table.pab is not a regular file of at most 32768 bytes (a FIFO, a
+    /// directory, a device), cannot be read, or is refused like a push, the node starts without
+    /// a table and raises a BadStoredTable fault that says why. Without --store, a pushed table
     /// runs until the process ends and the node answers "applied, but storing failed".
     #[arg(long, value_name = "DIR")]
     store: Option<PathBuf>,
