@@ -293,9 +293,8 @@ mod tests {
         leaf.prop_recursive(4, 24, 2, |inner| {
             prop_oneof![
                 inner.clone().prop_map(|r| Rule::Not(Box::new(r))),
-                (inner.clone(), inner.clone())
-                    .prop_map(|(a, b)| Rule::And(Box::new(a), Box::new(b))),
-                (inner.clone(), inner).prop_map(|(a, b)| Rule::Or(Box::new(a), Box::new(b))),
+                (inner.clone(), inner.clone()).prop_map(|(a, b)| Rule::And(vec![a, b])),
+                (inner.clone(), inner).prop_map(|(a, b)| Rule::Or(vec![a, b])),
             ]
         })
     }

@@ -17,4 +17,5 @@ pub mod observe;
 pub mod plot;
 pub mod push;
 pub mod rule;
+pub mod shown;
 pub mod sim;

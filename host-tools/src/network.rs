@@ -20,12 +20,15 @@ use toml::Spanned;
 
 use crate::diagnostic::{Diagnostic, Diagnostics, Source};
 use crate::rule::{self, Rule};
+use crate::shown;
 
 /// The most frames the `[[events]]` of one file may generate, so that a typo in a rate cannot
 /// exhaust memory.
 pub const MAX_EVENT_FRAMES: u64 = 10_000_000;
 /// The latest time an event or phase may have, in seconds (about 11.6 days).
 pub const MAX_TIME_S: f64 = 1_000_000.0;
+/// How much of a rule's text a message repeats (characters); longer rules are shortened with `…`.
+pub const RULE_EXCERPT: usize = 80;
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -772,7 +775,14 @@ impl Builder<'_> {
                 }
                 Err(error) => {
                     let at = text_start + error.offset;
-                    self.error(at..at, format!("in rule \"{text}\": {}", error.message));
+                    self.error(
+                        at..at,
+                        format!(
+                            "in rule \"{}\": {}",
+                            shown::excerpt(text, RULE_EXCERPT),
+                            error.message
+                        ),
+                    );
                 }
             }
         }
@@ -994,10 +1004,7 @@ at = [4.0, 4.5, 5.0, 5.5, 6.0, 6.5]   # or explicit times
         let c1 = &network.connections[0];
         assert_eq!(
             c1.rule,
-            Rule::And(
-                Box::new(Rule::Active(0)),
-                Box::new(Rule::Not(Box::new(Rule::Active(1))))
-            )
+            Rule::And(vec![Rule::Active(0), Rule::Not(Box::new(Rule::Active(1)))])
         );
         assert!(c1.rule_written);
         let c2 = &network.connections[1];

@@ -401,3 +401,98 @@ fn push_to_an_unknown_node_name_lists_the_nodes() {
         "{stderr}"
     );
 }
+
+/// Figure 1 with C1's rule (line 34, text from column 9) replaced by `rule`.
+fn figure_one_with_rule(dir: &Path, rule: &str) -> String {
+    let text = std::fs::read_to_string(examples().join("figure-1.toml")).unwrap();
+    let variant = text.replace("rule = \"C1 & !C2\"", &format!("rule = \"{rule}\""));
+    assert_ne!(text, variant);
+    let path = dir.join("deep.toml");
+    std::fs::write(&path, variant).unwrap();
+    path.display().to_string()
+}
+
+#[test]
+fn deeply_nested_rules_are_an_error_at_their_place_not_a_crash() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases = [
+        // 20 000 nested parentheses: the 129th `(` is one level too many.
+        (
+            format!("{}C1{}", "(".repeat(20_000), ")".repeat(20_000)),
+            9 + 128,
+        ),
+        // A chain of 100 000 `!`.
+        (format!("{}C1", "!".repeat(100_000)), 9 + 128),
+        // Both, mixed, starting after some text.
+        (format!("C1 & {}C2", "!(".repeat(50_000)), 9 + 5 + 128),
+    ];
+    for (rule, column) in cases {
+        let path = figure_one_with_rule(dir.path(), &rule);
+        for command in [
+            &["check", &path][..],
+            &["sim", &path],
+            &["dbc", &path, "-o", "-"],
+        ] {
+            let output = pabctl(command);
+            let stderr = text(&output.stderr);
+            assert_eq!(output.status.code(), Some(2), "{command:?}: {stderr}");
+            assert!(
+                stderr.starts_with(&format!("{path}:34:{column}: error: in rule \"")),
+                "{command:?}: {stderr}"
+            );
+            assert!(
+                stderr.contains("nested more than 128 levels deep"),
+                "{stderr}"
+            );
+            // The rule is shown shortened, not 100 000 characters long.
+            assert!(stderr.len() < 400, "{} bytes: {stderr}", stderr.len());
+        }
+    }
+}
+
+#[test]
+fn long_flat_rules_are_checked_without_overflowing_the_stack() {
+    let dir = tempfile::tempdir().unwrap();
+    // 100 000 operands, left to right: no nesting at all, so no limit applies.
+    let and_chain = vec!["C1"; 100_000].join(" & ") + " & !C2";
+    let path = figure_one_with_rule(dir.path(), &and_chain);
+    let output = pabctl(&["check", &path]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    assert!(text(&output.stdout).contains("consistent"));
+    let out = dir.path().join("tables");
+    let output = pabctl(&["compile", &path, "-o", out.to_str().unwrap()]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    // An inconsistent one: the overlap is reported at the rule, with the rule shortened.
+    let or_chain = vec!["C1 & C2"; 100_000].join(" | ");
+    let path = figure_one_with_rule(dir.path(), &or_chain);
+    let output = pabctl(&["check", &path]);
+    let stderr = text(&output.stderr);
+    assert_eq!(output.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("C1 & C2 | C1 & C2"), "{stderr}");
+    assert!(stderr.len() < 1_000, "{} bytes: {stderr}", stderr.len());
+}
+
+#[test]
+fn deeply_nested_toml_is_an_error_not_a_crash() {
+    let dir = tempfile::tempdir().unwrap();
+    let original = std::fs::read_to_string(examples().join("figure-1.toml")).unwrap();
+    for value in [
+        format!("{}1{}", "[".repeat(100_000), "]".repeat(100_000)),
+        format!("{}1{}", "{ a = ".repeat(100_000), " }".repeat(100_000)),
+    ] {
+        let variant = original.replace(
+            "[nodes.gaze]\n",
+            &format!("[nodes.gaze]\ndescription = {value}\n"),
+        );
+        let path = dir.path().join("deep.toml");
+        std::fs::write(&path, variant).unwrap();
+        let output = pabctl(&["check", path.to_str().unwrap()]);
+        let stderr = text(&output.stderr);
+        assert_eq!(output.status.code(), Some(2), "{stderr}");
+        assert!(
+            stderr.starts_with(&format!("{}:16:", path.display())),
+            "{stderr}"
+        );
+        assert!(stderr.len() < 400, "{} bytes: {stderr}", stderr.len());
+    }
+}
