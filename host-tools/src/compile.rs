@@ -190,8 +190,16 @@ pub struct CompiledNode {
     pub per_rule_nodes: usize,
 }
 
-/// Compiles every node of `network`. Refuses an inconsistent network with the proof's errors.
+/// Compiles every node of `network`. Refuses an inconsistent network with the proof's errors, and
+/// table version 0 (reserved for "no table").
 pub fn compile(network: &Network) -> Result<Vec<CompiledNode>, Vec<Diagnostic>> {
+    if network.version == 0 {
+        // A file cannot say 0 (see `Network::parse`); a caller that sets it is told why not.
+        return Err(vec![Diagnostic::file(
+            network.source.path(),
+            "table version 0 is reserved (heartbeats report version 0 for \"no table\"); use 1 or more",
+        )]);
+    }
     let report = check::check(network);
     if !report.is_consistent() {
         return Err(report.errors(network));

@@ -6,6 +6,7 @@
 //! ([`bus`]) it pushes tables to the nodes ([`push`]), lists them ([`observe`]) and shows their
 //! arbitration as it happens ([`monitor`]).
 
+pub mod args;
 pub mod bus;
 pub mod check;
 pub mod compile;

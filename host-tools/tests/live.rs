@@ -172,7 +172,10 @@ fn push_reaches_every_node_which_confirms_stores_and_reports_it() {
 
 #[test]
 fn refusals_and_silence_are_reported_with_their_reason() {
-    let (network, compiled) = take_and_return();
+    // The arm runs version 2 of its table.
+    let (mut network, older) = take_and_return();
+    network.version += 1;
+    let compiled = compile::compile(&network).unwrap();
     let arm = &compiled[0];
     let hub = MemoryHub::new();
     let _arm = LiveNode::spawn(&hub, arm.id, Some(arm.image.clone()));
@@ -198,9 +201,6 @@ fn refusals_and_silence_are_reported_with_their_reason() {
     );
     assert!(outcome.to_string().contains("another node"), "{outcome}");
     // An older version of its own table.
-    let mut older = network.clone();
-    older.version = network.version - 1;
-    let older = compile::compile(&older).unwrap();
     let outcome = push::push(
         &mut tool,
         arm.id,

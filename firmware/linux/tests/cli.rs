@@ -28,10 +28,44 @@ fn a_missing_interface_is_named_with_a_hint() {
 
 #[test]
 fn node_ids_outside_1_to_127_are_refused() {
-    for id in ["0", "128", "x"] {
+    for (id, message) in [
+        ("0", "must be in 1..=127"),
+        ("128", "must be in 1..=127"),
+        ("99999999999999999999", "must be in 1..=127"),
+        ("x", "`x` is not a whole number"),
+        ("-1", "must be positive"),
+    ] {
         let (code, stderr) = pab_node(&["--iface", "pabnosuch0", "--node-id", id]);
         assert_eq!(code, Some(2), "{stderr}");
-        assert!(stderr.contains("--node-id"), "{stderr}");
+        assert!(
+            stderr.contains("--node-id") && stderr.contains(message),
+            "{stderr}"
+        );
+    }
+}
+
+#[test]
+fn heartbeat_periods_outside_10_ms_to_1_hour_are_refused() {
+    for (period, message) in [
+        ("-1", "must be positive"),
+        ("9", "must be in 10..=3600000"),
+        ("3600001", "must be in 10..=3600000"),
+        ("1.5", "not a whole number"),
+        ("NaN", "not a whole number"),
+    ] {
+        let (code, stderr) = pab_node(&[
+            "--iface",
+            "pabnosuch0",
+            "--node-id",
+            "1",
+            "--heartbeat-ms",
+            period,
+        ]);
+        assert_eq!(code, Some(2), "{stderr}");
+        assert!(
+            stderr.contains("--heartbeat-ms") && stderr.contains(message),
+            "{stderr}"
+        );
     }
 }
 
