@@ -132,6 +132,7 @@ pub fn push(
         }
     };
     // 1. The transfer.
+    let mut cut_short = None;
     loop {
         let event = sender.poll(clock.now());
         match event {
@@ -152,25 +153,32 @@ pub fn push(
                             if let FlowControlEffect::Failed(error) =
                                 sender.on_flow_control(data, clock.now())
                             {
-                                return transfer_failed(bus, node, error);
+                                return transfer_failed(bus, node, error, cut_short);
                             }
                         }
                         Ok((id, Message::TransferStatus(status)))
-                            if id.source == node
-                                && id.destination == protocol::TOOL
-                                && !status.status.is_success() =>
+                            if id.source == node && id.destination == protocol::TOOL =>
                         {
-                            // A refusal before the end: the node refused early (busy, too
-                            // large, interrupted). A success before the end cannot be about this
-                            // image, which has not arrived whole: it is ignored.
-                            return Ok(refused(status));
+                            match status.status {
+                                // A transfer cut short ends with these; the one cut may be an
+                                // earlier push (killed, then run again at once): kept, and
+                                // reported only if this transfer fails too.
+                                TransferStatusCode::Interrupted | TransferStatusCode::Timeout => {
+                                    cut_short = Some(status);
+                                }
+                                // A success before the end cannot be about this image, which has
+                                // not arrived whole: ignored.
+                                code if code.is_success() => {}
+                                // The node refused this transfer early (busy, too large).
+                                _ => return Ok(refused(status)),
+                            }
                         }
                         _ => {}
                     }
                 }
             }
             TxEvent::Done => break,
-            TxEvent::Failed(error) => return transfer_failed(bus, node, error),
+            TxEvent::Failed(error) => return transfer_failed(bus, node, error, cut_short),
         }
     }
     // 2. The node's answer: a refusal, or a success that names the pushed version.
@@ -211,11 +219,19 @@ fn refused(status: protocol::TransferStatus) -> Outcome {
 }
 
 /// The transfer failed on our side; the node may still have said why (e.g. an overflow flow
-/// control comes with a TooLarge status).
-fn transfer_failed(bus: &mut dyn Bus, node: u8, error: TxError) -> std::io::Result<Outcome> {
+/// control comes with a TooLarge status), or have said it during the transfer (`cut_short`: a
+/// consecutive frame lost, our pace too slow).
+fn transfer_failed(
+    bus: &mut dyn Bus,
+    node: u8,
+    error: TxError,
+    cut_short: Option<protocol::TransferStatus>,
+) -> std::io::Result<Outcome> {
     if let Some(status) = wait_for_status(bus, node, Duration::from_millis(300), |status| {
         !status.status.is_success()
-    })? {
+    })?
+    .or(cut_short)
+    {
         return Ok(refused(status));
     }
     let why = match error {

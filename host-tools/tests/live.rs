@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use pab_app::{Config, FullNode, Step};
 use pab_core::Frame;
-use pab_core::isotp::RxEvent;
+use pab_core::isotp::{RxEvent, Sender, TxConfig, TxEvent};
 use pab_core::protocol::{self, Message, TransferStatus, TransferStatusCode};
 use pabctl::bus::Bus;
 use pabctl::bus::memory::{MemoryBus, MemoryHub};
@@ -511,4 +511,56 @@ fn nodes_shows_why_a_node_booted_without_a_table_even_long_after_its_boot() {
         line.contains("stored table refused at boot: image is for another node (node 1)"),
         "{table}"
     );
+}
+
+#[test]
+fn a_push_right_after_an_interrupted_one_is_not_refused_for_the_old_ones_end() {
+    let (network, compiled) = take_and_return();
+    let arm = &compiled[0];
+    let hub = MemoryHub::new();
+    let node = LiveNode::spawn(&hub, arm.id, None);
+    // An earlier push, killed after its first frame and one consecutive frame.
+    {
+        let mut killed = hub.connect();
+        let start = Instant::now();
+        let now = || pab_core::Instant::from_micros(start.elapsed().as_micros() as u64);
+        let mut sender = Sender::new(&arm.image, TxConfig::default()).unwrap();
+        let mut sent = 0;
+        while sent < 2 {
+            match sender.poll(now()) {
+                TxEvent::Send(data) => {
+                    let frame =
+                        Message::TableTransfer { data, len: 8 }.to_frame(protocol::TOOL, arm.id);
+                    killed.send(&frame).unwrap();
+                    sent += 1;
+                }
+                TxEvent::WaitUntil(_) => {
+                    let frame = killed.receive(Duration::from_secs(1)).unwrap().unwrap();
+                    if let Ok((_, Message::TableTransfer { data, len })) = Message::decode(&frame) {
+                        sender.on_flow_control(&data[..usize::from(len)], now());
+                    }
+                }
+                other => panic!("{other:?}"),
+            }
+        }
+    }
+    // At once (well within the node's 1 s N_Cr), a new pabctl pushes again.
+    let mut tool = hub.connect();
+    let outcome = push::push(
+        &mut tool,
+        arm.id,
+        &arm.image,
+        &header(&arm.image),
+        Timeouts::default(),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert_eq!(
+        outcome,
+        Outcome::Confirmed {
+            version: network.version,
+            stored: true
+        }
+    );
+    assert_eq!(*node.stored.lock().unwrap(), vec![arm.image.clone()]);
 }
