@@ -7,6 +7,7 @@
 //! ([`bus`]) it pushes tables to the nodes ([`push`]), lists them ([`observe`]) and shows their
 //! arbitration as it happens ([`monitor`]).
 
+pub mod args;
 pub mod bus;
 pub mod candump;
 pub mod check;
@@ -20,4 +21,5 @@ pub mod plot;
 pub mod push;
 pub mod replay;
 pub mod rule;
+pub mod shown;
 pub mod sim;

@@ -13,6 +13,7 @@ use std::time::Duration;
 
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
+use pabctl::args;
 use pabctl::bus::{self, Bus};
 use pabctl::candump;
 use pabctl::check;
@@ -93,8 +94,9 @@ id, the table version and a CRC-32. Nothing is written if the network is inconsi
         /// The directory to write the images to (created if missing).
         #[arg(short, long, value_name = "DIR")]
         output: PathBuf,
-        /// The table version written into the images (default: `[network] version`, else 1).
-        #[arg(long, value_name = "N")]
+        /// The table version written into the images, 1 to 4294967295 (default: `[network]
+        /// version`, else 1; 0 is reserved: heartbeats report it for "no table").
+        #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = args::table_version)]
         table_version: Option<u32>,
     },
     /// Run every node of the network on a simulated bus, with the events of the file.
@@ -113,8 +115,9 @@ interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a rea
     Sim {
         /// The network file (TOML).
         network: PathBuf,
-        /// Stop at this time in seconds (default: once the last frame's effect has decayed).
-        #[arg(long, value_name = "SECONDS", allow_negative_numbers = true)]
+        /// Stop at this time in seconds, up to 1000000 (default: once the last frame's effect has
+        /// decayed).
+        #[arg(long, value_name = "SECONDS", allow_hyphen_values = true, value_parser = args::seconds)]
         until: Option<f64>,
         /// Write the trace as CSV.
         #[arg(long, value_name = "FILE.csv")]
@@ -211,9 +214,9 @@ is reported with the reason, and the command fails (exit status 4) after trying 
         /// Push only to this node (by its name in the network file).
         #[arg(long, value_name = "NAME")]
         node: Option<String>,
-        /// The table version (default: `[network] version`, else 1). Nodes refuse versions older
-        /// than the one they run.
-        #[arg(long, value_name = "N")]
+        /// The table version, 1 to 4294967295 (default: `[network] version`, else 1; 0 is
+        /// reserved). Nodes refuse versions older than the one they run.
+        #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = args::table_version)]
         table_version: Option<u32>,
     },
     /// List the nodes on the bus from their heartbeats.
@@ -228,8 +231,14 @@ nodes are named.")]
         iface: String,
         /// Name the nodes from this network file.
         network: Option<PathBuf>,
-        /// How long to listen, in seconds (heartbeats come every second).
-        #[arg(long, default_value_t = 2.5, value_name = "SECONDS")]
+        /// How long to listen, in seconds, up to 3600 (heartbeats come every second).
+        #[arg(
+            long,
+            default_value = "2.5",
+            value_name = "SECONDS",
+            allow_hyphen_values = true,
+            value_parser = args::listen_seconds
+        )]
         listen: f64,
     },
     /// Live view of every port: connections' stimulation, activity and who delivers.
@@ -245,10 +254,16 @@ switches the stream off.")]
         #[arg(long)]
         iface: String,
         /// Diagnostic rounds per second asked of each node (1..=200).
-        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u16).range(1..=200))]
+        #[arg(
+            long,
+            default_value = "10",
+            value_name = "HZ",
+            allow_hyphen_values = true,
+            value_parser = args::rate_hz
+        )]
         rate: u16,
-        /// Stop after this many seconds (default: until Ctrl-C).
-        #[arg(long, value_name = "SECONDS")]
+        /// Stop after this many seconds, up to 1000000 (default: until Ctrl-C).
+        #[arg(long, value_name = "SECONDS", allow_hyphen_values = true, value_parser = args::seconds)]
         duration: Option<f64>,
         /// Print each screen one after the other instead of redrawing in place.
         #[arg(long)]
@@ -468,15 +483,11 @@ fn run_nodes(iface: &str, network: Option<&Path>, listen: f64) -> Result<(), Fai
             .collect(),
         None => BTreeMap::new(),
     };
-    if !(listen.is_finite() && listen > 0.0 && listen <= 3600.0) {
-        return Err(Failure::Input(
-            Diagnostic::file(Path::new("--listen"), "must be between 0 and 3600 seconds").into(),
-        ));
-    }
+    // In (0, 3600] since parsing (args::listen_seconds): the conversion cannot fail.
+    let listen_for = Duration::try_from_secs_f64(listen).unwrap_or(Duration::ZERO);
     let mut bus = open_bus(iface)?;
     let mut observer = observe::Observer::new();
-    observe::listen(bus.as_mut(), &mut observer, Duration::from_secs_f64(listen))
-        .map_err(bus_failure(iface))?;
+    observe::listen(bus.as_mut(), &mut observer, listen_for).map_err(bus_failure(iface))?;
     if observer.nodes().is_empty() {
         return Err(Failure::Bus(format!(
             "no node heard on {iface} within {listen} s"
@@ -497,18 +508,8 @@ fn run_monitor(
     plain: bool,
 ) -> Result<(), Failure> {
     let network = Network::load(path)?;
-    let duration = match duration {
-        Some(seconds) if !(seconds.is_finite() && seconds > 0.0) => {
-            return Err(Failure::Input(
-                Diagnostic::file(
-                    Path::new("--duration"),
-                    "must be a positive number of seconds",
-                )
-                .into(),
-            ));
-        }
-        other => other.map(Duration::from_secs_f64),
-    };
+    // In (0, 10^6] since parsing (args::seconds): the conversion cannot fail.
+    let duration = duration.and_then(|seconds| Duration::try_from_secs_f64(seconds).ok());
     let mut bus = open_bus(iface)?;
     let stop = Arc::new(AtomicBool::new(false));
     let handler = stop.clone();

@@ -655,7 +655,10 @@ impl Outcome {
                                 if c.is_virtual() {
                                     "virtual".to_string()
                                 } else {
-                                    c.rule_text.clone()
+                                    crate::shown::excerpt(
+                                        &c.rule_text,
+                                        crate::network::RULE_EXCERPT,
+                                    )
                                 }
                             ),
                             samples: self.samples.get(index).cloned().unwrap_or_default(),
