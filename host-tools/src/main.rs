@@ -306,6 +306,17 @@ enum Failure {
     Bus(String),
 }
 
+/// A reader that goes away (`pabctl sim NET.toml | head`) ends pabctl quietly, as it ends any
+/// Unix tool. Rust's runtime ignores SIGPIPE, which turns the next write to the closed pipe into
+/// an error that `println!` reports as a panic.
+fn restore_sigpipe() {
+    // SAFETY: called first thing in `main`, before any other thread exists; SIG_DFL is a valid
+    // disposition for SIGPIPE.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
 impl From<Diagnostics> for Failure {
     fn from(diagnostics: Diagnostics) -> Self {
         Failure::Input(diagnostics)
@@ -313,6 +324,7 @@ impl From<Diagnostics> for Failure {
 }
 
 fn main() -> ExitCode {
+    restore_sigpipe();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Check { network } => run_check(&network),

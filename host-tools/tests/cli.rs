@@ -663,3 +663,42 @@ fn names_with_control_characters_are_refused_and_shown_escaped() {
         );
     }
 }
+
+#[test]
+fn a_reader_that_stops_early_ends_pabctl_quietly_not_with_a_panic() {
+    // `pabctl sim NET.toml --trace /dev/stdout | head -1`: the first line is read, the pipe
+    // closed. pabctl must end as any Unix tool does (SIGPIPE), not panic on its next write. The
+    // trace (100 000 rows, megabytes) cannot fit the pipe's buffer, so the write after the close
+    // is certain.
+    use std::io::{BufRead, BufReader};
+    use std::os::unix::process::ExitStatusExt;
+    use std::process::Stdio;
+    let dir = tempfile::tempdir().unwrap();
+    let network = dir.path().join("busy.toml");
+    std::fs::write(
+        &network,
+        "[nodes.n]\nid = 1\n[topics.t]\ncan_id = 0x100\n[ports.\"n.p\"]\n\
+         [connections.C1]\ntopic = \"t\"\nport = \"n.p\"\nst = 0.5\ntc = 1.0\n\
+         [[events]]\ntopic = \"t\"\nrate_hz = 1000.0\nto = 100.0\n",
+    )
+    .unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_pabctl"))
+        .args(["sim", network.to_str().unwrap(), "--trace", "/dev/stdout"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("pabctl runs");
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    // The reader is dropped here: the pipe is closed.
+    let output = child.wait_with_output().unwrap();
+    assert!(first.contains("100000 frames"), "{first}");
+    let stderr = text(&output.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(output.status.signal(), Some(SIGPIPE), "{:?}", output.status);
+}
+
+/// SIGPIPE's number on Linux.
+const SIGPIPE: i32 = 13;

@@ -145,7 +145,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         };
         let node_id = self.config.node_id;
         let bytes = self.receiver.buffer().get(..len).unwrap_or(&[]);
-        match check_target(bytes, node_id).and_then(|()| load::<P, C, N>(bytes)) {
+        let verdict = check_target(bytes, node_id)
+            .and_then(|()| load::<P, C, N>(bytes))
+            .and_then(|(header, arbiter)| check_version(&header, None).map(|()| (header, arbiter)));
+        match verdict {
             Ok((header, arbiter)) => {
                 info!("booted with stored table version {}", header.table_version);
                 self.arbiter = Some(arbiter);
@@ -663,9 +666,12 @@ fn check_version(
         if header.table_version == current.table_version && header.crc == current.crc {
             return Err((TransferStatusCode::AlreadyCurrent, 0));
         }
-        if header.table_version <= current.table_version {
-            return Err((TransferStatusCode::OlderVersion, 0));
-        }
+    }
+    // No table counts as version 0, as the heartbeat reports it: a table of version 0 is never
+    // newer, so none ever runs and "version 0" on the bus always means "no table".
+    let current_version = running.map_or(0, |running| running.header.table_version);
+    if header.table_version <= current_version {
+        return Err((TransferStatusCode::OlderVersion, 0));
     }
     Ok(())
 }

@@ -323,6 +323,21 @@ fn a_stored_table_for_another_node_is_refused_at_boot_as_a_transfer_would_be() {
 }
 
 #[test]
+fn a_stored_table_of_version_0_is_refused_at_boot_as_a_transfer_would_be() {
+    let table = priority_table(&[TOPIC_A], None);
+    let mut h = Harness::boot(Some(&image(&table, Harness::NODE_ID, 0)));
+    assert_eq!(h.node.state(), NodeState::NoTable);
+    h.advance_to(10 * MS);
+    let reported = faults(&h);
+    assert_eq!(reported.len(), 1, "{reported:?}");
+    assert_eq!(reported[0].1.code, FaultCode::BadStoredTable);
+    assert_eq!(
+        reported[0].1.detail,
+        [TransferStatusCode::OlderVersion.code(), 0, 0, 0, 0]
+    );
+}
+
+#[test]
 fn the_stored_table_fault_is_repeated_with_each_heartbeat_until_a_table_runs() {
     // A tool that starts listening after the boot still learns why the node has no table.
     let table = priority_table(&[TOPIC_A], None);
