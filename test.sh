@@ -6,10 +6,13 @@
 # board's (and prints their flash and RAM sizes), runs all tests (unit, property, end-to-end,
 # command line, the node application on an in-process bus), runs each benchmark once in test
 # mode, runs every example through `pabctl check` and `pabctl sim` (plots and traces land in
-# target/examples/), and checks
-# the DBC export with cantools (in a venv made by scripts/python-env.sh from requirements-dev.txt),
-# runs the HIL harness's own unit tests (hil-sim/unit), and runs the hardware-in-the-loop suite
-# (hil-sim/run-hil: on vcan0, or in a micro-VM; PAB_HIL_ACCEL=auto|kvm|tcg picks its accelerator).
+# target/examples/), checks the DBC export with cantools (in a venv made by
+# scripts/python-env.sh from requirements-dev.txt), runs the HIL harness's own unit tests
+# (hil-sim/unit), the cross-runner test with the board firmware in QEMU (scripts/cross-runner.sh:
+# simulator, node application and emulated Cortex-M4 must record identical verdicts), the
+# emulated board's time check across its timer's wraps, and the hardware-in-the-loop suite
+# (hil-sim/run-hil: on vcan0, or in a micro-VM; PAB_HIL_ACCEL=auto|kvm|tcg picks its
+# accelerator), whose fresh Take and Return log then goes through the cross-runner test too.
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -77,19 +80,26 @@ step "hardware-in-the-loop harness, host-side unit tests (hil-sim/unit)"
 # resolution: no QEMU, no bus.
 "$venv/bin/python" -m pytest hil-sim/unit -q
 
+step "identical decisions on every runner: scripts/cross-runner.sh"
+# The same frames (every example's bus, the committed HIL log) through the simulator, the Linux
+# node's application and pab-an386-replay on QEMU's mps2-an386 (Cortex-M4): byte-identical
+# records of every verdict. (The first two also run in `cargo test`.) Installs qemu-system-arm
+# with apt-get if it is missing; never skipped.
+scripts/cross-runner.sh
+
+step "emulated Cortex-M4: the time driver across TIMER0's wraps (pab-an386-timecheck, QEMU)"
+# 400 s of virtual time (-icount) with the clock read without pause around each 100 s wrap
+# (qemu-system-arm: installed by the step above if it was missing).
+cargo run --release -p pab-fw-an386 --target thumbv7em-none-eabihf --bin pab-an386-timecheck \
+    --locked -- -icount shift=10,sleep=off
+
 step "hardware-in-the-loop: hil-sim/run-hil"
 # pab-node processes on a SocketCAN vcan0, the Take and Return behaviours and world in python-can.
 # Where the kernel has no vcan (this CI's), the suite runs in a QEMU micro-VM that has one; run-hil
 # says which way it took, and fails the run when a HIL test fails.
 hil-sim/run-hil
 
-step "emulated Cortex-M4: the time driver across TIMER0's wraps (pab-an386-timecheck, QEMU)"
-# 400 s of virtual time (-icount) with the clock read without pause around each 100 s wrap.
-# qemu-system-arm is there by now when the suite ran in the micro-VM (run-hil installs it).
-if ! command -v qemu-system-arm > /dev/null && [ "$(id -u)" = 0 ] && command -v apt-get > /dev/null; then
-    apt-get install -y -qq --no-install-recommends qemu-system-arm
-fi
-cargo run --release -p pab-fw-an386 --target thumbv7em-none-eabihf --bin pab-an386-timecheck \
-    --locked -- -icount shift=10,sleep=off
+step "the fresh HIL log of Take and Return through the three runners"
+scripts/cross-runner.sh "${CARGO_TARGET_DIR:-target}/hil/test_phases_a_to_f_end_with_the_object_handed_to_the_person/bus.log"
 
 step "all passed in $(( $(date +%s) - started )) s"

@@ -19,8 +19,9 @@ use std::fmt::Write as _;
 use biodivine_lib_bdd::{Bdd, BddValuation, BddVariable, BddVariableSet};
 
 use crate::diagnostic::Diagnostic;
-use crate::network::Network;
+use crate::network::{Network, RULE_EXCERPT};
 use crate::rule::Rule;
+use crate::shown;
 
 /// The logic of one port: a BDD variable per connection (in the port's order) and, per
 /// connection, the set D_i of masks in which it delivers.
@@ -102,15 +103,20 @@ impl PortLogic {
     }
 }
 
-/// A rule as a BDD over the port's variables.
+/// A rule as a BDD over the port's variables. Recurses once per level of the rule's tree (see
+/// [`crate::rule::MAX_DEPTH`]); long `&` and `|` chains are folded in a loop.
 pub fn to_bdd(rule: &Rule, variables: &BddVariableSet) -> Bdd {
     match rule {
         Rule::Constant(true) => variables.mk_true(),
         Rule::Constant(false) => variables.mk_false(),
         Rule::Active(index) => variables.mk_var(BddVariable::from_index(*index)),
         Rule::Not(inner) => to_bdd(inner, variables).not(),
-        Rule::And(left, right) => to_bdd(left, variables).and(&to_bdd(right, variables)),
-        Rule::Or(left, right) => to_bdd(left, variables).or(&to_bdd(right, variables)),
+        Rule::And(operands) => operands.iter().fold(variables.mk_true(), |all, operand| {
+            all.and(&to_bdd(operand, variables))
+        }),
+        Rule::Or(operands) => operands.iter().fold(variables.mk_false(), |any, operand| {
+            any.or(&to_bdd(operand, variables))
+        }),
     }
 }
 
@@ -190,9 +196,9 @@ impl Report {
                     format!(
                         "port `{port_name}`: {} (rule \"{}\") and {} (rule \"{}\") can both deliver when the active connections are {}",
                         first.name,
-                        first.rule_text,
+                        shown::excerpt(&first.rule_text, RULE_EXCERPT),
                         second.name,
-                        second.rule_text,
+                        shown::excerpt(&second.rule_text, RULE_EXCERPT),
                         describe_mask(overlap.mask, &names),
                     ),
                 ));
@@ -207,7 +213,7 @@ impl Report {
                         "port `{port_name}`: {name} can never deliver: \"{name} & ({rule})\" is false in all {} masks; write rule = \"false\" if {name} only coordinates (a virtual connection)",
                         report.masks(),
                         name = connection.name,
-                        rule = connection.rule_text,
+                        rule = shown::excerpt(&connection.rule_text, RULE_EXCERPT),
                     ),
                 ));
             }

@@ -190,8 +190,16 @@ pub struct CompiledNode {
     pub per_rule_nodes: usize,
 }
 
-/// Compiles every node of `network`. Refuses an inconsistent network with the proof's errors.
+/// Compiles every node of `network`. Refuses an inconsistent network with the proof's errors, and
+/// table version 0 (reserved for "no table").
 pub fn compile(network: &Network) -> Result<Vec<CompiledNode>, Vec<Diagnostic>> {
+    if network.version == 0 {
+        // A file cannot say 0 (see `Network::parse`); a caller that sets it is told why not.
+        return Err(vec![Diagnostic::file(
+            network.source.path(),
+            "table version 0 is reserved (heartbeats report version 0 for \"no table\"); use 1 or more",
+        )]);
+    }
     let report = check::check(network);
     if !report.is_consistent() {
         return Err(report.errors(network));
@@ -293,9 +301,8 @@ mod tests {
         leaf.prop_recursive(4, 24, 2, |inner| {
             prop_oneof![
                 inner.clone().prop_map(|r| Rule::Not(Box::new(r))),
-                (inner.clone(), inner.clone())
-                    .prop_map(|(a, b)| Rule::And(Box::new(a), Box::new(b))),
-                (inner.clone(), inner).prop_map(|(a, b)| Rule::Or(Box::new(a), Box::new(b))),
+                (inner.clone(), inner.clone()).prop_map(|(a, b)| Rule::And(vec![a, b])),
+                (inner.clone(), inner).prop_map(|(a, b)| Rule::Or(vec![a, b])),
             ]
         })
     }

@@ -197,9 +197,13 @@ pub fn service_signals(service: Service) -> Option<Vec<DbcSignal>> {
             ];
             let details = [
                 "detail byte 0: for BadStoredTable and TableRefused the TransferStatusCode of the \
-                 verdict; for BusError a driver-specific kind; for BadCommand the service code of \
-                 the malformed frame; otherwise 0",
-                "detail byte 1, code-specific, 0 where unused",
+                 verdict (BadStoredTable: 0xFF when the store could not be read); for BusError a \
+                 driver-specific kind; for BadCommand the service code of the malformed frame; \
+                 otherwise 0",
+                "detail byte 1: for BadStoredTable and TableRefused the verdict's detail (for \
+                 WrongNode the image's node id); after 0xFF in byte 0, the StoreFailure: 1 the \
+                 store could not be read, 2 the image is too large, 3 no stored copy verifies, \
+                 4 other; otherwise 0",
                 "detail byte 2, code-specific, 0 where unused",
                 "detail byte 3, code-specific, 0 where unused",
                 "detail byte 4, code-specific, 0 where unused",

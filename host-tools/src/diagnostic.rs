@@ -4,6 +4,8 @@ use std::fmt;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
+use crate::shown;
+
 /// A text file with its name, to turn byte offsets into lines and columns.
 #[derive(Clone, Debug)]
 pub struct Source {
@@ -85,16 +87,15 @@ impl Diagnostic {
     }
 }
 
+/// Written on one line, with the control characters of the path and the message escaped
+/// ([`crate::shown`]): a message quotes what the file says, and a file may say anything.
 impl fmt::Display for Diagnostic {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let path = shown::escaped(&self.path.display().to_string());
+        let message = shown::escaped(&self.message);
         match self.position {
-            Some((line, column)) => write!(
-                f,
-                "{}:{line}:{column}: error: {}",
-                self.path.display(),
-                self.message
-            ),
-            None => write!(f, "{}: error: {}", self.path.display(), self.message),
+            Some((line, column)) => write!(f, "{path}:{line}:{column}: error: {message}"),
+            None => write!(f, "{path}: error: {message}"),
         }
     }
 }
@@ -138,5 +139,10 @@ mod tests {
         assert_eq!(source.line_column(10), (2, 4));
         let error = source.error(6..8, "bad");
         assert_eq!(error.to_string(), "net.toml:2:1: error: bad");
+        let error = source.error(6..8, "name `a\u{1b}[2J\nb`");
+        assert_eq!(
+            error.to_string(),
+            "net.toml:2:1: error: name `a\\u{1b}[2J\\nb`"
+        );
     }
 }

@@ -13,13 +13,16 @@ use std::time::Duration;
 
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
+use pabctl::args;
 use pabctl::bus::{self, Bus};
+use pabctl::candump;
 use pabctl::check;
 use pabctl::compile::{self, CompiledNode};
 use pabctl::dbc;
 use pabctl::diagnostic::{Diagnostic, Diagnostics};
 use pabctl::network::Network;
 use pabctl::plot;
+use pabctl::replay::{self, Feed};
 use pabctl::sim::{self, Options};
 use pabctl::{monitor, observe, push};
 
@@ -50,6 +53,7 @@ Examples:
   pabctl check examples/figure-1.toml
   pabctl compile examples/take-and-return.toml -o out/tables
   pabctl sim examples/take-and-return.toml --plot out/take-and-return.png --trace out/trace.csv
+  pabctl replay examples/take-and-return.toml yesterday.log --trace out/replay.csv
   pabctl push examples/take-and-return.toml --iface vcan0
   pabctl nodes --iface vcan0
   pabctl monitor examples/take-and-return.toml --iface vcan0
@@ -90,8 +94,9 @@ id, the table version and a CRC-32. Nothing is written if the network is inconsi
         /// The directory to write the images to (created if missing).
         #[arg(short, long, value_name = "DIR")]
         output: PathBuf,
-        /// The table version written into the images (default: `[network] version`, else 1).
-        #[arg(long, value_name = "N")]
+        /// The table version written into the images, 1 to 4294967295 (default: `[network]
+        /// version`, else 1; 0 is reserved: heartbeats report it for "no table").
+        #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = args::table_version)]
         table_version: Option<u32>,
     },
     /// Run every node of the network on a simulated bus, with the events of the file.
@@ -104,12 +109,15 @@ changes, and per connection how many frames it received and delivered.
 --trace writes one CSV row per frame per connection it fed, after the update:
   t,port,connection,stimulation,active,delivered
 --plot draws each connection's stimulation over time, green while it is the one that gets \
-through at its port and orange otherwise (like Fig. 5 of the port-arbitration paper).")]
+through at its port and orange otherwise (like Fig. 5 of the port-arbitration paper).
+--candump writes the simulated bus as a candump -L log (frames without data, times from 0 s on \
+interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a real bus.")]
     Sim {
         /// The network file (TOML).
         network: PathBuf,
-        /// Stop at this time in seconds (default: once the last frame's effect has decayed).
-        #[arg(long, value_name = "SECONDS", allow_negative_numbers = true)]
+        /// Stop at this time in seconds, up to 1000000 (default: once the last frame's effect has
+        /// decayed).
+        #[arg(long, value_name = "SECONDS", allow_hyphen_values = true, value_parser = args::seconds)]
         until: Option<f64>,
         /// Write the trace as CSV.
         #[arg(long, value_name = "FILE.csv")]
@@ -117,6 +125,75 @@ through at its port and orange otherwise (like Fig. 5 of the port-arbitration pa
         /// Draw the stimulation plot as PNG.
         #[arg(long, value_name = "FILE.png")]
         plot: Option<PathBuf>,
+        /// Write the simulated bus's frames as a candump -L log.
+        #[arg(long, value_name = "FILE.log")]
+        candump: Option<PathBuf>,
+    },
+    /// Run a recorded candump capture through the network's tables: what would they have let
+    /// through?
+    #[command(long_about = "\
+Run a recorded CAN capture through the network's tables, in virtual time: every node of the \
+network arbitrates the capture's frames with the same code the boards run, at the capture's own \
+timestamps (time 0 = the capture's earliest frame). What would this table have let through on \
+yesterday's traffic? Prints, per port, who gets through whenever that changes, and per \
+connection how many frames it received and delivered, like `pabctl sim`.
+
+The capture is a candump log: `candump -L can0 > yesterday.log`, `candump -l` (the same lines in \
+a file), or python-can's .log writer. One frame per line:
+  (1700000000.123456) can0 123#DEADBEEF
+  (1700000000.125000) can0 1ABCDEF0#0102 R
+  (1700000000.130000) can0 123#R
+Standard ids have 3 hex digits, extended ids 8. Error frames are counted and skipped; CAN FD \
+frames (ID##...) are refused. Every malformed line is reported as FILE:LINE:COLUMN: error: \
+cause, all in one run, and nothing is replayed then (exit status 2). Frames are replayed in the \
+order of their timestamps (a Linux recorder may write them a few milliseconds out of order; \
+the summary says how many were).
+
+The project's own frames (heartbeats, diagnostic stream, table transfers: 29-bit ids of the pab \
+protocol) are counted and not fed: the replay runs the tables of NET, and a push recorded in the \
+capture must not replace them halfway. Frames that no topic of NET matches are listed by id.
+
+--trace writes exactly the CSV of `pabctl sim --trace`:
+  t,port,connection,stimulation,active,delivered
+--plot draws the stimulation plot of `pabctl sim --plot` (without phases: those belong to the \
+simulation's scenario).
+--records writes every verdict exactly, one line per frame and port it fed (masks in hex, levels \
+as raw Q1.31 integers): the record that the cross-runner test compares between the simulator, \
+the Linux node and the board firmware (see the README, \"Replay records\").
+--board-job writes the tables and the frames replayed for pab-an386-replay, the same replay on \
+the emulated Cortex-M4 (QEMU mps2-an386), which writes the same records:
+  pabctl replay NET.toml CAPTURE.log --records sim.txt --board-job job.bin
+  cargo run --release -p pab-fw-an386 --target thumbv7em-none-eabihf \\
+      --bin pab-an386-replay -- -append \"job.bin board.txt\"
+  cmp sim.txt board.txt
+
+Exit status: 0 replayed; 1 the rules are inconsistent; 2 the network or the capture cannot be \
+read or is invalid; 3 an output cannot be written.")]
+    #[command(after_help = "\
+Examples:
+  candump -L can0 > yesterday.log                  # record a day of traffic
+  pabctl replay arm-v2.toml yesterday.log          # what would version 2 have let through?
+  pabctl replay arm-v2.toml yesterday.log --trace v2.csv --plot v2.png
+  pabctl sim examples/figure-1.toml --candump fig1.log     # a simulated bus, as a capture
+  pabctl replay examples/figure-1.toml fig1.log")]
+    Replay {
+        /// The network file (TOML).
+        network: PathBuf,
+        /// The capture: a candump -L log.
+        capture: PathBuf,
+        /// Write the trace as CSV (the format of `pabctl sim --trace`).
+        #[arg(long, value_name = "FILE.csv")]
+        trace: Option<PathBuf>,
+        /// Draw the stimulation plot as PNG.
+        #[arg(long, value_name = "FILE.png")]
+        plot: Option<PathBuf>,
+        /// Write every verdict in the replay record format.
+        #[arg(long, value_name = "FILE")]
+        records: Option<PathBuf>,
+        /// Write the tables and frames for the emulated board's replay binary
+        /// (pab-an386-replay), which writes the same records.
+        #[arg(long, value_name = "FILE")]
+        board_job: Option<PathBuf>,
     },
     /// Compile the network and push each node's table over CAN; wait until each node runs it.
     #[command(long_about = "\
@@ -137,9 +214,9 @@ is reported with the reason, and the command fails (exit status 4) after trying 
         /// Push only to this node (by its name in the network file).
         #[arg(long, value_name = "NAME")]
         node: Option<String>,
-        /// The table version (default: `[network] version`, else 1). Nodes refuse versions older
-        /// than the one they run.
-        #[arg(long, value_name = "N")]
+        /// The table version, 1 to 4294967295 (default: `[network] version`, else 1; 0 is
+        /// reserved). Nodes refuse versions older than the one they run.
+        #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = args::table_version)]
         table_version: Option<u32>,
     },
     /// List the nodes on the bus from their heartbeats.
@@ -154,8 +231,14 @@ nodes are named.")]
         iface: String,
         /// Name the nodes from this network file.
         network: Option<PathBuf>,
-        /// How long to listen, in seconds (heartbeats come every second).
-        #[arg(long, default_value_t = 2.5, value_name = "SECONDS")]
+        /// How long to listen, in seconds, up to 3600 (heartbeats come every second).
+        #[arg(
+            long,
+            default_value = "2.5",
+            value_name = "SECONDS",
+            allow_hyphen_values = true,
+            value_parser = args::listen_seconds
+        )]
         listen: f64,
     },
     /// Live view of every port: connections' stimulation, activity and who delivers.
@@ -171,10 +254,16 @@ switches the stream off.")]
         #[arg(long)]
         iface: String,
         /// Diagnostic rounds per second asked of each node (1..=200).
-        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u16).range(1..=200))]
+        #[arg(
+            long,
+            default_value = "10",
+            value_name = "HZ",
+            allow_hyphen_values = true,
+            value_parser = args::rate_hz
+        )]
         rate: u16,
-        /// Stop after this many seconds (default: until Ctrl-C).
-        #[arg(long, value_name = "SECONDS")]
+        /// Stop after this many seconds, up to 1000000 (default: until Ctrl-C).
+        #[arg(long, value_name = "SECONDS", allow_hyphen_values = true, value_parser = args::seconds)]
         duration: Option<f64>,
         /// Print each screen one after the other instead of redrawing in place.
         #[arg(long)]
@@ -217,6 +306,17 @@ enum Failure {
     Bus(String),
 }
 
+/// A reader that goes away (`pabctl sim NET.toml | head`) ends pabctl quietly, as it ends any
+/// Unix tool. Rust's runtime ignores SIGPIPE, which turns the next write to the closed pipe into
+/// an error that `println!` reports as a panic.
+fn restore_sigpipe() {
+    // SAFETY: called first thing in `main`, before any other thread exists; SIG_DFL is a valid
+    // disposition for SIGPIPE.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
 impl From<Diagnostics> for Failure {
     fn from(diagnostics: Diagnostics) -> Self {
         Failure::Input(diagnostics)
@@ -224,6 +324,7 @@ impl From<Diagnostics> for Failure {
 }
 
 fn main() -> ExitCode {
+    restore_sigpipe();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Check { network } => run_check(&network),
@@ -237,7 +338,29 @@ fn main() -> ExitCode {
             until,
             trace,
             plot,
-        } => run_sim(&network, until, trace.as_deref(), plot.as_deref()),
+            candump,
+        } => run_sim(
+            &network,
+            until,
+            trace.as_deref(),
+            plot.as_deref(),
+            candump.as_deref(),
+        ),
+        Command::Replay {
+            network,
+            capture,
+            trace,
+            plot,
+            records,
+            board_job,
+        } => run_replay(
+            &network,
+            &capture,
+            trace.as_deref(),
+            plot.as_deref(),
+            records.as_deref(),
+            board_job.as_deref(),
+        ),
         Command::Push {
             network,
             iface,
@@ -372,15 +495,11 @@ fn run_nodes(iface: &str, network: Option<&Path>, listen: f64) -> Result<(), Fai
             .collect(),
         None => BTreeMap::new(),
     };
-    if !(listen.is_finite() && listen > 0.0 && listen <= 3600.0) {
-        return Err(Failure::Input(
-            Diagnostic::file(Path::new("--listen"), "must be between 0 and 3600 seconds").into(),
-        ));
-    }
+    // In (0, 3600] since parsing (args::listen_seconds): the conversion cannot fail.
+    let listen_for = Duration::try_from_secs_f64(listen).unwrap_or(Duration::ZERO);
     let mut bus = open_bus(iface)?;
     let mut observer = observe::Observer::new();
-    observe::listen(bus.as_mut(), &mut observer, Duration::from_secs_f64(listen))
-        .map_err(bus_failure(iface))?;
+    observe::listen(bus.as_mut(), &mut observer, listen_for).map_err(bus_failure(iface))?;
     if observer.nodes().is_empty() {
         return Err(Failure::Bus(format!(
             "no node heard on {iface} within {listen} s"
@@ -401,18 +520,8 @@ fn run_monitor(
     plain: bool,
 ) -> Result<(), Failure> {
     let network = Network::load(path)?;
-    let duration = match duration {
-        Some(seconds) if !(seconds.is_finite() && seconds > 0.0) => {
-            return Err(Failure::Input(
-                Diagnostic::file(
-                    Path::new("--duration"),
-                    "must be a positive number of seconds",
-                )
-                .into(),
-            ));
-        }
-        other => other.map(Duration::from_secs_f64),
-    };
+    // In (0, 10^6] since parsing (args::seconds): the conversion cannot fail.
+    let duration = duration.and_then(|seconds| Duration::try_from_secs_f64(seconds).ok());
     let mut bus = open_bus(iface)?;
     let stop = Arc::new(AtomicBool::new(false));
     let handler = stop.clone();
@@ -496,12 +605,14 @@ fn run_sim(
     until: Option<f64>,
     trace: Option<&Path>,
     plot_path: Option<&Path>,
+    candump_path: Option<&Path>,
 ) -> Result<(), Failure> {
     let network = Network::load(path)?;
     let nodes = compiled(&network, None)?;
     let options = Options {
         until,
         samples: plot_path.is_some(),
+        records: false,
     };
     let outcome = sim::simulate(&network, &nodes, &options)
         .map_err(|error| Failure::Input(Diagnostic::file(path, error.to_string()).into()))?;
@@ -531,7 +642,191 @@ fn run_sim(
         })?;
         println!("plot: {}", plot_path.display());
     }
+    if let Some(candump_path) = candump_path {
+        let frames = sim::event_frames(&network)
+            .map_err(|error| Failure::Input(Diagnostic::file(path, error.to_string()).into()))?;
+        let mut log = String::new();
+        let mut written = 0usize;
+        for frame in frames.iter().filter(|f| f.t_us <= outcome.until_us) {
+            log.push_str(&candump::line(frame.t_us, "vcan0", &frame.frame));
+            log.push('\n');
+            written += 1;
+        }
+        write_atomically(candump_path, log.as_bytes())?;
+        println!("candump: {} ({written} frames)", candump_path.display());
+    }
     Ok(())
+}
+
+fn run_replay(
+    path: &Path,
+    capture_path: &Path,
+    trace: Option<&Path>,
+    plot_path: Option<&Path>,
+    records_path: Option<&Path>,
+    job_path: Option<&Path>,
+) -> Result<(), Failure> {
+    // An output that is an input would destroy it (`--trace yesterday.log`): refuse before
+    // reading anything.
+    let inputs = [path, capture_path];
+    let outputs = [
+        ("--trace", trace),
+        ("--plot", plot_path),
+        ("--records", records_path),
+        ("--board-job", job_path),
+    ];
+    let mut errors = Vec::new();
+    for (index, (flag, output)) in outputs.iter().enumerate() {
+        let Some(output) = output else { continue };
+        let same_as = |other: &Path| {
+            other == *output
+                || matches!((fs::canonicalize(other), fs::canonicalize(output)),
+                            (Ok(a), Ok(b)) if a == b)
+        };
+        if inputs.iter().any(|input| same_as(input)) {
+            errors.push(Diagnostic::file(
+                output,
+                format!("{flag} would overwrite an input file"),
+            ));
+        }
+        if outputs[..index]
+            .iter()
+            .any(|(_, earlier)| earlier.is_some_and(&same_as))
+        {
+            errors.push(Diagnostic::file(
+                output,
+                format!("{flag} names a file another option writes too"),
+            ));
+        }
+    }
+    if !errors.is_empty() {
+        return Err(Failure::Input(Diagnostics(errors)));
+    }
+    let network = Network::load(path)?;
+    let nodes = compiled(&network, None)?;
+    let size = fs::metadata(capture_path).map_or(0, |m| m.len());
+    let bar = progress_bar(size, "reading {bytes}/{total_bytes}");
+    let capture = candump::read(capture_path, &mut |read| bar.set_position(read));
+    bar.finish_and_clear();
+    let mut capture = capture?;
+    let feed = Feed::from_capture(&capture);
+    // The feed holds what is replayed; the frames as read are no longer needed.
+    let captured = capture.frames.len();
+    capture.frames = Vec::new();
+    let until_us = sim::settled_until(&network, &feed.frames);
+    let options = Options {
+        until: None,
+        samples: plot_path.is_some(),
+        records: records_path.is_some(),
+    };
+    let bar = progress_bar(feed.frames.len() as u64, "replaying {pos}/{len} frames");
+    let outcome = sim::run(
+        &network,
+        &nodes,
+        &feed.frames,
+        until_us,
+        &options,
+        &mut |sent| bar.set_position(sent as u64),
+    );
+    bar.finish_and_clear();
+    let outcome = outcome
+        .map_err(|error| Failure::Input(Diagnostic::file(path, error.to_string()).into()))?;
+    let interfaces: Vec<&str> = capture
+        .interfaces
+        .iter()
+        .map(|(name, _)| name.as_str())
+        .collect();
+    println!(
+        "{}: {} frames over {} s on {} (time 0 = {}); {} replayed on {} node{}, {} of the pab \
+         protocol not fed{}",
+        capture_path.display(),
+        captured,
+        sim::seconds_text(feed.span_us),
+        interfaces.join(", "),
+        sim::seconds_text(feed.first_us),
+        feed.frames.len(),
+        network.nodes.len(),
+        plural(network.nodes.len()),
+        feed.protocol_frames,
+        match capture.error_frames {
+            0 => String::new(),
+            n => format!(", {n} error frame{} skipped", plural(n)),
+        }
+    );
+    if let (count @ 1.., step) = capture.out_of_order {
+        println!(
+            "{count} frame{} out of time order in the file (at most {} s early): replayed in \
+             time order",
+            plural(count),
+            sim::seconds_text(step)
+        );
+    }
+    let unmatched = feed.unmatched(&network);
+    if !unmatched.is_empty() {
+        let total: usize = unmatched.iter().map(|(_, count)| count).sum();
+        let listed: Vec<String> = unmatched
+            .iter()
+            .take(12)
+            .map(|((id, extended), count)| {
+                if *extended {
+                    format!("0x{id:08X} ×{count}")
+                } else {
+                    format!("0x{id:03X} ×{count}")
+                }
+            })
+            .collect();
+        println!(
+            "{total} frame{} match no topic: {}{}",
+            plural(total),
+            listed.join(", "),
+            if unmatched.len() > listed.len() {
+                format!(" and {} more ids", unmatched.len() - listed.len())
+            } else {
+                String::new()
+            }
+        );
+    }
+    print!("{}", outcome.report(&network));
+    if let Some(trace) = trace {
+        let mut csv = Vec::new();
+        outcome
+            .write_csv(&network, &mut csv)
+            .map_err(|error| Failure::Output(format!("cannot write the trace: {error}")))?;
+        write_atomically(trace, &csv)?;
+        println!("trace: {} ({} rows)", trace.display(), outcome.rows.len());
+    }
+    if let Some(records_path) = records_path {
+        write_atomically(records_path, outcome.records.as_bytes())?;
+        println!("records: {}", records_path.display());
+    }
+    if let Some(job_path) = job_path {
+        let job = replay::job(&network, &nodes, &feed.frames)
+            .map_err(|error| Failure::Input(Diagnostic::file(path, error.to_string()).into()))?;
+        write_atomically(job_path, &job)?;
+        println!("board job: {} ({} bytes)", job_path.display(), job.len());
+    }
+    if let Some(plot_path) = plot_path {
+        let title = capture_path
+            .file_name()
+            .map_or("capture".into(), |n| n.to_string_lossy().into_owned());
+        let mut data = outcome.plot_data(&network, &title);
+        data.phases.clear();
+        plot::render_png(&data, plot_path).map_err(|error| {
+            Failure::Output(format!("cannot draw {}: {error:#}", plot_path.display()))
+        })?;
+        println!("plot: {}", plot_path.display());
+    }
+    Ok(())
+}
+
+/// A progress bar on standard error, drawn only when it is a terminal (indicatif's rule), for
+/// long captures.
+fn progress_bar(total: u64, template: &str) -> ProgressBar {
+    ProgressBar::new(total).with_style(
+        ProgressStyle::with_template(&format!("{{bar:30}} {template}"))
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    )
 }
 
 fn run_dbc(path: &Path, output: &Path) -> Result<(), Failure> {

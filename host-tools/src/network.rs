@@ -20,12 +20,15 @@ use toml::Spanned;
 
 use crate::diagnostic::{Diagnostic, Diagnostics, Source};
 use crate::rule::{self, Rule};
+use crate::shown;
 
 /// The most frames the `[[events]]` of one file may generate, so that a typo in a rate cannot
 /// exhaust memory.
 pub const MAX_EVENT_FRAMES: u64 = 10_000_000;
 /// The latest time an event or phase may have, in seconds (about 11.6 days).
 pub const MAX_TIME_S: f64 = 1_000_000.0;
+/// How much of a rule's text a message repeats (characters); longer rules are shortened with `…`.
+pub const RULE_EXCERPT: usize = 80;
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -120,7 +123,7 @@ struct RawPhase {
     name: Spanned<String>,
     from: Spanned<f64>,
     to: Spanned<f64>,
-    note: Option<String>,
+    note: Option<Spanned<String>>,
 }
 
 /// A node: a controller board or its Linux stand-in.
@@ -360,6 +363,24 @@ impl Builder<'_> {
         self.errors.push(self.source.error(span, message));
     }
 
+    /// Whether `name` (of a `what`) is free of control characters and escape sequences; reports
+    /// it, escaped, if not. Names end up on terminals, in plots and in DBC files.
+    fn printable(&mut self, name: &Spanned<String>, what: &str) -> bool {
+        let text = name.get_ref();
+        let Some(bad) = text.chars().find(|&c| shown::needs_escape(c)) else {
+            return true;
+        };
+        self.error(
+            name.span(),
+            format!(
+                "{what} `{}` holds a control character (U+{:04X}); names and notes are printed on terminals: use printable characters",
+                shown::escaped(text),
+                u32::from(bad)
+            ),
+        );
+        false
+    }
+
     fn build(mut self, raw: RawFile) -> Network {
         let version = self.version(raw.network.as_ref());
         let nodes = self.nodes(&raw.nodes);
@@ -392,11 +413,18 @@ impl Builder<'_> {
             return 1;
         };
         match u32::try_from(*version.get_ref()) {
+            Ok(0) => {
+                self.error(
+                    version.span(),
+                    "table version 0 is reserved (heartbeats report version 0 for \"no table\"); use 1 or more",
+                );
+                1
+            }
             Ok(value) => value,
             Err(_) => {
                 self.error(
                     version.span(),
-                    "version must be an integer in 0..=4294967295",
+                    "version must be an integer in 1..=4294967295",
                 );
                 1
             }
@@ -407,7 +435,7 @@ impl Builder<'_> {
         let mut nodes: Vec<Node> = Vec::new();
         let mut ids: HashMap<u8, String> = HashMap::new();
         for (name, node) in raw {
-            if !is_plain_name(name.get_ref()) {
+            if self.printable(name, "node name") && !is_plain_name(name.get_ref()) {
                 self.error(
                     name.span(),
                     format!("node name `{}`: {PLAIN_NAME}", name.get_ref()),
@@ -442,7 +470,7 @@ impl Builder<'_> {
     fn topics(&mut self, raw: &IndexMap<Spanned<String>, Spanned<RawTopic>>) -> Vec<Topic> {
         let mut topics: Vec<Topic> = Vec::new();
         for (name, topic) in raw {
-            if !is_plain_name(name.get_ref()) {
+            if self.printable(name, "topic name") && !is_plain_name(name.get_ref()) {
                 self.error(
                     name.span(),
                     format!("topic name `{}`: {PLAIN_NAME}", name.get_ref()),
@@ -528,6 +556,9 @@ impl Builder<'_> {
     ) -> Vec<Port> {
         let mut ports: Vec<Port> = Vec::new();
         for (name, port) in raw {
+            if !self.printable(name, "port name") {
+                continue;
+            }
             let full = name.get_ref();
             let Some((node_name, local)) = full.split_once('.') else {
                 self.error(
@@ -615,6 +646,9 @@ impl Builder<'_> {
         let mut connections: Vec<Connection> = Vec::new();
         for (name, connection) in raw {
             let raw_connection = connection.get_ref();
+            if !self.printable(name, "connection name") {
+                continue;
+            }
             if !rule::is_valid_name(name.get_ref()) {
                 self.error(
                     name.span(),
@@ -772,7 +806,14 @@ impl Builder<'_> {
                 }
                 Err(error) => {
                     let at = text_start + error.offset;
-                    self.error(at..at, format!("in rule \"{text}\": {}", error.message));
+                    self.error(
+                        at..at,
+                        format!(
+                            "in rule \"{}\": {}",
+                            shown::excerpt(text, RULE_EXCERPT),
+                            error.message
+                        ),
+                    );
                 }
             }
         }
@@ -899,6 +940,14 @@ impl Builder<'_> {
         let mut phases = Vec::new();
         for phase in raw {
             let raw_phase = phase.get_ref();
+            let name_ok = self.printable(&raw_phase.name, "phase name");
+            let note_ok = raw_phase
+                .note
+                .as_ref()
+                .is_none_or(|note| self.printable(note, "phase note"));
+            if !(name_ok && note_ok) {
+                continue;
+            }
             let (Some(from), Some(to)) = (
                 self.time(&raw_phase.from, "from"),
                 self.time(&raw_phase.to, "to"),
@@ -916,7 +965,7 @@ impl Builder<'_> {
                 name: raw_phase.name.get_ref().clone(),
                 from,
                 to,
-                note: raw_phase.note.clone(),
+                note: raw_phase.note.as_ref().map(|note| note.get_ref().clone()),
             });
         }
         phases
@@ -994,10 +1043,7 @@ at = [4.0, 4.5, 5.0, 5.5, 6.0, 6.5]   # or explicit times
         let c1 = &network.connections[0];
         assert_eq!(
             c1.rule,
-            Rule::And(
-                Box::new(Rule::Active(0)),
-                Box::new(Rule::Not(Box::new(Rule::Active(1))))
-            )
+            Rule::And(vec![Rule::Active(0), Rule::Not(Box::new(Rule::Active(1)))])
         );
         assert!(c1.rule_written);
         let c2 = &network.connections[1];

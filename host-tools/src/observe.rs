@@ -8,8 +8,8 @@ use std::time::{Duration, Instant};
 
 use pab_core::Frame;
 use pab_core::protocol::{
-    DiagnosticSample, Errors, Fault, FrameId, Heartbeat, Message, TableStatus, Traffic,
-    TransferStatus,
+    DiagnosticSample, Errors, Fault, FaultCode, FrameId, Heartbeat, Message, STORE_UNREADABLE,
+    StoreFailure, TableStatus, Traffic, TransferStatus, TransferStatusCode,
 };
 
 /// The latest of everything a node said.
@@ -138,7 +138,7 @@ pub fn nodes_table(observer: &Observer, names: &BTreeMap<u8, String>, now: Insta
         let fault = view.last_fault.map_or("-".to_string(), |(fault, at)| {
             format!(
                 "{} (x{}, {:.0} s ago)",
-                fault.code.description(),
+                describe_fault(&fault),
                 fault.count,
                 now.saturating_duration_since(at).as_secs_f64()
             )
@@ -153,4 +153,75 @@ pub fn nodes_table(observer: &Observer, names: &BTreeMap<u8, String>, now: Insta
         );
     }
     out
+}
+
+/// A fault in words, with what its detail bytes say where the protocol defines them: why a stored
+/// or pushed table was refused, which store failure, which service was malformed.
+pub fn describe_fault(fault: &Fault) -> String {
+    let [first, second, ..] = fault.detail;
+    let what = fault.code.description();
+    match fault.code {
+        FaultCode::BadStoredTable if first == STORE_UNREADABLE => {
+            match StoreFailure::from_code(second) {
+                Some(failure) => format!("{what}: {failure}"),
+                None => format!("{what}: the store could not be read (failure {second})"),
+            }
+        }
+        FaultCode::BadStoredTable | FaultCode::TableRefused => {
+            match TransferStatusCode::from_code(first) {
+                Some(TransferStatusCode::WrongNode) => {
+                    format!("{what}: {} (node {second})", TransferStatusCode::WrongNode)
+                }
+                Some(status) if second != 0 => format!("{what}: {status} (detail {second})"),
+                Some(status) => format!("{what}: {status}"),
+                None => format!("{what} (status {first:#04x})"),
+            }
+        }
+        FaultCode::BusError => format!("{what} (kind {first})"),
+        FaultCode::BadCommand => format!("{what} (service {first:#04x})"),
+        _ => what.to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fault(code: FaultCode, detail: [u8; 5]) -> Fault {
+        Fault {
+            code,
+            count: 1,
+            detail,
+        }
+    }
+
+    #[test]
+    fn faults_say_why_a_table_was_refused() {
+        let wrong_node = fault(
+            FaultCode::BadStoredTable,
+            [TransferStatusCode::WrongNode.code(), 1, 0, 0, 0],
+        );
+        assert_eq!(
+            describe_fault(&wrong_node),
+            "stored table refused at boot: image is for another node (node 1)"
+        );
+        let unreadable = fault(
+            FaultCode::BadStoredTable,
+            [STORE_UNREADABLE, StoreFailure::TooLarge.code(), 0, 0, 0],
+        );
+        assert_eq!(
+            describe_fault(&unreadable),
+            "stored table refused at boot: the stored image is too large for this node"
+        );
+        let crc = fault(
+            FaultCode::TableRefused,
+            [TransferStatusCode::CrcMismatch.code(), 0, 0, 0, 0],
+        );
+        assert_eq!(describe_fault(&crc), "pushed table refused: CRC mismatch");
+        let odd = fault(FaultCode::BadStoredTable, [0x77, 0, 0, 0, 0]);
+        assert_eq!(
+            describe_fault(&odd),
+            "stored table refused at boot (status 0x77)"
+        );
+    }
 }

@@ -6,6 +6,11 @@
 //! 2. the node's TransferStatus: applied (and stored), already current, or why it refused;
 //! 3. confirmation from the node's own heartbeat: a Heartbeat with the new table version followed
 //!    by a TableStatus with the image's CRC. Only then is the push reported as done.
+//!
+//! Why so suspicious: a TransferStatus carries no transfer number. One that arrives before the
+//! last frame was sent, or that names another running version, answers something else (an
+//! earlier push that was cut short, another tool, a confused participant), so it never counts
+//! as a success; and even the right answer counts only once the heartbeat shows the table.
 
 use std::time::{Duration, Instant};
 
@@ -127,6 +132,7 @@ pub fn push(
         }
     };
     // 1. The transfer.
+    let mut cut_short = None;
     loop {
         let event = sender.poll(clock.now());
         match event {
@@ -147,73 +153,86 @@ pub fn push(
                             if let FlowControlEffect::Failed(error) =
                                 sender.on_flow_control(data, clock.now())
                             {
-                                return transfer_failed(bus, node, error);
+                                return transfer_failed(bus, node, error, cut_short);
                             }
                         }
                         Ok((id, Message::TransferStatus(status)))
                             if id.source == node && id.destination == protocol::TOOL =>
                         {
-                            // An answer before the end: the node refused early (busy, too large).
-                            return Ok(answer_outcome(status, header));
+                            match status.status {
+                                // A transfer cut short ends with these; the one cut may be an
+                                // earlier push (killed, then run again at once): kept, and
+                                // reported only if this transfer fails too.
+                                TransferStatusCode::Interrupted | TransferStatusCode::Timeout => {
+                                    cut_short = Some(status);
+                                }
+                                // A success before the end cannot be about this image, which has
+                                // not arrived whole: ignored.
+                                code if code.is_success() => {}
+                                // The node refused this transfer early (busy, too large).
+                                _ => return Ok(refused(status)),
+                            }
                         }
                         _ => {}
                     }
                 }
             }
             TxEvent::Done => break,
-            TxEvent::Failed(error) => return transfer_failed(bus, node, error),
+            TxEvent::Failed(error) => return transfer_failed(bus, node, error, cut_short),
         }
     }
-    // 2. The node's answer.
-    let status = match wait_for_status(bus, node, timeouts.answer)? {
-        Some(status) => status,
+    // 2. The node's answer: a refusal, or a success that names the pushed version.
+    let version = header.table_version;
+    let answer = wait_for_status(bus, node, timeouts.answer, |status| {
+        !status.status.is_success() || status.running_version == version
+    })?;
+    let outcome = match answer {
         None => {
             return Ok(Outcome::NoAnswer(format!(
-                "no transfer status within {:.1} s after the last frame",
+                "no transfer status for version {version} within {:.1} s after the last frame",
                 timeouts.answer.as_secs_f64()
             )));
         }
+        Some(status) => match status.status {
+            TransferStatusCode::Applied => Outcome::Confirmed {
+                version,
+                stored: true,
+            },
+            TransferStatusCode::AppliedNotStored => Outcome::Confirmed {
+                version,
+                stored: false,
+            },
+            TransferStatusCode::AlreadyCurrent => Outcome::AlreadyCurrent { version },
+            _ => return Ok(refused(status)),
+        },
     };
-    let outcome = answer_outcome(status, header);
-    if !outcome.is_success() {
-        return Ok(outcome);
-    }
-    // 3. The heartbeat must show it.
+    // 3. The heartbeat must show it, whatever the answer said.
     confirm(bus, node, header, timeouts.confirm, outcome)
 }
 
-fn answer_outcome(status: protocol::TransferStatus, header: &Header) -> Outcome {
-    match status.status {
-        TransferStatusCode::Applied => Outcome::Confirmed {
-            version: header.table_version,
-            stored: true,
-        },
-        TransferStatusCode::AppliedNotStored => Outcome::Confirmed {
-            version: header.table_version,
-            stored: false,
-        },
-        TransferStatusCode::AlreadyCurrent => Outcome::AlreadyCurrent {
-            version: status.running_version,
-        },
-        refused => Outcome::Refused {
-            status: refused,
-            detail: status.detail,
-            running_version: status.running_version,
-        },
+fn refused(status: protocol::TransferStatus) -> Outcome {
+    Outcome::Refused {
+        status: status.status,
+        detail: status.detail,
+        running_version: status.running_version,
     }
 }
 
 /// The transfer failed on our side; the node may still have said why (e.g. an overflow flow
-/// control comes with a TooLarge status).
-fn transfer_failed(bus: &mut dyn Bus, node: u8, error: TxError) -> std::io::Result<Outcome> {
-    if let Some(status) = wait_for_status(bus, node, Duration::from_millis(300))?
-        && !status.status.is_success()
+/// control comes with a TooLarge status), or have said it during the transfer (`cut_short`: a
+/// consecutive frame lost, our pace too slow).
+fn transfer_failed(
+    bus: &mut dyn Bus,
+    node: u8,
+    error: TxError,
+    cut_short: Option<protocol::TransferStatus>,
+) -> std::io::Result<Outcome> {
+    if let Some(status) = wait_for_status(bus, node, Duration::from_millis(300), |status| {
+        !status.status.is_success()
+    })?
+    .or(cut_short)
     {
-        return Ok(Outcome::Refused {
-            status: status.status,
-            detail: status.detail,
-            running_version: status.running_version,
-        });
+        return Ok(refused(status));
     }
     let why = match error {
         TxError::Timeout => format!(
@@ -228,10 +247,13 @@ fn transfer_failed(bus: &mut dyn Bus, node: u8, error: TxError) -> std::io::Resu
     Ok(Outcome::NoAnswer(why))
 }
 
+/// The first TransferStatus from `node` to the tool that `relevant` accepts, within `timeout`;
+/// the others are stale or stray and are skipped.
 fn wait_for_status(
     bus: &mut dyn Bus,
     node: u8,
     timeout: Duration,
+    relevant: impl Fn(&protocol::TransferStatus) -> bool,
 ) -> std::io::Result<Option<protocol::TransferStatus>> {
     let end = Instant::now() + timeout;
     while let Some(left) = end.checked_duration_since(Instant::now()) {
@@ -241,6 +263,7 @@ fn wait_for_status(
         if let Ok((id, Message::TransferStatus(status))) = Message::decode(&frame)
             && id.source == node
             && id.destination == protocol::TOOL
+            && relevant(&status)
         {
             return Ok(Some(status));
         }

@@ -13,10 +13,24 @@
 //!
 //! Why a hand-written parser: errors must point at the character that is wrong, inside a string
 //! inside a TOML file, and say what was expected there.
+//!
+//! Why the depth limit and the n-ary `&` and `|`: every walk of a rule (the parser itself,
+//! evaluation, the BDD, display, and dropping the tree) recurses once per level of the tree. A
+//! chain `a & b & c ...` is one level however long; only parentheses and `!` nest, and the
+//! parser refuses more than [`MAX_DEPTH`] of them with an ordinary error, so no rule from a file
+//! can overflow the stack, whatever its length.
 
 use std::fmt;
 
+/// The deepest nesting of parentheses and `!` a rule may have. Rules over at most 32
+/// connections need a handful; the limit keeps every recursive walk of a rule far within a
+/// thread's stack.
+pub const MAX_DEPTH: usize = 128;
+
 /// A parsed rule. Variables are indices of connections within their port.
+///
+/// Trees from [`parse`] are at most about 3 × [`MAX_DEPTH`] levels deep (each level of nesting
+/// may hold an `|`, an `&` and a `!`); walks recurse once per level.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Rule {
     /// `true` or `false`.
@@ -25,10 +39,10 @@ pub enum Rule {
     Active(usize),
     /// `!a`.
     Not(Box<Rule>),
-    /// `a & b`.
-    And(Box<Rule>, Box<Rule>),
-    /// `a | b`.
-    Or(Box<Rule>, Box<Rule>),
+    /// `a & b & ...`: two or more operands, all of which hold.
+    And(Vec<Rule>),
+    /// `a | b | ...`: two or more operands, one of which holds.
+    Or(Vec<Rule>),
 }
 
 impl Rule {
@@ -42,8 +56,8 @@ impl Rule {
                 .and_then(|index| mask.checked_shr(index))
                 .is_some_and(|bits| bits & 1 == 1),
             Rule::Not(rule) => !rule.eval(mask),
-            Rule::And(left, right) => left.eval(mask) && right.eval(mask),
-            Rule::Or(left, right) => left.eval(mask) || right.eval(mask),
+            Rule::And(operands) => operands.iter().all(|rule| rule.eval(mask)),
+            Rule::Or(operands) => operands.iter().any(|rule| rule.eval(mask)),
         }
     }
 
@@ -79,15 +93,16 @@ impl Shown<'_> {
                 f.write_str("!")?;
                 self.write(f, inner, 3)?;
             }
-            Rule::And(left, right) => {
-                self.write(f, left, strength)?;
-                f.write_str(" & ")?;
-                self.write(f, right, strength + 1)?;
-            }
-            Rule::Or(left, right) => {
-                self.write(f, left, strength)?;
-                f.write_str(" | ")?;
-                self.write(f, right, strength + 1)?;
+            Rule::And(operands) | Rule::Or(operands) => {
+                let operator = if strength == 1 { " | " } else { " & " };
+                for (index, operand) in operands.iter().enumerate() {
+                    if index > 0 {
+                        f.write_str(operator)?;
+                    }
+                    // `(a | b) | c` reads as `a | b | c`; `a | (b | c)` keeps its parentheses.
+                    let context = if index == 0 { strength } else { strength + 1 };
+                    self.write(f, operand, context)?;
+                }
             }
         }
         if open {
@@ -186,7 +201,8 @@ fn tokenize(text: &str) -> Result<Vec<(usize, Token<'_>)>, RuleError> {
                 return Err(RuleError {
                     offset,
                     message: format!(
-                        "unexpected character `{other}`; rules use connection names, `!`, `&`, `|`, parentheses, `true` and `false`"
+                        "unexpected character `{}`; rules use connection names, `!`, `&`, `|`, parentheses, `true` and `false`",
+                        crate::shown::escaped(other.encode_utf8(&mut [0; 4]))
                     ),
                 });
             }
@@ -200,6 +216,8 @@ fn tokenize(text: &str) -> Result<Vec<(usize, Token<'_>)>, RuleError> {
 struct Parser<'a, 'r> {
     tokens: Vec<(usize, Token<'a>)>,
     position: usize,
+    /// Parentheses and `!` open at the current token.
+    depth: usize,
     resolve: &'r dyn Fn(&str) -> Result<usize, String>,
 }
 
@@ -215,28 +233,53 @@ impl<'a> Parser<'a, '_> {
         self.position += 1;
     }
 
+    /// Enters one level of nesting at the current token (a `(` or a `!`).
+    fn enter(&mut self) -> Result<(), RuleError> {
+        self.depth += 1;
+        if self.depth > MAX_DEPTH {
+            return Err(RuleError {
+                offset: self.peek().0,
+                message: format!(
+                    "the rule is nested more than {MAX_DEPTH} levels deep (parentheses and `!`); write it flatter"
+                ),
+            });
+        }
+        Ok(())
+    }
+
     fn or(&mut self) -> Result<Rule, RuleError> {
-        let mut rule = self.and()?;
+        let first = self.and()?;
+        if *self.peek().1 != Token::Or {
+            return Ok(first);
+        }
+        let mut operands = vec![first];
         while *self.peek().1 == Token::Or {
             self.advance();
-            rule = Rule::Or(Box::new(rule), Box::new(self.and()?));
+            operands.push(self.and()?);
         }
-        Ok(rule)
+        Ok(Rule::Or(operands))
     }
 
     fn and(&mut self) -> Result<Rule, RuleError> {
-        let mut rule = self.not()?;
+        let first = self.not()?;
+        if *self.peek().1 != Token::And {
+            return Ok(first);
+        }
+        let mut operands = vec![first];
         while *self.peek().1 == Token::And {
             self.advance();
-            rule = Rule::And(Box::new(rule), Box::new(self.not()?));
+            operands.push(self.not()?);
         }
-        Ok(rule)
+        Ok(Rule::And(operands))
     }
 
     fn not(&mut self) -> Result<Rule, RuleError> {
         if *self.peek().1 == Token::Not {
+            self.enter()?;
             self.advance();
-            return Ok(Rule::Not(Box::new(self.not()?)));
+            let inner = self.not()?;
+            self.depth -= 1;
+            return Ok(Rule::Not(Box::new(inner)));
         }
         self.primary()
     }
@@ -260,8 +303,10 @@ impl<'a> Parser<'a, '_> {
                 Ok(Rule::Active(index))
             }
             Token::Open => {
+                self.enter()?;
                 self.advance();
                 let rule = self.or()?;
+                self.depth -= 1;
                 let (close_offset, close) = self.peek();
                 if *close != Token::Close {
                     return Err(RuleError {
@@ -295,6 +340,7 @@ pub fn parse(
     let mut parser = Parser {
         tokens,
         position: 0,
+        depth: 0,
         resolve,
     };
     let rule = parser.or()?;
@@ -335,13 +381,10 @@ mod tests {
         let rule = parse_here("C1 | C2 & !C3").unwrap();
         assert_eq!(
             rule,
-            Rule::Or(
-                Box::new(Rule::Active(0)),
-                Box::new(Rule::And(
-                    Box::new(Rule::Active(1)),
-                    Box::new(Rule::Not(Box::new(Rule::Active(2))))
-                ))
-            )
+            Rule::Or(vec![
+                Rule::Active(0),
+                Rule::And(vec![Rule::Active(1), Rule::Not(Box::new(Rule::Active(2)))])
+            ])
         );
         assert_eq!(rule.display(&names()).to_string(), "C1 | C2 & !C3");
         let grouped = parse_here("(C1 | C2) & !(C3)").unwrap();
@@ -386,5 +429,59 @@ mod tests {
         assert!(is_valid_name("C1") && is_valid_name("_x") && is_valid_name("grasp_2"));
         assert!(!is_valid_name("1C") && !is_valid_name("a-b") && !is_valid_name("true"));
         assert!(!is_valid_name(""));
+    }
+
+    #[test]
+    fn chains_are_flat_and_grouping_is_kept() {
+        let rule = parse_here("C1 & C2 & C3 | C1 | (C2 | C3) | C1 & (C2 & C3)").unwrap();
+        let Rule::Or(operands) = &rule else {
+            panic!("{rule:?}")
+        };
+        assert_eq!(operands.len(), 4);
+        assert_eq!(
+            rule.display(&names()).to_string(),
+            "C1 & C2 & C3 | C1 | (C2 | C3) | C1 & (C2 & C3)"
+        );
+        assert_eq!(
+            parse_here("(C1 | C2) | C3")
+                .unwrap()
+                .display(&names())
+                .to_string(),
+            "C1 | C2 | C3"
+        );
+        for mask in 0..8 {
+            let (c1, c2, c3) = (mask & 1 != 0, mask & 2 != 0, mask & 4 != 0);
+            let terms = [c1 && c2 && c3, c1, c2 || c3, c1 && (c2 && c3)];
+            assert_eq!(rule.eval(mask), terms.contains(&true));
+        }
+    }
+
+    #[test]
+    fn nesting_is_limited_and_length_is_not() {
+        let deepest = format!("{}C1{}", "(".repeat(MAX_DEPTH), ")".repeat(MAX_DEPTH));
+        assert_eq!(parse_here(&deepest).unwrap(), Rule::Active(0));
+        let too_deep = format!(
+            "{}C1{}",
+            "(".repeat(MAX_DEPTH + 1),
+            ")".repeat(MAX_DEPTH + 1)
+        );
+        let error = parse_here(&too_deep).unwrap_err();
+        assert_eq!(error.offset, MAX_DEPTH);
+        assert!(
+            error.message.contains("nested more than 128 levels"),
+            "{error:?}"
+        );
+        let nots = format!("{}C1", "!".repeat(MAX_DEPTH));
+        assert!(parse_here(&nots).unwrap().eval(1));
+        let error = parse_here(&format!("!{nots}")).unwrap_err();
+        assert_eq!(error.offset, MAX_DEPTH);
+        // Siblings do not add up: 1000 groups side by side are one level each.
+        let wide = vec!["(C1 & !(C2))"; 1000].join(" | ");
+        assert!(parse_here(&wide).unwrap().eval(0b001));
+        // 100 000 operands: one level.
+        let long = vec!["C1"; 100_000].join(" & ");
+        let rule = parse_here(&long).unwrap();
+        assert!(rule.eval(1) && !rule.eval(0));
+        assert_eq!(rule.display(&names()).to_string().len(), long.len());
     }
 }

@@ -11,6 +11,10 @@
 //! Besides frames, the simulator evaluates each port when an activity may lapse (a microsecond
 //! after τ has passed since a connection's last accepted frame), so timelines show the moment a
 //! port changes hands even when no frame arrives then. These evaluations only read the arbiter.
+//!
+//! [`run`] is the same bus fed with any timed frames: a capture's, for `pabctl replay`
+//! (see [`crate::replay`]). With [`Options::records`] it also writes every verdict in the record
+//! format of [`pab_app::replay::records`], the one the other runners write.
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -18,6 +22,7 @@ use std::fmt::Write as _;
 use std::io::{self, Write};
 
 use embedded_can::{ExtendedId, Id, StandardId};
+use pab_app::replay::records;
 use pab_core::image;
 use pab_core::{Arbiter, Instant};
 
@@ -33,6 +38,17 @@ pub struct Options {
     pub until: Option<f64>,
     /// Record stimulation samples for a plot.
     pub samples: bool,
+    /// Write every verdict as a record line ([`Outcome::records`]).
+    pub records: bool,
+}
+
+/// A frame on the simulated bus and when it is sent.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BusFrame {
+    /// When, µs.
+    pub t_us: u64,
+    /// The frame (the simulator's own frames have no data).
+    pub frame: pab_core::Frame,
 }
 
 /// One row of the trace: a frame's effect on one connection it fed, after the update.
@@ -72,6 +88,8 @@ pub struct Outcome {
     pub timelines: Vec<Vec<Change>>,
     /// Per connection (network order), stimulation samples for plots (empty unless requested).
     pub samples: Vec<Vec<Sample>>,
+    /// Every verdict in the record format (empty unless [`Options::records`]).
+    pub records: String,
 }
 
 /// Why a simulation could not run.
@@ -96,24 +114,50 @@ pub fn seconds_text(t_us: u64) -> String {
     format!("{}.{:06}", t_us / 1_000_000, t_us % 1_000_000)
 }
 
-struct Frame {
-    t_us: u64,
-    id: Id,
-    order: (u32, bool, u32, usize),
-}
-
 struct Station {
     /// Node index in the network.
     node: usize,
+    /// Its node id.
+    id: u8,
     arbiter: Arbiter,
 }
 
-/// Runs `network` with the tables `compiled` (one per node, from [`crate::compile::compile`]).
+/// Runs `network` with the tables `compiled` (one per node, from [`crate::compile::compile`]) on
+/// the frames of its `[[events]]`.
 pub fn simulate(
     network: &Network,
     compiled: &[CompiledNode],
     options: &Options,
 ) -> Result<Outcome, SimError> {
+    let frames = event_frames(network)?;
+    let until_us = match options.until {
+        Some(until) if (0.0..=MAX_TIME_S).contains(&until) => micros(until),
+        Some(until) => {
+            return Err(SimError(format!(
+                "--until {until} is not a time in [0, {MAX_TIME_S}] seconds"
+            )));
+        }
+        None => default_until(network, &frames),
+    };
+    run(network, compiled, &frames, until_us, options, &mut |_| {})
+}
+
+/// Runs `network` with the tables `compiled` on `frames` (in the order given, which must be time
+/// order) until `until_us`: frames after it are not sent. `progress` is called with the number
+/// of frames sent so far, every 65 536 frames and at the end. Nothing here reads
+/// [`Options::until`].
+pub fn run(
+    network: &Network,
+    compiled: &[CompiledNode],
+    frames: &[BusFrame],
+    until_us: u64,
+    options: &Options,
+    progress: &mut dyn FnMut(usize),
+) -> Result<Outcome, SimError> {
+    let mut records = String::new();
+    if options.records {
+        let _ = records::write_preamble(&mut records);
+    }
     let mut stations = Vec::new();
     for (node_index, node) in network.nodes.iter().enumerate() {
         let Some(table) = compiled.iter().find(|c| c.id == node.id) else {
@@ -128,23 +172,26 @@ pub fn simulate(
                 node.name
             ))
         })?;
+        if options.records {
+            let _ = records::write_boot(&mut records, node.id, Ok(&loaded.header));
+        }
         let arbiter = Arbiter::new(loaded.table)
             .map_err(|error| SimError(format!("node `{}`: {error}", node.name)))?;
         stations.push(Station {
             node: node_index,
+            id: node.id,
             arbiter,
         });
     }
-    let frames = frames(network)?;
-    let until_us = match options.until {
-        Some(until) if (0.0..=MAX_TIME_S).contains(&until) => micros(until),
-        Some(until) => {
-            return Err(SimError(format!(
-                "--until {until} is not a time in [0, {MAX_TIME_S}] seconds"
-            )));
-        }
-        None => default_until(network, &frames),
-    };
+    if options.records {
+        let _ = records::write_columns(&mut records);
+    }
+    if frames
+        .windows(2)
+        .any(|pair| matches!(pair, [a, b] if b.t_us < a.t_us))
+    {
+        return Err(SimError("the frames are not in time order".into()));
+    }
     let mut run = Run {
         network,
         stations,
@@ -162,6 +209,8 @@ pub fn simulate(
             .collect(),
         samples: vec![Vec::new(); network.connections.len()],
         wakes: BinaryHeap::new(),
+        records: options.records.then_some(records),
+        verdicts: 0,
     };
     let grid = (until_us / 1500).max(1);
     let mut next_grid = 0u64;
@@ -192,6 +241,9 @@ pub fn simulate(
         while let Some(frame) = pending.next_if(|frame| frame.t_us == now) {
             run.frame(frame);
             sent += 1;
+            if sent.is_multiple_of(65_536) {
+                progress(sent);
+            }
         }
         while run.wakes.peek().is_some_and(|Reverse((t, _))| *t == now) {
             if let Some(Reverse((_, port))) = run.wakes.pop() {
@@ -202,6 +254,11 @@ pub fn simulate(
     if options.samples {
         run.sample_all(until_us);
     }
+    progress(sent);
+    let mut records = run.records.unwrap_or_default();
+    if options.records {
+        let _ = records::write_end(&mut records, sent as u64, run.verdicts);
+    }
     let mut rows = run.rows;
     rows.sort_by_key(|row| (row.t_us, row.connection));
     Ok(Outcome {
@@ -210,11 +267,13 @@ pub fn simulate(
         rows,
         timelines: run.timelines,
         samples: run.samples,
+        records,
     })
 }
 
-/// The frames of the network's events, in bus order.
-fn frames(network: &Network) -> Result<Vec<Frame>, SimError> {
+/// The frames of the network's events, in bus order: by time, then CAN arbitration order, then
+/// the order of the events in the file. Their data is empty.
+pub fn event_frames(network: &Network) -> Result<Vec<BusFrame>, SimError> {
     let mut frames = Vec::new();
     for (sequence, event) in network.events.iter().enumerate() {
         let Some(topic) = network.topics.get(event.topic) else {
@@ -236,19 +295,42 @@ fn frames(network: &Network) -> Result<Vec<Frame>, SimError> {
         } else {
             filter.id()
         };
+        let frame = pab_core::Frame::data(id, &[])
+            .ok_or_else(|| SimError(format!("topic `{}` has an invalid CAN id", topic.name)))?;
         for t in event.schedule.times() {
-            frames.push(Frame {
-                t_us: micros(t),
-                id,
-                order: (base, filter.is_extended(), filter.id(), sequence),
-            });
+            frames.push((
+                (micros(t), base, filter.is_extended(), filter.id(), sequence),
+                BusFrame {
+                    t_us: micros(t),
+                    frame,
+                },
+            ));
         }
     }
-    frames.sort_by_key(|frame| (frame.t_us, frame.order));
-    Ok(frames)
+    frames.sort_by_key(|(order, _)| *order);
+    Ok(frames.into_iter().map(|(_, frame)| frame).collect())
 }
 
-fn default_until(network: &Network, frames: &[Frame]) -> u64 {
+/// The default end of a simulation: once the last frame's effects have decayed, or at the end of
+/// the last phase, whichever is later, rounded up to a tenth of a second.
+fn default_until(network: &Network, frames: &[BusFrame]) -> u64 {
+    let after_phases = network
+        .phases
+        .iter()
+        .map(|p| micros(p.to))
+        .max()
+        .unwrap_or(0);
+    // Round up to a tenth of a second.
+    settled_until(network, frames)
+        .max(after_phases)
+        .div_ceil(100_000)
+        .saturating_mul(100_000)
+}
+
+/// The time by which the effects of `frames` on `network` have decayed: the last frame plus the
+/// longest τ plus 1 µs (so the last lapse shows in the timelines), rounded up to a tenth of a
+/// second.
+pub fn settled_until(network: &Network, frames: &[BusFrame]) -> u64 {
     let longest_decay = network
         .connections
         .iter()
@@ -258,14 +340,7 @@ fn default_until(network: &Network, frames: &[Frame]) -> u64 {
     let after_frames = frames.last().map_or(0, |frame| {
         frame.t_us.saturating_add(longest_decay).saturating_add(1)
     });
-    let after_phases = network
-        .phases
-        .iter()
-        .map(|p| micros(p.to))
-        .max()
-        .unwrap_or(0);
-    // Round up to a tenth of a second.
-    after_frames.max(after_phases).div_ceil(100_000) * 100_000
+    after_frames.div_ceil(100_000).saturating_mul(100_000)
 }
 
 struct Run<'a> {
@@ -276,6 +351,8 @@ struct Run<'a> {
     timelines: Vec<Vec<Change>>,
     samples: Vec<Vec<Sample>>,
     wakes: BinaryHeap<Reverse<(u64, usize)>>,
+    records: Option<String>,
+    verdicts: u64,
 }
 
 impl Run<'_> {
@@ -299,17 +376,31 @@ impl Run<'_> {
             .copied()
     }
 
-    fn frame(&mut self, frame: &Frame) {
+    fn frame(&mut self, frame: &BusFrame) {
         let now = Instant::from_micros(frame.t_us);
+        let id = frame.frame.id();
         for station in 0..self.stations.len() {
             if self.options.samples {
-                self.sample_ports_fed_by(station, &frame.id, frame.t_us);
+                self.sample_ports_fed_by(station, &id, frame.t_us);
             }
             let mut verdicts = Vec::new();
             if let Some(entry) = self.stations.get_mut(station) {
                 entry
                     .arbiter
-                    .receive(&frame.id, now, |verdict| verdicts.push(*verdict));
+                    .receive(&id, now, |verdict| verdicts.push(*verdict));
+            }
+            if let (Some(out), Some(entry)) = (self.records.as_mut(), self.stations.get(station)) {
+                for verdict in &verdicts {
+                    let _ = records::write_verdict(
+                        out,
+                        frame.t_us,
+                        &frame.frame,
+                        entry.id,
+                        verdict,
+                        |connection| entry.arbiter.level(verdict.port, connection, now),
+                    );
+                    self.verdicts += 1;
+                }
             }
             for verdict in verdicts {
                 let Some(port) = self.port_of(station, verdict.port) else {
@@ -346,7 +437,7 @@ impl Run<'_> {
                 self.note(port, frame.t_us, selected);
             }
             if self.options.samples {
-                self.sample_ports_fed_by(station, &frame.id, frame.t_us);
+                self.sample_ports_fed_by(station, &id, frame.t_us);
             }
         }
     }
@@ -564,7 +655,10 @@ impl Outcome {
                                 if c.is_virtual() {
                                     "virtual".to_string()
                                 } else {
-                                    c.rule_text.clone()
+                                    crate::shown::excerpt(
+                                        &c.rule_text,
+                                        crate::network::RULE_EXCERPT,
+                                    )
                                 }
                             ),
                             samples: self.samples.get(index).cloned().unwrap_or_default(),

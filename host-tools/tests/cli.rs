@@ -189,7 +189,11 @@ fn sim_until_stops_early_and_rejects_nonsense() {
     assert!(!stdout.contains("6.500000"), "{stdout}");
     let output = pabctl(&["sim", &example("figure-1.toml"), "--until", "-1"]);
     assert_eq!(output.status.code(), Some(2));
-    assert!(text(&output.stderr).contains("--until -1 is not a time"));
+    let stderr = text(&output.stderr);
+    assert!(
+        stderr.contains("invalid value '-1' for '--until <SECONDS>': must be positive"),
+        "{stderr}"
+    );
 }
 
 #[test]
@@ -401,3 +405,300 @@ fn push_to_an_unknown_node_name_lists_the_nodes() {
         "{stderr}"
     );
 }
+
+/// Figure 1 with C1's rule (line 34, text from column 9) replaced by `rule`.
+fn figure_one_with_rule(dir: &Path, rule: &str) -> String {
+    let text = std::fs::read_to_string(examples().join("figure-1.toml")).unwrap();
+    let variant = text.replace("rule = \"C1 & !C2\"", &format!("rule = \"{rule}\""));
+    assert_ne!(text, variant);
+    let path = dir.join("deep.toml");
+    std::fs::write(&path, variant).unwrap();
+    path.display().to_string()
+}
+
+#[test]
+fn deeply_nested_rules_are_an_error_at_their_place_not_a_crash() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases = [
+        // 20 000 nested parentheses: the 129th `(` is one level too many.
+        (
+            format!("{}C1{}", "(".repeat(20_000), ")".repeat(20_000)),
+            9 + 128,
+        ),
+        // A chain of 100 000 `!`.
+        (format!("{}C1", "!".repeat(100_000)), 9 + 128),
+        // Both, mixed, starting after some text.
+        (format!("C1 & {}C2", "!(".repeat(50_000)), 9 + 5 + 128),
+    ];
+    for (rule, column) in cases {
+        let path = figure_one_with_rule(dir.path(), &rule);
+        for command in [
+            &["check", &path][..],
+            &["sim", &path],
+            &["dbc", &path, "-o", "-"],
+        ] {
+            let output = pabctl(command);
+            let stderr = text(&output.stderr);
+            assert_eq!(output.status.code(), Some(2), "{command:?}: {stderr}");
+            assert!(
+                stderr.starts_with(&format!("{path}:34:{column}: error: in rule \"")),
+                "{command:?}: {stderr}"
+            );
+            assert!(
+                stderr.contains("nested more than 128 levels deep"),
+                "{stderr}"
+            );
+            // The rule is shown shortened, not 100 000 characters long.
+            assert!(stderr.len() < 400, "{} bytes: {stderr}", stderr.len());
+        }
+    }
+}
+
+#[test]
+fn long_flat_rules_are_checked_without_overflowing_the_stack() {
+    let dir = tempfile::tempdir().unwrap();
+    // 100 000 operands, left to right: no nesting at all, so no limit applies.
+    let and_chain = vec!["C1"; 100_000].join(" & ") + " & !C2";
+    let path = figure_one_with_rule(dir.path(), &and_chain);
+    let output = pabctl(&["check", &path]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    assert!(text(&output.stdout).contains("consistent"));
+    let out = dir.path().join("tables");
+    let output = pabctl(&["compile", &path, "-o", out.to_str().unwrap()]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    // An inconsistent one: the overlap is reported at the rule, with the rule shortened.
+    let or_chain = vec!["C1 & C2"; 100_000].join(" | ");
+    let path = figure_one_with_rule(dir.path(), &or_chain);
+    let output = pabctl(&["check", &path]);
+    let stderr = text(&output.stderr);
+    assert_eq!(output.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("C1 & C2 | C1 & C2"), "{stderr}");
+    assert!(stderr.len() < 1_000, "{} bytes: {stderr}", stderr.len());
+}
+
+#[test]
+fn deeply_nested_toml_is_an_error_not_a_crash() {
+    let dir = tempfile::tempdir().unwrap();
+    let original = std::fs::read_to_string(examples().join("figure-1.toml")).unwrap();
+    for value in [
+        format!("{}1{}", "[".repeat(100_000), "]".repeat(100_000)),
+        format!("{}1{}", "{ a = ".repeat(100_000), " }".repeat(100_000)),
+    ] {
+        let variant = original.replace(
+            "[nodes.gaze]\n",
+            &format!("[nodes.gaze]\ndescription = {value}\n"),
+        );
+        let path = dir.path().join("deep.toml");
+        std::fs::write(&path, variant).unwrap();
+        let output = pabctl(&["check", path.to_str().unwrap()]);
+        let stderr = text(&output.stderr);
+        assert_eq!(output.status.code(), Some(2), "{stderr}");
+        assert!(
+            stderr.starts_with(&format!("{}:16:", path.display())),
+            "{stderr}"
+        );
+        assert!(stderr.len() < 400, "{} bytes: {stderr}", stderr.len());
+    }
+}
+
+#[test]
+fn every_duration_rate_time_and_version_argument_is_checked() {
+    let dir = tempfile::tempdir().unwrap();
+    let net = example("take-and-return.toml");
+    let out = dir.path().join("tables");
+    let out = out.to_str().unwrap();
+    let seconds = [
+        ("-1", "must be positive"),
+        ("-0.5", "must be positive"),
+        ("0", "must be positive"),
+        ("NaN", "is not a number"),
+        ("inf", "must be at most"),
+        ("-inf", "must be positive"),
+        ("1e30", "must be at most"),
+        ("ten", "is not a number"),
+    ];
+    let versions = [
+        ("0", "version 0 is reserved"),
+        ("-1", "must be positive"),
+        ("4294967296", "must be at most 4294967295"),
+        ("1.5", "is not a whole number"),
+        ("NaN", "is not a whole number"),
+    ];
+    let rates = [
+        ("-1", "must be positive"),
+        ("0", "must be positive"),
+        ("201", "must be at most 200"),
+        ("1e30", "is not a whole number"),
+        ("NaN", "is not a whole number"),
+    ];
+    let iface = "pabnosuch0";
+    type Case<'a> = (Vec<&'a str>, &'a str, &'a [(&'a str, &'a str)]);
+    let cases: Vec<Case> = vec![
+        (
+            vec!["compile", &net, "-o", out],
+            "--table-version",
+            &versions,
+        ),
+        (
+            vec!["push", &net, "--iface", iface],
+            "--table-version",
+            &versions,
+        ),
+        (vec!["sim", &net], "--until", &seconds),
+        (vec!["nodes", "--iface", iface], "--listen", &seconds),
+        (
+            vec!["monitor", &net, "--iface", iface],
+            "--duration",
+            &seconds,
+        ),
+        (vec!["monitor", &net, "--iface", iface], "--rate", &rates),
+    ];
+    for (command, option, values) in cases {
+        for (value, message) in values {
+            let mut args = command.clone();
+            args.extend([option, value]);
+            let output = pabctl(&args);
+            let stderr = text(&output.stderr);
+            assert_eq!(output.status.code(), Some(2), "{args:?}: {stderr}");
+            assert!(
+                stderr.contains(option) && stderr.contains(message),
+                "{args:?}: expected {message:?}: {stderr}"
+            );
+            assert!(
+                !stderr.contains("unexpected argument"),
+                "{args:?}: {stderr}"
+            );
+        }
+    }
+    assert!(!Path::new(out).exists(), "nothing compiled");
+}
+
+#[test]
+fn table_version_0_in_the_file_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let original = std::fs::read_to_string(examples().join("take-and-return.toml")).unwrap();
+    let variant = original.replace("version = 1", "version = 0");
+    assert_ne!(original, variant);
+    let line = variant
+        .lines()
+        .position(|l| l.starts_with("version = 0"))
+        .unwrap()
+        + 1;
+    let path = dir.path().join("v0.toml");
+    std::fs::write(&path, variant).unwrap();
+    let path = path.display().to_string();
+    let out = dir.path().join("tables");
+    for args in [
+        vec!["compile", &path, "-o", out.to_str().unwrap()],
+        vec!["push", &path, "--iface", "pabnosuch0"],
+    ] {
+        let output = pabctl(&args);
+        let stderr = text(&output.stderr);
+        assert_eq!(output.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(
+            stderr.starts_with(&format!(
+                "{path}:{line}:11: error: table version 0 is reserved"
+            )),
+            "{stderr}"
+        );
+    }
+    assert!(!out.exists());
+}
+
+#[test]
+fn names_with_control_characters_are_refused_and_shown_escaped() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = std::fs::read_to_string(examples().join("figure-1.toml")).unwrap();
+    let cases = [
+        // A node name with an ANSI escape (TOML `\u001b` in a quoted key).
+        (
+            base.replace("[nodes.gaze]", "[nodes.\"gaze\\u001b[31m\"]"),
+            "node name `gaze\\u{1b}[31m` holds a control character",
+        ),
+        // A topic name with a newline.
+        (
+            base.replace("[topics.face_pos]", "[topics.\"face\\npos\"]"),
+            "topic name `face\\npos` holds a control character",
+        ),
+        // A port name whose node part carries an escape.
+        (
+            base.replace(
+                "[ports.\"gaze.target\"]",
+                "[ports.\"gaze\\u001b[2J.target\"]",
+            ),
+            "port name `gaze\\u{1b}[2J.target` holds a control character",
+        ),
+        // A connection name with a carriage return.
+        (
+            base.replace("[connections.C2]", "[connections.\"C2\\r\"]"),
+            "connection name `C2\\r` holds a control character",
+        ),
+        // A reference to a topic with an escape in it.
+        (
+            base.replace(
+                "topic = \"face_pos\"\nport",
+                "topic = \"face_pos\\u001b[0m\"\nport",
+            ),
+            "topic `face_pos\\u{1b}[0m` is not defined",
+        ),
+        // A phase name.
+        (
+            format!("{base}\n[[phases]]\nname = \"A\\u001b]0;pwned\\u0007\"\nfrom = 0\nto = 1\n"),
+            "phase name `A\\u{1b}]0;pwned\\u{7}` holds a control character",
+        ),
+    ];
+    for (text_of_file, message) in cases {
+        let path = dir.path().join("names.toml");
+        std::fs::write(&path, &text_of_file).unwrap();
+        let output = pabctl(&["check", path.to_str().unwrap()]);
+        let stderr = text(&output.stderr);
+        assert_eq!(output.status.code(), Some(2), "{stderr}");
+        assert!(stderr.contains(message), "expected {message:?}: {stderr:?}");
+        // No raw control character, and no message split over lines by one.
+        let shown = path.display().to_string();
+        assert!(
+            !stderr.contains(['\u{1b}', '\r', '\u{7}'])
+                && stderr.lines().all(|line| line.starts_with(&shown)),
+            "raw control characters on stderr: {stderr:?}"
+        );
+    }
+}
+
+#[test]
+fn a_reader_that_stops_early_ends_pabctl_quietly_not_with_a_panic() {
+    // `pabctl sim NET.toml --trace /dev/stdout | head -1`: the first line is read, the pipe
+    // closed. pabctl must end as any Unix tool does (SIGPIPE), not panic on its next write. The
+    // trace (100 000 rows, megabytes) cannot fit the pipe's buffer, so the write after the close
+    // is certain.
+    use std::io::{BufRead, BufReader};
+    use std::os::unix::process::ExitStatusExt;
+    use std::process::Stdio;
+    let dir = tempfile::tempdir().unwrap();
+    let network = dir.path().join("busy.toml");
+    std::fs::write(
+        &network,
+        "[nodes.n]\nid = 1\n[topics.t]\ncan_id = 0x100\n[ports.\"n.p\"]\n\
+         [connections.C1]\ntopic = \"t\"\nport = \"n.p\"\nst = 0.5\ntc = 1.0\n\
+         [[events]]\ntopic = \"t\"\nrate_hz = 1000.0\nto = 100.0\n",
+    )
+    .unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_pabctl"))
+        .args(["sim", network.to_str().unwrap(), "--trace", "/dev/stdout"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("pabctl runs");
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    // The reader is dropped here: the pipe is closed.
+    let output = child.wait_with_output().unwrap();
+    assert!(first.contains("100000 frames"), "{first}");
+    let stderr = text(&output.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(output.status.signal(), Some(SIGPIPE), "{:?}", output.status);
+}
+
+/// SIGPIPE's number on Linux.
+const SIGPIPE: i32 = 13;

@@ -10,7 +10,8 @@ use std::time::{Duration, Instant};
 
 use pab_app::{Config, FullNode, Step};
 use pab_core::Frame;
-use pab_core::protocol::TransferStatusCode;
+use pab_core::isotp::{RxEvent, Sender, TxConfig, TxEvent};
+use pab_core::protocol::{self, Message, TransferStatus, TransferStatusCode};
 use pabctl::bus::Bus;
 use pabctl::bus::memory::{MemoryBus, MemoryHub};
 use pabctl::compile::{self, CompiledNode};
@@ -171,7 +172,10 @@ fn push_reaches_every_node_which_confirms_stores_and_reports_it() {
 
 #[test]
 fn refusals_and_silence_are_reported_with_their_reason() {
-    let (network, compiled) = take_and_return();
+    // The arm runs version 2 of its table.
+    let (mut network, older) = take_and_return();
+    network.version += 1;
+    let compiled = compile::compile(&network).unwrap();
     let arm = &compiled[0];
     let hub = MemoryHub::new();
     let _arm = LiveNode::spawn(&hub, arm.id, Some(arm.image.clone()));
@@ -197,9 +201,6 @@ fn refusals_and_silence_are_reported_with_their_reason() {
     );
     assert!(outcome.to_string().contains("another node"), "{outcome}");
     // An older version of its own table.
-    let mut older = network.clone();
-    older.version = network.version - 1;
-    let older = compile::compile(&older).unwrap();
     let outcome = push::push(
         &mut tool,
         arm.id,
@@ -300,4 +301,266 @@ fn monitor_shows_who_delivers_from_the_diagnostic_stream() {
         late.observe(&frame, Instant::now());
     }
     assert!(late.nodes().values().all(|view| view.samples.is_empty()));
+}
+
+/// A participant that speaks for an absent node: `answer` sees each ISO-TP frame the tool sends
+/// to `node` (with the bytes the node's receiver would take) and returns the frames to answer
+/// with, as (service message) from `node` to the tool.
+fn impostor(
+    hub: &MemoryHub,
+    node: u8,
+    mut answer: impl FnMut(&[u8], &mut pab_core::isotp::Receiver<32768>) -> Vec<Message>
+    + Send
+    + 'static,
+) -> (Arc<AtomicBool>, JoinHandle<()>) {
+    let stop = Arc::new(AtomicBool::new(false));
+    let mut bus = hub.connect();
+    let stop_flag = stop.clone();
+    let thread = std::thread::spawn(move || {
+        // Flow control every 8 frames, as the nodes do: the tool reads the bus between blocks.
+        let mut receiver = pab_core::isotp::Receiver::<32768>::new(pab_core::isotp::RxConfig {
+            block_size: 8,
+            ..Default::default()
+        });
+        while !stop_flag.load(Ordering::SeqCst) {
+            let Ok(Some(frame)) = bus.receive(Duration::from_millis(5)) else {
+                continue;
+            };
+            if let Ok((id, Message::TableTransfer { data, len })) = Message::decode(&frame)
+                && id.destination == node
+                && id.source == protocol::TOOL
+            {
+                for message in answer(&data[..usize::from(len)], &mut receiver) {
+                    bus.send(&message.to_frame(node, protocol::TOOL)).unwrap();
+                }
+            }
+        }
+    });
+    (stop, thread)
+}
+
+fn status(status: TransferStatusCode, running_version: u32) -> Message {
+    Message::TransferStatus(TransferStatus {
+        status,
+        detail: 0,
+        running_version,
+    })
+}
+
+/// Take and Return's arm table, at version `version`.
+fn arm_image(version: u32) -> Vec<u8> {
+    let (mut network, _) = take_and_return();
+    network.version = version;
+    compile::compile(&network).unwrap().remove(0).image
+}
+
+#[test]
+fn an_early_applied_from_an_impostor_is_not_a_push_done() {
+    // Node 7 is absent. Something answers the first frame with a flow control (block size 1)
+    // and at once a TransferStatus "applied" for the pushed version, and then falls silent: no
+    // more flow control, no heartbeat. The push must not count as done.
+    let hub = MemoryHub::new();
+    let (stop, thread) = impostor(&hub, 7, |data, _| {
+        if data[0] >> 4 != 1 {
+            return Vec::new();
+        }
+        let mut flow_control = [0xCC; 8];
+        flow_control[..3].copy_from_slice(&[0x30, 1, 0]);
+        vec![
+            Message::TableTransfer {
+                data: flow_control,
+                len: 8,
+            },
+            status(TransferStatusCode::Applied, 9),
+        ]
+    });
+    let image = arm_image(9);
+    let mut tool = hub.connect();
+    let outcome = push::push(
+        &mut tool,
+        7,
+        &image,
+        &header(&image),
+        Timeouts {
+            answer: Duration::from_millis(500),
+            confirm: Duration::from_millis(1_500),
+        },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    stop.store(true, Ordering::SeqCst);
+    thread.join().unwrap();
+    assert!(!outcome.is_success(), "{outcome}");
+    assert!(
+        matches!(&outcome, Outcome::NoAnswer(why) if why.contains("no flow control from node 7")),
+        "{outcome:?}"
+    );
+}
+
+#[test]
+fn a_late_applied_from_an_earlier_push_does_not_count() {
+    // Node 7 takes the transfer (flow control, every frame) but an answer of an earlier,
+    // interrupted push (version 8 applied) reaches the tool during the transfer and again after
+    // it. The node itself refuses the new image. The push reports the node's refusal.
+    let hub = MemoryHub::new();
+    let (stop, thread) = impostor(&hub, 7, |data, receiver| {
+        let first = data[0] >> 4 == 1;
+        let outcome = receiver.on_frame(data, pab_core::Instant::from_micros(0));
+        match outcome.event {
+            RxEvent::SendFlowControl(flow_control) if first => vec![
+                Message::TableTransfer {
+                    data: flow_control,
+                    len: 8,
+                },
+                status(TransferStatusCode::Applied, 8),
+            ],
+            RxEvent::SendFlowControl(flow_control) => vec![Message::TableTransfer {
+                data: flow_control,
+                len: 8,
+            }],
+            RxEvent::Complete(_) => vec![
+                status(TransferStatusCode::Applied, 8),
+                status(TransferStatusCode::CrcMismatch, 8),
+            ],
+            _ => Vec::new(),
+        }
+    });
+    let image = arm_image(9);
+    let mut tool = hub.connect();
+    let outcome = push::push(
+        &mut tool,
+        7,
+        &image,
+        &header(&image),
+        Timeouts {
+            answer: Duration::from_millis(1_000),
+            confirm: Duration::from_millis(1_500),
+        },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    stop.store(true, Ordering::SeqCst);
+    thread.join().unwrap();
+    assert_eq!(
+        outcome,
+        Outcome::Refused {
+            status: TransferStatusCode::CrcMismatch,
+            detail: 0,
+            running_version: 8
+        }
+    );
+}
+
+#[test]
+fn an_applied_without_the_heartbeat_is_not_confirmed() {
+    // The right answer for the right version, but no heartbeat ever shows it: not done.
+    let hub = MemoryHub::new();
+    let (stop, thread) = impostor(&hub, 7, |data, receiver| {
+        let outcome = receiver.on_frame(data, pab_core::Instant::from_micros(0));
+        match outcome.event {
+            RxEvent::SendFlowControl(flow_control) => vec![Message::TableTransfer {
+                data: flow_control,
+                len: 8,
+            }],
+            RxEvent::Complete(_) => vec![status(TransferStatusCode::Applied, 9)],
+            _ => Vec::new(),
+        }
+    });
+    let image = arm_image(9);
+    let mut tool = hub.connect();
+    let outcome = push::push(
+        &mut tool,
+        7,
+        &image,
+        &header(&image),
+        Timeouts {
+            answer: Duration::from_millis(1_000),
+            confirm: Duration::from_millis(800),
+        },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    stop.store(true, Ordering::SeqCst);
+    thread.join().unwrap();
+    assert!(!outcome.is_success(), "{outcome}");
+    assert_eq!(
+        outcome.to_string(),
+        "not confirmed: no heartbeat within 0.8 s"
+    );
+}
+
+#[test]
+fn nodes_shows_why_a_node_booted_without_a_table_even_long_after_its_boot() {
+    // Node 2 started with the arm's table (compiled for node 1).
+    let (_, compiled) = take_and_return();
+    let hub = MemoryHub::new();
+    let _hand = LiveNode::spawn(&hub, 2, Some(compiled[0].image.clone()));
+    let mut tool = hub.connect();
+    // The tool comes later than the boot.
+    std::thread::sleep(Duration::from_millis(1_200));
+    while tool.try_receive().is_some() {}
+    let mut observer = Observer::new();
+    observe::listen(&mut tool, &mut observer, Duration::from_millis(1_200)).unwrap();
+    let table = observe::nodes_table(&observer, &Default::default(), Instant::now());
+    let line = table
+        .lines()
+        .find(|line| line.trim_start().starts_with("2 "))
+        .unwrap_or_else(|| panic!("node 2 heard:\n{table}"));
+    assert!(line.contains("no table"), "{table}");
+    assert!(
+        line.contains("stored table refused at boot: image is for another node (node 1)"),
+        "{table}"
+    );
+}
+
+#[test]
+fn a_push_right_after_an_interrupted_one_is_not_refused_for_the_old_ones_end() {
+    let (network, compiled) = take_and_return();
+    let arm = &compiled[0];
+    let hub = MemoryHub::new();
+    let node = LiveNode::spawn(&hub, arm.id, None);
+    // An earlier push, killed after its first frame and one consecutive frame.
+    {
+        let mut killed = hub.connect();
+        let start = Instant::now();
+        let now = || pab_core::Instant::from_micros(start.elapsed().as_micros() as u64);
+        let mut sender = Sender::new(&arm.image, TxConfig::default()).unwrap();
+        let mut sent = 0;
+        while sent < 2 {
+            match sender.poll(now()) {
+                TxEvent::Send(data) => {
+                    let frame =
+                        Message::TableTransfer { data, len: 8 }.to_frame(protocol::TOOL, arm.id);
+                    killed.send(&frame).unwrap();
+                    sent += 1;
+                }
+                TxEvent::WaitUntil(_) => {
+                    let frame = killed.receive(Duration::from_secs(1)).unwrap().unwrap();
+                    if let Ok((_, Message::TableTransfer { data, len })) = Message::decode(&frame) {
+                        sender.on_flow_control(&data[..usize::from(len)], now());
+                    }
+                }
+                other => panic!("{other:?}"),
+            }
+        }
+    }
+    // At once (well within the node's 1 s N_Cr), a new pabctl pushes again.
+    let mut tool = hub.connect();
+    let outcome = push::push(
+        &mut tool,
+        arm.id,
+        &arm.image,
+        &header(&arm.image),
+        Timeouts::default(),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert_eq!(
+        outcome,
+        Outcome::Confirmed {
+            version: network.version,
+            stored: true
+        }
+    );
+    assert_eq!(*node.stored.lock().unwrap(), vec![arm.image.clone()]);
 }

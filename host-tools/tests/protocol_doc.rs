@@ -4,7 +4,9 @@
 
 use std::path::Path;
 
-use pab_core::protocol::{BROADCAST, FaultCode, FrameId, NodeState, Service, TransferStatusCode};
+use pab_core::protocol::{
+    BROADCAST, FaultCode, FrameId, NodeState, Service, StoreFailure, TransferStatusCode,
+};
 
 fn document() -> String {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/can-protocol.md");
@@ -118,6 +120,15 @@ fn transfer_status_codes_match_the_code() {
         .map(|c| (u32::from(c.code()), format!("{c:?}"), c.description()))
         .collect();
     compare_enum("enum: TransferStatusCode", &expected, 2);
+}
+
+#[test]
+fn store_failures_match_the_code() {
+    let expected: Vec<_> = StoreFailure::ALL
+        .iter()
+        .map(|c| (u32::from(c.code()), format!("{c:?}"), c.description()))
+        .collect();
+    compare_enum("enum: StoreFailure", &expected, 2);
 }
 
 #[test]

@@ -63,8 +63,11 @@ wire_enum! {
 wire_enum! {
     /// What a fault frame reports.
     FaultCode: u16 {
-        /// The table found in storage at boot was refused by the loader; the node has no table.
-        /// Detail byte 0: the [`TransferStatusCode`] the loader's verdict maps to.
+        /// The table found in storage at boot was refused (by the same checks as a pushed one:
+        /// header, node id, CRC, loader), or the store could not be read; the node has no table.
+        /// Detail byte 0: the [`TransferStatusCode`] of the verdict (byte 1: its detail, for
+        /// `WrongNode` the image's node id), or [`STORE_UNREADABLE`] (byte 1: the
+        /// [`StoreFailure`]). Repeated after every heartbeat group while the node has no table.
         BadStoredTable = 0x0001, "stored table refused at boot";
         /// A pushed table was refused. Detail byte 0: the [`TransferStatusCode`].
         TableRefused = 0x0002, "pushed table refused";
@@ -114,6 +117,27 @@ wire_enum! {
     }
 }
 
+/// Detail byte 0 of a [`FaultCode::BadStoredTable`] fault when no image reached the checks: the
+/// store itself could not be read. Byte 1 is then a [`StoreFailure`]. Not a
+/// [`TransferStatusCode`] (those stay below 0x80).
+pub const STORE_UNREADABLE: u8 = 0xFF;
+
+wire_enum! {
+    /// Why the store could not be read at boot: detail byte 1 of a [`FaultCode::BadStoredTable`]
+    /// fault whose byte 0 is [`STORE_UNREADABLE`].
+    StoreFailure: u8 {
+        /// The medium could not be read: a flash driver error; on Linux, a path that is not a
+        /// regular file (a directory, a FIFO, a device) or that the node may not read.
+        Read = 0x01, "the store could not be read";
+        /// The stored image is larger than this node takes (on Linux: a file over the limit).
+        TooLarge = 0x02, "the stored image is too large for this node";
+        /// Images were committed, but no stored copy verifies.
+        Corrupt = 0x03, "no stored copy verifies";
+        /// Any other store failure (an invalid flash layout, for instance).
+        Other = 0x04, "the store failed";
+    }
+}
+
 impl TransferStatusCode {
     /// Whether the new table is running after this outcome.
     pub const fn is_success(self) -> bool {
@@ -138,6 +162,10 @@ mod tests {
         for code in FaultCode::ALL {
             assert_eq!(FaultCode::from_code(code.code()), Some(*code));
         }
+        for failure in StoreFailure::ALL {
+            assert_eq!(StoreFailure::from_code(failure.code()), Some(*failure));
+        }
+        assert!(TransferStatusCode::from_code(STORE_UNREADABLE).is_none());
         for status in TransferStatusCode::ALL {
             assert_eq!(TransferStatusCode::from_code(status.code()), Some(*status));
         }

@@ -26,7 +26,7 @@
 mod codes;
 mod messages;
 
-pub use codes::{FaultCode, NodeState, TransferStatusCode};
+pub use codes::{FaultCode, NodeState, STORE_UNREADABLE, StoreFailure, TransferStatusCode};
 pub use messages::{
     DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Fault, Heartbeat, Message,
     TableStatus, Traffic, TransferStatus,

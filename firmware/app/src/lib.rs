@@ -9,6 +9,9 @@
 //! - streams diagnostic samples (stimulation, activity, deliverer) when the tool asks;
 //! - receives new tables over ISO-TP, checks them whole, swaps them in atomically, stores them.
 //!
+//! [`replay`] feeds recorded frames to nodes in virtual time and records every verdict, so that
+//! the simulator, the Linux node and the boards can be compared byte for byte.
+//!
 //! The frames are those of [`pab_core::protocol`]; `docs/can-protocol.md` describes them.
 //!
 //! Structure: [`Node`] is the whole behaviour as a state machine without I/O (frames and time in,
@@ -39,6 +42,7 @@ mod config;
 mod diagnostic;
 mod faults;
 pub mod node;
+pub mod replay;
 mod runner;
 
 pub use bus::{BusError, CanBus};
@@ -52,13 +56,39 @@ pub mod store {
     pub use pab_storage::{StoreError, TableStore};
 }
 
-use pab_core::{Frame, Instant};
+use pab_core::{Arbiter, Frame, Instant, PortVerdict};
 
 /// Where delivered frames go on this node: the application's own use of a port (a motor loop, a
 /// gripper driver). Re-publishing for gateway ports is done by the node itself.
+///
+/// A consumer may also observe every verdict of the node's arbiter ([`Consumer::verdict`]): a
+/// replay records them to compare runners, a test asserts on them. Observation is opt-in through
+/// [`Consumer::OBSERVES_VERDICTS`], a constant, so that a consumer that does not observe (every
+/// board's) pays nothing for it: the compiler removes the code.
 pub trait Consumer {
+    /// Whether the node calls [`Consumer::verdict`]. `false` (the default): the node keeps no
+    /// verdict and reads no level. `true`: the node keeps the frame's verdicts (one
+    /// [`PortVerdict`] per port of its capacity, on the stack) and calls `verdict` for each.
+    const OBSERVES_VERDICTS: bool = false;
+
     /// Frame `frame`, received at `now`, was delivered at port `port`.
     fn deliver(&mut self, port: u8, frame: &Frame, now: Instant);
+
+    /// The arbiter's verdict on `frame` at one port it fed (only if
+    /// [`Consumer::OBSERVES_VERDICTS`]). Called once per fed port, in port order, after the whole
+    /// frame has been arbitrated and before any [`Consumer::deliver`] for it. `arbiter` is the
+    /// node's, read-only: [`Arbiter::level`] at `now` gives each connection's level after the
+    /// frame (a port's levels do not change when another port is arbitrated), without changing
+    /// anything.
+    fn verdict<const P: usize, const C: usize, const N: usize>(
+        &mut self,
+        frame: &Frame,
+        now: Instant,
+        verdict: &PortVerdict,
+        arbiter: &Arbiter<P, C, N>,
+    ) {
+        let _ = (frame, now, verdict, arbiter);
+    }
 }
 
 /// No local consumer: the node only re-publishes (a pure gateway).

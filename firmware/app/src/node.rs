@@ -10,10 +10,11 @@ use pab_core::Consumer as PortConsumer;
 use pab_core::image::{self, Header, LoadError};
 use pab_core::isotp::{self, RxError, RxEvent};
 use pab_core::protocol::{
-    self, Errors, FaultCode, FrameId, Heartbeat, Message, NodeState, Service, TableStatus, Traffic,
-    TransferStatus, TransferStatusCode,
+    self, Errors, FaultCode, FrameId, Heartbeat, Message, NodeState, STORE_UNREADABLE, Service,
+    StoreFailure, TableStatus, Traffic, TransferStatus, TransferStatusCode,
 };
-use pab_core::{Arbiter, Frame, Instant};
+use pab_core::{Arbiter, Frame, Instant, PortVerdict};
+use pab_storage::StoreError;
 
 use crate::bus::BusError;
 use crate::diagnostic::DiagnosticStream;
@@ -88,6 +89,9 @@ pub struct Node<const P: usize, const C: usize, const N: usize, const IMG: usize
     running: Option<Running>,
     store_failed: bool,
     bus_trouble: bool,
+    /// Why the node booted without a table, if its store held one it could not take: the
+    /// BadStoredTable detail, repeated with every heartbeat group until a table runs.
+    boot_fault: Option<[u8; 5]>,
     receiver: isotp::Receiver<IMG>,
     incoming: Option<Incoming>,
     /// The answer owed once the runner has stored the image: (source, outcome).
@@ -110,6 +114,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             running: None,
             store_failed: false,
             bus_trouble: false,
+            boot_fault: None,
             incoming: None,
             awaiting_store: None,
             counters: Counters::default(),
@@ -128,15 +133,22 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     }
 
     /// Starts with the image found in storage: its first `len` bytes of [`Node::boot_buffer`]
-    /// (`None`: storage was empty or unreadable). A stored image that the loader refuses leaves the
-    /// node without a table and raises [`FaultCode::BadStoredTable`].
+    /// (`None`: storage was empty; a store that could not be read: [`Node::boot_unreadable`]).
+    /// The image passes the checks a pushed one passes (header, node id, CRC, loader); one that
+    /// fails them leaves the node without a table and raises [`FaultCode::BadStoredTable`] with the
+    /// status and detail a transfer of it would get (an image for another node: `WrongNode`,
+    /// detail the image's node id), repeated after every heartbeat group until a table runs.
     pub fn boot(&mut self, stored_len: Option<usize>, now: Instant) {
         let Some(len) = stored_len else {
             info!("no stored table");
             return;
         };
+        let node_id = self.config.node_id;
         let bytes = self.receiver.buffer().get(..len).unwrap_or(&[]);
-        match load::<P, C, N>(bytes) {
+        let verdict = check_target(bytes, node_id)
+            .and_then(|()| load::<P, C, N>(bytes))
+            .and_then(|(header, arbiter)| check_version(&header, None).map(|()| (header, arbiter)));
+        match verdict {
             Ok((header, arbiter)) => {
                 info!("booted with stored table version {}", header.table_version);
                 self.arbiter = Some(arbiter);
@@ -146,17 +158,51 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                     stored: true,
                 });
             }
+            Err((TransferStatusCode::WrongNode, image_node)) => {
+                warn!(
+                    "stored table refused: the image is for node {}, this node is {}; starting without a table",
+                    image_node, node_id
+                );
+                self.boot_fault = Some([TransferStatusCode::WrongNode.code(), image_node, 0, 0, 0]);
+            }
             Err((status, detail)) => {
-                warn!("stored table refused: {:?}", status);
-                self.raise(FaultCode::BadStoredTable, [status.code(), detail, 0, 0, 0]);
+                warn!(
+                    "stored table refused: {:?} (detail {}); starting without a table",
+                    status, detail
+                );
+                self.boot_fault = Some([status.code(), detail, 0, 0, 0]);
             }
         }
+        // The first heartbeat group goes out now, and the fault (if any) with it.
+        self.poll(now);
+    }
+
+    /// Starts without a table because the store could not be read (`error`): raises
+    /// [`FaultCode::BadStoredTable`] with detail [`STORE_UNREADABLE`] and the [`StoreFailure`],
+    /// repeated after every heartbeat group until a table runs.
+    pub fn boot_unreadable(&mut self, error: StoreError, now: Instant) {
+        warn!(
+            "the stored table could not be read ({:?}); starting without a table",
+            error
+        );
+        let failure = match error {
+            StoreError::Flash(_) => StoreFailure::Read,
+            StoreError::BufferTooSmall { .. } | StoreError::ImageTooLarge { .. } => {
+                StoreFailure::TooLarge
+            }
+            StoreError::Corrupt => StoreFailure::Corrupt,
+            StoreError::Layout(_) | StoreError::SequenceExhausted | StoreError::VerifyFailed => {
+                StoreFailure::Other
+            }
+        };
+        self.boot_fault = Some([STORE_UNREADABLE, failure.code(), 0, 0, 0]);
         self.poll(now);
     }
 
     /// Handles one frame read from the bus at `now`: arbitrates it, or handles it as a frame of
     /// our protocol. Delivered frames go to `consumer` (and are re-published where the table says
-    /// so).
+    /// so); a consumer that observes verdicts ([`Consumer::OBSERVES_VERDICTS`]) sees each one
+    /// first. Protocol frames are never arbitrated.
     pub fn on_frame(&mut self, frame: &Frame, now: Instant, consumer: &mut impl Consumer) -> Step {
         self.counters.received = self.counters.received.wrapping_add(1);
         let step = if protocol::is_ours(&frame.id()) {
@@ -318,11 +364,25 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         &self.config
     }
 
-    fn arbitrate(&mut self, frame: &Frame, now: Instant, consumer: &mut impl Consumer) {
+    fn arbitrate<K: Consumer>(&mut self, frame: &Frame, now: Instant, consumer: &mut K) {
         let Some(arbiter) = self.arbiter.as_mut() else {
             return;
         };
-        let reception = arbiter.receive(&frame.id(), now, |_| {});
+        // Two calls, so that a consumer that does not observe (`OBSERVES_VERDICTS` is a
+        // constant) runs exactly the plain arbitration: the other branch is compiled out.
+        let reception = if K::OBSERVES_VERDICTS {
+            // A frame feeds each port at most once: P entries always suffice.
+            let mut verdicts: heapless::Vec<PortVerdict, P> = heapless::Vec::new();
+            let reception = arbiter.receive(&frame.id(), now, |verdict| {
+                let _ = verdicts.push(*verdict);
+            });
+            for verdict in &verdicts {
+                consumer.verdict(frame, now, verdict, arbiter);
+            }
+            reception
+        } else {
+            arbiter.receive(&frame.id(), now, |_| {})
+        };
         if reception.fed.is_empty() {
             return;
         }
@@ -541,6 +601,11 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             }),
             protocol::BROADCAST,
         );
+        if self.arbiter.is_none()
+            && let Some(detail) = self.boot_fault
+        {
+            self.raise(FaultCode::BadStoredTable, detail);
+        }
     }
 
     fn send(&mut self, message: Message, destination: u8) {
@@ -601,9 +666,12 @@ fn check_version(
         if header.table_version == current.table_version && header.crc == current.crc {
             return Err((TransferStatusCode::AlreadyCurrent, 0));
         }
-        if header.table_version <= current.table_version {
-            return Err((TransferStatusCode::OlderVersion, 0));
-        }
+    }
+    // No table counts as version 0, as the heartbeat reports it: a table of version 0 is never
+    // newer, so none ever runs and "version 0" on the bus always means "no table".
+    let current_version = running.map_or(0, |running| running.header.table_version);
+    if header.table_version <= current_version {
+        return Err((TransferStatusCode::OlderVersion, 0));
     }
     Ok(())
 }

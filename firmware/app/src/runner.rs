@@ -31,14 +31,15 @@ where
     S: TableStore,
     K: Consumer,
 {
-    let stored = match store.load(node.boot_buffer()).await {
-        Ok(found) => found.map(<[u8]>::len),
-        Err(_error) => {
-            warn!("reading the stored table failed");
-            None
-        }
-    };
-    node.boot(stored, now());
+    // An unreadable store is not an empty one: the node says so on the bus.
+    match store
+        .load(node.boot_buffer())
+        .await
+        .map(|found| found.map(<[u8]>::len))
+    {
+        Ok(stored) => node.boot(stored, now()),
+        Err(error) => node.boot_unreadable(error, now()),
+    }
     loop {
         while let Some(frame) = node.next_outgoing() {
             if bus.transmit(&frame).await.is_err() {

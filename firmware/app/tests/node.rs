@@ -299,3 +299,71 @@ fn a_bad_stored_table_leaves_the_node_without_a_table_and_says_why() {
         TransferStatusCode::CrcMismatch.code()
     );
 }
+
+#[test]
+fn a_stored_table_for_another_node_is_refused_at_boot_as_a_transfer_would_be() {
+    // An image compiled for node 1 on node 5 (`pab-node --node-id 5 --table arm.pab`).
+    let table = priority_table(&[TOPIC_A], None);
+    let mut h = Harness::boot(Some(&image(&table, 1, 3)));
+    assert_eq!(h.node.state(), NodeState::NoTable);
+    assert_eq!(h.node.running(), None);
+    h.feed(&frame(TOPIC_A, &[1]));
+    assert!(h.deliveries.0.is_empty(), "no table, no delivery");
+    h.advance_to(10 * MS);
+    let reported = faults(&h);
+    assert_eq!(reported.len(), 1, "{reported:?}");
+    assert_eq!(reported[0].1.code, FaultCode::BadStoredTable);
+    // The same status and detail as a transfer of that image gets: WrongNode, the image's node.
+    assert_eq!(
+        reported[0].1.detail,
+        [TransferStatusCode::WrongNode.code(), 1, 0, 0, 0]
+    );
+    let (_, first) = heartbeats(&h)[0];
+    assert_eq!((first.state, first.table_version), (NodeState::NoTable, 0));
+}
+
+#[test]
+fn a_stored_table_of_version_0_is_refused_at_boot_as_a_transfer_would_be() {
+    let table = priority_table(&[TOPIC_A], None);
+    let mut h = Harness::boot(Some(&image(&table, Harness::NODE_ID, 0)));
+    assert_eq!(h.node.state(), NodeState::NoTable);
+    h.advance_to(10 * MS);
+    let reported = faults(&h);
+    assert_eq!(reported.len(), 1, "{reported:?}");
+    assert_eq!(reported[0].1.code, FaultCode::BadStoredTable);
+    assert_eq!(
+        reported[0].1.detail,
+        [TransferStatusCode::OlderVersion.code(), 0, 0, 0, 0]
+    );
+}
+
+#[test]
+fn the_stored_table_fault_is_repeated_with_each_heartbeat_until_a_table_runs() {
+    // A tool that starts listening after the boot still learns why the node has no table.
+    let table = priority_table(&[TOPIC_A], None);
+    let mut bytes = image(&table, Harness::NODE_ID, 3);
+    let last = bytes.len() - 1;
+    bytes[last] ^= 0x40;
+    let mut h = Harness::boot(Some(&bytes));
+    h.advance_to(3 * S + 10 * MS);
+    let reported = faults(&h);
+    let times: Vec<u64> = reported.iter().map(|(t, _)| *t).collect();
+    assert_eq!(times, vec![0, S, 2 * S, 3 * S], "{reported:?}");
+    for (_, fault) in &reported {
+        assert_eq!(fault.code, FaultCode::BadStoredTable);
+        assert_eq!(fault.count, 1);
+        assert_eq!(fault.detail[0], TransferStatusCode::CrcMismatch.code());
+    }
+    // A table pushed meanwhile ends it.
+    h.push(&image(&table, Harness::NODE_ID, 4));
+    assert_eq!(h.running_version(), Some(4));
+    let pushed_at = h.now;
+    h.advance_to(pushed_at + 3 * S);
+    assert!(
+        faults(&h)
+            .iter()
+            .all(|(t, f)| *t <= pushed_at || f.code != FaultCode::BadStoredTable),
+        "{:?}",
+        faults(&h)
+    );
+}

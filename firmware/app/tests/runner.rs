@@ -9,12 +9,12 @@ use common::*;
 use embassy_futures::select::{Either, select};
 use futures::StreamExt;
 use futures::channel::mpsc::{UnboundedReceiver, UnboundedSender, unbounded};
-use pab_app::{BusError, CanBus, Config, TableStore};
+use pab_app::{BusError, CanBus, Config, StoreError, TableStore};
 use pab_core::isotp::{Sender, TxConfig, TxEvent};
 use pab_core::protocol::{self, Message, TransferStatusCode};
 use pab_core::{Frame, Instant};
-use pab_storage::FlashStore;
 use pab_storage::testing::MemFlash;
+use pab_storage::{FlashErrorKind, FlashStore};
 
 /// The G474's geometry: 4 KiB pages, 8-byte writes; 64 KiB.
 type Flash = MemFlash<16, 4096, 8>;
@@ -226,4 +226,66 @@ fn a_bus_that_keeps_failing_does_not_make_the_node_spin() {
     );
     assert_eq!(node.state(), protocol::NodeState::NoTable);
     assert!(node.counters().errors >= 5);
+}
+
+/// A store whose medium cannot be read (a flash driver error, a file that is not one).
+struct UnreadableStore;
+
+impl TableStore for UnreadableStore {
+    async fn load<'b>(&mut self, _buf: &'b mut [u8]) -> Result<Option<&'b [u8]>, StoreError> {
+        Err(StoreError::Flash(FlashErrorKind::Other))
+    }
+
+    async fn save(&mut self, _image: &[u8]) -> Result<(), StoreError> {
+        Err(StoreError::Flash(FlashErrorKind::Other))
+    }
+}
+
+#[test]
+fn a_store_that_cannot_be_read_raises_the_stored_table_fault() {
+    let (to_node, incoming) = unbounded();
+    let (outgoing, mut from_node) = unbounded();
+    let mut bus = ChannelBus { incoming, outgoing };
+    let mut node = Box::new(TestNode::new(Config::new(Harness::NODE_ID).unwrap(), now()));
+    futures::executor::block_on(async {
+        let script = async {
+            let _bus_open = to_node;
+            let (_, first) = next_message(&mut from_node).await;
+            assert!(
+                matches!(first, Message::Heartbeat(hb) if hb.state == protocol::NodeState::NoTable),
+                "{first:?}"
+            );
+            // The rest of the heartbeat group, then the fault that says why.
+            loop {
+                match next_message(&mut from_node).await {
+                    (_, Message::Fault(fault)) => {
+                        assert_eq!(fault.code, protocol::FaultCode::BadStoredTable);
+                        assert_eq!(
+                            fault.detail,
+                            [
+                                protocol::STORE_UNREADABLE,
+                                protocol::StoreFailure::Read.code(),
+                                0,
+                                0,
+                                0
+                            ]
+                        );
+                        break;
+                    }
+                    (_, Message::Heartbeat(hb)) => panic!("a second heartbeat, no fault: {hb:?}"),
+                    _ => {}
+                }
+            }
+        };
+        match select(
+            pab_app::run(&mut node, &mut bus, &mut UnreadableStore, &mut ()),
+            script,
+        )
+        .await
+        {
+            Either::First(never) => match never {},
+            Either::Second(()) => {}
+        }
+    });
+    assert_eq!(node.state(), protocol::NodeState::NoTable);
 }

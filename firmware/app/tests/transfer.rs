@@ -125,6 +125,27 @@ fn an_older_version_or_the_same_version_with_other_contents_is_refused() {
 }
 
 #[test]
+fn a_table_of_version_0_is_never_applied() {
+    // Heartbeats say "version 0" for "no table": a node without a table refuses version 0 as
+    // not newer than what it runs, so that reading never lies.
+    let mut h = Harness::boot(None);
+    h.push(&image(
+        &priority_table(&[TOPIC_A], None),
+        Harness::NODE_ID,
+        0,
+    ));
+    assert_eq!(last_status(&h).status, TransferStatusCode::OlderVersion);
+    assert_eq!(h.running_version(), None);
+    assert_eq!(h.node.state(), NodeState::NoTable);
+    h.push(&image(
+        &priority_table(&[TOPIC_A], None),
+        Harness::NODE_ID,
+        1,
+    ));
+    assert_eq!(last_status(&h).status, TransferStatusCode::Applied);
+}
+
+#[test]
 fn a_table_for_another_node_is_refused() {
     let mut h = running_v1();
     let other = image(&priority_table(&[TOPIC_B], None), Harness::NODE_ID + 1, 2);

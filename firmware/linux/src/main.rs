@@ -39,18 +39,49 @@ struct Args {
     #[arg(long)]
     iface: String,
     /// This node's id, 1..=127; pushed tables must be compiled for it.
-    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=127))]
+    #[arg(long, allow_hyphen_values = true, value_parser = node_id)]
     node_id: u8,
-    /// Boot with this table image (from `pabctl compile`) instead of the stored one.
+    /// Boot with this table image (from `pabctl compile`) instead of the stored one. It must be
+    /// a regular file of at most 32768 bytes (anything else stops the start, exit status 2). An
+    /// image for another node id is refused at boot, as a push of it would be: the node starts
+    /// without a table and raises a BadStoredTable fault.
     #[arg(long, value_name = "FILE.pab")]
     table: Option<PathBuf>,
-    /// Directory where pushed tables are stored (created if missing). Without it, a pushed table
+    /// Directory where pushed tables are stored (created if missing), as DIR/table.pab; the node
+    /// boots with it. If DIR/table.pab is not a regular file of at most 32768 bytes (a FIFO, a
+    /// directory, a device), cannot be read, or is refused like a push, the node starts without
+    /// a table and raises a BadStoredTable fault that says why. Without --store, a pushed table
     /// runs until the process ends and the node answers "applied, but storing failed".
     #[arg(long, value_name = "DIR")]
     store: Option<PathBuf>,
-    /// Heartbeat period in milliseconds.
-    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(10..=3_600_000))]
+    /// Heartbeat period in milliseconds, 10..=3600000.
+    #[arg(long, default_value = "1000", allow_hyphen_values = true, value_parser = heartbeat_ms)]
     heartbeat_ms: u64,
+}
+
+/// A whole number in `min..=max`, or what is wrong with `text` (a negative number is "not
+/// positive", not clap's "unexpected argument").
+fn whole(text: &str, min: u64, max: u64) -> Result<u64, String> {
+    let text = text.trim();
+    if text.starts_with('-') {
+        return Err(format!("must be positive ({min}..={max})"));
+    }
+    match text.parse::<u64>() {
+        Ok(value) if (min..=max).contains(&value) => Ok(value),
+        Ok(_) => Err(format!("must be in {min}..={max}")),
+        Err(_) if !text.is_empty() && text.bytes().all(|b| b.is_ascii_digit()) => {
+            Err(format!("must be in {min}..={max}"))
+        }
+        Err(_) => Err(format!("`{text}` is not a whole number ({min}..={max})")),
+    }
+}
+
+fn node_id(text: &str) -> Result<u8, String> {
+    whole(text, 1, 127).and_then(|id| u8::try_from(id).map_err(|error| error.to_string()))
+}
+
+fn heartbeat_ms(text: &str) -> Result<u64, String> {
+    whole(text, 10, 3_600_000)
 }
 
 fn main() -> ExitCode {

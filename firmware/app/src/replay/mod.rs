@@ -1,0 +1,70 @@
+//! Replays: timestamped frames fed to a node in virtual time, and the record of every verdict it
+//! makes, so that runners (the simulator, the Linux node, the firmware on a Cortex-M4) can be
+//! compared byte for byte.
+//!
+//! - [`records`]: the record format, one text line per verdict (raw Q1.31 levels, masks in hex),
+//!   written with `core::fmt` (no allocation), and [`Recorder`], a [`crate::Consumer`] that
+//!   writes them.
+//! - [`job`]: the binary file that brings a board runner its tables and frames (a replay on a
+//!   board reads it through semihosting).
+//!
+//! Both sides of each format live here, in the `no_std` application, so a host tool and a board
+//! write and read them with the same code.
+
+pub mod job;
+pub mod records;
+
+pub use records::Recorder;
+
+use core::fmt::Write;
+
+use pab_core::Instant;
+use pab_core::image::{self, Header};
+use pab_core::protocol::TransferStatusCode;
+
+use crate::node::{Node, status_of};
+
+/// Boots `node` at `now` with the image in the first `len` bytes of its
+/// [`Node::boot_buffer`], as a board boots from its store, and writes its `# node` record line.
+/// Returns the running table's header, or the transfer status and detail byte the image was
+/// refused with (then the node runs no table, and its verdicts are missing from the record: a
+/// comparison with a runner that took the image fails at that line).
+pub fn boot<const P: usize, const C: usize, const N: usize, const IMG: usize>(
+    node: &mut Node<P, C, N, IMG>,
+    len: usize,
+    now: Instant,
+    out: &mut impl Write,
+) -> Result<Header, (TransferStatusCode, u8)> {
+    // The reason, if the image is refused: the loader's verdict at this node's capacities. Read
+    // before booting because the boot buffer is the node's transfer buffer.
+    let refusal = match node.boot_buffer().get(..len) {
+        Some(bytes) => image::load::<P, C, N>(bytes)
+            .err()
+            .map(|error| status_of(&error)),
+        None => Some((TransferStatusCode::TooLarge, 0)),
+    };
+    node.boot(Some(len), now);
+    let outcome = match (node.running(), refusal) {
+        (Some(running), _) => Ok(running.header),
+        (None, Some(refusal)) => Err(refusal),
+        // The loader took it but the arbiter did not (a table it cannot run).
+        (None, None) => Err((TransferStatusCode::InvalidTable, 0)),
+    };
+    let _ = records::write_boot(out, node.config().node_id, outcome.as_ref().map_err(|e| *e));
+    outcome
+}
+
+/// Feeds `frame` to `node` at its time, recording its verdicts with `recorder` under the node's
+/// id, and drops what the node sends (heartbeats, re-published frames: a replay's bus is the
+/// capture). Returns whether the node asked to store a table, which a replay never causes (its
+/// frames hold no table transfer).
+pub fn feed<const P: usize, const C: usize, const N: usize, const IMG: usize, W: Write>(
+    node: &mut Node<P, C, N, IMG>,
+    frame: &job::TimedFrame,
+    recorder: &mut Recorder<W>,
+) -> bool {
+    recorder.node_id = node.config().node_id;
+    let step = node.on_frame(&frame.frame, frame.instant(), recorder);
+    while node.next_outgoing().is_some() {}
+    step == crate::Step::Store
+}

@@ -1,0 +1,192 @@
+//! `pabctl replay` and `pabctl sim --candump` as a user runs them: output, errors with their
+//! line, exit statuses, files written or not.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn pabctl(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_pabctl"))
+        .args(args)
+        .output()
+        .expect("pabctl runs")
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+fn path(relative: &str) -> String {
+    root().join(relative).display().to_string()
+}
+
+const NETWORK: &str = "examples/take-and-return.toml";
+const HIL_LOG: &str = "host-tools/tests/fixtures/take-and-return-hil.log";
+
+#[test]
+fn the_help_teaches_the_capture_format_with_examples() {
+    let output = pabctl(&["replay", "--help"]);
+    assert_eq!(output.status.code(), Some(0));
+    let help = text(&output.stdout);
+    for expected in [
+        "candump -L can0 > yesterday.log",
+        "(1700000000.123456) can0 123#DEADBEEF",
+        "pabctl replay arm-v2.toml yesterday.log",
+        "not fed",
+        "FILE:LINE:COLUMN",
+        "t,port,connection,stimulation,active,delivered",
+    ] {
+        assert!(help.contains(expected), "missing {expected:?} in:\n{help}");
+    }
+}
+
+#[test]
+fn a_recorded_hil_run_is_replayed_with_a_summary_and_the_port_timelines() {
+    let dir = tempfile::tempdir().unwrap();
+    let trace = dir.path().join("replay.csv");
+    let records = dir.path().join("records.txt");
+    let plot = dir.path().join("replay.png");
+    let output = pabctl(&[
+        "replay",
+        &path(NETWORK),
+        &path(HIL_LOG),
+        "--trace",
+        trace.to_str().unwrap(),
+        "--records",
+        records.to_str().unwrap(),
+        "--plot",
+        plot.to_str().unwrap(),
+    ]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let stdout = text(&output.stdout);
+    // The fixture: 4790 frames, 4331 of them the nodes' own (pushes, heartbeats, the diagnostic
+    // stream), 37 written out of time order by the recorder, and the gateways' re-published
+    // frames on 0x200..0x202, which no topic matches.
+    for expected in [
+        "4790 frames over 23.877701 s on vcan0",
+        "459 replayed on 3 nodes, 4331 of the pab protocol not fed",
+        "37 frames out of time order in the file (at most 0.009299 s early)",
+        "161 frames match no topic: 0x200 ×66, 0x201 ×54, 0x202 ×41",
+        "arm.target (node arm)",
+        "C14 (rest_pose)",
+    ] {
+        assert!(
+            stdout.contains(expected),
+            "missing {expected:?} in:\n{stdout}"
+        );
+    }
+    let csv = std::fs::read_to_string(&trace).unwrap();
+    assert!(csv.starts_with("t,port,connection,stimulation,active,delivered\n"));
+    assert_eq!(csv.lines().count(), 541, "one row per fed connection");
+    let records = std::fs::read_to_string(&records).unwrap();
+    assert!(records.starts_with("# pab replay records 1\n# node 1: table version 1, crc 0x"));
+    assert!(
+        records.ends_with("# end: 459 frames, 540 verdicts\n"),
+        "{records}"
+    );
+    assert!(std::fs::metadata(&plot).unwrap().len() > 10_000);
+}
+
+#[test]
+fn every_malformed_line_is_reported_with_its_place_and_nothing_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let capture = dir.path().join("bad.log");
+    std::fs::write(
+        &capture,
+        "(1700000000.000000) can0 110#01\n\
+         (1700000000.100000) can0 110#0G\n\
+         garbage\n\
+         (1700000000.200000) can0 123##1DEADBEEF\n\
+         (1700000000.300000) can0 1234#00\n\
+         (1700000000.400000) can0 113#\n",
+    )
+    .unwrap();
+    let trace = dir.path().join("trace.csv");
+    let output = pabctl(&[
+        "replay",
+        &path(NETWORK),
+        capture.to_str().unwrap(),
+        "--trace",
+        trace.to_str().unwrap(),
+    ]);
+    assert_eq!(output.status.code(), Some(2));
+    let stderr = text(&output.stderr);
+    let name = capture.display();
+    for expected in [
+        format!("{name}:2:31: error: `G` is not a hex digit of the data"),
+        format!("{name}:3:1: error: not a candump -L line"),
+        format!("{name}:4:30: error: a CAN FD frame (ID##FLAGS DATA): only classic CAN"),
+        format!("{name}:5:26: error: CAN id `1234` has 4 digits"),
+    ] {
+        assert!(
+            stderr.contains(&expected),
+            "missing {expected:?} in:\n{stderr}"
+        );
+    }
+    assert_eq!(stderr.lines().count(), 4, "{stderr}");
+    assert!(output.stdout.is_empty());
+    assert!(!trace.exists());
+}
+
+#[test]
+fn an_output_that_is_an_input_is_refused_before_anything_is_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let capture = dir.path().join("yesterday.log");
+    std::fs::write(&capture, "(1.000000) can0 110#01\n").unwrap();
+    let output = pabctl(&[
+        "replay",
+        &path(NETWORK),
+        capture.to_str().unwrap(),
+        "--trace",
+        capture.to_str().unwrap(),
+    ]);
+    assert_eq!(output.status.code(), Some(2));
+    assert!(
+        text(&output.stderr).contains("--trace would overwrite an input file"),
+        "{}",
+        text(&output.stderr)
+    );
+    assert_eq!(
+        std::fs::read_to_string(&capture).unwrap(),
+        "(1.000000) can0 110#01\n"
+    );
+}
+
+#[test]
+fn a_missing_or_empty_capture_is_an_input_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing.log");
+    let output = pabctl(&["replay", &path(NETWORK), missing.to_str().unwrap()]);
+    assert_eq!(output.status.code(), Some(2));
+    assert!(text(&output.stderr).contains("missing.log: error: cannot read"));
+    let empty = dir.path().join("empty.log");
+    std::fs::write(&empty, "\n").unwrap();
+    let output = pabctl(&["replay", &path(NETWORK), empty.to_str().unwrap()]);
+    assert_eq!(output.status.code(), Some(2));
+    assert!(text(&output.stderr).contains("no CAN frame in this file"));
+}
+
+#[test]
+fn sim_writes_its_bus_as_a_candump_log() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("bus.log");
+    let output = pabctl(&[
+        "sim",
+        &path("examples/figure-1.toml"),
+        "--candump",
+        log.to_str().unwrap(),
+    ]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let written = std::fs::read_to_string(&log).unwrap();
+    let lines: Vec<&str> = written.lines().collect();
+    assert!(text(&output.stdout).contains(&format!("({} frames)", lines.len())));
+    assert_eq!(lines[0], "(0000000000.000000) vcan0 110#");
+    assert!(
+        lines
+            .iter()
+            .all(|line| line.starts_with('(') && line.contains(" vcan0 "))
+    );
+}
