@@ -2,16 +2,17 @@
 # Runs every check and test of the project, from a fresh clone on a fresh machine:
 #   ./test.sh
 # It installs what it needs (the Cortex-M target, rustfmt, clippy, llvm-tools) with rustup, then
-# checks formatting and lints, builds the core and the NUCLEO-G474RE firmware (and prints its
-# flash and RAM size), runs all tests (unit, property, end-to-end, command line, the node
-# application on an in-process bus), runs each benchmark once in test mode, runs every example
-# through `pabctl check` and `pabctl sim` (plots and traces land in target/examples/), and checks
-# the DBC export with cantools (in a venv made by scripts/python-env.sh from requirements-dev.txt),
-# runs the HIL harness's own unit tests (hil-sim/unit), the cross-runner test with the board
-# firmware in QEMU (scripts/cross-runner.sh: simulator, node application and emulated Cortex-M4
-# must record identical verdicts), and the hardware-in-the-loop suite (hil-sim/run-hil: on vcan0,
-# or in a micro-VM; PAB_HIL_ACCEL=auto|kvm|tcg picks its accelerator), whose fresh Take and Return
-# log then goes through the cross-runner test too.
+# checks formatting and lints, builds the core, the NUCLEO-G474RE firmware and the emulated
+# board's (and prints their flash and RAM sizes), runs all tests (unit, property, end-to-end,
+# command line, the node application on an in-process bus), runs each benchmark once in test
+# mode, runs every example through `pabctl check` and `pabctl sim` (plots and traces land in
+# target/examples/), checks the DBC export with cantools (in a venv made by
+# scripts/python-env.sh from requirements-dev.txt), runs the HIL harness's own unit tests
+# (hil-sim/unit), the cross-runner test with the board firmware in QEMU (scripts/cross-runner.sh:
+# simulator, node application and emulated Cortex-M4 must record identical verdicts), the
+# emulated board's time check across its timer's wraps, and the hardware-in-the-loop suite
+# (hil-sim/run-hil: on vcan0, or in a micro-VM; PAB_HIL_ACCEL=auto|kvm|tcg picks its
+# accelerator), whose fresh Take and Return log then goes through the cross-runner test too.
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -35,14 +36,16 @@ cargo clippy -p pab-core --features defmt --target thumbv7em-none-eabihf --locke
 cargo clippy -p pab-storage --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-app --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-fw-g474 --target thumbv7em-none-eabihf --release --locked -- -D warnings
+cargo clippy -p pab-slcan --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-fw-an386 --target thumbv7em-none-eabihf --release --locked -- -D warnings
 
 step "pab-core for the boards (thumbv7em-none-eabihf)"
 cargo build -p pab-core --release --target thumbv7em-none-eabihf --locked
 cargo build -p pab-storage --release --target thumbv7em-none-eabihf --locked
 
-step "firmware for the NUCLEO-G474RE (pab-fw-g474)"
+step "firmware for the NUCLEO-G474RE (pab-fw-g474) and the emulated Cortex-M4 (pab-fw-an386)"
 cargo build -p pab-fw-g474 --release --target thumbv7em-none-eabihf --locked
+cargo build -p pab-fw-an386 --release --target thumbv7em-none-eabihf --locked
 scripts/firmware-size.sh
 
 step "tests"
@@ -83,6 +86,12 @@ step "identical decisions on every runner: scripts/cross-runner.sh"
 # records of every verdict. (The first two also run in `cargo test`.) Installs qemu-system-arm
 # with apt-get if it is missing; never skipped.
 scripts/cross-runner.sh
+
+step "emulated Cortex-M4: the time driver across TIMER0's wraps (pab-an386-timecheck, QEMU)"
+# 400 s of virtual time (-icount) with the clock read without pause around each 100 s wrap
+# (qemu-system-arm: installed by the step above if it was missing).
+cargo run --release -p pab-fw-an386 --target thumbv7em-none-eabihf --bin pab-an386-timecheck \
+    --locked -- -icount shift=10,sleep=off
 
 step "hardware-in-the-loop: hil-sim/run-hil"
 # pab-node processes on a SocketCAN vcan0, the Take and Return behaviours and world in python-can.

@@ -1,26 +1,41 @@
 #!/usr/bin/env bash
-# Flash and static RAM of the board firmware, from its release build:
-#   scripts/firmware-size.sh            (builds pab-fw-g474 first if needed)
-# Needs llvm-size from rustup's llvm-tools component (installed here if missing).
+# Flash and static RAM of the board firmware, from its release builds:
+#   scripts/firmware-size.sh            (builds pab-fw-g474 and pab-fw-an386 first if needed)
+# Needs llvm-size from rustup's llvm-tools component (installed here if missing). The firmware
+# must stay within 64 KiB of flash (text + data).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 target="${CARGO_TARGET_DIR:-target}"
-elf="$target/thumbv7em-none-eabihf/release/pab-fw-g474"
-if [ ! -f "$elf" ]; then
-    cargo build -p pab-fw-g474 --release --target thumbv7em-none-eabihf --locked
-fi
 size="$(rustc --print sysroot)/lib/rustlib/$(rustc -vV | sed -n 's/^host: //p')/bin/llvm-size"
 if [ ! -x "$size" ]; then
     rustup component add llvm-tools
 fi
 
-"$size" "$elf"
-read -r text data bss < <("$size" "$elf" | awk 'NR == 2 { print $1, $2, $3 }')
-flash=$(( text + data ))
-ram=$(( data + bss ))
+# report PACKAGE DESCRIPTION PROGRAM_REGION RAM_TEXT
+report() {
+    local package="$1" description="$2" region="$3" ram_text="$4"
+    local elf="$target/thumbv7em-none-eabihf/release/$package"
+    if [ ! -f "$elf" ]; then
+        cargo build -p "$package" --release --target thumbv7em-none-eabihf --locked
+    fi
+    "$size" "$elf"
+    local text data bss
+    read -r text data bss < <("$size" "$elf" | awk 'NR == 2 { print $1, $2, $3 }')
+    local flash=$(( text + data )) ram=$(( data + bss ))
+    awk -v name="$package ($description)" -v flash="$flash" -v ram="$ram" -v region="$region" \
+        -v ram_text="$ram_text" 'BEGIN {
+        printf "%s: flash %d bytes (%.1f KiB of %s), RAM %d bytes (%.1f KiB of %s)\n",
+            name, flash, flash / 1024, region, ram, ram / 1024, ram_text
+    }'
+    if [ "$flash" -gt 65536 ]; then
+        echo "firmware-size: $package takes $flash bytes of flash, more than 64 KiB" >&2
+        exit 1
+    fi
+}
+
 echo "flash = text+data, RAM = data+bss (static)"
-awk -v flash="$flash" -v ram="$ram" 'BEGIN {
-    printf "pab-fw-g474 (NUCLEO-G474RE): flash %d bytes (%.1f KiB of the 464 KiB program region, 512 KiB chip), RAM %d bytes (%.1f KiB of 128 KiB; the rest is the stack)\n",
-        flash, flash / 1024, ram, ram / 1024
-}'
+report pab-fw-g474 "NUCLEO-G474RE" "the 464 KiB program region, 512 KiB chip" \
+    "128 KiB; the rest is the stack"
+report pab-fw-an386 "emulated Cortex-M4, QEMU mps2-an386" "the 256 KiB program region" \
+    "4 MiB; the rest is the stack"

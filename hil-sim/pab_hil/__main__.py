@@ -16,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from .nodes import REPO, TAKE_AND_RETURN, MissingBinary
+from .nodes import NODE_IDS, REPO, TAKE_AND_RETURN, MissingBinary
 
 SCENARIOS = {
     "take-and-return": "A to F: the robot takes the object the person shows and hands it back",
@@ -54,6 +54,12 @@ def main(argv: list[str] | None = None) -> int:
                      help="draw the stimulation levels from the nodes' diagnostic stream here (PNG)")
     run.add_argument("--timeout", type=float, default=90.0,
                      help="give up after this many seconds (default: 90)")
+    run.add_argument("--board", action="append", choices=sorted(NODE_IDS), default=[],
+                     metavar="NODE",
+                     help="run this node as the emulated Cortex-M4 board (pab-fw-an386 in "
+                     "qemu-system-arm, bridged with slcand and cangw) instead of pab-node; "
+                     "repeatable on a workstation (the micro-VM has one). Needs root, can-utils, "
+                     "qemu-system-arm, the slcan and can-gw modules")
 
     suite = commands.add_parser(
         "suite",
@@ -108,7 +114,8 @@ def run_scenario(args) -> int:
     started = time.monotonic()
     status = 0
     session = Session(args.iface, out, network=args.network, person=person,
-                      progress=lambda line: print(f"  {line}", flush=True))
+                      progress=lambda line: print(f"  {line}", flush=True),
+                      boards=tuple(args.board))
     try:
         with session:
             done = _back_to_rest(session)
@@ -153,7 +160,7 @@ def _back_to_rest(session):
 
 
 def run_suite(args) -> int:
-    from . import vm
+    from . import board, vm
 
     vm.accel_mode()  # a mistyped PAB_HIL_ACCEL fails now, not after the build of the guest
     out: Path = args.out.resolve()
@@ -202,14 +209,23 @@ def run_suite(args) -> int:
             "export HOME=/run/home TMPDIR=/run/tmp PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1",
             f"export MPLCONFIGDIR={shlex.quote(str(mpl))}",
             *(f"export {name}={shlex.quote(os.environ[name])}"
-              for name in ("PAB_BIN_DIR", "CARGO_TARGET_DIR") if name in os.environ),
+              for name in ("PAB_BIN_DIR", "CARGO_TARGET_DIR", "PAB_BOARD_ELF") if name in os.environ),
             "export PAB_HIL_WAY='micro-VM'",
+            # The emulated board's QEMU runs here, on the host (see pab_hil.board): its UART0
+            # is the guest's ttyS1, and the guest asks for it on ttyS2.
+            f"export {board.UART_ENV}=/dev/ttyS1 {board.CONTROL_ENV}=/dev/ttyS2",
             f"cd {shlex.quote(str(REPO))}",
             "ip link show vcan0 | head -1",
             command + (" --color=no" if not args.command else ""),
             "",
         ])
-        outcome = vm.run(job, out, out / ".." / "hil-vm", timeout_s=args.timeout)
+        boards = board.HostBoards()
+        boards.start()
+        try:
+            outcome = vm.run(job, out, out / ".." / "hil-vm", timeout_s=args.timeout,
+                             serials=boards.serials)
+        finally:
+            boards.close()
         status = outcome.status
         way_text = f"micro-VM, {outcome.accel}, booted in {outcome.boot_s:.1f} s"
     elapsed = time.monotonic() - started

@@ -107,18 +107,29 @@ class NodeProcess:
 
 
 class Nodes:
-    """The network's nodes, started together, each with its own table store."""
+    """The network's nodes, started together, each with its own table store: `pab-node`
+    processes, and the emulated board (`pab_hil.board.BoardNode`) for the names in `boards`."""
 
-    def __init__(self, iface: str, work_dir: Path, node_ids: dict[str, int] = NODE_IDS) -> None:
+    def __init__(self, iface: str, work_dir: Path, node_ids: dict[str, int] = NODE_IDS,
+                 boards: tuple[str, ...] = ()) -> None:
+        from .board import UART_ENV, BoardNode
+
+        unknown = set(boards) - set(node_ids)
+        if unknown:
+            raise ValueError(f"no node named {', '.join(sorted(unknown))} in {sorted(node_ids)}")
+        if len(boards) > 1 and os.environ.get(UART_ENV):
+            raise ValueError("in the micro-VM the host serves one emulated board (one serial "
+                             "port): run one node as the board")
         # The stores live in a local temporary directory: a node answers a push only once the
         # table is stored, and a results directory may be a slow network share (the micro-VM's).
         self.store_root = Path(tempfile.mkdtemp(prefix="pab-hil-store-"))
-        self.by_name = {
-            name: NodeProcess(name, node_id, iface, self.store_root / name, work_dir / "logs")
+        self.by_name: dict[str, NodeProcess | BoardNode] = {
+            name: BoardNode(name, node_id, iface, work_dir / "logs") if name in boards
+            else NodeProcess(name, node_id, iface, self.store_root / name, work_dir / "logs")
             for name, node_id in node_ids.items()
         }
 
-    def __getitem__(self, name: str) -> NodeProcess:
+    def __getitem__(self, name: str):
         return self.by_name[name]
 
     def start(self) -> None:

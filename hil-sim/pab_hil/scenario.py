@@ -41,6 +41,7 @@ class Session:
         person: TakeAndReturn | None = None,
         progress: Callable[[str], None] | None = None,
         behaviours: tuple[str, ...] | None = None,
+        boards: tuple[str, ...] = (),
     ) -> None:
         self.iface = iface
         self.out_dir = out_dir
@@ -50,7 +51,7 @@ class Session:
         self.log_path = out_dir / "bus.log"
         self.world = World()
         self.phases = PhaseLog()
-        self.nodes = Nodes(iface, out_dir)
+        self.nodes = Nodes(iface, out_dir, boards=boards)
         self.behaviour_names = behaviours  # None: all seven
         self.behaviours: BehaviourProcesses | None = None
         self.recorder: Recorder | None = None
@@ -134,10 +135,14 @@ class Session:
             )
 
     def restart_node(self, name: str) -> None:
-        """Kills the node's process (SIGKILL) and starts it again on the same store."""
+        """Kills the node's process (SIGKILL) and starts it again on the same store; resets the
+        emulated board (QEMU's system_reset, which keeps its RAM-backed store)."""
         node = self.nodes[name]
-        node.kill()
-        node.start()
+        if hasattr(node, "reset"):
+            node.reset()
+        else:
+            node.kill()
+            node.start()
         self.stream(DIAGNOSTIC_RATE_HZ, node.node_id)
 
     def samples(self, node_id: int) -> list[observe.Sample]:

@@ -1,16 +1,21 @@
-"""The paper's Take and Return in closed loop, and its variant where the person takes the object
-back during the approach."""
+"""The paper's Take and Return in closed loop, with the arm node as `pab-node` and as the emulated
+Cortex-M4 board, and its variant where the person takes the object back during the approach."""
 
 from __future__ import annotations
 
-from pab_hil import analysis, behaviours as b, world as w
+import time
+
+from pab_hil import analysis, behaviours as b, nodes, world as w
+from pab_hil.board import BoardNode
+from pab_hil.nodes import NODE_IDS, TAKE_AND_RETURN
 from pab_hil.person import TakeAndReturn
 from pab_hil.phases import driver
 
+ARM = NODE_IDS["arm"]
 
-def test_phases_a_to_f_end_with_the_object_handed_to_the_person(session_for, out_dir, figures):
-    person = TakeAndReturn()
-    session = session_for(person)
+
+def run_a_to_f(session, person) -> None:
+    """Waits for the whole scenario and asserts its phases and its end, as the world shows them."""
     session.wait_for(lambda: person.handed_over_at is not None, 60, "the handover")
     session.wait_for(
         lambda: session.phases.current() == "A" and not session.world.snapshot().face_present,
@@ -24,28 +29,95 @@ def test_phases_a_to_f_end_with_the_object_handed_to_the_person(session_for, out
     end = session.world.snapshot()
     assert end.holder == w.PERSON_KEEPS, session.phase_report()
     assert end.hand_open
+
+
+ARM_TOPICS = {b.OBJECT_POS, b.FACE_POS, b.REST_POSE, b.GRASP_CMD, b.RELEASE_CMD, b.GRASPED}
+
+
+def arm_latency(session) -> analysis.Latency:
+    """Every frame the arm node re-published carries a payload some behaviour published before it
+    (the gateway invents nothing); the delays, from the candump log."""
+    latency = analysis.gateway_latency(analysis.read_log(session.log_path), ARM_TOPICS,
+                                       w.ARM_TARGET_ID)
+    assert latency.count > 20 and latency.unmatched == 0, latency
+    return latency
+
+
+def latency_figure(latency: analysis.Latency) -> dict:
+    return {
+        "deliveries": latency.count,
+        "median_ms": round(latency.median_ms, 3),
+        "p99_ms": round(latency.p99_ms, 3),
+        "max_ms": round(latency.max_ms, 3),
+    }
+
+
+def test_phases_a_to_f_end_with_the_object_handed_to_the_person(session_for, out_dir, figures):
+    person = TakeAndReturn()
+    session = session_for(person)
+    run_a_to_f(session, person)
     session.close()
     from pab_hil.plot import plot_session  # matplotlib: imported only when a test draws
 
     plot_session(session, out_dir / "take-and-return.png", title="take and return, closed loop")
 
-    # What the bus shows: every frame the arm node re-published carries a payload some behaviour
-    # published before it (the gateway invents nothing), and the figures for the README.
+    # What the bus shows, and the figures for the README.
+    latency = arm_latency(session)
     messages = analysis.read_log(session.log_path)
-    arm_topics = {b.OBJECT_POS, b.FACE_POS, b.REST_POSE, b.GRASP_CMD, b.RELEASE_CMD, b.GRASPED}
-    latency = analysis.gateway_latency(messages, arm_topics, w.ARM_TARGET_ID)
-    assert latency.count > 20 and latency.unmatched == 0, latency
     duration = messages[-1].timestamp - messages[0].timestamp
-    figures("latency-behaviour-to-arm", {
-        "deliveries": latency.count,
-        "median_ms": round(latency.median_ms, 3),
-        "p99_ms": round(latency.p99_ms, 3),
-        "max_ms": round(latency.max_ms, 3),
-    })
+    figures("latency-behaviour-to-arm", latency_figure(latency))
     figures("take-and-return-bus", {
         "frames": len(messages),
         "seconds": round(duration, 1),
         "frames_per_s": round(len(messages) / duration),
+    })
+
+
+def test_take_and_return_with_the_arm_node_on_the_emulated_cortex_m4(
+        session_for, tmp_path, figures):
+    """The arm node is pab-fw-an386 on QEMU's Cortex-M4, on the bus through SLCAN, slcand and
+    cangw; its table goes there with `pabctl push`, over ISO-TP through the bridge."""
+    started = time.monotonic()
+    person = TakeAndReturn()
+    session = session_for(person, boards=("arm",))
+    board = session.nodes["arm"]
+    assert isinstance(board, BoardNode) and board.running()
+    # The board's own heartbeats on the bus show the pushed table: the version and CRC of the
+    # image pabctl compiles for it, stored.
+    image = nodes.compile_images(TAKE_AND_RETURN, tmp_path)["arm"]
+    crc = int.from_bytes(image[16:20], "little")
+    session.wait_for(lambda: session.observer.node(ARM).table is not None, 5,
+                     "the board's table status")
+    view = session.observer.node(ARM)
+    assert view.heartbeat.table_version == 1 and view.heartbeat.state == "operational", view
+    assert view.table.crc == crc and view.table.stored, (hex(view.table.crc), hex(crc))
+
+    run_a_to_f(session, person)
+
+    # A reset (QEMU's system_reset: the RAM-backed store is kept): the board comes back with
+    # its stored table, same version and CRC, and delivers Rest Arm's frames again.
+    uptime = session.observer.node(ARM).heartbeat.uptime_s
+    deliveries = len(session.world.deliveries.arm)
+    reset_at = time.monotonic()
+    session.restart_node("arm")
+    session.wait_for(
+        lambda: (v := session.observer.node(ARM)).heartbeat.uptime_s < uptime
+        and v.table is not None and v.table.crc == crc,
+        20, "the board's heartbeat after the reset")
+    back_s = time.monotonic() - reset_at
+    view = session.observer.node(ARM)
+    assert view.heartbeat.table_version == 1 and view.table.stored, view
+    session.wait_for(lambda: len(session.world.deliveries.arm) > deliveries + 5, 10,
+                     "Rest Arm's frames through the board again")
+    assert driver(session.world, "arm") == "rest-arm"
+    session.close()
+
+    latency = arm_latency(session)
+    figures("latency-behaviour-to-arm-board", latency_figure(latency))
+    figures("emulated-board", {
+        "boot_to_first_heartbeat_s": round(board.boot_s, 2),
+        "reset_to_stored_table_s": round(back_s, 2),
+        "test_s": round(time.monotonic() - started, 1),
     })
 
 

@@ -68,3 +68,33 @@ impl Config {
         Ok(())
     }
 }
+
+/// A node id given as text at compile time, for the boards' `PAB_NODE_ID`:
+/// `parse_node_id(option_env!("PAB_NODE_ID"))` in a `const` gives 1 without it, the number for
+/// a decimal number in 1..=127, and a compile error naming `PAB_NODE_ID` for anything else.
+/// (Called at run time with bad text, it panics: use it in `const` items only.)
+pub const fn parse_node_id(text: Option<&str>) -> u8 {
+    let Some(text) = text else {
+        return 1;
+    };
+    let digits = text.as_bytes();
+    assert!(
+        !digits.is_empty() && digits.len() <= 3,
+        "PAB_NODE_ID must be a decimal number in 1..=127"
+    );
+    let mut value: u32 = 0;
+    let mut rest = digits;
+    while let [digit, tail @ ..] = rest {
+        assert!(
+            digit.is_ascii_digit(),
+            "PAB_NODE_ID must be a decimal number in 1..=127"
+        );
+        value = value * 10 + (*digit - b'0') as u32;
+        rest = tail;
+    }
+    assert!(
+        value >= 1 && value <= pab_core::protocol::MAX_NODE_ID as u32,
+        "PAB_NODE_ID must be a decimal number in 1..=127"
+    );
+    value as u8
+}

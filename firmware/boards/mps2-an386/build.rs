@@ -1,6 +1,7 @@
 //! Linker scripts for the binaries only: cortex-m-rt's `link.x`, which includes this crate's
-//! `memory.x`. Doing it here rather than in a `.cargo/config.toml` keeps them off the libraries
-//! built for the same target.
+//! `memory.x` and (cortex-m-rt's `device` feature) `device.x`, the interrupt handlers' default
+//! names. Doing it here rather than in a `.cargo/config.toml` keeps them off the libraries built
+//! for the same target.
 
 use std::env;
 use std::fs;
@@ -9,8 +10,10 @@ use std::path::PathBuf;
 fn main() {
     let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
     fs::write(out.join("memory.x"), include_bytes!("memory.x")).expect("writing memory.x");
+    fs::write(out.join("device.x"), include_bytes!("device.x")).expect("writing device.x");
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rerun-if-changed=memory.x");
+    println!("cargo:rerun-if-changed=device.x");
     println!("cargo:rerun-if-changed=build.rs");
     println!("cargo:rerun-if-env-changed=PAB_NODE_ID");
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import shutil
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 from . import debian, initramfs, kernel
@@ -23,10 +24,12 @@ from .kernel import Kernel, KernelError
 __all__ = ["ACCEL_ENV", "ACCEL_MODES", "Kernel", "Outcome", "VmError", "accel_mode", "kvm_usable",
            "run", "say"]
 
-# Host commands the micro-VM path needs, and the Debian packages that provide them. cangen runs
-# in the guest, from the host's files (the flood test's frame generator).
+# Host commands the micro-VM path needs, and the Debian packages that provide them. cangen,
+# slcand and cangw run in the guest, from the host's files (the flood test's frame generator, the
+# emulated board's bridge); the emulated board's QEMU runs on the host (pab_hil.board).
 HOST_PACKAGES = {
     "qemu-system-x86_64": "qemu-system-x86",
+    "qemu-system-arm": "qemu-system-arm",
     "cangen": "can-utils",
 }
 
@@ -49,11 +52,12 @@ def ensure_host_tools() -> None:
         raise VmError(str(error)) from error
 
 
-def run(job: str, out_dir: Path, cache: Path, timeout_s: float) -> Outcome:
+def run(job: str, out_dir: Path, cache: Path, timeout_s: float,
+        serials: Sequence[Path] = ()) -> Outcome:
     """Boots the micro-VM, runs the shell script `job` in it, and returns its exit status.
 
     The accelerator follows PAB_HIL_ACCEL (see `boot`). The guest's console (the job's output) is
-    copied to stdout as it comes.
+    copied to stdout as it comes. `serials`: unix sockets the guest sees as ttyS1, ttyS2, ...
     """
     mode = accel_mode()
     ensure_host_tools()
@@ -68,6 +72,6 @@ def run(job: str, out_dir: Path, cache: Path, timeout_s: float) -> Outcome:
     (out_dir / "job.sh").write_text(job)
     say(f"micro-VM: kernel {guest.version}, {len(guest.modules)} modules")
     started = time.monotonic()
-    outcome = boot(guest.boot_image, image, out_dir, timeout_s, mode)
+    outcome = boot(guest.boot_image, image, out_dir, timeout_s, mode, serials=serials)
     outcome.total_s = time.monotonic() - started
     return outcome

@@ -18,6 +18,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -73,18 +74,20 @@ def kvm_usable() -> bool:
 
 def boot(kernel: Path, initrd: Path, out_dir: Path, timeout_s: float, mode: str,
          kvm_available: bool | None = None, probe_s: float = KVM_PROBE_S,
-         boot_timeout_s: float = BOOT_TIMEOUT_S) -> Outcome:
+         boot_timeout_s: float = BOOT_TIMEOUT_S, serials: Sequence[Path] = ()) -> Outcome:
     """Boots the micro-VM under the accelerator `mode` allows; returns once QEMU has stopped.
 
-    The guest writes the job's exit status into `out_dir`/job.status; without it, VmError."""
+    `serials` are unix sockets (QEMU listens on them) that the guest sees as its serial ports
+    after the console: ttyS1, ttyS2, ... The guest writes the job's exit status into
+    `out_dir`/job.status; without it, VmError."""
     if kvm_available is None:
         kvm_available = kvm_usable()
     status_file = out_dir / "job.status"
     status_file.unlink(missing_ok=True)
 
     def attempt(accel: str, probe: float | None) -> Outcome | NoLife:
-        return _run_qemu(_command(kernel, initrd, out_dir, accel), accel, out_dir, timeout_s,
-                         probe, boot_timeout_s)
+        return _run_qemu(_command(kernel, initrd, out_dir, accel, serials), accel, out_dir,
+                         timeout_s, probe, boot_timeout_s)
 
     if mode == "tcg":
         say("software emulation (TCG), as PAB_HIL_ACCEL=tcg asks")
@@ -116,7 +119,8 @@ def boot(kernel: Path, initrd: Path, out_dir: Path, timeout_s: float, mode: str,
     return result
 
 
-def _command(kernel: Path, initrd: Path, out_dir: Path, accel: str) -> list[str]:
+def _command(kernel: Path, initrd: Path, out_dir: Path, accel: str,
+             serials: Sequence[Path] = ()) -> list[str]:
     accel_args = ["-enable-kvm", "-cpu", "host"] if accel == KVM else ["-accel", "tcg", "-cpu", "max"]
     cpus = max(1, min(4, os.cpu_count() or 1))
     return [
@@ -129,6 +133,9 @@ def _command(kernel: Path, initrd: Path, out_dir: Path, accel: str) -> list[str]
         "-display", "none", "-no-reboot", "-serial", "stdio", "-monitor", "none",
         "-virtfs", "local,path=/,mount_tag=host,security_model=none,readonly=on,multidevs=remap",
         "-virtfs", f"local,path={out_dir},mount_tag=out,security_model=none",
+        *(argument for number, path in enumerate(serials, start=1) for argument in (
+            "-chardev", f"socket,id=serial{number},path={path},server=on,wait=off",
+            "-serial", f"chardev:serial{number}")),
     ]
 
 

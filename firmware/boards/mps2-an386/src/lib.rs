@@ -3,13 +3,29 @@
 //! Arm's MPS2 board with the AN386 FPGA image is a Cortex-M4 that QEMU emulates faithfully
 //! enough to run the node firmware unchanged: the same `pab-app`, built for
 //! `thumbv7em-none-eabihf` like the NUCLEO-G474RE's. It has no CAN controller, so its CAN
-//! traffic goes over a UART; and no flash controller, so its table store is a region of its
-//! code RAM with flash semantics. What is here is what the binaries share.
+//! traffic goes over UART0 as SLCAN ([`slcan_bus`]), which the host's `slcan` driver turns into a
+//! SocketCAN interface; and no flash controller, so its table store is a region of its code RAM
+//! with flash semantics ([`ram_flash`]). What is here is what the binaries share:
 //!
-//! Memory map (QEMU's model of AN386, `memory.x`): code RAM (SSRAM1) at 0x0000_0000, data RAM
-//! (SSRAM2/3) at 0x2000_0000, APB peripherals at 0x4000_0000 (timers 0x4000_0000 and
-//! 0x4000_1000, IRQ 8 and 9; UART0 0x4000_4000, RX IRQ 0, TX IRQ 1).
+//! - [`interrupts`]: the vector table (cortex-m-rt's `device` feature) and the NVIC lines;
+//! - [`cmsdk`]: the CMSDK APB timers and UART, register by register;
+//! - [`time_driver`]: embassy-time's driver (TIMER0 as the clock, TIMER1 as the alarm);
+//! - [`uart`], [`slcan_bus`]: UART0 with rings, and the node's bus over it;
+//! - [`ram_flash`]: the table store's flash;
+//! - [`logger`], [`semihosting`]: text on QEMU's standard error, and the exit status.
+//!
+//! Memory map (QEMU's model of AN386, `memory.x`): code RAM (SSRAM1) at 0x0000_0000 (program
+//! below 0x0004_0000, table store 0x0004_0000..0x0004_C000), data RAM (SSRAM2/3) at 0x2000_0000,
+//! APB peripherals at 0x4000_0000 (timers 0x4000_0000 and 0x4000_1000, IRQ 8 and 9; dual timer
+//! 0x4000_2000; UART0 0x4000_4000, RX IRQ 0, TX IRQ 1).
 
 #![no_std]
 
+pub mod cmsdk;
+pub mod interrupts;
+pub mod logger;
+pub mod ram_flash;
 pub mod semihosting;
+pub mod slcan_bus;
+pub mod time_driver;
+pub mod uart;

@@ -1,19 +1,142 @@
-//! Boot check of the emulated board: prints one line through semihosting and exits with 0.
-//! (The node firmware replaces it.)
+//! # pab-fw-an386: the pab node on the emulated Cortex-M4 (QEMU `mps2-an386`)
+//!
+//! The node application of `pab-app` (arbitration, heartbeat, faults, diagnostic stream, table
+//! transfers), as on the NUCLEO-G474RE, under embassy's Cortex-M executor (the interrupt
+//! executor: see [`EXECUTOR`]), with:
+//!
+//! - **CAN**: SLCAN on UART0 ([`pab_fw_an386::slcan_bus`]); on the host, `slcand` attaches the
+//!   kernel's `slcan` driver to QEMU's pseudo-terminal and `cangw` routes `slcan0` to the bus.
+//! - **Time**: embassy-time at 1 MHz from the CMSDK timers ([`pab_fw_an386::time_driver`]).
+//! - **Table store**: `pab-storage` over 48 KiB of code RAM with NOR flash semantics, four
+//!   12 KiB slots as on the G474 ([`pab_fw_an386::ram_flash`]): kept across QEMU's
+//!   `system_reset`, lost when QEMU exits.
+//! - **Node id**: [`NODE_ID`], from `PAB_NODE_ID` at build time (default 1), as on the G474.
+//! - **Log**: `log` on QEMU's standard error through semihosting (run QEMU with
+//!   `-semihosting-config enable=on,target=native`).
+//!
+//! Run: `cargo run --release -p pab-fw-an386 --target thumbv7em-none-eabihf -- -serial pty`
+//! (the README's "Boards" section has the whole bridge).
 
 #![no_std]
 #![no_main]
 
-use cortex_m_rt::entry;
-use pab_fw_an386::semihosting;
+use embassy_embedded_hal::adapter::BlockingAsync;
+use embassy_executor::InterruptExecutor;
+use pab_fw_an386::interrupts::{self, Interrupt};
+use pab_fw_an386::ram_flash::{RamFlash, STORE_LEN};
+use pab_fw_an386::slcan_bus::SlcanBus;
+use pab_fw_an386::time_driver::TimeDriver;
+use pab_fw_an386::{logger, semihosting, uart};
+use pab_storage::FlashStore;
+use static_cell::StaticCell;
 
-#[entry]
+/// This node's id (1..=127): `PAB_NODE_ID` at build time, 1 without it. Tables pushed to the
+/// node must be compiled for this id.
+pub const NODE_ID: u8 = pab_app::parse_node_id(option_env!("PAB_NODE_ID"));
+
+/// A ring of four slots of 12 KiB (three pages) each, the G474's layout: every slot holds its
+/// 24-byte header and any image the node's 8 KiB transfer buffer can receive.
+pub const STORE_SLOT_SIZE: u32 = 12 * 1024;
+const _: () = assert!(
+    STORE_SLOT_SIZE as usize >= 8192 + pab_storage::SLOT_HEADER_LEN
+        && STORE_LEN.is_multiple_of(STORE_SLOT_SIZE as usize),
+    "a slot must hold the largest image plus its header, and the region whole slots"
+);
+
+/// The store over the RAM-backed flash.
+type Store = FlashStore<BlockingAsync<RamFlash>>;
+
+embassy_time_driver::time_driver_impl!(static TIME: TimeDriver = TimeDriver::new());
+
+/// The node (arbiter, tables, an 8 KiB transfer buffer): in a `static`, not in a task's future.
+static NODE: StaticCell<pab_app::BoardNode> = StaticCell::new();
+
+/// The executor: embassy's interrupt executor on [`Interrupt::SOFTWARE`], below the devices'
+/// interrupts (priority 0), which preempt the tasks. Why not the thread executor: it idles in
+/// WFE, which QEMU 7.2 (Debian 12's) treats as a yield, not a sleep, so an idle board would keep a
+/// host core busy; thread mode here sleeps in WFI, which QEMU does honour, and the executor runs
+/// in its interrupt when there is work.
+static EXECUTOR: InterruptExecutor = InterruptExecutor::new();
+/// Priority of the executor's interrupt: the lowest (the devices keep 0, the highest).
+const EXECUTOR_PRIORITY: u8 = 0xE0;
+
+#[cortex_m_rt::entry]
 fn main() -> ! {
-    semihosting::eprint(format_args!("pab-fw-an386: booted\n"));
-    semihosting::exit(true)
+    logger::init(log::LevelFilter::Info);
+    TIME.start();
+    uart::init();
+    log::info!("pab node {NODE_ID} on the emulated Cortex-M4 (mps2-an386), SLCAN on UART0");
+
+    // SAFETY: called once; memory.x keeps the program below the store's region.
+    let flash = BlockingAsync::new(unsafe { RamFlash::take() });
+    let store = match FlashStore::new(flash, 0..STORE_LEN as u32, STORE_SLOT_SIZE) {
+        Ok(store) => store,
+        Err(error) => fail(format_args!("table store: {error:?}")),
+    };
+    let config = match pab_app::Config::new(NODE_ID) {
+        Ok(config) => config,
+        Err(error) => fail(format_args!("configuration: {error}")),
+    };
+    let bus = SlcanBus::new(hex4(NODE_ID));
+    let node = NODE.init_with(|| pab_app::BoardNode::new(config, pab_app::now()));
+
+    interrupts::set_priority(Interrupt::SOFTWARE, EXECUTOR_PRIORITY);
+    let spawner = EXECUTOR.start(Interrupt::SOFTWARE);
+    match node_task(node, bus, store) {
+        Ok(task) => spawner.spawn(task),
+        Err(_) => fail(format_args!("cannot spawn the node task")),
+    }
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
+/// Runs the node forever.
+#[embassy_executor::task]
+async fn node_task(node: &'static mut pab_app::BoardNode, mut bus: SlcanBus, mut store: Store) {
+    pab_app::run(node, &mut bus, &mut store, &mut ()).await
+}
+
+/// The node id as four hex digits, for SLCAN's `N` (serial number).
+fn hex4(id: u8) -> [u8; 4] {
+    let hex = b"0123456789ABCDEF";
+    let digit = |nibble: u8| hex.get(usize::from(nibble)).copied().unwrap_or(b'0');
+    [b'0', b'0', digit(id >> 4), digit(id & 0xF)]
+}
+
+/// Says why on QEMU's stderr and ends the emulation with a failure status.
+fn fail(why: core::fmt::Arguments<'_>) -> ! {
+    semihosting::eprint(format_args!("pab-fw-an386: {why}\n"));
+    semihosting::exit(false)
+}
+
+#[unsafe(no_mangle)]
+extern "C" fn TIMER0() {
+    TIME.on_period();
+}
+
+#[unsafe(no_mangle)]
+extern "C" fn TIMER1() {
+    TIME.on_alarm();
+}
+
+#[unsafe(no_mangle)]
+extern "C" fn UART0RX() {
+    uart::on_rx_interrupt();
+}
+
+#[unsafe(no_mangle)]
+extern "C" fn UART0TX() {
+    uart::on_tx_interrupt();
+}
+
+#[unsafe(no_mangle)]
+extern "C" fn SOFTWARE() {
+    // SAFETY: this is the interrupt `EXECUTOR` was started on.
+    unsafe { EXECUTOR.on_interrupt() }
 }
 
 #[panic_handler]
-fn panic(_: &core::panic::PanicInfo) -> ! {
-    semihosting::exit(false)
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    fail(format_args!("panic: {info}"))
 }

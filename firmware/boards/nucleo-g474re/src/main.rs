@@ -50,7 +50,7 @@ use fdcan_bus::{FdcanBus, RxQueue, TxQueue};
 
 /// This node's id (1..=127): `PAB_NODE_ID` at build time, 1 without it. Tables pushed to the
 /// node must be compiled for this id.
-pub const NODE_ID: u8 = parse_node_id(option_env!("PAB_NODE_ID"));
+pub const NODE_ID: u8 = pab_app::parse_node_id(option_env!("PAB_NODE_ID"));
 
 /// The nominal bit rate of the bus, bit/s.
 pub const BITRATE: u32 = 500_000;
@@ -206,32 +206,4 @@ unsafe fn NonMaskableInt() {
         "NMI (flash ECCR {=u32:#x}): double ECC error outside the table store, or a clock failure",
         eccr.0
     );
-}
-
-/// `PAB_NODE_ID` as a node id, at compile time: 1 without it; a decimal number in 1..=127.
-const fn parse_node_id(text: Option<&str>) -> u8 {
-    let Some(text) = text else {
-        return 1;
-    };
-    let digits = text.as_bytes();
-    assert!(
-        !digits.is_empty() && digits.len() <= 3,
-        "PAB_NODE_ID must be a decimal number in 1..=127"
-    );
-    let mut value: u32 = 0;
-    let mut i = 0;
-    while i < digits.len() {
-        let digit = digits[i];
-        assert!(
-            digit.is_ascii_digit(),
-            "PAB_NODE_ID must be a decimal number in 1..=127"
-        );
-        value = value * 10 + (digit - b'0') as u32;
-        i += 1;
-    }
-    assert!(
-        value >= 1 && value <= pab_core::protocol::MAX_NODE_ID as u32,
-        "PAB_NODE_ID must be a decimal number in 1..=127"
-    );
-    value as u8
 }

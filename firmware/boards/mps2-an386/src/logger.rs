@@ -1,0 +1,60 @@
+//! The `log` crate's messages (pab-app's, this firmware's) on QEMU's standard error, through
+//! semihosting, with the board's uptime.
+//!
+//! Why `log` and not defmt: defmt needs a probe and its host decoder to be read; under QEMU,
+//! semihosting prints plain text on the emulator's stderr, which a test or a person reads as it
+//! is. Each message costs a trap into the emulator (the emulated CPU stops meanwhile), so the
+//! level is `Info` (a few lines at boot and per table transfer); pab-app's per-frame messages are
+//! at `Debug` and cost one level comparison each.
+
+use core::fmt::Write as _;
+
+use log::{LevelFilter, Metadata, Record};
+
+use crate::semihosting;
+
+struct Semihosting;
+
+static LOGGER: Semihosting = Semihosting;
+
+impl log::Log for Semihosting {
+    fn enabled(&self, metadata: &Metadata<'_>) -> bool {
+        metadata.level() <= log::max_level()
+    }
+
+    fn log(&self, record: &Record<'_>) {
+        if !self.enabled(record.metadata()) {
+            return;
+        }
+        // One line, formatted first, written with one call: semihosting writes are slow.
+        let mut line = heapless::String::<192>::new();
+        let micros = embassy_time::Instant::now().as_micros();
+        let _ = write!(
+            line,
+            "{:>6}.{:06} {:<5} {}",
+            micros / 1_000_000,
+            micros % 1_000_000,
+            record.level(),
+            record.args()
+        );
+        if line.len() == line.capacity() {
+            let mut cut = line.capacity() - 4;
+            while !line.is_char_boundary(cut) {
+                cut -= 1;
+            }
+            line.truncate(cut);
+            let _ = line.push_str("...");
+        }
+        let _ = line.push('\n');
+        semihosting::eprint(format_args!("{line}"));
+    }
+
+    fn flush(&self) {}
+}
+
+/// Installs the logger at `level`. A second call changes nothing.
+pub fn init(level: LevelFilter) {
+    if log::set_logger(&LOGGER).is_ok() {
+        log::set_max_level(level);
+    }
+}

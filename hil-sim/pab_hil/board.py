@@ -1,0 +1,446 @@
+"""The emulated Cortex-M4 board (`pab-fw-an386` in QEMU's `mps2-an386`) as a node on the bus.
+
+The board has no CAN controller: its UART0 speaks SLCAN (Lawicel's serial-line CAN), and standard
+Linux parts make that a SocketCAN interface on the bus:
+
+    QEMU's UART0 --serial line--> slcand + the kernel's slcan driver --> slcan interface
+                                   cangw (can-gw): slcan interface <-> vcan0, both ways
+
+The serial line is either a pseudo-terminal of a QEMU started here (`LocalQemu`: a workstation
+with vcan, the way the README runs it by hand), or the micro-VM's second serial port, whose other
+end is a QEMU started on the micro-VM's host (`RemoteQemu`, served by `HostBoards`). The second is
+how the suite runs in the micro-VM: qemu-system-arm nested inside the emulated x86 guest handles
+one received byte per QEMU main-loop iteration and took 100-130 ms per SLCAN frame there, far too
+slow for a closed loop; on the host it takes about 1.4 ms. Nothing in the bridge is imitated: the
+guest's serial port is QEMU's 16550, `slcand` and `cangw` are can-utils', the drivers the kernel's.
+
+Nothing here arbitrates: the board runs `pab-app`, the same application as `pab-node`.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import select
+import shutil
+import signal
+import socket
+import subprocess
+import tempfile
+import termios
+import threading
+import time
+import tty
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .nodes import REPO, MissingBinary
+
+FIRMWARE = "pab-fw-an386"
+TARGET = "thumbv7em-none-eabihf"
+QEMU = "qemu-system-arm"
+# Serial speed set on the line (the firmware's UART runs at the same; a pseudo-terminal ignores it).
+BAUD = 115200
+# SLCAN's bit rate command: S6 = 500 kbit/s, the G474's rate (the emulated link has no bit timing).
+SLCAN_BITRATE = "6"
+# Environment of a suite running in the micro-VM: the serial ports whose other ends are on the host.
+UART_ENV = "PAB_HIL_BOARD_UART"
+CONTROL_ENV = "PAB_HIL_BOARD_CONTROL"
+START_TIMEOUT_S = 30.0
+# cangw's filter on the route from the bus to the board: every frame but the nodes' reports to
+# the tool (29-bit protocol frames of services 0x01-0x07: faults, heartbeat group, diagnostic
+# stream; docs/can-protocol.md), which no node acts on and which are three quarters of Take and
+# Return's traffic. Commands and transfers (services 0x10 and up) and every other frame pass.
+# The serial line is the bottleneck: QEMU's model of the board's UART takes one byte per
+# main-loop iteration (about 50 us on an idle host, far more on a loaded one), and a frame is
+# some 25 bytes. A CAN controller's acceptance filter does this job on a board. Format:
+# id~mask, "passes when id & mask differ"; the mask holds CAN_EFF_FLAG, so only 29-bit frames
+# are left out.
+ROUTE_FILTER = "82000000~83F80000"
+
+
+class BoardError(RuntimeError):
+    pass
+
+
+def firmware() -> Path:
+    """The board firmware's ELF (release build), or a MissingBinary saying how to build it."""
+    if "PAB_BOARD_ELF" in os.environ:
+        path = Path(os.environ["PAB_BOARD_ELF"])
+    else:
+        target = Path(os.environ.get("CARGO_TARGET_DIR", REPO / "target"))
+        path = target / TARGET / "release" / FIRMWARE
+    if not path.is_file():
+        raise MissingBinary(
+            f"{path} not found: build it with `cargo build --release -p {FIRMWARE} --target "
+            f"{TARGET}` (or point PAB_BOARD_ELF at the ELF)"
+        )
+    return path
+
+
+def qemu_command(elf: Path, serial: str, monitor: Path) -> list[str]:
+    """QEMU's command line for the board: UART0 on `serial` (a QEMU -serial value), the human
+    monitor on the unix socket `monitor` (for system_reset), semihosting (the log, on stderr)."""
+    return [
+        QEMU, "-M", "mps2-an386", "-display", "none", "-no-user-config", "-nodefaults",
+        "-semihosting-config", "enable=on,target=native",
+        "-serial", serial,
+        "-monitor", f"unix:{monitor},server=on,wait=off", "-nic", "none",
+        "-kernel", str(elf),
+    ]
+
+
+def monitor_command(monitor: Path, command: str, timeout: float = 5.0) -> str:
+    """Sends one command to QEMU's human monitor on `monitor`; returns what it printed."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+        sock.settimeout(timeout)
+        sock.connect(str(monitor))
+        received = b""
+        # The banner and the prompt first, then the command, then the next prompt.
+        while b"(qemu)" not in received:
+            received += sock.recv(4096)
+        sock.sendall(command.encode() + b"\n")
+        answer = b""
+        while answer.count(b"(qemu)") < 1:
+            chunk = sock.recv(4096)
+            if not chunk:
+                break
+            answer += chunk
+        return answer.decode(errors="replace")
+
+
+class LocalQemu:
+    """The board's QEMU on this machine; its UART0 is a pseudo-terminal here."""
+
+    def __init__(self, elf: Path, log: Path) -> None:
+        self.elf = elf
+        self.log = log
+        self.dir = Path(tempfile.mkdtemp(prefix="pab-board-"))
+        self.monitor = self.dir / "monitor.sock"
+        self.process: subprocess.Popen | None = None
+
+    def start(self) -> str:
+        """Starts QEMU; returns the pseudo-terminal of UART0."""
+        if shutil.which(QEMU) is None:
+            raise BoardError(f"{QEMU} is missing (Debian: apt-get install qemu-system-arm)")
+        self.log.parent.mkdir(parents=True, exist_ok=True)
+        with open(self.log, "ab") as log:
+            self.process = subprocess.Popen(
+                qemu_command(self.elf, "pty", self.monitor),
+                stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log,
+            )
+        # QEMU names the terminal on stdout: "char device redirected to /dev/pts/3 (label serial0)".
+        assert self.process.stdout is not None
+        ready, _, _ = select.select([self.process.stdout], [], [], 10.0)
+        line = self.process.stdout.readline().decode(errors="replace") if ready else ""
+        found = re.search(r"(/dev/pts/\d+)", line)
+        if found is None:
+            self.stop()
+            raise BoardError(f"{QEMU} did not name its pseudo-terminal (it said {line!r}); "
+                             f"its log: {self.log}")
+        return found.group(1)
+
+    @property
+    def pid(self) -> int | None:
+        return self.process.pid if self.process else None
+
+    def running(self) -> bool:
+        return self.process is not None and self.process.poll() is None
+
+    def reset(self) -> None:
+        """QEMU's system_reset: the board reboots; the RAM-backed table store is kept."""
+        monitor_command(self.monitor, "system_reset")
+
+    def stop(self) -> None:
+        if self.running():
+            self.process.terminate()
+            try:
+                self.process.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait(timeout=5)
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+
+class RemoteQemu:
+    """The board's QEMU on the micro-VM's host (see `HostBoards`). UART0 is this machine's serial
+    port `uart` (/dev/ttyS1); requests go over the serial port `control` (/dev/ttyS2), one line
+    each way: `start ELF LOG` -> `ok PID`, `reset` -> `ok`, `stop` -> `ok`, or `error WHY`."""
+
+    def __init__(self, elf: Path, log: Path, uart: str, control: str) -> None:
+        self.elf = elf
+        self.log = log
+        self.uart = uart
+        self.control = control
+        self._pid: int | None = None
+
+    def _request(self, line: str, timeout: float = 20.0) -> str:
+        fd = os.open(self.control, os.O_RDWR | os.O_NOCTTY)
+        try:
+            tty.setraw(fd)
+            termios.tcflush(fd, termios.TCIOFLUSH)
+            os.write(fd, line.encode() + b"\n")
+            answer = b""
+            deadline = time.monotonic() + timeout
+            while not answer.endswith(b"\n"):
+                left = deadline - time.monotonic()
+                ready, _, _ = select.select([fd], [], [], max(0.0, left))
+                if not ready:
+                    raise BoardError(f"no answer from the board's host to {line.split()[0]!r} "
+                                     f"within {timeout:.0f} s (on {self.control})")
+                answer += os.read(fd, 256)
+        finally:
+            os.close(fd)
+        text = answer.decode(errors="replace").strip()
+        if not text.startswith("ok"):
+            raise BoardError(f"the board's host refused {line.split()[0]!r}: {text}")
+        return text[2:].strip()
+
+    def start(self) -> str:
+        self.log.parent.mkdir(parents=True, exist_ok=True)
+        self._pid = int(self._request(f"start {self.elf} {self.log}") or 0) or None
+        return self.uart
+
+    @property
+    def pid(self) -> int | None:
+        return self._pid
+
+    def running(self) -> bool:
+        return self._pid is not None
+
+    def reset(self) -> None:
+        self._request("reset")
+
+    def stop(self) -> None:
+        if self._pid is not None:
+            self._request("stop")
+            self._pid = None
+
+
+def qemu_here_or_on_host(elf: Path, log: Path) -> LocalQemu | RemoteQemu:
+    """RemoteQemu when the suite runs in the micro-VM with the host's board service, else local."""
+    uart, control = os.environ.get(UART_ENV), os.environ.get(CONTROL_ENV)
+    if uart and control:
+        return RemoteQemu(elf, log, uart, control)
+    return LocalQemu(elf, log)
+
+
+def _run(command: list[str]) -> None:
+    result = subprocess.run(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    if result.returncode != 0:
+        raise BoardError(f"`{' '.join(command)}` failed (status {result.returncode}): "
+                         f"{result.stdout.strip()}")
+
+
+@dataclass
+class BoardNode:
+    """One node as the emulated board, bridged to `iface`; the same interface as `NodeProcess`.
+
+    `start` boots the board, attaches its serial line with slcand, brings the slcan interface up,
+    adds the two cangw routes, and returns once the board's first heartbeat is on `iface`.
+    `boot_s` is how long that took."""
+
+    name: str
+    node_id: int
+    iface: str
+    log_dir: Path
+    qemu: LocalQemu | RemoteQemu | None = None
+    slcand: subprocess.Popen | None = None
+    boot_s: float = 0.0
+    routes: list[list[str]] = field(default_factory=list)
+
+    @property
+    def can_iface(self) -> str:
+        return f"pabslcan{self.node_id}"
+
+    @property
+    def pid(self) -> int | None:
+        return self.qemu.pid if self.qemu else None
+
+    def running(self) -> bool:
+        return self.qemu is not None and self.qemu.running()
+
+    def start(self) -> None:
+        from . import protocol as p
+        import can
+
+        for tool in ("slcand", "cangw", "ip"):
+            if shutil.which(tool) is None:
+                raise BoardError(f"{tool} is missing (Debian: apt-get install can-utils iproute2)")
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        log = self.log_dir / f"{self.name}.log"
+        heartbeat = p.frame_id(p.HEARTBEAT, self.node_id, p.BROADCAST)
+        listener = can.Bus(interface="socketcan", channel=self.iface, can_filters=[
+            {"can_id": heartbeat, "can_mask": 0x1FFFFFFF, "extended": True}])
+        try:
+            started = time.monotonic()
+            self.qemu = qemu_here_or_on_host(firmware(), log)
+            line = self.qemu.start()
+            self._bridge(line)
+            deadline = started + START_TIMEOUT_S
+            while time.monotonic() < deadline:
+                if listener.recv(timeout=0.2) is not None:
+                    self.boot_s = time.monotonic() - started
+                    return
+                if not self.running():
+                    break
+            raise BoardError(f"board {self.name}: no heartbeat from node {self.node_id} on "
+                             f"{self.iface} within {START_TIMEOUT_S:.0f} s; its log: {log}")
+        except BaseException:
+            self.stop()
+            raise
+        finally:
+            listener.shutdown()
+
+    def _bridge(self, line: str) -> None:
+        """slcand on `line`, the interface up, cangw both ways."""
+        if Path(f"/sys/class/net/{self.can_iface}").exists():
+            raise BoardError(f"{self.can_iface} exists already (a board left over?)")
+        # -o open the channel, -c close it at exit, -s6 500 kbit/s, -S the line's speed,
+        # -F stay in the foreground (this process owns it).
+        self.slcand = subprocess.Popen(
+            ["slcand", "-o", "-c", f"-s{SLCAN_BITRATE}", "-S", str(BAUD), "-F", line,
+             self.can_iface],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 10
+        while not Path(f"/sys/class/net/{self.can_iface}").exists():
+            if self.slcand.poll() is not None or time.monotonic() > deadline:
+                raise BoardError(f"slcand did not make {self.can_iface} on {line} "
+                                 f"(is the slcan module loaded?)")
+            time.sleep(0.05)
+        _run(["ip", "link", "set", "up", self.can_iface])
+        # Frames routed onto a vcan are seen by its sockets only if echoed (-e). can-gw's hop
+        # limit (1) keeps each frame from coming back the way it went. The route to the board
+        # leaves out the nodes' reports to the tool (ROUTE_FILTER).
+        for route in (["-s", self.iface, "-d", self.can_iface, "-f", ROUTE_FILTER],
+                      ["-s", self.can_iface, "-d", self.iface, "-e"]):
+            _run(["cangw", "-A", *route])
+            self.routes.append(route)
+
+    def reset(self) -> None:
+        """The board reboots (QEMU's system_reset); its stored table is kept, the bridge too."""
+        if self.qemu is None:
+            raise BoardError(f"board {self.name} is not running")
+        self.qemu.reset()
+
+    def kill(self) -> None:
+        """The board stops at once (QEMU ends): a power cut, and the RAM-backed store is lost."""
+        self.stop()
+
+    def stop(self) -> None:
+        while self.routes:
+            route = self.routes.pop()
+            subprocess.run(["cangw", "-D", *route], stdout=subprocess.DEVNULL,
+                           stderr=subprocess.DEVNULL)
+        if self.slcand is not None:
+            if self.slcand.poll() is None:
+                self.slcand.send_signal(signal.SIGTERM)
+                try:
+                    self.slcand.wait(timeout=5)
+                except subprocess.TimeoutExpired:
+                    self.slcand.kill()
+                    self.slcand.wait(timeout=5)
+            self.slcand = None
+        if self.qemu is not None:
+            self.qemu.stop()
+            self.qemu = None
+
+
+class HostBoards:
+    """The micro-VM's host side of `RemoteQemu`: serves the guest's requests on the control
+    socket, running the board's QEMU here with UART0 on the UART socket.
+
+    The micro-VM's QEMU is the server of both unix sockets (`serials`, its ttyS1 and ttyS2); the
+    board's QEMU connects to the first when started, this service to the second."""
+
+    def __init__(self) -> None:
+        self.dir = Path(tempfile.mkdtemp(prefix="pab-hil-board-"))
+        self.uart = self.dir / "uart.sock"
+        self.control = self.dir / "control.sock"
+        self.monitor = self.dir / "monitor.sock"
+        self.qemu: subprocess.Popen | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    @property
+    def serials(self) -> list[Path]:
+        """The micro-VM's serial ports after its console, in order: ttyS1, ttyS2."""
+        return [self.uart, self.control]
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._serve, name="board-host", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+        self._stop_qemu()
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+    def _serve(self) -> None:
+        """Connects to the control socket and answers requests; connects again whenever the
+        micro-VM's QEMU goes (a KVM attempt that fell back to TCG starts a second one)."""
+        while not self._stop.is_set():
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            try:
+                sock.connect(str(self.control))
+            except OSError:
+                sock.close()
+                time.sleep(0.1)
+                continue
+            with sock:
+                self._answer(sock)
+
+    def _answer(self, sock: socket.socket) -> None:
+        sock.settimeout(0.2)
+        pending = b""
+        while not self._stop.is_set():
+            try:
+                chunk = sock.recv(4096)
+            except socket.timeout:
+                continue
+            except OSError:
+                return
+            if not chunk:
+                return
+            pending += chunk
+            while b"\n" in pending:
+                line, pending = pending.split(b"\n", 1)
+                answer = self._handle(line.decode(errors="replace").strip())
+                try:
+                    sock.sendall(answer.encode() + b"\n")
+                except OSError:
+                    return
+
+    def _handle(self, request: str) -> str:
+        words = request.split()
+        try:
+            if words[:1] == ["start"] and len(words) == 3:
+                self._stop_qemu()
+                with open(words[2], "ab") as log:
+                    self.qemu = subprocess.Popen(
+                        qemu_command(Path(words[1]), f"unix:{self.uart}", self.monitor),
+                        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=log)
+                return f"ok {self.qemu.pid}"
+            if words == ["reset"]:
+                if self.qemu is None or self.qemu.poll() is not None:
+                    return "error the board is not running"
+                monitor_command(self.monitor, "system_reset")
+                return "ok"
+            if words == ["stop"]:
+                self._stop_qemu()
+                return "ok"
+            return f"error unknown request {request!r}"
+        except (OSError, BoardError) as error:
+            return f"error {error}"
+
+    def _stop_qemu(self) -> None:
+        if self.qemu is not None and self.qemu.poll() is None:
+            self.qemu.terminate()
+            try:
+                self.qemu.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.qemu.kill()
+                self.qemu.wait(timeout=5)
+        self.qemu = None
