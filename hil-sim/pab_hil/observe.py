@@ -59,6 +59,7 @@ class Observer(can.Listener):
         with self._lock:
             self.frames += 1
             self.max_lag = max(self.max_lag, lag)
+        self.world.on_bus_time(message.timestamp)
         if not message.is_extended_id:
             if message.arbitration_id in (w.ARM_TARGET_ID, w.GAZE_TARGET_ID, w.HAND_COMMAND_ID):
                 self.world.on_delivery(message.arbitration_id, data, message.timestamp)

@@ -13,7 +13,9 @@ from dataclasses import dataclass
 from . import behaviours as b
 from . import world as w
 
-# A port is "driven by" a behaviour while its deliveries keep coming: 5 periods at 10 Hz.
+# A port is "driven by" a behaviour while its deliveries keep coming: 5 periods at 10 Hz, in bus
+# time (World.last_delivery): a harness that reads the bus late must not see gaps the bus never
+# had.
 FRESH = 0.5
 
 NAMES = {

@@ -126,6 +126,7 @@ class World:
         self._write_lock = threading.Lock()  # the harness's writers (world and bus threads)
         self._lock = threading.Lock()  # guards the fields below (harness threads)
         self.epoch = time.time()
+        self._bus_clock = -math.inf  # the latest kernel timestamp of a frame the harness heard
         self.deliveries = Deliveries()
         self._arm_target: Vec | None = None
         self._arm_target_time = -math.inf
@@ -172,6 +173,7 @@ class World:
         """A frame re-published by a node's gateway port: the robot obeys it."""
         at = timestamp - self.epoch
         with self._lock:
+            self._bus_clock = max(self._bus_clock, timestamp)
             if can_id == ARM_TARGET_ID and len(payload) == 8:
                 self.deliveries.arm.append(Delivery(at, payload))
                 self._arm_target = decode_position(payload)
@@ -184,11 +186,27 @@ class World:
                 if payload[0] in (OPEN, CLOSE):
                     self._hand_command = payload[0]
 
+    def on_bus_time(self, timestamp: float) -> None:
+        """The harness heard a frame the kernel timestamped `timestamp` (wall clock)."""
+        with self._lock:
+            self._bus_clock = max(self._bus_clock, timestamp)
+
+    def heard_until(self) -> float:
+        """Seconds since the world began up to which the harness has heard the bus: now, unless
+        its socket lags behind the bus (a loaded machine), then the time of the last frame it
+        read. The nodes' heartbeats (4 Hz) keep it moving while the bus is otherwise quiet."""
+        with self._lock:
+            return min(self.now(), self._bus_clock - self.epoch)
+
     def last_delivery(self, port: str, within: float) -> Delivery | None:
-        """The port's last delivery if it came less than `within` seconds ago."""
+        """The port's last delivery if it came less than `within` seconds before the bus time the
+        harness has heard up to (see `heard_until`). Judged on bus time, not on the wall clock,
+        so that a harness that reads the bus late does not take a stream of deliveries that
+        never stopped on the bus for one that did."""
+        heard = self.heard_until()
         with self._lock:
             frames = getattr(self.deliveries, port)
-            if frames and self.now() - frames[-1].time <= within:
+            if frames and heard - frames[-1].time <= within:
                 return frames[-1]
             return None
 
