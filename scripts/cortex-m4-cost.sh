@@ -4,9 +4,10 @@
 #   scripts/cortex-m4-cost.sh                 the table: instructions per frame, per case
 #   scripts/cortex-m4-cost.sh --check         the same, failing if a goal of issue 10 is exceeded
 #                                             (exact counts: a deterministic check, not a timing)
-#   scripts/cortex-m4-cost.sh --profile CASE[/CLASS]
-#                                             where that case's instructions go, per function
-#                                             symbol and per source line (inlined code included)
+#   scripts/cortex-m4-cost.sh --profile CASE[/CLASS][@MIN]
+#                                             where that case's instructions go (its frames of at
+#                                             least MIN instructions), per function symbol and
+#                                             per source line (inlined code included)
 #
 # How: the firmware binary pab-an386-cost (firmware/boards/mps2-an386/src/bin/cost/) runs each
 # case between two marker functions; a QEMU TCG plugin built here from
@@ -33,7 +34,7 @@ case "${1:-}" in
         profile_case="${2:?--profile needs CASE or CASE/CLASS, e.g. walk-16 or tr-arm/fed}"
         ;;
     -h | --help)
-        sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'
+        sed -n '2,23p' "$0" | sed 's/^# \{0,1\}//'
         exit 0
         ;;
     *)
@@ -95,9 +96,9 @@ case "$mode" in
     table) "${report[@]}" ;;
     check) "${report[@]}" --check ;;
     profile)
-        regions=$("${report[@]}" --regions "$profile_case")
+        "${report[@]}" --regions "$profile_case" > "$work/regions.txt"
         histogram="$work/profile.txt"
-        run ",profile=$histogram,only=$regions" "$work/profile.log"
+        run ",profile=$histogram,only=$work/regions.txt" "$work/profile.log"
         "${report[@]}" --profile "$profile_case" "$histogram" "$elf"
         ;;
 esac

@@ -12,8 +12,9 @@
  * prints one line on stderr, "insn-count region N: COUNT", in guest order with the guest's own
  * semihosting output. With profile=FILE, the plugin also writes, at exit, how many instructions
  * of all regions each guest address executed ("ADDRESS COUNT" per line), for attributing the
- * cost to functions and source lines (scripts/cortex-m4-cost.sh --profile); only=FIRST-LAST
- * restricts that histogram to regions FIRST..=LAST (numbered from 0, in the order they close).
+ * cost to functions and source lines (scripts/cortex-m4-cost.sh --profile); only=FILE
+ * restricts that histogram to the regions FILE lists, one number per line (regions are numbered
+ * from 0 in the order they close).
  *
  * An instruction in a Thumb IT block whose condition fails is counted: the Cortex-M4 executes it
  * as a no-op, and QEMU's -icount counts it too.
@@ -58,8 +59,9 @@ static bool counting;
 static uint64_t count;
 static uint64_t regions;
 static const char *profile_path;
-static uint64_t profile_first = 0;
-static uint64_t profile_last = UINT64_MAX;
+/* The regions to profile, one bit each; NULL: all. */
+static uint8_t *profiled;
+static uint64_t profiled_count;
 /* Instructions counted per guest halfword address (Thumb instructions are 2-byte aligned). */
 static uint64_t *histogram;
 
@@ -68,7 +70,7 @@ static void on_insn(unsigned int vcpu, void *pc)
     (void)vcpu;
     if (counting) {
         count++;
-        if (histogram && regions >= profile_first && regions <= profile_last) {
+        if (histogram && (!profiled || (regions < profiled_count && (profiled[regions / 8] >> (regions % 8)) & 1))) {
             histogram[(uintptr_t)pc >> 1]++;
         }
     }
@@ -154,6 +156,34 @@ static bool parse_address(const char *text, uint64_t *out)
     return true;
 }
 
+/* Reads the region numbers of only=FILE into the `profiled` bitmap. */
+static bool read_regions(const char *path)
+{
+    FILE *in = fopen(path, "r");
+    if (!in) {
+        perror(path);
+        return false;
+    }
+    unsigned long long region;
+    while (fscanf(in, "%llu", &region) == 1) {
+        if (region >= profiled_count) {
+            uint64_t count = (region + 1) * 2;
+            uint8_t *grown = realloc(profiled, (count + 7) / 8);
+            if (!grown) {
+                fclose(in);
+                return false;
+            }
+            memset(grown + (profiled_count + 7) / 8, 0, (count + 7) / 8 - (profiled_count + 7) / 8);
+            profiled = grown;
+            profiled_count = count;
+        }
+        profiled[region / 8] |= (uint8_t)(1u << (region % 8));
+    }
+    bool ok = feof(in);
+    fclose(in);
+    return ok;
+}
+
 __attribute__((visibility("default"))) int qemu_plugin_install(qemu_plugin_id_t id,
                                                                const qemu_info_t *info, int argc,
                                                                char **argv)
@@ -169,19 +199,12 @@ __attribute__((visibility("default"))) int qemu_plugin_install(qemu_plugin_id_t 
         } else if (strncmp(arg, "profile=", 8) == 0) {
             profile_path = arg + 8;
         } else if (strncmp(arg, "only=", 5) == 0) {
-            char *rest;
-            profile_first = strtoull(arg + 5, &rest, 10);
-            ok = *rest == '-';
-            if (ok) {
-                const char *last = rest + 1;
-                profile_last = strtoull(last, &rest, 10);
-                ok = *last != '\0' && *rest == '\0' && profile_first <= profile_last;
-            }
+            ok = read_regions(arg + 5);
         } else {
             ok = false;
         }
         if (!ok) {
-            fprintf(stderr, "insn-count: bad argument '%s' (begin=ADDR, end=ADDR, profile=FILE, only=FIRST-LAST)\n", arg);
+            fprintf(stderr, "insn-count: bad argument '%s' (begin=ADDR, end=ADDR, profile=FILE, only=FILE)\n", arg);
             return -1;
         }
     }

@@ -5,7 +5,7 @@ scripts/cortex-m4-cost.sh) and prints instructions per frame per case.
     report.py LOG                     method checks, then the table
     report.py LOG --check             the same, exit status 1 if a goal is exceeded
     report.py LOG --regions CASE[/CLASS]
-                                      FIRST-LAST: the regions of that case (for the plugin's only=)
+                                      the regions of that case, one per line (the plugin's only=)
     report.py LOG --profile CASE[/CLASS] HISTOGRAM ELF
                                       instructions per frame per function and per source line
                                       (needs binutils' addr2line, for the inlining chains)
@@ -149,8 +149,16 @@ def check_goals(rows):
 
 
 def selected(regions, wanted):
+    """Regions of CASE, CASE/CLASS, or CASE/CLASS@MIN (only frames counting at least MIN)."""
+    wanted, _, least = wanted.partition("@")
     case, _, kind = wanted.partition("/")
-    indices = [i for i, (c, k, _) in enumerate(regions) if c == case and (not kind or k == kind)]
+    least = int(least) if least else None
+    baseline = regions[0][2]
+    indices = [
+        i
+        for i, (c, k, count) in enumerate(regions)
+        if c == case and (not kind or k == kind) and (least is None or count - baseline >= least)
+    ]
     if not indices:
         names = sorted({f"{c}/{k}" for c, k, _ in regions})
         fail(f"no case '{wanted}'; cases: {' '.join(names)}")
@@ -167,11 +175,7 @@ def tidy(symbol):
 
 
 def profile(regions, wanted, histogram, elf):
-    indices = selected(regions, wanted)
-    first, last = indices[0], indices[-1]
-    frames = last - first + 1
-    if frames != len(indices):
-        print(f"note: regions {first}..{last} also hold other classes; profiled together")
+    frames = len(selected(regions, wanted))
     counts = {}
     with open(histogram) as lines:
         for line in lines:
@@ -224,8 +228,8 @@ def main(argv):
     regions, systicks = parse(argv[1])
     options = argv[2:]
     if options[:1] == ["--regions"] and len(options) == 2:
-        indices = selected(regions, options[1])
-        print(f"{indices[0]}-{indices[-1]}")
+        for index in selected(regions, options[1]):
+            print(index)
     elif options[:1] == ["--profile"] and len(options) == 4:
         profile(regions, *options[1:])
     elif options in ([], ["--check"]):

@@ -12,7 +12,9 @@ use pab_core::{
     NodeRef, Stimulation, Table,
 };
 
-use crate::{elapsed_ticks, fail, measure, receive, report, semihosting, start_systick};
+use crate::{
+    elapsed_ticks, fail, measure, measured_receive, receive, report, semihosting, start_systick,
+};
 
 /// Frames measured per case: they all cost the same (the state does not change), which the
 /// script's table shows as min = max.
@@ -152,8 +154,7 @@ impl Case {
         self.verify(now);
         for _ in 0..FRAMES {
             now = now.wrapping_add_micros(1);
-            let (arbiter, id) = (&mut self.arbiter, &self.id);
-            measure(|| receive(arbiter, id, now));
+            measured_receive(&mut self.arbiter, &self.id, now);
             report(self.name, "frame");
         }
     }

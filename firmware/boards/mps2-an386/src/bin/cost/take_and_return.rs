@@ -14,7 +14,7 @@ use pab_core::{
     BOARD_CONNECTIONS, BOARD_DECISION_NODES, BOARD_PORTS, BoardArbiter, Frame, Id, Instant,
 };
 
-use crate::{fail, measure, receive};
+use crate::{fail, measure, measured_receive};
 
 const ARM: &[u8] = include_bytes!("../../../tables/take-and-return/arm.pab");
 const GAZE: &[u8] = include_bytes!("../../../tables/take-and-return/gaze.pab");
@@ -106,7 +106,7 @@ fn arbiter(name: &str, bytes: &[u8]) -> BoardArbiter {
 fn arbitrate(case: &str, name: &str, bytes: &[u8]) {
     let mut arbiter = arbiter(name, bytes);
     for (now, id) in Traffic::new() {
-        let reception = measure(|| receive(&mut arbiter, &id, now));
+        let reception = measured_receive(&mut arbiter, &id, now);
         crate::report(
             case,
             if reception.fed.is_empty() {
