@@ -25,7 +25,7 @@
 //! for every `u32`). No 64-bit division (a call to `__aeabi_uldivmod` on a Cortex-M4, around
 //! 100 instructions), no float.
 
-use crate::level::Level;
+use crate::level::{Gain, Level};
 
 /// λ, the decay constant of the reference implementation.
 const LAMBDA: f64 = 5.0;
@@ -94,6 +94,26 @@ const SLOPE_AT: [u32; SEGMENTS] = {
 
 /// The loss at u = 1: what remains after exactly τ is e^(−λ) of the level.
 const LOSS_AT_ONE: u32 = LOSS_AT[SEGMENTS];
+
+/// How far above the loss at the end of its segment [`loss`] may be, in Q32 units, at most: the
+/// loss is within 1.5 units of g, which grows with u (`tests::loss_is_within_its_ceiling`).
+const CEILING_MARGIN: u32 = 16;
+
+/// An upper bound of [`loss`] over segment i (the next segment's start, plus a margin), for
+/// i = 0..=64 (64: u = 1 exactly). With it a frame that saturates the level anyway skips the
+/// evaluation of the loss.
+// Evaluated at compile time: an index out of bounds would fail the build, not panic.
+#[allow(clippy::indexing_slicing)]
+const LOSS_CEILING: [u32; SEGMENTS + 1] = {
+    let mut table = [0; SEGMENTS + 1];
+    let mut i = 0;
+    while i <= SEGMENTS {
+        let next = if i < SEGMENTS { i + 1 } else { SEGMENTS };
+        table[i] = LOSS_AT[next] + CEILING_MARGIN;
+        i += 1;
+    }
+    table
+};
 
 /// e^r − 1 for r in [0, 0.08), r in Q32, result in Q32.
 ///
@@ -169,6 +189,28 @@ impl Decay {
         }
     }
 
+    /// `apply_within(level, elapsed).saturating_add(gain)`, the step of a frame: when the sum
+    /// saturates whatever the loss within u's segment (a connection fed faster than it decays),
+    /// the loss is not evaluated. Same result, bit for bit
+    /// (`tests::stimulation_step_is_decay_then_gain`).
+    #[inline]
+    pub(crate) fn apply_then_add(&self, level: Level, elapsed: u32, gain: Gain) -> Level {
+        let elapsed = elapsed.min(self.micros);
+        // As in `apply_within`: at most 2^56, it cannot wrap.
+        let u = u64::from(elapsed).wrapping_mul(self.reciprocal) >> (RECIPROCAL_SHIFT - 32);
+        if let Some(&ceiling) = LOSS_CEILING.get((u >> SEGMENT_BITS) as usize) {
+            // level − lost ≥ level − most_lost, and level + gain ≤ 2^32: no overflow.
+            let most_lost = (u64::from(level.raw()) * u64::from(ceiling)) >> 32;
+            if level.raw() - most_lost as u32 + gain.raw() >= Level::FULL.raw() {
+                return Level::FULL;
+            }
+        }
+        let lost = (u64::from(level.raw()) * u64::from(loss(u))) >> 32;
+        Level::from_raw(level.raw().saturating_sub(lost as u32))
+            .unwrap_or(Level::ZERO)
+            .saturating_add(gain)
+    }
+
     /// [`Decay::apply`] for an `elapsed` already known to be at most τ (a larger one is treated
     /// as τ): 32-bit arithmetic only, for the frame path.
     #[inline]
@@ -213,6 +255,56 @@ mod tests {
             .chain(top - (1 << 16)..top);
         for r in arguments {
             assert_eq!(expm1_small(r), expm1_64(r), "r = {r}");
+        }
+    }
+
+    #[test]
+    fn loss_is_within_its_ceiling() {
+        // A dense sweep, and the top 2^12 arguments of every segment, where the loss is largest.
+        let sweep = (0..=2_000_000u64).map(|k| k * (1 << 32) / 2_000_000);
+        let tops = (1..=SEGMENTS as u64)
+            .flat_map(|i| (i << SEGMENT_BITS) - (1 << 12)..(i << SEGMENT_BITS).min(1 << 32) + 1);
+        for u in sweep.chain(tops) {
+            let ceiling = LOSS_CEILING[(u >> SEGMENT_BITS) as usize];
+            assert!(loss(u) <= ceiling, "u {u}: {} > {ceiling}", loss(u));
+        }
+    }
+
+    #[test]
+    fn stimulation_step_is_decay_then_gain() {
+        // Levels and gains around saturation and far from it, elapsed over all of τ.
+        let decay = Decay::new(3_000_000).unwrap();
+        let levels = [
+            0,
+            1,
+            1 << 20,
+            1 << 30,
+            (1 << 31) - (1 << 24),
+            (1 << 31) - 1,
+            1 << 31,
+        ];
+        let gains = [
+            1 << 15,
+            1 << 24,
+            429_496_730,
+            1 << 30,
+            (1 << 31) - 1,
+            1 << 31,
+        ];
+        let mut seed = 0x2545_F491u64;
+        for &level in &levels {
+            for &gain in &gains {
+                let (level, gain) = (
+                    Level::from_raw(level).unwrap(),
+                    Gain::from_raw(gain).unwrap(),
+                );
+                for k in 0..=3_000u32 {
+                    seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+                    let elapsed = (k * 1_000).saturating_sub((seed >> 40) as u32 % 1_000);
+                    let expected = decay.apply_within(level, elapsed).saturating_add(gain);
+                    assert_eq!(decay.apply_then_add(level, elapsed, gain), expected);
+                }
+            }
         }
     }
 
