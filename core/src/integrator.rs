@@ -237,6 +237,17 @@ impl Integrator {
         };
         Stimulated::Accepted
     }
+
+    /// Whether the connection was active when its last frame was accepted: with
+    /// [`Integrator::last`] and τ, what its activity at any instant follows from.
+    pub(crate) const fn active_flag(&self) -> bool {
+        self.active
+    }
+
+    /// When its last frame was accepted.
+    pub(crate) const fn last(&self) -> Instant {
+        self.last
+    }
 }
 
 /// A connection's parameters in the form the integrator evaluates them: [`Stimulation`] plus the
