@@ -38,7 +38,7 @@ cargo build -p pab-core --release --target thumbv7em-none-eabihf --locked
 cargo build -p pab-storage --release --target thumbv7em-none-eabihf --locked
 
 step "firmware for the NUCLEO-G474RE (pab-fw-g474)"
-cargo build -p pab-fw-g474 --release --target thumbv7em-none-eabihf --locked
+cargo build -p pab-fw-g474 --profile firmware --target thumbv7em-none-eabihf --locked
 scripts/firmware-size.sh
 
 step "tests"

@@ -63,8 +63,10 @@ if [ ! -f "$plugin" ] || [ "$source" -nt "$plugin" ]; then
     gcc -shared -fPIC -O2 -Wall -Wextra -Werror -fvisibility=hidden -o "$plugin" "$source"
 fi
 
-cargo build -q --release -p pab-fw-an386 --target thumbv7em-none-eabihf --bin pab-an386-cost --locked
-elf="$target/thumbv7em-none-eabihf/release/pab-an386-cost"
+# The boards' profile (root Cargo.toml): what is counted is what a board runs.
+cargo build -q --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf \
+    --bin pab-an386-cost --locked
+elf="$target/thumbv7em-none-eabihf/firmware/pab-an386-cost"
 
 address() {
     "$llvm_bin/llvm-nm" "$elf" | awk -v name="$1" '$3 == name { print "0x" $1 }'

@@ -1,15 +1,14 @@
 #!/usr/bin/env bash
-# Flash and static RAM of the board firmware, from its release build:
-#   scripts/firmware-size.sh            (builds pab-fw-g474 first if needed)
+# Flash and static RAM of the board firmware, from its build with the `firmware` profile (the one
+# that is flashed; see the root Cargo.toml):
+#   scripts/firmware-size.sh            (builds pab-fw-g474 first; cargo skips it if up to date)
 # Needs llvm-size from rustup's llvm-tools component (installed here if missing).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 target="${CARGO_TARGET_DIR:-target}"
-elf="$target/thumbv7em-none-eabihf/release/pab-fw-g474"
-if [ ! -f "$elf" ]; then
-    cargo build -p pab-fw-g474 --release --target thumbv7em-none-eabihf --locked
-fi
+elf="$target/thumbv7em-none-eabihf/firmware/pab-fw-g474"
+cargo build -q -p pab-fw-g474 --profile firmware --target thumbv7em-none-eabihf --locked
 size="$(rustc --print sysroot)/lib/rustlib/$(rustc -vV | sed -n 's/^host: //p')/bin/llvm-size"
 if [ ! -x "$size" ]; then
     rustup component add llvm-tools

@@ -121,7 +121,7 @@ def table(regions):
 
 def print_table(rows):
     print()
-    print("Cortex-M4 instructions per frame (QEMU mps2-an386, thumbv7em-none-eabihf):")
+    print("Cortex-M4 instructions per frame (QEMU mps2-an386, thumbv7em-none-eabihf, firmware profile):")
     print(f"{'case':<12} {'class':<20} {'frames':>6} {'min':>6} {'median':>6} {'max':>6}")
     for (case, kind), counts in rows.items():
         ordered = sorted(counts)
