@@ -38,7 +38,7 @@ use heapless::Vec;
 
 use crate::decay::Decay;
 use crate::decision::{self, ConnectionSet, NodeRef, Step};
-use crate::index::{Cursor, FilterIndex};
+use crate::index::{Cursor, FilterIndex, Found};
 use crate::integrator::{Integrator, Runtime, Stimulated};
 use crate::level::{Gain, Level};
 use crate::table::{Table, TableError};
@@ -507,27 +507,31 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         now: Instant,
         mut on_verdict: impl FnMut(&PortVerdict),
     ) -> Reception {
-        let mut cursor = self.index.cursor(id);
-        match self.index.next(&mut cursor, id, self.table.connections()) {
+        let found = self.index.find(id);
+        if self.index.may_feed(&found) {
+            self.feed(found, id, now, &mut on_verdict)
+        } else {
             // A frame for other nodes (the common case on a shared bus): done.
-            None => Reception::default(),
-            Some(first) => self.feed(first, cursor, id, now, &mut on_verdict),
+            Reception::default()
         }
     }
 
-    /// Feeds the connections the frame feeds (`first`, then those of `cursor`), port after port,
-    /// and calls `on_verdict` for each port. Out of line so that a frame that feeds nothing does
-    /// not pay for its set-up.
+    /// Feeds the connections the frame feeds (as the index `found` them), port after port, and
+    /// calls `on_verdict` for each port. Out of line so that a frame that feeds nothing does not
+    /// pay for its set-up.
     #[inline(never)]
     fn feed(
         &mut self,
-        first: usize,
-        mut cursor: Cursor,
+        found: Found,
         id: &Id,
         now: Instant,
         on_verdict: &mut impl FnMut(&PortVerdict),
     ) -> Reception {
         let mut reception = Reception::default();
+        let (mut cursor, first) = self.index.first(found, id, self.table.connections());
+        let Some(first) = first else {
+            return reception;
+        };
         // The first port in line (a loop here would keep every array's address in a register
         // across it, and spill them); the others, if any, through a loop out of line.
         let next = self.feed_port(first, &mut cursor, id, now, on_verdict, &mut reception);

@@ -30,22 +30,35 @@ pub(crate) struct FilterIndex<const C: usize> {
     /// The exact filters' keys ([`filter::key_of`]), bucket after bucket; within a bucket by key,
     /// equal keys in table order.
     keys: Vec<u32, C>,
-    /// The connection (index in the table) of each key.
+    /// The connection (index in the table) of each key, with [`MORE`] set when the next entry
+    /// has the same key.
     connections: Vec<u16, C>,
     /// Connections with a masked filter, in table order.
     masked: Vec<u16, C>,
 }
 
-/// Where a frame's search stands: its key, the next candidate of its bucket and the bucket's
-/// end, and the next masked filter to test. Made by [`FilterIndex::cursor`], advanced by
+/// Where a frame's search stands: the next of its exact entries ([`NO_MORE`] when there are no
+/// others: equal keys are consecutive and flagged with [`MORE`]), and the next masked filter to
+/// test. Made by [`FilterIndex::cursor`], advanced by
 /// [`FilterIndex::next`].
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Cursor {
-    key: u32,
     next: u16,
-    end: u16,
     masked: u16,
 }
+
+/// What [`FilterIndex::find`] found: the position of the frame's first exact entry, if any.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Found {
+    position: Option<u16>,
+}
+
+/// In an entry of `FilterIndex::connections`: the next entry has the same key (another
+/// connection fed by the same identifier). Connections are numbered below 2^15.
+const MORE: u16 = 1 << 15;
+
+/// `Cursor::next` when the frame's exact entries are exhausted.
+const NO_MORE: u16 = u16::MAX;
 
 /// The bucket of `key` among `2^(32 − shift)`.
 fn bucket(key: u32, shift: u32) -> usize {
@@ -56,8 +69,9 @@ impl<const C: usize> FilterIndex<C> {
     /// The index of `connections` (a table's, in table order). `None` if there are more than `C`
     /// of them, or more than 2^16. Costs a sort of the exact filters.
     pub(crate) fn new(connections: &[Connection]) -> Option<Self> {
-        // Positions are u16, and so is the cursor over the masked filters.
-        if connections.len() > usize::from(u16::MAX) {
+        // Positions are u16 (below 2^15 in `connections`, which keeps a flag in the top bit),
+        // and so is the cursor over the masked filters.
+        if connections.len() >= usize::from(MORE) {
             return None;
         }
         let mut exact: Vec<(u32, u16), C> = Vec::new();
@@ -117,17 +131,22 @@ impl<const C: usize> FilterIndex<C> {
             index.buckets.push(bounds).ok()?;
             start = end;
         }
-        for (key, connection) in exact {
+        let mut entries = exact.iter().peekable();
+        while let Some(&(key, connection)) = entries.next() {
+            let more = entries.peek().is_some_and(|&&(next, _)| next == key);
             index.keys.push(key).ok()?;
-            index.connections.push(connection).ok()?;
+            index
+                .connections
+                .push(if more { connection | MORE } else { connection })
+                .ok()?;
         }
         Some(index)
     }
 
-    /// Starts the search for the connections a frame with identifier `id` feeds: the hash and
-    /// the bucket, skipping its keys below the frame's.
-    #[inline]
-    pub(crate) fn cursor(&self, id: &Id) -> Cursor {
+    /// The first exact entry of a frame with identifier `id`: the hash, then a comparison per
+    /// filter of its bucket up to the frame's key.
+    #[inline(always)]
+    pub(crate) fn find(&self, id: &Id) -> Found {
         let key = filter::key_of(id);
         let bounds = self
             .buckets
@@ -136,15 +155,42 @@ impl<const C: usize> FilterIndex<C> {
             .unwrap_or(0);
         let (mut next, end) = (bounds as u16, (bounds >> 16) as u16);
         // Within the bucket, keys are sorted.
-        while next < end && self.keys.get(usize::from(next)).is_some_and(|&k| k < key) {
-            next = next.wrapping_add(1);
+        while next < end {
+            match self.keys.get(usize::from(next)) {
+                Some(&k) if k < key => next = next.wrapping_add(1),
+                Some(&k) if k == key => {
+                    return Found {
+                        position: Some(next),
+                    };
+                }
+                _ => break,
+            }
         }
-        Cursor {
-            key,
-            next,
-            end,
+        Found { position: None }
+    }
+
+    /// Whether a frame whose search gave `found` may feed a connection: it has an exact entry,
+    /// or there are masked filters to test.
+    #[inline(always)]
+    pub(crate) fn may_feed(&self, found: &Found) -> bool {
+        found.position.is_some() || !self.masked.is_empty()
+    }
+
+    /// Starts the iteration over the connections of what [`FilterIndex::find`] found: the
+    /// cursor, and the first connection (without masked filters, the exact entry found).
+    #[inline(always)]
+    pub(crate) fn first(
+        &self,
+        found: Found,
+        id: &Id,
+        connections: &[Connection],
+    ) -> (Cursor, Option<usize>) {
+        let mut cursor = Cursor {
+            next: found.position.unwrap_or(NO_MORE),
             masked: 0,
-        }
+        };
+        let first = self.next(&mut cursor, id, connections);
+        (cursor, first)
     }
 
     /// The next connection (index in the table) the frame of `cursor` (identifier `id`) feeds,
@@ -157,24 +203,21 @@ impl<const C: usize> FilterIndex<C> {
         id: &Id,
         connections: &[Connection],
     ) -> Option<usize> {
-        let mut exact = None;
-        if cursor.next < cursor.end
-            && let (Some(&key), Some(&connection)) = (
-                self.keys.get(usize::from(cursor.next)),
-                self.connections.get(usize::from(cursor.next)),
-            )
-            && key == cursor.key
-        {
-            exact = Some(connection);
-        }
+        // NO_MORE is beyond any entry (there are fewer than 2^15).
+        let entry = self.connections.get(usize::from(cursor.next)).copied();
+        let exact = entry.map(|entry| entry & !MORE);
         if usize::from(cursor.masked) < self.masked.len()
             && let Some(connection) = self.next_masked(cursor, exact, id, connections)
         {
             return Some(connection);
         }
-        let exact = exact?;
-        cursor.next = cursor.next.wrapping_add(1);
-        Some(usize::from(exact))
+        let entry = entry?;
+        cursor.next = if entry & MORE != 0 {
+            cursor.next.wrapping_add(1)
+        } else {
+            NO_MORE
+        };
+        Some(usize::from(entry & !MORE))
     }
 
     /// The next masked filter that matches, if it comes before the next exact match `exact`.
