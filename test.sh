@@ -3,7 +3,8 @@
 #   ./test.sh
 # It installs what it needs (the Cortex-M target, rustfmt, clippy, llvm-tools) with rustup, then
 # checks formatting and lints, builds the core and the NUCLEO-G474RE firmware (and prints its
-# flash and RAM size), runs all tests (unit, property, end-to-end, command line, the node
+# flash and RAM size), counts the Cortex-M4 instructions per frame on the emulated board and
+# checks them against the goals (scripts/cortex-m4-cost.sh --check), runs all tests (unit, property, end-to-end, command line, the node
 # application on an in-process bus), runs each benchmark once in test mode, runs every example
 # through `pabctl check` and `pabctl sim` (plots and traces land in target/examples/), and checks
 # the DBC export with cantools (in a venv made by scripts/python-env.sh from requirements-dev.txt),
@@ -32,6 +33,7 @@ cargo clippy -p pab-core --features defmt --target thumbv7em-none-eabihf --locke
 cargo clippy -p pab-storage --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-app --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-fw-g474 --target thumbv7em-none-eabihf --release --locked -- -D warnings
+cargo clippy -p pab-fw-an386 --target thumbv7em-none-eabihf --release --locked -- -D warnings
 
 step "pab-core for the boards (thumbv7em-none-eabihf)"
 cargo build -p pab-core --release --target thumbv7em-none-eabihf --locked
@@ -40,6 +42,12 @@ cargo build -p pab-storage --release --target thumbv7em-none-eabihf --locked
 step "firmware for the NUCLEO-G474RE (pab-fw-g474)"
 cargo build -p pab-fw-g474 --profile firmware --target thumbv7em-none-eabihf --locked
 scripts/firmware-size.sh
+
+step "Cortex-M4 instructions per frame (emulated board, QEMU mps2-an386)"
+# Exact counts (a TCG plugin), so this is a deterministic check, not a timing: it fails if a goal
+# is exceeded, if a goal not yet met gets worse, or if the method's own checks (loops of known
+# length, SysTick under -icount) disagree.
+scripts/cortex-m4-cost.sh --check
 
 step "tests"
 cargo test --locked

@@ -36,7 +36,14 @@ fn frame(port: usize, k: usize) -> Id {
 
 /// `ports` ports of `n` chained connections each, every connection at rest.
 fn arbiter(ports: usize, n: usize) -> Arbiter {
-    let Ok(stimulation) = Stimulation::from_seconds(1.0, 3600.0, 0.0) else {
+    with_diagram(ports, n, 3600.0, false)
+}
+
+/// `ports` ports of `n` connections with τ = `tau` s; their decision a priority chain, or with
+/// `generic` a chain that is not one (node k goes to node k + 1 whatever x_k, the last delivers
+/// its own connection): no node can be merged with another, a walk visits every node.
+fn with_diagram(ports: usize, n: usize, tau: f64, generic: bool) -> Arbiter {
+    let Ok(stimulation) = Stimulation::from_seconds(1.0, tau, 0.0) else {
         fail(format_args!("parameters"))
     };
     let mut table = Table::new();
@@ -56,7 +63,12 @@ fn arbiter(ports: usize, n: usize) -> Arbiter {
             } else {
                 Some(NodeRef::NOBODY)
             };
-            match (low, NodeRef::deliver(k as u8)) {
+            let high = if generic && k + 1 < n {
+                NodeRef::node(k as u16 + 1)
+            } else {
+                NodeRef::deliver(k as u8)
+            };
+            match (low, high) {
                 (Some(low), Some(high)) => DecisionNode {
                     var: k as u8,
                     low,
@@ -160,6 +172,24 @@ impl Case {
     }
 }
 
+/// One port of `n` connections whose decision is not a priority chain, with the activity changing
+/// at every measured frame (so the last decision cannot be reused): each measured frame comes
+/// after every activity has lapsed and a frame on connection 0, and activates connection n − 1;
+/// the walk visits all n nodes and the frame is delivered.
+fn generic_walk(name: &'static str, n: usize) {
+    let mut arbiter = with_diagram(1, n, 1.0, true);
+    let mut now = Instant::from_micros(0);
+    for _ in 0..FRAMES {
+        now = now.wrapping_add_micros(2_000_000);
+        receive(&mut arbiter, &frame(0, 0), now);
+        let reception = measured_receive(&mut arbiter, &frame(0, n - 1), now);
+        report(name, "frame");
+        if !reception.delivered.contains(0) {
+            fail(format_args!("{name}: not delivered"));
+        }
+    }
+}
+
 pub fn run(syst: &mut SYST) {
     longest_walk("walk-4", 4).measure();
     let mut walk16 = longest_walk("walk-16", 16);
@@ -168,6 +198,8 @@ pub fn run(syst: &mut SYST) {
     all_active("active-4", 4).measure();
     all_active("active-16", 16).measure();
     all_active("active-32", 32).measure();
+    generic_walk("generic-16", 16);
+    generic_walk("generic-32", 32);
     full("full", true).measure();
     full("full-none", false).measure();
 
