@@ -3,16 +3,18 @@
 #   ./test.sh
 # It installs what it needs (the Cortex-M target, rustfmt, clippy, llvm-tools) with rustup, then
 # checks formatting and lints, builds the core, the NUCLEO-G474RE firmware and the emulated
-# board's (and prints their flash and RAM sizes), runs all tests (unit, property, end-to-end,
-# command line, the node application on an in-process bus), runs each benchmark once in test
-# mode, runs every example through `pabctl check` and `pabctl sim` (plots and traces land in
-# target/examples/), checks the DBC export with cantools (in a venv made by
-# scripts/python-env.sh from requirements-dev.txt), runs the HIL harness's own unit tests
-# (hil-sim/unit), the cross-runner test with the board firmware in QEMU (scripts/cross-runner.sh:
-# simulator, node application and emulated Cortex-M4 must record identical verdicts), the
-# emulated board's time check across its timer's wraps, and the hardware-in-the-loop suite
-# (hil-sim/run-hil: on vcan0, or in a micro-VM; PAB_HIL_ACCEL=auto|kvm|tcg picks its
-# accelerator), whose fresh Take and Return log then goes through the cross-runner test too.
+# board's (and prints their flash and RAM sizes), counts the Cortex-M4 instructions per frame on
+# the emulated board and checks them against their goals (scripts/cortex-m4-cost.sh --check),
+# runs all tests (unit, property, end-to-end, command line, the node application on an
+# in-process bus), runs each benchmark once in test mode, runs every example through `pabctl
+# check` and `pabctl sim` (plots and traces land in target/examples/), checks the DBC export with
+# cantools (in a venv made by scripts/python-env.sh from requirements-dev.txt), runs the HIL
+# harness's own unit tests (hil-sim/unit), the cross-runner test with the board firmware in QEMU
+# (scripts/cross-runner.sh: simulator, node application and emulated Cortex-M4 must record
+# identical verdicts), the emulated board's time check across its timer's wraps, and the
+# hardware-in-the-loop suite (hil-sim/run-hil: on vcan0, or in a micro-VM; PAB_HIL_ACCEL=
+# auto|kvm|tcg picks its accelerator), whose fresh Take and Return log then goes through the
+# cross-runner test too.
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -23,6 +25,8 @@ step "toolchain"
 rustup target add thumbv7em-none-eabihf
 rustup component add rustfmt clippy llvm-tools
 cargo --version
+# The emulated board (QEMU's mps2-an386) and the instruction-counting plugin it is measured with.
+scripts/need.sh qemu-system-arm gcc python3
 
 step "formatting"
 cargo fmt --all -- --check
@@ -44,9 +48,16 @@ cargo build -p pab-core --release --target thumbv7em-none-eabihf --locked
 cargo build -p pab-storage --release --target thumbv7em-none-eabihf --locked
 
 step "firmware for the NUCLEO-G474RE (pab-fw-g474) and the emulated Cortex-M4 (pab-fw-an386)"
-cargo build -p pab-fw-g474 --release --target thumbv7em-none-eabihf --locked
-cargo build -p pab-fw-an386 --release --target thumbv7em-none-eabihf --locked
+# The `firmware` profile: what is flashed (see the root Cargo.toml).
+cargo build -p pab-fw-g474 --profile firmware --target thumbv7em-none-eabihf --locked
+cargo build -p pab-fw-an386 --profile firmware --target thumbv7em-none-eabihf --locked
 scripts/firmware-size.sh
+
+step "Cortex-M4 instructions per frame (emulated board, QEMU mps2-an386)"
+# Exact counts (a TCG plugin), so this is a deterministic check, not a timing: it fails if a goal
+# is exceeded, if a goal not yet met gets worse, or if the method's own checks (loops of known
+# length, SysTick under -icount) disagree.
+scripts/cortex-m4-cost.sh --check
 
 step "tests"
 cargo test --locked
@@ -88,9 +99,8 @@ step "identical decisions on every runner: scripts/cross-runner.sh"
 scripts/cross-runner.sh
 
 step "emulated Cortex-M4: the time driver across TIMER0's wraps (pab-an386-timecheck, QEMU)"
-# 400 s of virtual time (-icount) with the clock read without pause around each 100 s wrap
-# (qemu-system-arm: installed by the step above if it was missing).
-cargo run --release -p pab-fw-an386 --target thumbv7em-none-eabihf --bin pab-an386-timecheck \
+# 400 s of virtual time (-icount) with the clock read without pause around each 100 s wrap.
+cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf --bin pab-an386-timecheck \
     --locked -- -icount shift=10,sleep=off
 
 step "hardware-in-the-loop: hil-sim/run-hil"

@@ -4,7 +4,7 @@
 # byte-identical records of every verdict (host-tools/tests/cross_runner.rs).
 #   scripts/cross-runner.sh                  # every example network and the committed HIL log
 #   scripts/cross-runner.sh CAPTURE.log      # ... and this capture, with examples/take-and-return.toml
-# Builds pab-an386-replay (release, thumbv7em-none-eabihf). Needs qemu-system-arm: installed with
+# Builds pab-an386-replay (the `firmware` profile, thumbv7em-none-eabihf). Needs qemu-system-arm: installed with
 # apt-get if missing and root, else the script fails saying so. Never skips.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -22,22 +22,12 @@ if [ $# -eq 1 ]; then
     PAB_REPLAY_CAPTURE=$(realpath "$1")
 fi
 
-if ! command -v qemu-system-arm > /dev/null; then
-    if [ "$(id -u)" -eq 0 ] && command -v apt-get > /dev/null; then
-        echo "cross-runner: installing qemu-system-arm with apt-get" >&2
-        apt-get update -qq
-        DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends qemu-system-arm
-    else
-        echo "cross-runner: qemu-system-arm is missing and this is not root with apt-get:" \
-            "install it (Debian/Ubuntu: sudo apt-get install qemu-system-arm)" >&2
-        exit 2
-    fi
-fi
+scripts/need.sh qemu-system-arm
 
-cargo build --release --locked -p pab-fw-an386 --target thumbv7em-none-eabihf --bin pab-an386-replay
+cargo build --profile firmware --locked -p pab-fw-an386 --target thumbv7em-none-eabihf --bin pab-an386-replay
 target="${CARGO_TARGET_DIR:-target}"
 export PAB_AN386_REPLAY
-PAB_AN386_REPLAY=$(realpath "$target/thumbv7em-none-eabihf/release/pab-an386-replay")
+PAB_AN386_REPLAY=$(realpath "$target/thumbv7em-none-eabihf/firmware/pab-an386-replay")
 started=$(date +%s)
 cargo test --locked -p pabctl --test cross_runner -- --ignored --nocapture
 echo "cross-runner: simulator, node application and board agree ($(( $(date +%s) - started )) s)"

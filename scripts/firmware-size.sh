@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
-# Flash and static RAM of the board firmware, from its release builds:
-#   scripts/firmware-size.sh            (builds pab-fw-g474 and pab-fw-an386 first if needed)
+# Flash and static RAM of the board firmware, from its build with the `firmware` profile (the one
+# that is flashed; see the root Cargo.toml):
+#   scripts/firmware-size.sh            (builds pab-fw-g474 and pab-fw-an386; cargo skips them
+#                                        when up to date)
 # Needs llvm-size from rustup's llvm-tools component (installed here if missing). The firmware
 # must stay within 64 KiB of flash (text + data).
 set -euo pipefail
@@ -15,10 +17,8 @@ fi
 # report PACKAGE DESCRIPTION PROGRAM_REGION RAM_TEXT
 report() {
     local package="$1" description="$2" region="$3" ram_text="$4"
-    local elf="$target/thumbv7em-none-eabihf/release/$package"
-    if [ ! -f "$elf" ]; then
-        cargo build -p "$package" --release --target thumbv7em-none-eabihf --locked
-    fi
+    local elf="$target/thumbv7em-none-eabihf/firmware/$package"
+    cargo build -q -p "$package" --profile firmware --target thumbv7em-none-eabihf --locked
     "$size" "$elf"
     local text data bss
     read -r text data bss < <("$size" "$elf" | awk 'NR == 2 { print $1, $2, $3 }')

@@ -10,14 +10,37 @@
 //!
 //! The same frame can thus be delivered to several ports of a node (fan-out), at most once per
 //! port. Everything runs in the caller's context: no timers, no allocation, no panics.
+//!
+//! ## How a frame stays cheap
+//!
+//! What a frame needs is built once, when the table is loaded, so that its cost does not grow
+//! with the node:
+//!
+//! - a filter index (`index.rs`): the connections a frame feeds are found by hashing its
+//!   identifier into buckets of exact filters (plus a test per masked filter), not by testing
+//!   every connection of the node;
+//! - per port, its activity kept up to date by the frames, with the interval of instants in
+//!   which it holds (`Port`): a frame reads it instead of evaluating every connection, and the
+//!   last decision, reused while the activity does not change;
+//! - per port, the decision as steps that test several connections at once (`decision.rs`): a
+//!   priority run is one step;
+//! - per connection, everything a frame reads of it in one place (`Slot`).
+//!
+//! The stimulation uses 32-bit arithmetic once the time since the last frame is known to be
+//! within τ, and skips the decay when the frame saturates the level anyway (`decay.rs`). On a
+//! Cortex-M4 a frame that feeds one connection costs about 200 to 300 instructions, one that
+//! feeds none about 40 (README, "Figures"; `scripts/cortex-m4-cost.sh`). The decisions are those
+//! of the straightforward evaluation, bit for bit: `core/tests/equivalence.rs` compares them with
+//! it on random tables and frames.
 
 use embedded_can::Id;
 use heapless::Vec;
 
 use crate::decay::Decay;
-use crate::decision::{self, ConnectionSet, DecisionNode, NodeRef};
+use crate::decision::{self, ConnectionSet, NodeRef, Step};
+use crate::index::{Cursor, FilterIndex, Found};
 use crate::integrator::{Integrator, Runtime, Stimulated};
-use crate::level::Level;
+use crate::level::{Gain, Level};
 use crate::table::{Table, TableError};
 use crate::time::Instant;
 use crate::{MAX_CONNECTIONS, MAX_DECISION_NODES, MAX_PORTS};
@@ -82,40 +105,292 @@ pub struct Reception {
     pub delivered: PortSet,
 }
 
-/// Where a port's connections and nodes are in the table, cached so that a frame does not walk the
-/// ports to find them.
+/// One connection's run-time state and what a frame needs of its parameters, in one place: its
+/// integrator, σ, τr, τ's evaluation form, and where it is (port, index in the port).
 #[derive(Clone, Copy, Debug)]
-struct Layout {
-    first_connection: usize,
-    connections: usize,
-    first_node: usize,
-    nodes: usize,
+struct Slot {
+    integrator: Integrator,
+    decay: Decay,
+    gain: Gain,
+    rest_us: u32,
+    port: u8,
+    index: u8,
+}
+
+impl Slot {
+    /// Whether the connection is active at `now`.
+    fn is_active(&self, now: Instant) -> bool {
+        self.integrator.is_active_with(&self.decay, now)
+    }
+
+    /// The last accepted frame's instant, as a counter value.
+    fn last(&self) -> u64 {
+        self.integrator.last().as_micros()
+    }
+
+    /// When its activity ends if it is active: its last accepted frame plus τ, saturated at the
+    /// end of the counter (every later instant is then within τ; see [`Port`]).
+    fn end(&self) -> u64 {
+        self.last().saturating_add(u64::from(self.decay.micros()))
+    }
+}
+
+/// Half the counter: a connection's last frame up to this far in the future of `now` counts as
+/// simultaneous (an out-of-order timestamp), any further is in the past ([`Instant::micros_since`]).
+const HALF: u64 = 1 << 63;
+
+/// A port at run time: where its connections and decision steps are, its activity kept up to
+/// date by the frames, and its last decision.
+///
+/// **Activity.** A connection is active at t when its integrator's flag is set and
+/// `t − last` (wrapping) is at most τ or at least 2^63 (a `t` before its last frame counts as
+/// simultaneous with it). Over plain `u64` instants, a flagged connection with `last ≤ t` is
+/// thus active in `[last − 2^63, last + τ]` and inactive in `(last + τ, last + 2^63)`. The
+/// port's activity changes only when a frame stimulates one of its connections or when a
+/// deadline passes, so the port keeps:
+///
+/// - `flagged`: the connections whose flag is set (all others are inactive at every instant);
+/// - `steady` and `[from, until]`: every connection in `steady` is active throughout the
+///   interval, every other flagged one inactive throughout it;
+/// - `[lapsed_from, lapsed_until]`, containing `[from, until]`: every flagged connection not in
+///   `steady` is inactive throughout it.
+///
+/// A frame within `[from, until]` reads `steady`. One after `until` re-examines the connections
+/// of `steady` only (their `end`), moving those that lapsed out of it ([`Port::refresh`]); the
+/// lapsed ones stay lapsed until they are stimulated again. Anything else (a frame out of order,
+/// a clock that wrapped) re-evaluates every flagged connection from scratch
+/// ([`Port::recompute`]). A frame that stimulates a connection only narrows the interval.
+/// [`Arbiter::activity`] reads the same way without changing anything; the tests compare both
+/// with a straightforward evaluation of every connection at every instant they look at.
+///
+/// **Decision.** The decision is a function of the activity alone: the last mask and what it
+/// selected are kept, and a frame that leaves the mask as it was reuses the answer.
+#[derive(Clone, Copy, Debug)]
+struct Port {
+    flagged: u32,
+    steady: u32,
+    from: u64,
+    until: u64,
+    lapsed_from: u64,
+    lapsed_until: u64,
+    decided_for: u32,
+    decided: Option<u8>,
+    first_connection: u16,
+    connections: u8,
+    first_step: u16,
+    steps: u16,
     root: NodeRef,
 }
 
-/// One connection's run-time state: its integrator and τ's evaluation form. The rest of its
-/// parameters (σ, τr) are read from the table, which the frame's filter test has just read.
-#[derive(Clone, Copy, Debug)]
-struct Slot {
-    decay: Decay,
-    integrator: Integrator,
+impl Port {
+    /// The port's connections among all the slots.
+    fn slots<'a>(&self, slots: &'a [Slot]) -> &'a [Slot] {
+        let first = usize::from(self.first_connection);
+        slots
+            .get(first..first.saturating_add(usize::from(self.connections)))
+            .unwrap_or(&[])
+    }
+
+    /// The port's decision steps among all the steps.
+    fn steps<'a>(&self, steps: &'a [Step]) -> &'a [Step] {
+        let first = usize::from(self.first_step);
+        steps
+            .get(first..first.saturating_add(usize::from(self.steps)))
+            .unwrap_or(&[])
+    }
+
+    /// Whether `now` is in the steady interval.
+    #[inline]
+    fn is_steady(&self, now: Instant) -> bool {
+        let at = now.as_micros();
+        self.from <= at && at <= self.until
+    }
+
+    /// The activity at `now`. Read-only: two comparisons in the steady interval, one activity
+    /// test per flagged connection outside it.
+    fn activity(&self, slots: &[Slot], now: Instant) -> u32 {
+        if self.is_steady(now) {
+            return self.steady;
+        }
+        let slots = self.slots(slots);
+        let mut active = 0;
+        let mut rest = self.flagged;
+        while rest != 0 {
+            let index = rest.trailing_zeros();
+            rest &= rest - 1;
+            if slots
+                .get(index as usize)
+                .is_some_and(|slot| slot.is_active(now))
+            {
+                active |= 1 << index;
+            }
+        }
+        active
+    }
+
+    /// [`Port::activity`], bringing the state up to `now` when `now` is outside the steady
+    /// interval.
+    #[inline]
+    fn update_activity(&mut self, slots: &[Slot], now: Instant) -> u32 {
+        if self.is_steady(now) {
+            self.steady
+        } else {
+            self.refresh(slots, now)
+        }
+    }
+
+    /// After `until`: the connections of `steady` whose activity ended move out of it, and the
+    /// interval is set again around `now`. Costs a comparison per connection of `steady`.
+    #[inline(never)]
+    fn refresh(&mut self, slots: &[Slot], now: Instant) -> u32 {
+        let at = now.as_micros();
+        if at < self.from || at < self.lapsed_from || at > self.lapsed_until {
+            return self.recompute(slots, now);
+        }
+        let all = slots;
+        let slots = self.slots(all);
+        let mut until = self.lapsed_until;
+        let mut rest = self.steady;
+        while rest != 0 {
+            let index = rest.trailing_zeros();
+            rest &= rest - 1;
+            let Some(slot) = slots.get(index as usize) else {
+                continue;
+            };
+            let last = slot.last();
+            if last > at || at - last >= HALF {
+                // Its last frame is after `now` (out of order), or half the counter before it:
+                // start from scratch.
+                return self.recompute(all, now);
+            }
+            let end = slot.end();
+            if at <= end {
+                until = until.min(end);
+            } else {
+                // Lapsed: inactive until 2^63 after its last frame.
+                self.steady &= !(1 << index);
+                self.lapsed_from = self.lapsed_from.max(end.saturating_add(1));
+                self.lapsed_until = self.lapsed_until.min(last.saturating_add(HALF - 1));
+                until = until.min(self.lapsed_until);
+            }
+        }
+        self.from = self.from.max(self.lapsed_from);
+        self.until = until;
+        self.steady
+    }
+
+    /// Evaluates every flagged connection at `now` and sets both intervals around `now` (empty
+    /// when a connection's last frame is after `now`: the next frame evaluates again).
+    #[inline(never)]
+    fn recompute(&mut self, slots: &[Slot], now: Instant) -> u32 {
+        let slots = self.slots(slots);
+        let at = now.as_micros();
+        let (mut from, mut until) = (0u64, u64::MAX);
+        let (mut lapsed_from, mut lapsed_until) = (0u64, u64::MAX);
+        let mut steady = 0;
+        let mut rest = self.flagged;
+        while rest != 0 {
+            let index = rest.trailing_zeros();
+            rest &= rest - 1;
+            let Some(slot) = slots.get(index as usize) else {
+                continue;
+            };
+            let last = slot.last();
+            if slot.is_active(now) {
+                steady |= 1 << index;
+            }
+            if last > at {
+                // Its last frame is after `now`: no interval, not even for the lapsed ones, so
+                // that the next frame evaluates everything again.
+                (from, until) = (1, 0);
+                (lapsed_from, lapsed_until) = (1, 0);
+            } else if at - last >= HALF {
+                // Half the counter after its last frame: in its past again, so active from
+                // there to the end of the counter.
+                from = from.max(last.saturating_add(HALF));
+            } else if at <= slot.end() {
+                from = from.max(last.saturating_sub(HALF));
+                until = until.min(slot.end());
+            } else {
+                lapsed_from = lapsed_from.max(slot.end().saturating_add(1));
+                lapsed_until = lapsed_until.min(last.saturating_add(HALF - 1));
+            }
+        }
+        self.steady = steady;
+        self.lapsed_from = lapsed_from;
+        self.lapsed_until = lapsed_until;
+        self.from = from.max(lapsed_from);
+        self.until = until.min(lapsed_until);
+        steady
+    }
+
+    /// Records that connection `bit` accepted a frame at `now`, its flag now `flag` and its
+    /// activity ending at `end`. Narrows the interval to what the connection's new state allows;
+    /// does not evaluate.
+    #[inline]
+    fn accepted(&mut self, bit: u32, flag: bool, end: u64, now: Instant) {
+        if flag {
+            self.flagged |= bit;
+            self.steady |= bit;
+            // Active in [now − 2^63, end].
+            self.until = self.until.min(end);
+            let at = now.as_micros();
+            if at >= HALF {
+                self.from = self.from.max(at - HALF);
+            }
+        } else {
+            // Unflagged: inactive at every instant, whatever the intervals.
+            self.flagged &= !bit;
+            self.steady &= !bit;
+        }
+    }
+
+    /// The connection selected under `active`: the kept answer if the mask is the last one,
+    /// else a walk (kept for the next frame).
+    #[inline]
+    fn decide(&mut self, steps: &[Step], active: u32) -> Option<u8> {
+        if active != self.decided_for {
+            self.decided_for = active;
+            self.decided = decide(self.steps(steps), self.root, active);
+        }
+        self.decided
+    }
+
+    /// Inactive, no connection flagged; the decision for the empty mask.
+    fn idle(&mut self, steps: &[Step]) {
+        self.flagged = 0;
+        self.steady = 0;
+        self.from = 0;
+        self.until = u64::MAX;
+        self.lapsed_from = 0;
+        self.lapsed_until = u64::MAX;
+        self.decided_for = 0;
+        self.decided = decide(self.steps(steps), self.root, 0);
+    }
 }
 
 /// A node's arbitration: owns its table (of the same capacities, see [`Table`]) and the state of
 /// every connection.
 ///
-/// Memory: the table plus 32 bytes per connection of capacity and 40 per port of capacity on a
-/// 64-bit host (about 41 KiB in all at the default capacities, 5.3 KiB for
-/// [`crate::BoardArbiter`]; `size_of::<Arbiter<P, C, N>>()` tells exactly).
+/// Memory: the table plus, per connection of capacity, 48 bytes of run-time state and 12 of
+/// filter index, 8 bytes per decision node of capacity (the decision in the form it is walked),
+/// and 56 bytes per port of capacity: about 71 KiB in all at the default capacities, 9.1 KiB
+/// for [`crate::BoardArbiter`]. `size_of::<Arbiter<P, C, N>>()` tells exactly (`cargo run -p
+/// pab-core --example footprint`).
+// repr(C), hot fields first: on a 32-bit core the ports and the index are then reached with
+// small offsets from the arbiter's address (the table, large and cold, comes last).
 #[derive(Clone, Debug)]
+#[repr(C)]
 pub struct Arbiter<
     const PORTS: usize = MAX_PORTS,
     const CONNECTIONS: usize = MAX_CONNECTIONS,
     const NODES: usize = MAX_DECISION_NODES,
 > {
-    table: Table<PORTS, CONNECTIONS, NODES>,
-    layout: Vec<Layout, PORTS>,
+    ports: Vec<Port, PORTS>,
+    index: FilterIndex<CONNECTIONS>,
     slots: Vec<Slot, CONNECTIONS>,
+    steps: Vec<Step, NODES>,
+    table: Table<PORTS, CONNECTIONS, NODES>,
 }
 
 impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
@@ -124,43 +399,80 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// Starts arbitrating with `table`, every connection at S = 0 and inactive.
     ///
     /// Validates the table again (it is cheap, and a `Table` can be deserialized without the
-    /// loader), and fails with the first [`TableError`] found. Costs one pass over the table.
+    /// loader), and fails with the first [`TableError`] found. Costs one pass over the table and
+    /// the sort of its filters.
     pub fn new(table: Table<PORTS, CONNECTIONS, NODES>) -> Result<Self, TableError> {
         table.validate()?;
-        let mut layout = Vec::new();
+        let mut ports = Vec::new();
         let mut slots = Vec::new();
-        for (port, connections, nodes) in table.ranges() {
-            let entry = Layout {
-                first_connection: connections.start,
-                connections: connections.len(),
-                first_node: nodes.start,
-                nodes: nodes.len(),
-                root: port.root(),
+        let mut steps = Vec::new();
+        for (position, (record, connections, nodes)) in table.ranges().enumerate() {
+            let port = u8::try_from(position).map_err(|_| TableError::TooManyPorts)?;
+            let (Some(views), Some(nodes)) = (
+                table.connections().get(connections.clone()),
+                table.nodes().get(nodes.clone()),
+            ) else {
+                return Err(TableError::ConnectionCountMismatch);
             };
-            layout.push(entry).map_err(|_| TableError::TooManyPorts)?;
-        }
-        for (position, view) in table.ports().enumerate() {
-            for (index, connection) in view.connections.iter().enumerate() {
+            let first_connection =
+                u16::try_from(slots.len()).map_err(|_| TableError::TooManyConnections)?;
+            for (index, connection) in views.iter().enumerate() {
+                let index = u8::try_from(index).map_err(|_| TableError::PortTooWide { port })?;
                 let runtime = Runtime::new(connection.stimulation).map_err(|error| {
                     TableError::Parameter {
-                        port: u8::try_from(position).unwrap_or(u8::MAX),
-                        connection: u8::try_from(index).unwrap_or(u8::MAX),
+                        port,
+                        connection: index,
                         error,
                     }
                 })?;
                 let slot = Slot {
-                    decay: runtime.decay(),
                     integrator: Integrator::new(),
+                    decay: runtime.decay(),
+                    gain: connection.stimulation.gain(),
+                    rest_us: connection.stimulation.rest_us(),
+                    port,
+                    index,
                 };
                 slots
                     .push(slot)
                     .map_err(|_| TableError::TooManyConnections)?;
             }
+            let first_step = u16::try_from(steps.len()).map_err(|_| TableError::TooManyNodes)?;
+            for _ in nodes {
+                steps
+                    .push(Step::NOBODY)
+                    .map_err(|_| TableError::TooManyNodes)?;
+            }
+            let end = usize::from(first_step).saturating_add(nodes.len());
+            if let Some(compiled) = steps.get_mut(usize::from(first_step)..end) {
+                decision::compile(nodes, compiled);
+            }
+            let mut run = Port {
+                first_connection,
+                connections: u8::try_from(views.len())
+                    .map_err(|_| TableError::PortTooWide { port })?,
+                first_step,
+                steps: u16::try_from(nodes.len()).map_err(|_| TableError::TooManyNodes)?,
+                root: record.root(),
+                flagged: 0,
+                steady: 0,
+                from: 0,
+                until: 0,
+                lapsed_from: 0,
+                lapsed_until: 0,
+                decided_for: 0,
+                decided: None,
+            };
+            run.idle(&steps);
+            ports.push(run).map_err(|_| TableError::TooManyPorts)?;
         }
+        let index = FilterIndex::new(table.connections()).ok_or(TableError::TooManyConnections)?;
         Ok(Arbiter {
             table,
-            layout,
+            ports,
             slots,
+            index,
+            steps,
         })
     }
 
@@ -174,80 +486,182 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         for slot in self.slots.iter_mut() {
             slot.integrator = Integrator::new();
         }
+        for port in self.ports.iter_mut() {
+            port.idle(&self.steps);
+        }
     }
 
     /// Arbitrates a frame with identifier `id` that arrived at `now`. Calls `on_verdict` once per
     /// port the frame fed, in port order, and sums up.
     ///
-    /// Cost: one filter comparison per connection of the node, and per fed port one decay
-    /// evaluation per connection of the port plus a decision walk of at most one step per
-    /// connection of the port.
+    /// Cost: a hash of the identifier and a comparison per exact filter in its bucket (about
+    /// one), a test per masked filter; then per fed port a stimulation per connection it feeds,
+    /// the port's activity (read from its state, or one evaluation per flagged connection after a
+    /// deadline), and, if the activity changed, a decision walk of at most one step per
+    /// connection of the port (a priority run is one step). On a Cortex-M4, a few hundred
+    /// instructions at most (README, "Figures").
+    #[inline(always)]
     pub fn receive(
         &mut self,
         id: &Id,
         now: Instant,
         mut on_verdict: impl FnMut(&PortVerdict),
     ) -> Reception {
+        let found = self.index.find(id);
+        if self.index.may_feed(&found) {
+            self.feed(found, id, now, &mut on_verdict)
+        } else {
+            // A frame for other nodes (the common case on a shared bus): done.
+            Reception::default()
+        }
+    }
+
+    /// Feeds the connections the frame feeds (as the index `found` them), port after port, and
+    /// calls `on_verdict` for each port. Out of line so that a frame that feeds nothing does not
+    /// pay for its set-up.
+    #[inline(never)]
+    fn feed(
+        &mut self,
+        found: Found,
+        id: &Id,
+        now: Instant,
+        on_verdict: &mut impl FnMut(&PortVerdict),
+    ) -> Reception {
         let mut reception = Reception::default();
-        // Disjoint fields: the table is read while the slots are mutated.
-        let connections = self.table.connections();
-        for (port, layout) in self.layout.iter().enumerate() {
-            let port = u8::try_from(port).unwrap_or(u8::MAX);
-            let range =
-                layout.first_connection..layout.first_connection.saturating_add(layout.connections);
-            let (Some(slots), Some(filters)) =
-                (self.slots.get_mut(range.clone()), connections.get(range))
-            else {
-                continue;
-            };
-            let mut fed = ConnectionSet::EMPTY;
-            let mut resting = ConnectionSet::EMPTY;
-            for (index, (slot, connection)) in slots.iter_mut().zip(filters).enumerate() {
-                if connection.filter.matches(id) {
-                    let index = u8::try_from(index).unwrap_or(u8::MAX);
-                    fed = fed.with(index);
-                    if slot
-                        .integrator
-                        .stimulate_with(&connection.stimulation, &slot.decay, now)
-                        == Stimulated::Resting
-                    {
-                        resting = resting.with(index);
-                    }
-                }
-            }
-            if fed.is_empty() {
-                continue;
-            }
-            let active = activity(slots, now);
-            let selected = decide(self.table.nodes(), layout, active);
-            let delivered = selected.filter(|&index| fed.contains(index));
-            reception.fed = reception.fed.with(port);
-            if delivered.is_some() {
-                reception.delivered = reception.delivered.with(port);
-            }
-            on_verdict(&PortVerdict {
-                port,
-                fed,
-                resting,
-                active,
-                selected,
-                delivered,
-            });
+        let (mut cursor, first) = self.index.first(found, id, self.table.connections());
+        let Some(first) = first else {
+            return reception;
+        };
+        // The first port in line (a loop here would keep every array's address in a register
+        // across it, and spill them); the others, if any, through a loop out of line.
+        let next = self.feed_port(first, &mut cursor, id, now, on_verdict, &mut reception);
+        if let Some(connection) = next {
+            self.feed_ports(connection, &mut cursor, id, now, on_verdict, &mut reception);
         }
         reception
+    }
+
+    /// [`Arbiter::feed`]'s loop over the ports after the first, for a frame that feeds several
+    /// (fan-out).
+    #[inline(never)]
+    fn feed_ports(
+        &mut self,
+        first: usize,
+        cursor: &mut Cursor,
+        id: &Id,
+        now: Instant,
+        on_verdict: &mut impl FnMut(&PortVerdict),
+        reception: &mut Reception,
+    ) {
+        let mut next = Some(first);
+        while let Some(connection) = next {
+            next = self.feed_port(connection, cursor, id, now, on_verdict, reception);
+        }
+    }
+
+    /// Feeds `connection` and the next ones of the frame that belong to the same port; then the
+    /// port's activity, decision and verdict. Returns the frame's next connection (of a later
+    /// port), if any.
+    #[inline(always)]
+    fn feed_port(
+        &mut self,
+        connection: usize,
+        cursor: &mut Cursor,
+        id: &Id,
+        now: Instant,
+        on_verdict: &mut impl FnMut(&PortVerdict),
+        reception: &mut Reception,
+    ) -> Option<usize> {
+        let (number, mut fed, mut resting) = self.stimulate(connection, now)?;
+        let mut next = self.index.next(cursor, id, self.table.connections());
+        if let Some(more) = next
+            && self.slots.get(more).is_some_and(|slot| slot.port == number)
+        {
+            let (more_fed, more_resting, after) = self.feed_same_port(more, cursor, id, now);
+            (fed, resting, next) = (fed | more_fed, resting | more_resting, after);
+        }
+        let port = self.ports.get_mut(usize::from(number))?;
+        let active = port.update_activity(&self.slots, now);
+        let selected = port.decide(&self.steps, active);
+        let delivered = selected.filter(|&index| fed & (1 << (index & 31)) != 0);
+        reception.fed = reception.fed.with(number);
+        if delivered.is_some() {
+            reception.delivered = reception.delivered.with(number);
+        }
+        on_verdict(&PortVerdict {
+            port: number,
+            fed: ConnectionSet::from_bits(fed),
+            resting: ConnectionSet::from_bits(resting),
+            active: ConnectionSet::from_bits(active),
+            selected,
+            delivered,
+        });
+        next
+    }
+
+    /// Feeds `connection` and the frame's next connections while they belong to the same port
+    /// (overlapping filters): the fed and resting bits, and the frame's next connection after
+    /// them.
+    #[inline(never)]
+    fn feed_same_port(
+        &mut self,
+        connection: usize,
+        cursor: &mut Cursor,
+        id: &Id,
+        now: Instant,
+    ) -> (u32, u32, Option<usize>) {
+        let (mut fed, mut resting) = (0, 0);
+        let mut next = Some(connection);
+        let number = self.slots.get(connection).map(|slot| slot.port);
+        while let Some(connection) = next {
+            if self.slots.get(connection).map(|slot| slot.port) != number {
+                break;
+            }
+            if let Some((_, bit, rest)) = self.stimulate(connection, now) {
+                fed |= bit;
+                resting |= rest;
+            }
+            next = self.index.next(cursor, id, self.table.connections());
+        }
+        (fed, resting, next)
+    }
+
+    /// Applies a frame at `now` to connection `connection` (index in the table) and records it in
+    /// its port's state: (its port, its bit as fed, its bit if it was resting).
+    #[inline(always)]
+    fn stimulate(&mut self, connection: usize, now: Instant) -> Option<(u8, u32, u32)> {
+        let slot = self.slots.get_mut(connection)?;
+        // A slot's index in its port is below 32.
+        let bit = 1u32 << (slot.index & 31);
+        match slot
+            .integrator
+            .stimulate_parts(slot.gain, slot.rest_us, &slot.decay, now)
+        {
+            Stimulated::Resting => Some((slot.port, bit, bit)),
+            Stimulated::Accepted => {
+                let port = self.ports.get_mut(usize::from(slot.port))?;
+                port.accepted(bit, slot.integrator.active_flag(), slot.end(), now);
+                Some((slot.port, bit, 0))
+            }
+        }
     }
 
     /// The connection of port `port` whose frames would get through at `now`, or `None` (also for
     /// a port that does not exist). Read-only.
     pub fn selected(&self, port: u8, now: Instant) -> Option<u8> {
-        let layout = self.layout.get(usize::from(port))?;
-        decide(self.table.nodes(), layout, self.activity(port, now))
+        let record = self.ports.get(usize::from(port))?;
+        let active = record.activity(&self.slots, now);
+        decide(record.steps(&self.steps), record.root, active)
     }
 
-    /// Port `port`'s activity mask at `now` (empty for a port that does not exist). Read-only.
+    /// Port `port`'s activity mask at `now` (empty for a port that does not exist). Read-only;
+    /// costs what a frame's activity costs.
     pub fn activity(&self, port: u8, now: Instant) -> ConnectionSet {
-        self.port_slots(port)
-            .map_or(ConnectionSet::EMPTY, |slots| activity(slots, now))
+        self.ports
+            .get(usize::from(port))
+            .map_or(ConnectionSet::EMPTY, |record| {
+                ConnectionSet::from_bits(record.activity(&self.slots, now))
+            })
     }
 
     /// The stimulation level of connection `connection` of port `port` at `now`. Read-only.
@@ -259,23 +673,14 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// Whether connection `connection` of port `port` is in its rest time at `now` (ignoring
     /// frames); `false` for a connection that does not exist. Read-only.
     pub fn is_resting(&self, port: u8, connection: u8, now: Instant) -> bool {
-        let rest_us = self
-            .table
-            .port(usize::from(port))
-            .and_then(|view| view.connections.get(usize::from(connection)))
-            .map(|connection| connection.stimulation.rest_us());
-        let slot = self
-            .port_slots(port)
-            .and_then(|slots| slots.get(usize::from(connection)));
-        match (slot, rest_us) {
-            (Some(slot), Some(rest_us)) => slot.integrator.is_resting(&slot.decay, rest_us, now),
-            _ => false,
-        }
+        self.port_slots(port)
+            .and_then(|slots| slots.get(usize::from(connection)))
+            .is_some_and(|slot| slot.integrator.is_resting(&slot.decay, slot.rest_us, now))
     }
 
     /// The number of ports.
     pub fn port_count(&self) -> usize {
-        self.layout.len()
+        self.ports.len()
     }
 
     /// The number of connections of port `port` (0 for a port that does not exist).
@@ -284,29 +689,17 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     }
 
     fn port_slots(&self, port: u8) -> Option<&[Slot]> {
-        let layout = self.layout.get(usize::from(port))?;
-        let end = layout.first_connection.checked_add(layout.connections)?;
-        self.slots.get(layout.first_connection..end)
+        Some(self.ports.get(usize::from(port))?.slots(&self.slots))
     }
 }
 
-/// The activity mask of a port's connections at `now`.
-fn activity(slots: &[Slot], now: Instant) -> ConnectionSet {
-    slots
-        .iter()
-        .enumerate()
-        .filter(|(_, slot)| slot.integrator.is_active_with(&slot.decay, now))
-        .fold(ConnectionSet::EMPTY, |set, (index, _)| {
-            set.with(u8::try_from(index).unwrap_or(u8::MAX))
-        })
-}
-
-/// The port's decision under `active`. Only an active connection can be selected (x_i ∧ Φ_i(x)):
-/// a valid diagram may still name an inactive one (e.g. a root that is a terminal).
-fn decide(nodes: &[DecisionNode], layout: &Layout, active: ConnectionSet) -> Option<u8> {
-    let end = layout.first_node.checked_add(layout.nodes)?;
-    let nodes = nodes.get(layout.first_node..end)?;
-    decision::evaluate(nodes, layout.root, active).filter(|&index| active.contains(index))
+/// The decision of a port (its `steps`, entered at `root`) under `active`. Only an active
+/// connection can be selected (x_i ∧ Φ_i(x)): a valid diagram may still name an inactive one
+/// (e.g. a root that is a terminal).
+#[inline]
+fn decide(steps: &[Step], root: NodeRef, active: u32) -> Option<u8> {
+    let active = ConnectionSet::from_bits(active);
+    decision::walk(steps, root, active).filter(|&index| active.contains(index))
 }
 
 #[cfg(test)]

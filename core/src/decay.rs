@@ -17,10 +17,15 @@
 //! g(u) = G_i + E_i · expm1(λ·r) with G_i = e^(−λ)(e^(λ i/64) − 1), E_i = e^(λ(i/64 − 1)) and r
 //! the remainder of u in the segment. `expm1` is a degree-6 Taylor polynomial (λ·r < 0.079, so its
 //! truncation error is below 5e-12 absolute). The 129 table constants are computed by `const fn`
-//! at compile time, so they cannot drift from the formula. Cost per evaluation: one 64-bit
-//! multiplication for u, seven 64-bit multiplications of operands below 2^33, divisions only by small constants (compiled to multiplications), no float.
+//! at compile time, so they cannot drift from the formula.
+//!
+//! Cost per evaluation, written for a 32-bit core: one 32 × 64-bit multiplication for u, and
+//! eight 32 × 32 → 64-bit multiplications (one `UMULL` each on a Cortex-M4) plus three divisions
+//! of a `u32` by 3, 5 and 6, which compilers turn into multiplications by a reciprocal (exact
+//! for every `u32`). No 64-bit division (a call to `__aeabi_uldivmod` on a Cortex-M4, around
+//! 100 instructions), no float.
 
-use crate::level::Level;
+use crate::level::{Gain, Level};
 
 /// λ, the decay constant of the reference implementation.
 const LAMBDA: f64 = 5.0;
@@ -90,21 +95,45 @@ const SLOPE_AT: [u32; SEGMENTS] = {
 /// The loss at u = 1: what remains after exactly τ is e^(−λ) of the level.
 const LOSS_AT_ONE: u32 = LOSS_AT[SEGMENTS];
 
+/// How far above the loss at the end of its segment [`loss`] may be, in Q32 units, at most: the
+/// loss is within 1.5 units of g, which grows with u (`tests::loss_is_within_its_ceiling`).
+const CEILING_MARGIN: u32 = 16;
+
+/// An upper bound of [`loss`] over segment i (the next segment's start, plus a margin), for
+/// i = 0..=64 (64: u = 1 exactly). With it a frame that saturates the level anyway skips the
+/// evaluation of the loss.
+// Evaluated at compile time: an index out of bounds would fail the build, not panic.
+#[allow(clippy::indexing_slicing)]
+const LOSS_CEILING: [u32; SEGMENTS + 1] = {
+    let mut table = [0; SEGMENTS + 1];
+    let mut i = 0;
+    while i <= SEGMENTS {
+        let next = if i < SEGMENTS { i + 1 } else { SEGMENTS };
+        table[i] = LOSS_AT[next] + CEILING_MARGIN;
+        i += 1;
+    }
+    table
+};
+
 /// e^r − 1 for r in [0, 0.08), r in Q32, result in Q32.
 ///
-/// Horner form of r(1 + r/2(1 + r/3(1 + r/4(1 + r/5(1 + r/6))))), with the factors in Q32 held in
-/// `u64`: every factor is in [1, 1.05) (below 2^33) and r is below 2^29, so every product is below
-/// 2^62. The first omitted term, r^7/7!, is under 0.02 Q32 units.
+/// Horner form of r(1 + r/2(1 + r/3(1 + r/4(1 + r/5(1 + r/6))))). Every factor (1 + …) is in
+/// [1, 1.05): it is held as its fraction below 1, in Q32, so that each step is a 32 × 32 → 64-bit
+/// multiplication: with a factor 1 + f, `(r · (1 + f)) >> 32` is exactly `r + (r · f) >> 32`
+/// (r · 2^32 contributes exactly r to the upper word). The divisions by 2 to 6 apply to values
+/// below 2^30 and truncate, as they did when this was written with 64-bit factors: the result is
+/// bit for bit that of the 64-bit Horner form (`tests::expm1_is_the_64_bit_horner_form`). The
+/// first omitted term, r^7/7!, is under 0.02 Q32 units.
 fn expm1_small(r: u32) -> u32 {
-    const ONE: u64 = 1 << 32;
-    let r = u64::from(r);
-    let z = ONE + r / 6;
-    let a = ONE + ((r * z) >> 32) / 5;
-    let b = ONE + ((r * a) >> 32) / 4;
-    let c = ONE + ((r * b) >> 32) / 3;
-    let d = ONE + ((r * c) >> 32) / 2;
-    // Rounded to nearest.
-    ((r * d + (1 << 31)) >> 32) as u32
+    // r < 2^29, so r + (r · f) >> 32 < 2^30 for every fraction f < 2^32: no step overflows.
+    let step = |fraction: u32| r + ((u64::from(r) * u64::from(fraction)) >> 32) as u32;
+    let z = r / 6;
+    let a = step(z) / 5;
+    let b = step(a) / 4;
+    let c = step(b) / 3;
+    let d = step(c) / 2;
+    // r · (1 + d) rounded to nearest: r + (r · d + 2^31) >> 32, with r · d + 2^31 < 2^62.
+    r + ((u64::from(r) * u64::from(d) + (1 << 31)) >> 32) as u32
 }
 
 /// g(u) = 1 − f(u) in Q32, for u in Q32 within [0, 2^32].
@@ -154,11 +183,41 @@ impl Decay {
     /// The level `elapsed` µs after it was `level`: `level · f(elapsed / τ)`, or zero once more than
     /// τ has passed. Rounds towards the larger level by less than 1e-9.
     pub(crate) fn apply(&self, level: Level, elapsed: u64) -> Level {
-        if elapsed > u64::from(self.micros) {
-            return Level::ZERO;
+        match u32::try_from(elapsed) {
+            Ok(elapsed) if elapsed <= self.micros => self.apply_within(level, elapsed),
+            _ => Level::ZERO,
         }
-        // elapsed ≤ τ < 2^32 and reciprocal ≤ 2^56 / τ, so the product is at most 2^56.
-        let u = elapsed.saturating_mul(self.reciprocal) >> (RECIPROCAL_SHIFT - 32);
+    }
+
+    /// `apply_within(level, elapsed).saturating_add(gain)`, the step of a frame: when the sum
+    /// saturates whatever the loss within u's segment (a connection fed faster than it decays),
+    /// the loss is not evaluated. Same result, bit for bit
+    /// (`tests::stimulation_step_is_decay_then_gain`).
+    #[inline]
+    pub(crate) fn apply_then_add(&self, level: Level, elapsed: u32, gain: Gain) -> Level {
+        let elapsed = elapsed.min(self.micros);
+        // As in `apply_within`: at most 2^56, it cannot wrap.
+        let u = u64::from(elapsed).wrapping_mul(self.reciprocal) >> (RECIPROCAL_SHIFT - 32);
+        if let Some(&ceiling) = LOSS_CEILING.get((u >> SEGMENT_BITS) as usize) {
+            // level − lost ≥ level − most_lost, and level + gain ≤ 2^32: no overflow.
+            let most_lost = (u64::from(level.raw()) * u64::from(ceiling)) >> 32;
+            if level.raw() - most_lost as u32 + gain.raw() >= Level::FULL.raw() {
+                return Level::FULL;
+            }
+        }
+        let lost = (u64::from(level.raw()) * u64::from(loss(u))) >> 32;
+        Level::from_raw(level.raw().saturating_sub(lost as u32))
+            .unwrap_or(Level::ZERO)
+            .saturating_add(gain)
+    }
+
+    /// [`Decay::apply`] for an `elapsed` already known to be at most τ (a larger one is treated
+    /// as τ): 32-bit arithmetic only, for the frame path.
+    #[inline]
+    pub(crate) fn apply_within(&self, level: Level, elapsed: u32) -> Level {
+        let elapsed = elapsed.min(self.micros);
+        // elapsed ≤ τ and reciprocal ≤ 2^56 / τ, so the product is at most 2^56: it cannot wrap.
+        let u = u64::from(elapsed).wrapping_mul(self.reciprocal) >> (RECIPROCAL_SHIFT - 32);
         let lost = (u64::from(level.raw()) * u64::from(loss(u))) >> 32;
         // lost ≤ level because loss < 1.
         Level::from_raw(level.raw().saturating_sub(lost as u32)).unwrap_or(Level::ZERO)
@@ -171,6 +230,82 @@ mod tests {
 
     fn reference_f(u: f64) -> f64 {
         1.0 - (LAMBDA * (u - 1.0)).exp() + (-LAMBDA).exp()
+    }
+
+    /// The 64-bit Horner form `expm1_small` was first written in (divisions of `u64`s, which a
+    /// Cortex-M4 makes calls to `__aeabi_uldivmod`): the reference its 32-bit form must equal.
+    fn expm1_64(r: u32) -> u32 {
+        const ONE: u64 = 1 << 32;
+        let r = u64::from(r);
+        let z = ONE + r / 6;
+        let a = ONE + ((r * z) >> 32) / 5;
+        let b = ONE + ((r * a) >> 32) / 4;
+        let c = ONE + ((r * b) >> 32) / 3;
+        let d = ONE + ((r * c) >> 32) / 2;
+        ((r * d + (1 << 31)) >> 32) as u32
+    }
+
+    #[test]
+    fn expm1_is_the_64_bit_horner_form() {
+        // Every argument the decay can pass is below 5 · 2^26: the low 2^20 of them, a stride
+        // through all, and the top of the range.
+        let top = 5u32 << SEGMENT_BITS;
+        let arguments = (0..1u32 << 20)
+            .chain((0..top).step_by(997))
+            .chain(top - (1 << 16)..top);
+        for r in arguments {
+            assert_eq!(expm1_small(r), expm1_64(r), "r = {r}");
+        }
+    }
+
+    #[test]
+    fn loss_is_within_its_ceiling() {
+        // A dense sweep, and the top 2^12 arguments of every segment, where the loss is largest.
+        let sweep = (0..=2_000_000u64).map(|k| k * (1 << 32) / 2_000_000);
+        let tops = (1..=SEGMENTS as u64)
+            .flat_map(|i| (i << SEGMENT_BITS) - (1 << 12)..(i << SEGMENT_BITS).min(1 << 32) + 1);
+        for u in sweep.chain(tops) {
+            let ceiling = LOSS_CEILING[(u >> SEGMENT_BITS) as usize];
+            assert!(loss(u) <= ceiling, "u {u}: {} > {ceiling}", loss(u));
+        }
+    }
+
+    #[test]
+    fn stimulation_step_is_decay_then_gain() {
+        // Levels and gains around saturation and far from it, elapsed over all of τ.
+        let decay = Decay::new(3_000_000).unwrap();
+        let levels = [
+            0,
+            1,
+            1 << 20,
+            1 << 30,
+            (1 << 31) - (1 << 24),
+            (1 << 31) - 1,
+            1 << 31,
+        ];
+        let gains = [
+            1 << 15,
+            1 << 24,
+            429_496_730,
+            1 << 30,
+            (1 << 31) - 1,
+            1 << 31,
+        ];
+        let mut seed = 0x2545_F491u64;
+        for &level in &levels {
+            for &gain in &gains {
+                let (level, gain) = (
+                    Level::from_raw(level).unwrap(),
+                    Gain::from_raw(gain).unwrap(),
+                );
+                for k in 0..=3_000u32 {
+                    seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+                    let elapsed = (k * 1_000).saturating_sub((seed >> 40) as u32 % 1_000);
+                    let expected = decay.apply_within(level, elapsed).saturating_add(gain);
+                    assert_eq!(decay.apply_then_add(level, elapsed, gain), expected);
+                }
+            }
+        }
     }
 
     #[test]

@@ -9,6 +9,10 @@
 //! a bit test each), and the diagram of typical rule sets (inhibitions, priorities) grows linearly
 //! with the number of connections, where a truth table would need 2^n entries.
 //!
+//! At run time the arbiter walks a form of the diagram built when the table is loaded, where a
+//! node tests a set of connections at once: a priority run (a chain of nodes each of which lets
+//! its own connection deliver, else goes on) is one step, a count-trailing-zeros of the mask.
+//!
 //! Why the loader can trust it: [`validate`] checks that every child comes later in the array than
 //! its parent and tests a later bit. So every walk ends, in at most one step per connection, and
 //! every reference is in bounds, whatever bytes the image held.
@@ -235,6 +239,109 @@ pub fn evaluate(nodes: &[DecisionNode], root: NodeRef, active: ConnectionSet) ->
     None
 }
 
+/// A decision node in the form the arbiter walks it, built from a validated diagram when a table
+/// is loaded ([`compile`]); the image keeps [`DecisionNode`]s. Eight bytes.
+///
+/// A step tests a set of connections at once: when none of `mask` is active the walk goes to
+/// `low`; otherwise to `high`, or, when `high` is [`LOWEST`], the lowest active connection of
+/// `mask` delivers. A node of the diagram tests one connection (`mask` is its bit); a
+/// *priority run*, a path of nodes linked by their `low` children where each node's `high` is
+/// "this node's connection delivers" (what a priority chain, an override stack or a
+/// subsumption layer compiles to), becomes one step: the first active connection along the path
+/// is the lowest set bit of `active & mask` (the diagram tests its variables in increasing
+/// order), one count-trailing-zeros instead of a walk along the path.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Step {
+    mask: u32,
+    low: u16,
+    high: u16,
+}
+
+/// `Step::high` for "the lowest active connection of the mask delivers" (an encoding no
+/// validated [`NodeRef`] uses: terminals name connections below 32).
+const LOWEST: u16 = 0xFFFE;
+
+impl Step {
+    /// A placeholder, overwritten by [`compile`].
+    pub(crate) const NOBODY: Step = Step {
+        mask: 0,
+        low: NOBODY,
+        high: NOBODY,
+    };
+}
+
+/// Writes into `steps` (as long as `nodes`) the steps of a diagram that [`validate`] accepted.
+/// Each step's children are after it, as in the diagram, so [`walk`] ends. Costs one pass over
+/// the nodes, from the last.
+pub(crate) fn compile(nodes: &[DecisionNode], steps: &mut [Step]) {
+    for (index, node) in nodes.iter().enumerate().rev() {
+        // A validated node tests a connection below 32.
+        let Some(bit) = 1u32.checked_shl(u32::from(node.var)) else {
+            continue;
+        };
+        let delivers_own = node.high == NodeRef(TERMINAL_BASE | u16::from(node.var));
+        let step = if delivers_own {
+            // A priority node: merged with its low child if that is one too (the child, after
+            // it, is already compiled: its mask holds the rest of the run, its low where the run
+            // ends).
+            let run = match node.low.target() {
+                Target::Node(child) => steps
+                    .get(usize::from(child))
+                    .filter(|next| next.high == LOWEST),
+                _ => None,
+            };
+            match run {
+                Some(next) => Step {
+                    mask: bit | next.mask,
+                    low: next.low,
+                    high: LOWEST,
+                },
+                None => Step {
+                    mask: bit,
+                    low: node.low.0,
+                    high: LOWEST,
+                },
+            }
+        } else {
+            Step {
+                mask: bit,
+                low: node.low.0,
+                high: node.high.0,
+            }
+        };
+        if let Some(slot) = steps.get_mut(index) {
+            *slot = step;
+        }
+    }
+}
+
+/// [`evaluate`] on the steps [`compile`] made of a validated diagram: the same answer for every
+/// mask. One step per node on the path, a priority run counting as one; each step is a load, an
+/// AND and a branch.
+#[inline]
+pub(crate) fn walk(steps: &[Step], root: NodeRef, active: ConnectionSet) -> Option<u8> {
+    let mut at = root.0;
+    // Ends: every step's children are after it (validated diagram, preserved by `compile`).
+    loop {
+        if at >= TERMINAL_BASE {
+            return if at == NOBODY {
+                None
+            } else {
+                Some((at - TERMINAL_BASE) as u8)
+            };
+        }
+        let step = steps.get(usize::from(at))?;
+        let hit = active.0 & step.mask;
+        at = if hit == 0 {
+            step.low
+        } else if step.high == LOWEST {
+            return Some(hit.trailing_zeros() as u8);
+        } else {
+            step.high
+        };
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -314,6 +421,53 @@ mod tests {
         assert_eq!(
             validate(&bad_terminal, at(0), 2),
             Err(DecisionError::BadChild { node: 0 })
+        );
+    }
+
+    #[test]
+    fn steps_decide_as_the_diagram() {
+        // A priority chain (one step), a chain with a non-priority node in the middle and a
+        // shared tail, and the diagram above; every mask.
+        let chain: Vec<DecisionNode> = (0..6)
+            .map(|k| {
+                node(
+                    k,
+                    if k < 5 {
+                        at(u16::from(k) + 1)
+                    } else {
+                        NodeRef::NOBODY
+                    },
+                    deliver(k),
+                )
+            })
+            .collect();
+        let mixed = [
+            node(0, at(1), deliver(0)),
+            node(1, at(3), at(2)),
+            node(2, at(3), deliver(5)),
+            node(3, at(4), deliver(3)),
+            node(4, deliver(1), deliver(4)),
+        ];
+        let figure = [
+            node(0, at(1), at(2)),
+            node(1, NodeRef::NOBODY, deliver(1)),
+            node(1, deliver(0), deliver(1)),
+        ];
+        for nodes in [&chain[..], &mixed[..], &figure[..]] {
+            validate(nodes, at(0), 6).unwrap();
+            let mut steps = std::vec![Step::NOBODY; nodes.len()];
+            compile(nodes, &mut steps);
+            for mask in 0..1 << 6 {
+                let active = ConnectionSet::from_bits(mask);
+                assert_eq!(walk(&steps, at(0), active), evaluate(nodes, at(0), active));
+            }
+        }
+        // The chain is one step.
+        let mut steps = std::vec![Step::NOBODY; chain.len()];
+        compile(&chain, &mut steps);
+        assert_eq!(
+            (steps[0].mask, steps[0].low, steps[0].high),
+            (0x3F, NOBODY, LOWEST)
         );
     }
 

@@ -70,6 +70,21 @@ impl Filter {
         }
     }
 
+    /// The filter as a key of the arbiter's index ([`key_of`]) when it matches exactly one
+    /// identifier (its mask is the format's full width), `None` when it matches a range.
+    pub(crate) const fn exact_key(&self) -> Option<u32> {
+        let widest = if self.extended {
+            MAX_EXTENDED_ID
+        } else {
+            MAX_STANDARD_ID
+        };
+        if self.mask == widest {
+            Some(key(self.id, self.extended))
+        } else {
+            None
+        }
+    }
+
     /// The identifier.
     pub const fn id(&self) -> u32 {
         self.id
@@ -83,6 +98,21 @@ impl Filter {
     /// Whether the identifier is 29 bits.
     pub const fn is_extended(&self) -> bool {
         self.extended
+    }
+}
+
+/// An identifier as one number, the format in bit 31 (free in both: 29 bits at most), so that a
+/// standard and an extended identifier with the same number are different keys.
+const fn key(raw: u32, extended: bool) -> u32 {
+    raw | (extended as u32) << 31
+}
+
+/// The key of a frame's identifier, as [`Filter::exact_key`] gives it for the filter that
+/// matches exactly that identifier.
+pub(crate) fn key_of(frame: &Id) -> u32 {
+    match frame {
+        Id::Standard(id) => key(u32::from(id.as_raw()), false),
+        Id::Extended(id) => key(id.as_raw(), true),
     }
 }
 

@@ -201,17 +201,52 @@ impl Integrator {
         decay: &Decay,
         now: Instant,
     ) -> Stimulated {
-        if self.is_resting(decay, stimulation.rest_us, now) {
-            return Stimulated::Resting;
-        }
-        let was_active = self.is_active_with(decay, now);
-        let level = self.level_with(decay, now).saturating_add(stimulation.gain);
+        self.stimulate_parts(stimulation.gain, stimulation.rest_us, decay, now)
+    }
+
+    /// [`Integrator::stimulate`] from σ, τr and τ's evaluation form, the time since the last frame
+    /// computed once: what the arbiter calls for every frame that feeds a connection.
+    #[inline]
+    pub(crate) fn stimulate_parts(
+        &mut self,
+        gain: Gain,
+        rest_us: u32,
+        decay: &Decay,
+        now: Instant,
+    ) -> Stimulated {
+        let elapsed = self.elapsed(now);
+        let tau = decay.micros();
+        let (level, was_active) = match u32::try_from(elapsed) {
+            // Within τ: S(now) from the decay, active as before.
+            Ok(elapsed) if elapsed <= tau => {
+                (decay.apply_then_add(self.level, elapsed, gain), self.active)
+            }
+            // Past τ: S(now) is 0, the activity has ended; during the rest phase after an activity
+            // the frame is ignored (`is_resting`: elapsed − τ ≤ τr).
+            _ => {
+                if self.active && elapsed - u64::from(tau) <= u64::from(rest_us) {
+                    return Stimulated::Resting;
+                }
+                (Level::ZERO.saturating_add(gain), false)
+            }
+        };
         *self = Integrator {
             level,
             last: now,
             active: was_active || level == Level::FULL,
         };
         Stimulated::Accepted
+    }
+
+    /// Whether the connection was active when its last frame was accepted: with
+    /// [`Integrator::last`] and τ, what its activity at any instant follows from.
+    pub(crate) const fn active_flag(&self) -> bool {
+        self.active
+    }
+
+    /// When its last frame was accepted.
+    pub(crate) const fn last(&self) -> Instant {
+        self.last
     }
 }
 

@@ -64,15 +64,15 @@ class BoardError(RuntimeError):
 
 
 def firmware() -> Path:
-    """The board firmware's ELF (release build), or a MissingBinary saying how to build it."""
+    """The board firmware's ELF (the `firmware` profile's build), or a MissingBinary saying how to build it."""
     if "PAB_BOARD_ELF" in os.environ:
         path = Path(os.environ["PAB_BOARD_ELF"])
     else:
         target = Path(os.environ.get("CARGO_TARGET_DIR", REPO / "target"))
-        path = target / TARGET / "release" / FIRMWARE
+        path = target / TARGET / "firmware" / FIRMWARE
     if not path.is_file():
         raise MissingBinary(
-            f"{path} not found: build it with `cargo build --release -p {FIRMWARE} --target "
+            f"{path} not found: build it with `cargo build --profile firmware -p {FIRMWARE} --target "
             f"{TARGET}` (or point PAB_BOARD_ELF at the ELF)"
         )
     return path

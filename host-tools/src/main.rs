@@ -163,7 +163,7 @@ the Linux node and the board firmware (see the README, \"Replay records\").
 --board-job writes the tables and the frames replayed for pab-an386-replay, the same replay on \
 the emulated Cortex-M4 (QEMU mps2-an386), which writes the same records:
   pabctl replay NET.toml CAPTURE.log --records sim.txt --board-job job.bin
-  cargo run --release -p pab-fw-an386 --target thumbv7em-none-eabihf \\
+  cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf \\
       --bin pab-an386-replay -- -append \"job.bin board.txt\"
   cmp sim.txt board.txt
 

@@ -14,7 +14,7 @@
 //! - **Log**: `log` on QEMU's standard error through semihosting (run QEMU with
 //!   `-semihosting-config enable=on,target=native`).
 //!
-//! Run: `cargo run --release -p pab-fw-an386 --target thumbv7em-none-eabihf -- -serial pty`
+//! Run: `cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf -- -serial pty`
 //! (the README's "Boards" section has the whole bridge).
 
 #![no_std]

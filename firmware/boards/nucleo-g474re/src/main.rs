@@ -14,9 +14,12 @@
 //! - **LED**: LD2 (PA5) blinks at 1 Hz while the executor runs.
 //! - **Log**: defmt over RTT (`probe-rs run` prints it); `DEFMT_LOG=debug` at build time shows
 //!   every delivered frame.
+//! - **Flash accelerator**: prefetch buffer and instruction/data caches on
+//!   ([`enable_flash_prefetch_and_caches`]).
 //!
-//! Build and flash: `cargo run --release -p pab-fw-g474 --target thumbv7em-none-eabihf` (the root
-//! `.cargo/config.toml` sets probe-rs as the runner). The chip must be in single-bank mode
+//! Built with the workspace's `firmware` profile (fat LTO, one codegen unit, opt-level 2: the
+//! root `Cargo.toml` says why). Build and flash: `cargo run --profile firmware -p pab-fw-g474
+//! --target thumbv7em-none-eabihf` (the root `.cargo/config.toml` sets probe-rs as the runner). The chip must be in single-bank mode
 //! (option bit DBANK = 0); see the README's "Boards" section.
 
 #![no_std]
@@ -98,9 +101,28 @@ static NODE: StaticCell<pab_app::BoardNode> = StaticCell::new();
 static RX_QUEUE: StaticCell<RxQueue> = StaticCell::new();
 static TX_QUEUE: StaticCell<TxQueue> = StaticCell::new();
 
+/// Turns on the flash's prefetch buffer and its instruction and data caches (the ART
+/// accelerator, FLASH_ACR PRFTEN, ICEN, DCEN).
+///
+/// Why: at 170 MHz the flash needs 4 wait states, which embassy's RCC set; every instruction
+/// fetch that misses the 1 KiB instruction cache then stalls for them unless the prefetch buffer
+/// has read ahead, and the reset value leaves prefetch off. embassy-stm32 0.6 sets only the
+/// latency on the G4 (`rcc/g4.rs`), so the register is set here. The caches are on after reset;
+/// they are set anyway so that this does not depend on what ran before (a bootloader). Flash
+/// writes stay coherent: embassy's flash driver turns the data cache off and resets it around
+/// each erase and write (`flash/g.rs`), which is what pab-storage's saves go through.
+fn enable_flash_prefetch_and_caches() {
+    embassy_stm32::pac::FLASH.acr().modify(|w| {
+        w.set_prften(true);
+        w.set_icen(true);
+        w.set_dcen(true);
+    });
+}
+
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
     let p = embassy_stm32::init(clocks());
+    enable_flash_prefetch_and_caches();
     info!(
         "pab node {} on NUCLEO-G474RE, CAN {} kbit/s",
         NODE_ID,

@@ -4,7 +4,7 @@
 //! period themselves), and a timer never fires early. Prints one line per wrap through semihosting and exits 0 (or 1 with
 //! what went wrong). Run it with virtual time, so that its 300 s take a second:
 //!
-//!     cargo run --release -p pab-fw-an386 --target thumbv7em-none-eabihf \
+//!     cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf \
 //!         --bin pab-an386-timecheck -- -icount shift=10,sleep=off
 //!
 //! (`shift=10`: one instruction is 1.024 µs of virtual time; the executor's idle loop is not a

@@ -10,9 +10,9 @@
 //!
 //!     qemu-system-arm -M mps2-an386 -nographic -monitor none \
 //!         -semihosting-config enable=on,target=native,arg=replay,arg=JOB,arg=RECORDS \
-//!         -kernel target/thumbv7em-none-eabihf/release/pab-an386-replay
+//!         -kernel target/thumbv7em-none-eabihf/firmware/pab-an386-replay
 //!
-//! (or `cargo run --release -p pab-fw-an386 --target thumbv7em-none-eabihf --bin
+//! (or `cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf --bin
 //! pab-an386-replay -- -append "JOB RECORDS"`; paths without spaces, relative to QEMU's working
 //! directory). Exit status 0: every frame replayed and every node booted; 1: anything else, with
 //! the reason on standard error. An image a board refuses (too large for its capacities) is

@@ -1,0 +1,102 @@
+#!/usr/bin/env bash
+# Cortex-M4 instructions per frame, counted exactly on the emulated board (QEMU mps2-an386):
+#
+#   scripts/cortex-m4-cost.sh                 the table: instructions per frame, per case
+#   scripts/cortex-m4-cost.sh --check         the same, failing if a goal of issue 10 is exceeded
+#                                             or a goal not met gets worse (exact counts: a
+#                                             deterministic check, not a timing)
+#   scripts/cortex-m4-cost.sh --profile CASE[/CLASS][@MIN]
+#                                             where that case's instructions go (its frames of at
+#                                             least MIN instructions), per function symbol and
+#                                             per source line (inlined code included)
+#
+# How: the firmware binary pab-an386-cost (firmware/boards/mps2-an386/src/bin/cost/) runs each
+# case between two marker functions; a QEMU TCG plugin built here from
+# scripts/cortex-m4/insn-count.c counts every guest instruction executed between them; the
+# count of an empty region (the marker calls) is subtracted. The method is checked on every run
+# (scripts/cortex-m4/report.py): loops of known length must be counted exactly (2N + 1
+# instructions for N iterations), and under `-icount shift=0` (one instruction per virtual ns)
+# SysTick on the 25 MHz CPU clock must agree (one tick = 40 instructions).
+#
+# Needs qemu-system-arm, gcc and python3 (installed with apt-get if missing and root),
+# llvm-nm from rustup's llvm-tools component (installed here if missing), and for --profile
+# binutils' addr2line (it follows the inlining chains in the debug information).
+# Takes a few seconds once the firmware is built.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+mode=table
+profile_case=
+case "${1:-}" in
+    "") ;;
+    --check) mode=check ;;
+    --profile)
+        mode=profile
+        profile_case="${2:?--profile needs CASE or CASE/CLASS, e.g. walk-16 or tr-arm/fed}"
+        ;;
+    -h | --help)
+        sed -n '2,24p' "$0" | sed 's/^# \{0,1\}//'
+        exit 0
+        ;;
+    *)
+        echo "cortex-m4-cost: unknown argument '$1' (see --help)" >&2
+        exit 2
+        ;;
+esac
+
+scripts/need.sh qemu-system-arm gcc python3
+llvm_bin="$(rustc --print sysroot)/lib/rustlib/$(rustc -vV | sed -n 's/^host: //p')/bin"
+if [ ! -x "$llvm_bin/llvm-nm" ]; then
+    rustup component add llvm-tools
+fi
+
+target="${CARGO_TARGET_DIR:-target}"
+work="$target/cortex-m4"
+mkdir -p "$work"
+plugin="$work/insn-count.so"
+source=scripts/cortex-m4/insn-count.c
+if [ ! -f "$plugin" ] || [ "$source" -nt "$plugin" ]; then
+    gcc -shared -fPIC -O2 -Wall -Wextra -Werror -fvisibility=hidden -o "$plugin" "$source"
+fi
+
+# The boards' profile (root Cargo.toml): what is counted is what a board runs.
+cargo build -q --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf \
+    --bin pab-an386-cost --locked
+elf="$target/thumbv7em-none-eabihf/firmware/pab-an386-cost"
+
+address() {
+    "$llvm_bin/llvm-nm" "$elf" | awk -v name="$1" '$3 == name { print "0x" $1 }'
+}
+begin=$(address pab_cost_begin)
+end=$(address pab_cost_end)
+if [ -z "$begin" ] || [ -z "$end" ] || [ "$begin" = "$end" ]; then
+    echo "cortex-m4-cost: markers not found (or merged) in $elf: begin '$begin', end '$end'" >&2
+    exit 1
+fi
+
+# Runs the program once under the plugin (extra plugin options in $1) into $2. QEMU's exit
+# status is the program's (semihosting); its console and the plugin's counts share stderr, in
+# the order the guest produced them.
+run() {
+    if ! qemu-system-arm -M mps2-an386 -nographic -monitor none \
+        -semihosting-config enable=on,target=native -icount shift=0 \
+        -plugin "$plugin,begin=$begin,end=$end$1" -kernel "$elf" 2> "$2" > /dev/null; then
+        tail -5 "$2" >&2
+        echo "cortex-m4-cost: the measurement program failed (log: $2)" >&2
+        exit 1
+    fi
+}
+
+log="$work/run.log"
+run "" "$log"
+report=(python3 scripts/cortex-m4/report.py "$log")
+case "$mode" in
+    table) "${report[@]}" ;;
+    check) "${report[@]}" --check ;;
+    profile)
+        "${report[@]}" --regions "$profile_case" > "$work/regions.txt"
+        histogram="$work/profile.txt"
+        run ",profile=$histogram,only=$work/regions.txt" "$work/profile.log"
+        "${report[@]}" --profile "$profile_case" "$histogram" "$elf"
+        ;;
+esac
