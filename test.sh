@@ -18,8 +18,9 @@
 set -euo pipefail
 cd "$(dirname "$0")"
 
-step() { printf '\n== %s\n' "$*"; }
 started=$(date +%s)
+# Each step's header says how long the run has taken so far, so the growth of a step shows.
+step() { printf '\n== %s (at %d s)\n' "$*" $(( $(date +%s) - started )); }
 
 step "toolchain"
 rustup target add thumbv7em-none-eabihf
