@@ -38,7 +38,7 @@ use heapless::Vec;
 
 use crate::decay::Decay;
 use crate::decision::{self, ConnectionSet, NodeRef, Step};
-use crate::index::{Cursor, FilterIndex, Found};
+use crate::index::{Cursor, FilterIndex, Lookup};
 use crate::integrator::{Integrator, Runtime, Stimulated};
 use crate::level::{Gain, Level};
 use crate::table::{Table, TableError};
@@ -85,6 +85,12 @@ impl PortSet {
     /// The bits.
     pub const fn bits(self) -> u16 {
         self.0
+    }
+
+    /// The set of port `index` alone; a port's index is below [`MAX_PORTS`] (16), as a table's
+    /// capacity is.
+    const fn of(index: u8) -> Self {
+        PortSet(1 << (index & 15))
     }
 
     const fn with(self, index: u8) -> Self {
@@ -372,9 +378,9 @@ impl Port {
 /// A node's arbitration: owns its table (of the same capacities, see [`Table`]) and the state of
 /// every connection.
 ///
-/// Memory: the table plus, per connection of capacity, 48 bytes of run-time state and 12 of
+/// Memory: the table plus, per connection of capacity, 48 bytes of run-time state and 16 of
 /// filter index, 8 bytes per decision node of capacity (the decision in the form it is walked),
-/// and 56 bytes per port of capacity: about 71 KiB in all at the default capacities, 9.1 KiB
+/// and 56 bytes per port of capacity: about 73 KiB in all at the default capacities, 9.4 KiB
 /// for [`crate::BoardArbiter`]. `size_of::<Arbiter<P, C, N>>()` tells exactly (`cargo run -p
 /// pab-core --example footprint`).
 // repr(C), hot fields first: on a 32-bit core the ports and the index are then reached with
@@ -507,12 +513,63 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         now: Instant,
         mut on_verdict: impl FnMut(&PortVerdict),
     ) -> Reception {
-        let found = self.index.find(id);
-        if self.index.may_feed(&found) {
-            self.feed(found, id, now, &mut on_verdict)
-        } else {
+        match self.index.lookup(id) {
+            Lookup::One(connection) => self.feed_one(connection, now, &mut on_verdict),
+            Lookup::Several => self.feed(id, now, &mut on_verdict),
             // A frame for other nodes (the common case on a shared bus): done.
-            Reception::default()
+            Lookup::Nothing => Reception::default(),
+        }
+    }
+
+    /// Feeds the one connection a frame feeds (the index knows it is the only one), then its
+    /// port's activity, decision and verdict: a frame of a topic that feeds one port of the
+    /// node, without the cursor of [`Arbiter::feed`].
+    #[inline(never)]
+    fn feed_one(
+        &mut self,
+        connection: usize,
+        now: Instant,
+        on_verdict: &mut impl FnMut(&PortVerdict),
+    ) -> Reception {
+        let Some(slot) = self.slots.get_mut(connection) else {
+            return Reception::default();
+        };
+        let number = slot.port;
+        let Some(port) = self.ports.get_mut(usize::from(number)) else {
+            return Reception::default();
+        };
+        // A slot's index in its port is below 32.
+        let bit = 1u32 << (slot.index & 31);
+        let resting =
+            match slot
+                .integrator
+                .stimulate_parts(slot.gain, slot.rest_us, &slot.decay, now)
+            {
+                Stimulated::Resting => bit,
+                Stimulated::Accepted => {
+                    port.accepted(bit, slot.integrator.active_flag(), slot.end(), now);
+                    0
+                }
+            };
+        let active = port.update_activity(&self.slots, now);
+        let selected = port.decide(&self.steps, active);
+        let delivered = selected.filter(|&index| bit == 1 << (index & 31));
+        on_verdict(&PortVerdict {
+            port: number,
+            fed: ConnectionSet::from_bits(bit),
+            resting: ConnectionSet::from_bits(resting),
+            active: ConnectionSet::from_bits(active),
+            selected,
+            delivered,
+        });
+        let fed = PortSet::of(number);
+        Reception {
+            fed,
+            delivered: if delivered.is_some() {
+                fed
+            } else {
+                PortSet::default()
+            },
         }
     }
 
@@ -522,12 +579,12 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     #[inline(never)]
     fn feed(
         &mut self,
-        found: Found,
         id: &Id,
         now: Instant,
         on_verdict: &mut impl FnMut(&PortVerdict),
     ) -> Reception {
         let mut reception = Reception::default();
+        let found = self.index.find(id);
         let (mut cursor, first) = self.index.first(found, id, self.table.connections());
         let Some(first) = first else {
             return reception;
@@ -580,7 +637,25 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             let (more_fed, more_resting, after) = self.feed_same_port(more, cursor, id, now);
             (fed, resting, next) = (fed | more_fed, resting | more_resting, after);
         }
-        let port = self.ports.get_mut(usize::from(number))?;
+        self.conclude(number, fed, resting, now, on_verdict, reception);
+        next
+    }
+
+    /// After the connections of port `number` that a frame feeds have been stimulated (`fed`,
+    /// of which `resting` ignored it): the port's activity, its decision, the verdict.
+    #[inline(always)]
+    fn conclude(
+        &mut self,
+        number: u8,
+        fed: u32,
+        resting: u32,
+        now: Instant,
+        on_verdict: &mut impl FnMut(&PortVerdict),
+        reception: &mut Reception,
+    ) {
+        let Some(port) = self.ports.get_mut(usize::from(number)) else {
+            return;
+        };
         let active = port.update_activity(&self.slots, now);
         let selected = port.decide(&self.steps, active);
         let delivered = selected.filter(|&index| fed & (1 << (index & 31)) != 0);
@@ -596,7 +671,6 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             selected,
             delivered,
         });
-        next
     }
 
     /// Feeds `connection` and the frame's next connections while they belong to the same port
