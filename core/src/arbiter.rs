@@ -112,11 +112,15 @@ pub struct Reception {
 }
 
 /// One connection's run-time state and what a frame needs of its parameters, in one place: its
-/// integrator, σ, τr, τ's evaluation form, and where it is (port, index in the port).
+/// integrator, σ, τr, τ's evaluation form, and where it is (port, index in the port). 40 bytes:
+/// τ's two parts are kept apart (a [`Decay`] would bring its padding).
 #[derive(Clone, Copy, Debug)]
 struct Slot {
     integrator: Integrator,
-    decay: Decay,
+    /// τ's reciprocal ([`Decay`]).
+    reciprocal: u64,
+    /// τ in µs ([`Decay`]).
+    tau: u32,
     gain: Gain,
     rest_us: u32,
     port: u8,
@@ -124,9 +128,15 @@ struct Slot {
 }
 
 impl Slot {
+    /// τ's evaluation form.
+    #[inline(always)]
+    fn decay(&self) -> Decay {
+        Decay::from_parts(self.tau, self.reciprocal)
+    }
+
     /// Whether the connection is active at `now`.
     fn is_active(&self, now: Instant) -> bool {
-        self.integrator.is_active_with(&self.decay, now)
+        self.integrator.is_active_with(&self.decay(), now)
     }
 
     /// The last accepted frame's instant, as a counter value.
@@ -136,8 +146,17 @@ impl Slot {
 
     /// When its activity ends if it is active: its last accepted frame plus τ, saturated at the
     /// end of the counter (every later instant is then within τ; see [`Port`]).
+    #[inline(always)]
     fn end(&self) -> u64 {
-        self.last().saturating_add(u64::from(self.decay.micros()))
+        self.last().saturating_add(u64::from(self.tau))
+    }
+
+    /// Applies a frame at `now` (see [`Integrator::stimulate`]).
+    #[inline(always)]
+    fn stimulate(&mut self, now: Instant) -> Stimulated {
+        let decay = self.decay();
+        self.integrator
+            .stimulate_parts(self.gain, self.rest_us, &decay, now)
     }
 }
 
@@ -255,7 +274,8 @@ impl Port {
         }
         let all = slots;
         let slots = self.slots(all);
-        let mut until = self.lapsed_until;
+        // The least time left before one of those still active ends (32 bits: τ < 2^32).
+        let (mut left, mut active) = (u32::MAX, false);
         let mut rest = self.steady;
         while rest != 0 {
             let index = rest.trailing_zeros();
@@ -263,22 +283,30 @@ impl Port {
             let Some(slot) = slots.get(index as usize) else {
                 continue;
             };
-            let last = slot.last();
-            if last > at || at - last >= HALF {
+            let (since, before) = at.overflowing_sub(slot.last());
+            if before || since >= HALF {
                 // Its last frame is after `now` (out of order), or half the counter before it:
                 // start from scratch.
                 return self.recompute(all, now);
             }
-            let end = slot.end();
-            if at <= end {
-                until = until.min(end);
-            } else {
-                // Lapsed: inactive until 2^63 after its last frame.
-                self.steady &= !(1 << index);
-                self.lapsed_from = self.lapsed_from.max(end.saturating_add(1));
-                self.lapsed_until = self.lapsed_until.min(last.saturating_add(HALF - 1));
-                until = until.min(self.lapsed_until);
+            match u32::try_from(since) {
+                Ok(since) if since <= slot.tau => {
+                    left = left.min(slot.tau - since);
+                    active = true;
+                }
+                _ => {
+                    // Lapsed: inactive until 2^63 after its last frame.
+                    self.steady &= !(1 << index);
+                    self.lapsed_from = self.lapsed_from.max(slot.end().saturating_add(1));
+                    self.lapsed_until = self.lapsed_until.min(slot.last().saturating_add(HALF - 1));
+                }
             }
+        }
+        // The earliest end among those still active is `now` plus the least time left
+        // (saturated, as their ends are: each one's end is its last frame plus τ).
+        let mut until = self.lapsed_until;
+        if active {
+            until = until.min(at.saturating_add(u64::from(left)));
         }
         self.from = self.from.max(self.lapsed_from);
         self.until = until;
@@ -378,9 +406,9 @@ impl Port {
 /// A node's arbitration: owns its table (of the same capacities, see [`Table`]) and the state of
 /// every connection.
 ///
-/// Memory: the table plus, per connection of capacity, 48 bytes of run-time state and 16 of
+/// Memory: the table plus, per connection of capacity, 40 bytes of run-time state and 16 of
 /// filter index, 8 bytes per decision node of capacity (the decision in the form it is walked),
-/// and 56 bytes per port of capacity: about 73 KiB in all at the default capacities, 9.4 KiB
+/// and 56 bytes per port of capacity: about 69 KiB in all at the default capacities, 8.9 KiB
 /// for [`crate::BoardArbiter`]. `size_of::<Arbiter<P, C, N>>()` tells exactly (`cargo run -p
 /// pab-core --example footprint`).
 // repr(C), hot fields first: on a 32-bit core the ports and the index are then reached with
@@ -431,9 +459,11 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                         error,
                     }
                 })?;
+                let (tau, reciprocal) = runtime.decay().parts();
                 let slot = Slot {
                     integrator: Integrator::new(),
-                    decay: runtime.decay(),
+                    reciprocal,
+                    tau,
                     gain: connection.stimulation.gain(),
                     rest_us: connection.stimulation.rest_us(),
                     port,
@@ -540,17 +570,13 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         };
         // A slot's index in its port is below 32.
         let bit = 1u32 << (slot.index & 31);
-        let resting =
-            match slot
-                .integrator
-                .stimulate_parts(slot.gain, slot.rest_us, &slot.decay, now)
-            {
-                Stimulated::Resting => bit,
-                Stimulated::Accepted => {
-                    port.accepted(bit, slot.integrator.active_flag(), slot.end(), now);
-                    0
-                }
-            };
+        let resting = match slot.stimulate(now) {
+            Stimulated::Resting => bit,
+            Stimulated::Accepted => {
+                port.accepted(bit, slot.integrator.active_flag(), slot.end(), now);
+                0
+            }
+        };
         let active = port.update_activity(&self.slots, now);
         let selected = port.decide(&self.steps, active);
         let delivered = selected.filter(|&index| bit == 1 << (index & 31));
@@ -707,10 +733,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         let slot = self.slots.get_mut(connection)?;
         // A slot's index in its port is below 32.
         let bit = 1u32 << (slot.index & 31);
-        match slot
-            .integrator
-            .stimulate_parts(slot.gain, slot.rest_us, &slot.decay, now)
-        {
+        match slot.stimulate(now) {
             Stimulated::Resting => Some((slot.port, bit, bit)),
             Stimulated::Accepted => {
                 let port = self.ports.get_mut(usize::from(slot.port))?;
@@ -741,7 +764,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// The stimulation level of connection `connection` of port `port` at `now`. Read-only.
     pub fn level(&self, port: u8, connection: u8, now: Instant) -> Option<Level> {
         let slot = self.port_slots(port)?.get(usize::from(connection))?;
-        Some(slot.integrator.level_with(&slot.decay, now))
+        Some(slot.integrator.level_with(&slot.decay(), now))
     }
 
     /// Whether connection `connection` of port `port` is in its rest time at `now` (ignoring
@@ -749,7 +772,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     pub fn is_resting(&self, port: u8, connection: u8, now: Instant) -> bool {
         self.port_slots(port)
             .and_then(|slots| slots.get(usize::from(connection)))
-            .is_some_and(|slot| slot.integrator.is_resting(&slot.decay, slot.rest_us, now))
+            .is_some_and(|slot| slot.integrator.is_resting(&slot.decay(), slot.rest_us, now))
     }
 
     /// The number of ports.
