@@ -424,23 +424,33 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             self.counters.discarded = self.counters.discarded.wrapping_add(1);
             return;
         }
-        // The ports it was delivered to, in increasing order.
+        // The ports it was delivered to, in increasing order (usually one).
         let mut ports = reception.delivered.bits();
         while ports != 0 {
-            let port = ports.trailing_zeros() as u8;
+            self.deliver(ports.trailing_zeros() as u8, frame, now, consumer);
             ports &= ports - 1;
-            self.counters.delivered = self.counters.delivered.wrapping_add(1);
-            consumer.deliver(port, frame, now);
-            if let Some(PortConsumer::Republish(output)) =
-                arbiter.table().consumer(usize::from(port))
-                && self
-                    .outbox
-                    .push_back(frame.republished(output.id()))
-                    .is_err()
-            {
-                self.counters.errors = self.counters.errors.wrapping_add(1);
-                self.faults.raise(FaultCode::TxOverrun, [1, 0, 0, 0, 0]);
-            }
+        }
+    }
+
+    /// Hands `frame`, delivered at `port`, to the consumer, and queues its re-publication if the
+    /// port is a gateway. Out of line: the loop over the delivered ports then keeps nothing of
+    /// the node in registers across it.
+    #[inline(never)]
+    fn deliver<K: Consumer>(&mut self, port: u8, frame: &Frame, now: Instant, consumer: &mut K) {
+        self.counters.delivered = self.counters.delivered.wrapping_add(1);
+        consumer.deliver(port, frame, now);
+        let republish = self
+            .arbiter
+            .as_ref()
+            .and_then(|arbiter| arbiter.table().consumer(usize::from(port)));
+        if let Some(PortConsumer::Republish(output)) = republish
+            && self
+                .outbox
+                .push_back(frame.republished(output.id()))
+                .is_err()
+        {
+            self.counters.errors = self.counters.errors.wrapping_add(1);
+            self.faults.raise(FaultCode::TxOverrun, [1, 0, 0, 0, 0]);
         }
     }
 
