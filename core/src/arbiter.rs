@@ -18,7 +18,9 @@
 //!
 //! - a filter index (`index.rs`): the connections a frame feeds are found by hashing its
 //!   identifier into buckets of exact filters (plus a test per masked filter), not by testing
-//!   every connection of the node;
+//!   every connection of the node; when its bucket names the one connection the frame feeds
+//!   (a topic that feeds one port, no masked filter), the frame goes straight to it
+//!   ([`Arbiter::receive`]'s `feed_one`);
 //! - per port, its activity kept up to date by the frames, with the interval of instants in
 //!   which it holds (`Port`): a frame reads it instead of evaluating every connection, and the
 //!   last decision, reused while the activity does not change;
@@ -28,8 +30,10 @@
 //!
 //! The stimulation uses 32-bit arithmetic once the time since the last frame is known to be
 //! within τ, and skips the decay when the frame saturates the level anyway (`decay.rs`). On a
-//! Cortex-M4 a frame that feeds one connection costs about 200 to 300 instructions, one that
-//! feeds none about 40 (README, "Figures"; `scripts/cortex-m4-cost.sh`). The decisions are those
+//! Cortex-M4 a frame that feeds one connection costs about 120 to 500 instructions (150 for most
+//! frames of Take and Return; more when the decay is evaluated, an activity lapses or the
+//! decision is walked), one that feeds none about 25 (README, "Figures";
+//! `scripts/cortex-m4-cost.sh`). The decisions are those
 //! of the straightforward evaluation, bit for bit: `core/tests/equivalence.rs` compares them with
 //! it on random tables and frames.
 
@@ -530,12 +534,14 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// Arbitrates a frame with identifier `id` that arrived at `now`. Calls `on_verdict` once per
     /// port the frame fed, in port order, and sums up.
     ///
-    /// Cost: a hash of the identifier and a comparison per exact filter in its bucket (about
-    /// one), a test per masked filter; then per fed port a stimulation per connection it feeds,
-    /// the port's activity (read from its state, or one evaluation per flagged connection after a
-    /// deadline), and, if the activity changed, a decision walk of at most one step per
-    /// connection of the port (a priority run is one step). On a Cortex-M4, a few hundred
-    /// instructions at most (README, "Figures").
+    /// Cost: a hash of the identifier and one comparison when its bucket answers (the
+    /// identifier is alone there and feeds one connection, or is not the bucket's), else a
+    /// comparison per exact filter in its bucket and a test per masked filter; then per fed port
+    /// a stimulation per connection it feeds, the port's activity (read from its state, or a
+    /// test per active connection after a deadline), and, if the activity changed, a decision
+    /// walk of at most one step per connection of the port (a priority run is one step). On a
+    /// Cortex-M4, from about 25 instructions (a frame for other nodes) to a few hundred (README,
+    /// "Figures").
     #[inline(always)]
     pub fn receive(
         &mut self,
