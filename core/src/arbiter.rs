@@ -33,9 +33,8 @@
 //! Cortex-M4 a frame that feeds one connection costs about 120 to 500 instructions (150 for most
 //! frames of Take and Return; more when the decay is evaluated, an activity lapses or the
 //! decision is walked), one that feeds none about 25 (README, "Figures";
-//! `scripts/cortex-m4-cost.sh`). The decisions are those
-//! of the straightforward evaluation, bit for bit: `core/tests/equivalence.rs` compares them with
-//! it on random tables and frames.
+//! `scripts/cortex-m4-cost.sh`). The decisions are those of the straightforward evaluation, bit
+//! for bit: `core/tests/equivalence.rs` compares them with it on random tables and frames.
 
 use embedded_can::Id;
 use heapless::Vec;
