@@ -18,7 +18,9 @@
 //!
 //! - a filter index (`index.rs`): the connections a frame feeds are found by hashing its
 //!   identifier into buckets of exact filters (plus a test per masked filter), not by testing
-//!   every connection of the node;
+//!   every connection of the node; when its bucket names the one connection the frame feeds
+//!   (a topic that feeds one port, no masked filter), the frame goes straight to it
+//!   ([`Arbiter::receive`]'s `feed_one`);
 //! - per port, its activity kept up to date by the frames, with the interval of instants in
 //!   which it holds (`Port`): a frame reads it instead of evaluating every connection, and the
 //!   last decision, reused while the activity does not change;
@@ -28,17 +30,18 @@
 //!
 //! The stimulation uses 32-bit arithmetic once the time since the last frame is known to be
 //! within τ, and skips the decay when the frame saturates the level anyway (`decay.rs`). On a
-//! Cortex-M4 a frame that feeds one connection costs about 200 to 300 instructions, one that
-//! feeds none about 40 (README, "Figures"; `scripts/cortex-m4-cost.sh`). The decisions are those
-//! of the straightforward evaluation, bit for bit: `core/tests/equivalence.rs` compares them with
-//! it on random tables and frames.
+//! Cortex-M4 a frame that feeds one connection costs about 120 to 500 instructions (150 for most
+//! frames of Take and Return; more when the decay is evaluated, an activity lapses or the
+//! decision is walked), one that feeds none about 25 (README, "Figures";
+//! `scripts/cortex-m4-cost.sh`). The decisions are those of the straightforward evaluation, bit
+//! for bit: `core/tests/equivalence.rs` compares them with it on random tables and frames.
 
 use embedded_can::Id;
 use heapless::Vec;
 
 use crate::decay::Decay;
 use crate::decision::{self, ConnectionSet, NodeRef, Step};
-use crate::index::{Cursor, FilterIndex, Found};
+use crate::index::{Cursor, FilterIndex, Lookup};
 use crate::integrator::{Integrator, Runtime, Stimulated};
 use crate::level::{Gain, Level};
 use crate::table::{Table, TableError};
@@ -87,6 +90,12 @@ impl PortSet {
         self.0
     }
 
+    /// The set of port `index` alone; a port's index is below [`MAX_PORTS`] (16), as a table's
+    /// capacity is.
+    const fn of(index: u8) -> Self {
+        PortSet(1 << (index & 15))
+    }
+
     const fn with(self, index: u8) -> Self {
         match 1u16.checked_shl(index as u32) {
             Some(bit) => PortSet(self.0 | bit),
@@ -106,11 +115,15 @@ pub struct Reception {
 }
 
 /// One connection's run-time state and what a frame needs of its parameters, in one place: its
-/// integrator, σ, τr, τ's evaluation form, and where it is (port, index in the port).
+/// integrator, σ, τr, τ's evaluation form, and where it is (port, index in the port). 40 bytes:
+/// τ's two parts are kept apart (a [`Decay`] would bring its padding).
 #[derive(Clone, Copy, Debug)]
 struct Slot {
     integrator: Integrator,
-    decay: Decay,
+    /// τ's reciprocal ([`Decay`]).
+    reciprocal: u64,
+    /// τ in µs ([`Decay`]).
+    tau: u32,
     gain: Gain,
     rest_us: u32,
     port: u8,
@@ -118,9 +131,15 @@ struct Slot {
 }
 
 impl Slot {
+    /// τ's evaluation form.
+    #[inline(always)]
+    fn decay(&self) -> Decay {
+        Decay::from_parts(self.tau, self.reciprocal)
+    }
+
     /// Whether the connection is active at `now`.
     fn is_active(&self, now: Instant) -> bool {
-        self.integrator.is_active_with(&self.decay, now)
+        self.integrator.is_active_with(&self.decay(), now)
     }
 
     /// The last accepted frame's instant, as a counter value.
@@ -130,8 +149,17 @@ impl Slot {
 
     /// When its activity ends if it is active: its last accepted frame plus τ, saturated at the
     /// end of the counter (every later instant is then within τ; see [`Port`]).
+    #[inline(always)]
     fn end(&self) -> u64 {
-        self.last().saturating_add(u64::from(self.decay.micros()))
+        self.last().saturating_add(u64::from(self.tau))
+    }
+
+    /// Applies a frame at `now` (see [`Integrator::stimulate`]).
+    #[inline(always)]
+    fn stimulate(&mut self, now: Instant) -> Stimulated {
+        let decay = self.decay();
+        self.integrator
+            .stimulate_parts(self.gain, self.rest_us, &decay, now)
     }
 }
 
@@ -249,7 +277,8 @@ impl Port {
         }
         let all = slots;
         let slots = self.slots(all);
-        let mut until = self.lapsed_until;
+        // The least time left before one of those still active ends (32 bits: τ < 2^32).
+        let (mut left, mut active) = (u32::MAX, false);
         let mut rest = self.steady;
         while rest != 0 {
             let index = rest.trailing_zeros();
@@ -257,22 +286,30 @@ impl Port {
             let Some(slot) = slots.get(index as usize) else {
                 continue;
             };
-            let last = slot.last();
-            if last > at || at - last >= HALF {
+            let (since, before) = at.overflowing_sub(slot.last());
+            if before || since >= HALF {
                 // Its last frame is after `now` (out of order), or half the counter before it:
                 // start from scratch.
                 return self.recompute(all, now);
             }
-            let end = slot.end();
-            if at <= end {
-                until = until.min(end);
-            } else {
-                // Lapsed: inactive until 2^63 after its last frame.
-                self.steady &= !(1 << index);
-                self.lapsed_from = self.lapsed_from.max(end.saturating_add(1));
-                self.lapsed_until = self.lapsed_until.min(last.saturating_add(HALF - 1));
-                until = until.min(self.lapsed_until);
+            match u32::try_from(since) {
+                Ok(since) if since <= slot.tau => {
+                    left = left.min(slot.tau - since);
+                    active = true;
+                }
+                _ => {
+                    // Lapsed: inactive until 2^63 after its last frame.
+                    self.steady &= !(1 << index);
+                    self.lapsed_from = self.lapsed_from.max(slot.end().saturating_add(1));
+                    self.lapsed_until = self.lapsed_until.min(slot.last().saturating_add(HALF - 1));
+                }
             }
+        }
+        // The earliest end among those still active is `now` plus the least time left
+        // (saturated, as their ends are: each one's end is its last frame plus τ).
+        let mut until = self.lapsed_until;
+        if active {
+            until = until.min(at.saturating_add(u64::from(left)));
         }
         self.from = self.from.max(self.lapsed_from);
         self.until = until;
@@ -372,9 +409,9 @@ impl Port {
 /// A node's arbitration: owns its table (of the same capacities, see [`Table`]) and the state of
 /// every connection.
 ///
-/// Memory: the table plus, per connection of capacity, 48 bytes of run-time state and 12 of
+/// Memory: the table plus, per connection of capacity, 40 bytes of run-time state and 16 of
 /// filter index, 8 bytes per decision node of capacity (the decision in the form it is walked),
-/// and 56 bytes per port of capacity: about 71 KiB in all at the default capacities, 9.1 KiB
+/// and 56 bytes per port of capacity: about 69 KiB in all at the default capacities, 8.9 KiB
 /// for [`crate::BoardArbiter`]. `size_of::<Arbiter<P, C, N>>()` tells exactly (`cargo run -p
 /// pab-core --example footprint`).
 // repr(C), hot fields first: on a 32-bit core the ports and the index are then reached with
@@ -425,9 +462,11 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                         error,
                     }
                 })?;
+                let (tau, reciprocal) = runtime.decay().parts();
                 let slot = Slot {
                     integrator: Integrator::new(),
-                    decay: runtime.decay(),
+                    reciprocal,
+                    tau,
                     gain: connection.stimulation.gain(),
                     rest_us: connection.stimulation.rest_us(),
                     port,
@@ -494,12 +533,14 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// Arbitrates a frame with identifier `id` that arrived at `now`. Calls `on_verdict` once per
     /// port the frame fed, in port order, and sums up.
     ///
-    /// Cost: a hash of the identifier and a comparison per exact filter in its bucket (about
-    /// one), a test per masked filter; then per fed port a stimulation per connection it feeds,
-    /// the port's activity (read from its state, or one evaluation per flagged connection after a
-    /// deadline), and, if the activity changed, a decision walk of at most one step per
-    /// connection of the port (a priority run is one step). On a Cortex-M4, a few hundred
-    /// instructions at most (README, "Figures").
+    /// Cost: a hash of the identifier and one comparison when its bucket answers (the
+    /// identifier is alone there and feeds one connection, or is not the bucket's), else a
+    /// comparison per exact filter in its bucket and a test per masked filter; then per fed port
+    /// a stimulation per connection it feeds, the port's activity (read from its state, or a
+    /// test per active connection after a deadline), and, if the activity changed, a decision
+    /// walk of at most one step per connection of the port (a priority run is one step). On a
+    /// Cortex-M4, from about 25 instructions (a frame for other nodes) to a few hundred (README,
+    /// "Figures").
     #[inline(always)]
     pub fn receive(
         &mut self,
@@ -507,12 +548,59 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         now: Instant,
         mut on_verdict: impl FnMut(&PortVerdict),
     ) -> Reception {
-        let found = self.index.find(id);
-        if self.index.may_feed(&found) {
-            self.feed(found, id, now, &mut on_verdict)
-        } else {
+        match self.index.lookup(id) {
+            Lookup::One(connection) => self.feed_one(connection, now, &mut on_verdict),
+            Lookup::Several => self.feed(id, now, &mut on_verdict),
             // A frame for other nodes (the common case on a shared bus): done.
-            Reception::default()
+            Lookup::Nothing => Reception::default(),
+        }
+    }
+
+    /// Feeds the one connection a frame feeds (the index knows it is the only one), then its
+    /// port's activity, decision and verdict: a frame of a topic that feeds one port of the
+    /// node, without the cursor of [`Arbiter::feed`].
+    #[inline(never)]
+    fn feed_one(
+        &mut self,
+        connection: usize,
+        now: Instant,
+        on_verdict: &mut impl FnMut(&PortVerdict),
+    ) -> Reception {
+        let Some(slot) = self.slots.get_mut(connection) else {
+            return Reception::default();
+        };
+        let number = slot.port;
+        let Some(port) = self.ports.get_mut(usize::from(number)) else {
+            return Reception::default();
+        };
+        // A slot's index in its port is below 32.
+        let bit = 1u32 << (slot.index & 31);
+        let resting = match slot.stimulate(now) {
+            Stimulated::Resting => bit,
+            Stimulated::Accepted => {
+                port.accepted(bit, slot.integrator.active_flag(), slot.end(), now);
+                0
+            }
+        };
+        let active = port.update_activity(&self.slots, now);
+        let selected = port.decide(&self.steps, active);
+        let delivered = selected.filter(|&index| bit == 1 << (index & 31));
+        on_verdict(&PortVerdict {
+            port: number,
+            fed: ConnectionSet::from_bits(bit),
+            resting: ConnectionSet::from_bits(resting),
+            active: ConnectionSet::from_bits(active),
+            selected,
+            delivered,
+        });
+        let fed = PortSet::of(number);
+        Reception {
+            fed,
+            delivered: if delivered.is_some() {
+                fed
+            } else {
+                PortSet::default()
+            },
         }
     }
 
@@ -522,12 +610,12 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     #[inline(never)]
     fn feed(
         &mut self,
-        found: Found,
         id: &Id,
         now: Instant,
         on_verdict: &mut impl FnMut(&PortVerdict),
     ) -> Reception {
         let mut reception = Reception::default();
+        let found = self.index.find(id);
         let (mut cursor, first) = self.index.first(found, id, self.table.connections());
         let Some(first) = first else {
             return reception;
@@ -580,7 +668,25 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             let (more_fed, more_resting, after) = self.feed_same_port(more, cursor, id, now);
             (fed, resting, next) = (fed | more_fed, resting | more_resting, after);
         }
-        let port = self.ports.get_mut(usize::from(number))?;
+        self.conclude(number, fed, resting, now, on_verdict, reception);
+        next
+    }
+
+    /// After the connections of port `number` that a frame feeds have been stimulated (`fed`,
+    /// of which `resting` ignored it): the port's activity, its decision, the verdict.
+    #[inline(always)]
+    fn conclude(
+        &mut self,
+        number: u8,
+        fed: u32,
+        resting: u32,
+        now: Instant,
+        on_verdict: &mut impl FnMut(&PortVerdict),
+        reception: &mut Reception,
+    ) {
+        let Some(port) = self.ports.get_mut(usize::from(number)) else {
+            return;
+        };
         let active = port.update_activity(&self.slots, now);
         let selected = port.decide(&self.steps, active);
         let delivered = selected.filter(|&index| fed & (1 << (index & 31)) != 0);
@@ -596,7 +702,6 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             selected,
             delivered,
         });
-        next
     }
 
     /// Feeds `connection` and the frame's next connections while they belong to the same port
@@ -633,10 +738,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         let slot = self.slots.get_mut(connection)?;
         // A slot's index in its port is below 32.
         let bit = 1u32 << (slot.index & 31);
-        match slot
-            .integrator
-            .stimulate_parts(slot.gain, slot.rest_us, &slot.decay, now)
-        {
+        match slot.stimulate(now) {
             Stimulated::Resting => Some((slot.port, bit, bit)),
             Stimulated::Accepted => {
                 let port = self.ports.get_mut(usize::from(slot.port))?;
@@ -667,7 +769,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// The stimulation level of connection `connection` of port `port` at `now`. Read-only.
     pub fn level(&self, port: u8, connection: u8, now: Instant) -> Option<Level> {
         let slot = self.port_slots(port)?.get(usize::from(connection))?;
-        Some(slot.integrator.level_with(&slot.decay, now))
+        Some(slot.integrator.level_with(&slot.decay(), now))
     }
 
     /// Whether connection `connection` of port `port` is in its rest time at `now` (ignoring
@@ -675,7 +777,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     pub fn is_resting(&self, port: u8, connection: u8, now: Instant) -> bool {
         self.port_slots(port)
             .and_then(|slots| slots.get(usize::from(connection)))
-            .is_some_and(|slot| slot.integrator.is_resting(&slot.decay, slot.rest_us, now))
+            .is_some_and(|slot| slot.integrator.is_resting(&slot.decay(), slot.rest_us, now))
     }
 
     /// The number of ports.

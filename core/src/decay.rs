@@ -175,6 +175,18 @@ impl Decay {
         }
     }
 
+    /// τ in microseconds and the reciprocal, for a caller that stores them apart (without the
+    /// struct's padding); [`Decay::from_parts`] puts them back together.
+    pub(crate) const fn parts(&self) -> (u32, u64) {
+        (self.micros, self.reciprocal)
+    }
+
+    /// The decay whose [`Decay::parts`] these are.
+    #[inline(always)]
+    pub(crate) const fn from_parts(micros: u32, reciprocal: u64) -> Decay {
+        Decay { micros, reciprocal }
+    }
+
     /// τ in microseconds.
     pub(crate) const fn micros(&self) -> u32 {
         self.micros

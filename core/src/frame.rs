@@ -12,6 +12,20 @@ use crate::filter::{MAX_EXTENDED_ID, MAX_STANDARD_ID};
 /// Data bytes of a classic CAN frame.
 pub const MAX_DATA_LEN: usize = 8;
 
+/// `KEEP[n]`: the low 8·n bits set, n = 0..=8 (a table, as 64-bit shifts by a variable cost a
+/// dozen instructions on a 32-bit core).
+// Evaluated at compile time: an index out of bounds would fail the build, not panic.
+#[allow(clippy::indexing_slicing)]
+const KEEP: [u64; MAX_DATA_LEN + 1] = {
+    let mut table = [0; MAX_DATA_LEN + 1];
+    let mut n = 1;
+    while n <= MAX_DATA_LEN {
+        table[n] = (table[n - 1] << 8) | 0xFF;
+        n += 1;
+    }
+    table
+};
+
 /// A classic CAN data or remote frame. 16 bytes; no allocation.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Frame {
@@ -71,6 +85,29 @@ impl Frame {
             return &[];
         }
         self.data.get(..usize::from(self.len)).unwrap_or(&[])
+    }
+
+    /// The frame a gateway re-publishes for this one: a data frame on `id` with this frame's
+    /// payload (none for a remote frame), the bytes after it zero. The same frame as
+    /// `Frame::from_buffer(id, payload padded with zeros, payload length)`, without the copy
+    /// byte by byte.
+    pub fn republished(&self, id: impl Into<Id>) -> Frame {
+        // As `payload()`: nothing for a remote frame (or a length beyond 8, which no
+        // constructor makes).
+        let len = if self.remote || self.len > 8 {
+            0
+        } else {
+            self.len
+        };
+        // The first `len` bytes kept: read little endian, the low 8·len bits.
+        let keep = KEEP.get(usize::from(len)).copied().unwrap_or(0);
+        let data = (u64::from_le_bytes(self.data) & keep).to_le_bytes();
+        Frame {
+            id: id.into(),
+            remote: false,
+            len,
+            data,
+        }
     }
 
     /// Whether this is a remote (RTR) frame.
@@ -155,6 +192,33 @@ pub fn from_frame(frame: &impl embedded_can::Frame) -> Frame {
 mod tests {
     use super::*;
     use embedded_can::Frame as _;
+
+    #[test]
+    fn a_republished_frame_is_the_payload_padded_with_zeros() {
+        // What the node application built before `republished`: the payload copied into a
+        // zeroed buffer, the payload's length.
+        let padded = |frame: &Frame, id: Id| {
+            let mut data = [0; MAX_DATA_LEN];
+            for (to, from) in data.iter_mut().zip(frame.payload()) {
+                *to = *from;
+            }
+            Frame::from_buffer(id, data, frame.payload().len() as u8)
+        };
+        let out = Id::Standard(StandardId::new(0x300).unwrap());
+        let bytes = [0xA1, 0xB2, 0xC3, 0xD4, 0xE5, 0xF6, 0x17, 0x28];
+        for len in 0..=8u8 {
+            // Bytes after the length that are not zero (a buffer filled by a driver).
+            let frames = [
+                Frame::from_buffer(out, bytes, len),
+                Frame::data(out, &bytes[..usize::from(len)]).unwrap(),
+                Frame::new_remote(out, usize::from(len)).unwrap(),
+            ];
+            for frame in frames {
+                let id = Id::Extended(ExtendedId::new(0x1234_5678).unwrap());
+                assert_eq!(frame.republished(id), padded(&frame, id), "{frame:?}");
+            }
+        }
+    }
 
     #[test]
     fn data_longer_than_eight_bytes_is_refused() {

@@ -326,6 +326,12 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         self.ports().nth(index)
     }
 
+    /// Who receives what port `index` delivers, or `None` for a port that does not exist. One
+    /// load: unlike [`Table::port`], it walks nothing.
+    pub fn consumer(&self, index: usize) -> Option<Consumer> {
+        self.ports.get(index).map(|port| port.consumer)
+    }
+
     /// The ports in order.
     pub fn ports(&self) -> impl Iterator<Item = PortView<'_>> {
         self.ranges().filter_map(|(port, connections, nodes)| {

@@ -61,10 +61,11 @@ fn id(raw: u32, extended: bool) -> Id {
     }
 }
 
-fn random_filter(rng: &mut Rng) -> Filter {
+/// A random filter: exact, or masked with probability `masked` percent.
+fn random_filter(rng: &mut Rng, masked: u64) -> Filter {
     let raw = POOL[rng.below(POOL.len() as u64) as usize];
     let extended = rng.chance(20);
-    if rng.chance(20) {
+    if rng.chance(masked) {
         // A masked filter: clear some low bits of the mask (and of the id).
         let width = if extended { 0x1FFF_FFFF } else { 0x7FF };
         let mask = width & !((1u32 << rng.below(6)) - 1) & !(rng.below(2) as u32 * 0x10);
@@ -179,7 +180,11 @@ fn random_diagram(rng: &mut Rng, n: u8) -> (Vec<DecisionNode>, NodeRef) {
     (nodes, root)
 }
 
-fn random_table<const P: usize, const C: usize, const N: usize>(rng: &mut Rng) -> Table<P, C, N> {
+/// A random table; `masked`: the percentage of masked filters.
+fn random_table<const P: usize, const C: usize, const N: usize>(
+    rng: &mut Rng,
+    masked: u64,
+) -> Table<P, C, N> {
     let mut table = Table::new();
     let ports = 1 + rng.below(P.min(5) as u64) as usize;
     for _ in 0..ports {
@@ -189,7 +194,7 @@ fn random_table<const P: usize, const C: usize, const N: usize>(rng: &mut Rng) -
         let n = rng.below(most as u64 + 1) as u8;
         let connections: Vec<Connection> = (0..n)
             .map(|_| Connection {
-                filter: random_filter(rng),
+                filter: random_filter(rng, masked),
                 stimulation: random_stimulation(rng),
             })
             .collect();
@@ -276,8 +281,17 @@ fn run_case<const P: usize, const C: usize, const N: usize>(
     seed: u64,
     frames: usize,
 ) -> Result<(), TestCaseError> {
+    run_tables::<P, C, N>(seed, frames, 20)
+}
+
+/// [`run_case`] with `masked` percent of masked filters.
+fn run_tables<const P: usize, const C: usize, const N: usize>(
+    seed: u64,
+    frames: usize,
+    masked: u64,
+) -> Result<(), TestCaseError> {
     let mut rng = Rng::new(seed);
-    let table: Table<P, C, N> = random_table(&mut rng);
+    let table: Table<P, C, N> = random_table(&mut rng, masked);
     let mut reference = Reference::new(&table);
     let mut arbiter = Arbiter::new(table).expect("a valid table");
     let mut now = match rng.below(4) {
@@ -331,6 +345,23 @@ fn same_decisions_as_the_reference_at_default_capacities() {
 fn same_decisions_as_the_reference_at_board_capacities() {
     runner(600)
         .run(&any::<u64>(), |seed| run_case::<4, 64, 256>(seed, 300))
+        .unwrap();
+}
+
+#[test]
+fn same_decisions_as_the_reference_with_exact_filters_only() {
+    // Without masked filters the index answers most frames from the bucket alone (one
+    // connection, or nothing): those paths, at both capacities and with crowded buckets.
+    runner(400)
+        .run(&any::<u64>(), |seed| {
+            run_tables::<16, 512, 2048>(seed, 300, 0)
+        })
+        .unwrap();
+    runner(400)
+        .run(&any::<u64>(), |seed| run_tables::<4, 64, 256>(seed, 300, 0))
+        .unwrap();
+    runner(300)
+        .run(&any::<u64>(), |seed| run_tables::<2, 3, 8>(seed, 100, 0))
         .unwrap();
 }
 

@@ -33,11 +33,19 @@ GOALS = [
     ("tr-hand", "none", 60),
 ]
 
+# Goals of issue 10 on the median frame of a class: (case, class, limit). The Take and Return
+# frames vary with the state (a frame at which an activity lapses or changes costs more), so the
+# goal of an arm-node frame is checked on the median, and its largest frames by the ratchet below.
+MEDIAN_GOALS = [
+    ("tr-arm", "fed", 200),
+]
+
 # A goal of issue 10 not met: (case, class, goal, median ceiling, max ceiling). The check reports
 # it as not met on every run, and fails if the frames get more expensive than they are now (the
-# counts are exact, so any regression shows). README, "Cortex-M4", says where the instructions go.
+# counts are exact, so any regression shows). README, "Cortex-M4", says where the instructions go:
+# the largest arm-node frames are those at which an activity lapses and the decision is walked.
 NOT_MET = [
-    ("tr-arm", "fed", 200, 253, 626),
+    ("tr-arm", "fed", 200, 151, 491),
 ]
 
 # One SysTick tick of the 25 MHz CPU clock under -icount shift=0 (1 instruction per ns).
@@ -155,6 +163,21 @@ def check_goals(rows):
             failed = True
         else:
             print(f"goal met: {case} {kind}: {max(counts)} <= {limit}")
+    for case, kind, limit in MEDIAN_GOALS:
+        counts = sorted(rows.get((case, kind), []))
+        if not counts:
+            print(f"cortex-m4-cost: goal for {case} {kind}: not measured", file=sys.stderr)
+            failed = True
+            continue
+        median = counts[len(counts) // 2]
+        if median > limit:
+            print(
+                f"cortex-m4-cost: goal exceeded: {case} {kind}: median {median} > {limit} instructions per frame",
+                file=sys.stderr,
+            )
+            failed = True
+        else:
+            print(f"goal met: {case} {kind}: median {median} <= {limit}")
     for case, kind, goal, median_ceiling, max_ceiling in NOT_MET:
         counts = sorted(rows.get((case, kind), []))
         if not counts:
@@ -163,7 +186,7 @@ def check_goals(rows):
             continue
         median, largest = counts[len(counts) // 2], counts[-1]
         print(
-            f"goal NOT met: {case} {kind}: median {median}, max {largest} > {goal} "
+            f"goal NOT met on every frame: {case} {kind}: median {median}, max {largest} > {goal} "
             f"(checked not to exceed {median_ceiling} / {max_ceiling})"
         )
         if median > median_ceiling or largest > max_ceiling:

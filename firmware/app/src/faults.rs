@@ -18,11 +18,13 @@ struct Slot {
     last_sent: Option<Instant>,
 }
 
-/// One slot per [`FaultCode`]: 8 codes × 16 bytes.
+/// One slot per [`FaultCode`]: 8 codes × 16 bytes, and which of them have occurrences pending.
 #[derive(Clone, Debug)]
 pub struct FaultLimiter {
     interval_us: u64,
     slots: [Slot; FaultCode::ALL.len()],
+    /// Bit i: slot i has occurrences not yet reported (`pending > 0`).
+    pending: u32,
 }
 
 impl FaultLimiter {
@@ -31,21 +33,36 @@ impl FaultLimiter {
         FaultLimiter {
             interval_us,
             slots: [Slot::default(); FaultCode::ALL.len()],
+            pending: 0,
         }
+    }
+
+    /// Whether any occurrence waits to be reported: without one, [`FaultLimiter::next_due`] has
+    /// nothing to send whatever the time. One comparison.
+    #[inline]
+    pub fn has_pending(&self) -> bool {
+        self.pending != 0
     }
 
     /// Records one occurrence of `code`.
     pub fn raise(&mut self, code: FaultCode, detail: [u8; 5]) {
-        if let Some(slot) = self.slot(code) {
+        let Some(index) = FaultCode::ALL.iter().position(|known| *known == code) else {
+            return;
+        };
+        if let Some(slot) = self.slots.get_mut(index) {
             slot.pending = slot.pending.saturating_add(1);
             slot.detail = detail;
+            self.pending |= bit(index);
         }
     }
 
     /// The next fault frame due at `now`, if any; marks it sent.
     pub fn next_due(&mut self, now: Instant) -> Option<Fault> {
+        if !self.has_pending() {
+            return None;
+        }
         let interval = self.interval_us;
-        for (code, slot) in FaultCode::ALL.iter().zip(self.slots.iter_mut()) {
+        for (index, (code, slot)) in FaultCode::ALL.iter().zip(self.slots.iter_mut()).enumerate() {
             if slot.pending > 0 && is_due(slot.last_sent, interval, now) {
                 let fault = Fault {
                     code: *code,
@@ -54,6 +71,7 @@ impl FaultLimiter {
                 };
                 slot.pending = 0;
                 slot.last_sent = Some(now);
+                self.pending &= !bit(index);
                 return Some(fault);
             }
         }
@@ -71,11 +89,17 @@ impl FaultLimiter {
             })
             .min_by_key(|instant| instant.as_micros())
     }
+}
 
-    fn slot(&mut self, code: FaultCode) -> Option<&mut Slot> {
-        let index = FaultCode::ALL.iter().position(|known| *known == code)?;
-        self.slots.get_mut(index)
-    }
+// A bit of `FaultLimiter::pending` per code.
+const _: () = assert!(FaultCode::ALL.len() <= 32, "one bit per fault code");
+
+/// Slot `index`'s bit in `FaultLimiter::pending`.
+fn bit(index: usize) -> u32 {
+    u32::try_from(index)
+        .ok()
+        .and_then(|index| 1u32.checked_shl(index))
+        .unwrap_or(0)
 }
 
 fn is_due(last_sent: Option<Instant>, interval_us: u64, now: Instant) -> bool {
@@ -108,6 +132,30 @@ mod tests {
         assert_eq!((second.count, second.detail[0]), (255, 2));
         assert_eq!(limiter.next_due(t0.wrapping_add_micros(500_000)), None);
         assert_eq!(limiter.deadline(), None);
+    }
+
+    #[test]
+    fn pending_is_known_without_looking_at_every_code() {
+        // `has_pending` is what the node's poll reads to skip the faults: it must say whether
+        // any code has an occurrence to report, through raises and reports in any order.
+        let mut limiter = FaultLimiter::new(100_000);
+        assert!(!limiter.has_pending());
+        let mut now = Instant::from_micros(0);
+        let mut seed = 0x9E37_79B9u32;
+        for _ in 0..2_000 {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            let code = FaultCode::ALL[seed as usize % FaultCode::ALL.len()];
+            if seed.is_multiple_of(3) {
+                limiter.raise(code, [0; 5]);
+            } else {
+                now = now.wrapping_add_micros(u64::from(seed % 60_000));
+                limiter.next_due(now);
+            }
+            let any = limiter.slots.iter().any(|slot| slot.pending > 0);
+            assert_eq!(limiter.has_pending(), any);
+        }
     }
 
     #[test]
