@@ -30,6 +30,8 @@ import zlib
 
 STORE_BASE = 0x0004_0000
 TIMEOUT_S = 60.0
+# Seconds the board idles, fed by its loop alone, before the hang.
+IDLE_S = 3.0
 TRIGGER = b"T1FFFFFFF0\r"
 
 
@@ -88,7 +90,14 @@ def main() -> int:
             version = lines[booted][1].rsplit(" ", 1)[-1]
             qemu.stdin.write(b"S6\rO\r")
             qemu.stdin.flush()
-            time.sleep(0.5)
+            # Idle for longer than the heartbeat interval (1 s) first: a loop that fed the
+            # watchdog only when it had something to do would be reset here.
+            time.sleep(IDLE_S)
+            with arrived:
+                early = [line for _, line in lines if "pab node" in line or "watchdog" in line]
+            if len(early) != 1:
+                raise SystemExit("watchdog-test: the board restarted before the hang:\n"
+                                 + "\n".join(early))
             qemu.stdin.write(TRIGGER)
             qemu.stdin.flush()
             spins = wait_for("hang-test: the node loop spins", booted, "the hang")

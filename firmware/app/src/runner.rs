@@ -53,7 +53,16 @@ where
 
 /// [`run`], feeding `watchdog` at every turn of the loop and waking at least every
 /// [`Watchdog::FEED_INTERVAL_US`] to do so: a loop that hangs stops feeding it.
-pub async fn run_watched<B, S, K, W, const P: usize, const C: usize, const N: usize, const IMG: usize>(
+pub async fn run_watched<
+    B,
+    S,
+    K,
+    W,
+    const P: usize,
+    const C: usize,
+    const N: usize,
+    const IMG: usize,
+>(
     node: &mut Node<P, C, N, IMG>,
     bus: &mut B,
     store: &mut S,

@@ -152,7 +152,9 @@ mod hang {
         async fn receive(&mut self) -> Result<Frame, BusError> {
             let frame = self.0.receive().await?;
             if frame.raw_id() == (TRIGGER_ID, true) {
-                semihosting::eprint(format_args!("pab-fw-an386: hang-test: the node loop spins\n"));
+                semihosting::eprint(format_args!(
+                    "pab-fw-an386: hang-test: the node loop spins\n"
+                ));
                 loop {
                     core::hint::spin_loop();
                 }
