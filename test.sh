@@ -11,7 +11,9 @@
 # cantools (in a venv made by scripts/python-env.sh from requirements-dev.txt), runs the HIL
 # harness's own unit tests (hil-sim/unit), the cross-runner test with the board firmware in QEMU
 # (scripts/cross-runner.sh: simulator, node application and emulated Cortex-M4 must record
-# identical verdicts), the emulated board's time check across its timer's wraps, and the
+# identical verdicts), the emulated board's time check across its timer's wraps, the panic check
+# of the board firmware (scripts/panic-check.sh), the emulated board's watchdog test
+# (scripts/watchdog-test.sh), and the
 # hardware-in-the-loop suite (hil-sim/run-hil: on vcan0, or in a micro-VM; PAB_HIL_ACCEL=
 # auto|kvm|tcg picks its accelerator), whose fresh Take and Return log then goes through the
 # cross-runner test too.
@@ -53,6 +55,11 @@ step "firmware for the NUCLEO-G474RE (pab-fw-g474) and the emulated Cortex-M4 (p
 cargo build -p pab-fw-g474 --profile firmware --target thumbv7em-none-eabihf --locked
 cargo build -p pab-fw-an386 --profile firmware --target thumbv7em-none-eabihf --locked
 scripts/firmware-size.sh
+
+step "no panic call site of pab_core, pab_app, pab_storage or pab_slcan in the board firmware"
+# Disassembles both firmware ELFs and attributes every branch to a panic entry point through its
+# inline chain in the debug info (scripts/panic-check.sh says how); fails on any such site.
+scripts/panic-check.sh
 
 step "Cortex-M4 instructions per frame (emulated board, QEMU mps2-an386)"
 # Exact counts (a TCG plugin), so this is a deterministic check, not a timing: it fails if a goal
@@ -103,6 +110,11 @@ step "emulated Cortex-M4: the time driver across TIMER0's wraps (pab-an386-timec
 # 400 s of virtual time (-icount) with the clock read without pause around each 100 s wrap.
 cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf --bin pab-an386-timecheck \
     --locked -- -icount shift=10,sleep=off
+
+step "emulated Cortex-M4: the watchdog restarts a hung node loop (scripts/watchdog-test.sh, QEMU)"
+# A hang-test build spins in its node loop on a trigger frame; the CMSDK APB watchdog must reset
+# the machine and the node boot again with its stored table. The production build has no trigger.
+scripts/watchdog-test.sh
 
 step "hardware-in-the-loop: hil-sim/run-hil"
 # pab-node processes on a SocketCAN vcan0, the Take and Return behaviours and world in python-can.

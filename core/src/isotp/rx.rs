@@ -277,10 +277,13 @@ impl<const N: usize> Receiver<N> {
         let needed = remaining.min(pci::CONSECUTIVE_DATA_LEN);
         // Bytes after `needed` in the last frame are padding. A frame with fewer bytes than needed
         // is ignored (invalid length); the next one then has an unexpected SN and aborts.
+        // Both sides are cut to exactly `needed` bytes, so the copy's length check folds away
+        // (a range `received..received + needed` would leave the compiler a panic to keep).
         let (Some(data), Some(slot)) = (
             payload.get(..needed),
             self.buffer
-                .get_mut(received..received.saturating_add(needed)),
+                .get_mut(received..)
+                .and_then(|rest| rest.get_mut(..needed)),
         ) else {
             return (
                 None,

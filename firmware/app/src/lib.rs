@@ -49,7 +49,7 @@ pub use bus::{BusError, CanBus};
 pub use config::{Config, ConfigError, parse_node_id};
 pub use node::{Counters, Node, Running, Step};
 pub use pab_storage::{StoreError, TableStore};
-pub use runner::{now, run};
+pub use runner::{Watchdog, now, run, run_watched};
 
 /// Re-exported so runners name one store trait.
 pub mod store {

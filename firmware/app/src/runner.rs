@@ -15,6 +15,23 @@ pub fn now() -> Instant {
     Instant::from_micros(embassy_time::Instant::now().as_micros())
 }
 
+/// A hardware watchdog that the node loop feeds: once per turn of [`run_watched`]'s loop, and the
+/// loop turns at least every [`Watchdog::FEED_INTERVAL_US`], so the watchdog fires only when the
+/// loop itself stops (a hang in the node, the driver or the store), not when the bus is quiet.
+pub trait Watchdog {
+    /// The longest the loop waits between two feeds, µs. The watchdog's timeout must be well
+    /// above it plus the longest single step of the loop (a table save: tens of milliseconds).
+    const FEED_INTERVAL_US: u64;
+    /// Restarts the watchdog's countdown. Costs one register write on the boards.
+    fn feed(&mut self);
+}
+
+/// No watchdog (the Linux node, tests): never feeds, never wakes the loop for it.
+impl Watchdog for () {
+    const FEED_INTERVAL_US: u64 = u64::MAX;
+    fn feed(&mut self) {}
+}
+
 /// Boots `node` from `store`, then runs it forever: reads frames, arbitrates, answers, stores new
 /// tables, sends what the node has to send, and wakes at the node's deadlines.
 ///
@@ -31,6 +48,34 @@ where
     S: TableStore,
     K: Consumer,
 {
+    run_watched(node, bus, store, consumer, &mut ()).await
+}
+
+/// [`run`], feeding `watchdog` at every turn of the loop and waking at least every
+/// [`Watchdog::FEED_INTERVAL_US`] to do so: a loop that hangs stops feeding it.
+pub async fn run_watched<
+    B,
+    S,
+    K,
+    W,
+    const P: usize,
+    const C: usize,
+    const N: usize,
+    const IMG: usize,
+>(
+    node: &mut Node<P, C, N, IMG>,
+    bus: &mut B,
+    store: &mut S,
+    consumer: &mut K,
+    watchdog: &mut W,
+) -> !
+where
+    B: CanBus,
+    S: TableStore,
+    K: Consumer,
+    W: Watchdog,
+{
+    watchdog.feed();
     // An unreadable store is not an empty one: the node says so on the bus.
     match store
         .load(node.boot_buffer())
@@ -41,13 +86,17 @@ where
         Err(error) => node.boot_unreadable(error, now()),
     }
     loop {
+        watchdog.feed();
         while let Some(frame) = node.next_outgoing() {
             if bus.transmit(&frame).await.is_err() {
                 node.on_transmit_error(now());
             }
         }
-        let deadline = node.deadline(now());
-        let wake = embassy_time::Instant::from_micros(deadline.as_micros());
+        let now_us = now().as_micros();
+        let deadline = node.deadline(now()).as_micros();
+        let wake = embassy_time::Instant::from_micros(
+            deadline.min(now_us.saturating_add(W::FEED_INTERVAL_US)),
+        );
         match select(bus.receive(), Timer::at(wake)).await {
             Either::First(Ok(frame)) => {
                 if node.on_frame(&frame, now(), consumer) == Step::Store {

@@ -440,8 +440,9 @@ impl<F: NorFlash> FlashStore<F> {
                 .get_mut(..padded)
                 .ok_or(StoreError::Layout(LayoutError::UnsupportedGeometry))?;
             area.fill(0xFF);
-            let (data, _) = area.split_at_mut(piece.len());
-            data.copy_from_slice(piece);
+            area.get_mut(..piece.len())
+                .ok_or(StoreError::Layout(LayoutError::UnsupportedGeometry))?
+                .copy_from_slice(piece);
             self.flash
                 .write(at, area)
                 .await
@@ -518,7 +519,12 @@ impl<F: NorFlash> TableStore for FlashStore<F> {
         // The slot after the current image in ring order: never the current image's slot (there
         // are at least two). With nothing loadable, the slot after the newest header.
         let after = current.or(newest.map(|(slot, _)| slot));
-        let target = after.map_or(0, |slot| slot.saturating_add(1) % self.slots);
+        // Wrapping by comparison, not `%`: no division, and nothing for a zero divisor to panic
+        // on (`slots` is at least two, but the compiler cannot know it).
+        let target = after.map_or(0, |slot| match slot.saturating_add(1) {
+            next if next < self.slots => next,
+            _ => 0,
+        });
         let sequence = match newest {
             Some((_, header)) => header
                 .sequence

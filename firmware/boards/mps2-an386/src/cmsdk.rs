@@ -181,3 +181,46 @@ impl Uart {
         Reg(self.base + 0x10).write(value);
     }
 }
+
+/// The CMSDK APB watchdog (0x4000_8000), as QEMU's `mps2-an386` maps it (a real model since QEMU
+/// 6.0, clocked by the 25 MHz system clock; its interrupt is the core's NMI). It counts LOAD down
+/// at PCLK; at zero it raises its interrupt and reloads; at zero again with the interrupt still
+/// raised and RESEN set it resets the system (in QEMU: `watchdog_perform_action`, whose default
+/// action is a system reset, the same as the monitor's `system_reset`). Writing INTCLR clears the
+/// interrupt and reloads the counter: that is the feed. Layout: Arm DDI0479C, section 4.4.
+#[derive(Clone, Copy)]
+pub struct Watchdog;
+
+impl Watchdog {
+    const BASE: usize = 0x4000_8000;
+    /// CONTROL: counter and interrupt on.
+    pub const INTEN: u32 = 1 << 0;
+    /// CONTROL: reset output on.
+    pub const RESEN: u32 = 1 << 1;
+    /// The LOCK key that opens the registers; any other value closes them.
+    const UNLOCK: u32 = 0x1ACC_E551;
+
+    /// Writes LOAD (and the counter).
+    #[inline(always)]
+    pub fn set_load(self, value: u32) {
+        Reg(Self::BASE).write(value);
+    }
+
+    /// Writes CONTROL.
+    #[inline(always)]
+    pub fn set_control(self, value: u32) {
+        Reg(Self::BASE + 0x8).write(value);
+    }
+
+    /// Clears the interrupt and reloads the counter (INTCLR).
+    #[inline(always)]
+    pub fn clear(self) {
+        Reg(Self::BASE + 0xC).write(1);
+    }
+
+    /// Opens (`true`) or closes the registers to writes (LOCK).
+    #[inline(always)]
+    pub fn unlock(self, open: bool) {
+        Reg(Self::BASE + 0xC00).write(if open { Self::UNLOCK } else { 0 });
+    }
+}

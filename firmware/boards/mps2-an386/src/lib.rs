@@ -13,6 +13,7 @@
 //! - [`uart`], [`slcan_bus`]: UART0 with rings, and the node's bus over it;
 //! - [`ram_flash`]: the table store's flash;
 //! - [`logger`], [`semihosting`]: text on QEMU's standard error, and the exit status.
+//! - [`watchdog`]: the node loop's watchdog (the CMSDK APB watchdog at 0x4000_8000).
 //!
 //! Memory map (QEMU's model of AN386, `memory.x`): code RAM (SSRAM1) at 0x0000_0000 (program
 //! below 0x0004_0000, table store 0x0004_0000..0x0004_C000), data RAM (SSRAM2/3) at 0x2000_0000,
@@ -29,3 +30,4 @@ pub mod semihosting;
 pub mod slcan_bus;
 pub mod time_driver;
 pub mod uart;
+pub mod watchdog;

@@ -13,6 +13,11 @@
 //! - **Node id**: [`NODE_ID`], from `PAB_NODE_ID` at build time (default 1), as on the G474.
 //! - **Log**: `log` on QEMU's standard error through semihosting (run QEMU with
 //!   `-semihosting-config enable=on,target=native`).
+//! - **Watchdog**: the CMSDK APB watchdog, fed by the node loop; a loop stuck for 500 ms resets
+//!   the machine ([`pab_fw_an386::watchdog`]).
+//! - **Feature `hang-test`** (tests only: scripts/watchdog-test.sh): the node loop spins forever
+//!   on receiving the frame [`hang::TRIGGER_ID`], to show the watchdog's reset. The production
+//!   build has no such frame.
 //!
 //! Run: `cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf -- -serial pty`
 //! (the README's "Boards" section has the whole bridge).
@@ -26,6 +31,7 @@ use pab_fw_an386::interrupts::{self, Interrupt};
 use pab_fw_an386::ram_flash::{RamFlash, STORE_LEN};
 use pab_fw_an386::slcan_bus::SlcanBus;
 use pab_fw_an386::time_driver::TimeDriver;
+use pab_fw_an386::watchdog::{self, BoardWatchdog};
 use pab_fw_an386::{logger, semihosting, uart};
 use pab_storage::FlashStore;
 use static_cell::StaticCell;
@@ -77,12 +83,14 @@ fn main() -> ! {
         Ok(config) => config,
         Err(error) => fail(format_args!("configuration: {error}")),
     };
-    let bus = SlcanBus::new(hex4(NODE_ID));
+    let bus = bus(SlcanBus::new(hex4(NODE_ID)));
     let node = NODE.init_with(|| pab_app::BoardNode::new(config, pab_app::now()));
 
     interrupts::set_priority(Interrupt::SOFTWARE, EXECUTOR_PRIORITY);
     let spawner = EXECUTOR.start(Interrupt::SOFTWARE);
-    match node_task(node, bus, store) {
+    // Started last before the node task: from here on, only the node loop feeds it.
+    let watchdog = BoardWatchdog::start();
+    match node_task(node, bus, store, watchdog) {
         Ok(task) => spawner.spawn(task),
         Err(_) => fail(format_args!("cannot spawn the node task")),
     }
@@ -91,10 +99,73 @@ fn main() -> ! {
     }
 }
 
-/// Runs the node forever.
+/// Runs the node forever, feeding the watchdog.
 #[embassy_executor::task]
-async fn node_task(node: &'static mut pab_app::BoardNode, mut bus: SlcanBus, mut store: Store) {
-    pab_app::run(node, &mut bus, &mut store, &mut ()).await
+async fn node_task(
+    node: &'static mut pab_app::BoardNode,
+    mut bus: Bus,
+    mut store: Store,
+    mut watchdog: BoardWatchdog,
+) {
+    pab_app::run_watched(node, &mut bus, &mut store, &mut (), &mut watchdog).await
+}
+
+/// The node's bus: SLCAN on UART0.
+#[cfg(not(feature = "hang-test"))]
+type Bus = SlcanBus;
+
+#[cfg(not(feature = "hang-test"))]
+fn bus(slcan: SlcanBus) -> Bus {
+    slcan
+}
+
+#[cfg(feature = "hang-test")]
+fn bus(slcan: SlcanBus) -> Bus {
+    hang::HangOnTrigger::new(slcan)
+}
+
+#[cfg(feature = "hang-test")]
+type Bus = hang::HangOnTrigger;
+
+/// The test build's bus: hangs the node loop on a trigger frame.
+#[cfg(feature = "hang-test")]
+mod hang {
+    use pab_app::{BusError, CanBus};
+    use pab_core::Frame;
+    use pab_fw_an386::semihosting;
+    use pab_fw_an386::slcan_bus::SlcanBus;
+
+    /// The frame that hangs the loop: extended id 0x1FFF_FFFF (no pab service uses it).
+    pub const TRIGGER_ID: u32 = 0x1FFF_FFFF;
+
+    /// SLCAN, but a received [`TRIGGER_ID`] frame never returns: the node loop spins in its
+    /// receive, interrupts still run, and nothing feeds the watchdog.
+    pub struct HangOnTrigger(SlcanBus);
+
+    impl HangOnTrigger {
+        pub fn new(bus: SlcanBus) -> Self {
+            HangOnTrigger(bus)
+        }
+    }
+
+    impl CanBus for HangOnTrigger {
+        async fn receive(&mut self) -> Result<Frame, BusError> {
+            let frame = self.0.receive().await?;
+            if frame.raw_id() == (TRIGGER_ID, true) {
+                semihosting::eprint(format_args!(
+                    "pab-fw-an386: hang-test: the node loop spins\n"
+                ));
+                loop {
+                    core::hint::spin_loop();
+                }
+            }
+            Ok(frame)
+        }
+
+        async fn transmit(&mut self, frame: &Frame) -> Result<(), BusError> {
+            self.0.transmit(frame).await
+        }
+    }
 }
 
 /// The node id as four hex digits, for SLCAN's `N` (serial number).
@@ -134,6 +205,12 @@ extern "C" fn UART0TX() {
 extern "C" fn SOFTWARE() {
     // SAFETY: this is the interrupt `EXECUTOR` was started on.
     unsafe { EXECUTOR.on_interrupt() }
+}
+
+/// The watchdog's interrupt (QEMU wires it to the NMI).
+#[cortex_m_rt::exception]
+unsafe fn NonMaskableInt() {
+    watchdog::on_nmi();
 }
 
 #[panic_handler]

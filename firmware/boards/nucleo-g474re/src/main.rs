@@ -14,6 +14,10 @@
 //! - **LED**: LD2 (PA5) blinks at 1 Hz while the executor runs.
 //! - **Log**: defmt over RTT (`probe-rs run` prints it); `DEFMT_LOG=debug` at build time shows
 //!   every delivered frame.
+//! - **Watchdog**: the IWDG (its own 32 kHz LSI clock, independent of the system clock), timeout
+//!   [`WATCHDOG_TIMEOUT_US`], fed by the node loop itself ([`pab_app::run_watched`]) at least
+//!   every [`FEED_INTERVAL_US`]: a node loop that hangs resets the chip; once started, nothing
+//!   but a reset stops it.
 //! - **Flash accelerator**: prefetch buffer and instruction/data caches on
 //!   ([`enable_flash_prefetch_and_caches`]).
 //!
@@ -41,7 +45,9 @@ use embassy_stm32::can::{self, CanConfigurator, OperatingMode};
 use embassy_stm32::flash::{Blocking, Flash};
 use embassy_stm32::gpio::{Level, Output, Speed};
 use embassy_stm32::peripherals::FDCAN1;
+use embassy_stm32::peripherals::IWDG;
 use embassy_stm32::time::Hertz;
+use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, rcc};
 use embassy_time::Timer;
 use pab_storage::FlashStore;
@@ -87,6 +93,26 @@ const _: () = assert!(
         && (STORE_RANGE.end - STORE_RANGE.start).is_multiple_of(STORE_SLOT_SIZE),
     "a slot must hold the largest image plus its header, and the range whole slots"
 );
+
+/// The IWDG's timeout, µs: a node loop that has not turned for this long resets the chip. Well
+/// above the loop's longest step (a table save: three 4 KiB page erases, up to 40 ms each by the
+/// datasheet, and 8 KiB of programming) and the LSI's tolerance (the timeout can be shorter by
+/// some 10 % on a fast LSI).
+pub const WATCHDOG_TIMEOUT_US: u32 = 500_000;
+/// How often the node loop feeds the IWDG at the latest, µs.
+pub const FEED_INTERVAL_US: u64 = 100_000;
+const _: () = assert!(FEED_INTERVAL_US * 3 <= WATCHDOG_TIMEOUT_US as u64);
+
+/// The IWDG, as the node loop feeds it.
+struct NodeWatchdog(IndependentWatchdog<'static, IWDG>);
+
+impl pab_app::Watchdog for NodeWatchdog {
+    const FEED_INTERVAL_US: u64 = FEED_INTERVAL_US;
+
+    fn feed(&mut self) {
+        self.0.pet();
+    }
+}
 
 /// The store over the internal flash.
 type Store = FlashStore<BlockingAsync<Flash<'static, Blocking>>>;
@@ -165,7 +191,16 @@ async fn main(spawner: Spawner) {
     // `init_with` lets the compiler build the node (15 KiB) directly in the static; should it go
     // through a temporary on the stack instead, that happens once, at boot, with ~110 KiB free.
     let node = NODE.init_with(|| pab_app::BoardNode::new(config, pab_app::now()));
-    spawner.spawn(unwrap!(node_task(node, bus, store, BoardConsumer::new())));
+    // Started last before the node task: from here on, only the node loop feeds it.
+    let mut watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
+    watchdog.unleash();
+    spawner.spawn(unwrap!(node_task(
+        node,
+        bus,
+        store,
+        BoardConsumer::new(),
+        NodeWatchdog(watchdog)
+    )));
 }
 
 /// HSE 24 MHz; SYSCLK 170 MHz from the PLL (24 / 6 * 85 / 2), boost mode; FDCAN on the HSE.
@@ -189,15 +224,16 @@ fn clocks() -> embassy_stm32::Config {
     config
 }
 
-/// Runs the node forever.
+/// Runs the node forever, feeding the watchdog.
 #[embassy_executor::task]
 async fn node_task(
     node: &'static mut pab_app::BoardNode,
     mut bus: FdcanBus,
     mut store: Store,
     mut consumer: BoardConsumer,
+    mut watchdog: NodeWatchdog,
 ) {
-    pab_app::run(node, &mut bus, &mut store, &mut consumer).await
+    pab_app::run_watched(node, &mut bus, &mut store, &mut consumer, &mut watchdog).await
 }
 
 /// LD2 blinks at 1 Hz: the executor is alive.

@@ -1,0 +1,55 @@
+#!/usr/bin/env bash
+# No reachable panic in the project's crates on the boards: disassembles each board firmware (the
+# `firmware` profile's ELFs, pab-fw-g474 and pab-fw-an386; built here if needed) and fails when a
+# panic entry point is called or branched to from code of pab_core, pab_app, pab_storage or
+# pab_slcan.
+#   scripts/panic-check.sh            # build both firmwares (cargo skips them when up to date), check
+#   scripts/panic-check.sh ELF...     # check these ELFs
+#
+# How call sites are attributed (scripts/panic_check.py does it, and its header has the details):
+# - Panic entry points: the functions whose name matches a pattern (core::panicking::*,
+#   core::option::unwrap_failed / expect_failed, core::result::unwrap_failed,
+#   core::slice::*_fail, core::str::*slice_error_fail, core::cell::panic_already_borrowed, the
+#   panic handlers: rust_begin_unwind, _defmt_panic, __defmt_default_panic, panic_probe::*),
+#   plus every function of core/alloc that branches to one and has no return instruction.
+# - Call sites: every bl/blx/b/b<cond>/cbz/cbnz (llvm-objdump) whose target is an entry point.
+# - Owner: fat LTO inlines our crates into others' functions (everything the node does ends up
+#   in embassy's TaskStorage::poll), so symbol names say little. Each site's inline chain comes
+#   from the ELF's debug info (arm-none-eabi-addr2line -i; the firmware profile keeps line tables
+#   and inlining records, which are not flashed); the owner is the innermost frame outside the
+#   Rust standard library: the crate whose code did `x[i]`, `copy_from_slice`, `%`, `unwrap`.
+#   A site owned by a checked crate fails the check, printed with its whole chain.
+# - Not failures, printed one per line: sites owned by the board crates (--report: boot-time
+#   unwraps, RefCells in interrupt handlers), sites owned by libraries (embassy, defmt,
+#   critical-section) even when inlined into our code, and `panic_const_async_fn_resumed` in our
+#   async fns: rustc's coroutine transform gives every async fn that can return a
+#   "resumed after completion" state that panics; the awaiting code never polls a finished future,
+#   but LLVM cannot prove it across suspension points, so the branch stays. Only an async fn that
+#   cannot return (pab_app::run, `-> !`) has none; under panic = "abort" the "resumed after
+#   panicking" state does not exist. Removing them means hand-written futures instead of async
+#   fns (see the README, "No reachable panic").
+# Needs llvm-objdump and llvm-nm (rustup's llvm-tools) and arm-none-eabi-addr2line (Debian's
+# binutils-arm-none-eabi, installed with apt-get if missing), and python3.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+bin="$(rustc --print sysroot)/lib/rustlib/$(rustc -vV | sed -n 's/^host: //p')/bin"
+if [ ! -x "$bin/llvm-objdump" ]; then
+    rustup component add llvm-tools
+fi
+scripts/need.sh python3 arm-none-eabi-addr2line=binutils-arm-none-eabi
+
+if [ $# -eq 0 ]; then
+    target="${CARGO_TARGET_DIR:-target}"
+    cargo build -q --locked -p pab-fw-g474 --profile firmware --target thumbv7em-none-eabihf
+    cargo build -q --locked -p pab-fw-an386 --profile firmware --target thumbv7em-none-eabihf --bin pab-fw-an386
+    set -- "$target/thumbv7em-none-eabihf/firmware/pab-fw-g474" \
+        "$target/thumbv7em-none-eabihf/firmware/pab-fw-an386"
+fi
+
+exec python3 scripts/panic_check.py --repo . \
+    --objdump "$bin/llvm-objdump" --nm "$bin/llvm-nm" --addr2line arm-none-eabi-addr2line \
+    --crate pab_core=core --crate pab_app=firmware/app --crate pab_storage=firmware/storage \
+    --crate pab_slcan=firmware/slcan \
+    --report pab-fw-g474=firmware/boards/nucleo-g474re --report pab-fw-an386=firmware/boards/mps2-an386 \
+    "$@"
