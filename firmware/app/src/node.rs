@@ -94,8 +94,12 @@ pub struct Node<const P: usize, const C: usize, const N: usize, const IMG: usize
     boot_fault: Option<[u8; 5]>,
     receiver: isotp::Receiver<IMG>,
     incoming: Option<Incoming>,
-    /// The answer owed once the runner has stored the image: (source, outcome).
+    /// The source owed an answer once the runner has stored the running image.
     awaiting_store: Option<u8>,
+    /// When the image awaiting its save may be stored (`None`: no save waits for its turn).
+    store_due: Option<Instant>,
+    /// When the last save was handed to the runner ([`Step::Store`]).
+    last_store: Option<Instant>,
     counters: Counters,
     next_heartbeat: Instant,
     diagnostic: DiagnosticStream,
@@ -117,6 +121,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             boot_fault: None,
             incoming: None,
             awaiting_store: None,
+            store_due: None,
+            last_store: None,
             counters: Counters::default(),
             next_heartbeat: now,
             diagnostic: DiagnosticStream::default(),
@@ -174,7 +180,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             }
         }
         // The first heartbeat group goes out now, and the fault (if any) with it.
-        self.poll(now);
+        self.duties(now);
     }
 
     /// Starts without a table because the store could not be read (`error`): raises
@@ -196,7 +202,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             }
         };
         self.boot_fault = Some([STORE_UNREADABLE, failure.code(), 0, 0, 0]);
-        self.poll(now);
+        self.duties(now);
     }
 
     /// Handles one frame read from the bus at `now`: arbitrates it, or handles it as a frame of
@@ -206,13 +212,20 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     pub fn on_frame(&mut self, frame: &Frame, now: Instant, consumer: &mut impl Consumer) -> Step {
         self.counters.received = self.counters.received.wrapping_add(1);
         let step = if protocol::is_ours(&frame.id()) {
-            self.on_protocol_frame(frame, now)
+            // A new table runs (`Store`): its save now or when its turn comes.
+            match self.on_protocol_frame(frame, now) {
+                Step::Store => self.schedule_store(now),
+                Step::Continue => Step::Continue,
+            }
         } else {
             self.arbitrate(frame, now, consumer);
             Step::Continue
         };
-        self.poll(now);
-        step
+        self.duties(now);
+        match step {
+            Step::Store => Step::Store,
+            Step::Continue => self.store_step(now),
+        }
     }
 
     /// Reports a bus error the driver saw.
@@ -235,17 +248,19 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             BusError::Other(kind) => (FaultCode::BusError, kind),
         };
         self.raise(code, [detail, 0, 0, 0, 0]);
-        self.poll(now);
+        self.duties(now);
     }
 
     /// Reports a frame that could not be sent (the bus is congested or the controller is off).
     pub fn on_transmit_error(&mut self, now: Instant) {
         self.counters.errors = self.counters.errors.wrapping_add(1);
         self.raise(FaultCode::TxOverrun, [0; 5]);
-        self.poll(now);
+        self.duties(now);
     }
 
-    /// The image to store after [`Step::Store`]: the one now running.
+    /// The image to store after [`Step::Store`]: the one now running. It stays in the node's
+    /// transfer buffer until [`Node::stored`] (transfers are refused `Busy` meanwhile), so the
+    /// newest applied image is never lost before it is stored.
     pub fn image_to_store(&self) -> &[u8] {
         let len = self.running.map_or(0, |running| running.image_len);
         let len = usize::try_from(len).unwrap_or(0);
@@ -267,17 +282,71 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         if let Some(source) = self.awaiting_store.take() {
             self.answer(source, status, 0);
         }
-        self.poll(now);
+        self.duties(now);
     }
 
-    /// Emits what is due at `now` (heartbeat, faults, diagnostic samples) and handles transfer
-    /// timeouts. Call it whenever [`Node::deadline`] passes; [`Node::on_frame`] calls it too.
+    /// Emits what is due at `now` (heartbeat, faults, diagnostic samples), handles transfer
+    /// timeouts, and says whether a save that waited for its turn is due now ([`Step::Store`]:
+    /// store [`Node::image_to_store`], then call [`Node::stored`]). Call it whenever
+    /// [`Node::deadline`] passes; [`Node::on_frame`] does the same work.
+    ///
+    /// Saves are rate-limited: a table applied less than [`crate::Config::store_interval_us`]
+    /// after the start of the last save runs at once, and is stored (and its transfer answered)
+    /// when the interval has passed, through this call.
+    #[must_use = "a Step::Store asks the runner to store the running image and call Node::stored"]
+    pub fn poll(&mut self, now: Instant) -> Step {
+        self.duties(now);
+        self.store_step(now)
+    }
+
+    /// [`Step::Store`] if the image awaiting its save may be stored at `now` (and it is then
+    /// handed out once), else [`Step::Continue`]. One comparison when no save waits.
+    #[inline]
+    fn store_step(&mut self, now: Instant) -> Step {
+        match self.store_due {
+            Some(due) if now.micros_since(due).is_some() => {
+                self.store_due = None;
+                self.last_store = Some(now);
+                Step::Store
+            }
+            _ => Step::Continue,
+        }
+    }
+
+    /// A new table runs since `now`: its save now, or when the store interval since the last
+    /// save has passed.
+    fn schedule_store(&mut self, now: Instant) -> Step {
+        let due = self
+            .last_store
+            .map(|last| last.wrapping_add_micros(self.config.store_interval_us));
+        match due {
+            // The interval has not passed (and the clock did not go backwards past the last
+            // save: then the save goes now rather than wait for an instant that may be far).
+            Some(due)
+                if due.micros_since(now).is_some_and(|wait| wait > 0)
+                    && self
+                        .last_store
+                        .and_then(|last| now.micros_since(last))
+                        .is_some() =>
+            {
+                self.store_due = Some(due);
+                Step::Continue
+            }
+            _ => {
+                self.store_due = None;
+                self.last_store = Some(now);
+                Step::Store
+            }
+        }
+    }
+
+    /// The work [`Node::poll`] does, but the save: what every event runs.
     ///
     /// Cost: each duty first checks, in a comparison or two, whether it has anything to do (a
     /// transfer in progress, the heartbeat's instant, a fault pending, the diagnostic stream on),
     /// so that the poll of a frame, which usually finds nothing due, costs a few instructions.
     #[inline]
-    pub fn poll(&mut self, now: Instant) {
+    fn duties(&mut self, now: Instant) {
         if self.receiver.poll(now).is_some() {
             self.transfer_timed_out();
         }
@@ -350,6 +419,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         let candidates = [
             self.receiver.deadline(),
             self.faults.deadline(),
+            self.store_due,
             self.arbiter
                 .as_ref()
                 .and_then(|_| self.diagnostic.deadline(now)),
@@ -554,7 +624,12 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 check_version(&header, self.running.as_ref()).map(|()| (header, arbiter))
             });
         match verdict {
-            Ok((header, arbiter)) => {
+            Ok((header, mut arbiter)) => {
+                // The connections the new table leaves unchanged go on where they are (a re-push
+                // of the same rules is no blackout); the others start at S = 0.
+                if let Some(previous) = self.arbiter.as_ref() {
+                    arbiter.carry_over(previous);
+                }
                 // The swap: one assignment. The old arbiter ran every frame until here.
                 self.arbiter = Some(arbiter);
                 self.running = Some(Running {
