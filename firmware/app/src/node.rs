@@ -5,7 +5,6 @@
 //! and time arrive. Keeping every decision here makes the tests exercise exactly what the boards
 //! run, with virtual time and byte-exact frames.
 
-use heapless::Deque;
 use pab_core::Consumer as PortConsumer;
 use pab_core::image::{self, Header, LoadError};
 use pab_core::isotp::{self, RxError, RxEvent};
@@ -23,6 +22,11 @@ use crate::{Config, Consumer};
 
 /// Frames waiting to be sent. Heartbeat groups (4 frames), faults and transfer answers fit with
 /// room to spare; the diagnostic stream only fills what is left.
+///
+/// The outbox sends in identifier order, as the bus would arbitrate them: the frame with the
+/// lowest [`Frame::arbitration_rank`] first, and frames with the same identifier in the order
+/// they were queued (a diagnostic round, ISO-TP flow control). A gateway's re-publication or a
+/// fault thus never waits behind the diagnostic stream queued before it.
 pub const OUTBOX_LEN: usize = 16;
 /// Room the diagnostic stream leaves free in the outbox for everything else.
 const DIAGNOSTIC_RESERVE: usize = 6;
@@ -104,7 +108,9 @@ pub struct Node<const P: usize, const C: usize, const N: usize, const IMG: usize
     next_heartbeat: Instant,
     diagnostic: DiagnosticStream,
     faults: FaultLimiter,
-    outbox: Deque<Frame, OUTBOX_LEN>,
+    /// Kept sorted by rank, highest first, equal ranks newest first: the next frame to send
+    /// is the last one ([`Node::next_outgoing`] pops it).
+    outbox: heapless::Vec<Frame, OUTBOX_LEN>,
 }
 
 impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C, N, IMG> {
@@ -127,7 +133,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             next_heartbeat: now,
             diagnostic: DiagnosticStream::default(),
             faults: FaultLimiter::new(config.fault_interval_us),
-            outbox: Deque::new(),
+            outbox: heapless::Vec::new(),
         }
     }
 
@@ -406,7 +412,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 };
                 let frame =
                     Message::Diagnostic(sample).to_frame(self.config.node_id, protocol::BROADCAST);
-                if self.outbox.push_back(frame).is_err() {
+                if enqueue(&mut self.outbox, frame).is_err() {
                     break;
                 }
             }
@@ -432,9 +438,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         deadline
     }
 
-    /// The next frame to send, oldest first.
+    /// The next frame to send: the lowest identifier queued (the one that would win bus
+    /// arbitration), the oldest of those with that identifier. One step.
     pub fn next_outgoing(&mut self) -> Option<Frame> {
-        self.outbox.pop_front()
+        self.outbox.pop()
     }
 
     /// The node's state, as its heartbeat reports it.
@@ -515,8 +522,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             .and_then(|arbiter| arbiter.table().consumer(usize::from(port)));
         if let Some(PortConsumer::Republish(output)) = republish
             && self
-                .outbox
-                .push_back(frame.republished(output.id()))
+                .enqueue_over_diagnostic(frame.republished(output.id()))
                 .is_err()
         {
             self.counters.errors = self.counters.errors.wrapping_add(1);
@@ -729,39 +735,76 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
 
     fn send(&mut self, message: Message, destination: u8) {
         let frame = message.to_frame(self.config.node_id, destination);
-        if self.outbox.push_back(frame).is_err() {
-            // Make room for protocol traffic by dropping the oldest diagnostic sample, if any.
-            let diagnostic = FrameId::new(
-                Service::Diagnostic,
-                self.config.node_id,
-                protocol::BROADCAST,
-            )
-            .id();
-            let position = self
-                .outbox
-                .iter()
-                .position(|queued| queued.id() == diagnostic);
-            if position.is_some() {
-                let mut kept: Deque<Frame, OUTBOX_LEN> = Deque::new();
-                let mut dropped = false;
-                while let Some(queued) = self.outbox.pop_front() {
-                    if !dropped && queued.id() == diagnostic {
-                        dropped = true;
-                    } else {
-                        let _ = kept.push_back(queued);
-                    }
-                }
-                self.outbox = kept;
-                let _ = self.outbox.push_back(frame);
-            } else {
-                self.counters.errors = self.counters.errors.wrapping_add(1);
-                self.faults.raise(FaultCode::TxOverrun, [0; 5]);
+        if self.enqueue_over_diagnostic(frame).is_err() {
+            self.counters.errors = self.counters.errors.wrapping_add(1);
+            self.faults.raise(FaultCode::TxOverrun, [0; 5]);
+        }
+    }
+
+    /// [`enqueue`], making room in a full outbox by dropping the oldest diagnostic sample
+    /// queued, if any: the stream yields to everything else.
+    fn enqueue_over_diagnostic(&mut self, frame: Frame) -> Result<(), Frame> {
+        let Err(frame) = enqueue(&mut self.outbox, frame) else {
+            return Ok(());
+        };
+        let diagnostic = FrameId::new(
+            Service::Diagnostic,
+            self.config.node_id,
+            protocol::BROADCAST,
+        )
+        .id();
+        // The oldest sample is the one that leaves first: the last with that identifier.
+        let oldest = self
+            .outbox
+            .iter()
+            .rposition(|queued| queued.id() == diagnostic && !queued.is_remote());
+        match oldest {
+            Some(position) => {
+                remove(&mut self.outbox, position);
+                enqueue(&mut self.outbox, frame)
             }
+            None => Err(frame),
         }
     }
 
     fn raise(&mut self, code: FaultCode, detail: [u8; 5]) {
         self.faults.raise(code, detail);
+    }
+}
+
+/// Queues `frame` in `outbox` (sorted by rank, highest first, equal ranks newest first) in
+/// identifier order: it leaves after every queued frame that would win arbitration over it or has
+/// its identifier, before the others. Fails when the outbox is full. Cost: a rank comparison and
+/// a frame swap per queued frame that leaves before it (usually none or few: protocol answers
+/// and re-publications rank low, the diagnostic stream high).
+#[inline]
+fn enqueue(outbox: &mut heapless::Vec<Frame, OUTBOX_LEN>, frame: Frame) -> Result<(), Frame> {
+    let rank = frame.arbitration_rank();
+    outbox.push(frame)?;
+    // Move it down from the end past the frames that leave before it.
+    let mut slots = outbox.iter_mut().rev();
+    let Some(mut new) = slots.next() else {
+        return Ok(());
+    };
+    for before in slots {
+        if before.arbitration_rank() > rank {
+            break;
+        }
+        core::mem::swap(before, new);
+        new = before;
+    }
+    Ok(())
+}
+
+/// Removes the frame at `position` from `outbox`, keeping the others in order.
+fn remove(outbox: &mut heapless::Vec<Frame, OUTBOX_LEN>, position: usize) {
+    let mut slots = outbox.iter_mut().skip(position);
+    if let Some(mut hole) = slots.next() {
+        for next in slots {
+            core::mem::swap(hole, next);
+            hole = next;
+        }
+        outbox.pop();
     }
 }
 
