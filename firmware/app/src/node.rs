@@ -743,10 +743,17 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
 
     /// [`enqueue`], making room in a full outbox by dropping the oldest diagnostic sample
     /// queued, if any: the stream yields to everything else.
+    #[inline]
     fn enqueue_over_diagnostic(&mut self, frame: Frame) -> Result<(), Frame> {
-        let Err(frame) = enqueue(&mut self.outbox, frame) else {
-            return Ok(());
-        };
+        match enqueue(&mut self.outbox, frame) {
+            Ok(()) => Ok(()),
+            Err(frame) => self.enqueue_in_place_of_diagnostic(frame),
+        }
+    }
+
+    /// The full outbox's case of [`Node::enqueue_over_diagnostic`], out of line.
+    #[inline(never)]
+    fn enqueue_in_place_of_diagnostic(&mut self, frame: Frame) -> Result<(), Frame> {
         let diagnostic = FrameId::new(
             Service::Diagnostic,
             self.config.node_id,
