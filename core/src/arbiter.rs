@@ -530,6 +530,63 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         }
     }
 
+    /// Takes over, from `previous` (the arbiter this one replaces), the state of every
+    /// connection that is **unchanged**: connection `k` of port `p` here, connection `k` of port
+    /// `p` there (positions in the table, the network file's order), with the same filter (id,
+    /// mask, standard or extended) and the same ⟨σ, τ, τr⟩. Its integrator (S0, t0, active flag:
+    /// hence its level, activity and rest time) goes on as if no swap had happened; every other
+    /// connection starts at S = 0, inactive, as after [`Arbiter::new`]. The ports' decisions are
+    /// this table's, taken again from the carried activity at the next frame or reading: a port
+    /// whose connections are all unchanged, and whose decision is too, decides exactly as
+    /// `previous` would have. The port's consumer plays no part. Returns how many connections
+    /// were carried over.
+    ///
+    /// Call it on a freshly built arbiter (its own state is replaced). Costs one comparison of
+    /// a connection (filter and parameters) per connection of this table, and a port reset per
+    /// port; no allocation.
+    pub fn carry_over(&mut self, previous: &Self) -> usize {
+        let mut carried = 0;
+        let connections = self.table.connections();
+        for (slot, connection) in self.slots.iter_mut().zip(connections) {
+            slot.integrator = Integrator::new();
+            let Some(old_port) = previous.ports.get(usize::from(slot.port)) else {
+                continue;
+            };
+            if slot.index >= old_port.connections {
+                continue;
+            }
+            let old =
+                usize::from(old_port.first_connection).saturating_add(usize::from(slot.index));
+            if let (Some(old_slot), Some(old_connection)) = (
+                previous.slots.get(old),
+                previous.table.connections().get(old),
+            ) && old_connection == connection
+            {
+                slot.integrator = old_slot.integrator;
+                carried += 1;
+            }
+        }
+        for port in self.ports.iter_mut() {
+            port.idle(&self.steps);
+            let flagged = port
+                .slots(&self.slots)
+                .iter()
+                .enumerate()
+                .filter(|(_, slot)| slot.integrator.active_flag())
+                .fold(0u32, |bits, (index, _)| {
+                    bits | 1u32.checked_shl(index as u32).unwrap_or(0)
+                });
+            if flagged != 0 {
+                // Both intervals empty: the next frame or reading evaluates every flagged
+                // connection ([`Port::recompute`]), as after a frame out of order.
+                port.flagged = flagged;
+                (port.from, port.until) = (1, 0);
+                (port.lapsed_from, port.lapsed_until) = (1, 0);
+            }
+        }
+        carried
+    }
+
     /// Arbitrates a frame with identifier `id` that arrived at `now`. Calls `on_verdict` once per
     /// port the frame fed, in port order, and sums up.
     ///

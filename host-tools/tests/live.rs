@@ -78,15 +78,14 @@ fn run_node(
             .micros_since(now())
             .unwrap_or(0)
             .min(5_000);
-        match bus.receive(Duration::from_micros(wait)) {
-            Ok(Some(frame)) => {
-                if node.on_frame(&frame, now(), &mut ()) == Step::Store {
-                    stored.lock().unwrap().push(node.image_to_store().to_vec());
-                    node.stored(true, now());
-                }
-            }
+        let step = match bus.receive(Duration::from_micros(wait)) {
+            Ok(Some(frame)) => node.on_frame(&frame, now(), &mut ()),
             Ok(None) => node.poll(now()),
             Err(_) => return,
+        };
+        if step == Step::Store {
+            stored.lock().unwrap().push(node.image_to_store().to_vec());
+            node.stored(true, now());
         }
     }
 }

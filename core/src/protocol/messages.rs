@@ -251,6 +251,13 @@ pub enum DecodeError {
         /// The service.
         service: Service,
     },
+    /// The identifier's priority bits are not the service's ([`Service::priority`]).
+    Priority {
+        /// The service.
+        service: Service,
+        /// The priority received.
+        priority: u8,
+    },
 }
 
 impl core::fmt::Display for DecodeError {
@@ -269,6 +276,11 @@ impl core::fmt::Display for DecodeError {
                     "{service:?} frame with an unknown code or reserved bits set"
                 )
             }
+            DecodeError::Priority { service, priority } => write!(
+                f,
+                "{service:?} frame with priority {priority}, expected {}",
+                service.priority().value()
+            ),
         }
     }
 }
@@ -373,6 +385,13 @@ impl Message {
             return Err(DecodeError::Remote);
         }
         let service = id.service;
+        // Every service has one priority: a frame with another is malformed, whatever it holds.
+        if !id.has_service_priority() {
+            return Err(DecodeError::Priority {
+                service,
+                priority: id.priority.value(),
+            });
+        }
         let data = frame.payload();
         let len = u8::try_from(data.len()).unwrap_or(u8::MAX);
         let expected = service.payload_len();

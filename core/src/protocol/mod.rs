@@ -27,6 +27,7 @@ mod codes;
 mod messages;
 
 pub use codes::{FaultCode, NodeState, STORE_UNREADABLE, StoreFailure, TransferStatusCode};
+pub use messages::DecodeError;
 pub use messages::{
     DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Fault, Heartbeat, Message,
     TableStatus, Traffic, TransferStatus,
@@ -215,6 +216,13 @@ impl FrameId {
             destination,
             source,
         })
+    }
+
+    /// Whether the frame carries its service's priority ([`Service::priority`]): every service
+    /// has one, and a frame with another is malformed (nodes refuse it, as they refuse a wrong
+    /// length).
+    pub const fn has_service_priority(&self) -> bool {
+        self.priority.0 == self.service.priority().0
     }
 
     /// Whether a node with id `node` should read this frame.

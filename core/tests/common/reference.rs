@@ -324,3 +324,26 @@ impl Reference {
             .map_or(0, |p| p.connections.len())
     }
 }
+
+impl Reference {
+    /// Takes over `previous`'s state for every connection that is unchanged: same port, same
+    /// index in the port, same filter and the same σ, τ and τr (the rule of
+    /// `Arbiter::carry_over`, written out plainly); every other connection starts afresh.
+    pub fn carry_from(&mut self, previous: &Reference) {
+        for (p, port) in self.ports.iter_mut().enumerate() {
+            for (k, connection) in port.connections.iter_mut().enumerate() {
+                connection.integrator = Integrator::default();
+                let Some(old) = previous.ports.get(p).and_then(|old| old.connections.get(k)) else {
+                    continue;
+                };
+                if old.filter == connection.filter
+                    && old.gain == connection.gain
+                    && old.rest_us == connection.rest_us
+                    && old.decay.micros == connection.decay.micros
+                {
+                    connection.integrator = old.integrator;
+                }
+            }
+        }
+    }
+}

@@ -2,6 +2,11 @@
 
 use pab_core::isotp::RxConfig;
 
+/// The default [`Config::store_interval_us`]: 1 s.
+pub const DEFAULT_STORE_INTERVAL_US: u64 = 1_000_000;
+/// The largest [`Config::store_interval_us`]: 2 s.
+pub const MAX_STORE_INTERVAL_US: u64 = 2_000_000;
+
 /// A node's settings. `Config::new(node_id)` gives the defaults of `docs/can-protocol.md`.
 #[derive(Clone, Copy, Debug)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -14,6 +19,11 @@ pub struct Config {
     pub fault_interval_us: u64,
     /// How the node receives table transfers (block size, STmin, N_Cr).
     pub isotp: RxConfig,
+    /// Shortest time between the starts of two saves of a table to storage (default 1 s, at
+    /// most 2 s so that `pabctl push`, which waits 3 s for the answer, still hears it): a table
+    /// applied sooner after the last save runs at once and is stored, and answered, when the
+    /// interval has passed. Bounds the flash wear that repeated pushes cause.
+    pub store_interval_us: u64,
 }
 
 /// Why a configuration was refused.
@@ -24,6 +34,8 @@ pub enum ConfigError {
     NodeId(u8),
     /// The heartbeat period is below 10 ms or above an hour.
     HeartbeatPeriod,
+    /// The store interval is above 2 s.
+    StoreInterval,
 }
 
 impl core::fmt::Display for ConfigError {
@@ -32,6 +44,9 @@ impl core::fmt::Display for ConfigError {
             ConfigError::NodeId(id) => write!(f, "node id {id} is outside 1..=127"),
             ConfigError::HeartbeatPeriod => {
                 f.write_str("heartbeat period must be between 10 ms and 1 hour")
+            }
+            ConfigError::StoreInterval => {
+                f.write_str("the store interval must be at most 2 s (pabctl push waits 3 s)")
             }
         }
     }
@@ -46,6 +61,7 @@ impl Config {
             node_id,
             heartbeat_period_us: 1_000_000,
             fault_interval_us: crate::faults::DEFAULT_INTERVAL_US,
+            store_interval_us: DEFAULT_STORE_INTERVAL_US,
             // Block size 8: a board acknowledges every 56 bytes, so a burst never outruns its
             // receive FIFO; STmin 0 leaves the pacing to the bus.
             isotp: RxConfig {
@@ -64,6 +80,9 @@ impl Config {
         }
         if !(10_000..=3_600_000_000).contains(&self.heartbeat_period_us) {
             return Err(ConfigError::HeartbeatPeriod);
+        }
+        if self.store_interval_us > MAX_STORE_INTERVAL_US {
+            return Err(ConfigError::StoreInterval);
         }
         Ok(())
     }

@@ -46,7 +46,9 @@ pub mod replay;
 mod runner;
 
 pub use bus::{BusError, CanBus};
-pub use config::{Config, ConfigError, parse_node_id};
+pub use config::{
+    Config, ConfigError, DEFAULT_STORE_INTERVAL_US, MAX_STORE_INTERVAL_US, parse_node_id,
+};
 pub use node::{Counters, Node, Running, Step};
 pub use pab_storage::{StoreError, TableStore};
 pub use runner::{Watchdog, now, run, run_watched};

@@ -5,7 +5,6 @@
 //! and time arrive. Keeping every decision here makes the tests exercise exactly what the boards
 //! run, with virtual time and byte-exact frames.
 
-use heapless::Deque;
 use pab_core::Consumer as PortConsumer;
 use pab_core::image::{self, Header, LoadError};
 use pab_core::isotp::{self, RxError, RxEvent};
@@ -23,6 +22,11 @@ use crate::{Config, Consumer};
 
 /// Frames waiting to be sent. Heartbeat groups (4 frames), faults and transfer answers fit with
 /// room to spare; the diagnostic stream only fills what is left.
+///
+/// The outbox sends in identifier order, as the bus would arbitrate them: the frame with the
+/// lowest [`Frame::arbitration_rank`] first, and frames with the same identifier in the order
+/// they were queued (a diagnostic round, ISO-TP flow control). A gateway's re-publication or a
+/// fault thus never waits behind the diagnostic stream queued before it.
 pub const OUTBOX_LEN: usize = 16;
 /// Room the diagnostic stream leaves free in the outbox for everything else.
 const DIAGNOSTIC_RESERVE: usize = 6;
@@ -94,13 +98,19 @@ pub struct Node<const P: usize, const C: usize, const N: usize, const IMG: usize
     boot_fault: Option<[u8; 5]>,
     receiver: isotp::Receiver<IMG>,
     incoming: Option<Incoming>,
-    /// The answer owed once the runner has stored the image: (source, outcome).
+    /// The source owed an answer once the runner has stored the running image.
     awaiting_store: Option<u8>,
+    /// When the image awaiting its save may be stored (`None`: no save waits for its turn).
+    store_due: Option<Instant>,
+    /// When the last save was handed to the runner ([`Step::Store`]).
+    last_store: Option<Instant>,
     counters: Counters,
     next_heartbeat: Instant,
     diagnostic: DiagnosticStream,
     faults: FaultLimiter,
-    outbox: Deque<Frame, OUTBOX_LEN>,
+    /// Kept sorted by rank, highest first, equal ranks newest first: the next frame to send
+    /// is the last one ([`Node::next_outgoing`] pops it).
+    outbox: heapless::Vec<Frame, OUTBOX_LEN>,
 }
 
 impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C, N, IMG> {
@@ -117,11 +127,13 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             boot_fault: None,
             incoming: None,
             awaiting_store: None,
+            store_due: None,
+            last_store: None,
             counters: Counters::default(),
             next_heartbeat: now,
             diagnostic: DiagnosticStream::default(),
             faults: FaultLimiter::new(config.fault_interval_us),
-            outbox: Deque::new(),
+            outbox: heapless::Vec::new(),
         }
     }
 
@@ -174,7 +186,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             }
         }
         // The first heartbeat group goes out now, and the fault (if any) with it.
-        self.poll(now);
+        self.duties(now);
     }
 
     /// Starts without a table because the store could not be read (`error`): raises
@@ -196,7 +208,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             }
         };
         self.boot_fault = Some([STORE_UNREADABLE, failure.code(), 0, 0, 0]);
-        self.poll(now);
+        self.duties(now);
     }
 
     /// Handles one frame read from the bus at `now`: arbitrates it, or handles it as a frame of
@@ -206,13 +218,20 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     pub fn on_frame(&mut self, frame: &Frame, now: Instant, consumer: &mut impl Consumer) -> Step {
         self.counters.received = self.counters.received.wrapping_add(1);
         let step = if protocol::is_ours(&frame.id()) {
-            self.on_protocol_frame(frame, now)
+            // A new table runs (`Store`): its save now or when its turn comes.
+            match self.on_protocol_frame(frame, now) {
+                Step::Store => self.schedule_store(now),
+                Step::Continue => Step::Continue,
+            }
         } else {
             self.arbitrate(frame, now, consumer);
             Step::Continue
         };
-        self.poll(now);
-        step
+        self.duties(now);
+        match step {
+            Step::Store => Step::Store,
+            Step::Continue => self.store_step(now),
+        }
     }
 
     /// Reports a bus error the driver saw.
@@ -235,17 +254,19 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             BusError::Other(kind) => (FaultCode::BusError, kind),
         };
         self.raise(code, [detail, 0, 0, 0, 0]);
-        self.poll(now);
+        self.duties(now);
     }
 
     /// Reports a frame that could not be sent (the bus is congested or the controller is off).
     pub fn on_transmit_error(&mut self, now: Instant) {
         self.counters.errors = self.counters.errors.wrapping_add(1);
         self.raise(FaultCode::TxOverrun, [0; 5]);
-        self.poll(now);
+        self.duties(now);
     }
 
-    /// The image to store after [`Step::Store`]: the one now running.
+    /// The image to store after [`Step::Store`]: the one now running. It stays in the node's
+    /// transfer buffer until [`Node::stored`] (transfers are refused `Busy` meanwhile), so the
+    /// newest applied image is never lost before it is stored.
     pub fn image_to_store(&self) -> &[u8] {
         let len = self.running.map_or(0, |running| running.image_len);
         let len = usize::try_from(len).unwrap_or(0);
@@ -267,17 +288,71 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         if let Some(source) = self.awaiting_store.take() {
             self.answer(source, status, 0);
         }
-        self.poll(now);
+        self.duties(now);
     }
 
-    /// Emits what is due at `now` (heartbeat, faults, diagnostic samples) and handles transfer
-    /// timeouts. Call it whenever [`Node::deadline`] passes; [`Node::on_frame`] calls it too.
+    /// Emits what is due at `now` (heartbeat, faults, diagnostic samples), handles transfer
+    /// timeouts, and says whether a save that waited for its turn is due now ([`Step::Store`]:
+    /// store [`Node::image_to_store`], then call [`Node::stored`]). Call it whenever
+    /// [`Node::deadline`] passes; [`Node::on_frame`] does the same work.
+    ///
+    /// Saves are rate-limited: a table applied less than [`crate::Config::store_interval_us`]
+    /// after the start of the last save runs at once, and is stored (and its transfer answered)
+    /// when the interval has passed, through this call.
+    #[must_use = "a Step::Store asks the runner to store the running image and call Node::stored"]
+    pub fn poll(&mut self, now: Instant) -> Step {
+        self.duties(now);
+        self.store_step(now)
+    }
+
+    /// [`Step::Store`] if the image awaiting its save may be stored at `now` (and it is then
+    /// handed out once), else [`Step::Continue`]. One comparison when no save waits.
+    #[inline]
+    fn store_step(&mut self, now: Instant) -> Step {
+        match self.store_due {
+            Some(due) if now.micros_since(due).is_some() => {
+                self.store_due = None;
+                self.last_store = Some(now);
+                Step::Store
+            }
+            _ => Step::Continue,
+        }
+    }
+
+    /// A new table runs since `now`: its save now, or when the store interval since the last
+    /// save has passed.
+    fn schedule_store(&mut self, now: Instant) -> Step {
+        let due = self
+            .last_store
+            .map(|last| last.wrapping_add_micros(self.config.store_interval_us));
+        match due {
+            // The interval has not passed (and the clock did not go backwards past the last
+            // save: then the save goes now rather than wait for an instant that may be far).
+            Some(due)
+                if due.micros_since(now).is_some_and(|wait| wait > 0)
+                    && self
+                        .last_store
+                        .and_then(|last| now.micros_since(last))
+                        .is_some() =>
+            {
+                self.store_due = Some(due);
+                Step::Continue
+            }
+            _ => {
+                self.store_due = None;
+                self.last_store = Some(now);
+                Step::Store
+            }
+        }
+    }
+
+    /// The work [`Node::poll`] does, but the save: what every event runs.
     ///
     /// Cost: each duty first checks, in a comparison or two, whether it has anything to do (a
     /// transfer in progress, the heartbeat's instant, a fault pending, the diagnostic stream on),
     /// so that the poll of a frame, which usually finds nothing due, costs a few instructions.
     #[inline]
-    pub fn poll(&mut self, now: Instant) {
+    fn duties(&mut self, now: Instant) {
         if self.receiver.poll(now).is_some() {
             self.transfer_timed_out();
         }
@@ -337,7 +412,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 };
                 let frame =
                     Message::Diagnostic(sample).to_frame(self.config.node_id, protocol::BROADCAST);
-                if self.outbox.push_back(frame).is_err() {
+                if enqueue(&mut self.outbox, frame).is_err() {
                     break;
                 }
             }
@@ -350,6 +425,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         let candidates = [
             self.receiver.deadline(),
             self.faults.deadline(),
+            self.store_due,
             self.arbiter
                 .as_ref()
                 .and_then(|_| self.diagnostic.deadline(now)),
@@ -362,9 +438,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         deadline
     }
 
-    /// The next frame to send, oldest first.
+    /// The next frame to send: the lowest identifier queued (the one that would win bus
+    /// arbitration), the oldest of those with that identifier. One step.
     pub fn next_outgoing(&mut self) -> Option<Frame> {
-        self.outbox.pop_front()
+        self.outbox.pop()
     }
 
     /// The node's state, as its heartbeat reports it.
@@ -445,8 +522,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             .and_then(|arbiter| arbiter.table().consumer(usize::from(port)));
         if let Some(PortConsumer::Republish(output)) = republish
             && self
-                .outbox
-                .push_back(frame.republished(output.id()))
+                .enqueue_over_diagnostic(frame.republished(output.id()))
                 .is_err()
         {
             self.counters.errors = self.counters.errors.wrapping_add(1);
@@ -554,7 +630,12 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 check_version(&header, self.running.as_ref()).map(|()| (header, arbiter))
             });
         match verdict {
-            Ok((header, arbiter)) => {
+            Ok((header, mut arbiter)) => {
+                // The connections the new table leaves unchanged go on where they are (a re-push
+                // of the same rules is no blackout); the others start at S = 0.
+                if let Some(previous) = self.arbiter.as_ref() {
+                    arbiter.carry_over(previous);
+                }
                 // The swap: one assignment. The old arbiter ran every frame until here.
                 self.arbiter = Some(arbiter);
                 self.running = Some(Running {
@@ -654,39 +735,83 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
 
     fn send(&mut self, message: Message, destination: u8) {
         let frame = message.to_frame(self.config.node_id, destination);
-        if self.outbox.push_back(frame).is_err() {
-            // Make room for protocol traffic by dropping the oldest diagnostic sample, if any.
-            let diagnostic = FrameId::new(
-                Service::Diagnostic,
-                self.config.node_id,
-                protocol::BROADCAST,
-            )
-            .id();
-            let position = self
-                .outbox
-                .iter()
-                .position(|queued| queued.id() == diagnostic);
-            if position.is_some() {
-                let mut kept: Deque<Frame, OUTBOX_LEN> = Deque::new();
-                let mut dropped = false;
-                while let Some(queued) = self.outbox.pop_front() {
-                    if !dropped && queued.id() == diagnostic {
-                        dropped = true;
-                    } else {
-                        let _ = kept.push_back(queued);
-                    }
-                }
-                self.outbox = kept;
-                let _ = self.outbox.push_back(frame);
-            } else {
-                self.counters.errors = self.counters.errors.wrapping_add(1);
-                self.faults.raise(FaultCode::TxOverrun, [0; 5]);
+        if self.enqueue_over_diagnostic(frame).is_err() {
+            self.counters.errors = self.counters.errors.wrapping_add(1);
+            self.faults.raise(FaultCode::TxOverrun, [0; 5]);
+        }
+    }
+
+    /// [`enqueue`], making room in a full outbox by dropping the oldest diagnostic sample
+    /// queued, if any: the stream yields to everything else.
+    #[inline]
+    fn enqueue_over_diagnostic(&mut self, frame: Frame) -> Result<(), Frame> {
+        match enqueue(&mut self.outbox, frame) {
+            Ok(()) => Ok(()),
+            Err(frame) => self.enqueue_in_place_of_diagnostic(frame),
+        }
+    }
+
+    /// The full outbox's case of [`Node::enqueue_over_diagnostic`], out of line.
+    #[inline(never)]
+    fn enqueue_in_place_of_diagnostic(&mut self, frame: Frame) -> Result<(), Frame> {
+        let diagnostic = FrameId::new(
+            Service::Diagnostic,
+            self.config.node_id,
+            protocol::BROADCAST,
+        )
+        .id();
+        // The oldest sample is the one that leaves first: the last with that identifier.
+        let oldest = self
+            .outbox
+            .iter()
+            .rposition(|queued| queued.id() == diagnostic && !queued.is_remote());
+        match oldest {
+            Some(position) => {
+                remove(&mut self.outbox, position);
+                enqueue(&mut self.outbox, frame)
             }
+            None => Err(frame),
         }
     }
 
     fn raise(&mut self, code: FaultCode, detail: [u8; 5]) {
         self.faults.raise(code, detail);
+    }
+}
+
+/// Queues `frame` in `outbox` (sorted by rank, highest first, equal ranks newest first) in
+/// identifier order: it leaves after every queued frame that would win arbitration over it or has
+/// its identifier, before the others. Fails when the outbox is full. Cost: a rank comparison and
+/// a frame swap per queued frame that leaves before it (usually none or few: protocol answers
+/// and re-publications rank low, the diagnostic stream high).
+#[inline]
+fn enqueue(outbox: &mut heapless::Vec<Frame, OUTBOX_LEN>, frame: Frame) -> Result<(), Frame> {
+    let rank = frame.arbitration_rank();
+    outbox.push(frame)?;
+    // Move it down from the end past the frames that leave before it.
+    let mut slots = outbox.iter_mut().rev();
+    let Some(mut new) = slots.next() else {
+        return Ok(());
+    };
+    for before in slots {
+        if before.arbitration_rank() > rank {
+            break;
+        }
+        core::mem::swap(before, new);
+        new = before;
+    }
+    Ok(())
+}
+
+/// Removes the frame at `position` from `outbox`, keeping the others in order.
+fn remove(outbox: &mut heapless::Vec<Frame, OUTBOX_LEN>, position: usize) {
+    let mut slots = outbox.iter_mut().skip(position);
+    if let Some(mut hole) = slots.next() {
+        for next in slots {
+            core::mem::swap(hole, next);
+            hole = next;
+        }
+        outbox.pop();
     }
 }
 

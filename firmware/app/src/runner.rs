@@ -36,7 +36,9 @@ impl Watchdog for () {
 /// tables, sends what the node has to send, and wakes at the node's deadlines.
 ///
 /// While a new table is being stored (a flash write: milliseconds) no frame is read; the
-/// driver's receive queue holds what arrives meanwhile.
+/// driver's receive queue holds what arrives meanwhile. The node rate-limits saves
+/// ([`crate::Config::store_interval_us`]): a save that waits for its turn comes out of
+/// [`Node::poll`] at its deadline.
 pub async fn run<B, S, K, const P: usize, const C: usize, const N: usize, const IMG: usize>(
     node: &mut Node<P, C, N, IMG>,
     bus: &mut B,
@@ -97,20 +99,21 @@ where
         let wake = embassy_time::Instant::from_micros(
             deadline.min(now_us.saturating_add(W::FEED_INTERVAL_US)),
         );
-        match select(bus.receive(), Timer::at(wake)).await {
-            Either::First(Ok(frame)) => {
-                if node.on_frame(&frame, now(), consumer) == Step::Store {
-                    let ok = store.save(node.image_to_store()).await.is_ok();
-                    node.stored(ok, now());
-                }
-            }
+        let step = match select(bus.receive(), Timer::at(wake)).await {
+            Either::First(Ok(frame)) => node.on_frame(&frame, now(), consumer),
             Either::First(Err(error)) => {
                 node.on_bus_error(error, now());
                 // A driver that fails at once, again and again (a closed socket, a controller
                 // stuck bus-off), must not turn this loop into a busy loop.
                 Timer::after_millis(1).await;
+                Step::Continue
             }
             Either::Second(()) => node.poll(now()),
+        };
+        // A new table to store: at once, or when the store interval let its turn come.
+        if step == Step::Store {
+            let ok = store.save(node.image_to_store()).await.is_ok();
+            node.stored(ok, now());
         }
     }
 }

@@ -142,21 +142,30 @@ impl Harness {
                 polls_at_same_time = 0;
                 self.now = deadline;
             }
-            self.node.poll(Instant::from_micros(self.now));
+            let step = self.node.poll(Instant::from_micros(self.now));
+            self.store_if(step);
             self.drain();
         }
         self.now = t;
-        self.node.poll(Instant::from_micros(t));
+        let step = self.node.poll(Instant::from_micros(t));
+        self.store_if(step);
         self.drain();
+    }
+
+    /// Stores the running image if the node asked for it (`Step::Store`), as a runner does.
+    fn store_if(&mut self, step: Step) {
+        if step == Step::Store {
+            self.stored.push(self.node.image_to_store().to_vec());
+            self.node
+                .stored(self.store_ok, Instant::from_micros(self.now));
+        }
     }
 
     /// A frame from the bus at the current time.
     pub fn feed(&mut self, frame: &Frame) {
         let now = Instant::from_micros(self.now);
-        if self.node.on_frame(frame, now, &mut self.deliveries) == Step::Store {
-            self.stored.push(self.node.image_to_store().to_vec());
-            self.node.stored(self.store_ok, now);
-        }
+        let step = self.node.on_frame(frame, now, &mut self.deliveries);
+        self.store_if(step);
         self.drain();
     }
 

@@ -15,7 +15,11 @@
 //! FIFO (FIFO mode: frames leave in the order they were queued, which ISO-TP needs, and a full
 //! FIFO never aborts a pending frame as the driver's priority mode would). When the queue stays
 //! full for [`TX_TIMEOUT`] (nobody acknowledges, bus-off) the frame is dropped and reported, so
-//! the node keeps reading instead of blocking behind a dead bus.
+//! the node keeps reading instead of blocking behind a dead bus. Identifier order is the node's
+//! outbox's work (`pab_app::node::OUTBOX_LEN`): frames already in this queue and the TX FIFO leave
+//! first in first out. The FDCAN's TX queue mode (`TxBufferMode::Priority`) is not used: it
+//! sends equal identifiers by buffer number, not in queue order, which would reorder a
+//! diagnostic round.
 //!
 //! Errors: the driver reports protocol errors (the controller's last error code: stuff, form,
 //! acknowledge, bit, CRC) as they are seen; error-passive and bus-off are states it does not
