@@ -79,7 +79,6 @@ where
     // An unreadable store is not an empty one: the node says so on the bus.
     match store
         .load(node.boot_buffer())
-        .await
         .map(|found| found.map(<[u8]>::len))
     {
         Ok(stored) => node.boot(stored, now()),
@@ -100,7 +99,7 @@ where
         match select(bus.receive(), Timer::at(wake)).await {
             Either::First(Ok(frame)) => {
                 if node.on_frame(&frame, now(), consumer) == Step::Store {
-                    let ok = store.save(node.image_to_store()).await.is_ok();
+                    let ok = store.save(node.image_to_store()).is_ok();
                     node.stored(ok, now());
                 }
             }
