@@ -18,16 +18,17 @@
 #   from the ELF's debug info (arm-none-eabi-addr2line -i; the firmware profile keeps line tables
 #   and inlining records, which are not flashed); the owner is the innermost frame outside the
 #   Rust standard library: the crate whose code did `x[i]`, `copy_from_slice`, `%`, `unwrap`.
-#   A site owned by a checked crate fails the check, printed with its whole chain.
+#   A site owned by a checked crate fails the check, printed with its whole chain, whatever
+#   the entry point, `panic_const_async_fn_resumed` included: rustc's coroutine transform gives
+#   every async fn that can return a "resumed after completion" state that panics; the awaiting
+#   code never polls a finished future, but LLVM cannot prove it across suspension points, so
+#   the branch stays. The checked crates therefore have no async fn that can return: pab_storage
+#   is blocking (flash program and erase stall the CPU on the G474 anyway), and pab_app's only
+#   async fns are the node loop, `-> !` (under panic = "abort" the "resumed after panicking"
+#   state does not exist either).
 # - Not failures, printed one per line: sites owned by the board crates (--report: boot-time
-#   unwraps, RefCells in interrupt handlers), sites owned by libraries (embassy, defmt,
-#   critical-section) even when inlined into our code, and `panic_const_async_fn_resumed` in our
-#   async fns: rustc's coroutine transform gives every async fn that can return a
-#   "resumed after completion" state that panics; the awaiting code never polls a finished future,
-#   but LLVM cannot prove it across suspension points, so the branch stays. Only an async fn that
-#   cannot return (pab_app::run, `-> !`) has none; under panic = "abort" the "resumed after
-#   panicking" state does not exist. Removing them means hand-written futures instead of async
-#   fns (see the README, "No reachable panic").
+#   unwraps, RefCells in interrupt handlers, the async-fn guards of their bus drivers) and sites
+#   owned by libraries (embassy, defmt, critical-section), even when inlined into our code.
 # Needs llvm-objdump and llvm-nm (rustup's llvm-tools) and arm-none-eabi-addr2line (Debian's
 # binutils-arm-none-eabi, installed with apt-get if missing), and python3.
 set -euo pipefail

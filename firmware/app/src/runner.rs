@@ -81,7 +81,6 @@ where
     // An unreadable store is not an empty one: the node says so on the bus.
     match store
         .load(node.boot_buffer())
-        .await
         .map(|found| found.map(<[u8]>::len))
     {
         Ok(stored) => node.boot(stored, now()),
@@ -112,7 +111,7 @@ where
         };
         // A new table to store: at once, or when the store interval let its turn come.
         if step == Step::Store {
-            let ok = store.save(node.image_to_store()).await.is_ok();
+            let ok = store.save(node.image_to_store()).is_ok();
             node.stored(ok, now());
         }
     }

@@ -131,7 +131,7 @@ fn a_pushed_table_is_stored_in_flash_and_the_node_boots_with_it() {
         2,
     );
     let mut flash_store = store(Flash::new());
-    futures::executor::block_on(flash_store.save(&v1)).unwrap();
+    flash_store.save(&v1).unwrap();
     let flash = flash_store.into_flash();
 
     // First life: boots with v1, takes v2.
@@ -156,7 +156,7 @@ fn a_pushed_table_is_stored_in_flash_and_the_node_boots_with_it() {
     // The flash holds v2 now.
     let mut reopened = store(flash);
     let mut buf = vec![0u8; 8192];
-    let loaded = futures::executor::block_on(reopened.load(&mut buf)).unwrap();
+    let loaded = reopened.load(&mut buf).unwrap();
     assert_eq!(loaded, Some(&v2[..]));
     let flash = reopened.into_flash();
 
@@ -232,11 +232,11 @@ fn a_bus_that_keeps_failing_does_not_make_the_node_spin() {
 struct UnreadableStore;
 
 impl TableStore for UnreadableStore {
-    async fn load<'b>(&mut self, _buf: &'b mut [u8]) -> Result<Option<&'b [u8]>, StoreError> {
+    fn load<'b>(&mut self, _buf: &'b mut [u8]) -> Result<Option<&'b [u8]>, StoreError> {
         Err(StoreError::Flash(FlashErrorKind::Other))
     }
 
-    async fn save(&mut self, _image: &[u8]) -> Result<(), StoreError> {
+    fn save(&mut self, _image: &[u8]) -> Result<(), StoreError> {
         Err(StoreError::Flash(FlashErrorKind::Other))
     }
 }

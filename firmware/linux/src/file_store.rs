@@ -198,7 +198,7 @@ fn io_failure(what: &str, path: &Path, error: &io::Error) -> StoreError {
 }
 
 impl TableStore for FileStore {
-    async fn load<'b>(&mut self, buf: &'b mut [u8]) -> Result<Option<&'b [u8]>, StoreError> {
+    fn load<'b>(&mut self, buf: &'b mut [u8]) -> Result<Option<&'b [u8]>, StoreError> {
         // --table wins once, at boot; later loads (none today) would read the store.
         if let Some(image) = self.boot_image.take() {
             let capacity = buf.len();
@@ -234,7 +234,7 @@ impl TableStore for FileStore {
         }
     }
 
-    async fn save(&mut self, image: &[u8]) -> Result<(), StoreError> {
+    fn save(&mut self, image: &[u8]) -> Result<(), StoreError> {
         let Some(path) = self.stored_path() else {
             log::warn!("no --store directory: the new table will be lost when the node stops");
             return Err(StoreError::Flash(FlashErrorKind::Other));
@@ -277,10 +277,6 @@ mod tests {
     use std::sync::mpsc;
     use std::time::Duration;
 
-    fn block_on<F: std::future::Future>(future: F) -> F::Output {
-        futures::executor::block_on(future)
-    }
-
     /// Runs `f` on a thread and fails if it takes more than 10 s: a regression that blocks on a
     /// FIFO or reads `/dev/zero` fails the test instead of hanging it.
     fn within_10_s<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T {
@@ -302,7 +298,7 @@ mod tests {
         within_10_s(move || {
             let mut store = FileStore::new(Some(path), None).unwrap();
             let mut buf = vec![0u8; MAX_IMAGE_LEN];
-            block_on(store.load(&mut buf)).map(|found| found.map(<[u8]>::to_vec))
+            store.load(&mut buf).map(|found| found.map(<[u8]>::to_vec))
         })
     }
 
@@ -311,12 +307,12 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut store = FileStore::new(Some(dir.path().join("node")), None).unwrap();
         let mut buf = [0u8; 64];
-        assert_eq!(block_on(store.load(&mut buf)).unwrap(), None);
-        block_on(store.save(b"PABT image bytes")).unwrap();
-        block_on(store.save(b"PABT newer image")).unwrap();
+        assert_eq!(store.load(&mut buf).unwrap(), None);
+        store.save(b"PABT image bytes").unwrap();
+        store.save(b"PABT newer image").unwrap();
         let mut store = FileStore::new(Some(dir.path().join("node")), None).unwrap();
         assert_eq!(
-            block_on(store.load(&mut buf)).unwrap(),
+            store.load(&mut buf).unwrap(),
             Some(&b"PABT newer image"[..])
         );
         assert!(!dir.path().join("node").join("table.pab.part").exists());
@@ -328,9 +324,9 @@ mod tests {
         let boot = dir.path().join("boot.pab");
         fs::write(&boot, b"boot").unwrap();
         let mut store = FileStore::new(Some(dir.path().join("s")), Some(boot)).unwrap();
-        block_on(store.save(b"stored")).unwrap();
+        store.save(b"stored").unwrap();
         let mut buf = [0u8; 16];
-        assert_eq!(block_on(store.load(&mut buf)).unwrap(), Some(&b"boot"[..]));
+        assert_eq!(store.load(&mut buf).unwrap(), Some(&b"boot"[..]));
         let missing = FileStore::new(None, Some(dir.path().join("missing.pab")))
             .err()
             .unwrap();
@@ -341,14 +337,14 @@ mod tests {
     fn too_small_a_buffer_and_no_store_are_errors() {
         let dir = tempfile::tempdir().unwrap();
         let mut store = FileStore::new(Some(dir.path().to_path_buf()), None).unwrap();
-        block_on(store.save(&[7; 32])).unwrap();
+        store.save(&[7; 32]).unwrap();
         let mut small = [0u8; 8];
         assert_eq!(
-            block_on(store.load(&mut small)),
+            store.load(&mut small),
             Err(StoreError::BufferTooSmall { needed: 32, got: 8 })
         );
         let mut none = FileStore::new(None, None).unwrap();
-        assert!(block_on(none.save(b"x")).is_err());
+        assert!(none.save(b"x").is_err());
     }
 
     fn mkfifo(path: &Path) {
@@ -452,7 +448,7 @@ mod tests {
             // The child, running as a user who may not read the file.
             let mut store = FileStore::new(Some(PathBuf::from(dir)), None).unwrap();
             let mut buf = vec![0u8; MAX_IMAGE_LEN];
-            let result = block_on(store.load(&mut buf)).map(|found| found.is_some());
+            let result = store.load(&mut buf).map(|found| found.is_some());
             assert_eq!(result, Err(StoreError::Flash(FlashErrorKind::Other)));
             println!("refused as uid {}", effective_uid());
             return;
@@ -466,7 +462,7 @@ mod tests {
             let mut store = FileStore::new(Some(store), None).unwrap();
             let mut buf = vec![0u8; MAX_IMAGE_LEN];
             assert_eq!(
-                block_on(store.load(&mut buf)),
+                store.load(&mut buf),
                 Err(StoreError::Flash(FlashErrorKind::Other))
             );
             return;

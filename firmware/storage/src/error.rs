@@ -1,6 +1,6 @@
 //! The store's typed errors.
 
-use embedded_storage_async::nor_flash::{NorFlashError, NorFlashErrorKind};
+use embedded_storage::nor_flash::{NorFlashError, NorFlashErrorKind};
 
 /// What went wrong in the flash driver (from [`NorFlashError::kind`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -2,8 +2,16 @@
 //!
 //! A node receives table images (bytes, at most [`pab_core::image::MAX_IMAGE_LEN`]) over CAN and
 //! must boot with the latest one it accepted. [`TableStore`] is what the firmware needs;
-//! [`FlashStore`] implements it over any `embedded_storage_async` [`NorFlash`], for instance a
-//! board's internal flash.
+//! [`FlashStore`] implements it over any `embedded_storage` [`NorFlash`], for instance a board's
+//! internal flash.
+//!
+//! Both are blocking, on purpose: a `load` or `save` returns only when the flash work is done.
+//! On the STM32G474 (single bank) the CPU stalls during a program or an erase anyway (it fetches
+//! its code from the bank being written), so an async store would yield nothing to other tasks;
+//! and every `async fn` that can return carries a "resumed after completion" state that panics,
+//! which the compiler cannot prove unreachable: the boards' firmware would link a panic call
+//! site per async fn of this crate (`scripts/panic-check.sh` fails on them). A node's loop calls
+//! the store between two frames; the CAN driver's receive queue holds what arrives meanwhile.
 //!
 //! ## The guarantee
 //!
@@ -131,8 +139,8 @@
 //! More slots only add endurance (and a few header reads at boot); two slots are enough for the
 //! guarantee.
 //!
-//! embassy-stm32's flash driver for the G4 is blocking; wrap it in
-//! `embassy_embedded_hal::adapter::BlockingAsync` to get the async [`NorFlash`] this store takes.
+//! embassy-stm32's blocking flash driver for the G4 (`Flash::new_blocking`) is a [`NorFlash`]
+//! as it is: `FlashStore::new(Flash::new_blocking(p.FLASH), range, slot_size)`.
 //!
 //! ## Testing
 //!
@@ -167,20 +175,20 @@ pub use error::{FlashErrorKind, LayoutError, StoreError};
 
 use core::ops::Range;
 
-use embedded_storage_async::nor_flash::NorFlash;
+use embedded_storage::nor_flash::NorFlash;
 use pab_core::crc32::{Crc32, crc32};
 
 /// Where a node keeps its latest accepted table image.
 ///
-/// Async functions in a public trait: callers use it through static dispatch (a generic or a
-/// concrete type), as embassy tasks do; no `Send` bound is needed on a single-core executor.
-#[allow(async_fn_in_trait)]
+/// Blocking (see the crate documentation for why): each call returns when the storage work is
+/// done, which on a board's flash means milliseconds for a `load` and up to tens of
+/// milliseconds for a `save` (page erases), during which the caller's task does nothing else.
 pub trait TableStore {
     /// Reads the latest committed image into `buf`; `Ok(None)` if none was ever committed.
-    async fn load<'b>(&mut self, buf: &'b mut [u8]) -> Result<Option<&'b [u8]>, StoreError>;
+    fn load<'b>(&mut self, buf: &'b mut [u8]) -> Result<Option<&'b [u8]>, StoreError>;
     /// Stores `image` so the next `load` (also after a power loss at any point of this call once it
     /// returned `Ok`) returns it.
-    async fn save(&mut self, image: &[u8]) -> Result<(), StoreError>;
+    fn save(&mut self, image: &[u8]) -> Result<(), StoreError>;
 }
 
 /// Bytes moved per flash read or write: the stack buffer of `load` and `save`.
@@ -326,14 +334,13 @@ impl<F: NorFlash> FlashStore<F> {
     /// Erases the whole range: the store then holds nothing and the next `load` returns
     /// `Ok(None)`. To forget the table, or to clear a range that another program used (a `load`
     /// answering [`StoreError::Corrupt`] or [`StoreError::SequenceExhausted`]).
-    pub async fn format(&mut self) -> Result<(), StoreError> {
+    pub fn format(&mut self) -> Result<(), StoreError> {
         // `new` checked that the range (slots * slot_size bytes from start) lies in the flash.
         let end = self
             .start
             .saturating_add(self.slots.saturating_mul(self.slot_size));
         self.flash
             .erase(self.start, end)
-            .await
             .map_err(|e| StoreError::Flash(FlashErrorKind::of(&e)))
     }
 
@@ -349,14 +356,13 @@ impl<F: NorFlash> FlashStore<F> {
     }
 
     /// The slot's header, if it verifies and describes an image that fits the slot.
-    async fn header(&mut self, slot: u32) -> Result<Option<Header>, StoreError> {
+    fn header(&mut self, slot: u32) -> Result<Option<Header>, StoreError> {
         let mut bytes = [0u8; CHUNK];
         let area = bytes
             .get_mut(..self.header_area as usize)
             .ok_or(StoreError::Layout(LayoutError::UnsupportedGeometry))?;
         self.flash
             .read(self.slot_start(slot), area)
-            .await
             .map_err(|e| StoreError::Flash(FlashErrorKind::of(&e)))?;
         let header = area
             .get(..HEADER_LEN)
@@ -367,13 +373,13 @@ impl<F: NorFlash> FlashStore<F> {
 
     /// Among the slots whose header verifies, the one with the greatest `(sequence, slot)` below
     /// `bound` (all of them if `None`): the newest commits first, one per call.
-    async fn newest_below(
+    fn newest_below(
         &mut self,
         bound: Option<(u32, u32)>,
     ) -> Result<Option<(u32, Header)>, StoreError> {
         let mut best: Option<(u32, Header)> = None;
         for slot in 0..self.slots {
-            let Some(header) = self.header(slot).await? else {
+            let Some(header) = self.header(slot)? else {
                 continue;
             };
             let key = (header.sequence, slot);
@@ -388,7 +394,7 @@ impl<F: NorFlash> FlashStore<F> {
     }
 
     /// Reads `out.len()` bytes from `address` (inside a slot; `out` no longer than the slot).
-    async fn read_at(&mut self, address: u32, out: &mut [u8]) -> Result<(), StoreError> {
+    fn read_at(&mut self, address: u32, out: &mut [u8]) -> Result<(), StoreError> {
         let mut chunk = [0u8; CHUNK];
         let mut address = address;
         for piece in out.chunks_mut(CHUNK) {
@@ -399,7 +405,6 @@ impl<F: NorFlash> FlashStore<F> {
                 .ok_or(StoreError::Layout(LayoutError::UnsupportedGeometry))?;
             self.flash
                 .read(address, area)
-                .await
                 .map_err(|e| StoreError::Flash(FlashErrorKind::of(&e)))?;
             let bytes = area
                 .get(..piece.len())
@@ -412,7 +417,7 @@ impl<F: NorFlash> FlashStore<F> {
 
     /// True if the slot's image area holds `header.len` bytes with CRC `header.crc`. Streams
     /// the slot through a chunk buffer (no caller buffer needed).
-    async fn image_verifies(&mut self, slot: u32, header: Header) -> Result<bool, StoreError> {
+    fn image_verifies(&mut self, slot: u32, header: Header) -> Result<bool, StoreError> {
         let start = self.slot_start(slot).saturating_add(self.header_area);
         let mut chunk = [0u8; CHUNK];
         let mut crc = Crc32::new();
@@ -422,7 +427,7 @@ impl<F: NorFlash> FlashStore<F> {
             let piece = chunk
                 .get_mut(..len)
                 .ok_or(StoreError::Layout(LayoutError::UnsupportedGeometry))?;
-            self.read_at(start.saturating_add(done), piece).await?;
+            self.read_at(start.saturating_add(done), piece)?;
             crc = crc.update(piece);
             done = done.saturating_add(CHUNK as u32);
         }
@@ -431,7 +436,7 @@ impl<F: NorFlash> FlashStore<F> {
 
     /// Programs `bytes` at `address` (write-size aligned) in chunks, the last word padded with
     /// 0xFF, then reads them back.
-    async fn program(&mut self, address: u32, bytes: &[u8]) -> Result<(), StoreError> {
+    fn program(&mut self, address: u32, bytes: &[u8]) -> Result<(), StoreError> {
         let mut chunk = [0xFFu8; CHUNK];
         let mut at = address;
         for piece in bytes.chunks(CHUNK) {
@@ -445,7 +450,6 @@ impl<F: NorFlash> FlashStore<F> {
                 .copy_from_slice(piece);
             self.flash
                 .write(at, area)
-                .await
                 .map_err(|e| StoreError::Flash(FlashErrorKind::of(&e)))?;
             at = at.saturating_add(CHUNK as u32);
         }
@@ -454,7 +458,7 @@ impl<F: NorFlash> FlashStore<F> {
             let area = chunk
                 .get_mut(..piece.len())
                 .ok_or(StoreError::Layout(LayoutError::UnsupportedGeometry))?;
-            self.read_at(at, area).await?;
+            self.read_at(at, area)?;
             if area != piece {
                 return Err(StoreError::VerifyFailed);
             }
@@ -465,10 +469,10 @@ impl<F: NorFlash> FlashStore<F> {
 }
 
 impl<F: NorFlash> TableStore for FlashStore<F> {
-    async fn load<'b>(&mut self, buf: &'b mut [u8]) -> Result<Option<&'b [u8]>, StoreError> {
+    fn load<'b>(&mut self, buf: &'b mut [u8]) -> Result<Option<&'b [u8]>, StoreError> {
         let mut bound = None;
         let mut committed = false;
-        while let Some((slot, header)) = self.newest_below(bound).await? {
+        while let Some((slot, header)) = self.newest_below(bound)? {
             committed = true;
             bound = Some((header.sequence, slot));
             let len = header.len as usize;
@@ -476,13 +480,13 @@ impl<F: NorFlash> TableStore for FlashStore<F> {
             let image = self.slot_start(slot).saturating_add(self.header_area);
             match buf.get_mut(..len) {
                 Some(area) => {
-                    self.read_at(image, area).await?;
+                    self.read_at(image, area)?;
                     if crc32(area) == header.crc {
                         return Ok(buf.get(..len));
                     }
                 }
                 None => {
-                    if self.image_verifies(slot, header).await? {
+                    if self.image_verifies(slot, header)? {
                         return Err(StoreError::BufferTooSmall { needed: len, got });
                     }
                 }
@@ -495,7 +499,7 @@ impl<F: NorFlash> TableStore for FlashStore<F> {
         }
     }
 
-    async fn save(&mut self, image: &[u8]) -> Result<(), StoreError> {
+    fn save(&mut self, image: &[u8]) -> Result<(), StoreError> {
         let too_large = StoreError::ImageTooLarge {
             len: image.len(),
             capacity: self.capacity(),
@@ -506,15 +510,15 @@ impl<F: NorFlash> TableStore for FlashStore<F> {
         }
         // The highest committed sequence number (image intact or not), so the new one is above
         // every header in the range; then the slot of the image `load` returns now.
-        let newest = self.newest_below(None).await?;
+        let newest = self.newest_below(None)?;
         let mut current = None;
         let mut candidate = newest;
         while let Some((slot, header)) = candidate {
-            if self.image_verifies(slot, header).await? {
+            if self.image_verifies(slot, header)? {
                 current = Some(slot);
                 break;
             }
-            candidate = self.newest_below(Some((header.sequence, slot))).await?;
+            candidate = self.newest_below(Some((header.sequence, slot)))?;
         }
         // The slot after the current image in ring order: never the current image's slot (there
         // are at least two). With nothing loadable, the slot after the newest header.
@@ -542,16 +546,14 @@ impl<F: NorFlash> TableStore for FlashStore<F> {
             .next_multiple_of(F::ERASE_SIZE as u32);
         self.flash
             .erase(start, start.saturating_add(used))
-            .await
             .map_err(flash_error)?;
-        self.program(start.saturating_add(self.header_area), image)
-            .await?;
+        self.program(start.saturating_add(self.header_area), image)?;
         // The commit: the header, programmed last.
         let header = Header {
             sequence,
             len,
             crc: crc32(image),
         };
-        self.program(start, &header.encode()).await
+        self.program(start, &header.encode())
     }
 }

@@ -31,7 +31,7 @@
 //! the memory as it is, like a board that comes back up. The pseudo-random choices come from a
 //! seed ([`MemFlash::set_seed`]), so every run is repeatable.
 
-use embedded_storage_async::nor_flash::{
+use embedded_storage::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
 };
 
@@ -270,7 +270,7 @@ impl<const PAGES: usize, const ERASE_SIZE: usize, const WRITE_SIZE: usize> ReadN
 {
     const READ_SIZE: usize = 1;
 
-    async fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
         if self.power_lost {
             return Err(MemFlashError::PowerLost);
         }
@@ -294,7 +294,7 @@ impl<const PAGES: usize, const ERASE_SIZE: usize, const WRITE_SIZE: usize> NorFl
     const WRITE_SIZE: usize = WRITE_SIZE;
     const ERASE_SIZE: usize = ERASE_SIZE;
 
-    async fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
         if self.power_lost {
             return Err(MemFlashError::PowerLost);
         }
@@ -340,7 +340,7 @@ impl<const PAGES: usize, const ERASE_SIZE: usize, const WRITE_SIZE: usize> NorFl
         Err(MemFlashError::PowerLost)
     }
 
-    async fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
         if self.power_lost {
             return Err(MemFlashError::PowerLost);
         }

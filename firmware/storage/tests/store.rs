@@ -4,8 +4,7 @@
 mod common;
 
 use common::*;
-use embassy_futures::block_on;
-use embedded_storage_async::nor_flash::NorFlash;
+use embedded_storage::nor_flash::NorFlash;
 use pab_storage::testing::MemFlash;
 use pab_storage::{FlashStore, LayoutError, StoreError, TableStore};
 
@@ -83,14 +82,14 @@ fn an_image_larger_than_a_slot_is_refused() {
     let exact = vec![0x5A; capacity as usize];
     save(&mut store, &exact).expect("a capacity-sized image");
     let mut buf = vec![0u8; BOARD_SLOT as usize];
-    assert_eq!(block_on(store.load(&mut buf)), Ok(Some(&exact[..])));
+    assert_eq!(store.load(&mut buf), Ok(Some(&exact[..])));
     assert!(matches!(
         save(&mut store, &vec![0; capacity as usize + 1]),
         Err(StoreError::ImageTooLarge { .. })
     ));
     // An empty image is an image.
     save(&mut store, &[]).expect("empty image");
-    assert_eq!(block_on(store.load(&mut buf)), Ok(Some(&[][..])));
+    assert_eq!(store.load(&mut buf), Ok(Some(&[][..])));
 }
 
 #[test]
@@ -100,7 +99,7 @@ fn a_buffer_too_small_is_reported() {
     save(&mut store, &v2).expect("save");
     let mut buf = [0u8; 16];
     assert_eq!(
-        block_on(store.load(&mut buf)),
+        store.load(&mut buf),
         Err(StoreError::BufferTooSmall {
             needed: v2.len(),
             got: 16
@@ -150,9 +149,9 @@ fn bad_layouts_are_typed_errors() {
     // 32-byte words in 32-byte pages: the header takes a whole page, images need two-page slots.
     let mut tiny = FlashStore::new(MemFlash::<8, 32, 32>::new(), 0..256, 64).expect("layout");
     assert_eq!(tiny.capacity(), 32);
-    block_on(tiny.save(&[7; 32])).expect("save");
+    tiny.save(&[7; 32]).expect("save");
     let mut buf = [0u8; 32];
-    assert_eq!(block_on(tiny.load(&mut buf)), Ok(Some(&[7u8; 32][..])));
+    assert_eq!(tiny.load(&mut buf), Ok(Some(&[7u8; 32][..])));
     let message = StoreError::Layout(LayoutError::RangeTooSmall).to_string();
     assert!(message.contains("two slots"), "{message}");
 }
@@ -277,7 +276,7 @@ fn a_flash_full_of_garbage_holds_nothing_and_takes_a_save() {
         assert_eq!(load(&mut store), Ok(None), "seed {seed}");
         save(&mut store, &v1).expect("save over garbage");
         assert_eq!(load(&mut store), Ok(Some(v1.clone())), "seed {seed}");
-        block_on(store.format()).expect("format");
+        store.format().expect("format");
         assert_eq!(load(&mut store), Ok(None));
         save(&mut store, &v1).expect("save after format");
         let mut store = common::store(store.into_flash(), BOARD_RANGE, BOARD_SLOT);
@@ -305,11 +304,13 @@ fn header(sequence: u32, image: &[u8]) -> [u8; 24] {
 /// Writes a committed slot by hand, as the documented format says.
 fn plant(flash: &mut BoardFlash, slot: u32, sequence: u32, image: &[u8]) {
     let start = slot * BOARD_SLOT;
-    block_on(flash.erase(start, start + BOARD_SLOT)).expect("erase");
+    flash.erase(start, start + BOARD_SLOT).expect("erase");
     let mut padded = image.to_vec();
     padded.resize(image.len().next_multiple_of(8), 0xFF);
-    block_on(flash.write(start + BOARD_HEADER, &padded)).expect("image");
-    block_on(flash.write(start, &header(sequence, image))).expect("header");
+    flash.write(start + BOARD_HEADER, &padded).expect("image");
+    flash
+        .write(start, &header(sequence, image))
+        .expect("header");
 }
 
 #[test]
@@ -343,7 +344,7 @@ fn exhausted_sequence_numbers_are_reported() {
         operations,
         "nothing written"
     );
-    block_on(store.format()).expect("format");
+    store.format().expect("format");
     save(&mut store, &v1).expect("save after format");
     assert_eq!(load(&mut store), Ok(Some(v1)));
 }

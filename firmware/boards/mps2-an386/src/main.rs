@@ -25,7 +25,6 @@
 #![no_std]
 #![no_main]
 
-use embassy_embedded_hal::adapter::BlockingAsync;
 use embassy_executor::InterruptExecutor;
 use pab_fw_an386::interrupts::{self, Interrupt};
 use pab_fw_an386::ram_flash::{RamFlash, STORE_LEN};
@@ -50,7 +49,7 @@ const _: () = assert!(
 );
 
 /// The store over the RAM-backed flash.
-type Store = FlashStore<BlockingAsync<RamFlash>>;
+type Store = FlashStore<RamFlash>;
 
 embassy_time_driver::time_driver_impl!(static TIME: TimeDriver = TimeDriver::new());
 
@@ -74,7 +73,7 @@ fn main() -> ! {
     log::info!("pab node {NODE_ID} on the emulated Cortex-M4 (mps2-an386), SLCAN on UART0");
 
     // SAFETY: called once; memory.x keeps the program below the store's region.
-    let flash = BlockingAsync::new(unsafe { RamFlash::take() });
+    let flash = unsafe { RamFlash::take() };
     let store = match FlashStore::new(flash, 0..STORE_LEN as u32, STORE_SLOT_SIZE) {
         Ok(store) => store,
         Err(error) => fail(format_args!("table store: {error:?}")),

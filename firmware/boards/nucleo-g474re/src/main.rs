@@ -36,7 +36,6 @@ use core::num::{NonZeroU8, NonZeroU16};
 use core::ops::Range;
 
 use defmt::{info, unwrap};
-use embassy_embedded_hal::adapter::BlockingAsync;
 use embassy_executor::Spawner;
 use embassy_stm32::can::config::{
     FrameTransmissionConfig, GlobalFilter, NominalBitTiming, NonMatchingFilter, TxBufferMode,
@@ -115,7 +114,7 @@ impl pab_app::Watchdog for NodeWatchdog {
 }
 
 /// The store over the internal flash.
-type Store = FlashStore<BlockingAsync<Flash<'static, Blocking>>>;
+type Store = FlashStore<Flash<'static, Blocking>>;
 
 bind_interrupts!(struct Irqs {
     FDCAN1_IT0 => can::IT0InterruptHandler<FDCAN1>;
@@ -184,7 +183,7 @@ async fn main(spawner: Spawner) {
         .buffered(TX_QUEUE.init(TxQueue::new()), RX_QUEUE.init(RxQueue::new()));
     let bus = FdcanBus::new(can);
 
-    let flash = BlockingAsync::new(Flash::new_blocking(p.FLASH));
+    let flash = Flash::new_blocking(p.FLASH);
     let store = unwrap!(FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE));
 
     let config = unwrap!(pab_app::Config::new(NODE_ID));

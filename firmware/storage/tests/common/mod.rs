@@ -3,7 +3,6 @@
 
 #![allow(dead_code)]
 
-use embassy_futures::block_on;
 use pab_core::image;
 use pab_core::{Connection, DecisionNode, Filter, NodeRef, Stimulation, Table};
 use pab_storage::testing::MemFlash;
@@ -150,11 +149,11 @@ pub fn store<const P: usize, const E: usize, const W: usize>(
 }
 
 /// What `load` returns, as an owned copy; every image returned must pass `image::load`.
-pub fn load<F: embedded_storage_async::nor_flash::NorFlash>(
+pub fn load<F: embedded_storage::nor_flash::NorFlash>(
     store: &mut FlashStore<F>,
 ) -> Result<Option<Vec<u8>>, StoreError> {
     let mut buf = vec![0u8; image::MAX_IMAGE_LEN];
-    let loaded = block_on(store.load(&mut buf))?.map(<[u8]>::to_vec);
+    let loaded = store.load(&mut buf)?.map(<[u8]>::to_vec);
     if let Some(bytes) = &loaded {
         image::load::<
             { pab_core::MAX_PORTS },
@@ -166,11 +165,11 @@ pub fn load<F: embedded_storage_async::nor_flash::NorFlash>(
     Ok(loaded)
 }
 
-pub fn save<F: embedded_storage_async::nor_flash::NorFlash>(
+pub fn save<F: embedded_storage::nor_flash::NorFlash>(
     store: &mut FlashStore<F>,
     image: &[u8],
 ) -> Result<(), StoreError> {
-    block_on(store.save(image))
+    store.save(image)
 }
 
 /// The table version of an image, for messages.
