@@ -451,7 +451,10 @@ mod tests {
         for at in 0..page::LEN {
             let mut bad = record;
             bad[at] ^= 0x01;
-            assert!(page::decode(&bad).is_err(), "a flip at byte {at} must not verify");
+            assert!(
+                page::decode(&bad).is_err(),
+                "a flip at byte {at} must not verify"
+            );
         }
         let mut zeros = [0u8; 32];
         assert_eq!(page::decode(&zeros), Err(page::PageError::BadMagic));

@@ -275,36 +275,6 @@ fn a_sender_that_stops_half_way_times_out_after_n_cr() {
 }
 
 #[test]
-fn a_second_sender_is_told_the_node_is_busy() {
-    let mut h = running_v1();
-    let bytes = v2();
-    // Start a transfer from the tool: the first frame only.
-    let (first, _) = pci::encode_first(bytes.len() as u32, &bytes).unwrap();
-    h.feed(
-        &Message::TableTransfer {
-            data: first,
-            len: 8,
-        }
-        .to_frame(protocol::TOOL, Harness::NODE_ID),
-    );
-    // Another station tries meanwhile.
-    let intruder = 42;
-    h.feed(
-        &Message::TableTransfer {
-            data: first,
-            len: 8,
-        }
-        .to_frame(intruder, Harness::NODE_ID),
-    );
-    let answers = h.statuses(intruder);
-    assert_eq!(answers.len(), 1);
-    assert_eq!(answers[0].status, TransferStatusCode::Busy);
-    // The tool's transfer is unaffected: a fresh complete push succeeds.
-    assert_eq!(h.push(&bytes), TxEvent::Done);
-    assert_eq!(last_status(&h).status, TransferStatusCode::Applied);
-}
-
-#[test]
 fn a_table_that_cannot_be_stored_runs_but_the_node_says_so() {
     let mut h = running_v1();
     h.store_ok = false;
