@@ -269,6 +269,7 @@ fn monitor_shows_who_delivers_from_the_diagnostic_stream() {
         Some(Duration::from_millis(1_500)),
         &|| false,
         &mut |screen| screens.push(screen.to_string()),
+        None,
     )
     .unwrap();
     publishing.store(false, Ordering::SeqCst);
