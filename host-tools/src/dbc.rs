@@ -361,13 +361,16 @@ pub fn service_signals(service: Service) -> Option<Vec<DbcSignal>> {
                 "CMAC (domain 2, node, nonce, length, flags), first 5 bytes",
             ),
         ],
-        Service::Receipt => vec![signal(
-            "tag",
-            0,
-            64,
-            "CMAC (domain 4, node, nonce, the TransferStatus bytes, running CRC, stored flag), \
-             first 8 bytes",
-        )],
+        Service::Receipt => vec![
+            signal(
+                "tag_low",
+                0,
+                32,
+                "CMAC (domain 4, node, nonce, the TransferStatus bytes, running CRC, stored \
+                 flag): bytes 0-3",
+            ),
+            signal("tag_high", 32, 32, "the same CMAC: bytes 4-7"),
+        ],
         Service::TransferStatus => vec![
             with_values(
                 signal("status", 0, 8, "the outcome of the transfer"),
@@ -851,8 +854,14 @@ tc = 3.0
             all.id,
             FrameId::new(Service::DiagnosticControl, TOOL, BROADCAST).raw() | EXTENDED_FLAG
         );
-        // 7 services per node, diagnostic control per node and broadcast, 2 topics.
-        assert_eq!(dbc.messages.len(), 2 * 7 + 3 + 2);
+        // 9 services per node (7 + Challenge, Receipt), diagnostic control per node and
+        // broadcast, ChallengeRequest and TransferOpen per node, 2 topics.
+        assert_eq!(dbc.messages.len(), 2 * 9 + 3 + 2 * 2 + 2);
+        let open = find("PAB_TransferOpen_arm");
+        assert_eq!(open.dlc, 8);
+        assert_eq!(open.transmitter, "PABCTL");
+        assert_eq!(find("PAB_ChallengeRequest_arm").dlc, 0);
+        assert_eq!(find("PAB_Receipt_arm").signals.len(), 2);
         assert!(
             !dbc.messages
                 .iter()
