@@ -154,6 +154,7 @@ pub fn render(
 
 /// Runs the monitor: streams at `rate_hz`, redraws every `redraw`, for `duration` (forever if
 /// `None`) or until `stop` returns true. `draw` receives each screen.
+#[allow(clippy::too_many_arguments)]
 pub fn run(
     bus: &mut dyn Bus,
     network: &Network,

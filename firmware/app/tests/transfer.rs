@@ -4,7 +4,7 @@
 mod common;
 
 use common::*;
-use pab_core::isotp::{TxError, TxEvent, pci};
+use pab_core::isotp::{TxError, TxEvent};
 use pab_core::protocol::{self, FaultCode, Message, NodeState, TransferStatusCode};
 
 const MS: u64 = 1_000;
