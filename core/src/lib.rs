@@ -40,6 +40,7 @@
 )]
 
 pub mod arbiter;
+pub mod auth;
 pub mod consumer;
 pub mod crc32;
 mod decay;

@@ -247,6 +247,13 @@ pub fn service_signals(service: Service) -> Option<Vec<DbcSignal>> {
                 "1: the table is stored, the node boots with it",
             ),
             signal("diagnostic", 57, 1, "1: the diagnostic stream is on"),
+            signal(
+                "keyed",
+                58,
+                1,
+                "1: the node has a key and takes only authenticated configuration; 0: it \
+                 accepts configuration from anyone on the bus",
+            ),
         ],
         Service::Traffic => vec![
             signal(
@@ -321,6 +328,49 @@ pub fn service_signals(service: Service) -> Option<Vec<DbcSignal>> {
             signal("ports", 16, 16, "ports to sample: bit i = port i"),
         ],
         Service::TableTransfer => return None,
+        Service::ChallengeRequest => Vec::new(),
+        Service::Challenge => vec![
+            signal("counter", 0, 32, "the node's challenge counter since boot"),
+            signal(
+                "boot_salt",
+                32,
+                32,
+                "the boot salt: never repeats for one key (boot counter, or random)",
+            ),
+        ],
+        Service::TransferOpen => vec![
+            with_unit(
+                signal(
+                    "length",
+                    0,
+                    16,
+                    "ISO-TP message length the first frame must announce (image + 16-byte MAC)",
+                ),
+                "B",
+            ),
+            signal(
+                "replace",
+                16,
+                1,
+                "1: replace whatever version runs (the keyed version reset)",
+            ),
+            signal(
+                "tag",
+                24,
+                40,
+                "CMAC (domain 2, node, nonce, length, flags), first 5 bytes",
+            ),
+        ],
+        Service::Receipt => vec![
+            signal(
+                "tag_low",
+                0,
+                32,
+                "CMAC (domain 4, node, nonce, the TransferStatus bytes, running CRC, stored \
+                 flag): bytes 0-3",
+            ),
+            signal("tag_high", 32, 32, "the same CMAC: bytes 4-7"),
+        ],
         Service::TransferStatus => vec![
             with_values(
                 signal("status", 0, 8, "the outcome of the transfer"),
@@ -369,7 +419,24 @@ fn service_comment(service: Service) -> &'static str {
         }
         Service::DiagnosticControl => {
             "DiagnosticControl (service 0x10, priority 3): switches the diagnostic stream; the \
-             node refuses rates above 200."
+             node refuses rates above 200. To a node with a key, the frame is 8 bytes: these 4 \
+             and a 4-byte tag over the node's challenge."
+        }
+        Service::ChallengeRequest => {
+            "ChallengeRequest (service 0x13, priority 3, no payload): asks a node with a key for \
+             a challenge."
+        }
+        Service::Challenge => {
+            "Challenge (service 0x14, priority 2): the nonce the next configuration message must \
+             be tagged over; valid 1 s, re-sent unchanged while outstanding."
+        }
+        Service::TransferOpen => {
+            "TransferOpen (service 0x15, priority 3): opens an authenticated table transfer of \
+             this length."
+        }
+        Service::Receipt => {
+            "Receipt (service 0x16, priority 2): authenticates the TransferStatus that ended an \
+             opened transfer."
         }
         Service::TableTransfer => "",
         Service::TransferStatus => {
@@ -413,8 +480,11 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
     for (node, dbc_node) in network.nodes.iter().zip(nodes.iter().skip(1)) {
         for service in Service::ALL {
             let destination = match service {
-                Service::DiagnosticControl | Service::TableTransfer => continue,
-                Service::TransferStatus => TOOL,
+                Service::DiagnosticControl
+                | Service::TableTransfer
+                | Service::ChallengeRequest
+                | Service::TransferOpen => continue,
+                Service::TransferStatus | Service::Challenge | Service::Receipt => TOOL,
                 _ => BROADCAST,
             };
             let Some(signals) = service_signals(service) else {
@@ -470,6 +540,26 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
             comment: format!("{} From the tool to {whom}.", service_comment(control)),
             cycle_ms: None,
         });
+    }
+
+    // The tool's authentication frames go to one node each (a tag is over one node's challenge).
+    for (node, dbc_node) in network.nodes.iter().zip(nodes.iter().skip(1)) {
+        for service in [Service::ChallengeRequest, Service::TransferOpen] {
+            messages.push(DbcMessage {
+                id: extended(FrameId::new(service, TOOL, node.id)),
+                name: names.unique(format!("PAB_{service:?}_{dbc_node}")),
+                dlc: service.payload_len() as u8,
+                transmitter: TOOL_NODE.to_string(),
+                receivers: vec![dbc_node.clone()],
+                signals: service_signals(service).unwrap_or_default(),
+                comment: format!(
+                    "{} From the tool to node `{}`.",
+                    service_comment(service),
+                    node.name
+                ),
+                cycle_ms: None,
+            });
+        }
     }
 
     let mut seen_ids: Vec<(u32, usize)> = Vec::new();
@@ -764,8 +854,14 @@ tc = 3.0
             all.id,
             FrameId::new(Service::DiagnosticControl, TOOL, BROADCAST).raw() | EXTENDED_FLAG
         );
-        // 7 services per node, diagnostic control per node and broadcast, 2 topics.
-        assert_eq!(dbc.messages.len(), 2 * 7 + 3 + 2);
+        // 9 services per node (7 + Challenge, Receipt), diagnostic control per node and
+        // broadcast, ChallengeRequest and TransferOpen per node, 2 topics.
+        assert_eq!(dbc.messages.len(), 2 * 9 + 3 + 2 * 2 + 2);
+        let open = find("PAB_TransferOpen_arm");
+        assert_eq!(open.dlc, 8);
+        assert_eq!(open.transmitter, "PABCTL");
+        assert_eq!(find("PAB_ChallengeRequest_arm").dlc, 0);
+        assert_eq!(find("PAB_Receipt_arm").signals.len(), 2);
         assert!(
             !dbc.messages
                 .iter()

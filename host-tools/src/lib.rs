@@ -14,6 +14,7 @@ pub mod check;
 pub mod compile;
 pub mod dbc;
 pub mod diagnostic;
+pub mod keys;
 pub mod monitor;
 pub mod network;
 pub mod observe;

@@ -218,6 +218,39 @@ is reported with the reason, and the command fails (exit status 4) after trying 
         /// reserved). Nodes refuse versions older than the one they run.
         #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = args::table_version)]
         table_version: Option<u32>,
+        /// The nodes' key file (`pabctl keygen`): authenticated push (challenge, TransferOpen,
+        /// image MAC); a node counts as done only with a receipt that verifies. Required by nodes
+        /// with a key, refused by nodes without one.
+        #[arg(long, value_name = "FILE")]
+        key: Option<PathBuf>,
+        /// With --key: replace whatever version the node runs, even a newer one (the keyed
+        /// version reset; version 0 stays refused).
+        #[arg(long, requires = "key")]
+        replace: bool,
+    },
+    /// Create a node key file (32 hexadecimal characters, mode 0600).
+    #[command(long_about = "\
+Write a new random 128-bit key (from /dev/urandom) to FILE as 32 hexadecimal characters and a \
+newline, readable by its owner only (mode 0600). Refuses to overwrite an existing file. Give the \
+file to the node (`pab-node --key FILE`, or a board's key page: `pabctl keypage`) and to the \
+configuring verbs (`pabctl push --key FILE`, `pabctl monitor --key FILE`). Whoever can read the \
+file can configure the node.")]
+    Keygen {
+        /// The key file to create.
+        #[arg(short, long, value_name = "FILE")]
+        output: PathBuf,
+    },
+    /// Write a board's key page image from a key file.
+    #[command(long_about = "\
+Write the 32-byte key page record of KEYFILE (magic PABK, format 1, the key, CRC-32) to \
+FILE.bin, to be written at the board's key page address (README, \"Keys\": probe-rs download \
+--binary-format bin --base-address ...).")]
+    Keypage {
+        /// The key file (`pabctl keygen`).
+        key: PathBuf,
+        /// The page image to write.
+        #[arg(short, long, value_name = "FILE.bin")]
+        output: PathBuf,
     },
     /// List the nodes on the bus from their heartbeats.
     #[command(long_about = "\
@@ -268,6 +301,10 @@ switches the stream off.")]
         /// Print each screen one after the other instead of redrawing in place.
         #[arg(long)]
         plain: bool,
+        /// The nodes' key file: switch the stream with authenticated commands (nodes with a key
+        /// take no other).
+        #[arg(long, value_name = "FILE")]
+        key: Option<PathBuf>,
     },
     /// Write a DBC file describing the network's traffic (pab protocol frames and topics).
     #[command(long_about = "\
@@ -366,7 +403,18 @@ fn main() -> ExitCode {
             iface,
             node,
             table_version,
-        } => run_push(&network, &iface, node.as_deref(), table_version),
+            key,
+            replace,
+        } => run_push(
+            &network,
+            &iface,
+            node.as_deref(),
+            table_version,
+            key.as_deref(),
+            replace,
+        ),
+        Command::Keygen { output } => run_keygen(&output),
+        Command::Keypage { key, output } => run_keypage(&key, &output),
         Command::Nodes {
             iface,
             network,
@@ -378,7 +426,8 @@ fn main() -> ExitCode {
             rate,
             duration,
             plain,
-        } => run_monitor(&network, &iface, rate, duration, plain),
+            key,
+        } => run_monitor(&network, &iface, rate, duration, plain, key.as_deref()),
         Command::Dbc { network, output } => run_dbc(&network, &output),
     };
     match result {
@@ -417,13 +466,43 @@ fn bus_failure(iface: &str) -> impl Fn(io::Error) -> Failure + '_ {
     move |error| Failure::Bus(format!("on {iface}: {error}"))
 }
 
+fn read_key(path: &Path) -> Result<pab_core::auth::Authenticator, Failure> {
+    let key = pabctl::keys::read(path)
+        .map_err(|message| Failure::Input(Diagnostic::file(path, message).into()))?;
+    Ok(pab_core::auth::Authenticator::new(&key))
+}
+
+fn run_keygen(output: &Path) -> Result<(), Failure> {
+    let key = pabctl::keys::generate().map_err(Failure::Output)?;
+    pabctl::keys::write_new(output, &key).map_err(Failure::Output)?;
+    println!("{}: new key written (mode 0600)", output.display());
+    Ok(())
+}
+
+fn run_keypage(key: &Path, output: &Path) -> Result<(), Failure> {
+    let parsed = pabctl::keys::read(key)
+        .map_err(|message| Failure::Input(Diagnostic::file(key, message).into()))?;
+    write_atomically(output, &pabctl::keys::page_image(&parsed))?;
+    println!("{}: key page record written (32 bytes)", output.display());
+    Ok(())
+}
+
 fn run_push(
     path: &Path,
     iface: &str,
     only: Option<&str>,
     table_version: Option<u32>,
+    key: Option<&Path>,
+    replace: bool,
 ) -> Result<(), Failure> {
     let network = Network::load(path)?;
+    let credentials = match key {
+        Some(key) => Some(push::Credentials {
+            authenticator: read_key(key)?,
+            replace,
+        }),
+        None => None,
+    };
     let nodes = compiled(&network, table_version)?;
     let selected: Vec<&CompiledNode> = match only {
         Some(name) => {
@@ -456,14 +535,25 @@ fn run_push(
             "node {} <- version {}",
             node.id, header.table_version
         ));
-        let outcome = push::push(
-            bus.as_mut(),
-            node.id,
-            &node.image,
-            &header,
-            push::Timeouts::default(),
-            &mut |sent, _| bar.set_position(sent as u64),
-        )
+        let outcome = match &credentials {
+            Some(credentials) => push::push_authenticated(
+                bus.as_mut(),
+                node.id,
+                &node.image,
+                &header,
+                credentials,
+                push::Timeouts::default(),
+                &mut |sent, _| bar.set_position(sent as u64),
+            ),
+            None => push::push(
+                bus.as_mut(),
+                node.id,
+                &node.image,
+                &header,
+                push::Timeouts::default(),
+                &mut |sent, _| bar.set_position(sent as u64),
+            ),
+        }
         .map_err(bus_failure(iface))?;
         bar.finish_and_clear();
         let mark = if outcome.is_success() { "ok" } else { "FAILED" };
@@ -518,8 +608,10 @@ fn run_monitor(
     rate: u16,
     duration: Option<f64>,
     plain: bool,
+    key: Option<&Path>,
 ) -> Result<(), Failure> {
     let network = Network::load(path)?;
+    let key = key.map(read_key).transpose()?;
     // In (0, 10^6] since parsing (args::seconds): the conversion cannot fail.
     let duration = duration.and_then(|seconds| Duration::try_from_secs_f64(seconds).ok());
     let mut bus = open_bus(iface)?;
@@ -543,6 +635,7 @@ fn run_monitor(
                 let _ = io::stdout().flush();
             }
         },
+        key.as_ref(),
     )
     .map_err(bus_failure(iface))?;
     Ok(())

@@ -32,6 +32,39 @@ pub fn request_stream(bus: &mut dyn Bus, network: &Network, rate_hz: u16) -> std
     Ok(())
 }
 
+/// As [`request_stream`], authenticated for nodes with a key: per node a challenge, then the
+/// tagged command. Returns the nodes that sent no challenge (without a key, or off the bus).
+pub fn request_stream_keyed(
+    bus: &mut dyn Bus,
+    network: &Network,
+    rate_hz: u16,
+    authenticator: &pab_core::auth::Authenticator,
+) -> std::io::Result<Vec<u8>> {
+    let mut silent = Vec::new();
+    for node in &network.nodes {
+        let control = DiagnosticControl {
+            rate_hz,
+            ports: u16::MAX,
+        };
+        let Some(nonce) = crate::push::challenge(bus, node.id, Duration::from_secs(1))? else {
+            silent.push(node.id);
+            continue;
+        };
+        let mut payload = [0u8; 4];
+        payload[..2].copy_from_slice(&control.rate_hz.to_le_bytes());
+        payload[2..].copy_from_slice(&control.ports.to_le_bytes());
+        let tag = authenticator.command_tag(
+            node.id,
+            protocol::Service::DiagnosticControl.code(),
+            nonce,
+            &payload,
+        );
+        let message = Message::AuthenticatedDiagnosticControl { control, tag };
+        bus.send(&message.to_frame(protocol::TOOL, node.id))?;
+    }
+    Ok(silent)
+}
+
 /// When each sample arrived, to tell live samples from stale ones.
 #[derive(Default)]
 pub struct Freshness {
@@ -121,6 +154,7 @@ pub fn render(
 
 /// Runs the monitor: streams at `rate_hz`, redraws every `redraw`, for `duration` (forever if
 /// `None`) or until `stop` returns true. `draw` receives each screen.
+#[allow(clippy::too_many_arguments)]
 pub fn run(
     bus: &mut dyn Bus,
     network: &Network,
@@ -129,11 +163,17 @@ pub fn run(
     duration: Option<Duration>,
     stop: &dyn Fn() -> bool,
     draw: &mut dyn FnMut(&str),
+    key: Option<&pab_core::auth::Authenticator>,
 ) -> std::io::Result<Observer> {
+    // Nodes with a key take only the authenticated command (one challenge per node).
+    let request = |bus: &mut dyn Bus, rate_hz: u16| match key {
+        Some(key) => request_stream_keyed(bus, network, rate_hz, key).map(|_| ()),
+        None => request_stream(bus, network, rate_hz),
+    };
     let started = Instant::now();
     let mut observer = Observer::new();
     let mut freshness = Freshness::default();
-    request_stream(bus, network, rate_hz)?;
+    request(bus, rate_hz)?;
     let mut last_request = Instant::now();
     let mut next_draw = Instant::now() + redraw;
     loop {
@@ -143,7 +183,7 @@ pub fn run(
         }
         // Nodes that restart come back with the stream off: ask again now and then.
         if now.duration_since(last_request) >= Duration::from_secs(3) {
-            request_stream(bus, network, rate_hz)?;
+            request(bus, rate_hz)?;
             last_request = now;
         }
         let wait = next_draw.saturating_duration_since(now);
@@ -158,6 +198,6 @@ pub fn run(
             next_draw += redraw;
         }
     }
-    request_stream(bus, network, 0)?;
+    request(bus, 0)?;
     Ok(observer)
 }

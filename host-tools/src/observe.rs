@@ -61,7 +61,13 @@ impl Observer {
                 view.samples
                     .insert((sample.port, sample.connection), sample);
             }
-            Message::DiagnosticControl(_) | Message::TableTransfer { .. } => {}
+            Message::DiagnosticControl(_)
+            | Message::AuthenticatedDiagnosticControl { .. }
+            | Message::TableTransfer { .. }
+            | Message::ChallengeRequest
+            | Message::Challenge { .. }
+            | Message::TransferOpen(_)
+            | Message::Receipt { .. } => {}
         }
         Some((id, message))
     }
@@ -152,6 +158,18 @@ pub fn nodes_table(observer: &Observer, names: &BTreeMap<u8, String>, now: Insta
             count(view.errors.map(|e| e.errors)),
         );
     }
+    for (id, view) in observer.nodes() {
+        if view.table.is_some_and(|table| !table.keyed) {
+            let name = names
+                .get(id)
+                .map_or(String::new(), |name| format!(" ({name})"));
+            let _ = writeln!(
+                out,
+                "warning: node {id}{name} has no key: it accepts configuration from anyone on the \
+                 bus (README, \"Keys\": pabctl keygen, pab-node --key, the board's key page)"
+            );
+        }
+    }
     out
 }
 
@@ -179,6 +197,16 @@ pub fn describe_fault(fault: &Fault) -> String {
         }
         FaultCode::BusError => format!("{what} (kind {first})"),
         FaultCode::BadCommand => format!("{what} (service {first:#04x})"),
+        FaultCode::Unauthenticated => {
+            let source = fault.detail[2];
+            match pab_core::protocol::AuthFailure::from_code(first) {
+                Some(failure) => {
+                    format!("{what}: {failure} (service {second:#04x} from {source})")
+                }
+                None => format!("{what} (reason {first:#04x})"),
+            }
+        }
+        FaultCode::KeyPageInvalid => format!("{what} (reason {first})"),
         _ => what.to_string(),
     }
 }

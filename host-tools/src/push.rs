@@ -14,9 +14,10 @@
 
 use std::time::{Duration, Instant};
 
+use pab_core::auth::Authenticator;
 use pab_core::image::Header;
 use pab_core::isotp::{FlowControlEffect, Sender, TxConfig, TxError, TxEvent};
-use pab_core::protocol::{self, Message, TransferStatusCode};
+use pab_core::protocol::{self, Message, OPEN_REPLACE, TransferOpen, TransferStatusCode};
 
 use crate::bus::Bus;
 
@@ -112,6 +113,15 @@ impl std::fmt::Display for Outcome {
     }
 }
 
+/// The key to push with, and whether to replace whatever version runs (the keyed version reset).
+#[derive(Clone, Debug)]
+pub struct Credentials {
+    /// The node's key.
+    pub authenticator: Authenticator,
+    /// Set [`OPEN_REPLACE`]: the node takes the image even if its version is not newer.
+    pub replace: bool,
+}
+
 /// Pushes `image` (whose header is `header`) to node `node`, reporting progress as
 /// `(bytes sent, total)`.
 pub fn push(
@@ -122,6 +132,93 @@ pub fn push(
     timeouts: Timeouts,
     progress: &mut dyn FnMut(usize, usize),
 ) -> std::io::Result<Outcome> {
+    push_inner(bus, node, image, header, timeouts, progress, None)
+}
+
+/// Pushes `image` to a node with a key: a challenge, a TransferOpen, the image and its MAC, and
+/// a success counts only with a Receipt that verifies under the key (then the heartbeat, as
+/// [`push`]). Without a challenge from the node (a node without a key sends none) the push fails
+/// with [`Outcome::NoAnswer`] saying so.
+pub fn push_authenticated(
+    bus: &mut dyn Bus,
+    node: u8,
+    image: &[u8],
+    header: &Header,
+    credentials: &Credentials,
+    timeouts: Timeouts,
+    progress: &mut dyn FnMut(usize, usize),
+) -> std::io::Result<Outcome> {
+    push_inner(
+        bus,
+        node,
+        image,
+        header,
+        timeouts,
+        progress,
+        Some(credentials),
+    )
+}
+
+/// Asks `node` for a challenge: its nonce, or `None` within `timeout`.
+pub fn challenge(bus: &mut dyn Bus, node: u8, timeout: Duration) -> std::io::Result<Option<u64>> {
+    bus.send(&Message::ChallengeRequest.to_frame(protocol::TOOL, node))?;
+    let end = Instant::now() + timeout;
+    while let Some(left) = end.checked_duration_since(Instant::now()) {
+        let Some(frame) = bus.receive(left)? else {
+            break;
+        };
+        if let Ok((id, Message::Challenge { nonce })) = Message::decode(&frame)
+            && id.source == node
+            && id.destination == protocol::TOOL
+        {
+            return Ok(Some(nonce));
+        }
+    }
+    Ok(None)
+}
+
+fn no_challenge(node: u8) -> Outcome {
+    Outcome::NoAnswer(format!(
+        "node {node} sent no challenge within 1 s: is it on the bus, and does it have a key? \
+         (`pabctl nodes` shows which nodes have one; push without --key to a node without a key)"
+    ))
+}
+
+#[allow(clippy::too_many_arguments)]
+fn push_inner(
+    bus: &mut dyn Bus,
+    node: u8,
+    image: &[u8],
+    header: &Header,
+    timeouts: Timeouts,
+    progress: &mut dyn FnMut(usize, usize),
+    credentials: Option<&Credentials>,
+) -> std::io::Result<Outcome> {
+    // With a key: the challenge, the open, and the MAC after the image.
+    let mut message = image.to_vec();
+    let mut receipt_nonce = None;
+    if let Some(credentials) = credentials {
+        let Some(nonce) = challenge(bus, node, Duration::from_secs(1))? else {
+            return Ok(no_challenge(node));
+        };
+        let flags = if credentials.replace { OPEN_REPLACE } else { 0 };
+        let auth = &credentials.authenticator;
+        message.extend_from_slice(&auth.image_mac(node, nonce, flags, image));
+        let Ok(length) = u16::try_from(message.len()) else {
+            return Ok(Outcome::NoAnswer(format!(
+                "the image ({} bytes) is too large for an authenticated transfer",
+                image.len()
+            )));
+        };
+        let open = TransferOpen {
+            length,
+            flags,
+            tag: auth.open_tag(node, nonce, length, flags),
+        };
+        bus.send(&Message::TransferOpen(open).to_frame(protocol::TOOL, node))?;
+        receipt_nonce = Some((auth, nonce));
+    }
+    let image = &message[..];
     let clock = Clock::new();
     let mut sender = match Sender::new(image, TxConfig::default()) {
         Ok(sender) => sender,
@@ -181,12 +278,24 @@ pub fn push(
             TxEvent::Failed(error) => return transfer_failed(bus, node, error, cut_short),
         }
     }
-    // 2. The node's answer: a refusal, or a success that names the pushed version.
+    // 2. The node's answer: a refusal, or a success that names the pushed version (with a key:
+    // one whose Receipt verifies).
     let version = header.table_version;
-    let answer = wait_for_status(bus, node, timeouts.answer, |status| {
-        !status.status.is_success() || status.running_version == version
-    })?;
+    let answer = match receipt_nonce {
+        Some((auth, nonce)) => wait_for_receipt(bus, node, auth, nonce, header, timeouts.answer)?,
+        None => wait_for_status(bus, node, timeouts.answer, |status| {
+            !status.status.is_success() || status.running_version == version
+        })?,
+    };
     let outcome = match answer {
+        None if receipt_nonce.is_some() => {
+            return Ok(Outcome::NotConfirmed(format!(
+                "no transfer status for version {version} with a receipt that verifies under the \
+                 key within {:.1} s after the last frame (a wrong key, or an answer that did not \
+                 come from the node)",
+                timeouts.answer.as_secs_f64()
+            )));
+        }
         None => {
             return Ok(Outcome::NoAnswer(format!(
                 "no transfer status for version {version} within {:.1} s after the last frame",
@@ -245,6 +354,55 @@ fn transfer_failed(
         }
     };
     Ok(Outcome::NoAnswer(why))
+}
+
+/// With a key: the first TransferStatus from `node` that a Receipt verifies, within `timeout`.
+/// A success counts only so; a refusal is taken as it comes (a refusal is no confirmation: a
+/// forged one can make a push fail, never make a failed push look done). The Receipt covers the
+/// running image's CRC and stored flag: for a success, the pushed image's CRC and either flag
+/// (AlreadyCurrent keeps the old flag).
+fn wait_for_receipt(
+    bus: &mut dyn Bus,
+    node: u8,
+    auth: &Authenticator,
+    nonce: u64,
+    header: &Header,
+    timeout: Duration,
+) -> std::io::Result<Option<protocol::TransferStatus>> {
+    let end = Instant::now() + timeout;
+    let mut statuses: Vec<protocol::TransferStatus> = Vec::new();
+    while let Some(left) = end.checked_duration_since(Instant::now()) {
+        let Some(frame) = bus.receive(left)? else {
+            break;
+        };
+        match Message::decode(&frame) {
+            Ok((id, Message::TransferStatus(status)))
+                if id.source == node && id.destination == protocol::TOOL =>
+            {
+                if !status.status.is_success() {
+                    return Ok(Some(status));
+                }
+                statuses.push(status);
+            }
+            Ok((id, Message::Receipt { tag }))
+                if id.source == node && id.destination == protocol::TOOL =>
+            {
+                for status in &statuses {
+                    let frame = Message::TransferStatus(*status).to_frame(node, protocol::TOOL);
+                    let mut payload = [0u8; 8];
+                    payload.copy_from_slice(frame.payload());
+                    let verified = [true, false].into_iter().any(|stored| {
+                        auth.verify_receipt(node, nonce, &payload, header.crc, stored, &tag)
+                    });
+                    if verified && status.running_version == header.table_version {
+                        return Ok(Some(*status));
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(None)
 }
 
 /// The first TransferStatus from `node` to the tool that `relevant` accepts, within `timeout`;

@@ -29,6 +29,10 @@ SERVICES = {  # name: (code, priority)
     "DiagnosticControl": (0x10, 3),
     "TableTransfer": (0x11, 6),
     "TransferStatus": (0x12, 2),
+    "ChallengeRequest": (0x13, 3),
+    "Challenge": (0x14, 2),
+    "TransferOpen": (0x15, 3),
+    "Receipt": (0x16, 2),
 }
 NODES = {"arm": 1, "hand": 2, "gaze": 3}  # examples/take-and-return.toml
 TOPICS = {
@@ -64,7 +68,10 @@ def main(path):
     for node, node_id in NODES.items():
         for service in ("Fault", "Heartbeat", "TableStatus", "Traffic", "Errors", "Diagnostic"):
             expected[f"PAB_{service}_{node}"] = (frame_id(service, node_id, BROADCAST), True)
-        expected[f"PAB_TransferStatus_{node}"] = (frame_id("TransferStatus", node_id, TOOL), True)
+        for service in ("TransferStatus", "Challenge", "Receipt"):
+            expected[f"PAB_{service}_{node}"] = (frame_id(service, node_id, TOOL), True)
+        for service in ("ChallengeRequest", "TransferOpen"):
+            expected[f"PAB_{service}_{node}"] = (frame_id(service, TOOL, node_id), True)
         expected[f"PAB_DiagnosticControl_{node}"] = (
             frame_id("DiagnosticControl", TOOL, node_id),
             True,

@@ -268,6 +268,7 @@ fn monitor_shows_who_delivers_from_the_diagnostic_stream() {
         Some(Duration::from_millis(1_500)),
         &|| false,
         &mut |screen| screens.push(screen.to_string()),
+        None,
     )
     .unwrap();
     publishing.store(false, Ordering::SeqCst);
@@ -562,4 +563,131 @@ fn a_push_right_after_an_interrupted_one_is_not_refused_for_the_old_ones_end() {
         }
     );
     assert_eq!(*node.stored.lock().unwrap(), vec![arm.image.clone()]);
+}
+
+/// Attack: answer for an absent node 8 so that pabctl believes a push succeeded: flow control,
+/// `Applied`, a receipt it cannot compute, and a heartbeat group showing the pushed version and
+/// CRC. Without a key pabctl is fooled (the limit the threat model states); with `--key` the
+/// receipt does not verify and the push is not done.
+#[test]
+fn a_forged_confirmation_does_not_count_with_a_key() {
+    let image = arm_image(9);
+    let crc = header(&image).crc;
+    let run = |keyed: bool| {
+        let hub = MemoryHub::new();
+        let stop = Arc::new(AtomicBool::new(false));
+        let mut bus = hub.connect();
+        let stop_flag = stop.clone();
+        let thread = std::thread::spawn(move || {
+            let mut receiver = pab_core::isotp::Receiver::<32768>::new(pab_core::isotp::RxConfig {
+                block_size: 8,
+                ..Default::default()
+            });
+            let send = |bus: &mut MemoryBus, message: Message, to: u8| {
+                bus.send(&message.to_frame(8, to)).unwrap();
+            };
+            while !stop_flag.load(Ordering::SeqCst) {
+                let Ok(Some(frame)) = bus.receive(Duration::from_millis(5)) else {
+                    continue;
+                };
+                let Ok((id, message)) = Message::decode(&frame) else {
+                    continue;
+                };
+                if id.destination != 8 {
+                    continue;
+                }
+                match message {
+                    Message::ChallengeRequest => {
+                        send(&mut bus, Message::Challenge { nonce: 77 }, protocol::TOOL)
+                    }
+                    Message::TableTransfer { data, len } => {
+                        let now = pab_core::Instant::from_micros(0);
+                        match receiver.on_frame(&data[..usize::from(len)], now).event {
+                            RxEvent::SendFlowControl(fc) => send(
+                                &mut bus,
+                                Message::TableTransfer { data: fc, len: 8 },
+                                protocol::TOOL,
+                            ),
+                            RxEvent::Complete(_) => {
+                                send(&mut bus, status(TransferStatusCode::Applied, 9), 0);
+                                send(&mut bus, Message::Receipt { tag: [0x42; 8] }, 0);
+                                for _ in 0..3 {
+                                    send(
+                                        &mut bus,
+                                        Message::Heartbeat(protocol::Heartbeat {
+                                            state: protocol::NodeState::Operational,
+                                            uptime_s: 5,
+                                            table_version: 9,
+                                        }),
+                                        protocol::BROADCAST,
+                                    );
+                                    send(
+                                        &mut bus,
+                                        Message::TableStatus(protocol::TableStatus {
+                                            crc,
+                                            image_len: 100,
+                                            ports: 1,
+                                            stored: true,
+                                            diagnostic: false,
+                                            keyed: true,
+                                        }),
+                                        protocol::BROADCAST,
+                                    );
+                                    std::thread::sleep(Duration::from_millis(100));
+                                }
+                            }
+                            _ => {}
+                        }
+                    }
+                    _ => {}
+                }
+            }
+        });
+        let mut tool = hub.connect();
+        let timeouts = Timeouts {
+            answer: Duration::from_millis(500),
+            confirm: Duration::from_millis(1_000),
+        };
+        let outcome = if keyed {
+            let credentials = push::Credentials {
+                authenticator: pab_core::auth::Authenticator::new(
+                    &pab_core::auth::Key::from_bytes([3; 16]),
+                ),
+                replace: false,
+            };
+            push::push_authenticated(
+                &mut tool,
+                8,
+                &image,
+                &header(&image),
+                &credentials,
+                timeouts,
+                &mut |_, _| {},
+            )
+        } else {
+            push::push(
+                &mut tool,
+                8,
+                &image,
+                &header(&image),
+                timeouts,
+                &mut |_, _| {},
+            )
+        }
+        .unwrap();
+        stop.store(true, Ordering::SeqCst);
+        thread.join().unwrap();
+        outcome
+    };
+    let fooled = run(false);
+    assert!(
+        fooled.is_success(),
+        "without a key the impostor wins: {fooled}"
+    );
+    let keyed = run(true);
+    assert!(!keyed.is_success(), "{keyed}");
+    assert!(
+        matches!(&keyed, Outcome::NotConfirmed(why) if why.contains("receipt")),
+        "{keyed:?}"
+    );
 }

@@ -5,7 +5,8 @@
 use std::path::Path;
 
 use pab_core::protocol::{
-    BROADCAST, FaultCode, FrameId, NodeState, Service, StoreFailure, TransferStatusCode,
+    AuthFailure, BROADCAST, FaultCode, FrameId, NodeState, Service, StoreFailure,
+    TransferStatusCode,
 };
 
 fn document() -> String {
@@ -129,6 +130,15 @@ fn store_failures_match_the_code() {
         .map(|c| (u32::from(c.code()), format!("{c:?}"), c.description()))
         .collect();
     compare_enum("enum: StoreFailure", &expected, 2);
+}
+
+#[test]
+fn auth_failures_match_the_code() {
+    let expected: Vec<_> = AuthFailure::ALL
+        .iter()
+        .map(|c| (u32::from(c.code()), format!("{c:?}"), c.description()))
+        .collect();
+    compare_enum("enum: AuthFailure", &expected, 2);
 }
 
 #[test]

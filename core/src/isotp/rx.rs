@@ -370,6 +370,16 @@ impl<const N: usize> Receiver<N> {
         }
     }
 
+    /// The sequence number the next Consecutive Frame must carry, `None` when idle: a caller that
+    /// must not let a stray frame abort the reception (a node with a key) drops the others
+    /// before [`Receiver::on_frame`].
+    pub fn next_sequence_number(&self) -> Option<u8> {
+        match self.state {
+            State::Receiving { next_sn, .. } => Some(next_sn),
+            State::Idle => None,
+        }
+    }
+
     /// The length announced by the First Frame of the reception in progress, `None` when idle.
     ///
     /// To refuse a message by its length: after the First Frame, call [`Receiver::abort`] instead

@@ -83,6 +83,15 @@ wire_enum! {
         BusOff = 0x0013, "bus-off or error-passive";
         /// A frame of our protocol addressed to this node was malformed. Detail byte 0: its service.
         BadCommand = 0x0020, "malformed command";
+        /// A configuration message was refused by the authentication rules (the running table
+        /// and settings are unchanged). Detail byte 0: the [`AuthFailure`]; byte 1: the service
+        /// code of the refused frame; byte 2: its source.
+        Unauthenticated = 0x0030, "configuration refused: not authenticated";
+        /// The board's key page holds something that is neither erased nor a valid key record:
+        /// the node fails closed and accepts no configuration. Detail byte 0: why (1 truncated,
+        /// 2 bad magic, 3 unsupported format, 4 reserved byte set, 5 CRC). Repeated after every
+        /// heartbeat group.
+        KeyPageInvalid = 0x0031, "key page invalid: configuration locked";
     }
 }
 
@@ -114,6 +123,9 @@ wire_enum! {
         InvalidTable = 0x17, "table refused by the loader";
         /// A transfer from another source is in progress.
         Busy = 0x18, "another transfer is in progress";
+        /// The image's MAC does not verify (wrong key, or bytes changed): the node has a key
+        /// and takes only images the key's holder sent for this transfer.
+        Unauthenticated = 0x19, "image not authenticated";
     }
 }
 
@@ -135,6 +147,35 @@ wire_enum! {
         Corrupt = 0x03, "no stored copy verifies";
         /// Any other store failure (an invalid flash layout, for instance).
         Other = 0x04, "the store failed";
+    }
+}
+
+wire_enum! {
+    /// Why a configuration message was refused: detail byte 0 of an
+    /// [`FaultCode::Unauthenticated`] fault.
+    AuthFailure: u8 {
+        /// The node has a key and the message carries no tag (its plain form).
+        Missing = 0x01, "no tag, and the node has a key";
+        /// The tag does not verify (wrong key, or content changed).
+        BadTag = 0x02, "wrong tag";
+        /// No challenge outstanding, or it expired (1 s), or it was already used.
+        Stale = 0x03, "no fresh challenge";
+        /// A configuration command sent to every node (0xFF): a keyed node takes them only
+        /// addressed to itself, because each tag is over one node's challenge.
+        Broadcast = 0x04, "broadcast configuration refused";
+        /// More tag checks than the node makes per second (200): refused unchecked.
+        RateLimited = 0x05, "too many tag checks";
+        /// A first frame of a transfer that no valid TransferOpen announced (or of another
+        /// length): ignored, and a transfer in progress continues.
+        Unopened = 0x06, "transfer not opened";
+        /// A table transfer from a source other than the tool (0).
+        NotTool = 0x07, "transfer from a source other than the tool";
+        /// The node's key page is invalid: it accepts no configuration at all.
+        Locked = 0x08, "configuration locked: key page invalid";
+        /// A tagged message (or a TransferOpen) to a node without a key.
+        NoKey = 0x09, "tagged message to a node without a key";
+        /// A consecutive frame out of sequence during an opened transfer: ignored.
+        Sequence = 0x0A, "consecutive frame out of sequence ignored";
     }
 }
 
@@ -166,6 +207,9 @@ mod tests {
             assert_eq!(StoreFailure::from_code(failure.code()), Some(*failure));
         }
         assert!(TransferStatusCode::from_code(STORE_UNREADABLE).is_none());
+        for failure in AuthFailure::ALL {
+            assert_eq!(AuthFailure::from_code(failure.code()), Some(*failure));
+        }
         for status in TransferStatusCode::ALL {
             assert_eq!(TransferStatusCode::from_code(status.code()), Some(*status));
         }

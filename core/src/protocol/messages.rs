@@ -30,7 +30,8 @@ pub struct Heartbeat {
 /// bytes 4-5  image length in bytes, u16 LE
 /// byte 6     number of ports
 /// byte 7     flags: bit 0 the table is stored (the node boots with it);
-///                   bit 1 the diagnostic stream is on
+///                   bit 1 the diagnostic stream is on;
+///                   bit 2 the node has a key (it takes only authenticated configuration)
 /// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -45,6 +46,8 @@ pub struct TableStatus {
     pub stored: bool,
     /// Whether the diagnostic stream is on.
     pub diagnostic: bool,
+    /// Whether the node has a key: without one, it accepts configuration from anyone on the bus.
+    pub keyed: bool,
 }
 
 /// Traffic counters since boot (service 0x04), wrapping at 2^32.
@@ -183,6 +186,28 @@ impl DiagnosticControl {
     pub const MAX_RATE_HZ: u16 = 200;
 }
 
+/// Flag bit of [`TransferOpen::flags`]: replace whatever version runs (the keyed version reset:
+/// the image's version need not be newer; version 0 is still refused).
+pub const OPEN_REPLACE: u8 = 0x01;
+
+/// Opens an authenticated table transfer (service 0x15), tool → node, on a node with a key.
+///
+/// ```text
+/// bytes 0-1  ISO-TP message length (the image and its 16-byte MAC), u16 LE
+/// byte 2     flags: bit 0 replace whatever version runs (OPEN_REPLACE); bits 1-7 reserved, 0
+/// bytes 3-7  tag: CMAC (domain 2, node, nonce, length, flags), first 5 bytes
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct TransferOpen {
+    /// The ISO-TP message length that the first frame must announce.
+    pub length: u16,
+    /// [`OPEN_REPLACE`] or 0.
+    pub flags: u8,
+    /// The tag over the challenge.
+    pub tag: [u8; crate::auth::OPEN_TAG_LEN],
+}
+
 /// The outcome of a table transfer (service 0x12), node → tool.
 ///
 /// ```text
@@ -229,6 +254,30 @@ pub enum Message {
     },
     /// See [`TransferStatus`].
     TransferStatus(TransferStatus),
+    /// A [`DiagnosticControl`] followed by its tag (service 0x10, 8 bytes): the form a node with
+    /// a key takes.
+    AuthenticatedDiagnosticControl {
+        /// The command.
+        control: DiagnosticControl,
+        /// CMAC (domain 1, node, service, nonce, the 4 bytes of `control`), first 4 bytes.
+        tag: [u8; crate::auth::COMMAND_TAG_LEN],
+    },
+    /// Asks a node for a challenge (service 0x13, no payload).
+    ChallengeRequest,
+    /// A node's challenge (service 0x14): the nonce, u64 LE (boot salt in the high 32 bits).
+    Challenge {
+        /// The nonce.
+        nonce: u64,
+    },
+    /// See [`TransferOpen`].
+    TransferOpen(TransferOpen),
+    /// Authenticates the TransferStatus that ended an opened transfer (service 0x16): CMAC
+    /// (domain 4, node, nonce, that TransferStatus's 8 bytes, the running image's CRC, its stored
+    /// flag), first 8 bytes.
+    Receipt {
+        /// The tag.
+        tag: [u8; crate::auth::RECEIPT_TAG_LEN],
+    },
 }
 
 /// Why a frame in our identifier space was refused.
@@ -318,6 +367,11 @@ impl Message {
             Message::DiagnosticControl(_) => Service::DiagnosticControl,
             Message::TableTransfer { .. } => Service::TableTransfer,
             Message::TransferStatus(_) => Service::TransferStatus,
+            Message::AuthenticatedDiagnosticControl { .. } => Service::DiagnosticControl,
+            Message::ChallengeRequest => Service::ChallengeRequest,
+            Message::Challenge { .. } => Service::Challenge,
+            Message::TransferOpen(_) => Service::TransferOpen,
+            Message::Receipt { .. } => Service::Receipt,
         }
     }
 
@@ -342,7 +396,9 @@ impl Message {
                 out.put(&status.image_len.to_le_bytes());
                 out.put(&[
                     status.ports,
-                    status.stored as u8 | (status.diagnostic as u8) << 1,
+                    status.stored as u8
+                        | (status.diagnostic as u8) << 1
+                        | (status.keyed as u8) << 2,
                 ]);
             }
             Message::Traffic(traffic) => {
@@ -374,6 +430,19 @@ impl Message {
                 out.put(&status.running_version.to_le_bytes());
                 out.put(&[0, 0]);
             }
+            Message::AuthenticatedDiagnosticControl { control, tag } => {
+                out.put(&control.rate_hz.to_le_bytes());
+                out.put(&control.ports.to_le_bytes());
+                out.put(tag);
+            }
+            Message::ChallengeRequest => {}
+            Message::Challenge { nonce } => out.put(&nonce.to_le_bytes()),
+            Message::TransferOpen(open) => {
+                out.put(&open.length.to_le_bytes());
+                out.put(&[open.flags]);
+                out.put(&open.tag);
+            }
+            Message::Receipt { tag } => out.put(tag),
         }
         Frame::from_buffer(id, out.buf, out.len)
     }
@@ -398,6 +467,10 @@ impl Message {
         let length_ok = match service {
             // ISO-TP frames may be unpadded: the transport checks their length.
             Service::TableTransfer => !data.is_empty(),
+            // The plain form, or the plain form and its tag.
+            Service::DiagnosticControl => {
+                data.len() == expected || data.len() == expected + crate::auth::COMMAND_TAG_LEN
+            }
             _ => data.len() == expected,
         };
         if !length_ok {
@@ -422,7 +495,7 @@ impl Message {
             }),
             Service::TableStatus => {
                 let flags = byte(data, 7);
-                if flags & !0b11 != 0 {
+                if flags & !0b111 != 0 {
                     return Err(bad);
                 }
                 Message::TableStatus(TableStatus {
@@ -431,6 +504,7 @@ impl Message {
                     ports: byte(data, 6),
                     stored: flags & 1 != 0,
                     diagnostic: flags & 2 != 0,
+                    keyed: flags & 4 != 0,
                 })
             }
             Service::Traffic => Message::Traffic(Traffic {
@@ -453,10 +527,21 @@ impl Message {
                 if rate_hz > DiagnosticControl::MAX_RATE_HZ {
                     return Err(bad);
                 }
-                Message::DiagnosticControl(DiagnosticControl {
+                let control = DiagnosticControl {
                     rate_hz,
                     ports: u16_at(data, 2),
-                })
+                };
+                match data.get(4..8) {
+                    Some(tag) => {
+                        let mut bytes = [0; crate::auth::COMMAND_TAG_LEN];
+                        bytes.copy_from_slice(tag);
+                        Message::AuthenticatedDiagnosticControl {
+                            control,
+                            tag: bytes,
+                        }
+                    }
+                    None => Message::DiagnosticControl(control),
+                }
             }
             Service::TableTransfer => {
                 let mut bytes = [0; 8];
@@ -477,6 +562,28 @@ impl Message {
                     detail: byte(data, 1),
                     running_version: u32_at(data, 2),
                 })
+            }
+            Service::ChallengeRequest => Message::ChallengeRequest,
+            Service::Challenge => Message::Challenge {
+                nonce: u64::from(u32_at(data, 0)) | u64::from(u32_at(data, 4)) << 32,
+            },
+            Service::TransferOpen => {
+                let flags = byte(data, 2);
+                if flags & !OPEN_REPLACE != 0 {
+                    return Err(bad);
+                }
+                let mut tag = [0; crate::auth::OPEN_TAG_LEN];
+                tag.copy_from_slice(data.get(3..8).ok_or(bad)?);
+                Message::TransferOpen(TransferOpen {
+                    length: u16_at(data, 0),
+                    flags,
+                    tag,
+                })
+            }
+            Service::Receipt => {
+                let mut tag = [0; crate::auth::RECEIPT_TAG_LEN];
+                tag.copy_from_slice(data.get(..8).ok_or(bad)?);
+                Message::Receipt { tag }
             }
         };
         Ok((id, message))
@@ -506,7 +613,7 @@ mod tests {
     use super::*;
     use crate::protocol::BROADCAST;
 
-    fn samples() -> [Message; 9] {
+    fn samples() -> [Message; 14] {
         [
             Message::Fault(Fault {
                 code: FaultCode::TableRefused,
@@ -524,6 +631,7 @@ mod tests {
                 ports: 1,
                 stored: true,
                 diagnostic: false,
+                keyed: true,
             }),
             Message::Traffic(Traffic {
                 received: 1_000_000,
@@ -558,6 +666,25 @@ mod tests {
                 detail: 0,
                 running_version: 9,
             }),
+            Message::AuthenticatedDiagnosticControl {
+                control: DiagnosticControl {
+                    rate_hz: 200,
+                    ports: 1,
+                },
+                tag: [1, 2, 3, 4],
+            },
+            Message::ChallengeRequest,
+            Message::Challenge {
+                nonce: 0x0102_0304_0506_0708,
+            },
+            Message::TransferOpen(TransferOpen {
+                length: 300,
+                flags: OPEN_REPLACE,
+                tag: [9, 8, 7, 6, 5],
+            }),
+            Message::Receipt {
+                tag: [1, 2, 3, 4, 5, 6, 7, 8],
+            },
         ]
     }
 
@@ -570,7 +697,9 @@ mod tests {
             assert_eq!(id.source, 3);
             assert_eq!(id.destination, BROADCAST);
             assert_eq!(id.service, message.service());
-            if message.service() != Service::TableTransfer {
+            if matches!(message, Message::AuthenticatedDiagnosticControl { .. }) {
+                assert_eq!(frame.payload().len(), 8);
+            } else if message.service() != Service::TableTransfer {
                 assert_eq!(frame.payload().len(), message.service().payload_len());
             }
         }
@@ -614,7 +743,10 @@ mod tests {
                 continue;
             }
             for len in 0..=8 {
-                if len == payload.len() {
+                // DiagnosticControl has two valid lengths: its plain and its tagged form.
+                let other_form =
+                    message.service() == Service::DiagnosticControl && (len == 4 || len == 8);
+                if len == payload.len() || other_form {
                     continue;
                 }
                 let mut data = [0u8; 8];
@@ -647,6 +779,19 @@ mod tests {
             Message::decode(&reserved),
             Err(DecodeError::Value { .. })
         ));
+        let id = FrameId::new(Service::TransferOpen, 0, 1).id();
+        let reserved_flag = Frame::data(id, &[0, 1, 2, 0, 0, 0, 0, 0]).unwrap();
+        assert!(matches!(
+            Message::decode(&reserved_flag),
+            Err(DecodeError::Value { .. })
+        ));
+        let id = FrameId::new(Service::TableStatus, 1, BROADCAST).id();
+        let reserved_bit = Frame::data(id, &[0, 0, 0, 0, 0, 0, 0, 8]).unwrap();
+        assert!(matches!(
+            Message::decode(&reserved_bit),
+            Err(DecodeError::Value { .. })
+        ));
+        let id = FrameId::new(Service::TransferStatus, 1, 0).id();
         let remote = <Frame as embedded_can::Frame>::new_remote(id, 8).unwrap();
         assert_eq!(Message::decode(&remote), Err(DecodeError::Remote));
     }

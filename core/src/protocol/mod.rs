@@ -26,11 +26,13 @@
 mod codes;
 mod messages;
 
-pub use codes::{FaultCode, NodeState, STORE_UNREADABLE, StoreFailure, TransferStatusCode};
+pub use codes::{
+    AuthFailure, FaultCode, NodeState, STORE_UNREADABLE, StoreFailure, TransferStatusCode,
+};
 pub use messages::DecodeError;
 pub use messages::{
     DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Fault, Heartbeat, Message,
-    TableStatus, Traffic, TransferStatus,
+    OPEN_REPLACE, TableStatus, Traffic, TransferOpen, TransferStatus,
 };
 
 use embedded_can::{ExtendedId, Id};
@@ -104,11 +106,19 @@ pub enum Service {
     TableTransfer = 0x11,
     /// Node → tool: the outcome of a table transfer ([`TransferStatus`]).
     TransferStatus = 0x12,
+    /// Tool → node: asks a keyed node for a challenge (no payload).
+    ChallengeRequest = 0x13,
+    /// Node → tool: the nonce the next configuration message must be tagged over.
+    Challenge = 0x14,
+    /// Tool → node: opens an authenticated table transfer ([`TransferOpen`]).
+    TransferOpen = 0x15,
+    /// Node → tool: authenticates the TransferStatus that ended an opened transfer.
+    Receipt = 0x16,
 }
 
 impl Service {
     /// Every service, for tables (DBC export, documentation tests).
-    pub const ALL: [Service; 9] = [
+    pub const ALL: [Service; 13] = [
         Service::Fault,
         Service::Heartbeat,
         Service::TableStatus,
@@ -118,6 +128,10 @@ impl Service {
         Service::DiagnosticControl,
         Service::TableTransfer,
         Service::TransferStatus,
+        Service::ChallengeRequest,
+        Service::Challenge,
+        Service::TransferOpen,
+        Service::Receipt,
     ];
 
     /// The service with this code.
@@ -136,8 +150,10 @@ impl Service {
     pub const fn priority(self) -> Priority {
         match self {
             Service::Fault => Priority::EXCEPTIONAL,
-            Service::TransferStatus => Priority::HIGH,
-            Service::DiagnosticControl => Priority::COMMAND,
+            Service::TransferStatus | Service::Challenge | Service::Receipt => Priority::HIGH,
+            Service::DiagnosticControl | Service::ChallengeRequest | Service::TransferOpen => {
+                Priority::COMMAND
+            }
             Service::Heartbeat | Service::TableStatus => Priority::NOMINAL,
             Service::Traffic | Service::Errors => Priority::LOW,
             Service::TableTransfer => Priority::BULK,
@@ -145,10 +161,12 @@ impl Service {
         }
     }
 
-    /// The payload length of this service's frames (ISO-TP frames are always padded to 8).
+    /// The payload length of this service's frames (ISO-TP frames are always padded to 8). A
+    /// command's authenticated form is longer by its tag ([`crate::auth::COMMAND_TAG_LEN`]).
     pub const fn payload_len(self) -> usize {
         match self {
             Service::DiagnosticControl => 4,
+            Service::ChallengeRequest => 0,
             _ => 8,
         }
     }

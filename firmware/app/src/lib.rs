@@ -37,6 +37,7 @@
 #[macro_use]
 mod fmt;
 
+mod auth;
 pub mod bus;
 mod config;
 mod diagnostic;
@@ -45,6 +46,7 @@ pub mod node;
 pub mod replay;
 mod runner;
 
+pub use auth::{CHALLENGE_LIFETIME_US, TAG_CHECKS_PER_SECOND};
 pub use bus::{BusError, CanBus};
 pub use config::{
     Config, ConfigError, DEFAULT_STORE_INTERVAL_US, MAX_STORE_INTERVAL_US, parse_node_id,

@@ -6,15 +6,18 @@
 //! run, with virtual time and byte-exact frames.
 
 use pab_core::Consumer as PortConsumer;
+use pab_core::auth::{IMAGE_MAC_LEN, Key};
 use pab_core::image::{self, Header, LoadError};
-use pab_core::isotp::{self, RxError, RxEvent};
+use pab_core::isotp::{self, Pci, RxError, RxEvent};
 use pab_core::protocol::{
-    self, Errors, FaultCode, FrameId, Heartbeat, Message, NodeState, STORE_UNREADABLE, Service,
-    StoreFailure, TableStatus, Traffic, TransferStatus, TransferStatusCode,
+    self, AuthFailure, Errors, FaultCode, FrameId, Heartbeat, Message, NodeState, OPEN_REPLACE,
+    STORE_UNREADABLE, Service, StoreFailure, TableStatus, Traffic, TransferOpen, TransferStatus,
+    TransferStatusCode,
 };
 use pab_core::{Arbiter, Frame, Instant, PortVerdict};
 use pab_storage::StoreError;
 
+use crate::auth::{CHALLENGE_LIFETIME_US, Guard};
 use crate::bus::BusError;
 use crate::diagnostic::DiagnosticStream;
 use crate::faults::FaultLimiter;
@@ -79,6 +82,37 @@ enum Event {
 #[derive(Clone, Copy, Debug)]
 struct Incoming {
     source: u8,
+    /// The challenge of the TransferOpen that announced it (a node with a key); `None` on a node
+    /// without one.
+    nonce: Option<u64>,
+    /// The TransferOpen's flags.
+    flags: u8,
+    /// The transfer must be complete by then, however steadily its frames come
+    /// ([`transfer_deadline`]).
+    deadline: Instant,
+}
+
+/// A valid TransferOpen waiting for its first frame.
+#[derive(Clone, Copy, Debug)]
+struct Opened {
+    nonce: u64,
+    length: u16,
+    flags: u8,
+    expires: Instant,
+}
+
+/// A transfer's whole time budget: 1 s plus 10 ms per consecutive frame its length needs. The
+/// tool sends a block of 8 frames per flow control, so it needs a fraction of that; a sender that
+/// trickles one frame per N_Cr (which once held an 8 KiB slot for 19 minutes) loses the slot.
+pub const TRANSFER_BASE_US: u64 = 1_000_000;
+/// See [`TRANSFER_BASE_US`].
+pub const TRANSFER_PER_FRAME_US: u64 = 10_000;
+
+fn transfer_deadline(start: Instant, length: usize) -> Instant {
+    let frames = u64::try_from(length.saturating_sub(6).div_ceil(7)).unwrap_or(u64::MAX);
+    start.wrapping_add_micros(
+        TRANSFER_BASE_US.saturating_add(frames.saturating_mul(TRANSFER_PER_FRAME_US)),
+    )
 }
 
 /// A node: its table, its arbiter, its protocol state.
@@ -98,8 +132,12 @@ pub struct Node<const P: usize, const C: usize, const N: usize, const IMG: usize
     boot_fault: Option<[u8; 5]>,
     receiver: isotp::Receiver<IMG>,
     incoming: Option<Incoming>,
-    /// The source owed an answer once the runner has stored the running image.
-    awaiting_store: Option<u8>,
+    /// A TransferOpen that verified, waiting for its first frame.
+    opened: Option<Opened>,
+    /// The answer owed once the runner has stored the image: its source and, on a node with a
+    /// key, the nonce its Receipt is over.
+    awaiting_store: Option<(u8, Option<u64>)>,
+    guard: Guard,
     /// When the image awaiting its save may be stored (`None`: no save waits for its turn).
     store_due: Option<Instant>,
     /// When the last save was handed to the runner ([`Step::Store`]).
@@ -126,15 +164,38 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             bus_trouble: false,
             boot_fault: None,
             incoming: None,
+            opened: None,
             awaiting_store: None,
             store_due: None,
             last_store: None,
+            guard: Guard::unkeyed(now),
             counters: Counters::default(),
             next_heartbeat: now,
             diagnostic: DiagnosticStream::default(),
             faults: FaultLimiter::new(config.fault_interval_us),
             outbox: heapless::Vec::new(),
         }
+    }
+
+    /// Gives the node its key: from now on it takes only authenticated configuration
+    /// (docs/can-protocol.md, "Authenticated configuration"). `boot_salt` is the high half of
+    /// every challenge: it must never repeat for one key (boards: a boot counter in flash;
+    /// `pab-node`: random bits from the OS), or challenges of an earlier boot become valid again.
+    /// Costs the AES key expansion.
+    pub fn set_key(&mut self, key: &Key, boot_salt: u32) {
+        self.guard.set_key(key, boot_salt);
+    }
+
+    /// The key page did not verify (`reason`: [`pab_core::auth::page::PageError::code`]): the
+    /// node fails closed, accepting no configuration, and raises
+    /// [`FaultCode::KeyPageInvalid`] after every heartbeat group.
+    pub fn lock_configuration(&mut self, reason: u8) {
+        self.guard.lock(reason);
+    }
+
+    /// Whether the node takes only authenticated configuration (it has a key, or is locked).
+    pub fn is_keyed(&self) -> bool {
+        self.guard.is_keyed()
     }
 
     /// The buffer to read a stored image into at boot (the transfer buffer, idle at boot), so the
@@ -285,8 +346,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             self.raise(FaultCode::StoreFailed, [0; 5]);
             TransferStatusCode::AppliedNotStored
         };
-        if let Some(source) = self.awaiting_store.take() {
-            self.answer(source, status, 0);
+        if let Some((source, nonce)) = self.awaiting_store.take() {
+            self.answer(source, status, 0, nonce);
         }
         self.duties(now);
     }
@@ -356,6 +417,11 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         if self.receiver.poll(now).is_some() {
             self.transfer_timed_out();
         }
+        if let Some(incoming) = self.incoming
+            && now.micros_since(incoming.deadline).is_some()
+        {
+            self.transfer_too_slow();
+        }
         if now.micros_since(self.next_heartbeat).is_some() {
             self.heartbeat_due(now);
         }
@@ -372,7 +438,28 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     fn transfer_timed_out(&mut self) {
         if let Some(incoming) = self.incoming.take() {
             warn!("table transfer from {} timed out", incoming.source);
-            self.refuse(incoming.source, TransferStatusCode::Timeout, 0);
+            self.refuse(
+                incoming.source,
+                TransferStatusCode::Timeout,
+                0,
+                incoming.nonce,
+            );
+        }
+    }
+
+    /// The transfer used up its time budget ([`TRANSFER_BASE_US`]): it loses the slot (Timeout,
+    /// detail 1).
+    #[inline(never)]
+    fn transfer_too_slow(&mut self) {
+        self.receiver.abort();
+        if let Some(incoming) = self.incoming.take() {
+            warn!("table transfer from {} too slow", incoming.source);
+            self.refuse(
+                incoming.source,
+                TransferStatusCode::Timeout,
+                1,
+                incoming.nonce,
+            );
         }
     }
 
@@ -424,6 +511,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         let mut deadline = self.next_heartbeat;
         let candidates = [
             self.receiver.deadline(),
+            self.incoming.map(|incoming| incoming.deadline),
             self.faults.deadline(),
             self.store_due,
             self.arbiter
@@ -550,32 +638,183 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         }
         match message {
             Message::DiagnosticControl(control) => {
-                self.diagnostic.configure(control, now);
-                info!("diagnostic stream at {} Hz", control.rate_hz);
+                match self.guard.plain_allowed() {
+                    Ok(()) => self.configure_diagnostic(control, now),
+                    Err(failure) => self.unauthenticated(failure, &id),
+                }
+                Step::Continue
+            }
+            Message::AuthenticatedDiagnosticControl { control, tag } => {
+                // Each tag is over one node's challenge: a broadcast cannot be valid for all.
+                let verdict = if id.destination != node_id {
+                    Err(AuthFailure::Broadcast)
+                } else {
+                    let mut payload = [0u8; 4];
+                    for (slot, byte) in payload.iter_mut().zip(
+                        control
+                            .rate_hz
+                            .to_le_bytes()
+                            .into_iter()
+                            .chain(control.ports.to_le_bytes()),
+                    ) {
+                        *slot = byte;
+                    }
+                    self.guard
+                        .command(node_id, id.service.code(), &payload, &tag, now)
+                };
+                match verdict {
+                    Ok(()) => self.configure_diagnostic(control, now),
+                    Err(failure) => self.unauthenticated(failure, &id),
+                }
+                Step::Continue
+            }
+            Message::ChallengeRequest if id.destination == node_id => {
+                match self.guard.challenge(now) {
+                    Ok(nonce) => self.send(Message::Challenge { nonce }, id.source),
+                    Err(failure) => self.unauthenticated(failure, &id),
+                }
+                Step::Continue
+            }
+            Message::TransferOpen(open) if id.destination == node_id => {
+                self.on_transfer_open(&id, &open, now);
                 Step::Continue
             }
             // Transfers are point to point: a broadcast transfer would make every node answer
             // flow control at once.
             Message::TableTransfer { data, len } if id.destination == node_id => {
                 let data = data.get(..usize::from(len)).unwrap_or(&data);
-                self.on_transfer_frame(id.source, data, now)
+                self.on_transfer_frame(&id, data, now)
             }
             _ => Step::Continue,
         }
     }
 
-    fn on_transfer_frame(&mut self, source: u8, data: &[u8], now: Instant) -> Step {
-        if let Some(incoming) = self.incoming
-            && incoming.source != source
-        {
-            // One transfer at a time; the other sender learns why.
-            self.answer(source, TransferStatusCode::Busy, 0);
+    fn configure_diagnostic(&mut self, control: protocol::DiagnosticControl, now: Instant) {
+        self.diagnostic.configure(control, now);
+        info!("diagnostic stream at {} Hz", control.rate_hz);
+    }
+
+    /// A configuration message refused by the authentication rules: counted, and a fault says
+    /// why, which service and from whom.
+    fn unauthenticated(&mut self, failure: AuthFailure, id: &FrameId) {
+        warn!("configuration refused: {:?}", failure);
+        self.counters.errors = self.counters.errors.wrapping_add(1);
+        self.raise(
+            FaultCode::Unauthenticated,
+            [failure.code(), id.service.code(), id.source, 0, 0],
+        );
+    }
+
+    /// A TransferOpen: if its tag verifies over the outstanding challenge, the next first frame
+    /// from the tool with exactly its length (within a second) starts an authenticated transfer.
+    /// A valid open replaces a transfer in progress (the key holder restarted its push).
+    fn on_transfer_open(&mut self, id: &FrameId, open: &TransferOpen, now: Instant) {
+        if id.source != protocol::TOOL {
+            self.unauthenticated(AuthFailure::NotTool, id);
+            return;
+        }
+        match self.guard.open(self.config.node_id, open, now) {
+            Ok(nonce) => {
+                if self.receiver.abort()
+                    && let Some(incoming) = self.incoming.take()
+                {
+                    self.refuse(
+                        incoming.source,
+                        TransferStatusCode::Interrupted,
+                        0,
+                        incoming.nonce,
+                    );
+                }
+                self.opened = Some(Opened {
+                    nonce,
+                    length: open.length,
+                    flags: open.flags,
+                    expires: now.wrapping_add_micros(CHALLENGE_LIFETIME_US),
+                });
+            }
+            Err(failure) => self.unauthenticated(failure, id),
+        }
+    }
+
+    /// On a node with a key, whether a transfer frame may reach the receiver: a first (or single)
+    /// frame only if a TransferOpen announced its length, a consecutive frame only with the
+    /// sequence number expected. Refused frames are counted, raise a fault, and never disturb a
+    /// transfer in progress. Returns the open that a first frame consumes.
+    fn admit_keyed(
+        &mut self,
+        id: &FrameId,
+        data: &[u8],
+        now: Instant,
+    ) -> Result<Option<Opened>, AuthFailure> {
+        match isotp::pci::decode(data) {
+            Ok((Pci::First { len }, _)) => self.take_open(usize::try_from(len).ok(), now),
+            Ok((Pci::Single { len }, _)) => self.take_open(Some(usize::from(len)), now),
+            Ok((Pci::Consecutive { sn }, _)) => {
+                if self
+                    .receiver
+                    .next_sequence_number()
+                    .is_some_and(|next| next != sn)
+                {
+                    Err(AuthFailure::Sequence)
+                } else {
+                    Ok(None)
+                }
+            }
+            // Flow controls and malformed frames: the receiver ignores them.
+            _ => {
+                let _ = id;
+                Ok(None)
+            }
+        }
+    }
+
+    fn take_open(
+        &mut self,
+        len: Option<usize>,
+        now: Instant,
+    ) -> Result<Option<Opened>, AuthFailure> {
+        let opened = self
+            .opened
+            .filter(|opened| {
+                opened
+                    .expires
+                    .micros_since(now)
+                    .is_some_and(|left| left > 0)
+            })
+            .filter(|opened| len == Some(usize::from(opened.length)))
+            .ok_or(AuthFailure::Unopened)?;
+        self.opened = None;
+        Ok(Some(opened))
+    }
+
+    fn on_transfer_frame(&mut self, id: &FrameId, data: &[u8], now: Instant) -> Step {
+        let source = id.source;
+        if let Some(reason) = self.guard.locked() {
+            let _ = reason;
+            self.unauthenticated(AuthFailure::Locked, id);
+            return Step::Continue;
+        }
+        // Only the tool transfers tables: a participant with another source id cannot take the
+        // slot (nor learn anything from the node's answers).
+        if source != protocol::TOOL {
+            self.unauthenticated(AuthFailure::NotTool, id);
             return Step::Continue;
         }
         if self.awaiting_store.is_some() {
-            self.answer(source, TransferStatusCode::Busy, 0);
+            self.answer(source, TransferStatusCode::Busy, 0, None);
             return Step::Continue;
         }
+        let opened = if self.guard.is_keyed() {
+            match self.admit_keyed(id, data, now) {
+                Ok(opened) => opened,
+                Err(failure) => {
+                    self.unauthenticated(failure, id);
+                    return Step::Continue;
+                }
+            }
+        } else {
+            None
+        };
         let outcome = self.receiver.on_frame(data, now);
         // A reception this frame ended (wrong sequence number, or a new First Frame that
         // interrupted it, or N_Cr passed): the sender of that reception learns why.
@@ -596,12 +835,22 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                     TransferStatusCode::Interrupted
                 }
             };
-            self.refuse(incoming.source, status, 0);
+            self.refuse(incoming.source, status, 0, incoming.nonce);
         }
+        let nonce = opened.map(|opened| opened.nonce);
+        let flags = opened.map_or(0, |opened| opened.flags);
         match event {
             Event::Nothing => Step::Continue,
             Event::FlowControl(flow_control) => {
-                self.incoming = Some(Incoming { source });
+                if self.incoming.is_none() {
+                    let length = self.receiver.message_len().unwrap_or(0);
+                    self.incoming = Some(Incoming {
+                        source,
+                        nonce,
+                        flags,
+                        deadline: transfer_deadline(now, length),
+                    });
+                }
                 self.send_transfer(source, flow_control);
                 Step::Continue
             }
@@ -610,24 +859,58 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                     self.send_transfer(source, flow_control);
                 }
                 self.incoming = None;
-                self.refuse(source, TransferStatusCode::TooLarge, 0);
+                self.refuse(source, TransferStatusCode::TooLarge, 0, nonce);
                 Step::Continue
             }
             Event::Complete(len) => {
-                self.incoming = None;
-                self.apply(source, len)
+                // A single frame completes at once: it carries its own open.
+                let (nonce, flags) = match self.incoming.take() {
+                    Some(incoming) => (incoming.nonce, incoming.flags),
+                    None => (nonce, flags),
+                };
+                match nonce {
+                    Some(nonce) => self.apply_authenticated(source, len, nonce, flags),
+                    None => self.apply(source, len, None, 0),
+                }
+            }
+        }
+    }
+
+    /// A complete authenticated message: the image and its MAC. The MAC is checked first, before
+    /// anything in the image is read.
+    fn apply_authenticated(&mut self, source: u8, len: usize, nonce: u64, flags: u8) -> Step {
+        let node_id = self.config.node_id;
+        let image_len = len.checked_sub(IMAGE_MAC_LEN);
+        let verified = image_len.is_some_and(|image_len| {
+            let buffer = self.receiver.buffer();
+            match (buffer.get(..image_len), buffer.get(image_len..len)) {
+                (Some(image), Some(mac)) => self.guard.image(node_id, nonce, flags, image, mac),
+                _ => false,
+            }
+        });
+        match image_len {
+            Some(image_len) if verified => self.apply(source, image_len, Some(nonce), flags),
+            _ => {
+                self.refuse(source, TransferStatusCode::Unauthenticated, 0, Some(nonce));
+                Step::Continue
             }
         }
     }
 
     /// Checks a complete image in the documented order (header, node id, CRC and loader, then
     /// version) and, if it passes, swaps it in.
-    fn apply(&mut self, source: u8, len: usize) -> Step {
+    fn apply(&mut self, source: u8, len: usize, nonce: Option<u64>, flags: u8) -> Step {
         let bytes = self.receiver.buffer().get(..len).unwrap_or(&[]);
+        // The keyed version reset: the key holder may replace any running version.
+        let running = if flags & OPEN_REPLACE != 0 && nonce.is_some() {
+            None
+        } else {
+            self.running.as_ref()
+        };
         let verdict = check_target(bytes, self.config.node_id)
             .and_then(|()| load::<P, C, N>(bytes))
             .and_then(|(header, arbiter)| {
-                check_version(&header, self.running.as_ref()).map(|()| (header, arbiter))
+                check_version(&header, running).map(|()| (header, arbiter))
             });
         match verdict {
             Ok((header, mut arbiter)) => {
@@ -644,39 +927,51 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                     stored: false,
                 });
                 self.diagnostic.restart_round();
-                self.awaiting_store = Some(source);
+                self.awaiting_store = Some((source, nonce));
                 info!("table version {} applied", header.table_version);
                 Step::Store
             }
             Err((TransferStatusCode::AlreadyCurrent, detail)) => {
-                self.answer(source, TransferStatusCode::AlreadyCurrent, detail);
+                self.answer(source, TransferStatusCode::AlreadyCurrent, detail, nonce);
                 Step::Continue
             }
             Err((status, detail)) => {
-                self.refuse(source, status, detail);
+                self.refuse(source, status, detail, nonce);
                 Step::Continue
             }
         }
     }
 
-    fn refuse(&mut self, source: u8, status: TransferStatusCode, detail: u8) {
+    fn refuse(&mut self, source: u8, status: TransferStatusCode, detail: u8, nonce: Option<u64>) {
         warn!("table transfer refused: {:?}", status);
-        self.answer(source, status, detail);
+        self.answer(source, status, detail, nonce);
         self.raise(FaultCode::TableRefused, [status.code(), detail, 0, 0, 0]);
     }
 
-    fn answer(&mut self, source: u8, status: TransferStatusCode, detail: u8) {
+    /// Sends the TransferStatus and, for an opened transfer (`nonce`), its Receipt.
+    fn answer(&mut self, source: u8, status: TransferStatusCode, detail: u8, nonce: Option<u64>) {
         let running_version = self
             .running
             .map_or(0, |running| running.header.table_version);
-        self.send(
-            Message::TransferStatus(TransferStatus {
-                status,
-                detail,
-                running_version,
-            }),
-            source,
-        );
+        let message = Message::TransferStatus(TransferStatus {
+            status,
+            detail,
+            running_version,
+        });
+        self.send(message, source);
+        if let Some(nonce) = nonce {
+            let frame = message.to_frame(self.config.node_id, source);
+            let mut payload = [0u8; 8];
+            for (slot, byte) in payload.iter_mut().zip(frame.payload()) {
+                *slot = *byte;
+            }
+            let crc = self.running.map_or(0, |running| running.header.crc);
+            let stored = self.running.is_some_and(|running| running.stored);
+            let tag = self
+                .guard
+                .receipt(self.config.node_id, nonce, &payload, crc, stored);
+            self.send(Message::Receipt { tag }, source);
+        }
     }
 
     fn send_transfer(&mut self, destination: u8, data: [u8; 8]) {
@@ -708,6 +1003,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                     .map_or(0, |a| u8::try_from(a.port_count()).unwrap_or(u8::MAX)),
                 stored: running.is_some_and(|r| r.stored),
                 diagnostic,
+                keyed: self.guard.is_keyed(),
             }),
             protocol::BROADCAST,
         );
@@ -730,6 +1026,9 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             && let Some(detail) = self.boot_fault
         {
             self.raise(FaultCode::BadStoredTable, detail);
+        }
+        if let Some(reason) = self.guard.locked() {
+            self.raise(FaultCode::KeyPageInvalid, [reason, 0, 0, 0, 0]);
         }
     }
 

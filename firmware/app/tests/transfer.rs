@@ -4,7 +4,7 @@
 mod common;
 
 use common::*;
-use pab_core::isotp::{TxError, TxEvent, pci};
+use pab_core::isotp::{TxError, TxEvent};
 use pab_core::protocol::{self, FaultCode, Message, NodeState, TransferStatusCode};
 
 const MS: u64 = 1_000;
@@ -272,36 +272,6 @@ fn a_sender_that_stops_half_way_times_out_after_n_cr() {
     assert_eq!(answers[0].0, last_frame_at + 1_000 * MS);
     refused_with(&h, TransferStatusCode::Timeout);
     assert_still_v1(&mut h);
-}
-
-#[test]
-fn a_second_sender_is_told_the_node_is_busy() {
-    let mut h = running_v1();
-    let bytes = v2();
-    // Start a transfer from the tool: the first frame only.
-    let (first, _) = pci::encode_first(bytes.len() as u32, &bytes).unwrap();
-    h.feed(
-        &Message::TableTransfer {
-            data: first,
-            len: 8,
-        }
-        .to_frame(protocol::TOOL, Harness::NODE_ID),
-    );
-    // Another station tries meanwhile.
-    let intruder = 42;
-    h.feed(
-        &Message::TableTransfer {
-            data: first,
-            len: 8,
-        }
-        .to_frame(intruder, Harness::NODE_ID),
-    );
-    let answers = h.statuses(intruder);
-    assert_eq!(answers.len(), 1);
-    assert_eq!(answers[0].status, TransferStatusCode::Busy);
-    // The tool's transfer is unaffected: a fresh complete push succeeds.
-    assert_eq!(h.push(&bytes), TxEvent::Done);
-    assert_eq!(last_status(&h).status, TransferStatusCode::Applied);
 }
 
 #[test]

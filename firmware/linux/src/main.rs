@@ -57,6 +57,34 @@ struct Args {
     /// Heartbeat period in milliseconds, 10..=3600000.
     #[arg(long, default_value = "1000", allow_hyphen_values = true, value_parser = heartbeat_ms)]
     heartbeat_ms: u64,
+    /// This node's key file (`pabctl keygen -o FILE`: 32 hexadecimal characters). With a key,
+    /// the node takes only authenticated configuration (`pabctl push --key FILE`) and says so in
+    /// its heartbeat; without one, it accepts configuration from anyone on the bus. A file that
+    /// cannot be read or is not a key stops the start.
+    #[arg(long, value_name = "FILE")]
+    key: Option<PathBuf>,
+}
+
+/// The key of `--key FILE`; the error names the file and the cause.
+fn read_key(path: &std::path::Path) -> anyhow::Result<pab_core::auth::Key> {
+    let text = std::fs::read_to_string(path).map_err(|error| {
+        anyhow::anyhow!("{}: cannot read the key file: {error}", path.display())
+    })?;
+    pab_core::auth::Key::from_hex(&text)
+        .map_err(|error| anyhow::anyhow!("{}:1: {error}", path.display()))
+}
+
+/// 32 bits from the operating system's random source: the boot salt of the node's challenges,
+/// which must not repeat for one key. Random salts repeat by the birthday bound: some pair of
+/// boots shares one with probability about n^2 / 2^33 after n restarts (1 % after 9 300), so a
+/// node restarted that often should get a new key; boards count boots in flash instead.
+fn boot_salt() -> anyhow::Result<u32> {
+    use std::io::Read as _;
+    let mut bytes = [0u8; 4];
+    std::fs::File::open("/dev/urandom")
+        .and_then(|mut random| random.read_exact(&mut bytes))
+        .map_err(|error| anyhow::anyhow!("/dev/urandom: {error}"))?;
+    Ok(u32::from_le_bytes(bytes))
 }
 
 /// A whole number in `min..=max`, or what is wrong with `text` (a negative number is "not
@@ -100,6 +128,7 @@ fn main() -> ExitCode {
 fn start(args: Args) -> anyhow::Result<std::convert::Infallible> {
     use anyhow::Context as _;
     let mut config = pab_app::Config::new(args.node_id)?;
+    let key = args.key.as_deref().map(read_key).transpose()?;
     config.heartbeat_period_us = args.heartbeat_ms * 1000;
     let store = FileStore::new(args.store.clone(), args.table.clone())
         .with_context(|| "preparing the table store")?;
@@ -120,6 +149,15 @@ fn start(args: Args) -> anyhow::Result<std::convert::Infallible> {
     );
     // The node holds the arbiter and a 32 KiB transfer buffer: on the heap, not in the task.
     let node = Box::leak(Box::new(pab_app::FullNode::new(config, pab_app::now())));
+    match &key {
+        Some(key) => {
+            node.set_key(key, boot_salt()?);
+            log::info!("keyed: only authenticated configuration is accepted");
+        }
+        None => log::warn!(
+            "no --key: this node accepts configuration from anyone on the bus (pabctl keygen)"
+        ),
+    }
     let parts = Box::leak(Box::new((bus, store)));
     let executor = Box::leak(Box::new(Executor::new()));
     executor.run(move |spawner| {

@@ -3,8 +3,11 @@
 #![allow(dead_code)]
 
 use pab_app::{Config, Consumer, Node, Step};
+use pab_core::auth::{Authenticator, Key};
 use pab_core::isotp::{Sender, TxConfig, TxEvent};
-use pab_core::protocol::{self, FrameId, Message, TransferStatus};
+use pab_core::protocol::{
+    self, AuthFailure, DiagnosticControl, FaultCode, FrameId, Message, TransferOpen, TransferStatus,
+};
 use pab_core::{
     Connection, Consumer as PortConsumer, DecisionNode, Filter, Frame, Instant, NodeRef, OutputId,
     Stimulation, Table,
@@ -100,8 +103,19 @@ impl Harness {
 
     /// A node booted at t = 0 with `stored` as its stored image.
     pub fn boot(stored: Option<&[u8]>) -> Harness {
+        Self::boot_with(stored, |_| {})
+    }
+
+    /// A node with `key`, booted at t = 0 with boot salt `salt`.
+    pub fn boot_keyed(stored: Option<&[u8]>, key: &Key, salt: u32) -> Harness {
+        Self::boot_with(stored, |node| node.set_key(key, salt))
+    }
+
+    /// A node booted at t = 0 after `setup` (a key, a lock).
+    pub fn boot_with(stored: Option<&[u8]>, setup: impl FnOnce(&mut TestNode)) -> Harness {
         let config = Config::new(Self::NODE_ID).unwrap();
         let mut node = TestNode::new(config, Instant::from_micros(0));
+        setup(&mut node);
         let len = stored.map(|bytes| {
             node.boot_buffer()[..bytes.len()].copy_from_slice(bytes);
             bytes.len()
@@ -267,5 +281,95 @@ impl Harness {
         self.node
             .running()
             .map(|running| running.header.table_version)
+    }
+
+    /// Asks the node for a challenge from `source`: the nonce it answered, if any.
+    pub fn challenge(&mut self, source: u8) -> Option<u64> {
+        let from = self.sent.len();
+        self.feed(&Message::ChallengeRequest.to_frame(source, Self::NODE_ID));
+        self.sent[from..]
+            .iter()
+            .find_map(|(_, frame)| match Message::decode(frame) {
+                Ok((id, Message::Challenge { nonce })) if id.destination == source => Some(nonce),
+                _ => None,
+            })
+    }
+
+    /// The authenticated DiagnosticControl frame for `nonce` under `key`.
+    pub fn tagged_control(key: &Key, nonce: u64, control: DiagnosticControl) -> Frame {
+        let mut payload = [0u8; 4];
+        payload[..2].copy_from_slice(&control.rate_hz.to_le_bytes());
+        payload[2..].copy_from_slice(&control.ports.to_le_bytes());
+        let tag = Authenticator::new(key).command_tag(Self::NODE_ID, 0x10, nonce, &payload);
+        Message::AuthenticatedDiagnosticControl { control, tag }
+            .to_frame(protocol::TOOL, Self::NODE_ID)
+    }
+
+    /// What the key holder does to send a command: a challenge, then the tagged command. Returns
+    /// the frame sent (for replays).
+    pub fn keyed_command(&mut self, key: &Key, control: DiagnosticControl) -> Frame {
+        let nonce = self.challenge(protocol::TOOL).expect("a challenge");
+        let frame = Self::tagged_control(key, nonce, control);
+        self.feed(&frame);
+        frame
+    }
+
+    /// What `pabctl push --key` does: a challenge, a TransferOpen, then the image and its MAC
+    /// over ISO-TP. Returns how the sender ended and the nonce.
+    pub fn push_keyed(&mut self, bytes: &[u8], key: &Key, flags: u8) -> (TxEvent, u64) {
+        self.push_keyed_with(bytes, key, flags, |_, _, data| Some(data))
+    }
+
+    /// [`Harness::push_keyed`] with a `tamper` hook as [`Harness::push_with`]'s.
+    pub fn push_keyed_with(
+        &mut self,
+        bytes: &[u8],
+        key: &Key,
+        flags: u8,
+        tamper: impl FnMut(&mut Harness, usize, [u8; 8]) -> Option<[u8; 8]>,
+    ) -> (TxEvent, u64) {
+        let nonce = self.challenge(protocol::TOOL).expect("a challenge");
+        let auth = Authenticator::new(key);
+        let mut message = bytes.to_vec();
+        message.extend_from_slice(&auth.image_mac(Self::NODE_ID, nonce, flags, bytes));
+        let length = u16::try_from(message.len()).unwrap();
+        let open = TransferOpen {
+            length,
+            flags,
+            tag: auth.open_tag(Self::NODE_ID, nonce, length, flags),
+        };
+        self.feed(&Message::TransferOpen(open).to_frame(protocol::TOOL, Self::NODE_ID));
+        (self.push_with(&message, protocol::TOOL, tamper), nonce)
+    }
+
+    /// The Receipt tags the node sent to `destination`, each after the TransferStatus it
+    /// confirms.
+    pub fn receipts(&self, destination: u8) -> Vec<(TransferStatus, [u8; 8])> {
+        let mut last = None;
+        let mut out = Vec::new();
+        for (_, id, message) in self.messages_since(0) {
+            if id.destination != destination {
+                continue;
+            }
+            match message {
+                Message::TransferStatus(status) => last = Some(status),
+                Message::Receipt { tag } => out.push((last.expect("a status first"), tag)),
+                _ => {}
+            }
+        }
+        out
+    }
+
+    /// The reasons of the Unauthenticated faults the node raised since `from` µs.
+    pub fn auth_failures_since(&self, from: u64) -> Vec<AuthFailure> {
+        self.messages_since(from)
+            .into_iter()
+            .filter_map(|(_, _, message)| match message {
+                Message::Fault(fault) if fault.code == FaultCode::Unauthenticated => {
+                    AuthFailure::from_code(fault.detail[0])
+                }
+                _ => None,
+            })
+            .collect()
     }
 }

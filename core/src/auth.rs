@@ -1,0 +1,472 @@
+//! Authenticated configuration: AES-128-CMAC tags over what the tool sends and what the node
+//! answers, in the manner of AUTOSAR SecOC (payload + freshness + truncated MAC).
+//!
+//! Freshness is a challenge: the node hands out a 64-bit [nonce](nonce) (a boot salt that never
+//! repeats for one key, and a counter), and the next configuration message must carry a tag over
+//! it. Every MAC input starts with a [domain](Domain) byte and the node id, so that no tag can be
+//! moved from one use to another, nor from one node to another (even if two nodes share a key).
+//!
+//! Cost: a tag is one CMAC over at most 24 bytes (two AES blocks and the subkey step; the key
+//! schedule is computed once, in [`Authenticator::new`]); an image MAC is one AES block per 16
+//! bytes of the image. `docs/can-protocol.md` ("Threat model") says what this protects against.
+
+use aes::Aes128;
+use cmac::digest::KeyInit;
+use cmac::{Cmac, Mac};
+
+use crate::crc32::crc32;
+
+/// Length of a key in bytes (AES-128).
+pub const KEY_LEN: usize = 16;
+/// Length of a command tag (appended to a command's plain payload).
+pub const COMMAND_TAG_LEN: usize = 4;
+/// Length of a TransferOpen tag.
+pub const OPEN_TAG_LEN: usize = 5;
+/// Length of the MAC that follows an image in an authenticated transfer.
+pub const IMAGE_MAC_LEN: usize = 16;
+/// Length of a Receipt tag.
+pub const RECEIPT_TAG_LEN: usize = 8;
+
+/// What a MAC authenticates: the first byte of every MAC input.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Domain {
+    /// A configuration command (DiagnosticControl, ...).
+    Command = 0x01,
+    /// A TransferOpen.
+    Open = 0x02,
+    /// A table image.
+    Image = 0x03,
+    /// A node's Receipt.
+    Receipt = 0x04,
+}
+
+/// A 128-bit node key. `Debug` does not show it.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct Key([u8; KEY_LEN]);
+
+impl core::fmt::Debug for Key {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("Key(..)")
+    }
+}
+
+/// Why a key file's text was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum KeyTextError {
+    /// Not 32 characters (after an optional trailing newline): the length found.
+    Length(usize),
+    /// A character that is not a hexadecimal digit, at this (0-based) position.
+    NotHex(usize),
+}
+
+impl core::fmt::Display for KeyTextError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            KeyTextError::Length(len) => write!(
+                f,
+                "a key is 32 hexadecimal characters (128 bits), this has {len}"
+            ),
+            KeyTextError::NotHex(at) => write!(
+                f,
+                "character {} is not a hexadecimal digit (a key is 32 of 0-9, a-f)",
+                at + 1
+            ),
+        }
+    }
+}
+
+impl Key {
+    /// A key from its bytes.
+    pub const fn from_bytes(bytes: [u8; KEY_LEN]) -> Key {
+        Key(bytes)
+    }
+
+    /// The key's bytes.
+    pub const fn bytes(&self) -> &[u8; KEY_LEN] {
+        &self.0
+    }
+
+    /// Parses a key file's text: 32 hexadecimal characters (either case), optionally followed by
+    /// one newline (`\n` or `\r\n`).
+    pub fn from_hex(text: &str) -> Result<Key, KeyTextError> {
+        let text = text
+            .strip_suffix('\n')
+            .map_or(text, |rest| rest.strip_suffix('\r').unwrap_or(rest));
+        let digits = text.as_bytes();
+        if digits.len() != 2 * KEY_LEN {
+            return Err(KeyTextError::Length(text.chars().count()));
+        }
+        let mut key = [0u8; KEY_LEN];
+        for (index, (byte, pair)) in key.iter_mut().zip(digits.chunks_exact(2)).enumerate() {
+            let high = hex_value(pair.first().copied().unwrap_or(0))
+                .ok_or(KeyTextError::NotHex(2 * index))?;
+            let low = hex_value(pair.get(1).copied().unwrap_or(0))
+                .ok_or(KeyTextError::NotHex(2 * index + 1))?;
+            *byte = high << 4 | low;
+        }
+        Ok(Key(key))
+    }
+
+    /// The key file's text: 32 lowercase hexadecimal characters, without a newline.
+    pub fn to_hex(&self) -> [u8; 2 * KEY_LEN] {
+        const DIGITS: &[u8; 16] = b"0123456789abcdef";
+        let mut out = [0u8; 2 * KEY_LEN];
+        for (pair, byte) in out.chunks_exact_mut(2).zip(self.0) {
+            for (slot, nibble) in pair.iter_mut().zip([byte >> 4, byte & 0x0F]) {
+                *slot = DIGITS.get(usize::from(nibble)).copied().unwrap_or(b'0');
+            }
+        }
+        out
+    }
+}
+
+fn hex_value(digit: u8) -> Option<u8> {
+    match digit {
+        b'0'..=b'9' => Some(digit - b'0'),
+        b'a'..=b'f' => Some(digit - b'a' + 10),
+        b'A'..=b'F' => Some(digit - b'A' + 10),
+        _ => None,
+    }
+}
+
+/// The nonce of a challenge: the boot salt in the high 32 bits, the challenge counter in the low.
+pub const fn nonce(boot_salt: u32, counter: u32) -> u64 {
+    (boot_salt as u64) << 32 | counter as u64
+}
+
+/// Computes and checks the tags of one node's key. Holds the key schedule (a few hundred bytes);
+/// build it once.
+#[derive(Clone)]
+pub struct Authenticator {
+    mac: Cmac<Aes128>,
+}
+
+impl core::fmt::Debug for Authenticator {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("Authenticator(..)")
+    }
+}
+
+/// Compares two byte strings in time independent of where they differ.
+fn same(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+impl Authenticator {
+    /// The authenticator of `key`: expands the AES key schedule.
+    pub fn new(key: &Key) -> Authenticator {
+        Authenticator {
+            mac: <Cmac<Aes128> as KeyInit>::new(&key.0.into()),
+        }
+    }
+
+    /// The full 128-bit CMAC of the concatenation of `parts`.
+    fn cmac(&self, parts: &[&[u8]]) -> [u8; 16] {
+        let mut mac = self.mac.clone();
+        for part in parts {
+            mac.update(part);
+        }
+        mac.finalize().into_bytes().into()
+    }
+
+    fn truncated<const T: usize>(&self, parts: &[&[u8]]) -> [u8; T] {
+        let full = self.cmac(parts);
+        let mut out = [0u8; T];
+        for (slot, byte) in out.iter_mut().zip(full) {
+            *slot = byte;
+        }
+        out
+    }
+
+    /// The tag of a command: over (Command, node, service code, nonce, plain payload).
+    pub fn command_tag(
+        &self,
+        node: u8,
+        service: u8,
+        nonce: u64,
+        payload: &[u8],
+    ) -> [u8; COMMAND_TAG_LEN] {
+        self.truncated(&[
+            &[Domain::Command as u8, node, service],
+            &nonce.to_le_bytes(),
+            payload,
+        ])
+    }
+
+    /// Whether `tag` is [`Authenticator::command_tag`] of these fields.
+    pub fn verify_command(
+        &self,
+        node: u8,
+        service: u8,
+        nonce: u64,
+        payload: &[u8],
+        tag: &[u8],
+    ) -> bool {
+        same(&self.command_tag(node, service, nonce, payload), tag)
+    }
+
+    /// The tag of a TransferOpen: over (Open, node, nonce, message length, flags).
+    pub fn open_tag(&self, node: u8, nonce: u64, length: u16, flags: u8) -> [u8; OPEN_TAG_LEN] {
+        self.truncated(&[
+            &[Domain::Open as u8, node],
+            &nonce.to_le_bytes(),
+            &length.to_le_bytes(),
+            &[flags],
+        ])
+    }
+
+    /// Whether `tag` is [`Authenticator::open_tag`] of these fields.
+    pub fn verify_open(&self, node: u8, nonce: u64, length: u16, flags: u8, tag: &[u8]) -> bool {
+        same(&self.open_tag(node, nonce, length, flags), tag)
+    }
+
+    /// The MAC that follows an image: over (Image, node, nonce, flags, image). Costs one AES block
+    /// per 16 bytes of the image.
+    pub fn image_mac(&self, node: u8, nonce: u64, flags: u8, image: &[u8]) -> [u8; IMAGE_MAC_LEN] {
+        self.cmac(&[
+            &[Domain::Image as u8, node],
+            &nonce.to_le_bytes(),
+            &[flags],
+            image,
+        ])
+    }
+
+    /// Whether `mac` is [`Authenticator::image_mac`] of these fields.
+    pub fn verify_image(&self, node: u8, nonce: u64, flags: u8, image: &[u8], mac: &[u8]) -> bool {
+        same(&self.image_mac(node, nonce, flags, image), mac)
+    }
+
+    /// The tag of a Receipt: over (Receipt, node, nonce, the TransferStatus payload it confirms,
+    /// the running image's CRC, its stored flag).
+    pub fn receipt_tag(
+        &self,
+        node: u8,
+        nonce: u64,
+        status: &[u8; 8],
+        running_crc: u32,
+        stored: bool,
+    ) -> [u8; RECEIPT_TAG_LEN] {
+        self.truncated(&[
+            &[Domain::Receipt as u8, node],
+            &nonce.to_le_bytes(),
+            status,
+            &running_crc.to_le_bytes(),
+            &[u8::from(stored)],
+        ])
+    }
+
+    /// Whether `tag` is [`Authenticator::receipt_tag`] of these fields.
+    pub fn verify_receipt(
+        &self,
+        node: u8,
+        nonce: u64,
+        status: &[u8; 8],
+        running_crc: u32,
+        stored: bool,
+        tag: &[u8],
+    ) -> bool {
+        same(
+            &self.receipt_tag(node, nonce, status, running_crc, stored),
+            tag,
+        )
+    }
+}
+
+/// The key page of a board: where its key lives in flash.
+///
+/// ```text
+/// bytes 0-3    magic "PABK"
+/// byte 4       format, 1
+/// bytes 5-7    reserved, 0
+/// bytes 8-23   the key
+/// bytes 24-27  CRC-32 (the image CRC) of bytes 0-23, u32 LE
+/// bytes 28-31  reserved, 0
+/// ```
+///
+/// An erased page (the first 32 bytes all 0xFF) means "no key". Anything else that does not
+/// verify is refused: a board then fails closed (accepts no configuration at all).
+pub mod page {
+    use super::{KEY_LEN, Key, crc32};
+
+    /// Bytes of the key record at the start of the page.
+    pub const LEN: usize = 32;
+    /// The magic.
+    pub const MAGIC: [u8; 4] = *b"PABK";
+    /// The format this code writes and reads.
+    pub const FORMAT: u8 = 1;
+
+    /// Why a key page was refused.
+    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+    #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+    pub enum PageError {
+        /// Fewer than [`LEN`] bytes.
+        Truncated,
+        /// Not erased and no magic.
+        BadMagic,
+        /// A format this code does not know.
+        UnsupportedFormat,
+        /// A reserved byte is not 0.
+        Reserved,
+        /// The CRC does not match.
+        Crc,
+    }
+
+    impl PageError {
+        /// The number reported in the `KeyPageInvalid` fault's detail byte 0.
+        pub const fn code(self) -> u8 {
+            match self {
+                PageError::Truncated => 1,
+                PageError::BadMagic => 2,
+                PageError::UnsupportedFormat => 3,
+                PageError::Reserved => 4,
+                PageError::Crc => 5,
+            }
+        }
+    }
+
+    /// The page record of `key`.
+    pub fn encode(key: &Key) -> [u8; LEN] {
+        let mut out = [0u8; LEN];
+        let (head, tail) = out.split_at_mut(24);
+        for (slot, byte) in head
+            .iter_mut()
+            .zip(MAGIC.iter().chain(&[FORMAT, 0, 0, 0]).chain(key.bytes()))
+        {
+            *slot = *byte;
+        }
+        let crc = crc32(head).to_le_bytes();
+        for (slot, byte) in tail.iter_mut().zip(crc) {
+            *slot = byte;
+        }
+        out
+    }
+
+    /// Reads a key page: `Ok(None)` when erased, `Ok(Some(key))` when it verifies.
+    pub fn decode(bytes: &[u8]) -> Result<Option<Key>, PageError> {
+        let record = bytes.get(..LEN).ok_or(PageError::Truncated)?;
+        if record.iter().all(|&byte| byte == 0xFF) {
+            return Ok(None);
+        }
+        let field = |range: core::ops::Range<usize>| record.get(range).unwrap_or(&[]);
+        if field(0..4) != MAGIC {
+            return Err(PageError::BadMagic);
+        }
+        if field(4..5) != [FORMAT] {
+            return Err(PageError::UnsupportedFormat);
+        }
+        if field(5..8).iter().chain(field(28..32)).any(|&b| b != 0) {
+            return Err(PageError::Reserved);
+        }
+        if crc32(field(0..24)).to_le_bytes() != field(24..28) {
+            return Err(PageError::Crc);
+        }
+        let mut key = [0u8; KEY_LEN];
+        key.copy_from_slice(field(8..24));
+        Ok(Some(Key::from_bytes(key)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cmac_matches_rfc_4493() {
+        // RFC 4493, section 4: key 2b7e1516..., example 2 (16 bytes) and 3 (40 bytes).
+        let key = Key::from_hex("2b7e151628aed2a6abf7158809cf4f3c").unwrap();
+        let auth = Authenticator::new(&key);
+        let m = [
+            0x6b, 0xc1, 0xbe, 0xe2, 0x2e, 0x40, 0x9f, 0x96, 0xe9, 0x3d, 0x7e, 0x11, 0x73, 0x93,
+            0x17, 0x2a, 0xae, 0x2d, 0x8a, 0x57, 0x1e, 0x03, 0xac, 0x9c, 0x9e, 0xb7, 0x6f, 0xac,
+            0x45, 0xaf, 0x8e, 0x51, 0x30, 0xc8, 0x1c, 0x46, 0xa3, 0x5c, 0xe4, 0x11,
+        ];
+        assert_eq!(
+            auth.cmac(&[&m[..16]]),
+            [
+                0x07, 0x0a, 0x16, 0xb4, 0x6b, 0x4d, 0x41, 0x44, 0xf7, 0x9b, 0xdd, 0x9d, 0xd0, 0x4a,
+                0x28, 0x7c
+            ]
+        );
+        // Split across parts: the same MAC.
+        assert_eq!(
+            auth.cmac(&[&m[..5], &m[5..40]]),
+            [
+                0xdf, 0xa6, 0x67, 0x47, 0xde, 0x9a, 0xe6, 0x30, 0x30, 0xca, 0x32, 0x61, 0x14, 0x97,
+                0xc8, 0x27
+            ]
+        );
+    }
+
+    #[test]
+    fn key_text_round_trips_and_errors_say_where() {
+        let key = Key::from_hex("00112233445566778899AABBCCDDEEFF\n").unwrap();
+        assert_eq!(&key.to_hex(), b"00112233445566778899aabbccddeeff");
+        assert_eq!(
+            Key::from_hex(core::str::from_utf8(&key.to_hex()).unwrap()),
+            Ok(key)
+        );
+        assert!(Key::from_hex("00112233445566778899aabbccddeeff\r\n").is_ok());
+        assert_eq!(Key::from_hex("0011"), Err(KeyTextError::Length(4)));
+        assert_eq!(
+            Key::from_hex("00112233445566778899aabbccddeefg"),
+            Err(KeyTextError::NotHex(31))
+        );
+        assert_eq!(format!("{key:?}"), "Key(..)");
+    }
+
+    #[test]
+    fn tags_bind_domain_node_nonce_and_content() {
+        let auth = Authenticator::new(&Key::from_bytes([7; 16]));
+        let tag = auth.command_tag(3, 0x10, 42, &[1, 2, 3, 4]);
+        assert!(auth.verify_command(3, 0x10, 42, &[1, 2, 3, 4], &tag));
+        assert!(!auth.verify_command(4, 0x10, 42, &[1, 2, 3, 4], &tag));
+        assert!(!auth.verify_command(3, 0x11, 42, &[1, 2, 3, 4], &tag));
+        assert!(!auth.verify_command(3, 0x10, 43, &[1, 2, 3, 4], &tag));
+        assert!(!auth.verify_command(3, 0x10, 42, &[1, 2, 3, 5], &tag));
+        assert!(!auth.verify_command(3, 0x10, 42, &[1, 2, 3, 4], &tag[..3]));
+        let other = Authenticator::new(&Key::from_bytes([8; 16]));
+        assert!(!other.verify_command(3, 0x10, 42, &[1, 2, 3, 4], &tag));
+        let open = auth.open_tag(3, 42, 100, 0);
+        assert!(auth.verify_open(3, 42, 100, 0, &open));
+        assert!(!auth.verify_open(3, 42, 100, 1, &open));
+        assert!(!auth.verify_open(3, 42, 101, 0, &open));
+        let mac = auth.image_mac(3, 42, 0, b"image");
+        assert!(auth.verify_image(3, 42, 0, b"image", &mac));
+        assert!(!auth.verify_image(3, 42, 1, b"image", &mac));
+        assert!(!auth.verify_image(3, 42, 0, b"imagf", &mac));
+        let receipt = auth.receipt_tag(3, 42, &[0; 8], 0xABCD, true);
+        assert!(auth.verify_receipt(3, 42, &[0; 8], 0xABCD, true, &receipt));
+        assert!(!auth.verify_receipt(3, 42, &[0; 8], 0xABCD, false, &receipt));
+        assert!(!auth.verify_receipt(3, 42, &[1, 0, 0, 0, 0, 0, 0, 0], 0xABCD, true, &receipt));
+    }
+
+    #[test]
+    fn key_pages_round_trip_and_fail_closed() {
+        let key = Key::from_bytes(*b"0123456789abcdef");
+        let record = page::encode(&key);
+        assert_eq!(page::decode(&record), Ok(Some(key)));
+        assert_eq!(page::decode(&[0xFF; 2048]), Ok(None));
+        assert_eq!(page::decode(&record[..31]), Err(page::PageError::Truncated));
+        for at in 0..page::LEN {
+            let mut bad = record;
+            bad[at] ^= 0x01;
+            assert!(
+                page::decode(&bad).is_err(),
+                "a flip at byte {at} must not verify"
+            );
+        }
+        let mut zeros = [0u8; 32];
+        assert_eq!(page::decode(&zeros), Err(page::PageError::BadMagic));
+        zeros[..4].copy_from_slice(b"PABK");
+        assert_eq!(
+            page::decode(&zeros),
+            Err(page::PageError::UnsupportedFormat)
+        );
+    }
+
+    #[test]
+    fn nonces_put_the_salt_high() {
+        assert_eq!(nonce(0x0102_0304, 5), 0x0102_0304_0000_0005);
+    }
+}

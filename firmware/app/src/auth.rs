@@ -1,0 +1,219 @@
+//! The node's side of authenticated configuration: its key (or none, or a locked state), the
+//! challenge it has out, and its budget of tag checks.
+//!
+//! Rules (docs/can-protocol.md, "Authenticated configuration"): a challenge lives
+//! [`CHALLENGE_LIFETIME_US`]; a request while one is outstanding gets the same nonce again, so a
+//! rogue requester cannot invalidate the tool's; the challenge is consumed by the first message
+//! whose tag verifies, and only by such a message (a wrong tag leaves it to the tool). At most
+//! [`TAG_CHECKS_PER_SECOND`] tags are checked per second; beyond, messages are refused unchecked.
+
+use pab_core::Instant;
+use pab_core::auth::{self, Authenticator, Key};
+use pab_core::protocol::{AuthFailure, TransferOpen};
+
+/// How long a challenge stays valid.
+pub const CHALLENGE_LIFETIME_US: u64 = 1_000_000;
+/// Tag checks per second, at most. Bounds the CPU spent on forged tags (a check is one CMAC:
+/// two AES blocks) and the rate of guesses at a 32-bit tag: one chance in 2^32 per check, each
+/// check consuming nothing but a try, so at this rate a guess needs about 250 days on average.
+pub const TAG_CHECKS_PER_SECOND: u16 = 200;
+
+/// Whether the node has a key.
+// The keyed variant holds the key schedule inline: no allocator here, and the node is one static
+// object, so the unkeyed node's unused bytes are the price of not boxing.
+#[allow(clippy::large_enum_variant)]
+#[derive(Clone, Debug)]
+enum Keying {
+    /// No key: configuration from anyone (today's behaviour), and the heartbeat says so.
+    Unkeyed,
+    /// A key: only authenticated configuration.
+    Keyed(Authenticator),
+    /// The key page did not verify: no configuration at all. The page error's code.
+    Locked(u8),
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Challenge {
+    nonce: u64,
+    expires: Instant,
+}
+
+/// A node's authentication state. Memory: the AES key schedule and CMAC state (a few hundred
+/// bytes) and a few words.
+#[derive(Clone, Debug)]
+pub(crate) struct Guard {
+    keying: Keying,
+    boot_salt: u32,
+    /// Challenges issued since boot; exhausted at 2^32 - 1 (then none is issued until reboot).
+    counter: u32,
+    challenge: Option<Challenge>,
+    window_start: Instant,
+    checks_in_window: u16,
+}
+
+impl Guard {
+    pub(crate) fn unkeyed(now: Instant) -> Guard {
+        Guard {
+            keying: Keying::Unkeyed,
+            boot_salt: 0,
+            counter: 0,
+            challenge: None,
+            window_start: now,
+            checks_in_window: 0,
+        }
+    }
+
+    pub(crate) fn set_key(&mut self, key: &Key, boot_salt: u32) {
+        self.keying = Keying::Keyed(Authenticator::new(key));
+        self.boot_salt = boot_salt;
+        self.counter = 0;
+        self.challenge = None;
+    }
+
+    pub(crate) fn lock(&mut self, reason: u8) {
+        self.keying = Keying::Locked(reason);
+        self.challenge = None;
+    }
+
+    /// Whether configuration needs a key (keyed or locked): the heartbeat's flag.
+    pub(crate) fn is_keyed(&self) -> bool {
+        !matches!(self.keying, Keying::Unkeyed)
+    }
+
+    /// The key page error, if the node is locked.
+    pub(crate) fn locked(&self) -> Option<u8> {
+        match self.keying {
+            Keying::Locked(reason) => Some(reason),
+            _ => None,
+        }
+    }
+
+    /// Whether a plain (untagged) configuration message may be taken.
+    pub(crate) fn plain_allowed(&self) -> Result<(), AuthFailure> {
+        match self.keying {
+            Keying::Unkeyed => Ok(()),
+            Keying::Keyed(_) => Err(AuthFailure::Missing),
+            Keying::Locked(_) => Err(AuthFailure::Locked),
+        }
+    }
+
+    fn authenticator(&self) -> Result<&Authenticator, AuthFailure> {
+        match &self.keying {
+            Keying::Keyed(authenticator) => Ok(authenticator),
+            Keying::Unkeyed => Err(AuthFailure::NoKey),
+            Keying::Locked(_) => Err(AuthFailure::Locked),
+        }
+    }
+
+    /// The challenge to send for a request at `now`: the outstanding one, or a new one.
+    pub(crate) fn challenge(&mut self, now: Instant) -> Result<u64, AuthFailure> {
+        self.authenticator()?;
+        if let Some(challenge) = self.fresh(now) {
+            return Ok(challenge.nonce);
+        }
+        let counter = self.counter.checked_add(1).ok_or(AuthFailure::Stale)?;
+        self.counter = counter;
+        let nonce = auth::nonce(self.boot_salt, counter);
+        self.challenge = Some(Challenge {
+            nonce,
+            expires: now.wrapping_add_micros(CHALLENGE_LIFETIME_US),
+        });
+        Ok(nonce)
+    }
+
+    fn fresh(&self, now: Instant) -> Option<Challenge> {
+        self.challenge.filter(|challenge| {
+            challenge
+                .expires
+                .micros_since(now)
+                .is_some_and(|left| left > 0)
+        })
+    }
+
+    /// Takes one tag check from the budget of the current second.
+    fn spend(&mut self, now: Instant) -> Result<(), AuthFailure> {
+        let elapsed = now.micros_since(self.window_start);
+        if elapsed.is_none_or(|elapsed| elapsed >= 1_000_000) {
+            self.window_start = now;
+            self.checks_in_window = 0;
+        }
+        if self.checks_in_window >= TAG_CHECKS_PER_SECOND {
+            return Err(AuthFailure::RateLimited);
+        }
+        self.checks_in_window = self.checks_in_window.saturating_add(1);
+        Ok(())
+    }
+
+    /// The nonce of the outstanding challenge, checked and consumed if `verify` accepts a tag
+    /// over it.
+    fn check(
+        &mut self,
+        now: Instant,
+        verify: impl FnOnce(&Authenticator, u64) -> bool,
+    ) -> Result<u64, AuthFailure> {
+        self.authenticator()?;
+        let challenge = self.fresh(now).ok_or(AuthFailure::Stale)?;
+        self.spend(now)?;
+        let authenticator = self.authenticator()?;
+        if !verify(authenticator, challenge.nonce) {
+            return Err(AuthFailure::BadTag);
+        }
+        self.challenge = None;
+        Ok(challenge.nonce)
+    }
+
+    /// Checks a tagged command to `node` of `service` with plain payload `payload`.
+    pub(crate) fn command(
+        &mut self,
+        node: u8,
+        service: u8,
+        payload: &[u8],
+        tag: &[u8],
+        now: Instant,
+    ) -> Result<(), AuthFailure> {
+        self.check(now, |authenticator, nonce| {
+            authenticator.verify_command(node, service, nonce, payload, tag)
+        })
+        .map(|_| ())
+    }
+
+    /// Checks a TransferOpen to `node`: the nonce the transfer's image MAC is over.
+    pub(crate) fn open(
+        &mut self,
+        node: u8,
+        open: &TransferOpen,
+        now: Instant,
+    ) -> Result<u64, AuthFailure> {
+        self.check(now, |authenticator, nonce| {
+            authenticator.verify_open(node, nonce, open.length, open.flags, &open.tag)
+        })
+    }
+
+    /// Whether `mac` is the image MAC of `image` for this transfer.
+    pub(crate) fn image(&self, node: u8, nonce: u64, flags: u8, image: &[u8], mac: &[u8]) -> bool {
+        match &self.keying {
+            Keying::Keyed(authenticator) => {
+                authenticator.verify_image(node, nonce, flags, image, mac)
+            }
+            _ => false,
+        }
+    }
+
+    /// The Receipt tag for a TransferStatus payload (zeros when the node has no key: never
+    /// called then).
+    pub(crate) fn receipt(
+        &self,
+        node: u8,
+        nonce: u64,
+        status: &[u8; 8],
+        running_crc: u32,
+        stored: bool,
+    ) -> [u8; auth::RECEIPT_TAG_LEN] {
+        match &self.keying {
+            Keying::Keyed(authenticator) => {
+                authenticator.receipt_tag(node, nonce, status, running_crc, stored)
+            }
+            _ => [0; auth::RECEIPT_TAG_LEN],
+        }
+    }
+}
