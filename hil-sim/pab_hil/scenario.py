@@ -42,6 +42,7 @@ class Session:
         progress: Callable[[str], None] | None = None,
         behaviours: tuple[str, ...] | None = None,
         boards: tuple[str, ...] = (),
+        node_args: dict[str, tuple[str, ...]] | None = None,
     ) -> None:
         self.iface = iface
         self.out_dir = out_dir
@@ -51,7 +52,7 @@ class Session:
         self.log_path = out_dir / "bus.log"
         self.world = World()
         self.phases = PhaseLog()
-        self.nodes = Nodes(iface, out_dir, boards=boards)
+        self.nodes = Nodes(iface, out_dir, boards=boards, node_args=node_args)
         self.behaviour_names = behaviours  # None: all seven
         self.behaviours: BehaviourProcesses | None = None
         self.recorder: Recorder | None = None

@@ -1,5 +1,6 @@
-"""A flood of frames on one topic: what the arm node counts, delivers and re-publishes agree with
-what the bus shows, and the figures for the README (how fast the node kept up)."""
+"""A flood of frames on one topic: the arm node accounts for every frame (read, or counted as lost
+by the kernel), re-publishes exactly what it counts as delivered, and the figures for the README
+(how fast the node kept up, and how much it lost)."""
 
 from __future__ import annotations
 
@@ -10,28 +11,43 @@ import time
 
 import pytest
 
-from pab_hil import analysis, behaviours as b, world as w
+from pab_hil import analysis, behaviours as b, protocol as p, world as w
 from pab_hil.nodes import NODE_IDS
 from pab_hil.person import TakeAndReturn
 
 FLOOD = 5000
 ARM = NODE_IDS["arm"]
+# Sent after the flood has drained: the kernel reports the frames it dropped with the next frame
+# the node reads, and the flood's last losses need one. No table uses this identifier.
+SENTINEL = 0x7F0
+SMALL_BUFFER = 16384  # bytes: 21 frames at 768 bytes each
 
 
-@pytest.mark.parametrize("gap_ms", [1, 0], ids=["paced-1ms", "full-speed"])
-def test_arm_node_counts_and_republishes_every_frame_of_a_flood(session_for, iface, figures, gap_ms):
-    session = session_for(TakeAndReturn(show_at=math.inf), behaviours=())
-    session.stream(0)  # only the flood and the heartbeats on the bus
+def counters(session):
+    """The arm's (Traffic, Errors, frames lost) from a heartbeat group that started after this
+    call; frames lost from the latest RxOverrun fault (0 if none yet)."""
+    asked = session.world.now()
+    session.wait_for(lambda: session.observer.node(ARM).heartbeat_time > asked + 0.05, 5,
+                     "a fresh heartbeat group from the arm")
+    time.sleep(0.15)  # Traffic and Errors follow the heartbeat at once; a pending fault within 100 ms
+    view = session.observer.node(ARM)
+    overruns = [f for _, f in view.faults if f.code == p.RX_OVERRUN]
+    return view.traffic, view.errors, overruns[-1].frames_lost if overruns else 0
 
-    def counters():
-        """The arm's counters from a heartbeat group that started after this call."""
-        asked = session.world.now()
-        session.wait_for(lambda: session.observer.node(ARM).heartbeat_time > asked + 0.05, 5,
-                         "a fresh heartbeat group from the arm")
-        time.sleep(0.1)  # Traffic follows the heartbeat at once
-        return session.observer.node(ARM).traffic
 
-    before = counters()
+@pytest.mark.parametrize("gap_ms, rcvbuf", [(1, None), (0, None), (0, SMALL_BUFFER)],
+                         ids=["paced-1ms", "full-speed", f"full-speed-{SMALL_BUFFER}-byte-buffer"])
+def test_arm_node_accounts_for_every_frame_of_a_flood(session_for, iface, figures, gap_ms, rcvbuf):
+    node_args = {"arm": ("--rcvbuf", str(rcvbuf))} if rcvbuf else None
+    session = session_for(TakeAndReturn(show_at=math.inf), behaviours=(), node_args=node_args)
+    session.stream(0)
+    # The arm node alone with the flood: the other nodes' heartbeats would reach it too, and
+    # then the frames it should read could not be told from the log.
+    session.nodes["hand"].stop()
+    session.nodes["gaze"].stop()
+    time.sleep(0.3)  # their last frames read
+
+    before_traffic, before_errors, before_lost = counters(session)
     cangen = shutil.which("cangen")
     assert cangen, "the flood needs cangen (can-utils: apt-get install can-utils)"
     # One frame per `gap_ms` (0: as fast as the socket takes them), waiting for room on ENOBUFS.
@@ -39,35 +55,59 @@ def test_arm_node_counts_and_republishes_every_frame_of_a_flood(session_for, ifa
     subprocess.run([cangen, iface, "-g", str(gap_ms), "-p", "10", "-I", f"{b.OBJECT_POS:X}", "-L", "8",
                     "-D", "i", "-n", str(FLOOD)], check=True, timeout=300)
     sent_in = time.time() - flood_started
-    time.sleep(1.0)
-    after = counters()
+    # The node has read all it will read of the flood when two heartbeat groups agree.
+    received_then = None
+    for _ in range(60):
+        traffic, _, _ = counters(session)
+        if traffic.received == received_then:
+            break
+        received_then = traffic.received
+    else:
+        pytest.fail("the arm node was still reading the flood after 60 heartbeat groups")
+    session.listening.send(SENTINEL, b"", extended=False)
+    after_traffic, after_errors, after_lost = counters(session)
     session.close()
 
     messages = analysis.read_log(session.log_path)
     flood = [m for m in messages if m.arbitration_id == b.OBJECT_POS and not m.is_extended_id]
     republished = [m for m in messages if m.arbitration_id == w.ARM_TARGET_ID and not m.is_extended_id
                    and m.timestamp >= flood[0].timestamp]
-    delivered = after.delivered - before.delivered
-    received = after.received - before.received
+    received = after_traffic.received - before_traffic.received
+    delivered = after_traffic.delivered - before_traffic.delivered
+    lost = after_lost - before_lost
+    errors = after_errors.errors - before_errors.errors
     assert len(flood) == FLOOD  # the recorder saw the whole flood
+    # Every frame sent to the node was read or counted as lost by the kernel, nothing twice.
+    sent = FLOOD + 1  # and the sentinel
+    assert received + lost == sent, dict(received=received, lost=lost, sent=sent)
+    # Each frame lost is one error (nothing else went wrong: a failed re-publication would raise
+    # TxOverrun, which counts one error too).
+    tx_overruns = [f for _, f in session.observer.node(ARM).faults if f.code == 0x0012]
+    assert errors == lost or (tx_overruns and errors > lost), (errors, lost, tx_overruns)
     # Every delivery the node counted is on the bus, and nothing else was re-published: the
     # payloads are the flood's own.
-    flood_payloads = {bytes(m.data) for m in flood}
-    assert all(bytes(m.data) in flood_payloads for m in republished)
+    index = {bytes(m.data): i for i, m in enumerate(flood)}
+    assert all(bytes(m.data) in index for m in republished)
     assert delivered == len(republished), (delivered, len(republished))
-    # The first frames only raise C1's stimulation to 1 (σ = 0.2: 5 frames), then every frame
-    # the node received is delivered; a node that lost frames delivers fewer.
-    assert 0 < delivered <= FLOOD - 4
-    # cangen's payloads count up (-D i): the first one re-published says when C1 became active;
-    # every flood frame from there on should have been delivered.
-    first_delivered = next(i for i, m in enumerate(flood) if bytes(m.data) == bytes(republished[0].data))
-    lost = FLOOD - first_delivered - delivered
+    # The node delivers in the flood's order, and every flood frame missing from its
+    # re-publications between the first and the last was counted as lost (C1 stays active
+    # through the flood once 5 frames have raised it: σ = 0.2).
+    order = [index[bytes(m.data)] for m in republished]
+    assert order == sorted(order) and len(set(order)) == len(order)
+    missing = (order[-1] - order[0] + 1) - delivered
+    assert 0 < delivered and missing <= lost, (delivered, missing, lost)
+    if rcvbuf is None:
+        # The default buffer (100 ms of a saturated 1 Mbit/s bus) holds the whole backlog.
+        assert lost == 0, f"{lost} of {FLOOD} frames lost with the default receive buffer"
+    else:
+        assert lost > 0, f"a {rcvbuf}-byte buffer should overflow at full speed"
     span = republished[-1].timestamp - flood[0].timestamp
-    figures(f"flood-arm-node-{'paced-1ms' if gap_ms else 'full-speed'}", {
+    name = f"flood-arm-node-{'paced-1ms' if gap_ms else 'full-speed'}"
+    figures(name + (f"-rcvbuf-{rcvbuf}" if rcvbuf else ""), {
         "frames_sent": FLOOD,
         "offered_per_s": round(FLOOD / sent_in),
-        "node_received_frames": received,
+        "node_read": received - 1,
         "delivered": delivered,
-        "lost": lost,
-        "node_frames_per_s": round(received / span),
+        "lost_counted": lost,
+        "node_frames_per_s": round((received - 1) / span),
     })
