@@ -118,11 +118,16 @@ def test_arm_node_accounts_for_every_frame_of_a_flood(session_for, iface, out_di
             for i in range(order[0] + 1, FLOOD)
             if i not in present and republished[0].timestamp <= flood[i].timestamp)
         queued_at_first_loss = first_lost - 1 - read_up_to
-        # A frame or two of slack: the node may have read a frame it has not re-published yet,
-        # and timestamps are taken per CPU.
-        assert abs(queued_at_first_loss - capacity) <= max(5, capacity // 50), (
-            f"frame {first_lost} was dropped with {queued_at_first_loss} frames queued, "
-            f"but the queue holds {capacity}")
+        # The kernel drops a frame only when the queue holds `capacity` frames. What is measured
+        # here can only be more: a frame is timestamped when sent, and queued (or dropped) when
+        # the kernel's softirq gets to it, by then the node may have read further; and the node
+        # may have read a frame it has not re-published yet. So: at least the capacity, and
+        # more by at most the frames offered in 20 ms (softirq delays on the loaded, emulated
+        # machine: measured up to 7 frames over a capacity of 22 at 2 600 frames/s).
+        slack = max(2, round(FLOOD / sent_in * 0.020))
+        assert capacity - 1 <= queued_at_first_loss <= capacity + slack, (
+            f"frame {first_lost} was dropped with {queued_at_first_loss} frames waiting, "
+            f"but the queue holds {capacity} (slack {slack})")
     offered = FLOOD / sent_in
     span = republished[-1].timestamp - flood[0].timestamp
     node_rate = (received - 1) / span
