@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import random
 import signal
 import time
 from collections.abc import Callable
@@ -107,16 +108,38 @@ BEHAVIOURS: dict[str, Behaviour] = {
 BY_ORIGIN = {b.origin: b.name for b in BEHAVIOURS.values()}
 
 
-def publish_forever(behaviour: Behaviour, world: w.World, iface: str) -> None:
-    """The body of a behaviour process: publish at the behaviour's rate until killed."""
+@dataclass(frozen=True)
+class Loss:
+    """Frames a behaviour drops instead of sending, as a lossy link would: each frame with
+    probability `rate`, decided by a generator seeded with `seed` and the behaviour's name (the
+    same seed drops the same frames of each behaviour's sequence)."""
+
+    rate: float
+    seed: int
+
+
+def publish_forever(behaviour: Behaviour, world: w.World, iface: str, loss: Loss | None = None,
+                    counts=None, paused=None) -> None:
+    """The body of a behaviour process: publish at the behaviour's rate until killed. With `loss`,
+    drop frames at random and count them in `counts` (a shared array: frames sent, dropped); while
+    `paused` (an event) is set, publish nothing."""
     signal.signal(signal.SIGTERM, lambda *_: os._exit(0))
     bus = can.Bus(interface="socketcan", channel=iface)
+    rng = random.Random(f"{loss.seed}:{behaviour.name}") if loss else None
     period = 1.0 / behaviour.rate_hz
     deadline = time.monotonic()
     tick = 0
     while True:
-        for can_id, payload in behaviour.publish(world.snapshot(), tick, behaviour.origin):
+        frames = [] if paused is not None and paused.is_set() else \
+            behaviour.publish(world.snapshot(), tick, behaviour.origin)
+        for can_id, payload in frames:
+            if rng is not None and rng.random() < loss.rate:
+                if counts is not None:
+                    counts[1] += 1
+                continue
             bus.send(can.Message(arbitration_id=can_id, is_extended_id=False, data=payload))
+            if counts is not None:
+                counts[0] += 1
         tick += 1
         deadline += period
         delay = deadline - time.monotonic()
@@ -127,19 +150,35 @@ def publish_forever(behaviour: Behaviour, world: w.World, iface: str) -> None:
 
 
 class BehaviourProcesses:
-    """The behaviours as forked processes, by name."""
+    """The behaviours as forked processes, by name; with `loss`, each drops frames at random."""
 
-    def __init__(self, world: w.World, iface: str, names=None) -> None:
+    def __init__(self, world: w.World, iface: str, names=None, loss: Loss | None = None) -> None:
         context = multiprocessing.get_context("fork")
+        self.loss = loss
+        self._paused = context.Event()
         self.processes: dict[str, multiprocessing.Process] = {}
+        # Per behaviour: frames sent, frames dropped (written by its process only).
+        self._counts = {name: multiprocessing.RawArray("q", 2)
+                        for name in (BEHAVIOURS if names is None else names)}
         for name in BEHAVIOURS if names is None else names:
             process = context.Process(
                 target=publish_forever,
-                args=(BEHAVIOURS[name], world, iface),
+                args=(BEHAVIOURS[name], world, iface, loss, self._counts[name], self._paused),
                 name=name,
                 daemon=True,
             )
             self.processes[name] = process
+
+    def pause(self) -> None:
+        """Every behaviour stops publishing (at its next tick) until `resume`."""
+        self._paused.set()
+
+    def resume(self) -> None:
+        self._paused.clear()
+
+    def counts(self) -> dict[str, tuple[int, int]]:
+        """Per behaviour: (frames sent, frames dropped) so far."""
+        return {name: (counts[0], counts[1]) for name, counts in self._counts.items()}
 
     def start(self) -> None:
         for process in self.processes.values():

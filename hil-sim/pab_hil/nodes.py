@@ -57,6 +57,7 @@ class NodeProcess:
     iface: str
     store: Path
     log_dir: Path
+    extra_args: tuple[str, ...] = ()  # more `pab-node` options, e.g. ("--rcvbuf", "16384")
     process: subprocess.Popen | None = None
 
     def start(self) -> None:
@@ -70,6 +71,7 @@ class NodeProcess:
                 "--node-id", str(self.node_id),
                 "--store", str(self.store),
                 "--heartbeat-ms", str(HEARTBEAT_MS),
+                *self.extra_args,
             ],
             stdout=log,
             stderr=subprocess.STDOUT,
@@ -111,7 +113,8 @@ class Nodes:
     processes, and the emulated board (`pab_hil.board.BoardNode`) for the names in `boards`."""
 
     def __init__(self, iface: str, work_dir: Path, node_ids: dict[str, int] = NODE_IDS,
-                 boards: tuple[str, ...] = ()) -> None:
+                 boards: tuple[str, ...] = (),
+                 node_args: dict[str, tuple[str, ...]] | None = None) -> None:
         from .board import UART_ENV, BoardNode
 
         unknown = set(boards) - set(node_ids)
@@ -125,7 +128,8 @@ class Nodes:
         self.store_root = Path(tempfile.mkdtemp(prefix="pab-hil-store-"))
         self.by_name: dict[str, NodeProcess | BoardNode] = {
             name: BoardNode(name, node_id, iface, work_dir / "logs") if name in boards
-            else NodeProcess(name, node_id, iface, self.store_root / name, work_dir / "logs")
+            else NodeProcess(name, node_id, iface, self.store_root / name, work_dir / "logs",
+                             tuple((node_args or {}).get(name, ())))
             for name, node_id in node_ids.items()
         }
 

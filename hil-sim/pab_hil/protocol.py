@@ -177,11 +177,21 @@ class TransferStatus:
         return TransferStatus(TRANSFER_STATUS_CODES.get(code, f"code {code}"), detail, version)
 
 
+# FaultCode RxOverrun: received frames were lost before the node read them; detail bytes 0-3 the
+# frames lost since boot, as the node counted them (u32 LE, saturating).
+RX_OVERRUN = 0x0011
+
+
 @dataclass(frozen=True)
 class Fault:
     code: int
     occurrences: int
     detail: bytes
+
+    @property
+    def frames_lost(self) -> int:
+        """RxOverrun's detail: the frames the node lost since boot."""
+        return int.from_bytes(self.detail[:4], "little")
 
     @staticmethod
     def decode(data: bytes) -> "Fault":

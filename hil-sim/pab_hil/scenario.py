@@ -17,7 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from . import protocol as p
-from .behaviours import BehaviourProcesses
+from .behaviours import BehaviourProcesses, Loss
 from .nodes import NODE_IDS, TAKE_AND_RETURN, Nodes, push
 from . import observe
 from .observe import Listening, Observer, Recorder
@@ -42,6 +42,8 @@ class Session:
         progress: Callable[[str], None] | None = None,
         behaviours: tuple[str, ...] | None = None,
         boards: tuple[str, ...] = (),
+        node_args: dict[str, tuple[str, ...]] | None = None,
+        loss: Loss | None = None,
     ) -> None:
         self.iface = iface
         self.out_dir = out_dir
@@ -51,8 +53,9 @@ class Session:
         self.log_path = out_dir / "bus.log"
         self.world = World()
         self.phases = PhaseLog()
-        self.nodes = Nodes(iface, out_dir, boards=boards)
+        self.nodes = Nodes(iface, out_dir, boards=boards, node_args=node_args)
         self.behaviour_names = behaviours  # None: all seven
+        self.loss = loss  # behaviour frames dropped at random, if any
         self.behaviours: BehaviourProcesses | None = None
         self.recorder: Recorder | None = None
         self.listening: Listening | None = None
@@ -88,7 +91,8 @@ class Session:
         if not result.ok:
             raise ScenarioError(f"pabctl push failed (status {result.returncode}):\n{result.output}")
         self.progress(f"tables pushed with pabctl push {self.network.name}")
-        self.behaviours = BehaviourProcesses(self.world, self.iface, self.behaviour_names)
+        self.behaviours = BehaviourProcesses(self.world, self.iface, self.behaviour_names,
+                                             loss=self.loss)
         self.world.set_person(self.person)
         self.world.epoch = time.time()  # the scenario's time 0: the behaviours start
         self.behaviours.start()

@@ -52,6 +52,16 @@ def test_transfer_status_codes_match_the_protocol_document():
     assert documented == p.TRANSFER_STATUS_CODES
 
 
+def test_the_rx_overrun_fault_code_and_detail_match_the_protocol_document():
+    (faults,) = doc_tables("| code | name | description | detail (bytes 3-7) |")
+    rows = {int(code, 16): (name, detail) for code, name, _, detail in faults}
+    name, detail = rows[p.RX_OVERRUN]
+    assert name == "RxOverrun"
+    assert detail.startswith("bytes 0-3: the frames lost since boot") and "u32 LE" in detail
+    fault = p.Fault.decode(bytes.fromhex("1100" "02" "39300000" "00"))
+    assert (fault.code, fault.occurrences, fault.frames_lost) == (p.RX_OVERRUN, 2, 12345)
+
+
 def test_payload_examples_of_the_protocol_document_decode():
     heartbeat = p.Heartbeat.decode(bytes.fromhex("0156341207000000"))
     assert heartbeat == p.Heartbeat("operational", 0x123456, 7)

@@ -199,13 +199,13 @@ pub fn service_signals(service: Service) -> Option<Vec<DbcSignal>> {
                 "detail byte 0: for BadStoredTable and TableRefused the TransferStatusCode of the \
                  verdict (BadStoredTable: 0xFF when the store could not be read); for BusError a \
                  driver-specific kind; for BadCommand the service code of the malformed frame; \
-                 otherwise 0",
+                 for RxOverrun the low byte of the frames lost (bytes 0-3: u32 LE); otherwise 0",
                 "detail byte 1: for BadStoredTable and TableRefused the verdict's detail (for \
                  WrongNode the image's node id); after 0xFF in byte 0, the StoreFailure: 1 the \
                  store could not be read, 2 the image is too large, 3 no stored copy verifies, \
-                 4 other; otherwise 0",
-                "detail byte 2, code-specific, 0 where unused",
-                "detail byte 3, code-specific, 0 where unused",
+                 4 other; for RxOverrun the frames lost, byte 1; otherwise 0",
+                "detail byte 2, code-specific (RxOverrun: the frames lost, byte 2), 0 where unused",
+                "detail byte 3, code-specific (RxOverrun: the frames lost, byte 3), 0 where unused",
                 "detail byte 4, code-specific, 0 where unused",
             ];
             for (i, comment) in (0u32..).zip(details) {

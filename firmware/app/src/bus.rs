@@ -7,8 +7,13 @@ use pab_core::Frame;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum BusError {
-    /// Frames were lost before they were read (receive FIFO or socket buffer overflow).
+    /// Frames were lost before they were read (receive FIFO or socket buffer overflow), how many
+    /// unknown.
     Overrun,
+    /// Exactly this many frames were lost before the frame the driver read next (the Linux
+    /// kernel's drop counter). A driver reports it only with a frame in hand, which its next
+    /// `receive` returns at once: the runner reads on without pausing.
+    Dropped(u32),
     /// The controller went error-passive.
     ErrorPassive,
     /// The controller went bus-off.

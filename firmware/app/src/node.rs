@@ -66,8 +66,12 @@ pub struct Counters {
     pub delivered: u32,
     /// Frames that fed a port and were delivered to none.
     pub discarded: u32,
-    /// Bus errors, overruns, malformed frames addressed to us, dropped outgoing frames.
+    /// Bus errors, overruns, malformed frames addressed to us, dropped outgoing frames; each
+    /// frame the driver counted as lost before it was read ([`BusError::Dropped`]) counts one.
     pub errors: u32,
+    /// Frames the driver counted as lost before they were read, saturating: the
+    /// [`FaultCode::RxOverrun`] detail (bytes 0-3, little endian).
+    pub lost: u32,
 }
 
 /// What a transfer frame asks of the node, detached from the receiver's borrow.
@@ -295,26 +299,40 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         }
     }
 
-    /// Reports a bus error the driver saw.
+    /// Reports a bus error the driver saw. Frames lost before they were read raise
+    /// [`FaultCode::RxOverrun`] with the frames lost since boot as counted (saturating u32, little
+    /// endian, detail bytes 0-3; 0 from a driver that cannot count): a total rather than the
+    /// latest loss, so that the rate-limited fault frames, which carry only the latest detail,
+    /// never lose count.
     pub fn on_bus_error(&mut self, error: BusError, now: Instant) {
-        self.counters.errors = self.counters.errors.wrapping_add(1);
+        let occurrences = match error {
+            BusError::Dropped(lost) => {
+                self.counters.lost = self.counters.lost.saturating_add(lost);
+                lost
+            }
+            _ => 1,
+        };
+        self.counters.errors = self.counters.errors.wrapping_add(occurrences);
         let (code, detail) = match error {
-            BusError::Overrun => (FaultCode::RxOverrun, 0),
+            BusError::Overrun | BusError::Dropped(_) => {
+                let [a, b, c, d] = self.counters.lost.to_le_bytes();
+                (FaultCode::RxOverrun, [a, b, c, d, 0])
+            }
             BusError::BusOff => {
                 self.bus_trouble = true;
-                (FaultCode::BusOff, 1)
+                (FaultCode::BusOff, [1, 0, 0, 0, 0])
             }
             BusError::ErrorPassive => {
                 self.bus_trouble = true;
-                (FaultCode::BusOff, 0)
+                (FaultCode::BusOff, [0; 5])
             }
             BusError::Recovered => {
                 self.bus_trouble = false;
                 return;
             }
-            BusError::Other(kind) => (FaultCode::BusError, kind),
+            BusError::Other(kind) => (FaultCode::BusError, [kind, 0, 0, 0, 0]),
         };
-        self.raise(code, [detail, 0, 0, 0, 0]);
+        self.raise(code, detail);
         self.duties(now);
     }
 

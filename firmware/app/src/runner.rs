@@ -6,7 +6,7 @@ use embassy_time::Timer;
 use pab_core::Instant;
 
 use crate::Consumer;
-use crate::bus::CanBus;
+use crate::bus::{BusError, CanBus};
 use crate::node::{Node, Step};
 use crate::store::TableStore;
 
@@ -103,8 +103,12 @@ where
             Either::First(Err(error)) => {
                 node.on_bus_error(error, now());
                 // A driver that fails at once, again and again (a closed socket, a controller
-                // stuck bus-off), must not turn this loop into a busy loop.
-                Timer::after_millis(1).await;
+                // stuck bus-off), must not turn this loop into a busy loop. A count of dropped
+                // frames comes with a frame that the next read returns: pausing then would only
+                // drop more.
+                if !matches!(error, BusError::Dropped(_)) {
+                    Timer::after_millis(1).await;
+                }
                 Step::Continue
             }
             Either::Second(()) => node.poll(now()),

@@ -250,6 +250,66 @@ fn faults_are_rate_limited_with_an_occurrence_count() {
 }
 
 #[test]
+fn frames_the_driver_counted_as_lost_are_errors_and_their_total_is_the_rx_overrun_detail() {
+    let mut h = Harness::boot(None);
+    // Three losses within one fault interval: one frame at once, one 100 ms later carrying the
+    // total of all three, not only the latest.
+    h.advance_to(10 * MS);
+    h.bus_error(pab_app::BusError::Dropped(1000));
+    h.advance_to(20 * MS);
+    h.bus_error(pab_app::BusError::Dropped(234));
+    h.advance_to(30 * MS);
+    h.bus_error(pab_app::BusError::Dropped(66));
+    h.advance_to(150 * MS);
+    let reported: Vec<_> = faults(&h)
+        .into_iter()
+        .filter(|(_, f)| f.code == FaultCode::RxOverrun)
+        .collect();
+    assert_eq!(reported.len(), 2, "{reported:?}");
+    let total = |f: &protocol::Fault| u32::from_le_bytes(f.detail[..4].try_into().unwrap());
+    assert_eq!(
+        (reported[0].0, reported[0].1.count, total(&reported[0].1)),
+        (10 * MS, 1, 1000)
+    );
+    assert_eq!(
+        (reported[1].0, reported[1].1.count, total(&reported[1].1)),
+        (110 * MS, 2, 1300)
+    );
+    assert_eq!(h.node.counters().lost, 1300);
+    // Each lost frame is one error, in the heartbeat's Errors frame too.
+    assert_eq!(h.node.counters().errors, 1300);
+    h.advance_to(S);
+    let errors = h
+        .messages_since(0)
+        .into_iter()
+        .rev()
+        .find_map(|(_, _, m)| match m {
+            Message::Errors(e) => Some(e.errors),
+            _ => None,
+        });
+    assert_eq!(errors, Some(1300));
+    // An overrun the driver cannot count is one error, and the total stays what was counted.
+    h.bus_error(pab_app::BusError::Overrun);
+    assert_eq!(h.node.counters().errors, 1301);
+    h.advance_to(2 * S);
+    let last = faults(&h)
+        .into_iter()
+        .rev()
+        .find(|(_, f)| f.code == FaultCode::RxOverrun);
+    assert_eq!(total(&last.unwrap().1), 1300);
+    // The total saturates; the error counter wraps, like every counter.
+    h.bus_error(pab_app::BusError::Dropped(u32::MAX));
+    assert_eq!(h.node.counters().lost, u32::MAX);
+    assert_eq!(h.node.counters().errors, 1300);
+    h.advance_to(3 * S);
+    let last = faults(&h)
+        .into_iter()
+        .rev()
+        .find(|(_, f)| f.code == FaultCode::RxOverrun);
+    assert_eq!(total(&last.unwrap().1), u32::MAX);
+}
+
+#[test]
 fn bus_off_puts_the_node_in_fault_until_it_recovers() {
     let table = priority_table(&[TOPIC_A], None);
     let mut h = Harness::boot(Some(&image(&table, Harness::NODE_ID, 1)));

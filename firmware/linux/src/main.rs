@@ -11,6 +11,7 @@ use clap::Parser;
 use embassy_executor::Executor;
 
 mod file_store;
+mod receive_queue;
 mod socket_bus;
 
 use file_store::FileStore;
@@ -63,6 +64,15 @@ struct Args {
     /// cannot be read or is not a key stops the start.
     #[arg(long, value_name = "FILE")]
     key: Option<PathBuf>,
+    /// The CAN socket's receive buffer, in bytes as the kernel counts them, 8192..=1073741824.
+    /// The default holds 100 ms of a saturated 1 Mbit/s bus: 2128 frames of 47 bits (the
+    /// shortest), at 768 bytes each (what Linux charges per queued CAN frame, measured). Beyond
+    /// net.core.rmem_max it needs root (SO_RCVBUFFORCE); otherwise the node starts with what
+    /// rmem_max allows and logs a warning saying how to raise it. Frames the kernel drops all the
+    /// same are counted (Errors, and the RxOverrun fault with the total lost).
+    #[arg(long, value_name = "BYTES", default_value_t = receive_queue::DEFAULT_BYTES,
+          allow_hyphen_values = true, value_parser = rcvbuf)]
+    rcvbuf: u64,
 }
 
 /// The key of `--key FILE`; the error names the file and the cause.
@@ -112,6 +122,10 @@ fn heartbeat_ms(text: &str) -> Result<u64, String> {
     whole(text, 10, 3_600_000)
 }
 
+fn rcvbuf(text: &str) -> Result<u64, String> {
+    whole(text, receive_queue::MIN_BYTES, receive_queue::MAX_BYTES)
+}
+
 fn main() -> ExitCode {
     env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("info")).init();
     let args = Args::parse();
@@ -132,12 +146,21 @@ fn start(args: Args) -> anyhow::Result<std::convert::Infallible> {
     config.heartbeat_period_us = args.heartbeat_ms * 1000;
     let store = FileStore::new(args.store.clone(), args.table.clone())
         .with_context(|| "preparing the table store")?;
-    let bus = SocketBus::open(&args.iface).with_context(|| {
+    let (bus, sizing) = SocketBus::open(&args.iface, args.rcvbuf).with_context(|| {
         format!(
             "opening CAN interface {:?} (does it exist and is it up? `ip link show {}`)",
             args.iface, args.iface
         )
     })?;
+    match &sizing.shortfall {
+        None => log::info!(
+            "receive buffer {} bytes: {} frames, {} ms of a saturated 1 Mbit/s bus",
+            sizing.got,
+            sizing.frames(),
+            sizing.window_ms()
+        ),
+        Some(why) => log::warn!("{why}"),
+    }
     log::info!(
         "node {} on {} (heartbeat every {} ms, store {})",
         args.node_id,

@@ -70,6 +70,24 @@ fn heartbeat_periods_outside_10_ms_to_1_hour_are_refused() {
 }
 
 #[test]
+fn receive_buffers_outside_8_kib_to_1_gib_are_refused() {
+    for (bytes, message) in [
+        ("-1", "must be positive"),
+        ("8191", "must be in 8192..=1073741824"),
+        ("1073741825", "must be in 8192..=1073741824"),
+        ("2M", "not a whole number"),
+    ] {
+        let (code, stderr) =
+            pab_node(&["--iface", "pabnosuch0", "--node-id", "1", "--rcvbuf", bytes]);
+        assert_eq!(code, Some(2), "{stderr}");
+        assert!(
+            stderr.contains("--rcvbuf") && stderr.contains(message),
+            "{stderr}"
+        );
+    }
+}
+
+#[test]
 fn a_missing_boot_table_is_reported_before_the_bus_is_opened() {
     let (code, stderr) = pab_node(&[
         "--iface",
