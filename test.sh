@@ -13,7 +13,7 @@
 # (scripts/cross-runner.sh: simulator, node application and emulated Cortex-M4 must record
 # identical verdicts), the emulated board's time check across its timer's wraps, the panic check
 # of the board firmware (scripts/panic-check.sh), the emulated board's watchdog test
-# (scripts/watchdog-test.sh), and the
+# (scripts/watchdog-test.sh), the keyed emulated board (scripts/keyed-board-test.sh), and the
 # hardware-in-the-loop suite (hil-sim/run-hil: on vcan0, or in a micro-VM; PAB_HIL_ACCEL=
 # auto|kvm|tcg picks its accelerator), whose fresh Take and Return log then goes through the
 # cross-runner test too.
@@ -115,6 +115,11 @@ step "emulated Cortex-M4: the watchdog restarts a hung node loop (scripts/watchd
 # A hang-test build spins in its node loop on a trigger frame; the CMSDK APB watchdog must reset
 # the machine and the node boot again with its stored table. The production build has no trigger.
 scripts/watchdog-test.sh
+
+step "emulated Cortex-M4 with a key: scripts/keyed-board-test.sh (QEMU)"
+# A key page from `pabctl keygen`/`pabctl keypage` planted at the board's key page: keyed in its
+# heartbeat, plain configuration refused, pabctl's keyed push taken, a new boot salt after reset.
+scripts/keyed-board-test.sh
 
 step "hardware-in-the-loop: hil-sim/run-hil"
 # pab-node processes on a SocketCAN vcan0, the Take and Return behaviours and world in python-can.

@@ -47,6 +47,10 @@ SLCAN_BITRATE = "6"
 UART_ENV = "PAB_HIL_BOARD_UART"
 CONTROL_ENV = "PAB_HIL_BOARD_CONTROL"
 START_TIMEOUT_S = 30.0
+# A key page image (`pabctl keypage KEY -o FILE`) to plant at the board's key page: the board then
+# runs keyed (README, "Keys"). Unset: an unkeyed board, as before.
+KEY_PAGE_ENV = "PAB_KEY_PAGE"
+KEY_PAGE_ADDRESS = 0x0004_E000
 # cangw's filter on the route from the bus to the board: every frame but the nodes' reports to
 # the tool (29-bit protocol frames of services 0x01-0x07: faults, heartbeat group, diagnostic
 # stream; docs/can-protocol.md), which no node acts on and which are three quarters of Take and
@@ -80,14 +84,26 @@ def firmware() -> Path:
 
 def qemu_command(elf: Path, serial: str, monitor: Path) -> list[str]:
     """QEMU's command line for the board: UART0 on `serial` (a QEMU -serial value), the human
-    monitor on the unix socket `monitor` (for system_reset), semihosting (the log, on stderr)."""
+    monitor on the unix socket `monitor` (for system_reset), semihosting (the log, on stderr),
+    and the key page of $PAB_KEY_PAGE if set."""
     return [
         QEMU, "-M", "mps2-an386", "-display", "none", "-no-user-config", "-nodefaults",
         "-semihosting-config", "enable=on,target=native",
         "-serial", serial,
         "-monitor", f"unix:{monitor},server=on,wait=off", "-nic", "none",
         "-kernel", str(elf),
-    ]
+    ] + key_page_arguments()
+
+
+def key_page_arguments() -> list[str]:
+    """QEMU's loader for the key page named by $PAB_KEY_PAGE (re-planted at every system reset,
+    which a key page does not mind), or nothing when it is unset."""
+    page = os.environ.get(KEY_PAGE_ENV)
+    if not page:
+        return []
+    if not Path(page).is_file():
+        raise BoardError(f"{KEY_PAGE_ENV}={page}: no such file (pabctl keypage KEY -o FILE)")
+    return ["-device", f"loader,file={page},addr={KEY_PAGE_ADDRESS:#x},force-raw=on"]
 
 
 def monitor_command(monitor: Path, command: str, timeout: float = 5.0) -> str:

@@ -42,6 +42,7 @@ pub mod bus;
 mod config;
 mod diagnostic;
 mod faults;
+pub mod keying;
 pub mod node;
 pub mod replay;
 mod runner;
@@ -51,6 +52,7 @@ pub use bus::{BusError, CanBus};
 pub use config::{
     Config, ConfigError, DEFAULT_STORE_INTERVAL_US, MAX_STORE_INTERVAL_US, parse_node_id,
 };
+pub use keying::{BOOT_COUNTER_FAILED, Keying, key_from_page};
 pub use node::{Counters, Node, Running, Step};
 pub use pab_storage::{StoreError, TableStore};
 pub use runner::{Watchdog, now, run, run_watched};

@@ -37,7 +37,7 @@ pub enum LayoutError {
     SlotSizeNotPageMultiple,
     /// The range is not a whole number of slots.
     RangeNotSlotMultiple,
-    /// The range holds fewer than two slots.
+    /// The range holds fewer than two slots (a store) or two erase pages (a boot counter).
     RangeTooSmall,
     /// The flash's read or write size does not divide the store's 256-byte transfer buffer, or
     /// its erase size is not a multiple of them.
@@ -76,6 +76,53 @@ pub enum StoreError {
     /// After programming, the slot does not read back as written (a failing flash).
     VerifyFailed,
 }
+
+/// Why a [`crate::BootCounter`] operation failed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum CounterError {
+    /// The flash driver failed (or the power went during the call: the next boot's
+    /// `increment` still returns a value never returned before).
+    Flash(FlashErrorKind),
+    /// The flash range given to [`crate::BootCounter::new`] cannot hold a counter.
+    Layout(LayoutError),
+    /// The count is `u32::MAX`: no new value exists. Four billion boots are beyond any flash's
+    /// endurance, so in practice the pages hold a planted record;
+    /// [`crate::BootCounter::format`] clears it (together with a new key only: the count
+    /// starts again at 1).
+    Exhausted,
+    /// The new record does not read back as written (a failing flash).
+    VerifyFailed,
+}
+
+impl CounterError {
+    /// A number for this error, for a fault's detail byte (the boards report it with the
+    /// `KeyPageInvalid` fault, docs/can-protocol.md): 1 flash, 2 layout, 3 exhausted,
+    /// 4 verify failed.
+    pub const fn code(self) -> u8 {
+        match self {
+            CounterError::Flash(_) => 1,
+            CounterError::Layout(_) => 2,
+            CounterError::Exhausted => 3,
+            CounterError::VerifyFailed => 4,
+        }
+    }
+}
+
+impl core::fmt::Display for CounterError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            CounterError::Flash(kind) => write!(f, "boot counter flash: {kind}"),
+            CounterError::Layout(error) => write!(f, "boot counter layout: {error}"),
+            CounterError::Exhausted => f.write_str("boot count exhausted (new key, then format)"),
+            CounterError::VerifyFailed => {
+                f.write_str("boot counter record does not read back as written")
+            }
+        }
+    }
+}
+
+impl core::error::Error for CounterError {}
 
 impl core::fmt::Display for FlashErrorKind {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {

@@ -27,6 +27,10 @@
 //!   with a value or a typed [`StoreError`]; nothing panics (no `unsafe`, no indexing, no
 //!   unwrapping: enforced by lints).
 //!
+//! The crate also holds a keyed board's [`BootCounter`] ([`boot_counter`]): a count of boots in
+//! its own flash pages that never returns a value twice across power cuts, the source of the
+//! boot salt of a keyed node's challenges.
+//!
 //! The image format is not this crate's business: it stores bytes. The firmware checks what
 //! `load` returns with [`pab_core::image::load`] before using it.
 //!
@@ -167,11 +171,13 @@
     )
 )]
 
+pub mod boot_counter;
 mod error;
 #[cfg(feature = "mem-flash")]
 pub mod testing;
 
-pub use error::{FlashErrorKind, LayoutError, StoreError};
+pub use boot_counter::BootCounter;
+pub use error::{CounterError, FlashErrorKind, LayoutError, StoreError};
 
 use core::ops::Range;
 

@@ -10,6 +10,15 @@
 //! - **Table store**: `pab-storage` over 48 KiB of code RAM with NOR flash semantics, four
 //!   12 KiB slots as on the G474 ([`pab_fw_an386::ram_flash`]): kept across QEMU's
 //!   `system_reset`, lost when QEMU exits.
+//! - **Key**: the key page at 0x0004_E000 in the same RAM
+//!   ([`pab_fw_an386::ram_flash::KEY_PAGE`]), planted by QEMU's loader (`PAB_KEY_PAGE=page.bin`
+//!   with the cargo runner, scripts/run-thumbv7em.sh), and the boot counter in the two pages
+//!   below it ([`pab_fw_an386::ram_flash::BOOT_COUNTER_RANGE`]), as on the G474
+//!   ([`pab_app::key_from_page`]). One difference: a page of all zeros, what QEMU's fresh RAM
+//!   holds when nothing was planted, counts as erased (no key), where the G474 would lock. The
+//!   boot counter lives as long as the QEMU process: a new QEMU counts from 1 again, so its boot
+//!   salts repeat across QEMU processes with one key. The emulated board is for tests: never
+//!   give it a key that a real node uses.
 //! - **Node id**: [`NODE_ID`], from `PAB_NODE_ID` at build time (default 1), as on the G474.
 //! - **Log**: `log` on QEMU's standard error through semihosting (run QEMU with
 //!   `-semihosting-config enable=on,target=native`).
@@ -26,13 +35,14 @@
 #![no_main]
 
 use embassy_executor::InterruptExecutor;
+use embedded_storage::nor_flash::ReadNorFlash;
 use pab_fw_an386::interrupts::{self, Interrupt};
-use pab_fw_an386::ram_flash::{RamFlash, STORE_LEN};
+use pab_fw_an386::ram_flash::{BOOT_COUNTER_RANGE, KEY_PAGE, RamFlash, STORE_RANGE};
 use pab_fw_an386::slcan_bus::SlcanBus;
 use pab_fw_an386::time_driver::TimeDriver;
 use pab_fw_an386::watchdog::{self, BoardWatchdog};
 use pab_fw_an386::{logger, semihosting, uart};
-use pab_storage::FlashStore;
+use pab_storage::{BootCounter, FlashStore};
 use static_cell::StaticCell;
 
 /// This node's id (1..=127): `PAB_NODE_ID` at build time, 1 without it. Tables pushed to the
@@ -44,7 +54,7 @@ pub const NODE_ID: u8 = pab_app::parse_node_id(option_env!("PAB_NODE_ID"));
 pub const STORE_SLOT_SIZE: u32 = 12 * 1024;
 const _: () = assert!(
     STORE_SLOT_SIZE as usize >= 8192 + pab_storage::SLOT_HEADER_LEN
-        && STORE_LEN.is_multiple_of(STORE_SLOT_SIZE as usize),
+        && (STORE_RANGE.end - STORE_RANGE.start).is_multiple_of(STORE_SLOT_SIZE),
     "a slot must hold the largest image plus its header, and the region whole slots"
 );
 
@@ -72,18 +82,28 @@ fn main() -> ! {
     uart::init();
     log::info!("pab node {NODE_ID} on the emulated Cortex-M4 (mps2-an386), SLCAN on UART0");
 
-    // SAFETY: called once; memory.x keeps the program below the store's region.
-    let flash = unsafe { RamFlash::take() };
-    let store = match FlashStore::new(flash, 0..STORE_LEN as u32, STORE_SLOT_SIZE) {
-        Ok(store) => store,
-        Err(error) => fail(format_args!("table store: {error:?}")),
-    };
+    // SAFETY: called once; memory.x keeps the program below the RAM-backed flash.
+    let mut flash = unsafe { RamFlash::take() };
     let config = match pab_app::Config::new(NODE_ID) {
         Ok(config) => config,
         Err(error) => fail(format_args!("configuration: {error}")),
     };
     let bus = bus(SlcanBus::new(hex4(NODE_ID)));
     let node = NODE.init_with(|| pab_app::BoardNode::new(config, pab_app::now()));
+    let mut page = [0u8; pab_core::auth::page::LEN];
+    let page: &[u8] = match flash.read(KEY_PAGE, &mut page) {
+        // QEMU's fresh RAM, nothing planted: the emulation's erased page.
+        Ok(()) if page.iter().all(|&byte| byte == 0) => &[0xFF; pab_core::auth::page::LEN],
+        Ok(()) => &page,
+        Err(_) => &[],
+    };
+    pab_app::key_from_page(node, page, || {
+        BootCounter::new(&mut flash, BOOT_COUNTER_RANGE)?.increment()
+    });
+    let store = match FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE) {
+        Ok(store) => store,
+        Err(error) => fail(format_args!("table store: {error:?}")),
+    };
 
     interrupts::set_priority(Interrupt::SOFTWARE, EXECUTOR_PRIORITY);
     let spawner = EXECUTOR.start(Interrupt::SOFTWARE);

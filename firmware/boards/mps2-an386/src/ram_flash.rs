@@ -1,9 +1,16 @@
-//! A NOR flash in the AN386's code RAM, for the table store: the machine has no flash controller.
+//! A NOR flash in the AN386's code RAM, for the table store, the boot counter and the key page:
+//! the machine has no flash controller.
 //!
-//! The region [`STORE_BASE`]..+[`STORE_LEN`] lies above the program in SSRAM1 and outside the
+//! The region [`FLASH_BASE`]..+[`FLASH_LEN`] lies above the program in SSRAM1 and outside the
 //! ELF, so QEMU's `system_reset` (which reloads the ELF's segments) leaves it as it was, like
 //! flash across a board reset. It does not outlive the QEMU process: a new QEMU starts with it
-//! zeroed (which the store reads as "no table").
+//! zeroed (which the store reads as "no table", the boot counter as "no boot yet", and the board
+//! as an erased key page: see `main.rs`).
+//!
+//! Layout (offsets from [`FLASH_BASE`]): the table store [`STORE_RANGE`] (0x0004_0000, 48 KiB),
+//! the boot counter [`BOOT_COUNTER_RANGE`] (0x0004_C000, two pages), the key page [`KEY_PAGE`]
+//! (0x0004_E000, one page; QEMU's `-device loader,file=PAGE.bin,addr=0x4e000,force-raw=on`
+//! plants it, and re-plants it at every system reset, which a key page does not mind).
 //!
 //! Semantics as strict as the STM32G474's flash (and `pab-storage`'s test flash): 4 KiB erase
 //! pages set to 0xFF; programming in aligned 8-byte words, each of which must be erased (all
@@ -15,10 +22,21 @@ use embedded_storage::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
 };
 
-/// Where the store's region starts (memory.x ends the program region here).
-pub const STORE_BASE: usize = 0x0004_0000;
-/// Its length: 48 KiB, twelve pages.
-pub const STORE_LEN: usize = 0xC000;
+/// Where the region starts (memory.x ends the program region here).
+pub const FLASH_BASE: usize = 0x0004_0000;
+/// Its length: 60 KiB, fifteen pages.
+pub const FLASH_LEN: usize = 0xF000;
+/// The table store: 48 KiB, twelve pages (four 12 KiB slots).
+pub const STORE_RANGE: core::ops::Range<u32> = 0..0xC000;
+/// The boot counter: two pages.
+pub const BOOT_COUNTER_RANGE: core::ops::Range<u32> = 0xC000..0xE000;
+/// The key page (its address is `FLASH_BASE + KEY_PAGE` = 0x0004_E000).
+pub const KEY_PAGE: u32 = 0xE000;
+const _: () = assert!(
+    STORE_RANGE.end == BOOT_COUNTER_RANGE.start
+        && BOOT_COUNTER_RANGE.end == KEY_PAGE
+        && KEY_PAGE as usize + PAGE == FLASH_LEN
+);
 /// Erase page, as on the G474 in single-bank mode.
 pub const PAGE: usize = 4096;
 /// Program word, as on the G474 (a double word).
@@ -45,22 +63,22 @@ impl NorFlashError for RamFlashError {
     }
 }
 
-/// The store's region as a NOR flash; offsets count from [`STORE_BASE`].
+/// The region as a NOR flash; offsets count from [`FLASH_BASE`].
 pub struct RamFlash {
     memory: &'static mut [u8],
 }
 
 impl RamFlash {
-    /// The region at [`STORE_BASE`].
+    /// The region at [`FLASH_BASE`].
     ///
     /// # Safety
     ///
     /// Call it once: the result owns the region. Nothing else (program, stack, statics) may live
-    /// there; memory.x keeps the program below [`STORE_BASE`].
+    /// there; memory.x keeps the program below [`FLASH_BASE`].
     pub unsafe fn take() -> Self {
         // SAFETY: the region is RAM of this machine, unused by the program (see above), and
         // any byte value is a valid u8.
-        let memory = unsafe { core::slice::from_raw_parts_mut(STORE_BASE as *mut u8, STORE_LEN) };
+        let memory = unsafe { core::slice::from_raw_parts_mut(FLASH_BASE as *mut u8, FLASH_LEN) };
         RamFlash { memory }
     }
 

@@ -8,7 +8,12 @@
 //!   [`fdcan_bus::FdcanBus`]. The FDCAN kernel clock is the 24 MHz crystal (HSE), so the bit
 //!   timing is exact and independent of the system clock (170 MHz from the PLL).
 //! - **Table store**: the top 48 KiB of flash ([`STORE_RANGE`]), a ring of four 12 KiB slots
-//!   (`pab-storage`); `memory.x` ends the program's FLASH region where it starts.
+//!   (`pab-storage`).
+//! - **Key**: the 4 KiB page at [`KEY_PAGE`] (0x0807_1000), written with `pabctl keypage` and
+//!   probe-rs (README, "Keys"): erased = no key, a valid record = keyed, anything else = no
+//!   configuration accepted; boots counted in the two pages of [`BOOT_COUNTER_RANGE`] for the
+//!   challenges' boot salt ([`pab_app::key_from_page`]). `memory.x` ends the program's FLASH
+//!   region where the key page starts.
 //! - **Node id**: [`NODE_ID`], compiled in from the `PAB_NODE_ID` environment variable
 //!   (default 1): `PAB_NODE_ID=2 cargo fw-g474`. An invalid value is a compile error.
 //! - **LED**: LD2 (PA5) blinks at 1 Hz while the executor runs.
@@ -21,7 +26,7 @@
 //! - **Flash accelerator**: prefetch buffer and instruction/data caches on
 //!   ([`enable_flash_prefetch_and_caches`]).
 //!
-//! Built with the workspace's `firmware` profile (fat LTO, one codegen unit, opt-level 2: the
+//! Built with the workspace's `firmware` profile (fat LTO, one codegen unit, opt-level "s": the
 //! root `Cargo.toml` says why). Build and flash: `cargo run --profile firmware -p pab-fw-g474
 //! --target thumbv7em-none-eabihf` (the root `.cargo/config.toml` sets probe-rs as the runner). The chip must be in single-bank mode
 //! (option bit DBANK = 0); see the README's "Boards" section.
@@ -49,7 +54,8 @@ use embassy_stm32::time::Hertz;
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, rcc};
 use embassy_time::Timer;
-use pab_storage::FlashStore;
+use embedded_storage::nor_flash::ReadNorFlash;
+use pab_storage::{BootCounter, FlashStore};
 use static_cell::StaticCell;
 use {defmt_rtt as _, panic_probe as _};
 
@@ -91,6 +97,23 @@ const _: () = assert!(
     STORE_SLOT_SIZE as usize >= 8192 + pab_storage::SLOT_HEADER_LEN
         && (STORE_RANGE.end - STORE_RANGE.start).is_multiple_of(STORE_SLOT_SIZE),
     "a slot must hold the largest image plus its header, and the range whole slots"
+);
+
+/// The key page: one 4 KiB page (offset from the flash base, so 0x0807_1000..0x0807_2000) that
+/// holds nothing but the key record (`pabctl keypage`), so that writing it (probe-rs erases the
+/// whole page) touches nothing else. `memory.x` ends FLASH at 0x0807_1000 (452 KiB).
+pub const KEY_PAGE: u32 = 0x7_1000;
+/// The boot counter: two 4 KiB pages (0x0807_2000..0x0807_4000), right below the table store.
+/// One 16-byte record per keyed boot, each page erased once per 512 boots.
+pub const BOOT_COUNTER_RANGE: Range<u32> = 0x7_2000..0x7_4000;
+/// Erase page of the G474's flash in single-bank mode.
+const PAGE: u32 = 4096;
+const _: () = assert!(
+    KEY_PAGE.is_multiple_of(PAGE)
+        && KEY_PAGE + PAGE == BOOT_COUNTER_RANGE.start
+        && BOOT_COUNTER_RANGE.end - BOOT_COUNTER_RANGE.start == 2 * PAGE
+        && BOOT_COUNTER_RANGE.end == STORE_RANGE.start,
+    "key page, boot counter and table store follow each other, page-aligned"
 );
 
 /// The IWDG's timeout, µs: a node loop that has not turned for this long resets the chip. Well
@@ -183,13 +206,21 @@ async fn main(spawner: Spawner) {
         .buffered(TX_QUEUE.init(TxQueue::new()), RX_QUEUE.init(RxQueue::new()));
     let bus = FdcanBus::new(can);
 
-    let flash = Flash::new_blocking(p.FLASH);
-    let store = unwrap!(FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE));
-
+    let mut flash = Flash::new_blocking(p.FLASH);
     let config = unwrap!(pab_app::Config::new(NODE_ID));
     // `init_with` lets the compiler build the node (15 KiB) directly in the static; should it go
     // through a temporary on the stack instead, that happens once, at boot, with ~110 KiB free.
     let node = NODE.init_with(|| pab_app::BoardNode::new(config, pab_app::now()));
+    // The key before anything else: a page that cannot be read counts as truncated (locked).
+    let mut page = [0u8; pab_core::auth::page::LEN];
+    let page: &[u8] = match flash.read(KEY_PAGE, &mut page) {
+        Ok(()) => &page,
+        Err(_) => &[],
+    };
+    pab_app::key_from_page(node, page, || {
+        BootCounter::new(&mut flash, BOOT_COUNTER_RANGE)?.increment()
+    });
+    let store = unwrap!(FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE));
     // Started last before the node task: from here on, only the node loop feeds it.
     let mut watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
     watchdog.unleash();
@@ -245,22 +276,24 @@ async fn blink(mut led: Output<'static>) {
 }
 
 /// The flash's double-ECC error (a double word whose programming a power loss cut) raises an NMI.
-/// Inside the table store that is expected after a power loss during a save: clear the flag and
-/// return, so the read completes with bad bytes that the store's CRC rejects (it then falls back
-/// to the other slot). Anywhere else it is a real fault: halt.
+/// Inside the table store, the boot counter and the key page that is expected after a power loss
+/// during a save, a boot count or the page's writing: clear the flag and return, so the read
+/// completes with bad bytes that the store's CRC, the counter's record check or the key page's
+/// CRC rejects (the store falls back to the other slot, the counter skips the record, the key
+/// page locks the node). Anywhere else (the program) it is a real fault: halt.
 #[cortex_m_rt::exception]
 unsafe fn NonMaskableInt() {
     let flash = embassy_stm32::pac::FLASH;
     let eccr = flash.eccr().read();
     // Single-bank mode: ADDR_ECC is the byte offset of the failing double word in the flash.
-    if eccr.eccd() && STORE_RANGE.contains(&eccr.addr_ecc()) {
+    if eccr.eccd() && (KEY_PAGE..STORE_RANGE.end).contains(&eccr.addr_ecc()) {
         // ECCD is write-1-to-clear; writing 0 to the other bits leaves ECCC alone and keeps the
         // ECC-correction interrupt disabled (its reset state, which embassy does not change).
         flash.eccr().write(|w| w.set_eccd(true));
         return;
     }
     defmt::panic!(
-        "NMI (flash ECCR {=u32:#x}): double ECC error outside the table store, or a clock failure",
+        "NMI (flash ECCR {=u32:#x}): double ECC error in the program, or a clock failure",
         eccr.0
     );
 }
