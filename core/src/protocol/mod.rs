@@ -28,8 +28,8 @@ mod messages;
 
 pub use codes::{FaultCode, NodeState, STORE_UNREADABLE, StoreFailure, TransferStatusCode};
 pub use messages::{
-    DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Fault, Heartbeat, Message,
-    TableStatus, Traffic, TransferStatus,
+    DecodeError, DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Fault, Heartbeat,
+    Message, TableStatus, Traffic, TransferStatus,
 };
 
 use embedded_can::{ExtendedId, Id};
