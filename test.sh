@@ -6,9 +6,11 @@
 # board's (and prints their flash and RAM sizes), counts the Cortex-M4 instructions per frame on
 # the emulated board and checks them against their goals (scripts/cortex-m4-cost.sh --check),
 # runs all tests (unit, property, end-to-end, command line, the node application on an
-# in-process bus), runs each benchmark once in test mode, runs every example through `pabctl
-# check` and `pabctl sim` (plots and traces land in target/examples/), checks the DBC export with
-# cantools (in a venv made by scripts/python-env.sh from requirements-dev.txt), runs the HIL
+# in-process bus, the replay of the fuzz corpus through the fuzz targets' checks), runs each
+# benchmark once in test mode, runs every fuzz target for 15 s under libFuzzer (scripts/fuzz.sh:
+# installs the nightly toolchain and cargo-fuzz; fails on any crash), runs every example through
+# `pabctl check` and `pabctl sim` (plots and traces land in target/examples/), checks the DBC export
+# with cantools (in a venv made by scripts/python-env.sh from requirements-dev.txt), runs the HIL
 # harness's own unit tests (hil-sim/unit), the cross-runner test with the board firmware in QEMU
 # (scripts/cross-runner.sh: simulator, node application and emulated Cortex-M4 must record
 # identical verdicts), the emulated board's time check across its timer's wraps, the panic check
@@ -72,6 +74,12 @@ cargo test --locked
 
 step "benchmarks, once each in test mode"
 cargo test -p pab-core --benches --locked
+
+step "fuzzing: every target for 15 s (scripts/fuzz.sh, nightly + cargo-fuzz)"
+# `cargo test` above replayed the committed corpus (fuzz/corpus) and any reproducers
+# (fuzz/artifacts) on stable; this runs libFuzzer itself from that corpus, briefly: a crash, a hang
+# (20 s) or running out of memory fails the run. Long campaigns: README "Fuzzing".
+scripts/fuzz.sh 15
 
 step "examples"
 cargo build -p pabctl --release --locked

@@ -1,0 +1,60 @@
+//! The repository's example networks, compiled once per process: real table images to mutate and
+//! push, and the CAN ids their tables arbitrate.
+
+use std::sync::OnceLock;
+
+use pabctl::diagnostic::Source;
+use pabctl::network::Network;
+
+/// The example files, compiled into the checks so that a run needs no working directory.
+pub const NETWORKS: [(&str, &str); 4] = [
+    (
+        "examples/figure-1.toml",
+        include_str!("../../../examples/figure-1.toml"),
+    ),
+    (
+        "examples/take-an-object.toml",
+        include_str!("../../../examples/take-an-object.toml"),
+    ),
+    (
+        "examples/return-an-object.toml",
+        include_str!("../../../examples/return-an-object.toml"),
+    ),
+    (
+        "examples/take-and-return.toml",
+        include_str!("../../../examples/take-and-return.toml"),
+    ),
+];
+
+/// What the examples give the checks.
+pub struct Examples {
+    /// Every node's image, as `pabctl compile` writes it.
+    pub images: Vec<Vec<u8>>,
+    /// Every topic's (id, extended), as frames the tables arbitrate carry them.
+    pub topics: Vec<(u32, bool)>,
+}
+
+/// The examples, compiled at the first call.
+pub fn examples() -> &'static Examples {
+    static EXAMPLES: OnceLock<Examples> = OnceLock::new();
+    EXAMPLES.get_or_init(|| {
+        let mut images = Vec::new();
+        let mut topics = Vec::new();
+        for (path, text) in NETWORKS {
+            let network = Network::parse(Source::new(path, text))
+                .unwrap_or_else(|error| panic!("{path} does not parse: {error:?}"));
+            let nodes = pabctl::compile::compile(&network)
+                .unwrap_or_else(|error| panic!("{path} does not compile: {error:?}"));
+            images.extend(nodes.into_iter().map(|node| node.image));
+            topics.extend(
+                network
+                    .topics
+                    .iter()
+                    .map(|topic| (topic.filter.id(), topic.filter.is_extended())),
+            );
+        }
+        topics.sort_unstable();
+        topics.dedup();
+        Examples { images, topics }
+    })
+}

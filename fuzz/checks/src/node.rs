@@ -1,0 +1,578 @@
+//! The node state machine (`pab_app::Node`, board capacities) under whatever the bus and the
+//! clock do: arbitrary frames, times that jump and go backwards, bus errors, stores that succeed,
+//! fail or finish late, and well-formed ISO-TP transfers (through pab-core's sender, obeying the
+//! node's flow control) carrying images made from the examples' real ones, mutated.
+//!
+//! Properties, checked after every step:
+//!
+//! - **Deliveries equal a shadow arbiter's.** A second `pab_core::Arbiter`, built from the running
+//!   image each time the node swaps one in, is fed the same non-protocol frames at the same times;
+//!   the ports the node delivers each frame to are the shadow's.
+//! - **A refused transfer never changes the running table.** The running table (its header) only
+//!   changes on a table-transfer frame, and then to the image the node will ask to store, which
+//!   loads, is for this node and is newer than the one before. The node asks to store it
+//!   (`Step::Store`, from `on_frame` or `poll`: saves are rate-limited) once, later or at once.
+//! - **A swap keeps what the new table leaves unchanged**: the shadow is rebuilt from the new image
+//!   and given the old shadow's state through `Arbiter::carry_over`, the same rule the node uses
+//!   (`core/tests/swap.rs` checks that rule against an independent reference).
+//! - **Only the tool transfers**: a push from any other source gets no answer and changes nothing.
+//! - **The node's answer is the documented one.** A transfer that arrives whole, untampered, to a
+//!   node not busy with another, is answered with the status `docs/can-protocol.md` ("What the
+//!   node checks, in order") gives its image, computed here from the loader alone.
+//! - **The node boots with a stored image exactly when a transfer of it would be applied.**
+//! - **Everything the node sends decodes** and comes from its id; `Step::Store` never comes while
+//!   a store is still owed.
+
+use arbitrary::{Result, Unstructured};
+use embedded_can::{ExtendedId, Id, StandardId};
+use pab_app::{BusError, Config, Consumer, Node, Step};
+use pab_core::image::{self, LoadError, Loaded};
+use pab_core::isotp::{Sender, TxConfig, TxEvent};
+use pab_core::protocol::{self, FrameId, Message, Service, TransferStatus, TransferStatusCode};
+use pab_core::{Arbiter, BOARD_CONNECTIONS, BOARD_DECISION_NODES, BOARD_PORTS, Frame, Instant};
+
+use crate::examples::examples;
+use crate::isotp_rx::next_time;
+
+const IMG: usize = 8192;
+type TestNode = Node<BOARD_PORTS, BOARD_CONNECTIONS, BOARD_DECISION_NODES, IMG>;
+type Shadow = Arbiter<BOARD_PORTS, BOARD_CONNECTIONS, BOARD_DECISION_NODES>;
+type BoardLoaded = Loaded<BOARD_PORTS, BOARD_CONNECTIONS, BOARD_DECISION_NODES>;
+
+/// The node's id.
+pub const NODE_ID: u8 = 5;
+
+/// Runs the fuzzer's script against one node.
+pub fn check(data: &[u8]) {
+    let _ = run(&mut Unstructured::new(data));
+}
+
+/// The examples' images, for this node, version 1 (their tables as `pabctl compile` wrote them).
+fn base_images() -> &'static [Vec<u8>] {
+    static IMAGES: std::sync::OnceLock<Vec<Vec<u8>>> = std::sync::OnceLock::new();
+    IMAGES.get_or_init(|| {
+        examples()
+            .images
+            .iter()
+            .map(|bytes| {
+                let loaded: Loaded = image::load(bytes).expect("an example image loads");
+                let mut out = vec![0; image::MAX_IMAGE_LEN];
+                let len = image::encode(&loaded.table, NODE_ID, 1, &mut out)
+                    .expect("an example table encodes");
+                out.truncate(len);
+                out
+            })
+            .collect()
+    })
+}
+
+/// The status `docs/can-protocol.md` gives a whole image, in its order of checks: length against
+/// the buffer, header, node id, length and CRC, loader, version. `running`: (version, CRC).
+fn documented_status(bytes: &[u8], running: Option<(u32, u32)>) -> (TransferStatusCode, u8) {
+    use TransferStatusCode::*;
+    if bytes.len() > IMG {
+        return (TooLarge, 0);
+    }
+    let by_load_error = |error: LoadError| match error {
+        LoadError::Truncated { .. } => (BadHeader, 1),
+        LoadError::TrailingBytes { .. } => (BadHeader, 2),
+        LoadError::BadMagic => (BadHeader, 3),
+        LoadError::UnsupportedFormat { .. } => (BadHeader, 4),
+        LoadError::ReservedByte => (BadHeader, 5),
+        LoadError::TooLarge { .. } => (TooLarge, 0),
+        LoadError::Crc { .. } => (CrcMismatch, 0),
+        LoadError::Body(_) => (InvalidTable, 1),
+        LoadError::BodyTrailingBytes => (InvalidTable, 2),
+        LoadError::Table(_) => (InvalidTable, 3),
+        LoadError::ExceedsCapacity { .. } => (InvalidTable, 4),
+    };
+    let header = match image::read_header(bytes) {
+        Ok(header) => header,
+        Err(error) => return by_load_error(error),
+    };
+    if header.node_id != NODE_ID {
+        return (WrongNode, header.node_id);
+    }
+    if let Err(error) = image::load::<BOARD_PORTS, BOARD_CONNECTIONS, BOARD_DECISION_NODES>(bytes) {
+        return by_load_error(error);
+    }
+    let (version, crc) = running.unwrap_or((0, 0));
+    if running.is_some() && header.table_version == version && header.crc == crc {
+        return (AlreadyCurrent, 0);
+    }
+    if header.table_version <= version {
+        return (OlderVersion, 0);
+    }
+    (Applied, 0)
+}
+
+/// Records the ports each frame is delivered to.
+#[derive(Default)]
+struct Ports(Vec<u8>);
+
+impl Consumer for Ports {
+    fn deliver(&mut self, port: u8, _frame: &Frame, _now: Instant) {
+        self.0.push(port);
+    }
+}
+
+struct World {
+    node: TestNode,
+    shadow: Option<Shadow>,
+    now: u64,
+    /// `Step::Store` came and `stored` has not been called yet.
+    store_owed: bool,
+    /// A table was swapped in and its `Step::Store` has not come yet (saves are rate-limited).
+    store_pending: bool,
+    /// Transfer statuses the node sent, with their destination.
+    statuses: Vec<(u8, TransferStatus)>,
+    /// ISO-TP frames (flow controls) the node sent, with their destination.
+    flow_controls: Vec<(u8, [u8; 8])>,
+}
+
+fn running_key(node: &TestNode) -> Option<(u32, u32)> {
+    node.running()
+        .map(|running| (running.header.table_version, running.header.crc))
+}
+
+fn shadow_of(bytes: &[u8]) -> Shadow {
+    let loaded: BoardLoaded = image::load(bytes)
+        .unwrap_or_else(|error| panic!("the node runs an image that does not load: {error}"));
+    Arbiter::new(loaded.table).expect("a loaded table builds an arbiter")
+}
+
+impl World {
+    fn at(&self) -> Instant {
+        Instant::from_micros(self.now)
+    }
+
+    /// Collects what the node sent; every protocol frame must decode and come from the node.
+    fn drain(&mut self) {
+        while let Some(frame) = self.node.next_outgoing() {
+            if !protocol::is_ours(&frame.id()) {
+                continue; // a gateway port's re-publication
+            }
+            let (id, message) = Message::decode(&frame)
+                .unwrap_or_else(|error| panic!("the node sent {frame:?}: {error}"));
+            assert_eq!(id.source, NODE_ID);
+            match message {
+                Message::TransferStatus(status) => self.statuses.push((id.destination, status)),
+                Message::TableTransfer { data, len } => {
+                    assert_eq!(len, 8, "flow controls are padded");
+                    self.flow_controls.push((id.destination, data));
+                }
+                _ => {}
+            }
+        }
+    }
+
+    /// One frame from the bus, now.
+    fn feed(&mut self, u: &mut Unstructured<'_>, frame: &Frame) -> Result<()> {
+        let before = running_key(&self.node);
+        let mut ports = Ports::default();
+        let step = self.node.on_frame(frame, self.at(), &mut ports);
+        if protocol::is_ours(&frame.id()) {
+            assert!(ports.0.is_empty(), "a protocol frame was delivered");
+        } else {
+            let mut expected = Vec::new();
+            let at = self.at();
+            if let Some(shadow) = self.shadow.as_mut() {
+                let mut delivered = shadow.receive(&frame.id(), at, |_| {}).delivered.bits();
+                while delivered != 0 {
+                    expected.push(delivered.trailing_zeros() as u8);
+                    delivered &= delivered - 1;
+                }
+            }
+            assert_eq!(ports.0, expected, "deliveries of {frame:?} at {}", self.now);
+        }
+        let after = running_key(&self.node);
+        if after != before {
+            self.swapped(frame, before);
+        }
+        self.on_step(step);
+        if self.store_owed && u.int_in_range(0u8..=7)? > 0 {
+            self.finish_store(u)?;
+        }
+        self.drain();
+        Ok(())
+    }
+
+    /// The running table changed during `frame`: it must be a transfer's last frame, and the new
+    /// table an image a transfer may apply.
+    fn swapped(&mut self, frame: &Frame, before: Option<(u32, u32)>) {
+        let id = FrameId::decode(&frame.id());
+        assert!(
+            id.is_some_and(|id| id.service == Service::TableTransfer && id.source == protocol::TOOL),
+            "the table changed on {frame:?}"
+        );
+        assert!(
+            !self.store_owed && !self.store_pending,
+            "a second table before the first was stored"
+        );
+        let bytes = self.node.image_to_store().to_vec();
+        let (status, _) = documented_status(&bytes, before);
+        assert_eq!(
+            status,
+            TransferStatusCode::Applied,
+            "the node applied a refusable image"
+        );
+        let running = self.node.running().expect("a table runs after a swap");
+        let header = image::read_header(&bytes).expect("the stored image has a header");
+        assert_eq!(running.header, header);
+        assert_eq!(running.image_len as usize, bytes.len());
+        assert!(!running.stored);
+        let mut shadow = shadow_of(&bytes);
+        if let Some(previous) = self.shadow.as_ref() {
+            shadow.carry_over(previous);
+        }
+        self.shadow = Some(shadow);
+        self.store_pending = true;
+    }
+
+    /// What a `Step` from `on_frame` or `poll` asks: `Store` only for a swapped-in table whose
+    /// save has not been asked for yet.
+    fn on_step(&mut self, step: Step) {
+        if step == Step::Store {
+            assert!(
+                !self.store_owed,
+                "a second Store before the first was stored"
+            );
+            assert!(self.store_pending, "a Store without a new table");
+            let running = self
+                .node
+                .running()
+                .expect("a table runs when it is to be stored");
+            let header = image::read_header(self.node.image_to_store())
+                .expect("the image to store has a header");
+            assert_eq!(
+                running.header, header,
+                "the image to store is the running one"
+            );
+            self.store_pending = false;
+            self.store_owed = true;
+        }
+    }
+
+    fn finish_store(&mut self, u: &mut Unstructured<'_>) -> Result<()> {
+        if !self.store_owed {
+            return Ok(());
+        }
+        let ok = u.int_in_range(0u8..=7)? > 0;
+        let before = running_key(&self.node);
+        let answers = self.statuses.len();
+        self.node.stored(ok, self.at());
+        self.store_owed = false;
+        self.drain();
+        assert_eq!(running_key(&self.node), before);
+        assert_eq!(self.node.running().map(|running| running.stored), Some(ok));
+        let expected = if ok {
+            TransferStatusCode::Applied
+        } else {
+            TransferStatusCode::AppliedNotStored
+        };
+        assert!(
+            self.statuses[answers..]
+                .iter()
+                .any(|(_, status)| status.status == expected),
+            "no {expected:?} after the store"
+        );
+        Ok(())
+    }
+
+    /// Time passes up to `t`: the node is polled at each of its deadlines on the way (when `t` is
+    /// a little later), or once (a jump, or a clock set back).
+    fn advance(&mut self, t: u64) {
+        let before = running_key(&self.node);
+        let forward = t.wrapping_sub(self.now);
+        if forward <= 2_000_000 {
+            for _ in 0..2_000 {
+                let deadline = self.node.deadline(self.at()).as_micros();
+                let ahead = deadline.wrapping_sub(self.now);
+                if ahead > forward || ahead > 1 << 63 {
+                    break;
+                }
+                self.now = deadline;
+                let step = self.node.poll(self.at());
+                self.on_step(step);
+                self.drain();
+            }
+        }
+        self.now = t;
+        let step = self.node.poll(self.at());
+        self.on_step(step);
+        self.drain();
+        assert_eq!(running_key(&self.node), before, "a poll changed the table");
+    }
+
+    /// Pushes `bytes` from `source` with pab-core's ISO-TP sender, delivering the node's flow
+    /// controls; `tamper`: (frame index, replacement bytes or none to drop it).
+    fn push(
+        &mut self,
+        u: &mut Unstructured<'_>,
+        bytes: &[u8],
+        source: u8,
+        tamper: Option<(usize, Option<[u8; 8]>)>,
+    ) -> Result<()> {
+        let Ok(mut sender) = Sender::new(bytes, TxConfig::default()) else {
+            return Ok(());
+        };
+        let running = running_key(&self.node);
+        let answers = self.statuses.len();
+        let mut index = 0;
+        let mut seen = self.flow_controls.len();
+        for _ in 0..10_000 {
+            match sender.poll(self.at()) {
+                TxEvent::Send(data) => {
+                    let data = match tamper {
+                        Some((at, replacement)) if at == index => replacement,
+                        _ => Some(data),
+                    };
+                    index += 1;
+                    if let Some(data) = data {
+                        let frame =
+                            Message::TableTransfer { data, len: 8 }.to_frame(source, NODE_ID);
+                        self.feed(u, &frame)?;
+                    }
+                    self.advance(self.now.wrapping_add(100));
+                }
+                TxEvent::WaitUntil(until) => {
+                    let next = self.flow_controls[seen..]
+                        .iter()
+                        .position(|(to, _)| *to == source);
+                    if let Some(offset) = next {
+                        let (_, fc) = self.flow_controls[seen + offset];
+                        seen += offset + 1;
+                        sender.on_flow_control(&fc, self.at());
+                    } else {
+                        let wait = until.as_micros().wrapping_sub(self.now).clamp(1, 2_000_000);
+                        self.advance(self.now.wrapping_add(wait));
+                    }
+                }
+                TxEvent::Done | TxEvent::Failed(_) => break,
+            }
+        }
+        if tamper.is_some() {
+            return Ok(());
+        }
+        // The node's last answer to this source during the push, unless it was busy with another
+        // transfer, or a store it still owes.
+        let answer = self.statuses[answers..]
+            .iter()
+            .rev()
+            .find(|(to, _)| *to == source)
+            .map(|(_, status)| *status);
+        if source != protocol::TOOL {
+            assert_eq!(answer, None, "a push from source {source} was answered");
+            assert_eq!(
+                running_key(&self.node),
+                running,
+                "a push from source {source} applied"
+            );
+            return Ok(());
+        }
+        let Some(answer) = answer else { return Ok(()) };
+        use TransferStatusCode::*;
+        if matches!(answer.status, Busy | Interrupted | Timeout) {
+            return Ok(());
+        }
+        let (expected, detail) = documented_status(bytes, running);
+        let expected = match (expected, answer.status) {
+            (Applied, AppliedNotStored) => AppliedNotStored,
+            (other, _) => other,
+        };
+        assert_eq!(
+            (answer.status, answer.detail),
+            (expected, detail),
+            "the answer to a whole transfer of {} bytes",
+            bytes.len()
+        );
+        Ok(())
+    }
+}
+
+/// An image made from an example's: a version near the running one, sometimes another node id,
+/// a few byte changes, insertions, deletions or a cut, and (mostly) the length and CRC made right
+/// again so that the changes reach the loader.
+fn mutated_image(u: &mut Unstructured<'_>, running_version: u32) -> Result<Vec<u8>> {
+    let mut bytes = u.choose(base_images())?.clone();
+    let version = match u.int_in_range(0u8..=7)? {
+        0..=3 => running_version.wrapping_add(1),
+        4 => running_version,
+        5 => running_version.wrapping_sub(1),
+        _ => u.arbitrary()?,
+    };
+    bytes[8..12].copy_from_slice(&version.to_le_bytes());
+    if u.ratio(1u8, 8)? {
+        bytes[6] = u.arbitrary()?;
+    }
+    for _ in 0..u.int_in_range(0u8..=4)? {
+        let at = u.int_in_range(0..=bytes.len())?;
+        match u.int_in_range(0u8..=5)? {
+            0..=2 if at < bytes.len() => bytes[at] = u.arbitrary()?,
+            3 => bytes.insert(at, u.arbitrary()?),
+            4 if at < bytes.len() => {
+                bytes.remove(at);
+            }
+            _ => bytes.truncate(at),
+        }
+    }
+    if u.int_in_range(0u8..=7)? > 0 {
+        bytes = crate::image::fix_up(&bytes);
+    } else if bytes.len() >= 20 && u.ratio(1u8, 2)? {
+        // The body length right, the CRC not recomputed.
+        let body = u32::try_from(bytes.len() - 20).unwrap_or(u32::MAX);
+        bytes[12..16].copy_from_slice(&body.to_le_bytes());
+    }
+    Ok(bytes)
+}
+
+fn any_id(u: &mut Unstructured<'_>) -> Result<Id> {
+    let topics = &examples().topics;
+    Ok(match u.int_in_range(0u8..=7)? {
+        0..=5 if !topics.is_empty() => {
+            let &(id, extended) = u.choose(topics)?;
+            if extended {
+                Id::Extended(ExtendedId::new(id).unwrap_or(ExtendedId::ZERO))
+            } else {
+                Id::Standard(StandardId::new(id as u16).unwrap_or(StandardId::ZERO))
+            }
+        }
+        6 => Id::Standard(StandardId::new(u.int_in_range(0..=0x7FF)?).unwrap_or(StandardId::ZERO)),
+        _ => Id::Extended(
+            ExtendedId::new(u.int_in_range(0..=0x1FFF_FFFF)?).unwrap_or(ExtendedId::ZERO),
+        ),
+    })
+}
+
+fn payload(u: &mut Unstructured<'_>) -> Result<Vec<u8>> {
+    let len = u.int_in_range(0..=8)?;
+    (0..len).map(|_| u.arbitrary()).collect()
+}
+
+/// A frame of our protocol: any service, mostly to this node or everyone, any priority.
+fn protocol_frame(u: &mut Unstructured<'_>) -> Result<Frame> {
+    let service = *u.choose(&Service::ALL)?;
+    let destination = match u.int_in_range(0u8..=3)? {
+        0 | 1 => NODE_ID,
+        2 => protocol::BROADCAST,
+        _ => u.arbitrary()?,
+    };
+    let source = if u.ratio(1u8, 2)? {
+        protocol::TOOL
+    } else {
+        u.arbitrary()?
+    };
+    let raw = FrameId::new(service, source, destination).raw() & !(0b111 << 26)
+        | u32::from(u.int_in_range(0u8..=7)?) << 26;
+    let data = match service {
+        Service::DiagnosticControl if u.ratio(3u8, 4)? => {
+            let rate: u16 = u.int_in_range(0..=210)?;
+            let ports: u16 = u.arbitrary()?;
+            let [a, b] = rate.to_le_bytes();
+            let [c, d] = ports.to_le_bytes();
+            vec![a, b, c, d]
+        }
+        _ => payload(u)?,
+    };
+    Ok(Frame::with_raw_id(raw, true, &data).unwrap_or_else(|| unreachable!("29 bits, 8 bytes")))
+}
+
+fn run(u: &mut Unstructured<'_>) -> Result<()> {
+    let config = Config::new(NODE_ID).expect("node 5 is valid");
+    let now: u64 = if u.ratio(1u8, 4)? { u.arbitrary()? } else { 0 };
+    let mut node = TestNode::new(config, Instant::from_micros(now));
+    // Boot: no stored image, or one made like the pushed ones.
+    let stored = if u.ratio(1u8, 4)? {
+        None
+    } else {
+        let bytes = mutated_image(u, 0)?;
+        Some(bytes).filter(|bytes| bytes.len() <= IMG)
+    };
+    if let Some(bytes) = &stored {
+        node.boot_buffer()[..bytes.len()].copy_from_slice(bytes);
+    }
+    node.boot(stored.as_ref().map(Vec::len), Instant::from_micros(now));
+    let shadow = match &stored {
+        Some(bytes) => {
+            let applies = documented_status(bytes, None).0 == TransferStatusCode::Applied;
+            assert_eq!(
+                node.running().is_some(),
+                applies,
+                "boot with {} bytes",
+                bytes.len()
+            );
+            applies.then(|| shadow_of(bytes))
+        }
+        None => None,
+    };
+    assert_eq!(node.running().is_some(), shadow.is_some());
+    let mut world = World {
+        node,
+        shadow,
+        now,
+        store_owed: false,
+        store_pending: false,
+        statuses: Vec::new(),
+        flow_controls: Vec::new(),
+    };
+    world.drain();
+    for _ in 0..300 {
+        if u.is_empty() {
+            break;
+        }
+        match u.int_in_range(0u8..=15)? {
+            0..=6 => {
+                let id = any_id(u)?;
+                let data = payload(u)?;
+                let frame = Frame::data(id, &data).unwrap_or_else(|| unreachable!("8 bytes"));
+                world.feed(u, &frame)?;
+            }
+            7..=8 => {
+                let frame = protocol_frame(u)?;
+                world.feed(u, &frame)?;
+            }
+            9..=10 => {
+                let t = next_time(u, world.now)?;
+                world.advance(t);
+            }
+            11..=12 => {
+                let version = world.node.running().map_or(0, |r| r.header.table_version);
+                let bytes = mutated_image(u, version)?;
+                let source = match u.int_in_range(0u8..=7)? {
+                    0 => u.arbitrary()?,
+                    _ => protocol::TOOL,
+                };
+                let tamper = if u.ratio(1u8, 8)? {
+                    let at = u.int_in_range(0..=bytes.len() / 7)?;
+                    let replacement = if u.arbitrary()? {
+                        Some(u.arbitrary()?)
+                    } else {
+                        None
+                    };
+                    Some((at, replacement))
+                } else {
+                    None
+                };
+                world.push(u, &bytes, source, tamper)?;
+            }
+            13 => {
+                let error = match u.int_in_range(0u8..=5)? {
+                    0 => BusError::Overrun,
+                    1 => BusError::ErrorPassive,
+                    2 => BusError::BusOff,
+                    3 => BusError::Recovered,
+                    4 => BusError::Other(u.arbitrary()?),
+                    _ => {
+                        world.node.on_transmit_error(world.at());
+                        world.drain();
+                        continue;
+                    }
+                };
+                world.node.on_bus_error(error, world.at());
+                world.drain();
+            }
+            _ => world.finish_store(u)?,
+        }
+    }
+    Ok(())
+}
