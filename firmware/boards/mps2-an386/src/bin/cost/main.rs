@@ -29,6 +29,7 @@
 #![no_std]
 #![no_main]
 
+mod auth;
 mod cases;
 mod take_and_return;
 
@@ -115,6 +116,7 @@ fn main() -> ! {
     calibrate(&mut peripherals.SYST);
     cases::run(&mut peripherals.SYST);
     take_and_return::run();
+    auth::run();
     semihosting::eprint(format_args!("pab-an386-cost: done\n"));
     semihosting::exit(true)
 }
