@@ -23,6 +23,12 @@ DIAGNOSTIC = 0x06
 DIAGNOSTIC_CONTROL = 0x10
 TABLE_TRANSFER = 0x11
 TRANSFER_STATUS = 0x12
+# Authenticated configuration (docs/can-protocol.md): the harness names them, it does not speak
+# them (its nodes run without keys; scripts/keyed-board-test.sh drives a keyed board).
+CHALLENGE_REQUEST = 0x13
+CHALLENGE = 0x14
+TRANSFER_OPEN = 0x15
+RECEIPT = 0x16
 
 PRIORITY = {
     FAULT: 0,
@@ -34,6 +40,10 @@ PRIORITY = {
     DIAGNOSTIC_CONTROL: 3,
     TABLE_TRANSFER: 6,
     TRANSFER_STATUS: 2,
+    CHALLENGE_REQUEST: 3,
+    CHALLENGE: 2,
+    TRANSFER_OPEN: 3,
+    RECEIPT: 2,
 }
 
 NODE_STATES = {0: "no table", 1: "operational", 2: "fault"}
@@ -51,6 +61,7 @@ TRANSFER_STATUS_CODES = {
     0x16: "CrcMismatch",
     0x17: "InvalidTable",
     0x18: "Busy",
+    0x19: "Unauthenticated",
 }
 
 
