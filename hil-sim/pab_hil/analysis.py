@@ -8,6 +8,8 @@ from pathlib import Path
 
 import can
 
+from . import protocol as p
+
 
 @dataclass(frozen=True)
 class Latency:
@@ -47,3 +49,12 @@ def gateway_latency(messages: list[can.Message], topics: set[int], gateway_id: i
     delays.sort()
     p99 = delays[min(len(delays) - 1, round(0.99 * (len(delays) - 1)))]
     return Latency(len(delays), unmatched, statistics.median(delays), p99, delays[-1])
+
+
+def faults(messages: list[can.Message], node_id: int) -> list[tuple[float, p.Fault]]:
+    """A node's fault frames in a candump log, with their kernel timestamps. The log is the
+    ground truth: the recorder's socket has a buffer for minutes of a flood, where the harness's
+    own listener (a Python thread that also drives the world) may fall behind."""
+    fault_id = p.frame_id(p.FAULT, node_id, p.BROADCAST)
+    return [(m.timestamp, p.Fault.decode(bytes(m.data))) for m in messages
+            if m.is_extended_id and m.arbitration_id == fault_id]

@@ -118,6 +118,9 @@ class Listening:
 
     def __init__(self, iface: str, observer: Observer) -> None:
         self.bus = can.Bus(interface="socketcan", channel=iface, can_filters=FILTERS)
+        # A flood's re-publications pass the filters: with the default buffer (~270 frames) this
+        # thread, slower than the bus under emulation, would lose status frames among them.
+        _large_buffer(self.bus.socket, LISTENING_BUFFER)
         self.notifier = can.Notifier(self.bus, [observer], timeout=0.1)
 
     def send(self, arbitration_id: int, data: bytes, extended: bool = True) -> None:
@@ -157,12 +160,19 @@ class Recorder:
 RECORDER_BUFFER = 64 << 20
 
 
+LISTENING_BUFFER = 16 << 20
+
+
+def _large_buffer(sock: socket.socket, size: int) -> None:
+    try:  # root may exceed net.core.rmem_max; others get what rmem_max allows
+        sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, size)
+    except OSError:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
+
+
 def _record(iface: str, log_path: Path, ready, stop) -> None:
     bus = can.Bus(interface="socketcan", channel=iface)
-    try:  # root may exceed net.core.rmem_max; others get what rmem_max allows
-        bus.socket.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, RECORDER_BUFFER)
-    except OSError:
-        bus.socket.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECORDER_BUFFER)
+    _large_buffer(bus.socket, RECORDER_BUFFER)
     # `.log` is candump's -L format: "(1700000000.123456) vcan0 110#0102030405060708 R".
     writer = can.CanutilsLogWriter(str(log_path), channel=iface)
     ready.set()
