@@ -41,6 +41,7 @@
 
 pub mod arbiter;
 pub mod auth;
+pub mod ble;
 pub mod consumer;
 pub mod crc32;
 mod decay;
