@@ -403,7 +403,13 @@ mod tests {
         assert_eq!(c.raw_id() >> 26, 4);
         assert!(is_claim_id(c.raw_id()));
         // Lower identifier exactly when ranking above, over a grid of pairs.
-        for (a, b) in [(0u16, 1u16), (1, 1), (500, 499), (u16::MAX, u16::MAX), (7, 0)] {
+        for (a, b) in [
+            (0u16, 1u16),
+            (1, 1),
+            (500, 499),
+            (u16::MAX, u16::MAX),
+            (7, 0),
+        ] {
             for (n, m) in [(1u8, 2u8), (2, 1), (127, 1), (4, 4)] {
                 let (x, y) = (claim(n, a), claim(m, b));
                 assert_eq!(x.ranks_above(&y), x.raw_id() < y.raw_id(), "{x:?} {y:?}");
@@ -424,9 +430,18 @@ mod tests {
         let good = claim(5, 1234);
         let raw = good.raw_id();
         let frame = |raw: u32, data: &[u8]| Frame::with_raw_id(raw, true, data).unwrap();
-        assert_eq!(Claim::decode(&frame(raw, &[3, 0xD2, 0x04])), Err(ClaimError::WrongLength));
-        assert_eq!(Claim::decode(&frame(raw, &[3, 0xD3, 0x04, 0])), Err(ClaimError::Mismatch));
-        assert_eq!(Claim::decode(&frame(raw, &[3, 0xD2, 0x04, 1])), Err(ClaimError::Reserved));
+        assert_eq!(
+            Claim::decode(&frame(raw, &[3, 0xD2, 0x04])),
+            Err(ClaimError::WrongLength)
+        );
+        assert_eq!(
+            Claim::decode(&frame(raw, &[3, 0xD3, 0x04, 0])),
+            Err(ClaimError::Mismatch)
+        );
+        assert_eq!(
+            Claim::decode(&frame(raw, &[3, 0xD2, 0x04, 1])),
+            Err(ClaimError::Reserved)
+        );
         assert_eq!(
             Claim::decode(&frame(raw & !0x7F, &[3, 0xD2, 0x04, 0])),
             Err(ClaimError::BadNode)
@@ -516,16 +531,31 @@ mod tests {
         assert_eq!(r.best_peer(at(250)), Some(claim(6, 1)));
         assert_eq!(r.on_peer(claim(1, 9), at(251)), Err(BleError::OwnIdClash));
         // Other groups are not ours.
-        let other = Claim { group: 4, ..claim(7, 999) };
+        let other = Claim {
+            group: 4,
+            ..claim(7, 999)
+        };
         assert_eq!(r.on_peer(other, at(252)), Ok(()));
         assert_eq!(r.best_peer(at(252)), Some(claim(6, 1)));
     }
 
     #[test]
     fn configuration_is_checked() {
-        assert_eq!(Eligibility::<1>::new(0, 0, PERIOD).err(), Some(BleError::BadNode));
-        assert_eq!(Eligibility::<1>::new(0, 128, PERIOD).err(), Some(BleError::BadNode));
-        assert_eq!(Eligibility::<1>::new(0, 1, 0).err(), Some(BleError::BadPeriod));
-        assert_eq!(Eligibility::<1>::new(0, 1, u64::MAX).err(), Some(BleError::BadPeriod));
+        assert_eq!(
+            Eligibility::<1>::new(0, 0, PERIOD).err(),
+            Some(BleError::BadNode)
+        );
+        assert_eq!(
+            Eligibility::<1>::new(0, 128, PERIOD).err(),
+            Some(BleError::BadNode)
+        );
+        assert_eq!(
+            Eligibility::<1>::new(0, 1, 0).err(),
+            Some(BleError::BadPeriod)
+        );
+        assert_eq!(
+            Eligibility::<1>::new(0, 1, u64::MAX).err(),
+            Some(BleError::BadPeriod)
+        );
     }
 }

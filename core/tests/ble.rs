@@ -168,7 +168,11 @@ proptest! {
 fn every_eligibility_and_node_round_trips() {
     for node in 1..=127u8 {
         for eligibility in (0..=u16::MAX).step_by(257).chain([1, u16::MAX - 1]) {
-            let claim = Claim { group: 9, node, eligibility };
+            let claim = Claim {
+                group: 9,
+                node,
+                eligibility,
+            };
             let frame = claim.frame().unwrap();
             assert_eq!(Claim::decode(&frame), Ok(claim));
         }
