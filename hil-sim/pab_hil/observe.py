@@ -118,9 +118,10 @@ class Listening:
 
     def __init__(self, iface: str, observer: Observer) -> None:
         self.bus = can.Bus(interface="socketcan", channel=iface, can_filters=FILTERS)
-        # A flood's re-publications pass the filters: with the default buffer (~270 frames) this
-        # thread, slower than the bus under emulation, would lose status frames among them.
-        _large_buffer(self.bus.socket, LISTENING_BUFFER)
+        # The default buffer (~270 frames): in a flood, this thread (slower than the bus under
+        # emulation) loses some of the re-publications and status frames that pass its filters,
+        # rather than falling seconds behind the bus, which the closed loop could not afford.
+        # Whatever must not be missed (faults, counts) is read from the recorder's log.
         self.notifier = can.Notifier(self.bus, [observer], timeout=0.1)
 
     def send(self, arbitration_id: int, data: bytes, extended: bool = True) -> None:
@@ -158,9 +159,6 @@ class Recorder:
 # A CAN frame costs about 1 KiB of a socket's receive buffer; the default (~200 KiB) overflows in
 # a fraction of a second of flood while the recorder (Python) is busy writing.
 RECORDER_BUFFER = 64 << 20
-
-
-LISTENING_BUFFER = 16 << 20
 
 
 def _large_buffer(sock: socket.socket, size: int) -> None:
