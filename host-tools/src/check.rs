@@ -19,7 +19,8 @@ use std::fmt::Write as _;
 use biodivine_lib_bdd::{Bdd, BddValuation, BddVariable, BddVariableSet};
 
 use crate::diagnostic::Diagnostic;
-use crate::network::{Network, RULE_EXCERPT};
+use crate::kinds;
+use crate::network::{Connection, Network, RULE_EXCERPT};
 use crate::rule::Rule;
 use crate::shown;
 
@@ -33,16 +34,18 @@ pub struct PortLogic {
 }
 
 impl PortLogic {
-    /// Builds the logic of port `port` of `network`.
+    /// Builds the logic of port `port` of `network`, its special connections compiled in
+    /// ([`crate::kinds::port_rules`]).
     pub fn new(network: &Network, port: usize) -> PortLogic {
         let names = network.port_connection_names(port);
         let refs: Vec<&str> = names.iter().map(String::as_str).collect();
         let variables = BddVariableSet::new(&refs);
         let delivers = network
             .port_connections(port)
-            .map(|connection| {
+            .zip(kinds::port_rules(network, port))
+            .map(|(connection, rule)| {
                 let own = variables.mk_var(BddVariable::from_index(connection.index));
-                own.and(&to_bdd(&connection.rule, &variables))
+                own.and(&to_bdd(&rule, &variables))
             })
             .collect();
         PortLogic {
@@ -203,10 +206,27 @@ impl Report {
                     ),
                 ));
             }
+            let specials: Vec<String> = connections
+                .iter()
+                .filter(|c| c.kind.is_special())
+                .map(|c| format!("{} ({})", c.name, c.kind.name()))
+                .collect();
             for &dead in &report.dead {
                 let Some(connection) = connections.get(dead) else {
                     continue;
                 };
+                if !specials.is_empty() && written_alone_delivers(&names, connection) {
+                    errors.push(network.error(
+                        connection.rule_span.clone(),
+                        format!(
+                            "port `{port_name}`: {name} can never deliver: its rule \"{rule}\" holds only while the port's special connections block it ({})",
+                            specials.join(", "),
+                            name = connection.name,
+                            rule = shown::excerpt(&connection.rule_text, RULE_EXCERPT),
+                        ),
+                    ));
+                    continue;
+                }
                 errors.push(network.error(
                     connection.rule_span.clone(),
                     format!(
@@ -257,6 +277,24 @@ impl Report {
                     if report.dead.len() == 1 { "" } else { "s" }
                 );
             }
+            let specials: Vec<String> = network
+                .port_connections(report.port)
+                .filter(|c| c.kind.is_special())
+                .map(|c| {
+                    let target = c
+                        .inhibits
+                        .and_then(|t| network.topics.get(t))
+                        .map_or(String::new(), |t| format!(" of `{}`", t.name));
+                    format!("{} ({}{target}, {} s)", c.name, c.kind.name(), c.tau)
+                })
+                .collect();
+            if !specials.is_empty() {
+                let _ = writeln!(
+                    out,
+                    "  special (σ = 1, τ = period, compiled into the rules): {}",
+                    specials.join(", ")
+                );
+            }
             let virtuals: Vec<&str> = network
                 .port_connections(report.port)
                 .filter(|c| c.is_virtual())
@@ -292,6 +330,15 @@ impl Report {
         }
         out
     }
+}
+
+/// Whether `connection`'s written rule alone (x ∧ R, before the port's special connections are
+/// compiled in) lets it deliver in some mask.
+fn written_alone_delivers(names: &[String], connection: &Connection) -> bool {
+    let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+    let variables = BddVariableSet::new(&refs);
+    let own = variables.mk_var(BddVariable::from_index(connection.index));
+    !own.and(&to_bdd(&connection.rule, &variables)).is_false()
 }
 
 /// `{C1, C6}` for a mask.
@@ -468,6 +515,86 @@ mod tests {
             errors[1].to_string().contains("C3 can never deliver"),
             "{}",
             errors[1]
+        );
+    }
+
+    #[test]
+    fn counterexamples_name_the_special_connections_they_need() {
+        // C2 takes over while I inhibits C1's topic; C3 was meant as an alternative "while I
+        // acts", but nothing orders it against C2: both deliver while C2, C3 and I are active.
+        let text = r#"
+[nodes.n]
+id = 1
+[ports."n.p"]
+[topics.t1]
+can_id = 1
+[topics.t2]
+can_id = 2
+[topics.t3]
+can_id = 3
+[topics.ti]
+can_id = 4
+[connections.C1]
+topic = "t1"
+port = "n.p"
+st = 1
+tc = 1
+[connections.C2]
+topic = "t2"
+port = "n.p"
+st = 1
+tc = 1
+rule = "C2 & (!C1 | I)"
+[connections.C3]
+topic = "t3"
+port = "n.p"
+st = 1
+tc = 1
+rule = "C3 & I"
+[connections.I]
+topic = "ti"
+kind = "inhibit"
+inhibits = "t1"
+period = 0.5
+"#;
+        let net = Network::parse(Source::new("net.toml", text)).unwrap();
+        let report = check(&net);
+        assert!(!report.is_consistent());
+        let errors: Vec<String> = report.errors(&net).iter().map(|e| e.to_string()).collect();
+        assert_eq!(errors.len(), 1, "{errors:#?}");
+        assert!(
+            errors[0].starts_with(
+                "net.toml:29:8: error: port `n.p`: C2 (rule \"C2 & (!C1 | I)\") and C3 (rule \"C3 & I\") can both deliver when the active connections are {C2, C3, I} and no other (mask 0x0000000e"
+            ),
+            "{errors:#?}"
+        );
+        let summary = report.summary(&net);
+        assert!(
+            summary.contains(
+                "special (σ = 1, τ = period, compiled into the rules): I (inhibit of `t1`, 0.5 s)"
+            ),
+            "{summary}"
+        );
+    }
+
+    #[test]
+    fn a_rule_that_only_holds_while_blocked_is_reported_as_such() {
+        let net = {
+            let text = "[nodes.n]\nid = 1\n[ports.\"n.p\"]\n[topics.a]\ncan_id = 1\n[topics.s]\ncan_id = 2\n\
+                [connections.A]\ntopic = \"a\"\nport = \"n.p\"\nst = 1\ntc = 1\nrule = \"A & S\"\n\
+                [connections.S]\ntopic = \"s\"\nport = \"n.p\"\nkind = \"suppress\"\nperiod = 1\n";
+            Network::parse(Source::new("net.toml", text)).unwrap()
+        };
+        let errors: Vec<String> = check(&net)
+            .errors(&net)
+            .iter()
+            .map(|e| e.to_string())
+            .collect();
+        assert_eq!(
+            errors,
+            [
+                "net.toml:13:8: error: port `n.p`: A can never deliver: its rule \"A & S\" holds only while the port's special connections block it (S (suppress))"
+            ]
         );
     }
 

@@ -15,6 +15,7 @@ pub mod compile;
 pub mod dbc;
 pub mod diagnostic;
 pub mod keys;
+pub mod kinds;
 pub mod monitor;
 pub mod network;
 pub mod observe;

@@ -102,15 +102,17 @@ id, the table version and a CRC-32. Nothing is written if the network is inconsi
     /// Run every node of the network on a simulated bus, with the events of the file.
     #[command(long_about = "\
 Run every node of the network on a simulated bus in virtual time: each node loads its compiled \
-table with the same code the boards run, the frames come from the file's [[events]], and the run \
-is deterministic. Prints, per port, a timeline of which connection gets through whenever that \
+table with the same code the boards run, the frames come from the file's [[events]] (with their \
+data bytes), a node of the file's [[faults]] stops at its time (it receives nothing from then on \
+and its ports deliver nothing), and the run is deterministic. Prints, per port, a timeline of which connection gets through whenever that \
 changes, and per connection how many frames it received and delivered.
 
 --trace writes one CSV row per frame per connection it fed, after the update:
   t,port,connection,stimulation,active,delivered
 --plot draws each connection's stimulation over time, green while it is the one that gets \
 through at its port and orange otherwise (like Fig. 5 of the port-arbitration paper).
---candump writes the simulated bus as a candump -L log (frames without data, times from 0 s on \
+--candump writes the simulated bus as a candump -L log (each frame with its event's data, by \
+default none; times from 0 s on \
 interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a real bus.")]
     Sim {
         /// The network file (TOML).

@@ -13,6 +13,7 @@ use std::path::Path;
 
 use indexmap::IndexMap;
 use pab_core::filter::{MAX_EXTENDED_ID, MAX_STANDARD_ID};
+use pab_core::frame::MAX_DATA_LEN;
 use pab_core::integrator::ParamError;
 use pab_core::{Consumer, Filter, MAX_CONNECTIONS_PER_PORT, MAX_PORTS, OutputId, Stimulation};
 use serde::Deserialize;
@@ -46,6 +47,18 @@ struct RawFile {
     events: Vec<Spanned<RawEvent>>,
     #[serde(default)]
     phases: Vec<Spanned<RawPhase>>,
+    #[serde(default)]
+    faults: Vec<Spanned<RawFault>>,
+}
+
+/// `[[faults]] node = "r2", at = 12.0`: the node stops.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFault {
+    node: Spanned<String>,
+    at: Spanned<f64>,
+    #[allow(dead_code)]
+    note: Option<String>,
 }
 
 #[derive(Deserialize)]
@@ -96,11 +109,14 @@ struct RawRepublish {
 #[serde(deny_unknown_fields)]
 struct RawConnection {
     topic: Spanned<String>,
-    port: Spanned<String>,
-    st: Spanned<f64>,
-    tc: Spanned<f64>,
+    port: Option<Spanned<String>>,
+    st: Option<Spanned<f64>>,
+    tc: Option<Spanned<f64>>,
     tr: Option<Spanned<f64>>,
     rule: Option<Spanned<String>>,
+    kind: Option<Spanned<String>>,
+    period: Option<Spanned<f64>>,
+    inhibits: Option<Spanned<String>>,
     #[allow(dead_code)]
     description: Option<String>,
 }
@@ -109,6 +125,7 @@ struct RawConnection {
 #[serde(deny_unknown_fields)]
 struct RawEvent {
     topic: Spanned<String>,
+    data: Option<Spanned<Vec<Spanned<i64>>>>,
     rate_hz: Option<Spanned<f64>>,
     from: Option<Spanned<f64>>,
     to: Option<Spanned<f64>>,
@@ -167,11 +184,84 @@ pub struct Port {
     pub span: Range<usize>,
 }
 
+/// What a connection does at its port (`kind = "..."` in the file; README, "Ayllu connection
+/// kinds"). Every kind compiles into ordinary connections and rules ([`crate::kinds`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    /// Delivers by its own rule: today's connections (the default).
+    Normal,
+    /// Never delivers; while active, no connection of its port delivers.
+    Suppress,
+    /// Never delivers; while active, the connections of the topic it inhibits deliver at no
+    /// port. One virtual connection, with the same name, at every port that topic feeds.
+    Inhibit,
+    /// Delivers; while it delivers, no connection of its port delivers but the overriders
+    /// declared before it (higher layers).
+    Override,
+    /// Never delivers; while active, the connection of the topic it inhibits at its port neither
+    /// delivers nor subsumes the layers below it.
+    WriteInhibit,
+}
+
+impl Kind {
+    /// Every kind, in the order the README lists them.
+    pub const ALL: [Kind; 5] = [
+        Kind::Normal,
+        Kind::Suppress,
+        Kind::Inhibit,
+        Kind::Override,
+        Kind::WriteInhibit,
+    ];
+
+    /// The name the file writes.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Kind::Normal => "normal",
+            Kind::Suppress => "suppress",
+            Kind::Inhibit => "inhibit",
+            Kind::Override => "override",
+            Kind::WriteInhibit => "write-inhibit",
+        }
+    }
+
+    /// Its name after "a" or "an", for messages ("an inhibit", "a suppress").
+    pub const fn with_article(self) -> &'static str {
+        match self {
+            Kind::Normal => "a normal",
+            Kind::Suppress => "a suppress",
+            Kind::Inhibit => "an inhibit",
+            Kind::Override => "an override",
+            Kind::WriteInhibit => "a write-inhibit",
+        }
+    }
+
+    /// The kind written `name`, if any.
+    pub fn from_name(name: &str) -> Option<Kind> {
+        Kind::ALL.into_iter().find(|kind| kind.name() == name)
+    }
+
+    /// Whether it acts for a period (σ = 1, τ = period, τr = 0) rather than by `st`/`tc`/`tr`.
+    pub const fn is_special(self) -> bool {
+        !matches!(self, Kind::Normal)
+    }
+
+    /// Whether its frames can be delivered (normal and override); the others only coordinate.
+    pub const fn delivers(self) -> bool {
+        matches!(self, Kind::Normal | Kind::Override)
+    }
+}
+
 /// A connection from a topic to a port, with its parameters and rule.
 #[derive(Clone, Debug)]
 pub struct Connection {
-    /// Its name, usable in rules.
+    /// Its name, usable in rules. An inhibit connection is one connection per port it acts at,
+    /// each with this name.
     pub name: String,
+    /// What it does at its port.
+    pub kind: Kind,
+    /// For inhibit and write-inhibit connections: the topic it inhibits, as an index into
+    /// [`Network::topics`].
+    pub inhibits: Option<usize>,
     /// Its topic, as an index into [`Network::topics`].
     pub topic: usize,
     /// Its port, as an index into [`Network::ports`].
@@ -186,7 +276,8 @@ pub struct Connection {
     pub rest: f64,
     /// The parameters as the boards store them.
     pub stimulation: Stimulation,
-    /// Φ: when the connection may deliver, given that it is active.
+    /// R: when the connection may deliver, given that it is active, as written (special kinds
+    /// other than override: `false`). What the port compiles is [`crate::kinds::port_rules`].
     pub rule: Rule,
     /// The rule as written, or the connection's own name when no rule is written.
     pub rule_text: String,
@@ -199,10 +290,10 @@ pub struct Connection {
 }
 
 impl Connection {
-    /// Whether the rule is literally `false`: a virtual connection, which coordinates but never
-    /// delivers.
+    /// Whether it never delivers: a suppress, inhibit or write-inhibit connection, or one whose
+    /// rule is literally `false` (a virtual connection, which coordinates).
     pub fn is_virtual(&self) -> bool {
-        self.rule == Rule::Constant(false)
+        !self.kind.delivers() || self.rule == Rule::Constant(false)
     }
 }
 
@@ -255,6 +346,8 @@ impl Schedule {
 pub struct Event {
     /// The topic, as an index into [`Network::topics`].
     pub topic: usize,
+    /// The frames' payload (`data = [...]`, at most 8 bytes; default none).
+    pub data: Vec<u8>,
     /// When.
     pub schedule: Schedule,
     /// Where it is defined.
@@ -272,6 +365,16 @@ pub struct Phase {
     pub to: f64,
     /// What happens in it.
     pub note: Option<String>,
+}
+
+/// A node that stops in a simulation (`[[faults]]`): from `at` on it receives nothing, sends
+/// nothing, and its ports deliver nothing.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Fault {
+    /// The node, as an index into [`Network::nodes`].
+    pub node: usize,
+    /// When it stops, seconds.
+    pub at: f64,
 }
 
 /// A parsed and checked network file.
@@ -293,6 +396,8 @@ pub struct Network {
     pub events: Vec<Event>,
     /// Phases in file order.
     pub phases: Vec<Phase>,
+    /// Faults in file order, at most one per node.
+    pub faults: Vec<Fault>,
 }
 
 fn is_plain_name(name: &str) -> bool {
@@ -390,6 +495,7 @@ impl Builder<'_> {
         self.rules(&raw.connections, &mut connections, &ports);
         let events = self.events(&raw.events, &topics);
         let phases = self.phases(&raw.phases);
+        let faults = self.faults(&raw.faults, &nodes);
         let mut nodes = nodes;
         for (index, port) in ports.iter().enumerate() {
             if let Some(node) = nodes.get_mut(port.node) {
@@ -405,6 +511,7 @@ impl Builder<'_> {
             connections,
             events,
             phases,
+            faults,
         }
     }
 
@@ -644,6 +751,10 @@ impl Builder<'_> {
         ports: &mut [Port],
     ) -> Vec<Connection> {
         let mut connections: Vec<Connection> = Vec::new();
+        // Inhibit connections act at the ports their target topic feeds, which are known once
+        // every connection is; write-inhibits are checked against their port's connections then.
+        let mut inhibits: Vec<(Connection, Range<usize>)> = Vec::new();
+        let mut write_inhibits: Vec<(usize, Range<usize>)> = Vec::new();
         for (name, connection) in raw {
             let raw_connection = connection.get_ref();
             if !self.printable(name, "connection name") {
@@ -660,22 +771,151 @@ impl Builder<'_> {
                 continue;
             }
             let topic_name = raw_connection.topic.get_ref();
-            let Some(topic) = topics.iter().position(|topic| &topic.name == topic_name) else {
-                let known: Vec<&str> = topics.iter().map(|topic| topic.name.as_str()).collect();
+            let topic = self.topic_index(&raw_connection.topic, topics);
+            let kind = match &raw_connection.kind {
+                None => Kind::Normal,
+                Some(kind) => match Kind::from_name(kind.get_ref()) {
+                    Some(kind) => kind,
+                    None => {
+                        let known: Vec<String> = Kind::ALL
+                            .iter()
+                            .map(|k| format!("\"{}\"", k.name()))
+                            .collect();
+                        self.error(
+                            kind.span(),
+                            format!(
+                                "unknown kind \"{}\": a connection is {}",
+                                shown::escaped(kind.get_ref()),
+                                known.join(", ")
+                            ),
+                        );
+                        continue;
+                    }
+                },
+            };
+            if kind != Kind::Inhibit && raw_connection.port.is_none() {
                 self.error(
-                    raw_connection.topic.span(),
+                    connection.span(),
                     format!(
-                        "topic `{topic_name}` is not defined (topics: {})",
-                        list_or_none(&known)
+                        "missing field `port`: the input `{}` feeds (\"<node>.<port>\")",
+                        name.get_ref()
                     ),
                 );
                 continue;
+            }
+            let Some(topic) = topic else {
+                continue;
             };
-            let port_name = raw_connection.port.get_ref();
+            let Some((sigma, tau, rest, stimulation)) =
+                self.parameters(raw_connection, connection.span(), kind)
+            else {
+                continue;
+            };
+            let target = match (kind, &raw_connection.inhibits) {
+                (Kind::Inhibit | Kind::WriteInhibit, Some(target)) => {
+                    let Some(index) = self.topic_index(target, topics) else {
+                        continue;
+                    };
+                    if index == topic {
+                        self.error(
+                            target.span(),
+                            format!(
+                                "`{}` would inhibit its own topic `{topic_name}`",
+                                name.get_ref()
+                            ),
+                        );
+                        continue;
+                    }
+                    Some((index, target.span()))
+                }
+                (Kind::Inhibit | Kind::WriteInhibit, None) => {
+                    self.error(
+                        connection.span(),
+                        format!(
+                            "missing field `inhibits`: {} connection names the topic it inhibits (inhibits = \"TOPIC\")",
+                            kind.with_article()
+                        ),
+                    );
+                    continue;
+                }
+                (_, Some(target)) => {
+                    self.error(
+                        target.span(),
+                        format!(
+                            "`inhibits` goes with kind = \"inhibit\" or \"write-inhibit\"; `{}` is {} connection",
+                            name.get_ref(),
+                            kind.with_article()
+                        ),
+                    );
+                    continue;
+                }
+                (_, None) => None,
+            };
+            if !kind.delivers()
+                && let Some(rule) = &raw_connection.rule
+            {
+                self.error(
+                    rule.span(),
+                    format!(
+                        "{} connection never delivers, so it has no rule (the rules of its port may name it)",
+                        kind.with_article()
+                    ),
+                );
+                continue;
+            }
+            let (inhibited, target_span) = match target {
+                Some((topic, span)) => (Some(topic), Some(span)),
+                None => (None, None),
+            };
+            let new = |port: usize, index: usize| Connection {
+                name: name.get_ref().clone(),
+                kind,
+                inhibits: inhibited,
+                topic,
+                port,
+                index,
+                sigma,
+                tau,
+                rest,
+                stimulation,
+                rule: if kind.delivers() {
+                    Rule::Active(index)
+                } else {
+                    Rule::Constant(false)
+                },
+                rule_text: if kind.delivers() {
+                    name.get_ref().clone()
+                } else {
+                    "false".to_string()
+                },
+                rule_written: false,
+                rule_span: name.span(),
+                span: connection.span(),
+            };
+            if kind == Kind::Inhibit {
+                if let Some(port) = &raw_connection.port {
+                    self.error(
+                        port.span(),
+                        format!(
+                            "an inhibit connection has no `port`: `{}` acts at every port that its `inhibits` topic feeds (kind = \"write-inhibit\" acts at one port)",
+                            name.get_ref()
+                        ),
+                    );
+                    continue;
+                }
+                if let Some(span) = target_span {
+                    inhibits.push((new(usize::MAX, 0), span));
+                }
+                continue;
+            }
+            let Some(port_value) = &raw_connection.port else {
+                continue;
+            };
+            let port_name = port_value.get_ref();
             let Some(port) = ports.iter().position(|port| &port.name == port_name) else {
                 let known: Vec<&str> = ports.iter().map(|port| port.name.as_str()).collect();
                 self.error(
-                    raw_connection.port.span(),
+                    port_value.span(),
                     format!(
                         "port `{port_name}` is not defined (ports: {})",
                         list_or_none(&known)
@@ -706,45 +946,214 @@ impl Builder<'_> {
                 );
                 continue;
             }
-            let sigma = *raw_connection.st.get_ref();
-            let tau = *raw_connection.tc.get_ref();
-            let rest = raw_connection.tr.as_ref().map_or(0.0, |tr| *tr.get_ref());
-            let stimulation = match Stimulation::from_seconds(sigma, tau, rest) {
-                Ok(stimulation) => stimulation,
-                Err(error) => {
-                    let span = match error {
-                        ParamError::Gain(_) => raw_connection.st.span(),
-                        ParamError::DecayTime => raw_connection.tc.span(),
-                        ParamError::RestTime => raw_connection
-                            .tr
-                            .as_ref()
-                            .map_or(name.span(), |tr| tr.span()),
-                    };
-                    self.error(span, error.to_string());
-                    continue;
-                }
-            };
-            let index = siblings;
+            if let (Kind::WriteInhibit, Some(span)) = (kind, target_span) {
+                write_inhibits.push((connections.len(), span));
+            }
             if let Some(port) = ports.get_mut(port) {
                 port.connections.push(connections.len());
             }
-            connections.push(Connection {
-                name: name.get_ref().clone(),
-                topic,
-                port,
-                index,
-                sigma,
-                tau,
-                rest,
-                stimulation,
-                rule: Rule::Active(index),
-                rule_text: name.get_ref().clone(),
-                rule_written: false,
-                rule_span: name.span(),
-                span: connection.span(),
-            });
+            connections.push(new(port, siblings));
+        }
+        self.check_write_inhibits(&write_inhibits, &connections, topics, ports);
+        for (inhibit, span) in inhibits {
+            self.expand_inhibit(inhibit, span, &mut connections, topics, ports);
         }
         connections
+    }
+
+    /// The index of the topic `name` names, or `None` after reporting that it is not defined.
+    fn topic_index(&mut self, name: &Spanned<String>, topics: &[Topic]) -> Option<usize> {
+        let wanted = name.get_ref();
+        let found = topics.iter().position(|topic| &topic.name == wanted);
+        if found.is_none() {
+            let known: Vec<&str> = topics.iter().map(|topic| topic.name.as_str()).collect();
+            self.error(
+                name.span(),
+                format!(
+                    "topic `{wanted}` is not defined (topics: {})",
+                    list_or_none(&known)
+                ),
+            );
+        }
+        found
+    }
+
+    /// σ, τ, τr and their stored form: written for a normal connection, from the period for a
+    /// special one (σ = 1, τ = period, τr = 0: one frame makes it active, and it stays active
+    /// until `period` has passed without a frame). `None` after reporting what is wrong.
+    fn parameters(
+        &mut self,
+        raw: &RawConnection,
+        span: Range<usize>,
+        kind: Kind,
+    ) -> Option<(f64, f64, f64, Stimulation)> {
+        if kind.is_special() {
+            let mut written = false;
+            for (key, value) in [("st", &raw.st), ("tc", &raw.tc), ("tr", &raw.tr)] {
+                if let Some(value) = value {
+                    self.error(
+                        value.span(),
+                        format!(
+                            "σ, τ and τr of a special connection follow from its period (σ = 1, τ = period, τr = 0): remove `{key}`"
+                        ),
+                    );
+                    written = true;
+                }
+            }
+            let Some(period) = &raw.period else {
+                self.error(
+                    span,
+                    format!(
+                        "missing field `period`: {} connection acts for `period = SECONDS` after each of its frames",
+                        kind.with_article()
+                    ),
+                );
+                return None;
+            };
+            let seconds = *period.get_ref();
+            if !(seconds.is_finite() && seconds > 0.0) {
+                self.error(
+                    period.span(),
+                    format!("period {seconds}: must be a positive number of seconds"),
+                );
+                return None;
+            }
+            let Ok(stimulation) = Stimulation::from_seconds(1.0, seconds, 0.0) else {
+                self.error(
+                    period.span(),
+                    format!(
+                        "period {seconds} s cannot be stored: it becomes the connection's τ, whole microseconds in [0.000001, 3600] seconds"
+                    ),
+                );
+                return None;
+            };
+            return (!written).then_some((1.0, seconds, 0.0, stimulation));
+        }
+        if let Some(period) = &raw.period {
+            self.error(
+                period.span(),
+                "`period` is for special connections (kind = \"suppress\", \"inhibit\", \"override\" or \"write-inhibit\"); a normal connection has `st`, `tc` and `tr`",
+            );
+            return None;
+        }
+        let (Some(st), Some(tc)) = (&raw.st, &raw.tc) else {
+            let missing = if raw.st.is_none() { "st" } else { "tc" };
+            self.error(
+                span,
+                format!(
+                    "missing field `{missing}`: a normal connection has `st` (σ) and `tc` (τ), or a `kind` with a `period`"
+                ),
+            );
+            return None;
+        };
+        let sigma = *st.get_ref();
+        let tau = *tc.get_ref();
+        let rest = raw.tr.as_ref().map_or(0.0, |tr| *tr.get_ref());
+        match Stimulation::from_seconds(sigma, tau, rest) {
+            Ok(stimulation) => Some((sigma, tau, rest, stimulation)),
+            Err(error) => {
+                let at = match error {
+                    ParamError::Gain(_) => st.span(),
+                    ParamError::DecayTime => tc.span(),
+                    ParamError::RestTime => raw.tr.as_ref().map_or(span, |tr| tr.span()),
+                };
+                self.error(at, error.to_string());
+                None
+            }
+        }
+    }
+
+    /// A write-inhibit must name a topic that feeds a delivering connection of its own port.
+    fn check_write_inhibits(
+        &mut self,
+        write_inhibits: &[(usize, Range<usize>)],
+        connections: &[Connection],
+        topics: &[Topic],
+        ports: &[Port],
+    ) {
+        for (index, span) in write_inhibits {
+            let Some(connection) = connections.get(*index) else {
+                continue;
+            };
+            let Some(target) = connection.inhibits else {
+                continue;
+            };
+            let fed = |c: &&Connection| c.port == connection.port && c.kind.delivers();
+            if connections.iter().filter(fed).any(|c| c.topic == target) {
+                continue;
+            }
+            let layers: Vec<&str> = connections
+                .iter()
+                .filter(fed)
+                .filter_map(|c| topics.get(c.topic).map(|t| t.name.as_str()))
+                .collect();
+            self.error(
+                span.clone(),
+                format!(
+                    "topic `{}` feeds no connection of port `{}` that delivers, so `{}` has no layer to write-inhibit (the port's delivering topics: {})",
+                    topics.get(target).map_or("?", |t| t.name.as_str()),
+                    ports.get(connection.port).map_or("?", |p| p.name.as_str()),
+                    connection.name,
+                    list_or_none(&layers)
+                ),
+            );
+        }
+    }
+
+    /// Adds inhibit connection `inhibit` to every port that its target topic feeds (through a
+    /// normal or override connection), as a virtual connection with the same name, after the
+    /// port's own connections.
+    fn expand_inhibit(
+        &mut self,
+        inhibit: Connection,
+        span: Range<usize>,
+        connections: &mut Vec<Connection>,
+        topics: &[Topic],
+        ports: &mut [Port],
+    ) {
+        let Some(target) = inhibit.inhibits else {
+            return;
+        };
+        let mut fed: Vec<usize> = connections
+            .iter()
+            .filter(|c| c.topic == target && c.kind.delivers())
+            .map(|c| c.port)
+            .collect();
+        fed.sort_unstable();
+        fed.dedup();
+        let target_name = topics.get(target).map_or("?", |t| t.name.as_str());
+        if fed.is_empty() {
+            self.error(
+                span,
+                format!(
+                    "topic `{target_name}` feeds no port (no normal or override connection has it), so `{}` would inhibit nothing",
+                    inhibit.name
+                ),
+            );
+            return;
+        }
+        for port in fed {
+            let Some(entry) = ports.get_mut(port) else {
+                continue;
+            };
+            let index = entry.connections.len();
+            if index >= MAX_CONNECTIONS_PER_PORT {
+                self.error(
+                    span.clone(),
+                    format!(
+                        "inhibit `{}` acts at port `{}` (fed by `{target_name}`) as one more connection, but that port already has {MAX_CONNECTIONS_PER_PORT} connections, the most a port may have",
+                        inhibit.name, entry.name
+                    ),
+                );
+                continue;
+            }
+            entry.connections.push(connections.len());
+            connections.push(Connection {
+                port,
+                index,
+                ..inhibit.clone()
+            });
+        }
     }
 
     fn rules(
@@ -919,6 +1328,9 @@ impl Builder<'_> {
                     }
                 }
             };
+            let Some(data) = self.payload(raw_event.data.as_ref()) else {
+                continue;
+            };
             frames = frames.saturating_add(schedule.count());
             if frames > MAX_EVENT_FRAMES {
                 self.error(
@@ -929,11 +1341,79 @@ impl Builder<'_> {
             }
             events.push(Event {
                 topic,
+                data,
                 schedule,
                 span: event.span(),
             });
         }
         events
+    }
+
+    /// An event's `data = [...]`: at most 8 bytes, each 0..=255 (default: no data). `None`
+    /// after reporting what is wrong.
+    fn payload(&mut self, raw: Option<&Spanned<Vec<Spanned<i64>>>>) -> Option<Vec<u8>> {
+        let Some(raw) = raw else {
+            return Some(Vec::new());
+        };
+        if raw.get_ref().len() > MAX_DATA_LEN {
+            self.error(
+                raw.span(),
+                format!(
+                    "data has {} bytes; a CAN frame carries at most {MAX_DATA_LEN}",
+                    raw.get_ref().len()
+                ),
+            );
+            return None;
+        }
+        let mut bytes = Vec::new();
+        for byte in raw.get_ref() {
+            match u8::try_from(*byte.get_ref()) {
+                Ok(value) => bytes.push(value),
+                Err(_) => {
+                    self.error(
+                        byte.span(),
+                        format!("data byte {} is not in 0..=255", byte.get_ref()),
+                    );
+                    return None;
+                }
+            }
+        }
+        Some(bytes)
+    }
+
+    fn faults(&mut self, raw: &[Spanned<RawFault>], nodes: &[Node]) -> Vec<Fault> {
+        let mut faults: Vec<Fault> = Vec::new();
+        for fault in raw {
+            let raw_fault = fault.get_ref();
+            let wanted = raw_fault.node.get_ref();
+            let Some(node) = nodes.iter().position(|node| &node.name == wanted) else {
+                let known: Vec<&str> = nodes.iter().map(|node| node.name.as_str()).collect();
+                self.error(
+                    raw_fault.node.span(),
+                    format!(
+                        "node `{}` is not defined (nodes: {})",
+                        shown::escaped(wanted),
+                        list_or_none(&known)
+                    ),
+                );
+                continue;
+            };
+            let Some(at) = self.time(&raw_fault.at, "at") else {
+                continue;
+            };
+            if let Some(earlier) = faults.iter().find(|f| f.node == node) {
+                self.error(
+                    raw_fault.node.span(),
+                    format!(
+                        "node `{wanted}` already stops at {} s; a stopped node stays stopped",
+                        earlier.at
+                    ),
+                );
+                continue;
+            }
+            faults.push(Fault { node, at });
+        }
+        faults
     }
 
     fn phases(&mut self, raw: &[Spanned<RawPhase>]) -> Vec<Phase> {
@@ -1240,6 +1720,288 @@ tc = 1.0
                 errors.iter().any(|e| e.contains(message)),
                 "{event}: {errors:?}"
             );
+        }
+    }
+
+    /// Nodes a and b, ports a.p and b.q, topics t1..t4 (t1 feeds a.p and b.q, t2 feeds a.p),
+    /// then `extra`. The fixed part is 31 lines: `extra` starts on line 32.
+    fn kinds_file(extra: &str) -> String {
+        format!(
+            r#"[nodes.a]
+id = 1
+[nodes.b]
+id = 2
+[ports."a.p"]
+[ports."b.q"]
+[topics.t1]
+can_id = 1
+[topics.t2]
+can_id = 2
+[topics.t3]
+can_id = 3
+[topics.t4]
+can_id = 4
+[connections.A1]
+topic = "t1"
+port = "a.p"
+st = 1
+tc = 1
+[connections.A2]
+topic = "t2"
+port = "a.p"
+st = 1
+tc = 1
+[connections.B1]
+topic = "t1"
+port = "b.q"
+st = 1
+tc = 1
+[connections.X]
+topic = "t3"
+{extra}"#
+        )
+    }
+
+    #[test]
+    fn special_connections_compile_to_sigma_one_tau_period_rest_zero() {
+        let network = parse(&kinds_file(
+            "port = \"a.p\"\nkind = \"suppress\"\nperiod = 0.25\n",
+        ))
+        .unwrap();
+        let x = &network.connections[3];
+        assert_eq!(
+            (x.kind, x.sigma, x.tau, x.rest),
+            (Kind::Suppress, 1.0, 0.25, 0.0)
+        );
+        assert_eq!(
+            x.stimulation,
+            Stimulation::from_seconds(1.0, 0.25, 0.0).unwrap()
+        );
+        assert_eq!(x.stimulation.decay_us(), 250_000);
+        assert!(x.is_virtual());
+        for kind in ["override", "write-inhibit"] {
+            let extra =
+                format!("port = \"a.p\"\nkind = \"{kind}\"\nperiod = 2\ninhibits = \"t2\"\n");
+            let extra = if kind == "override" {
+                extra.replace("inhibits = \"t2\"\n", "")
+            } else {
+                extra
+            };
+            let network = parse(&kinds_file(&extra)).unwrap();
+            assert_eq!(network.connections[3].kind.name(), kind);
+            assert_eq!(network.connections[3].stimulation.decay_us(), 2_000_000);
+        }
+    }
+
+    #[test]
+    fn an_inhibit_acts_at_every_port_its_topic_feeds_under_its_own_name() {
+        let network = parse(&kinds_file(
+            "kind = \"inhibit\"\ninhibits = \"t1\"\nperiod = 0.5\n",
+        ))
+        .unwrap();
+        let at: Vec<(String, usize)> = network
+            .connections
+            .iter()
+            .filter(|c| c.name == "X")
+            .map(|c| (network.ports[c.port].name.clone(), c.index))
+            .collect();
+        assert_eq!(at, [("a.p".to_string(), 2), ("b.q".to_string(), 1)]);
+        assert_eq!(network.port_connection_names(0), ["A1", "A2", "X"]);
+        assert_eq!(network.port_connection_names(1), ["B1", "X"]);
+        assert!(
+            network
+                .connections
+                .iter()
+                .filter(|c| c.name == "X")
+                .all(|c| {
+                    c.is_virtual()
+                        && c.inhibits == Some(0)
+                        && c.topic == 2
+                        && c.kind == Kind::Inhibit
+                })
+        );
+    }
+
+    #[test]
+    fn every_misuse_of_a_kind_is_reported_where_it_is() {
+        // (the connection's extra lines, the expected errors)
+        let cases: &[(&str, &[&str])] = &[
+            (
+                "port = \"a.p\"\nst = 1\ntc = 1\nperiod = 0.5\n",
+                &["net.toml:35:10: error: `period` is for special connections"],
+            ),
+            (
+                "port = \"a.p\"\nkind = \"suppress\"\nperiod = 0.5\nst = 1\ntc = 1\ntr = 0\n",
+                &[
+                    "net.toml:35:6: error: σ, τ and τr of a special connection follow from its period (σ = 1, τ = period, τr = 0): remove `st`",
+                    "net.toml:36:6: error: σ, τ and τr of a special connection follow from its period (σ = 1, τ = period, τr = 0): remove `tc`",
+                    "net.toml:37:6: error: σ, τ and τr of a special connection follow from its period (σ = 1, τ = period, τr = 0): remove `tr`",
+                ],
+            ),
+            (
+                "port = \"a.p\"\nkind = \"inhibit\"\ninhibits = \"t1\"\nperiod = 0.5\n",
+                &[
+                    "net.toml:32:8: error: an inhibit connection has no `port`: `X` acts at every port",
+                ],
+            ),
+            (
+                "kind = \"inhibit\"\nperiod = 0.5\n",
+                &[
+                    "net.toml:30:1: error: missing field `inhibits`: an inhibit connection names the topic it inhibits",
+                ],
+            ),
+            (
+                "port = \"a.p\"\nkind = \"write-inhibit\"\nperiod = 0.5\n",
+                &["net.toml:30:1: error: missing field `inhibits`: a write-inhibit connection"],
+            ),
+            (
+                "kind = \"inhibit\"\ninhibits = \"t9\"\nperiod = 0.5\n",
+                &["net.toml:33:12: error: topic `t9` is not defined (topics: t1, t2, t3, t4)"],
+            ),
+            (
+                "kind = \"inhibit\"\ninhibits = \"t4\"\nperiod = 0.5\n",
+                &[
+                    "net.toml:33:12: error: topic `t4` feeds no port (no normal or override connection has it), so `X` would inhibit nothing",
+                ],
+            ),
+            (
+                "kind = \"inhibit\"\ninhibits = \"t3\"\nperiod = 0.5\n",
+                &["net.toml:33:12: error: `X` would inhibit its own topic `t3`"],
+            ),
+            (
+                "port = \"b.q\"\nkind = \"write-inhibit\"\ninhibits = \"t2\"\nperiod = 0.5\n",
+                &[
+                    "net.toml:34:12: error: topic `t2` feeds no connection of port `b.q` that delivers, so `X` has no layer to write-inhibit (the port's delivering topics: t1)",
+                ],
+            ),
+            (
+                "port = \"a.p\"\nkind = \"override\"\ninhibits = \"t1\"\nperiod = 0.5\n",
+                &[
+                    "net.toml:34:12: error: `inhibits` goes with kind = \"inhibit\" or \"write-inhibit\"; `X` is an override connection",
+                ],
+            ),
+            (
+                "port = \"a.p\"\nkind = \"suppress\"\nperiod = 0.5\nrule = \"X & A1\"\n",
+                &["net.toml:35:8: error: a suppress connection never delivers, so it has no rule"],
+            ),
+            (
+                "port = \"a.p\"\nkind = \"suppress\"\n",
+                &[
+                    "net.toml:30:1: error: missing field `period`: a suppress connection acts for `period = SECONDS`",
+                ],
+            ),
+            (
+                "port = \"a.p\"\nkind = \"subsume\"\nperiod = 1\n",
+                &[
+                    "net.toml:33:8: error: unknown kind \"subsume\": a connection is \"normal\", \"suppress\", \"inhibit\", \"override\", \"write-inhibit\"",
+                ],
+            ),
+            (
+                "port = \"a.p\"\n",
+                &[
+                    "net.toml:30:1: error: missing field `st`: a normal connection has `st` (σ) and `tc` (τ), or a `kind` with a `period`",
+                ],
+            ),
+            (
+                "kind = \"override\"\nperiod = 1\n",
+                &["net.toml:30:1: error: missing field `port`"],
+            ),
+        ];
+        for (extra, expected) in cases {
+            let errors = errors(&kinds_file(extra));
+            assert_eq!(errors.len(), expected.len(), "{extra}\n{errors:#?}");
+            for (error, expected) in errors.iter().zip(*expected) {
+                assert!(
+                    error.starts_with(expected),
+                    "{extra}\n{error}\n  expected: {expected}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn periods_must_be_positive_finite_and_storable_in_microseconds() {
+        for period in ["0", "-1", "nan", "inf", "-inf"] {
+            let errors = errors(&kinds_file(&format!(
+                "port = \"a.p\"\nkind = \"suppress\"\nperiod = {period}\n"
+            )));
+            assert_eq!(errors.len(), 1, "{period}: {errors:?}");
+            assert!(
+                errors[0].starts_with("net.toml:34:10: error: period")
+                    && errors[0].contains("must be a positive number of seconds"),
+                "{period}: {errors:?}"
+            );
+        }
+        for period in ["1e-7", "3600.5"] {
+            let errors = errors(&kinds_file(&format!(
+                "port = \"a.p\"\nkind = \"override\"\nperiod = {period}\n"
+            )));
+            assert!(
+                errors[0].starts_with("net.toml:34:10: error: period")
+                    && errors[0].contains("cannot be stored: it becomes the connection's τ, whole microseconds in [0.000001, 3600] seconds"),
+                "{period}: {errors:?}"
+            );
+        }
+        // The extremes that can.
+        for period in ["0.000001", "3600"] {
+            parse(&kinds_file(&format!(
+                "port = \"a.p\"\nkind = \"override\"\nperiod = {period}\n"
+            )))
+            .unwrap();
+        }
+    }
+
+    #[test]
+    fn an_inhibit_that_overflows_a_port_names_the_port() {
+        let mut text = kinds_file("kind = \"inhibit\"\ninhibits = \"t1\"\nperiod = 0.5\n");
+        // Fill b.q up to the limit with 31 more connections (B1 is the first).
+        for k in 0..(MAX_CONNECTIONS_PER_PORT - 1) {
+            text += &format!(
+                "[topics.f{k}]\ncan_id = {}\n[connections.F{k}]\ntopic = \"f{k}\"\nport = \"b.q\"\nst = 1\ntc = 1\n",
+                0x100 + k
+            );
+        }
+        let errors = errors(&text);
+        assert_eq!(errors.len(), 1, "{errors:#?}");
+        assert!(
+            errors[0].starts_with(
+                "net.toml:33:12: error: inhibit `X` acts at port `b.q` (fed by `t1`) as one more connection, but that port already has 32 connections, the most a port may have"
+            ),
+            "{errors:#?}"
+        );
+    }
+
+    #[test]
+    fn events_carry_data_and_faults_stop_nodes() {
+        let text = format!("{FIGURE_1}data = [0x0A, 0]\n[[faults]]\nnode = \"gaze\"\nat = 12.5\n");
+        let network = parse(&text).unwrap();
+        assert_eq!(network.events[0].data, Vec::<u8>::new());
+        assert_eq!(network.events[1].data, vec![0x0A, 0]);
+        assert_eq!(network.faults, vec![Fault { node: 0, at: 12.5 }]);
+        let bad = [
+            (
+                "data = [1, 2, 3, 4, 5, 6, 7, 8, 9]\n",
+                "data has 9 bytes; a CAN frame carries at most 8",
+            ),
+            ("data = [0x100]\n", "data byte 256 is not in 0..=255"),
+            ("data = [-1]\n", "data byte -1 is not in 0..=255"),
+            (
+                "[[faults]]\nnode = \"arm\"\nat = 1\n",
+                "node `arm` is not defined (nodes: gaze)",
+            ),
+            (
+                "[[faults]]\nnode = \"gaze\"\nat = -1\n",
+                "at must be a time in [0, 1000000] seconds",
+            ),
+            (
+                "[[faults]]\nnode = \"gaze\"\nat = 1\n[[faults]]\nnode = \"gaze\"\nat = 2\n",
+                "node `gaze` already stops at 1 s",
+            ),
+        ];
+        for (extra, message) in bad {
+            let errors = errors(&format!("{FIGURE_1}{extra}"));
+            assert_eq!(errors.len(), 1, "{extra}: {errors:?}");
+            assert!(errors[0].contains(message), "{extra}: {errors:?}");
         }
     }
 

@@ -8,6 +8,11 @@
 //! microsecond go out in CAN arbitration order (lower identifier first; a standard frame before
 //! an extended one with the same 11 base bits), then in the order of the `[[events]]`.
 //!
+//! A node of the file's `[[faults]]` stops at its time: from that microsecond on (a frame sent at
+//! the same microsecond included) it receives nothing and its ports deliver nothing; its
+//! timelines show nobody from then on and its plotted levels drop to 0. (Nodes send nothing on the
+//! simulated bus: every frame comes from `[[events]]`, so a stopped node has nothing to withhold.)
+//!
 //! Besides frames, the simulator evaluates each port when an activity may lapse (a microsecond
 //! after τ has passed since a connection's last accepted frame), so timelines show the moment a
 //! port changes hands even when no frame arrives then. These evaluations only read the arbiter.
@@ -34,7 +39,8 @@ use crate::plot::{ConnectionSeries, Phase, PlotData, PortSeries, Sample};
 #[derive(Clone, Debug, Default)]
 pub struct Options {
     /// Stop at this time, seconds. Default: when the last frame's effects have decayed (the last
-    /// frame plus the longest τ, or the end of the last phase, whichever is later).
+    /// frame plus the longest τ, or the end of the last phase or the last fault, whichever is
+    /// later).
     pub until: Option<f64>,
     /// Record stimulation samples for a plot.
     pub samples: bool,
@@ -47,7 +53,7 @@ pub struct Options {
 pub struct BusFrame {
     /// When, µs.
     pub t_us: u64,
-    /// The frame (the simulator's own frames have no data).
+    /// The frame (an event's frames carry its `data`, by default none).
     pub frame: pab_core::Frame,
 }
 
@@ -120,6 +126,15 @@ struct Station {
     /// Its node id.
     id: u8,
     arbiter: Arbiter,
+    /// When it stops (`[[faults]]`), µs.
+    stop_us: Option<u64>,
+}
+
+impl Station {
+    /// Whether it has stopped by `t_us`.
+    fn stopped(&self, t_us: u64) -> bool {
+        self.stop_us.is_some_and(|stop| stop <= t_us)
+    }
 }
 
 /// Runs `network` with the tables `compiled` (one per node, from [`crate::compile::compile`]) on
@@ -139,7 +154,20 @@ pub fn simulate(
         }
         None => default_until(network, &frames),
     };
-    run(network, compiled, &frames, until_us, options, &mut |_| {})
+    let stops: Vec<(u64, usize)> = network
+        .faults
+        .iter()
+        .map(|fault| (micros(fault.at), fault.node))
+        .collect();
+    run_stopping(
+        network,
+        compiled,
+        &frames,
+        until_us,
+        options,
+        &stops,
+        &mut |_| {},
+    )
 }
 
 /// Runs `network` with the tables `compiled` on `frames` (in the order given, which must be time
@@ -152,6 +180,19 @@ pub fn run(
     frames: &[BusFrame],
     until_us: u64,
     options: &Options,
+    progress: &mut dyn FnMut(usize),
+) -> Result<Outcome, SimError> {
+    run_stopping(network, compiled, frames, until_us, options, &[], progress)
+}
+
+/// [`run`], with nodes that stop: `(t_us, node)`, the node as an index into the network's nodes.
+fn run_stopping(
+    network: &Network,
+    compiled: &[CompiledNode],
+    frames: &[BusFrame],
+    until_us: u64,
+    options: &Options,
+    stops: &[(u64, usize)],
     progress: &mut dyn FnMut(usize),
 ) -> Result<Outcome, SimError> {
     let mut records = String::new();
@@ -177,10 +218,16 @@ pub fn run(
         }
         let arbiter = Arbiter::new(loaded.table)
             .map_err(|error| SimError(format!("node `{}`: {error}", node.name)))?;
+        let stop_us = stops
+            .iter()
+            .filter(|(_, node)| *node == node_index)
+            .map(|(t, _)| *t)
+            .min();
         stations.push(Station {
             node: node_index,
             id: node.id,
             arbiter,
+            stop_us,
         });
     }
     if options.records {
@@ -216,6 +263,14 @@ pub fn run(
     let mut next_grid = 0u64;
     let mut sent = 0usize;
     let mut pending = frames.iter().peekable();
+    let mut halts: Vec<(u64, usize)> = run
+        .stations
+        .iter()
+        .enumerate()
+        .filter_map(|(station, entry)| Some((entry.stop_us?, station)))
+        .collect();
+    halts.sort_unstable();
+    let mut halts = halts.into_iter().peekable();
     loop {
         let next_frame = pending
             .peek()
@@ -227,13 +282,18 @@ pub fn run(
             .map(|Reverse((t, _))| *t)
             .filter(|&t| t <= until_us);
         let next_sample = (options.samples && next_grid <= until_us).then_some(next_grid);
-        let Some(now) = [next_frame, next_wake, next_sample]
+        let next_halt = halts.peek().map(|(t, _)| *t).filter(|&t| t <= until_us);
+        let Some(now) = [next_frame, next_wake, next_sample, next_halt]
             .into_iter()
             .flatten()
             .min()
         else {
             break;
         };
+        // A node stops before the frames of its instant: it receives none of them.
+        while let Some((_, station)) = halts.next_if(|(t, _)| *t == now) {
+            run.halt(station, now);
+        }
         if next_sample == Some(now) {
             run.sample_all(now);
             next_grid = next_grid.saturating_add(grid);
@@ -272,7 +332,7 @@ pub fn run(
 }
 
 /// The frames of the network's events, in bus order: by time, then CAN arbitration order, then
-/// the order of the events in the file. Their data is empty.
+/// the order of the events in the file. Each carries its event's `data`.
 pub fn event_frames(network: &Network) -> Result<Vec<BusFrame>, SimError> {
     let mut frames = Vec::new();
     for (sequence, event) in network.events.iter().enumerate() {
@@ -295,8 +355,12 @@ pub fn event_frames(network: &Network) -> Result<Vec<BusFrame>, SimError> {
         } else {
             filter.id()
         };
-        let frame = pab_core::Frame::data(id, &[])
-            .ok_or_else(|| SimError(format!("topic `{}` has an invalid CAN id", topic.name)))?;
+        let frame = pab_core::Frame::data(id, &event.data).ok_or_else(|| {
+            SimError(format!(
+                "an event of topic `{}` has more than 8 bytes of data",
+                topic.name
+            ))
+        })?;
         for t in event.schedule.times() {
             frames.push((
                 (micros(t), base, filter.is_extended(), filter.id(), sequence),
@@ -312,12 +376,13 @@ pub fn event_frames(network: &Network) -> Result<Vec<BusFrame>, SimError> {
 }
 
 /// The default end of a simulation: once the last frame's effects have decayed, or at the end of
-/// the last phase, whichever is later, rounded up to a tenth of a second.
+/// the last phase or the last fault, whichever is later, rounded up to a tenth of a second.
 fn default_until(network: &Network, frames: &[BusFrame]) -> u64 {
     let after_phases = network
         .phases
         .iter()
         .map(|p| micros(p.to))
+        .chain(network.faults.iter().map(|f| micros(f.at)))
         .max()
         .unwrap_or(0);
     // Round up to a tenth of a second.
@@ -380,6 +445,13 @@ impl Run<'_> {
         let now = Instant::from_micros(frame.t_us);
         let id = frame.frame.id();
         for station in 0..self.stations.len() {
+            if self
+                .stations
+                .get(station)
+                .is_none_or(|entry| entry.stopped(frame.t_us))
+            {
+                continue;
+            }
             if self.options.samples {
                 self.sample_ports_fed_by(station, &id, frame.t_us);
             }
@@ -442,10 +514,33 @@ impl Run<'_> {
         }
     }
 
+    /// Station `station` stops at `t_us`: its ports select nobody from then on.
+    fn halt(&mut self, station: usize, t_us: u64) {
+        let Some(node) = self.stations.get(station).map(|s| s.node) else {
+            return;
+        };
+        let ports = self
+            .network
+            .nodes
+            .get(node)
+            .map(|n| n.ports.clone())
+            .unwrap_or_default();
+        for port in ports {
+            self.note(port, t_us, None);
+        }
+    }
+
     fn wake(&mut self, port: usize, t_us: u64) {
         let Some((station, local)) = self.locate(port) else {
             return;
         };
+        if self
+            .stations
+            .get(station)
+            .is_none_or(|entry| entry.stopped(t_us))
+        {
+            return;
+        }
         let selected = self
             .stations
             .get(station)
@@ -515,7 +610,8 @@ impl Run<'_> {
             return;
         };
         let now = Instant::from_micros(t_us);
-        let selected = entry.arbiter.selected(local_port, now);
+        let stopped = entry.stopped(t_us);
+        let selected = entry.arbiter.selected(local_port, now).filter(|_| !stopped);
         let connections = self
             .network
             .ports
@@ -529,6 +625,7 @@ impl Run<'_> {
             let level = entry
                 .arbiter
                 .level(local_port, local, now)
+                .filter(|_| !stopped)
                 .map_or(0.0, |level| level.to_f64());
             if let Some(samples) = self.samples.get_mut(connection) {
                 samples.push(Sample {
@@ -621,10 +718,11 @@ impl Outcome {
                     rows.len(),
                     delivered,
                     rows.len() - delivered,
-                    if connection.is_virtual() {
-                        "  (virtual)"
-                    } else {
-                        ""
+                    match (connection.kind.is_special(), connection.is_virtual()) {
+                        (true, true) => format!("  ({}, virtual)", connection.kind.name()),
+                        (true, false) => format!("  ({})", connection.kind.name()),
+                        (false, true) => "  (virtual)".to_string(),
+                        (false, false) => String::new(),
                     }
                 );
             }
@@ -645,22 +743,28 @@ impl Outcome {
                     .map(|c| {
                         let index = port.connections.get(c.index).copied().unwrap_or(0);
                         let topic = network.topics.get(c.topic).map_or("?", |t| t.name.as_str());
+                        let rule = if c.is_virtual() {
+                            "virtual".to_string()
+                        } else {
+                            crate::shown::excerpt(&c.rule_text, crate::network::RULE_EXCERPT)
+                        };
+                        let label = if c.kind.is_special() {
+                            let target = c
+                                .inhibits
+                                .and_then(|t| network.topics.get(t))
+                                .map_or(String::new(), |t| format!(" {}", t.name));
+                            format!(
+                                "{}  {topic}  {}{target} {} s  {rule}",
+                                c.name,
+                                c.kind.name(),
+                                c.tau
+                            )
+                        } else {
+                            format!("{}  {topic}  σ {} τ {} s  {rule}", c.name, c.sigma, c.tau)
+                        };
                         ConnectionSeries {
                             name: c.name.clone(),
-                            label: format!(
-                                "{}  {topic}  σ {} τ {} s  {}",
-                                c.name,
-                                c.sigma,
-                                c.tau,
-                                if c.is_virtual() {
-                                    "virtual".to_string()
-                                } else {
-                                    crate::shown::excerpt(
-                                        &c.rule_text,
-                                        crate::network::RULE_EXCERPT,
-                                    )
-                                }
-                            ),
+                            label,
                             samples: self.samples.get(index).cloned().unwrap_or_default(),
                         }
                     })
