@@ -42,7 +42,9 @@
 
 use embedded_can::Id;
 use heapless::Vec;
+use serde::{Deserialize, Serialize};
 
+use crate::filter::{Filter, FilterError};
 use crate::frame::Frame;
 use crate::protocol::{MAX_NODE_ID, Priority};
 use crate::time::Instant;
@@ -375,6 +377,219 @@ impl<const PEERS: usize> Eligibility<PEERS> {
     }
 }
 
+/// Ports of a node at which one group's claim is a rule variable.
+pub const MAX_GROUP_PORTS: usize = 4;
+/// The longest period: an hour, in µs (fits the table's `u32`).
+pub const MAX_PERIOD_US: u32 = 3_600_000_000;
+
+/// Where a node reads its own eligibility in the frames of its local topic: an unsigned field of
+/// 1 or 2 bytes (a claim's identifier ranks 16 bits).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct EligibilityField {
+    /// The first byte.
+    pub offset: u8,
+    /// 1 or 2.
+    pub size: u8,
+    /// Byte order of a 2-byte field.
+    pub big_endian: bool,
+}
+
+impl EligibilityField {
+    /// Checks that the field has 1 or 2 bytes within a classic frame's 8.
+    pub const fn validate(&self) -> Result<(), GroupError> {
+        if (self.size == 1 || self.size == 2) && self.offset as usize + self.size as usize <= 8 {
+            Ok(())
+        } else {
+            Err(GroupError::Field)
+        }
+    }
+
+    /// The field's value in `payload`; `None` when the frame is too short to carry it (no
+    /// reading: a frame that says nothing about eligibility does not make it fresh).
+    pub fn read(&self, payload: &[u8]) -> Option<u16> {
+        let start = self.offset as usize;
+        match self.size {
+            1 => payload.get(start).map(|&b| u16::from(b)),
+            2 => {
+                let &[a, b] = payload.get(start..start.checked_add(2)?)? else {
+                    return None;
+                };
+                Some(if self.big_endian {
+                    u16::from_be_bytes([a, b])
+                } else {
+                    u16::from_le_bytes([a, b])
+                })
+            }
+            _ => None,
+        }
+    }
+}
+
+/// One port at which a group's claim is a rule variable.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct GroupPort {
+    /// The port.
+    pub port: u8,
+    /// The connection of the port whose activity is the claim (`holds`): a rule variable that
+    /// no frame feeds.
+    pub claim: u8,
+    /// The connections whose rule names the group (bit i: connection i): the node offers its
+    /// eligibility only while one of them could deliver with the claim taken as held.
+    pub gated: u32,
+}
+
+/// A node's part in one BLE peer group, as its table describes it.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Group {
+    /// The group's number on the bus (byte 0 of its claims).
+    pub number: u8,
+    /// The broadcast period, µs (1..=[`MAX_PERIOD_US`]).
+    pub period_us: u32,
+    /// The node's own eligibility topic.
+    pub local: Filter,
+    /// Where the eligibility is in its frames.
+    pub field: EligibilityField,
+    /// How many other nodes the group has: the room kept for their claims.
+    pub peers: u8,
+    /// Where the claim is a rule variable.
+    pub ports: Vec<GroupPort, MAX_GROUP_PORTS>,
+}
+
+/// Why a group of a table was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum GroupError {
+    /// A period of 0 or above [`MAX_PERIOD_US`].
+    Period,
+    /// An eligibility field that is not 1 or 2 bytes within 8.
+    Field,
+    /// The local topic's filter is invalid.
+    Filter(FilterError),
+    /// More peers than the node has room for.
+    TooManyPeers,
+    /// A port the table does not have.
+    NoSuchPort {
+        /// The port.
+        port: u8,
+    },
+    /// A port listed twice for one group.
+    DuplicatePort {
+        /// The port.
+        port: u8,
+    },
+    /// A claim or gated connection beyond the port's connections, or a claim among the gated.
+    Connection {
+        /// The port.
+        port: u8,
+    },
+    /// Two groups with one number.
+    DuplicateGroup {
+        /// The number.
+        number: u8,
+    },
+    /// One connection is the claim of two groups.
+    SharedClaim {
+        /// The port.
+        port: u8,
+    },
+}
+
+impl core::fmt::Display for GroupError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            GroupError::Period => write!(f, "BLE period must be 1..={MAX_PERIOD_US} µs"),
+            GroupError::Field => f.write_str("BLE eligibility field must be 1 or 2 bytes within 8"),
+            GroupError::Filter(error) => write!(f, "BLE local topic: {error}"),
+            GroupError::TooManyPeers => f.write_str("more BLE peers than the node holds"),
+            GroupError::NoSuchPort { port } => write!(f, "BLE group names port {port}, absent"),
+            GroupError::DuplicatePort { port } => write!(f, "BLE group lists port {port} twice"),
+            GroupError::Connection { port } => {
+                write!(
+                    f,
+                    "BLE claim or gated connection out of range at port {port}"
+                )
+            }
+            GroupError::DuplicateGroup { number } => write!(f, "two BLE groups numbered {number}"),
+            GroupError::SharedClaim { port } => {
+                write!(
+                    f,
+                    "one connection of port {port} is the claim of two BLE groups"
+                )
+            }
+        }
+    }
+}
+
+impl Group {
+    /// Checks the group against a table: `connections(port)` is the number of connections of
+    /// `port`, `None` if the table has no such port; `max_peers` the room for peers. Costs a pass
+    /// over the group's ports.
+    pub fn validate(
+        &self,
+        connections: impl Fn(u8) -> Option<u8>,
+        max_peers: usize,
+    ) -> Result<(), GroupError> {
+        if self.period_us == 0 || self.period_us > MAX_PERIOD_US {
+            return Err(GroupError::Period);
+        }
+        self.field.validate()?;
+        self.local.validate().map_err(GroupError::Filter)?;
+        if usize::from(self.peers) > max_peers {
+            return Err(GroupError::TooManyPeers);
+        }
+        let mut seen = 0u32;
+        for entry in &self.ports {
+            let port = entry.port;
+            let count = connections(port).ok_or(GroupError::NoSuchPort { port })?;
+            let bit = 1u32.checked_shl(u32::from(port)).unwrap_or(0);
+            if bit == 0 || seen & bit != 0 {
+                return Err(GroupError::DuplicatePort { port });
+            }
+            seen |= bit;
+            // Connections 0..count: bits below `count` (count ≤ 32).
+            let present = 1u64
+                .checked_shl(u32::from(count))
+                .map_or(u64::MAX, |b| b.wrapping_sub(1));
+            let claim = 1u64.checked_shl(u32::from(entry.claim)).unwrap_or(0);
+            if claim & present == 0
+                || u64::from(entry.gated) & !present != 0
+                || u64::from(entry.gated) & claim != 0
+            {
+                return Err(GroupError::Connection { port });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Checks a table's groups together: numbers unique, and no connection the claim of two groups.
+pub fn validate_groups<'a>(
+    groups: impl Iterator<Item = &'a Group> + Clone,
+) -> Result<(), GroupError> {
+    for (index, group) in groups.clone().enumerate() {
+        for other in groups.clone().skip(index.saturating_add(1)) {
+            if other.number == group.number {
+                return Err(GroupError::DuplicateGroup {
+                    number: group.number,
+                });
+            }
+            for mine in &group.ports {
+                if other
+                    .ports
+                    .iter()
+                    .any(|theirs| theirs.port == mine.port && theirs.claim == mine.claim)
+                {
+                    return Err(GroupError::SharedClaim { port: mine.port });
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -537,6 +752,117 @@ mod tests {
         };
         assert_eq!(r.on_peer(other, at(252)), Ok(()));
         assert_eq!(r.best_peer(at(252)), Some(claim(6, 1)));
+    }
+
+    fn group(ports: &[(u8, u8, u32)]) -> Group {
+        Group {
+            number: 1,
+            period_us: 100_000,
+            local: Filter::exact(0x180, false).unwrap(),
+            field: EligibilityField {
+                offset: 2,
+                size: 2,
+                big_endian: false,
+            },
+            peers: 2,
+            ports: ports
+                .iter()
+                .map(|&(port, claim, gated)| GroupPort { port, claim, gated })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn the_eligibility_field_reads_its_bytes_or_nothing() {
+        let le = EligibilityField {
+            offset: 2,
+            size: 2,
+            big_endian: false,
+        };
+        assert_eq!(le.read(&[0, 0, 0x34, 0x12]), Some(0x1234));
+        assert_eq!(
+            EligibilityField {
+                big_endian: true,
+                ..le
+            }
+            .read(&[0, 0, 0x34, 0x12]),
+            Some(0x3412)
+        );
+        assert_eq!(le.read(&[0, 0, 0x34]), None, "too short: no reading");
+        let byte = EligibilityField {
+            offset: 7,
+            size: 1,
+            big_endian: false,
+        };
+        assert_eq!(byte.read(&[0, 0, 0, 0, 0, 0, 0, 9]), Some(9));
+        assert_eq!(byte.validate(), Ok(()));
+        assert_eq!(
+            EligibilityField { size: 2, ..byte }.validate(),
+            Err(GroupError::Field)
+        );
+        assert_eq!(
+            EligibilityField {
+                size: 4,
+                offset: 0,
+                ..byte
+            }
+            .validate(),
+            Err(GroupError::Field)
+        );
+    }
+
+    #[test]
+    fn a_group_is_checked_against_the_table() {
+        let ports = |port: u8| (port < 2).then_some(3u8);
+        assert_eq!(
+            group(&[(0, 2, 0b011), (1, 0, 0b110)]).validate(ports, 2),
+            Ok(())
+        );
+        assert_eq!(
+            group(&[(0, 2, 0b011)]).validate(ports, 1),
+            Err(GroupError::TooManyPeers)
+        );
+        assert_eq!(
+            group(&[(2, 0, 0)]).validate(ports, 2),
+            Err(GroupError::NoSuchPort { port: 2 })
+        );
+        assert_eq!(
+            group(&[(0, 0, 0), (0, 1, 0)]).validate(ports, 2),
+            Err(GroupError::DuplicatePort { port: 0 })
+        );
+        for (claim, gated) in [(3, 0), (40, 0), (0, 0b1000), (1, 0b010)] {
+            assert_eq!(
+                group(&[(1, claim, gated)]).validate(ports, 2),
+                Err(GroupError::Connection { port: 1 }),
+                "claim {claim}, gated {gated:#b}"
+            );
+        }
+        for period_us in [0, MAX_PERIOD_US + 1] {
+            let g = Group {
+                period_us,
+                ..group(&[])
+            };
+            assert_eq!(g.validate(ports, 2), Err(GroupError::Period));
+        }
+        let a = group(&[(0, 2, 0)]);
+        let b = Group {
+            number: 2,
+            ..group(&[(0, 2, 0)])
+        };
+        assert_eq!(
+            validate_groups([&a, &b].into_iter()),
+            Err(GroupError::SharedClaim { port: 0 })
+        );
+        let c = group(&[(0, 1, 0)]);
+        assert_eq!(
+            validate_groups([&a, &c].into_iter()),
+            Err(GroupError::DuplicateGroup { number: 1 })
+        );
+        let d = Group {
+            number: 3,
+            ..group(&[(0, 1, 0)])
+        };
+        assert_eq!(validate_groups([&a, &d].into_iter()), Ok(()));
     }
 
     #[test]
