@@ -30,6 +30,7 @@
 #![no_main]
 
 mod auth;
+mod ble;
 mod cases;
 mod take_and_return;
 
@@ -117,6 +118,7 @@ fn main() -> ! {
     cases::run(&mut peripherals.SYST);
     take_and_return::run();
     auth::run();
+    ble::run();
     semihosting::eprint(format_args!("pab-an386-cost: done\n"));
     semihosting::exit(true)
 }
