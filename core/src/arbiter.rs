@@ -11,6 +11,12 @@
 //! The same frame can thus be delivered to several ports of a node (fan-out), at most once per
 //! port. Everything runs in the caller's context: no timers, no allocation, no panics.
 //!
+//! A **value port** ([`crate::value_port`]) delivers no frame as it came: [`Arbiter::receive_frame`]
+//! keeps each of its connections' last frame and hands the consumer the combined output when it
+//! changes, and [`Arbiter::poll`] does so at [`Arbiter::deadline`], when a value ages out. Ordinary
+//! ports pay nothing for it: [`Arbiter::receive`] is unchanged, and [`Arbiter::receive_frame`] on a
+//! table without value ports is [`Arbiter::receive`] plus one test.
+//!
 //! ## How a frame stays cheap
 //!
 //! What a frame needs is built once, when the table is loaded, so that its cost does not grow
@@ -41,11 +47,15 @@ use heapless::Vec;
 
 use crate::decay::Decay;
 use crate::decision::{self, ConnectionSet, NodeRef, Step};
+use crate::frame::Frame;
 use crate::index::{Cursor, FilterIndex, Lookup};
 use crate::integrator::{Integrator, Runtime, Stimulated};
 use crate::level::{Gain, Level};
 use crate::table::{Table, TableError};
 use crate::time::Instant;
+use crate::value_port::{
+    Combined, MAX_VALUE_CONNECTIONS, MAX_VALUE_PORTS, ValueSlot, ValueState, earliest,
+};
 use crate::{MAX_CONNECTIONS, MAX_DECISION_NODES, MAX_PORTS};
 
 /// What one frame did on one port.
@@ -112,6 +122,20 @@ pub struct Reception {
     pub fed: PortSet,
     /// The ports it was delivered to.
     pub delivered: PortSet,
+}
+
+/// What one frame did on the whole node, value ports included ([`Arbiter::receive_frame`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FrameReception {
+    /// The ports the frame fed.
+    pub fed: PortSet,
+    /// The ordinary ports it was delivered to, as it came.
+    pub delivered: PortSet,
+    /// The value ports whose output it changed (each handed to `on_value`).
+    pub combined: PortSet,
+    /// The value ports it fed that refused it: too short for their fields.
+    pub refused: PortSet,
 }
 
 /// One connection's run-time state and what a frame needs of its parameters, in one place: its
@@ -411,8 +435,9 @@ impl Port {
 ///
 /// Memory: the table plus, per connection of capacity, 40 bytes of run-time state and 16 of
 /// filter index, 8 bytes per decision node of capacity (the decision in the form it is walked),
-/// and 56 bytes per port of capacity: about 69 KiB in all at the default capacities, 8.9 KiB
-/// for [`crate::BoardArbiter`]. `size_of::<Arbiter<P, C, N>>()` tells exactly (`cargo run -p
+/// 56 bytes per port of capacity, and the value ports' fixed 672 bytes
+/// ([`crate::value_port`]): about 70 KiB in all at the default capacities, 9.8 KiB for
+/// [`crate::BoardArbiter`]. `size_of::<Arbiter<P, C, N>>()` tells exactly (`cargo run -p
 /// pab-core --example footprint`).
 // repr(C), hot fields first: on a 32-bit core the ports and the index are then reached with
 // small offsets from the arbiter's address (the table, large and cold, comes last).
@@ -427,6 +452,9 @@ pub struct Arbiter<
     index: FilterIndex<CONNECTIONS>,
     slots: Vec<Slot, CONNECTIONS>,
     steps: Vec<Step, NODES>,
+    value_ports: PortSet,
+    values: Vec<ValueState, MAX_VALUE_PORTS>,
+    value_slots: Vec<ValueSlot, MAX_VALUE_CONNECTIONS>,
     table: Table<PORTS, CONNECTIONS, NODES>,
 }
 
@@ -443,7 +471,10 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         let mut ports = Vec::new();
         let mut slots = Vec::new();
         let mut steps = Vec::new();
-        for (position, (record, connections, nodes)) in table.ranges().enumerate() {
+        let mut value_ports = PortSet::default();
+        let mut values = Vec::new();
+        let mut value_slots: Vec<ValueSlot, MAX_VALUE_CONNECTIONS> = Vec::new();
+        for (position, (record, connections, nodes, roots)) in table.ranges().enumerate() {
             let port = u8::try_from(position).map_err(|_| TableError::TooManyPorts)?;
             let (Some(views), Some(nodes)) = (
                 table.connections().get(connections.clone()),
@@ -504,6 +535,26 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             };
             run.idle(&steps);
             ports.push(run).map_err(|_| TableError::TooManyPorts)?;
+            if let Some(spec) = record.value() {
+                let roots = table
+                    .roots()
+                    .get(roots)
+                    .ok_or(TableError::RootCountMismatch)?;
+                let first = u8::try_from(value_slots.len())
+                    .map_err(|_| TableError::TooManyValueConnections)?;
+                let own = slots.get(usize::from(first_connection)..).unwrap_or(&[]);
+                for (slot, &root) in own.iter().zip(roots) {
+                    value_slots
+                        .push(ValueSlot::new(slot.tau, root))
+                        .map_err(|_| TableError::TooManyValueConnections)?;
+                }
+                let count =
+                    u8::try_from(roots.len()).map_err(|_| TableError::PortTooWide { port })?;
+                values
+                    .push(ValueState::new(port, first, count, spec))
+                    .map_err(|_| TableError::TooManyValuePorts)?;
+                value_ports = value_ports.with(port);
+            }
         }
         let index = FilterIndex::new(table.connections()).ok_or(TableError::TooManyConnections)?;
         Ok(Arbiter {
@@ -512,6 +563,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             slots,
             index,
             steps,
+            value_ports,
+            values,
+            value_slots,
         })
     }
 
@@ -528,6 +582,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         for port in self.ports.iter_mut() {
             port.idle(&self.steps);
         }
+        for state in self.values.iter_mut() {
+            state.clear(&mut self.value_slots);
+        }
     }
 
     /// Takes over, from `previous` (the arbiter this one replaces), the state of every
@@ -538,8 +595,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// connection starts at S = 0, inactive, as after [`Arbiter::new`]. The ports' decisions are
     /// this table's, taken again from the carried activity at the next frame or reading: a port
     /// whose connections are all unchanged, and whose decision is too, decides exactly as
-    /// `previous` would have. The port's consumer plays no part. Returns how many connections
-    /// were carried over.
+    /// `previous` would have. The port's consumer plays no part. Value ports start without
+    /// values or output (their connections' activity is carried like any other's). Returns how
+    /// many connections were carried over.
     ///
     /// Call it on a freshly built arbiter (its own state is replaced). Costs one comparison of
     /// a connection (filter and parameters) per connection of this table, and a port reset per
@@ -803,6 +861,171 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 Some((slot.port, bit, 0))
             }
         }
+    }
+
+    /// Arbitrates `frame`, which arrived at `now`, as [`Arbiter::receive`] does, and takes its
+    /// value at the value ports it feeds: `on_value` gets each value port's output when the
+    /// frame changes it ([`crate::value_port`]). What every runner calls.
+    ///
+    /// Cost: [`Arbiter::receive`] plus one test on a table without value ports; per value port
+    /// fed, the frame's copy into each connection it feeds, one decision walk per connection of
+    /// the port and a pass over them (README, "Figures").
+    pub fn receive_frame(
+        &mut self,
+        frame: &Frame,
+        now: Instant,
+        mut on_verdict: impl FnMut(&PortVerdict),
+        mut on_value: impl FnMut(&Combined),
+    ) -> FrameReception {
+        let value_ports = self.value_ports;
+        // The bits each value port was fed, by its rank among the value ports (one closure
+        // type for every table, so that the arbitration is compiled once).
+        let mut fed = [0u32; MAX_VALUE_PORTS];
+        let reception = self.receive(&frame.id(), now, |verdict| {
+            if value_ports.contains(verdict.port) {
+                let below = 1u16.checked_shl(u32::from(verdict.port)).unwrap_or(0);
+                let rank = (value_ports.bits() & below.wrapping_sub(1)).count_ones();
+                if let Some(bits) = fed.get_mut(rank as usize) {
+                    *bits = verdict.fed.bits();
+                }
+            }
+            on_verdict(verdict);
+        });
+        let mut result = FrameReception {
+            fed: reception.fed,
+            delivered: reception.delivered,
+            ..FrameReception::default()
+        };
+        if !value_ports.is_empty() && reception.fed.bits() & value_ports.bits() != 0 {
+            self.take_values(frame, now, &fed, &mut result, &mut on_value);
+        }
+        result
+    }
+
+    /// Stores `frame` at the value ports it fed (`fed`, by rank among the value ports) and
+    /// combines them. Out of line and not generic: one copy in flash.
+    #[inline(never)]
+    fn take_values(
+        &mut self,
+        frame: &Frame,
+        now: Instant,
+        fed: &[u32; MAX_VALUE_PORTS],
+        result: &mut FrameReception,
+        on_value: &mut dyn FnMut(&Combined),
+    ) {
+        for (position, &bits) in fed.iter().enumerate() {
+            if bits == 0 {
+                continue;
+            }
+            let Some(state) = self.values.get_mut(position) else {
+                continue;
+            };
+            let port = state.port;
+            if !state.store(&mut self.value_slots, bits, frame, now) {
+                result.refused = result.refused.with(port);
+            }
+            if self.combine(position, now, on_value) {
+                result.combined = result.combined.with(port);
+            }
+        }
+    }
+
+    /// Re-evaluates the value ports whose deadline has passed at `now` (a value that aged out,
+    /// an activity that ended) and hands `on_value` each output that changed. Returns the ports
+    /// whose output changed (also when it became "nothing", which delivers no frame). Call it
+    /// at [`Arbiter::deadline`]; calling it earlier does no harm. Costs a comparison per value
+    /// port, and what a frame's combination costs per port due.
+    pub fn poll(&mut self, now: Instant, mut on_value: impl FnMut(&Combined)) -> PortSet {
+        if self.values.is_empty() {
+            return PortSet::default();
+        }
+        self.poll_values(now, &mut on_value)
+    }
+
+    /// [`Arbiter::poll`] on a table with value ports. Out of line and not generic.
+    #[inline(never)]
+    fn poll_values(&mut self, now: Instant, on_value: &mut dyn FnMut(&Combined)) -> PortSet {
+        let mut changed = PortSet::default();
+        for position in 0..self.values.len() {
+            let Some(state) = self.values.get(position) else {
+                continue;
+            };
+            let port = state.port;
+            if state.due.is_some_and(|due| now.micros_since(due).is_some())
+                && self.combine(position, now, on_value)
+            {
+                changed = changed.with(port);
+            }
+        }
+        changed
+    }
+
+    /// The earliest instant at which a value port's output may change without a frame, seen
+    /// from `now` (an instant already passed counts as `now`); `None` without value ports or
+    /// values. Costs a comparison per value port.
+    pub fn deadline(&self, now: Instant) -> Option<Instant> {
+        self.values
+            .iter()
+            .filter_map(|state| state.due)
+            .fold(None, |kept, due| Some(earliest(kept, due, now)))
+    }
+
+    /// Whether port `port` is a value port.
+    pub fn is_value_port(&self, port: u8) -> bool {
+        self.value_ports.contains(port)
+    }
+
+    /// Value port `port`'s current output, as last evaluated (by a frame or [`Arbiter::poll`]):
+    /// the connection whose frame it handed over and the combined value; `None` while it has no
+    /// contributor, and for a port that is not a value port. Read-only; a look-up among at most
+    /// [`MAX_VALUE_PORTS`].
+    pub fn output(&self, port: u8) -> Option<(u8, i64)> {
+        self.values
+            .iter()
+            .find(|state| state.port == port)
+            .and_then(ValueState::output)
+    }
+
+    /// Combines value port `position` (among the value ports) at `now`; hands a changed output to
+    /// `on_value`. Returns whether the output changed.
+    #[inline(never)]
+    fn combine(
+        &mut self,
+        position: usize,
+        now: Instant,
+        on_value: &mut dyn FnMut(&Combined),
+    ) -> bool {
+        let Some(state) = self.values.get_mut(position) else {
+            return false;
+        };
+        let Some(port) = self.ports.get_mut(usize::from(state.port)) else {
+            return false;
+        };
+        let active = port.update_activity(&self.slots, now);
+        let steps = port.steps(&self.steps);
+        let mut lets_through = 0u32;
+        for (index, slot) in state.slots(&self.value_slots).iter().enumerate() {
+            if decide(steps, slot.root, active) == u8::try_from(index).ok() {
+                lets_through |= 1u32.checked_shl(index as u32).unwrap_or(0);
+            }
+        }
+        // The next instant an activity of the port ends: one after a flagged connection's end.
+        let at = now.as_micros();
+        let mut lapse = None;
+        for slot in port.slots(&self.slots) {
+            if slot.integrator.active_flag() && slot.end() >= at && slot.end() < u64::MAX {
+                lapse = Some(earliest(
+                    lapse,
+                    Instant::from_micros(slot.end().saturating_add(1)),
+                    now,
+                ));
+            }
+        }
+        let (changed, combined) = state.combine(&self.value_slots, lets_through, lapse, now);
+        if let Some(combined) = &combined {
+            on_value(combined);
+        }
+        changed
     }
 
     /// The connection of port `port` whose frames would get through at `now`, or `None` (also for

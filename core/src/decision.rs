@@ -215,6 +215,17 @@ pub fn validate(
     Ok(())
 }
 
+/// Whether `root` may enter a diagram of `nodes` (already [`validate`]d) on a port of
+/// `connections` connections: a node that exists, a terminal naming one of its connections, or
+/// "nobody". Value ports check their connections' roots with it. One comparison.
+pub fn root_ok(nodes: &[DecisionNode], root: NodeRef, connections: u8) -> bool {
+    match root.target() {
+        Target::Nobody => true,
+        Target::Deliver(index) => index < connections,
+        Target::Node(index) => usize::from(index) < nodes.len(),
+    }
+}
+
 /// The connection that may deliver under `active`, or `None`.
 ///
 /// At most one step per connection on a validated diagram. On a diagram that was not validated it

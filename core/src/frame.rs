@@ -36,6 +36,17 @@ pub struct Frame {
 }
 
 impl Frame {
+    /// A data frame on standard identifier 0 without data: a placeholder for storage that is
+    /// filled before it is read.
+    pub const fn empty() -> Frame {
+        Frame {
+            id: Id::Standard(StandardId::ZERO),
+            remote: false,
+            len: 0,
+            data: [0; MAX_DATA_LEN],
+        }
+    }
+
     /// A data frame; `None` when `data` is longer than 8 bytes.
     pub fn data(id: impl Into<Id>, data: &[u8]) -> Option<Frame> {
         let len = u8::try_from(data.len()).ok().filter(|&len| len <= 8)?;

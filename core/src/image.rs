@@ -3,7 +3,7 @@
 //! ```text
 //! offset size  field
 //!      0    4  magic "PABT"
-//!      4    2  format version, little endian (this is format 2)
+//!      4    2  format version, little endian (this is format 3)
 //!      6    1  node id the table is for
 //!      7    1  reserved, must be 0
 //!      8    4  table version, little endian (newer tables have larger versions)
@@ -23,7 +23,10 @@
 //! bounds, whatever the bytes.
 //!
 //! Format history: format 1 had no port consumers; format 2 adds one [`crate::Consumer`] per port
-//! (after its decision root). This crate reads format 2 only.
+//! (after its decision root); format 3 adds value ports: an optional [`crate::ValueSpec`] per port
+//! (after its consumer) and, after the decision nodes, the list of the value ports' connection
+//! roots. This crate reads format 3 only: an image of another format is refused with
+//! [`LoadError::UnsupportedFormat`], which names the format found and the one expected.
 //!
 //! The body does not depend on the capacities of the [`Table`] that was encoded (postcard prefixes
 //! each list with its length), so one image loads into any table with room for it: a node with
@@ -35,14 +38,14 @@ use serde::Deserialize;
 use serde::de::{Deserializer, SeqAccess, Visitor};
 
 use crate::crc32::Crc32;
-use crate::decision::DecisionNode;
+use crate::decision::{DecisionNode, NodeRef};
 use crate::table::{Connection, Port, Table, TableError};
 use crate::{MAX_CONNECTIONS, MAX_DECISION_NODES, MAX_PORTS};
 
 /// The first four bytes of every image.
 pub const MAGIC: [u8; 4] = *b"PABT";
 /// The format this crate writes and reads.
-pub const FORMAT_VERSION: u16 = 2;
+pub const FORMAT_VERSION: u16 = 3;
 /// Bytes before the body.
 pub const HEADER_LEN: usize = 20;
 /// The largest image accepted, header included. A table at full capacity encodes in less.
@@ -106,10 +109,13 @@ pub enum LoadError {
     },
     /// Not an image: the first bytes are not "PABT".
     BadMagic,
-    /// An image of a format this node does not read.
+    /// An image of a format this node does not read (an image written by an older or newer
+    /// `pabctl`): compile it again with a `pabctl` of the node's format.
     UnsupportedFormat {
         /// The format found.
         found: u16,
+        /// The format this node reads, [`FORMAT_VERSION`].
+        expected: u16,
     },
     /// The reserved header byte is not zero.
     ReservedByte,
@@ -153,9 +159,9 @@ impl core::fmt::Display for LoadError {
                 write!(f, "{extra} bytes after the end of the image")
             }
             LoadError::BadMagic => f.write_str("not a table image (bad magic)"),
-            LoadError::UnsupportedFormat { found } => write!(
+            LoadError::UnsupportedFormat { found, expected } => write!(
                 f,
-                "image format {found} is not supported (this node reads format {FORMAT_VERSION})"
+                "image format {found} is not supported (this node reads format {expected})"
             ),
             LoadError::ReservedByte => f.write_str("reserved header byte is not zero"),
             LoadError::TooLarge { body_len } => {
@@ -256,7 +262,10 @@ pub fn read_header(bytes: &[u8]) -> Result<Header, LoadError> {
     }
     let format = u16::from_le_bytes([f0, f1]);
     if format != FORMAT_VERSION {
-        return Err(LoadError::UnsupportedFormat { found: format });
+        return Err(LoadError::UnsupportedFormat {
+            found: format,
+            expected: FORMAT_VERSION,
+        });
     }
     if reserved != 0 {
         return Err(LoadError::ReservedByte);
@@ -357,6 +366,8 @@ struct BodySize {
     ports: Count<Port>,
     connections: Count<Connection>,
     nodes: Count<DecisionNode>,
+    #[allow(dead_code)] // Counted so that the body's end is found; capacity is the connections'.
+    roots: Count<NodeRef>,
 }
 
 /// The length of a list of `T`, each element decoded (so that it is checked) and dropped.

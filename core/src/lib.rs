@@ -56,8 +56,9 @@ pub mod level;
 pub mod protocol;
 pub mod table;
 pub mod time;
+pub mod value_port;
 
-pub use arbiter::{Arbiter, PortSet, PortVerdict, Reception};
+pub use arbiter::{Arbiter, FrameReception, PortSet, PortVerdict, Reception};
 pub use consumer::{Consumer, OutputId, OutputIdError};
 pub use decision::{ConnectionSet, DecisionNode, NodeRef};
 pub use embedded_can::Id;
@@ -67,6 +68,9 @@ pub use integrator::{Integrator, ParamError, Stimulation};
 pub use level::{Gain, Level};
 pub use table::{Connection, PortView, Table, TableError};
 pub use time::Instant;
+pub use value_port::{
+    Combine, Combined, Endian, Field, MAX_VALUE_CONNECTIONS, MAX_VALUE_PORTS, ValueSpec,
+};
 
 /// Ports per node: the default capacity of a [`Table`], and the most any table can have (a
 /// [`PortSet`] is a `u16`).

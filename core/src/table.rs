@@ -11,9 +11,12 @@
 //! [`crate::BoardTable`] is the profile for a board with little RAM. The encoding does not depend
 //! on the capacities, so one image loads into any table large enough for it.
 //!
-//! Memory: `size_of::<Table<P, C, N>>()` is about 24·C + 6·N + 16·P bytes: 24 856 bytes at the
-//! default capacities, 3 160 for [`crate::BoardTable`] (`cargo run -p pab-core --example
-//! footprint` tells exactly).
+//! Value ports ([`crate::value_port`]) carry a [`ValueSpec`] in their port record and one decision
+//! root per connection, in a list of roots after the decision nodes (value port after value
+//! port, in port order); an ordinary port has none.
+//!
+//! Memory: `size_of::<Table<P, C, N>>()` is about 26·C + 6·N + 32·P bytes (`cargo run -p
+//! pab-core --example footprint` tells exactly, README "Figures").
 
 use core::ops::Range;
 
@@ -24,6 +27,7 @@ use crate::consumer::{Consumer, OutputIdError};
 use crate::decision::{self, DecisionError, DecisionNode, NodeRef};
 use crate::filter::{Filter, FilterError};
 use crate::integrator::{ParamError, Stimulation};
+use crate::value_port::{MAX_VALUE_CONNECTIONS, MAX_VALUE_PORTS, ValueError, ValueSpec};
 use crate::{MAX_CONNECTIONS, MAX_CONNECTIONS_PER_PORT, MAX_DECISION_NODES, MAX_PORTS};
 
 /// One connection: which frames feed it and how they stimulate it.
@@ -36,8 +40,8 @@ pub struct Connection {
     pub stimulation: Stimulation,
 }
 
-/// One port: how many connections and decision nodes it owns, where its decision starts, and who
-/// receives what it delivers.
+/// One port: how many connections and decision nodes it owns, where its decision starts, who
+/// receives what it delivers, and for a value port what it combines.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Port {
@@ -45,6 +49,7 @@ pub struct Port {
     nodes: u16,
     root: NodeRef,
     consumer: Consumer,
+    value: Option<ValueSpec>,
 }
 
 /// A port of a table, with its slices.
@@ -58,6 +63,11 @@ pub struct PortView<'a> {
     pub root: NodeRef,
     /// Who receives the frames the port delivers.
     pub consumer: Consumer,
+    /// For a value port, what it reads and how it combines; `None` for an ordinary port.
+    pub value: Option<ValueSpec>,
+    /// For a value port, each connection's decision root (as many as connections); empty for
+    /// an ordinary port.
+    pub roots: &'a [NodeRef],
 }
 
 /// A node's arbitration table, with room for `PORTS` ports, `CONNECTIONS` connections and `NODES`
@@ -86,6 +96,7 @@ pub struct Table<
     ports: Vec<Port, PORTS>,
     connections: Vec<Connection, CONNECTIONS>,
     nodes: Vec<DecisionNode, NODES>,
+    roots: Vec<NodeRef, CONNECTIONS>,
 }
 
 /// Why a table was refused. Ports and connections are numbered from 0, connections within their
@@ -120,6 +131,19 @@ pub enum TableError {
     ConnectionCountMismatch,
     /// The ports' node counts do not add up to the number of decision nodes.
     NodeCountMismatch,
+    /// The value ports' connection counts do not add up to the number of roots.
+    RootCountMismatch,
+    /// More value ports than [`MAX_VALUE_PORTS`].
+    TooManyValuePorts,
+    /// More connections of value ports in all than [`MAX_VALUE_CONNECTIONS`].
+    TooManyValueConnections,
+    /// A value port is invalid.
+    Value {
+        /// The port.
+        port: u8,
+        /// What is wrong.
+        error: ValueError,
+    },
     /// A connection's stimulation parameters are invalid.
     Parameter {
         /// The port.
@@ -165,6 +189,17 @@ impl core::fmt::Display for TableError {
                 f.write_str("the ports' connection counts do not add up")
             }
             TableError::NodeCountMismatch => f.write_str("the ports' node counts do not add up"),
+            TableError::RootCountMismatch => {
+                f.write_str("the value ports' connection counts do not add up to their roots")
+            }
+            TableError::TooManyValuePorts => {
+                write!(f, "more than {MAX_VALUE_PORTS} value ports")
+            }
+            TableError::TooManyValueConnections => write!(
+                f,
+                "more than {MAX_VALUE_CONNECTIONS} connections on value ports in all"
+            ),
+            TableError::Value { port, error } => write!(f, "port {port}: {error}"),
             TableError::Parameter {
                 port,
                 connection,
@@ -207,6 +242,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             ports: Vec::new(),
             connections: Vec::new(),
             nodes: Vec::new(),
+            roots: Vec::new(),
         }
     }
 
@@ -222,6 +258,56 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         nodes: &[DecisionNode],
         root: NodeRef,
     ) -> Result<(), TableError> {
+        self.push(connections, nodes, root, None, &[])
+    }
+
+    /// Appends a value port ([`crate::value_port`]) whose frames go to [`Consumer::Local`]:
+    /// `roots[i]` is connection i's decision root (it contributes while the diagram entered
+    /// there answers "i delivers"). Validates as [`Table::push_port`] does, and the spec, the
+    /// roots (one per connection, each valid within `nodes`) and the value capacities
+    /// ([`TableError::TooManyValuePorts`], [`TableError::TooManyValueConnections`]); on error
+    /// the table is unchanged.
+    pub fn push_value_port(
+        &mut self,
+        connections: &[Connection],
+        nodes: &[DecisionNode],
+        spec: ValueSpec,
+        roots: &[NodeRef],
+    ) -> Result<(), TableError> {
+        if roots.len() != connections.len() {
+            return Err(TableError::RootCountMismatch);
+        }
+        let (ports, value_connections) = self.value_usage();
+        if ports >= MAX_VALUE_PORTS {
+            return Err(TableError::TooManyValuePorts);
+        }
+        if value_connections.saturating_add(connections.len()) > MAX_VALUE_CONNECTIONS {
+            return Err(TableError::TooManyValueConnections);
+        }
+        self.push(connections, nodes, NodeRef::NOBODY, Some(spec), roots)
+    }
+
+    /// How many value ports there are, and connections on them.
+    fn value_usage(&self) -> (usize, usize) {
+        self.ports.iter().filter(|port| port.value.is_some()).fold(
+            (0, 0),
+            |(ports, connections), port| {
+                (
+                    ports.saturating_add(1),
+                    connections.saturating_add(usize::from(port.connections)),
+                )
+            },
+        )
+    }
+
+    fn push(
+        &mut self,
+        connections: &[Connection],
+        nodes: &[DecisionNode],
+        root: NodeRef,
+        value: Option<ValueSpec>,
+        roots: &[NodeRef],
+    ) -> Result<(), TableError> {
         let index = u8::try_from(self.ports.len()).map_err(|_| TableError::TooManyPorts)?;
         let port = Port {
             connections: u8::try_from(connections.len())
@@ -231,8 +317,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             nodes: u16::try_from(nodes.len()).map_err(|_| TableError::TooManyNodes)?,
             root,
             consumer: Consumer::Local,
+            value,
         };
-        validate_port(index, &port, connections, nodes)?;
+        validate_port(index, &port, connections, nodes, roots)?;
         if self.ports.len() >= PORTS {
             return Err(TableError::TooManyPorts);
         }
@@ -241,6 +328,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         }
         if self.nodes.len().saturating_add(nodes.len()) > NODES {
             return Err(TableError::TooManyNodes);
+        }
+        if self.roots.len().saturating_add(roots.len()) > CONNECTIONS {
+            return Err(TableError::TooManyConnections);
         }
         // Capacities were checked above, so none of these can fail.
         self.ports
@@ -252,6 +342,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         self.nodes
             .extend_from_slice(nodes)
             .map_err(|_| TableError::TooManyNodes)?;
+        self.roots
+            .extend_from_slice(roots)
+            .map_err(|_| TableError::TooManyConnections)?;
         Ok(())
     }
 
@@ -276,6 +369,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         let () = Self::CAPACITIES_FIT;
         let mut connections_seen = 0usize;
         let mut nodes_seen = 0usize;
+        let mut roots_seen = 0usize;
         for (index, port) in self.ports.iter().enumerate() {
             let index = u8::try_from(index).map_err(|_| TableError::TooManyPorts)?;
             if usize::from(port.connections) > MAX_CONNECTIONS_PER_PORT {
@@ -285,13 +379,28 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 .ok_or(TableError::ConnectionCountMismatch)?;
             let nodes = slice(&self.nodes, &mut nodes_seen, port.nodes)
                 .ok_or(TableError::NodeCountMismatch)?;
-            validate_port(index, port, connections, nodes)?;
+            let roots = match port.value {
+                Some(_) => slice(&self.roots, &mut roots_seen, port.connections)
+                    .ok_or(TableError::RootCountMismatch)?,
+                None => &[],
+            };
+            validate_port(index, port, connections, nodes, roots)?;
         }
         if connections_seen != self.connections.len() {
             return Err(TableError::ConnectionCountMismatch);
         }
         if nodes_seen != self.nodes.len() {
             return Err(TableError::NodeCountMismatch);
+        }
+        if roots_seen != self.roots.len() {
+            return Err(TableError::RootCountMismatch);
+        }
+        let (ports, connections) = self.value_usage();
+        if ports > MAX_VALUE_PORTS {
+            return Err(TableError::TooManyValuePorts);
+        }
+        if connections > MAX_VALUE_CONNECTIONS {
+            return Err(TableError::TooManyValueConnections);
         }
         Ok(())
     }
@@ -321,6 +430,11 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         &self.nodes
     }
 
+    /// The value ports' connection roots, value port after value port.
+    pub fn roots(&self) -> &[NodeRef] {
+        &self.roots
+    }
+
     /// Port `index` with its slices, or `None`. Walks the ports before it (at most 16).
     pub fn port(&self, index: usize) -> Option<PortView<'_>> {
         self.ports().nth(index)
@@ -334,27 +448,40 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
 
     /// The ports in order.
     pub fn ports(&self) -> impl Iterator<Item = PortView<'_>> {
-        self.ranges().filter_map(|(port, connections, nodes)| {
-            Some(PortView {
-                connections: self.connections.get(connections)?,
-                nodes: self.nodes.get(nodes)?,
-                root: port.root,
-                consumer: port.consumer,
+        self.ranges()
+            .filter_map(|(port, connections, nodes, roots)| {
+                Some(PortView {
+                    connections: self.connections.get(connections)?,
+                    nodes: self.nodes.get(nodes)?,
+                    root: port.root,
+                    consumer: port.consumer,
+                    value: port.value,
+                    roots: self.roots.get(roots)?,
+                })
             })
-        })
     }
 
-    /// For each port, its record and the ranges of its connections and nodes.
-    pub(crate) fn ranges(&self) -> impl Iterator<Item = (Port, Range<usize>, Range<usize>)> + '_ {
+    /// For each port, its record and the ranges of its connections, nodes and roots.
+    pub(crate) fn ranges(
+        &self,
+    ) -> impl Iterator<Item = (Port, PortRange, PortRange, PortRange)> + '_ {
         let mut connections = 0usize;
         let mut nodes = 0usize;
+        let mut roots = 0usize;
         self.ports.iter().map(move |port| {
             let connection_range =
                 connections..connections.saturating_add(usize::from(port.connections));
             let node_range = nodes..nodes.saturating_add(usize::from(port.nodes));
+            let root_count = if port.value.is_some() {
+                usize::from(port.connections)
+            } else {
+                0
+            };
+            let root_range = roots..roots.saturating_add(root_count);
             connections = connection_range.end;
             nodes = node_range.end;
-            (*port, connection_range, node_range)
+            roots = root_range.end;
+            (*port, connection_range, node_range, root_range)
         })
     }
 }
@@ -369,7 +496,15 @@ impl Port {
     pub const fn consumer(&self) -> Consumer {
         self.consumer
     }
+
+    /// What the port combines, for a value port.
+    pub const fn value(&self) -> Option<ValueSpec> {
+        self.value
+    }
 }
+
+/// A range of indices into one of a table's lists.
+pub(crate) type PortRange = Range<usize>;
 
 /// The next `count` items of `items` after `*seen`, advancing `*seen`.
 fn slice<'a, T>(items: &'a [T], seen: &mut usize, count: impl Into<usize>) -> Option<&'a [T]> {
@@ -384,6 +519,7 @@ fn validate_port(
     port: &Port,
     connections: &[Connection],
     nodes: &[DecisionNode],
+    roots: &[NodeRef],
 ) -> Result<(), TableError> {
     for (position, connection) in connections.iter().enumerate() {
         let position =
@@ -409,7 +545,30 @@ fn validate_port(
         .validate()
         .map_err(|error| TableError::Consumer { port: index, error })?;
     decision::validate(nodes, port.root, port.connections)
-        .map_err(|error| TableError::Decision { port: index, error })
+        .map_err(|error| TableError::Decision { port: index, error })?;
+    let Some(spec) = port.value else {
+        return if roots.is_empty() {
+            Ok(())
+        } else {
+            Err(TableError::RootCountMismatch)
+        };
+    };
+    let value_error = |error| TableError::Value { port: index, error };
+    spec.validate().map_err(value_error)?;
+    if port.root != NodeRef::NOBODY {
+        return Err(value_error(ValueError::PortRoot));
+    }
+    if roots.len() != usize::from(port.connections) {
+        return Err(TableError::RootCountMismatch);
+    }
+    for (connection, &root) in roots.iter().enumerate() {
+        if !decision::root_ok(nodes, root, port.connections) {
+            return Err(value_error(ValueError::BadRoot {
+                connection: u8::try_from(connection).unwrap_or(u8::MAX),
+            }));
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -19,7 +19,7 @@ use pab_core::table::TableError;
 use pab_core::{
     Arbiter, BoardTable, Connection, Consumer, DecisionNode, Filter, Gain, Id, Instant,
     MAX_CONNECTIONS, MAX_CONNECTIONS_PER_PORT, MAX_DECISION_NODES, MAX_PORTS, NodeRef, OutputId,
-    OutputIdError, Reception, Stimulation, Table,
+    OutputIdError, Reception, Stimulation, Table, ValueSpec,
 };
 use proptest::prelude::*;
 use proptest::test_runner::{Config, TestRunner};
@@ -314,6 +314,7 @@ fn expected_for_flip(image: &[u8], bit: usize) -> LoadError {
         0..4 => LoadError::BadMagic,
         4 | 5 => LoadError::UnsupportedFormat {
             found: u16::from_le_bytes([flipped[4], flipped[5]]),
+            expected: FORMAT_VERSION,
         },
         7 => LoadError::ReservedByte,
         12..16 => {
@@ -613,6 +614,7 @@ struct RawTable {
     ports: Vec<RawPort>,
     connections: Vec<RawConnection>,
     nodes: Vec<DecisionNode>,
+    roots: Vec<NodeRef>,
 }
 
 #[derive(Serialize)]
@@ -621,6 +623,7 @@ struct RawPort {
     nodes: u16,
     root: NodeRef,
     consumer: RawConsumer,
+    value: Option<ValueSpec>,
 }
 
 /// The serde shape of `Consumer`.
@@ -672,9 +675,11 @@ fn one_port(connections: Vec<RawConnection>, nodes: Vec<DecisionNode>, root: Nod
             nodes: nodes.len() as u16,
             root,
             consumer: RawConsumer::Local,
+            value: None,
         }],
         connections,
         nodes,
+        roots: vec![],
     }
 }
 
@@ -766,9 +771,11 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                     nodes: 0,
                     root: NodeRef::NOBODY,
                     consumer: RawConsumer::Local,
+                    value: None,
                 }],
                 connections: vec![GOOD],
                 nodes: vec![],
+                roots: vec![],
             },
             TableError::ConnectionCountMismatch,
         ),
@@ -779,9 +786,11 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                     nodes: 0,
                     root: NodeRef::NOBODY,
                     consumer: RawConsumer::Local,
+                    value: None,
                 }],
                 connections: vec![GOOD],
                 nodes: vec![],
+                roots: vec![],
             },
             TableError::ConnectionCountMismatch,
         ),
@@ -792,9 +801,11 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                     nodes: 0,
                     root: NodeRef::NOBODY,
                     consumer: RawConsumer::Local,
+                    value: None,
                 }],
                 connections: vec![],
                 nodes: vec![node(0, NodeRef::NOBODY, NodeRef::NOBODY)],
+                roots: vec![],
             },
             TableError::NodeCountMismatch,
         ),
@@ -805,9 +816,11 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                     nodes: 0,
                     root: NodeRef::NOBODY,
                     consumer: RawConsumer::Local,
+                    value: None,
                 }],
                 connections: vec![GOOD; 33],
                 nodes: vec![],
+                roots: vec![],
             },
             TableError::PortTooWide { port: 0 },
         ),
@@ -897,6 +910,7 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
             },
         ),
     ];
+    let bad = bad.into_iter().chain(bad_value_ports());
     for (raw, expected) in bad {
         let bytes = postcard_bytes(&raw);
         let table: Table = postcard::from_bytes(&bytes).expect("decodes without validation");
@@ -1035,14 +1049,197 @@ fn an_image_larger_than_the_table_is_refused_with_what_it_needs() {
 }
 
 #[test]
-fn format_1_images_are_refused() {
-    assert_eq!(FORMAT_VERSION, 2);
-    let mut old = encode(&figure1_table(), 7, 1);
-    old[4..6].copy_from_slice(&1u16.to_le_bytes());
-    let crc = crc32(&[&old[..16], &old[HEADER_LEN..]].concat());
-    old[16..20].copy_from_slice(&crc.to_le_bytes());
-    let expected = LoadError::UnsupportedFormat { found: 1 };
-    assert_eq!(image::read_header(&old), Err(expected.clone()));
-    assert_eq!(load_default(&old), Err(expected.clone()));
-    assert_eq!(image::load::<4, 64, 256>(&old), Err(expected));
+fn images_of_older_formats_are_refused_naming_both_formats() {
+    assert_eq!(FORMAT_VERSION, 3);
+    for found in [1u16, 2] {
+        let mut old = encode(&figure1_table(), 7, 1);
+        old[4..6].copy_from_slice(&found.to_le_bytes());
+        let crc = crc32(&[&old[..16], &old[HEADER_LEN..]].concat());
+        old[16..20].copy_from_slice(&crc.to_le_bytes());
+        let expected = LoadError::UnsupportedFormat { found, expected: 3 };
+        assert_eq!(image::read_header(&old), Err(expected.clone()));
+        assert_eq!(load_default(&old), Err(expected.clone()));
+        assert_eq!(image::load::<4, 64, 256>(&old), Err(expected.clone()));
+        assert_eq!(
+            expected.to_string(),
+            format!("image format {found} is not supported (this node reads format 3)")
+        );
+    }
+}
+
+/// A value port of `connections` with `spec`, root `root` and connection roots `roots`.
+fn value_port(
+    connections: Vec<RawConnection>,
+    nodes: Vec<DecisionNode>,
+    spec: ValueSpec,
+    root: NodeRef,
+    roots: Vec<NodeRef>,
+) -> RawTable {
+    let mut table = one_port(connections, nodes, root);
+    table.ports[0].value = Some(spec);
+    table.roots = roots;
+    table
+}
+
+/// Decoded value-port tables that break a rule, with the error the loader must give.
+fn bad_value_ports() -> Vec<(RawTable, TableError)> {
+    use pab_core::value_port::{FieldError, ValueError};
+    use pab_core::{Combine, Endian, Field};
+    let field = |offset, size| Field {
+        offset,
+        size,
+        signed: false,
+        endian: Endian::Little,
+    };
+    let spec = |combine, value, priority| ValueSpec {
+        combine,
+        value,
+        priority,
+    };
+    let max = spec(Combine::Max, field(0, 2), None);
+    let value = |error| TableError::Value { port: 0, error };
+    let mut cases = vec![
+        (
+            value_port(
+                vec![GOOD],
+                vec![],
+                spec(Combine::Max, field(0, 3), None),
+                NodeRef::NOBODY,
+                vec![deliver(0)],
+            ),
+            value(ValueError::Value(FieldError::BadSize { size: 3 })),
+        ),
+        (
+            value_port(
+                vec![GOOD],
+                vec![],
+                spec(Combine::Min, field(5, 4), None),
+                NodeRef::NOBODY,
+                vec![deliver(0)],
+            ),
+            value(ValueError::Value(FieldError::OutOfFrame {
+                offset: 5,
+                size: 4,
+            })),
+        ),
+        (
+            value_port(
+                vec![GOOD],
+                vec![],
+                spec(Combine::Priority, field(0, 2), None),
+                NodeRef::NOBODY,
+                vec![deliver(0)],
+            ),
+            value(ValueError::PriorityMissing),
+        ),
+        (
+            value_port(
+                vec![GOOD],
+                vec![],
+                spec(Combine::Sum, field(0, 2), Some(field(2, 1))),
+                NodeRef::NOBODY,
+                vec![deliver(0)],
+            ),
+            value(ValueError::PriorityNotAllowed),
+        ),
+        (
+            value_port(
+                vec![GOOD],
+                vec![],
+                spec(Combine::Priority, field(0, 2), Some(field(255, 1))),
+                NodeRef::NOBODY,
+                vec![deliver(0)],
+            ),
+            value(ValueError::Priority(FieldError::OutOfFrame {
+                offset: 255,
+                size: 1,
+            })),
+        ),
+        // The port's own root must be nobody on a value port.
+        (
+            value_port(vec![GOOD], vec![], max, deliver(0), vec![deliver(0)]),
+            value(ValueError::PortRoot),
+        ),
+        // Roots that refer to nothing valid.
+        (
+            value_port(
+                vec![GOOD, GOOD],
+                vec![],
+                max,
+                NodeRef::NOBODY,
+                vec![deliver(0), deliver(2)],
+            ),
+            value(ValueError::BadRoot { connection: 1 }),
+        ),
+        (
+            value_port(
+                vec![GOOD],
+                vec![node(0, NodeRef::NOBODY, deliver(0))],
+                max,
+                NodeRef::NOBODY,
+                vec![at(1)],
+            ),
+            value(ValueError::BadRoot { connection: 0 }),
+        ),
+        // Root counts that do not add up.
+        (
+            value_port(
+                vec![GOOD, GOOD],
+                vec![],
+                max,
+                NodeRef::NOBODY,
+                vec![deliver(0)],
+            ),
+            TableError::RootCountMismatch,
+        ),
+        (
+            value_port(
+                vec![GOOD],
+                vec![],
+                max,
+                NodeRef::NOBODY,
+                vec![deliver(0), deliver(0)],
+            ),
+            TableError::RootCountMismatch,
+        ),
+        // Roots on an ordinary port.
+        (
+            RawTable {
+                roots: vec![deliver(0)],
+                ..one_port(vec![GOOD], vec![], deliver(0))
+            },
+            TableError::RootCountMismatch,
+        ),
+    ];
+    // Capacities: one value port too many, one value connection too many.
+    let ports = pab_core::MAX_VALUE_PORTS + 1;
+    cases.push((
+        RawTable {
+            ports: (0..ports)
+                .map(|_| RawPort {
+                    connections: 1,
+                    nodes: 0,
+                    root: NodeRef::NOBODY,
+                    consumer: RawConsumer::Local,
+                    value: Some(max),
+                })
+                .collect(),
+            connections: vec![GOOD; ports],
+            nodes: vec![],
+            roots: vec![deliver(0); ports],
+        },
+        TableError::TooManyValuePorts,
+    ));
+    let wide = pab_core::MAX_VALUE_CONNECTIONS + 1;
+    cases.push((
+        value_port(
+            vec![GOOD; wide],
+            vec![],
+            max,
+            NodeRef::NOBODY,
+            (0..wide as u8).map(deliver).collect(),
+        ),
+        TableError::TooManyValueConnections,
+    ));
+    cases
 }

@@ -11,6 +11,10 @@
 //! For information, it reports the masks in which nothing delivers (the port's consumer hears
 //! nobody), with minimal examples among those where some connection is active.
 //!
+//! A value port (`combine = ...`) combines every connection its rules let through: several
+//! contribute at once by design, so the at-most-one proof is skipped there; dead rules are still
+//! reported.
+//!
 //! Why BDDs: each D_i is built once in time linear in its rule; the pairwise conjunctions and the
 //! counts are then cheap even with 32 connections (2^32 masks) on a port.
 
@@ -262,7 +266,13 @@ impl Report {
                 if report.connections == 1 { "" } else { "s" },
                 report.masks()
             );
-            if report.is_consistent() {
+            if let (true, Some(spec)) = (report.is_consistent(), port.value) {
+                let _ = writeln!(
+                    out,
+                    "  value port ({}): every connection its rule lets through contributes, no overlap proof; no dead rule",
+                    combine_name(spec.combine)
+                );
+            } else if report.is_consistent() {
                 let _ = writeln!(
                     out,
                     "  consistent: at most one connection delivers in every mask"
@@ -341,6 +351,16 @@ fn written_alone_delivers(names: &[String], connection: &Connection) -> bool {
     !own.and(&to_bdd(&connection.rule, &variables)).is_false()
 }
 
+/// The network file's word for a combination.
+pub fn combine_name(combine: pab_core::Combine) -> &'static str {
+    match combine {
+        pab_core::Combine::Max => "max",
+        pab_core::Combine::Min => "min",
+        pab_core::Combine::Sum => "sum",
+        pab_core::Combine::Priority => "priority",
+    }
+}
+
 /// `{C1, C6}` for a mask.
 pub fn describe_set(mask: u32, names: &[String]) -> String {
     let active: Vec<&str> = names
@@ -372,7 +392,12 @@ fn check_port(network: &Network, port: usize) -> PortReport {
     let logic = PortLogic::new(network, port);
     let connections: Vec<_> = network.port_connections(port).collect();
     let mut overlaps = Vec::new();
+    // A value port combines every connection its rules let through: overlaps are its purpose.
+    let value_port = network.ports.get(port).is_some_and(|p| p.value.is_some());
     for (first, d_first) in logic.delivers.iter().enumerate() {
+        if value_port {
+            break;
+        }
         for (second, d_second) in logic.delivers.iter().enumerate().skip(first + 1) {
             let both = d_first.and(d_second);
             if let Some(mask) = logic.minimal_mask(&both) {

@@ -170,6 +170,70 @@ pub fn decision(logic: &PortLogic, limit: usize) -> Result<Decision, DecisionErr
     })
 }
 
+/// Compiles a value port's logic: one diagram per connection i, answering "i delivers" exactly
+/// in D_i, all in one array of at most `limit` nodes (shared where they coincide, children after
+/// parents). Returns the nodes with the port's root "nobody", and the connections' roots.
+pub fn value_decision(
+    logic: &PortLogic,
+    limit: usize,
+) -> Result<(Decision, Vec<NodeRef>), DecisionError> {
+    let mut builder = Builder {
+        delivers: &logic.delivers,
+        limit,
+        nodes: Vec::new(),
+        shared: HashMap::new(),
+        memo: HashMap::new(),
+    };
+    // Connection i's walk follows D_i alone: the other positions are "false" terminals.
+    let mut entries = Vec::with_capacity(logic.len());
+    for (index, own) in logic.delivers.iter().enumerate() {
+        let positions = (0..logic.len())
+            .map(|other| {
+                if other == index {
+                    own.root_pointer()
+                } else {
+                    BddPointer::zero()
+                }
+            })
+            .collect();
+        entries.push(builder.build(positions)?);
+    }
+    let count = builder.nodes.len();
+    let reference = |step: Step| -> Result<NodeRef, DecisionError> {
+        match step {
+            Step::Nobody => Ok(NodeRef::NOBODY),
+            Step::Deliver(index) => NodeRef::deliver(index).ok_or(DecisionError::TooLarge),
+            Step::Node(index) => u16::try_from(count - 1 - index)
+                .ok()
+                .and_then(NodeRef::node)
+                .ok_or(DecisionError::TooLarge),
+        }
+    };
+    let nodes = builder
+        .nodes
+        .iter()
+        .rev()
+        .map(|&(var, low, high)| {
+            Ok(DecisionNode {
+                var,
+                low: reference(low)?,
+                high: reference(high)?,
+            })
+        })
+        .collect::<Result<Vec<_>, DecisionError>>()?;
+    let roots = entries
+        .into_iter()
+        .map(reference)
+        .collect::<Result<Vec<_>, DecisionError>>()?;
+    Ok((
+        Decision {
+            nodes,
+            root: NodeRef::NOBODY,
+        },
+        roots,
+    ))
+}
+
 /// One node's compiled table.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct CompiledNode {
@@ -225,7 +289,13 @@ fn compile_node(
         };
         let logic = PortLogic::new(network, port_index);
         let room = MAX_DECISION_NODES.saturating_sub(decision_nodes);
-        let compiled = decision(&logic, room).map_err(|error| {
+        let compiled = match port.value {
+            // A value port: one diagram per connection, "i delivers" where it may contribute,
+            // sharing nodes; the port's own root is nobody.
+            Some(_) => value_decision(&logic, room),
+            None => decision(&logic, room).map(|compiled| (compiled, Vec::new())),
+        };
+        let (compiled, roots) = compiled.map_err(|error| {
             network.error(
                 port.span.clone(),
                 match error {
@@ -256,9 +326,11 @@ fn compile_node(
             .collect();
         let port_error =
             |error| network.error(port.span.clone(), format!("port `{}`: {error}", port.name));
-        table
-            .push_port(&connections, &compiled.nodes, compiled.root)
-            .map_err(port_error)?;
+        match port.value {
+            Some(spec) => table.push_value_port(&connections, &compiled.nodes, spec, &roots),
+            None => table.push_port(&connections, &compiled.nodes, compiled.root),
+        }
+        .map_err(port_error)?;
         if port.consumer != Consumer::Local {
             let index = u8::try_from(table.port_count().saturating_sub(1))
                 .map_err(|_| port_error(TableError::TooManyPorts))?;

@@ -15,7 +15,11 @@ use indexmap::IndexMap;
 use pab_core::filter::{MAX_EXTENDED_ID, MAX_STANDARD_ID};
 use pab_core::frame::MAX_DATA_LEN;
 use pab_core::integrator::ParamError;
-use pab_core::{Consumer, Filter, MAX_CONNECTIONS_PER_PORT, MAX_PORTS, OutputId, Stimulation};
+use pab_core::value_port::{MAX_VALUE_CONNECTIONS, MAX_VALUE_PORTS};
+use pab_core::{
+    Combine, Consumer, Endian, Field, Filter, MAX_CONNECTIONS_PER_PORT, MAX_PORTS, OutputId,
+    Stimulation, ValueSpec,
+};
 use serde::Deserialize;
 use toml::Spanned;
 
@@ -92,8 +96,23 @@ struct RawTopic {
 #[serde(deny_unknown_fields)]
 struct RawPort {
     republish: Option<Spanned<RawRepublish>>,
+    combine: Option<Spanned<String>>,
+    value: Option<Spanned<RawField>>,
+    priority: Option<Spanned<RawField>>,
     #[allow(dead_code)]
     description: Option<String>,
+}
+
+/// `value = { offset = 0, size = 2, signed = false, endian = "little" }` (or `priority = ...`)
+/// on a value port.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawField {
+    offset: Spanned<i64>,
+    size: Spanned<i64>,
+    #[serde(default)]
+    signed: bool,
+    endian: Option<Spanned<String>>,
 }
 
 /// `republish = { can_id = 0x300, extended = false }` on a port.
@@ -180,6 +199,9 @@ pub struct Port {
     /// Who receives what it delivers (`republish = { ... }` in the file; default: the node's
     /// application only).
     pub consumer: Consumer,
+    /// For a value port (`combine = ...`), what it reads and how it combines; `None` for an
+    /// ordinary port.
+    pub value: Option<ValueSpec>,
     /// Where it is defined.
     pub span: Range<usize>,
 }
@@ -493,6 +515,7 @@ impl Builder<'_> {
         let mut ports = self.ports(&raw.ports, &nodes);
         let mut connections = self.connections(&raw.connections, &topics, &mut ports);
         self.rules(&raw.connections, &mut connections, &ports);
+        self.value_capacities(&ports, &nodes);
         let events = self.events(&raw.events, &topics);
         let phases = self.phases(&raw.phases);
         let faults = self.faults(&raw.faults, &nodes);
@@ -707,15 +730,175 @@ impl Builder<'_> {
                     .output_id(republish.get_ref())
                     .map_or(Consumer::Local, Consumer::Republish),
             };
+            let value = self.value_spec(port.get_ref(), port.span());
             ports.push(Port {
                 name: full.clone(),
                 node,
                 connections: Vec::new(),
                 consumer,
+                value,
                 span: port.span(),
             });
         }
         ports
+    }
+
+    /// The `combine`, `value` and `priority` keys of a port: `None` for an ordinary port (and
+    /// after reporting any mistake).
+    fn value_spec(&mut self, raw: &RawPort, span: Range<usize>) -> Option<ValueSpec> {
+        let Some(combine_text) = &raw.combine else {
+            for (key, field) in [("value", &raw.value), ("priority", &raw.priority)] {
+                if let Some(field) = field {
+                    self.error(
+                        field.span(),
+                        format!(
+                            "`{key}` belongs to a value port: add `combine = \"max\"` (or \"min\", \"sum\", \"priority\")"
+                        ),
+                    );
+                }
+            }
+            return None;
+        };
+        let combine = match combine_text.get_ref().as_str() {
+            "max" => Some(Combine::Max),
+            "min" => Some(Combine::Min),
+            "sum" => Some(Combine::Sum),
+            "priority" => Some(Combine::Priority),
+            other => {
+                self.error(
+                    combine_text.span(),
+                    format!(
+                        "combine = \"{}\" is not a combination: \"max\", \"min\", \"sum\" or \"priority\"",
+                        shown::escaped(other)
+                    ),
+                );
+                None
+            }
+        };
+        let value = match &raw.value {
+            Some(field) => self.field(field, "value"),
+            None => {
+                self.error(
+                    span.clone(),
+                    "a value port needs the field it combines: `value = { offset = 0, size = 2 }` (size 1, 2 or 4; signed = false and endian = \"little\" by default)",
+                );
+                None
+            }
+        };
+        let priority = match (&raw.priority, combine) {
+            (Some(field), Some(Combine::Priority)) => Some(self.field(field, "priority")?),
+            (None, Some(Combine::Priority)) => {
+                self.error(
+                    combine_text.span(),
+                    "combine = \"priority\" needs the field that ranks the frames: `priority = { offset = 2, size = 1 }`",
+                );
+                return None;
+            }
+            (Some(field), Some(_)) => {
+                self.error(
+                    field.span(),
+                    "`priority` is only for `combine = \"priority\"`: the other combinations read `value` alone",
+                );
+                return None;
+            }
+            (_, _) => None,
+        };
+        Some(ValueSpec {
+            combine: combine?,
+            value: value?,
+            priority,
+        })
+    }
+
+    /// A `value` or `priority` field, or `None` after reporting why not.
+    fn field(&mut self, raw: &Spanned<RawField>, key: &str) -> Option<Field> {
+        let field = raw.get_ref();
+        let mut ok = true;
+        let size = *field.size.get_ref();
+        if !matches!(size, 1 | 2 | 4) {
+            self.error(
+                field.size.span(),
+                format!("{key}: size = {size} is not 1, 2 or 4 (bytes)"),
+            );
+            ok = false;
+        }
+        let offset = *field.offset.get_ref();
+        if !(0..8).contains(&offset) {
+            self.error(
+                field.offset.span(),
+                format!("{key}: offset = {offset} is not a byte of a frame (0 to 7)"),
+            );
+            ok = false;
+        } else if ok && offset + size > 8 {
+            self.error(
+                raw.span(),
+                format!(
+                    "{key}: offset {offset} + size {size} = {} is beyond the 8 bytes of a frame",
+                    offset + size
+                ),
+            );
+            ok = false;
+        }
+        let endian = match field
+            .endian
+            .as_ref()
+            .map(|endian| endian.get_ref().as_str())
+        {
+            None | Some("little") => Endian::Little,
+            Some("big") => Endian::Big,
+            Some(other) => {
+                let span = field.endian.as_ref().map_or(raw.span(), Spanned::span);
+                self.error(
+                    span,
+                    format!(
+                        "{key}: endian = \"{}\" is not \"little\" or \"big\"",
+                        shown::escaped(other)
+                    ),
+                );
+                return None;
+            }
+        };
+        if !ok {
+            return None;
+        }
+        Some(Field {
+            offset: u8::try_from(offset).ok()?,
+            size: u8::try_from(size).ok()?,
+            signed: field.signed,
+            endian,
+        })
+    }
+
+    /// Each node's value ports within the board runtime's fixed capacities.
+    fn value_capacities(&mut self, ports: &[Port], nodes: &[Node]) {
+        for (index, node) in nodes.iter().enumerate() {
+            let mut count = 0usize;
+            let mut connections = 0usize;
+            for port in ports
+                .iter()
+                .filter(|port| port.node == index && port.value.is_some())
+            {
+                count += 1;
+                connections += port.connections.len();
+                if count > MAX_VALUE_PORTS {
+                    self.error(
+                        port.span.clone(),
+                        format!(
+                            "node `{}` has more than {MAX_VALUE_PORTS} value ports (a node keeps the values of at most {MAX_VALUE_PORTS} ports)",
+                            node.name
+                        ),
+                    );
+                } else if connections > MAX_VALUE_CONNECTIONS {
+                    self.error(
+                        port.span.clone(),
+                        format!(
+                            "node `{}`: its value ports have {connections} connections in all, more than {MAX_VALUE_CONNECTIONS} (a node keeps the last frame of at most {MAX_VALUE_CONNECTIONS})",
+                            node.name
+                        ),
+                    );
+                }
+            }
+        }
     }
 
     /// The identifier of a `republish` table, or `None` after reporting why not.

@@ -17,6 +17,11 @@
 //! after τ has passed since a connection's last accepted frame), so timelines show the moment a
 //! port changes hands even when no frame arrives then. These evaluations only read the arbiter.
 //!
+//! A value port (`combine = ...`) delivers the combined output when it changes
+//! ([`pab_core::value_port`]): its trace rows mark `delivered` on the connection whose frame was
+//! handed over, and its timeline follows the output's connection; the simulator calls
+//! [`Arbiter::poll`] at each wake so that values age out on time.
+//!
 //! [`run`] is the same bus fed with any timed frames: a capture's, for `pabctl replay`
 //! (see [`crate::replay`]). With [`Options::records`] it also writes every verdict in the record
 //! format of [`pab_app::replay::records`], the one the other runners write.
@@ -456,10 +461,14 @@ impl Run<'_> {
                 self.sample_ports_fed_by(station, &id, frame.t_us);
             }
             let mut verdicts = Vec::new();
+            let mut combined = Vec::new();
             if let Some(entry) = self.stations.get_mut(station) {
-                entry
-                    .arbiter
-                    .receive(&id, now, |verdict| verdicts.push(*verdict));
+                entry.arbiter.receive_frame(
+                    &frame.frame,
+                    now,
+                    |verdict| verdicts.push(*verdict),
+                    |output| combined.push(*output),
+                );
             }
             if let (Some(out), Some(entry)) = (self.records.as_mut(), self.stations.get(station)) {
                 for verdict in &verdicts {
@@ -487,12 +496,15 @@ impl Run<'_> {
                         .get(station)
                         .and_then(|s| s.arbiter.level(verdict.port, local, now))
                         .map_or(0.0, |level| level.to_f64());
+                    let handed_over = combined
+                        .iter()
+                        .any(|output| output.port == verdict.port && output.connection == local);
                     self.rows.push(TraceRow {
                         t_us: frame.t_us,
                         connection,
                         level,
                         active: verdict.active.contains(local),
-                        delivered: verdict.delivered == Some(local),
+                        delivered: verdict.delivered == Some(local) || handed_over,
                     });
                     if !verdict.resting.contains(local) {
                         let decay = self
@@ -503,8 +515,10 @@ impl Run<'_> {
                         self.wakes.push(Reverse((frame.t_us + decay + 1, port)));
                     }
                 }
-                let selected = verdict
-                    .selected
+                let selected = self
+                    .stations
+                    .get(station)
+                    .and_then(|s| selected_or_output(&s.arbiter, verdict.port, verdict.selected))
                     .and_then(|local| self.connection_of(port, local));
                 self.note(port, frame.t_us, selected);
             }
@@ -541,10 +555,15 @@ impl Run<'_> {
         {
             return;
         }
+        let now = Instant::from_micros(t_us);
+        if let Some(entry) = self.stations.get_mut(station) {
+            // Values that aged out, activities that ended: the value ports' outputs now.
+            entry.arbiter.poll(now, |_| {});
+        }
         let selected = self
             .stations
             .get(station)
-            .and_then(|s| s.arbiter.selected(local, Instant::from_micros(t_us)))
+            .and_then(|s| selected_or_output(&s.arbiter, local, s.arbiter.selected(local, now)))
             .and_then(|local| self.connection_of(port, local));
         self.note(port, t_us, selected);
         if self.options.samples {
@@ -611,7 +630,12 @@ impl Run<'_> {
         };
         let now = Instant::from_micros(t_us);
         let stopped = entry.stopped(t_us);
-        let selected = entry.arbiter.selected(local_port, now).filter(|_| !stopped);
+        let selected = selected_or_output(
+            &entry.arbiter,
+            local_port,
+            entry.arbiter.selected(local_port, now),
+        )
+        .filter(|_| !stopped);
         let connections = self
             .network
             .ports
@@ -635,6 +659,15 @@ impl Run<'_> {
                 });
             }
         }
+    }
+}
+
+/// For an ordinary port, `selected`; for a value port, the connection of its current output.
+fn selected_or_output(arbiter: &Arbiter, port: u8, selected: Option<u8>) -> Option<u8> {
+    if arbiter.is_value_port(port) {
+        arbiter.output(port).map(|(connection, _)| connection)
+    } else {
+        selected
     }
 }
 

@@ -192,11 +192,18 @@ fn substance(records: &str) -> (usize, usize) {
     (rows.len(), delivered)
 }
 
+/// The examples whose runs the record format describes whole. Not those with value ports: a
+/// value port's output is a combined frame, for which the record format (one line per verdict)
+/// has no column yet; `host-tools/tests/value_ports.rs` and the node's fuzz check compare those.
 fn examples() -> Vec<PathBuf> {
     let mut paths: Vec<PathBuf> = std::fs::read_dir(root().join("examples"))
         .unwrap()
         .map(|entry| entry.unwrap().path())
         .filter(|path| path.extension().is_some_and(|e| e == "toml"))
+        .filter(|path| {
+            let network = Network::load(path).unwrap_or_else(|e| panic!("{e}"));
+            network.ports.iter().all(|port| port.value.is_none())
+        })
         .collect();
     paths.sort();
     assert!(paths.len() >= 4, "examples: {paths:?}");

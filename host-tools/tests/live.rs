@@ -80,7 +80,7 @@ fn run_node(
             .min(5_000);
         let step = match bus.receive(Duration::from_micros(wait)) {
             Ok(Some(frame)) => node.on_frame(&frame, now(), &mut ()),
-            Ok(None) => node.poll(now()),
+            Ok(None) => node.poll(now(), &mut ()),
             Err(_) => return,
         };
         if step == Step::Store {

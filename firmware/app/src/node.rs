@@ -14,7 +14,7 @@ use pab_core::protocol::{
     STORE_UNREADABLE, Service, StoreFailure, TableStatus, Traffic, TransferOpen, TransferStatus,
     TransferStatusCode,
 };
-use pab_core::{Arbiter, Frame, Instant, PortVerdict};
+use pab_core::{Arbiter, Combined, Frame, Instant, MAX_VALUE_PORTS, PortVerdict};
 use pab_storage::StoreError;
 
 use crate::auth::{CHALLENGE_LIFETIME_US, Guard};
@@ -292,6 +292,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             self.arbitrate(frame, now, consumer);
             Step::Continue
         };
+        self.values_due(now, consumer);
         self.duties(now);
         match step {
             Step::Store => Step::Store,
@@ -378,10 +379,40 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// Saves are rate-limited: a table applied less than [`crate::Config::store_interval_us`]
     /// after the start of the last save runs at once, and is stored (and its transfer answered)
     /// when the interval has passed, through this call.
+    ///
+    /// Value ports whose output changes by then (a value aged out) hand it to `consumer`.
     #[must_use = "a Step::Store asks the runner to store the running image and call Node::stored"]
-    pub fn poll(&mut self, now: Instant) -> Step {
+    pub fn poll(&mut self, now: Instant, consumer: &mut impl Consumer) -> Step {
+        self.values_due(now, consumer);
         self.duties(now);
         self.store_step(now)
+    }
+
+    /// The value ports' outputs that changed by `now` without a frame, delivered. A comparison
+    /// per value port (none on a table without value ports).
+    #[inline]
+    fn values_due<K: Consumer>(&mut self, now: Instant, consumer: &mut K) {
+        if self
+            .arbiter
+            .as_ref()
+            .is_some_and(|arbiter| arbiter.deadline(now).is_some())
+        {
+            self.deliver_values_due(now, consumer);
+        }
+    }
+
+    #[inline(never)]
+    fn deliver_values_due<K: Consumer>(&mut self, now: Instant, consumer: &mut K) {
+        let Some(arbiter) = self.arbiter.as_mut() else {
+            return;
+        };
+        let mut outputs: heapless::Vec<Combined, MAX_VALUE_PORTS> = heapless::Vec::new();
+        arbiter.poll(now, |output| {
+            let _ = outputs.push(*output);
+        });
+        for output in &outputs {
+            self.deliver(output.port, &output.frame, now, consumer);
+        }
     }
 
     /// [`Step::Store`] if the image awaiting its save may be stored at `now` (and it is then
@@ -535,6 +566,9 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             self.arbiter
                 .as_ref()
                 .and_then(|_| self.diagnostic.deadline(now)),
+            self.arbiter
+                .as_ref()
+                .and_then(|arbiter| arbiter.deadline(now)),
         ];
         for candidate in candidates.into_iter().flatten() {
             if candidate.micros_since(deadline).is_none() {
@@ -585,26 +619,42 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         let Some(arbiter) = self.arbiter.as_mut() else {
             return;
         };
+        // A frame changes the output of each value port at most once.
+        let mut outputs: heapless::Vec<Combined, MAX_VALUE_PORTS> = heapless::Vec::new();
+        let mut on_value = |output: &Combined| {
+            let _ = outputs.push(*output);
+        };
         // Two calls, so that a consumer that does not observe (`OBSERVES_VERDICTS` is a
         // constant) runs exactly the plain arbitration: the other branch is compiled out.
         let reception = if K::OBSERVES_VERDICTS {
             // A frame feeds each port at most once: P entries always suffice.
             let mut verdicts: heapless::Vec<PortVerdict, P> = heapless::Vec::new();
-            let reception = arbiter.receive(&frame.id(), now, |verdict| {
-                let _ = verdicts.push(*verdict);
-            });
+            let reception = arbiter.receive_frame(
+                frame,
+                now,
+                |verdict| {
+                    let _ = verdicts.push(*verdict);
+                },
+                &mut on_value,
+            );
             for verdict in &verdicts {
                 consumer.verdict(frame, now, verdict, arbiter);
             }
             reception
         } else {
-            arbiter.receive(&frame.id(), now, |_| {})
+            arbiter.receive_frame(frame, now, |_| {}, &mut on_value)
         };
         if reception.fed.is_empty() {
             return;
         }
+        // A value port's output: the combination, not the frame as it came.
+        for output in &outputs {
+            self.deliver(output.port, &output.frame, now, consumer);
+        }
         if reception.delivered.is_empty() {
-            self.counters.discarded = self.counters.discarded.wrapping_add(1);
+            if outputs.is_empty() {
+                self.counters.discarded = self.counters.discarded.wrapping_add(1);
+            }
             return;
         }
         // The ports it was delivered to, in increasing order (usually one).

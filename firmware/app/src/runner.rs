@@ -111,7 +111,7 @@ where
                 }
                 Step::Continue
             }
-            Either::Second(()) => node.poll(now()),
+            Either::Second(()) => node.poll(now(), consumer),
         };
         // A new table to store: at once, or when the store interval let its turn come.
         if step == Step::Store {

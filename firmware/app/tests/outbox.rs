@@ -47,7 +47,7 @@ fn samples(frames: &[Frame]) -> Vec<(u8, u8, u8)> {
 fn a_republication_queued_behind_a_diagnostic_round_goes_out_first() {
     let mut node = streaming_gateway();
     // The next round is due: the poll fills the outbox with samples (all it leaves them).
-    let step = node.poll(Instant::from_micros(5_010));
+    let step = node.poll(Instant::from_micros(5_010), &mut ());
     assert_eq!(step, pab_app::Step::Continue);
     // A frame of the winning topic arrives before any of them went out.
     let mut deliveries = Deliveries::default();
@@ -82,7 +82,7 @@ fn a_republication_queued_behind_a_diagnostic_round_goes_out_first() {
 #[test]
 fn frames_leave_in_identifier_order_and_in_queue_order_among_equal_identifiers() {
     let mut node = streaming_gateway();
-    let _ = node.poll(Instant::from_micros(5_010));
+    let _ = node.poll(Instant::from_micros(5_010), &mut ());
     // Fill what the stream left with re-publications of frames of several payloads, and a
     // malformed command that raises a fault (priority 0).
     for k in 0..3u8 {

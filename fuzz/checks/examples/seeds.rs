@@ -13,11 +13,12 @@ use pab_fuzz_checks::TARGETS;
 use pabctl::diagnostic::Source;
 use pabctl::network::Network;
 
-const NETWORKS: [&str; 4] = [
+const NETWORKS: [&str; 5] = [
     "figure-1",
     "take-an-object",
     "return-an-object",
     "take-and-return",
+    "value-ports",
 ];
 
 fn main() {

@@ -7,7 +7,7 @@ use pabctl::diagnostic::Source;
 use pabctl::network::Network;
 
 /// The example files, compiled into the checks so that a run needs no working directory.
-pub const NETWORKS: [(&str, &str); 4] = [
+pub const NETWORKS: [(&str, &str); 5] = [
     (
         "examples/figure-1.toml",
         include_str!("../../../examples/figure-1.toml"),
@@ -23,6 +23,10 @@ pub const NETWORKS: [(&str, &str); 4] = [
     (
         "examples/take-and-return.toml",
         include_str!("../../../examples/take-and-return.toml"),
+    ),
+    (
+        "examples/value-ports.toml",
+        include_str!("../../../examples/value-ports.toml"),
     ),
 ];
 

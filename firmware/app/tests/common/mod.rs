@@ -156,12 +156,16 @@ impl Harness {
                 polls_at_same_time = 0;
                 self.now = deadline;
             }
-            let step = self.node.poll(Instant::from_micros(self.now));
+            let step = self
+                .node
+                .poll(Instant::from_micros(self.now), &mut self.deliveries);
             self.store_if(step);
             self.drain();
         }
         self.now = t;
-        let step = self.node.poll(Instant::from_micros(t));
+        let step = self
+            .node
+            .poll(Instant::from_micros(t), &mut self.deliveries);
         self.store_if(step);
         self.drain();
     }
