@@ -41,6 +41,7 @@ use core::num::{NonZeroU8, NonZeroU16};
 use core::ops::Range;
 
 use defmt::{info, unwrap};
+use defmt_rtt as _;
 use embassy_executor::Spawner;
 use embassy_stm32::can::config::{
     FrameTransmissionConfig, GlobalFilter, NominalBitTiming, NonMatchingFilter, TxBufferMode,
@@ -57,7 +58,6 @@ use embassy_time::Timer;
 use embedded_storage::nor_flash::ReadNorFlash;
 use pab_storage::{BootCounter, FlashStore};
 use static_cell::StaticCell;
-use defmt_rtt as _;
 
 use consumer::BoardConsumer;
 use fdcan_bus::{FdcanBus, RxQueue, TxQueue};

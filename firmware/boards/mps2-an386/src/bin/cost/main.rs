@@ -33,6 +33,7 @@ mod auth;
 mod ble;
 mod cases;
 mod take_and_return;
+mod value_port;
 
 use core::hint::black_box;
 
@@ -119,6 +120,7 @@ fn main() -> ! {
     take_and_return::run();
     auth::run();
     ble::run();
+    value_port::run();
     semihosting::eprint(format_args!("pab-an386-cost: done\n"));
     semihosting::exit(true)
 }
