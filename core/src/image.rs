@@ -329,7 +329,14 @@ pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
                 nodes: NODES,
             };
             return Err(match size_of_body(body) {
-                Some(needed)
+                // More value-port roots than connections: no table of any capacities takes it
+                // (the full-capacity loader decodes it, and its validation says this), but a
+                // board's root list (sized by its connections) may overflow before it can
+                // tell: the same verdict on every node.
+                Some((needed, roots)) if roots > needed.connections => {
+                    LoadError::Table(crate::table::TableError::RootCountMismatch)
+                }
+                Some((needed, _))
                     if needed.ports > capacity.ports
                         || needed.connections > capacity.connections
                         || needed.nodes > capacity.nodes =>
@@ -349,13 +356,16 @@ pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
 
 /// The sizes of the lists of a table body, decoded without storing them; `None` if the body is
 /// not a table or has bytes after it. Costs one postcard decode, one element at a time.
-fn size_of_body(body: &[u8]) -> Option<TableSize> {
+fn size_of_body(body: &[u8]) -> Option<(TableSize, usize)> {
     match postcard::take_from_bytes::<BodySize>(body) {
-        Ok((size, [])) => Some(TableSize {
-            ports: size.ports.0,
-            connections: size.connections.0,
-            nodes: size.nodes.0,
-        }),
+        Ok((size, [])) => Some((
+            TableSize {
+                ports: size.ports.0,
+                connections: size.connections.0,
+                nodes: size.nodes.0,
+            },
+            size.roots.0,
+        )),
         _ => None,
     }
 }
@@ -366,7 +376,7 @@ struct BodySize {
     ports: Count<Port>,
     connections: Count<Connection>,
     nodes: Count<DecisionNode>,
-    #[allow(dead_code)] // Counted so that the body's end is found; capacity is the connections'.
+    /// Counted so that the body's end is found; a valid table has at most one per connection.
     roots: Count<NodeRef>,
 }
 
