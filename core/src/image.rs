@@ -329,19 +329,18 @@ pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
                 nodes: NODES,
             };
             return Err(match size_of_body(body) {
-                // More value-port roots than connections: no table of any capacities takes it
-                // (the full-capacity loader decodes it, and its validation says this), but a
-                // board's root list (sized by its connections) may overflow before it can
-                // tell: the same verdict on every node.
-                Some((needed, roots)) if roots > needed.connections => {
-                    LoadError::Table(crate::table::TableError::RootCountMismatch)
-                }
                 Some((needed, _))
                     if needed.ports > capacity.ports
                         || needed.connections > capacity.connections
                         || needed.nodes > capacity.nodes =>
                 {
                     LoadError::ExceedsCapacity { needed, capacity }
+                }
+                // Within the capacities but more value-port roots than connections: the root
+                // list (sized by the connections) overflowed. The verdict every loader gives
+                // such a body, before validation ([`too_many_roots`]).
+                Some((needed, roots)) if roots > needed.connections => {
+                    LoadError::Table(TableError::RootCountMismatch)
                 }
                 _ => LoadError::Body(error),
             });
@@ -350,6 +349,7 @@ pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
     if !rest.is_empty() {
         return Err(LoadError::BodyTrailingBytes);
     }
+    too_many_roots(&table)?;
     table.validate().map_err(LoadError::Table)?;
     Ok(Loaded { header, table })
 }
@@ -368,6 +368,18 @@ fn size_of_body(body: &[u8]) -> Option<(TableSize, usize)> {
         )),
         _ => None,
     }
+}
+
+/// More value-port roots than connections: refused before validation, so that a node whose root
+/// list overflowed while decoding (it has room for one root per connection of its capacity) and
+/// a node that decoded the list give the same verdict, whatever else is wrong with the table.
+fn too_many_roots<const P: usize, const C: usize, const N: usize>(
+    table: &Table<P, C, N>,
+) -> Result<(), LoadError> {
+    if table.roots().len() > table.connections().len() {
+        return Err(LoadError::Table(TableError::RootCountMismatch));
+    }
+    Ok(())
 }
 
 /// A table body with each list only counted: the same fields, in the same order, as [`Table`].
