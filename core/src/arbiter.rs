@@ -54,7 +54,7 @@ use crate::level::{Gain, Level};
 use crate::table::{Table, TableError};
 use crate::time::Instant;
 use crate::value_port::{
-    Combined, MAX_VALUE_CONNECTIONS, MAX_VALUE_PORTS, ValueSlot, ValueState, earliest,
+    Combined, Earliest, MAX_VALUE_CONNECTIONS, MAX_VALUE_PORTS, ValueSlot, ValueState,
 };
 use crate::{MAX_CONNECTIONS, MAX_DECISION_NODES, MAX_PORTS};
 
@@ -435,8 +435,8 @@ impl Port {
 ///
 /// Memory: the table plus, per connection of capacity, 40 bytes of run-time state and 16 of
 /// filter index, 8 bytes per decision node of capacity (the decision in the form it is walked),
-/// 56 bytes per port of capacity, and the value ports' fixed 672 bytes
-/// ([`crate::value_port`]): about 70 KiB in all at the default capacities, 9.8 KiB for
+/// 56 bytes per port of capacity, and the value ports' fixed 832 bytes
+/// ([`crate::value_port`]): about 71 KiB in all at the default capacities, 10.1 KiB for
 /// [`crate::BoardArbiter`]. `size_of::<Arbiter<P, C, N>>()` tells exactly (`cargo run -p
 /// pab-core --example footprint`).
 // repr(C), hot fields first: on a 32-bit core the ports and the index are then reached with
@@ -868,60 +868,67 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// frame changes it ([`crate::value_port`]). What every runner calls.
     ///
     /// Cost: [`Arbiter::receive`] plus one test on a table without value ports; per value port
-    /// fed, the frame's copy into each connection it feeds, one decision walk per connection of
-    /// the port and a pass over them (README, "Figures").
+    /// fed, a filter test per connection of the port, the fields read once and the frame copied
+    /// into each connection it feeds, a decision walk per connection of the port only when the
+    /// port's activity changed since its last combination, and two passes over its connections
+    /// (README, "Cortex-M4").
     pub fn receive_frame(
         &mut self,
         frame: &Frame,
         now: Instant,
-        mut on_verdict: impl FnMut(&PortVerdict),
+        on_verdict: impl FnMut(&PortVerdict),
         mut on_value: impl FnMut(&Combined),
     ) -> FrameReception {
-        let value_ports = self.value_ports;
-        // The bits each value port was fed, by its rank among the value ports (one closure
-        // type for every table, so that the arbitration is compiled once).
-        let mut fed = [0u32; MAX_VALUE_PORTS];
-        let reception = self.receive(&frame.id(), now, |verdict| {
-            if value_ports.contains(verdict.port) {
-                let below = 1u16.checked_shl(u32::from(verdict.port)).unwrap_or(0);
-                let rank = (value_ports.bits() & below.wrapping_sub(1)).count_ones();
-                if let Some(bits) = fed.get_mut(rank as usize) {
-                    *bits = verdict.fed.bits();
-                }
-            }
-            on_verdict(verdict);
-        });
+        let reception = self.receive(&frame.id(), now, on_verdict);
         let mut result = FrameReception {
             fed: reception.fed,
             delivered: reception.delivered,
             ..FrameReception::default()
         };
-        if !value_ports.is_empty() && reception.fed.bits() & value_ports.bits() != 0 {
-            self.take_values(frame, now, &fed, &mut result, &mut on_value);
+        if reception.fed.bits() & self.value_ports.bits() != 0 {
+            self.take_values(frame, now, &mut result, &mut on_value);
         }
         result
     }
 
-    /// Stores `frame` at the value ports it fed (`fed`, by rank among the value ports) and
-    /// combines them. Out of line and not generic: one copy in flash.
+    /// Stores `frame` at the value ports it fed (`result.fed`) and combines them. The
+    /// connections it fed there are found again by their filters (at most
+    /// [`MAX_VALUE_CONNECTIONS`] tests), so that [`Arbiter::receive`] needs no observer of its
+    /// own: the arbitration is compiled once whatever the caller. Out of line and not generic:
+    /// one copy in flash.
     #[inline(never)]
     fn take_values(
         &mut self,
         frame: &Frame,
         now: Instant,
-        fed: &[u32; MAX_VALUE_PORTS],
         result: &mut FrameReception,
         on_value: &mut dyn FnMut(&Combined),
     ) {
-        for (position, &bits) in fed.iter().enumerate() {
-            if bits == 0 {
-                continue;
-            }
+        let id = frame.id();
+        for position in 0..self.values.len() {
             let Some(state) = self.values.get_mut(position) else {
                 continue;
             };
             let port = state.port;
-            if !state.store(&mut self.value_slots, bits, frame, now) {
+            if !result.fed.contains(port) {
+                continue;
+            }
+            let Some(record) = self.ports.get(usize::from(port)) else {
+                continue;
+            };
+            let first = usize::from(record.first_connection);
+            let connections = self
+                .table
+                .connections()
+                .get(first..first.saturating_add(usize::from(record.connections)))
+                .unwrap_or(&[]);
+            let mut fed = 0u32;
+            for (index, connection) in connections.iter().enumerate() {
+                if connection.filter.matches(&id) {
+                    fed |= 1u32.checked_shl(index as u32).unwrap_or(0);
+                }
+            }
+            if !state.store(&mut self.value_slots, fed, frame, now) {
                 result.refused = result.refused.with(port);
             }
             if self.combine(position, now, on_value) {
@@ -960,14 +967,24 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         changed
     }
 
+    /// Whether a value port's deadline has passed at `now`: [`Arbiter::poll`] would re-evaluate
+    /// it. Costs a test on a table without value ports, a comparison per value port otherwise.
+    #[inline]
+    pub fn is_due(&self, now: Instant) -> bool {
+        self.values
+            .iter()
+            .any(|state| state.due.is_some_and(|due| now.micros_since(due).is_some()))
+    }
+
     /// The earliest instant at which a value port's output may change without a frame, seen
     /// from `now` (an instant already passed counts as `now`); `None` without value ports or
     /// values. Costs a comparison per value port.
     pub fn deadline(&self, now: Instant) -> Option<Instant> {
-        self.values
-            .iter()
-            .filter_map(|state| state.due)
-            .fold(None, |kept, due| Some(earliest(kept, due, now)))
+        let mut earliest = Earliest::new(now);
+        for due in self.values.iter().filter_map(|state| state.due) {
+            earliest.offer(due);
+        }
+        earliest.get()
     }
 
     /// Whether port `port` is a value port.
@@ -1002,30 +1019,29 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             return false;
         };
         let active = port.update_activity(&self.slots, now);
-        let steps = port.steps(&self.steps);
-        let mut lets_through = 0u32;
-        for (index, slot) in state.slots(&self.value_slots).iter().enumerate() {
-            if decide(steps, slot.root, active) == u8::try_from(index).ok() {
-                lets_through |= 1u32.checked_shl(index as u32).unwrap_or(0);
+        // Which connections their own rules let through: a function of the activity alone,
+        // walked again only when it changed since the last combination.
+        if active != state.decided_for {
+            let steps = port.steps(&self.steps);
+            let mut lets_through = 0u32;
+            for (index, slot) in state.slots(&self.value_slots).iter().enumerate() {
+                if decide(steps, slot.root, active) == u8::try_from(index).ok() {
+                    lets_through |= 1u32.checked_shl(index as u32).unwrap_or(0);
+                }
             }
+            state.decided_for = active;
+            state.lets_through = lets_through;
         }
         // The next instant an activity of the port ends: one after a flagged connection's end.
         let at = now.as_micros();
-        let mut lapse = None;
+        let mut due = Earliest::new(now);
         for slot in port.slots(&self.slots) {
-            if slot.integrator.active_flag() && slot.end() >= at && slot.end() < u64::MAX {
-                lapse = Some(earliest(
-                    lapse,
-                    Instant::from_micros(slot.end().saturating_add(1)),
-                    now,
-                ));
+            let end = slot.end();
+            if slot.integrator.active_flag() && end >= at && end < u64::MAX {
+                due.offer(Instant::from_micros(end.saturating_add(1)));
             }
         }
-        let (changed, combined) = state.combine(&self.value_slots, lets_through, lapse, now);
-        if let Some(combined) = &combined {
-            on_value(combined);
-        }
-        changed
+        state.combine(&self.value_slots, state.lets_through, due, now, on_value)
     }
 
     /// The connection of port `port` whose frames would get through at `now`, or `None` (also for

@@ -90,6 +90,12 @@ impl Frame {
         }
     }
 
+    /// The whole 8-byte data buffer, the bytes after the payload included: for an encoder that
+    /// rewrites a field in place.
+    pub(crate) fn buffer_mut(&mut self) -> &mut [u8; MAX_DATA_LEN] {
+        &mut self.data
+    }
+
     /// The data bytes (empty for a remote frame).
     pub fn payload(&self) -> &[u8] {
         if self.remote {

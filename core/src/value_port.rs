@@ -31,9 +31,9 @@
 //! after a contributor's frame passes its τ or a connection's activity ends. No contributor: no
 //! output, nothing is delivered.
 //!
-//! Memory (fixed, whatever the table): [`MAX_VALUE_CONNECTIONS`] connection records of 32 bytes
-//! (the last frame, its instant, τ, the connection's root) and [`MAX_VALUE_PORTS`] port records of
-//! 40 bytes, 672 bytes per arbiter; in the table, [`ValueSpec`] in every port record and a 2-byte
+//! Memory (fixed, whatever the table): [`MAX_VALUE_CONNECTIONS`] connection records of 40 bytes
+//! (the last frame, its instant, τ, its value field and key as read, the connection's root) and
+//! [`MAX_VALUE_PORTS`] port records of 48 bytes, 832 bytes per arbiter; in the table, [`ValueSpec`] in every port record and a 2-byte
 //! root per connection of capacity.
 
 use serde::{Deserialize, Serialize};
@@ -46,7 +46,7 @@ use crate::time::Instant;
 /// ([`crate::TableError::TooManyValuePorts`]).
 pub const MAX_VALUE_PORTS: usize = 4;
 /// Connections of value ports per node, over all its value ports. A table with more is refused
-/// ([`crate::TableError::TooManyValueConnections`]). 16 records of 32 bytes: 512 bytes of RAM
+/// ([`crate::TableError::TooManyValueConnections`]). 16 records of 40 bytes: 640 bytes of RAM
 /// per arbiter, on a board too.
 pub const MAX_VALUE_CONNECTIONS: usize = 16;
 
@@ -134,30 +134,47 @@ impl Field {
     }
 
     /// The field's value in `payload`, or `None` when the payload is too short for it (or the
-    /// field is invalid). At most four byte loads.
-    #[inline(never)]
+    /// field is invalid). At most four byte loads, no loop.
     pub fn read(&self, payload: &[u8]) -> Option<i64> {
-        let start = usize::from(self.offset);
-        let bytes = payload.get(start..start.checked_add(usize::from(self.size))?)?;
-        let mut raw = 0u32;
-        match self.endian {
-            Endian::Big => {
-                for &byte in bytes {
-                    raw = (raw << 8) | u32::from(byte);
-                }
-            }
-            Endian::Little => {
-                for &byte in bytes.iter().rev() {
-                    raw = (raw << 8) | u32::from(byte);
-                }
-            }
-        }
-        Some(match (self.signed, self.size) {
-            (false, _) => i64::from(raw),
-            (true, 1) => i64::from(raw as u8 as i8),
-            (true, 2) => i64::from(raw as u16 as i16),
-            (true, _) => i64::from(raw as i32),
+        self.read_raw(payload).map(|raw| self.decode(raw))
+    }
+
+    /// The field's bits in `payload`, sign-extended to 32 bits for a signed field; `None` as for
+    /// [`Field::read`]. One load of the field's size and a shift pair; out of line, as it is read
+    /// for two fields.
+    #[inline(never)]
+    fn read_raw(&self, payload: &[u8]) -> Option<u32> {
+        let bytes = payload.get(usize::from(self.offset)..)?;
+        let (raw, unused) = match (self.size, self.endian) {
+            (1, _) => (u32::from(*bytes.first()?), 24),
+            (2, Endian::Little) => (u32::from(u16::from_le_bytes(*bytes.first_chunk()?)), 16),
+            (2, Endian::Big) => (u32::from(u16::from_be_bytes(*bytes.first_chunk()?)), 16),
+            (4, Endian::Little) => (u32::from_le_bytes(*bytes.first_chunk()?), 0),
+            (4, Endian::Big) => (u32::from_be_bytes(*bytes.first_chunk()?), 0),
+            _ => return None,
+        };
+        Some(if self.signed {
+            (raw.wrapping_shl(unused) as i32).wrapping_shr(unused) as u32
+        } else {
+            raw
         })
+    }
+
+    /// The value of bits read by [`Field::read_raw`].
+    #[inline]
+    const fn decode(&self, raw: u32) -> i64 {
+        if self.signed {
+            raw as i32 as i64
+        } else {
+            raw as i64
+        }
+    }
+
+    /// Bits read by [`Field::read_raw`] as an unsigned number in the values' order (the sign bit
+    /// flipped for a signed field), so that values compare as `u32`.
+    #[inline]
+    const fn ordered(&self, raw: u32) -> u32 {
+        if self.signed { raw ^ 0x8000_0000 } else { raw }
     }
 
     /// The smallest and largest values the field holds.
@@ -190,21 +207,32 @@ impl Field {
     /// that does not fit it.
     pub fn write(&self, data: &mut [u8; MAX_DATA_LEN], value: i64) {
         let raw = self.saturate(value) as u32;
-        let size = usize::from(self.size);
-        let start = usize::from(self.offset);
-        let Some(bytes) = start
-            .checked_add(size)
-            .and_then(|end| data.get_mut(start..end))
-        else {
+        let Some(bytes) = data.get_mut(usize::from(self.offset)..) else {
             return;
         };
-        let little = raw.to_le_bytes();
-        for (k, byte) in bytes.iter_mut().enumerate() {
-            let from = match self.endian {
-                Endian::Little => k,
-                Endian::Big => size.saturating_sub(1).saturating_sub(k),
-            };
-            *byte = little.get(from).copied().unwrap_or(0);
+        match (self.size, self.endian) {
+            (1, _) => {
+                if let Some(byte) = bytes.first_mut() {
+                    *byte = raw as u8;
+                }
+            }
+            (2, endian) => {
+                if let Some(chunk) = bytes.first_chunk_mut() {
+                    *chunk = match endian {
+                        Endian::Little => (raw as u16).to_le_bytes(),
+                        Endian::Big => (raw as u16).to_be_bytes(),
+                    };
+                }
+            }
+            (4, endian) => {
+                if let Some(chunk) = bytes.first_chunk_mut() {
+                    *chunk = match endian {
+                        Endian::Little => raw.to_le_bytes(),
+                        Endian::Big => raw.to_be_bytes(),
+                    };
+                }
+            }
+            _ => {}
         }
     }
 }
@@ -279,12 +307,24 @@ impl ValueSpec {
         }
     }
 
-    /// Whether `payload` carries every field the port reads.
-    fn carries(&self, payload: &[u8]) -> bool {
-        self.value.read(payload).is_some()
-            && self
-                .priority
-                .is_none_or(|priority| priority.read(payload).is_some())
+    /// What `payload` gives the combination: the value's bits ([`Field::read_raw`]) and the
+    /// key the winner maximises (Max: the value in order, Min: the value in reverse order,
+    /// Priority: the priority field in order; Sum does not use it); `None` when the payload lacks
+    /// a field the port reads.
+    #[inline]
+    fn read(&self, payload: &[u8]) -> Option<(u32, u32)> {
+        let raw = self.value.read_raw(payload)?;
+        let priority = match self.priority {
+            Some(field) => Some(field.ordered(field.read_raw(payload)?)),
+            None => None,
+        };
+        let ordered = self.value.ordered(raw);
+        let key = match (self.combine, priority) {
+            (Combine::Priority, Some(key)) => key,
+            (Combine::Min, _) => !ordered,
+            _ => ordered,
+        };
+        Some((raw, key))
     }
 }
 
@@ -303,7 +343,7 @@ pub struct Combined {
     pub frame: Frame,
 }
 
-/// One connection of a value port at run time. 32 bytes.
+/// One connection of a value port at run time. 40 bytes.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct ValueSlot {
     /// Its last frame.
@@ -312,6 +352,11 @@ pub(crate) struct ValueSlot {
     time: Instant,
     /// τ in µs: the frame counts until `time + τ`.
     tau: u32,
+    /// The last frame's value field, as [`Field::read_raw`] reads it (read once, when the frame
+    /// is stored).
+    raw: u32,
+    /// The last frame's key ([`ValueSpec::read`]): the winner has the largest.
+    key: u32,
     /// Its decision root: it may contribute when the diagram entered here answers its index.
     pub(crate) root: NodeRef,
     /// Whether the last frame carried the fields.
@@ -325,26 +370,50 @@ impl ValueSlot {
             frame: Frame::empty(),
             time: Instant::from_micros(0),
             tau,
+            raw: 0,
+            key: 0,
             root,
             has_value: false,
         }
     }
+}
 
-    /// Whether its last frame carried the fields and is within τ at `now` (a frame after `now`,
-    /// out of order, counts as simultaneous).
-    fn is_fresh(&self, now: Instant) -> bool {
-        self.has_value
-            && now
-                .micros_since(self.time)
-                .is_none_or(|since| since <= u64::from(self.tau))
+/// The earliest of instants offered, all seen from `now` (wrap-safe, an instant passed counting
+/// as `now`), in one pass:
+/// them, each candidate replacing the kept one only when strictly earlier, and the kept one's
+/// distance from `now` computed once.
+pub(crate) struct Earliest {
+    now: Instant,
+    /// The kept instant's distance from `now` (an instant passed: 0); `u64::MAX`, which no
+    /// distance reaches (they are below 2^63), while nothing is kept.
+    distance: u64,
+    kept: Instant,
+}
+
+impl Earliest {
+    /// Nothing offered yet.
+    pub(crate) const fn new(now: Instant) -> Self {
+        Earliest {
+            now,
+            distance: u64::MAX,
+            kept: now,
+        }
     }
 
-    /// The instant its value stops counting, if it is counting at `now`.
-    fn expiry(&self, now: Instant) -> Option<Instant> {
-        self.is_fresh(now).then(|| {
-            self.time
-                .wrapping_add_micros(u64::from(self.tau).saturating_add(1))
-        })
+    /// Keeps `candidate` if it is strictly earlier than the one kept (an instant already passed
+    /// counts as `now`).
+    #[inline]
+    pub(crate) fn offer(&mut self, candidate: Instant) {
+        let distance = candidate.micros_since(self.now).unwrap_or(0);
+        if distance < self.distance {
+            self.distance = distance;
+            self.kept = candidate;
+        }
+    }
+
+    /// The earliest instant offered.
+    pub(crate) fn get(&self) -> Option<Instant> {
+        (self.distance != u64::MAX).then_some(self.kept)
     }
 }
 
@@ -356,7 +425,8 @@ struct Output {
 }
 
 /// A value port at run time: where its connections are among the value slots, what it reads,
-/// its last output and its next deadline.
+/// its last output, its next deadline, and which connections its rules let through under the
+/// last activity mask seen.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct ValueState {
     /// The port, by its index in the table.
@@ -371,6 +441,11 @@ pub(crate) struct ValueState {
     output: Option<Output>,
     /// When the output may change without a frame ([`crate::Arbiter::poll`]).
     pub(crate) due: Option<Instant>,
+    /// The activity mask for which `lets_through` was computed.
+    pub(crate) decided_for: u32,
+    /// The connections whose own rule lets them through under `decided_for`. Under the empty
+    /// mask no connection is active, so none (the initial state is consistent).
+    pub(crate) lets_through: u32,
 }
 
 impl ValueState {
@@ -384,6 +459,8 @@ impl ValueState {
             spec,
             output: None,
             due: None,
+            decided_for: 0,
+            lets_through: 0,
         }
     }
 
@@ -416,8 +493,9 @@ impl ValueState {
             .unwrap_or(&mut [])
     }
 
-    /// Records `frame`, received at `now`, as the last frame of the connections in `fed`.
-    /// Returns whether it carried the fields (false: refused, it replaced their values by none).
+    /// Records `frame`, received at `now`, as the last frame of the connections in `fed`, its
+    /// fields read once. Returns whether it carried the fields (false: refused, it replaced
+    /// their values by none).
     pub(crate) fn store(
         &mut self,
         slots: &mut [ValueSlot],
@@ -425,37 +503,85 @@ impl ValueState {
         frame: &Frame,
         now: Instant,
     ) -> bool {
-        let carries = self.spec.carries(frame.payload());
+        let read = self.spec.read(frame.payload());
+        let (raw, key) = read.unwrap_or((0, 0));
+        let own = self.slots_mut(slots);
         let mut newest = None;
-        for (index, slot) in self.slots_mut(slots).iter_mut().enumerate() {
-            if fed & 1u32.checked_shl(index as u32).unwrap_or(0) != 0 {
-                slot.frame = *frame;
-                slot.time = now;
-                slot.has_value = carries;
-                newest = Some(index);
-            }
+        let mut rest = fed;
+        while rest != 0 {
+            let index = rest.trailing_zeros();
+            rest &= rest - 1;
+            let Some(slot) = own.get_mut(index as usize) else {
+                break;
+            };
+            slot.frame = *frame;
+            slot.time = now;
+            slot.raw = raw;
+            slot.key = key;
+            slot.has_value = read.is_some();
+            newest = Some(index as u8);
         }
-        if carries && let Some(index) = newest.and_then(|index| u8::try_from(index).ok()) {
+        if read.is_some()
+            && let Some(index) = newest
+        {
             self.newest = index;
         }
-        carries
+        read.is_some()
     }
 
     /// Combines the contributors at `now`: those of `lets_through` (the connections whose rule
-    /// lets them through) whose value is fresh. Sets the next deadline to the earliest of `lapse`
-    /// (when an activity of the port ends) and the instants the fresh values expire. Returns
-    /// whether the output changed, and the new output if it changed and there is one. Costs a
-    /// pass over the port's connections.
+    /// lets them through) whose value is fresh. Sets the next deadline to the earliest of `due`
+    /// (the instants an activity of the port ends, offered already) and the instants the fresh
+    /// values expire. Hands `on_value` the new output if it changed and there is one; returns
+    /// whether it changed. Costs a pass over the port's connections and one over the
+    /// contributors.
     pub(crate) fn combine(
         &mut self,
         slots: &[ValueSlot],
         lets_through: u32,
-        lapse: Option<Instant>,
+        mut due: Earliest,
         now: Instant,
-    ) -> (bool, Option<Combined>) {
-        let before = *self;
-        let combined = self.recombine(slots, lets_through, lapse, now);
-        (before.differs(self.output), combined)
+        on_value: &mut dyn FnMut(&Combined),
+    ) -> bool {
+        let own = self.slots(slots);
+        let mut contributors = 0u32;
+        for (index, slot) in own.iter().enumerate() {
+            // Fresh: it carried the fields and is within τ at `now` (a frame after `now`, out of
+            // order, counts as simultaneous); it stops counting one µs after τ.
+            if slot.has_value
+                && now
+                    .micros_since(slot.time)
+                    .is_none_or(|since| since <= u64::from(slot.tau))
+            {
+                due.offer(
+                    slot.time
+                        .wrapping_add_micros(u64::from(slot.tau).saturating_add(1)),
+                );
+                contributors |= lets_through & 1u32.checked_shl(index as u32).unwrap_or(0);
+            }
+        }
+        self.due = due.get();
+        let output = self.winner(own, contributors);
+        let changed = self.differs(output);
+        self.output = output;
+        // A Sum whose newest contributor changed keeps its value: the frame it would carry is
+        // that contributor's from now on.
+        if changed
+            && let Some(output) = output
+            && let Some(slot) = own.get(usize::from(output.connection))
+        {
+            let frame = match self.spec.combine {
+                Combine::Sum => summed(&slot.frame, &self.spec.value, output.value),
+                _ => slot.frame,
+            };
+            on_value(&Combined {
+                port: self.port,
+                connection: output.connection,
+                value: output.value,
+                frame,
+            });
+        }
+        changed
     }
 
     /// Whether `new` differs from the last output as the consumer sees it: the value, and but
@@ -467,141 +593,87 @@ impl ValueState {
         }
     }
 
-    fn recombine(
-        &mut self,
-        slots: &[ValueSlot],
-        lets_through: u32,
-        lapse: Option<Instant>,
-        now: Instant,
-    ) -> Option<Combined> {
-        let own = self.slots(slots);
-        let mut due = lapse;
-        let mut contributors = 0u32;
-        for (index, slot) in own.iter().enumerate() {
-            if let Some(expiry) = slot.expiry(now) {
-                due = Some(earliest(due, expiry, now));
-                if lets_through & 1u32.checked_shl(index as u32).unwrap_or(0) != 0 {
-                    contributors |= 1u32.checked_shl(index as u32).unwrap_or(0);
-                }
-            }
-        }
-        self.due = due;
-        let output = self.winner(own, contributors);
-        if !self.differs(output) {
-            // A Sum whose newest contributor changed keeps its value: the frame it would carry
-            // is that contributor's from now on.
-            self.output = output;
+    /// The output the contributors give (see the module's documentation). One pass over the
+    /// contributors, on the values and keys read when their frames were stored: for Sum the
+    /// total; else each contributor's key replaces the best so far only when strictly greater,
+    /// so ties keep the lower index, or for Priority the incumbent, which is examined first.
+    fn winner(&self, own: &[ValueSlot], contributors: u32) -> Option<Output> {
+        if contributors == 0 {
             return None;
         }
-        self.output = output;
-        let output = output?;
-        let slot = own.get(usize::from(output.connection))?;
-        let frame = match self.spec.combine {
-            Combine::Sum => {
-                let mut data = [0u8; MAX_DATA_LEN];
-                let payload = slot.frame.payload();
-                data.get_mut(..payload.len())?.copy_from_slice(payload);
-                self.spec.value.write(&mut data, output.value);
-                let len = u8::try_from(payload.len()).unwrap_or(0);
-                Frame::from_buffer(slot.frame.id(), data, len)
+        let combine = self.spec.combine;
+        if combine == Combine::Sum {
+            return self.sum(own, contributors);
+        }
+        let mut best: Option<(u8, u32)> = None;
+        if combine == Combine::Priority
+            && let Some(output) = self.output
+            && contributors & 1u32.checked_shl(u32::from(output.connection)).unwrap_or(0) != 0
+            && let Some(slot) = own.get(usize::from(output.connection))
+        {
+            best = Some((output.connection, slot.key));
+        }
+        let mut rest = contributors;
+        while rest != 0 {
+            let index = rest.trailing_zeros() as u8;
+            rest &= rest - 1;
+            let slot = own.get(usize::from(index))?;
+            if best.is_none_or(|(_, kept)| slot.key > kept) {
+                best = Some((index, slot.key));
             }
-            _ => slot.frame,
-        };
-        Some(Combined {
-            port: self.port,
-            connection: output.connection,
-            value: output.value,
-            frame,
+        }
+        let (connection, _) = best?;
+        let slot = own.get(usize::from(connection))?;
+        Some(Output {
+            connection,
+            value: self.spec.value.decode(slot.raw),
         })
     }
 
-    /// The output the contributors give (see the module's documentation). One pass: each
-    /// contributor's key (its value for Max, its negated value for Min, its priority) replaces
-    /// the best so far only when strictly greater, so ties keep the lower index, or for
-    /// Priority the incumbent, which is examined first.
-    fn winner(&self, own: &[ValueSlot], contributors: u32) -> Option<Output> {
-        let combine = self.spec.combine;
-        let key_field = match (combine, self.spec.priority) {
-            (Combine::Priority, Some(priority)) => priority,
-            _ => self.spec.value,
-        };
-        let incumbent = match (combine, self.output) {
-            (Combine::Priority, Some(output)) => {
-                let bit = 1u32.checked_shl(u32::from(output.connection)).unwrap_or(0);
-                (contributors & bit != 0).then_some(output.connection)
-            }
-            _ => None,
-        };
-        // (connection, key, value); for Sum, the newest contributor and its instant.
-        let mut best: Option<(u8, i64, i64)> = None;
-        let mut newest: Option<(u8, Instant)> = None;
+    /// [`ValueState::winner`] for Sum: the total saturated to the field's range, and the newest
+    /// contributor (the last one stored if it contributes, else the latest instant, ties to the
+    /// lower index). Out of line: the other combinations do not carry it.
+    #[inline(never)]
+    fn sum(&self, own: &[ValueSlot], contributors: u32) -> Option<Output> {
+        let field = self.spec.value;
+        // At most 32 terms of 32 bits: the total cannot overflow an i64.
         let mut total = 0i64;
+        let mut latest: Option<(u8, Instant)> = None;
+        let newest_contributes =
+            contributors & 1u32.checked_shl(u32::from(self.newest)).unwrap_or(0) != 0;
         let mut rest = contributors;
-        let mut next = incumbent;
-        loop {
-            let index = match next.take() {
-                Some(index) => index,
-                None if rest != 0 => {
-                    let index = rest.trailing_zeros() as u8;
-                    rest &= rest - 1;
-                    if Some(index) == incumbent {
-                        continue;
-                    }
-                    index
-                }
-                None => break,
-            };
+        while rest != 0 {
+            let index = rest.trailing_zeros() as u8;
+            rest &= rest - 1;
             let slot = own.get(usize::from(index))?;
-            let payload = slot.frame.payload();
-            let value = self.spec.value.read(payload)?;
-            if combine == Combine::Sum {
-                total = total.saturating_add(value);
-                // The newest frame: the last one stored, else the latest instant (ties to the
-                // lower index).
-                let later = newest.is_none_or(|(kept, time)| {
-                    kept != self.newest
-                        && (index == self.newest
-                            || slot.time.micros_since(time).is_some_and(|d| d > 0))
-                });
-                if later {
-                    newest = Some((index, slot.time));
-                }
-                continue;
-            }
-            let key = match combine {
-                Combine::Min => value.saturating_neg(),
-                Combine::Priority => key_field.read(payload)?,
-                _ => value,
-            };
-            if best.is_none_or(|(_, kept, _)| key > kept) {
-                best = Some((index, key, value));
+            total = total.wrapping_add(field.decode(slot.raw));
+            if !newest_contributes
+                && latest.is_none_or(|(_, time)| {
+                    slot.time.micros_since(time).is_some_and(|since| since > 0)
+                })
+            {
+                latest = Some((index, slot.time));
             }
         }
-        if combine == Combine::Sum {
-            let (connection, _) = newest?;
-            return Some(Output {
-                connection,
-                value: self.spec.value.saturate(total),
-            });
-        }
-        best.map(|(connection, _, value)| Output { connection, value })
+        let connection = if newest_contributes {
+            self.newest
+        } else {
+            latest?.0
+        };
+        Some(Output {
+            connection,
+            value: field.saturate(total),
+        })
     }
 }
 
-/// The earlier of `current` and `candidate`, both at or after `now` (wrap-safe).
-pub(crate) fn earliest(current: Option<Instant>, candidate: Instant, now: Instant) -> Instant {
-    match current {
-        Some(current) => {
-            let to_current = current.micros_since(now).unwrap_or(0);
-            let to_candidate = candidate.micros_since(now).unwrap_or(0);
-            if to_candidate < to_current {
-                candidate
-            } else {
-                current
-            }
-        }
-        None => candidate,
-    }
+/// `frame` with `field` replaced by `value` (saturated), as Sum hands it over: a data frame of
+/// the same identifier and length, the bytes after the payload zero.
+#[inline(never)]
+fn summed(frame: &Frame, field: &Field, value: i64) -> Frame {
+    let mut summed = frame.republished(frame.id());
+    field.write(summed.buffer_mut(), value);
+    summed
 }
 
 #[cfg(test)]

@@ -395,7 +395,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         if self
             .arbiter
             .as_ref()
-            .is_some_and(|arbiter| arbiter.deadline(now).is_some())
+            .is_some_and(|arbiter| arbiter.is_due(now))
         {
             self.deliver_values_due(now, consumer);
         }
