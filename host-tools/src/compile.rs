@@ -115,6 +115,42 @@ impl Builder<'_> {
         Ok(step)
     }
 
+    /// The nodes built, parents first (children were created before their parents: reversing
+    /// puts parents first), and `entries` as references into them.
+    fn flatten(
+        &self,
+        entries: impl IntoIterator<Item = Step>,
+    ) -> Result<(Vec<DecisionNode>, Vec<NodeRef>), DecisionError> {
+        let count = self.nodes.len();
+        let reference = |step: Step| -> Result<NodeRef, DecisionError> {
+            match step {
+                Step::Nobody => Ok(NodeRef::NOBODY),
+                Step::Deliver(index) => NodeRef::deliver(index).ok_or(DecisionError::TooLarge),
+                Step::Node(index) => u16::try_from(count - 1 - index)
+                    .ok()
+                    .and_then(NodeRef::node)
+                    .ok_or(DecisionError::TooLarge),
+            }
+        };
+        let nodes = self
+            .nodes
+            .iter()
+            .rev()
+            .map(|&(var, low, high)| {
+                Ok(DecisionNode {
+                    var,
+                    low: reference(low)?,
+                    high: reference(high)?,
+                })
+            })
+            .collect::<Result<Vec<_>, DecisionError>>()?;
+        let entries = entries
+            .into_iter()
+            .map(reference)
+            .collect::<Result<Vec<_>, DecisionError>>()?;
+        Ok((nodes, entries))
+    }
+
     fn node(&mut self, var: u8, low: Step, high: Step) -> Result<Step, DecisionError> {
         if let Some(&index) = self.shared.get(&(var, low, high)) {
             return Ok(Step::Node(index));
@@ -140,34 +176,9 @@ pub fn decision(logic: &PortLogic, limit: usize) -> Result<Decision, DecisionErr
     };
     let roots = logic.delivers.iter().map(Bdd::root_pointer).collect();
     let root = builder.build(roots)?;
-    // Children were created before their parents: reversing puts parents first.
-    let count = builder.nodes.len();
-    let reference = |step: Step| -> Result<NodeRef, DecisionError> {
-        match step {
-            Step::Nobody => Ok(NodeRef::NOBODY),
-            Step::Deliver(index) => NodeRef::deliver(index).ok_or(DecisionError::TooLarge),
-            Step::Node(index) => u16::try_from(count - 1 - index)
-                .ok()
-                .and_then(NodeRef::node)
-                .ok_or(DecisionError::TooLarge),
-        }
-    };
-    let nodes = builder
-        .nodes
-        .iter()
-        .rev()
-        .map(|&(var, low, high)| {
-            Ok(DecisionNode {
-                var,
-                low: reference(low)?,
-                high: reference(high)?,
-            })
-        })
-        .collect::<Result<Vec<_>, DecisionError>>()?;
-    Ok(Decision {
-        nodes,
-        root: reference(root)?,
-    })
+    let (nodes, roots) = builder.flatten([root])?;
+    let root = roots.first().copied().unwrap_or(NodeRef::NOBODY);
+    Ok(Decision { nodes, root })
 }
 
 /// Compiles a value port's logic: one diagram per connection i, answering "i delivers" exactly
@@ -198,33 +209,7 @@ pub fn value_decision(
             .collect();
         entries.push(builder.build(positions)?);
     }
-    let count = builder.nodes.len();
-    let reference = |step: Step| -> Result<NodeRef, DecisionError> {
-        match step {
-            Step::Nobody => Ok(NodeRef::NOBODY),
-            Step::Deliver(index) => NodeRef::deliver(index).ok_or(DecisionError::TooLarge),
-            Step::Node(index) => u16::try_from(count - 1 - index)
-                .ok()
-                .and_then(NodeRef::node)
-                .ok_or(DecisionError::TooLarge),
-        }
-    };
-    let nodes = builder
-        .nodes
-        .iter()
-        .rev()
-        .map(|&(var, low, high)| {
-            Ok(DecisionNode {
-                var,
-                low: reference(low)?,
-                high: reference(high)?,
-            })
-        })
-        .collect::<Result<Vec<_>, DecisionError>>()?;
-    let roots = entries
-        .into_iter()
-        .map(reference)
-        .collect::<Result<Vec<_>, DecisionError>>()?;
+    let (nodes, roots) = builder.flatten(entries)?;
     Ok((
         Decision {
             nodes,
