@@ -116,6 +116,17 @@ impl OutputId {
     }
 }
 
+crate::wire::decode_struct!(OutputId { raw, extended });
+
+impl crate::wire::Decode for Consumer {
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
+        Ok(match r.variant(2)? {
+            0 => Consumer::Local,
+            _ => Consumer::Republish(r.decode()?),
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -353,6 +353,14 @@ pub(crate) fn walk(steps: &[Step], root: NodeRef, active: ConnectionSet) -> Opti
     }
 }
 
+impl crate::wire::Decode for NodeRef {
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
+        r.u16().map(NodeRef)
+    }
+}
+
+crate::wire::decode_struct!(DecisionNode { var, low, high });
+
 #[cfg(test)]
 mod tests {
     use super::*;

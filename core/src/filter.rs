@@ -144,6 +144,8 @@ impl core::fmt::Display for FilterError {
     }
 }
 
+crate::wire::decode_struct!(Filter { id, mask, extended });
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -30,12 +30,8 @@
 //!
 //! The body does not depend on the capacities of the [`Table`] that was encoded (postcard prefixes
 //! each list with its length), so one image loads into any table with room for it: a node with
-//! the default capacities and a board with [`crate::BoardTable`] read the same bytes.
-
-use core::marker::PhantomData;
-
-use serde::Deserialize;
-use serde::de::{Deserializer, SeqAccess, Visitor};
+//! the default capacities and a board with [`crate::BoardTable`] read the same bytes. A node decodes it
+//! with a reader of its own (`wire`), not serde: the format is postcard's, the code a fraction.
 
 use crate::crc32::Crc32;
 use crate::decision::{DecisionNode, NodeRef};
@@ -320,7 +316,7 @@ pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
             computed,
         });
     }
-    let (table, rest) = match postcard::take_from_bytes::<Table<PORTS, CONNECTIONS, NODES>>(body) {
+    let (table, rest) = match decode_body::<PORTS, CONNECTIONS, NODES>(body) {
         Ok(decoded) => decoded,
         Err(error) => {
             let capacity = TableSize {
@@ -354,20 +350,33 @@ pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
     Ok(Loaded { header, table })
 }
 
+/// Decodes a table body (an image without its header) as the loader does, without validating
+/// the table: `(table, bytes after it)`. Exactly postcard's decoding of [`Table`] with serde, by a
+/// reader a node can afford (see `wire`); public so that tests and fuzzers can hold the two
+/// against each other. Costs one pass over `body`, no heap.
+pub fn decode_body<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
+    body: &[u8],
+) -> Result<(Table<PORTS, CONNECTIONS, NODES>, &[u8]), postcard::Error> {
+    crate::wire::take(body)
+}
+
 /// The sizes of the lists of a table body, decoded without storing them; `None` if the body is
-/// not a table or has bytes after it. Costs one postcard decode, one element at a time.
+/// not a table or has bytes after it. Costs one decode, one element at a time.
 fn size_of_body(body: &[u8]) -> Option<(TableSize, usize)> {
-    match postcard::take_from_bytes::<BodySize>(body) {
-        Ok((size, [])) => Some((
-            TableSize {
-                ports: size.ports.0,
-                connections: size.connections.0,
-                nodes: size.nodes.0,
-            },
-            size.roots.0,
-        )),
-        _ => None,
-    }
+    let mut r = crate::wire::Reader::new(body);
+    let ports = r.count::<Port>().ok()?;
+    let connections = r.count::<Connection>().ok()?;
+    let nodes = r.count::<DecisionNode>().ok()?;
+    // Counted so that the body's end is found; a valid table has at most one per connection.
+    let roots = r.count::<NodeRef>().ok()?;
+    r.rest().is_empty().then_some((
+        TableSize {
+            ports,
+            connections,
+            nodes,
+        },
+        roots,
+    ))
 }
 
 /// More value-port roots than connections: refused before validation, so that a node whose root
@@ -380,41 +389,6 @@ fn too_many_roots<const P: usize, const C: usize, const N: usize>(
         return Err(LoadError::Table(TableError::RootCountMismatch));
     }
     Ok(())
-}
-
-/// A table body with each list only counted: the same fields, in the same order, as [`Table`].
-#[derive(Deserialize)]
-struct BodySize {
-    ports: Count<Port>,
-    connections: Count<Connection>,
-    nodes: Count<DecisionNode>,
-    /// Counted so that the body's end is found; a valid table has at most one per connection.
-    roots: Count<NodeRef>,
-}
-
-/// The length of a list of `T`, each element decoded (so that it is checked) and dropped.
-struct Count<T>(usize, PhantomData<T>);
-
-impl<'de, T: Deserialize<'de>> Deserialize<'de> for Count<T> {
-    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
-        struct Counter<T>(PhantomData<T>);
-        impl<'de, T: Deserialize<'de>> Visitor<'de> for Counter<T> {
-            type Value = usize;
-            fn expecting(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-                f.write_str("a list")
-            }
-            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<usize, A::Error> {
-                let mut count = 0usize;
-                while seq.next_element::<T>()?.is_some() {
-                    count = count.saturating_add(1);
-                }
-                Ok(count)
-            }
-        }
-        deserializer
-            .deserialize_seq(Counter(PhantomData::<T>))
-            .map(|count| Count(count, PhantomData))
-    }
 }
 
 /// Writes the image of `table` (of any capacities) for node `node_id`, version `table_version`,

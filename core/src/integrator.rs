@@ -283,6 +283,12 @@ impl Runtime {
     }
 }
 
+crate::wire::decode_struct!(Stimulation {
+    gain,
+    decay_us,
+    rest_us
+});
+
 #[cfg(test)]
 mod tests {
     use super::*;

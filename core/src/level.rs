@@ -119,6 +119,12 @@ impl core::fmt::Display for GainError {
     }
 }
 
+impl crate::wire::Decode for Gain {
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
+        r.u32().map(Gain)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

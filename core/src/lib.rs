@@ -57,6 +57,7 @@ pub mod protocol;
 pub mod table;
 pub mod time;
 pub mod value_port;
+mod wire;
 
 pub use arbiter::{Arbiter, FrameReception, PortSet, PortVerdict, Reception};
 pub use consumer::{Consumer, OutputId, OutputIdError};

@@ -571,6 +571,36 @@ fn validate_port(
     Ok(())
 }
 
+crate::wire::decode_struct!(Connection {
+    filter,
+    stimulation
+});
+
+impl crate::wire::Decode for Port {
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
+        Ok(Port {
+            connections: r.decode()?,
+            nodes: r.decode()?,
+            root: r.decode()?,
+            consumer: r.decode()?,
+            value: r.option()?,
+        })
+    }
+}
+
+impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize> crate::wire::Decode
+    for Table<PORTS, CONNECTIONS, NODES>
+{
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
+        Ok(Table {
+            ports: r.vec()?,
+            connections: r.vec()?,
+            nodes: r.vec()?,
+            roots: r.vec()?,
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -54,9 +54,30 @@ pub fn fix_up(data: &[u8]) -> Vec<u8> {
     bytes
 }
 
+/// The node's body decoder (`image::decode_body`, a hand-written reader) against postcard and
+/// serde's derive, the workstation's encoding: both accept the same bytes and build the same
+/// table with the same rest. Their errors may differ in kind (a list length is a u32 varint on
+/// the node, a usize one for postcard), never in whether there is one.
+pub fn same_as_postcard<const P: usize, const C: usize, const N: usize>(body: &[u8]) {
+    let ours = image::decode_body::<P, C, N>(body);
+    let theirs = postcard::take_from_bytes::<pab_core::Table<P, C, N>>(body);
+    match (&ours, &theirs) {
+        (Ok(a), Ok(b)) => assert_eq!(
+            a, b,
+            "the node's decoder and postcard built different tables"
+        ),
+        (Err(_), Err(_)) => {}
+        _ => panic!("the node's decoder says {ours:?}, postcard says {theirs:?}"),
+    }
+}
+
 /// Loads `bytes` into the largest and the board's capacities and checks that the two agree with
 /// each other, with the header reader, and with the encoder. Returns the full load's result.
 fn check(bytes: &[u8]) -> Result<(), LoadError> {
+    if let Some(body) = bytes.get(HEADER_LEN..) {
+        same_as_postcard::<MAX_PORTS, MAX_CONNECTIONS, MAX_DECISION_NODES>(body);
+        same_as_postcard::<BOARD_PORTS, BOARD_CONNECTIONS, BOARD_DECISION_NODES>(body);
+    }
     let header = image::read_header(bytes);
     let full: Result<Full, LoadError> = image::load(bytes);
     let board: Result<Board, LoadError> = image::load(bytes);

@@ -1,0 +1,177 @@
+//! The table body's decoder: postcard's wire format, read by hand.
+//!
+//! The workstation encodes a [`crate::Table`] with `serde` and postcard; a node decodes it here.
+//! Why not serde on the node too: its derived visitors, postcard's deserializer and heapless's
+//! `Vec` visitor took some 6 KB of a board's 64 KiB of flash, for a format this small (unsigned
+//! varints, bytes, booleans, options, enum indices, lists). This reader is a few hundred bytes.
+//!
+//! It accepts exactly what postcard accepts and builds the same values (tests/wire.rs checks it
+//! against postcard + serde on arbitrary bytes, and the `image_wire` fuzz target too), with
+//! postcard's errors, except for list lengths: read as a u32 varint on every target (postcard
+//! reads a `usize`, 64 bits on a workstation), so that a board and a workstation give the same
+//! verdict on the same bytes. No list of a table comes near 2^32 elements.
+//!
+//! Costs: one pass over the bytes, no allocation; every read is bounds-checked and fails with
+//! [`Error::DeserializeUnexpectedEnd`] past the end.
+
+use heapless::Vec;
+use postcard::Error;
+
+/// A cursor over a body.
+pub(crate) struct Reader<'a> {
+    bytes: &'a [u8],
+}
+
+/// A value with postcard's encoding of its serde derive: fields in order, newtypes transparent.
+pub(crate) trait Decode: Sized {
+    fn decode(r: &mut Reader<'_>) -> Result<Self, Error>;
+}
+
+impl<'a> Reader<'a> {
+    pub(crate) fn new(bytes: &'a [u8]) -> Self {
+        Reader { bytes }
+    }
+
+    /// What is left after the values read so far.
+    pub(crate) fn rest(&self) -> &'a [u8] {
+        self.bytes
+    }
+
+    pub(crate) fn u8(&mut self) -> Result<u8, Error> {
+        let (&first, rest) = self
+            .bytes
+            .split_first()
+            .ok_or(Error::DeserializeUnexpectedEnd)?;
+        self.bytes = rest;
+        Ok(first)
+    }
+
+    pub(crate) fn bool(&mut self) -> Result<bool, Error> {
+        match self.u8()? {
+            0 => Ok(false),
+            1 => Ok(true),
+            _ => Err(Error::DeserializeBadBool),
+        }
+    }
+
+    /// An unsigned LEB128 varint of at most `bits` bits (16 or 32), as postcard reads one: at
+    /// most ⌈bits/7⌉ bytes, and the last byte of a full-length one no larger than the bits left.
+    fn varint(&mut self, bits: u32) -> Result<u32, Error> {
+        let max_bytes = bits.div_ceil(7);
+        let last_max = (1u8 << (bits % 7)) - 1;
+        let mut out = 0u32;
+        for i in 0..max_bytes {
+            let byte = self.u8()?;
+            // i < 5, so the shift is below 32; bits above `bits` are refused below.
+            out |= u32::from(byte & 0x7F).wrapping_shl(7 * i);
+            if byte & 0x80 == 0 {
+                if i == max_bytes - 1 && byte > last_max {
+                    return Err(Error::DeserializeBadVarint);
+                }
+                return Ok(out);
+            }
+        }
+        Err(Error::DeserializeBadVarint)
+    }
+
+    pub(crate) fn u16(&mut self) -> Result<u16, Error> {
+        // The last-byte check keeps the value within 16 bits.
+        self.varint(16).map(|v| v as u16)
+    }
+
+    pub(crate) fn u32(&mut self) -> Result<u32, Error> {
+        self.varint(32)
+    }
+
+    /// An enum's variant index (a u32 varint) that must be below `variants`: serde's derive
+    /// refuses an unknown index with a custom error.
+    pub(crate) fn variant(&mut self, variants: u32) -> Result<u32, Error> {
+        let index = self.u32()?;
+        if index < variants {
+            Ok(index)
+        } else {
+            Err(Error::SerdeDeCustom)
+        }
+    }
+
+    pub(crate) fn option<T: Decode>(&mut self) -> Result<Option<T>, Error> {
+        match self.u8()? {
+            0 => Ok(None),
+            1 => T::decode(self).map(Some),
+            _ => Err(Error::DeserializeBadOption),
+        }
+    }
+
+    pub(crate) fn decode<T: Decode>(&mut self) -> Result<T, Error> {
+        T::decode(self)
+    }
+
+    /// A list, each element handed to `each` as it is decoded; returns the length.
+    pub(crate) fn each<T: Decode>(
+        &mut self,
+        mut each: impl FnMut(T) -> Result<(), Error>,
+    ) -> Result<usize, Error> {
+        let len = self.u32()?;
+        for _ in 0..len {
+            each(T::decode(self)?)?;
+        }
+        Ok(len as usize)
+    }
+
+    /// A list into a `Vec` of capacity `N`: more elements than that is heapless's custom error.
+    pub(crate) fn vec<T: Decode, const N: usize>(&mut self) -> Result<Vec<T, N>, Error> {
+        let mut out = Vec::new();
+        self.each(|x| out.push(x).map_err(|_| Error::SerdeDeCustom))?;
+        Ok(out)
+    }
+
+    /// A list whose elements are decoded (so checked) and dropped: its length.
+    pub(crate) fn count<T: Decode>(&mut self) -> Result<usize, Error> {
+        self.each(|_: T| Ok(()))
+    }
+}
+
+impl Decode for u8 {
+    fn decode(r: &mut Reader<'_>) -> Result<Self, Error> {
+        r.u8()
+    }
+}
+
+impl Decode for bool {
+    fn decode(r: &mut Reader<'_>) -> Result<Self, Error> {
+        r.bool()
+    }
+}
+
+impl Decode for u16 {
+    fn decode(r: &mut Reader<'_>) -> Result<Self, Error> {
+        r.u16()
+    }
+}
+
+impl Decode for u32 {
+    fn decode(r: &mut Reader<'_>) -> Result<Self, Error> {
+        r.u32()
+    }
+}
+
+/// Decodes a whole value with trailing bytes allowed: `(value, rest)`, like
+/// `postcard::take_from_bytes`.
+pub(crate) fn take<T: Decode>(bytes: &[u8]) -> Result<(T, &[u8]), Error> {
+    let mut r = Reader::new(bytes);
+    let value = T::decode(&mut r)?;
+    Ok((value, r.rest()))
+}
+
+/// `impl Decode` for a struct from its fields, in declaration order (postcard's order). Invoked
+/// in each type's own module, where its private fields are visible.
+macro_rules! decode_struct {
+    ($ty:ident { $($field:ident),* $(,)? }) => {
+        impl $crate::wire::Decode for $ty {
+            fn decode(r: &mut $crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
+                Ok($ty { $($field: r.decode()?),* })
+            }
+        }
+    };
+}
+pub(crate) use decode_struct;
