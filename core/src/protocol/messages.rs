@@ -598,6 +598,10 @@ struct Writer {
 }
 
 impl Writer {
+    // Out of line: inlined, every `put` of `to_frame` unrolled its copy (1.4 KB of a board's
+    // flash for one function); a call costs a few instructions, on frames sent a few times a
+    // second at most.
+    #[inline(never)]
     fn put(&mut self, bytes: &[u8]) {
         for &value in bytes {
             if let Some(slot) = self.buf.get_mut(usize::from(self.len)) {
