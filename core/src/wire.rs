@@ -7,9 +7,9 @@
 //!
 //! It accepts exactly what postcard accepts and builds the same values (tests/wire.rs checks it
 //! against postcard + serde on arbitrary bytes, and the `image_wire` fuzz target too), with
-//! postcard's errors, except for list lengths: read as a u32 varint on every target (postcard
-//! reads a `usize`, 64 bits on a workstation), so that a board and a workstation give the same
-//! verdict on the same bytes. No list of a table comes near 2^32 elements.
+//! postcard's errors. List lengths are read as a workstation's postcard reads them (a 64-bit
+//! `usize` varint, up to 10 bytes), on every target: with postcard itself, a 32-bit board refused
+//! a length that a workstation accepted (a small length in 6 to 10 bytes), which the fuzzer found.
 //!
 //! Costs: one pass over the bytes, no allocation; every read is bounds-checked and fails with
 //! [`Error::DeserializeUnexpectedEnd`] past the end.
@@ -54,16 +54,16 @@ impl<'a> Reader<'a> {
         }
     }
 
-    /// An unsigned LEB128 varint of at most `bits` bits (16 or 32), as postcard reads one: at
+    /// An unsigned LEB128 varint of at most `bits` bits (16, 32 or 64), as postcard reads one: at
     /// most ⌈bits/7⌉ bytes, and the last byte of a full-length one no larger than the bits left.
-    fn varint(&mut self, bits: u32) -> Result<u32, Error> {
+    fn varint(&mut self, bits: u32) -> Result<u64, Error> {
         let max_bytes = bits.div_ceil(7);
         let last_max = (1u8 << (bits % 7)) - 1;
-        let mut out = 0u32;
+        let mut out = 0u64;
         for i in 0..max_bytes {
             let byte = self.u8()?;
-            // i < 5, so the shift is below 32; bits above `bits` are refused below.
-            out |= u32::from(byte & 0x7F).wrapping_shl(7 * i);
+            // i < 10, so the shift is below 64; bits above `bits` are refused below.
+            out |= u64::from(byte & 0x7F).wrapping_shl(7 * i);
             if byte & 0x80 == 0 {
                 if i == max_bytes - 1 && byte > last_max {
                     return Err(Error::DeserializeBadVarint);
@@ -80,7 +80,8 @@ impl<'a> Reader<'a> {
     }
 
     pub(crate) fn u32(&mut self) -> Result<u32, Error> {
-        self.varint(32)
+        // The last-byte check keeps the value within 32 bits.
+        self.varint(32).map(|v| v as u32)
     }
 
     /// An enum's variant index (a u32 varint) that must be below `variants`: serde's derive
@@ -111,7 +112,10 @@ impl<'a> Reader<'a> {
         &mut self,
         mut each: impl FnMut(T) -> Result<(), Error>,
     ) -> Result<usize, Error> {
-        let len = self.u32()?;
+        // A length is a usize varint for postcard: read as on a 64-bit workstation on every
+        // target (an overlong encoding of a small length is accepted everywhere), and refused
+        // beyond u32 (no body holds that many elements; postcard would run out of bytes).
+        let len = u32::try_from(self.varint(64)?).map_err(|_| Error::SerdeDeCustom)?;
         for _ in 0..len {
             each(T::decode(self)?)?;
         }

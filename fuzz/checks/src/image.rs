@@ -56,8 +56,7 @@ pub fn fix_up(data: &[u8]) -> Vec<u8> {
 
 /// The node's body decoder (`image::decode_body`, a hand-written reader) against postcard and
 /// serde's derive, the workstation's encoding: both accept the same bytes and build the same
-/// table with the same rest. Their errors may differ in kind (a list length is a u32 varint on
-/// the node, a usize one for postcard), never in whether there is one.
+/// table with the same rest. Their errors may differ in kind, never in whether there is one.
 pub fn same_as_postcard<const P: usize, const C: usize, const N: usize>(body: &[u8]) {
     let ours = image::decode_body::<P, C, N>(body);
     let theirs = postcard::take_from_bytes::<pab_core::Table<P, C, N>>(body);
