@@ -264,6 +264,9 @@ class BoardNode:
     slcand: subprocess.Popen | None = None
     boot_s: float = 0.0
     routes: list[list[str]] = field(default_factory=list)
+    # cangw filters of the routes from the bus to the board, one route each (keep them disjoint:
+    # a frame that passes two is delivered twice). Default: everything but the reports to the tool.
+    to_board: tuple[str, ...] = (ROUTE_FILTER,)
 
     @property
     def can_iface(self) -> str:
@@ -328,7 +331,7 @@ class BoardNode:
         # Frames routed onto a vcan are seen by its sockets only if echoed (-e). can-gw's hop
         # limit (1) keeps each frame from coming back the way it went. The route to the board
         # leaves out the nodes' reports to the tool (ROUTE_FILTER).
-        for route in (["-s", self.iface, "-d", self.can_iface, "-f", ROUTE_FILTER],
+        for route in (*(["-s", self.iface, "-d", self.can_iface, "-f", f] for f in self.to_board),
                       ["-s", self.can_iface, "-d", self.iface, "-e"]):
             _run(["cangw", "-A", *route])
             self.routes.append(route)

@@ -110,12 +110,14 @@ class NodeProcess:
 
 class Nodes:
     """The network's nodes, started together, each with its own table store: `pab-node`
-    processes, and the emulated board (`pab_hil.board.BoardNode`) for the names in `boards`."""
+    processes, and the emulated board (`pab_hil.board.BoardNode`) for the names in `boards`, with
+    `board_routes` as the cangw filters of what reaches it (default: `board.ROUTE_FILTER`)."""
 
     def __init__(self, iface: str, work_dir: Path, node_ids: dict[str, int] = NODE_IDS,
                  boards: tuple[str, ...] = (),
-                 node_args: dict[str, tuple[str, ...]] | None = None) -> None:
-        from .board import UART_ENV, BoardNode
+                 node_args: dict[str, tuple[str, ...]] | None = None,
+                 board_routes: tuple[str, ...] | None = None) -> None:
+        from .board import ROUTE_FILTER, UART_ENV, BoardNode
 
         unknown = set(boards) - set(node_ids)
         if unknown:
@@ -127,7 +129,8 @@ class Nodes:
         # table is stored, and a results directory may be a slow network share (the micro-VM's).
         self.store_root = Path(tempfile.mkdtemp(prefix="pab-hil-store-"))
         self.by_name: dict[str, NodeProcess | BoardNode] = {
-            name: BoardNode(name, node_id, iface, work_dir / "logs") if name in boards
+            name: BoardNode(name, node_id, iface, work_dir / "logs",
+                            to_board=board_routes or (ROUTE_FILTER,)) if name in boards
             else NodeProcess(name, node_id, iface, self.store_root / name, work_dir / "logs",
                              tuple((node_args or {}).get(name, ())))
             for name, node_id in node_ids.items()

@@ -82,3 +82,37 @@ def plot_session(session, path: Path, title: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+ROBOT_COLOURS = {1: "#1f77b4", 2: "#ff7f0e", 3: "#2ca02c"}
+
+
+def plot_team(drives, scenes: dict[str, tuple[float, float]], origin: float, path: Path,
+              title: str) -> None:
+    """Multi-target observation as the bus showed it: one lane per target, a bar per robot while
+    its base controller delivered that target's observer (several bars in a lane: shared), and
+    the scenes of the run shaded behind."""
+    targets = sorted({d.target for d in drives if d.target})
+    robots = sorted({d.robot for d in drives})
+    fig, ax = plt.subplots(figsize=(13, 1.2 + 0.8 * len(targets)))
+    for lane, target in enumerate(targets):
+        for slot, robot in enumerate(robots):
+            spans = [(d.start - origin, d.end - d.start) for d in drives
+                     if d.target == target and d.robot == robot]
+            ax.broken_barh(spans, (lane + slot * 0.28 + 0.08, 0.24),
+                           color=ROBOT_COLOURS.get(robot, "#7f7f7f"),
+                           label=f"r{robot}" if lane == 0 else None)
+    for index, (name, (start, end)) in enumerate(scenes.items()):
+        ax.axvspan(start - origin, end - origin, color="#eeeeee" if index % 2 else "#f8f8f8",
+                   zorder=0)
+        ax.text((start + end) / 2 - origin, len(targets) + 0.1, name, ha="center", fontsize=8)
+    ax.set_yticks([lane + 0.5 for lane in range(len(targets))])
+    ax.set_yticklabels([f"target {t}" for t in targets])
+    ax.set_ylim(0, len(targets) + 0.5)
+    ax.set_xlabel("time (s)")
+    ax.legend(loc="center left", bbox_to_anchor=(1.0, 0.5), frameon=False)
+    ax.set_title(title)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

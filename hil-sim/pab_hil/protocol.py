@@ -236,3 +236,32 @@ class MalformedFrame(ValueError):
 def _expect(data: bytes, length: int, what: str) -> None:
     if len(data) != length:
         raise MalformedFrame(f"{what} frame with {len(data)} bytes (expected {length})")
+
+
+# Broadcast of Local Eligibility (docs/can-protocol.md): the claim frames the nodes of a peer group
+# send each other. The harness only reads them, to measure what the nodes did.
+CLAIM_PRIORITY = 4
+
+
+@dataclass(frozen=True)
+class Claim:
+    group: int
+    node: int
+    eligibility: int
+
+    @staticmethod
+    def decode(arbitration_id: int, is_extended: bool, payload: bytes) -> "Claim | None":
+        """The claim a frame carries, or None: not a claim, or one a node would refuse."""
+        if not is_extended or arbitration_id >> 23 & 0b111 != 0b101:
+            return None
+        node = arbitration_id & 0x7F
+        ranked = 0xFFFF - (arbitration_id >> 7 & 0xFFFF)
+        if (arbitration_id >> 26 != CLAIM_PRIORITY or node == 0 or len(payload) != 4
+                or payload[3] != 0):
+            return None
+        group, eligibility = payload[0], int.from_bytes(payload[1:3], "little")
+        return Claim(group, node, eligibility) if eligibility == ranked else None
+
+    def arbitration_id(self) -> int:
+        return (CLAIM_PRIORITY << 26 | 0b10 << 24 | 1 << 23 | (0xFFFF - self.eligibility) << 7
+                | self.node)

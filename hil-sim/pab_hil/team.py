@@ -77,10 +77,13 @@ class Target:
     centre: tuple[float, float]
     radius: float
     phase: float  # rad at t = 0
+    speed: float = TARGET_SPEED  # mm/s
 
     def at(self, t: float) -> tuple[float, float]:
-        """Where the target is at `t`: on its orbit, at TARGET_SPEED."""
-        angle = self.phase + TARGET_SPEED * t / self.radius
+        """Where the target is at `t`: on its orbit, at its speed (a radius of 0: at the centre)."""
+        if self.radius == 0.0:
+            return self.centre
+        angle = self.phase + self.speed * t / self.radius
         return (self.centre[0] + self.radius * math.cos(angle),
                 self.centre[1] + self.radius * math.sin(angle))
 
@@ -154,3 +157,177 @@ class Wander:
             self._second += 1
             self._rotate = self._random.uniform(-20.0, 20.0)
         return Command(self._rotate, 0, 0, robot, seq, origin)
+
+
+# -- the team on the bus ----------------------------------------------------------------------------
+# The identifiers of the multi-target observation network (three robots' base controllers, an
+# override per observer gated by a BLE group per target); its closed-loop scenario needs BLE in
+# the network language and on the boards, still on the branch of issue 12.
+
+ROBOTS = {"r1": 1, "r2": 2, "r3": 3}  # node name -> node id (= the robot's number)
+TARGETS = (1, 2, 3, 4)
+BLE_PERIOD = 0.1  # s: the groups' period in the network file
+OBSERVER_HZ = 20.0
+WANDER_EVERY = 4  # wander publishes every 4th observer tick: 5 Hz
+
+
+def observer_id(robot: int, target: int) -> int:
+    """Topic obs_<robot><target>: observer `target` of `robot` (its BLE group's local topic)."""
+    return 0x100 + 0x10 * robot + target
+
+
+def wander_id(robot: int) -> int:
+    return 0x200 + robot
+
+
+def drive_id(robot: int) -> int:
+    """What the robot's base node re-publishes from port r<robot>.drive: the delivered command."""
+    return 0x300 + robot
+
+
+def board_routes(robot: int) -> tuple[str, ...]:
+    """cangw filters for a robot's base controller as the emulated board: its own behaviours'
+    topics and every 29-bit frame (claims, configuration). Its serial line carries a few
+    hundred frames a second; the whole team's traffic would saturate it, and a board's CAN
+    acceptance filters do this job on a robot. Disjoint, as BoardNode requires."""
+    return (
+        f"{0x100 + 0x10 * robot:08X}:800007F0",  # obs_<robot>1..4 (standard frames only)
+        f"{wander_id(robot):08X}:800007FF",
+        "80000000:80000000",  # every extended frame
+    )
+
+
+class TeamWorld:
+    """The robots, the targets and the commands the base controllers delivered, shared by the
+    harness's threads. Time is the world's own (seconds since it began), advanced by `step`.
+
+    Free-running, robots move and targets orbit; `place` freezes a scene (robots stand where
+    put, facing where put; targets stand still), so that eligibilities hold still while a test
+    kills a node or sets up a tie."""
+
+    def __init__(self, poses: dict[int, Pose], targets: tuple[Target, ...] | None = None,
+                 seed: int = 1) -> None:
+        import threading
+
+        self._lock = threading.Lock()
+        self.t = 0.0
+        self.poses = dict(poses)
+        self.targets = targets if targets is not None else default_targets()
+        self.moving = True
+        self._turn: dict[int, tuple[float, float]] = {}  # robot -> (deg/s, world time delivered)
+        self._wander = {robot: Wander(seed * 100 + robot) for robot in poses}
+        self._tick = 0
+
+    def deliver(self, robot: int, command: Command) -> None:
+        """A command robot's base controller delivered (re-published): it turns at its rate."""
+        with self._lock:
+            self._turn[robot] = (command.rotate, self.t)
+
+    def place(self, poses: dict[int, Pose], targets: tuple[Target, ...]) -> None:
+        """Freezes a scene: the robots in `poses` stand there, the targets where they are now;
+        nothing moves any more."""
+        with self._lock:
+            self.poses.update(poses)
+            self.targets = tuple(Target(x.number, x.at(self.t), 0.0, 0.0, speed=0.0)
+                                 for x in targets)
+            self.moving = False
+
+    def step(self, dt: float) -> None:
+        with self._lock:
+            if self.moving:
+                for robot, pose in self.poses.items():
+                    rotate, at = self._turn.get(robot, (0.0, -1e9))
+                    turn = rotate if self.t - at <= ROTATE_TIMEOUT else 0.0
+                    self.poses[robot] = step(pose, turn, dt)
+            self.t += dt
+
+    def frames(self) -> list[tuple[int, bytes]]:
+        """One tick of every behaviour of every robot (called at OBSERVER_HZ): each observer that
+        sees its target, and every WANDER_EVERY ticks each wander."""
+        with self._lock:
+            tick, self._tick = self._tick, self._tick + 1
+            out = []
+            for robot, pose in self.poses.items():
+                for target in self.targets:
+                    command = observer_command(pose, target, self.t, robot, tick,
+                                               0x10 * robot + target.number)
+                    if command is not None:
+                        out.append((observer_id(robot, target.number), command.encode()))
+                if tick % WANDER_EVERY == 0:
+                    out.append((wander_id(robot),
+                                self._wander[robot].command(self.t, robot, tick, 0x10 * robot).encode()))
+            return out
+
+    def eligibilities(self) -> dict[tuple[int, int], int]:
+        """(robot, target) -> the eligibility its observer publishes now (0: does not see it)."""
+        with self._lock:
+            return {(robot, x.number): eligibility(pose, x.at(self.t))
+                    for robot, pose in self.poses.items() for x in self.targets}
+
+
+# -- what the bus shows -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Drive:
+    """Robot `robot` drives towards `target` (0: wanders) from `start` to `end` (kernel times)."""
+
+    robot: int
+    target: int
+    start: float
+    end: float
+
+
+def drives(messages, robots: dict[str, int] = ROBOTS) -> list[Drive]:
+    """From a candump log, who drove each robot when: each delivered command holds until the
+    robot's next one, or for ROTATE_TIMEOUT (after which the robot goes straight), exactly as the
+    world moves the robot. Consecutive commands for the same target merge into one Drive."""
+    by_id = {drive_id(robot): robot for robot in robots.values()}
+    out: list[Drive] = []
+    current: dict[int, Drive] = {}
+    for message in messages:
+        if message.is_extended_id or message.arbitration_id not in by_id:
+            continue
+        command = Command.decode(bytes(message.data))
+        if command is None:
+            continue
+        robot, at = by_id[message.arbitration_id], message.timestamp
+        previous = current.get(robot)
+        if previous is not None and previous.target == command.target and at <= previous.end:
+            current[robot] = Drive(robot, command.target, previous.start, at + ROTATE_TIMEOUT)
+            continue
+        if previous is not None:
+            out.append(Drive(robot, previous.target, previous.start, min(previous.end, at)))
+        current[robot] = Drive(robot, command.target, at, at + ROTATE_TIMEOUT)
+    out.extend(current.values())
+    return sorted(out, key=lambda d: (d.start, d.robot))
+
+
+def shared(drives_: list[Drive], target: int) -> list[tuple[float, float, tuple[int, ...]]]:
+    """The intervals during which more than one robot drove towards `target`:
+    (start, end, robots)."""
+    edges = sorted({d.start for d in drives_ if d.target == target}
+                   | {d.end for d in drives_ if d.target == target})
+    out = []
+    for start, end in zip(edges, edges[1:]):
+        middle = (start + end) / 2
+        robots = tuple(sorted(d.robot for d in drives_
+                              if d.target == target and d.start <= middle < d.end))
+        if len(robots) > 1:
+            if out and out[-1][1] == start and out[-1][2] == robots:
+                out[-1] = (out[-1][0], end, robots)
+            else:
+                out.append((start, end, robots))
+    return out
+
+
+def coverage(drives_: list[Drive], target: int, start: float, end: float) -> float:
+    """The fraction of [start, end) during which some robot drove towards `target`."""
+    spans = sorted((max(d.start, start), min(d.end, end)) for d in drives_
+                   if d.target == target and d.end > start and d.start < end)
+    covered, reach = 0.0, start
+    for a, b in spans:
+        if b > reach:
+            covered += b - max(a, reach)
+            reach = b
+    return covered / (end - start) if end > start else 0.0

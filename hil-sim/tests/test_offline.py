@@ -75,6 +75,24 @@ def test_payload_examples_of_the_protocol_document_decode():
     assert re.search(r"data `0A 00 FF FF`", PROTOCOL_DOC)
 
 
+def test_the_claim_examples_of_the_protocol_document_decode():
+    # "node 2 offering 1000 (0x03E8) sends `0x12FE0B82`"; node 3: 0x12FE0B83; node 1 at 999: 0x12FE0C01
+    assert "node 2 offering 1000 (0x03E8) sends `0x12FE0B82`" in PROTOCOL_DOC
+    for node, eligibility, ident in ((2, 1000, 0x12FE0B82), (3, 1000, 0x12FE0B83),
+                                     (1, 999, 0x12FE0C01)):
+        claim = p.Claim(5, node, eligibility)
+        assert claim.arbitration_id() == ident
+        payload = bytes([5]) + eligibility.to_bytes(2, "little") + b"\0"
+        assert p.Claim.decode(ident, True, payload) == claim
+    # Refused whole: payload and identifier disagree, a reserved byte set, short, standard id.
+    assert p.Claim.decode(0x12FE0B82, True, bytes([5, 0xE7, 0x03, 0])) is None
+    assert p.Claim.decode(0x12FE0B82, True, bytes([5, 0xE8, 0x03, 1])) is None
+    assert p.Claim.decode(0x12FE0B82, True, bytes([5, 0xE8, 0x03])) is None
+    assert p.Claim.decode(0x12FE0B82 & 0x7FF, False, bytes([5, 0xE8, 0x03, 0])) is None
+    # A heartbeat of ours is not a claim (bit 23 clear).
+    assert p.Claim.decode(p.frame_id(p.HEARTBEAT, 2, p.BROADCAST), True, bytes(8)) is None
+
+
 def test_behaviours_publish_the_topics_of_the_network_file():
     network = tomllib.loads(TAKE_AND_RETURN.read_text())
     topic_ids = {spec["can_id"] for spec in network["topics"].values()}

@@ -70,3 +70,57 @@ def test_targets_orbit_at_their_speed_and_wander_is_reproducible():
     one, two = t.Wander(7), t.Wander(7)
     assert [one.command(s / 10, 1, 0, 0).rotate for s in range(30)] == \
         [two.command(s / 10, 1, 0, 0).rotate for s in range(30)]
+
+
+def _message(at, robot, target):
+    import can
+    command = t.Command(0.0, 0, target, robot, 0, 0)
+    return can.Message(timestamp=at, arbitration_id=t.drive_id(robot), is_extended_id=False,
+                       data=command.encode())
+
+
+def test_drives_hold_until_the_next_command_or_the_rotate_timeout():
+    messages = [_message(0.00, 1, 2), _message(0.05, 1, 2), _message(0.10, 1, 0),
+                _message(1.00, 1, 2)]
+    assert t.drives(messages) == [
+        t.Drive(1, 2, 0.00, 0.10),
+        t.Drive(1, 0, 0.10, 0.10 + t.ROTATE_TIMEOUT),
+        t.Drive(1, 2, 1.00, 1.00 + t.ROTATE_TIMEOUT),
+    ]
+
+
+def test_shared_driving_and_coverage_are_read_from_the_drives():
+    drives = [t.Drive(1, 2, 0.0, 1.0), t.Drive(2, 2, 0.9, 2.0), t.Drive(3, 1, 0.0, 0.5),
+              t.Drive(3, 2, 3.0, 3.5)]
+    [(a, b, robots)] = t.shared(drives, 2)
+    assert (a, b, robots) == (0.9, 1.0, (1, 2))
+    assert t.shared(drives, 1) == []
+    assert t.coverage(drives, 2, 0.0, 4.0) == pytest.approx(2.5 / 4.0)
+    assert t.coverage(drives, 1, 0.0, 4.0) == pytest.approx(0.5 / 4.0)
+    assert t.coverage(drives, 4, 0.0, 4.0) == 0.0
+
+
+def test_a_placed_scene_stands_still_and_its_observers_publish_equal_eligibilities():
+    world = t.TeamWorld({1: t.Pose(2000.0, 3000.0, 0.0), 2: t.Pose(4000.0, 3000.0, 180.0)})
+    world.place({}, tuple(t.Target(n, (3000.0, 3000.0) if n == 2 else (100.0 * n, 5900.0),
+                                   0.0, 0.0, speed=0.0) for n in t.TARGETS))
+    world.step(1.0)
+    assert world.poses[1] == t.Pose(2000.0, 3000.0, 0.0)
+    assert world.eligibilities()[(1, 2)] == world.eligibilities()[(2, 2)] > 0
+    frames = dict(world.frames())
+    assert set(frames) == {t.observer_id(1, 2), t.observer_id(2, 2), t.wander_id(1),
+                           t.wander_id(2)}
+    assert t.Command.decode(frames[t.observer_id(1, 2)]).target == 2
+
+
+def test_the_board_routes_are_disjoint_and_cover_its_topics_and_claims():
+    def passes(route, can_id):
+        ident, mask = (int(x, 16) for x in route.split(":"))
+        return can_id & mask == ident & mask
+    routes = t.board_routes(3)
+    eff = 0x8000_0000
+    wanted = [t.observer_id(3, n) for n in t.TARGETS] + [t.wander_id(3), eff | 0x1280_0083]
+    for can_id in wanted:
+        assert sum(passes(r, can_id) for r in routes) == 1, hex(can_id)
+    for can_id in [t.observer_id(1, 1), t.wander_id(2), t.drive_id(3)]:
+        assert not any(passes(r, can_id) for r in routes), hex(can_id)
