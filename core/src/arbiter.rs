@@ -45,6 +45,7 @@
 use embedded_can::Id;
 use heapless::Vec;
 
+use crate::ble::{self, BleError, Claim, Eligibility, MAX_GROUPS, MAX_PEERS};
 use crate::decay::Decay;
 use crate::decision::{self, ConnectionSet, NodeRef, Step};
 use crate::frame::Frame;
@@ -227,6 +228,9 @@ struct Port {
     lapsed_until: u64,
     decided_for: u32,
     decided: Option<u8>,
+    /// The claim connections of BLE groups this node holds ([`crate::ble`]): active whatever
+    /// their integrators say (no frame feeds them), ORed into the mask the decision reads.
+    external: u32,
     first_connection: u16,
     connections: u8,
     first_step: u16,
@@ -455,6 +459,8 @@ pub struct Arbiter<
     value_ports: PortSet,
     values: Vec<ValueState, MAX_VALUE_PORTS>,
     value_slots: Vec<ValueSlot, MAX_VALUE_CONNECTIONS>,
+    /// The state of each BLE group of the table, in the table's order.
+    groups: Vec<Eligibility<MAX_PEERS>, MAX_GROUPS>,
     table: Table<PORTS, CONNECTIONS, NODES>,
 }
 
@@ -532,6 +538,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 lapsed_until: 0,
                 decided_for: 0,
                 decided: None,
+                external: 0,
             };
             run.idle(&steps);
             ports.push(run).map_err(|_| TableError::TooManyPorts)?;
@@ -557,7 +564,18 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             }
         }
         let index = FilterIndex::new(table.connections()).ok_or(TableError::TooManyConnections)?;
+        let mut groups = Vec::new();
+        for (position, group) in table.groups().iter().enumerate() {
+            let error = |error| TableError::Group {
+                group: u8::try_from(position).unwrap_or(u8::MAX),
+                error,
+            };
+            let state = Eligibility::new(group.number, group.node, u64::from(group.period_us))
+                .map_err(|_| error(ble::GroupError::Period))?;
+            groups.push(state).map_err(|_| TableError::TooManyGroups)?;
+        }
         Ok(Arbiter {
+            groups,
             table,
             ports,
             slots,
@@ -584,6 +602,16 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         }
         for state in self.values.iter_mut() {
             state.clear(&mut self.value_slots);
+        }
+        for port in self.ports.iter_mut() {
+            port.external = 0;
+        }
+        for (state, group) in self.groups.iter_mut().zip(self.table.groups()) {
+            if let Ok(fresh) =
+                Eligibility::new(group.number, group.node, u64::from(group.period_us))
+            {
+                *state = fresh;
+            }
         }
     }
 
@@ -697,7 +725,8 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 0
             }
         };
-        let active = port.update_activity(&self.slots, now);
+        // With the claims of the BLE groups held (0 without groups).
+        let active = port.update_activity(&self.slots, now) | port.external;
         let selected = port.decide(&self.steps, active);
         let delivered = selected.filter(|&index| bit == 1 << (index & 31));
         on_verdict(&PortVerdict {
@@ -802,7 +831,8 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         let Some(port) = self.ports.get_mut(usize::from(number)) else {
             return;
         };
-        let active = port.update_activity(&self.slots, now);
+        // With the claims of the BLE groups held (0 without groups).
+        let active = port.update_activity(&self.slots, now) | port.external;
         let selected = port.decide(&self.steps, active);
         let delivered = selected.filter(|&index| fed & (1 << (index & 31)) != 0);
         reception.fed = reception.fed.with(number);
@@ -1048,7 +1078,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// a port that does not exist). Read-only.
     pub fn selected(&self, port: u8, now: Instant) -> Option<u8> {
         let record = self.ports.get(usize::from(port))?;
-        let active = record.activity(&self.slots, now);
+        let active = record.activity(&self.slots, now) | record.external;
         decide(record.steps(&self.steps), record.root, active)
     }
 
@@ -1058,7 +1088,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         self.ports
             .get(usize::from(port))
             .map_or(ConnectionSet::EMPTY, |record| {
-                ConnectionSet::from_bits(record.activity(&self.slots, now))
+                ConnectionSet::from_bits(record.activity(&self.slots, now) | record.external)
             })
     }
 
@@ -1089,6 +1119,144 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     fn port_slots(&self, port: u8) -> Option<&[Slot]> {
         Some(self.ports.get(usize::from(port))?.slots(&self.slots))
     }
+}
+
+/// Broadcast of Local Eligibility ([`crate::ble`]): the groups of the table, their claims as rule
+/// variables. A table without groups pays nothing here but an emptiness test where the node calls
+/// in.
+impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
+    Arbiter<PORTS, CONNECTIONS, NODES>
+{
+    /// Whether the table has BLE groups.
+    #[inline]
+    pub fn has_groups(&self) -> bool {
+        !self.groups.is_empty()
+    }
+
+    /// A frame (not one of ours) seen at `now`: if it is on a group's local topic and carries the
+    /// group's field, it is the node's own eligibility for that task. Call it for every frame
+    /// the node arbitrates, after arbitrating it: the holding decision it may take reads the
+    /// activity the frame left (the eligibility often comes in the same frame as the behaviour's
+    /// output). Holding is decided again at each local reading, each claim heard and each
+    /// [`Arbiter::ble_poll`] (at least once a period), not at every change of activity: a
+    /// gated connection that becomes active is seen at the next of those. Costs a filter test per
+    /// group.
+    pub fn ble_frame(&mut self, frame: &Frame, now: Instant) {
+        if self.groups.is_empty() {
+            return;
+        }
+        let mut changed = false;
+        for (state, group) in self.groups.iter_mut().zip(self.table.groups()) {
+            if group.local.matches(&frame.id())
+                && let Some(value) = group.field.read(frame.payload())
+            {
+                state.on_local(value, now);
+                changed = true;
+            }
+        }
+        if changed {
+            self.refresh_claims(now);
+        }
+    }
+
+    /// A peer's claim heard at `now` (a claim of a group the node is not in is ignored). Fails
+    /// when the claim carries this node's own id or finds no room ([`BleError`]); the claims
+    /// kept then decide as before.
+    pub fn on_claim(&mut self, claim: Claim, now: Instant) -> Result<(), BleError> {
+        let mut outcome = Ok(());
+        for state in self.groups.iter_mut() {
+            if state.group() == claim.group {
+                outcome = state.on_peer(claim, now);
+            }
+        }
+        self.refresh_claims(now);
+        outcome
+    }
+
+    /// The claims due at `now`, each handed to `send` with the eligibility this node offers;
+    /// and the holding decisions brought up to `now` (claims that went stale).
+    pub fn ble_poll(&mut self, now: Instant, mut send: impl FnMut(Claim)) {
+        for position in 0..self.groups.len() {
+            let offered = self.offered(position, now);
+            if let Some(claim) = self
+                .groups
+                .get_mut(position)
+                .and_then(|state| state.broadcast(offered, now))
+            {
+                send(claim);
+            }
+        }
+        self.refresh_claims(now);
+    }
+
+    /// The next instant at which [`Arbiter::ble_poll`] has work: a claim due, or one going stale.
+    pub fn ble_deadline(&self, now: Instant) -> Option<Instant> {
+        self.groups
+            .iter()
+            .filter_map(|state| state.deadline(now))
+            .min_by_key(|at| at.micros_since(now).unwrap_or(0))
+    }
+
+    /// Whether this node holds group `position`'s task (in the table's order), as last decided.
+    pub fn holds(&self, position: usize) -> bool {
+        self.table.groups().get(position).is_some_and(|group| {
+            group.ports.iter().any(|entry| {
+                self.ports
+                    .get(usize::from(entry.port))
+                    .is_some_and(|port| port.external & bit(entry.claim) != 0)
+            })
+        })
+    }
+
+    /// The eligibility the node offers for group `position` at `now`: its own fresh reading while
+    /// one of the group's gated connections would deliver with the claim taken as held, else 0.
+    fn offered(&self, position: usize, now: Instant) -> u16 {
+        let (Some(state), Some(group)) =
+            (self.groups.get(position), self.table.groups().get(position))
+        else {
+            return 0;
+        };
+        let Some(own) = state.own(now) else {
+            return 0;
+        };
+        let candidate = group.ports.iter().any(|entry| {
+            self.ports.get(usize::from(entry.port)).is_some_and(|port| {
+                let active = port.activity(&self.slots, now) | port.external | bit(entry.claim);
+                decide(port.steps(&self.steps), port.root, active)
+                    .is_some_and(|winner| entry.gated & bit(winner) != 0)
+            })
+        });
+        if candidate { own } else { 0 }
+    }
+
+    /// Sets every group's claim connections to whether the node holds its task at `now`.
+    fn refresh_claims(&mut self, now: Instant) {
+        for position in 0..self.groups.len() {
+            let offered = self.offered(position, now);
+            let held = self
+                .groups
+                .get(position)
+                .is_some_and(|state| state.holds(offered, now));
+            let Some(group) = self.table.groups().get(position) else {
+                continue;
+            };
+            for entry in &group.ports {
+                if let Some(port) = self.ports.get_mut(usize::from(entry.port)) {
+                    if held {
+                        port.external |= bit(entry.claim);
+                    } else {
+                        port.external &= !bit(entry.claim);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Bit `index` of a mask (0 for an index of 32 or more).
+#[inline]
+fn bit(index: u8) -> u32 {
+    1u32.checked_shl(u32::from(index)).unwrap_or(0)
 }
 
 /// The decision of a port (its `steps`, entered at `root`) under `active`. Only an active

@@ -379,6 +379,18 @@ impl<const PEERS: usize> Eligibility<PEERS> {
 
 /// Ports of a node at which one group's claim is a rule variable.
 pub const MAX_GROUP_PORTS: usize = 4;
+/// BLE groups a node takes part in (a task each).
+pub const MAX_GROUPS: usize = 4;
+/// Peers a node keeps the claims of, per group: a group has at most 8 nodes.
+pub const MAX_PEERS: usize = 7;
+
+/// The filter of a group's claim connection (the rule variable whose activity is `holds`): every
+/// claim identifier. Nodes never arbitrate frames of ours, so no frame ever feeds it; the loader
+/// requires it on every claim connection, so that no topic can.
+pub const CLAIM_SLOT_FILTER: Filter = match Filter::new(MARKER_AND_CLAIM, 0b111 << 23, true) {
+    Ok(filter) => filter,
+    Err(_) => panic!("the claim filter is valid"),
+};
 /// The longest period: an hour, in µs (fits the table's `u32`).
 pub const MAX_PERIOD_US: u32 = 3_600_000_000;
 
@@ -446,6 +458,8 @@ pub struct GroupPort {
 pub struct Group {
     /// The group's number on the bus (byte 0 of its claims).
     pub number: u8,
+    /// This node's id, 1..=127: its claims carry it, and ties go to the lower one.
+    pub node: u8,
     /// The broadcast period, µs (1..=[`MAX_PERIOD_US`]).
     pub period_us: u32,
     /// The node's own eligibility topic.
@@ -466,6 +480,8 @@ pub enum GroupError {
     Period,
     /// An eligibility field that is not 1 or 2 bytes within 8.
     Field,
+    /// The node id is 0 or above 127.
+    Node,
     /// The local topic's filter is invalid.
     Filter(FilterError),
     /// More peers than the node has room for.
@@ -502,6 +518,7 @@ impl core::fmt::Display for GroupError {
         match self {
             GroupError::Period => write!(f, "BLE period must be 1..={MAX_PERIOD_US} µs"),
             GroupError::Field => f.write_str("BLE eligibility field must be 1 or 2 bytes within 8"),
+            GroupError::Node => f.write_str("BLE node id must be 1..=127"),
             GroupError::Filter(error) => write!(f, "BLE local topic: {error}"),
             GroupError::TooManyPeers => f.write_str("more BLE peers than the node holds"),
             GroupError::NoSuchPort { port } => write!(f, "BLE group names port {port}, absent"),
@@ -534,6 +551,9 @@ impl Group {
     ) -> Result<(), GroupError> {
         if self.period_us == 0 || self.period_us > MAX_PERIOD_US {
             return Err(GroupError::Period);
+        }
+        if self.node == 0 || self.node > MAX_NODE_ID {
+            return Err(GroupError::Node);
         }
         self.field.validate()?;
         self.local.validate().map_err(GroupError::Filter)?;
@@ -757,6 +777,7 @@ mod tests {
     fn group(ports: &[(u8, u8, u32)]) -> Group {
         Group {
             number: 1,
+            node: 1,
             period_us: 100_000,
             local: Filter::exact(0x180, false).unwrap(),
             field: EligibilityField {
@@ -883,5 +904,26 @@ mod tests {
             Eligibility::<1>::new(0, 1, u64::MAX).err(),
             Some(BleError::BadPeriod)
         );
+    }
+}
+
+crate::wire::decode_struct!(EligibilityField {
+    offset,
+    size,
+    big_endian
+});
+crate::wire::decode_struct!(GroupPort { port, claim, gated });
+
+impl crate::wire::Decode for Group {
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
+        Ok(Group {
+            number: r.decode()?,
+            node: r.decode()?,
+            period_us: r.decode()?,
+            local: r.decode()?,
+            field: r.decode()?,
+            peers: r.decode()?,
+            ports: r.vec()?,
+        })
     }
 }

@@ -369,6 +369,8 @@ fn size_of_body(body: &[u8]) -> Option<(TableSize, usize)> {
     let nodes = r.count::<DecisionNode>().ok()?;
     // Counted so that the body's end is found; a valid table has at most one per connection.
     let roots = r.count::<NodeRef>().ok()?;
+    // Counted so that the body's end is found; a fixed capacity.
+    r.count::<crate::ble::Group>().ok()?;
     r.rest().is_empty().then_some((
         TableSize {
             ports,

@@ -23,6 +23,7 @@ use core::ops::Range;
 use heapless::Vec;
 use serde::{Deserialize, Serialize};
 
+use crate::ble::{self, Group, GroupError, MAX_GROUPS, MAX_PEERS};
 use crate::consumer::{Consumer, OutputIdError};
 use crate::decision::{self, DecisionError, DecisionNode, NodeRef};
 use crate::filter::{Filter, FilterError};
@@ -97,6 +98,7 @@ pub struct Table<
     connections: Vec<Connection, CONNECTIONS>,
     nodes: Vec<DecisionNode, NODES>,
     roots: Vec<NodeRef, CONNECTIONS>,
+    groups: Vec<Group, MAX_GROUPS>,
 }
 
 /// Why a table was refused. Ports and connections are numbered from 0, connections within their
@@ -137,6 +139,23 @@ pub enum TableError {
     TooManyValuePorts,
     /// More connections of value ports in all than [`MAX_VALUE_CONNECTIONS`].
     TooManyValueConnections,
+    /// More BLE groups than [`MAX_GROUPS`].
+    TooManyGroups,
+    /// A BLE group is invalid ([`crate::ble`]).
+    Group {
+        /// The group's position in the table.
+        group: u8,
+        /// What is wrong.
+        error: GroupError,
+    },
+    /// A BLE group's claim connection has a filter other than [`ble::CLAIM_SLOT_FILTER`] (it
+    /// would be fed by frames: a claim's activity is the group's, never an integrator's).
+    ClaimFilter {
+        /// The port.
+        port: u8,
+        /// The connection within the port.
+        connection: u8,
+    },
     /// A value port is invalid.
     Value {
         /// The port.
@@ -200,6 +219,12 @@ impl core::fmt::Display for TableError {
                 "more than {MAX_VALUE_CONNECTIONS} connections on value ports in all"
             ),
             TableError::Value { port, error } => write!(f, "port {port}: {error}"),
+            TableError::TooManyGroups => write!(f, "more than {MAX_GROUPS} BLE groups"),
+            TableError::Group { group, error } => write!(f, "BLE group {group}: {error}"),
+            TableError::ClaimFilter { port, connection } => write!(
+                f,
+                "port {port}, connection {connection}: a BLE claim must have the claim filter"
+            ),
             TableError::Parameter {
                 port,
                 connection,
@@ -243,6 +268,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             connections: Vec::new(),
             nodes: Vec::new(),
             roots: Vec::new(),
+            groups: Vec::new(),
         }
     }
 
@@ -285,6 +311,51 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             return Err(TableError::TooManyValueConnections);
         }
         self.push(connections, nodes, NodeRef::NOBODY, Some(spec), roots)
+    }
+
+    /// Appends a BLE group ([`crate::ble`]): its ports and claim connections must exist already
+    /// (push the ports first), each claim connection with [`ble::CLAIM_SLOT_FILTER`]. On error
+    /// the table is unchanged.
+    pub fn push_group(&mut self, group: Group) -> Result<(), TableError> {
+        let index = u8::try_from(self.groups.len()).map_err(|_| TableError::TooManyGroups)?;
+        self.check_group(index, &group)?;
+        ble::validate_groups(self.groups.iter().chain(core::iter::once(&group))).map_err(
+            |error| TableError::Group {
+                group: index,
+                error,
+            },
+        )?;
+        self.groups
+            .push(group)
+            .map_err(|_| TableError::TooManyGroups)
+    }
+
+    /// The BLE groups the node is in.
+    pub fn groups(&self) -> &[Group] {
+        &self.groups
+    }
+
+    /// Checks group `index` against the ports.
+    fn check_group(&self, index: u8, group: &Group) -> Result<(), TableError> {
+        let counts = |port: u8| self.ports.get(usize::from(port)).map(|p| p.connections);
+        group
+            .validate(counts, MAX_PEERS)
+            .map_err(|error| TableError::Group {
+                group: index,
+                error,
+            })?;
+        for entry in &group.ports {
+            let claim = self
+                .port(usize::from(entry.port))
+                .and_then(|view| view.connections.get(usize::from(entry.claim)).copied());
+            if claim.is_none_or(|c| c.filter != ble::CLAIM_SLOT_FILTER) {
+                return Err(TableError::ClaimFilter {
+                    port: entry.port,
+                    connection: entry.claim,
+                });
+            }
+        }
+        Ok(())
     }
 
     /// How many value ports there are, and connections on them.
@@ -402,6 +473,12 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         if connections > MAX_VALUE_CONNECTIONS {
             return Err(TableError::TooManyValueConnections);
         }
+        for (index, group) in self.groups.iter().enumerate() {
+            let index = u8::try_from(index).map_err(|_| TableError::TooManyGroups)?;
+            self.check_group(index, group)?;
+        }
+        ble::validate_groups(self.groups.iter())
+            .map_err(|error| TableError::Group { group: 0, error })?;
         Ok(())
     }
 
@@ -597,6 +674,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize> crate::wi
             connections: r.vec()?,
             nodes: r.vec()?,
             roots: r.vec()?,
+            groups: r.vec()?,
         })
     }
 }

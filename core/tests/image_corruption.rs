@@ -615,6 +615,7 @@ struct RawTable {
     connections: Vec<RawConnection>,
     nodes: Vec<DecisionNode>,
     roots: Vec<NodeRef>,
+    groups: Vec<pab_core::ble::Group>,
 }
 
 #[derive(Serialize)]
@@ -680,6 +681,7 @@ fn one_port(connections: Vec<RawConnection>, nodes: Vec<DecisionNode>, root: Nod
         connections,
         nodes,
         roots: vec![],
+        groups: vec![],
     }
 }
 
@@ -776,6 +778,7 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                 connections: vec![GOOD],
                 nodes: vec![],
                 roots: vec![],
+                groups: vec![],
             },
             TableError::ConnectionCountMismatch,
         ),
@@ -791,6 +794,7 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                 connections: vec![GOOD],
                 nodes: vec![],
                 roots: vec![],
+                groups: vec![],
             },
             TableError::ConnectionCountMismatch,
         ),
@@ -806,6 +810,7 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                 connections: vec![],
                 nodes: vec![node(0, NodeRef::NOBODY, NodeRef::NOBODY)],
                 roots: vec![],
+                groups: vec![],
             },
             TableError::NodeCountMismatch,
         ),
@@ -821,6 +826,7 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                 connections: vec![GOOD; 33],
                 nodes: vec![],
                 roots: vec![],
+                groups: vec![],
             },
             TableError::PortTooWide { port: 0 },
         ),
@@ -1227,6 +1233,7 @@ fn bad_value_ports() -> Vec<(RawTable, TableError)> {
             connections: vec![GOOD; ports],
             nodes: vec![],
             roots: vec![deliver(0); ports],
+            groups: vec![],
         },
         TableError::TooManyValuePorts,
     ));
@@ -1242,4 +1249,135 @@ fn bad_value_ports() -> Vec<(RawTable, TableError)> {
         TableError::TooManyValueConnections,
     ));
     cases
+}
+
+/// Decoded tables whose BLE groups break a rule, with the error the loader must give: each is
+/// valid but for the one thing its comment names.
+fn bad_groups() -> Vec<(RawTable, TableError)> {
+    use pab_core::ble::{CLAIM_SLOT_FILTER, EligibilityField, Group, GroupError, GroupPort};
+    let claim = RawConnection {
+        id: CLAIM_SLOT_FILTER.id(),
+        mask: CLAIM_SLOT_FILTER.mask(),
+        extended: true,
+        ..GOOD
+    };
+    let base = || one_port(vec![GOOD, claim], vec![], NodeRef::NOBODY);
+    let group = |number, claim, gated| Group {
+        number,
+        node: 3,
+        period_us: 100_000,
+        local: Filter::exact(0x190, false).unwrap(),
+        field: EligibilityField {
+            offset: 0,
+            size: 2,
+            big_endian: false,
+        },
+        peers: 2,
+        ports: [GroupPort {
+            port: 0,
+            claim,
+            gated,
+        }]
+        .into_iter()
+        .collect(),
+    };
+    let with = |groups: Vec<Group>| RawTable { groups, ..base() };
+    let error = |group, error| TableError::Group { group, error };
+    vec![
+        // The claim connection is fed by a topic.
+        (
+            with(vec![group(0, 0, 0b10)]),
+            TableError::ClaimFilter {
+                port: 0,
+                connection: 0,
+            },
+        ),
+        // The claim connection does not exist.
+        (
+            with(vec![group(0, 2, 0b01)]),
+            error(0, GroupError::Connection { port: 0 }),
+        ),
+        // The claim is among the gated.
+        (
+            with(vec![group(0, 1, 0b11)]),
+            error(0, GroupError::Connection { port: 0 }),
+        ),
+        // No such port.
+        (
+            with(vec![Group {
+                ports: [GroupPort {
+                    port: 1,
+                    claim: 1,
+                    gated: 1,
+                }]
+                .into_iter()
+                .collect(),
+                ..group(0, 1, 1)
+            }]),
+            error(0, GroupError::NoSuchPort { port: 1 }),
+        ),
+        // A period of 0, a node id of 0, a 4-byte field, too many peers.
+        (
+            with(vec![Group {
+                period_us: 0,
+                ..group(0, 1, 1)
+            }]),
+            error(0, GroupError::Period),
+        ),
+        (
+            with(vec![Group {
+                node: 0,
+                ..group(0, 1, 1)
+            }]),
+            error(0, GroupError::Node),
+        ),
+        (
+            with(vec![Group {
+                field: EligibilityField {
+                    offset: 0,
+                    size: 4,
+                    big_endian: false,
+                },
+                ..group(0, 1, 1)
+            }]),
+            error(0, GroupError::Field),
+        ),
+        (
+            with(vec![Group {
+                peers: 8,
+                ..group(0, 1, 1)
+            }]),
+            error(0, GroupError::TooManyPeers),
+        ),
+        // Two groups with one number, and two groups sharing a claim.
+        (
+            RawTable {
+                groups: vec![group(4, 1, 1), group(4, 1, 1)],
+                ..one_port(vec![GOOD, claim, claim], vec![], NodeRef::NOBODY)
+            },
+            error(0, GroupError::DuplicateGroup { number: 4 }),
+        ),
+        (
+            RawTable {
+                groups: vec![group(4, 1, 1), group(5, 1, 1)],
+                ..one_port(vec![GOOD, claim, claim], vec![], NodeRef::NOBODY)
+            },
+            error(0, GroupError::SharedClaim { port: 0 }),
+        ),
+    ]
+}
+
+#[test]
+fn the_loader_refuses_every_broken_ble_group_with_its_reason() {
+    for (raw, expected) in bad_groups() {
+        let body = postcard_bytes(&raw);
+        let table = postcard::from_bytes::<Table>(&body).expect("decodes");
+        assert_eq!(table.validate(), Err(expected), "{:?}", table.groups());
+        assert_eq!(Arbiter::new(table).err(), Some(expected));
+    }
+    // And the same group, valid, loads.
+    let mut good = bad_groups().remove(1).0;
+    good.groups[0].ports[0].claim = 1;
+    let table = postcard::from_bytes::<Table>(&postcard_bytes(&good)).expect("decodes");
+    assert_eq!(table.validate(), Ok(()));
 }

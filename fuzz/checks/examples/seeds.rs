@@ -13,12 +13,13 @@ use pab_fuzz_checks::TARGETS;
 use pabctl::diagnostic::Source;
 use pabctl::network::Network;
 
-const NETWORKS: [&str; 5] = [
+const NETWORKS: [&str; 6] = [
     "figure-1",
     "take-an-object",
     "return-an-object",
     "take-and-return",
     "value-ports",
+    "subsumption",
 ];
 
 fn main() {
