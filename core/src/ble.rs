@@ -358,9 +358,9 @@ impl<const PEERS: usize> Eligibility<PEERS> {
         })
     }
 
-    /// The next instant at which this group's state changes by itself: a broadcast falls due,
-    /// or a claim (the node's own reading included) goes stale. `None` before the first call to
-    /// [`Eligibility::broadcast`] with nothing heard.
+    /// The next instant at which this group's state changes by itself: a broadcast falls due
+    /// (`now` before the first one), or a claim (the node's own reading included) goes stale.
+    /// Always `Some`: there is always a next broadcast.
     pub fn deadline(&self, now: Instant) -> Option<Instant> {
         let fresh = self.fresh_us();
         let stale_at = |at: Instant| at.wrapping_add_micros(fresh);
@@ -372,7 +372,7 @@ impl<const PEERS: usize> Eligibility<PEERS> {
             .filter(|&at| self.is_fresh(at, now))
             .map(stale_at);
         expiries
-            .chain(self.next_broadcast)
+            .chain(Some(self.next_broadcast.unwrap_or(now)))
             .min_by_key(|at| at.micros_since(now).unwrap_or(0))
     }
 }

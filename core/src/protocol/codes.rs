@@ -92,6 +92,11 @@ wire_enum! {
         /// 2 bad magic, 3 unsupported format, 4 reserved byte set, 5 CRC). Repeated after every
         /// heartbeat group.
         KeyPageInvalid = 0x0031, "key page invalid: configuration locked";
+        /// A BLE claim ([`crate::ble`]) was refused: malformed, or from a sender using this
+        /// node's id, or from one more peer than the group has room for. Detail byte 0: why
+        /// (1 malformed, 2 this node's id, 3 no room); byte 1: the claim's node id (0 when
+        /// malformed); byte 2: its group.
+        ClaimRefused = 0x0040, "BLE claim refused";
     }
 }
 

@@ -7,6 +7,7 @@
 
 use pab_core::Consumer as PortConsumer;
 use pab_core::auth::{IMAGE_MAC_LEN, Key};
+use pab_core::ble::{self, BleError, Claim};
 use pab_core::image::{self, Header, LoadError};
 use pab_core::isotp::{self, Pci, RxError, RxEvent};
 use pab_core::protocol::{
@@ -283,13 +284,23 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     pub fn on_frame(&mut self, frame: &Frame, now: Instant, consumer: &mut impl Consumer) -> Step {
         self.counters.received = self.counters.received.wrapping_add(1);
         let step = if protocol::is_ours(&frame.id()) {
-            // A new table runs (`Store`): its save now or when its turn comes.
-            match self.on_protocol_frame(frame, now) {
-                Step::Store => self.schedule_store(now),
-                Step::Continue => Step::Continue,
+            if is_claim(frame) {
+                self.on_claim_frame(frame, now);
+                Step::Continue
+            } else {
+                // A new table runs (`Store`): its save now or when its turn comes.
+                match self.on_protocol_frame(frame, now) {
+                    Step::Store => self.schedule_store(now),
+                    Step::Continue => Step::Continue,
+                }
             }
         } else {
             self.arbitrate(frame, now, consumer);
+            if let Some(arbiter) = self.arbiter.as_mut()
+                && arbiter.has_groups()
+            {
+                arbiter.ble_frame(frame, now);
+            }
             Step::Continue
         };
         self.values_due(now, consumer);
@@ -480,6 +491,60 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         if self.diagnostic.is_on() {
             self.send_samples(now);
         }
+        if self.arbiter.as_ref().is_some_and(Arbiter::has_groups) {
+            self.send_claims(now);
+        }
+    }
+
+    /// The BLE claims due at `now`, and the holding decisions brought up to it.
+    #[inline(never)]
+    fn send_claims(&mut self, now: Instant) {
+        let Some(arbiter) = self.arbiter.as_mut() else {
+            return;
+        };
+        if arbiter
+            .ble_deadline(now)
+            .is_some_and(|due| now.micros_since(due).is_none())
+        {
+            return;
+        }
+        // A node is in at most MAX_GROUPS groups: one claim each per poll.
+        let mut claims: heapless::Vec<Claim, { ble::MAX_GROUPS }> = heapless::Vec::new();
+        arbiter.ble_poll(now, |claim| {
+            let _ = claims.push(claim);
+        });
+        for claim in claims {
+            let Some(frame) = claim.frame() else {
+                continue;
+            };
+            if self.enqueue_over_diagnostic(frame).is_err() {
+                self.counters.errors = self.counters.errors.wrapping_add(1);
+                self.faults.raise(FaultCode::TxOverrun, [0; 5]);
+            }
+        }
+    }
+
+    /// A peer's BLE claim: kept by the arbiter's group state, or refused with a fault
+    /// (ClaimRefused: malformed, this node's own id, no room). Without a table there is no
+    /// group to keep it for.
+    #[inline(never)]
+    fn on_claim_frame(&mut self, frame: &Frame, now: Instant) {
+        let Some(arbiter) = self.arbiter.as_mut() else {
+            return;
+        };
+        if !arbiter.has_groups() {
+            return;
+        }
+        let (reason, node, group) = match Claim::decode(frame) {
+            Err(_) => (1, 0, 0),
+            Ok(claim) => match arbiter.on_claim(claim, now) {
+                Ok(()) => return,
+                Err(BleError::OwnIdClash) => (2, claim.node, claim.group),
+                Err(_) => (3, claim.node, claim.group),
+            },
+        };
+        self.counters.errors = self.counters.errors.wrapping_add(1);
+        self.raise(FaultCode::ClaimRefused, [reason, node, group, 0, 0]);
     }
 
     /// The reception of a transfer timed out: its sender learns why.
@@ -569,6 +634,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             self.arbiter
                 .as_ref()
                 .and_then(|arbiter| arbiter.deadline(now)),
+            self.arbiter
+                .as_ref()
+                .filter(|arbiter| arbiter.has_groups())
+                .and_then(|arbiter| arbiter.ble_deadline(now)),
         ];
         for candidate in candidates.into_iter().flatten() {
             if candidate.micros_since(deadline).is_none() {
@@ -1236,4 +1305,10 @@ pub fn status_of(error: &LoadError) -> (TransferStatusCode, u8) {
         LoadError::Table(_) => (TransferStatusCode::InvalidTable, 3),
         LoadError::ExceedsCapacity { .. } => (TransferStatusCode::InvalidTable, 4),
     }
+}
+
+/// Whether `frame` is a BLE claim (an extended identifier of ours with the claim bit).
+#[inline]
+fn is_claim(frame: &Frame) -> bool {
+    matches!(frame.id(), embedded_can::Id::Extended(id) if ble::is_claim_id(id.as_raw()))
 }
