@@ -74,6 +74,9 @@ def test_robots_share_targets_by_eligibility_and_take_over_from_a_dead_one(iface
     (out_dir / "drives.txt").write_text("\n".join(
         f"{d.start:.3f} {d.end:.3f} r{d.robot} -> {'t%d' % d.target if d.target else 'wander'}"
         for d in drives) + "\n")
+    from pab_hil.plot import plot_team  # matplotlib: imported only when a test draws
+    plot_team(drives, scenes, scenes["free"][0], out_dir / "multi-target-observation-hil.png",
+              "Multi-target observation: who drove towards each target (r3: the emulated board)")
     assert session.lag < t.BLE_PERIOD, f"the behaviours ran {session.lag:.3f} s late"
 
     # 1. Free run: each target driven by at most one robot but for transients of < 2 periods,
