@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import time
 
-from pab_hil import analysis, team as t
+from pab_hil import analysis, protocol as p, team as t
 from pab_hil.team_session import TeamSession
 
 FREE_RUN_S = 30.0
@@ -70,7 +70,8 @@ def test_robots_share_targets_by_eligibility_and_take_over_from_a_dead_one(iface
     finally:
         session.close()
 
-    drives = t.drives(analysis.read_log(session.log_path))
+    messages = analysis.read_log(session.log_path)
+    drives = t.drives(messages)
     (out_dir / "drives.txt").write_text("\n".join(
         f"{d.start:.3f} {d.end:.3f} r{d.robot} -> {'t%d' % d.target if d.target else 'wander'}"
         for d in drives) + "\n")
@@ -115,7 +116,23 @@ def test_robots_share_targets_by_eligibility_and_take_over_from_a_dead_one(iface
     # r1's last command still turns it for ROTATE_TIMEOUT (the world's rule; the drives keep it).
     assert drivers(drives, 2, killed_at + max(takeover, t.ROTATE_TIMEOUT), end) == {2}
 
+    # 5. The claims on the bus during the free run: every node, the board included, claimed every
+    #    group, one claim per group per period; the largest gap is a figure.
+    start, end = scenes["free"]
+    sent: dict[tuple[int, int], list[float]] = {}
+    for m in messages:
+        if start <= m.timestamp < end:
+            claim = p.Claim.decode(m.arbitration_id, m.is_extended_id, bytes(m.data))
+            if claim is not None:
+                sent.setdefault((claim.node, claim.group), []).append(m.timestamp)
+    assert set(sent) == {(n, g) for n in t.ROBOTS.values() for g in range(len(t.TARGETS))}, \
+        sorted(sent)
+    rate = sum(len(times) for times in sent.values()) / (end - start)
+    gap = max(max(b - a for a, b in zip(times, times[1:])) for times in sent.values())
+
     figures("multi-target-observation", {
+        "claims_per_s": round(rate, 1),
+        "largest_claim_gap_s": round(gap, 3),
         "free_run_s": FREE_RUN_S,
         "coverage": [round(c, 3) for c in covered],
         "longest_shared_s": round(longest, 3),
