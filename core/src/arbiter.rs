@@ -1191,10 +1191,8 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
 
     /// The next instant at which [`Arbiter::ble_poll`] has work: a claim due, or one going stale.
     pub fn ble_deadline(&self, now: Instant) -> Option<Instant> {
-        self.groups
-            .iter()
-            .filter_map(|state| state.deadline(now))
-            .min_by_key(|at| at.micros_since(now).unwrap_or(0))
+        let soonest = self.groups.iter().map(|state| state.due_in(now)).min()?;
+        Some(now.wrapping_add_micros(soonest))
     }
 
     /// Whether this node holds group `position`'s task (in the table's order), as last decided.

@@ -317,45 +317,21 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// (push the ports first), each claim connection with [`ble::CLAIM_SLOT_FILTER`]. On error
     /// the table is unchanged.
     pub fn push_group(&mut self, group: Group) -> Result<(), TableError> {
-        let index = u8::try_from(self.groups.len()).map_err(|_| TableError::TooManyGroups)?;
-        self.check_group(index, &group)?;
-        ble::validate_groups(self.groups.iter().chain(core::iter::once(&group))).map_err(
-            |error| TableError::Group {
-                group: index,
-                error,
-            },
-        )?;
         self.groups
             .push(group)
-            .map_err(|_| TableError::TooManyGroups)
+            .map_err(|_| TableError::TooManyGroups)?;
+        // One set of checks for the loader and the builder: the whole table again (a workstation
+        // pushes a handful of groups, and the boards keep one copy of the code).
+        if let Err(error) = self.validate() {
+            self.groups.pop();
+            return Err(error);
+        }
+        Ok(())
     }
 
     /// The BLE groups the node is in.
     pub fn groups(&self) -> &[Group] {
         &self.groups
-    }
-
-    /// Checks group `index` against the ports.
-    fn check_group(&self, index: u8, group: &Group) -> Result<(), TableError> {
-        let counts = |port: u8| self.ports.get(usize::from(port)).map(|p| p.connections);
-        group
-            .validate(counts, MAX_PEERS)
-            .map_err(|error| TableError::Group {
-                group: index,
-                error,
-            })?;
-        for entry in &group.ports {
-            let claim = self
-                .port(usize::from(entry.port))
-                .and_then(|view| view.connections.get(usize::from(entry.claim)).copied());
-            if claim.is_none_or(|c| c.filter != ble::CLAIM_SLOT_FILTER) {
-                return Err(TableError::ClaimFilter {
-                    port: entry.port,
-                    connection: entry.claim,
-                });
-            }
-        }
-        Ok(())
     }
 
     /// How many value ports there are, and connections on them.
@@ -456,6 +432,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 None => &[],
             };
             validate_port(index, port, connections, nodes, roots)?;
+            check_claims(index, connections, &self.groups)?;
         }
         if connections_seen != self.connections.len() {
             return Err(TableError::ConnectionCountMismatch);
@@ -474,11 +451,16 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             return Err(TableError::TooManyValueConnections);
         }
         for (index, group) in self.groups.iter().enumerate() {
-            let index = u8::try_from(index).map_err(|_| TableError::TooManyGroups)?;
-            self.check_group(index, group)?;
+            let error = |error| TableError::Group {
+                group: u8::try_from(index).unwrap_or(u8::MAX),
+                error,
+            };
+            group.validate(self.ports.len(), MAX_PEERS).map_err(error)?;
+            let number = group.number;
+            if self.groups.iter().take(index).any(|g| g.number == number) {
+                return Err(error(GroupError::DuplicateGroup { number }));
+            }
         }
-        ble::validate_groups(self.groups.iter())
-            .map_err(|error| TableError::Group { group: 0, error })?;
         Ok(())
     }
 
@@ -589,6 +571,43 @@ fn slice<'a, T>(items: &'a [T], seen: &mut usize, count: impl Into<usize>) -> Op
     let part = items.get(*seen..end)?;
     *seen = end;
     Some(part)
+}
+
+/// Checks the BLE groups' entries at port `port`, whose connections are `connections` (at most
+/// 32, checked before): each claim is a connection of the port with
+/// [`ble::CLAIM_SLOT_FILTER`], the claim of one group only, and not among the gated connections,
+/// which are connections of the port.
+fn check_claims(port: u8, connections: &[Connection], groups: &[Group]) -> Result<(), TableError> {
+    let present = u32::try_from(connections.len())
+        .ok()
+        .and_then(|count| 1u64.checked_shl(count))
+        .map_or(u64::MAX, |b| b.wrapping_sub(1));
+    let mut claims = 0u64;
+    for (index, group) in groups.iter().enumerate() {
+        let error = |error| TableError::Group {
+            group: u8::try_from(index).unwrap_or(u8::MAX),
+            error,
+        };
+        for entry in group.ports.iter().filter(|entry| entry.port == port) {
+            let claim = 1u64.checked_shl(u32::from(entry.claim)).unwrap_or(0);
+            let gated = u64::from(entry.gated);
+            if claim & present == 0 || gated & !present != 0 || gated & claim != 0 {
+                return Err(error(GroupError::Connection { port }));
+            }
+            let filter = connections.get(usize::from(entry.claim)).map(|c| c.filter);
+            if filter != Some(ble::CLAIM_SLOT_FILTER) {
+                return Err(TableError::ClaimFilter {
+                    port,
+                    connection: entry.claim,
+                });
+            }
+            if claims & claim != 0 {
+                return Err(error(GroupError::SharedClaim { port }));
+            }
+            claims |= claim;
+        }
+    }
+    Ok(())
 }
 
 fn validate_port(

@@ -1302,6 +1302,11 @@ fn bad_groups() -> Vec<(RawTable, TableError)> {
             with(vec![group(0, 1, 0b11)]),
             error(0, GroupError::Connection { port: 0 }),
         ),
+        // A gated connection beyond the port's two.
+        (
+            with(vec![group(0, 1, 0b101)]),
+            error(0, GroupError::Connection { port: 0 }),
+        ),
         // No such port.
         (
             with(vec![Group {
@@ -1352,17 +1357,17 @@ fn bad_groups() -> Vec<(RawTable, TableError)> {
         // Two groups with one number, and two groups sharing a claim.
         (
             RawTable {
-                groups: vec![group(4, 1, 1), group(4, 1, 1)],
+                groups: vec![group(4, 1, 1), group(4, 2, 1)],
                 ..one_port(vec![GOOD, claim, claim], vec![], NodeRef::NOBODY)
             },
-            error(0, GroupError::DuplicateGroup { number: 4 }),
+            error(1, GroupError::DuplicateGroup { number: 4 }),
         ),
         (
             RawTable {
                 groups: vec![group(4, 1, 1), group(5, 1, 1)],
                 ..one_port(vec![GOOD, claim, claim], vec![], NodeRef::NOBODY)
             },
-            error(0, GroupError::SharedClaim { port: 0 }),
+            error(1, GroupError::SharedClaim { port: 0 }),
         ),
     ]
 }

@@ -45,9 +45,11 @@ MEDIAN_GOALS = [
 # counts are exact, so any regression shows). README, "Cortex-M4", says where the instructions go:
 # the largest arm-node frames are those at which an activity lapses and the decision is walked.
 # The ceilings moved once, from 151 / 491 to 154 / 523, when the firmware profile went from
-# opt-level 2 to "s" to keep every mechanism within 64 KiB of flash (issue 11; Cargo.toml says why).
+# opt-level 2 to "s" to keep every mechanism within 64 KiB of flash (issue 11; Cargo.toml says why),
+# and again to 159 / 524 with BLE (issue 12): every port decided ORs in the claims the node holds
+# (a load and an OR per port, and a wider port record), tables without groups included.
 NOT_MET = [
-    ("tr-arm", "fed", 200, 154, 523),
+    ("tr-arm", "fed", 200, 159, 524),
 ]
 
 # One SysTick tick of the 25 MHz CPU clock under -icount shift=0 (1 instruction per ns).
