@@ -3,7 +3,7 @@
 //! ```text
 //! offset size  field
 //!      0    4  magic "PABT"
-//!      4    2  format version, little endian (this is format 3)
+//!      4    2  format version, little endian (this is format 4)
 //!      6    1  node id the table is for
 //!      7    1  reserved, must be 0
 //!      8    4  table version, little endian (newer tables have larger versions)
@@ -25,7 +25,9 @@
 //! Format history: format 1 had no port consumers; format 2 adds one [`crate::Consumer`] per port
 //! (after its decision root); format 3 adds value ports: an optional [`crate::ValueSpec`] per port
 //! (after its consumer) and, after the decision nodes, the list of the value ports' connection
-//! roots. This crate reads format 3 only: an image of another format is refused with
+//! roots; format 4 adds, after those roots, the list of the node's BLE groups ([`crate::ble::Group`]:
+//! number, node id, period, local topic, eligibility field, peers, and per port the claim
+//! connection and the gated set). This crate reads format 4 only: an image of another format is refused with
 //! [`LoadError::UnsupportedFormat`], which names the format found and the one expected.
 //!
 //! The body does not depend on the capacities of the [`Table`] that was encoded (postcard prefixes
@@ -41,7 +43,7 @@ use crate::{MAX_CONNECTIONS, MAX_DECISION_NODES, MAX_PORTS};
 /// The first four bytes of every image.
 pub const MAGIC: [u8; 4] = *b"PABT";
 /// The format this crate writes and reads.
-pub const FORMAT_VERSION: u16 = 3;
+pub const FORMAT_VERSION: u16 = 4;
 /// Bytes before the body.
 pub const HEADER_LEN: usize = 20;
 /// The largest image accepted, header included. A table at full capacity encodes in less.
