@@ -24,7 +24,7 @@ use biodivine_lib_bdd::{Bdd, BddValuation, BddVariable, BddVariableSet};
 
 use crate::diagnostic::Diagnostic;
 use crate::kinds;
-use crate::network::{Connection, Network, RULE_EXCERPT};
+use crate::network::{Connection, Kind, Network, RULE_EXCERPT};
 use crate::rule::Rule;
 use crate::shown;
 
@@ -305,9 +305,21 @@ impl Report {
                     specials.join(", ")
                 );
             }
+            let claims: Vec<String> = network
+                .port_connections(report.port)
+                .filter(|c| c.kind == Kind::Claim)
+                .map(|c| format!("{} (every {} s)", c.name, c.tau))
+                .collect();
+            if !claims.is_empty() {
+                let _ = writeln!(
+                    out,
+                    "  BLE claims (active while this node holds the group's task; proved like any connection): {}",
+                    claims.join(", ")
+                );
+            }
             let virtuals: Vec<&str> = network
                 .port_connections(report.port)
-                .filter(|c| c.is_virtual())
+                .filter(|c| c.is_virtual() && c.kind != Kind::Claim)
                 .map(|c| c.name.as_str())
                 .collect();
             if !virtuals.is_empty() {

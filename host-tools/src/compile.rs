@@ -11,13 +11,14 @@
 use std::collections::HashMap;
 
 use biodivine_lib_bdd::{Bdd, BddPointer};
+use pab_core::ble::{self, Group, GroupPort, MAX_GROUP_PORTS};
 use pab_core::decision::{DecisionNode, NodeRef};
 use pab_core::image::{self, MAX_IMAGE_LEN};
 use pab_core::{Connection, Consumer, MAX_DECISION_NODES, Table, TableError};
 
 use crate::check::{self, PortLogic};
 use crate::diagnostic::Diagnostic;
-use crate::network::Network;
+use crate::network::{BleGroup, Kind, Network};
 
 /// A port's compiled decision.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -304,7 +305,11 @@ fn compile_node(
             .port_connections(port_index)
             .filter_map(|c| {
                 Some(Connection {
-                    filter: network.topics.get(c.topic)?.filter,
+                    // A claim is set by the node's group state, never by a frame.
+                    filter: match c.kind {
+                        Kind::Claim => ble::CLAIM_SLOT_FILTER,
+                        _ => network.topics.get(c.topic)?.filter,
+                    },
                     stimulation: c.stimulation,
                 })
             })
@@ -324,6 +329,17 @@ fn compile_node(
                 .map_err(port_error)?;
         }
     }
+    for group in groups_of(network, node)? {
+        table.push_group(group.1).map_err(|error| {
+            network.error(
+                group.0.span.clone(),
+                format!(
+                    "BLE group `{}` on node `{}`: {error}",
+                    group.0.name, node.name
+                ),
+            )
+        })?;
+    }
     let mut buffer = vec![0u8; MAX_IMAGE_LEN];
     let length = image::encode(&table, node.id, network.version, &mut buffer).map_err(|error| {
         network.error(node.span.clone(), format!("node `{}`: {error}", node.name))
@@ -338,6 +354,77 @@ fn compile_node(
         decision_nodes,
         per_rule_nodes,
     })
+}
+
+/// The BLE groups node `node` is in, as its table stores them: per port whose rules name the
+/// group, the claim connection and the connections gated by it (those whose rule names it). A
+/// node whose rules never name a group it is in has no port for it: it broadcasts 0 and never
+/// holds the task.
+fn groups_of<'n>(
+    network: &'n Network,
+    node: &crate::network::Node,
+) -> Result<Vec<(&'n BleGroup, Group)>, Diagnostic> {
+    let node_index = network
+        .nodes
+        .iter()
+        .position(|n| n.id == node.id)
+        .unwrap_or(usize::MAX);
+    let mut out = Vec::new();
+    for group in &network.groups {
+        let Some(member) = group.member(node_index) else {
+            continue;
+        };
+        let invalid = |what: &str| {
+            network.error(
+                group.span.clone(),
+                format!("BLE group `{}` on node `{}`: {what}", group.name, node.name),
+            )
+        };
+        let local = network
+            .topics
+            .get(member.topic)
+            .ok_or_else(|| invalid("its eligibility topic is missing"))?
+            .filter;
+        let mut ports = Vec::new();
+        for (local_port, &port_index) in node.ports.iter().enumerate() {
+            let Some(claim) = network
+                .port_connections(port_index)
+                .find(|c| c.kind == Kind::Claim && c.name == group.name)
+            else {
+                continue;
+            };
+            let gated = network
+                .port_connections(port_index)
+                .filter(|c| c.rule_written && c.rule.mentions(claim.index))
+                .fold(0u32, |mask, c| {
+                    mask | 1u32.checked_shl(c.index as u32).unwrap_or(0)
+                });
+            let entry = GroupPort {
+                port: u8::try_from(local_port).map_err(|_| invalid("too many ports"))?,
+                claim: u8::try_from(claim.index).map_err(|_| invalid("too many connections"))?,
+                gated,
+            };
+            ports.push(entry);
+        }
+        if ports.len() > MAX_GROUP_PORTS {
+            return Err(invalid("named at too many ports"));
+        }
+        out.push((
+            group,
+            Group {
+                number: group.number,
+                node: node.id,
+                period_us: group.period_us,
+                local,
+                field: group.field,
+                peers: u8::try_from(group.members.len().saturating_sub(1))
+                    .map_err(|_| invalid("too many nodes"))?,
+                // At most MAX_GROUP_PORTS, checked above.
+                ports: ports.into_iter().collect(),
+            },
+        ));
+    }
+    Ok(out)
 }
 
 #[cfg(test)]

@@ -742,7 +742,7 @@ fn run_sim(
             .map_err(|error| Failure::Input(Diagnostic::file(path, error.to_string()).into()))?;
         let mut log = String::new();
         let mut written = 0usize;
-        for frame in frames.iter().filter(|f| f.t_us <= outcome.until_us) {
+        for frame in outcome.bus_frames(&frames) {
             log.push_str(&candump::line(frame.t_us, "vcan0", &frame.frame));
             log.push('\n');
             written += 1;

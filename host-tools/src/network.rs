@@ -27,6 +27,10 @@ use crate::diagnostic::{Diagnostic, Diagnostics, Source};
 use crate::rule::{self, Rule};
 use crate::shown;
 
+mod ble;
+
+pub use ble::{BleGroup, BleMember};
+
 /// The most frames the `[[events]]` of one file may generate, so that a typo in a rate cannot
 /// exhaust memory.
 pub const MAX_EVENT_FRAMES: u64 = 10_000_000;
@@ -53,6 +57,8 @@ struct RawFile {
     phases: Vec<Spanned<RawPhase>>,
     #[serde(default)]
     faults: Vec<Spanned<RawFault>>,
+    #[serde(default)]
+    ble: IndexMap<Spanned<String>, Spanned<ble::RawBle>>,
 }
 
 /// `[[faults]] node = "r2", at = 12.0`: the node stops.
@@ -223,6 +229,10 @@ pub enum Kind {
     /// Never delivers; while active, the connection of the topic it inhibits at its port neither
     /// delivers nor subsumes the layers below it.
     WriteInhibit,
+    /// Never delivers; active while the node holds a BLE group's task. Not written in a file: a
+    /// rule that names a group (`[ble.NAME]`) adds one, named after it ([`BleGroup`]). Its
+    /// `topic` is the node's eligibility topic for the group, which never feeds it.
+    Claim,
 }
 
 impl Kind {
@@ -243,6 +253,7 @@ impl Kind {
             Kind::Inhibit => "inhibit",
             Kind::Override => "override",
             Kind::WriteInhibit => "write-inhibit",
+            Kind::Claim => "claim",
         }
     }
 
@@ -254,6 +265,7 @@ impl Kind {
             Kind::Inhibit => "an inhibit",
             Kind::Override => "an override",
             Kind::WriteInhibit => "a write-inhibit",
+            Kind::Claim => "a claim",
         }
     }
 
@@ -264,7 +276,7 @@ impl Kind {
 
     /// Whether it acts for a period (σ = 1, τ = period, τr = 0) rather than by `st`/`tc`/`tr`.
     pub const fn is_special(self) -> bool {
-        !matches!(self, Kind::Normal)
+        !matches!(self, Kind::Normal | Kind::Claim)
     }
 
     /// Whether its frames can be delivered (normal and override); the others only coordinate.
@@ -420,6 +432,8 @@ pub struct Network {
     pub phases: Vec<Phase>,
     /// Faults in file order, at most one per node.
     pub faults: Vec<Fault>,
+    /// BLE peer groups in file order (their numbers on the bus).
+    pub groups: Vec<BleGroup>,
 }
 
 fn is_plain_name(name: &str) -> bool {
@@ -514,7 +528,14 @@ impl Builder<'_> {
         let topics = self.topics(&raw.topics);
         let mut ports = self.ports(&raw.ports, &nodes);
         let mut connections = self.connections(&raw.connections, &topics, &mut ports);
-        self.rules(&raw.connections, &mut connections, &ports);
+        let names: Vec<&str> = raw
+            .connections
+            .keys()
+            .map(|k| k.get_ref().as_str())
+            .collect();
+        let groups = self.ble_groups(&raw.ble, &nodes, &topics, &names);
+        self.claims(&raw.connections, &groups, &mut connections, &mut ports);
+        self.rules(&raw.connections, &mut connections, &ports, &groups, &nodes);
         self.value_capacities(&ports, &nodes);
         let events = self.events(&raw.events, &topics);
         let phases = self.phases(&raw.phases);
@@ -535,6 +556,7 @@ impl Builder<'_> {
             events,
             phases,
             faults,
+            groups,
         }
     }
 
@@ -1344,6 +1366,8 @@ impl Builder<'_> {
         raw: &IndexMap<Spanned<String>, Spanned<RawConnection>>,
         connections: &mut [Connection],
         ports: &[Port],
+        groups: &[BleGroup],
+        nodes: &[Node],
     ) {
         for connection_index in 0..connections.len() {
             let Some(connection) = connections.get(connection_index) else {
@@ -1365,9 +1389,22 @@ impl Builder<'_> {
                 .map(|c| (c.name.clone(), c.index))
                 .collect();
             let port_name = port.name.clone();
+            let port_node = port.node;
             let resolve = |name: &str| -> Result<usize, String> {
                 if let Some((_, index)) = names.iter().find(|(n, _)| n == name) {
                     return Ok(*index);
+                }
+                if let Some(group) = groups.iter().find(|g| g.name == name) {
+                    let node = nodes.get(port_node).map_or("?", |n| n.name.as_str());
+                    let members: Vec<&str> = group
+                        .members
+                        .iter()
+                        .filter_map(|m| nodes.get(m.node).map(|n| n.name.as_str()))
+                        .collect();
+                    return Err(format!(
+                        "`{name}` is a BLE group that node `{node}` is not in (its nodes: {}): add `{node} = \"TOPIC\"` to [ble.{name}.nodes], TOPIC carrying its eligibility",
+                        members.join(", ")
+                    ));
                 }
                 let elsewhere = connections.iter().find(|c| c.name == name).map(|c| c.port);
                 let listed: Vec<&str> = names.iter().map(|(n, _)| n.as_str()).collect();

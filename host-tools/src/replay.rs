@@ -17,7 +17,10 @@
 //! never arbitrates them (they are its protocol, not traffic), and a table transfer in the capture,
 //! a push during the recorded run, would switch a node's table in the middle of the replay: a
 //! replay evaluates the tables it is given on the application traffic. They are counted
-//! ([`Feed::protocol_frames`]). Re-published frames of gateway ports are ordinary traffic in a
+//! ([`Feed::protocol_frames`]). **BLE claims are the exception**: traffic between the nodes that
+//! decides who holds a task, they are fed like application frames, and every runner hands them
+//! to the node's group state (a node's own claims, coming back from the capture, are refused by
+//! it and change nothing). Re-published frames of gateway ports are ordinary traffic in a
 //! capture and are fed like any other; what the replayed nodes re-publish is dropped (the bus of
 //! a replay is the capture).
 
@@ -65,7 +68,8 @@ impl Feed {
             span_us: last_us.saturating_sub(first_us),
         };
         for captured in ordered {
-            if protocol::is_ours(&captured.frame.id()) {
+            // BLE claims are fed: they are how the nodes decide who holds a task.
+            if protocol::is_ours(&captured.frame.id()) && !is_claim(&captured.frame) {
                 feed.protocol_frames += 1;
                 continue;
             }
@@ -211,4 +215,10 @@ pub fn job(
         out.extend_from_slice(&timed.encode());
     }
     Ok(out)
+}
+
+/// Whether `frame` is a BLE claim (`pab_core::ble`): of our protocol, but traffic between nodes
+/// that a replay feeds.
+fn is_claim(frame: &pab_core::Frame) -> bool {
+    matches!(frame.id(), embedded_can::Id::Extended(id) if pab_core::ble::is_claim_id(id.as_raw()))
 }

@@ -61,6 +61,16 @@ impl Rule {
         }
     }
 
+    /// Whether the rule reads the activity of connection `index`.
+    pub fn mentions(&self, index: usize) -> bool {
+        match self {
+            Rule::Constant(_) => false,
+            Rule::Active(i) => *i == index,
+            Rule::Not(rule) => rule.mentions(index),
+            Rule::And(operands) | Rule::Or(operands) => operands.iter().any(|r| r.mentions(index)),
+        }
+    }
+
     /// Writes the rule with connection names, parenthesised only where precedence requires.
     pub fn display<'a>(&'a self, names: &'a [String]) -> impl fmt::Display + 'a {
         Shown { rule: self, names }

@@ -22,6 +22,13 @@
 //! handed over, and its timeline follows the output's connection; the simulator calls
 //! [`Arbiter::poll`] at each wake so that values age out on time.
 //!
+//! BLE groups (`[ble.NAME]`): every node runs its groups with the board's code
+//! ([`Arbiter::ble_poll`] at its [`Arbiter::ble_deadline`] and after each frame it receives, as a
+//! node does), and its claims go on the simulated bus at that microsecond, to every other running
+//! node, in CAN arbitration order ([`Outcome::claims`]); [`Outcome::holdings`] follows who holds
+//! each group's task. A stopped node sends no claim, so its peers take its task over once its last
+//! claim is two periods old.
+//!
 //! [`run`] is the same bus fed with any timed frames: a capture's, for `pabctl replay`
 //! (see [`crate::replay`]). With [`Options::records`] it also writes every verdict in the record
 //! format of [`pab_app::replay::records`], the one the other runners write.
@@ -33,8 +40,9 @@ use std::io::{self, Write};
 
 use embedded_can::{ExtendedId, Id, StandardId};
 use pab_app::replay::records;
+use pab_core::ble::{self, Claim};
 use pab_core::image;
-use pab_core::{Arbiter, Instant};
+use pab_core::{Arbiter, Frame, Instant};
 
 use crate::compile::CompiledNode;
 use crate::network::{MAX_TIME_S, Network};
@@ -101,6 +109,20 @@ pub struct Outcome {
     pub samples: Vec<Vec<Sample>>,
     /// Every verdict in the record format (empty unless [`Options::records`]).
     pub records: String,
+    /// The BLE claims the nodes sent, in bus order (none when the frames were given: [`run`]).
+    pub claims: Vec<BusFrame>,
+    /// Per BLE group (network order), the changes of who holds its task, starting with nobody at
+    /// 0: node indices, in network order (more than one during a transient).
+    pub holdings: Vec<Vec<Holding>>,
+}
+
+/// A change of the nodes that hold a BLE group's task.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Holding {
+    /// When, µs.
+    pub t_us: u64,
+    /// The nodes that hold it from then on (network indices, in order).
+    pub holders: Vec<usize>,
 }
 
 /// Why a simulation could not run.
@@ -133,6 +155,8 @@ struct Station {
     arbiter: Arbiter,
     /// When it stops (`[[faults]]`), µs.
     stop_us: Option<u64>,
+    /// The last instant it polled its BLE groups, µs (`None`: not yet).
+    last_us: Option<u64>,
 }
 
 impl Station {
@@ -171,6 +195,7 @@ pub fn simulate(
         until_us,
         options,
         &stops,
+        true,
         &mut |_| {},
     )
 }
@@ -187,10 +212,23 @@ pub fn run(
     options: &Options,
     progress: &mut dyn FnMut(usize),
 ) -> Result<Outcome, SimError> {
-    run_stopping(network, compiled, frames, until_us, options, &[], progress)
+    run_stopping(
+        network,
+        compiled,
+        frames,
+        until_us,
+        options,
+        &[],
+        false,
+        progress,
+    )
 }
 
 /// [`run`], with nodes that stop: `(t_us, node)`, the node as an index into the network's nodes.
+/// With `broadcast`, the nodes' BLE claims go on the bus and nodes poll their groups at their
+/// deadlines; without (a replay: the bus is the frames given, claims included), a node polls
+/// after each frame it receives and what it would send is dropped, as on a replayed node.
+#[allow(clippy::too_many_arguments)]
 fn run_stopping(
     network: &Network,
     compiled: &[CompiledNode],
@@ -198,6 +236,7 @@ fn run_stopping(
     until_us: u64,
     options: &Options,
     stops: &[(u64, usize)],
+    broadcast: bool,
     progress: &mut dyn FnMut(usize),
 ) -> Result<Outcome, SimError> {
     let mut records = String::new();
@@ -233,6 +272,7 @@ fn run_stopping(
             id: node.id,
             arbiter,
             stop_us,
+            last_us: None,
         });
     }
     if options.records {
@@ -263,7 +303,21 @@ fn run_stopping(
         wakes: BinaryHeap::new(),
         records: options.records.then_some(records),
         verdicts: 0,
+        broadcast,
+        outbox: Vec::new(),
+        claims: Vec::new(),
+        holdings: network
+            .groups
+            .iter()
+            .map(|_| {
+                vec![Holding {
+                    t_us: 0,
+                    holders: Vec::new(),
+                }]
+            })
+            .collect(),
     };
+    let has_groups = !network.groups.is_empty();
     let grid = (until_us / 1500).max(1);
     let mut next_grid = 0u64;
     let mut sent = 0usize;
@@ -288,7 +342,12 @@ fn run_stopping(
             .filter(|&t| t <= until_us);
         let next_sample = (options.samples && next_grid <= until_us).then_some(next_grid);
         let next_halt = halts.peek().map(|(t, _)| *t).filter(|&t| t <= until_us);
-        let Some(now) = [next_frame, next_wake, next_sample, next_halt]
+        let next_ble = if broadcast && has_groups {
+            run.ble_deadline().filter(|&t| t <= until_us)
+        } else {
+            None
+        };
+        let Some(now) = [next_frame, next_wake, next_sample, next_halt, next_ble]
             .into_iter()
             .flatten()
             .min()
@@ -315,6 +374,15 @@ fn run_stopping(
                 run.wake(port, now);
             }
         }
+        if has_groups {
+            if broadcast {
+                for station in 0..run.stations.len() {
+                    run.ble_poll(station, now);
+                }
+                run.send_claims(now);
+            }
+            run.note_all(now);
+        }
     }
     if options.samples {
         run.sample_all(until_us);
@@ -333,6 +401,8 @@ fn run_stopping(
         timelines: run.timelines,
         samples: run.samples,
         records,
+        claims: run.claims,
+        holdings: run.holdings,
     })
 }
 
@@ -423,9 +493,146 @@ struct Run<'a> {
     wakes: BinaryHeap<Reverse<(u64, usize)>>,
     records: Option<String>,
     verdicts: u64,
+    /// Whether claims go on the bus ([`simulate`]) or are dropped (a replay, [`run`]).
+    broadcast: bool,
+    /// Claims sent at the current instant and not yet heard: (sender station, claim).
+    outbox: Vec<(usize, Claim)>,
+    claims: Vec<BusFrame>,
+    holdings: Vec<Vec<Holding>>,
 }
 
 impl Run<'_> {
+    /// The soonest instant at which a running node has BLE work (a claim due, a claim going
+    /// stale), µs.
+    fn ble_deadline(&self) -> Option<u64> {
+        self.stations
+            .iter()
+            .filter(|s| s.arbiter.has_groups())
+            .filter_map(|s| {
+                let Some(last) = s.last_us else {
+                    // Never polled: its first claims are due at once.
+                    return Some(0);
+                };
+                let due = s.arbiter.ble_deadline(Instant::from_micros(last))?;
+                // Ahead of the instant it last polled at, whose work is done.
+                let ahead = due
+                    .micros_since(Instant::from_micros(last))
+                    .unwrap_or(0)
+                    .max(1);
+                Some(last.saturating_add(ahead)).filter(|&t| !s.stopped(t))
+            })
+            .min()
+    }
+
+    /// Station `station` polls its groups at `now`: claims due go to the outbox (or nowhere, in a
+    /// replay), holding decisions come up to `now`.
+    fn ble_poll(&mut self, station: usize, now_us: u64) {
+        let broadcast = self.broadcast;
+        let Some(entry) = self.stations.get_mut(station) else {
+            return;
+        };
+        if entry.stopped(now_us) || !entry.arbiter.has_groups() {
+            return;
+        }
+        entry.last_us = Some(now_us);
+        let mut sent = Vec::new();
+        entry
+            .arbiter
+            .ble_poll(Instant::from_micros(now_us), |claim| sent.push(claim));
+        if broadcast {
+            self.outbox
+                .extend(sent.into_iter().map(|claim| (station, claim)));
+        }
+    }
+
+    /// The claims of the outbox on the bus at `now`, in arbitration order (lower identifier
+    /// first), each heard by every other running node, which then polls as a node does after a
+    /// frame (its own claims, if any fall due, follow in the same instant).
+    fn send_claims(&mut self, now_us: u64) {
+        while !self.outbox.is_empty() {
+            let mut batch = std::mem::take(&mut self.outbox);
+            batch.sort_by_key(|(_, claim)| claim.raw_id());
+            for (sender, claim) in batch {
+                let Some(frame) = claim.frame() else {
+                    continue;
+                };
+                self.claims.push(BusFrame {
+                    t_us: now_us,
+                    frame,
+                });
+                for station in 0..self.stations.len() {
+                    if station == sender {
+                        continue;
+                    }
+                    self.hear_claim(station, &frame, now_us);
+                    self.ble_poll(station, now_us);
+                }
+            }
+        }
+    }
+
+    /// Station `station` hears claim frame `frame` (a node that stopped hears nothing; a
+    /// claim it cannot keep is dropped, as a node drops it after its fault).
+    fn hear_claim(&mut self, station: usize, frame: &Frame, now_us: u64) {
+        let Some(entry) = self.stations.get_mut(station) else {
+            return;
+        };
+        if entry.stopped(now_us) {
+            return;
+        }
+        if let Ok(claim) = Claim::decode(frame) {
+            let _ = entry.arbiter.on_claim(claim, Instant::from_micros(now_us));
+        }
+    }
+
+    /// Every port's selection and every group's holders at `now` (BLE changes them without a
+    /// frame at the port).
+    fn note_all(&mut self, now_us: u64) {
+        let now = Instant::from_micros(now_us);
+        for port in 0..self.network.ports.len() {
+            let Some((station, local)) = self.locate(port) else {
+                continue;
+            };
+            let Some(entry) = self.stations.get(station) else {
+                continue;
+            };
+            if entry.stopped(now_us) {
+                continue;
+            }
+            let selected =
+                selected_or_output(&entry.arbiter, local, entry.arbiter.selected(local, now))
+                    .and_then(|local| self.connection_of(port, local));
+            self.note(port, now_us, selected);
+        }
+        for (index, group) in self.network.groups.iter().enumerate() {
+            let mut holders = Vec::new();
+            for entry in &self.stations {
+                if entry.stopped(now_us) || group.member(entry.node).is_none() {
+                    continue;
+                }
+                // The group's position in the node's table: its rank among the node's groups.
+                let position = self
+                    .network
+                    .groups
+                    .iter()
+                    .take(index)
+                    .filter(|g| g.member(entry.node).is_some())
+                    .count();
+                if entry.arbiter.holds(position) {
+                    holders.push(entry.node);
+                }
+            }
+            if let Some(changes) = self.holdings.get_mut(index)
+                && changes.last().map(|c| &c.holders) != Some(&holders)
+            {
+                changes.push(Holding {
+                    t_us: now_us,
+                    holders,
+                });
+            }
+        }
+    }
+
     /// The network index of port `local` of station `station`.
     fn port_of(&self, station: usize, local: u8) -> Option<usize> {
         let node = self.stations.get(station)?.node;
@@ -460,6 +667,14 @@ impl Run<'_> {
             if self.options.samples {
                 self.sample_ports_fed_by(station, &id, frame.t_us);
             }
+            // A claim is a node's BLE traffic, never arbitrated: its group state keeps it.
+            if let embedded_can::Id::Extended(raw) = id
+                && ble::is_claim_id(raw.as_raw())
+            {
+                self.hear_claim(station, &frame.frame, frame.t_us);
+                self.ble_poll(station, frame.t_us);
+                continue;
+            }
             let mut verdicts = Vec::new();
             let mut combined = Vec::new();
             if let Some(entry) = self.stations.get_mut(station) {
@@ -469,6 +684,9 @@ impl Run<'_> {
                     |verdict| verdicts.push(*verdict),
                     |output| combined.push(*output),
                 );
+                if entry.arbiter.has_groups() {
+                    entry.arbiter.ble_frame(&frame.frame, now);
+                }
             }
             if let (Some(out), Some(entry)) = (self.records.as_mut(), self.stations.get(station)) {
                 for verdict in &verdicts {
@@ -522,6 +740,7 @@ impl Run<'_> {
                     .and_then(|local| self.connection_of(port, local));
                 self.note(port, frame.t_us, selected);
             }
+            self.ble_poll(station, frame.t_us);
             if self.options.samples {
                 self.sample_ports_fed_by(station, &id, frame.t_us);
             }
@@ -752,6 +971,9 @@ impl Outcome {
                     delivered,
                     rows.len() - delivered,
                     match (connection.kind.is_special(), connection.is_virtual()) {
+                        _ if connection.kind == crate::network::Kind::Claim => {
+                            "  (BLE claim: who holds the task, below)".to_string()
+                        }
                         (true, true) => format!("  ({}, virtual)", connection.kind.name()),
                         (true, false) => format!("  ({})", connection.kind.name()),
                         (false, true) => "  (virtual)".to_string(),
@@ -760,7 +982,44 @@ impl Outcome {
                 );
             }
         }
+        for (index, group) in network.groups.iter().enumerate() {
+            let _ = writeln!(
+                out,
+                "BLE group {} (claims every {} s): who holds the task",
+                group.name, group.period
+            );
+            for change in self.holdings.get(index).into_iter().flatten() {
+                let who: Vec<&str> = change
+                    .holders
+                    .iter()
+                    .filter_map(|&n| network.nodes.get(n).map(|n| n.name.as_str()))
+                    .collect();
+                let who = if who.is_empty() {
+                    "nobody".to_string()
+                } else {
+                    who.join(", ")
+                };
+                let _ = writeln!(out, "  {:>14}  {who}", seconds_text(change.t_us));
+            }
+        }
+        if !network.groups.is_empty() {
+            let _ = writeln!(out, "claims sent: {}", self.claims.len());
+        }
         out
+    }
+
+    /// The frames on the simulated bus, in the order they were sent: the events' `frames`
+    /// (from [`event_frames`]) and the nodes' claims, each instant's events before its claims.
+    pub fn bus_frames(&self, frames: &[BusFrame]) -> Vec<BusFrame> {
+        let mut all: Vec<(u64, u8, BusFrame)> = frames
+            .iter()
+            .filter(|f| f.t_us <= self.until_us)
+            .map(|f| (f.t_us, 0, *f))
+            .chain(self.claims.iter().map(|f| (f.t_us, 1, *f)))
+            .collect();
+        // Stable: within an instant and a kind, the order they were sent in.
+        all.sort_by_key(|(t, kind, _)| (*t, *kind));
+        all.into_iter().map(|(_, _, f)| f).collect()
     }
 
     /// The data of a stimulation plot.

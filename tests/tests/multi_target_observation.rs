@@ -1,0 +1,193 @@
+//! `examples/multi-target-observation.toml`: three robots, four prioritised targets, Broadcast
+//! of Local Eligibility between the robots' base controllers. Who holds each target and who
+//! drives each robot, to the microsecond, as the example's comment states; and what the nodes
+//! broadcast, read from the claims on the simulated bus.
+
+use pab_core::ble::Claim;
+use pab_tests::Scenario;
+
+const MS: u64 = 1_000;
+
+fn holders(scenario: &Scenario, group: &str) -> Vec<(u64, Vec<String>)> {
+    let index = scenario
+        .network
+        .groups
+        .iter()
+        .position(|g| g.name == group)
+        .unwrap_or_else(|| panic!("no group {group}"));
+    scenario.outcome.holdings[index]
+        .iter()
+        .map(|change| {
+            let names = change
+                .holders
+                .iter()
+                .map(|&n| scenario.network.nodes[n].name.clone())
+                .collect();
+            (change.t_us, names)
+        })
+        .collect()
+}
+
+fn timeline(scenario: &Scenario, port: &str) -> Vec<(u64, String)> {
+    let index = scenario
+        .network
+        .ports
+        .iter()
+        .position(|p| p.name == port)
+        .unwrap_or_else(|| panic!("no port {port}"));
+    scenario.outcome.timelines[index]
+        .iter()
+        .map(|change| {
+            let who = change.selected.map_or("nobody".to_string(), |c| {
+                scenario.network.connections[c].name.clone()
+            });
+            (change.t_us, who)
+        })
+        .collect()
+}
+
+fn expect(list: &[(u64, &[&str])]) -> Vec<(u64, Vec<String>)> {
+    list.iter()
+        .map(|(t, who)| (*t, who.iter().map(|s| s.to_string()).collect()))
+        .collect()
+}
+
+fn expect_timeline(list: &[(u64, &str)]) -> Vec<(u64, String)> {
+    list.iter().map(|(t, who)| (*t, who.to_string())).collect()
+}
+
+#[test]
+fn each_target_is_held_by_the_most_eligible_robot_that_watches_it_and_a_dead_robot_is_replaced() {
+    let scenario = Scenario::run("multi-target-observation");
+    // t1: r1 (900) over r2 (600); r1 stops at 3.0, its last claim (2.9) is stale at 3.1.
+    assert_eq!(
+        holders(&scenario, "observe_t1"),
+        expect(&[
+            (0, &[]),
+            (0, &["r1"]),
+            (3_000 * MS, &[]),
+            (3_100 * MS, &["r2"]),
+            // The observers' last frames at 5.95: readings two periods old at 6.15.
+            (6_150 * MS, &[]),
+        ])
+    );
+    // t2: r2 (500) over r3 (400), but r2's first claim (at 0, before its first reading of
+    // target 2) offers 0: both hold until its claim of 0.1, a start-up transient of one period.
+    // From 3.1 r2 watches t1 and offers 0 for t2 (its t2 observer is subsumed by its own t1
+    // layer): nobody holds t2 until r3's next claim turn (3.2), when r3 takes it.
+    assert_eq!(
+        holders(&scenario, "observe_t2"),
+        expect(&[
+            (0, &[]),
+            (0, &["r2", "r3"]),
+            (100 * MS, &["r2"]),
+            (3_100 * MS, &[]),
+            (3_200 * MS, &["r3"]),
+            (6_150 * MS, &[]),
+        ])
+    );
+    // t3: r3 alone sees it; it offers it from its claim of 0.1 (outranked on t2 by then), and
+    // gives it up for t2 at 3.2: t3, lower in priority than t2, is left uncovered.
+    assert_eq!(
+        holders(&scenario, "observe_t3"),
+        expect(&[(0, &[]), (100 * MS, &["r3"]), (3_200 * MS, &[])])
+    );
+    // t4: nobody sees it.
+    assert_eq!(holders(&scenario, "observe_t4"), expect(&[(0, &[])]));
+
+    assert_eq!(
+        timeline(&scenario, "r1.drive"),
+        expect_timeline(&[(0, "nobody"), (0, "OBS11"), (3_000 * MS, "nobody")])
+    );
+    assert_eq!(
+        timeline(&scenario, "r2.drive"),
+        expect_timeline(&[
+            (0, "nobody"),
+            (0, "OBS21"),
+            (0, "OBS22"),
+            (3_100 * MS, "OBS21"),
+            (6_150 * MS, "WANDER2"),
+            // WANDER2's last frame at 5.8, τ 0.5 s.
+            (6_300 * MS + 1, "nobody"),
+        ])
+    );
+    assert_eq!(
+        timeline(&scenario, "r3.drive"),
+        expect_timeline(&[
+            (0, "nobody"),
+            (0, "OBS32"),
+            (100 * MS, "OBS33"),
+            (3_200 * MS, "OBS32"),
+            (6_150 * MS, "WANDER3"),
+            (6_300 * MS + 1, "nobody"),
+        ])
+    );
+}
+
+#[test]
+fn every_node_claims_every_group_once_a_period_and_offers_zero_for_a_target_it_does_not_watch() {
+    let scenario = Scenario::run("multi-target-observation");
+    let claims: Vec<(u64, Claim)> = scenario
+        .outcome
+        .claims
+        .iter()
+        .map(|f| {
+            (
+                f.t_us,
+                Claim::decode(&f.frame).expect("a claim the nodes sent decodes"),
+            )
+        })
+        .collect();
+    for node in 1..=3u8 {
+        for group in 0..4u8 {
+            let times: Vec<u64> = claims
+                .iter()
+                .filter(|(_, c)| c.node == node && c.group == group)
+                .map(|(t, _)| *t)
+                .collect();
+            // Every 0.1 s from 0 to the end (6.5, inclusive); r1 stops at 3.0 (its last claim
+            // at 2.9).
+            let end = if node == 1 {
+                3_000 * MS
+            } else {
+                6_500 * MS + 1
+            };
+            let expected: Vec<u64> = (0..)
+                .map(|k| k * 100 * MS)
+                .take_while(|&t| t < end)
+                .collect();
+            assert_eq!(times, expected, "node {node}, group {group}");
+        }
+    }
+    let offered = |node: u8, group: u8, t: u64| {
+        claims
+            .iter()
+            .find(|(at, c)| *at == t && c.node == node && c.group == group)
+            .map(|(_, c)| c.eligibility)
+    };
+    // While r1 runs, r2 offers 600 for t1 and 500 for t2; from 3.2 on it watches t1 and offers
+    // 0 for t2. r3 offers 0 for t3 once it watches t2.
+    assert_eq!(offered(2, 0, 2_000 * MS), Some(600));
+    assert_eq!(offered(2, 1, 2_000 * MS), Some(500));
+    assert_eq!(offered(2, 1, 4_000 * MS), Some(0));
+    assert_eq!(offered(3, 2, 2_000 * MS), Some(300));
+    assert_eq!(offered(3, 2, 4_000 * MS), Some(0));
+    assert_eq!(offered(3, 1, 4_000 * MS), Some(400));
+    // Nobody sees t4: every claim for it offers 0.
+    assert!(
+        claims
+            .iter()
+            .filter(|(_, c)| c.group == 3)
+            .all(|(_, c)| c.eligibility == 0)
+    );
+    // The bus carries them in arbitration order within an instant: better claims first (one
+    // node's claims for several groups may share an identifier: it sends them one after another).
+    for pair in scenario.outcome.claims.windows(2) {
+        if pair[0].t_us == pair[1].t_us {
+            assert!(
+                pair[0].frame.raw_id().0 <= pair[1].frame.raw_id().0,
+                "{pair:?}"
+            );
+        }
+    }
+}
