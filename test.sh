@@ -100,7 +100,9 @@ step "DBC export, decoded by cantools"
 # A missing python3, venv or cantools fails the run: this step is never skipped.
 venv=$(scripts/python-env.sh)
 "$pabctl" dbc examples/take-and-return.toml -o "$out/take-and-return.dbc"
-"$venv/bin/python" host-tools/tests/dbc_cantools.py "$out/take-and-return.dbc"
+"$pabctl" dbc examples/multi-target-observation.toml -o "$out/multi-target-observation.dbc"
+"$venv/bin/python" host-tools/tests/dbc_cantools.py "$out/take-and-return.dbc" \
+    "$out/multi-target-observation.dbc"
 
 step "hardware-in-the-loop harness, host-side unit tests (hil-sim/unit)"
 # The micro-VM's accelerator decision against stand-ins for QEMU, and the guest kernel's module

@@ -513,6 +513,74 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
             });
         }
     }
+    // BLE claims: one message per node of a group. A DBC names whole identifiers, and a claim's
+    // identifier carries its eligibility (higher eligibility, lower identifier), so the message
+    // is the node's claim at eligibility 0 ("not a candidate"); its payload reads the same at
+    // every eligibility.
+    for (index, (node, dbc_node)) in network.nodes.iter().zip(nodes.iter().skip(1)).enumerate() {
+        let groups: Vec<&crate::network::BleGroup> = network
+            .groups
+            .iter()
+            .filter(|g| g.member(index).is_some())
+            .collect();
+        let Some(period) = groups.iter().map(|g| g.period_us).min() else {
+            continue;
+        };
+        let Some(frame) = (pab_core::ble::Claim {
+            group: 0,
+            node: node.id,
+            eligibility: 0,
+        })
+        .frame() else {
+            continue;
+        };
+        let peers: Vec<String> = network
+            .nodes
+            .iter()
+            .zip(nodes.iter().skip(1))
+            .enumerate()
+            .filter(|(other, _)| {
+                *other != index && groups.iter().any(|g| g.member(*other).is_some())
+            })
+            .map(|(_, (_, name))| name.clone())
+            .collect();
+        let names_of: Vec<String> = groups
+            .iter()
+            .map(|g| format!("{} = {}", g.number, g.name))
+            .collect();
+        messages.push(DbcMessage {
+            id: frame.raw_id().0 | EXTENDED_FLAG,
+            name: names.unique(format!("PAB_Claim_{dbc_node}")),
+            dlc: 4,
+            transmitter: dbc_node.clone(),
+            receivers: if peers.is_empty() {
+                vec![UNKNOWN_NODE.to_string()]
+            } else {
+                peers
+            },
+            signals: vec![
+                signal(
+                    "Group",
+                    0,
+                    8,
+                    &format!("the BLE group, numbered in file order ({})", names_of.join(", ")),
+                ),
+                signal(
+                    "Eligibility",
+                    8,
+                    16,
+                    "the node's eligibility for the group's task (0: not a candidate); the identifier carries 0xFFFF minus it in bits 22..7",
+                ),
+                signal("Reserved", 24, 8, "0"),
+            ],
+            comment: format!(
+                "BLE claim of node `{}` (id {}), once per period per group. The identifier ranks the claim (bits 22..7: 0xFFFF - eligibility; bits 6..0: the node id), so it changes with the eligibility: this message is the claim at eligibility 0; every claim of the node has this payload layout. See docs/can-protocol.md, Broadcast of Local Eligibility.",
+                node.name, node.id
+            ),
+            cycle_ms: Some(period.div_ceil(1000)),
+        });
+    }
+
     let control = Service::DiagnosticControl;
     let targets = network
         .nodes

@@ -1022,6 +1022,65 @@ impl Outcome {
         all.into_iter().map(|(_, _, f)| f).collect()
     }
 
+    /// Per BLE group, a strip per node of the group: 1 (and selected) while it holds the task.
+    fn group_series(&self, network: &Network) -> Vec<PortSeries> {
+        let until = self.until_us as f64 / 1e6;
+        network
+            .groups
+            .iter()
+            .enumerate()
+            .map(|(index, group)| {
+                let changes = self.holdings.get(index).map_or(&[][..], Vec::as_slice);
+                let connections = group
+                    .members
+                    .iter()
+                    .map(|member| {
+                        let name = network
+                            .nodes
+                            .get(member.node)
+                            .map_or("?", |n| n.name.as_str());
+                        let topic = network
+                            .topics
+                            .get(member.topic)
+                            .map_or("?", |t| t.name.as_str());
+                        let mut samples = Vec::new();
+                        let mut held = false;
+                        for change in changes {
+                            let t = change.t_us as f64 / 1e6;
+                            let now = change.holders.contains(&member.node);
+                            let level = |h: bool| if h { 1.0 } else { 0.0 };
+                            samples.push(Sample {
+                                t,
+                                level: level(held),
+                                selected: held,
+                            });
+                            samples.push(Sample {
+                                t,
+                                level: level(now),
+                                selected: now,
+                            });
+                            held = now;
+                        }
+                        samples.push(Sample {
+                            t: until,
+                            level: if held { 1.0 } else { 0.0 },
+                            selected: held,
+                        });
+                        ConnectionSeries {
+                            name: name.to_string(),
+                            label: format!("{name}  holds the task (eligibility: {topic})"),
+                            samples,
+                        }
+                    })
+                    .collect();
+                PortSeries {
+                    name: format!("BLE {} (every {} s)", group.name, group.period),
+                    connections,
+                }
+            })
+            .collect()
+    }
+
     /// The data of a stimulation plot.
     pub fn plot_data(&self, network: &Network, title: &str) -> PlotData {
         let ports = network
@@ -1030,8 +1089,10 @@ impl Outcome {
             .enumerate()
             .map(|(port_index, port)| PortSeries {
                 name: port.name.clone(),
+                // A claim has its own lanes, per group, below the ports.
                 connections: network
                     .port_connections(port_index)
+                    .filter(|c| c.kind != crate::network::Kind::Claim)
                     .map(|c| {
                         let index = port.connections.get(c.index).copied().unwrap_or(0);
                         let topic = network.topics.get(c.topic).map_or("?", |t| t.name.as_str());
@@ -1063,6 +1124,8 @@ impl Outcome {
                     .collect(),
             })
             .collect();
+        let mut ports: Vec<PortSeries> = ports;
+        ports.extend(self.group_series(network));
         PlotData {
             title: title.to_string(),
             until: self.until_us as f64 / 1e6,

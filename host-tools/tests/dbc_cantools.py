@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Checks a DBC file written by `pabctl dbc` for examples/take-and-return.toml with cantools.
 
-    python host-tools/tests/dbc_cantools.py target/examples/take-and-return.dbc
+    python host-tools/tests/dbc_cantools.py target/examples/take-and-return.dbc \
+        [target/examples/multi-target-observation.dbc]
 
 The expected identifiers and payload bytes are built here from the layout documented in
 docs/can-protocol.md, not from pabctl's code: this is what a user decoding a capture relies on.
@@ -169,12 +170,32 @@ def main(path):
     check(values == {"data0": 0xAA, "data1": 0xBB}, f"truncated topic: {values}")
 
 
+def claims(path):
+    """The BLE claim messages of examples/multi-target-observation.toml (nodes r1..r3, groups
+    observe_t1..observe_t4): docs/can-protocol.md, "Broadcast of Local Eligibility"."""
+    db = cantools.database.load_file(path)
+    for name, node in {"r1": 1, "r2": 2, "r3": 3}.items():
+        message = db.get_message_by_name(f"PAB_Claim_{name}")
+        # priority 4, marker 0b10, claim bit 23, 0xFFFF - eligibility (0 here), node id.
+        expected = 4 << 26 | 0b10 << 24 | 1 << 23 | 0xFFFF << 7 | node
+        check(message.frame_id == expected and message.is_extended_frame,
+              f"claim of {name}: id {message.frame_id:#x}, expected {expected:#x}")
+        check(message.cycle_time == 100, f"claim of {name}: cycle {message.cycle_time} ms")
+        check(sorted(message.receivers) == sorted(n for n in ("r1", "r2", "r3") if n != name),
+              f"claim of {name}: receivers {message.receivers}")
+    # Node 2 offering 500 for group 1 (observe_t2): payload group, eligibility LE, reserved.
+    values = db.get_message_by_name("PAB_Claim_r2").decode(bytes([1, 0xF4, 0x01, 0]))
+    check(values == {"Group": 1, "Eligibility": 500, "Reserved": 0}, f"claim payload: {values}")
+
+
 if __name__ == "__main__":
-    if len(sys.argv) != 2:
+    if len(sys.argv) not in (2, 3):
         print(__doc__, file=sys.stderr)
         sys.exit(2)
     try:
         main(sys.argv[1])
+        if len(sys.argv) == 3:
+            claims(sys.argv[2])
     except Exception as error:  # a missing message, an undecodable frame: report, with what came before
         failures.append(f"{type(error).__name__}: {error}")
     for failure in failures:

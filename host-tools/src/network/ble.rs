@@ -379,3 +379,144 @@ impl Builder<'_> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::diagnostic::Source;
+    use crate::network::{Kind, Network};
+
+    const BASE: &str = r#"
+[nodes.r1]
+id = 1
+[nodes.r2]
+id = 2
+[nodes.r3]
+id = 3
+[topics.obs_1]
+can_id = 0x111
+[topics.obs_2]
+can_id = 0x121
+[ports."r1.drive"]
+[ports."r2.drive"]
+[connections.OBS1]
+topic = "obs_1"
+port = "r1.drive"
+st = 1.0
+tc = 0.3
+rule = "OBS1 & task"
+[connections.OBS2]
+topic = "obs_2"
+port = "r2.drive"
+st = 1.0
+tc = 0.3
+rule = "OBS2 & task"
+"#;
+
+    fn parse(extra: &str) -> Result<Network, String> {
+        Network::parse(Source::new("ble.toml", format!("{BASE}{extra}"))).map_err(|e| e.to_string())
+    }
+
+    fn error(extra: &str) -> String {
+        match parse(extra) {
+            Ok(_) => panic!("accepted:\n{extra}"),
+            Err(message) => message,
+        }
+    }
+
+    #[test]
+    fn a_group_adds_its_claim_to_the_ports_whose_rules_name_it() {
+        let network =
+            parse("[ble.task]\nperiod = 0.1\nvalue = { offset = 2, size = 2, endian = \"big\" }\n[ble.task.nodes]\nr1 = \"obs_1\"\nr2 = \"obs_2\"\n")
+                .unwrap();
+        let group = &network.groups[0];
+        assert_eq!((group.number, group.period_us), (0, 100_000));
+        assert_eq!(
+            (group.field.offset, group.field.size, group.field.big_endian),
+            (2, 2, true)
+        );
+        for port in 0..2 {
+            let names: Vec<(String, Kind)> = network
+                .port_connections(port)
+                .map(|c| (c.name.clone(), c.kind))
+                .collect();
+            assert_eq!(names[1], ("task".to_string(), Kind::Claim));
+            assert_eq!(names.len(), 2);
+        }
+    }
+
+    #[test]
+    fn mistakes_are_reported_at_their_line_with_their_cause() {
+        let nodes = "[ble.task.nodes]\nr1 = \"obs_1\"\nr2 = \"obs_2\"\n";
+        for (extra, expected) in [
+            (
+                format!("[ble.task]\nvalue = {{ offset = 0, size = 2 }}\n{nodes}"),
+                "missing field `period`",
+            ),
+            (
+                format!("[ble.task]\nperiod = 0\nvalue = {{ offset = 0, size = 2 }}\n{nodes}"),
+                "a BLE period is whole microseconds",
+            ),
+            (
+                format!("[ble.task]\nperiod = 0.1\nvalue = {{ offset = 0, size = 4 }}\n{nodes}"),
+                "an eligibility is 1 or 2 bytes",
+            ),
+            (
+                format!("[ble.task]\nperiod = 0.1\nvalue = {{ offset = 7, size = 2 }}\n{nodes}"),
+                "beyond the 8 bytes",
+            ),
+            (
+                format!("[ble.task]\nperiod = 0.1\nvalue = {{ offset = 0, size = 2, signed = true }}\n{nodes}"),
+                "an eligibility is unsigned",
+            ),
+            (
+                format!("[ble.task]\nperiod = 0.1\n{nodes}"),
+                "missing field `value`",
+            ),
+            (
+                "[ble.task]\nperiod = 0.1\nvalue = { offset = 0, size = 2 }\n[ble.task.nodes]\nr1 = \"obs_1\"\n".to_string(),
+                "has 1 node: a task is shared by two or more",
+            ),
+            (
+                "[ble.task]\nperiod = 0.1\nvalue = { offset = 0, size = 2 }\n[ble.task.nodes]\nr1 = \"obs_1\"\nr9 = \"obs_2\"\n".to_string(),
+                "node `r9` is not defined",
+            ),
+            (
+                "[ble.task]\nperiod = 0.1\nvalue = { offset = 0, size = 2 }\n[ble.task.nodes]\nr1 = \"obs_1\"\nr2 = \"nope\"\n".to_string(),
+                "topic `nope` is not defined",
+            ),
+            (
+                // r2's rule names `task`, but only r1 and r3 are in it.
+                "[ble.task]\nperiod = 0.1\nvalue = { offset = 0, size = 2 }\n[ble.task.nodes]\nr1 = \"obs_1\"\nr3 = \"obs_2\"\n".to_string(),
+                "`task` is a BLE group that node `r2` is not in (its nodes: r1, r3)",
+            ),
+            (
+                format!("[ble.OBS1]\nperiod = 0.1\nvalue = {{ offset = 0, size = 2 }}\n[ble.OBS1.nodes]\nr1 = \"obs_1\"\nr2 = \"obs_2\"\n"),
+                "has the name of a connection",
+            ),
+            (
+                format!("[ble.task]\nperiod = 0.1\nvalue = {{ offset = 0, size = 2 }}\nwho = 1\n{nodes}"),
+                "unknown field `who`",
+            ),
+        ] {
+            let message = error(&extra);
+            assert!(message.contains(expected), "{expected:?} not in:\n{message}");
+            assert!(message.starts_with("ble.toml:"), "{message}");
+        }
+    }
+
+    #[test]
+    fn a_node_is_in_at_most_four_groups() {
+        let mut extra = String::new();
+        for k in 0..5 {
+            extra.push_str(&format!(
+                "[ble.g{k}]\nperiod = 0.1\nvalue = {{ offset = 0, size = 1 }}\n[ble.g{k}.nodes]\nr1 = \"obs_1\"\nr2 = \"obs_2\"\n"
+            ));
+        }
+        extra.push_str("[ble.task]\nperiod = 0.1\nvalue = { offset = 0, size = 1 }\n[ble.task.nodes]\nr1 = \"obs_1\"\nr2 = \"obs_2\"\n");
+        let message = error(&extra);
+        assert!(
+            message.contains("node `r1` is in more than 4 BLE groups"),
+            "{message}"
+        );
+    }
+}
