@@ -490,7 +490,7 @@ rule = "OBS2 & task"
                 "`task` is a BLE group that node `r2` is not in (its nodes: r1, r3)",
             ),
             (
-                format!("[ble.OBS1]\nperiod = 0.1\nvalue = {{ offset = 0, size = 2 }}\n[ble.OBS1.nodes]\nr1 = \"obs_1\"\nr2 = \"obs_2\"\n"),
+                "[ble.OBS1]\nperiod = 0.1\nvalue = { offset = 0, size = 2 }\n[ble.OBS1.nodes]\nr1 = \"obs_1\"\nr2 = \"obs_2\"\n".to_string(),
                 "has the name of a connection",
             ),
             (
