@@ -1,7 +1,7 @@
 """Multi-target observation in closed loop: three robots' base controllers on one bus, their
 observer and wander behaviours, the world, the recorder.
 
-    session = TeamSession("vcan0", Path("out/team"), boards=("r3",))
+    session = TeamSession("vcan0", Path("out/team"), boards=("r1",))
     session.start()
     ...
     session.close()

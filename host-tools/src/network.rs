@@ -1,4 +1,5 @@
-//! The network file: nodes, topics, ports, connections, and a scenario of events.
+//! The network file: nodes, topics, ports, connections, BLE groups ([`ble`]), and a scenario of
+//! events.
 //!
 //! Parsing is in two steps. `toml` turns the text into raw tables, keeping the byte span of every
 //! value; then [`Network::parse`] checks every name, number and rule and reports each mistake at

@@ -1002,8 +1002,8 @@ impl Outcome {
                 let _ = writeln!(out, "  {:>14}  {who}", seconds_text(change.t_us));
             }
         }
-        if !network.groups.is_empty() {
-            let _ = writeln!(out, "claims sent: {}", self.claims.len());
+        if !self.claims.is_empty() {
+            let _ = writeln!(out, "BLE claims sent: {}", self.claims.len());
         }
         out
     }

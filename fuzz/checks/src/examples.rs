@@ -7,7 +7,7 @@ use pabctl::diagnostic::Source;
 use pabctl::network::Network;
 
 /// The example files, compiled into the checks so that a run needs no working directory.
-pub const NETWORKS: [(&str, &str); 5] = [
+pub const NETWORKS: [(&str, &str); 6] = [
     (
         "examples/figure-1.toml",
         include_str!("../../../examples/figure-1.toml"),
@@ -27,6 +27,10 @@ pub const NETWORKS: [(&str, &str); 5] = [
     (
         "examples/value-ports.toml",
         include_str!("../../../examples/value-ports.toml"),
+    ),
+    (
+        "examples/multi-target-observation.toml",
+        include_str!("../../../examples/multi-target-observation.toml"),
     ),
 ];
 
