@@ -488,7 +488,7 @@ pub enum GroupError {
     Period,
     /// An eligibility field that is not 1 or 2 bytes within 8.
     Field,
-    /// The node id is 0 or above 127.
+    /// The node id is 0 or above 127, or (when an image is loaded) not the image's node id.
     Node,
     /// The local topic's filter is invalid.
     Filter(FilterError),
@@ -526,7 +526,7 @@ impl core::fmt::Display for GroupError {
         match self {
             GroupError::Period => write!(f, "BLE period must be 1..={MAX_PERIOD_US} µs"),
             GroupError::Field => f.write_str("BLE eligibility field must be 1 or 2 bytes within 8"),
-            GroupError::Node => f.write_str("BLE node id must be 1..=127"),
+            GroupError::Node => f.write_str("BLE node id must be 1..=127 and the image's"),
             GroupError::Filter(error) => write!(f, "BLE local topic: {error}"),
             GroupError::TooManyPeers => f.write_str("more BLE peers than the node holds"),
             GroupError::NoSuchPort { port } => write!(f, "BLE group names port {port}, absent"),

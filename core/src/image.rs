@@ -349,6 +349,14 @@ pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
     }
     too_many_roots(&table)?;
     table.validate().map_err(LoadError::Table)?;
+    // A group's claims carry the node id its table names: it must be the image's own, or the
+    // node would claim under another node's id.
+    if let Some(position) = table.groups().iter().position(|g| g.node != header.node_id) {
+        return Err(LoadError::Table(TableError::Group {
+            group: u8::try_from(position).unwrap_or(u8::MAX),
+            error: crate::ble::GroupError::Node,
+        }));
+    }
     Ok(Loaded { header, table })
 }
 

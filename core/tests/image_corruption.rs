@@ -1386,3 +1386,27 @@ fn the_loader_refuses_every_broken_ble_group_with_its_reason() {
     let table = postcard::from_bytes::<Table>(&postcard_bytes(&good)).expect("decodes");
     assert_eq!(table.validate(), Ok(()));
 }
+
+#[test]
+fn an_image_whose_group_names_another_node_is_refused() {
+    use pab_core::ble::GroupError;
+    // The valid group of `bad_groups`, for node 3: its claims carry id 3.
+    let mut good = bad_groups().remove(1).0;
+    good.groups[0].ports[0].claim = 1;
+    let table = postcard::from_bytes::<Table>(&postcard_bytes(&good)).expect("decodes");
+    let mut buffer = vec![0u8; image::MAX_IMAGE_LEN];
+    for (node_id, expected) in [
+        (3, Ok(())),
+        (
+            4,
+            Err(LoadError::Table(TableError::Group {
+                group: 0,
+                error: GroupError::Node,
+            })),
+        ),
+    ] {
+        let len = image::encode(&table, node_id, 1, &mut buffer).expect("encodes");
+        let loaded: Result<image::Loaded, LoadError> = image::load(&buffer[..len]);
+        assert_eq!(loaded.map(|_| ()), expected, "image for node {node_id}");
+    }
+}

@@ -367,7 +367,7 @@ fn groups_of<'n>(
     let node_index = network
         .nodes
         .iter()
-        .position(|n| n.id == node.id)
+        .position(|n| n.name == node.name)
         .unwrap_or(usize::MAX);
     let mut out = Vec::new();
     for group in &network.groups {

@@ -191,3 +191,89 @@ fn every_node_claims_every_group_once_a_period_and_offers_zero_for_a_target_it_d
         }
     }
 }
+
+/// Two robots, one target, equal eligibilities: from the second claims on, exactly one holds it,
+/// the lower node id, and keeps it; the other's observer delivers nothing. In both orders of the
+/// robots' frames at each instant (the topics' ids decide the bus order). The first instant
+/// depends on that order: a node's first claim leaves after the first frame it hears, and if that
+/// is its peer's frame, it offers 0 (it has no reading yet) until its next claim, a period later.
+#[test]
+fn with_equal_eligibilities_exactly_one_robot_holds_the_task_the_lower_id() {
+    for (id_a, id_b, start) in [
+        // a's frame first: a claims 500, then b hears it and claims 500: a wins the tie.
+        (0x111, 0x121, vec![(0, vec![]), (0, vec![0])]),
+        // b's frame first: a's first claim (after b's frame) offers 0, so b holds too until a's
+        // claim of 0.1 s.
+        (
+            0x121,
+            0x111,
+            vec![(0, vec![]), (0, vec![0, 1]), (100 * MS, vec![0])],
+        ),
+    ] {
+        let text = format!(
+            r#"
+[nodes.a]
+id = 4
+[nodes.b]
+id = 9
+[topics.obs_a]
+can_id = {id_a:#x}
+[topics.obs_b]
+can_id = {id_b:#x}
+[ports."a.drive"]
+[ports."b.drive"]
+[connections.OA]
+topic = "obs_a"
+port = "a.drive"
+kind = "override"
+period = 0.3
+rule = "OA & task"
+[connections.OB]
+topic = "obs_b"
+port = "b.drive"
+kind = "override"
+period = 0.3
+rule = "OB & task"
+[ble.task]
+period = 0.1
+value = {{ offset = 0, size = 2 }}
+[ble.task.nodes]
+a = "obs_a"
+b = "obs_b"
+[[events]]
+topic = "obs_a"
+rate_hz = 20.0
+to = 2.0
+data = [0xF4, 0x01]
+[[events]]
+topic = "obs_b"
+rate_hz = 20.0
+to = 2.0
+data = [0xF4, 0x01]
+"#
+        );
+        let network = pab_tests::network("tie", &text);
+        let nodes = pabctl::compile::compile(&network).unwrap_or_else(|e| panic!("{e:?}"));
+        let outcome = pabctl::sim::simulate(&network, &nodes, &pabctl::sim::Options::default())
+            .unwrap_or_else(|e| panic!("{e}"));
+        let holders: Vec<(u64, Vec<usize>)> = outcome.holdings[0]
+            .iter()
+            .map(|c| (c.t_us, c.holders.clone()))
+            .collect();
+        let mut expected = start;
+        // The readings' freshness ends two periods after the last frames (1.95 s).
+        expected.push((2_150 * MS, vec![]));
+        assert_eq!(holders, expected, "frames of a at {id_a:#x}, of b at {id_b:#x}");
+        let b_port = 1;
+        let b_at_first_claims = outcome.selected_at(b_port, 100 * MS);
+        assert!(
+            outcome.timelines[b_port]
+                .iter()
+                .filter(|c| c.t_us >= 100 * MS)
+                .all(|c| c.selected.is_none())
+                && b_at_first_claims.is_none(),
+            "b's observer delivered after 0.1 s: {:?}",
+            outcome.timelines[b_port]
+        );
+    }
+}

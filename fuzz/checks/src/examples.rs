@@ -38,6 +38,9 @@ pub const NETWORKS: [(&str, &str); 6] = [
 pub struct Examples {
     /// Every node's image, as `pabctl compile` writes it.
     pub images: Vec<Vec<u8>>,
+    /// Every node's image compiled for node id [`crate::node::NODE_ID`] (its BLE groups' claims
+    /// carry the node id, which must be the image's).
+    pub images_for_node: Vec<Vec<u8>>,
     /// Every topic's (id, extended), as frames the tables arbitrate carry them.
     pub topics: Vec<(u32, bool)>,
 }
@@ -47,6 +50,7 @@ pub fn examples() -> &'static Examples {
     static EXAMPLES: OnceLock<Examples> = OnceLock::new();
     EXAMPLES.get_or_init(|| {
         let mut images = Vec::new();
+        let mut images_for_node = Vec::new();
         let mut topics = Vec::new();
         for (path, text) in NETWORKS {
             let network = Network::parse(Source::new(path, text))
@@ -54,6 +58,9 @@ pub fn examples() -> &'static Examples {
             let nodes = pabctl::compile::compile(&network)
                 .unwrap_or_else(|error| panic!("{path} does not compile: {error:?}"));
             images.extend(nodes.into_iter().map(|node| node.image));
+            for index in 0..network.nodes.len() {
+                images_for_node.push(image_as(&network, index, crate::node::NODE_ID));
+            }
             topics.extend(
                 network
                     .topics
@@ -63,6 +70,30 @@ pub fn examples() -> &'static Examples {
         }
         topics.sort_unstable();
         topics.dedup();
-        Examples { images, topics }
+        Examples {
+            images,
+            images_for_node,
+            topics,
+        }
     })
+}
+
+/// Node `index` of `network`'s image, compiled with node id `id` (a node that had `id` takes
+/// its old one).
+fn image_as(network: &Network, index: usize, id: u8) -> Vec<u8> {
+    let mut network = network.clone();
+    let old = network.nodes[index].id;
+    for node in network.nodes.iter_mut() {
+        if node.id == id {
+            node.id = old;
+        }
+    }
+    network.nodes[index].id = id;
+    let name = network.nodes[index].name.clone();
+    pabctl::compile::compile(&network)
+        .unwrap_or_else(|error| panic!("{name} as node {id} does not compile: {error:?}"))
+        .into_iter()
+        .find(|node| node.name == name)
+        .map(|node| node.image)
+        .unwrap_or_else(|| panic!("no image for {name}"))
 }

@@ -7,7 +7,9 @@
 //!
 //! - **Deliveries equal a shadow arbiter's.** A second `pab_core::Arbiter`, built from the running
 //!   image each time the node swaps one in, is fed the same non-protocol frames at the same times;
-//!   the ports the node delivers each frame to are the shadow's.
+//!   the ports the node delivers each frame to are the shadow's. With BLE groups (the example of
+//!   multi-target observation) the shadow also hears the BLE claims among the frames and polls
+//!   its groups when the node's duties would, and every claim the node sends carries its id.
 //! - **A refused transfer never changes the running table.** The running table (its header) only
 //!   changes on a table-transfer frame, and then to the image the node will ask to store, which
 //!   loads, is for this node and is newer than the one before. The node asks to store it
@@ -52,15 +54,13 @@ fn base_images() -> &'static [Vec<u8>] {
     static IMAGES: std::sync::OnceLock<Vec<Vec<u8>>> = std::sync::OnceLock::new();
     IMAGES.get_or_init(|| {
         examples()
-            .images
+            .images_for_node
             .iter()
             .map(|bytes| {
                 let loaded: Loaded = image::load(bytes).expect("an example image loads");
-                let mut out = vec![0; image::MAX_IMAGE_LEN];
-                let len = image::encode(&loaded.table, NODE_ID, 1, &mut out)
-                    .expect("an example table encodes");
-                out.truncate(len);
-                out
+                assert_eq!(loaded.header.node_id, NODE_ID);
+                assert_eq!(loaded.header.table_version, 1);
+                bytes.clone()
             })
             .collect()
     })
@@ -135,6 +135,17 @@ fn running_key(node: &TestNode) -> Option<(u32, u32)> {
         .map(|running| (running.header.table_version, running.header.crc))
 }
 
+/// What a node does with its BLE groups after each frame and poll: its claims due, and the
+/// holding decisions brought up to `at` (what it sends is checked by [`World::drain`]).
+fn ble_duties(shadow: &mut Shadow, at: Instant) {
+    let due = shadow
+        .ble_deadline(at)
+        .is_some_and(|due| at.micros_since(due).is_some());
+    if shadow.has_groups() && due {
+        shadow.ble_poll(at, |_| {});
+    }
+}
+
 fn shadow_of(bytes: &[u8]) -> Shadow {
     let loaded: BoardLoaded = image::load(bytes)
         .unwrap_or_else(|error| panic!("the node runs an image that does not load: {error}"));
@@ -151,6 +162,15 @@ impl World {
         while let Some(frame) = self.node.next_outgoing() {
             if !protocol::is_ours(&frame.id()) {
                 continue; // a gateway port's re-publication
+            }
+            if let embedded_can::Id::Extended(raw) = frame.id()
+                && pab_core::ble::is_claim_id(raw.as_raw())
+            {
+                // A BLE claim of a table with groups: well formed, and this node's.
+                let claim = pab_core::ble::Claim::decode(&frame)
+                    .unwrap_or_else(|error| panic!("the node sent {frame:?}: {error:?}"));
+                assert_eq!(claim.node, NODE_ID, "a claim under another node's id");
+                continue;
             }
             let (id, message) = Message::decode(&frame)
                 .unwrap_or_else(|error| panic!("the node sent {frame:?}: {error}"));
@@ -179,7 +199,15 @@ impl World {
             if running_key(&self.node) == before
                 && let Some(shadow) = self.shadow.as_mut()
             {
+                // A peer's BLE claim goes to the group state, as on the node.
+                if let embedded_can::Id::Extended(raw) = frame.id()
+                    && pab_core::ble::is_claim_id(raw.as_raw())
+                    && let Ok(claim) = pab_core::ble::Claim::decode(frame)
+                {
+                    let _ = shadow.on_claim(claim, at);
+                }
                 shadow.poll(at, |output| expected.push(output.port));
+                ble_duties(shadow, at);
             }
             assert_eq!(ports.0, expected, "a protocol frame was delivered");
         } else {
@@ -199,7 +227,11 @@ impl World {
                     delivered &= delivered - 1;
                 }
                 expected.extend(ordinary);
+                if shadow.has_groups() {
+                    shadow.ble_frame(frame, at);
+                }
                 shadow.poll(at, |output| expected.push(output.port));
+                ble_duties(shadow, at);
             }
             assert_eq!(ports.0, expected, "deliveries of {frame:?} at {}", self.now);
         }
@@ -334,6 +366,7 @@ impl World {
         let mut expected = Vec::new();
         if let Some(shadow) = self.shadow.as_mut() {
             shadow.poll(at, |output| expected.push(output.port));
+            ble_duties(shadow, at);
         }
         assert_eq!(ports.0, expected, "value outputs of a poll at {}", self.now);
         step
