@@ -263,7 +263,10 @@ data = [0xF4, 0x01]
         let mut expected = start;
         // The readings' freshness ends two periods after the last frames (1.95 s).
         expected.push((2_150 * MS, vec![]));
-        assert_eq!(holders, expected, "frames of a at {id_a:#x}, of b at {id_b:#x}");
+        assert_eq!(
+            holders, expected,
+            "frames of a at {id_a:#x}, of b at {id_b:#x}"
+        );
         let b_port = 1;
         let b_at_first_claims = outcome.selected_at(b_port, 100 * MS);
         assert!(

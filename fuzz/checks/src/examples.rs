@@ -36,11 +36,10 @@ pub const NETWORKS: [(&str, &str); 6] = [
 
 /// What the examples give the checks.
 pub struct Examples {
-    /// Every node's image, as `pabctl compile` writes it.
+    /// Every node's image, as `pabctl compile` writes it but for node id
+    /// [`crate::node::NODE_ID`] (its BLE groups' claims carry the node id, which must be the
+    /// image's, so the table is compiled for that id rather than its header rewritten).
     pub images: Vec<Vec<u8>>,
-    /// Every node's image compiled for node id [`crate::node::NODE_ID`] (its BLE groups' claims
-    /// carry the node id, which must be the image's).
-    pub images_for_node: Vec<Vec<u8>>,
     /// Every topic's (id, extended), as frames the tables arbitrate carry them.
     pub topics: Vec<(u32, bool)>,
 }
@@ -50,16 +49,12 @@ pub fn examples() -> &'static Examples {
     static EXAMPLES: OnceLock<Examples> = OnceLock::new();
     EXAMPLES.get_or_init(|| {
         let mut images = Vec::new();
-        let mut images_for_node = Vec::new();
         let mut topics = Vec::new();
         for (path, text) in NETWORKS {
             let network = Network::parse(Source::new(path, text))
                 .unwrap_or_else(|error| panic!("{path} does not parse: {error:?}"));
-            let nodes = pabctl::compile::compile(&network)
-                .unwrap_or_else(|error| panic!("{path} does not compile: {error:?}"));
-            images.extend(nodes.into_iter().map(|node| node.image));
             for index in 0..network.nodes.len() {
-                images_for_node.push(image_as(&network, index, crate::node::NODE_ID));
+                images.push(image_as(&network, index, crate::node::NODE_ID));
             }
             topics.extend(
                 network
@@ -72,7 +67,6 @@ pub fn examples() -> &'static Examples {
         topics.dedup();
         Examples {
             images,
-            images_for_node,
             topics,
         }
     })

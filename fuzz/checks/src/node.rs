@@ -54,7 +54,7 @@ fn base_images() -> &'static [Vec<u8>] {
     static IMAGES: std::sync::OnceLock<Vec<Vec<u8>>> = std::sync::OnceLock::new();
     IMAGES.get_or_init(|| {
         examples()
-            .images_for_node
+            .images
             .iter()
             .map(|bytes| {
                 let loaded: Loaded = image::load(bytes).expect("an example image loads");
