@@ -10,7 +10,7 @@
 //! `Unstructured` readers turn into scripts and campaigns then grow. The `ble` target's seeds are
 //! chosen among a few thousand such strings: each is kept when its script reaches something no
 //! kept one reached (`pab_fuzz_checks::ble::features`: a reading, a claim held, a grid restart, a
-//! refused claim, the counter's wrap, ...), then the longest-running others up to 32.
+//! refused claim, the counter's wrap, ...), then the ones reaching the most up to 20.
 
 use std::collections::BTreeSet;
 use std::path::Path;
@@ -102,7 +102,7 @@ fn ble_seeds(write: &dyn Fn(&str, &str, &[u8])) {
         }
     }
     others.sort_by_key(|(count, _)| std::cmp::Reverse(*count));
-    let room = 32usize.saturating_sub(kept.len());
+    let room = 20usize.saturating_sub(kept.len());
     kept.extend(others.into_iter().take(room).map(|(_, bytes)| bytes));
     for (i, bytes) in kept.iter().enumerate() {
         write("ble", &format!("script-{i:02}"), bytes);
