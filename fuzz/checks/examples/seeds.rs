@@ -1,12 +1,18 @@
 //! Writes the seed inputs of every fuzz target into `fuzz/corpus/<target>/seed-*` (run once when
 //! the corpus was made; the committed corpus is this plus what campaigns found, minimised):
 //!
-//!     cargo run -p pab-fuzz-checks --example seeds
+//!     cargo run -p pab-fuzz-checks --example seeds [TARGET...]
+//!
+//! (only the named targets' seeds, when targets are named: `-- ble` writes the `ble` seeds alone).
 //!
 //! Images and network files are the examples' own (`pabctl compile` of `examples/*.toml`); the
 //! structured targets get a few pseudo-random byte strings (a fixed-seed generator), which their
-//! `Unstructured` readers turn into scripts and campaigns then grow.
+//! `Unstructured` readers turn into scripts and campaigns then grow. The `ble` target's seeds are
+//! chosen among a few thousand such strings: each is kept when its script reaches something no
+//! kept one reached (`pab_fuzz_checks::ble::features`: a reading, a claim held, a grid restart, a
+//! refused claim, the counter's wrap, ...), then the ones reaching the most up to 20.
 
+use std::collections::BTreeSet;
 use std::path::Path;
 
 use pab_fuzz_checks::TARGETS;
@@ -25,12 +31,21 @@ const NETWORKS: [&str; 6] = [
 fn main() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let corpus = root.join("fuzz/corpus");
+    let only: Vec<String> = std::env::args().skip(1).collect();
+    let wanted = |target: &str| only.is_empty() || only.iter().any(|name| name == target);
     let write = |target: &str, name: &str, bytes: &[u8]| {
+        if !wanted(target) {
+            return;
+        }
         let dir = corpus.join(target);
         std::fs::create_dir_all(&dir).expect("corpus directory");
         std::fs::write(dir.join(format!("seed-{name}")), bytes).expect("seed written");
     };
-    for name in NETWORKS {
+    let images = ["network", "image_raw", "image_fixed_crc"];
+    for name in NETWORKS
+        .into_iter()
+        .filter(|_| images.iter().any(|t| wanted(t)))
+    {
         let path = root.join("examples").join(format!("{name}.toml"));
         let text = std::fs::read_to_string(&path).expect("example readable");
         write("network", name, text.as_bytes());
@@ -58,4 +73,43 @@ fn main() {
             write(target.name, &format!("random-{i}"), &bytes);
         }
     }
+    if wanted("ble") {
+        ble_seeds(&write);
+    }
+}
+
+/// The `ble` seeds: scripts that reach something new, then the ones that reach the most.
+fn ble_seeds(write: &dyn Fn(&str, &str, &[u8])) {
+    let mut state: u64 = 0xB1E5_EED5_0000_0001;
+    let mut next = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    let mut reached = BTreeSet::new();
+    let mut kept: Vec<Vec<u8>> = Vec::new();
+    let mut others: Vec<(usize, Vec<u8>)> = Vec::new();
+    for i in 0..3_000 {
+        let len = [48usize, 96, 192, 384, 768, 1536][i % 6];
+        let bytes: Vec<u8> = (0..len).map(|_| next() as u8).collect();
+        let features = pab_fuzz_checks::ble::features(&bytes);
+        if features.is_subset(&reached) {
+            others.push((features.len(), bytes));
+        } else {
+            reached.extend(features);
+            kept.push(bytes);
+        }
+    }
+    others.sort_by_key(|(count, _)| std::cmp::Reverse(*count));
+    let room = 20usize.saturating_sub(kept.len());
+    kept.extend(others.into_iter().take(room).map(|(_, bytes)| bytes));
+    for (i, bytes) in kept.iter().enumerate() {
+        write("ble", &format!("script-{i:02}"), bytes);
+    }
+    println!(
+        "ble: {} seeds reaching {} features: {reached:?}",
+        kept.len(),
+        reached.len()
+    );
 }

@@ -11,6 +11,7 @@
 //! returns an error for bad input: bad input is what it feeds the code under test; only a broken
 //! property panics.
 
+pub mod ble;
 pub mod image;
 pub mod isotp_rx;
 pub mod isotp_tx;
@@ -64,6 +65,10 @@ pub const TARGETS: &[Target] = &[
     Target {
         name: "network",
         check: network::check,
+    },
+    Target {
+        name: "ble",
+        check: ble::check,
     },
 ];
 

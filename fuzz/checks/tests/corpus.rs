@@ -66,7 +66,8 @@ fn every_target_has_a_replay_test() {
             "protocol_decode",
             "protocol_encode",
             "node",
-            "network"
+            "network",
+            "ble"
         ]
     );
 }
@@ -109,4 +110,9 @@ fn node() {
 #[test]
 fn network() {
     replay("network");
+}
+
+#[test]
+fn ble() {
+    replay("ble");
 }
