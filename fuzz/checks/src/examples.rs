@@ -65,10 +65,7 @@ pub fn examples() -> &'static Examples {
         }
         topics.sort_unstable();
         topics.dedup();
-        Examples {
-            images,
-            topics,
-        }
+        Examples { images, topics }
     })
 }
 
