@@ -46,6 +46,7 @@ pub mod consumer;
 pub mod crc32;
 mod decay;
 pub mod decision;
+pub mod dynamics;
 pub mod filter;
 pub mod frame;
 pub mod image;

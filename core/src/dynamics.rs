@@ -1,0 +1,815 @@
+//! Competitive dynamics (Bergener and Steinhage): elementary behaviours selected by a dynamical
+//! system, integrated in fixed point at a fixed step on the board.
+//!
+//! The equations, as reconstructed in DESIGN.md ("Competitive dynamics: decisions"), time in
+//! units of the equations:
+//!
+//! ```text
+//! (1) τ dn_i/dt = α_i n_i − |α_i| n_i³ − Σ_{j≠i} γ_ij n_j² n_i + noise
+//! (2) α_i = 2 ρ_i I_i − 1
+//! (3) dρ_i/dt = (1 − ρ_i) I_i / τ_ρ2 + ρ_i (I_i − 1) / τ_ρ1
+//! (4) I_i = C_i · Π_j [ 1 + ½ A_ij (tanh(c m_j) − 1) ]
+//! (5) dm_i/dt = (1 − m_i) n_i² / τ_n + (1 + m_i)(n_i² − 1) / τ_i
+//! ```
+//!
+//! n_i is the activity of behaviour i (its gate opens near ±1), C_i its sensor context in [0, 1],
+//! ρ_i its refractory filter, m_i its memory of having been active; γ_ij pushes i off while j is
+//! active, A_ij = 1 when j must have been active before i can start.
+//!
+//! # Numbers
+//!
+//! - States (n, ρ, m) and contexts are Q2.29 in an `i32` ([`ONE`] = 2^29): n ∈ [−2, 2] fits, and
+//!   the resolution (1.9e-9) is far below the slow terms' increments (near 1e-7 per step at the
+//!   defaults). Every product is formed in an `i64` and rounded to nearest.
+//! - Parameters are integers, as a table image stores them ([`Params`]): times in µs, γ in Q8.8,
+//!   c in Q16.16, q in Q0.32. [`Dynamics::new`] turns each time constant into a rate dt/τ (Q0.32)
+//!   and each γ into γ·dt/τ, so that a step costs no division.
+//! - tanh(c·m) comes from a 177-entry table of tanh over [0, 11] (step 1/16) and a cubic Taylor
+//!   polynomial around the nearest entry, within 1e-8 everywhere; above 11 it is 1 (1 − tanh 11 =
+//!   5.6e-10). Why this accurate: the refractory filter amplifies an error ε of I into 20ε of ρ
+//!   (at τ_ρ2/τ_ρ1 = 20), which a coarse table turns into steps of delay.
+//!
+//! # Integration
+//!
+//! Explicit Euler–Maruyama: every derivative from the state at the start of the step, then all
+//! states updated and saturated (n ∈ [−2, 2], ρ ∈ [0, 1], m ∈ [−1, 1]). Noise: one xorshift32
+//! generator per group, four outputs per behaviour per step in declaration order,
+//! z = ((u1 + u2 + u3 + u4) / 2^32 − 2)·√3, and n_i gains q·√dt·z (dt in units). The same integers
+//! drive the board, the simulator and any reference, so runs replay exactly.
+//!
+//! Gates, with hysteresis: a gate opens when n_i² ≥ 0.5 and closes when n_i² < 0.4. If γ_ij and
+//! γ_ji both exceed 1/0.4 = 2.5, two gates are never open together (DESIGN.md gives the argument).
+//!
+//! # Cost
+//!
+//! A step with B behaviours, E declared exclusions and R required behaviours: R tanh evaluations
+//! (eleven 64-bit multiplications each), E multiply-adds, 4B xorshift outputs, one multiplication
+//! per presupposition bit, and about twenty 64-bit multiplications per behaviour. No division, no
+//! float, no allocation.
+
+use heapless::Vec;
+use serde::{Deserialize, Serialize};
+
+/// Behaviours per group, at most: the gate mask is a `u32`, A_i a `u32` mask.
+pub const MAX_BEHAVIOURS: usize = 32;
+
+/// Declared exclusions (non-zero γ_ij) per group, at most. 256 covers a group of 16 behaviours
+/// that all exclude each other (240), or 32 that each exclude 8 others; the run-time form costs
+/// 8 bytes each.
+pub const MAX_EXCLUSIONS: usize = 256;
+
+/// 1.0 in Q2.29, the format of the states and the contexts.
+pub const ONE: i32 = 1 << 29;
+
+/// γ = 1.0 in [`Exclusion::gamma`]'s Q8.8.
+pub const GAMMA_ONE: u16 = 1 << 8;
+
+/// c = 1.0 in [`Params::c`]'s Q16.16.
+pub const C_ONE: u32 = 1 << 16;
+
+/// One behaviour's own parameters.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Behaviour {
+    /// τ_i, how long the memory m_i of having been active lasts, in µs (default 50 units).
+    pub memory_us: u32,
+    /// A_i: bit j set when behaviour j must have been active before this one can start.
+    pub requires: u32,
+}
+
+/// One declared exclusion γ_ij: `behaviour` (i) is pushed off while `by` (j) is active.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Exclusion {
+    /// i, the behaviour pushed off.
+    pub behaviour: u8,
+    /// j, the behaviour whose activity pushes it.
+    pub by: u8,
+    /// γ_ij in Q8.8 ([`GAMMA_ONE`] = 1.0; the default of a declared exclusion is 3.0).
+    pub gamma: u16,
+}
+
+/// The parameters of one group, as a table image stores them: integers only. Undeclared pairs
+/// have γ_ij = 0.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Params {
+    /// dt, the integration step, in µs (default 1 ms).
+    pub step_us: u32,
+    /// The time unit of the equations, in µs (default 10 ms). Only the noise depends on it
+    /// (q is per √unit); every time constant below is already in µs.
+    pub unit_us: u32,
+    /// q, the noise amplitude per √unit, in Q0.32 (default 0.001: 4 294 967).
+    pub noise: u32,
+    /// The noise generator's seed; 0 is refused (xorshift32 stays at 0).
+    pub seed: u32,
+    /// c, the steepness of the presupposition's tanh, in Q16.16 (default 10.0).
+    pub c: u32,
+    /// τ, the time scale of the activities, in µs (default 1 unit).
+    pub tau_us: u32,
+    /// τ_ρ1, how fast the refractory filter falls when the input goes, in µs (default 1 unit).
+    pub tau_rho_fast_us: u32,
+    /// τ_ρ2, how slowly it rises when the input comes, in µs (default 20 units).
+    pub tau_rho_slow_us: u32,
+    /// τ_n, how fast the memory follows an activation, in µs (default 1 unit).
+    pub tau_n_us: u32,
+    /// The behaviours, in declaration order (the order of the noise and of the gate bits).
+    pub behaviours: Vec<Behaviour, MAX_BEHAVIOURS>,
+    /// The non-zero γ_ij; at most one entry per ordered pair.
+    pub exclusions: Vec<Exclusion, MAX_EXCLUSIONS>,
+}
+
+/// A time parameter of [`Params`], to say which one is wrong.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Time {
+    /// dt.
+    Step,
+    /// The unit.
+    Unit,
+    /// τ.
+    Tau,
+    /// τ_ρ1.
+    TauRhoFast,
+    /// τ_ρ2.
+    TauRhoSlow,
+    /// τ_n.
+    TauN,
+    /// τ_i of this behaviour.
+    Memory(u8),
+}
+
+/// Why a group's parameters are refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ParamsError {
+    /// More than [`MAX_BEHAVIOURS`] behaviours.
+    TooManyBehaviours,
+    /// More than [`MAX_EXCLUSIONS`] exclusions.
+    TooManyExclusions,
+    /// A time (a time constant, the step or the unit) of 0 µs.
+    NonPositiveTime(Time),
+    /// dt > τ_min / 4, τ_min the smallest of τ, τ_ρ1, τ_ρ2, τ_n and every τ_i: Euler's step would
+    /// be too coarse for the fastest time scale.
+    StepAboveQuarter,
+    /// dt · (2 + Σ_j γ_ij) / τ > 1 for this behaviour: the explicit step of (1) could overshoot.
+    StepUnstable {
+        /// i, the behaviour with the largest Σ_j γ_ij that fails.
+        behaviour: u8,
+    },
+    /// q = 0: n = 0 is an exact fixed point, a decayed behaviour would never start again.
+    ZeroNoise,
+    /// Seed 0: xorshift32 would output only zeros.
+    ZeroSeed,
+    /// An exclusion names a behaviour beyond the group.
+    ExclusionOutOfRange {
+        /// The exclusion's position in [`Params::exclusions`].
+        exclusion: u16,
+    },
+    /// A behaviour requires a behaviour beyond the group (a bit of A_i at or above the count).
+    RequirementOutOfRange {
+        /// i.
+        behaviour: u8,
+    },
+    /// γ_ii ≠ 0: a behaviour excluding itself.
+    SelfExclusion {
+        /// i.
+        behaviour: u8,
+    },
+    /// Two entries for the same γ_ij: the sparse list must say one value per pair.
+    DuplicateExclusion {
+        /// i.
+        behaviour: u8,
+        /// j.
+        by: u8,
+    },
+}
+
+impl core::fmt::Display for ParamsError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            ParamsError::TooManyBehaviours => {
+                write!(
+                    f,
+                    "more than {MAX_BEHAVIOURS} behaviours in a dynamics group"
+                )
+            }
+            ParamsError::TooManyExclusions => {
+                write!(
+                    f,
+                    "more than {MAX_EXCLUSIONS} exclusions in a dynamics group"
+                )
+            }
+            ParamsError::NonPositiveTime(time) => {
+                f.write_str("dynamics time of 0 µs: ")?;
+                match time {
+                    Time::Step => f.write_str("step"),
+                    Time::Unit => f.write_str("unit"),
+                    Time::Tau => f.write_str("tau"),
+                    Time::TauRhoFast => f.write_str("tau_rho_fast"),
+                    Time::TauRhoSlow => f.write_str("tau_rho_slow"),
+                    Time::TauN => f.write_str("tau_n"),
+                    Time::Memory(i) => write!(f, "memory of behaviour {i}"),
+                }
+            }
+            ParamsError::StepAboveQuarter => {
+                f.write_str("dynamics step above a quarter of the fastest time constant")
+            }
+            ParamsError::StepUnstable { behaviour } => write!(
+                f,
+                "dynamics step · (2 + Σ γ) / tau above 1 for behaviour {behaviour}"
+            ),
+            ParamsError::ZeroNoise => f.write_str("dynamics noise of 0"),
+            ParamsError::ZeroSeed => f.write_str("dynamics seed of 0"),
+            ParamsError::ExclusionOutOfRange { exclusion } => {
+                write!(
+                    f,
+                    "dynamics exclusion {exclusion} names no behaviour of the group"
+                )
+            }
+            ParamsError::RequirementOutOfRange { behaviour } => write!(
+                f,
+                "behaviour {behaviour} requires a behaviour beyond the group"
+            ),
+            ParamsError::SelfExclusion { behaviour } => {
+                write!(f, "behaviour {behaviour} excludes itself (γ_ii ≠ 0)")
+            }
+            ParamsError::DuplicateExclusion { behaviour, by } => {
+                write!(f, "γ of behaviour {behaviour} by {by} given twice")
+            }
+        }
+    }
+}
+
+impl Default for Params {
+    fn default() -> Self {
+        Params::new()
+    }
+}
+
+impl Params {
+    /// The defaults of DESIGN.md with no behaviour yet: dt = 1 ms, unit = 10 ms, q = 0.001,
+    /// seed 1, c = 10, τ = τ_ρ1 = τ_n = 1 unit, τ_ρ2 = 20 units.
+    pub const fn new() -> Params {
+        Params {
+            step_us: 1_000,
+            unit_us: 10_000,
+            // round(0.001 · 2^32)
+            noise: 4_294_967,
+            seed: 1,
+            c: 10 * C_ONE,
+            tau_us: 10_000,
+            tau_rho_fast_us: 10_000,
+            tau_rho_slow_us: 200_000,
+            tau_n_us: 10_000,
+            behaviours: Vec::new(),
+            exclusions: Vec::new(),
+        }
+    }
+
+    /// Appends a behaviour with memory τ_i = `memory_us` and no requirement; returns its index.
+    /// Fails when the group is full.
+    pub fn add_behaviour(&mut self, memory_us: u32) -> Result<u8, ParamsError> {
+        let index = self.behaviours.len() as u8;
+        self.behaviours
+            .push(Behaviour {
+                memory_us,
+                requires: 0,
+            })
+            .map_err(|_| ParamsError::TooManyBehaviours)?;
+        Ok(index)
+    }
+
+    /// Declares γ_ij = `gamma` (Q8.8): `behaviour` is pushed off while `by` is active. Fails when
+    /// the list is full; everything else is left to [`Params::validate`].
+    pub fn exclude(&mut self, behaviour: u8, by: u8, gamma: u16) -> Result<(), ParamsError> {
+        self.exclusions
+            .push(Exclusion {
+                behaviour,
+                by,
+                gamma,
+            })
+            .map_err(|_| ParamsError::TooManyExclusions)
+    }
+
+    /// Sets A_ij = 1: `behaviour` needs `prerequisite` to have been active. Fails on an index
+    /// beyond the group.
+    pub fn require(&mut self, behaviour: u8, prerequisite: u8) -> Result<(), ParamsError> {
+        let out_of_range = ParamsError::RequirementOutOfRange { behaviour };
+        if usize::from(prerequisite) >= self.behaviours.len() {
+            return Err(out_of_range);
+        }
+        let entry = self
+            .behaviours
+            .get_mut(usize::from(behaviour))
+            .ok_or(out_of_range)?;
+        entry.requires |= 1 << prerequisite;
+        Ok(())
+    }
+
+    /// Checks what DESIGN.md calls invalid, in this order: a time of 0 (the step, the unit, then
+    /// τ, τ_ρ1, τ_ρ2, τ_n and each τ_i), q = 0, seed 0, a requirement or an exclusion naming a
+    /// behaviour beyond the group, γ_ii ≠ 0, a pair given twice, dt > τ_min / 4, and
+    /// dt · (2 + Σ_j γ_ij) / τ > 1. (More than [`MAX_BEHAVIOURS`] behaviours or
+    /// [`MAX_EXCLUSIONS`] exclusions cannot be held: [`Params::add_behaviour`],
+    /// [`Params::exclude`] and decoding refuse them.)
+    ///
+    /// Costs one pass over the behaviours and two over the exclusions; no division.
+    pub fn validate(&self) -> Result<(), ParamsError> {
+        let times = [
+            (self.step_us, Time::Step),
+            (self.unit_us, Time::Unit),
+            (self.tau_us, Time::Tau),
+            (self.tau_rho_fast_us, Time::TauRhoFast),
+            (self.tau_rho_slow_us, Time::TauRhoSlow),
+            (self.tau_n_us, Time::TauN),
+        ];
+        let memories = self
+            .behaviours
+            .iter()
+            .enumerate()
+            .map(|(i, b)| (b.memory_us, Time::Memory(i as u8)));
+        let mut fastest = u32::MAX;
+        for (micros, time) in times.into_iter().chain(memories) {
+            if micros == 0 {
+                return Err(ParamsError::NonPositiveTime(time));
+            }
+            if !matches!(time, Time::Step | Time::Unit) {
+                fastest = fastest.min(micros);
+            }
+        }
+        if self.noise == 0 {
+            return Err(ParamsError::ZeroNoise);
+        }
+        if self.seed == 0 {
+            return Err(ParamsError::ZeroSeed);
+        }
+        let count = self.behaviours.len();
+        // Bits 0..count: the behaviours of the group (count ≤ 32).
+        let members = u32::MAX.checked_shr(32 - count as u32).unwrap_or(0);
+        for (i, b) in self.behaviours.iter().enumerate() {
+            if b.requires & !members != 0 {
+                return Err(ParamsError::RequirementOutOfRange { behaviour: i as u8 });
+            }
+        }
+        // Per behaviour i: the j already declared, and Σ_j γ_ij (Q8.8; at most 31 · 2^16).
+        let mut declared = [0u32; MAX_BEHAVIOURS];
+        let mut gamma_sum = [0u32; MAX_BEHAVIOURS];
+        for (k, e) in self.exclusions.iter().enumerate() {
+            let (i, j) = (usize::from(e.behaviour), usize::from(e.by));
+            let (Some(seen), Some(sum)) = (declared.get_mut(i), gamma_sum.get_mut(i)) else {
+                return Err(ParamsError::ExclusionOutOfRange {
+                    exclusion: k as u16,
+                });
+            };
+            if i >= count || j >= count {
+                return Err(ParamsError::ExclusionOutOfRange {
+                    exclusion: k as u16,
+                });
+            }
+            if i == j && e.gamma != 0 {
+                return Err(ParamsError::SelfExclusion {
+                    behaviour: e.behaviour,
+                });
+            }
+            if *seen & (1 << j) != 0 {
+                return Err(ParamsError::DuplicateExclusion {
+                    behaviour: e.behaviour,
+                    by: e.by,
+                });
+            }
+            *seen |= 1 << j;
+            *sum = sum.saturating_add(u32::from(e.gamma));
+        }
+        // dt > τ_min / 4, in integers: 4 dt > τ_min.
+        if 4 * u64::from(self.step_us) > u64::from(fastest) {
+            return Err(ParamsError::StepAboveQuarter);
+        }
+        // dt (2 + Σγ) / τ > 1 with Σγ in Q8.8: dt (512 + Σγ) > 256 τ. At most 2^32 · 2^22.
+        let heaviest = gamma_sum
+            .iter()
+            .enumerate()
+            .take(count)
+            .max_by_key(|&(i, &sum)| (sum, core::cmp::Reverse(i)));
+        let (behaviour, sum) = heaviest.map_or((0, 0), |(i, &sum)| (i as u8, sum));
+        if u64::from(self.step_us) * (512 + u64::from(sum)) > 256 * u64::from(self.tau_us) {
+            return Err(ParamsError::StepUnstable { behaviour });
+        }
+        Ok(())
+    }
+}
+
+/// The state of one behaviour, each in Q2.29 ([`ONE`] = 1.0).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct State {
+    /// n_i ∈ [−2, 2], the activity.
+    pub n: i32,
+    /// ρ_i ∈ [0, 1], the refractory filter.
+    pub rho: i32,
+    /// m_i ∈ [−1, 1], the memory of having been active.
+    pub m: i32,
+}
+
+impl State {
+    /// n = 0, ρ = 0, m = −1: never active, no input yet.
+    pub const INITIAL: State = State {
+        n: 0,
+        rho: 0,
+        m: -ONE,
+    };
+}
+
+/// γ_ij · dt / τ in Q0.32: the run-time form of an [`Exclusion`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+struct Push {
+    behaviour: u8,
+    by: u8,
+    rate: u32,
+}
+
+/// A running group: its constants, precomputed from valid [`Params`], and its state.
+///
+/// Memory: about 2.7 KiB (2 KiB of it the exclusions' run-time form). Built once per table by
+/// [`Dynamics::new`]; stepped by [`Dynamics::step`].
+#[derive(Clone, Debug)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Dynamics {
+    count: u8,
+    /// dt / τ, dt / τ_ρ1, dt / τ_ρ2, dt / τ_n in Q0.32; each at most 1/4 (validated).
+    rate_tau: u32,
+    rate_rho_fast: u32,
+    rate_rho_slow: u32,
+    rate_n: u32,
+    /// dt / τ_i per behaviour, Q0.32.
+    rate_memory: [u32; MAX_BEHAVIOURS],
+    /// A_i per behaviour.
+    requires: [u32; MAX_BEHAVIOURS],
+    /// The behaviours some behaviour requires: only their tanh is needed.
+    required: u32,
+    /// c in Q16.16.
+    c: u32,
+    /// q · √(dt / unit) in Q0.32, saturated (a larger noise would swamp n anyway).
+    noise_gain: u32,
+    pushes: Vec<Push, MAX_EXCLUSIONS>,
+    rng: u32,
+    n: [i32; MAX_BEHAVIOURS],
+    rho: [i32; MAX_BEHAVIOURS],
+    m: [i32; MAX_BEHAVIOURS],
+    gates: u32,
+}
+
+/// 1.0 in Q1.31, the format of tanh and of the presupposition factors.
+const ONE_Q31: i64 = 1 << 31;
+/// √3 in Q2.29, to scale the noise sum: (D / 2^32) · √3 in Q2.29 is (D · SQRT3) >> 32.
+const SQRT3: i64 = (1.732_050_807_568_877_2 * ONE as f64 + 0.5) as i64;
+/// 1/3 in Q1.31.
+const THIRD_Q31: i64 = ((1i64 << 31) + 1) / 3;
+/// A gate opens when n² ≥ 0.5: n · n (Q4.58, exact) ≥ 2^57.
+const OPEN_Q58: i64 = 1 << 57;
+/// A gate closes when n² < 0.4: n · n (Q4.58, exact) < 0.4 · 2^58 = 2^59 / 5, which is not an
+/// integer; n · n < ⌈2^59 / 5⌉ is the same test.
+const CLOSE_Q58: i64 = ((1i64 << 59) + 4) / 5;
+
+/// log2 of the table's entries per unit of x.
+const TANH_SHIFT: u32 = 4;
+/// Above this x, tanh x is 1 within 5.6e-10 (a third of a Q1.31 unit).
+const TANH_LIMIT: u64 = 11;
+const TANH_LEN: usize = (TANH_LIMIT as usize) << TANH_SHIFT;
+
+/// e^x for −22 ≤ x ≤ 0 in `const` context, relative error about 1e-13: (e^(x/1024))^1024 with a
+/// Taylor series for the small argument.
+const fn exp(x: f64) -> f64 {
+    let y = x / 1024.0;
+    let mut term = 1.0;
+    let mut sum = 1.0;
+    let mut k = 1;
+    while k < 12 {
+        term = term * y / k as f64;
+        sum += term;
+        k += 1;
+    }
+    let mut squarings = 0;
+    while squarings < 10 {
+        sum *= sum;
+        squarings += 1;
+    }
+    sum
+}
+
+/// tanh(k / 16) in Q1.31, k = 0..=176, computed at compile time so that it cannot drift from the
+/// formula (`tests::table_matches_std_tanh`).
+// Evaluated at compile time: an index out of bounds would fail the build, not panic.
+#[allow(clippy::indexing_slicing)]
+const TANH: [u32; TANH_LEN + 1] = {
+    let mut table = [0; TANH_LEN + 1];
+    let mut k = 0;
+    while k <= TANH_LEN {
+        let e = exp(-2.0 * k as f64 / (1 << TANH_SHIFT) as f64);
+        table[k] = ((1.0 - e) / (1.0 + e) * ONE_Q31 as f64 + 0.5) as u32;
+        k += 1;
+    }
+    table
+};
+
+/// (a · b) / 2^shift rounded to nearest, for 1 ≤ shift ≤ 62 and |a · b| < 2^62: every caller
+/// states why its operands are that small. Plain arithmetic on purpose: the tests, built with
+/// overflow checks, would stop on a bound that does not hold.
+#[inline(always)]
+const fn mul_round(a: i64, b: i64, shift: u32) -> i64 {
+    (a * b + ((1 << shift) >> 1)) >> shift
+}
+
+/// tanh(x) for x = c · m, c in Q16.16 and m in Q2.29 (|m| ≤ 1), in Q1.31; within 1e-8 of the
+/// exact value (`tests::tanh_is_within_1e_8`). A table look-up and eleven multiplications.
+fn tanh(c: u32, m: i32) -> i64 {
+    // x in Q17.45: |c · m| < 2^32 · 2^29.
+    let x = i64::from(c) * i64::from(m);
+    let ax = x.unsigned_abs();
+    let magnitude = if ax >= TANH_LIMIT << 45 {
+        ONE_Q31
+    } else {
+        // The nearest entry k/16 and the rest r = |x| − k/16, |r| ≤ 1/32, in Q1.31.
+        let k = (ax + (1 << 40)) >> 41;
+        let r = (ax as i64 - (k << 41) as i64 + (1 << 13)) >> 14;
+        let t = TANH.get(k as usize).map_or(ONE_Q31, |&t| i64::from(t));
+        // Taylor around k/16 to the fourth order (the fifth-order term is below 4e-9 for
+        // |r| ≤ 1/32; the third order alone would leave 1.6e-7): tanh' = p = 1 − t²,
+        // tanh'' / 2 = −t p, tanh''' / 6 = p (3t² − 1) / 3, tanh'''' / 24 = t p (2 − 3t²) / 3.
+        // Every factor is at most 2 in Q1.31 and |r| ≤ 2^26: no product reaches 2^62.
+        let t2 = mul_round(t, t, 31);
+        let p = ONE_Q31 - t2;
+        let tp = mul_round(t, p, 31);
+        let c2 = -tp;
+        let c3 = mul_round(mul_round(p, 3 * t2 - ONE_Q31, 31), THIRD_Q31, 31);
+        let c4 = mul_round(mul_round(tp, 2 * ONE_Q31 - 3 * t2, 31), THIRD_Q31, 31);
+        let cubic = c3 + mul_round(r, c4, 31);
+        let inner = c2 + mul_round(r, cubic, 31);
+        let slope = p + mul_round(r, inner, 31);
+        (t + mul_round(r, slope, 31)).clamp(0, ONE_Q31)
+    };
+    if x < 0 { -magnitude } else { magnitude }
+}
+
+/// round(dt · 2^32 / τ): dt / τ in Q0.32, for τ > 0 and dt ≤ τ / 4 (so at most 2^30).
+fn rate(step_us: u32, tau_us: u32) -> u32 {
+    let scaled = (u64::from(step_us) << 32) + u64::from(tau_us / 2);
+    scaled
+        .checked_div(u64::from(tau_us))
+        .map_or(0, |r| u32::try_from(r).unwrap_or(u32::MAX))
+}
+
+/// One xorshift32 step (x ^= x << 13; x ^= x >> 17; x ^= x << 5): the new state is the output.
+#[inline(always)]
+const fn xorshift32(mut x: u32) -> u32 {
+    x ^= x << 13;
+    x ^= x >> 17;
+    x ^= x << 5;
+    x
+}
+
+impl Dynamics {
+    /// The group of `params` in its initial state (n = 0, ρ = 0, m = −1, all gates closed), or why
+    /// `params` are invalid ([`Params::validate`]). Costs the validation plus one 64-bit division
+    /// per time constant, one 128-bit division per exclusion and a 128-bit square root: done once
+    /// per table, so that [`Dynamics::step`] needs none.
+    pub fn new(params: &Params) -> Result<Dynamics, ParamsError> {
+        params.validate()?;
+        let dt = params.step_us;
+        let mut rate_memory = [0; MAX_BEHAVIOURS];
+        let mut requires = [0; MAX_BEHAVIOURS];
+        let mut required = 0;
+        for ((b, rate_i), requires_i) in params
+            .behaviours
+            .iter()
+            .zip(rate_memory.iter_mut())
+            .zip(requires.iter_mut())
+        {
+            *rate_i = rate(dt, b.memory_us);
+            *requires_i = b.requires;
+            required |= b.requires;
+        }
+        let mut pushes = Vec::new();
+        for e in params.exclusions.iter().filter(|e| e.gamma != 0) {
+            // γ dt / τ in Q0.32: γ (Q8.8) · dt · 2^32 / (256 τ), rounded; below 1 (validated), and
+            // the numerator is below 2^16 · 2^32 · 2^32.
+            let denominator = 256 * u128::from(params.tau_us);
+            let numerator = ((u128::from(e.gamma) * u128::from(dt)) << 32) + denominator / 2;
+            let rate = numerator
+                .checked_div(denominator)
+                .map_or(u32::MAX, |r| u32::try_from(r).unwrap_or(u32::MAX));
+            // At most one entry per exclusion, and `params.exclusions` has the same capacity.
+            let _ = pushes.push(Push {
+                behaviour: e.behaviour,
+                by: e.by,
+                rate,
+            });
+        }
+        // √(dt / unit) in Q0.47 from dt · 2^94 / unit (below 2^126), then q · √(dt/unit) in Q0.32.
+        let root = ((u128::from(dt) << 94)
+            .checked_div(u128::from(params.unit_us))
+            .unwrap_or(0))
+        .isqrt();
+        let gain = (u128::from(params.noise) * root + (1 << 46)) >> 47;
+        Ok(Dynamics {
+            count: params.behaviours.len() as u8,
+            rate_tau: rate(dt, params.tau_us),
+            rate_rho_fast: rate(dt, params.tau_rho_fast_us),
+            rate_rho_slow: rate(dt, params.tau_rho_slow_us),
+            rate_n: rate(dt, params.tau_n_us),
+            rate_memory,
+            requires,
+            required,
+            c: params.c,
+            noise_gain: u32::try_from(gain).unwrap_or(u32::MAX),
+            pushes,
+            rng: params.seed,
+            n: [0; MAX_BEHAVIOURS],
+            rho: [0; MAX_BEHAVIOURS],
+            m: [-ONE; MAX_BEHAVIOURS],
+            gates: 0,
+        })
+    }
+
+    /// The number of behaviours.
+    pub const fn len(&self) -> usize {
+        self.count as usize
+    }
+
+    /// Whether the group has no behaviour.
+    pub const fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    /// The gates: bit i set while behaviour i's gate is open.
+    pub const fn gates(&self) -> u32 {
+        self.gates
+    }
+
+    /// Behaviour i's state, or `None` beyond the group.
+    pub fn state(&self, i: usize) -> Option<State> {
+        if i >= self.len() {
+            return None;
+        }
+        match (self.n.get(i), self.rho.get(i), self.m.get(i)) {
+            (Some(&n), Some(&rho), Some(&m)) => Some(State { n, rho, m }),
+            _ => None,
+        }
+    }
+
+    /// The noise generator's state (the last xorshift32 output, or the seed before any step).
+    pub const fn rng(&self) -> u32 {
+        self.rng
+    }
+
+    /// One Euler–Maruyama step of dt with the contexts C_i (Q2.29, entry i for behaviour i;
+    /// values are clamped into [0, 1], a missing entry reads 0, extra entries are ignored).
+    /// Returns the gates after the step.
+    ///
+    /// Costs no division and no allocation; see the module's documentation for the operation
+    /// count. Never fails.
+    pub fn step(&mut self, contexts: &[i32]) -> u32 {
+        let count = self.len();
+        // (4)'s factors ½(1 + tanh(c m_j)) in Q1.31, from the state at the start of the step;
+        // 1.0 for the behaviours nobody requires (never read).
+        let mut factor = [ONE_Q31; MAX_BEHAVIOURS];
+        // n_j² in Q2.29 (at most 4 · 2^29).
+        let mut square = [0i64; MAX_BEHAVIOURS];
+        for (j, ((f, s), &n)) in factor
+            .iter_mut()
+            .zip(square.iter_mut())
+            .zip(self.n.iter())
+            .enumerate()
+            .take(count)
+        {
+            if self.required & (1 << j) != 0 {
+                *f = (ONE_Q31 + tanh(self.c, self.m.get(j).copied().unwrap_or(-ONE)) + 1) >> 1;
+            }
+            *s = mul_round(i64::from(n), i64::from(n), 29);
+        }
+        // (1)'s Σ_j γ_ij n_j² · dt / τ in Q2.61, unsigned: each term is below 2^32 · 2^31, and
+        // their sum below 2^63 because Σ_j γ_ij dt / τ < 1 (validated).
+        let mut pressure = [0u64; MAX_BEHAVIOURS];
+        for push in &self.pushes {
+            let n2 = square.get(usize::from(push.by)).copied().unwrap_or(0);
+            if let Some(p) = pressure.get_mut(usize::from(push.behaviour)) {
+                *p += u64::from(push.rate) * n2 as u64;
+            }
+        }
+        let mut gates = self.gates;
+        let lanes = self
+            .n
+            .iter_mut()
+            .zip(self.rho.iter_mut())
+            .zip(self.m.iter_mut())
+            .zip(self.rate_memory.iter().zip(self.requires.iter()))
+            .zip(square.iter().zip(pressure.iter()))
+            .enumerate()
+            .take(count);
+        for (i, ((((n, rho), m), (&rate_memory, &requires)), (&n2, &pressure))) in lanes {
+            // The noise: four outputs, in declaration order, whatever the behaviour's state.
+            let mut sum = 0u64;
+            for _ in 0..4 {
+                self.rng = xorshift32(self.rng);
+                sum += u64::from(self.rng);
+            }
+            // z in Q2.29: |sum − 2^33| ≤ 2^33 and SQRT3 < 2^30, the product below 2^63.
+            let z = mul_round(sum as i64 - (1 << 33), SQRT3, 32);
+            // (4): I_i = C_i · Π over the required j of the factors; stays in [0, 1].
+            let context = contexts.get(i).map_or(0, |&c| c.clamp(0, ONE));
+            let mut input = i64::from(context);
+            let mut bits = requires;
+            while bits != 0 {
+                let j = bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                let f = factor.get(j).copied().unwrap_or(ONE_Q31);
+                input = mul_round(input, f, 31);
+            }
+            let (n0, rho0, m0) = (i64::from(*n), i64::from(*rho), i64::from(*m));
+            // (2): α = 2ρI − 1 ∈ [−1, 1].
+            let alpha = mul_round(rho0, input, 28) - i64::from(ONE);
+            // (1): |αn| ≤ 2, |α| n³ ≤ 8 (Q2.29 below 2^33); times dt/τ ≤ 2^30 stays below 2^63.
+            let cube = mul_round(n2, n0, 29);
+            let drift = mul_round(alpha, n0, 29) - mul_round(alpha.abs(), cube, 29);
+            // Σ γ n_j² dt/τ ≤ 4 in Q2.29 (below 2^32), times |n| ≤ 2^30.
+            let push = ((pressure + (1 << 31)) >> 32) as i64;
+            let dn = mul_round(drift, i64::from(self.rate_tau), 32) - mul_round(push, n0, 29)
+                + mul_round(i64::from(self.noise_gain), z, 32);
+            // (3): (1 − ρ) I and ρ (I − 1) are at most 1; times rates ≤ 2^30.
+            let rise = mul_round(i64::from(ONE) - rho0, input, 29);
+            let fall = mul_round(rho0, input - i64::from(ONE), 29);
+            let drho = (rise * i64::from(self.rate_rho_slow)
+                + fall * i64::from(self.rate_rho_fast)
+                + (1 << 31))
+                >> 32;
+            // (5): (1 − m) n² ≤ 8 and |(1 + m)(n² − 1)| ≤ 6; times rates ≤ 2^30, sum below 2^63.
+            let gain = mul_round(i64::from(ONE) - m0, n2, 29);
+            let loss = mul_round(i64::from(ONE) + m0, n2 - i64::from(ONE), 29);
+            let dm =
+                (gain * i64::from(self.rate_n) + loss * i64::from(rate_memory) + (1 << 31)) >> 32;
+            let two = 2 * i64::from(ONE);
+            // Every value is clamped into the range of an i32 before the cast.
+            *n = (n0 + dn).clamp(-two, two) as i32;
+            *rho = (rho0 + drho).clamp(0, i64::from(ONE)) as i32;
+            *m = (m0 + dm).clamp(-i64::from(ONE), i64::from(ONE)) as i32;
+            // The gate, with hysteresis, from the new n: n · n exactly, in Q4.58.
+            let q58 = i64::from(*n) * i64::from(*n);
+            if q58 >= OPEN_Q58 {
+                gates |= 1 << i;
+            } else if q58 < CLOSE_Q58 {
+                gates &= !(1 << i);
+            }
+        }
+        self.gates = gates;
+        gates
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn table_matches_std_tanh() {
+        for (k, &t) in TANH.iter().enumerate() {
+            let exact = (k as f64 / 16.0).tanh() * ONE_Q31 as f64;
+            assert!(
+                (f64::from(t) - exact).abs() <= 0.51,
+                "k {k}: {t} vs {exact}"
+            );
+        }
+    }
+
+    #[test]
+    fn tanh_is_within_1e_8() {
+        // Every m of a dense sweep, for c = 1, 10 (the default), 10.37 and 100 (saturation).
+        let mut worst: f64 = 0.0;
+        for c in [C_ONE, 10 * C_ONE, 679_608, 100 * C_ONE] {
+            for k in -200_000..=200_000 {
+                let m = (i64::from(ONE) * k / 200_000) as i32;
+                let x = f64::from(c) / f64::from(C_ONE) * f64::from(m) / f64::from(ONE);
+                let got = tanh(c, m) as f64 / ONE_Q31 as f64;
+                worst = worst.max((got - x.tanh()).abs());
+            }
+        }
+        assert!(worst < 1e-8, "tanh off by {worst:e}");
+    }
+
+    #[test]
+    fn gate_thresholds_are_exact() {
+        // 0.5 · 2^58 and the smallest integer at or above 0.4 · 2^58 = 2^59 / 5, in exact integers.
+        assert_eq!(2 * i128::from(OPEN_Q58), 1 << 58);
+        assert!(5 * i128::from(CLOSE_Q58) >= 1 << 59);
+        assert!(5 * i128::from(CLOSE_Q58 - 1) < 1 << 59);
+    }
+
+    #[test]
+    fn noise_gain_is_q_sqrt_dt() {
+        let mut p = Params::new();
+        p.add_behaviour(500_000).unwrap();
+        let d = Dynamics::new(&p).unwrap();
+        let exact = 0.001 * 0.1f64.sqrt() * 2f64.powi(32);
+        assert!((f64::from(d.noise_gain) - exact).abs() <= 1.0);
+    }
+}
