@@ -20,14 +20,22 @@
 //!
 //! - States (n, ρ, m) and contexts are Q2.29 in an `i32` ([`ONE`] = 2^29): n ∈ [−2, 2] fits, and
 //!   the resolution (1.9e-9) is far below the slow terms' increments (near 1e-7 per step at the
-//!   defaults). Every product is formed in an `i64` and rounded to nearest.
+//!   defaults). Every product is formed in an `i64` and rounded to nearest; wherever both
+//!   operands fit 32 bits they are kept there (one SMULL or UMULL on a Cortex-M4).
 //! - Parameters are integers, as a table image stores them ([`Params`]): times in µs, γ in Q8.8,
 //!   c in Q16.16, q in Q0.32. [`Dynamics::new`] turns each time constant into a rate dt/τ (Q0.32)
 //!   and each γ into γ·dt/τ, so that a step costs no division.
-//! - tanh(c·m) comes from a 177-entry table of tanh over [0, 11] (step 1/16) and a cubic Taylor
-//!   polynomial around the nearest entry, within 1e-8 everywhere; above 11 it is 1 (1 − tanh 11 =
-//!   5.6e-10). Why this accurate: the refractory filter amplifies an error ε of I into 20ε of ρ
-//!   (at τ_ρ2/τ_ρ1 = 20), which a coarse table turns into steps of delay.
+//! - tanh(c·m) comes from a 177-entry table of tanh over [0, 11] (step 1/16) and a fourth-order
+//!   Taylor polynomial around the nearest entry, within 5e-9 everywhere; above 11 it is 1
+//!   (1 − tanh 11 = 5.6e-10). Why this accurate: the refractory filter amplifies an error ε of I
+//!   into 20ε of ρ (at τ_ρ2/τ_ρ1 = 20), which a coarse table turns into steps of delay.
+//!
+//! Against an f64 integration of the same equations fed the same noise (core/tests/dynamics.rs),
+//! the states stay within about 1e-5 in most scenarios and the gates switch at the same steps.
+//! The error peaks while an activity grows out of the noise: n is then near 1e-3, its Q2.29
+//! rounding (1.9e-9 a step) is a relative error near 1e-6 a step, and the slow growth (α just
+//! above 0) keeps it there for many steps before amplifying it with n; where two behaviours race
+//! out of the noise (the door after recognising) the difference reaches 1e-3.
 //!
 //! # Integration
 //!
@@ -43,9 +51,13 @@
 //! # Cost
 //!
 //! A step with B behaviours, E declared exclusions and R required behaviours: R tanh evaluations
-//! (eleven 64-bit multiplications each), E multiply-adds, 4B xorshift outputs, one multiplication
-//! per presupposition bit, and about twenty 64-bit multiplications per behaviour. No division, no
-//! float, no allocation.
+//! (ten 32-bit multiplications each), E multiply-adds, 4B xorshift outputs, one multiplication
+//! per presupposition bit, and about fifteen multiplications per behaviour, most of them 32-bit.
+//! No division, no float, no allocation. Measured on a Cortex-M4 (scripts/cortex-m4/
+//! dynamics-cost.sh, the boards' `firmware` profile): about 1 700 instructions for 4 behaviours,
+//! 5 900 for 16 and 11 500 for 32 with one presupposition per pair, 18 300 for 32 where every
+//! behaviour requires all those before it; 1.0 % to 10.8 % of a 170 MHz core at 1 kHz, counting
+//! one cycle per instruction. The step's code is about 1.4 KiB, the tanh table 708 bytes.
 
 use heapless::Vec;
 use serde::{Deserialize, Serialize};
@@ -462,10 +474,10 @@ pub struct Dynamics {
 
 /// 1.0 in Q1.31, the format of tanh and of the presupposition factors.
 const ONE_Q31: i64 = 1 << 31;
-/// √3 in Q2.29, to scale the noise sum: (D / 2^32) · √3 in Q2.29 is (D · SQRT3) >> 32.
-const SQRT3: i64 = (1.732_050_807_568_877_2 * ONE as f64 + 0.5) as i64;
-/// 1/3 in Q1.31.
-const THIRD_Q31: i64 = ((1i64 << 31) + 1) / 3;
+/// √3 in Q2.29, to scale the noise sum: (D / 2^32) · √3 in Q2.29 is ((D / 4) · SQRT3) >> 30.
+const SQRT3: i32 = (1.732_050_807_568_877_2 * ONE as f64 + 0.5) as i32;
+/// 1/3 in Q2.30.
+const THIRD_Q30: i32 = ((1 << 30) + 1) / 3;
 /// A gate opens when n² ≥ 0.5: n · n (Q4.58, exact) ≥ 2^57.
 const OPEN_Q58: i64 = 1 << 57;
 /// A gate closes when n² < 0.4: n · n (Q4.58, exact) < 0.4 · 2^58 = 2^59 / 5, which is not an
@@ -521,33 +533,46 @@ const fn mul_round(a: i64, b: i64, shift: u32) -> i64 {
     (a * b + ((1 << shift) >> 1)) >> shift
 }
 
-/// tanh(x) for x = c · m, c in Q16.16 and m in Q2.29 (|m| ≤ 1), in Q1.31; within 1e-8 of the
-/// exact value (`tests::tanh_is_within_1e_8`). A table look-up and eleven multiplications.
-fn tanh(c: u32, m: i32) -> i64 {
+/// (a · b) / 2^shift rounded to nearest for two `i32`s (one SMULL on a Cortex-M4), for
+/// 1 ≤ shift ≤ 62: cannot overflow (|a · b| ≤ 2^62).
+#[inline(always)]
+const fn mul32(a: i32, b: i32, shift: u32) -> i64 {
+    (a as i64 * b as i64 + ((1 << shift) >> 1)) >> shift
+}
+
+/// tanh(x) for x = c · m, c in Q16.16 and m in Q2.29 (|m| ≤ 1), in Q2.30 (at most 2^30 in
+/// magnitude); within 1e-8 of the exact value (`tests::tanh_is_within_1e_8`). A table look-up,
+/// one 32 × 32-bit multiplication for x and nine for the polynomial (SMULL each).
+fn tanh(c: u32, m: i32) -> i32 {
+    const ONE_Q30: i32 = 1 << 30;
     // x in Q17.45: |c · m| < 2^32 · 2^29.
     let x = i64::from(c) * i64::from(m);
     let ax = x.unsigned_abs();
     let magnitude = if ax >= TANH_LIMIT << 45 {
-        ONE_Q31
+        ONE_Q30
     } else {
-        // The nearest entry k/16 and the rest r = |x| − k/16, |r| ≤ 1/32, in Q1.31.
+        // The nearest entry k/16 and the rest r = |x| − k/16, |r| ≤ 1/32 (2^25 in Q2.30).
         let k = (ax + (1 << 40)) >> 41;
-        let r = (ax as i64 - (k << 41) as i64 + (1 << 13)) >> 14;
-        let t = TANH.get(k as usize).map_or(ONE_Q31, |&t| i64::from(t));
+        let r = ((ax as i64 - (k << 41) as i64 + (1 << 14)) >> 15) as i32;
+        // The entry, from Q1.31 to Q2.30: at most 2^30.
+        let t = TANH
+            .get(k as usize)
+            .map_or(ONE_Q30, |&t| ((t + 1) >> 1) as i32);
         // Taylor around k/16 to the fourth order (the fifth-order term is below 4e-9 for
         // |r| ≤ 1/32; the third order alone would leave 1.6e-7): tanh' = p = 1 − t²,
         // tanh'' / 2 = −t p, tanh''' / 6 = p (3t² − 1) / 3, tanh'''' / 24 = t p (2 − 3t²) / 3.
-        // Every factor is at most 2 in Q1.31 and |r| ≤ 2^26: no product exceeds 2^62.
-        let t2 = mul_round(t, t, 31);
-        let p = ONE_Q31 - t2;
-        let tp = mul_round(t, p, 31);
-        let c2 = -tp;
-        let c3 = mul_round(mul_round(p, 3 * t2 - ONE_Q31, 31), THIRD_Q31, 31);
-        let c4 = mul_round(mul_round(tp, 2 * ONE_Q31 - 3 * t2, 31), THIRD_Q31, 31);
-        let cubic = c3 + mul_round(r, c4, 31);
-        let inner = c2 + mul_round(r, cubic, 31);
-        let slope = p + mul_round(r, inner, 31);
-        (t + mul_round(r, slope, 31)).clamp(0, ONE_Q31)
+        // Written as p (t² − 1/3) and t p (2/3 − t²), every factor lies within [−1, 1] and each
+        // product is rounded back to Q2.30: every operand fits an i32 (3t² − 1 would not).
+        let q30 = |a: i32, b: i32| mul32(a, b, 30) as i32;
+        let t2 = q30(t, t);
+        let p = ONE_Q30 - t2;
+        let tp = q30(t, p);
+        let c3 = q30(p, t2) - q30(p, THIRD_Q30);
+        let c4 = q30(tp, 2 * THIRD_Q30 - t2);
+        let cubic = c3 + q30(r, c4);
+        let inner = q30(r, cubic) - tp;
+        let slope = p + q30(r, inner);
+        (t + q30(r, slope)).clamp(0, ONE_Q30)
     };
     if x < 0 { -magnitude } else { magnitude }
 }
@@ -671,11 +696,19 @@ impl Dynamics {
     /// count. Never fails.
     pub fn step(&mut self, contexts: &[i32]) -> u32 {
         let count = self.len();
-        // (4)'s factors ½(1 + tanh(c m_j)) in Q1.31, from the state at the start of the step;
-        // 1.0 for the behaviours nobody requires (never read).
-        let mut factor = [ONE_Q31; MAX_BEHAVIOURS];
-        // n_j² in Q2.29 (at most 4 · 2^29).
-        let mut square = [0i64; MAX_BEHAVIOURS];
+        // Why the formats below: a Cortex-M4 multiplies 32 × 32 → 64 bits in one instruction
+        // (SMULL, UMULL) and 64 × 64 in three or four, so every product whose operands fit 32
+        // bits is written as one, and the rates are applied before the large factors
+        // (k (1 − m) n², not ((1 − m) n²) k) to keep them there.
+        let rate_tau = self.rate_tau as i32;
+        let rate_rho_fast = self.rate_rho_fast as i32;
+        let rate_rho_slow = self.rate_rho_slow as i32;
+        let rate_n = self.rate_n as i32;
+        // (4)'s factors ½(1 + tanh(c m_j)) in Q1.31 (at most 2^31), from the state at the start
+        // of the step; 1.0 for the behaviours nobody requires (never read).
+        let mut factor = [1u32 << 31; MAX_BEHAVIOURS];
+        // n_j² in Q2.29: at most 4 · 2^29 = 2^31, a u32.
+        let mut square = [0u32; MAX_BEHAVIOURS];
         for (j, ((f, s), &n)) in factor
             .iter_mut()
             .zip(square.iter_mut())
@@ -684,17 +717,19 @@ impl Dynamics {
             .take(count)
         {
             if self.required & (1 << j) != 0 {
-                *f = (ONE_Q31 + tanh(self.c, self.m.get(j).copied().unwrap_or(-ONE)) + 1) >> 1;
+                let m = self.m.get(j).copied().unwrap_or(-ONE);
+                // ½(1 + tanh) in Q1.31 is exactly 2^30 + tanh in Q2.30: within [0, 2^31].
+                *f = ((1i64 << 30) + i64::from(tanh(self.c, m))) as u32;
             }
-            *s = mul_round(i64::from(n), i64::from(n), 29);
+            *s = mul32(n, n, 29) as u32;
         }
-        // (1)'s Σ_j γ_ij n_j² · dt / τ in Q2.61, unsigned: each term is below 2^32 · 2^31, and
+        // (1)'s Σ_j γ_ij n_j² · dt / τ in Q3.61, unsigned: each term is below 2^32 · 2^31, and
         // their sum below 2^63 because Σ_j γ_ij dt / τ < 1 (validated).
         let mut pressure = [0u64; MAX_BEHAVIOURS];
         for push in &self.pushes {
             let n2 = square.get(usize::from(push.by)).copied().unwrap_or(0);
             if let Some(p) = pressure.get_mut(usize::from(push.behaviour)) {
-                *p += u64::from(push.rate) * n2 as u64;
+                *p += u64::from(push.rate) * u64::from(n2);
             }
         }
         let mut gates = self.gates;
@@ -714,45 +749,52 @@ impl Dynamics {
                 self.rng = xorshift32(self.rng);
                 sum += u64::from(self.rng);
             }
-            // z in Q2.29: |sum − 2^33| ≤ 2^33 and SQRT3 < 2^30, the product below 2^63.
-            let z = mul_round(sum as i64 - (1 << 33), SQRT3, 32);
+            // z = (D / 2^32) √3 with D = sum − 2^33 ∈ [−2^33, 2^33): D / 4 fits an i32 (the two
+            // bits dropped move z by less than 1e-9), and z in Q2.29 is (D/4) · √3 / 2^30.
+            let quarter = ((sum as i64 - (1 << 33)) >> 2) as i32;
+            let z = mul32(quarter, SQRT3, 30);
             // (4): I_i = C_i · Π over the required j of the factors; stays in [0, 1].
-            let context = contexts.get(i).map_or(0, |&c| c.clamp(0, ONE));
-            let mut input = i64::from(context);
+            let mut input = contexts.get(i).map_or(0, |&c| c.clamp(0, ONE)) as u32;
             let mut bits = requires;
             while bits != 0 {
                 let j = bits.trailing_zeros() as usize;
                 bits &= bits - 1;
-                let f = factor.get(j).copied().unwrap_or(ONE_Q31);
-                input = mul_round(input, f, 31);
+                let f = factor.get(j).copied().unwrap_or(1 << 31);
+                // input · f ≤ 2^29 · 2^31; the result is at most input.
+                input = ((u64::from(input) * u64::from(f) + (1 << 30)) >> 31) as u32;
             }
-            let (n0, rho0, m0) = (i64::from(*n), i64::from(*rho), i64::from(*m));
-            // (2): α = 2ρI − 1 ∈ [−1, 1].
-            let alpha = mul_round(rho0, input, 28) - i64::from(ONE);
-            // (1): |αn| ≤ 2, |α| n³ ≤ 8 (Q2.29 below 2^33); times dt/τ ≤ 2^30 stays below 2^63.
-            let cube = mul_round(n2, n0, 29);
-            let drift = mul_round(alpha, n0, 29) - mul_round(alpha.abs(), cube, 29);
-            // Σ γ n_j² dt/τ ≤ 4 in Q2.29 (below 2^32), times |n| ≤ 2^30.
-            let push = ((pressure + (1 << 31)) >> 32) as i64;
-            let dn = mul_round(drift, i64::from(self.rate_tau), 32) - mul_round(push, n0, 29)
+            let input = input as i32;
+            let (n0, rho0, m0) = (*n, *rho, *m);
+            // (2): α = 2ρI − 1 ∈ [−1, 1], an i32 in Q2.29.
+            let alpha = (mul32(rho0, input, 28) - i64::from(ONE)) as i32;
+            // (1) as n · (kα − k|α| n² − Σ_j kγ_ij n_j²) + q√dt z, k = dt/τ, the bracket in Q2.30:
+            // |kα| ≤ 1/4 (2^28), k|α|n² ≤ 1 (2^30), the pressure at most 4 (2^32), so the
+            // bracket lies in [−5.25, 0.25] and its product with |n| ≤ 2 below 2^63.
+            let k_alpha = mul32(alpha, rate_tau, 31);
+            let k_alpha_n2 = (k_alpha.unsigned_abs() * u64::from(n2) + (1 << 28)) >> 29;
+            let push = ((pressure + (1 << 30)) >> 31) as i64;
+            let bracket = k_alpha - k_alpha_n2 as i64 - push;
+            // q√dt < 2^32 and |z| < 2^31: the noise's product is below 2^63.
+            let dn = mul_round(bracket, i64::from(n0), 30)
                 + mul_round(i64::from(self.noise_gain), z, 32);
-            // (3): (1 − ρ) I and ρ (I − 1) are at most 1; times rates ≤ 2^30.
-            let rise = mul_round(i64::from(ONE) - rho0, input, 29);
-            let fall = mul_round(rho0, input - i64::from(ONE), 29);
-            let drho = (rise * i64::from(self.rate_rho_slow)
-                + fall * i64::from(self.rate_rho_fast)
+            // (3): (1 − ρ) I and ρ (I − 1) are within [−1, 1]; times rates ≤ 2^30.
+            let rise = mul32(ONE - rho0, input, 29) as i32;
+            let fall = mul32(rho0, input - ONE, 29) as i32;
+            let drho = (i64::from(rise) * i64::from(rate_rho_slow)
+                + i64::from(fall) * i64::from(rate_rho_fast)
                 + (1 << 31))
                 >> 32;
-            // (5): (1 − m) n² ≤ 8 and |(1 + m)(n² − 1)| ≤ 6; times rates ≤ 2^30, sum below 2^63.
-            let gain = mul_round(i64::from(ONE) - m0, n2, 29);
-            let loss = mul_round(i64::from(ONE) + m0, n2 - i64::from(ONE), 29);
+            // (5) as k_n (1 − m) · n² + k_i (1 + m) · (n² − 1), the rated factors in Q1.31: both
+            // at most 2 · 1/4, below 2^30; times n² ≤ 2^31 and n² − 1 < 2^31, the sum below 2^62.
+            let up = mul32(ONE - m0, rate_n, 30);
+            let down = mul32(ONE + m0, rate_memory as i32, 30);
             let dm =
-                (gain * i64::from(self.rate_n) + loss * i64::from(rate_memory) + (1 << 31)) >> 32;
+                (up * i64::from(n2) + down * (i64::from(n2) - i64::from(ONE)) + (1 << 30)) >> 31;
             let two = 2 * i64::from(ONE);
             // Every value is clamped into the range of an i32 before the cast.
-            *n = (n0 + dn).clamp(-two, two) as i32;
-            *rho = (rho0 + drho).clamp(0, i64::from(ONE)) as i32;
-            *m = (m0 + dm).clamp(-i64::from(ONE), i64::from(ONE)) as i32;
+            *n = (i64::from(n0) + dn).clamp(-two, two) as i32;
+            *rho = (i64::from(rho0) + drho).clamp(0, i64::from(ONE)) as i32;
+            *m = (i64::from(m0) + dm).clamp(-i64::from(ONE), i64::from(ONE)) as i32;
             // The gate, with hysteresis, from the new n: n · n exactly, in Q4.58.
             let q58 = i64::from(*n) * i64::from(*n);
             if q58 >= OPEN_Q58 {
@@ -789,7 +831,7 @@ mod tests {
             for k in -200_000..=200_000 {
                 let m = (i64::from(ONE) * k / 200_000) as i32;
                 let x = f64::from(c) / f64::from(C_ONE) * f64::from(m) / f64::from(ONE);
-                let got = tanh(c, m) as f64 / ONE_Q31 as f64;
+                let got = f64::from(tanh(c, m)) / f64::from(1 << 30);
                 worst = worst.max((got - x.tanh()).abs());
             }
         }

@@ -728,6 +728,11 @@ proptest! {
             }
         }
     }
+}
+
+proptest! {
+    // Cheap cases (a few hundred steps at most each): many of them.
+    #![proptest_config(ProptestConfig { cases: 512, failure_persistence: None, ..ProptestConfig::default() })]
 
     /// Whatever valid parameters and contexts (out of range ones too), a step never panics (the
     /// tests are built with overflow checks), keeps every state in its range and every gate
