@@ -929,3 +929,47 @@ fn the_parameters_of_design_are_valid_and_the_errors_say_what() {
         assert!(error.to_string().contains(text), "{error}");
     }
 }
+
+#[test]
+fn the_noise_is_xorshift32_four_outputs_per_behaviour() {
+    // Marsaglia's xorshift32 (13, 17, 5) from 1: 270369, 67634689, 2647435461, 307599695, ...
+    let mut p = group(1);
+    let mut board = Dynamics::new(&p).unwrap();
+    assert_eq!(board.rng(), 1);
+    board.step(&[0]);
+    assert_eq!(board.rng(), 307_599_695);
+    // Two behaviours draw eight outputs a step, whatever their contexts.
+    p.add_behaviour(MEMORY).unwrap();
+    let mut two = Dynamics::new(&p).unwrap();
+    two.step(&[ONE, 0]);
+    let mut x = 1;
+    for _ in 0..8 {
+        x = xorshift32(x);
+    }
+    assert_eq!(two.rng(), x);
+    // The first behaviour's z: ((270369 + 67634689 + 2647435461 + 307599695) / 2^32 − 2) √3,
+    // and n_1 = q √dt z after one step (its drift is 0 at n = 0).
+    let sum = 270_369u64 + 67_634_689 + 2_647_435_461 + 307_599_695;
+    let z = (sum as f64 / 2f64.powi(32) - 2.0) * 3f64.sqrt();
+    let n = real(board.state(0).unwrap().n);
+    assert!((n - 0.001 * 0.1f64.sqrt() * z).abs() < 1e-8, "{n} vs {z}");
+}
+
+#[test]
+fn activation_needs_a_nearly_saturated_context() {
+    // With τ_ρ2/τ_ρ1 = 20 the steady ρ is I / (I + 20 (1 − I)), and α = 2ρI − 1 turns positive
+    // only above I = 0.957: a constant context of 0.95 never activates (2ρI − 1 = −0.07), one of
+    // 0.97 does (α = 0.2).
+    let p = group(1);
+    let low = run(&p, 5000, |_, _| 0.95);
+    assert_bounds(&low);
+    low.assert_matches_reference("context 0.95", 0.01);
+    assert!(low.openings(0).is_empty(), "{:?}", low.transitions());
+    let (_, rho, _) = low.states[4999][0];
+    let steady = 0.95 / (0.95 + 20.0 * 0.05);
+    assert!((rho - steady).abs() < 1e-3, "ρ {rho} vs {steady}");
+    let high = run(&p, 5000, |_, _| 0.97);
+    assert_bounds(&high);
+    high.assert_matches_reference("context 0.97", 0.01);
+    assert_eq!(high.openings(0).len(), 1, "{:?}", high.transitions());
+}
