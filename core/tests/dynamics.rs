@@ -255,8 +255,14 @@ impl Trace {
             "{name}: states off by {:e} > {bound:e}",
             self.error
         );
+        let shift = board
+            .iter()
+            .zip(&reference)
+            .map(|(b, r)| b.step.abs_diff(r.step))
+            .max()
+            .unwrap_or(0);
         eprintln!(
-            "{name}: {} gate transitions as f64, states within {:.2e}",
+            "{name}: {} gate transitions as f64 (at most {shift} steps apart), states within {:.2e}",
             board.len(),
             self.error
         );
@@ -936,6 +942,7 @@ fn the_noise_is_xorshift32_four_outputs_per_behaviour() {
     let mut p = group(1);
     let mut board = Dynamics::new(&p).unwrap();
     assert_eq!(board.rng(), 1);
+    assert_eq!(board.state(0), Some(State::INITIAL));
     board.step(&[0]);
     assert_eq!(board.rng(), 307_599_695);
     // Two behaviours draw eight outputs a step, whatever their contexts.
