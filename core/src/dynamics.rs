@@ -839,6 +839,14 @@ mod tests {
     }
 
     #[test]
+    fn a_group_takes_about_2_7_kib() {
+        // The module's and `Dynamics`' documentation say so; on a 32-bit board the Vec's length
+        // is 4 bytes smaller.
+        let size = core::mem::size_of::<Dynamics>();
+        assert!((2_700..2_800).contains(&size), "{size} bytes");
+    }
+
+    #[test]
     fn gate_thresholds_are_exact() {
         // 0.5 · 2^58 and the smallest integer at or above 0.4 · 2^58 = 2^59 / 5, in exact integers.
         assert_eq!(2 * i128::from(OPEN_Q58), 1 << 58);
