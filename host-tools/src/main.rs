@@ -130,6 +130,10 @@ interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a rea
         /// Write the simulated bus's frames as a candump -L log.
         #[arg(long, value_name = "FILE.log")]
         candump: Option<PathBuf>,
+        /// Step the [dynamics.*] groups and write their states as CSV
+        /// (t,group,behaviour,context,n,rho,m,gate; one row per behaviour per step).
+        #[arg(long, value_name = "FILE.csv")]
+        dynamics_trace: Option<PathBuf>,
     },
     /// Run a recorded candump capture through the network's tables: what would they have let
     /// through?
@@ -378,12 +382,14 @@ fn main() -> ExitCode {
             trace,
             plot,
             candump,
+            dynamics_trace,
         } => run_sim(
             &network,
             until,
             trace.as_deref(),
             plot.as_deref(),
             candump.as_deref(),
+            dynamics_trace.as_deref(),
         ),
         Command::Replay {
             network,
@@ -701,6 +707,7 @@ fn run_sim(
     trace: Option<&Path>,
     plot_path: Option<&Path>,
     candump_path: Option<&Path>,
+    dynamics_path: Option<&Path>,
 ) -> Result<(), Failure> {
     let network = Network::load(path)?;
     let nodes = compiled(&network, None)?;
@@ -708,6 +715,7 @@ fn run_sim(
         until,
         samples: plot_path.is_some(),
         records: false,
+        dynamics: dynamics_path.is_some(),
     };
     let outcome = sim::simulate(&network, &nodes, &options)
         .map_err(|error| Failure::Input(Diagnostic::file(path, error.to_string()).into()))?;
@@ -749,6 +757,18 @@ fn run_sim(
         }
         write_atomically(candump_path, log.as_bytes())?;
         println!("candump: {} ({written} frames)", candump_path.display());
+    }
+    if let Some(dynamics_path) = dynamics_path {
+        let mut csv = Vec::new();
+        sim::write_dynamics_csv(&outcome.dynamics, &network, &mut csv).map_err(|error| {
+            Failure::Output(format!("cannot write the dynamics trace: {error}"))
+        })?;
+        write_atomically(dynamics_path, &csv)?;
+        println!(
+            "dynamics trace: {} ({} rows)",
+            dynamics_path.display(),
+            outcome.dynamics.len()
+        );
     }
     Ok(())
 }
@@ -813,6 +833,7 @@ fn run_replay(
         until: None,
         samples: plot_path.is_some(),
         records: records_path.is_some(),
+        dynamics: false,
     };
     let bar = progress_bar(feed.frames.len() as u64, "replaying {pos}/{len} frames");
     let outcome = sim::run(

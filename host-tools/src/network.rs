@@ -1,5 +1,5 @@
-//! The network file: nodes, topics, ports, connections, BLE groups ([`ble`]), and a scenario of
-//! events.
+//! The network file: nodes, topics, ports, connections, BLE groups ([`ble`]), competitive-dynamics
+//! groups ([`dynamics`]), and a scenario of events.
 //!
 //! Parsing is in two steps. `toml` turns the text into raw tables, keeping the byte span of every
 //! value; then [`Network::parse`] checks every name, number and rule and reports each mistake at
@@ -29,8 +29,10 @@ use crate::rule::{self, Rule};
 use crate::shown;
 
 mod ble;
+mod dynamics;
 
 pub use ble::{BleGroup, BleMember};
+pub use dynamics::{Context, DynamicsBehaviour, DynamicsGroup};
 
 /// The most frames the `[[events]]` of one file may generate, so that a typo in a rate cannot
 /// exhaust memory.
@@ -60,6 +62,8 @@ struct RawFile {
     faults: Vec<Spanned<RawFault>>,
     #[serde(default)]
     ble: IndexMap<Spanned<String>, Spanned<ble::RawBle>>,
+    #[serde(default)]
+    dynamics: IndexMap<Spanned<String>, Spanned<dynamics::RawDynamics>>,
 }
 
 /// `[[faults]] node = "r2", at = 12.0`: the node stops.
@@ -435,6 +439,8 @@ pub struct Network {
     pub faults: Vec<Fault>,
     /// BLE peer groups in file order (their numbers on the bus).
     pub groups: Vec<BleGroup>,
+    /// Competitive-dynamics groups (`[dynamics.NAME]`) in file order.
+    pub dynamics: Vec<DynamicsGroup>,
 }
 
 fn is_plain_name(name: &str) -> bool {
@@ -541,6 +547,7 @@ impl Builder<'_> {
         let events = self.events(&raw.events, &topics);
         let phases = self.phases(&raw.phases);
         let faults = self.faults(&raw.faults, &nodes);
+        let dynamics = self.dynamics_groups(&raw.dynamics, &nodes, &topics, &ports, &connections);
         let mut nodes = nodes;
         for (index, port) in ports.iter().enumerate() {
             if let Some(node) = nodes.get_mut(port.node) {
@@ -558,6 +565,7 @@ impl Builder<'_> {
             phases,
             faults,
             groups,
+            dynamics,
         }
     }
 

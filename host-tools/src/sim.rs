@@ -48,6 +48,10 @@ use crate::compile::CompiledNode;
 use crate::network::{MAX_TIME_S, Network};
 use crate::plot::{ConnectionSeries, Phase, PlotData, PortSeries, Sample};
 
+mod dynamics;
+
+pub use dynamics::{DynamicsRow, write_csv as write_dynamics_csv};
+
 /// How to run a simulation.
 #[derive(Clone, Debug, Default)]
 pub struct Options {
@@ -59,6 +63,8 @@ pub struct Options {
     pub samples: bool,
     /// Write every verdict as a record line ([`Outcome::records`]).
     pub records: bool,
+    /// Step the `[dynamics.*]` groups and record their states ([`Outcome::dynamics`]).
+    pub dynamics: bool,
 }
 
 /// A frame on the simulated bus and when it is sent.
@@ -114,6 +120,9 @@ pub struct Outcome {
     /// Per BLE group (network order), the changes of who holds its task, starting with nobody at
     /// 0: node indices, in network order (more than one during a transient).
     pub holdings: Vec<Vec<Holding>>,
+    /// The `[dynamics.*]` groups' states, one row per behaviour per step, in time order, then
+    /// group and behaviour order (empty unless [`Options::dynamics`]).
+    pub dynamics: Vec<DynamicsRow>,
 }
 
 /// A change of the nodes that hold a BLE group's task.
@@ -284,9 +293,16 @@ fn run_stopping(
     {
         return Err(SimError("the frames are not in time order".into()));
     }
+    let groups = if options.dynamics {
+        dynamics::start(network, |node| stations.iter().position(|s| s.node == node))?
+    } else {
+        Vec::new()
+    };
     let mut run = Run {
         network,
         stations,
+        dynamics: groups,
+        dynamics_rows: Vec::new(),
         options,
         rows: Vec::new(),
         timelines: network
@@ -342,16 +358,23 @@ fn run_stopping(
             .filter(|&t| t <= until_us);
         let next_sample = (options.samples && next_grid <= until_us).then_some(next_grid);
         let next_halt = halts.peek().map(|(t, _)| *t).filter(|&t| t <= until_us);
+        let next_step = run.dynamics_deadline().filter(|&t| t <= until_us);
         let next_ble = if broadcast && has_groups {
             run.ble_deadline().filter(|&t| t <= until_us)
         } else {
             None
         };
-        let Some(now) = [next_frame, next_wake, next_sample, next_halt, next_ble]
-            .into_iter()
-            .flatten()
-            .min()
-        else {
+        let Some(now) = [
+            next_frame,
+            next_wake,
+            next_sample,
+            next_halt,
+            next_ble,
+            next_step,
+        ]
+        .into_iter()
+        .flatten()
+        .min() else {
             break;
         };
         // A node stops before the frames of its instant: it receives none of them.
@@ -383,6 +406,9 @@ fn run_stopping(
             }
             run.note_all(now);
         }
+        if next_step == Some(now) {
+            run.dynamics_tick(now, until_us);
+        }
     }
     if options.samples {
         run.sample_all(until_us);
@@ -403,6 +429,7 @@ fn run_stopping(
         records,
         claims: run.claims,
         holdings: run.holdings,
+        dynamics: run.dynamics_rows,
     })
 }
 
@@ -486,6 +513,9 @@ pub fn settled_until(network: &Network, frames: &[BusFrame]) -> u64 {
 struct Run<'a> {
     network: &'a Network,
     stations: Vec<Station>,
+    /// The `[dynamics.*]` groups, stepped when [`Options::dynamics`] asks for them.
+    dynamics: Vec<dynamics::GroupRun>,
+    dynamics_rows: Vec<DynamicsRow>,
     options: &'a Options,
     rows: Vec<TraceRow>,
     timelines: Vec<Vec<Change>>,
@@ -656,6 +686,9 @@ impl Run<'_> {
     fn frame(&mut self, frame: &BusFrame) {
         let now = Instant::from_micros(frame.t_us);
         let id = frame.frame.id();
+        if !self.dynamics.is_empty() {
+            self.dynamics_frame(&id, &frame.frame, frame.t_us);
+        }
         for station in 0..self.stations.len() {
             if self
                 .stations
