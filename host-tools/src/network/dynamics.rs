@@ -190,7 +190,7 @@ impl Builder<'_> {
                 );
                 continue;
             }
-            if let Some(group) = self.dynamics_group(text, group, nodes, topics, ports, connections)
+            if let Some(group) = self.dynamics_group(name, group, nodes, topics, ports, connections)
             {
                 groups.push(group);
             }
@@ -200,13 +200,14 @@ impl Builder<'_> {
 
     fn dynamics_group(
         &mut self,
-        name: &str,
+        written_name: &Spanned<String>,
         raw: &Spanned<RawDynamics>,
         nodes: &[Node],
         topics: &[Topic],
         ports: &[Port],
         connections: &[Connection],
     ) -> Option<DynamicsGroup> {
+        let name = written_name.get_ref().as_str();
         let span = raw.span();
         let group = raw.get_ref();
         let mut ok = true;
@@ -336,6 +337,7 @@ impl Builder<'_> {
             unit_us,
             gamma.unwrap_or(GAMMA),
             &mut params,
+            nodes,
             topics,
             ports,
             connections,
@@ -345,8 +347,9 @@ impl Builder<'_> {
         };
         if let Err(error) = params.validate() {
             let names: Vec<&str> = behaviours.iter().map(|b| b.name.as_str()).collect();
+            // At the group's header line.
             self.error(
-                span.clone(),
+                written_name.span(),
                 format!(
                     "dynamics group `{name}`: {}",
                     explain(&error, &names, &params)
@@ -431,6 +434,7 @@ impl Builder<'_> {
         unit_us: f64,
         gamma: f64,
         params: &mut Params,
+        nodes: &[Node],
         topics: &[Topic],
         ports: &[Port],
         connections: &[Connection],
@@ -495,7 +499,7 @@ impl Builder<'_> {
                 text,
                 &behaviour.context,
                 raw.span(),
-                node,
+                node.and_then(|n| Some((n, nodes.get(n)?.name.as_str()))),
                 topics,
                 ports,
                 connections,
@@ -622,7 +626,7 @@ impl Builder<'_> {
         behaviour: &str,
         written: &Option<Spanned<RawContext>>,
         span: Range<usize>,
-        node: Option<usize>,
+        node: Option<(usize, &str)>,
         topics: &[Topic],
         ports: &[Port],
         connections: &[Connection],
@@ -650,7 +654,7 @@ impl Builder<'_> {
             }
             RawContext::Connection(name) => {
                 // An unknown node is reported already.
-                let node = node?;
+                let (node, node_name) = node?;
                 let found = connections.iter().position(|c| {
                     &c.name == name && ports.get(c.port).is_some_and(|p| p.node == node)
                 });
@@ -664,7 +668,7 @@ impl Builder<'_> {
                     self.error(
                         written.span(),
                         format!(
-                            "context: `{}` is not a connection on node of dynamics group `{group}` (its connections: {})",
+                            "context: `{}` is not a connection on node `{node_name}`, which runs dynamics group `{group}` (its connections: {})",
                             shown::escaped(name),
                             list_or_none(&known)
                         ),
