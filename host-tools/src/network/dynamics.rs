@@ -770,3 +770,88 @@ fn explain(error: &ParamsError, names: &[&str], params: &Params) -> String {
         other => other.to_string(),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use pab_core::dynamics::{GAMMA_ONE, Params};
+
+    use crate::diagnostic::Source;
+    use crate::network::{Context, Network};
+
+    /// Every key of the issue, with non-default values where a mix-up would show.
+    const TEXT: &str = r#"
+[nodes.base]
+id = 1
+[topics.cue]
+can_id = 0x100
+[ports."base.p"]
+[connections.C3]
+topic = "cue"
+port = "base.p"
+st = 1.0
+tc = 0.1
+[dynamics.door]
+node = "base"
+step = 0.0005
+unit = 0.02
+noise = 0.002
+seed = 7
+c = 12.5
+tau = 1.5
+tau_rho_fast = 2.0
+tau_rho_slow = 30.0
+tau_n = 1.25
+gamma = 2.75
+[dynamics.door.behaviours.search]
+context = "C3"
+memory = 40.0
+excludes = ["recognise", "approach"]
+gamma = { recognise = 4.0 }
+[dynamics.door.behaviours.recognise]
+context = { topic = "cue", value = { offset = 2, size = 2, endian = "big" }, scale = 1000.0, timeout = 0.25 }
+[dynamics.door.behaviours.approach]
+context = 1
+requires = ["recognise", "search"]
+"#;
+
+    #[test]
+    fn every_key_reaches_the_boards_parameters() {
+        let network = Network::parse(Source::new("d.toml", TEXT)).unwrap();
+        let group = &network.dynamics[0];
+        let mut expected = Params::new();
+        expected.step_us = 500;
+        expected.unit_us = 20_000;
+        expected.noise = 8_589_935; // round(0.002 · 2^32)
+        expected.seed = 7;
+        expected.c = 819_200; // 12.5 · 2^16
+        expected.tau_us = 30_000;
+        expected.tau_rho_fast_us = 40_000;
+        expected.tau_rho_slow_us = 600_000;
+        expected.tau_n_us = 25_000;
+        assert_eq!(expected.add_behaviour(800_000), Ok(0));
+        assert_eq!(expected.add_behaviour(1_000_000), Ok(1));
+        assert_eq!(expected.add_behaviour(1_000_000), Ok(2));
+        expected.exclude(0, 1, 4 * GAMMA_ONE).unwrap();
+        expected.exclude(0, 2, 704).unwrap(); // 2.75 · 256
+        expected.require(2, 1).unwrap();
+        expected.require(2, 0).unwrap();
+        assert_eq!(group.params, expected);
+        let names: Vec<&str> = group.behaviours.iter().map(|b| b.name.as_str()).collect();
+        assert_eq!(names, ["search", "recognise", "approach"]);
+        assert_eq!(group.behaviours[0].context, Context::Connection { connection: 0 });
+        let Context::Topic {
+            topic,
+            field,
+            scale,
+            timeout_us,
+        } = &group.behaviours[1].context
+        else {
+            panic!("{:?}", group.behaviours[1].context);
+        };
+        assert_eq!(
+            (*topic, field.offset, field.size, *scale, *timeout_us),
+            (0, 2, 2, 1000.0, 250_000)
+        );
+        assert_eq!(group.behaviours[2].context, Context::Constant(1.0));
+    }
+}
