@@ -398,7 +398,7 @@ impl Builder<'_> {
         span: Range<usize>,
         key: &str,
     ) -> bool {
-        if micros >= 1.0 && micros <= f64::from(u32::MAX) {
+        if (1.0..=f64::from(u32::MAX)).contains(&micros) {
             *slot = micros as u32;
             true
         } else {
@@ -690,11 +690,11 @@ impl Builder<'_> {
                 }
                 let timeout = *raw.timeout.get_ref();
                 let timeout_us = (timeout * 1e6).round();
-                if !(timeout.is_finite() && timeout_us >= 1.0 && timeout_us <= 1e12) {
+                if !(timeout.is_finite() && (1.0..=1e12).contains(&timeout_us)) {
                     self.error(
                         raw.timeout.span(),
                         format!(
-                            "timeout = {timeout}: how long a frame's value holds, in seconds, positive"
+                            "timeout = {timeout}: how long a frame's value holds, in seconds, from 0.000001 to 1000000"
                         ),
                     );
                     ok = false;
@@ -838,7 +838,10 @@ requires = ["recognise", "search"]
         assert_eq!(group.params, expected);
         let names: Vec<&str> = group.behaviours.iter().map(|b| b.name.as_str()).collect();
         assert_eq!(names, ["search", "recognise", "approach"]);
-        assert_eq!(group.behaviours[0].context, Context::Connection { connection: 0 });
+        assert_eq!(
+            group.behaviours[0].context,
+            Context::Connection { connection: 0 }
+        );
         let Context::Topic {
             topic,
             field,
