@@ -286,6 +286,18 @@ fn mistakes_are_reported_at_their_line_with_their_cause() {
             "a constant context is in [0, 1]",
         ),
         (
+            format!("{group}[dynamics.door.behaviours.a]\ncontext = true\n"),
+            4,
+            "invalid type: boolean `true`, expected a connection name, a constant in [0, 1], or { topic, value, scale, timeout }",
+        ),
+        (
+            format!(
+                "{group}[dynamics.door.behaviours.a]\ncontext = {{ topic = \"seen\", value = {{ offset = 0, size = 1 }}, scale = 255.0, timeout = 0.2, every = 1 }}\n"
+            ),
+            4,
+            "unknown field `every`",
+        ),
+        (
             format!("{group}{a}excludes = [\"a\"]\n"),
             3,
             "excludes itself",
