@@ -39,24 +39,9 @@ const RECIPROCAL_SHIFT: u32 = 56;
 /// 2^32 as a float, to scale table constants to Q32.
 const Q32: f64 = 4_294_967_296.0;
 
-/// e^x for |x| ≤ 5, to about 1e-14 relative, usable in `const` context: e^x = (e^(x/1024))^1024
-/// with a Taylor series for the small argument.
+/// e^x for the tables below ([`crate::const_exp::exp`] with 10 Taylor terms).
 const fn exp(x: f64) -> f64 {
-    let y = x / 1024.0;
-    let mut term = 1.0;
-    let mut sum = 1.0;
-    let mut k = 1;
-    while k < 10 {
-        term = term * y / k as f64;
-        sum += term;
-        k += 1;
-    }
-    let mut squarings = 0;
-    while squarings < 10 {
-        sum *= sum;
-        squarings += 1;
-    }
-    sum
+    crate::const_exp::exp(x, 10)
 }
 
 /// `value` in Q32, rounded to nearest. `value` must be in [0, 1).

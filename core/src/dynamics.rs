@@ -490,24 +490,9 @@ const TANH_SHIFT: u32 = 4;
 const TANH_LIMIT: u64 = 11;
 const TANH_LEN: usize = (TANH_LIMIT as usize) << TANH_SHIFT;
 
-/// e^x for −22 ≤ x ≤ 0 in `const` context, relative error about 1e-13: (e^(x/1024))^1024 with a
-/// Taylor series for the small argument.
+/// e^x for the tables below ([`crate::const_exp::exp`] with 12 Taylor terms).
 const fn exp(x: f64) -> f64 {
-    let y = x / 1024.0;
-    let mut term = 1.0;
-    let mut sum = 1.0;
-    let mut k = 1;
-    while k < 12 {
-        term = term * y / k as f64;
-        sum += term;
-        k += 1;
-    }
-    let mut squarings = 0;
-    while squarings < 10 {
-        sum *= sum;
-        squarings += 1;
-    }
-    sum
+    crate::const_exp::exp(x, 12)
 }
 
 /// tanh(k / 16) in Q1.31, k = 0..=176, computed at compile time so that it cannot drift from the

@@ -42,6 +42,7 @@
 pub mod arbiter;
 pub mod auth;
 pub mod ble;
+mod const_exp;
 pub mod consumer;
 pub mod crc32;
 mod decay;
