@@ -46,6 +46,9 @@ use embedded_can::Id;
 use heapless::Vec;
 
 use crate::ble::{self, BleError, Claim, Eligibility, MAX_GROUPS, MAX_PEERS};
+use crate::dynamics::{GroupRun, MAX_DYNAMICS_GROUPS, MAX_GATE_SOURCES, SourceState};
+
+pub(crate) mod dynamics;
 use crate::decay::Decay;
 use crate::decision::{self, ConnectionSet, NodeRef, Step};
 use crate::frame::Frame;
@@ -461,6 +464,10 @@ pub struct Arbiter<
     value_slots: Vec<ValueSlot, MAX_VALUE_CONNECTIONS>,
     /// The state of each BLE group of the table, in the table's order.
     groups: Vec<Eligibility<MAX_PEERS>, MAX_GROUPS>,
+    /// The competitive-dynamics groups the node runs, in the table's order.
+    runs: Vec<GroupRun, MAX_DYNAMICS_GROUPS>,
+    /// What the node reads of each gate source, in the table's order.
+    sources: Vec<SourceState, MAX_GATE_SOURCES>,
     table: Table<PORTS, CONNECTIONS, NODES>,
 }
 
@@ -574,8 +581,27 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 .map_err(|_| error(ble::GroupError::Period))?;
             groups.push(state).map_err(|_| TableError::TooManyGroups)?;
         }
+        let mut runs = Vec::new();
+        for (position, spec) in table.dynamics().iter().enumerate() {
+            let run = GroupRun::new(spec).map_err(|error| {
+                TableError::Dynamics(crate::dynamics::DynamicsError::Params {
+                    group: u8::try_from(position).unwrap_or(u8::MAX),
+                    error,
+                })
+            })?;
+            runs.push(run)
+                .map_err(|_| TableError::Dynamics(crate::dynamics::DynamicsError::TooMany))?;
+        }
+        let mut sources = Vec::new();
+        for _ in table.gate_sources() {
+            sources
+                .push(SourceState::new())
+                .map_err(|_| TableError::Dynamics(crate::dynamics::DynamicsError::TooMany))?;
+        }
         Ok(Arbiter {
             groups,
+            runs,
+            sources,
             table,
             ports,
             slots,
@@ -612,6 +638,14 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             {
                 *state = fresh;
             }
+        }
+        for (run, spec) in self.runs.iter_mut().zip(self.table.dynamics()) {
+            if let Ok(fresh) = GroupRun::new(spec) {
+                *run = fresh;
+            }
+        }
+        for source in self.sources.iter_mut() {
+            *source = SourceState::new();
         }
     }
 

@@ -62,6 +62,16 @@
 use heapless::Vec;
 use serde::{Deserialize, Serialize};
 
+mod run;
+mod spec;
+
+pub use run::{GateError, GroupRun, MAX_CATCH_UP, SourceState, StepView};
+pub(crate) use spec::validate as validate_table_part;
+pub use spec::{
+    Context, DynamicsError, GATE_SLOT_FILTER, GateLink, GateSource, GroupSpec, MAX_DYNAMICS_GROUPS,
+    MAX_GATE_LINKS, MAX_GATE_SOURCES, MAX_TIMEOUT_US, OWN,
+};
+
 /// Behaviours per group, at most: the gate mask is a `u32`, A_i a `u32` mask.
 pub const MAX_BEHAVIOURS: usize = 32;
 
@@ -563,6 +573,35 @@ fn tanh(c: u32, m: i32) -> i32 {
 }
 
 /// round(dt · 2^32 / τ): dt / τ in Q0.32, for τ > 0 and dt ≤ τ / 4 (so at most 2^30).
+/// γ dt / τ in Q0.32 (γ in Q8.8), rounded, saturating: γ · dt · 2^24 / τ by long division in
+/// 64-bit words (γ · dt < 2^48; a 128-bit division would cost a board kilobytes of flash).
+fn gamma_rate(gamma: u16, step_us: u32, tau_us: u32) -> u32 {
+    let tau = u64::from(tau_us.max(1));
+    let numerator = u64::from(gamma) * u64::from(step_us);
+    let (whole, rest) = (numerator / tau, numerator % tau);
+    // rest < τ < 2^32: rest · 2^24 + τ/2 < 2^57.
+    let fraction = ((rest << 24) + tau / 2) / tau;
+    if whole >= 1 << 8 {
+        return u32::MAX;
+    }
+    u32::try_from((whole << 24) + fraction).unwrap_or(u32::MAX)
+}
+
+/// √(dt / unit) in Q1.31, rounded down, from dt / unit in Q2.62 (long division in 31-bit
+/// chunks, 64-bit words only); saturated at √4 = 2.0 (a larger noise swamps n anyway).
+fn sqrt_ratio(step_us: u32, unit_us: u32) -> u64 {
+    let unit = u64::from(unit_us.max(1));
+    let step = u64::from(step_us);
+    let (whole, rest) = (step / unit, step % unit);
+    if whole >= 4 {
+        return 1 << 32;
+    }
+    // rest < unit < 2^32: each shifted remainder is below 2^63.
+    let high = (rest << 31) / unit;
+    let low = (((rest << 31) % unit) << 31) / unit;
+    ((whole << 62) | (high << 31) | low).isqrt()
+}
+
 fn rate(step_us: u32, tau_us: u32) -> u32 {
     let scaled = (u64::from(step_us) << 32) + u64::from(tau_us / 2);
     scaled
@@ -582,8 +621,8 @@ const fn xorshift32(mut x: u32) -> u32 {
 impl Dynamics {
     /// The group of `params` in its initial state (n = 0, ρ = 0, m = −1, all gates closed), or why
     /// `params` are invalid ([`Params::validate`]). Costs the validation plus one 64-bit division
-    /// per time constant, one 128-bit division per exclusion and a 128-bit square root: done once
-    /// per table, so that [`Dynamics::step`] needs none.
+    /// per time constant, two per exclusion, three and a 64-bit square root for the noise: done
+    /// once per table, so that [`Dynamics::step`] needs none.
     pub fn new(params: &Params) -> Result<Dynamics, ParamsError> {
         params.validate()?;
         let dt = params.step_us;
@@ -602,26 +641,14 @@ impl Dynamics {
         }
         let mut pushes = Vec::new();
         for e in params.exclusions.iter().filter(|e| e.gamma != 0) {
-            // γ dt / τ in Q0.32: γ (Q8.8) · dt · 2^32 / (256 τ), rounded; below 1 (validated), and
-            // the numerator is below 2^16 · 2^32 · 2^32.
-            let denominator = 256 * u128::from(params.tau_us);
-            let numerator = ((u128::from(e.gamma) * u128::from(dt)) << 32) + denominator / 2;
-            let rate = numerator
-                .checked_div(denominator)
-                .map_or(u32::MAX, |r| u32::try_from(r).unwrap_or(u32::MAX));
             // At most one entry per exclusion, and `params.exclusions` has the same capacity.
             let _ = pushes.push(Push {
                 behaviour: e.behaviour,
                 by: e.by,
-                rate,
+                rate: gamma_rate(e.gamma, dt, params.tau_us),
             });
         }
-        // √(dt / unit) in Q0.47 from dt · 2^94 / unit (below 2^126), then q · √(dt/unit) in Q0.32.
-        let root = ((u128::from(dt) << 94)
-            .checked_div(u128::from(params.unit_us))
-            .unwrap_or(0))
-        .isqrt();
-        let gain = (u128::from(params.noise) * root + (1 << 46)) >> 47;
+        let gain = (u64::from(params.noise) * sqrt_ratio(dt, params.unit_us) + (1 << 30)) >> 31;
         Ok(Dynamics {
             count: params.behaviours.len() as u8,
             rate_tau: rate(dt, params.tau_us),
@@ -846,5 +873,32 @@ mod tests {
         let d = Dynamics::new(&p).unwrap();
         let exact = 0.001 * 0.1f64.sqrt() * 2f64.powi(32);
         assert!((f64::from(d.noise_gain) - exact).abs() <= 1.0);
+    }
+}
+
+crate::wire::decode_struct!(Behaviour {
+    memory_us,
+    requires
+});
+crate::wire::decode_struct!(Exclusion {
+    behaviour,
+    by,
+    gamma
+});
+impl crate::wire::Decode for Params {
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
+        Ok(Params {
+            step_us: r.decode()?,
+            unit_us: r.decode()?,
+            noise: r.decode()?,
+            seed: r.decode()?,
+            c: r.decode()?,
+            tau_us: r.decode()?,
+            tau_rho_fast_us: r.decode()?,
+            tau_rho_slow_us: r.decode()?,
+            tau_n_us: r.decode()?,
+            behaviours: r.vec()?,
+            exclusions: r.vec()?,
+        })
     }
 }

@@ -3,7 +3,7 @@
 //! ```text
 //! offset size  field
 //!      0    4  magic "PABT"
-//!      4    2  format version, little endian (this is format 4)
+//!      4    2  format version, little endian (this is format 5)
 //!      6    1  node id the table is for
 //!      7    1  reserved, must be 0
 //!      8    4  table version, little endian (newer tables have larger versions)
@@ -27,7 +27,9 @@
 //! (after its consumer) and, after the decision nodes, the list of the value ports' connection
 //! roots; format 4 adds, after those roots, the list of the node's BLE groups ([`crate::ble::Group`]:
 //! number, node id, period, local topic, eligibility field, peers, and per port the claim
-//! connection and the gated set). This crate reads format 4 only: an image of another format is refused with
+//! connection and the gated set); format 5 adds, after the groups, the competitive-dynamics part
+//! ([`crate::dynamics`]): the groups the node runs (number, parameters, contexts), the groups whose
+//! gates it reads (owner, number, count) and the gate connections. This crate reads format 5 only: an image of another format is refused with
 //! [`LoadError::UnsupportedFormat`], which names the format found and the one expected.
 //!
 //! The body does not depend on the capacities of the [`Table`] that was encoded (postcard prefixes
@@ -43,7 +45,7 @@ use crate::{MAX_CONNECTIONS, MAX_DECISION_NODES, MAX_PORTS};
 /// The first four bytes of every image.
 pub const MAGIC: [u8; 4] = *b"PABT";
 /// The format this crate writes and reads.
-pub const FORMAT_VERSION: u16 = 4;
+pub const FORMAT_VERSION: u16 = 5;
 /// Bytes before the body.
 pub const HEADER_LEN: usize = 20;
 /// The largest image accepted, header included. A table at full capacity encodes in less.
@@ -357,6 +359,19 @@ pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
             error: crate::ble::GroupError::Node,
         }));
     }
+    // Likewise a group read from "another" node under the image's own id: the node would wait
+    // for gates only it could send.
+    if let Some(position) = table
+        .gate_sources()
+        .iter()
+        .position(|s| s.owner == header.node_id)
+    {
+        return Err(LoadError::Table(TableError::Dynamics(
+            crate::dynamics::DynamicsError::Source {
+                source: u8::try_from(position).unwrap_or(u8::MAX),
+            },
+        )));
+    }
     Ok(Loaded { header, table })
 }
 
@@ -381,6 +396,9 @@ fn size_of_body(body: &[u8]) -> Option<(TableSize, usize)> {
     let roots = r.count::<NodeRef>().ok()?;
     // Counted so that the body's end is found; a fixed capacity.
     r.count::<crate::ble::Group>().ok()?;
+    r.count::<crate::dynamics::GroupSpec>().ok()?;
+    r.count::<crate::dynamics::GateSource>().ok()?;
+    r.count::<crate::dynamics::GateLink>().ok()?;
     r.rest().is_empty().then_some((
         TableSize {
             ports,

@@ -61,6 +61,7 @@ pub mod time;
 pub mod value_port;
 mod wire;
 
+pub use arbiter::dynamics::GatesLost;
 pub use arbiter::{Arbiter, FrameReception, PortSet, PortVerdict, Reception};
 pub use consumer::{Consumer, OutputId, OutputIdError};
 pub use decision::{ConnectionSet, DecisionNode, NodeRef};

@@ -26,6 +26,10 @@ use serde::{Deserialize, Serialize};
 use crate::ble::{self, Group, GroupError, MAX_GROUPS, MAX_PEERS};
 use crate::consumer::{Consumer, OutputIdError};
 use crate::decision::{self, DecisionError, DecisionNode, NodeRef};
+use crate::dynamics::{
+    DynamicsError, GateLink, GateSource, GroupSpec, MAX_DYNAMICS_GROUPS, MAX_GATE_LINKS,
+    MAX_GATE_SOURCES,
+};
 use crate::filter::{Filter, FilterError};
 use crate::integrator::{ParamError, Stimulation};
 use crate::value_port::{MAX_VALUE_CONNECTIONS, MAX_VALUE_PORTS, ValueError, ValueSpec};
@@ -99,6 +103,9 @@ pub struct Table<
     nodes: Vec<DecisionNode, NODES>,
     roots: Vec<NodeRef, CONNECTIONS>,
     groups: Vec<Group, MAX_GROUPS>,
+    dynamics: Vec<GroupSpec, MAX_DYNAMICS_GROUPS>,
+    gate_sources: Vec<GateSource, MAX_GATE_SOURCES>,
+    gate_links: Vec<GateLink, MAX_GATE_LINKS>,
 }
 
 /// Why a table was refused. Ports and connections are numbered from 0, connections within their
@@ -139,6 +146,8 @@ pub enum TableError {
     TooManyValuePorts,
     /// More connections of value ports in all than [`MAX_VALUE_CONNECTIONS`].
     TooManyValueConnections,
+    /// The competitive-dynamics part ([`crate::dynamics`]).
+    Dynamics(DynamicsError),
     /// More BLE groups than [`MAX_GROUPS`].
     TooManyGroups,
     /// A BLE group is invalid ([`crate::ble`]).
@@ -220,6 +229,7 @@ impl core::fmt::Display for TableError {
             ),
             TableError::Value { port, error } => write!(f, "port {port}: {error}"),
             TableError::TooManyGroups => write!(f, "more than {MAX_GROUPS} BLE groups"),
+            TableError::Dynamics(error) => write!(f, "{error}"),
             TableError::Group { group, error } => write!(f, "BLE group {group}: {error}"),
             TableError::ClaimFilter { port, connection } => write!(
                 f,
@@ -269,6 +279,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             nodes: Vec::new(),
             roots: Vec::new(),
             groups: Vec::new(),
+            dynamics: Vec::new(),
+            gate_sources: Vec::new(),
+            gate_links: Vec::new(),
         }
     }
 
@@ -332,6 +345,75 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// The BLE groups the node is in.
     pub fn groups(&self) -> &[Group] {
         &self.groups
+    }
+
+    /// Appends the competitive-dynamics part ([`crate::dynamics`]): the groups the node runs, the
+    /// groups whose gates it reads and the gate connections (which must exist already, each with
+    /// [`crate::dynamics::GATE_SLOT_FILTER`]). On error the table is unchanged.
+    pub fn push_dynamics(
+        &mut self,
+        groups: &[GroupSpec],
+        sources: &[GateSource],
+        links: &[GateLink],
+    ) -> Result<(), TableError> {
+        let saved = (
+            self.dynamics.len(),
+            self.gate_sources.len(),
+            self.gate_links.len(),
+        );
+        let pushed = groups
+            .iter()
+            .try_for_each(|g| self.dynamics.push(g.clone()).map_err(|_| ()))
+            .and_then(|()| {
+                sources
+                    .iter()
+                    .try_for_each(|&s| self.gate_sources.push(s).map_err(|_| ()))
+            })
+            .and_then(|()| {
+                links
+                    .iter()
+                    .try_for_each(|&l| self.gate_links.push(l).map_err(|_| ()))
+            })
+            .map_err(|()| TableError::Dynamics(DynamicsError::TooMany))
+            .and_then(|()| self.validate());
+        if let Err(error) = pushed {
+            self.dynamics.truncate(saved.0);
+            self.gate_sources.truncate(saved.1);
+            self.gate_links.truncate(saved.2);
+            return Err(error);
+        }
+        Ok(())
+    }
+
+    /// The competitive-dynamics groups the node runs.
+    pub fn dynamics(&self) -> &[GroupSpec] {
+        &self.dynamics
+    }
+
+    /// The groups whose gates the node reads.
+    pub fn gate_sources(&self) -> &[GateSource] {
+        &self.gate_sources
+    }
+
+    /// The gate connections.
+    pub fn gate_links(&self) -> &[GateLink] {
+        &self.gate_links
+    }
+
+    /// The dynamics part, as [`Table::validate`] checks it (the loader adds the node id's check).
+    fn validate_dynamics(&self, node: u8) -> Result<(), TableError> {
+        crate::dynamics::validate_table_part(
+            &self.dynamics,
+            &self.gate_sources,
+            &self.gate_links,
+            node,
+            |port, connection| {
+                self.port(usize::from(port))
+                    .and_then(|view| view.connections.get(usize::from(connection)))
+                    .map(|c| c.filter)
+            },
+        )
+        .map_err(TableError::Dynamics)
     }
 
     /// How many value ports there are, and connections on them.
@@ -461,7 +543,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 return Err(error(GroupError::DuplicateGroup { number }));
             }
         }
-        Ok(())
+        self.validate_dynamics(crate::dynamics::OWN)
     }
 
     /// The number of ports.
@@ -694,6 +776,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize> crate::wi
             nodes: r.vec()?,
             roots: r.vec()?,
             groups: r.vec()?,
+            dynamics: r.vec()?,
+            gate_sources: r.vec()?,
+            gate_links: r.vec()?,
         })
     }
 }

@@ -616,6 +616,9 @@ struct RawTable {
     nodes: Vec<DecisionNode>,
     roots: Vec<NodeRef>,
     groups: Vec<pab_core::ble::Group>,
+    dynamics: Vec<pab_core::dynamics::GroupSpec>,
+    gate_sources: Vec<pab_core::dynamics::GateSource>,
+    gate_links: Vec<pab_core::dynamics::GateLink>,
 }
 
 #[derive(Serialize)]
@@ -682,6 +685,9 @@ fn one_port(connections: Vec<RawConnection>, nodes: Vec<DecisionNode>, root: Nod
         nodes,
         roots: vec![],
         groups: vec![],
+        dynamics: vec![],
+        gate_sources: vec![],
+        gate_links: vec![],
     }
 }
 
@@ -779,6 +785,9 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                 nodes: vec![],
                 roots: vec![],
                 groups: vec![],
+                dynamics: vec![],
+                gate_sources: vec![],
+                gate_links: vec![],
             },
             TableError::ConnectionCountMismatch,
         ),
@@ -795,6 +804,9 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                 nodes: vec![],
                 roots: vec![],
                 groups: vec![],
+                dynamics: vec![],
+                gate_sources: vec![],
+                gate_links: vec![],
             },
             TableError::ConnectionCountMismatch,
         ),
@@ -811,6 +823,9 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                 nodes: vec![node(0, NodeRef::NOBODY, NodeRef::NOBODY)],
                 roots: vec![],
                 groups: vec![],
+                dynamics: vec![],
+                gate_sources: vec![],
+                gate_links: vec![],
             },
             TableError::NodeCountMismatch,
         ),
@@ -827,6 +842,9 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                 nodes: vec![],
                 roots: vec![],
                 groups: vec![],
+                dynamics: vec![],
+                gate_sources: vec![],
+                gate_links: vec![],
             },
             TableError::PortTooWide { port: 0 },
         ),
@@ -1056,19 +1074,19 @@ fn an_image_larger_than_the_table_is_refused_with_what_it_needs() {
 
 #[test]
 fn images_of_older_formats_are_refused_naming_both_formats() {
-    assert_eq!(FORMAT_VERSION, 4);
-    for found in [1u16, 2, 3] {
+    assert_eq!(FORMAT_VERSION, 5);
+    for found in [1u16, 2, 3, 4] {
         let mut old = encode(&figure1_table(), 7, 1);
         old[4..6].copy_from_slice(&found.to_le_bytes());
         let crc = crc32(&[&old[..16], &old[HEADER_LEN..]].concat());
         old[16..20].copy_from_slice(&crc.to_le_bytes());
-        let expected = LoadError::UnsupportedFormat { found, expected: 4 };
+        let expected = LoadError::UnsupportedFormat { found, expected: 5 };
         assert_eq!(image::read_header(&old), Err(expected.clone()));
         assert_eq!(load_default(&old), Err(expected.clone()));
         assert_eq!(image::load::<4, 64, 256>(&old), Err(expected.clone()));
         assert_eq!(
             expected.to_string(),
-            format!("image format {found} is not supported (this node reads format 4)")
+            format!("image format {found} is not supported (this node reads format 5)")
         );
     }
 }
@@ -1234,6 +1252,9 @@ fn bad_value_ports() -> Vec<(RawTable, TableError)> {
             nodes: vec![],
             roots: vec![deliver(0); ports],
             groups: vec![],
+            dynamics: vec![],
+            gate_sources: vec![],
+            gate_links: vec![],
         },
         TableError::TooManyValuePorts,
     ));

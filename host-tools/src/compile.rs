@@ -16,6 +16,8 @@ use pab_core::decision::{DecisionNode, NodeRef};
 use pab_core::image::{self, MAX_IMAGE_LEN};
 use pab_core::{Connection, Consumer, MAX_DECISION_NODES, Table, TableError};
 
+mod dynamics;
+
 use crate::check::{self, PortLogic};
 use crate::diagnostic::Diagnostic;
 use crate::network::{BleGroup, Kind, Network};
@@ -308,6 +310,8 @@ fn compile_node(
                     // A claim is set by the node's group state, never by a frame.
                     filter: match c.kind {
                         Kind::Claim => ble::CLAIM_SLOT_FILTER,
+                        // A gate is set by the dynamics (its node's, or Gates frames).
+                        Kind::Gate => pab_core::dynamics::GATE_SLOT_FILTER,
                         _ => network.topics.get(c.topic)?.filter,
                     },
                     stimulation: c.stimulation,
@@ -339,6 +343,17 @@ fn compile_node(
                 ),
             )
         })?;
+    }
+    let dynamics = dynamics::dynamics_of(network, node)?;
+    if !(dynamics.specs.is_empty() && dynamics.sources.is_empty()) {
+        table
+            .push_dynamics(&dynamics.specs, &dynamics.sources, &dynamics.links)
+            .map_err(|error| {
+                network.error(
+                    node.span.clone(),
+                    format!("node `{}`: competitive dynamics: {error}", node.name),
+                )
+            })?;
     }
     let mut buffer = vec![0u8; MAX_IMAGE_LEN];
     let length = image::encode(&table, node.id, network.version, &mut buffer).map_err(|error| {

@@ -231,6 +231,28 @@ pub fn service_signals(service: Service) -> Option<Vec<DbcSignal>> {
                 "version of the running table, 0 without a table",
             ),
         ],
+        Service::Gates => vec![
+            signal(
+                "group",
+                0,
+                8,
+                "the group's number in the network (the order of [dynamics.*], from 0)",
+            ),
+            signal("behaviours", 8, 8, "the group's behaviours, 1..32"),
+            signal(
+                "gates",
+                16,
+                32,
+                "bit i set while behaviour i's gate is open; bits at and above the count are 0",
+            ),
+            signal(
+                "changes",
+                48,
+                8,
+                "changes of the gates since the group started, mod 256",
+            ),
+            signal("reserved", 56, 8, "0"),
+        ],
         Service::TableStatus => vec![
             signal(
                 "crc",
@@ -417,6 +439,11 @@ fn service_comment(service: Service) -> &'static str {
              stream is on, one round (a sample per connection of the selected ports, one \
              sequence number, the last flagged end_of_round) at the requested rate."
         }
+        Service::Gates => {
+            "Gates (service 0x07, priority 3): the gates of a competitive-dynamics group, from the \
+             node that runs it, whenever they change and every 100 ms otherwise; a group not \
+             heard for 300 ms reads as all gates closed."
+        }
         Service::DiagnosticControl => {
             "DiagnosticControl (service 0x10, priority 3): switches the diagnostic stream; the \
              node refuses rates above 200. To a node with a key, the frame is 8 bytes: these 4 \
@@ -477,13 +504,16 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
         Service::Traffic,
         Service::Errors,
     ];
-    for (node, dbc_node) in network.nodes.iter().zip(nodes.iter().skip(1)) {
+    for (index, (node, dbc_node)) in network.nodes.iter().zip(nodes.iter().skip(1)).enumerate() {
+        // Gates come from the nodes that run a dynamics group only.
+        let runs_dynamics = network.dynamics.iter().any(|g| g.node == index);
         for service in Service::ALL {
             let destination = match service {
                 Service::DiagnosticControl
                 | Service::TableTransfer
                 | Service::ChallengeRequest
                 | Service::TransferOpen => continue,
+                Service::Gates if !runs_dynamics => continue,
                 Service::TransferStatus | Service::Challenge | Service::Receipt => TOOL,
                 _ => BROADCAST,
             };
@@ -509,7 +539,11 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
                         "all (0xFF)"
                     }
                 ),
-                cycle_ms: periodic.contains(&service).then_some(1000),
+                cycle_ms: if service == Service::Gates {
+                    Some(100)
+                } else {
+                    periodic.contains(&service).then_some(1000)
+                },
             });
         }
     }
@@ -889,6 +923,42 @@ tc = 3.0
         assert_eq!(identifier("arm", "n_"), "arm");
         assert_eq!(identifier("2nd-hand", "n_"), "n_2nd_hand");
         assert_eq!(identifier("", "n_"), "n_");
+    }
+
+    #[test]
+    fn the_node_that_runs_a_dynamics_group_sends_gates_and_no_other_does() {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../examples/door-dynamics.toml"
+        );
+        let text = std::fs::read_to_string(path).unwrap();
+        let dbc = build(&network(&text)).unwrap();
+        let gates: Vec<_> = dbc
+            .messages
+            .iter()
+            .filter(|m| m.name.starts_with("PAB_Gates"))
+            .collect();
+        assert_eq!(gates.len(), 1);
+        let gates = gates[0];
+        assert_eq!(gates.name, "PAB_Gates_base");
+        assert_eq!(
+            gates.id,
+            FrameId::new(Service::Gates, 5, BROADCAST).raw() | EXTENDED_FLAG
+        );
+        assert_eq!((gates.dlc, gates.cycle_ms), (8, Some(100)));
+        let names: Vec<&str> = gates.signals.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(
+            names,
+            ["group", "behaviours", "gates", "changes", "reserved"]
+        );
+        // Without dynamics: no gates.
+        assert!(
+            build(&network(NET))
+                .unwrap()
+                .messages
+                .iter()
+                .all(|m| !m.name.starts_with("PAB_Gates"))
+        );
     }
 
     #[test]

@@ -119,7 +119,11 @@ pub fn render(
                     u8::try_from(connection.index).unwrap_or(u8::MAX),
                 );
                 let sample = view.and_then(|v| v.samples.get(&(key.1, key.2)));
-                let topic = &network.topics[connection.topic].name;
+                // A gate has no topic: it shows as fed by its group.
+                let topic = network
+                    .topics
+                    .get(connection.topic)
+                    .map_or("gate", |t| t.name.as_str());
                 let line = match sample {
                     Some(sample) if freshness.is_fresh(key, now) => {
                         let level = sample.level_f32().clamp(0.0, 1.0);

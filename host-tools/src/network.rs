@@ -30,9 +30,15 @@ use crate::shown;
 
 mod ble;
 mod dynamics;
+mod gates;
 
 pub use ble::{BleGroup, BleMember};
 pub use dynamics::{Context, DynamicsBehaviour, DynamicsGroup};
+pub use gates::lookup as gate;
+
+/// The topic of a connection that no topic feeds (a gate, [`Kind::Gate`]): no index of
+/// [`Network::topics`].
+pub const NO_TOPIC: usize = usize::MAX;
 
 /// The most frames the `[[events]]` of one file may generate, so that a typo in a rate cannot
 /// exhaust memory.
@@ -238,6 +244,10 @@ pub enum Kind {
     /// rule that names a group (`[ble.NAME]`) adds one, named after it ([`BleGroup`]). Its
     /// `topic` is the node's eligibility topic for the group, which never feeds it.
     Claim,
+    /// Never delivers; active while a competitive-dynamics behaviour's gate is open. Not written
+    /// in a file: a rule that names `GROUP.BEHAVIOUR` adds one, named so. No topic feeds it
+    /// ([`NO_TOPIC`]).
+    Gate,
 }
 
 impl Kind {
@@ -259,6 +269,7 @@ impl Kind {
             Kind::Override => "override",
             Kind::WriteInhibit => "write-inhibit",
             Kind::Claim => "claim",
+            Kind::Gate => "gate",
         }
     }
 
@@ -271,6 +282,7 @@ impl Kind {
             Kind::Override => "an override",
             Kind::WriteInhibit => "a write-inhibit",
             Kind::Claim => "a claim",
+            Kind::Gate => "a gate",
         }
     }
 
@@ -281,7 +293,7 @@ impl Kind {
 
     /// Whether it acts for a period (σ = 1, τ = period, τr = 0) rather than by `st`/`tc`/`tr`.
     pub const fn is_special(self) -> bool {
-        !matches!(self, Kind::Normal | Kind::Claim)
+        !matches!(self, Kind::Normal | Kind::Claim | Kind::Gate)
     }
 
     /// Whether its frames can be delivered (normal and override); the others only coordinate.
@@ -541,13 +553,21 @@ impl Builder<'_> {
             .map(|k| k.get_ref().as_str())
             .collect();
         let groups = self.ble_groups(&raw.ble, &nodes, &topics, &names);
+        let dynamics = self.dynamics_groups(&raw.dynamics, &nodes, &topics, &ports, &connections);
         self.claims(&raw.connections, &groups, &mut connections, &mut ports);
-        self.rules(&raw.connections, &mut connections, &ports, &groups, &nodes);
+        self.gates(&raw.connections, &dynamics, &mut connections, &mut ports);
+        self.rules(
+            &raw.connections,
+            &mut connections,
+            &ports,
+            &groups,
+            &dynamics,
+            &nodes,
+        );
         self.value_capacities(&ports, &nodes);
         let events = self.events(&raw.events, &topics);
         let phases = self.phases(&raw.phases);
         let faults = self.faults(&raw.faults, &nodes);
-        let dynamics = self.dynamics_groups(&raw.dynamics, &nodes, &topics, &ports, &connections);
         let mut nodes = nodes;
         for (index, port) in ports.iter().enumerate() {
             if let Some(node) = nodes.get_mut(port.node) {
@@ -1376,6 +1396,7 @@ impl Builder<'_> {
         connections: &mut [Connection],
         ports: &[Port],
         groups: &[BleGroup],
+        dynamics: &[DynamicsGroup],
         nodes: &[Node],
     ) {
         for connection_index in 0..connections.len() {
@@ -1402,6 +1423,9 @@ impl Builder<'_> {
             let resolve = |name: &str| -> Result<usize, String> {
                 if let Some((_, index)) = names.iter().find(|(n, _)| n == name) {
                     return Ok(*index);
+                }
+                if gates::split(name).is_some() {
+                    return Err(gates::unknown(dynamics, name));
                 }
                 if let Some(group) = groups.iter().find(|g| g.name == name) {
                     let node = nodes.get(port_node).map_or("?", |n| n.name.as_str());

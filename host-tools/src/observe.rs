@@ -62,6 +62,7 @@ impl Observer {
                     .insert((sample.port, sample.connection), sample);
             }
             Message::DiagnosticControl(_)
+            | Message::Gates(_)
             | Message::AuthenticatedDiagnosticControl { .. }
             | Message::TableTransfer { .. }
             | Message::ChallengeRequest

@@ -198,8 +198,20 @@ fn tokenize(text: &str) -> Result<Vec<(usize, Token<'_>)>, RuleError> {
             ')' => Token::Close,
             c if is_name_start(c) => {
                 let mut end = offset + c.len_utf8();
+                // A name, or `group.behaviour` (a competitive-dynamics gate): one dot between
+                // two names, nothing else (connection names have no dot).
+                let mut dotted = false;
                 while let Some(&(next_offset, next)) = chars.peek() {
-                    if !is_name_char(next) {
+                    if next == '.' && !dotted {
+                        let after = text[next_offset + 1..].chars().next();
+                        if !after.is_some_and(is_name_start) {
+                            return Err(RuleError {
+                                offset: next_offset,
+                                message: "a `.` in a rule joins a dynamics group and one of its behaviours (`door.search`)".to_string(),
+                            });
+                        }
+                        dotted = true;
+                    } else if !is_name_char(next) {
                         break;
                     }
                     end = next_offset + next.len_utf8();
@@ -211,7 +223,7 @@ fn tokenize(text: &str) -> Result<Vec<(usize, Token<'_>)>, RuleError> {
                 return Err(RuleError {
                     offset,
                     message: format!(
-                        "unexpected character `{}`; rules use connection names, `!`, `&`, `|`, parentheses, `true` and `false`",
+                        "unexpected character `{}`; rules use connection names, gates (`group.behaviour`), `!`, `&`, `|`, parentheses, `true` and `false`",
                         crate::shown::escaped(other.encode_utf8(&mut [0; 4]))
                     ),
                 });

@@ -123,6 +123,8 @@ pub struct Outcome {
     /// The `[dynamics.*]` groups' states, one row per behaviour per step, in time order, then
     /// group and behaviour order (empty unless [`Options::dynamics`]).
     pub dynamics: Vec<DynamicsRow>,
+    /// The Gates frames the nodes sent, in bus order.
+    pub gates: Vec<BusFrame>,
 }
 
 /// A change of the nodes that hold a BLE group's task.
@@ -166,6 +168,8 @@ struct Station {
     stop_us: Option<u64>,
     /// The last instant it polled its BLE groups, µs (`None`: not yet).
     last_us: Option<u64>,
+    /// The last instant it polled its dynamics, µs (`None`: not yet).
+    dynamics_last_us: Option<u64>,
 }
 
 impl Station {
@@ -282,6 +286,7 @@ fn run_stopping(
             arbiter,
             stop_us,
             last_us: None,
+            dynamics_last_us: None,
         });
     }
     if options.records {
@@ -293,16 +298,11 @@ fn run_stopping(
     {
         return Err(SimError("the frames are not in time order".into()));
     }
-    let groups = if options.dynamics {
-        dynamics::start(network, |node| stations.iter().position(|s| s.node == node))?
-    } else {
-        Vec::new()
-    };
     let mut run = Run {
         network,
         stations,
-        dynamics: groups,
         dynamics_rows: Vec::new(),
+        gates: Vec::new(),
         options,
         rows: Vec::new(),
         timelines: network
@@ -407,7 +407,7 @@ fn run_stopping(
             run.note_all(now);
         }
         if next_step == Some(now) {
-            run.dynamics_tick(now, until_us);
+            run.dynamics_tick(now);
         }
     }
     if options.samples {
@@ -430,6 +430,7 @@ fn run_stopping(
         claims: run.claims,
         holdings: run.holdings,
         dynamics: run.dynamics_rows,
+        gates: run.gates,
     })
 }
 
@@ -513,9 +514,9 @@ pub fn settled_until(network: &Network, frames: &[BusFrame]) -> u64 {
 struct Run<'a> {
     network: &'a Network,
     stations: Vec<Station>,
-    /// The `[dynamics.*]` groups, stepped when [`Options::dynamics`] asks for them.
-    dynamics: Vec<dynamics::GroupRun>,
     dynamics_rows: Vec<DynamicsRow>,
+    /// The Gates frames sent so far.
+    gates: Vec<BusFrame>,
     options: &'a Options,
     rows: Vec<TraceRow>,
     timelines: Vec<Vec<Change>>,
@@ -686,9 +687,6 @@ impl Run<'_> {
     fn frame(&mut self, frame: &BusFrame) {
         let now = Instant::from_micros(frame.t_us);
         let id = frame.frame.id();
-        if !self.dynamics.is_empty() {
-            self.dynamics_frame(&id, &frame.frame, frame.t_us);
-        }
         for station in 0..self.stations.len() {
             if self
                 .stations
@@ -708,6 +706,11 @@ impl Run<'_> {
                 self.ble_poll(station, frame.t_us);
                 continue;
             }
+            // Gates (a capture's, in a replay): the dynamics' traffic, never arbitrated.
+            if dynamics::is_gates(&frame.frame) {
+                self.hear_gates(station, &frame.frame, frame.t_us);
+                continue;
+            }
             let mut verdicts = Vec::new();
             let mut combined = Vec::new();
             if let Some(entry) = self.stations.get_mut(station) {
@@ -719,6 +722,9 @@ impl Run<'_> {
                 );
                 if entry.arbiter.has_groups() {
                     entry.arbiter.ble_frame(&frame.frame, now);
+                }
+                if entry.arbiter.has_dynamics() {
+                    entry.arbiter.dynamics_frame(&frame.frame, now);
                 }
             }
             if let (Some(out), Some(entry)) = (self.records.as_mut(), self.stations.get(station)) {
@@ -1038,6 +1044,9 @@ impl Outcome {
         if !self.claims.is_empty() {
             let _ = writeln!(out, "BLE claims sent: {}", self.claims.len());
         }
+        if !self.gates.is_empty() {
+            let _ = writeln!(out, "Gates frames sent: {}", self.gates.len());
+        }
         out
     }
 
@@ -1049,6 +1058,7 @@ impl Outcome {
             .filter(|f| f.t_us <= self.until_us)
             .map(|f| (f.t_us, 0, *f))
             .chain(self.claims.iter().map(|f| (f.t_us, 1, *f)))
+            .chain(self.gates.iter().map(|f| (f.t_us, 1, *f)))
             .collect();
         // Stable: within an instant and a kind, the order they were sent in.
         all.sort_by_key(|(t, kind, _)| (*t, *kind));

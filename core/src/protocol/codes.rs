@@ -97,6 +97,18 @@ wire_enum! {
         /// (1 malformed, 2 this node's id, 3 no room); byte 1: the claim's node id (0 when
         /// malformed); byte 2: its group.
         ClaimRefused = 0x0040, "BLE claim refused";
+        /// A competitive-dynamics group whose gates this node reads ([`crate::dynamics`]) was not
+        /// heard for [`super::Gates::SILENCE_US`]: its gates read closed until it is heard again.
+        /// Detail byte 0: the node that runs it; byte 1: the group.
+        GatesLost = 0x0050, "dynamics gates lost";
+        /// Gates of a group this node reads, with another number of behaviours than its table
+        /// says (two networks on one bus, or a table not pushed yet): ignored. Detail byte 0:
+        /// the sender; byte 1: the group; byte 2: the count in the frame.
+        GatesRefused = 0x0051, "dynamics gates refused";
+        /// A group this node runs fell more than [`crate::dynamics::MAX_CATCH_UP`] steps behind
+        /// (the node stalled) and dropped the backlog. Detail bytes 0-3: the steps dropped since
+        /// the table started, u32 LE, saturating; byte 4: the group's position in the table.
+        DynamicsLate = 0x0052, "dynamics steps dropped";
     }
 }
 

@@ -23,6 +23,49 @@ pub struct Heartbeat {
     pub table_version: u32,
 }
 
+/// The gates of a competitive-dynamics group (service 0x07), sent by the node that runs the group
+/// to [`super::BROADCAST`] whenever a gate changes and every [`Gates::PERIOD_US`] otherwise
+/// ([`crate::dynamics::gates`]).
+///
+/// ```text
+/// byte 0     group: its number in the network (the file's order of [dynamics.*], from 0)
+/// byte 1     behaviours in the group, 1..=32
+/// bytes 2-5  gates, u32 LE: bit i set while behaviour i's gate is open; bits at and above the
+///            count are 0
+/// byte 6     changes: how many times the mask changed since the group started, mod 256
+/// byte 7     reserved, 0
+/// ```
+///
+/// The count travels so that a node whose table imports the group refuses the gates of a group
+/// of another size (two networks on one bus, or a table not pushed yet) instead of reading the
+/// wrong bits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Gates {
+    /// The group's number in the network.
+    pub group: u8,
+    /// How many behaviours the group has, 1..=32.
+    pub behaviours: u8,
+    /// Bit i: behaviour i's gate is open.
+    pub mask: u32,
+    /// Changes of the mask since the group started, mod 256.
+    pub changes: u8,
+}
+
+impl Gates {
+    /// The longest a group's owner stays silent: it repeats its gates at this period, 100 ms.
+    pub const PERIOD_US: u64 = 100_000;
+    /// A group not heard for this long (three periods) reads as all gates closed, with a fault.
+    pub const SILENCE_US: u64 = 3 * Gates::PERIOD_US;
+
+    /// Whether the fields are in range: 1..=32 behaviours, no gate at or above the count.
+    pub const fn is_valid(&self) -> bool {
+        self.behaviours >= 1
+            && self.behaviours <= 32
+            && (self.behaviours == 32 || self.mask >> self.behaviours == 0)
+    }
+}
+
 /// The running table (service 0x03).
 ///
 /// ```text
@@ -243,6 +286,8 @@ pub enum Message {
     Errors(Errors),
     /// See [`DiagnosticSample`].
     Diagnostic(DiagnosticSample),
+    /// See [`Gates`].
+    Gates(Gates),
     /// See [`DiagnosticControl`].
     DiagnosticControl(DiagnosticControl),
     /// One ISO-TP frame of a table transfer (or its flow control), passed to [`crate::isotp`].
@@ -364,6 +409,7 @@ impl Message {
             Message::Traffic(_) => Service::Traffic,
             Message::Errors(_) => Service::Errors,
             Message::Diagnostic(_) => Service::Diagnostic,
+            Message::Gates(_) => Service::Gates,
             Message::DiagnosticControl(_) => Service::DiagnosticControl,
             Message::TableTransfer { .. } => Service::TableTransfer,
             Message::TransferStatus(_) => Service::TransferStatus,
@@ -443,6 +489,11 @@ impl Message {
                 out.put(&open.tag);
             }
             Message::Receipt { tag } => out.put(tag),
+            Message::Gates(gates) => {
+                out.put(&[gates.group, gates.behaviours]);
+                out.put(&gates.mask.to_le_bytes());
+                out.put(&[gates.changes, 0]);
+            }
         }
         Frame::from_buffer(id, out.buf, out.len)
     }
@@ -522,6 +573,18 @@ impl Message {
                 sequence: byte(data, 3),
                 level: u32_at(data, 4),
             }),
+            Service::Gates => {
+                let gates = Gates {
+                    group: byte(data, 0),
+                    behaviours: byte(data, 1),
+                    mask: u32_at(data, 2),
+                    changes: byte(data, 6),
+                };
+                if !gates.is_valid() || byte(data, 7) != 0 {
+                    return Err(bad);
+                }
+                Message::Gates(gates)
+            }
             Service::DiagnosticControl => {
                 let rate_hz = u16_at(data, 0);
                 if rate_hz > DiagnosticControl::MAX_RATE_HZ {

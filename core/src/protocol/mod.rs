@@ -31,7 +31,7 @@ pub use codes::{
 };
 pub use messages::DecodeError;
 pub use messages::{
-    DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Fault, Heartbeat, Message,
+    DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Fault, Gates, Heartbeat, Message,
     OPEN_REPLACE, TableStatus, Traffic, TransferOpen, TransferStatus,
 };
 
@@ -100,6 +100,8 @@ pub enum Service {
     Errors = 0x05,
     /// Node → all: one connection's stimulation, when the stream is on ([`DiagnosticSample`]).
     Diagnostic = 0x06,
+    /// Node → all: the gates of a competitive-dynamics group the node runs ([`Gates`]).
+    Gates = 0x07,
     /// Tool → node(s): switches the diagnostic stream ([`DiagnosticControl`]).
     DiagnosticControl = 0x10,
     /// Tool ↔ node: ISO-TP frames of a table image (tool → node) and flow control (node → tool).
@@ -118,13 +120,14 @@ pub enum Service {
 
 impl Service {
     /// Every service, for tables (DBC export, documentation tests).
-    pub const ALL: [Service; 13] = [
+    pub const ALL: [Service; 14] = [
         Service::Fault,
         Service::Heartbeat,
         Service::TableStatus,
         Service::Traffic,
         Service::Errors,
         Service::Diagnostic,
+        Service::Gates,
         Service::DiagnosticControl,
         Service::TableTransfer,
         Service::TransferStatus,
@@ -151,9 +154,12 @@ impl Service {
         match self {
             Service::Fault => Priority::EXCEPTIONAL,
             Service::TransferStatus | Service::Challenge | Service::Receipt => Priority::HIGH,
-            Service::DiagnosticControl | Service::ChallengeRequest | Service::TransferOpen => {
-                Priority::COMMAND
-            }
+            // Gates are decisions other nodes' rules read: they wait for faults and the tool's
+            // answers only, never behind heartbeats, claims or counters.
+            Service::Gates
+            | Service::DiagnosticControl
+            | Service::ChallengeRequest
+            | Service::TransferOpen => Priority::COMMAND,
             Service::Heartbeat | Service::TableStatus => Priority::NOMINAL,
             Service::Traffic | Service::Errors => Priority::LOW,
             Service::TableTransfer => Priority::BULK,

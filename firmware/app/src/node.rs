@@ -8,6 +8,7 @@
 use pab_core::Consumer as PortConsumer;
 use pab_core::auth::{IMAGE_MAC_LEN, Key};
 use pab_core::ble::{self, BleError, Claim};
+use pab_core::dynamics;
 use pab_core::image::{self, Header, LoadError};
 use pab_core::isotp::{self, Pci, RxError, RxEvent};
 use pab_core::protocol::{
@@ -15,7 +16,7 @@ use pab_core::protocol::{
     STORE_UNREADABLE, Service, StoreFailure, TableStatus, Traffic, TransferOpen, TransferStatus,
     TransferStatusCode,
 };
-use pab_core::{Arbiter, Combined, Frame, Instant, MAX_VALUE_PORTS, PortVerdict};
+use pab_core::{Arbiter, Combined, Frame, GatesLost, Instant, MAX_VALUE_PORTS, PortVerdict};
 use pab_storage::StoreError;
 
 use crate::auth::{CHALLENGE_LIFETIME_US, Guard};
@@ -296,10 +297,13 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             }
         } else {
             self.arbitrate(frame, now, consumer);
-            if let Some(arbiter) = self.arbiter.as_mut()
-                && arbiter.has_groups()
-            {
-                arbiter.ble_frame(frame, now);
+            if let Some(arbiter) = self.arbiter.as_mut() {
+                if arbiter.has_groups() {
+                    arbiter.ble_frame(frame, now);
+                }
+                if arbiter.has_dynamics() {
+                    arbiter.dynamics_frame(frame, now);
+                }
             }
             Step::Continue
         };
@@ -494,6 +498,80 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         if self.arbiter.as_ref().is_some_and(Arbiter::has_groups) {
             self.send_claims(now);
         }
+        if self.arbiter.as_ref().is_some_and(Arbiter::has_dynamics) {
+            self.step_dynamics(now);
+        }
+    }
+
+    /// The dynamics brought up to `now`: the steps due of the groups the node runs, their
+    /// gates queued, and the groups it reads that fell silent reported.
+    #[inline(never)]
+    fn step_dynamics(&mut self, now: Instant) {
+        let Some(arbiter) = self.arbiter.as_mut() else {
+            return;
+        };
+        if arbiter
+            .dynamics_deadline(now)
+            .is_some_and(|due| now.micros_since(due).is_none())
+        {
+            return;
+        }
+        let skipped = |arbiter: &Arbiter<P, C, N>| {
+            arbiter
+                .dynamics_runs()
+                .iter()
+                .map(|run| run.skipped())
+                .fold(0u32, u32::saturating_add)
+        };
+        let before = skipped(arbiter);
+        // Each group sends at most two Gates frames a poll (a change and a repeat); a node reads
+        // at most MAX_GATE_SOURCES groups.
+        let mut gates: heapless::Vec<protocol::Gates, { 2 * dynamics::MAX_DYNAMICS_GROUPS }> =
+            heapless::Vec::new();
+        let mut lost: heapless::Vec<GatesLost, { dynamics::MAX_GATE_SOURCES }> =
+            heapless::Vec::new();
+        arbiter.dynamics_poll(
+            now,
+            |_| {},
+            |g| {
+                let _ = gates.push(g);
+            },
+            |l| {
+                let _ = lost.push(l);
+            },
+        );
+        let after = skipped(arbiter);
+        let late = arbiter
+            .dynamics_runs()
+            .iter()
+            .position(|run| run.skipped() != 0);
+        for g in gates.iter() {
+            self.send(Message::Gates(*g), protocol::BROADCAST);
+        }
+        for l in lost.iter() {
+            self.raise(FaultCode::GatesLost, [l.owner, l.group, 0, 0, 0]);
+        }
+        if after != before {
+            let [a, b, c, d] = after.to_le_bytes();
+            let group = late.and_then(|p| u8::try_from(p).ok()).unwrap_or(0);
+            self.raise(FaultCode::DynamicsLate, [a, b, c, d, group]);
+        }
+    }
+
+    /// Gates from another node: read if the table reads the group, refused with a fault if the
+    /// group has another size here.
+    #[inline(never)]
+    fn on_gates(&mut self, source: u8, gates: &protocol::Gates, now: Instant) {
+        let Some(arbiter) = self.arbiter.as_mut() else {
+            return;
+        };
+        if arbiter.on_gates(source, gates, now).is_err() {
+            self.counters.errors = self.counters.errors.wrapping_add(1);
+            self.raise(
+                FaultCode::GatesRefused,
+                [source, gates.group, gates.behaviours, 0, 0],
+            );
+        }
     }
 
     /// The BLE claims due at `now`, and the holding decisions brought up to it.
@@ -635,6 +713,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 .as_ref()
                 .filter(|arbiter| arbiter.has_groups())
                 .and_then(|arbiter| arbiter.ble_deadline(now)),
+            self.arbiter
+                .as_ref()
+                .filter(|arbiter| arbiter.has_dynamics())
+                .and_then(|arbiter| arbiter.dynamics_deadline(now)),
         ];
         for candidate in candidates.into_iter().flatten() {
             if candidate.micros_since(deadline).is_none() {
@@ -771,6 +853,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             return Step::Continue;
         }
         match message {
+            Message::Gates(gates) => {
+                self.on_gates(id.source, &gates, now);
+                Step::Continue
+            }
             Message::DiagnosticControl(control) => {
                 match self.guard.plain_allowed() {
                     Ok(()) => self.configure_diagnostic(control, now),

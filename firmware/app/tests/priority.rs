@@ -16,6 +16,8 @@ fn payload(service: Service) -> Vec<u8> {
             vec![0; 8]
         }
         Service::DiagnosticControl => vec![10, 0, 0xFF, 0xFF],
+        // Group 0 of one behaviour, its gate closed.
+        Service::Gates => vec![0, 1, 0, 0, 0, 0, 0, 0],
         // A first frame announcing a 100-byte image.
         Service::TableTransfer => vec![0x10, 100, b'P', b'A', b'B', b'T', 1, 5],
         Service::TransferStatus => vec![0; 8],

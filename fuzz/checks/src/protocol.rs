@@ -9,8 +9,8 @@ use embedded_can::{ExtendedId, Frame as _, Id, StandardId};
 use pab_core::Frame;
 use pab_core::protocol::{
     self, DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Fault, FaultCode, FrameId,
-    Heartbeat, Message, NodeState, OPEN_REPLACE, Service, TableStatus, Traffic, TransferOpen,
-    TransferStatus, TransferStatusCode,
+    Gates, Heartbeat, Message, NodeState, OPEN_REPLACE, Service, TableStatus, Traffic,
+    TransferOpen, TransferStatus, TransferStatusCode,
 };
 
 /// Any frame, decoded; what decodes must encode to the same frame (at its service's priority).
@@ -56,6 +56,17 @@ pub fn encode(data: &[u8]) {
     };
     let frame = message.to_frame(source, destination);
     let decoded = Message::decode(&frame);
+    if let Message::Gates(gates) = message
+        && !gates.is_valid()
+    {
+        assert_eq!(
+            decoded,
+            Err(protocol::DecodeError::Value {
+                service: Service::Gates
+            })
+        );
+        return;
+    }
     if let Message::DiagnosticControl(control) = message
         && control.rate_hz > DiagnosticControl::MAX_RATE_HZ
     {
@@ -126,7 +137,7 @@ fn pick<T: Copy>(u: &mut Unstructured<'_>, all: &[T]) -> Result<T> {
 }
 
 fn any_message(u: &mut Unstructured<'_>) -> Result<(Message, u8, u8)> {
-    let message = match u.int_in_range(0u8..=13)? {
+    let message = match u.int_in_range(0u8..=14)? {
         0 => Message::Fault(Fault {
             code: pick(u, FaultCode::ALL)?,
             count: u.arbitrary()?,
@@ -196,6 +207,28 @@ fn any_message(u: &mut Unstructured<'_>) -> Result<(Message, u8, u8)> {
         12 => Message::Receipt {
             tag: u.arbitrary()?,
         },
+        13 => Message::Gates(if u.ratio(1u8, 8)? {
+            // Anything: a count of 0 or above 32, gates beyond the count.
+            Gates {
+                group: u.arbitrary()?,
+                behaviours: u.arbitrary()?,
+                mask: u.arbitrary()?,
+                changes: u.arbitrary()?,
+            }
+        } else {
+            let behaviours = u.int_in_range(1..=32u8)?;
+            let mask: u32 = u.arbitrary()?;
+            Gates {
+                group: u.arbitrary()?,
+                behaviours,
+                // The gates below the count (all 32 bits for 32).
+                mask: mask
+                    & 1u32
+                        .checked_shl(behaviours.into())
+                        .map_or(u32::MAX, |b| b - 1),
+                changes: u.arbitrary()?,
+            }
+        }),
         _ => Message::TransferStatus(TransferStatus {
             status: pick(u, TransferStatusCode::ALL)?,
             detail: u.arbitrary()?,

@@ -1,25 +1,22 @@
-//! The competitive-dynamics groups (`[dynamics.NAME]`) in virtual time, stepped with the board's
-//! code ([`pab_core::dynamics::Dynamics`]).
+//! The competitive-dynamics groups (`[dynamics.NAME]`) in virtual time, run by the nodes'
+//! arbiters with the board's code (`pab_core::dynamics`, through `Arbiter::dynamics_poll`).
 //!
-//! Group g steps at t_k = k · step. At t_k, after the frames, wakes and BLE work of that instant,
-//! it records one [`DynamicsRow`] per behaviour (the state after k steps, with the context at t_k),
-//! then steps once with those contexts, unless t_(k+1) is beyond the end of the run. A context
-//! from a connection is its activity (`Arbiter::activity`) on the group's node at t_k; one from a
-//! topic is the field of the last frame of that topic (a frame at t_k included) divided by its
-//! scale, 0 before any frame and once `timeout` has passed since the last; contexts are clamped
-//! into [0, 1] and fed in Q2.29. A stopped node (`[[faults]]`) hears no more frames, so its
-//! connections lapse and its topic contexts time out; its groups keep stepping.
-//!
-//! Gates do not enter rules yet.
+//! A node that runs a group polls it at each t_k = k · step (from 0): at t_k it takes the step
+//! from t_(k−1) with the contexts sampled then, samples the contexts at t_k (after the frames, wakes
+//! and BLE work of that instant: a frame at exactly t_k counts), and records one [`DynamicsRow`]
+//! per behaviour (the state after k steps, the context at t_k). Its Gates frames go on the
+//! simulated bus at once, in arbitration order, to every other running node; a node reading a
+//! group closes its gates after 300 ms without them. A stopped node (`[[faults]]`) polls no
+//! more: its groups stop and their readers lose them.
 
 use std::io::{self, Write};
 
-use embedded_can::Id;
-use pab_core::dynamics::{Dynamics, ONE};
+use pab_core::dynamics::ONE;
+use pab_core::protocol::{BROADCAST, Gates, Message};
 use pab_core::{Frame, Instant};
 
-use super::{Run, SimError, seconds_text};
-use crate::network::{Context, Network};
+use super::{BusFrame, Run, seconds_text};
+use crate::network::Network;
 
 /// One behaviour's state at one step of its group.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -42,157 +39,138 @@ pub struct DynamicsRow {
     pub gate: bool,
 }
 
-/// A running group.
-pub(super) struct GroupRun {
-    dynamics: Dynamics,
-    /// Its node's station.
-    station: usize,
-    step_us: u64,
-    /// t_k of the next row.
-    pub(super) next_us: u64,
-    /// Per behaviour with a topic context: the last frame's value (already divided) and when.
-    last: Vec<Option<(u64, f64)>>,
-}
-
-/// The groups of `network`, in their initial state; `station_of` maps a node index to its
-/// station.
-pub(super) fn start(
-    network: &Network,
-    station_of: impl Fn(usize) -> Option<usize>,
-) -> Result<Vec<GroupRun>, SimError> {
-    network
-        .dynamics
-        .iter()
-        .map(|group| {
-            let dynamics = Dynamics::new(&group.params)
-                .map_err(|error| SimError(format!("dynamics group `{}`: {error}", group.name)))?;
-            let station = station_of(group.node)
-                .ok_or_else(|| SimError(format!("dynamics group `{}`: no station", group.name)))?;
-            Ok(GroupRun {
-                dynamics,
-                station,
-                step_us: u64::from(group.params.step_us),
-                next_us: 0,
-                last: vec![None; group.behaviours.len()],
-            })
-        })
-        .collect()
-}
-
 impl Run<'_> {
-    /// The next t_k of any group, if any.
+    /// The next instant at which a running node has dynamics work (a step, a repeat of its
+    /// gates, a group it reads going silent), µs.
     pub(super) fn dynamics_deadline(&self) -> Option<u64> {
-        self.dynamics.iter().map(|g| g.next_us).min()
-    }
-
-    /// Records a frame on a topic that feeds a context, for groups whose node still runs.
-    pub(super) fn dynamics_frame(&mut self, id: &Id, frame: &Frame, t_us: u64) {
-        let network = self.network;
-        for (g, run) in self.dynamics.iter_mut().enumerate() {
-            if self
-                .stations
-                .get(run.station)
-                .is_none_or(|s| s.stopped(t_us))
-            {
-                continue;
-            }
-            let Some(group) = network.dynamics.get(g) else {
-                continue;
-            };
-            for (behaviour, last) in group.behaviours.iter().zip(run.last.iter_mut()) {
-                let Context::Topic {
-                    topic,
-                    field,
-                    scale,
-                    ..
-                } = &behaviour.context
-                else {
-                    continue;
+        self.stations
+            .iter()
+            .filter(|s| s.arbiter.has_dynamics())
+            .filter_map(|s| {
+                let Some(last) = s.dynamics_last_us else {
+                    // Never polled: its groups start at 0.
+                    return Some(0);
                 };
-                if !network
-                    .topics
-                    .get(*topic)
-                    .is_some_and(|t| t.filter.matches(id))
-                {
-                    continue;
-                }
-                // A frame too short for the field reads 0.
-                let value = field
-                    .read(frame.payload())
-                    .map_or(0.0, |v| v as f64 / scale);
-                *last = Some((t_us, value));
-            }
-        }
+                let due = s.arbiter.dynamics_deadline(Instant::from_micros(last))?;
+                let ahead = due
+                    .micros_since(Instant::from_micros(last))
+                    .unwrap_or(0)
+                    .max(1);
+                Some(last.saturating_add(ahead)).filter(|&t| !s.stopped(t))
+            })
+            .min()
     }
 
-    /// At `now`: every group due records its rows and steps (unless its next step would be
-    /// after `until_us`).
-    pub(super) fn dynamics_tick(&mut self, now: u64, until_us: u64) {
+    /// Every running node with dynamics work at `now` polls; the gates they send are heard by
+    /// every other running node, in arbitration order.
+    pub(super) fn dynamics_tick(&mut self, now_us: u64) {
+        let now = Instant::from_micros(now_us);
         let network = self.network;
-        let instant = Instant::from_micros(now);
-        for g in 0..self.dynamics.len() {
-            let (Some(group), Some(run)) = (network.dynamics.get(g), self.dynamics.get(g)) else {
+        let record = self.options.dynamics;
+        let mut sent: Vec<(usize, Frame)> = Vec::new();
+        for station in 0..self.stations.len() {
+            let Some(entry) = self.stations.get_mut(station) else {
                 continue;
             };
-            if run.next_us != now {
+            if entry.stopped(now_us) || !entry.arbiter.has_dynamics() {
                 continue;
             }
-            let station = self.stations.get(run.station);
-            let contexts: Vec<i32> = group
-                .behaviours
+            let due = match entry.dynamics_last_us {
+                None => true,
+                Some(last) => entry
+                    .arbiter
+                    .dynamics_deadline(Instant::from_micros(last))
+                    .is_some_and(|d| now.micros_since(d).is_some()),
+            };
+            if !due {
+                continue;
+            }
+            entry.dynamics_last_us = Some(now_us);
+            // The node's groups in network order: its run `p` is its `p`-th.
+            let groups: Vec<usize> = network
+                .dynamics
                 .iter()
-                .zip(&run.last)
-                .map(|(behaviour, last)| {
-                    let value = match &behaviour.context {
-                        Context::Constant(value) => *value,
-                        Context::Topic { timeout_us, .. } => last
-                            .filter(|(t, _)| now.saturating_sub(*t) <= *timeout_us)
-                            .map_or(0.0, |(_, value)| value),
-                        Context::Connection { connection } => {
-                            let active = network.connections.get(*connection).and_then(|c| {
-                                let node = network.nodes.get(group.node)?;
-                                let local = node.ports.iter().position(|&p| p == c.port)?;
-                                let arbiter = &station?.arbiter;
-                                Some(
-                                    arbiter
-                                        .activity(u8::try_from(local).ok()?, instant)
-                                        .contains(u8::try_from(c.index).ok()?),
-                                )
-                            });
-                            f64::from(u8::from(active.unwrap_or(false)))
-                        }
-                    };
-                    (value.clamp(0.0, 1.0) * f64::from(ONE)).round() as i32
-                })
+                .enumerate()
+                .filter(|(_, g)| g.node == entry.node)
+                .map(|(index, _)| index)
                 .collect();
-            let Some(run) = self.dynamics.get_mut(g) else {
-                continue;
-            };
-            let gates = run.dynamics.gates();
-            for (behaviour, context) in contexts.iter().enumerate() {
-                let Some(state) = run.dynamics.state(behaviour) else {
-                    continue;
-                };
-                let q = |x: i32| f64::from(x) / f64::from(ONE);
-                self.dynamics_rows.push(DynamicsRow {
-                    t_us: now,
-                    group: g,
-                    behaviour,
-                    context: q(*context),
-                    n: q(state.n),
-                    rho: q(state.rho),
-                    m: q(state.m),
-                    gate: gates & (1 << behaviour) != 0,
-                });
+            let id = entry.id;
+            let rows = &mut self.dynamics_rows;
+            let mut gates: Vec<Gates> = Vec::new();
+            entry.arbiter.dynamics_poll(
+                now,
+                |view| {
+                    if !record {
+                        return;
+                    }
+                    let Some(&group) = groups.get(view.group) else {
+                        return;
+                    };
+                    let q = |x: i32| f64::from(x) / f64::from(ONE);
+                    let open = view.dynamics.gates();
+                    for (behaviour, &context) in view.contexts.iter().enumerate() {
+                        let Some(state) = view.dynamics.state(behaviour) else {
+                            continue;
+                        };
+                        rows.push(DynamicsRow {
+                            t_us: view.at.as_micros(),
+                            group,
+                            behaviour,
+                            context: q(context),
+                            n: q(state.n),
+                            rho: q(state.rho),
+                            m: q(state.m),
+                            gate: open & (1 << behaviour) != 0,
+                        });
+                    }
+                },
+                |g| gates.push(g),
+                |_| {},
+            );
+            sent.extend(
+                gates
+                    .into_iter()
+                    .map(|g| (station, Message::Gates(g).to_frame(id, BROADCAST))),
+            );
+        }
+        // On the bus: lower identifier first (the sender's id breaks ties between groups).
+        sent.sort_by_key(|(_, frame)| match frame.id() {
+            embedded_can::Id::Extended(id) => id.as_raw(),
+            embedded_can::Id::Standard(id) => u32::from(id.as_raw()),
+        });
+        for (sender, frame) in sent {
+            self.gates.push(BusFrame {
+                t_us: now_us,
+                frame,
+            });
+            for station in 0..self.stations.len() {
+                if station != sender {
+                    self.hear_gates(station, &frame, now_us);
+                }
             }
-            let next = now.saturating_add(run.step_us);
-            if next <= until_us {
-                run.dynamics.step(&contexts);
-            }
-            // Past the end: no more rows (the deadline filter drops it).
-            run.next_us = next;
         }
     }
+
+    /// Station `station` hears a Gates frame (a node that stopped hears nothing; gates of a group
+    /// of another size are dropped, as a node drops them after its fault).
+    pub(super) fn hear_gates(&mut self, station: usize, frame: &Frame, now_us: u64) {
+        let Some(entry) = self.stations.get_mut(station) else {
+            return;
+        };
+        if entry.stopped(now_us) {
+            return;
+        }
+        if let Ok((id, Message::Gates(gates))) = Message::decode(frame) {
+            let _ = entry
+                .arbiter
+                .on_gates(id.source, &gates, Instant::from_micros(now_us));
+        }
+    }
+}
+
+/// Whether `frame` is a Gates frame of the protocol.
+pub(super) fn is_gates(frame: &Frame) -> bool {
+    matches!(Message::decode(frame), Ok((_, Message::Gates(_))))
 }
 
 /// Writes `rows` as CSV: `t,group,behaviour,context,n,rho,m,gate`, six decimals.
