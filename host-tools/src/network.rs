@@ -32,7 +32,7 @@ mod ble;
 mod dynamics;
 
 pub use ble::{BleGroup, BleMember};
-pub use dynamics::{Context, DynamicsBehaviour, DynamicsGroup};
+pub use dynamics::{Context, DynamicsBehaviour, DynamicsGroup, WrittenBehaviour, WrittenExclusion};
 
 /// The most frames the `[[events]]` of one file may generate, so that a typo in a rate cannot
 /// exhaust memory.
