@@ -652,6 +652,14 @@ fn run_monitor(
 fn run_check(path: &Path) -> Result<(), Failure> {
     let network = Network::load(path)?;
     let report = check::check(&network);
+    // Warnings (competitive dynamics that cannot behave as written) fail nothing.
+    let warnings = check::dynamics::warnings(&network);
+    for warning in &warnings {
+        eprintln!("{warning}");
+    }
+    if !warnings.is_empty() {
+        eprintln!("{} warning{}", warnings.len(), plural(warnings.len()));
+    }
     print!("{}", report.summary(&network));
     if report.is_consistent() {
         println!(
