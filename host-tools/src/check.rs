@@ -20,6 +20,9 @@
 
 use std::fmt::Write as _;
 
+/// Warnings about `[dynamics.*]` groups (`pabctl check` prints them; they fail nothing).
+pub mod dynamics;
+
 use biodivine_lib_bdd::{Bdd, BddValuation, BddVariable, BddVariableSet};
 
 use crate::diagnostic::Diagnostic;

@@ -126,6 +126,30 @@ impl From<Diagnostic> for Diagnostics {
     }
 }
 
+/// A warning: located like a [`Diagnostic`] and written `path:line:column: warning: cause`. It
+/// says that something will not behave as the file probably means; it fails nothing.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Warning(pub Diagnostic);
+
+impl Warning {
+    /// The line, if known.
+    pub fn line(&self) -> Option<usize> {
+        self.0.line()
+    }
+}
+
+/// As a [`Diagnostic`], with `warning` for `error`.
+impl fmt::Display for Warning {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let path = shown::escaped(&self.0.path.display().to_string());
+        let message = shown::escaped(&self.0.message);
+        match self.0.position {
+            Some((line, column)) => write!(f, "{path}:{line}:{column}: warning: {message}"),
+            None => write!(f, "{path}: warning: {message}"),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -144,5 +168,13 @@ mod tests {
             error.to_string(),
             "net.toml:2:1: error: name `a\\u{1b}[2J\\nb`"
         );
+    }
+
+    #[test]
+    fn warnings_read_like_errors() {
+        let source = Source::new("net.toml", "a = 1\nb = 2\n");
+        let warning = Warning(source.error(6..7, "odd\u{7}"));
+        assert_eq!(warning.line(), Some(2));
+        assert_eq!(warning.to_string(), "net.toml:2:1: warning: odd\\u{7}");
     }
 }

@@ -110,7 +110,8 @@ changes, and per connection how many frames it received and delivered.
 --trace writes one CSV row per frame per connection it fed, after the update:
   t,port,connection,stimulation,active,delivered
 --plot draws each connection's stimulation over time, green while it is the one that gets \
-through at its port and orange otherwise (like Fig. 5 of the port-arbitration paper).
+through at its port and orange otherwise (like Fig. 5 of the port-arbitration paper), and under \
+the ports a lane per [dynamics.*] behaviour: n, ρ and m, on green where its gate is open.
 --candump writes the simulated bus as a candump -L log (each frame with its event's data, by \
 default none; times from 0 s on \
 interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a real bus.")]
@@ -652,6 +653,14 @@ fn run_monitor(
 fn run_check(path: &Path) -> Result<(), Failure> {
     let network = Network::load(path)?;
     let report = check::check(&network);
+    // Warnings (competitive dynamics that cannot behave as written) fail nothing.
+    let warnings = check::dynamics::warnings(&network);
+    for warning in &warnings {
+        eprintln!("{warning}");
+    }
+    if !warnings.is_empty() {
+        eprintln!("{} warning{}", warnings.len(), plural(warnings.len()));
+    }
     print!("{}", report.summary(&network));
     if report.is_consistent() {
         println!(
@@ -715,7 +724,8 @@ fn run_sim(
         until,
         samples: plot_path.is_some(),
         records: false,
-        dynamics: dynamics_path.is_some(),
+        // The plot draws the dynamics groups' lanes.
+        dynamics: dynamics_path.is_some() || plot_path.is_some(),
     };
     let outcome = sim::simulate(&network, &nodes, &options)
         .map_err(|error| Failure::Input(Diagnostic::file(path, error.to_string()).into()))?;

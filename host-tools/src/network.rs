@@ -33,7 +33,7 @@ mod dynamics;
 mod gates;
 
 pub use ble::{BleGroup, BleMember};
-pub use dynamics::{Context, DynamicsBehaviour, DynamicsGroup};
+pub use dynamics::{Context, DynamicsBehaviour, DynamicsGroup, WrittenBehaviour, WrittenExclusion};
 pub use gates::lookup as gate;
 
 /// The topic of a connection that no topic feeds (a gate, [`Kind::Gate`]): no index of

@@ -2,7 +2,8 @@
 //!
 //! One strip per connection, grouped by port; each strip draws the connection's stimulation over
 //! time, green while the connection is the one selected at its port (its frames get through) and
-//! orange otherwise. An optional bottom strip names the scenario's phases.
+//! orange otherwise. Under the ports, the competitive-dynamics groups' lanes ([`dynamics`]), if
+//! any. An optional bottom strip names the scenario's phases.
 
 use std::path::Path;
 use std::sync::OnceLock;
@@ -17,6 +18,10 @@ use plotters::style::{
     Color, FontDesc, FontFamily, FontStyle, RGBColor, ShapeStyle, TextStyle, WHITE, register_font,
 };
 
+mod dynamics;
+
+pub use dynamics::{BehaviourSeries, DynamicsSample, DynamicsSeries};
+
 /// Everything a plot shows. Built by the simulator; the plot only draws it.
 #[derive(Clone, Debug, Default)]
 pub struct PlotData {
@@ -28,6 +33,8 @@ pub struct PlotData {
     pub ports: Vec<PortSeries>,
     /// Named time intervals drawn in a strip at the bottom (may be empty: then no strip).
     pub phases: Vec<Phase>,
+    /// Competitive-dynamics groups, drawn under the ports (may be empty).
+    pub dynamics: Vec<DynamicsSeries>,
 }
 
 /// One port and its connections.
@@ -127,8 +134,9 @@ type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 /// Draws `data` into a PNG file at `path`.
 ///
 /// The image is 1400 pixels wide. From top to bottom: the title (with a colour legend on the
-/// right), then for each port a header with its name and one strip per connection, then, if
-/// there are phases, a strip naming them. Each connection strip plots the stimulation (0 to 1,
+/// right), then for each port a header with its name and one strip per connection, then for each
+/// dynamics group a header with a legend and one lane per behaviour (1.5 strips high: n, ρ, m
+/// and the gate, [`dynamics`]), then, if there are phases, a strip naming them. Each connection strip plots the stimulation (0 to 1,
 /// with a light line at the activation threshold 1) against time, from 0 to `data.until`
 /// seconds: green where the connection is selected at its port, orange elsewhere. A segment
 /// between two samples takes the colour of the first; samples sharing a time make a vertical
@@ -217,6 +225,8 @@ struct Layout {
     scale: f64,
     title: Band,
     ports: Vec<PortLayout>,
+    /// Each dynamics group's header, lanes (one per behaviour) and ticks, under the ports.
+    dynamics: Vec<PortLayout>,
     /// The phase strip's box and the row of tick labels under it.
     phases: Option<(Band, Band)>,
     /// The "time (s)" caption at the bottom, when there is a time axis at all.
@@ -226,23 +236,32 @@ struct Layout {
 impl Layout {
     fn new(data: &PlotData) -> Layout {
         let has_phases = !data.phases.is_empty();
-        let last = data.ports.len().saturating_sub(1);
-        // The last port's tick labels would repeat those under the phase strip right below.
-        let has_ticks = |i: usize, port: &PortSeries| {
-            !port.connections.is_empty() && (!has_phases || i != last)
-        };
-        let connections: usize = data.ports.iter().map(|p| p.connections.len()).sum();
-        let tick_rows = data
+        // Sections: the ports, then the dynamics groups; each has a header and strips (a
+        // group's lanes are dynamics::LANE_STRIPS strips high).
+        let sections: Vec<(usize, f64)> = data
             .ports
             .iter()
+            .map(|p| (p.connections.len(), 1.0))
+            .chain(
+                data.dynamics
+                    .iter()
+                    .map(|g| (g.behaviours.len(), dynamics::LANE_STRIPS)),
+            )
+            .collect();
+        let last = sections.len().saturating_sub(1);
+        // The last section's tick labels would repeat those under the phase strip right below.
+        let has_ticks = |i: usize, strips: usize| strips > 0 && (!has_phases || i != last);
+        let connections: usize = sections.iter().map(|&(strips, _)| strips).sum();
+        let tick_rows = sections
+            .iter()
             .enumerate()
-            .filter(|&(i, p)| has_ticks(i, p))
+            .filter(|&(i, &(strips, _))| has_ticks(i, strips))
             .count();
         let has_axis = has_phases || connections > 0;
 
-        let n = connections as f64;
+        let n: f64 = sections.iter().map(|&(strips, h)| strips as f64 * h).sum();
         let fixed = TITLE_H + BOTTOM_H;
-        let others = data.ports.len() as f64 * HEADER_H
+        let others = sections.len() as f64 * HEADER_H
             + tick_rows as f64 * TICKS_H
             + if has_phases {
                 PHASE_GAP_H + PHASE_H + TICKS_H
@@ -275,32 +294,31 @@ impl Layout {
             y0: 0.0,
             y1: TITLE_H,
         };
-        let ports = data
-            .ports
+        let mut sections = sections
             .iter()
             .enumerate()
-            .map(|(i, port)| {
+            .map(|(i, &(count, h))| {
                 let header = band(HEADER_H);
-                let strips = port
-                    .connections
-                    .iter()
+                let strips = (0..count)
                     .map(|_| {
-                        let slot = band(strip_h);
-                        let gap = slot.height() * STRIP_GAP / 2.0;
+                        let slot = band(strip_h * h);
+                        let gap = slot.height() / h * STRIP_GAP / 2.0;
                         Band {
                             y0: slot.y0 + gap,
                             y1: slot.y1 - gap,
                         }
                     })
                     .collect();
-                let ticks = has_ticks(i, port).then(|| band(TICKS_H));
+                let ticks = has_ticks(i, count).then(|| band(TICKS_H));
                 PortLayout {
                     header,
                     strips,
                     ticks,
                 }
             })
-            .collect();
+            .collect::<Vec<_>>();
+        let dynamics = sections.split_off(data.ports.len().min(sections.len()));
+        let ports = sections;
         let phases = has_phases.then(|| {
             band(PHASE_GAP_H);
             (band(PHASE_H), band(TICKS_H))
@@ -312,6 +330,7 @@ impl Layout {
             scale,
             title,
             ports,
+            dynamics,
             phases,
             caption,
         }
@@ -412,6 +431,36 @@ fn draw(root: &Area, data: &PlotData, layout: &Layout) -> anyhow::Result<()> {
         )?;
         for (connection, &b) in port.connections.iter().zip(&place.strips) {
             draw_connection(root, &axis, connection, b)?;
+        }
+        if let (Some(row), Some(&above)) = (place.ticks, place.strips.last()) {
+            draw_ticks(root, &axis, above, row, layout.scale)?;
+        }
+    }
+
+    for (g, (group, place)) in data.dynamics.iter().zip(&layout.dynamics).enumerate() {
+        if !data.ports.is_empty() || g > 0 {
+            line(
+                root,
+                (MARGIN_X, place.header.y0),
+                (PLOT_X1, place.header.y0),
+                SEPARATOR,
+            )?;
+        }
+        let size = 16.0 * layout.scale;
+        let legend = 13.0 * layout.scale;
+        dynamics::draw_legend(root, place.header.middle(), legend)?;
+        let name = fit_line(root, &clean(&group.name), LABEL_X1 * 2.0, size, true)?;
+        text(
+            root,
+            &name,
+            (MARGIN_X, place.header.middle()),
+            size,
+            true,
+            TEXT,
+            HPos::Left,
+        )?;
+        for (behaviour, &b) in group.behaviours.iter().zip(&place.strips) {
+            dynamics::draw_lane(root, &axis, behaviour, b)?;
         }
         if let (Some(row), Some(&above)) = (place.ticks, place.strips.last()) {
             draw_ticks(root, &axis, above, row, layout.scale)?;
@@ -835,6 +884,7 @@ mod tests {
             sample(10.0, 0.6, true),
         ];
         PlotData {
+            dynamics: Vec::new(),
             title: "Take and Return (test)".to_string(),
             until: 10.0,
             ports: vec![
@@ -1023,6 +1073,7 @@ mod tests {
         ];
         let bounds = [0.0, 140.0, 170.0, 190.0, 230.0, 270.0, 300.0];
         let data = PlotData {
+            dynamics: Vec::new(),
             title: "Arbitration during the Take and Return scenario".to_string(),
             until: 300.0,
             ports,
@@ -1053,6 +1104,7 @@ mod tests {
     #[test]
     fn many_connections_shrink_strips_to_the_height_cap() {
         let many = |ports: usize, each: usize| PlotData {
+            dynamics: Vec::new(),
             title: "many".to_string(),
             until: 1.0,
             ports: (0..ports)
@@ -1118,6 +1170,7 @@ mod tests {
 
         // A port without connections and a connection without samples.
         let hollow = PlotData {
+            dynamics: Vec::new(),
             title: String::new(),
             until: 1.0,
             ports: vec![
@@ -1175,6 +1228,7 @@ mod tests {
         ];
         let long = "x".repeat(5000) + "\n\t\u{0}  y  " + &"z ".repeat(2000);
         let base = PlotData {
+            dynamics: Vec::new(),
             title: long.clone(),
             until: 10.0,
             ports: vec![PortSeries {

@@ -1173,6 +1173,7 @@ impl Outcome {
             title: title.to_string(),
             until: self.until_us as f64 / 1e6,
             ports,
+            dynamics: dynamics::plot_series(&self.dynamics, network),
             phases: network
                 .phases
                 .iter()

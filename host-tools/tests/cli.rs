@@ -77,6 +77,37 @@ fn check_exits_1_with_the_counterexample_and_its_line() {
 }
 
 #[test]
+fn check_warns_about_dynamics_that_cannot_work_and_still_exits_0() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("weak.toml");
+    let network = std::fs::read_to_string(examples().join("door-dynamics.toml"))
+        .unwrap()
+        .replace("gamma = 3.0", "gamma = 1.0");
+    std::fs::write(&path, &network).unwrap();
+    let path = path.display().to_string();
+    let output = pabctl(&["check", &path]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let stderr = text(&output.stderr);
+    let line = network
+        .lines()
+        .position(|l| l.starts_with("excludes = [\"recognise\", \"approach\"]"))
+        .unwrap()
+        + 1;
+    assert!(
+        stderr.contains(&format!(
+            "{path}:{line}:13: warning: dynamics group `door`: `search` excludes `recognise` with γ = 1 (the group's `gamma`), below 1.5"
+        )),
+        "{stderr}"
+    );
+    assert!(stderr.ends_with("3 warnings\n"), "{stderr}");
+    assert!(text(&output.stdout).contains(": consistent (3 ports, 3 connections)"));
+    // The example as written: no warning.
+    let output = pabctl(&["check", &example("door-dynamics.toml")]);
+    assert_eq!(output.status.code(), Some(0));
+    assert_eq!(text(&output.stderr), "");
+}
+
+#[test]
 fn check_exits_2_on_unreadable_or_invalid_input() {
     let output = pabctl(&["check", "/nonexistent/net.toml"]);
     assert_eq!(output.status.code(), Some(2));

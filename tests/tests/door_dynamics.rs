@@ -311,3 +311,35 @@ fn mistakes_are_reported_at_their_line_with_their_cause() {
         expect_error(&extra, line, cause);
     }
 }
+
+#[test]
+fn the_plot_has_a_lane_per_behaviour_with_every_step_and_gate_edge() {
+    let network = network("door-dynamics", &example_text("door-dynamics"));
+    let outcome = simulate(&network);
+    let data = outcome.plot_data(&network, "door-dynamics.toml");
+    assert_eq!(data.ports.len(), 3);
+    assert_eq!(data.dynamics.len(), 1);
+    let group = &data.dynamics[0];
+    assert_eq!(group.name, "dynamics door (node base, step 1 ms)");
+    let names: Vec<&str> = group.behaviours.iter().map(|b| b.name.as_str()).collect();
+    assert_eq!(names, ["door.search", "door.recognise", "door.approach"]);
+    assert_eq!(group.behaviours[1].label, "door.recognise  context DOOR");
+    for (index, lane) in group.behaviours.iter().enumerate() {
+        // Every row, unthinned: the plot thins only what it draws.
+        assert_eq!(lane.samples.len(), 4101);
+        let (opens, closes) = transitions(&outcome.dynamics, index);
+        let edges = |gate: bool| -> Vec<u64> {
+            lane.samples
+                .windows(2)
+                .filter(|w| w[0].gate != w[1].gate && w[1].gate == gate)
+                .map(|w| (w[1].t * 1e6).round() as u64)
+                .collect()
+        };
+        assert_eq!(edges(true), opens, "lane {index}");
+        assert_eq!(edges(false), closes, "lane {index}");
+    }
+    // Not stepped: no lanes.
+    let nodes = compile::compile(&network).unwrap();
+    let plain = sim::simulate(&network, &nodes, &Options::default()).unwrap();
+    assert!(plain.plot_data(&network, "door").dynamics.is_empty());
+}

@@ -136,6 +136,33 @@ pub struct DynamicsBehaviour {
     pub name: String,
     /// Its context.
     pub context: Context,
+    /// Where its keys are written and their values in the file's terms, for the checker's
+    /// warnings (`check::dynamics`).
+    pub written: WrittenBehaviour,
+}
+
+/// A behaviour's keys as written: spans into the network file, γ as a number.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct WrittenBehaviour {
+    /// Its `context` value.
+    pub context: Range<usize>,
+    /// Its declared exclusions (`excludes` and `gamma`), in the file's order.
+    pub exclusions: Vec<WrittenExclusion>,
+    /// Its `requires` entries: the required behaviour's index and the entry's span.
+    pub requires: Vec<(usize, Range<usize>)>,
+}
+
+/// One declared exclusion γ_ij: this behaviour is pushed off while `by` is active.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WrittenExclusion {
+    /// j, as an index into the group's behaviours.
+    pub by: usize,
+    /// γ_ij as written (the group's `gamma` unless a per-pair `gamma` sets it).
+    pub gamma: f64,
+    /// Whether γ is the group's `gamma` (else the behaviour's `gamma = { by = ... }`).
+    pub from_group: bool,
+    /// The key that sets γ: the per-pair `gamma` value, else the `excludes` entry.
+    pub span: Range<usize>,
 }
 
 /// A group of behaviours whose competition one node runs.
@@ -515,6 +542,10 @@ impl Builder<'_> {
             behaviours.push(DynamicsBehaviour {
                 name: text.clone(),
                 context,
+                written: WrittenBehaviour {
+                    context: behaviour.context.as_ref().map_or(0..0, Spanned::span),
+                    ..WrittenBehaviour::default()
+                },
             });
         }
         if !ok {
@@ -523,7 +554,7 @@ impl Builder<'_> {
         // Exclusions and requirements, now that every behaviour has its index.
         for (i, (name, raw)) in group.behaviours.iter().enumerate() {
             let behaviour = raw.get_ref();
-            let mut pairs: Vec<(u8, f64)> = Vec::new();
+            let mut pairs: Vec<(u8, f64, bool, Range<usize>)> = Vec::new();
             for other in &behaviour.excludes {
                 let Some(j) =
                     self.behaviour_index(group_name, name.get_ref(), other, &names, "excludes")
@@ -531,7 +562,7 @@ impl Builder<'_> {
                     ok = false;
                     continue;
                 };
-                if pairs.iter().any(|(k, _)| *k == j) {
+                if pairs.iter().any(|(k, ..)| *k == j) {
                     self.error(
                         other.span(),
                         format!("excludes: `{}` is listed twice", other.get_ref()),
@@ -539,7 +570,7 @@ impl Builder<'_> {
                     ok = false;
                     continue;
                 }
-                pairs.push((j, gamma));
+                pairs.push((j, gamma, true, other.span()));
             }
             for (other, value) in &behaviour.gamma {
                 let Some(j) =
@@ -548,17 +579,18 @@ impl Builder<'_> {
                     ok = false;
                     continue;
                 };
+                let span = value.span();
                 let Some(value) = self.gamma(value, &format!("gamma.{}", other.get_ref())) else {
                     ok = false;
                     continue;
                 };
                 // A per-pair γ declares the exclusion too, or overrides the group's γ for it.
-                match pairs.iter_mut().find(|(k, _)| *k == j) {
-                    Some(pair) => pair.1 = value,
-                    None => pairs.push((j, value)),
+                match pairs.iter_mut().find(|(k, ..)| *k == j) {
+                    Some(pair) => *pair = (j, value, false, span),
+                    None => pairs.push((j, value, false, span)),
                 }
             }
-            for (j, value) in pairs {
+            for (j, value, from_group, span) in pairs {
                 if usize::from(j) == i {
                     self.error(
                         raw.span(),
@@ -572,6 +604,14 @@ impl Builder<'_> {
                 }
                 let q88 = (value * f64::from(GAMMA_ONE)).round() as u16;
                 ok &= params.exclude(i as u8, j, q88).is_ok();
+                if let Some(written) = behaviours.get_mut(i).map(|b| &mut b.written) {
+                    written.exclusions.push(WrittenExclusion {
+                        by: usize::from(j),
+                        gamma: value,
+                        from_group,
+                        span,
+                    });
+                }
             }
             for other in &behaviour.requires {
                 let Some(j) =
@@ -592,6 +632,9 @@ impl Builder<'_> {
                     continue;
                 }
                 ok &= params.require(i as u8, j).is_ok();
+                if let Some(written) = behaviours.get_mut(i).map(|b| &mut b.written) {
+                    written.requires.push((usize::from(j), other.span()));
+                }
             }
         }
         ok.then_some(behaviours)

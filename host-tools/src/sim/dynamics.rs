@@ -16,7 +16,8 @@ use pab_core::protocol::{BROADCAST, Gates, Message};
 use pab_core::{Frame, Instant};
 
 use super::{BusFrame, Run, seconds_text};
-use crate::network::Network;
+use crate::network::{Context, Network};
+use crate::plot::{BehaviourSeries, DynamicsSample, DynamicsSeries};
 
 /// One behaviour's state at one step of its group.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -203,4 +204,64 @@ fn decimals(x: f64) -> String {
     } else {
         text
     }
+}
+
+/// The plot's lanes of `rows`: per group that has rows, one lane per behaviour.
+pub fn plot_series(rows: &[DynamicsRow], network: &Network) -> Vec<DynamicsSeries> {
+    let mut series: Vec<DynamicsSeries> = network
+        .dynamics
+        .iter()
+        .map(|group| {
+            let node = network
+                .nodes
+                .get(group.node)
+                .map_or("?", |n| n.name.as_str());
+            DynamicsSeries {
+                name: format!(
+                    "dynamics {} (node {node}, step {} ms)",
+                    group.name,
+                    f64::from(group.params.step_us) / 1000.0
+                ),
+                behaviours: group
+                    .behaviours
+                    .iter()
+                    .map(|behaviour| {
+                        let context = match &behaviour.context {
+                            Context::Connection { connection } => network
+                                .connections
+                                .get(*connection)
+                                .map_or("?".to_string(), |c| c.name.clone()),
+                            Context::Topic { topic, scale, .. } => format!(
+                                "{} / {scale}",
+                                network.topics.get(*topic).map_or("?", |t| t.name.as_str())
+                            ),
+                            Context::Constant(value) => value.to_string(),
+                        };
+                        BehaviourSeries {
+                            name: format!("{}.{}", group.name, behaviour.name),
+                            label: format!("{}.{}  context {context}", group.name, behaviour.name),
+                            samples: Vec::new(),
+                        }
+                    })
+                    .collect(),
+            }
+        })
+        .collect();
+    for row in rows {
+        if let Some(lane) = series
+            .get_mut(row.group)
+            .and_then(|g| g.behaviours.get_mut(row.behaviour))
+        {
+            lane.samples.push(DynamicsSample {
+                t: row.t_us as f64 / 1e6,
+                n: row.n,
+                rho: row.rho,
+                m: row.m,
+                gate: row.gate,
+            });
+        }
+    }
+    // A group that was not stepped has no lanes.
+    series.retain(|g| g.behaviours.iter().any(|b| !b.samples.is_empty()));
+    series
 }
