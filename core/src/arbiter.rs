@@ -46,8 +46,10 @@ use embedded_can::Id;
 use heapless::Vec;
 
 use crate::ble::{self, BleError, Claim, Eligibility, MAX_GROUPS, MAX_PEERS};
+#[cfg(feature = "dynamics")]
 use crate::dynamics::{GroupRun, MAX_DYNAMICS_GROUPS, MAX_GATE_SOURCES, SourceState};
 
+#[cfg(feature = "dynamics")]
 pub(crate) mod dynamics;
 use crate::decay::Decay;
 use crate::decision::{self, ConnectionSet, NodeRef, Step};
@@ -465,8 +467,10 @@ pub struct Arbiter<
     /// The state of each BLE group of the table, in the table's order.
     groups: Vec<Eligibility<MAX_PEERS>, MAX_GROUPS>,
     /// The competitive-dynamics groups the node runs, in the table's order.
+    #[cfg(feature = "dynamics")]
     runs: Vec<GroupRun, MAX_DYNAMICS_GROUPS>,
     /// What the node reads of each gate source, in the table's order.
+    #[cfg(feature = "dynamics")]
     sources: Vec<SourceState, MAX_GATE_SOURCES>,
     table: Table<PORTS, CONNECTIONS, NODES>,
 }
@@ -581,7 +585,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 .map_err(|_| error(ble::GroupError::Period))?;
             groups.push(state).map_err(|_| TableError::TooManyGroups)?;
         }
+        #[cfg(feature = "dynamics")]
         let mut runs = Vec::new();
+        #[cfg(feature = "dynamics")]
         for (position, spec) in table.dynamics().iter().enumerate() {
             let run = GroupRun::new(spec).map_err(|error| {
                 TableError::Dynamics(crate::dynamics::DynamicsError::Params {
@@ -592,7 +598,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             runs.push(run)
                 .map_err(|_| TableError::Dynamics(crate::dynamics::DynamicsError::TooMany))?;
         }
+        #[cfg(feature = "dynamics")]
         let mut sources = Vec::new();
+        #[cfg(feature = "dynamics")]
         for _ in table.gate_sources() {
             sources
                 .push(SourceState::new())
@@ -600,7 +608,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         }
         Ok(Arbiter {
             groups,
+            #[cfg(feature = "dynamics")]
             runs,
+            #[cfg(feature = "dynamics")]
             sources,
             table,
             ports,
@@ -639,11 +649,13 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 *state = fresh;
             }
         }
+        #[cfg(feature = "dynamics")]
         for (run, spec) in self.runs.iter_mut().zip(self.table.dynamics()) {
             if let Ok(fresh) = GroupRun::new(spec) {
                 *run = fresh;
             }
         }
+        #[cfg(feature = "dynamics")]
         for source in self.sources.iter_mut() {
             *source = SourceState::new();
         }

@@ -62,15 +62,19 @@
 use heapless::Vec;
 use serde::{Deserialize, Serialize};
 
+#[cfg(feature = "dynamics")]
 mod run;
 mod spec;
 
+#[cfg(feature = "dynamics")]
 pub use run::{GateError, GroupRun, MAX_CATCH_UP, SourceState, StepView};
+#[cfg(feature = "dynamics")]
 pub(crate) use spec::validate as validate_table_part;
 pub use spec::{
     Context, DynamicsError, GATE_SLOT_FILTER, GateLink, GateSource, GroupSpec, MAX_DYNAMICS_GROUPS,
     MAX_GATE_LINKS, MAX_GATE_SOURCES, MAX_TIMEOUT_US, OWN,
 };
+pub(crate) use spec::{TABLE_GROUPS, TABLE_LINKS, TABLE_SOURCES};
 
 /// Behaviours per group, at most: the gate mask is a `u32`, A_i a `u32` mask.
 pub const MAX_BEHAVIOURS: usize = 32;

@@ -396,9 +396,16 @@ fn size_of_body(body: &[u8]) -> Option<(TableSize, usize)> {
     let roots = r.count::<NodeRef>().ok()?;
     // Counted so that the body's end is found; a fixed capacity.
     r.count::<crate::ble::Group>().ok()?;
-    r.count::<crate::dynamics::GroupSpec>().ok()?;
-    r.count::<crate::dynamics::GateSource>().ok()?;
-    r.count::<crate::dynamics::GateLink>().ok()?;
+    #[cfg(feature = "dynamics")]
+    {
+        r.count::<crate::dynamics::GroupSpec>().ok()?;
+        r.count::<crate::dynamics::GateSource>().ok()?;
+        r.count::<crate::dynamics::GateLink>().ok()?;
+    }
+    #[cfg(not(feature = "dynamics"))]
+    for _ in 0..3 {
+        r.empty::<u8, 0>().ok()?;
+    }
     r.rest().is_empty().then_some((
         TableSize {
             ports,
@@ -452,4 +459,29 @@ pub fn encode<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
     fields.copy_from_slice(&covered);
     crc_field.copy_from_slice(&crc.to_le_bytes());
     Ok(total)
+}
+
+#[cfg(all(test, not(feature = "dynamics")))]
+mod without_dynamics {
+    use super::*;
+
+    /// A board built without competitive dynamics reads the three lists only when empty: a
+    /// table that has a group is refused as a body it cannot read (InvalidTable on the bus),
+    /// never half-loaded.
+    #[test]
+    fn a_table_with_dynamics_is_refused_by_a_node_without_them() {
+        // An empty table, then the lists: no port, connection, node, root or BLE group.
+        let empty = [0u8, 0, 0, 0, 0, 0, 0, 0];
+        let (table, rest) = decode_body::<4, 8, 16>(&empty).unwrap();
+        assert!(rest.is_empty() && table.port_count() == 0);
+        for list in 0..3 {
+            let mut body = empty;
+            body[5 + list] = 1;
+            assert_eq!(
+                decode_body::<4, 8, 16>(&body).err(),
+                Some(postcard::Error::SerdeDeCustom),
+                "list {list}"
+            );
+        }
+    }
 }

@@ -61,6 +61,7 @@ pub mod time;
 pub mod value_port;
 mod wire;
 
+#[cfg(feature = "dynamics")]
 pub use arbiter::dynamics::GatesLost;
 pub use arbiter::{Arbiter, FrameReception, PortSet, PortVerdict, Reception};
 pub use consumer::{Consumer, OutputId, OutputIdError};

@@ -26,10 +26,8 @@ use serde::{Deserialize, Serialize};
 use crate::ble::{self, Group, GroupError, MAX_GROUPS, MAX_PEERS};
 use crate::consumer::{Consumer, OutputIdError};
 use crate::decision::{self, DecisionError, DecisionNode, NodeRef};
-use crate::dynamics::{
-    DynamicsError, GateLink, GateSource, GroupSpec, MAX_DYNAMICS_GROUPS, MAX_GATE_LINKS,
-    MAX_GATE_SOURCES,
-};
+use crate::dynamics::DynamicsError;
+use crate::dynamics::{GateLink, GateSource, GroupSpec, TABLE_GROUPS, TABLE_LINKS, TABLE_SOURCES};
 use crate::filter::{Filter, FilterError};
 use crate::integrator::{ParamError, Stimulation};
 use crate::value_port::{MAX_VALUE_CONNECTIONS, MAX_VALUE_PORTS, ValueError, ValueSpec};
@@ -103,9 +101,9 @@ pub struct Table<
     nodes: Vec<DecisionNode, NODES>,
     roots: Vec<NodeRef, CONNECTIONS>,
     groups: Vec<Group, MAX_GROUPS>,
-    dynamics: Vec<GroupSpec, MAX_DYNAMICS_GROUPS>,
-    gate_sources: Vec<GateSource, MAX_GATE_SOURCES>,
-    gate_links: Vec<GateLink, MAX_GATE_LINKS>,
+    dynamics: Vec<GroupSpec, TABLE_GROUPS>,
+    gate_sources: Vec<GateSource, TABLE_SOURCES>,
+    gate_links: Vec<GateLink, TABLE_LINKS>,
 }
 
 /// Why a table was refused. Ports and connections are numbered from 0, connections within their
@@ -350,6 +348,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// Appends the competitive-dynamics part ([`crate::dynamics`]): the groups the node runs, the
     /// groups whose gates it reads and the gate connections (which must exist already, each with
     /// [`crate::dynamics::GATE_SLOT_FILTER`]). On error the table is unchanged.
+    #[cfg(feature = "dynamics")]
     pub fn push_dynamics(
         &mut self,
         groups: &[GroupSpec],
@@ -401,6 +400,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     }
 
     /// The dynamics part, as [`Table::validate`] checks it (the loader adds the node id's check).
+    #[cfg(feature = "dynamics")]
     fn validate_dynamics(&self, node: u8) -> Result<(), TableError> {
         crate::dynamics::validate_table_part(
             &self.dynamics,
@@ -543,7 +543,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 return Err(error(GroupError::DuplicateGroup { number }));
             }
         }
-        self.validate_dynamics(crate::dynamics::OWN)
+        #[cfg(feature = "dynamics")]
+        self.validate_dynamics(crate::dynamics::OWN)?;
+        Ok(())
     }
 
     /// The number of ports.
@@ -776,9 +778,20 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize> crate::wi
             nodes: r.vec()?,
             roots: r.vec()?,
             groups: r.vec()?,
+            #[cfg(feature = "dynamics")]
             dynamics: r.vec()?,
+            #[cfg(feature = "dynamics")]
             gate_sources: r.vec()?,
+            #[cfg(feature = "dynamics")]
             gate_links: r.vec()?,
+            // Without competitive dynamics the three lists must be empty: a table that has them
+            // is refused, its body unreadable here (a node needs the feature to run it).
+            #[cfg(not(feature = "dynamics"))]
+            dynamics: r.empty()?,
+            #[cfg(not(feature = "dynamics"))]
+            gate_sources: r.empty()?,
+            #[cfg(not(feature = "dynamics"))]
+            gate_links: r.empty()?,
         })
     }
 }

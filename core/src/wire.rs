@@ -129,6 +129,16 @@ impl<'a> Reader<'a> {
         Ok(out)
     }
 
+    /// A list that must be empty (of a kind this build does not decode): the empty `Vec`, or
+    /// the custom error, as for a list longer than its capacity.
+    #[cfg(not(feature = "dynamics"))]
+    pub(crate) fn empty<T, const N: usize>(&mut self) -> Result<Vec<T, N>, Error> {
+        match self.varint(64)? {
+            0 => Ok(Vec::new()),
+            _ => Err(Error::SerdeDeCustom),
+        }
+    }
+
     /// A list whose elements are decoded (so checked) and dropped: its length.
     pub(crate) fn count<T: Decode>(&mut self) -> Result<usize, Error> {
         self.each(|_: T| Ok(()))

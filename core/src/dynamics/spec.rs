@@ -23,6 +23,24 @@ pub const MAX_DYNAMICS_GROUPS: usize = 2;
 pub const MAX_GATE_SOURCES: usize = 4;
 /// Gate connections in a table, at most.
 pub const MAX_GATE_LINKS: usize = 32;
+
+// A table's room for the three lists: none without the `dynamics` feature (the lists must then
+// be empty, and a board keeps no RAM for them).
+pub(crate) const TABLE_GROUPS: usize = if cfg!(feature = "dynamics") {
+    MAX_DYNAMICS_GROUPS
+} else {
+    0
+};
+pub(crate) const TABLE_SOURCES: usize = if cfg!(feature = "dynamics") {
+    MAX_GATE_SOURCES
+} else {
+    0
+};
+pub(crate) const TABLE_LINKS: usize = if cfg!(feature = "dynamics") {
+    MAX_GATE_LINKS
+} else {
+    0
+};
 /// The longest topic-context timeout: an hour, in µs.
 pub const MAX_TIMEOUT_US: u32 = 3_600_000_000;
 
@@ -237,6 +255,7 @@ impl core::fmt::Display for DynamicsError {
     }
 }
 
+#[cfg(feature = "dynamics")]
 /// The dynamics part of a table, checked as a whole: `connections(port)` is the number of
 /// connections of a port (`None` beyond the table), `filter(port, connection)` a connection's
 /// filter. `node` is the image's node id when an image is loaded (0 when a table is built).
@@ -317,6 +336,7 @@ pub(crate) fn validate(
     Ok(())
 }
 
+#[cfg(feature = "dynamics")]
 fn validate_context(
     context: &Context,
     group: u8,

@@ -6,8 +6,11 @@
 //! run, with virtual time and byte-exact frames.
 
 use pab_core::Consumer as PortConsumer;
+#[cfg(feature = "dynamics")]
+use pab_core::GatesLost;
 use pab_core::auth::{IMAGE_MAC_LEN, Key};
 use pab_core::ble::{self, BleError, Claim};
+#[cfg(feature = "dynamics")]
 use pab_core::dynamics;
 use pab_core::image::{self, Header, LoadError};
 use pab_core::isotp::{self, Pci, RxError, RxEvent};
@@ -16,7 +19,7 @@ use pab_core::protocol::{
     STORE_UNREADABLE, Service, StoreFailure, TableStatus, Traffic, TransferOpen, TransferStatus,
     TransferStatusCode,
 };
-use pab_core::{Arbiter, Combined, Frame, GatesLost, Instant, MAX_VALUE_PORTS, PortVerdict};
+use pab_core::{Arbiter, Combined, Frame, Instant, MAX_VALUE_PORTS, PortVerdict};
 use pab_storage::StoreError;
 
 use crate::auth::{CHALLENGE_LIFETIME_US, Guard};
@@ -297,13 +300,16 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             }
         } else {
             self.arbitrate(frame, now, consumer);
-            if let Some(arbiter) = self.arbiter.as_mut() {
-                if arbiter.has_groups() {
-                    arbiter.ble_frame(frame, now);
-                }
-                if arbiter.has_dynamics() {
-                    arbiter.dynamics_frame(frame, now);
-                }
+            if let Some(arbiter) = self.arbiter.as_mut()
+                && arbiter.has_groups()
+            {
+                arbiter.ble_frame(frame, now);
+            }
+            #[cfg(feature = "dynamics")]
+            if let Some(arbiter) = self.arbiter.as_mut()
+                && arbiter.has_dynamics()
+            {
+                arbiter.dynamics_frame(frame, now);
             }
             Step::Continue
         };
@@ -498,6 +504,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         if self.arbiter.as_ref().is_some_and(Arbiter::has_groups) {
             self.send_claims(now);
         }
+        #[cfg(feature = "dynamics")]
         if self.arbiter.as_ref().is_some_and(Arbiter::has_dynamics) {
             self.step_dynamics(now);
         }
@@ -505,6 +512,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
 
     /// The dynamics brought up to `now`: the steps due of the groups the node runs, their
     /// gates queued, and the groups it reads that fell silent reported.
+    #[cfg(feature = "dynamics")]
     #[inline(never)]
     fn step_dynamics(&mut self, now: Instant) {
         let Some(arbiter) = self.arbiter.as_mut() else {
@@ -560,6 +568,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
 
     /// Gates from another node: read if the table reads the group, refused with a fault if the
     /// group has another size here.
+    #[cfg(feature = "dynamics")]
     #[inline(never)]
     fn on_gates(&mut self, source: u8, gates: &protocol::Gates, now: Instant) {
         let Some(arbiter) = self.arbiter.as_mut() else {
@@ -713,6 +722,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 .as_ref()
                 .filter(|arbiter| arbiter.has_groups())
                 .and_then(|arbiter| arbiter.ble_deadline(now)),
+            #[cfg(feature = "dynamics")]
             self.arbiter
                 .as_ref()
                 .filter(|arbiter| arbiter.has_dynamics())
@@ -853,6 +863,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             return Step::Continue;
         }
         match message {
+            #[cfg(feature = "dynamics")]
             Message::Gates(gates) => {
                 self.on_gates(id.source, &gates, now);
                 Step::Continue
