@@ -620,25 +620,18 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// The latest instant by which [`Node::poll`] must run again.
     pub fn deadline(&self, now: Instant) -> Instant {
         let mut deadline = self.next_heartbeat;
-        let candidates = [
-            self.receiver.deadline(),
+        earlier(&mut deadline, self.receiver.deadline());
+        earlier(
+            &mut deadline,
             self.incoming.map(|incoming| incoming.deadline),
-            self.faults.deadline(),
-            self.store_due,
-            self.arbiter
-                .as_ref()
-                .and_then(|_| self.diagnostic.deadline(now)),
-            self.arbiter
-                .as_ref()
-                .and_then(|arbiter| arbiter.deadline(now)),
-            self.arbiter
-                .as_ref()
-                .filter(|arbiter| arbiter.has_groups())
-                .and_then(|arbiter| arbiter.ble_deadline(now)),
-        ];
-        for candidate in candidates.into_iter().flatten() {
-            if candidate.micros_since(deadline).is_none() {
-                deadline = candidate;
+        );
+        earlier(&mut deadline, self.faults.deadline());
+        earlier(&mut deadline, self.store_due);
+        if let Some(arbiter) = self.arbiter.as_ref() {
+            earlier(&mut deadline, self.diagnostic.deadline(now));
+            earlier(&mut deadline, arbiter.deadline(now));
+            if arbiter.has_groups() {
+                earlier(&mut deadline, arbiter.ble_deadline(now));
             }
         }
         deadline
@@ -1267,6 +1260,17 @@ fn remove(outbox: &mut heapless::Vec<Frame, OUTBOX_LEN>, position: usize) {
             hole = next;
         }
         outbox.pop();
+    }
+}
+
+/// Moves `deadline` to `candidate` if that comes first. Out of line: one copy for the seven
+/// candidates of [`Node::deadline`].
+#[inline(never)]
+fn earlier(deadline: &mut Instant, candidate: Option<Instant>) {
+    if let Some(candidate) = candidate
+        && candidate.micros_since(*deadline).is_none()
+    {
+        *deadline = candidate;
     }
 }
 
