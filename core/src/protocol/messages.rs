@@ -379,24 +379,29 @@ impl core::fmt::Display for DecodeError {
     }
 }
 
-fn u32_at(data: &[u8], at: usize) -> u32 {
-    let mut bytes = [0; 4];
-    if let Some(source) = data.get(at..at + 4) {
-        bytes.copy_from_slice(source);
-    }
-    u32::from_le_bytes(bytes)
+/// The little-endian `u32` at `at` of a padded payload (`at` + 4 <= 8 at every call).
+fn u32_at(data: &[u8; 8], at: usize) -> u32 {
+    u32::from_le_bytes([
+        byte(data, at),
+        byte(data, at + 1),
+        byte(data, at + 2),
+        byte(data, at + 3),
+    ])
 }
 
-fn u16_at(data: &[u8], at: usize) -> u16 {
-    let mut bytes = [0; 2];
-    if let Some(source) = data.get(at..at + 2) {
-        bytes.copy_from_slice(source);
-    }
-    u16::from_le_bytes(bytes)
+/// The little-endian `u16` at `at` of a padded payload.
+fn u16_at(data: &[u8; 8], at: usize) -> u16 {
+    u16::from_le_bytes([byte(data, at), byte(data, at + 1)])
 }
 
-fn byte(data: &[u8], at: usize) -> u8 {
+/// Byte `at` of a padded payload (0 past its end, which no call reaches).
+fn byte(data: &[u8; 8], at: usize) -> u8 {
     data.get(at).copied().unwrap_or(0)
+}
+
+/// `N` bytes from `at` of a padded payload.
+fn bytes_at<const N: usize>(data: &[u8; 8], at: usize) -> [u8; N] {
+    core::array::from_fn(|i| byte(data, at + i))
 }
 
 impl Message {
@@ -422,80 +427,89 @@ impl Message {
     }
 
     /// The frame carrying this message from `source` to `destination`.
+    ///
+    /// Each payload is built as one 8-byte array at fixed offsets (the bytes past its length
+    /// zero): no writer, no copy loop, no bounds check.
     pub fn to_frame(&self, source: u8, destination: u8) -> Frame {
         let id = FrameId::new(self.service(), source, destination).id();
-        let mut out = Writer::default();
-        match self {
+        let (data, len) = match self {
             Message::Fault(fault) => {
-                out.put(&fault.code.code().to_le_bytes());
-                out.put(&[fault.count]);
-                out.put(&fault.detail);
+                let [c0, c1] = fault.code.code().to_le_bytes();
+                let [d0, d1, d2, d3, d4] = fault.detail;
+                ([c0, c1, fault.count, d0, d1, d2, d3, d4], 8)
             }
             Message::Heartbeat(heartbeat) => {
-                out.put(&[heartbeat.state.code()]);
-                let [a, b, c, _] = heartbeat.uptime_s.min(0x00FF_FFFF).to_le_bytes();
-                out.put(&[a, b, c]);
-                out.put(&heartbeat.table_version.to_le_bytes());
+                let [u0, u1, u2, _] = heartbeat.uptime_s.min(0x00FF_FFFF).to_le_bytes();
+                let [v0, v1, v2, v3] = heartbeat.table_version.to_le_bytes();
+                ([heartbeat.state.code(), u0, u1, u2, v0, v1, v2, v3], 8)
             }
             Message::TableStatus(status) => {
-                out.put(&status.crc.to_le_bytes());
-                out.put(&status.image_len.to_le_bytes());
-                out.put(&[
-                    status.ports,
-                    status.stored as u8
-                        | (status.diagnostic as u8) << 1
-                        | (status.keyed as u8) << 2,
-                ]);
+                let [c0, c1, c2, c3] = status.crc.to_le_bytes();
+                let [l0, l1] = status.image_len.to_le_bytes();
+                let flags = status.stored as u8
+                    | (status.diagnostic as u8) << 1
+                    | (status.keyed as u8) << 2;
+                ([c0, c1, c2, c3, l0, l1, status.ports, flags], 8)
             }
-            Message::Traffic(traffic) => {
-                out.put(&traffic.received.to_le_bytes());
-                out.put(&traffic.delivered.to_le_bytes());
-            }
-            Message::Errors(errors) => {
-                out.put(&errors.discarded.to_le_bytes());
-                out.put(&errors.errors.to_le_bytes());
-            }
+            Message::Traffic(traffic) => (words(traffic.received, traffic.delivered), 8),
+            Message::Errors(errors) => (words(errors.discarded, errors.errors), 8),
             Message::Diagnostic(sample) => {
-                out.put(&[
-                    sample.port,
-                    sample.connection,
-                    sample.flags.bits(),
-                    sample.sequence,
-                ]);
-                out.put(&sample.level.to_le_bytes());
+                let [l0, l1, l2, l3] = sample.level.to_le_bytes();
+                let flags = sample.flags.bits();
+                let (port, connection) = (sample.port, sample.connection);
+                (
+                    [port, connection, flags, sample.sequence, l0, l1, l2, l3],
+                    8,
+                )
             }
-            Message::DiagnosticControl(control) => {
-                out.put(&control.rate_hz.to_le_bytes());
-                out.put(&control.ports.to_le_bytes());
-            }
+            Message::DiagnosticControl(control) => (control_bytes(control, [0; 4]), 4),
             Message::TableTransfer { data, len } => {
-                out.put(data.get(..usize::from(*len)).unwrap_or(data));
+                // The bytes the frame carries; a length beyond 8 carries all 8.
+                let len = (*len).min(8);
+                let mut bytes = *data;
+                for (at, byte) in bytes.iter_mut().enumerate() {
+                    if at >= usize::from(len) {
+                        *byte = 0;
+                    }
+                }
+                (bytes, len)
             }
             Message::TransferStatus(status) => {
-                out.put(&[status.status.code(), status.detail]);
-                out.put(&status.running_version.to_le_bytes());
-                out.put(&[0, 0]);
+                let [v0, v1, v2, v3] = status.running_version.to_le_bytes();
+                (
+                    [status.status.code(), status.detail, v0, v1, v2, v3, 0, 0],
+                    8,
+                )
             }
             Message::AuthenticatedDiagnosticControl { control, tag } => {
-                out.put(&control.rate_hz.to_le_bytes());
-                out.put(&control.ports.to_le_bytes());
-                out.put(tag);
+                (control_bytes(control, *tag), 8)
             }
-            Message::ChallengeRequest => {}
-            Message::Challenge { nonce } => out.put(&nonce.to_le_bytes()),
+            Message::ChallengeRequest => ([0; 8], 0),
+            Message::Challenge { nonce } => (nonce.to_le_bytes(), 8),
             Message::TransferOpen(open) => {
-                out.put(&open.length.to_le_bytes());
-                out.put(&[open.flags]);
-                out.put(&open.tag);
+                let [l0, l1] = open.length.to_le_bytes();
+                let [t0, t1, t2, t3, t4] = open.tag;
+                ([l0, l1, open.flags, t0, t1, t2, t3, t4], 8)
             }
-            Message::Receipt { tag } => out.put(tag),
+            Message::Receipt { tag } => (*tag, 8),
             Message::Gates(gates) => {
-                out.put(&[gates.group, gates.behaviours]);
-                out.put(&gates.mask.to_le_bytes());
-                out.put(&[gates.changes, 0]);
+                let [m0, m1, m2, m3] = gates.mask.to_le_bytes();
+                (
+                    [
+                        gates.group,
+                        gates.behaviours,
+                        m0,
+                        m1,
+                        m2,
+                        m3,
+                        gates.changes,
+                        0,
+                    ],
+                    8,
+                )
             }
-        }
-        Frame::from_buffer(id, out.buf, out.len)
+        };
+        Frame::from_buffer(id, data, len)
     }
 
     /// Decodes a frame of our protocol: its addresses and its message.
@@ -528,17 +542,20 @@ impl Message {
             return Err(DecodeError::Length { service, len });
         }
         let bad = DecodeError::Value { service };
+        // The payload zero-padded to 8 bytes: every read below is at a constant offset within
+        // the length checked above, so none needs a bounds check (less flash than reads from the
+        // slice, each with its own).
+        let mut padded = [0u8; 8];
+        for (slot, byte) in padded.iter_mut().zip(data) {
+            *slot = *byte;
+        }
+        let data = &padded;
         let message = match service {
-            Service::Fault => {
-                let code = FaultCode::from_code(u16_at(data, 0)).ok_or(bad)?;
-                let mut detail = [0; 5];
-                detail.copy_from_slice(data.get(3..8).ok_or(bad)?);
-                Message::Fault(Fault {
-                    code,
-                    count: byte(data, 2),
-                    detail,
-                })
-            }
+            Service::Fault => Message::Fault(Fault {
+                code: FaultCode::from_code(u16_at(data, 0)).ok_or(bad)?,
+                count: byte(data, 2),
+                detail: bytes_at(data, 3),
+            }),
             Service::Heartbeat => Message::Heartbeat(Heartbeat {
                 state: NodeState::from_code(byte(data, 0)).ok_or(bad)?,
                 uptime_s: u32::from_le_bytes([byte(data, 1), byte(data, 2), byte(data, 3), 0]),
@@ -594,28 +611,18 @@ impl Message {
                     rate_hz,
                     ports: u16_at(data, 2),
                 };
-                match data.get(4..8) {
-                    Some(tag) => {
-                        let mut bytes = [0; crate::auth::COMMAND_TAG_LEN];
-                        bytes.copy_from_slice(tag);
-                        Message::AuthenticatedDiagnosticControl {
-                            control,
-                            tag: bytes,
-                        }
+                // The length is the plain form's (4) or with its tag (8).
+                if usize::from(len) > expected {
+                    Message::AuthenticatedDiagnosticControl {
+                        control,
+                        tag: bytes_at(data, 4),
                     }
-                    None => Message::DiagnosticControl(control),
+                } else {
+                    Message::DiagnosticControl(control)
                 }
             }
-            Service::TableTransfer => {
-                let mut bytes = [0; 8];
-                let count = data.len().min(8);
-                bytes
-                    .get_mut(..count)
-                    .zip(data.get(..count))
-                    .map(|(to, from)| to.copy_from_slice(from))
-                    .ok_or(bad)?;
-                Message::TableTransfer { data: bytes, len }
-            }
+            // The bytes past the frame's length are zero, as the padding made them.
+            Service::TableTransfer => Message::TableTransfer { data: padded, len },
             Service::TransferStatus => {
                 if u16_at(data, 6) != 0 {
                     return Err(bad);
@@ -628,51 +635,37 @@ impl Message {
             }
             Service::ChallengeRequest => Message::ChallengeRequest,
             Service::Challenge => Message::Challenge {
-                nonce: u64::from(u32_at(data, 0)) | u64::from(u32_at(data, 4)) << 32,
+                nonce: u64::from_le_bytes(padded),
             },
             Service::TransferOpen => {
                 let flags = byte(data, 2);
                 if flags & !OPEN_REPLACE != 0 {
                     return Err(bad);
                 }
-                let mut tag = [0; crate::auth::OPEN_TAG_LEN];
-                tag.copy_from_slice(data.get(3..8).ok_or(bad)?);
                 Message::TransferOpen(TransferOpen {
                     length: u16_at(data, 0),
                     flags,
-                    tag,
+                    tag: bytes_at(data, 3),
                 })
             }
-            Service::Receipt => {
-                let mut tag = [0; crate::auth::RECEIPT_TAG_LEN];
-                tag.copy_from_slice(data.get(..8).ok_or(bad)?);
-                Message::Receipt { tag }
-            }
+            Service::Receipt => Message::Receipt { tag: padded },
         };
         Ok((id, message))
     }
 }
 
-/// Fills an 8-byte buffer; bytes beyond 8 are dropped (no encoder writes more).
-#[derive(Default)]
-struct Writer {
-    buf: [u8; 8],
-    len: u8,
+/// Two little-endian `u32`s, one after the other.
+fn words(first: u32, second: u32) -> [u8; 8] {
+    (u64::from(first) | u64::from(second) << 32).to_le_bytes()
 }
 
-impl Writer {
-    // Out of line: inlined, every `put` of `to_frame` unrolled its copy (1.4 KB of a board's
-    // flash for one function); a call costs a few instructions, on frames sent a few times a
-    // second at most.
-    #[inline(never)]
-    fn put(&mut self, bytes: &[u8]) {
-        for &value in bytes {
-            if let Some(slot) = self.buf.get_mut(usize::from(self.len)) {
-                *slot = value;
-                self.len += 1;
-            }
-        }
-    }
+/// A DiagnosticControl's payload: rate and ports, then `tag` (zeros in the plain form, whose
+/// length stops before it).
+fn control_bytes(control: &DiagnosticControl, tag: [u8; 4]) -> [u8; 8] {
+    let [r0, r1] = control.rate_hz.to_le_bytes();
+    let [p0, p1] = control.ports.to_le_bytes();
+    let [t0, t1, t2, t3] = tag;
+    [r0, r1, p0, p1, t0, t1, t2, t3]
 }
 
 #[cfg(test)]
