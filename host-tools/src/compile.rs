@@ -483,6 +483,7 @@ mod tests {
         PortLogic {
             variables,
             delivers,
+            exclusive: Vec::new(),
         }
     }
 
@@ -534,7 +535,11 @@ mod tests {
                     )
                 })
                 .collect();
-            let logic = PortLogic { variables, delivers };
+            let logic = PortLogic {
+                variables,
+                delivers,
+                exclusive: Vec::new(),
+            };
             let compiled = decision(&logic, MAX_DECISION_NODES).unwrap();
             pab_core::decision::validate(&compiled.nodes, compiled.root, n as u8).unwrap();
             let width = if n == 32 { u32::MAX } else { (1 << n) - 1 };
@@ -607,6 +612,7 @@ mod tests {
         let logic = PortLogic {
             variables,
             delivers,
+            exclusive: Vec::new(),
         };
         assert_eq!(decision(&logic, 64), Err(DecisionError::TooLarge));
     }

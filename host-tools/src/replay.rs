@@ -68,8 +68,9 @@ impl Feed {
             span_us: last_us.saturating_sub(first_us),
         };
         for captured in ordered {
-            // BLE claims are fed: they are how the nodes decide who holds a task.
-            if protocol::is_ours(&captured.frame.id()) && !is_claim(&captured.frame) {
+            // BLE claims and Gates are fed: they are how the nodes coordinate (who holds a task,
+            // which behaviours' gates are open).
+            if protocol::is_ours(&captured.frame.id()) && !is_coordination(&captured.frame) {
                 feed.protocol_frames += 1;
                 continue;
             }
@@ -217,8 +218,13 @@ pub fn job(
     Ok(out)
 }
 
-/// Whether `frame` is a BLE claim (`pab_core::ble`): of our protocol, but traffic between nodes
-/// that a replay feeds.
-fn is_claim(frame: &pab_core::Frame) -> bool {
-    matches!(frame.id(), embedded_can::Id::Extended(id) if pab_core::ble::is_claim_id(id.as_raw()))
+/// Whether `frame` is a BLE claim (`pab_core::ble`) or a Gates frame (`pab_core::dynamics`): of
+/// our protocol, but traffic between nodes that a replay feeds.
+fn is_coordination(frame: &pab_core::Frame) -> bool {
+    let claim = matches!(frame.id(), embedded_can::Id::Extended(id) if pab_core::ble::is_claim_id(id.as_raw()));
+    claim
+        || matches!(
+            protocol::FrameId::decode(&frame.id()),
+            Some(id) if id.service == protocol::Service::Gates
+        )
 }

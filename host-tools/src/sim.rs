@@ -303,6 +303,7 @@ fn run_stopping(
         stations,
         dynamics_rows: Vec::new(),
         gates: Vec::new(),
+        dynamics_polled: Vec::new(),
         options,
         rows: Vec::new(),
         timelines: network
@@ -517,6 +518,8 @@ struct Run<'a> {
     dynamics_rows: Vec<DynamicsRow>,
     /// The Gates frames sent so far.
     gates: Vec<BusFrame>,
+    /// The stations that polled their dynamics at the current instant.
+    dynamics_polled: Vec<usize>,
     options: &'a Options,
     rows: Vec<TraceRow>,
     timelines: Vec<Vec<Change>>,
@@ -1012,6 +1015,9 @@ impl Outcome {
                     match (connection.kind.is_special(), connection.is_virtual()) {
                         _ if connection.kind == crate::network::Kind::Claim => {
                             "  (BLE claim: who holds the task, below)".to_string()
+                        }
+                        _ if connection.kind == crate::network::Kind::Gate => {
+                            "  (gate: set by the dynamics, never by a frame)".to_string()
                         }
                         (true, true) => format!("  ({}, virtual)", connection.kind.name()),
                         (true, false) => format!("  ({})", connection.kind.name()),

@@ -87,6 +87,7 @@ impl Run<'_> {
                 continue;
             }
             entry.dynamics_last_us = Some(now_us);
+            self.dynamics_polled.push(station);
             // The node's groups in network order: its run `p` is its `p`-th.
             let groups: Vec<usize> = network
                 .dynamics
@@ -139,6 +140,12 @@ impl Run<'_> {
             embedded_can::Id::Extended(id) => id.as_raw(),
             embedded_can::Id::Standard(id) => u32::from(id.as_raw()),
         });
+        let polled = !self.dynamics_polled.is_empty();
+        self.dynamics_polled.clear();
+        // A replay feeds the Gates of its capture: what the nodes would send is dropped.
+        if !self.broadcast {
+            sent.clear();
+        }
         for (sender, frame) in sent {
             self.gates.push(BusFrame {
                 t_us: now_us,
@@ -149,6 +156,12 @@ impl Run<'_> {
                     self.hear_gates(station, &frame, now_us);
                 }
             }
+        }
+        // Gates change ports' selections without a frame at them (a step, a frame heard, a
+        // source gone silent): note every port at an instant some node polled (noting what did
+        // not change adds nothing).
+        if polled {
+            self.note_all(now_us);
         }
     }
 
