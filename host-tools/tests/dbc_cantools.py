@@ -2,7 +2,7 @@
 """Checks a DBC file written by `pabctl dbc` for examples/take-and-return.toml with cantools.
 
     python host-tools/tests/dbc_cantools.py target/examples/take-and-return.dbc \
-        [target/examples/multi-target-observation.dbc]
+        [target/examples/multi-target-observation.dbc [target/examples/door-dynamics.dbc]]
 
 The expected identifiers and payload bytes are built here from the layout documented in
 docs/can-protocol.md, not from pabctl's code: this is what a user decoding a capture relies on.
@@ -188,14 +188,35 @@ def claims(path):
     check(values == {"Group": 1, "Eligibility": 500, "Reserved": 0}, f"claim payload: {values}")
 
 
+def gates(path):
+    """The Gates message of examples/door-dynamics.toml (the base, node 5, runs group 0 `door` of
+    3 behaviours; the head, node 6, runs none): docs/can-protocol.md, "Competitive-dynamics
+    gates"."""
+    db = cantools.database.load_file(path)
+    names = [m.name for m in db.messages if m.name.startswith("PAB_Gates")]
+    check(names == ["PAB_Gates_base"], f"gates messages: {names}")
+    message = db.get_message_by_name("PAB_Gates_base")
+    expected = 3 << 26 | 0b10 << 24 | 0x07 << 16 | BROADCAST << 8 | 5
+    check(message.frame_id == expected and message.is_extended_frame,
+          f"gates: id {message.frame_id:#x}, expected {expected:#x}")
+    check(message.cycle_time == 100, f"gates: cycle {message.cycle_time} ms")
+    check(message.length == 8, f"gates: length {message.length}")
+    # Group 0, 3 behaviours, search and approach open (bits 0 and 2), the second change.
+    values = message.decode(bytes([0, 3, 0b101, 0, 0, 0, 2, 0]))
+    check(values == {"group": 0, "behaviours": 3, "gates": 0b101, "changes": 2, "reserved": 0},
+          f"gates payload: {values}")
+
+
 if __name__ == "__main__":
-    if len(sys.argv) not in (2, 3):
+    if len(sys.argv) not in (2, 3, 4):
         print(__doc__, file=sys.stderr)
         sys.exit(2)
     try:
         main(sys.argv[1])
-        if len(sys.argv) == 3:
+        if len(sys.argv) >= 3:
             claims(sys.argv[2])
+        if len(sys.argv) == 4:
+            gates(sys.argv[3])
     except Exception as error:  # a missing message, an undecodable frame: report, with what came before
         failures.append(f"{type(error).__name__}: {error}")
     for failure in failures:
