@@ -64,7 +64,23 @@ pub fn feed<const P: usize, const C: usize, const N: usize, const IMG: usize, W:
     recorder: &mut Recorder<W>,
 ) -> bool {
     recorder.node_id = node.config().node_id;
-    let step = node.on_frame(&frame.frame, frame.instant(), recorder);
+    let now = frame.instant();
+    // The node's own work between frames, at the instants it asks for, as its runner wakes it
+    // (the steps of the dynamics it runs, which sample their contexts at those instants; its
+    // heartbeats and claims): what a live node would have done before this frame arrived. A
+    // deadline that polling does not move is not polled again (the node has nothing more due).
+    let mut polled: Option<Instant> = None;
+    loop {
+        let due = node.deadline(now);
+        let before = now.micros_since(due).is_some_and(|ahead| ahead > 0);
+        if !before || polled == Some(due) {
+            break;
+        }
+        let _ = node.poll(due, recorder);
+        while node.next_outgoing().is_some() {}
+        polled = Some(due);
+    }
+    let step = node.on_frame(&frame.frame, now, recorder);
     while node.next_outgoing().is_some() {}
     step == crate::Step::Store
 }
