@@ -15,7 +15,8 @@ FREE_RUN_S = 30.0
 SETTLE_S = 1.5  # a scene's first claims, and the commands of the scene before, pass
 WATCH_S = 2.0
 TRANSIENT_S = 2 * t.BLE_PERIOD  # shared driving may last less than two periods
-TAKEOVER_S = 3 * t.BLE_PERIOD  # two periods for the dead claim to go stale, plus one
+CLOCKS_S = 0.01  # s: the bus's timestamps against a node's clock (the VM's latency)
+REACT_S = 0.02  # s: from a reading on the bus to the command it lets through, re-published
 
 START = {
     1: t.Pose(2500.0, 3000.0, 0.0),
@@ -115,24 +116,36 @@ def test_robots_share_targets_by_eligibility_and_take_over_from_a_dead_one(iface
     start, end = scenes["equal"]
     assert drivers(drives, 2, start, end) == {1}, drives_between(drives, start, end)
 
-    # 4. r1 killed: r2, which sees target 2, takes it within two periods plus one. The kill
-    #    reaches the board's QEMU through run-hil's service some tens of milliseconds after it is
-    #    asked for, so the time of death is read from the bus: r1's last frame (a claim, every
-    #    0.1 s, or a command it re-published, every 0.05 s while it drives). It died after that,
-    #    so measuring from it can only lengthen the takeover.
+    # 4. r1 killed: r2, which sees target 2, takes it at its first reading after r1's claim went
+    #    stale. The kill reaches the board's QEMU through run-hil's service some tens of
+    #    milliseconds after it is asked for, so the time of death is read from the bus: r1's last
+    #    claim. r2 forgets it two periods later (at r2's reception; the bus's timestamps differ
+    #    from it by the VM's latency, a few ms), and r2's next reading of target 2 (an observer
+    #    frame, every 1/OBSERVER_HZ, on time or as late as the harness's publisher ran) finds the
+    #    task free. The takeover is judged against that reading, not against a fixed delay:
+    #    the publisher's lateness belongs to the harness, not to the nodes.
     killed_at, end = scenes["after-kill"]
     r1 = t.ROBOTS["r1"]
-    r1_frames = [m.timestamp for m in messages
-                 if (not m.is_extended_id and m.arbitration_id == t.drive_id(r1))
-                 or ((c := p.Claim.decode(m.arbitration_id, m.is_extended_id, bytes(m.data)))
-                     is not None and c.node == r1)]
-    last_seen = max(r1_frames)
-    assert last_seen >= killed_at - t.BLE_PERIOD, "r1 fell silent before it was killed"
-    taken = [d.start for d in drives if d.robot == 2 and d.target == 2 and d.start >= last_seen]
+    r1_claims = [m.timestamp for m in messages
+                 if (c := p.Claim.decode(m.arbitration_id, m.is_extended_id, bytes(m.data)))
+                 is not None and c.node == r1]
+    last_claim = max(r1_claims)
+    assert last_claim >= killed_at - t.BLE_PERIOD, "r1 fell silent before it was killed"
+    stale_at = last_claim + 2 * t.BLE_PERIOD
+    readings = [m.timestamp for m in messages
+                if not m.is_extended_id and m.arbitration_id == t.observer_id(2, 2)
+                and m.timestamp > stale_at + CLOCKS_S]
+    assert readings, "r2 stopped reading target 2 after r1 was killed"
+    taken = [d.start for d in drives if d.robot == 2 and d.target == 2 and d.start >= last_claim]
     assert taken, f"r2 never drove towards target 2 after r1 was killed: " \
                   f"{drives_between(drives, killed_at, end)}"
-    takeover = taken[0] - last_seen
-    assert takeover <= TAKEOVER_S, f"r2 took target 2 {takeover:.3f} s after r1's last frame"
+    takeover = taken[0] - last_claim
+    assert taken[0] <= readings[0] + REACT_S, (
+        f"r2 took target 2 {taken[0] - readings[0]:.3f} s after its first reading once r1's claim "
+        f"was stale ({takeover:.3f} s after r1's last claim; limit {REACT_S} s)")
+    # Nor before the claim went stale: while r1's claim was fresh, r1 held target 2.
+    assert taken[0] >= stale_at - CLOCKS_S, (
+        f"r2 took target 2 {stale_at - taken[0]:.3f} s before r1's claim went stale")
     # r1's last command still turns it for ROTATE_TIMEOUT (the world's rule; the drives keep it).
     r1_last = max(d.end for d in drives if d.robot == t.ROBOTS["r1"])
     assert drivers(drives, 2, max(taken[0], r1_last), end) == {2}
@@ -158,6 +171,7 @@ def test_robots_share_targets_by_eligibility_and_take_over_from_a_dead_one(iface
         "coverage": [round(c, 3) for c in covered],
         "longest_shared_s": round(longest, 3),
         "takeover_s": round(takeover, 3),
+        "takeover_reaction_s": round(taken[0] - readings[0], 3),
         "publisher_lag_s": round(session.lag, 3),
     })
     # The behaviours' frames must keep the readings fresh: a tick late by `lag` leaves a gap of
