@@ -100,7 +100,8 @@ fn check_warns_about_dynamics_that_cannot_work_and_still_exits_0() {
         "{stderr}"
     );
     assert!(stderr.ends_with("3 warnings\n"), "{stderr}");
-    assert!(text(&output.stdout).contains(": consistent (3 ports, 3 connections)"));
+    // Five ports: three contexts, the wheels and the gaze; six connections and three gates.
+    assert!(text(&output.stdout).contains(": consistent (5 ports, 9 connections)"));
     // The example as written: no warning.
     let output = pabctl(&["check", &example("door-dynamics.toml")]);
     assert_eq!(output.status.code(), Some(0));

@@ -317,7 +317,8 @@ fn the_plot_has_a_lane_per_behaviour_with_every_step_and_gate_edge() {
     let network = network("door-dynamics", &example_text("door-dynamics"));
     let outcome = simulate(&network);
     let data = outcome.plot_data(&network, "door-dynamics.toml");
-    assert_eq!(data.ports.len(), 3);
+    // The three context ports, the base's wheels and the head's gaze.
+    assert_eq!(data.ports.len(), 5);
     assert_eq!(data.dynamics.len(), 1);
     let group = &data.dynamics[0];
     assert_eq!(group.name, "dynamics door (node base, step 1 ms)");
