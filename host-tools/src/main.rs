@@ -104,8 +104,10 @@ id, the table version and a CRC-32. Nothing is written if the network is inconsi
 Run every node of the network on a simulated bus in virtual time: each node loads its compiled \
 table with the same code the boards run, the frames come from the file's [[events]] (with their \
 data bytes), a node of the file's [[faults]] stops at its time (it receives nothing from then on \
-and its ports deliver nothing), and the run is deterministic. Prints, per port, a timeline of which connection gets through whenever that \
-changes, and per connection how many frames it received and delivered.
+and its ports deliver nothing), and the run is deterministic. A node that runs a [dynamics.*] \
+group steps it at its `step` and puts its Gates on the bus; every node whose rules name a gate \
+(`door.search`) reads them. Prints, per port, a timeline of which connection gets through \
+whenever that changes, and per connection how many frames it received and delivered.
 
 --trace writes one CSV row per frame per connection it fed, after the update:
   t,port,connection,stimulation,active,delivered
@@ -113,7 +115,7 @@ changes, and per connection how many frames it received and delivered.
 through at its port and orange otherwise (like Fig. 5 of the port-arbitration paper), and under \
 the ports a lane per [dynamics.*] behaviour: n, ρ and m, on green where its gate is open.
 --candump writes the simulated bus as a candump -L log (each frame with its event's data, by \
-default none; times from 0 s on \
+default none; the nodes' BLE claims and Gates too; times from 0 s on \
 interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a real bus.")]
     Sim {
         /// The network file (TOML).
@@ -131,7 +133,7 @@ interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a rea
         /// Write the simulated bus's frames as a candump -L log.
         #[arg(long, value_name = "FILE.log")]
         candump: Option<PathBuf>,
-        /// Step the [dynamics.*] groups and write their states as CSV
+        /// Write the [dynamics.*] groups' states as CSV
         /// (t,group,behaviour,context,n,rho,m,gate; one row per behaviour per step).
         #[arg(long, value_name = "FILE.csv")]
         dynamics_trace: Option<PathBuf>,
