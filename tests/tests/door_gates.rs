@@ -245,3 +245,41 @@ fn a_rule_naming_no_gate_is_an_error_at_its_line() {
         );
     }
 }
+
+#[test]
+fn a_topic_context_the_boards_cannot_hold_is_an_error_at_its_key() {
+    let text = example_text("door-dynamics");
+    for (context, expected) in [
+        (
+            "{ topic = \"path_clear\", value = { offset = 0, size = 1 }, scale = 0.001, timeout = 0.2 }",
+            "scale = 0.001: the divisor of the field, from 1/256 (0.00390625) to 16777215",
+        ),
+        (
+            "{ topic = \"path_clear\", value = { offset = 0, size = 1 }, scale = 255.0, timeout = 4000.0 }",
+            "timeout = 4000: how long a frame's value holds, in seconds, from 0.000001 to 3600",
+        ),
+    ] {
+        let bad = text.replace("context = \"PATH\"", &format!("context = {context}"));
+        let line = bad
+            .lines()
+            .position(|l| l.contains(context))
+            .map(|i| i + 1)
+            .unwrap();
+        let errors = match pabctl::network::Network::parse(pabctl::diagnostic::Source::new(
+            "door.toml",
+            bad.clone(),
+        )) {
+            Ok(_) => panic!("{context} accepted"),
+            Err(errors) => errors.to_string(),
+        };
+        assert!(errors.contains(expected), "{errors}");
+        assert!(errors.contains(&format!("door.toml:{line}:")), "{errors}");
+    }
+    // At the limits: accepted, and compiled.
+    let good = text.replace(
+        "context = \"PATH\"",
+        "context = { topic = \"path_clear\", value = { offset = 0, size = 1 }, scale = 0.00390625, timeout = 3600.0 }",
+    );
+    let net = network("door-limits.toml", &good);
+    compile::compile(&net).unwrap_or_else(|errors| panic!("{errors:?}"));
+}

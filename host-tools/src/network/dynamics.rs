@@ -724,20 +724,26 @@ impl Builder<'_> {
                 let field = self.field(&raw.value, "context value");
                 let scale = *raw.scale.get_ref();
                 let mut ok = true;
-                if !(scale.is_finite() && scale > 0.0) {
+                // The boards keep the scale in Q24.8 (a u32: 1/256 to 16 777 215) and the
+                // timeout in whole microseconds up to an hour.
+                if !(scale.is_finite() && (1.0 / 256.0..=16_777_215.0).contains(&scale)) {
                     self.error(
                         raw.scale.span(),
-                        format!("scale = {scale}: the divisor of the field, positive and finite"),
+                        format!(
+                            "scale = {scale}: the divisor of the field, from 1/256 (0.00390625) to 16777215"
+                        ),
                     );
                     ok = false;
                 }
                 let timeout = *raw.timeout.get_ref();
                 let timeout_us = (timeout * 1e6).round();
-                if !(timeout.is_finite() && (1.0..=1e12).contains(&timeout_us)) {
+                if !(timeout.is_finite()
+                    && (1.0..=f64::from(pab_core::dynamics::MAX_TIMEOUT_US)).contains(&timeout_us))
+                {
                     self.error(
                         raw.timeout.span(),
                         format!(
-                            "timeout = {timeout}: how long a frame's value holds, in seconds, from 0.000001 to 1000000"
+                            "timeout = {timeout}: how long a frame's value holds, in seconds, from 0.000001 to 3600"
                         ),
                     );
                     ok = false;
