@@ -603,7 +603,29 @@ fn sqrt_ratio(step_us: u32, unit_us: u32) -> u64 {
     // rest < unit < 2^32: each shifted remainder is below 2^63.
     let high = (rest << 31) / unit;
     let low = (((rest << 31) % unit) << 31) / unit;
-    ((whole << 62) | (high << 31) | low).isqrt()
+    isqrt((whole << 62) | (high << 31) | low)
+}
+
+/// ⌊√x⌋, digit by digit (two bits a round, 32 rounds at most): the same value as `u64::isqrt`,
+/// whose inlined table-driven form took a board 1 KB of flash (code and a 512-byte table) for a
+/// square root taken once per group and table.
+#[inline(never)]
+fn isqrt(mut x: u64) -> u64 {
+    let mut root = 0u64;
+    let mut bit = 1u64 << 62;
+    while bit > x {
+        bit >>= 2;
+    }
+    while bit != 0 {
+        if x >= root + bit {
+            x -= root + bit;
+            root = (root >> 1) + bit;
+        } else {
+            root >>= 1;
+        }
+        bit >>= 2;
+    }
+    root
 }
 
 fn rate(step_us: u32, tau_us: u32) -> u32 {
@@ -829,6 +851,29 @@ mod tests {
     use super::*;
 
     #[test]
+    fn isqrt_is_the_standard_library_s() {
+        let mut x = 0x9E37_79B9_7F4A_7C15u64;
+        for k in 0..64 {
+            for v in [1u64 << k, (1u64 << k) - 1, (1u64 << k) + 1, u64::MAX >> k] {
+                assert_eq!(isqrt(v), v.isqrt(), "{v}");
+            }
+        }
+        for _ in 0..100_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            assert_eq!(isqrt(x), x.isqrt(), "{x}");
+            let small = x >> (x % 64);
+            assert_eq!(isqrt(small), small.isqrt(), "{small}");
+            let r = x >> 32;
+            assert_eq!(isqrt(r * r), r);
+            assert_eq!(isqrt(r * r + 2 * r), r);
+        }
+        assert_eq!(isqrt(0), 0);
+        assert_eq!(isqrt(u64::MAX), u64::MAX.isqrt());
+    }
+
+    #[test]
     fn table_matches_std_tanh() {
         for (k, &t) in TANH.iter().enumerate() {
             let exact = (k as f64 / 16.0).tanh() * ONE_Q31 as f64;
@@ -891,7 +936,7 @@ crate::wire::decode_struct!(Exclusion {
 });
 impl crate::wire::Decode for Params {
     fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
-        Ok(Params {
+        let mut params = Params {
             step_us: r.decode()?,
             unit_us: r.decode()?,
             noise: r.decode()?,
@@ -901,8 +946,12 @@ impl crate::wire::Decode for Params {
             tau_rho_fast_us: r.decode()?,
             tau_rho_slow_us: r.decode()?,
             tau_n_us: r.decode()?,
-            behaviours: r.vec()?,
-            exclusions: r.vec()?,
-        })
+            behaviours: Vec::new(),
+            exclusions: Vec::new(),
+        };
+        // Filled in place: the exclusions' room is 1 KiB, a copy of it for each move.
+        r.fill(&mut params.behaviours)?;
+        r.fill(&mut params.exclusions)?;
+        Ok(params)
     }
 }

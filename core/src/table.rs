@@ -407,11 +407,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             &self.gate_sources,
             &self.gate_links,
             node,
-            |port, connection| {
-                self.port(usize::from(port))
-                    .and_then(|view| view.connections.get(usize::from(connection)))
-                    .map(|c| c.filter)
-            },
+            &|port, connection| connection_filter(&self.ports, &self.connections, port, connection),
         )
         .map_err(TableError::Dynamics)
     }
@@ -692,6 +688,29 @@ fn check_claims(port: u8, connections: &[Connection], groups: &[Group]) -> Resul
         }
     }
     Ok(())
+}
+
+/// The filter of connection `connection` of port `port`, `None` beyond the port or the table:
+/// what `Table::port(port)` shows once the counts are checked ([`Table::validate`] asks only
+/// then), without walking every port's ranges. One copy for every table type.
+#[cfg(feature = "dynamics")]
+#[inline(never)]
+fn connection_filter(
+    ports: &[Port],
+    connections: &[Connection],
+    port: u8,
+    connection: u8,
+) -> Option<Filter> {
+    let port = usize::from(port);
+    if connection >= ports.get(port)?.connections {
+        return None;
+    }
+    let first = ports.get(..port)?.iter().fold(0usize, |sum, p| {
+        sum.saturating_add(usize::from(p.connections))
+    });
+    connections
+        .get(first.saturating_add(usize::from(connection)))
+        .map(|c| c.filter)
 }
 
 fn validate_port(

@@ -136,8 +136,18 @@ impl<'a> Reader<'a> {
     /// A list into a `Vec` of capacity `N`: more elements than that is heapless's custom error.
     pub(crate) fn vec<T: Decode, const N: usize>(&mut self) -> Result<Vec<T, N>, Error> {
         let mut out = Vec::new();
-        self.each(|x| out.push(x).map_err(|_| Error::SerdeDeCustom))?;
+        self.fill(&mut out)?;
         Ok(out)
+    }
+
+    /// [`Reader::vec`] into an empty `Vec` already in place (a large struct's field), so that the
+    /// list is not built elsewhere and moved: the same elements and errors.
+    pub(crate) fn fill<T: Decode, const N: usize>(
+        &mut self,
+        out: &mut Vec<T, N>,
+    ) -> Result<(), Error> {
+        self.each(|x| out.push(x).map_err(|_| Error::SerdeDeCustom))
+            .map(|_| ())
     }
 
     /// A list that must be empty (of a kind this build does not decode): the empty `Vec`, or

@@ -256,15 +256,17 @@ impl core::fmt::Display for DynamicsError {
 }
 
 #[cfg(feature = "dynamics")]
-/// The dynamics part of a table, checked as a whole: `connections(port)` is the number of
-/// connections of a port (`None` beyond the table), `filter(port, connection)` a connection's
-/// filter. `node` is the image's node id when an image is loaded (0 when a table is built).
+/// The dynamics part of a table, checked as a whole: `filter(port, connection)` is a
+/// connection's filter (`None` for a connection the table does not have). `node` is the image's
+/// node id when an image is loaded (0 when a table is built). One copy for every table type (it
+/// takes slices and a `dyn` look-up), out of line: the loader runs it once per table.
+#[inline(never)]
 pub(crate) fn validate(
     groups: &[GroupSpec],
     sources: &[GateSource],
     links: &[GateLink],
     node: u8,
-    filter: impl Fn(u8, u8) -> Option<Filter>,
+    filter: &dyn Fn(u8, u8) -> Option<Filter>,
 ) -> Result<(), DynamicsError> {
     for (position, group) in groups.iter().enumerate() {
         let g = position as u8;
@@ -276,7 +278,7 @@ pub(crate) fn validate(
             return Err(DynamicsError::ContextCount { group: g });
         }
         for (b, context) in group.contexts.iter().enumerate() {
-            validate_context(context, g, b as u8, &filter)?;
+            validate_context(context, g, b as u8, filter)?;
         }
         if groups
             .iter()
@@ -341,7 +343,7 @@ fn validate_context(
     context: &Context,
     group: u8,
     behaviour: u8,
-    filter: &impl Fn(u8, u8) -> Option<Filter>,
+    filter: &dyn Fn(u8, u8) -> Option<Filter>,
 ) -> Result<(), DynamicsError> {
     let error = DynamicsError::Context { group, behaviour };
     match *context {
@@ -403,11 +405,13 @@ impl crate::wire::Decode for Context {
 
 impl crate::wire::Decode for GroupSpec {
     fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
-        Ok(GroupSpec {
+        let mut group = GroupSpec {
             number: r.decode()?,
             params: r.decode()?,
-            contexts: r.vec()?,
-        })
+            contexts: Vec::new(),
+        };
+        r.fill(&mut group.contexts)?;
+        Ok(group)
     }
 }
 crate::wire::decode_struct!(GateSource {
