@@ -574,3 +574,41 @@ fn gates_frames_refuse_counts_beyond_32_gates_beyond_the_count_and_reserved_bits
     assert!(Message::decode(&Frame::with_raw_id(raw, true, &payload).unwrap()).is_ok());
     assert!(Message::decode(&Frame::with_raw_id(raw, true, &payload[..7]).unwrap()).is_err());
 }
+
+#[test]
+fn a_stall_restarts_the_grid_with_the_contexts_sampled_at_the_poll() {
+    let mut owner = Arbiter::new(owner_table()).unwrap();
+    for ms in 0..=40u64 {
+        let now = t(ms * 1_000);
+        owner.dynamics_frame(&frame(SEEN, 255), now);
+        owner.dynamics_poll(now, |_| {}, |_| {}, |_| {});
+    }
+    // Heard at 130 ms, then the node stalls until 10 s: the backlog's last step (140 ms) samples
+    // that reading, 10 ms old and fresh; at 10 s it is 9.87 s old and lapsed (50 ms timeout).
+    owner.dynamics_frame(&frame(SEEN, 255), t(130_000));
+    let mut last = None;
+    owner.dynamics_poll(
+        t(10_000_000),
+        |view| last = Some((view.at, view.contexts.to_vec(), view.dynamics.clone())),
+        |_| {},
+        |_| {},
+    );
+    let (at, contexts, mut expected) = last.expect("steps taken");
+    assert_eq!(at, t(140_000));
+    assert_eq!(contexts, [1 << 29, 0]);
+    assert_eq!(owner.dynamics_runs()[0].skipped(), 10_000 - 140);
+    // The grid restarts at 10 s: its first step takes the contexts of 10 s (none), not those of
+    // 140 ms.
+    expected.step(&[0, 0]);
+    let mut after = None;
+    owner.dynamics_poll(
+        t(10_001_000),
+        |view| after = Some(view.dynamics.clone()),
+        |_| {},
+        |_| {},
+    );
+    let after = after.expect("one step");
+    for i in 0..2 {
+        assert_eq!(after.state(i), expected.state(i), "behaviour {i}");
+    }
+}

@@ -9,7 +9,8 @@
 //! the step that opened it, and a frame at exactly t_k counts for the context sampled at t_k (the
 //! node handles it before the poll). A poll that comes late takes every step due, up to
 //! [`MAX_CATCH_UP`]; a longer backlog (the node stalled) is dropped, the group restarts its grid
-//! at the poll, and [`GroupRun::skipped`] counts the steps it lost.
+//! at the poll (the contexts sampled there feed its next step), and [`GroupRun::skipped`] counts
+//! the steps it lost.
 //!
 //! # Gates on the bus
 //!
@@ -156,6 +157,9 @@ impl GroupRun {
                 let behind = now.micros_since(next).unwrap_or(0) / self.step_us.max(1);
                 let dropped = u32::try_from(behind).unwrap_or(u32::MAX).saturating_add(1);
                 self.skipped = self.skipped.saturating_add(dropped);
+                // The grid restarts at the poll: the next step takes the contexts of now, not
+                // those of the last step taken (long past).
+                self.sample(spec, now, activity);
                 next = now.wrapping_add_micros(self.step_us);
                 break;
             }

@@ -7,10 +7,12 @@
 //!
 //! Images and network files are the examples' own (`pabctl compile` of `examples/*.toml`); the
 //! structured targets get a few pseudo-random byte strings (a fixed-seed generator), which their
-//! `Unstructured` readers turn into scripts and campaigns then grow. The `ble` target's seeds are
-//! chosen among a few thousand such strings: each is kept when its script reaches something no
-//! kept one reached (`pab_fuzz_checks::ble::features`: a reading, a claim held, a grid restart, a
-//! refused claim, the counter's wrap, ...), then the ones reaching the most up to 20.
+//! `Unstructured` readers turn into scripts and campaigns then grow. The `ble` and `gates` targets'
+//! seeds are chosen among a few thousand such strings: each is kept when its script reaches
+//! something no kept one reached (`pab_fuzz_checks::ble::features`: a reading, a claim held, a
+//! grid restart, a refused claim, the counter's wrap, ...; `pab_fuzz_checks::gates::features`: a
+//! step, a change sent, a backlog dropped, a loss, a refused count, ...), then the ones reaching
+//! the most up to 20.
 
 use std::collections::BTreeSet;
 use std::path::Path;
@@ -74,13 +76,31 @@ fn main() {
         }
     }
     if wanted("ble") {
-        ble_seeds(&write);
+        script_seeds(
+            &write,
+            "ble",
+            0xB1E5_EED5_0000_0001,
+            pab_fuzz_checks::ble::features,
+        );
+    }
+    if wanted("gates") {
+        script_seeds(
+            &write,
+            "gates",
+            0x6A7E_5EED_0000_0001,
+            pab_fuzz_checks::gates::features,
+        );
     }
 }
 
-/// The `ble` seeds: scripts that reach something new, then the ones that reach the most.
-fn ble_seeds(write: &dyn Fn(&str, &str, &[u8])) {
-    let mut state: u64 = 0xB1E5_EED5_0000_0001;
+/// The seeds of a structured target (`ble`, `gates`): scripts that reach something new
+/// (`features`), then the ones that reach the most, up to 20.
+fn script_seeds(
+    write: &dyn Fn(&str, &str, &[u8]),
+    target: &str,
+    mut state: u64,
+    features: fn(&[u8]) -> BTreeSet<&'static str>,
+) {
     let mut next = || {
         state ^= state << 13;
         state ^= state >> 7;
@@ -93,7 +113,7 @@ fn ble_seeds(write: &dyn Fn(&str, &str, &[u8])) {
     for i in 0..3_000 {
         let len = [48usize, 96, 192, 384, 768, 1536][i % 6];
         let bytes: Vec<u8> = (0..len).map(|_| next() as u8).collect();
-        let features = pab_fuzz_checks::ble::features(&bytes);
+        let features = features(&bytes);
         if features.is_subset(&reached) {
             others.push((features.len(), bytes));
         } else {
@@ -105,10 +125,10 @@ fn ble_seeds(write: &dyn Fn(&str, &str, &[u8])) {
     let room = 20usize.saturating_sub(kept.len());
     kept.extend(others.into_iter().take(room).map(|(_, bytes)| bytes));
     for (i, bytes) in kept.iter().enumerate() {
-        write("ble", &format!("script-{i:02}"), bytes);
+        write(target, &format!("script-{i:02}"), bytes);
     }
     println!(
-        "ble: {} seeds reaching {} features: {reached:?}",
+        "{target}: {} seeds reaching {} features: {reached:?}",
         kept.len(),
         reached.len()
     );

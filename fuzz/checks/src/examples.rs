@@ -7,7 +7,7 @@ use pabctl::diagnostic::Source;
 use pabctl::network::Network;
 
 /// The example files, compiled into the checks so that a run needs no working directory.
-pub const NETWORKS: [(&str, &str); 6] = [
+pub const NETWORKS: [(&str, &str); 7] = [
     (
         "examples/figure-1.toml",
         include_str!("../../../examples/figure-1.toml"),
@@ -31,6 +31,10 @@ pub const NETWORKS: [(&str, &str); 6] = [
     (
         "examples/multi-target-observation.toml",
         include_str!("../../../examples/multi-target-observation.toml"),
+    ),
+    (
+        "examples/door-dynamics.toml",
+        include_str!("../../../examples/door-dynamics.toml"),
     ),
 ];
 

@@ -12,6 +12,7 @@
 //! property panics.
 
 pub mod ble;
+pub mod gates;
 pub mod image;
 pub mod isotp_rx;
 pub mod isotp_tx;
@@ -69,6 +70,10 @@ pub const TARGETS: &[Target] = &[
     Target {
         name: "ble",
         check: ble::check,
+    },
+    Target {
+        name: "gates",
+        check: gates::check,
     },
 ];
 

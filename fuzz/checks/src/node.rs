@@ -9,7 +9,11 @@
 //!   image each time the node swaps one in, is fed the same non-protocol frames at the same times;
 //!   the ports the node delivers each frame to are the shadow's. With BLE groups (the example of
 //!   multi-target observation) the shadow also hears the BLE claims among the frames and polls
-//!   its groups when the node's duties would, and every claim the node sends carries its id.
+//!   its groups when the node's duties would, and every claim the node sends carries its id. With
+//!   competitive dynamics (the door example) the shadow also hears the Gates frames among the
+//!   protocol frames (some made well formed for the groups its table runs or reads), steps its
+//!   groups when the node's duties would (at boot and at a swap too), and every Gates frame the
+//!   node sends is of a group its table runs, with that group's count.
 //! - **A refused transfer never changes the running table.** The running table (its header) only
 //!   changes on a table-transfer frame, and then to the image the node will ask to store, which
 //!   loads, is for this node and is newer than the one before. The node asks to store it
@@ -146,6 +150,17 @@ fn ble_duties(shadow: &mut Shadow, at: Instant) {
     }
 }
 
+/// What a node does with its competitive dynamics after its BLE duties: the groups it runs
+/// stepped, and the silences of those it reads counted, unless their deadline is still ahead.
+fn dynamics_duties(shadow: &mut Shadow, at: Instant) {
+    let ahead = shadow
+        .dynamics_deadline(at)
+        .is_some_and(|due| at.micros_since(due).is_none());
+    if shadow.has_dynamics() && !ahead {
+        shadow.dynamics_poll(at, |_| {}, |_| {}, |_| {});
+    }
+}
+
 fn shadow_of(bytes: &[u8]) -> Shadow {
     let loaded: BoardLoaded = image::load(bytes)
         .unwrap_or_else(|error| panic!("the node runs an image that does not load: {error}"));
@@ -181,6 +196,17 @@ impl World {
                     assert_eq!(len, 8, "flow controls are padded");
                     self.flow_controls.push((id.destination, data));
                 }
+                Message::Gates(gates) => {
+                    let runs = self
+                        .shadow
+                        .as_ref()
+                        .map_or(&[][..], |s| s.table().dynamics());
+                    assert!(
+                        runs.iter().any(|group| group.number == gates.group
+                            && group.params.behaviours.len() == usize::from(gates.behaviours)),
+                        "the node sent {gates:?}, not of a group it runs"
+                    );
+                }
                 _ => {}
             }
         }
@@ -206,8 +232,16 @@ impl World {
                 {
                     let _ = shadow.on_claim(claim, at);
                 }
+                // Gates from another node, broadcast or to this one, go to the gate sources.
+                if let Ok((id, Message::Gates(gates))) = Message::decode(frame)
+                    && id.is_for(NODE_ID)
+                    && id.source != NODE_ID
+                {
+                    let _ = shadow.on_gates(id.source, &gates, at);
+                }
                 shadow.poll(at, |output| expected.push(output.port));
                 ble_duties(shadow, at);
+                dynamics_duties(shadow, at);
             }
             assert_eq!(ports.0, expected, "a protocol frame was delivered");
         } else {
@@ -230,8 +264,12 @@ impl World {
                 if shadow.has_groups() {
                     shadow.ble_frame(frame, at);
                 }
+                if shadow.has_dynamics() {
+                    shadow.dynamics_frame(frame, at);
+                }
                 shadow.poll(at, |output| expected.push(output.port));
                 ble_duties(shadow, at);
+                dynamics_duties(shadow, at);
             }
             assert_eq!(ports.0, expected, "deliveries of {frame:?} at {}", self.now);
         }
@@ -275,6 +313,8 @@ impl World {
         if let Some(previous) = self.shadow.as_ref() {
             shadow.carry_over(previous);
         }
+        // The node's duties after the frame ran on the new table.
+        dynamics_duties(&mut shadow, self.at());
         self.shadow = Some(shadow);
         self.store_pending = true;
     }
@@ -367,6 +407,7 @@ impl World {
         if let Some(shadow) = self.shadow.as_mut() {
             shadow.poll(at, |output| expected.push(output.port));
             ble_duties(shadow, at);
+            dynamics_duties(shadow, at);
         }
         assert_eq!(ports.0, expected, "value outputs of a poll at {}", self.now);
         step
@@ -545,6 +586,51 @@ fn protocol_frame(u: &mut Unstructured<'_>) -> Result<Frame> {
     Ok(Frame::with_raw_id(raw, true, &data).unwrap_or_else(|| unreachable!("29 bits, 8 bytes")))
 }
 
+/// A well-formed Gates frame, mostly of a group the running table runs or reads (from the
+/// source's owner, or any node), with its count or now and then another.
+fn gates_frame(u: &mut Unstructured<'_>, shadow: Option<&Shadow>) -> Result<Frame> {
+    let mut known: Vec<(u8, u8, u8)> = Vec::new();
+    if let Some(shadow) = shadow {
+        let table = shadow.table();
+        known.extend(table.dynamics().iter().map(|g| {
+            (
+                NODE_ID,
+                g.number,
+                u8::try_from(g.params.behaviours.len()).unwrap_or(32),
+            )
+        }));
+        known.extend(
+            table
+                .gate_sources()
+                .iter()
+                .map(|s| (s.owner, s.group, s.behaviours)),
+        );
+    }
+    let (mut owner, group, mut behaviours) = if !known.is_empty() && u.ratio(3u8, 4)? {
+        *u.choose(&known)?
+    } else {
+        (
+            u.int_in_range(1..=127)?,
+            u.arbitrary()?,
+            u.int_in_range(1..=32)?,
+        )
+    };
+    if owner == NODE_ID || owner == 0 || u.ratio(1u8, 8)? {
+        owner = u.int_in_range(1..=127)?;
+    }
+    if u.ratio(1u8, 8)? {
+        behaviours = u.int_in_range(1..=32)?;
+    }
+    let mask = u.arbitrary::<u32>()? & (u32::MAX >> (32 - u32::from(behaviours)));
+    let gates = protocol::Gates {
+        group,
+        behaviours,
+        mask,
+        changes: u.arbitrary()?,
+    };
+    Ok(Message::Gates(gates).to_frame(owner, protocol::BROADCAST))
+}
+
 fn run(u: &mut Unstructured<'_>) -> Result<()> {
     let config = Config::new(NODE_ID).expect("node 5 is valid");
     let now: u64 = if u.ratio(1u8, 4)? { u.arbitrary()? } else { 0 };
@@ -569,7 +655,12 @@ fn run(u: &mut Unstructured<'_>) -> Result<()> {
                 "boot with {} bytes",
                 bytes.len()
             );
-            applies.then(|| shadow_of(bytes))
+            applies.then(|| {
+                // The node's duties at boot.
+                let mut shadow = shadow_of(bytes);
+                dynamics_duties(&mut shadow, Instant::from_micros(now));
+                shadow
+            })
         }
         None => None,
     };
@@ -596,7 +687,11 @@ fn run(u: &mut Unstructured<'_>) -> Result<()> {
                 world.feed(u, &frame)?;
             }
             7..=8 => {
-                let frame = protocol_frame(u)?;
+                let frame = if u.ratio(1u8, 3)? {
+                    gates_frame(u, world.shadow.as_ref())?
+                } else {
+                    protocol_frame(u)?
+                };
                 world.feed(u, &frame)?;
             }
             9..=10 => {

@@ -67,7 +67,8 @@ fn every_target_has_a_replay_test() {
             "protocol_encode",
             "node",
             "network",
-            "ble"
+            "ble",
+            "gates"
         ]
     );
 }
@@ -115,4 +116,9 @@ fn network() {
 #[test]
 fn ble() {
     replay("ble");
+}
+
+#[test]
+fn gates() {
+    replay("gates");
 }
