@@ -532,17 +532,21 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 .fold(0u32, u32::saturating_add)
         };
         let before = skipped(arbiter);
-        // Each group sends at most two Gates frames a poll (a change and a repeat); a node reads
-        // at most MAX_GATE_SOURCES groups.
-        let mut gates: heapless::Vec<protocol::Gates, { 2 * dynamics::MAX_DYNAMICS_GROUPS }> =
+        // One Gates frame per group a poll, its last: a poll that catches up several steps may
+        // see several changes, and the frames would all leave at this instant, each stale but
+        // the last (its `changes` counts them all). A node reads at most MAX_GATE_SOURCES groups.
+        let mut gates: heapless::Vec<protocol::Gates, { dynamics::MAX_DYNAMICS_GROUPS }> =
             heapless::Vec::new();
         let mut lost: heapless::Vec<GatesLost, { dynamics::MAX_GATE_SOURCES }> =
             heapless::Vec::new();
         arbiter.dynamics_poll(
             now,
             |_| {},
-            |g| {
-                let _ = gates.push(g);
+            |g| match gates.iter_mut().find(|kept| kept.group == g.group) {
+                Some(kept) => *kept = g,
+                None => {
+                    let _ = gates.push(g);
+                }
             },
             |l| {
                 let _ = lost.push(l);
