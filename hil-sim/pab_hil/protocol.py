@@ -20,6 +20,7 @@ TABLE_STATUS = 0x03
 TRAFFIC = 0x04
 ERRORS = 0x05
 DIAGNOSTIC = 0x06
+GATES = 0x07  # a competitive-dynamics group's gates, from the node that runs it
 DIAGNOSTIC_CONTROL = 0x10
 TABLE_TRANSFER = 0x11
 TRANSFER_STATUS = 0x12
@@ -37,6 +38,7 @@ PRIORITY = {
     TRAFFIC: 5,
     ERRORS: 5,
     DIAGNOSTIC: 7,
+    GATES: 3,
     DIAGNOSTIC_CONTROL: 3,
     TABLE_TRANSFER: 6,
     TRANSFER_STATUS: 2,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 
-from pab_hil import analysis, behaviours as b, nodes, world as w
+from pab_hil import analysis, behaviours as b, nodes, protocol as p, world as w
 from pab_hil.board import BoardNode
 from pab_hil.nodes import NODE_IDS, TAKE_AND_RETURN
 from pab_hil.person import TakeAndReturn
@@ -150,7 +150,7 @@ def test_take_and_return_sequenced_by_competitive_dynamics(session_for, figures)
     messages = analysis.read_log(session.log_path)
     # The arm's Gates (service 0x07, priority 3, to all, from node 1): at every change and at
     # least every 100 ms while the arm runs.
-    gates_id = 3 << 26 | 0b10 << 24 | 0x07 << 16 | 0xFF << 8 | ARM
+    gates_id = p.frame_id(p.GATES, ARM, p.BROADCAST)
     times = [m.timestamp for m in messages if m.is_extended_id and m.arbitration_id == gates_id]
     assert len(times) > 100, f"{len(times)} Gates frames"
     gaps = [b - a for a, b in zip(times, times[1:])]
