@@ -177,6 +177,22 @@ impl Station {
     fn stopped(&self, t_us: u64) -> bool {
         self.stop_us.is_some_and(|stop| stop <= t_us)
     }
+
+    /// When it next has work of a kind it last polled at `last` (µs; `None`: never, so at 0),
+    /// `deadline` saying when from that instant: strictly after `last`, whose work is done, and
+    /// `None` once it has stopped.
+    fn next_due(
+        &self,
+        last: Option<u64>,
+        deadline: impl Fn(Instant) -> Option<Instant>,
+    ) -> Option<u64> {
+        let Some(last) = last else {
+            return Some(0);
+        };
+        let from = Instant::from_micros(last);
+        let ahead = deadline(from)?.micros_since(from).unwrap_or(0).max(1);
+        Some(last.saturating_add(ahead)).filter(|&t| !self.stopped(t))
+    }
 }
 
 /// Runs `network` with the tables `compiled` (one per node, from [`crate::compile::compile`]) on
@@ -542,19 +558,7 @@ impl Run<'_> {
         self.stations
             .iter()
             .filter(|s| s.arbiter.has_groups())
-            .filter_map(|s| {
-                let Some(last) = s.last_us else {
-                    // Never polled: its first claims are due at once.
-                    return Some(0);
-                };
-                let due = s.arbiter.ble_deadline(Instant::from_micros(last))?;
-                // Ahead of the instant it last polled at, whose work is done.
-                let ahead = due
-                    .micros_since(Instant::from_micros(last))
-                    .unwrap_or(0)
-                    .max(1);
-                Some(last.saturating_add(ahead)).filter(|&t| !s.stopped(t))
-            })
+            .filter_map(|s| s.next_due(s.last_us, |last| s.arbiter.ble_deadline(last)))
             .min()
     }
 

@@ -48,16 +48,7 @@ impl Run<'_> {
             .iter()
             .filter(|s| s.arbiter.has_dynamics())
             .filter_map(|s| {
-                let Some(last) = s.dynamics_last_us else {
-                    // Never polled: its groups start at 0.
-                    return Some(0);
-                };
-                let due = s.arbiter.dynamics_deadline(Instant::from_micros(last))?;
-                let ahead = due
-                    .micros_since(Instant::from_micros(last))
-                    .unwrap_or(0)
-                    .max(1);
-                Some(last.saturating_add(ahead)).filter(|&t| !s.stopped(t))
+                s.next_due(s.dynamics_last_us, |last| s.arbiter.dynamics_deadline(last))
             })
             .min()
     }
