@@ -16,7 +16,12 @@ SETTLE_S = 1.5  # a scene's first claims, and the commands of the scene before, 
 WATCH_S = 2.0
 TRANSIENT_S = 2 * t.BLE_PERIOD  # shared driving may last less than two periods
 CLOCKS_S = 0.01  # s: the bus's timestamps against a node's clock (the VM's latency)
-REACT_S = 0.02  # s: from a reading on the bus to the command it lets through, re-published
+# s: how late a node may read a frame after the bus's timestamp: it stamps a frame when its
+# process reads it, and on the software-emulated micro-VM of a loaded 2-core runner that was
+# once 17 ms (r2 refused a reading 17.5 ms after the killed board's claim went stale on the bus,
+# and let the next one through).
+RECEIVE_S = 0.05
+REACT_S = 0.03  # s: from a reading on the bus to the node's re-publication of it
 
 START = {
     1: t.Pose(2500.0, 3000.0, 0.0),
@@ -116,14 +121,15 @@ def test_robots_share_targets_by_eligibility_and_take_over_from_a_dead_one(iface
     start, end = scenes["equal"]
     assert drivers(drives, 2, start, end) == {1}, drives_between(drives, start, end)
 
-    # 4. r1 killed: r2, which sees target 2, takes it at its first reading after r1's claim went
-    #    stale. The kill reaches the board's QEMU through run-hil's service some tens of
+    # 4. r1 killed: r2, which sees target 2, takes it with its first reading after r1's claim
+    #    went stale. The kill reaches the board's QEMU through run-hil's service some tens of
     #    milliseconds after it is asked for, so the time of death is read from the bus: r1's last
-    #    claim. r2 forgets it two periods later (at r2's reception; the bus's timestamps differ
-    #    from it by the VM's latency, a few ms), and r2's next reading of target 2 (an observer
-    #    frame, every 1/OBSERVER_HZ, on time or as late as the harness's publisher ran) finds the
-    #    task free. The takeover is judged against that reading, not against a fixed delay:
-    #    the publisher's lateness belongs to the harness, not to the nodes.
+    #    claim. r2 forgets it two periods after r2 read it, on r2's clock, which trails the bus's
+    #    timestamps by the VM's scheduling (RECEIVE_S at most). The reading r2 let through is
+    #    found by its payload (the observer's sequence number): it must not be one published
+    #    before the claim went stale, nor one after the first reading published RECEIVE_S past
+    #    that; and r2 must re-publish it within REACT_S. Judged against readings, not against a
+    #    fixed delay: the harness's publisher lateness belongs to the harness, not to the nodes.
     killed_at, end = scenes["after-kill"]
     r1 = t.ROBOTS["r1"]
     r1_claims = [m.timestamp for m in messages
@@ -132,23 +138,33 @@ def test_robots_share_targets_by_eligibility_and_take_over_from_a_dead_one(iface
     last_claim = max(r1_claims)
     assert last_claim >= killed_at - t.BLE_PERIOD, "r1 fell silent before it was killed"
     stale_at = last_claim + 2 * t.BLE_PERIOD
-    readings = [m.timestamp for m in messages
+    readings = [m for m in messages
                 if not m.is_extended_id and m.arbitration_id == t.observer_id(2, 2)
-                and m.timestamp > stale_at + CLOCKS_S]
-    assert readings, "r2 stopped reading target 2 after r1 was killed"
-    taken = [d.start for d in drives if d.robot == 2 and d.target == 2 and d.start >= last_claim]
+                and m.timestamp > last_claim]
+    latest = [m.timestamp for m in readings if m.timestamp > stale_at + RECEIVE_S]
+    assert latest, "r2 stopped reading target 2 after r1 was killed"
+    taken = [m for m in messages
+             if not m.is_extended_id and m.arbitration_id == t.drive_id(2) and m.timestamp >= last_claim
+             and (c := t.Command.decode(bytes(m.data))) is not None and c.target == 2]
     assert taken, f"r2 never drove towards target 2 after r1 was killed: " \
                   f"{drives_between(drives, killed_at, end)}"
-    takeover = taken[0] - last_claim
-    assert taken[0] <= readings[0] + REACT_S, (
-        f"r2 took target 2 {taken[0] - readings[0]:.3f} s after its first reading once r1's claim "
-        f"was stale ({takeover:.3f} s after r1's last claim; limit {REACT_S} s)")
-    # Nor before the claim went stale: while r1's claim was fresh, r1 held target 2.
-    assert taken[0] >= stale_at - CLOCKS_S, (
-        f"r2 took target 2 {stale_at - taken[0]:.3f} s before r1's claim went stale")
+    took = taken[0]
+    passed = [m.timestamp for m in readings
+              if bytes(m.data) == bytes(took.data) and m.timestamp <= took.timestamp]
+    assert passed, f"r2 re-published a command nobody published: {bytes(took.data).hex()}"
+    reading = passed[-1]
+    takeover = took.timestamp - last_claim
+    assert reading >= stale_at - CLOCKS_S, (
+        f"r2 let through a reading published {stale_at - reading:.3f} s before r1's claim went stale")
+    assert reading <= latest[0], (
+        f"r2 refused the readings of target 2 from {latest[0] - stale_at:.3f} s after r1's claim "
+        f"went stale (limit {RECEIVE_S} s) and let one through {reading - stale_at:.3f} s after")
+    assert took.timestamp - reading <= REACT_S, (
+        f"r2 re-published its reading of target 2 {took.timestamp - reading:.3f} s after it was "
+        f"published (limit {REACT_S} s; {takeover:.3f} s after r1's last claim)")
     # r1's last command still turns it for ROTATE_TIMEOUT (the world's rule; the drives keep it).
     r1_last = max(d.end for d in drives if d.robot == t.ROBOTS["r1"])
-    assert drivers(drives, 2, max(taken[0], r1_last), end) == {2}
+    assert drivers(drives, 2, max(took.timestamp, r1_last), end) == {2}
 
     # 5. The claims on the bus during the free run: every node, the board included, claimed every
     #    group, one claim per group per period; the largest gap is a figure.
@@ -171,7 +187,8 @@ def test_robots_share_targets_by_eligibility_and_take_over_from_a_dead_one(iface
         "coverage": [round(c, 3) for c in covered],
         "longest_shared_s": round(longest, 3),
         "takeover_s": round(takeover, 3),
-        "takeover_reaction_s": round(taken[0] - readings[0], 3),
+        "takeover_after_stale_s": round(reading - stale_at, 3),
+        "takeover_reaction_s": round(took.timestamp - reading, 3),
         "publisher_lag_s": round(session.lag, 3),
     })
     # The behaviours' frames must keep the readings fresh: a tick late by `lag` leaves a gap of
