@@ -287,8 +287,9 @@ nodes are named.")]
     #[command(long_about = "\
 Switch on the diagnostic stream of every node of the network file and draw, several times per \
 second, one bar per connection: its stimulation S, ACTIVE when it is active, resting during its \
-rest time, and \"◀ delivering\" for the connection the port lets through. Ctrl-C ends it and \
-switches the stream off.")]
+rest time, and \"◀ delivering\" for the connection the port lets through. A node that runs a \
+competitive-dynamics group also shows its gates (OPEN or -) from its Gates frames, or that it fell \
+silent (its readers then take every gate as closed). Ctrl-C ends it and switches the stream off.")]
     Monitor {
         /// The network file (TOML): names of nodes, ports and connections.
         network: PathBuf,

@@ -2,13 +2,14 @@
 //!
 //! The tool switches the stream on at each node of the network (DiagnosticControl), redraws the
 //! terminal a few times per second from the latest samples, and switches the stream off when it
-//! ends. Names come from the network file; values only from the nodes.
+//! ends. Names come from the network file; values only from the nodes. A node that runs a
+//! competitive-dynamics group shows its gates from its Gates frames, which it sends anyway.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::time::{Duration, Instant};
 
-use pab_core::protocol::{self, DiagnosticControl, Message};
+use pab_core::protocol::{self, DiagnosticControl, Gates, Message};
 
 use crate::bus::Bus;
 use crate::network::Network;
@@ -88,6 +89,7 @@ impl Freshness {
 ///
 /// ```text
 /// arm (id 1)  version 1  operational
+///   gates tr  take OPEN  hold -  bring -  release -  (3 changes)
 ///   arm.target
 ///     C1  object_pos  [##########--------------------] 0.33
 ///     C3  rest_pose   [##############################] 1.00  ACTIVE  ◀ delivering
@@ -110,6 +112,20 @@ pub fn render(
             None => "not heard from".to_string(),
         };
         let _ = writeln!(out, "{} (id {})  {}", node.name, node.id, header);
+        for (number, group) in network.dynamics.iter().enumerate() {
+            if network.nodes.get(group.node).map(|n| n.id) != Some(node.id) {
+                continue;
+            }
+            let heard = u8::try_from(number)
+                .ok()
+                .and_then(|number| view.and_then(|v| v.gates.get(&number)));
+            let _ = writeln!(
+                out,
+                "  gates {}  {}",
+                group.name,
+                gates_line(group, heard, now)
+            );
+        }
         for (port_index, &port) in node.ports.iter().enumerate() {
             let _ = writeln!(out, "  {}", network.ports[port].name);
             for connection in network.port_connections(port) {
@@ -154,6 +170,34 @@ pub fn render(
         }
     }
     out
+}
+
+/// A group's gates as its owner last sent them: each behaviour OPEN or `-`, and the count of
+/// changes; after [`Gates::SILENCE_US`] without a frame the readers have closed every gate, and
+/// so does the line.
+fn gates_line(
+    group: &crate::network::DynamicsGroup,
+    heard: Option<&(Gates, Instant)>,
+    now: Instant,
+) -> String {
+    let Some((gates, at)) = heard else {
+        return "(not heard)".to_string();
+    };
+    if now.saturating_duration_since(*at) >= Duration::from_micros(Gates::SILENCE_US) {
+        return "(silent: read as all closed)".to_string();
+    }
+    let mut line = String::new();
+    for (bit, behaviour) in group.behaviours.iter().enumerate() {
+        let open = bit < 32 && gates.mask >> bit & 1 == 1;
+        let _ = write!(
+            line,
+            "{} {}  ",
+            behaviour.name,
+            if open { "OPEN" } else { "-" }
+        );
+    }
+    let _ = write!(line, "({} changes)", gates.changes);
+    line
 }
 
 /// Runs the monitor: streams at `rate_hz`, redraws every `redraw`, for `duration` (forever if
@@ -204,4 +248,57 @@ pub fn run(
     }
     request(bus, 0)?;
     Ok(observer)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnostic::Source;
+    use pab_core::Frame;
+
+    fn door() -> Network {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../examples/door-dynamics.toml"
+        );
+        let text = std::fs::read_to_string(path).unwrap();
+        Network::parse(Source::new("door-dynamics.toml", &text)).unwrap()
+    }
+
+    fn gates_frame(source: u8, mask: u32, changes: u8) -> Frame {
+        let gates = Gates {
+            group: 0,
+            behaviours: 3,
+            mask,
+            changes,
+        };
+        Message::Gates(gates).to_frame(source, protocol::BROADCAST)
+    }
+
+    #[test]
+    fn the_owner_of_a_group_shows_its_gates_until_it_falls_silent() {
+        let network = door();
+        let base = &network.nodes[network.dynamics[0].node];
+        let mut observer = Observer::new();
+        let freshness = Freshness::default();
+        let start = Instant::now();
+        let screen = render(&network, &observer, &freshness, start);
+        assert!(screen.contains("  gates door  (not heard)\n"), "{screen}");
+
+        observer.observe(&gates_frame(base.id, 0b010, 2), start);
+        let screen = render(&network, &observer, &freshness, start);
+        assert!(
+            screen.contains("  gates door  search -  recognise OPEN  approach -  (2 changes)\n"),
+            "{screen}"
+        );
+        // Only the owner's section has the line.
+        assert_eq!(screen.matches("gates door").count(), 1, "{screen}");
+
+        let later = start + Duration::from_micros(Gates::SILENCE_US);
+        let screen = render(&network, &observer, &freshness, later);
+        assert!(
+            screen.contains("  gates door  (silent: read as all closed)\n"),
+            "{screen}"
+        );
+    }
 }

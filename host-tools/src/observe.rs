@@ -8,8 +8,8 @@ use std::time::{Duration, Instant};
 
 use pab_core::Frame;
 use pab_core::protocol::{
-    DiagnosticSample, Errors, Fault, FaultCode, FrameId, Heartbeat, Message, STORE_UNREADABLE,
-    StoreFailure, TableStatus, Traffic, TransferStatus, TransferStatusCode,
+    DiagnosticSample, Errors, Fault, FaultCode, FrameId, Gates, Heartbeat, Message,
+    STORE_UNREADABLE, StoreFailure, TableStatus, Traffic, TransferStatus, TransferStatusCode,
 };
 
 /// The latest of everything a node said.
@@ -29,6 +29,8 @@ pub struct NodeView {
     pub transfer: Option<(TransferStatus, Instant)>,
     /// Its latest diagnostic sample per (port, connection).
     pub samples: BTreeMap<(u8, u8), DiagnosticSample>,
+    /// Its latest Gates frame per competitive-dynamics group it runs, and when it arrived.
+    pub gates: BTreeMap<u8, (Gates, Instant)>,
 }
 
 /// Every node heard from, by id.
@@ -61,8 +63,10 @@ impl Observer {
                 view.samples
                     .insert((sample.port, sample.connection), sample);
             }
+            Message::Gates(gates) => {
+                view.gates.insert(gates.group, (gates, at));
+            }
             Message::DiagnosticControl(_)
-            | Message::Gates(_)
             | Message::AuthenticatedDiagnosticControl { .. }
             | Message::TableTransfer { .. }
             | Message::ChallengeRequest
