@@ -20,6 +20,11 @@ pub fn example_text(name: &str) -> String {
     std::fs::read_to_string(&path).unwrap_or_else(|error| panic!("{}: {error}", path.display()))
 }
 
+/// The text of `examples/dynamics/<name>.toml`: DESIGN.md's competitive-dynamics scenarios.
+pub fn dynamics_example_text(name: &str) -> String {
+    example_text(&format!("dynamics/{name}"))
+}
+
 /// A network parsed from `text`, named `name` in diagnostics.
 pub fn network(name: &str, text: &str) -> Network {
     Network::parse(Source::new(format!("{name}.toml"), text))
