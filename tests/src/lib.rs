@@ -149,6 +149,26 @@ pub struct Phase {
     pub hand: Option<&'static str>,
 }
 
+/// A [`Phase`] in one line: `phase("B", 2.6, 6.0, Some("C1"), Some("C3"), None)` is phase B
+/// from 2.6 s to 6 s with C1 delivering at the arm, C3 at the gaze and nothing at the hand.
+pub const fn phase(
+    name: &'static str,
+    from: f64,
+    to: f64,
+    arm: Option<&'static str>,
+    gaze: Option<&'static str>,
+    hand: Option<&'static str>,
+) -> Phase {
+    Phase {
+        name,
+        from,
+        to,
+        arm,
+        gaze,
+        hand,
+    }
+}
+
 impl Scenario {
     /// Checks each phase in turn.
     pub fn expect_phases(&self, phases: &[Phase]) {

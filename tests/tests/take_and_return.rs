@@ -5,25 +5,7 @@
 //! 0.5 s after its first frame, and its connections lapse 3 s after its last. The comments of the
 //! example files derive every time used here.
 
-use pab_tests::{Phase, Scenario};
-
-const fn phase(
-    name: &'static str,
-    from: f64,
-    to: f64,
-    arm: Option<&'static str>,
-    gaze: Option<&'static str>,
-    hand: Option<&'static str>,
-) -> Phase {
-    Phase {
-        name,
-        from,
-        to,
-        arm,
-        gaze,
-        hand,
-    }
-}
+use pab_tests::{Phase, Scenario, phase};
 
 #[test]
 fn take_an_object() {

@@ -4,25 +4,7 @@
 //! a phase's window starts once its gate has opened, some 0.3 s after its context connection
 //! became active (the example's comment says why).
 
-use pab_tests::{Phase, Scenario};
-
-const fn phase(
-    name: &'static str,
-    from: f64,
-    to: f64,
-    arm: Option<&'static str>,
-    gaze: Option<&'static str>,
-    hand: Option<&'static str>,
-) -> Phase {
-    Phase {
-        name,
-        from,
-        to,
-        arm,
-        gaze,
-        hand,
-    }
-}
+use pab_tests::{Phase, Scenario, phase};
 
 /// Cycle 1: A to F, then back to A (take-and-return.rs's CYCLE, B, E and F from their gates).
 const CYCLE: [Phase; 7] = [
