@@ -3,7 +3,7 @@
 //! instead of clap's "unexpected argument") and answers with what the value must be; clap prints
 //! that as `error: invalid value '-1' for '--duration <SECONDS>': must be positive` and exits 2.
 
-use crate::network::MAX_TIME_S;
+use pab_lang::network::MAX_TIME_S;
 
 /// The longest `nodes --listen`, in seconds.
 pub const MAX_LISTEN_S: f64 = 3600.0;

@@ -1,27 +1,15 @@
 //! pabctl: the workstation side of port arbitration.
 //!
-//! Reads a network file ([`network`]), proves its rules consistent ([`check`]), compiles one
-//! table image per node ([`compile`]), simulates the whole network ([`sim`]) with `pab-core`,
-//! the code the boards run, and describes its traffic as a DBC file ([`dbc`]). It replays recorded
-//! candump captures ([`candump`]) through a network's tables ([`replay`]). On a live bus
-//! ([`bus`]) it pushes tables to the nodes ([`push`]), lists them ([`observe`]) and shows their
-//! arbitration as it happens ([`monitor`]).
+//! The network language (read, check, compile, simulate, replay, DBC) is the `pab-lang` crate;
+//! this one adds what a workstation does with it: draws its plots ([`plot`]), and on a live bus
+//! ([`bus`]) pushes tables to the nodes ([`push`]), lists them ([`observe`]) and shows their
+//! arbitration as it happens ([`monitor`]). Key files ([`keys`]) and the command line's numbers
+//! ([`args`]) are here too.
 
 pub mod args;
 pub mod bus;
-pub mod candump;
-pub mod check;
-pub mod compile;
-pub mod dbc;
-pub mod diagnostic;
 pub mod keys;
-pub mod kinds;
 pub mod monitor;
-pub mod network;
 pub mod observe;
 pub mod plot;
 pub mod push;
-pub mod replay;
-pub mod rule;
-pub mod shown;
-pub mod sim;

@@ -13,17 +13,17 @@ use std::time::Duration;
 
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
+use pab_lang::candump;
+use pab_lang::check;
+use pab_lang::compile::{self, CompiledNode};
+use pab_lang::dbc;
+use pab_lang::diagnostic::{Diagnostic, Diagnostics};
+use pab_lang::network::Network;
+use pab_lang::replay::{self, Feed};
+use pab_lang::sim::{self, Options};
 use pabctl::args;
 use pabctl::bus::{self, Bus};
-use pabctl::candump;
-use pabctl::check;
-use pabctl::compile::{self, CompiledNode};
-use pabctl::dbc;
-use pabctl::diagnostic::{Diagnostic, Diagnostics};
-use pabctl::network::Network;
 use pabctl::plot;
-use pabctl::replay::{self, Feed};
-use pabctl::sim::{self, Options};
 use pabctl::{monitor, observe, push};
 
 const ABOUT: &str = "Check, compile and simulate port-arbitration networks for CAN controller boards, \

@@ -12,8 +12,8 @@ use std::time::{Duration, Instant};
 use pab_core::protocol::{self, DiagnosticControl, Gates, Message};
 
 use crate::bus::Bus;
-use crate::network::Network;
 use crate::observe::Observer;
+use pab_lang::network::Network;
 
 /// Samples older than this are shown as stale: the node stopped streaming or left the bus.
 pub const STALE_AFTER: Duration = Duration::from_secs(2);
@@ -176,7 +176,7 @@ pub fn render(
 /// changes; after [`Gates::SILENCE_US`] without a frame the readers have closed every gate, and
 /// so does the line.
 fn gates_line(
-    group: &crate::network::DynamicsGroup,
+    group: &pab_lang::network::DynamicsGroup,
     heard: Option<&(Gates, Instant)>,
     now: Instant,
 ) -> String {
@@ -253,8 +253,8 @@ pub fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::diagnostic::Source;
     use pab_core::Frame;
+    use pab_lang::diagnostic::Source;
 
     fn door() -> Network {
         let path = concat!(

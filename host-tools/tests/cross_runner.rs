@@ -22,11 +22,11 @@ use pab_app::{Config, FullNode, Step};
 use pab_core::isotp::{Sender, TxConfig, TxEvent};
 use pab_core::protocol::{self, Message};
 use pab_core::{Frame, Instant as At};
-use pabctl::candump::{self, Capture, Captured};
-use pabctl::compile::{self, CompiledNode};
-use pabctl::network::Network;
-use pabctl::replay::{self, Feed};
-use pabctl::sim::{self, Options};
+use pab_lang::candump::{self, Capture, Captured};
+use pab_lang::compile::{self, CompiledNode};
+use pab_lang::network::Network;
+use pab_lang::replay::{self, Feed};
+use pab_lang::sim::{self, Options};
 
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
@@ -476,7 +476,8 @@ fn protocol_frames_of_a_capture_are_not_fed_so_a_recorded_push_does_not_switch_t
     let st = c14 + changed_text[c14..].find("st = ").unwrap();
     let end = st + changed_text[st..].find('\n').unwrap();
     let changed_text = format!("{}st = 1.0{}", &changed_text[..st], &changed_text[end..]);
-    let changed = Network::parse(pabctl::diagnostic::Source::new("v2.toml", changed_text)).unwrap();
+    let changed =
+        Network::parse(pab_lang::diagnostic::Source::new("v2.toml", changed_text)).unwrap();
     assert_eq!(changed.version, 2);
     let v2 = compile::compile(&changed).unwrap();
     let arm = clean

@@ -12,11 +12,11 @@ use pab_app::{Config, FullNode, Step};
 use pab_core::Frame;
 use pab_core::isotp::{RxEvent, Sender, TxConfig, TxEvent};
 use pab_core::protocol::{self, Message, TransferStatus, TransferStatusCode};
+use pab_lang::compile::{self, CompiledNode};
+use pab_lang::network::Network;
 use pabctl::bus::Bus;
 use pabctl::bus::memory::{MemoryBus, MemoryHub};
-use pabctl::compile::{self, CompiledNode};
 use pabctl::monitor;
-use pabctl::network::Network;
 use pabctl::observe::{self, Observer};
 use pabctl::push::{self, Outcome, Timeouts};
 

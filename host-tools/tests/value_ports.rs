@@ -3,9 +3,9 @@
 //! over the combined frames (the trace's `delivered` column and the port's timeline).
 
 use pab_core::Frame;
-use pabctl::diagnostic::Source;
-use pabctl::network::Network;
-use pabctl::sim::{self, BusFrame, Options};
+use pab_lang::diagnostic::Source;
+use pab_lang::network::Network;
+use pab_lang::sim::{self, BusFrame, Options};
 
 const EXAMPLE: &str = include_str!("../../examples/value-ports.toml");
 
@@ -103,19 +103,19 @@ fn the_checker_skips_the_overlap_proof_but_reports_dead_rules() {
         ("", ""),
     ))
     .unwrap();
-    let report = pabctl::check::check(&network);
+    let report = pab_lang::check::check(&network);
     assert!(report.is_consistent());
     assert!(report.summary(&network).contains("value port (max)"));
     // ... while the same rules on an ordinary port overlap.
     let ordinary = parse(&with_port("", ("", ""))).unwrap();
-    assert!(!pabctl::check::check(&ordinary).is_consistent());
+    assert!(!pab_lang::check::check(&ordinary).is_consistent());
     // A dead rule is still an error.
     let dead = parse(&with_port(
         "combine = \"max\"\nvalue = { offset = 0, size = 1 }",
         ("rule = \"C & !C\"", ""),
     ))
     .unwrap();
-    let report = pabctl::check::check(&dead);
+    let report = pab_lang::check::check(&dead);
     assert_eq!(report.ports[0].dead, vec![0]);
     let errors = report.errors(&dead);
     assert!(
@@ -135,7 +135,7 @@ fn range(k: u32, t_us: u64, millimetres: u16) -> BusFrame {
 #[test]
 fn the_simulator_hands_over_the_minimum_and_ages_sensors_out() {
     let network = parse(EXAMPLE).unwrap();
-    let compiled = pabctl::compile::compile(&network).unwrap();
+    let compiled = pab_lang::compile::compile(&network).unwrap();
     let frames = [
         range(0, 0, 900),
         range(1, 10_000, 400),

@@ -4,10 +4,10 @@
 
 use std::path::PathBuf;
 
-use pabctl::diagnostic::Source;
-use pabctl::network::Network;
-use pabctl::sim::{self, Outcome};
-use pabctl::{check, compile};
+use pab_lang::diagnostic::Source;
+use pab_lang::network::Network;
+use pab_lang::sim::{self, Outcome};
+use pab_lang::{check, compile};
 
 /// The repository's `examples/` directory.
 pub fn examples_dir() -> PathBuf {

@@ -8,8 +8,8 @@
 
 use std::path::PathBuf;
 
+use pab_lang::compile;
 use pab_tests::{example_text, network};
-use pabctl::compile;
 
 #[test]
 fn the_boards_take_and_return_images_are_what_pabctl_compiles() {

@@ -1,8 +1,8 @@
 //! The checker on the examples and on inconsistent variants of Take and Return: each overlap is
 //! reported with the minimal set of active connections that shows it, at the line of the rule.
 
+use pab_lang::check::{self, Overlap};
 use pab_tests::{example_text, network};
-use pabctl::check::{self, Overlap};
 
 #[test]
 fn every_example_is_consistent() {

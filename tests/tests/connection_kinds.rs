@@ -8,10 +8,10 @@
 //! lower identifier first: a special frame that goes first acts on the frames after it in that
 //! microsecond; one that goes after them does not.
 
+use pab_lang::network::Network;
+use pab_lang::sim::{self, Outcome};
+use pab_lang::{check, compile};
 use pab_tests::network;
-use pabctl::network::Network;
-use pabctl::sim::{self, Outcome};
-use pabctl::{check, compile};
 
 /// Proves, compiles and simulates `text` to its default end.
 fn run(text: &str) -> (Network, Outcome) {

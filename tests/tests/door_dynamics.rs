@@ -2,11 +2,11 @@
 //! simulator with its dynamics trace (the door sequence search → recognise → approach), the
 //! trace's exact format and timing, and the parse errors at their lines.
 
+use pab_lang::diagnostic::Source;
+use pab_lang::network::Network;
+use pab_lang::sim::{self, DynamicsRow, Options, Outcome};
+use pab_lang::{check, compile};
 use pab_tests::{example_text, network};
-use pabctl::diagnostic::Source;
-use pabctl::network::Network;
-use pabctl::sim::{self, DynamicsRow, Options, Outcome};
-use pabctl::{check, compile};
 
 fn simulate(network: &Network) -> Outcome {
     assert!(check::check(network).is_consistent());

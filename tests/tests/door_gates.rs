@@ -4,10 +4,10 @@
 //! checker proves gates like connections and takes two gates that exclude each other both ways
 //! as never open together; rules naming no gate are errors at their line.
 
+use pab_lang::network::Network;
+use pab_lang::sim::{self, Change, DynamicsRow, Options, Outcome};
+use pab_lang::{check, compile};
 use pab_tests::{example_text, network};
-use pabctl::network::Network;
-use pabctl::sim::{self, Change, DynamicsRow, Options, Outcome};
-use pabctl::{check, compile};
 
 const SEARCH: usize = 0;
 const RECOGNISE: usize = 1;
@@ -231,7 +231,7 @@ fn a_rule_naming_no_gate_is_an_error_at_its_line() {
             .position(|l| l.contains(rule))
             .map(|i| i + 1)
             .unwrap();
-        let errors = match pabctl::network::Network::parse(pabctl::diagnostic::Source::new(
+        let errors = match pab_lang::network::Network::parse(pab_lang::diagnostic::Source::new(
             "door.toml",
             bad.clone(),
         )) {
@@ -265,7 +265,7 @@ fn a_topic_context_the_boards_cannot_hold_is_an_error_at_its_key() {
             .position(|l| l.contains(context))
             .map(|i| i + 1)
             .unwrap();
-        let errors = match pabctl::network::Network::parse(pabctl::diagnostic::Source::new(
+        let errors = match pab_lang::network::Network::parse(pab_lang::diagnostic::Source::new(
             "door.toml",
             bad.clone(),
         )) {

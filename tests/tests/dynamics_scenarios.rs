@@ -1,6 +1,6 @@
 //! DESIGN.md's competitive-dynamics scenarios ("Competitive dynamics: decisions", scenarios for
 //! tests) as example networks, `examples/dynamics/*.toml`: each file is checked (consistent, no
-//! warning), compiled, and simulated with the boards' code (`pabctl::sim`, the nodes' arbiters
+//! warning), compiled, and simulated with the boards' code (`pab_lang::sim`, the nodes' arbiters
 //! stepping `pab_core::dynamics`), and its dynamics rows must show DESIGN's orderings and bounds.
 //! `core/tests/dynamics.rs` checks the same scenarios on the integrator alone against an f64
 //! reference; the door sequence itself is `examples/door-dynamics.toml` (tests/door_dynamics.rs).
@@ -18,11 +18,11 @@
 //! - [`RESUME_WITHIN_US`]: a behaviour whose ρ is already 1, held down only by another's
 //!   activity, opens within 0.139 s of being let go (faster than any first activation).
 
+use pab_lang::check;
+use pab_lang::compile;
+use pab_lang::network::Network;
+use pab_lang::sim::{self, DynamicsRow, Options, Outcome};
 use pab_tests::{dynamics_example_text, network};
-use pabctl::check;
-use pabctl::compile;
-use pabctl::network::Network;
-use pabctl::sim::{self, DynamicsRow, Options, Outcome};
 
 /// One step, µs.
 const STEP_US: u64 = 1_000;

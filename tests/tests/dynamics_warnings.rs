@@ -3,8 +3,8 @@
 //! saturate; each warning at the line and column of the offending key, and none on the door
 //! example.
 
+use pab_lang::check;
 use pab_tests::{example_text, network};
-use pabctl::check;
 
 const BASE: &str = r#"[nodes.base]
 id = 5

@@ -2,8 +2,8 @@
 //! Control. The timeline and the trace are fully determined by the reference semantics; the
 //! example's comment derives them.
 
+use pab_lang::{compile, sim};
 use pab_tests::{Scenario, example_text, network};
-use pabctl::{compile, sim};
 
 #[test]
 fn the_gaze_follows_the_face_unless_the_object_is_active() {

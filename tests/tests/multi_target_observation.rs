@@ -253,8 +253,8 @@ data = [0xF4, 0x01]
 "#
         );
         let network = pab_tests::network("tie", &text);
-        let nodes = pabctl::compile::compile(&network).unwrap_or_else(|e| panic!("{e:?}"));
-        let outcome = pabctl::sim::simulate(&network, &nodes, &pabctl::sim::Options::default())
+        let nodes = pab_lang::compile::compile(&network).unwrap_or_else(|e| panic!("{e:?}"));
+        let outcome = pab_lang::sim::simulate(&network, &nodes, &pab_lang::sim::Options::default())
             .unwrap_or_else(|e| panic!("{e}"));
         let holders: Vec<(u64, Vec<usize>)> = outcome.holdings[0]
             .iter()

@@ -18,8 +18,8 @@ use std::collections::BTreeSet;
 use std::path::Path;
 
 use pab_fuzz_checks::TARGETS;
-use pabctl::diagnostic::Source;
-use pabctl::network::Network;
+use pab_lang::diagnostic::Source;
+use pab_lang::network::Network;
 
 const NETWORKS: [&str; 6] = [
     "figure-1",
@@ -52,7 +52,7 @@ fn main() {
         let text = std::fs::read_to_string(&path).expect("example readable");
         write("network", name, text.as_bytes());
         let network = Network::parse(Source::new(&path, text)).expect("example parses");
-        for node in pabctl::compile::compile(&network).expect("example compiles") {
+        for node in pab_lang::compile::compile(&network).expect("example compiles") {
             let id = format!("{name}-{}", node.name);
             write("image_raw", &id, &node.image);
             write("image_fixed_crc", &id, &node.image);

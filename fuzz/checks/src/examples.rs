@@ -3,8 +3,8 @@
 
 use std::sync::OnceLock;
 
-use pabctl::diagnostic::Source;
-use pabctl::network::Network;
+use pab_lang::diagnostic::Source;
+use pab_lang::network::Network;
 
 /// The example files, compiled into the checks so that a run needs no working directory.
 pub const NETWORKS: [(&str, &str); 7] = [
@@ -85,7 +85,7 @@ fn image_as(network: &Network, index: usize, id: u8) -> Vec<u8> {
     }
     network.nodes[index].id = id;
     let name = network.nodes[index].name.clone();
-    pabctl::compile::compile(&network)
+    pab_lang::compile::compile(&network)
         .unwrap_or_else(|error| panic!("{name} as node {id} does not compile: {error:?}"))
         .into_iter()
         .find(|node| node.name == name)

@@ -2,8 +2,8 @@
 //! a value or errors that name a line and a cause, never panic; and what compiles loads.
 
 use pab_core::image::{self, Loaded};
-use pabctl::diagnostic::{Diagnostic, Source};
-use pabctl::network::Network;
+use pab_lang::diagnostic::{Diagnostic, Source};
+use pab_lang::network::Network;
 
 /// Parses, checks and compiles the text (invalid UTF-8 is replaced, as an editor would show it).
 pub fn check(data: &[u8]) {
@@ -27,13 +27,13 @@ pub fn check(data: &[u8]) {
             return;
         }
     };
-    let report = pabctl::check::check(&network);
+    let report = pab_lang::check::check(&network);
     let _ = report.summary(&network);
     let errors = report.errors(&network);
     if !report.is_consistent() {
         clear(&errors);
     }
-    match pabctl::compile::compile(&network) {
+    match pab_lang::compile::compile(&network) {
         Ok(nodes) => {
             assert!(report.is_consistent(), "an inconsistent network compiled");
             assert_eq!(nodes.len(), network.nodes.len());

@@ -13,44 +13,10 @@ use plotters::style::text_anchor::HPos;
 use plotters::style::{Color, RGBColor};
 
 use super::{
-    Area, BORDER, Band, GRID, LABEL_X1, MARGIN_X, MIN_FONT, PLOT_X0, PLOT_X1, SOFT_TEXT, TEXT,
-    TimeAxis, clean, draw_error, line, px, rectangle, text, text_width, wrap,
+    Area, BORDER, Band, BehaviourSeries, DynamicsSample, GRID, LABEL_X1, MARGIN_X, MIN_FONT,
+    PLOT_X0, PLOT_X1, SOFT_TEXT, TEXT, TimeAxis, clean, draw_error, line, px, rectangle, text,
+    text_width, wrap,
 };
-
-/// One group's lanes.
-#[derive(Clone, Debug, Default)]
-pub struct DynamicsSeries {
-    /// The header, e.g. "dynamics door (node base, step 1 ms)".
-    pub name: String,
-    /// Its behaviours in the file's order.
-    pub behaviours: Vec<BehaviourSeries>,
-}
-
-/// One behaviour's states over time.
-#[derive(Clone, Debug, Default)]
-pub struct BehaviourSeries {
-    /// `group.behaviour`.
-    pub name: String,
-    /// A longer label, e.g. "door.search  context CORRIDOR".
-    pub label: String,
-    /// Its states in increasing time order.
-    pub samples: Vec<DynamicsSample>,
-}
-
-/// A behaviour's state at one step.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct DynamicsSample {
-    /// Seconds.
-    pub t: f64,
-    /// Activity n.
-    pub n: f64,
-    /// Refractory filter ρ.
-    pub rho: f64,
-    /// Memory m.
-    pub m: f64,
-    /// Whether its gate is open.
-    pub gate: bool,
-}
 
 /// A behaviour lane is this many connection strips high (three lines share it).
 pub(super) const LANE_STRIPS: f64 = 1.5;
@@ -258,7 +224,7 @@ pub(super) fn draw_lane(
 
 #[cfg(test)]
 mod tests {
-    use super::super::{Layout, PlotData, render_png};
+    use super::super::{DynamicsSeries, Layout, PlotData, render_png};
     use super::*;
 
     fn at(t: f64, gate: bool) -> DynamicsSample {

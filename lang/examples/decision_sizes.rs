@@ -5,17 +5,17 @@
 //!
 //! For each, the number of nodes (6 bytes each in RAM) and the longest walk (steps per frame).
 //!
-//!     cargo run --release -p pabctl --example decision_sizes
+//!     cargo run --release -p pab-lang --example decision_sizes
 
 use std::path::Path;
 
 use biodivine_lib_bdd::{Bdd, BddPointer};
 use pab_core::MAX_DECISION_NODES;
 use pab_core::decision::{DecisionNode, NodeRef, Target};
-use pabctl::check::PortLogic;
-use pabctl::compile;
-use pabctl::diagnostic::Source;
-use pabctl::network::Network;
+use pab_lang::check::PortLogic;
+use pab_lang::compile;
+use pab_lang::diagnostic::Source;
+use pab_lang::network::Network;
 
 fn bdd_depth(bdd: &Bdd, pointer: BddPointer) -> usize {
     if pointer.is_terminal() {

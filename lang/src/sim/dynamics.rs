@@ -17,7 +17,7 @@ use pab_core::{Frame, Instant};
 
 use super::{BusFrame, Run, seconds_text};
 use crate::network::{Context, Network};
-use crate::plot::{BehaviourSeries, DynamicsSample, DynamicsSeries};
+use crate::series::{BehaviourSeries, DynamicsSample, DynamicsSeries};
 
 /// One behaviour's state at one step of its group.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -46,7 +46,7 @@ use pab_core::{Arbiter, Frame, Instant};
 
 use crate::compile::CompiledNode;
 use crate::network::{MAX_TIME_S, Network};
-use crate::plot::{ConnectionSeries, Phase, PlotData, PortSeries, Sample};
+use crate::series::{ConnectionSeries, Phase, PlotData, PortSeries, Sample};
 
 mod dynamics;
 

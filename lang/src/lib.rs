@@ -1,0 +1,23 @@
+//! The network language of port arbitration.
+//!
+//! A network file ([`network`]) names the nodes, topics, ports and their connections, the rules
+//! that decide which connection a port lets through, and the mechanisms that feed them (BLE
+//! groups, competitive-dynamics groups). This crate reads it with errors at their line
+//! ([`diagnostic`]), proves each port's rules consistent ([`check`]), compiles one table image per
+//! node ([`compile`]), simulates the whole network in virtual time with `pab-core`, the code the
+//! boards run ([`sim`]), replays recorded candump captures ([`candump`], [`replay`]) and
+//! describes the traffic as a DBC file ([`dbc`]). What a plot shows is data here ([`series`]);
+//! drawing it, and everything on a live bus, belongs to `pabctl`.
+
+pub mod candump;
+pub mod check;
+pub mod compile;
+pub mod dbc;
+pub mod diagnostic;
+pub mod kinds;
+pub mod network;
+pub mod replay;
+pub mod rule;
+pub mod series;
+pub mod shown;
+pub mod sim;

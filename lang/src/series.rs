@@ -1,0 +1,95 @@
+//! What a stimulation plot shows, as data: the simulator and a replay build it from the boards'
+//! code's states; `pabctl`'s plot draws it (PNG). Kept apart from the drawing so that the network
+//! language carries no image library.
+
+/// Everything a plot shows. Built by the simulator; the plot only draws it.
+#[derive(Clone, Debug, Default)]
+pub struct PlotData {
+    /// Title on top of the image, e.g. the network file's name.
+    pub title: String,
+    /// The time axis runs from 0 to `until` seconds.
+    pub until: f64,
+    /// Ports in the network file's order.
+    pub ports: Vec<PortSeries>,
+    /// Named time intervals drawn in a strip at the bottom (may be empty: then no strip).
+    pub phases: Vec<Phase>,
+    /// Competitive-dynamics groups, drawn under the ports (may be empty).
+    pub dynamics: Vec<DynamicsSeries>,
+}
+
+/// One port and its connections.
+#[derive(Clone, Debug, Default)]
+pub struct PortSeries {
+    /// The port's name, e.g. "arm.target".
+    pub name: String,
+    /// Connections in the network file's order.
+    pub connections: Vec<ConnectionSeries>,
+}
+
+/// One connection's stimulation over time.
+#[derive(Clone, Debug, Default)]
+pub struct ConnectionSeries {
+    /// The connection's name, e.g. "C1".
+    pub name: String,
+    /// A longer label, e.g. "C1  object_pos  σ 0.2  τ 3 s".
+    pub label: String,
+    /// Samples in increasing time order (several samples may share a time: a jump).
+    pub samples: Vec<Sample>,
+}
+
+/// The state of one connection at one time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sample {
+    /// Seconds.
+    pub t: f64,
+    /// Stimulation level in [0, 1].
+    pub level: f64,
+    /// Whether the connection is the one selected at its port at this time.
+    pub selected: bool,
+}
+
+/// A named interval of the scenario, e.g. phase "B" from 10 s to 14 s.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Phase {
+    /// Short name drawn in the strip.
+    pub name: String,
+    /// Start, seconds.
+    pub from: f64,
+    /// End, seconds.
+    pub to: f64,
+}
+
+/// One group's lanes.
+#[derive(Clone, Debug, Default)]
+pub struct DynamicsSeries {
+    /// The header, e.g. "dynamics door (node base, step 1 ms)".
+    pub name: String,
+    /// Its behaviours in the file's order.
+    pub behaviours: Vec<BehaviourSeries>,
+}
+
+/// One behaviour's states over time.
+#[derive(Clone, Debug, Default)]
+pub struct BehaviourSeries {
+    /// `group.behaviour`.
+    pub name: String,
+    /// A longer label, e.g. "door.search  context CORRIDOR".
+    pub label: String,
+    /// Its states in increasing time order.
+    pub samples: Vec<DynamicsSample>,
+}
+
+/// A behaviour's state at one step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DynamicsSample {
+    /// Seconds.
+    pub t: f64,
+    /// Activity n.
+    pub n: f64,
+    /// Refractory filter ρ.
+    pub rho: f64,
+    /// Memory m.
+    pub m: f64,
+    /// Whether its gate is open.
+    pub gate: bool,
+}
