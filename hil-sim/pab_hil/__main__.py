@@ -174,8 +174,10 @@ def run_suite(args) -> int:
     elif way == "host" and not _host_vcan("vcan0"):
         print("run-hil: no vcan0 on this machine and none can be created", file=sys.stderr)
         return 2
+    # --durations=0: every test's time in the log, to watch the suite's growth against CI's budget.
     pytest = [sys.executable, "-m", "pytest", str(REPO / "hil-sim" / "tests"),
-              "--iface", "vcan0", "--hil-out", str(out), "-ra", *extra]
+              "--iface", "vcan0", "--hil-out", str(out), "-ra", "--durations=0",
+              "--durations-min=1", *extra]
     if args.command:
         # The venv's python first on PATH, so `python -m pab_hil ...` works as typed.
         command = f"PATH={shlex.quote(str(Path(sys.executable).parent))}:$PATH; {args.command}"
