@@ -82,7 +82,7 @@
 //!
 //! [`MAX_CLASSES`] classes, [`MAX_STRATEGIES`] strategies, [`MAX_RESOURCES`] resources,
 //! [`MAX_FILTERS`] filters and [`MAX_REQUIRES`] requirements per strategy: chosen for a robot's
-//! intention workspace (the tour guide of the paper has 4 to 6 classes and about 10 strategies),
+//! intention workspace (`examples/tour-guide.toml` has 5 classes and 6 strategies),
 //! and so that a set of classes is a `u16` and a set of strategies a `u64`.
 
 mod instance;
