@@ -50,6 +50,7 @@ pub mod decision;
 pub mod dynamics;
 pub mod filter;
 pub mod frame;
+pub mod hbba;
 pub mod image;
 mod index;
 pub mod integrator;

@@ -4,7 +4,8 @@
 //! this one adds what a workstation does with it: draws its plots ([`plot`]), and on a live bus
 //! ([`bus`]) pushes tables to the nodes ([`push`]), lists them ([`observe`]) and shows their
 //! arbitration as it happens ([`monitor`]). Key files ([`keys`]) and the command line's numbers
-//! ([`args`]) are here too.
+//! ([`args`]) are here too, and `pabctl solve`'s report of HBBA's intention solver
+//! ([`solve`]).
 
 pub mod args;
 pub mod bus;
@@ -13,3 +14,4 @@ pub mod monitor;
 pub mod observe;
 pub mod plot;
 pub mod push;
+pub mod solve;

@@ -40,10 +40,11 @@ it has decayed to 0. Its rule says when an active connection may deliver, as a B
 over the activity of the port's connections, e.g. \"C1 & !C2\" (C1 gets through unless C2 is \
 active). A rule of false makes a virtual connection: it never delivers but inhibits others.
 
-A network file (TOML) declares [nodes.NAME] (id), [topics.NAME] (can_id, extended, mask), \
+A network file (TOML) declares [nodes.NAME] (id), [topics.NAME] (can_id, extended, mask, rate_hz), \
 [ports.\"NODE.PORT\"], [connections.NAME] (topic, port, st, tc, tr, rule) and, for simulation, \
-[[events]] (topic with rate_hz/from/to or at = [...]) and [[phases]] (name, from, to). See the \
-README for the full reference.
+[[events]] (topic with rate_hz/from/to or at = [...]) and [[phases]] (name, from, to), and for \
+HBBA's intention solver [hbba] (resources, bitrate) and [hbba.strategies.NAME] (class, utility, \
+costs, filters, requires). See the README for the full reference.
 
 Exit status: 0 success; 1 the rules are inconsistent; 2 the input cannot be read or is invalid; \
 3 an output cannot be written; 4 the bus cannot be used or a node refused or did not answer.";
@@ -57,7 +58,8 @@ Examples:
   pabctl push examples/take-and-return.toml --iface vcan0
   pabctl nodes --iface vcan0
   pabctl monitor examples/take-and-return.toml --iface vcan0
-  pabctl dbc examples/take-and-return.toml -o out/take-and-return.dbc";
+  pabctl dbc examples/take-and-return.toml -o out/take-and-return.dbc
+  pabctl solve examples/tour-guide.toml --desires \"face=2,nav=2,voice=3\"";
 
 #[derive(Parser)]
 #[command(name = "pabctl", version, about = ABOUT, long_about = LONG_ABOUT, after_help = AFTER_HELP)]
@@ -137,6 +139,57 @@ interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a rea
         /// (t,group,behaviour,context,n,rho,m,gate; one row per behaviour per step).
         #[arg(long, value_name = "FILE.csv")]
         dynamics_trace: Option<PathBuf>,
+    },
+    /// Choose the HBBA strategies for a set of desires: which run, the objective, each resource's
+    /// use.
+    #[command(long_about = "\
+Run HBBA's intention solver on the network's [hbba] section for the desires of --desires, and \
+print the strategies it selects, the objective and each resource's use.
+
+Motivations issue desires: a class (\"face\", \"voice\") and an intensity. A strategy \
+([hbba.strategies.NAME]) fulfils one class with a utility, costs some of each resource (cpu, \
+...), sets filters on connections (φ: 0 closes, 1 passes every frame, N one frame in N) and may \
+require other classes (requires = { nav = 1 }: the strategy chosen for nav must have a utility of \
+at least 1). The solver chooses at most one strategy per class and maximises the sum of \
+intensity × utility over the classes with a desire, so that:
+  - every resource's capacity covers the chosen strategies' costs;
+  - two chosen strategies that set the same connection set the same φ;
+  - every requirement of a chosen strategy is met;
+  - a class without a desire gets a strategy only when a chosen strategy requires it \
+(directly or through others); it adds nothing to the objective.
+The bus is a resource like the others, in percent of [hbba] bitrate: a strategy's bus cost is \
+computed from the rates its filters let through (each filtered connection's topic's rate_hz / φ \
+frames a second of the longest stuffed frame, 135 bits with an 11-bit id, 160 with a 29-bit id), \
+rounded up.
+
+Ties between equally good selections are broken the same way every time: classes are compared \
+in order of first appearance among the strategies; at the first class where two selections \
+differ, the one that chose a strategy wins over none, then the strategy that comes first in the \
+file. The search is exact (branch and bound) and visits at most 100000 nodes; beyond that it \
+gives no answer rather than a possibly wrong one (exit status 2).
+
+--desires takes CLASS=INTENSITY pairs separated by commas, intensities 1 to 65535 (a class left \
+out has no desire; \"\" is no desire at all). --json prints one object instead:
+  {\"strategies\":[\"face_throttled\",\"nav_follow\"],\"objective\":17,\"use\":{\"cpu\":95,\"bus\":12}}
+with the strategies' names sorted and the resources in file order.
+
+Exit status: 0 solved; 2 the network cannot be read or is invalid, has no [hbba] section, the \
+desires are invalid, or the search exceeded its work bound.")]
+    #[command(after_help = "\
+Examples:
+  pabctl solve examples/tour-guide.toml --desires \"face=2,qr=1,nav=2\"
+  pabctl solve examples/tour-guide.toml --desires \"face=2,qr=1,nav=2,voice=3\"     # a loud noise
+  pabctl solve examples/tour-guide.toml --desires \"voice=3\" --json")]
+    Solve {
+        /// The network file (TOML), with an [hbba] section.
+        network: PathBuf,
+        /// The desires: CLASS=INTENSITY,... (intensity 1 to 65535; \"\" for none).
+        #[arg(long, value_name = "CLASS=INTENSITY,...", allow_hyphen_values = true)]
+        desires: String,
+        /// Print one JSON object: {"strategies": [names, sorted], "objective": N, "use":
+        /// {resource: N}}.
+        #[arg(long)]
+        json: bool,
     },
     /// Run a recorded candump capture through the network's tables: what would they have let
     /// through?
@@ -441,6 +494,11 @@ fn main() -> ExitCode {
             key,
         } => run_monitor(&network, &iface, rate, duration, plain, key.as_deref()),
         Command::Dbc { network, output } => run_dbc(&network, &output),
+        Command::Solve {
+            network,
+            desires,
+            json,
+        } => run_solve(&network, &desires, json),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -979,6 +1037,29 @@ fn run_dbc(path: &Path, output: &Path) -> Result<(), Failure> {
         network.topics.len(),
         plural(network.topics.len()),
     );
+    Ok(())
+}
+
+fn run_solve(path: &Path, desires: &str, json: bool) -> Result<(), Failure> {
+    let network = Network::load(path)?;
+    let input = |message: String| Failure::Input(Diagnostic::file(path, message).into());
+    let Some(hbba) = &network.hbba else {
+        return Err(input(
+            "no [hbba] section: `solve` needs resources and strategies (README, \"The network file\")"
+                .into(),
+        ));
+    };
+    let intensities = hbba
+        .intensities(desires)
+        .map_err(|message| input(format!("--desires: {message}")))?;
+    let solved = hbba
+        .solve(&intensities, pab_core::hbba::DEFAULT_BUDGET)
+        .map_err(|error| input(error.to_string()))?;
+    if json {
+        println!("{}", pabctl::solve::json(hbba, &solved));
+    } else {
+        print!("{}", pabctl::solve::report(hbba, &intensities, &solved));
+    }
     Ok(())
 }
 

@@ -1,5 +1,5 @@
 //! The network file: nodes, topics, ports, connections, BLE groups ([`ble`]), competitive-dynamics
-//! groups ([`dynamics`]), and a scenario of events.
+//! groups ([`dynamics`]), HBBA's resources and strategies ([`hbba`]), and a scenario of events.
 //!
 //! Parsing is in two steps. `toml` turns the text into raw tables, keeping the byte span of every
 //! value; then [`Network::parse`] checks every name, number and rule and reports each mistake at
@@ -31,10 +31,14 @@ use crate::shown;
 mod ble;
 mod dynamics;
 mod gates;
+mod hbba;
 
 pub use ble::{BleGroup, BleMember};
 pub use dynamics::{Context, DynamicsBehaviour, DynamicsGroup, WrittenBehaviour, WrittenExclusion};
 pub use gates::lookup as gate;
+pub use hbba::{
+    BUS, DATA_LEN, Hbba, HbbaStrategy, MAX_BITRATE, Resource, Solved, StrategyFilter, bus_cost,
+};
 
 /// The topic of a connection that no topic feeds (a gate, [`Kind::Gate`]): no index of
 /// [`Network::topics`].
@@ -45,6 +49,8 @@ pub const NO_TOPIC: usize = usize::MAX;
 pub const MAX_EVENT_FRAMES: u64 = 10_000_000;
 /// The latest time an event or phase may have, in seconds (about 11.6 days).
 pub const MAX_TIME_S: f64 = 1_000_000.0;
+/// The highest `rate_hz` of a topic: more frames a second than a 1 Mbit/s bus carries.
+pub const MAX_RATE_HZ: f64 = 100_000.0;
 /// How much of a rule's text a message repeats (characters); longer rules are shortened with `…`.
 pub const RULE_EXCERPT: usize = 80;
 
@@ -70,6 +76,7 @@ struct RawFile {
     ble: IndexMap<Spanned<String>, Spanned<ble::RawBle>>,
     #[serde(default)]
     dynamics: IndexMap<Spanned<String>, Spanned<dynamics::RawDynamics>>,
+    hbba: Option<Spanned<hbba::RawHbba>>,
 }
 
 /// `[[faults]] node = "r2", at = 12.0`: the node stops.
@@ -105,6 +112,7 @@ struct RawTopic {
     #[serde(default)]
     extended: bool,
     mask: Option<Spanned<i64>>,
+    rate_hz: Option<Spanned<f64>>,
     #[allow(dead_code)]
     description: Option<String>,
 }
@@ -199,6 +207,11 @@ pub struct Topic {
     pub name: String,
     /// The frames it designates.
     pub filter: Filter,
+    /// How many frames a second it carries (`rate_hz`, optional), as written: what the HBBA
+    /// strategies' bus costs are computed from.
+    pub rate_hz: Option<f64>,
+    /// The same in whole µHz (rounded to nearest).
+    pub rate_uhz: Option<u64>,
     /// Where it is defined.
     pub span: Range<usize>,
 }
@@ -453,6 +466,8 @@ pub struct Network {
     pub groups: Vec<BleGroup>,
     /// Competitive-dynamics groups (`[dynamics.NAME]`) in file order.
     pub dynamics: Vec<DynamicsGroup>,
+    /// HBBA's resources and strategies (`[hbba]`), if the file has the section.
+    pub hbba: Option<Hbba>,
 }
 
 fn is_plain_name(name: &str) -> bool {
@@ -568,6 +583,7 @@ impl Builder<'_> {
         let events = self.events(&raw.events, &topics);
         let phases = self.phases(&raw.phases);
         let faults = self.faults(&raw.faults, &nodes);
+        let hbba = self.hbba(raw.hbba.as_ref(), &topics, &connections, &names);
         let mut nodes = nodes;
         for (index, port) in ports.iter().enumerate() {
             if let Some(node) = nodes.get_mut(port.node) {
@@ -586,6 +602,7 @@ impl Builder<'_> {
             faults,
             groups,
             dynamics,
+            hbba,
         }
     }
 
@@ -721,13 +738,38 @@ impl Builder<'_> {
                 );
                 continue;
             }
+            let Some((rate_hz, rate_uhz)) = self.topic_rate(raw_topic) else {
+                continue;
+            };
             topics.push(Topic {
                 name: name.get_ref().clone(),
                 filter,
+                rate_hz,
+                rate_uhz,
                 span: topic.span(),
             });
         }
         topics
+    }
+
+    /// A topic's `rate_hz`, as written and in µHz: `Some((None, None))` without one, `None`
+    /// after reporting a bad one.
+    fn topic_rate(&mut self, raw: &RawTopic) -> Option<(Option<f64>, Option<u64>)> {
+        let Some(rate) = &raw.rate_hz else {
+            return Some((None, None));
+        };
+        let hz = *rate.get_ref();
+        let micro = (hz * 1e6).round();
+        if !(hz.is_finite() && hz > 0.0 && hz <= MAX_RATE_HZ && micro >= 1.0) {
+            self.error(
+                rate.span(),
+                format!(
+                    "rate_hz = {hz}: frames per second, positive, at most {MAX_RATE_HZ} (kept in whole µHz)"
+                ),
+            );
+            return None;
+        }
+        Some((Some(hz), Some(micro as u64)))
     }
 
     fn ports(

@@ -21,13 +21,14 @@ use pab_fuzz_checks::TARGETS;
 use pab_lang::diagnostic::Source;
 use pab_lang::network::Network;
 
-const NETWORKS: [&str; 6] = [
+const NETWORKS: [&str; 7] = [
     "figure-1",
     "take-an-object",
     "return-an-object",
     "take-and-return",
     "value-ports",
     "subsumption",
+    "tour-guide",
 ];
 
 fn main() {
