@@ -1,9 +1,9 @@
 //! HBBA's intention solver (Ferland, Michaud et al., the Hybrid Behavior-Based Architecture):
 //! given the desires of the moment, which strategies to run.
 //!
-//! Motivations issue desires (a class and an intensity); per class the intention workspace keeps
-//! the most intense one, so the solver sees one intensity per class ([`Intensities`], 0: no
-//! desire). Each [`Strategy`] fulfils one class with a utility, costs some of each resource, sets
+//! Motivations issue desires (a class and an intensity, with a lease: [`Desires`]); per class the
+//! intention workspace keeps the most intense one, so the solver sees one intensity per class
+//! ([`Intensities`], 0: no desire). Each [`Strategy`] fulfils one class with a utility, costs some of each resource, sets
 //! filters (connection, φ) and may require other classes. The solver picks the strategies; the
 //! filters they set are what the boards then apply (not yet: README, "HBBA: where it stands").
 //!
@@ -85,9 +85,11 @@
 //! intention workspace (`examples/tour-guide.toml` has 5 classes and 6 strategies),
 //! and so that a set of classes is a `u16` and a set of strategies a `u64`.
 
+mod desires;
 mod instance;
 mod solver;
 
+pub use desires::{Desire, DesireError, Desires, MAX_DESIRES};
 pub use instance::{FilterSetting, HbbaError, Instance, Intensities, Requirement, Strategy};
 pub use solver::{Selection, Solver};
 
