@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use pab_core::Frame;
 use pab_core::protocol::{
-    DiagnosticSample, Errors, Fault, FaultCode, FrameId, Gates, Heartbeat, Message,
+    DiagnosticSample, Errors, Fault, FaultCode, FilterStatus, FrameId, Gates, Heartbeat, Message,
     STORE_UNREADABLE, StoreFailure, TableStatus, Traffic, TransferStatus, TransferStatusCode,
 };
 
@@ -31,6 +31,8 @@ pub struct NodeView {
     pub samples: BTreeMap<(u8, u8), DiagnosticSample>,
     /// Its latest Gates frame per competitive-dynamics group it runs, and when it arrived.
     pub gates: BTreeMap<u8, (Gates, Instant)>,
+    /// Its latest message filters' status, and when it arrived.
+    pub filters: Option<(FilterStatus, Instant)>,
 }
 
 /// Every node heard from, by id.
@@ -66,7 +68,13 @@ impl Observer {
             Message::Gates(gates) => {
                 view.gates.insert(gates.group, (gates, at));
             }
+            Message::FilterStatus(status) => view.filters = Some((status, at)),
             Message::DiagnosticControl(_)
+            | Message::Desire(_)
+            | Message::Intention(_)
+            | Message::Exploitation(_)
+            | Message::FilterProfile(_)
+            | Message::FilterSet(_)
             | Message::AuthenticatedDiagnosticControl { .. }
             | Message::TableTransfer { .. }
             | Message::ChallengeRequest

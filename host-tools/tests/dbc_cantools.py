@@ -2,7 +2,8 @@
 """Checks a DBC file written by `pabctl dbc` for examples/take-and-return.toml with cantools.
 
     python host-tools/tests/dbc_cantools.py target/examples/take-and-return.dbc \
-        [target/examples/multi-target-observation.dbc [target/examples/door-dynamics.dbc]]
+        [target/examples/multi-target-observation.dbc [target/examples/door-dynamics.dbc \
+        [target/examples/tour-guide.dbc]]]
 
 The expected identifiers and payload bytes are built here from the layout documented in
 docs/can-protocol.md, not from pabctl's code: this is what a user decoding a capture relies on.
@@ -207,16 +208,60 @@ def gates(path):
           f"gates payload: {values}")
 
 
+def hbba(path):
+    """The HBBA messages of examples/tour-guide.toml (nodes head 1 and base 2, both with filtered
+    connections; the intention node at 126): docs/can-protocol.md, "HBBA message filters"."""
+    db = cantools.database.load_file(path)
+    intention = 126
+    desire = db.get_message_by_name("PAB_Desire_PABCTL")
+    expected = 4 << 26 | 0b10 << 24 | 0x08 << 16 | BROADCAST << 8 | TOOL
+    check(desire.frame_id == expected, f"desire: id {desire.frame_id:#x}, expected {expected:#x}")
+    # Class 2 at intensity 3 for 500 ms, the sender's desire 7.
+    values = desire.decode(bytes([2, 0, 3, 0, 0xF4, 0x01, 7, 0]))
+    check(values == {"class": 2, "reserved": 0, "intensity": 3, "lease": 500, "id": 7},
+          f"desire payload: {values}")
+    message = db.get_message_by_name("PAB_Intention_PAB_INTENT")
+    expected = 4 << 26 | 0b10 << 24 | 0x09 << 16 | BROADCAST << 8 | intention
+    check(message.frame_id == expected, f"intention: id {message.frame_id:#x}")
+    values = message.decode(bytes([0b101, 0, 0, 0, 1, 0, 0, 0]))
+    check(values == {"strategies_low": 0b101, "strategies_high": 1}, f"intention: {values}")
+    for name, node in {"head": 1, "base": 2}.items():
+        status = db.get_message_by_name(f"PAB_FilterStatus_{name}")
+        expected = 4 << 26 | 0b10 << 24 | 0x0A << 16 | BROADCAST << 8 | node
+        check(status.frame_id == expected and status.cycle_time == 1000,
+              f"filter status of {name}: id {status.frame_id:#x}, cycle {status.cycle_time}")
+        values = status.decode(bytes([0xFF, 0, 0x34, 0x12, 3, 1, 1, 0]))
+        check((values["profile"], values["sequence"], values["filtered"], values["closed"],
+               values["throttled"]) == (255, 0x1234, 3, 1, 1), f"filter status: {values}")
+        edge = db.get_message_by_name(f"PAB_Exploitation_{name}")
+        expected = 5 << 26 | 0b10 << 24 | 0x0B << 16 | BROADCAST << 8 | node
+        check(edge.frame_id == expected and edge.length == 4, f"exploitation of {name}")
+        values = edge.decode(bytes([1, 0, 1, 0]))
+        check(str(values["delivering"]) == "started delivering" and values["port"] == 1,
+              f"exploitation payload: {values}")
+        set_ = db.get_message_by_name(f"PAB_FilterSet_{name}")
+        expected = 3 << 26 | 0b10 << 24 | 0x18 << 16 | node << 8 | intention
+        check(set_.frame_id == expected and set_.length == 6, f"filter set to {name}")
+        values = set_.decode(bytes([0, 1, 3, 0, 9, 0]))
+        check((values["port"], values["connection"], values["phi"], values["sequence"])
+              == (0, 1, 3, 9), f"filter set payload: {values}")
+        profile = db.get_message_by_name(f"PAB_FilterProfile_{name}")
+        expected = 3 << 26 | 0b10 << 24 | 0x17 << 16 | node << 8 | intention
+        check(profile.frame_id == expected and profile.length == 4, f"filter profile to {name}")
+
+
 if __name__ == "__main__":
-    if len(sys.argv) not in (2, 3, 4):
+    if len(sys.argv) not in (2, 3, 4, 5):
         print(__doc__, file=sys.stderr)
         sys.exit(2)
     try:
         main(sys.argv[1])
         if len(sys.argv) >= 3:
             claims(sys.argv[2])
-        if len(sys.argv) == 4:
+        if len(sys.argv) >= 4:
             gates(sys.argv[3])
+        if len(sys.argv) == 5:
+            hbba(sys.argv[4])
     except Exception as error:  # a missing message, an undecodable frame: report, with what came before
         failures.append(f"{type(error).__name__}: {error}")
     for failure in failures:

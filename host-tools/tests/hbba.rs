@@ -193,8 +193,8 @@ fn every_mistake_is_reported_at_its_line() {
             "net.toml:29:13: error: strategy `c_full` filters `X`, which is not a connection (connections: C, D)",
         ),
         (
-            base.replace("filters = { C = 1 }", "filters = { C = 70000 }"),
-            "net.toml:29:17: error: φ = 70000 for `C`: 0 closes, 1 passes every frame, N one frame in N",
+            base.replace("filters = { C = 1 }", "filters = { C = 256 }"),
+            "net.toml:29:17: error: φ = 256 for `C`: 0 closes, 1 passes every frame, N one frame in N (up to 255, the boards' filters count in one byte)",
         ),
         (
             base.replace("requires = { c = 1 }", "requires = { e = 1 }"),
@@ -230,6 +230,10 @@ fn every_mistake_is_reported_at_its_line() {
         (
             base.replace("rate_hz = 30.0", "rate = 30.0"),
             "net.toml:5:1: error: unknown field `rate`",
+        ),
+        (
+            base.replace("[nodes.b]\nid = 1", "[nodes.b]\nid = 126"),
+            "net.toml:1:1: error: node `b` has id 126, the intention node's address in a network with [hbba]: use another id",
         ),
     ];
     for (text, expected) in &cases {

@@ -21,8 +21,8 @@ use std::collections::HashSet;
 use std::fmt::Write as _;
 
 use pab_core::protocol::{
-    BROADCAST, FaultCode, FrameId, NodeState, PROTOCOL_MASK, PROTOCOL_VALUE, Service, TOOL,
-    TransferStatusCode,
+    BROADCAST, FaultCode, FrameId, INTENTION, NodeState, PROTOCOL_MASK, PROTOCOL_VALUE, Service,
+    TOOL, TransferStatusCode,
 };
 
 use crate::diagnostic::Diagnostics;
@@ -30,6 +30,8 @@ use crate::network::Network;
 
 /// The DBC node name of the workstation tool.
 pub const TOOL_NODE: &str = "PABCTL";
+/// The DBC node of the intention node (pab-intent), in networks with an `[hbba]` section.
+pub const INTENTION_NODE: &str = "PAB_INTENT";
 /// The DBC placeholder for "no node / unknown node".
 pub const UNKNOWN_NODE: &str = "Vector__XXX";
 /// The flag DBC files set on extended identifiers.
@@ -393,6 +395,102 @@ pub fn service_signals(service: Service) -> Option<Vec<DbcSignal>> {
             ),
             signal("tag_high", 32, 32, "the same CMAC: bytes 4-7"),
         ],
+        Service::Desire => vec![
+            signal(
+                "class",
+                0,
+                8,
+                "the class desired: its number in the network (first appearance among \
+                 [hbba.strategies.*], from 0)",
+            ),
+            signal("reserved", 8, 8, "0"),
+            signal(
+                "intensity",
+                16,
+                16,
+                "how much the class is desired; 0 withdraws the desire",
+            ),
+            with_unit(
+                signal(
+                    "lease",
+                    32,
+                    16,
+                    "the desire lapses unless sent again within this many ms",
+                ),
+                "ms",
+            ),
+            signal(
+                "id",
+                48,
+                16,
+                "the sender's number for the desire: (source, id) names it",
+            ),
+        ],
+        Service::Intention => vec![
+            signal(
+                "strategies_low",
+                0,
+                32,
+                "bit s set when strategy s (file order of [hbba.strategies.*]) is selected, s < 32",
+            ),
+            signal(
+                "strategies_high",
+                32,
+                32,
+                "bit s - 32 set when strategy s is selected, 32 <= s < 64",
+            ),
+        ],
+        Service::FilterStatus => vec![
+            signal(
+                "profile",
+                0,
+                8,
+                "the filter profile last switched to (0..15), or 255 once a FilterSet changed a \
+                 filter since",
+            ),
+            signal("reserved", 8, 8, "0"),
+            signal(
+                "sequence",
+                16,
+                16,
+                "the sequence number of the last filter command applied (0 since boot)",
+            ),
+            signal("filtered", 32, 8, "connections with a message filter"),
+            signal("closed", 40, 8, "of them closed (phi = 0)"),
+            signal("throttled", 48, 8, "of them passing one frame in phi >= 2"),
+            signal("reserved2", 56, 8, "0"),
+        ],
+        Service::Exploitation => vec![
+            signal("port", 0, 8, "the port, in the node's order"),
+            signal("connection", 8, 8, "the connection, in the port's order"),
+            with_values(
+                signal("delivering", 16, 8, "the edge"),
+                vec![(0, "stopped delivering"), (1, "started delivering")],
+            ),
+            signal("reserved", 24, 8, "0"),
+        ],
+        Service::FilterProfile => vec![
+            signal(
+                "profile",
+                0,
+                8,
+                "the profile of the node's table to switch every filter to (0: all closed)",
+            ),
+            signal("reserved", 8, 8, "0"),
+            signal("sequence", 16, 16, "echoed in the node's FilterStatus"),
+        ],
+        Service::FilterSet => vec![
+            signal("port", 0, 8, "the port, in the node's order"),
+            signal("connection", 8, 8, "the connection, in the port's order"),
+            signal(
+                "phi",
+                16,
+                8,
+                "0 closes, 1 passes every frame, N passes one frame in N",
+            ),
+            signal("reserved", 24, 8, "0"),
+            signal("sequence", 32, 16, "echoed in the node's FilterStatus"),
+        ],
         Service::TransferStatus => vec![
             with_values(
                 signal("status", 0, 8, "the outcome of the transfer"),
@@ -411,6 +509,19 @@ pub fn service_signals(service: Service) -> Option<Vec<DbcSignal>> {
                 "version of the table running after this transfer",
             ),
         ],
+    })
+}
+
+/// Whether node `index` has message filters: a connection of one of its ports that an HBBA
+/// strategy filters.
+fn has_filters(network: &Network, index: usize) -> bool {
+    network.hbba.as_ref().is_some_and(|hbba| {
+        hbba.strategies
+            .iter()
+            .flat_map(|s| &s.filters)
+            .filter_map(|f| network.connections.get(f.connection))
+            .filter_map(|c| network.ports.get(c.port))
+            .any(|port| port.node == index)
     })
 }
 
@@ -465,6 +576,30 @@ fn service_comment(service: Service) -> &'static str {
             "Receipt (service 0x16, priority 2): authenticates the TransferStatus that ended an \
              opened transfer."
         }
+        Service::Desire => {
+            "Desire (service 0x08, priority 4): a motivation's desire for the intention \
+             workspace; it lapses unless sent again within its lease; intensity 0 withdraws it."
+        }
+        Service::Intention => {
+            "Intention (service 0x09, priority 4): the strategies the intention node selected, \
+             after every solve that changed them and once a second."
+        }
+        Service::FilterStatus => {
+            "FilterStatus (service 0x0A, priority 4): a node's message filters, after every \
+             filter command it applied and after every heartbeat group."
+        }
+        Service::Exploitation => {
+            "Exploitation (service 0x0B, priority 5): a connection of the node started or \
+             stopped delivering (edges only)."
+        }
+        Service::FilterProfile => {
+            "FilterProfile (service 0x17, priority 3): switches every message filter of a node \
+             to one of its table's profiles; answered by FilterStatus or a FilterRefused fault."
+        }
+        Service::FilterSet => {
+            "FilterSet (service 0x18, priority 3): sets one message filter of a node; answered \
+             by FilterStatus or a FilterRefused fault."
+        }
         Service::TableTransfer => "",
         Service::TransferStatus => {
             "TransferStatus (service 0x12, priority 2): the outcome of a table transfer, to the \
@@ -505,15 +640,22 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
         Service::Errors,
     ];
     for (index, (node, dbc_node)) in network.nodes.iter().zip(nodes.iter().skip(1)).enumerate() {
-        // Gates come from the nodes that run a dynamics group only.
+        // Gates come from the nodes that run a dynamics group only; filter status and
+        // exploitation from the nodes with message filters.
         let runs_dynamics = network.dynamics.iter().any(|g| g.node == index);
+        let filtered = has_filters(network, index);
         for service in Service::ALL {
             let destination = match service {
                 Service::DiagnosticControl
                 | Service::TableTransfer
                 | Service::ChallengeRequest
-                | Service::TransferOpen => continue,
+                | Service::TransferOpen
+                | Service::Desire
+                | Service::Intention
+                | Service::FilterProfile
+                | Service::FilterSet => continue,
                 Service::Gates if !runs_dynamics => continue,
+                Service::FilterStatus | Service::Exploitation if !filtered => continue,
                 Service::TransferStatus | Service::Challenge | Service::Receipt => TOOL,
                 _ => BROADCAST,
             };
@@ -542,7 +684,8 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
                 cycle_ms: if service == Service::Gates {
                     Some(100)
                 } else {
-                    periodic.contains(&service).then_some(1000)
+                    (periodic.contains(&service) || service == Service::FilterStatus)
+                        .then_some(1000)
                 },
             });
         }
@@ -642,6 +785,67 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
             comment: format!("{} From the tool to {whom}.", service_comment(control)),
             cycle_ms: None,
         });
+    }
+
+    // HBBA: desires (described from the tool; any node may send them), the intention node's
+    // intention and its filter commands to each node with filters.
+    if network.hbba.is_some() {
+        nodes.push(INTENTION_NODE.to_string());
+        node_comments.push(format!(
+            "The intention node (pab-intent), at the address it uses unless told otherwise \
+             ({INTENTION}): it solves the desires and sets the nodes' message filters."
+        ));
+        let desire = Service::Desire;
+        messages.push(DbcMessage {
+            id: extended(FrameId::new(desire, TOOL, BROADCAST)),
+            name: names.unique(format!("PAB_{desire:?}_{TOOL_NODE}")),
+            dlc: desire.payload_len() as u8,
+            transmitter: TOOL_NODE.to_string(),
+            receivers: vec![INTENTION_NODE.to_string()],
+            signals: service_signals(desire).unwrap_or_default(),
+            comment: format!(
+                "{} From the tool to all (0xFF); a motivation on any node sends the same from \
+                 its own address.",
+                service_comment(desire)
+            ),
+            cycle_ms: None,
+        });
+        let intention = Service::Intention;
+        messages.push(DbcMessage {
+            id: extended(FrameId::new(intention, INTENTION, BROADCAST)),
+            name: names.unique(format!("PAB_{intention:?}_{INTENTION_NODE}")),
+            dlc: intention.payload_len() as u8,
+            transmitter: INTENTION_NODE.to_string(),
+            receivers: vec![TOOL_NODE.to_string()],
+            signals: service_signals(intention).unwrap_or_default(),
+            comment: format!(
+                "{} From the intention node to all (0xFF).",
+                service_comment(intention)
+            ),
+            cycle_ms: Some(1000),
+        });
+        for (index, (node, dbc_node)) in network.nodes.iter().zip(nodes.iter().skip(1)).enumerate()
+        {
+            if !has_filters(network, index) {
+                continue;
+            }
+            for service in [Service::FilterProfile, Service::FilterSet] {
+                messages.push(DbcMessage {
+                    id: extended(FrameId::new(service, INTENTION, node.id)),
+                    name: names.unique(format!("PAB_{service:?}_{dbc_node}")),
+                    dlc: service.payload_len() as u8,
+                    transmitter: INTENTION_NODE.to_string(),
+                    receivers: vec![dbc_node.clone()],
+                    signals: service_signals(service).unwrap_or_default(),
+                    comment: format!(
+                        "{} From the intention node to node `{}`.",
+                        service_comment(service),
+                        node.name
+                    ),
+                    cycle_ms: None,
+                });
+            }
+        }
     }
 
     // The tool's authentication frames go to one node each (a tag is over one node's challenge).
@@ -959,6 +1163,73 @@ tc = 3.0
                 .iter()
                 .all(|m| !m.name.starts_with("PAB_Gates"))
         );
+    }
+
+    #[test]
+    fn an_hbba_network_has_desires_the_intention_and_each_filtered_nodes_filter_frames() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../examples/tour-guide.toml");
+        let text = std::fs::read_to_string(path).unwrap();
+        let dbc = build(&network(&text)).unwrap();
+        assert!(dbc.nodes.iter().any(|n| n == INTENTION_NODE));
+        let find = |name: &str| {
+            dbc.messages
+                .iter()
+                .find(|m| m.name == name)
+                .unwrap_or_else(|| panic!("no {name}"))
+        };
+        let desire = find("PAB_Desire_PABCTL");
+        assert_eq!(
+            (desire.id, desire.dlc, desire.transmitter.as_str()),
+            (
+                FrameId::new(Service::Desire, TOOL, BROADCAST).raw() | EXTENDED_FLAG,
+                8,
+                TOOL_NODE
+            )
+        );
+        let intention = find("PAB_Intention_PAB_INTENT");
+        assert_eq!(
+            (intention.id, intention.cycle_ms),
+            (
+                FrameId::new(Service::Intention, INTENTION, BROADCAST).raw() | EXTENDED_FLAG,
+                Some(1000)
+            )
+        );
+        // Both nodes have filtered connections (head: FACE, VOICE, QR; base: NAV, AVOID).
+        for (node, id) in [("head", 1), ("base", 2)] {
+            let status = find(&format!("PAB_FilterStatus_{node}"));
+            assert_eq!((status.dlc, status.cycle_ms), (8, Some(1000)));
+            let edge = find(&format!("PAB_Exploitation_{node}"));
+            assert_eq!(
+                (edge.id, edge.dlc),
+                (
+                    FrameId::new(Service::Exploitation, id, BROADCAST).raw() | EXTENDED_FLAG,
+                    4
+                )
+            );
+            let set = find(&format!("PAB_FilterSet_{node}"));
+            assert_eq!(
+                (set.id, set.dlc, set.transmitter.as_str()),
+                (
+                    FrameId::new(Service::FilterSet, INTENTION, id).raw() | EXTENDED_FLAG,
+                    6,
+                    INTENTION_NODE
+                )
+            );
+            assert_eq!(find(&format!("PAB_FilterProfile_{node}")).dlc, 4);
+        }
+        // Without [hbba]: none of them.
+        let plain = build(&network(NET)).unwrap();
+        assert!(plain.messages.iter().all(|m| {
+            [
+                "PAB_Desire",
+                "PAB_Intention",
+                "PAB_Filter",
+                "PAB_Exploitation",
+            ]
+            .iter()
+            .all(|prefix| !m.name.starts_with(prefix))
+        }));
+        assert!(plain.nodes.iter().all(|n| n != INTENTION_NODE));
     }
 
     #[test]

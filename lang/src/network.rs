@@ -584,6 +584,23 @@ impl Builder<'_> {
         let phases = self.phases(&raw.phases);
         let faults = self.faults(&raw.faults, &nodes);
         let hbba = self.hbba(raw.hbba.as_ref(), &topics, &connections, &names);
+        if hbba.is_some() {
+            // The intention node sends its commands from this address (the DBC names it there).
+            for node in nodes
+                .iter()
+                .filter(|n| n.id == pab_core::protocol::INTENTION)
+            {
+                self.error(
+                    node.span.clone(),
+                    format!(
+                        "node `{}` has id {}, the intention node's address in a network with \
+                         [hbba]: use another id",
+                        node.name,
+                        pab_core::protocol::INTENTION
+                    ),
+                );
+            }
+        }
         let mut nodes = nodes;
         for (index, port) in ports.iter().enumerate() {
             if let Some(node) = nodes.get_mut(port.node) {

@@ -109,6 +109,11 @@ wire_enum! {
         /// (the node stalled) and dropped the backlog. Detail bytes 0-3: the steps dropped since
         /// the table started, u32 LE, saturating; byte 4: the group's position in the table.
         DynamicsLate = 0x0052, "dynamics steps dropped";
+        /// A filter command ([`super::FilterProfile`], [`super::FilterSet`]) this node cannot
+        /// apply: nothing changed. Detail byte 0: why (1 no such profile, 2 not a filtered
+        /// connection, 3 the running table has no message filters); byte 1: the profile, or the
+        /// port; byte 2: the connection; bytes 3-4: the command's sequence number, u16 LE.
+        FilterRefused = 0x0060, "filter command refused";
     }
 }
 

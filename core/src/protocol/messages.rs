@@ -66,6 +66,138 @@ impl Gates {
     }
 }
 
+/// A desire (service 0x08), sent by a motivation (any node, or the tool) to
+/// [`super::BROADCAST`]; the intention node keeps it for its lease ([`crate::hbba::Desires`]).
+///
+/// ```text
+/// byte 0     class: its number in the network (first appearance among [hbba.strategies.*])
+/// byte 1     reserved, 0
+/// bytes 2-3  intensity, u16 LE: 0 withdraws the desire, else 1..65535
+/// bytes 4-5  lease in ms, u16 LE: the desire lapses unless refreshed within it (1..65535)
+/// bytes 6-7  the sender's number for this desire, u16 LE: (source, id) names it
+/// ```
+///
+/// A sender refreshes a desire by sending it again before its lease runs out (at half the lease,
+/// say, so that one lost frame costs nothing).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DesireFrame {
+    /// The class desired.
+    pub class: u8,
+    /// How much; 0 withdraws.
+    pub intensity: u16,
+    /// Lease, milliseconds.
+    pub lease_ms: u16,
+    /// The sender's number for the desire.
+    pub id: u16,
+}
+
+/// The intention (service 0x09): the strategies the intention node selected, sent to
+/// [`super::BROADCAST`] after every solve that changed them and once a second.
+///
+/// ```text
+/// bytes 0-7  u64 LE: bit s set when strategy s (the file's order of [hbba.strategies.*]) runs
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Intention {
+    /// Bit s: strategy s is selected.
+    pub strategies: u64,
+}
+
+/// A node's message filters (service 0x0A), sent to [`super::BROADCAST`] after every filter
+/// command it applied and after every heartbeat group, by nodes whose table has filters.
+///
+/// ```text
+/// byte 0     the profile last switched to (0..=15), or 0xFF once a FilterSet changed one since
+/// byte 1     reserved, 0
+/// bytes 2-3  the sequence number of the last filter command applied, u16 LE (0 since boot)
+/// byte 4     filtered connections: how many the table names
+/// byte 5     of them closed (φ = 0)
+/// byte 6     of them throttled (φ ≥ 2)
+/// byte 7     reserved, 0
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FilterStatus {
+    /// The profile in force, or [`FilterStatus::SET_ONE_BY_ONE`].
+    pub profile: u8,
+    /// The last applied command's sequence number.
+    pub sequence: u16,
+    /// Connections with a filter.
+    pub filtered: u8,
+    /// Of them, closed.
+    pub closed: u8,
+    /// Of them, passing one frame in φ ≥ 2.
+    pub throttled: u8,
+}
+
+impl FilterStatus {
+    /// [`FilterStatus::profile`] once a single filter was set after the last profile switch.
+    pub const SET_ONE_BY_ONE: u8 = 0xFF;
+}
+
+/// Behaviour exploitation (service 0x0B), sent by a node to [`super::BROADCAST`] when a
+/// connection of one of its ports starts or stops delivering: edges only, so that motivations
+/// can watch what is used without a stream.
+///
+/// ```text
+/// byte 0     port (the node's order)
+/// byte 1     connection (the port's order)
+/// byte 2     1: started delivering, 0: stopped
+/// byte 3     reserved, 0
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Exploitation {
+    /// The port.
+    pub port: u8,
+    /// The connection.
+    pub connection: u8,
+    /// Started (true) or stopped (false) delivering.
+    pub delivering: bool,
+}
+
+/// Switches all of a node's message filters to one of its table's profiles (service 0x17), from
+/// the intention node; the node answers with [`FilterStatus`], or a `FilterRefused` fault.
+///
+/// ```text
+/// byte 0     profile, 0..=15 (profile 0: every filtered connection closed, as at boot)
+/// byte 1     reserved, 0
+/// bytes 2-3  sequence number, u16 LE, echoed in FilterStatus
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FilterProfile {
+    /// The profile.
+    pub profile: u8,
+    /// Echoed in [`FilterStatus::sequence`].
+    pub sequence: u16,
+}
+
+/// Sets one message filter of a node (service 0x18), from the intention node; the node answers
+/// with [`FilterStatus`], or a `FilterRefused` fault.
+///
+/// ```text
+/// byte 0     port (the node's order)
+/// byte 1     connection (the port's order): one the table gives a filter
+/// byte 2     φ: 0 closes, 1 passes every frame, N passes one in N
+/// byte 3     reserved, 0
+/// bytes 4-5  sequence number, u16 LE, echoed in FilterStatus
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FilterSet {
+    /// The port.
+    pub port: u8,
+    /// The connection.
+    pub connection: u8,
+    /// The filter's φ.
+    pub phi: u8,
+    /// Echoed in [`FilterStatus::sequence`].
+    pub sequence: u16,
+}
+
 /// The running table (service 0x03).
 ///
 /// ```text
@@ -288,6 +420,18 @@ pub enum Message {
     Diagnostic(DiagnosticSample),
     /// See [`Gates`].
     Gates(Gates),
+    /// See [`DesireFrame`].
+    Desire(DesireFrame),
+    /// See [`Intention`].
+    Intention(Intention),
+    /// See [`FilterStatus`].
+    FilterStatus(FilterStatus),
+    /// See [`Exploitation`].
+    Exploitation(Exploitation),
+    /// See [`FilterProfile`].
+    FilterProfile(FilterProfile),
+    /// See [`FilterSet`].
+    FilterSet(FilterSet),
     /// See [`DiagnosticControl`].
     DiagnosticControl(DiagnosticControl),
     /// One ISO-TP frame of a table transfer (or its flow control), passed to [`crate::isotp`].
@@ -415,6 +559,12 @@ impl Message {
             Message::Errors(_) => Service::Errors,
             Message::Diagnostic(_) => Service::Diagnostic,
             Message::Gates(_) => Service::Gates,
+            Message::Desire(_) => Service::Desire,
+            Message::Intention(_) => Service::Intention,
+            Message::FilterStatus(_) => Service::FilterStatus,
+            Message::Exploitation(_) => Service::Exploitation,
+            Message::FilterProfile(_) => Service::FilterProfile,
+            Message::FilterSet(_) => Service::FilterSet,
             Message::DiagnosticControl(_) => Service::DiagnosticControl,
             Message::TableTransfer { .. } => Service::TableTransfer,
             Message::TransferStatus(_) => Service::TransferStatus,
@@ -507,6 +657,50 @@ impl Message {
                     ],
                     8,
                 )
+            }
+            Message::Desire(desire) => {
+                let [i0, i1] = desire.intensity.to_le_bytes();
+                let [l0, l1] = desire.lease_ms.to_le_bytes();
+                let [d0, d1] = desire.id.to_le_bytes();
+                ([desire.class, 0, i0, i1, l0, l1, d0, d1], 8)
+            }
+            Message::Intention(intention) => (intention.strategies.to_le_bytes(), 8),
+            Message::FilterStatus(status) => {
+                let [s0, s1] = status.sequence.to_le_bytes();
+                (
+                    [
+                        status.profile,
+                        0,
+                        s0,
+                        s1,
+                        status.filtered,
+                        status.closed,
+                        status.throttled,
+                        0,
+                    ],
+                    8,
+                )
+            }
+            Message::Exploitation(edge) => (
+                [
+                    edge.port,
+                    edge.connection,
+                    edge.delivering as u8,
+                    0,
+                    0,
+                    0,
+                    0,
+                    0,
+                ],
+                4,
+            ),
+            Message::FilterProfile(switch) => {
+                let [s0, s1] = switch.sequence.to_le_bytes();
+                ([switch.profile, 0, s0, s1, 0, 0, 0, 0], 4)
+            }
+            Message::FilterSet(set) => {
+                let [s0, s1] = set.sequence.to_le_bytes();
+                ([set.port, set.connection, set.phi, 0, s0, s1, 0, 0], 6)
             }
         };
         Frame::from_buffer(id, data, len)
@@ -649,6 +843,72 @@ impl Message {
                 })
             }
             Service::Receipt => Message::Receipt { tag: padded },
+            Service::Desire => {
+                if byte(data, 1) != 0 {
+                    return Err(bad);
+                }
+                Message::Desire(DesireFrame {
+                    class: byte(data, 0),
+                    intensity: u16_at(data, 2),
+                    lease_ms: u16_at(data, 4),
+                    id: u16_at(data, 6),
+                })
+            }
+            Service::Intention => Message::Intention(Intention {
+                strategies: u64::from_le_bytes(padded),
+            }),
+            Service::FilterStatus => {
+                let status = FilterStatus {
+                    profile: byte(data, 0),
+                    sequence: u16_at(data, 2),
+                    filtered: byte(data, 4),
+                    closed: byte(data, 5),
+                    throttled: byte(data, 6),
+                };
+                let counts_fit = u16::from(status.closed) + u16::from(status.throttled)
+                    <= u16::from(status.filtered);
+                let profile_ok =
+                    status.profile < 16 || status.profile == FilterStatus::SET_ONE_BY_ONE;
+                if byte(data, 1) != 0 || byte(data, 7) != 0 || !counts_fit || !profile_ok {
+                    return Err(bad);
+                }
+                Message::FilterStatus(status)
+            }
+            Service::Exploitation => {
+                let delivering = match byte(data, 2) {
+                    0 => false,
+                    1 => true,
+                    _ => return Err(bad),
+                };
+                if byte(data, 3) != 0 {
+                    return Err(bad);
+                }
+                Message::Exploitation(Exploitation {
+                    port: byte(data, 0),
+                    connection: byte(data, 1),
+                    delivering,
+                })
+            }
+            Service::FilterProfile => {
+                if byte(data, 1) != 0 {
+                    return Err(bad);
+                }
+                Message::FilterProfile(FilterProfile {
+                    profile: byte(data, 0),
+                    sequence: u16_at(data, 2),
+                })
+            }
+            Service::FilterSet => {
+                if byte(data, 3) != 0 {
+                    return Err(bad);
+                }
+                Message::FilterSet(FilterSet {
+                    port: byte(data, 0),
+                    connection: byte(data, 1),
+                    phi: byte(data, 2),
+                    sequence: u16_at(data, 4),
+                })
+            }
         };
         Ok((id, message))
     }
@@ -673,7 +933,7 @@ mod tests {
     use super::*;
     use crate::protocol::BROADCAST;
 
-    fn samples() -> [Message; 14] {
+    fn samples() -> [Message; 20] {
         [
             Message::Fault(Fault {
                 code: FaultCode::TableRefused,
@@ -745,6 +1005,37 @@ mod tests {
             Message::Receipt {
                 tag: [1, 2, 3, 4, 5, 6, 7, 8],
             },
+            Message::Desire(DesireFrame {
+                class: 2,
+                intensity: 65_535,
+                lease_ms: 500,
+                id: 0x0102,
+            }),
+            Message::Intention(Intention {
+                strategies: 1 << 63 | 0b101,
+            }),
+            Message::FilterStatus(FilterStatus {
+                profile: FilterStatus::SET_ONE_BY_ONE,
+                sequence: 0xBEEF,
+                filtered: 5,
+                closed: 2,
+                throttled: 3,
+            }),
+            Message::Exploitation(Exploitation {
+                port: 1,
+                connection: 4,
+                delivering: true,
+            }),
+            Message::FilterProfile(FilterProfile {
+                profile: 15,
+                sequence: 7,
+            }),
+            Message::FilterSet(FilterSet {
+                port: 0,
+                connection: 3,
+                phi: 3,
+                sequence: 0xFFFF,
+            }),
         ]
     }
 
@@ -787,6 +1078,53 @@ mod tests {
             ports: 0xFFFF,
         });
         assert_eq!(control.to_frame(0, 5).payload(), &[10, 0, 0xFF, 0xFF]);
+        let desire = Message::Desire(DesireFrame {
+            class: 3,
+            intensity: 0x0102,
+            lease_ms: 0x0304,
+            id: 0x0506,
+        });
+        assert_eq!(
+            desire.to_frame(9, BROADCAST).payload(),
+            &[3, 0, 2, 1, 4, 3, 6, 5]
+        );
+        let set = Message::FilterSet(FilterSet {
+            port: 1,
+            connection: 2,
+            phi: 3,
+            sequence: 0x0405,
+        });
+        assert_eq!(set.to_frame(9, 2).payload(), &[1, 2, 3, 0, 5, 4]);
+        let status = Message::FilterStatus(FilterStatus {
+            profile: 4,
+            sequence: 0x0102,
+            filtered: 6,
+            closed: 1,
+            throttled: 2,
+        });
+        assert_eq!(
+            status.to_frame(2, BROADCAST).payload(),
+            &[4, 0, 2, 1, 6, 1, 2, 0]
+        );
+    }
+
+    #[test]
+    fn hbba_frames_refuse_reserved_bytes_and_impossible_counts() {
+        let refused = |service: Service, payload: &[u8]| {
+            let id = FrameId::new(service, 1, BROADCAST).id();
+            let frame = Frame::data(id, payload).unwrap();
+            matches!(Message::decode(&frame), Err(DecodeError::Value { .. }))
+        };
+        assert!(refused(Service::Desire, &[0, 1, 1, 0, 1, 0, 0, 0]));
+        // More closed and throttled filters than filtered ones; a profile past 15; reserved bytes.
+        assert!(refused(Service::FilterStatus, &[0, 0, 0, 0, 2, 2, 1, 0]));
+        assert!(refused(Service::FilterStatus, &[16, 0, 0, 0, 2, 0, 0, 0]));
+        assert!(refused(Service::FilterStatus, &[0, 1, 0, 0, 2, 0, 0, 0]));
+        assert!(refused(Service::FilterStatus, &[0, 0, 0, 0, 2, 0, 0, 1]));
+        assert!(refused(Service::Exploitation, &[0, 0, 2, 0]));
+        assert!(refused(Service::Exploitation, &[0, 0, 1, 1]));
+        assert!(refused(Service::FilterProfile, &[0, 1, 0, 0]));
+        assert!(refused(Service::FilterSet, &[0, 0, 1, 1, 0, 0]));
     }
 
     #[test]

@@ -31,8 +31,9 @@ pub use codes::{
 };
 pub use messages::DecodeError;
 pub use messages::{
-    DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Fault, Gates, Heartbeat, Message,
-    OPEN_REPLACE, TableStatus, Traffic, TransferOpen, TransferStatus,
+    DesireFrame, DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Exploitation, Fault,
+    FilterProfile, FilterSet, FilterStatus, Gates, Heartbeat, Intention, Message, OPEN_REPLACE,
+    TableStatus, Traffic, TransferOpen, TransferStatus,
 };
 
 use embedded_can::{ExtendedId, Id};
@@ -41,6 +42,11 @@ use embedded_can::{ExtendedId, Id};
 pub const TOOL: u8 = 0;
 /// The destination that addresses every node.
 pub const BROADCAST: u8 = 0xFF;
+/// The address the intention node (HBBA's intention workspace) uses unless told otherwise: the
+/// DBC export describes its frames ([`Service::Intention`], [`Service::FilterProfile`],
+/// [`Service::FilterSet`]) from it. A network's nodes may not use it when the network has an
+/// `[hbba]` section.
+pub const INTENTION: u8 = 126;
 /// The largest node id.
 pub const MAX_NODE_ID: u8 = 127;
 
@@ -102,6 +108,14 @@ pub enum Service {
     Diagnostic = 0x06,
     /// Node → all: the gates of a competitive-dynamics group the node runs ([`Gates`]).
     Gates = 0x07,
+    /// Motivation → all: a desire for the intention workspace ([`DesireFrame`]).
+    Desire = 0x08,
+    /// Intention node → all: the strategies it selected ([`Intention`]).
+    Intention = 0x09,
+    /// Node → all: its message filters' profile and counts ([`FilterStatus`]).
+    FilterStatus = 0x0A,
+    /// Node → all: a connection started or stopped delivering ([`Exploitation`]).
+    Exploitation = 0x0B,
     /// Tool → node(s): switches the diagnostic stream ([`DiagnosticControl`]).
     DiagnosticControl = 0x10,
     /// Tool ↔ node: ISO-TP frames of a table image (tool → node) and flow control (node → tool).
@@ -116,11 +130,15 @@ pub enum Service {
     TransferOpen = 0x15,
     /// Node → tool: authenticates the TransferStatus that ended an opened transfer.
     Receipt = 0x16,
+    /// Intention node → node: switches every message filter to a profile ([`FilterProfile`]).
+    FilterProfile = 0x17,
+    /// Intention node → node: sets one message filter ([`FilterSet`]).
+    FilterSet = 0x18,
 }
 
 impl Service {
     /// Every service, for tables (DBC export, documentation tests).
-    pub const ALL: [Service; 14] = [
+    pub const ALL: [Service; 20] = [
         Service::Fault,
         Service::Heartbeat,
         Service::TableStatus,
@@ -128,6 +146,10 @@ impl Service {
         Service::Errors,
         Service::Diagnostic,
         Service::Gates,
+        Service::Desire,
+        Service::Intention,
+        Service::FilterStatus,
+        Service::Exploitation,
         Service::DiagnosticControl,
         Service::TableTransfer,
         Service::TransferStatus,
@@ -135,6 +157,8 @@ impl Service {
         Service::Challenge,
         Service::TransferOpen,
         Service::Receipt,
+        Service::FilterProfile,
+        Service::FilterSet,
     ];
 
     /// The service with this code.
@@ -156,12 +180,19 @@ impl Service {
             Service::TransferStatus | Service::Challenge | Service::Receipt => Priority::HIGH,
             // Gates are decisions other nodes' rules read: they wait for faults and the tool's
             // answers only, never behind heartbeats, claims or counters.
+            // Filter commands likewise: a disable must not queue behind a board's counters.
             Service::Gates
             | Service::DiagnosticControl
             | Service::ChallengeRequest
-            | Service::TransferOpen => Priority::COMMAND,
-            Service::Heartbeat | Service::TableStatus => Priority::NOMINAL,
-            Service::Traffic | Service::Errors => Priority::LOW,
+            | Service::TransferOpen
+            | Service::FilterProfile
+            | Service::FilterSet => Priority::COMMAND,
+            Service::Heartbeat
+            | Service::TableStatus
+            | Service::Desire
+            | Service::Intention
+            | Service::FilterStatus => Priority::NOMINAL,
+            Service::Traffic | Service::Errors | Service::Exploitation => Priority::LOW,
             Service::TableTransfer => Priority::BULK,
             Service::Diagnostic => Priority::OPTIONAL,
         }
@@ -171,7 +202,8 @@ impl Service {
     /// command's authenticated form is longer by its tag ([`crate::auth::COMMAND_TAG_LEN`]).
     pub const fn payload_len(self) -> usize {
         match self {
-            Service::DiagnosticControl => 4,
+            Service::DiagnosticControl | Service::Exploitation | Service::FilterProfile => 4,
+            Service::FilterSet => 6,
             Service::ChallengeRequest => 0,
             _ => 8,
         }

@@ -916,6 +916,22 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 let data = data.get(..usize::from(len)).unwrap_or(&data);
                 self.on_transfer_frame(&id, data, now)
             }
+            // No table carries message filters yet (HBBA's board runtime is still to come): a
+            // filter command for this node is refused aloud, never dropped unseen, so that the
+            // intention node learns that its intention is not in force here.
+            Message::FilterProfile(switch) if id.destination == node_id => {
+                let [s0, s1] = switch.sequence.to_le_bytes();
+                self.raise(FaultCode::FilterRefused, [3, switch.profile, 0, s0, s1]);
+                Step::Continue
+            }
+            Message::FilterSet(set) if id.destination == node_id => {
+                let [s0, s1] = set.sequence.to_le_bytes();
+                self.raise(
+                    FaultCode::FilterRefused,
+                    [3, set.port, set.connection, s0, s1],
+                );
+                Step::Continue
+            }
             _ => Step::Continue,
         }
     }

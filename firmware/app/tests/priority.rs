@@ -25,6 +25,13 @@ fn payload(service: Service) -> Vec<u8> {
         // Length 100, no flags, a (wrong) tag: well formed, not authentic.
         Service::TransferOpen => vec![100, 0, 0, 1, 2, 3, 4, 5],
         Service::Challenge | Service::Receipt => vec![0; 8],
+        // Class 0 at intensity 1 for 100 ms; strategy 0; no filters, none closed.
+        Service::Desire => vec![0, 0, 1, 0, 100, 0, 0, 0],
+        Service::Intention => vec![1, 0, 0, 0, 0, 0, 0, 0],
+        Service::FilterStatus => vec![0; 8],
+        Service::Exploitation => vec![0, 0, 1, 0],
+        Service::FilterProfile => vec![0; 4],
+        Service::FilterSet => vec![0, 0, 1, 0, 0, 0],
     }
 }
 

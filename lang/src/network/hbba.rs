@@ -534,11 +534,12 @@ impl Builder<'_> {
                     );
                     continue;
                 }
-                let Ok(phi_value) = u16::try_from(*phi.get_ref()) else {
+                // The boards count a filter's frames in one byte, as FilterSet carries φ.
+                let Ok(phi_value) = u8::try_from(*phi.get_ref()).map(u16::from) else {
                     self.error(
                         phi.span(),
                         format!(
-                            "φ = {} for `{wanted}`: 0 closes, 1 passes every frame, N one frame in N (up to 65535)",
+                            "φ = {} for `{wanted}`: 0 closes, 1 passes every frame, N one frame in N (up to 255, the boards' filters count in one byte)",
                             phi.get_ref()
                         ),
                     );
