@@ -21,6 +21,12 @@ TRAFFIC = 0x04
 ERRORS = 0x05
 DIAGNOSTIC = 0x06
 GATES = 0x07  # a competitive-dynamics group's gates, from the node that runs it
+# HBBA (docs/can-protocol.md, "HBBA message filters"): desires, the intention node's intention,
+# the nodes' filter status and exploitation edges, and the intention node's filter commands.
+DESIRE = 0x08
+INTENTION = 0x09
+FILTER_STATUS = 0x0A
+EXPLOITATION = 0x0B
 DIAGNOSTIC_CONTROL = 0x10
 TABLE_TRANSFER = 0x11
 TRANSFER_STATUS = 0x12
@@ -30,6 +36,9 @@ CHALLENGE_REQUEST = 0x13
 CHALLENGE = 0x14
 TRANSFER_OPEN = 0x15
 RECEIPT = 0x16
+FILTER_PROFILE = 0x17
+FILTER_SET = 0x18
+INTENTION_NODE = 126  # the intention node's address unless told otherwise
 
 PRIORITY = {
     FAULT: 0,
@@ -39,6 +48,10 @@ PRIORITY = {
     ERRORS: 5,
     DIAGNOSTIC: 7,
     GATES: 3,
+    DESIRE: 4,
+    INTENTION: 4,
+    FILTER_STATUS: 4,
+    EXPLOITATION: 5,
     DIAGNOSTIC_CONTROL: 3,
     TABLE_TRANSFER: 6,
     TRANSFER_STATUS: 2,
@@ -46,6 +59,8 @@ PRIORITY = {
     CHALLENGE: 2,
     TRANSFER_OPEN: 3,
     RECEIPT: 2,
+    FILTER_PROFILE: 3,
+    FILTER_SET: 3,
 }
 
 NODE_STATES = {0: "no table", 1: "operational", 2: "fault"}

@@ -33,12 +33,14 @@ def doc_tables(header: str) -> list[list[list[str]]]:
 def test_identifiers_match_the_protocol_document():
     services = {"Heartbeat": p.HEARTBEAT, "Fault": p.FAULT, "TableStatus": p.TABLE_STATUS,
                 "Traffic": p.TRAFFIC, "Errors": p.ERRORS, "Diagnostic": p.DIAGNOSTIC,
-                "Gates": p.GATES,
+                "Gates": p.GATES, "Desire": p.DESIRE, "Intention": p.INTENTION,
+                "FilterStatus": p.FILTER_STATUS, "Exploitation": p.EXPLOITATION,
+                "FilterProfile": p.FILTER_PROFILE, "FilterSet": p.FILTER_SET,
                 "DiagnosticControl": p.DIAGNOSTIC_CONTROL, "TableTransfer": p.TABLE_TRANSFER,
                 "TransferStatus": p.TRANSFER_STATUS, "ChallengeRequest": p.CHALLENGE_REQUEST,
                 "Challenge": p.CHALLENGE, "TransferOpen": p.TRANSFER_OPEN, "Receipt": p.RECEIPT}
     (rows,) = doc_tables("| frame | service | source | destination | identifier |")
-    assert len(rows) == 16
+    assert len(rows) == 22
     for frame, service, source, destination, identifier in rows:
         ident = p.frame_id(services[service], int(source, 0), int(destination, 0))
         assert ident == int(identifier, 16), frame
