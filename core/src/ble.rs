@@ -866,15 +866,15 @@ crate::wire::decode_struct!(EligibilityField {
 crate::wire::decode_struct!(GroupPort { port, claim, gated });
 
 impl crate::wire::Decode for Group {
-    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
-        Ok(Group {
-            number: r.decode()?,
-            node: r.decode()?,
-            period_us: r.decode()?,
-            local: r.decode()?,
-            field: r.decode()?,
-            peers: r.decode()?,
-            ports: r.vec()?,
-        })
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
+        Group {
+            number: r.decode(),
+            node: r.decode(),
+            period_us: r.decode(),
+            local: r.decode(),
+            field: r.decode(),
+            peers: r.decode(),
+            ports: r.vec(),
+        }
     }
 }

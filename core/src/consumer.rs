@@ -119,11 +119,11 @@ impl OutputId {
 crate::wire::decode_struct!(OutputId { raw, extended });
 
 impl crate::wire::Decode for Consumer {
-    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
-        Ok(match r.variant(2)? {
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
+        match r.variant(2) {
             0 => Consumer::Local,
-            _ => Consumer::Republish(r.decode()?),
-        })
+            _ => Consumer::Republish(r.decode()),
+        }
     }
 }
 

@@ -354,8 +354,8 @@ pub(crate) fn walk(steps: &[Step], root: NodeRef, active: ConnectionSet) -> Opti
 }
 
 impl crate::wire::Decode for NodeRef {
-    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
-        r.u16().map(NodeRef)
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
+        NodeRef(r.u16())
     }
 }
 

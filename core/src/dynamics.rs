@@ -935,23 +935,23 @@ crate::wire::decode_struct!(Exclusion {
     gamma
 });
 impl crate::wire::Decode for Params {
-    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
         let mut params = Params {
-            step_us: r.decode()?,
-            unit_us: r.decode()?,
-            noise: r.decode()?,
-            seed: r.decode()?,
-            c: r.decode()?,
-            tau_us: r.decode()?,
-            tau_rho_fast_us: r.decode()?,
-            tau_rho_slow_us: r.decode()?,
-            tau_n_us: r.decode()?,
+            step_us: r.decode(),
+            unit_us: r.decode(),
+            noise: r.decode(),
+            seed: r.decode(),
+            c: r.decode(),
+            tau_us: r.decode(),
+            tau_rho_fast_us: r.decode(),
+            tau_rho_slow_us: r.decode(),
+            tau_n_us: r.decode(),
             behaviours: Vec::new(),
             exclusions: Vec::new(),
         };
         // Filled in place: the exclusions' room is 1 KiB, a copy of it for each move.
-        r.fill(&mut params.behaviours)?;
-        r.fill(&mut params.exclusions)?;
-        Ok(params)
+        r.fill(&mut params.behaviours);
+        r.fill(&mut params.exclusions);
+        params
     }
 }

@@ -389,22 +389,25 @@ pub fn decode_body<const PORTS: usize, const CONNECTIONS: usize, const NODES: us
 /// not a table or has bytes after it. Costs one decode, one element at a time.
 fn size_of_body(body: &[u8]) -> Option<(TableSize, usize)> {
     let mut r = crate::wire::Reader::new(body);
-    let ports = r.count::<Port>().ok()?;
-    let connections = r.count::<Connection>().ok()?;
-    let nodes = r.count::<DecisionNode>().ok()?;
+    let ports = r.count::<Port>();
+    let connections = r.count::<Connection>();
+    let nodes = r.count::<DecisionNode>();
     // Counted so that the body's end is found; a valid table has at most one per connection.
-    let roots = r.count::<NodeRef>().ok()?;
+    let roots = r.count::<NodeRef>();
     // Counted so that the body's end is found; a fixed capacity.
-    r.count::<crate::ble::Group>().ok()?;
+    r.count::<crate::ble::Group>();
     #[cfg(feature = "dynamics")]
     {
-        r.count::<crate::dynamics::GroupSpec>().ok()?;
-        r.count::<crate::dynamics::GateSource>().ok()?;
-        r.count::<crate::dynamics::GateLink>().ok()?;
+        r.count::<crate::dynamics::GroupSpec>();
+        r.count::<crate::dynamics::GateSource>();
+        r.count::<crate::dynamics::GateLink>();
     }
     #[cfg(not(feature = "dynamics"))]
     for _ in 0..3 {
-        r.empty::<u8, 0>().ok()?;
+        r.empty::<u8, 0>();
+    }
+    if r.failed() {
+        return None;
     }
     r.rest().is_empty().then_some((
         TableSize {

@@ -120,8 +120,8 @@ impl core::fmt::Display for GainError {
 }
 
 impl crate::wire::Decode for Gain {
-    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
-        r.u32().map(Gain)
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
+        Gain(r.u32())
     }
 }
 

@@ -776,42 +776,42 @@ crate::wire::decode_struct!(Connection {
 });
 
 impl crate::wire::Decode for Port {
-    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
-        Ok(Port {
-            connections: r.decode()?,
-            nodes: r.decode()?,
-            root: r.decode()?,
-            consumer: r.decode()?,
-            value: r.option()?,
-        })
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
+        Port {
+            connections: r.decode(),
+            nodes: r.decode(),
+            root: r.decode(),
+            consumer: r.decode(),
+            value: r.option(),
+        }
     }
 }
 
 impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize> crate::wire::Decode
     for Table<PORTS, CONNECTIONS, NODES>
 {
-    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
-        Ok(Table {
-            ports: r.vec()?,
-            connections: r.vec()?,
-            nodes: r.vec()?,
-            roots: r.vec()?,
-            groups: r.vec()?,
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
+        Table {
+            ports: r.vec(),
+            connections: r.vec(),
+            nodes: r.vec(),
+            roots: r.vec(),
+            groups: r.vec(),
             #[cfg(feature = "dynamics")]
-            dynamics: r.vec()?,
+            dynamics: r.vec(),
             #[cfg(feature = "dynamics")]
-            gate_sources: r.vec()?,
+            gate_sources: r.vec(),
             #[cfg(feature = "dynamics")]
-            gate_links: r.vec()?,
+            gate_links: r.vec(),
             // Without competitive dynamics the three lists must be empty: a table that has them
             // is refused, its body unreadable here (a node needs the feature to run it).
             #[cfg(not(feature = "dynamics"))]
-            dynamics: r.empty()?,
+            dynamics: r.empty(),
             #[cfg(not(feature = "dynamics"))]
-            gate_sources: r.empty()?,
+            gate_sources: r.empty(),
             #[cfg(not(feature = "dynamics"))]
-            gate_links: r.empty()?,
-        })
+            gate_links: r.empty(),
+        }
     }
 }
 

@@ -677,22 +677,22 @@ fn summed(frame: &Frame, field: &Field, value: i64) -> Frame {
 }
 
 impl crate::wire::Decode for Combine {
-    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
-        Ok(match r.variant(4)? {
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
+        match r.variant(4) {
             0 => Combine::Max,
             1 => Combine::Min,
             2 => Combine::Sum,
             _ => Combine::Priority,
-        })
+        }
     }
 }
 
 impl crate::wire::Decode for Endian {
-    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
-        Ok(match r.variant(2)? {
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
+        match r.variant(2) {
             0 => Endian::Little,
             _ => Endian::Big,
-        })
+        }
     }
 }
 
@@ -704,12 +704,12 @@ crate::wire::decode_struct!(Field {
 });
 
 impl crate::wire::Decode for ValueSpec {
-    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
-        Ok(ValueSpec {
-            combine: r.decode()?,
-            value: r.decode()?,
-            priority: r.option()?,
-        })
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
+        ValueSpec {
+            combine: r.decode(),
+            value: r.decode(),
+            priority: r.option(),
+        }
     }
 }
 

@@ -386,32 +386,32 @@ fn validate_context(
 }
 
 impl crate::wire::Decode for Context {
-    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
-        Ok(match r.variant(3)? {
-            0 => Context::Constant(r.decode()?),
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
+        match r.variant(3) {
+            0 => Context::Constant(r.decode()),
             1 => Context::Connection {
-                port: r.decode()?,
-                connection: r.decode()?,
+                port: r.decode(),
+                connection: r.decode(),
             },
             _ => Context::Topic {
-                filter: r.decode()?,
-                field: r.decode()?,
-                scale: r.decode()?,
-                timeout_us: r.decode()?,
+                filter: r.decode(),
+                field: r.decode(),
+                scale: r.decode(),
+                timeout_us: r.decode(),
             },
-        })
+        }
     }
 }
 
 impl crate::wire::Decode for GroupSpec {
-    fn decode(r: &mut crate::wire::Reader<'_>) -> Result<Self, postcard::Error> {
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
         let mut group = GroupSpec {
-            number: r.decode()?,
-            params: r.decode()?,
+            number: r.decode(),
+            params: r.decode(),
             contexts: Vec::new(),
         };
-        r.fill(&mut group.contexts)?;
-        Ok(group)
+        r.fill(&mut group.contexts);
+        group
     }
 }
 crate::wire::decode_struct!(GateSource {
