@@ -61,6 +61,7 @@ impl<'a> Reader<'a> {
         self.bytes = &[];
     }
 
+    #[inline(never)]
     pub(crate) fn u8(&mut self) -> u8 {
         match self.bytes.split_first() {
             Some((&first, rest)) => {
