@@ -54,6 +54,7 @@ pub(crate) mod dynamics;
 use crate::decay::Decay;
 use crate::decision::{self, ConnectionSet, NodeRef, Step};
 use crate::frame::Frame;
+use crate::hbba::filters::{CommandError, FilterCounts, Throttles, UNFILTERED};
 use crate::index::{Cursor, FilterIndex, Lookup};
 use crate::integrator::{Integrator, Runtime, Stimulated};
 use crate::level::{Gain, Level};
@@ -158,6 +159,9 @@ struct Slot {
     rest_us: u32,
     port: u8,
     index: u8,
+    /// The position of the connection's HBBA filter among the node's ([`Throttles`]), or
+    /// [`UNFILTERED`].
+    filter: u8,
 }
 
 impl Slot {
@@ -472,6 +476,8 @@ pub struct Arbiter<
     /// What the node reads of each gate source, in the table's order.
     #[cfg(feature = "dynamics")]
     sources: Vec<SourceState, MAX_GATE_SOURCES>,
+    /// HBBA's message filters, one per filtered connection of the table.
+    throttles: Throttles,
     table: Table<PORTS, CONNECTIONS, NODES>,
 }
 
@@ -519,6 +525,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                     rest_us: connection.stimulation.rest_us(),
                     port,
                     index,
+                    filter: UNFILTERED,
                 };
                 slots
                     .push(slot)
@@ -575,6 +582,13 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             }
         }
         let index = FilterIndex::new(table.connections()).ok_or(TableError::TooManyConnections)?;
+        // Validated: the filtered connections exist, at most MAX_FILTERED (< UNFILTERED) of them.
+        for (position, &connection) in table.filters().connections.iter().enumerate() {
+            if let Some(slot) = slots.get_mut(usize::from(connection)) {
+                slot.filter = position as u8;
+            }
+        }
+        let throttles = Throttles::new(table.filters());
         let mut groups = Vec::new();
         for (position, group) in table.groups().iter().enumerate() {
             let error = |error| TableError::Group {
@@ -608,6 +622,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         }
         Ok(Arbiter {
             groups,
+            throttles,
             #[cfg(feature = "dynamics")]
             runs,
             #[cfg(feature = "dynamics")]
@@ -626,6 +641,72 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// The table in use.
     pub fn table(&self) -> &Table<PORTS, CONNECTIONS, NODES> {
         &self.table
+    }
+
+    /// Switches every HBBA filter to profile `profile` of the table (0: all closed, as after
+    /// [`Arbiter::new`]). Fails, changing nothing, with [`CommandError::NoFilters`] on a table
+    /// without filters and [`CommandError::NoSuchProfile`]. Costs one pass over the filters.
+    pub fn set_filter_profile(&mut self, profile: u8) -> Result<(), CommandError> {
+        self.throttles.set_profile(self.table.filters(), profile)
+    }
+
+    /// Sets the HBBA filter of connection `connection` of port `port` to φ = `phi` (0 closes, 1
+    /// passes every frame, N one in N; the next frame passes unless φ = 0). Fails, changing
+    /// nothing, with [`CommandError::NoFilters`] on a table without filters and
+    /// [`CommandError::NotFiltered`] for a connection without a filter.
+    pub fn set_filter(&mut self, port: u8, connection: u8, phi: u8) -> Result<(), CommandError> {
+        let position = self
+            .slot_of(port, connection)
+            .map(|slot| slot.filter)
+            .filter(|&f| f != UNFILTERED)
+            .map(usize::from);
+        self.throttles.set(position, phi)
+    }
+
+    /// φ of the HBBA filter of connection `connection` of port `port`, or `None` if it has none.
+    pub fn filter_phi(&self, port: u8, connection: u8) -> Option<u8> {
+        let slot = self.slot_of(port, connection)?;
+        self.throttles
+            .get(usize::from(slot.filter))
+            .map(|t| t.phi())
+    }
+
+    /// The HBBA filter profile last switched to, or `None` once a single filter changed since.
+    pub fn filter_profile(&self) -> Option<u8> {
+        self.throttles.profile()
+    }
+
+    /// How many connections have a filter, and how many of them are closed or throttled.
+    pub fn filter_counts(&self) -> FilterCounts {
+        self.throttles.counts()
+    }
+
+    /// Whether the table gives some connection an HBBA filter.
+    pub fn has_filters(&self) -> bool {
+        !self.table.filters().is_empty()
+    }
+
+    /// The first instant after `now` at which a connection active at `now` stops being active
+    /// if no frame comes: when a port's decision may change by itself. `None` when none is
+    /// active. A node with message filters wakes then to report exploitation edges. Read-only;
+    /// costs a test per connection.
+    pub fn activity_deadline(&self, now: Instant) -> Option<Instant> {
+        self.slots
+            .iter()
+            .filter(|slot| slot.is_active(now))
+            .map(|slot| slot.end().saturating_add(1))
+            .min()
+            .map(Instant::from_micros)
+    }
+
+    /// The slot of connection `connection` of port `port`.
+    fn slot_of(&self, port: u8, connection: u8) -> Option<&Slot> {
+        let record = self.ports.get(usize::from(port))?;
+        if connection >= record.connections {
+            return None;
+        }
+        self.slots
+            .get(usize::from(record.first_connection) + usize::from(connection))
     }
 
     /// Returns every connection to S = 0, inactive.
@@ -670,8 +751,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// this table's, taken again from the carried activity at the next frame or reading: a port
     /// whose connections are all unchanged, and whose decision is too, decides exactly as
     /// `previous` would have. The port's consumer plays no part. Value ports start without
-    /// values or output (their connections' activity is carried like any other's). Returns how
-    /// many connections were carried over.
+    /// values or output (their connections' activity is carried like any other's). An unchanged
+    /// connection with an HBBA filter in both tables keeps its filter; the others start closed.
+    /// Returns how many connections were carried over.
     ///
     /// Call it on a freshly built arbiter (its own state is replaced). Costs one comparison of
     /// a connection (filter and parameters) per connection of this table, and a port reset per
@@ -695,9 +777,18 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             ) && old_connection == connection
             {
                 slot.integrator = old_slot.integrator;
+                // An unchanged connection filtered in both keeps its filter (φ and count): a
+                // push that changes other rules does not close what the intention opened.
+                if let Some(&throttle) = previous.throttles.get(usize::from(old_slot.filter)) {
+                    self.throttles.carry(slot.filter, throttle);
+                }
                 carried += 1;
             }
         }
+        self.throttles.settle(
+            previous.throttles.profile(),
+            self.table.filters() == previous.table.filters(),
+        );
         for port in self.ports.iter_mut() {
             port.idle(&self.steps);
             let flagged = port
@@ -758,6 +849,10 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         let Some(slot) = self.slots.get_mut(connection) else {
             return Reception::default();
         };
+        // A frame its HBBA filter drops never came, for this connection.
+        if slot.filter != UNFILTERED && !self.throttles.pass(slot.filter) {
+            return Reception::default();
+        }
         let number = slot.port;
         let Some(port) = self.ports.get_mut(usize::from(number)) else {
             return Reception::default();
@@ -807,7 +902,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         let mut reception = Reception::default();
         let found = self.index.find(id);
         let (mut cursor, first) = self.index.first(found, id, self.table.connections());
-        let Some(first) = first else {
+        let Some(first) = self.passing(first, &mut cursor, id) else {
             return reception;
         };
         // The first port in line (a loop here would keep every array's address in a register
@@ -851,7 +946,8 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         reception: &mut Reception,
     ) -> Option<usize> {
         let (number, mut fed, mut resting) = self.stimulate(connection, now)?;
-        let mut next = self.index.next(cursor, id, self.table.connections());
+        let after = self.index.next(cursor, id, self.table.connections());
+        let mut next = self.passing(after, cursor, id);
         if let Some(more) = next
             && self.slots.get(more).is_some_and(|slot| slot.port == number)
         {
@@ -917,9 +1013,30 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 fed |= bit;
                 resting |= rest;
             }
-            next = self.index.next(cursor, id, self.table.connections());
+            let after = self.index.next(cursor, id, self.table.connections());
+            next = self.passing(after, cursor, id);
         }
         (fed, resting, next)
+    }
+
+    /// The first of `connection` and the frame's next connections whose HBBA filter lets the
+    /// frame through: the others never see it. One byte compared per connection without a
+    /// filter.
+    #[inline(always)]
+    fn passing(
+        &mut self,
+        mut connection: Option<usize>,
+        cursor: &mut Cursor,
+        id: &Id,
+    ) -> Option<usize> {
+        while let Some(candidate) = connection {
+            let filter = self.slots.get(candidate).map_or(UNFILTERED, |s| s.filter);
+            if filter == UNFILTERED || self.throttles.pass(filter) {
+                return Some(candidate);
+            }
+            connection = self.index.next(cursor, id, self.table.connections());
+        }
+        None
     }
 
     /// Applies a frame at `now` to connection `connection` (index in the table) and records it in
@@ -999,8 +1116,10 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 .get(first..first.saturating_add(usize::from(record.connections)))
                 .unwrap_or(&[]);
             let mut fed = 0u32;
-            for (index, connection) in connections.iter().enumerate() {
-                if connection.filter.matches(&id) {
+            let slots = self.slots.get(first..).unwrap_or(&[]);
+            for (index, (connection, slot)) in connections.iter().zip(slots).enumerate() {
+                // A frame the connection's HBBA filter dropped was not taken there either.
+                if connection.filter.matches(&id) && self.throttles.last_passed(slot.filter) {
                     fed |= 1u32.checked_shl(index as u32).unwrap_or(0);
                 }
             }

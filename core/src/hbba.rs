@@ -86,6 +86,7 @@
 //! and so that a set of classes is a `u16` and a set of strategies a `u64`.
 
 mod desires;
+pub mod filters;
 mod instance;
 mod solver;
 

@@ -3,7 +3,7 @@
 //! ```text
 //! offset size  field
 //!      0    4  magic "PABT"
-//!      4    2  format version, little endian (this is format 5)
+//!      4    2  format version, little endian (this is format 6)
 //!      6    1  node id the table is for
 //!      7    1  reserved, must be 0
 //!      8    4  table version, little endian (newer tables have larger versions)
@@ -29,7 +29,9 @@
 //! number, node id, period, local topic, eligibility field, peers, and per port the claim
 //! connection and the gated set); format 5 adds, after the groups, the competitive-dynamics part
 //! ([`crate::dynamics`]): the groups the node runs (number, parameters, contexts), the groups whose
-//! gates it reads (owner, number, count) and the gate connections. This crate reads format 5 only: an image of another format is refused with
+//! gates it reads (owner, number, count) and the gate connections; format 6 adds, after those,
+//! HBBA's message filters ([`crate::hbba::filters::MessageFilters`]: the filtered connections and
+//! the profiles). This crate reads format 6 only: an image of another format is refused with
 //! [`LoadError::UnsupportedFormat`], which names the format found and the one expected.
 //!
 //! The body does not depend on the capacities of the [`Table`] that was encoded (postcard prefixes
@@ -45,7 +47,7 @@ use crate::{MAX_CONNECTIONS, MAX_DECISION_NODES, MAX_PORTS};
 /// The first four bytes of every image.
 pub const MAGIC: [u8; 4] = *b"PABT";
 /// The format this crate writes and reads.
-pub const FORMAT_VERSION: u16 = 5;
+pub const FORMAT_VERSION: u16 = 6;
 /// Bytes before the body.
 pub const HEADER_LEN: usize = 20;
 /// The largest image accepted, header included. A table at full capacity encodes in less.
@@ -406,6 +408,7 @@ fn size_of_body(body: &[u8]) -> Option<(TableSize, usize)> {
     for _ in 0..3 {
         r.empty::<u8, 0>();
     }
+    r.decode::<crate::hbba::filters::MessageFilters>();
     if r.failed() {
         return None;
     }
@@ -473,8 +476,9 @@ mod without_dynamics {
     /// never half-loaded.
     #[test]
     fn a_table_with_dynamics_is_refused_by_a_node_without_them() {
-        // An empty table, then the lists: no port, connection, node, root or BLE group.
-        let empty = [0u8, 0, 0, 0, 0, 0, 0, 0];
+        // An empty table: no port, connection, node, root or BLE group, the three dynamics
+        // lists, then no message filter and no profile.
+        let empty = [0u8; 10];
         let (table, rest) = decode_body::<4, 8, 16>(&empty).unwrap();
         assert!(rest.is_empty() && table.port_count() == 0);
         for list in 0..3 {

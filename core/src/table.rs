@@ -29,6 +29,7 @@ use crate::decision::{self, DecisionError, DecisionNode, NodeRef};
 use crate::dynamics::DynamicsError;
 use crate::dynamics::{GateLink, GateSource, GroupSpec, TABLE_GROUPS, TABLE_LINKS, TABLE_SOURCES};
 use crate::filter::{Filter, FilterError};
+use crate::hbba::filters::{FiltersError, MessageFilters};
 use crate::integrator::{ParamError, Stimulation};
 use crate::value_port::{MAX_VALUE_CONNECTIONS, MAX_VALUE_PORTS, ValueError, ValueSpec};
 use crate::{MAX_CONNECTIONS, MAX_CONNECTIONS_PER_PORT, MAX_DECISION_NODES, MAX_PORTS};
@@ -104,6 +105,7 @@ pub struct Table<
     dynamics: Vec<GroupSpec, TABLE_GROUPS>,
     gate_sources: Vec<GateSource, TABLE_SOURCES>,
     gate_links: Vec<GateLink, TABLE_LINKS>,
+    filters: MessageFilters,
 }
 
 /// Why a table was refused. Ports and connections are numbered from 0, connections within their
@@ -146,6 +148,8 @@ pub enum TableError {
     TooManyValueConnections,
     /// The competitive-dynamics part ([`crate::dynamics`]).
     Dynamics(DynamicsError),
+    /// The HBBA message filters ([`crate::hbba::filters`]).
+    Filters(FiltersError),
     /// More BLE groups than [`MAX_GROUPS`].
     TooManyGroups,
     /// A BLE group is invalid ([`crate::ble`]).
@@ -228,6 +232,7 @@ impl core::fmt::Display for TableError {
             TableError::Value { port, error } => write!(f, "port {port}: {error}"),
             TableError::TooManyGroups => write!(f, "more than {MAX_GROUPS} BLE groups"),
             TableError::Dynamics(error) => write!(f, "{error}"),
+            TableError::Filters(error) => write!(f, "{error}"),
             TableError::Group { group, error } => write!(f, "BLE group {group}: {error}"),
             TableError::ClaimFilter { port, connection } => write!(
                 f,
@@ -280,6 +285,10 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             dynamics: Vec::new(),
             gate_sources: Vec::new(),
             gate_links: Vec::new(),
+            filters: MessageFilters {
+                connections: Vec::new(),
+                profiles: Vec::new(),
+            },
         }
     }
 
@@ -397,6 +406,21 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// The gate connections.
     pub fn gate_links(&self) -> &[GateLink] {
         &self.gate_links
+    }
+
+    /// Sets the HBBA message filters ([`crate::hbba::filters`]): the connections they name must
+    /// exist already (push the ports first). On error the table is unchanged.
+    pub fn set_filters(&mut self, filters: MessageFilters) -> Result<(), TableError> {
+        filters
+            .validate(self.connections.len())
+            .map_err(TableError::Filters)?;
+        self.filters = filters;
+        Ok(())
+    }
+
+    /// The HBBA message filters.
+    pub fn filters(&self) -> &MessageFilters {
+        &self.filters
     }
 
     /// The dynamics part, as [`Table::validate`] checks it (the loader adds the node id's check).
@@ -541,6 +565,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         }
         #[cfg(feature = "dynamics")]
         self.validate_dynamics(crate::dynamics::OWN)?;
+        self.filters
+            .validate(self.connections.len())
+            .map_err(TableError::Filters)?;
         Ok(())
     }
 
@@ -811,6 +838,8 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize> crate::wi
             gate_sources: r.empty(),
             #[cfg(not(feature = "dynamics"))]
             gate_links: r.empty(),
+            // Format 6: after the dynamics part, the HBBA message filters.
+            filters: r.decode(),
         }
     }
 }

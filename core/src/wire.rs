@@ -239,6 +239,13 @@ impl Decode for u32 {
     }
 }
 
+/// A list as a field (each list type's elements decoded as themselves).
+impl<T: Decode, const N: usize> Decode for Vec<T, N> {
+    fn decode(r: &mut Reader<'_>) -> Self {
+        r.vec()
+    }
+}
+
 /// Decodes a whole value with trailing bytes allowed: `(value, rest)`, like
 /// `postcard::take_from_bytes`, or the first error.
 pub(crate) fn take<T: Decode>(bytes: &[u8]) -> Result<(T, &[u8]), Error> {

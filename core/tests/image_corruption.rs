@@ -619,6 +619,7 @@ struct RawTable {
     dynamics: Vec<pab_core::dynamics::GroupSpec>,
     gate_sources: Vec<pab_core::dynamics::GateSource>,
     gate_links: Vec<pab_core::dynamics::GateLink>,
+    filters: pab_core::hbba::filters::MessageFilters,
 }
 
 #[derive(Serialize)]
@@ -688,6 +689,7 @@ fn one_port(connections: Vec<RawConnection>, nodes: Vec<DecisionNode>, root: Nod
         dynamics: vec![],
         gate_sources: vec![],
         gate_links: vec![],
+        filters: Default::default(),
     }
 }
 
@@ -788,6 +790,7 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                 dynamics: vec![],
                 gate_sources: vec![],
                 gate_links: vec![],
+                filters: Default::default(),
             },
             TableError::ConnectionCountMismatch,
         ),
@@ -807,6 +810,7 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                 dynamics: vec![],
                 gate_sources: vec![],
                 gate_links: vec![],
+                filters: Default::default(),
             },
             TableError::ConnectionCountMismatch,
         ),
@@ -826,6 +830,7 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                 dynamics: vec![],
                 gate_sources: vec![],
                 gate_links: vec![],
+                filters: Default::default(),
             },
             TableError::NodeCountMismatch,
         ),
@@ -845,6 +850,7 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                 dynamics: vec![],
                 gate_sources: vec![],
                 gate_links: vec![],
+                filters: Default::default(),
             },
             TableError::PortTooWide { port: 0 },
         ),
@@ -1074,19 +1080,19 @@ fn an_image_larger_than_the_table_is_refused_with_what_it_needs() {
 
 #[test]
 fn images_of_older_formats_are_refused_naming_both_formats() {
-    assert_eq!(FORMAT_VERSION, 5);
-    for found in [1u16, 2, 3, 4] {
+    assert_eq!(FORMAT_VERSION, 6);
+    for found in [1u16, 2, 3, 4, 5] {
         let mut old = encode(&figure1_table(), 7, 1);
         old[4..6].copy_from_slice(&found.to_le_bytes());
         let crc = crc32(&[&old[..16], &old[HEADER_LEN..]].concat());
         old[16..20].copy_from_slice(&crc.to_le_bytes());
-        let expected = LoadError::UnsupportedFormat { found, expected: 5 };
+        let expected = LoadError::UnsupportedFormat { found, expected: 6 };
         assert_eq!(image::read_header(&old), Err(expected.clone()));
         assert_eq!(load_default(&old), Err(expected.clone()));
         assert_eq!(image::load::<4, 64, 256>(&old), Err(expected.clone()));
         assert_eq!(
             expected.to_string(),
-            format!("image format {found} is not supported (this node reads format 5)")
+            format!("image format {found} is not supported (this node reads format 6)")
         );
     }
 }
@@ -1255,6 +1261,7 @@ fn bad_value_ports() -> Vec<(RawTable, TableError)> {
             dynamics: vec![],
             gate_sources: vec![],
             gate_links: vec![],
+            filters: Default::default(),
         },
         TableError::TooManyValuePorts,
     ));

@@ -47,9 +47,12 @@ MEDIAN_GOALS = [
 # The ceilings moved once, from 151 / 491 to 154 / 523, when the firmware profile went from
 # opt-level 2 to "s" to keep every mechanism within 64 KiB of flash (issue 11; Cargo.toml says why),
 # and again to 159 / 524 with BLE (issue 12): every port decided ORs in the claims the node holds
-# (a load and an OR per port, and a wider port record), tables without groups included.
+# (a load and an OR per port, and a wider port record), tables without groups included; and to
+# 164 / 529 with HBBA's message filters (issue 14): every connection a frame feeds has its filter
+# byte compared before its integrator (a load, a compare and a branch, five instructions with the
+# register moves), tables without filters included.
 NOT_MET = [
-    ("tr-arm", "fed", 200, 159, 524),
+    ("tr-arm", "fed", 200, 164, 529),
 ]
 
 # One SysTick tick of the 25 MHz CPU clock under -icount shift=0 (1 instruction per ns).

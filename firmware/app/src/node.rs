@@ -12,12 +12,13 @@ use pab_core::auth::{IMAGE_MAC_LEN, Key};
 use pab_core::ble::{self, BleError, Claim};
 #[cfg(feature = "dynamics")]
 use pab_core::dynamics;
+use pab_core::hbba::filters::CommandError;
 use pab_core::image::{self, Header, LoadError};
 use pab_core::isotp::{self, Pci, RxError, RxEvent};
 use pab_core::protocol::{
-    self, AuthFailure, Errors, FaultCode, FrameId, Heartbeat, Message, NodeState, OPEN_REPLACE,
-    STORE_UNREADABLE, Service, StoreFailure, TableStatus, Traffic, TransferOpen, TransferStatus,
-    TransferStatusCode,
+    self, AuthFailure, Errors, Exploitation, FaultCode, FilterStatus, FrameId, Heartbeat, Message,
+    NodeState, OPEN_REPLACE, STORE_UNREADABLE, Service, StoreFailure, TableStatus, Traffic,
+    TransferOpen, TransferStatus, TransferStatusCode,
 };
 use pab_core::{Arbiter, Combined, Frame, Instant, MAX_VALUE_PORTS, PortVerdict};
 use pab_storage::StoreError;
@@ -155,6 +156,10 @@ pub struct Node<const P: usize, const C: usize, const N: usize, const IMG: usize
     next_heartbeat: Instant,
     diagnostic: DiagnosticStream,
     faults: FaultLimiter,
+    /// HBBA: the sequence number of the last filter command applied (0 since boot), and per port
+    /// the connection last reported delivering (exploitation edges), on a table with filters.
+    filter_sequence: u16,
+    exploited: [Option<u8>; pab_core::MAX_PORTS],
     /// Kept sorted by rank, highest first, equal ranks newest first: the next frame to send
     /// is the last one ([`Node::next_outgoing`] pops it).
     outbox: heapless::Vec<Frame, OUTBOX_LEN>,
@@ -182,6 +187,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             next_heartbeat: now,
             diagnostic: DiagnosticStream::default(),
             faults: FaultLimiter::new(config.fault_interval_us),
+            filter_sequence: 0,
+            exploited: [None; pab_core::MAX_PORTS],
             outbox: heapless::Vec::new(),
         }
     }
@@ -508,6 +515,78 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         if self.arbiter.as_ref().is_some_and(Arbiter::has_dynamics) {
             self.step_dynamics(now);
         }
+        if self.arbiter.as_ref().is_some_and(Arbiter::has_filters) {
+            self.exploitation(now);
+        }
+    }
+
+    /// HBBA's exploitation edges: for each port whose delivering connection (the one its
+    /// decision selects) changed since the last look, the one that stopped and the one that
+    /// started. Only on a table with message filters.
+    #[inline(never)]
+    fn exploitation(&mut self, now: Instant) {
+        let Some(arbiter) = self.arbiter.as_ref() else {
+            return;
+        };
+        let mut edges: heapless::Vec<Exploitation, { 2 * pab_core::MAX_PORTS }> =
+            heapless::Vec::new();
+        for (port, last) in self.exploited.iter_mut().enumerate() {
+            let port = port as u8;
+            let now_selected = arbiter.selected(port, now);
+            if now_selected == *last {
+                continue;
+            }
+            for (connection, delivering) in [(*last, false), (now_selected, true)] {
+                if let Some(connection) = connection {
+                    let _ = edges.push(Exploitation {
+                        port,
+                        connection,
+                        delivering,
+                    });
+                }
+            }
+            *last = now_selected;
+        }
+        for edge in edges {
+            self.send(Message::Exploitation(edge), protocol::BROADCAST);
+        }
+    }
+
+    /// A filter command applied: FilterStatus with its sequence number; refused: FilterRefused
+    /// with why, what it named (`what`) and its sequence number, nothing changed.
+    fn filter_answer(&mut self, result: Result<(), CommandError>, what: [u8; 2], sequence: u16) {
+        match result {
+            Ok(()) => {
+                self.filter_sequence = sequence;
+                self.send_filter_status();
+            }
+            Err(error) => {
+                let [s0, s1] = sequence.to_le_bytes();
+                self.raise(
+                    FaultCode::FilterRefused,
+                    [error.code(), what[0], what[1], s0, s1],
+                );
+            }
+        }
+    }
+
+    /// FilterStatus: the active profile (or one by one), the last command's sequence number and
+    /// the counts; nothing on a table without filters.
+    fn send_filter_status(&mut self) {
+        let Some(arbiter) = self.arbiter.as_ref().filter(|a| a.has_filters()) else {
+            return;
+        };
+        let counts = arbiter.filter_counts();
+        let status = FilterStatus {
+            profile: arbiter
+                .filter_profile()
+                .unwrap_or(FilterStatus::SET_ONE_BY_ONE),
+            sequence: self.filter_sequence,
+            filtered: counts.filtered,
+            closed: counts.closed,
+            throttled: counts.throttled,
+        };
+        self.send(Message::FilterStatus(status), protocol::BROADCAST);
     }
 
     /// The dynamics brought up to `now`: the steps due of the groups the node runs, their
@@ -728,6 +807,9 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             if arbiter.has_dynamics() {
                 earlier(&mut deadline, arbiter.dynamics_deadline(now));
             }
+            if arbiter.has_filters() {
+                earlier(&mut deadline, arbiter.activity_deadline(now));
+            }
         }
         deadline
     }
@@ -916,20 +998,27 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 let data = data.get(..usize::from(len)).unwrap_or(&data);
                 self.on_transfer_frame(&id, data, now)
             }
-            // No table carries message filters yet (HBBA's board runtime is still to come): a
-            // filter command for this node is refused aloud, never dropped unseen, so that the
-            // intention node learns that its intention is not in force here.
+            // HBBA's filter commands: applied and answered with FilterStatus, or refused aloud
+            // (never dropped unseen), so that the intention node learns whether its intention is
+            // in force here. Point to point: the answer names one node's filters.
             Message::FilterProfile(switch) if id.destination == node_id => {
-                let [s0, s1] = switch.sequence.to_le_bytes();
-                self.raise(FaultCode::FilterRefused, [3, switch.profile, 0, s0, s1]);
+                let result = self
+                    .arbiter
+                    .as_mut()
+                    .map_or(Err(CommandError::NoFilters), |a| {
+                        a.set_filter_profile(switch.profile)
+                    });
+                self.filter_answer(result, [switch.profile, 0], switch.sequence);
                 Step::Continue
             }
             Message::FilterSet(set) if id.destination == node_id => {
-                let [s0, s1] = set.sequence.to_le_bytes();
-                self.raise(
-                    FaultCode::FilterRefused,
-                    [3, set.port, set.connection, s0, s1],
-                );
+                let result = self
+                    .arbiter
+                    .as_mut()
+                    .map_or(Err(CommandError::NoFilters), |a| {
+                        a.set_filter(set.port, set.connection, set.phi)
+                    });
+                self.filter_answer(result, [set.port, set.connection], set.sequence);
                 Step::Continue
             }
             _ => Step::Continue,
@@ -1269,6 +1358,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             }),
             protocol::BROADCAST,
         );
+        self.send_filter_status();
         if self.arbiter.is_none()
             && let Some(detail) = self.boot_fault
         {
