@@ -70,6 +70,32 @@ struct RawStrategy {
     description: Option<String>,
 }
 
+/// `[[desires]] class, intensity, from, to`: a desire the simulation issues.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawDesire {
+    class: Spanned<String>,
+    intensity: Spanned<i64>,
+    from: Spanned<f64>,
+    to: Spanned<f64>,
+}
+
+/// A scripted desire (`[[desires]]`, simulation only): the simulated motivation issues it at
+/// `from`, keeps it alive, and withdraws it at `to`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScriptedDesire {
+    /// Its class, as an index into [`Hbba::classes`].
+    pub class: usize,
+    /// Its intensity, 1..=65535.
+    pub intensity: u16,
+    /// When it is issued, seconds.
+    pub from: f64,
+    /// When it is withdrawn, seconds (after `from`).
+    pub to: f64,
+    /// Where it is defined.
+    pub span: Range<usize>,
+}
+
 /// A resource: a name and a capacity.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Resource {
@@ -318,6 +344,98 @@ impl Builder<'_> {
             return None;
         }
         Some(hbba)
+    }
+
+    /// The `[[desires]]`, each checked at its line: a class of the strategies, an intensity in
+    /// 1..=65535, times within the simulation's range, `from` before `to`; at most
+    /// [`hbba::MAX_DESIRES`] of them (the intention workspace's capacity). `hbba` is the
+    /// checked section; `has_section` whether the file has one (if it does and `hbba` is `None`,
+    /// its errors are reported already and the classes are not checked).
+    pub(super) fn desires(
+        &mut self,
+        raw: &[Spanned<RawDesire>],
+        hbba: Option<&Hbba>,
+        has_section: bool,
+    ) -> Vec<ScriptedDesire> {
+        let mut desires = Vec::new();
+        for (position, desire) in raw.iter().enumerate() {
+            let fields = desire.get_ref();
+            if position == hbba::MAX_DESIRES {
+                self.error(
+                    desire.span(),
+                    format!(
+                        "a {}th [[desires]]: the intention workspace holds at most {} desires",
+                        hbba::MAX_DESIRES + 1,
+                        hbba::MAX_DESIRES
+                    ),
+                );
+                break;
+            }
+            let class = match hbba {
+                Some(hbba) => {
+                    let index = hbba
+                        .classes
+                        .iter()
+                        .position(|c| c == fields.class.get_ref());
+                    if index.is_none() {
+                        let names: Vec<&str> = hbba.classes.iter().map(String::as_str).collect();
+                        self.error(
+                            fields.class.span(),
+                            format!(
+                                "desire for class `{}`, which no strategy has (classes: {})",
+                                shown::escaped(fields.class.get_ref()),
+                                list_or_none(&names)
+                            ),
+                        );
+                    }
+                    index
+                }
+                None => {
+                    if !has_section {
+                        self.error(
+                            desire.span(),
+                            "[[desires]] are for HBBA's intention solver: the file has no [hbba] section (its resources and strategies)",
+                        );
+                    }
+                    None
+                }
+            };
+            let value = *fields.intensity.get_ref();
+            let intensity = match u16::try_from(value) {
+                Ok(intensity) if intensity >= 1 => Some(intensity),
+                _ => {
+                    self.error(
+                        fields.intensity.span(),
+                        format!(
+                            "intensity = {value}: a whole number, 1 to 65535 (a desire of intensity 0 is no desire)"
+                        ),
+                    );
+                    None
+                }
+            };
+            let (Some(from), Some(to)) =
+                (self.time(&fields.from, "from"), self.time(&fields.to, "to"))
+            else {
+                continue;
+            };
+            if to <= from {
+                self.error(
+                    fields.to.span(),
+                    format!("`to` ({to}) must be after `from` ({from})"),
+                );
+                continue;
+            }
+            if let (Some(class), Some(intensity)) = (class, intensity) {
+                desires.push(ScriptedDesire {
+                    class,
+                    intensity,
+                    from,
+                    to,
+                    span: desire.span(),
+                });
+            }
+        }
+        desires
     }
 
     fn plain(&mut self, name: &Spanned<String>, what: &str) -> bool {
