@@ -637,3 +637,35 @@ fn instances_the_workspace_cannot_serve_are_refused() {
         Some(IntentionError::InvalidNode { connection: 0 })
     );
 }
+
+#[test]
+fn a_refused_phi_is_not_asked_again_until_the_node_restarts() {
+    let instance = tour();
+    let mut ws = Workspace::new(&instance, &targets()).unwrap();
+    ws.assume_filters(0);
+    let mut world = World::new(1_000);
+    world.check_order = false;
+    world.refusing.push(3);
+    world.run_until(&mut ws, 0);
+    world.desire(&mut ws, 9, 1, 2, 3);
+    world.run_until(&mut ws, 500_000);
+    let to_voice = |world: &World| {
+        world
+            .sent
+            .iter()
+            .filter(|(_, node, set, _)| *node == 3 && set.phi == 1)
+            .count()
+    };
+    assert_eq!(to_voice(&world), 1);
+    // Another selection that still wants VOICE at 1: not asked again.
+    world.desire(&mut ws, 9, 2, 0, 2);
+    world.run_until(&mut ws, 1_500_000);
+    assert_eq!(ws.strategies(), 0b1010);
+    assert_eq!(to_voice(&world), 1);
+    // After a restart it is.
+    world.refusing.clear();
+    world.boot(3);
+    world.run_until(&mut ws, 2_000_000);
+    assert_eq!(to_voice(&world), 2);
+    assert_eq!(world.filters[&3][&2], 1);
+}

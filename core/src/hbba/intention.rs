@@ -27,7 +27,9 @@
 //!   the enables back would keep the new intention from ever running; both are reported
 //!   ([`Event::Refused`], [`Event::GaveUp`]). Faults are rate-limited per code on the nodes (one
 //!   frame per 100 ms, the latest detail and a count), so a refusal of sequence S settles as
-//!   refused every command to that node sent up to S and not yet acknowledged.
+//!   refused every command to that node sent up to S and not yet acknowledged. A refused φ is
+//!   not asked again while the selection wants it: a node refuses for its table, and a new
+//!   table or a restart (below) has every filter of the node commanded again.
 //! - **Restarts.** A node's heartbeat whose uptime went back, or whose table version changed,
 //!   means its filters are back to their boot state (closed): every filter of that node is
 //!   commanded again, the closed ones included. The first heartbeat heard from a node whose
@@ -265,6 +267,11 @@ struct Slot {
     increase: bool,
     /// Send even if known to apply the wanted φ (a restarted node).
     force: bool,
+    /// Its node answered its last command (applied or refused): it is there.
+    answered: bool,
+    /// The φ its node last refused: not asked again while the selection wants that φ (a node
+    /// refuses for its table, which a restart or a new table changes, and then it is asked).
+    refused: Option<u8>,
 }
 
 impl Slot {
@@ -313,6 +320,8 @@ pub struct Workspace<'a> {
     refused: u8,
     gave_up: u8,
     sequence: u16,
+    /// A desire changed since the last poll: the next poll is due at once.
+    dirty: bool,
     events: Deque<Event, MAX_EVENTS>,
     lost_events: u32,
     budget: u32,
@@ -372,6 +381,8 @@ impl<'a> Workspace<'a> {
                         pending: None,
                         increase: false,
                         force: false,
+                        answered: false,
+                        refused: None,
                     })
                     .map_err(|_| IntentionError::TooManyFilters)?;
             }
@@ -388,6 +399,7 @@ impl<'a> Workspace<'a> {
             refused: 0,
             gave_up: 0,
             sequence: 0,
+            dirty: false,
             events: Deque::new(),
             lost_events: 0,
             budget: DEFAULT_BUDGET,
@@ -409,7 +421,7 @@ impl<'a> Workspace<'a> {
     }
 
     /// Takes a Desire frame from `source` heard at `now` ([`Desires::heard`]). The solve waits
-    /// for the next [`Workspace::poll`]. Fails, changing nothing, on a class the network does
+    /// for the next [`Workspace::poll`], which [`Workspace::deadline`] then says is due now. Fails, changing nothing, on a class the network does
     /// not have, a zero lease, or a new desire when the workspace is full.
     pub fn on_desire(
         &mut self,
@@ -417,14 +429,16 @@ impl<'a> Workspace<'a> {
         desire: &DesireFrame,
         now: Instant,
     ) -> Result<bool, DesireError> {
-        self.desires.heard(
+        let changed = self.desires.heard(
             source,
             desire.id,
             desire.class,
             desire.intensity,
             desire.lease_ms,
             now,
-        )
+        )?;
+        self.dirty |= changed;
+        Ok(changed)
     }
 
     /// Takes a FilterStatus from node `source`: settles the command it acknowledges, if any is
@@ -442,6 +456,8 @@ impl<'a> Workspace<'a> {
         slot.pending = None;
         slot.least = phi;
         slot.most = phi;
+        slot.answered = true;
+        slot.refused = None;
         let target = slot.target;
         self.event(Event::Acknowledged { target, phi });
         self.advance();
@@ -471,6 +487,8 @@ impl<'a> Workspace<'a> {
                 && sent_by(p.sequence)
             {
                 slot.pending = None;
+                slot.answered = true;
+                slot.refused = Some(p.phi);
                 let _ = refusals.push(Event::Refused {
                     target: slot.target,
                     phi: p.phi,
@@ -511,25 +529,27 @@ impl<'a> Workspace<'a> {
                     slot.least = 0;
                     slot.most = 0;
                     slot.force = true;
+                    slot.answered = false;
+                    slot.refused = None;
                 }
             }
             Some(_) => return false,
             None => {
                 // Heard for the first time: it may have been off when its commands went out, or
                 // have run for hours under another intention node. What is not known to be in
-                // force is commanded again.
+                // force, and was not refused by the node itself, is commanded again.
                 let stale = self
                     .slots
                     .iter()
                     .filter(|s| s.target.node == source)
-                    .any(|s| s.pending.is_none() && s.known() != Some(s.wanted));
+                    .any(|s| s.pending.is_none() && !s.answered && s.known() != Some(s.wanted));
                 if !stale {
                     return false;
                 }
             }
         }
         self.event(Event::Restarted { node: source });
-        self.plan();
+        self.plan(Some(source));
         true
     }
 
@@ -540,6 +560,7 @@ impl<'a> Workspace<'a> {
     /// from [`Workspace::next_command`]. Costs one solve when the intensities changed (see
     /// [`Solver::solve`]), O(F) otherwise.
     pub fn poll(&mut self, now: Instant) {
+        self.dirty = false;
         if self.desires.expire(now) {
             self.event(Event::Expired);
         }
@@ -557,7 +578,7 @@ impl<'a> Workspace<'a> {
                             strategies,
                             objective: selection.objective(),
                         });
-                        self.plan();
+                        self.plan(None);
                     }
                 }
                 Err(error) => self.event(Event::SolveFailed(error)),
@@ -586,6 +607,7 @@ impl<'a> Workspace<'a> {
                     phi,
                 });
                 slot.pending = None;
+                slot.answered = false;
                 slot.widen(phi);
             }
         }
@@ -643,7 +665,7 @@ impl<'a> Workspace<'a> {
                 Some(sent) => consider(sent.wrapping_add_micros(ACK_TIMEOUT_US)),
             }
         }
-        if self.served.is_none() {
+        if self.served.is_none() || self.dirty {
             consider(now);
         }
         soonest
@@ -691,8 +713,9 @@ impl<'a> Workspace<'a> {
 
     /// The φ each filtered connection gets from the selection (0 when no selected strategy
     /// names it), and the commands that bring the nodes there: reductions now, increases once
-    /// they are settled.
-    fn plan(&mut self) {
+    /// every reduction is settled. `scope`: only the filters of that node (a restart); the
+    /// others' commands go on as they were.
+    fn plan(&mut self, scope: Option<u8>) {
         let instance = self.solver.instance();
         for slot in &mut self.slots {
             let connection = slot.target.connection;
@@ -706,11 +729,14 @@ impl<'a> Workspace<'a> {
                 // Checked by `new`: every φ fits a byte.
                 .map_or(0, |f| u8::try_from(f.phi).unwrap_or(u8::MAX));
         }
-        self.refused = 0;
-        self.gave_up = 0;
-        let mut reductions = false;
-        let mut increases = false;
+        if scope.is_none() {
+            self.refused = 0;
+            self.gave_up = 0;
+        }
         for slot in &mut self.slots {
+            if scope.is_some_and(|node| node != slot.target.node) {
+                continue;
+            }
             slot.increase = false;
             if let Some(pending) = slot.pending {
                 if pending.phi == slot.wanted && pending.sent.is_some() {
@@ -719,7 +745,6 @@ impl<'a> Workspace<'a> {
                     if let Some(p) = slot.pending.as_mut() {
                         p.reduction = reduction;
                     }
-                    reductions |= reduction;
                     continue;
                 }
                 // Superseded: once sent, the node may or may not have applied it.
@@ -729,7 +754,7 @@ impl<'a> Workspace<'a> {
                 slot.pending = None;
             }
             let wanted = slot.wanted;
-            if slot.known() == Some(wanted) && !slot.force {
+            if (slot.known() == Some(wanted) || slot.refused == Some(wanted)) && !slot.force {
                 continue;
             }
             slot.force = false;
@@ -746,22 +771,26 @@ impl<'a> Workspace<'a> {
                     sends: 0,
                     reduction: true,
                 });
-                reductions = true;
             }
             if may_increase {
                 slot.increase = true;
-                increases = true;
             }
         }
-        self.stage = if reductions {
+        // Over every filter, those out of `scope` included: no increase while any reduction
+        // is unsettled.
+        self.stage = if self
+            .slots
+            .iter()
+            .any(|s| s.pending.is_some_and(|p| p.reduction))
+        {
             Stage::Reducing
-        } else if increases {
-            self.start_increases();
-            Stage::Increasing
-        } else if self.slots.iter().any(|s| s.pending.is_some()) {
-            Stage::Increasing
         } else {
-            Stage::Idle
+            self.start_increases();
+            if self.slots.iter().any(|s| s.pending.is_some()) {
+                Stage::Increasing
+            } else {
+                Stage::Idle
+            }
         };
     }
 
