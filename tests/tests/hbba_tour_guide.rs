@@ -241,3 +241,38 @@ fn desire_mistakes_are_reported_at_their_lines() {
         "{errors}"
     );
 }
+
+#[test]
+fn a_stopped_node_does_not_answer_and_its_commands_are_given_up() {
+    let text = example_text("tour-guide").replace(
+        "[[phases]]\nname = \"touring\"\nfrom = 0.0",
+        "[[faults]]\nnode = \"head\"\nat = 5.0\n\n[[phases]]\nname = \"touring\"\nfrom = 0.0",
+    );
+    let network =
+        Network::parse(Source::new("tour-guide.toml", text)).unwrap_or_else(|e| panic!("{e}"));
+    let nodes = compile::compile(&network).unwrap_or_else(|errors| panic!("{errors:?}"));
+    let outcome = sim::simulate(&network, &nodes, &Options::default()).unwrap();
+    let run = outcome.intention.unwrap();
+    let voice = connection(&network, "VOICE");
+    // At 8 s the head has stopped: its reductions go unanswered, are sent three times 250 ms
+    // apart, then given up; the increase (VOICE) follows.
+    let sends: Vec<u64> = run
+        .commands
+        .iter()
+        .filter(|c| c.connection == connection(&network, "QR") && (8 * S..9 * S).contains(&c.t_us))
+        .map(|c| c.t_us)
+        .collect();
+    assert_eq!(sends, [8 * S, 8 * S + 250_000, 8 * S + 500_000]);
+    let opened = run
+        .commands
+        .iter()
+        .find(|c| c.connection == voice && c.set.phi == 1)
+        .unwrap();
+    assert_eq!(opened.t_us, 8 * S + 750_000);
+    assert!(
+        run.notes.iter().any(|(t, note)| *t == 8 * S + 750_000
+            && note == "node 1 did not answer QR (head.display) φ 0 after 3 sends (stopped)"),
+        "{:?}",
+        run.notes
+    );
+}

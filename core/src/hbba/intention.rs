@@ -32,9 +32,10 @@
 //!   table or a restart (below) has every filter of the node commanded again.
 //! - **Restarts.** A node's heartbeat whose uptime went back, or whose table version changed,
 //!   means its filters are back to their boot state (closed): every filter of that node is
-//!   commanded again, the closed ones included. The first heartbeat heard from a node whose
-//!   filters are not all known to be in force does the same (a node that was off when its
-//!   commands went out).
+//!   commanded again, the closed ones included, and the other nodes' commands go on. The first
+//!   heartbeat heard from a node commands again its filters that are not known to be in force
+//!   and that it did not refuse (it was off when their commands went out, or has run under
+//!   another intention node).
 //!
 //! # Profiles (not yet)
 //!

@@ -181,7 +181,30 @@ pub fn simulate(network: &Network, until_us: u64) -> Result<Option<IntentionRun>
                     objective,
                 }),
                 Event::Acknowledged { .. } | Event::Settled { .. } | Event::Expired => {}
-                other => run.notes.push((now_us, format!("{other:?}"))),
+                Event::SolveFailed(error) => run.notes.push((
+                    now_us,
+                    format!("solving failed, the previous selection stays: {error}"),
+                )),
+                Event::Refused { target, phi, why } => run.notes.push((
+                    now_us,
+                    format!(
+                        "node {} refused {} φ {phi} (FilterRefused, detail {why})",
+                        target.node,
+                        filter_name(network, &target)
+                    ),
+                )),
+                Event::GaveUp { target, phi } => run.notes.push((
+                    now_us,
+                    format!(
+                        "node {} did not answer {} φ {phi} after {} sends (stopped)",
+                        target.node,
+                        filter_name(network, &target),
+                        pab_core::hbba::intention::MAX_SENDS
+                    ),
+                )),
+                Event::Restarted { node } => run
+                    .notes
+                    .push((now_us, format!("node {node}: its filters commanded again"))),
             }
         }
         let next_script = pending.peek().map(|(t, ..)| *t);
@@ -198,6 +221,15 @@ pub fn simulate(network: &Network, until_us: u64) -> Result<Option<IntentionRun>
         now_us = next;
     }
     Ok(Some(run))
+}
+
+/// "CONNECTION (PORT)" of a filter target.
+fn filter_name(network: &Network, target: &Target) -> String {
+    let connection = network.connections.get(usize::from(target.connection));
+    let port = connection
+        .and_then(|c| network.ports.get(c.port))
+        .map_or("?", |p| p.name.as_str());
+    format!("{} ({port})", connection.map_or("?", |c| c.name.as_str()))
 }
 
 /// The Desire frames of the `[[desires]]`, in time order (file order within an instant): each
