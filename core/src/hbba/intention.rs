@@ -51,8 +51,9 @@
 //!
 //! Fixed capacity: [`MAX_FILTERED`] filtered connections on [`MAX_FILTER_NODES`] nodes, the
 //! desires of [`Desires`], [`MAX_EVENTS`] events waiting to be read (older ones are dropped and
-//! counted). About 3.5 KiB beside the instance it borrows. Every call is O(F) for F filtered
-//! connections, but [`Workspace::poll`], which may solve (see [`Solver::solve`]).
+//! counted): 5 456 bytes on x86-64 beside the instance it borrows (`core/tests/hbba_intention.rs`
+//! holds it under 5.5 KiB). Every call is O(F) for F filtered connections, but
+//! [`Workspace::poll`], which may solve (see [`Solver::solve`]).
 
 use heapless::{Deque, Vec};
 
@@ -421,9 +422,11 @@ impl<'a> Workspace<'a> {
         }
     }
 
-    /// Takes a Desire frame from `source` heard at `now` ([`Desires::heard`]). The solve waits
-    /// for the next [`Workspace::poll`], which [`Workspace::deadline`] then says is due now. Fails, changing nothing, on a class the network does
-    /// not have, a zero lease, or a new desire when the workspace is full.
+    /// Takes a Desire frame from `source` heard at `now` ([`Desires::heard`]); returns whether
+    /// the desires changed in a way the solver must see. The solve waits for the next
+    /// [`Workspace::poll`], which [`Workspace::deadline`] then says is due now. Fails, changing
+    /// nothing, on a class the network does not have, a zero lease, or a new desire when the
+    /// workspace is full.
     pub fn on_desire(
         &mut self,
         source: u8,
@@ -447,9 +450,10 @@ impl<'a> Workspace<'a> {
     /// was. O(F).
     pub fn on_filter_status(&mut self, source: u8, status: &FilterStatus) -> bool {
         let Some(slot) = self.slots.iter_mut().find(|s| {
+            // A late answer to an earlier send counts too (a resend keeps the number).
             s.target.node == source
                 && s.pending
-                    .is_some_and(|p| p.sent.is_some() && p.sequence == status.sequence)
+                    .is_some_and(|p| p.sends > 0 && p.sequence == status.sequence)
         }) else {
             return false;
         };
@@ -484,7 +488,7 @@ impl<'a> Workspace<'a> {
                 continue;
             }
             if let Some(p) = slot.pending
-                && p.sent.is_some()
+                && p.sends > 0
                 && sent_by(p.sequence)
             {
                 slot.pending = None;
@@ -510,8 +514,8 @@ impl<'a> Workspace<'a> {
 
     /// Takes a heartbeat from node `source`. A restart (uptime back, another table version)
     /// commands all of its filters again, from their boot state (closed); the first heartbeat of
-    /// a node whose filters are not all known to be in force commands those again. Returns
-    /// whether it did either. O(F) plus a plan.
+    /// a node commands again those of its filters not known to be in force that it did not
+    /// refuse. Returns whether it did either. O(F) plus a plan.
     ///
     /// Uptime counts whole seconds: a node that restarts twice within its first second is seen
     /// restarting once (its table version aside).
