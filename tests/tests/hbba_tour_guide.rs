@@ -218,6 +218,22 @@ fn desire_mistakes_are_reported_at_their_lines() {
             "expected {expected:?}, got:\n{errors}"
         );
     }
+    // At most 32: the workspace's capacity.
+    let mut text = example_text("tour-guide");
+    // The 33rd is the 29th added: its header 2 lines after the file's end, then 6 lines each.
+    let first_extra = text.lines().count() + 2 + 28 * 6;
+    for _ in 0..29 {
+        text.push_str("\n[[desires]]\nclass = \"qr\"\nintensity = 1\nfrom = 0.0\nto = 1.0\n");
+    }
+    let errors = Network::parse(Source::new("net.toml", text))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        errors.contains(&format!(
+            "net.toml:{first_extra}:1: error: more than 32 [[desires]]: the intention workspace holds at most 32 desires"
+        )),
+        "{errors}"
+    );
     // Exactly these keys.
     let (text, _) =
         with_desire("class = \"face\"\nintensity = 1\nfrom = 0.0\nto = 1.0\nlease = 3\n");

@@ -85,3 +85,45 @@ fn start_up_errors_name_their_cause() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The desire the help's example sends with cansend is what it says: node 9, class 2 (the tour
+/// guide's `voice`), intensity 3, a lease of 10 s.
+#[test]
+fn the_help_example_frame_is_the_desire_it_claims() {
+    use pab_core::protocol::{BROADCAST, DesireFrame, Message};
+    let output = pab_intent(&["--help"]);
+    let help = String::from_utf8_lossy(&output.stdout);
+    let line = help
+        .split_whitespace()
+        .find(|word| word.contains('#') && word.len() > 10)
+        .expect("a cansend example");
+    let (id, data) = line.split_once('#').unwrap();
+    let id = u32::from_str_radix(id, 16).unwrap();
+    let data: Vec<u8> = (0..data.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&data[i..i + 2], 16).unwrap())
+        .collect();
+    let frame = pab_core::Frame::with_raw_id(id, true, &data).unwrap();
+    let (id, message) = Message::decode(&frame).unwrap();
+    assert_eq!((id.source, id.destination), (9, BROADCAST));
+    assert_eq!(
+        message,
+        Message::Desire(DesireFrame {
+            class: 2,
+            intensity: 3,
+            lease_ms: 10_000,
+            id: 1
+        })
+    );
+    let tour = std::fs::read_to_string(example("tour-guide")).unwrap();
+    let network = pab_lang::network::Network::parse(pab_lang::diagnostic::Source::new(
+        "tour-guide.toml",
+        tour,
+    ))
+    .unwrap();
+    assert_eq!(network.hbba.unwrap().classes[2], "voice");
+    // The README gives the same line.
+    let readme =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../README.md")).unwrap();
+    assert!(readme.contains(&format!("cansend vcan0 {line}")));
+}

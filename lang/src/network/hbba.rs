@@ -364,8 +364,7 @@ impl Builder<'_> {
                 self.error(
                     desire.span(),
                     format!(
-                        "a {}th [[desires]]: the intention workspace holds at most {} desires",
-                        hbba::MAX_DESIRES + 1,
+                        "more than {0} [[desires]]: the intention workspace holds at most {0} desires",
                         hbba::MAX_DESIRES
                     ),
                 );
