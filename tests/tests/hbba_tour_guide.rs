@@ -292,3 +292,41 @@ fn a_stopped_node_does_not_answer_and_its_commands_are_given_up() {
         run.notes
     );
 }
+
+/// What FilterSet addresses (node, port in the node's order, index in the port) is where the
+/// compiled table has the connection's topic: the boards' numbering.
+#[test]
+fn filter_targets_follow_the_compiled_tables() {
+    let (network, _, _) = tour_guide();
+    let targets = network.filter_targets().unwrap();
+    let names: Vec<(&str, u8, u8, u8)> = targets
+        .iter()
+        .map(|t| {
+            let c = &network.connections[usize::from(t.connection)];
+            (c.name.as_str(), t.node, t.port, t.index)
+        })
+        .collect();
+    assert_eq!(
+        names,
+        [
+            ("FACE", 1, 0, 0),
+            ("QR", 1, 1, 0),
+            ("VOICE", 1, 0, 1),
+            ("NAV", 2, 0, 0),
+            ("AVOID", 2, 0, 1)
+        ]
+    );
+    let compiled = compile::compile(&network).unwrap();
+    for target in &targets {
+        let image = &compiled.iter().find(|c| c.id == target.node).unwrap().image;
+        let loaded: pab_core::image::Loaded = pab_core::image::load(image).unwrap();
+        let port = loaded.table.port(usize::from(target.port)).unwrap();
+        let in_table = port.connections[usize::from(target.index)].filter;
+        let connection = &network.connections[usize::from(target.connection)];
+        assert_eq!(
+            in_table, network.topics[connection.topic].filter,
+            "{}",
+            connection.name
+        );
+    }
+}

@@ -32,7 +32,9 @@ use pab_core::hbba::{
 use serde::Deserialize;
 use toml::Spanned;
 
-use super::{Builder, Connection, Kind, PLAIN_NAME, Topic, is_plain_name, list_or_none};
+use pab_core::hbba::intention::{MAX_FILTERED, Target};
+
+use super::{Builder, Connection, Kind, Network, PLAIN_NAME, Topic, is_plain_name, list_or_none};
 use crate::shown;
 
 /// The resource whose capacity is a percentage of the bus's bit rate and whose costs are
@@ -778,6 +780,53 @@ impl Builder<'_> {
             requires,
             span: name.span(),
         })
+    }
+}
+
+impl Network {
+    /// Where each connection the `[hbba]` strategies filter is, in the order of first
+    /// appearance among them: its node id, its port in the node's order (the table's) and its
+    /// index in the port: what FilterSet addresses (`pab-intent` and `pabctl sim` use it). Empty
+    /// without `[hbba]`. `Err` says which connection cannot be addressed (more than
+    /// [`MAX_FILTERED`], or beyond a byte's port or index: the parser's limits keep them within).
+    pub fn filter_targets(&self) -> Result<Vec<Target>, String> {
+        let Some(hbba) = &self.hbba else {
+            return Ok(Vec::new());
+        };
+        let mut targets: Vec<Target> = Vec::new();
+        for filter in hbba.strategies.iter().flat_map(|s| &s.filters) {
+            if targets
+                .iter()
+                .any(|t| usize::from(t.connection) == filter.connection)
+            {
+                continue;
+            }
+            let located = self.connections.get(filter.connection).and_then(|c| {
+                let port = self.ports.get(c.port)?;
+                let node = self.nodes.get(port.node)?;
+                let port_order = node.ports.iter().position(|&p| p == c.port)?;
+                Some(Target {
+                    connection: u16::try_from(filter.connection).ok()?,
+                    node: node.id,
+                    port: u8::try_from(port_order).ok()?,
+                    index: u8::try_from(c.index).ok()?,
+                })
+            });
+            let Some(target) = located else {
+                return Err(format!(
+                    "connection `{}` has no node and port to filter it on",
+                    filter.name
+                ));
+            };
+            targets.push(target);
+        }
+        if targets.len() > MAX_FILTERED {
+            return Err(format!(
+                "the strategies filter {} connections: the intention workspace takes at most {MAX_FILTERED}",
+                targets.len()
+            ));
+        }
+        Ok(targets)
     }
 }
 

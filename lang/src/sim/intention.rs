@@ -17,7 +17,7 @@
 //! (1/φ, 0 when closed), not frames dropped.
 
 use pab_core::Instant;
-use pab_core::hbba::intention::{Event, MAX_FILTERED, Target, Workspace};
+use pab_core::hbba::intention::{Event, Target, Workspace};
 use pab_core::protocol::{DesireFrame, FilterSet, FilterStatus, TOOL};
 
 use super::{SimError, micros};
@@ -68,55 +68,13 @@ pub struct IntentionRun {
     pub notes: Vec<(u64, String)>,
 }
 
-/// The filter targets of the network's `[hbba]`: per connection a strategy filters, its node id,
-/// its port in the node's order and its index in the port.
-pub fn targets(network: &Network) -> Result<Vec<Target>, SimError> {
-    let Some(hbba) = &network.hbba else {
-        return Ok(Vec::new());
-    };
-    let mut targets: Vec<Target> = Vec::new();
-    for filter in hbba.strategies.iter().flat_map(|s| &s.filters) {
-        if targets
-            .iter()
-            .any(|t| usize::from(t.connection) == filter.connection)
-        {
-            continue;
-        }
-        let located = network.connections.get(filter.connection).and_then(|c| {
-            let port = network.ports.get(c.port)?;
-            let node = network.nodes.get(port.node)?;
-            let port_order = node.ports.iter().position(|&p| p == c.port)?;
-            Some(Target {
-                connection: u16::try_from(filter.connection).ok()?,
-                node: node.id,
-                port: u8::try_from(port_order).ok()?,
-                index: u8::try_from(c.index).ok()?,
-            })
-        });
-        let Some(target) = located else {
-            return Err(SimError(format!(
-                "connection `{}` has no node and port to filter it on",
-                filter.name
-            )));
-        };
-        targets.push(target);
-    }
-    if targets.len() > MAX_FILTERED {
-        return Err(SimError(format!(
-            "the strategies filter {} connections: the intention workspace takes at most {MAX_FILTERED}",
-            targets.len()
-        )));
-    }
-    Ok(targets)
-}
-
 /// Runs the intention on the network's `[[desires]]` until `until_us`; `None` without `[hbba]`.
 pub fn simulate(network: &Network, until_us: u64) -> Result<Option<IntentionRun>, SimError> {
     let Some(hbba) = &network.hbba else {
         return Ok(None);
     };
     let instance = hbba.instance();
-    let targets = targets(network)?;
+    let targets = network.filter_targets().map_err(SimError)?;
     let mut workspace = Workspace::new(&instance, &targets)
         .map_err(|error| SimError(format!("[hbba]: {error}")))?;
     workspace.assume_filters(0);
