@@ -1,7 +1,9 @@
 //! The intention workspace (`pab_core::hbba::intention`) against simulated nodes: random
 //! instances, random scripts of desires, waits, node restarts, lost commands and refusing nodes,
 //! in virtual time. Checked: every disable before any enable (when a command raises a
-//! connection's pass rate, no connection passes more than the selection wants), the plan reaches
+//! connection's pass rate, no connection passes more than the selection wants; after every
+//! command, no connection passes more than both the previous and the current selection allow),
+//! the plan reaches
 //! the solver's φ on every node, a restart is re-applied, leases run out; and the worked cases
 //! below by hand.
 
@@ -58,6 +60,10 @@ struct World {
     /// Every command sent: (µs, node, command).
     sent: Vec<(u64, u8, FilterSet, bool)>,
     next_heartbeat: u64,
+    /// Per connection, the φ the selection before the current one wanted, and the current's
+    /// (boot: closed, nothing selected).
+    previous_wanted: BTreeMap<u16, u8>,
+    wanted: BTreeMap<u16, u8>,
 }
 
 #[derive(Clone, Debug)]
@@ -81,6 +87,8 @@ impl World {
             check_order: true,
             sent: Vec::new(),
             next_heartbeat: 0,
+            previous_wanted: BTreeMap::new(),
+            wanted: BTreeMap::new(),
         };
         for node in 1..=3 {
             world.boot(node);
@@ -170,8 +178,33 @@ impl World {
     }
 
     fn drain(&mut self, ws: &mut Workspace) {
+        let wanted: BTreeMap<u16, u8> = ws
+            .filters()
+            .map(|v| (v.target.connection, v.wanted))
+            .collect();
+        if wanted != self.wanted {
+            self.previous_wanted = std::mem::replace(&mut self.wanted, wanted);
+        }
         while let Some(command) = ws.next_command(at(self.now)) {
             self.apply(ws, command.node, command.set);
+            if self.check_order {
+                self.check_between_selections();
+            }
+        }
+    }
+
+    /// No connection passes more than both the previous and the current selection allow.
+    fn check_between_selections(&self) {
+        for (&connection, &now) in &self.wanted {
+            let t = target(connection);
+            let actual = self.filters[&t.node][&t.index];
+            let before = self.previous_wanted.get(&connection).copied().unwrap_or(0);
+            assert!(
+                !passes_fewer(now, actual) || !passes_fewer(before, actual),
+                "at {} µs connection {connection} has φ {actual}: the previous selection wanted \
+                 {before}, this one {now}",
+                self.now
+            );
         }
     }
 
