@@ -5,7 +5,9 @@
 //! intention workspace keeps the most intense one, so the solver sees one intensity per class
 //! ([`Intensities`], 0: no desire). Each [`Strategy`] fulfils one class with a utility, costs some of each resource, sets
 //! filters (connection, φ) and may require other classes. The solver picks the strategies; the
-//! filters they set are what the boards then apply (not yet: README, "HBBA: where it stands").
+//! filters they set are what the boards then apply ([`intention`]: the workspace that keeps the
+//! desires, solves and plans the filter commands, disables before enables; the boards do not
+//! run filters yet: README, "HBBA: where it stands").
 //!
 //! # The problem (DESIGN.md, "HBBA: decisions")
 //!
@@ -88,6 +90,7 @@
 mod desires;
 pub mod filters;
 mod instance;
+pub mod intention;
 mod solver;
 
 pub use desires::{Desire, DesireError, Desires, MAX_DESIRES};

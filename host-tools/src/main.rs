@@ -43,8 +43,9 @@ active). A rule of false makes a virtual connection: it never delivers but inhib
 A network file (TOML) declares [nodes.NAME] (id), [topics.NAME] (can_id, extended, mask, rate_hz), \
 [ports.\"NODE.PORT\"], [connections.NAME] (topic, port, st, tc, tr, rule) and, for simulation, \
 [[events]] (topic with rate_hz/from/to or at = [...]) and [[phases]] (name, from, to), and for \
-HBBA's intention solver [hbba] (resources, bitrate) and [hbba.strategies.NAME] (class, utility, \
-costs, filters, requires). See the README for the full reference.
+HBBA's intention solver [hbba] (resources, bitrate), [hbba.strategies.NAME] (class, utility, \
+costs, filters, requires) and, for simulation, [[desires]] (class, intensity, from, to). See the \
+README for the full reference.
 
 Exit status: 0 success; 1 the rules are inconsistent; 2 the input cannot be read or is invalid; \
 3 an output cannot be written; 4 the bus cannot be used or a node refused or did not answer.";
@@ -116,6 +117,11 @@ whenever that changes, and per connection how many frames it received and delive
 --plot draws each connection's stimulation over time, green while it is the one that gets \
 through at its port and orange otherwise (like Fig. 5 of the port-arbitration paper), and under \
 the ports a lane per [dynamics.*] behaviour: n, ρ and m, on green where its gate is open.
+With [hbba], the intention node's logic runs on the file's [[desires]] (the filter commands \
+answered at once by the simulated nodes): the report lists each change of the selected \
+strategies and the filter commands sent, reductions before increases, and --plot adds a lane \
+per strategy (filled while selected) and per filtered connection (its commanded pass rate 1/φ, \
+0 closed). The boards do not run filters yet: the arbitration sees every connection open.
 --candump writes the simulated bus as a candump -L log (each frame with its event's data, by \
 default none; the nodes' BLE claims and Gates too; times from 0 s on \
 interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a real bus.")]

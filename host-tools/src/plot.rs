@@ -2,8 +2,9 @@
 //!
 //! One strip per connection, grouped by port; each strip draws the connection's stimulation over
 //! time, green while the connection is the one selected at its port (its frames get through) and
-//! orange otherwise. Under the ports, the competitive-dynamics groups' lanes ([`dynamics`]), if
-//! any. An optional bottom strip names the scenario's phases.
+//! orange otherwise. Under the ports, the competitive-dynamics groups' lanes ([`dynamics`]), then
+//! step lanes such as HBBA's selected strategies and filter pass rates ([`lanes`]), if any. An
+//! optional bottom strip names the scenario's phases.
 
 use std::path::Path;
 use std::sync::OnceLock;
@@ -19,10 +20,11 @@ use plotters::style::{
 };
 
 mod dynamics;
+mod lanes;
 
 pub use pab_lang::series::{
-    BehaviourSeries, ConnectionSeries, DynamicsSample, DynamicsSeries, Phase, PlotData, PortSeries,
-    Sample,
+    BehaviourSeries, ConnectionSeries, DynamicsSample, DynamicsSeries, Lane, LaneGroup, LaneStep,
+    Phase, PlotData, PortSeries, Sample,
 };
 
 /// Width of every image, pixels.
@@ -82,7 +84,8 @@ type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 /// The image is 1400 pixels wide. From top to bottom: the title (with a colour legend on the
 /// right), then for each port a header with its name and one strip per connection, then for each
 /// dynamics group a header with a legend and one lane per behaviour (1.5 strips high: n, ρ, m
-/// and the gate, [`dynamics`]), then, if there are phases, a strip naming them. Each connection strip plots the stimulation (0 to 1,
+/// and the gate, [`dynamics`]), then for each lane group (HBBA's intention) a header and one
+/// half-strip lane per step series ([`lanes`]), then, if there are phases, a strip naming them. Each connection strip plots the stimulation (0 to 1,
 /// with a light line at the activation threshold 1) against time, from 0 to `data.until`
 /// seconds: green where the connection is selected at its port, orange elsewhere. A segment
 /// between two samples takes the colour of the first; samples sharing a time make a vertical
@@ -173,6 +176,8 @@ struct Layout {
     ports: Vec<PortLayout>,
     /// Each dynamics group's header, lanes (one per behaviour) and ticks, under the ports.
     dynamics: Vec<PortLayout>,
+    /// Each lane group's header, lanes and ticks, under the dynamics.
+    lanes: Vec<PortLayout>,
     /// The phase strip's box and the row of tick labels under it.
     phases: Option<(Band, Band)>,
     /// The "time (s)" caption at the bottom, when there is a time axis at all.
@@ -192,6 +197,11 @@ impl Layout {
                 data.dynamics
                     .iter()
                     .map(|g| (g.behaviours.len(), dynamics::LANE_STRIPS)),
+            )
+            .chain(
+                data.lanes
+                    .iter()
+                    .map(|g| (g.lanes.len(), lanes::LANE_STRIPS)),
             )
             .collect();
         let last = sections.len().saturating_sub(1);
@@ -263,6 +273,8 @@ impl Layout {
                 }
             })
             .collect::<Vec<_>>();
+        let lanes =
+            sections.split_off((data.ports.len() + data.dynamics.len()).min(sections.len()));
         let dynamics = sections.split_off(data.ports.len().min(sections.len()));
         let ports = sections;
         let phases = has_phases.then(|| {
@@ -277,6 +289,7 @@ impl Layout {
             title,
             ports,
             dynamics,
+            lanes,
             phases,
             caption,
         }
@@ -407,6 +420,34 @@ fn draw(root: &Area, data: &PlotData, layout: &Layout) -> anyhow::Result<()> {
         )?;
         for (behaviour, &b) in group.behaviours.iter().zip(&place.strips) {
             dynamics::draw_lane(root, &axis, behaviour, b)?;
+        }
+        if let (Some(row), Some(&above)) = (place.ticks, place.strips.last()) {
+            draw_ticks(root, &axis, above, row, layout.scale)?;
+        }
+    }
+
+    for (g, (group, place)) in data.lanes.iter().zip(&layout.lanes).enumerate() {
+        if !data.ports.is_empty() || !data.dynamics.is_empty() || g > 0 {
+            line(
+                root,
+                (MARGIN_X, place.header.y0),
+                (PLOT_X1, place.header.y0),
+                SEPARATOR,
+            )?;
+        }
+        let size = 16.0 * layout.scale;
+        let name = fit_line(root, &clean(&group.name), PLOT_X1 - MARGIN_X, size, true)?;
+        text(
+            root,
+            &name,
+            (MARGIN_X, place.header.middle()),
+            size,
+            true,
+            TEXT,
+            HPos::Left,
+        )?;
+        for (lane, &b) in group.lanes.iter().zip(&place.strips) {
+            lanes::draw_lane(root, &axis, lane, b)?;
         }
         if let (Some(row), Some(&above)) = (place.ticks, place.strips.last()) {
             draw_ticks(root, &axis, above, row, layout.scale)?;
@@ -831,6 +872,7 @@ mod tests {
         ];
         PlotData {
             dynamics: Vec::new(),
+            lanes: Vec::new(),
             title: "Take and Return (test)".to_string(),
             until: 10.0,
             ports: vec![
@@ -1020,6 +1062,7 @@ mod tests {
         let bounds = [0.0, 140.0, 170.0, 190.0, 230.0, 270.0, 300.0];
         let data = PlotData {
             dynamics: Vec::new(),
+            lanes: Vec::new(),
             title: "Arbitration during the Take and Return scenario".to_string(),
             until: 300.0,
             ports,
@@ -1051,6 +1094,7 @@ mod tests {
     fn many_connections_shrink_strips_to_the_height_cap() {
         let many = |ports: usize, each: usize| PlotData {
             dynamics: Vec::new(),
+            lanes: Vec::new(),
             title: "many".to_string(),
             until: 1.0,
             ports: (0..ports)
@@ -1117,6 +1161,7 @@ mod tests {
         // A port without connections and a connection without samples.
         let hollow = PlotData {
             dynamics: Vec::new(),
+            lanes: Vec::new(),
             title: String::new(),
             until: 1.0,
             ports: vec![
@@ -1175,6 +1220,7 @@ mod tests {
         let long = "x".repeat(5000) + "\n\t\u{0}  y  " + &"z ".repeat(2000);
         let base = PlotData {
             dynamics: Vec::new(),
+            lanes: Vec::new(),
             title: long.clone(),
             until: 10.0,
             ports: vec![PortSeries {

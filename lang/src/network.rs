@@ -37,7 +37,8 @@ pub use ble::{BleGroup, BleMember};
 pub use dynamics::{Context, DynamicsBehaviour, DynamicsGroup, WrittenBehaviour, WrittenExclusion};
 pub use gates::lookup as gate;
 pub use hbba::{
-    BUS, DATA_LEN, Hbba, HbbaStrategy, MAX_BITRATE, Resource, Solved, StrategyFilter, bus_cost,
+    BUS, DATA_LEN, Hbba, HbbaStrategy, MAX_BITRATE, Resource, ScriptedDesire, Solved,
+    StrategyFilter, bus_cost,
 };
 
 /// The topic of a connection that no topic feeds (a gate, [`Kind::Gate`]): no index of
@@ -70,6 +71,8 @@ struct RawFile {
     events: Vec<Spanned<RawEvent>>,
     #[serde(default)]
     phases: Vec<Spanned<RawPhase>>,
+    #[serde(default)]
+    desires: Vec<Spanned<hbba::RawDesire>>,
     #[serde(default)]
     faults: Vec<Spanned<RawFault>>,
     #[serde(default)]
@@ -468,6 +471,8 @@ pub struct Network {
     pub dynamics: Vec<DynamicsGroup>,
     /// HBBA's resources and strategies (`[hbba]`), if the file has the section.
     pub hbba: Option<Hbba>,
+    /// Scripted desires (`[[desires]]`, simulation only) in file order.
+    pub desires: Vec<ScriptedDesire>,
 }
 
 fn is_plain_name(name: &str) -> bool {
@@ -584,6 +589,7 @@ impl Builder<'_> {
         let phases = self.phases(&raw.phases);
         let faults = self.faults(&raw.faults, &nodes);
         let hbba = self.hbba(raw.hbba.as_ref(), &topics, &connections, &names);
+        let desires = self.desires(&raw.desires, hbba.as_ref(), raw.hbba.is_some());
         if hbba.is_some() {
             // The intention node sends its commands from this address (the DBC names it there).
             for node in nodes
@@ -620,6 +626,7 @@ impl Builder<'_> {
             groups,
             dynamics,
             hbba,
+            desires,
         }
     }
 

@@ -15,6 +15,9 @@ pub struct PlotData {
     pub phases: Vec<Phase>,
     /// Competitive-dynamics groups, drawn under the ports (may be empty).
     pub dynamics: Vec<DynamicsSeries>,
+    /// Step lanes drawn under the dynamics (may be empty): HBBA's selected strategies and its
+    /// filters' commanded pass rates.
+    pub lanes: Vec<LaneGroup>,
 }
 
 /// One port and its connections.
@@ -92,4 +95,35 @@ pub struct DynamicsSample {
     pub m: f64,
     /// Whether its gate is open.
     pub gate: bool,
+}
+
+/// A header and its lanes.
+#[derive(Clone, Debug, Default)]
+pub struct LaneGroup {
+    /// The header, e.g. "HBBA intention: selected strategies".
+    pub name: String,
+    /// The lanes, top to bottom.
+    pub lanes: Vec<Lane>,
+}
+
+/// A value in [0, 1] that holds from one step to the next: drawn filled up to its height.
+#[derive(Clone, Debug, Default)]
+pub struct Lane {
+    /// A short name.
+    pub name: String,
+    /// The label drawn left of the lane.
+    pub label: String,
+    /// The steps in increasing time order; the value before the first is 0.
+    pub steps: Vec<LaneStep>,
+}
+
+/// From `t` on, the lane holds `value`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LaneStep {
+    /// Seconds.
+    pub t: f64,
+    /// In [0, 1] (clamped when drawn).
+    pub value: f64,
+    /// A note written at the step, e.g. "φ 3".
+    pub text: Option<String>,
 }

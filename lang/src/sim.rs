@@ -49,8 +49,10 @@ use crate::network::{MAX_TIME_S, Network};
 use crate::series::{ConnectionSeries, Phase, PlotData, PortSeries, Sample};
 
 mod dynamics;
+pub mod intention;
 
 pub use dynamics::{DynamicsRow, write_csv as write_dynamics_csv};
+pub use intention::IntentionRun;
 
 /// How to run a simulation.
 #[derive(Clone, Debug, Default)]
@@ -125,6 +127,9 @@ pub struct Outcome {
     pub dynamics: Vec<DynamicsRow>,
     /// The Gates frames the nodes sent, in bus order.
     pub gates: Vec<BusFrame>,
+    /// HBBA's intention on the `[[desires]]` ([`intention`]), with `[hbba]` in [`simulate`]
+    /// only (a replay has no script).
+    pub intention: Option<IntentionRun>,
 }
 
 /// A change of the nodes that hold a BLE group's task.
@@ -217,7 +222,7 @@ pub fn simulate(
         .iter()
         .map(|fault| (micros(fault.at), fault.node))
         .collect();
-    run_stopping(
+    let mut outcome = run_stopping(
         network,
         compiled,
         &frames,
@@ -226,7 +231,9 @@ pub fn simulate(
         &stops,
         true,
         &mut |_| {},
-    )
+    )?;
+    outcome.intention = intention::simulate(network, until_us)?;
+    Ok(outcome)
 }
 
 /// Runs `network` with the tables `compiled` on `frames` (in the order given, which must be time
@@ -448,6 +455,7 @@ fn run_stopping(
         holdings: run.holdings,
         dynamics: run.dynamics_rows,
         gates: run.gates,
+        intention: None,
     })
 }
 
@@ -496,13 +504,15 @@ pub fn event_frames(network: &Network) -> Result<Vec<BusFrame>, SimError> {
 }
 
 /// The default end of a simulation: once the last frame's effects have decayed, or at the end of
-/// the last phase or the last fault, whichever is later, rounded up to a tenth of a second.
+/// the last phase, the last fault or the last scripted desire, whichever is later, rounded up to
+/// a tenth of a second.
 fn default_until(network: &Network, frames: &[BusFrame]) -> u64 {
     let after_phases = network
         .phases
         .iter()
         .map(|p| micros(p.to))
         .chain(network.faults.iter().map(|f| micros(f.at)))
+        .chain(network.desires.iter().map(|d| micros(d.to)))
         .max()
         .unwrap_or(0);
     // Round up to a tenth of a second.
@@ -1057,6 +1067,9 @@ impl Outcome {
         if !self.gates.is_empty() {
             let _ = writeln!(out, "Gates frames sent: {}", self.gates.len());
         }
+        if let Some(run) = &self.intention {
+            out.push_str(&run.report(network));
+        }
         out
     }
 
@@ -1184,6 +1197,10 @@ impl Outcome {
             until: self.until_us as f64 / 1e6,
             ports,
             dynamics: dynamics::plot_series(&self.dynamics, network),
+            lanes: self
+                .intention
+                .as_ref()
+                .map_or(Vec::new(), |run| run.lanes(network)),
             phases: network
                 .phases
                 .iter()

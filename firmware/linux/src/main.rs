@@ -11,11 +11,10 @@ use clap::Parser;
 use embassy_executor::Executor;
 
 mod file_store;
-mod receive_queue;
-mod socket_bus;
 
 use file_store::FileStore;
-use socket_bus::SocketBus;
+use pab_node::receive_queue;
+use pab_node::socket_bus::SocketBus;
 
 /// A pab node on a SocketCAN interface.
 ///

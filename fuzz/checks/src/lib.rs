@@ -14,6 +14,7 @@
 pub mod ble;
 pub mod gates;
 pub mod image;
+pub mod intention;
 pub mod isotp_rx;
 pub mod isotp_tx;
 pub mod network;
@@ -74,6 +75,10 @@ pub const TARGETS: &[Target] = &[
     Target {
         name: "gates",
         check: gates::check,
+    },
+    Target {
+        name: "intention",
+        check: intention::check,
     },
 ];
 

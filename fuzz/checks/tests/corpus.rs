@@ -68,7 +68,8 @@ fn every_target_has_a_replay_test() {
             "node",
             "network",
             "ble",
-            "gates"
+            "gates",
+            "intention"
         ]
     );
 }
@@ -121,4 +122,9 @@ fn ble() {
 #[test]
 fn gates() {
     replay("gates");
+}
+
+#[test]
+fn intention() {
+    replay("intention");
 }

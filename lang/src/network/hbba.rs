@@ -32,7 +32,9 @@ use pab_core::hbba::{
 use serde::Deserialize;
 use toml::Spanned;
 
-use super::{Builder, Connection, Kind, PLAIN_NAME, Topic, is_plain_name, list_or_none};
+use pab_core::hbba::intention::{MAX_FILTERED, Target};
+
+use super::{Builder, Connection, Kind, Network, PLAIN_NAME, Topic, is_plain_name, list_or_none};
 use crate::shown;
 
 /// The resource whose capacity is a percentage of the bus's bit rate and whose costs are
@@ -68,6 +70,32 @@ struct RawStrategy {
     requires: Option<RawMap>,
     #[allow(dead_code)]
     description: Option<String>,
+}
+
+/// `[[desires]] class, intensity, from, to`: a desire the simulation issues.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawDesire {
+    class: Spanned<String>,
+    intensity: Spanned<i64>,
+    from: Spanned<f64>,
+    to: Spanned<f64>,
+}
+
+/// A scripted desire (`[[desires]]`, simulation only): the simulated motivation issues it at
+/// `from`, keeps it alive, and withdraws it at `to`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScriptedDesire {
+    /// Its class, as an index into [`Hbba::classes`].
+    pub class: usize,
+    /// Its intensity, 1..=65535.
+    pub intensity: u16,
+    /// When it is issued, seconds.
+    pub from: f64,
+    /// When it is withdrawn, seconds (after `from`).
+    pub to: f64,
+    /// Where it is defined.
+    pub span: Range<usize>,
 }
 
 /// A resource: a name and a capacity.
@@ -318,6 +346,97 @@ impl Builder<'_> {
             return None;
         }
         Some(hbba)
+    }
+
+    /// The `[[desires]]`, each checked at its line: a class of the strategies, an intensity in
+    /// 1..=65535, times within the simulation's range, `from` before `to`; at most
+    /// [`hbba::MAX_DESIRES`] of them (the intention workspace's capacity). `hbba` is the
+    /// checked section; `has_section` whether the file has one (if it does and `hbba` is `None`,
+    /// its errors are reported already and the classes are not checked).
+    pub(super) fn desires(
+        &mut self,
+        raw: &[Spanned<RawDesire>],
+        hbba: Option<&Hbba>,
+        has_section: bool,
+    ) -> Vec<ScriptedDesire> {
+        let mut desires = Vec::new();
+        for (position, desire) in raw.iter().enumerate() {
+            let fields = desire.get_ref();
+            if position == hbba::MAX_DESIRES {
+                self.error(
+                    desire.span(),
+                    format!(
+                        "more than {0} [[desires]]: the intention workspace holds at most {0} desires",
+                        hbba::MAX_DESIRES
+                    ),
+                );
+                break;
+            }
+            let class = match hbba {
+                Some(hbba) => {
+                    let index = hbba
+                        .classes
+                        .iter()
+                        .position(|c| c == fields.class.get_ref());
+                    if index.is_none() {
+                        let names: Vec<&str> = hbba.classes.iter().map(String::as_str).collect();
+                        self.error(
+                            fields.class.span(),
+                            format!(
+                                "desire for class `{}`, which no strategy has (classes: {})",
+                                shown::escaped(fields.class.get_ref()),
+                                list_or_none(&names)
+                            ),
+                        );
+                    }
+                    index
+                }
+                None => {
+                    if !has_section {
+                        self.error(
+                            desire.span(),
+                            "[[desires]] are for HBBA's intention solver: the file has no [hbba] section (its resources and strategies)",
+                        );
+                    }
+                    None
+                }
+            };
+            let value = *fields.intensity.get_ref();
+            let intensity = match u16::try_from(value) {
+                Ok(intensity) if intensity >= 1 => Some(intensity),
+                _ => {
+                    self.error(
+                        fields.intensity.span(),
+                        format!(
+                            "intensity = {value}: a whole number, 1 to 65535 (a desire of intensity 0 is no desire)"
+                        ),
+                    );
+                    None
+                }
+            };
+            let (Some(from), Some(to)) =
+                (self.time(&fields.from, "from"), self.time(&fields.to, "to"))
+            else {
+                continue;
+            };
+            if to <= from {
+                self.error(
+                    fields.to.span(),
+                    format!("`to` ({to}) must be after `from` ({from})"),
+                );
+                continue;
+            }
+            if let (Some(class), Some(intensity)) = (class, intensity) {
+                desires.push(ScriptedDesire {
+                    class,
+                    intensity,
+                    from,
+                    to,
+                    span: desire.span(),
+                });
+            }
+        }
+        desires
     }
 
     fn plain(&mut self, name: &Spanned<String>, what: &str) -> bool {
@@ -661,6 +780,53 @@ impl Builder<'_> {
             requires,
             span: name.span(),
         })
+    }
+}
+
+impl Network {
+    /// Where each connection the `[hbba]` strategies filter is, in the order of first
+    /// appearance among them: its node id, its port in the node's order (the table's) and its
+    /// index in the port: what FilterSet addresses (`pab-intent` and `pabctl sim` use it). Empty
+    /// without `[hbba]`. `Err` says which connection cannot be addressed (more than
+    /// [`MAX_FILTERED`], or beyond a byte's port or index: the parser's limits keep them within).
+    pub fn filter_targets(&self) -> Result<Vec<Target>, String> {
+        let Some(hbba) = &self.hbba else {
+            return Ok(Vec::new());
+        };
+        let mut targets: Vec<Target> = Vec::new();
+        for filter in hbba.strategies.iter().flat_map(|s| &s.filters) {
+            if targets
+                .iter()
+                .any(|t| usize::from(t.connection) == filter.connection)
+            {
+                continue;
+            }
+            let located = self.connections.get(filter.connection).and_then(|c| {
+                let port = self.ports.get(c.port)?;
+                let node = self.nodes.get(port.node)?;
+                let port_order = node.ports.iter().position(|&p| p == c.port)?;
+                Some(Target {
+                    connection: u16::try_from(filter.connection).ok()?,
+                    node: node.id,
+                    port: u8::try_from(port_order).ok()?,
+                    index: u8::try_from(c.index).ok()?,
+                })
+            });
+            let Some(target) = located else {
+                return Err(format!(
+                    "connection `{}` has no node and port to filter it on",
+                    filter.name
+                ));
+            };
+            targets.push(target);
+        }
+        if targets.len() > MAX_FILTERED {
+            return Err(format!(
+                "the strategies filter {} connections: the intention workspace takes at most {MAX_FILTERED}",
+                targets.len()
+            ));
+        }
+        Ok(targets)
     }
 }
 

@@ -1,0 +1,485 @@
+//! # pab-intent: HBBA's intention node
+//!
+//! Listens to Desire frames, keeps their leases, solves which strategies run, sets the boards'
+//! message filters with FilterSet commands (every disable before any enable, each acknowledged
+//! by FilterStatus), publishes the selection (Intention) on every change and every second, and
+//! re-applies a node's filters when it restarts. The decisions are
+//! `pab_core::hbba::intention::Workspace`'s, the code `pabctl sim` runs too; this crate puts it on
+//! a bus and says what happens, in words.
+//!
+//! Structure, as the nodes': [`IntentNode`] is the whole behaviour without I/O (frames and time
+//! in, frames and [`Report`]s out); [`run`] drives it on any [`pab_app::CanBus`] with a
+//! [`Clock`]. The binary gives it the SocketCAN bus of `pab-node` and the system clock; the
+//! tests, an in-process bus with `pab-app` nodes in virtual time.
+
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+use std::collections::VecDeque;
+use std::fmt;
+
+use embassy_futures::select::{Either, select};
+use pab_app::CanBus;
+use pab_core::hbba::Instance;
+use pab_core::hbba::intention::{Event, IntentionError, MAX_SENDS, Target, Workspace};
+use pab_core::protocol::{self, BROADCAST, FaultCode, Intention, Message, Service};
+use pab_core::{Frame, Instant};
+use pab_lang::network::Network;
+
+/// How often the intention is published when nothing changes, µs: 1 s.
+pub const PUBLISH_PERIOD_US: u64 = 1_000_000;
+/// Reports held until read; older ones are dropped (and counted in a report).
+const MAX_REPORTS: usize = 256;
+
+/// What the intention node needs from a network file: the solver's instance, where each filtered
+/// connection is, and names to speak of it.
+#[derive(Clone, Debug)]
+pub struct Setup {
+    /// The solver's instance (`[hbba]`).
+    pub instance: Instance,
+    /// Per filtered connection, its node, port and index.
+    pub targets: Vec<Target>,
+    /// Node names by id.
+    nodes: Vec<(u8, String)>,
+    /// Per target (same order), "CONNECTION (PORT)".
+    filters: Vec<String>,
+    /// Strategy names, file order.
+    strategies: Vec<String>,
+    /// Class names, in the solver's numbering.
+    classes: Vec<String>,
+}
+
+impl Setup {
+    /// The setup of `network`; `Err` says why there is none: no `[hbba]` section, or a filtered
+    /// connection beyond the workspace's capacities.
+    pub fn from_network(network: &Network) -> Result<Setup, String> {
+        let Some(hbba) = &network.hbba else {
+            return Err(
+                "the network has no [hbba] section: the intention node needs its strategies"
+                    .to_string(),
+            );
+        };
+        let targets = network.filter_targets()?;
+        let filters = targets
+            .iter()
+            .map(|t| {
+                let connection = network.connections.get(usize::from(t.connection));
+                let port = connection
+                    .and_then(|c| network.ports.get(c.port))
+                    .map_or("?", |p| p.name.as_str());
+                format!("{} ({port})", connection.map_or("?", |c| c.name.as_str()))
+            })
+            .collect();
+        Ok(Setup {
+            instance: hbba.instance(),
+            targets,
+            nodes: network
+                .nodes
+                .iter()
+                .map(|n| (n.id, n.name.clone()))
+                .collect(),
+            filters,
+            strategies: hbba.strategies.iter().map(|s| s.name.clone()).collect(),
+            classes: hbba.classes.clone(),
+        })
+    }
+
+    fn node(&self, id: u8) -> String {
+        match self.nodes.iter().find(|(n, _)| *n == id) {
+            Some((_, name)) => format!("{name} (node {id})"),
+            None => format!("node {id}"),
+        }
+    }
+
+    fn filter(&self, target: &Target) -> String {
+        self.targets
+            .iter()
+            .position(|t| t == target)
+            .and_then(|i| self.filters.get(i))
+            .cloned()
+            .unwrap_or_else(|| format!("connection {}", target.connection))
+    }
+
+    fn class(&self, class: u8) -> String {
+        self.classes
+            .get(usize::from(class))
+            .map_or_else(|| format!("class {class}"), |name| format!("`{name}`"))
+    }
+
+    /// The names of the strategies of `mask`, or "none".
+    pub fn strategy_names(&self, mask: u64) -> String {
+        let names: Vec<&str> = self
+            .strategies
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| mask.checked_shr(*i as u32).is_some_and(|m| m & 1 == 1))
+            .map(|(_, name)| name.as_str())
+            .collect();
+        if names.is_empty() {
+            "none".to_string()
+        } else {
+            names.join(", ")
+        }
+    }
+}
+
+/// Something the intention node did or saw, in words: what its log says.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Report {
+    /// Whether it needs attention (a refusal, a lost command, a refused desire).
+    pub warning: bool,
+    /// What happened.
+    pub text: String,
+}
+
+impl fmt::Display for Report {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.text)
+    }
+}
+
+/// The intention node as a state machine: frames and time in, frames and reports out.
+#[derive(Debug)]
+pub struct IntentNode<'a> {
+    setup: &'a Setup,
+    workspace: Workspace<'a>,
+    address: u8,
+    outbox: VecDeque<Frame>,
+    reports: VecDeque<Report>,
+    lost_reports: u64,
+    next_publish: Option<Instant>,
+}
+
+impl<'a> IntentNode<'a> {
+    /// An intention node for `setup`, sending from `address` ([`protocol::INTENTION`] unless
+    /// the network says otherwise). Fails when the workspace cannot hold the instance.
+    pub fn new(setup: &'a Setup, address: u8) -> Result<IntentNode<'a>, IntentionError> {
+        Ok(IntentNode {
+            setup,
+            workspace: Workspace::new(&setup.instance, &setup.targets)?,
+            address,
+            outbox: VecDeque::new(),
+            reports: VecDeque::new(),
+            lost_reports: 0,
+            next_publish: None,
+        })
+    }
+
+    /// The workspace (desires, selection, filters), read-only.
+    pub fn workspace(&self) -> &Workspace<'a> {
+        &self.workspace
+    }
+
+    /// A frame from the bus at `now`: desires, filter statuses, faults and heartbeats are taken;
+    /// anything else, a frame of ours (sent from this node's address), or one with another
+    /// priority than its service's, is ignored.
+    pub fn on_frame(&mut self, frame: &Frame, now: Instant) {
+        let Ok((id, message)) = Message::decode(frame) else {
+            return;
+        };
+        if id.source == self.address || !id.has_service_priority() {
+            return;
+        }
+        match message {
+            Message::Desire(desire) if id.is_for(self.address) => {
+                match self.workspace.on_desire(id.source, &desire, now) {
+                    Ok(true) if desire.intensity == 0 => self.report(
+                        false,
+                        format!("desire {} of node {} withdrawn", desire.id, id.source),
+                    ),
+                    Ok(true) => self.report(
+                        false,
+                        format!(
+                            "desire {} of node {}: {} at {} for {} ms",
+                            desire.id,
+                            id.source,
+                            self.setup.class(desire.class),
+                            desire.intensity,
+                            desire.lease_ms
+                        ),
+                    ),
+                    Ok(false) => {}
+                    Err(error) => self.report(
+                        true,
+                        format!(
+                            "desire {} of node {} refused: {}",
+                            desire.id,
+                            id.source,
+                            match error {
+                                pab_core::hbba::DesireError::Full =>
+                                    "the workspace already holds 32 desires".to_string(),
+                                pab_core::hbba::DesireError::UnknownClass { class } => format!(
+                                    "class {class} is not one of the network's {} classes",
+                                    self.setup.classes.len()
+                                ),
+                                pab_core::hbba::DesireError::ZeroLease =>
+                                    "a lease of 0 ms".to_string(),
+                            }
+                        ),
+                    ),
+                }
+            }
+            Message::FilterStatus(status) => {
+                self.workspace.on_filter_status(id.source, &status);
+            }
+            Message::Fault(fault) if fault.code == FaultCode::FilterRefused => {
+                self.workspace.on_fault(id.source, &fault);
+            }
+            Message::Heartbeat(heartbeat) => {
+                self.workspace.on_heartbeat(id.source, &heartbeat);
+            }
+            _ => {}
+        }
+        self.collect(now);
+    }
+
+    /// Brings everything up to `now`: leases, solving, retries, the next phase, the periodic
+    /// intention. The frames to send come from [`IntentNode::next_outgoing`].
+    pub fn poll(&mut self, now: Instant) {
+        self.workspace.poll(now);
+        self.collect(now);
+        if self
+            .next_publish
+            .is_none_or(|at| now.micros_since(at).is_some())
+        {
+            self.publish(now);
+        }
+    }
+
+    /// The next frame to send.
+    pub fn next_outgoing(&mut self) -> Option<Frame> {
+        self.outbox.pop_front()
+    }
+
+    /// The next report, oldest first.
+    pub fn next_report(&mut self) -> Option<Report> {
+        self.reports.pop_front()
+    }
+
+    /// When [`IntentNode::poll`] next has work, at the latest.
+    pub fn deadline(&self, now: Instant) -> Instant {
+        let publish = self.next_publish.unwrap_or(now);
+        match self.workspace.deadline(now) {
+            Some(at) if publish.micros_since(at).is_some() => at,
+            _ => publish,
+        }
+    }
+
+    fn publish(&mut self, now: Instant) {
+        let intention = Message::Intention(Intention {
+            strategies: self.workspace.strategies(),
+        });
+        self.outbox
+            .push_back(intention.to_frame(self.address, BROADCAST));
+        self.next_publish = Some(now.wrapping_add_micros(PUBLISH_PERIOD_US));
+    }
+
+    /// The workspace's events and commands, as reports and frames (events first: a selection
+    /// is said before the commands it causes).
+    fn collect(&mut self, now: Instant) {
+        while let Some(event) = self.workspace.next_event() {
+            match event {
+                Event::Selected {
+                    strategies,
+                    objective,
+                } => {
+                    let names = self.setup.strategy_names(strategies);
+                    self.report(false, format!("selected: {names} (objective {objective})"));
+                    self.publish(now);
+                }
+                Event::SolveFailed(error) => self.report(
+                    true,
+                    format!("solving failed, the previous selection stays: {error}"),
+                ),
+                Event::Expired => {
+                    self.report(false, "a desire's lease ran out: recomputing".to_string());
+                }
+                Event::Acknowledged { target, phi } => {
+                    let filter = self.setup.filter(&target);
+                    let node = self.setup.node(target.node);
+                    self.report(false, format!("{node} applied {filter} φ {phi}"));
+                }
+                Event::Refused { target, phi, why } => {
+                    let filter = self.setup.filter(&target);
+                    let node = self.setup.node(target.node);
+                    let reason = match why {
+                        1 => "no such profile",
+                        2 => "not a filtered connection of its table",
+                        3 => "its table has no message filters",
+                        _ => "an unknown reason",
+                    };
+                    self.report(
+                        true,
+                        format!(
+                            "{node} refused {filter} φ {phi}: {reason} (FilterRefused, detail {why}); the intention is not in force there"
+                        ),
+                    );
+                }
+                Event::GaveUp { target, phi } => {
+                    let filter = self.setup.filter(&target);
+                    let node = self.setup.node(target.node);
+                    self.report(
+                        true,
+                        format!(
+                            "{node} did not answer {filter} φ {phi} after {MAX_SENDS} sends: its filter's state is unknown"
+                        ),
+                    );
+                }
+                Event::Restarted { node } => {
+                    let node = self.setup.node(node);
+                    self.report(
+                        false,
+                        format!("{node} restarted or was heard first: re-applying its filters"),
+                    );
+                }
+                Event::Settled { refused, gave_up } => {
+                    let warning = refused > 0 || gave_up > 0;
+                    self.report(
+                        warning,
+                        format!("filters settled: {refused} refused, {gave_up} unanswered"),
+                    );
+                }
+            }
+        }
+        while let Some(command) = self.workspace.next_command(now) {
+            let set = command.set;
+            let node = self.setup.node(command.node);
+            let filter = self
+                .setup
+                .targets
+                .iter()
+                .find(|t| t.node == command.node && t.port == set.port && t.index == set.connection)
+                .map_or_else(|| "?".to_string(), |t| self.setup.filter(t));
+            let again = if command.send > 1 {
+                format!(
+                    ", again (send {} of {MAX_SENDS}: no answer yet)",
+                    command.send
+                )
+            } else {
+                String::new()
+            };
+            let phase = if command.reduction {
+                "reduction"
+            } else {
+                "increase"
+            };
+            self.report(
+                command.send > 1,
+                format!(
+                    "FilterSet to {node}: {filter} φ {} (port {}, connection {}, seq {}; {phase}){again}",
+                    set.phi, set.port, set.connection, set.sequence
+                ),
+            );
+            self.outbox
+                .push_back(Message::FilterSet(set).to_frame(self.address, command.node));
+        }
+        let lost = self.workspace.lost_events();
+        if u64::from(lost) > self.lost_reports {
+            self.lost_reports = u64::from(lost);
+            self.report(
+                true,
+                format!("{lost} events were dropped before they could be reported"),
+            );
+        }
+    }
+
+    fn report(&mut self, warning: bool, text: String) {
+        if self.reports.len() == MAX_REPORTS {
+            self.reports.pop_front();
+        }
+        self.reports.push_back(Report { warning, text });
+    }
+}
+
+/// What the loop needs of time.
+#[allow(async_fn_in_trait)]
+pub trait Clock {
+    /// Now.
+    fn now(&self) -> Instant;
+    /// Returns at `at` (at once if it is past).
+    async fn sleep_until(&mut self, at: Instant);
+}
+
+/// The system's monotonic clock, from the moment it is made; sleeps with `async-io`'s timers.
+#[derive(Clone, Copy, Debug)]
+pub struct SystemClock {
+    start: std::time::Instant,
+}
+
+impl SystemClock {
+    /// A clock at 0 now.
+    pub fn new() -> SystemClock {
+        SystemClock {
+            start: std::time::Instant::now(),
+        }
+    }
+}
+
+impl Default for SystemClock {
+    fn default() -> Self {
+        SystemClock::new()
+    }
+}
+
+impl Clock for SystemClock {
+    fn now(&self) -> Instant {
+        let micros = self.start.elapsed().as_micros();
+        Instant::from_micros(u64::try_from(micros).unwrap_or(u64::MAX))
+    }
+
+    async fn sleep_until(&mut self, at: Instant) {
+        let left = at.micros_since(self.now()).unwrap_or(0);
+        async_io::Timer::after(std::time::Duration::from_micros(left)).await;
+    }
+}
+
+/// Runs `node` on `bus` forever: reads frames, polls at the node's deadlines, sends what it has
+/// to send, and hands every report to `report` (the binary logs them). A transmit error is
+/// reported and the frame dropped (the workspace sends a command again when it is not
+/// acknowledged, and the intention goes out again within a second); a receive error is reported
+/// and the loop pauses 1 ms (but after a count of dropped frames), so that a failing driver does
+/// not make it spin.
+pub async fn run<B, C>(
+    node: &mut IntentNode<'_>,
+    bus: &mut B,
+    clock: &mut C,
+    report: &mut dyn FnMut(Report),
+) -> !
+where
+    B: CanBus,
+    C: Clock,
+{
+    loop {
+        node.poll(clock.now());
+        while let Some(frame) = node.next_outgoing() {
+            if let Err(error) = bus.transmit(&frame).await {
+                let what = protocol::FrameId::decode(&frame.id())
+                    .map_or(Service::Intention, |id| id.service);
+                report(Report {
+                    warning: true,
+                    text: format!("sending a {what:?} frame failed: {error:?}"),
+                });
+            }
+        }
+        while let Some(line) = node.next_report() {
+            report(line);
+        }
+        let wake = node.deadline(clock.now());
+        match select(bus.receive(), clock.sleep_until(wake)).await {
+            Either::First(Ok(frame)) => node.on_frame(&frame, clock.now()),
+            Either::First(Err(error)) => {
+                report(Report {
+                    warning: true,
+                    text: format!("the bus reported {error:?}"),
+                });
+                // As the nodes' loop: a count of dropped frames comes with a frame the next read
+                // returns, so no pause then.
+                if !matches!(error, pab_app::BusError::Dropped(_)) {
+                    let pause = clock.now().wrapping_add_micros(1000);
+                    clock.sleep_until(pause).await;
+                }
+            }
+            Either::Second(()) => {}
+        }
+    }
+}

@@ -1,0 +1,95 @@
+//! `pab-intent`: HBBA's intention node as a Linux process on a SocketCAN interface.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::Parser;
+use pab_intent::{IntentNode, Report, Setup, SystemClock};
+use pab_lang::network::Network;
+use pab_node::receive_queue;
+use pab_node::socket_bus::SocketBus;
+
+/// HBBA's intention node on a SocketCAN interface.
+///
+/// Listens to the Desire frames on the bus (class, intensity, lease: a desire not sent again
+/// within its lease is dropped), keeps per class the most intense, and on every change solves
+/// which strategies of the network's [hbba] section run. It then sets the message filters of the
+/// boards with FilterSet commands (per filtered connection the φ of its selected strategy, 0 when
+/// none names it): every reduction first, every increase once the reductions are acknowledged
+/// (FilterStatus) or refused (FilterRefused), a command without an answer sent again after
+/// 250 ms and given up after 3 sends. It publishes the selected strategies (Intention, from
+/// address 126) on every change and every second, and re-applies a node's filters when its
+/// heartbeat shows a restart. It logs every desire, selection, command, refusal and restart.
+///
+/// Boards do not run message filters yet: they refuse every filter command (FilterRefused,
+/// detail 3), which pab-intent logs as a warning; the intention is published all the same.
+///
+/// Example, on a virtual bus with the tour guide's nodes:
+///
+///   pab-node --iface vcan0 --node-id 1 &
+///
+///   pab-intent --interface vcan0 --network examples/tour-guide.toml
+///
+///   cansend vcan0 1208FF09#0200030010270100   # node 9: class 2 (voice), intensity 3, 10 s
+///
+/// Logging: RUST_LOG=debug for more detail (default: info).
+#[derive(Parser, Debug)]
+#[command(version, verbatim_doc_comment)]
+struct Args {
+    /// The SocketCAN interface (vcan0, can0...).
+    #[arg(long, visible_alias = "iface")]
+    interface: String,
+    /// The network file whose [hbba] section (strategies, resources) and nodes it serves.
+    #[arg(long, value_name = "NET.toml")]
+    network: PathBuf,
+}
+
+fn main() -> ExitCode {
+    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("info")).init();
+    let args = Args::parse();
+    match start(args) {
+        Ok(never) => match never {},
+        Err(error) => {
+            eprintln!("pab-intent: {error:#}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+/// Everything that can fail before the loop runs; then runs it forever.
+fn start(args: Args) -> anyhow::Result<std::convert::Infallible> {
+    use anyhow::Context as _;
+    let network = Network::load(&args.network).map_err(|errors| anyhow::anyhow!("{errors}"))?;
+    let setup = Setup::from_network(&network)
+        .map_err(|why| anyhow::anyhow!("{}: {why}", args.network.display()))?;
+    let node = IntentNode::new(&setup, pab_core::protocol::INTENTION)
+        .map_err(|error| anyhow::anyhow!("{}: [hbba]: {error}", args.network.display()))?;
+    let (mut bus, sizing) = SocketBus::open(&args.interface, receive_queue::DEFAULT_BYTES)
+        .with_context(|| {
+            format!(
+                "opening CAN interface {:?} (does it exist and is it up? `ip link show {}`)",
+                args.interface, args.interface
+            )
+        })?;
+    if let Some(why) = &sizing.shortfall {
+        log::warn!("{why}");
+    }
+    log::info!(
+        "intention node {} on {}: {} strategies, {} filtered connections, from {}",
+        pab_core::protocol::INTENTION,
+        args.interface,
+        setup.instance.strategies.len(),
+        setup.targets.len(),
+        args.network.display()
+    );
+    let mut node = node;
+    let mut clock = SystemClock::new();
+    let mut log = |report: Report| {
+        if report.warning {
+            log::warn!("{report}");
+        } else {
+            log::info!("{report}");
+        }
+    };
+    async_io::block_on(pab_intent::run(&mut node, &mut bus, &mut clock, &mut log))
+}
