@@ -313,20 +313,31 @@ fn capacities_are_reported_where_they_are_exceeded() {
     );
 }
 
-/// `check`, `compile` and `sim` take a file with `[hbba]` as they take one without: the section
-/// is parsed (and its mistakes reported) but does not change the tables.
+/// `compile` gives a file with `[hbba]` the tables of the same file without it, plus the message
+/// filters of the connections its strategies name (which start closed on the boards).
 #[test]
-fn the_section_changes_nothing_else() {
+fn the_section_adds_the_filters_and_changes_nothing_else() {
     let with_section = parse(&with(&STRATEGIES.replace("bus = 10", "bus = 20"))).unwrap();
     let without = parse(HEAD).unwrap();
-    let images = |network: &Network| -> Vec<Vec<u8>> {
+    let tables = |network: &Network| -> Vec<pab_core::Table> {
         pab_lang::compile::compile(network)
             .unwrap()
             .into_iter()
-            .map(|node| node.image)
+            .map(|node| pab_core::image::load(&node.image).unwrap().table)
             .collect()
     };
-    assert_eq!(images(&with_section), images(&without));
+    let mut filtered = 0;
+    for (mut a, b) in tables(&with_section).into_iter().zip(tables(&without)) {
+        assert!(b.filters().is_empty());
+        filtered += a.filters().connections.len();
+        a.set_filters(Default::default()).unwrap();
+        assert_eq!(a, b);
+    }
+    let targets = with_section.filter_targets().unwrap();
+    assert!(
+        filtered > 0 && filtered == targets.len(),
+        "{filtered} {targets:?}"
+    );
     assert!(without.hbba.is_none());
 }
 

@@ -17,6 +17,7 @@ use pab_core::image::{self, MAX_IMAGE_LEN};
 use pab_core::{Connection, Consumer, MAX_DECISION_NODES, Table, TableError};
 
 mod dynamics;
+mod hbba;
 
 use crate::check::{self, PortLogic};
 use crate::diagnostic::Diagnostic;
@@ -269,6 +270,8 @@ fn compile_node(
     node: &crate::network::Node,
 ) -> Result<CompiledNode, Diagnostic> {
     let mut table: Table = Table::new();
+    // The network's connections in the table's order (HBBA's filters name them).
+    let mut table_connections: Vec<usize> = Vec::new();
     let mut decision_nodes = 0usize;
     let mut per_rule_nodes = 0usize;
     for &port_index in &node.ports {
@@ -303,6 +306,7 @@ fn compile_node(
             .iter()
             .map(|d| d.size().saturating_sub(2))
             .sum::<usize>();
+        table_connections.extend(port.connections.iter().copied());
         let connections: Vec<Connection> = network
             .port_connections(port_index)
             .filter_map(|c| {
@@ -354,6 +358,16 @@ fn compile_node(
                     format!("node `{}`: competitive dynamics: {error}", node.name),
                 )
             })?;
+    }
+    let filters = hbba::filters_of(network, node, &table_connections)
+        .map_err(|error| network.error(node.span.clone(), error))?;
+    if !filters.is_empty() {
+        table.set_filters(filters).map_err(|error| {
+            network.error(
+                node.span.clone(),
+                format!("node `{}`: message filters: {error}", node.name),
+            )
+        })?;
     }
     let mut buffer = vec![0u8; MAX_IMAGE_LEN];
     let length = image::encode(&table, node.id, network.version, &mut buffer).map_err(|error| {

@@ -17,9 +17,11 @@
 //! never arbitrates them (they are its protocol, not traffic), and a table transfer in the capture,
 //! a push during the recorded run, would switch a node's table in the middle of the replay: a
 //! replay evaluates the tables it is given on the application traffic. They are counted
-//! ([`Feed::protocol_frames`]). **BLE claims are the exception**: traffic between the nodes that
-//! decides who holds a task, they are fed like application frames, and every runner hands them
-//! to the node's group state (a node's own claims, coming back from the capture, are refused by
+//! ([`Feed::protocol_frames`]). **BLE claims, Gates and HBBA's filter commands (FilterSet,
+//! FilterProfile) are the exception**: traffic that coordinates the nodes (who holds a task,
+//! which gates are open, which connections the intention filters), they are fed like
+//! application frames, and every runner hands them to the node's state; a claim to its
+//! group state (a node's own claims, coming back from the capture, are refused by
 //! it and change nothing). Re-published frames of gateway ports are ordinary traffic in a
 //! capture and are fed like any other; what the replayed nodes re-publish is dropped (the bus of
 //! a replay is the capture).
@@ -68,8 +70,9 @@ impl Feed {
             span_us: last_us.saturating_sub(first_us),
         };
         for captured in ordered {
-            // BLE claims and Gates are fed: they are how the nodes coordinate (who holds a task,
-            // which behaviours' gates are open).
+            // BLE claims, Gates and HBBA's filter commands are fed: they are how the nodes
+            // coordinate (who holds a task, which behaviours' gates are open, which connections
+            // the intention filters).
             if protocol::is_ours(&captured.frame.id()) && !is_coordination(&captured.frame) {
                 feed.protocol_frames += 1;
                 continue;
@@ -225,6 +228,11 @@ fn is_coordination(frame: &pab_core::Frame) -> bool {
     claim
         || matches!(
             protocol::FrameId::decode(&frame.id()),
-            Some(id) if id.service == protocol::Service::Gates
+            Some(id) if matches!(
+                id.service,
+                protocol::Service::Gates
+                    | protocol::Service::FilterSet
+                    | protocol::Service::FilterProfile
+            )
         )
 }

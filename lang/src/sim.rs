@@ -130,6 +130,8 @@ pub struct Outcome {
     /// HBBA's intention on the `[[desires]]` ([`intention`]), with `[hbba]` in [`simulate`]
     /// only (a replay has no script).
     pub intention: Option<IntentionRun>,
+    /// The intention node's filter commands on the bus (FilterSet frames), in the order sent.
+    pub commands: Vec<BusFrame>,
 }
 
 /// A change of the nodes that hold a BLE group's task.
@@ -222,6 +224,21 @@ pub fn simulate(
         .iter()
         .map(|fault| (micros(fault.at), fault.node))
         .collect();
+    // HBBA's intention first: its filter commands are frames on the simulated bus like any other
+    // (the nodes apply them at the instant they are sent, before the topics' frames of that
+    // instant), so the arbitration below sees the filters it commands.
+    let intention = intention::simulate(network, until_us)?;
+    let commands = intention
+        .as_ref()
+        .map(IntentionRun::command_frames)
+        .unwrap_or_default();
+    let mut all: Vec<(u64, u8, BusFrame)> = commands
+        .iter()
+        .map(|f| (f.t_us, 0, *f))
+        .chain(frames.iter().map(|f| (f.t_us, 1, *f)))
+        .collect();
+    all.sort_by_key(|(t, kind, _)| (*t, *kind));
+    let frames: Vec<BusFrame> = all.into_iter().map(|(_, _, f)| f).collect();
     let mut outcome = run_stopping(
         network,
         compiled,
@@ -232,7 +249,8 @@ pub fn simulate(
         true,
         &mut |_| {},
     )?;
-    outcome.intention = intention::simulate(network, until_us)?;
+    outcome.commands = commands;
+    outcome.intention = intention;
     Ok(outcome)
 }
 
@@ -456,6 +474,7 @@ fn run_stopping(
         dynamics: run.dynamics_rows,
         gates: run.gates,
         intention: None,
+        commands: Vec::new(),
     })
 }
 
@@ -701,6 +720,26 @@ impl Run<'_> {
             .copied()
     }
 
+    /// A frame of our protocol at `station`: a FilterSet or FilterProfile addressed to it is
+    /// applied to its arbiter; anything else is not the arbitration's business.
+    fn filter_command(&mut self, station: usize, frame: &Frame) {
+        use pab_core::protocol::Message;
+        let Some(entry) = self.stations.get_mut(station) else {
+            return;
+        };
+        let Ok((id, message)) = Message::decode(frame) else {
+            return;
+        };
+        if id.destination != entry.id {
+            return;
+        }
+        let _ = match message {
+            Message::FilterSet(set) => entry.arbiter.set_filter(set.port, set.connection, set.phi),
+            Message::FilterProfile(switch) => entry.arbiter.set_filter_profile(switch.profile),
+            _ => Ok(()),
+        };
+    }
+
     fn frame(&mut self, frame: &BusFrame) {
         let now = Instant::from_micros(frame.t_us);
         let id = frame.frame.id();
@@ -726,6 +765,12 @@ impl Run<'_> {
             // Gates (a capture's, in a replay): the dynamics' traffic, never arbitrated.
             if dynamics::is_gates(&frame.frame) {
                 self.hear_gates(station, &frame.frame, frame.t_us);
+                continue;
+            }
+            // HBBA's filter commands: applied by the node they address, as a node does (a
+            // refused one changes nothing); never arbitrated.
+            if pab_core::protocol::is_ours(&id) {
+                self.filter_command(station, &frame.frame);
                 continue;
             }
             let mut verdicts = Vec::new();
@@ -1079,9 +1124,11 @@ impl Outcome {
         let mut all: Vec<(u64, u8, BusFrame)> = frames
             .iter()
             .filter(|f| f.t_us <= self.until_us)
-            .map(|f| (f.t_us, 0, *f))
-            .chain(self.claims.iter().map(|f| (f.t_us, 1, *f)))
-            .chain(self.gates.iter().map(|f| (f.t_us, 1, *f)))
+            .map(|f| (f.t_us, 1, *f))
+            // The intention's commands of an instant before its topics' frames, as simulated.
+            .chain(self.commands.iter().map(|f| (f.t_us, 0, *f)))
+            .chain(self.claims.iter().map(|f| (f.t_us, 2, *f)))
+            .chain(self.gates.iter().map(|f| (f.t_us, 2, *f)))
             .collect();
         // Stable: within an instant and a kind, the order they were sent in.
         all.sort_by_key(|(t, kind, _)| (*t, *kind));

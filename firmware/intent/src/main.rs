@@ -21,8 +21,9 @@ use pab_node::socket_bus::SocketBus;
 /// address 126) on every change and every second, and re-applies a node's filters when its
 /// heartbeat shows a restart. It logs every desire, selection, command, refusal and restart.
 ///
-/// Boards do not run message filters yet: they refuse every filter command (FilterRefused,
-/// detail 3), which pab-intent logs as a warning; the intention is published all the same.
+/// A node answers each command it applied with FilterStatus; one it cannot apply it refuses
+/// (FilterRefused: no such profile, not a filtered connection, or a table without filters),
+/// which pab-intent logs as a warning; the intention is published all the same.
 ///
 /// Example, on a virtual bus with the tour guide's nodes:
 ///

@@ -1,9 +1,10 @@
 //! pab-intent on an in-process bus with the tour guide's nodes as `pab-app` nodes (their compiled
 //! tables, their own code), in virtual time: every frame any of them sends reaches all the others
-//! at once. The nodes refuse filter commands (FilterRefused, detail 3: no board runs filters
-//! yet), which pab-intent reports, publishing the intention all the same; a desire whose lease
-//! runs out is dropped and the intention recomputed; a node that restarts gets its filters
-//! again. Last, the async loop (`pab_intent::run`) on a channel bus in real time.
+//! at once. The nodes apply the filter commands and acknowledge them (FilterStatus), and their
+//! arbiters then filter as commanded; a node whose table has no filters refuses them
+//! (FilterRefused, detail 3), which pab-intent reports, publishing the intention all the same; a
+//! desire whose lease runs out is dropped and the intention recomputed; a node that restarts gets
+//! its filters again. Last, the async loop (`pab_intent::run`) on a channel bus in real time.
 
 use pab_app::{BoardNode, Config, Step};
 use pab_core::protocol::{
@@ -54,12 +55,42 @@ fn boot(id: u8, image: &[u8], now: u64) -> Box<BoardNode> {
     node
 }
 
+/// `image` with its table's message filters taken out: a node that runs no filters.
+fn without_filters(image: &[u8]) -> Vec<u8> {
+    let loaded = pab_core::image::load::<4, 64, 256>(image).unwrap();
+    let mut table = loaded.table;
+    table.set_filters(Default::default()).unwrap();
+    let mut out = vec![0u8; pab_core::image::MAX_IMAGE_LEN];
+    let len = pab_core::image::encode(
+        &table,
+        loaded.header.node_id,
+        loaded.header.table_version,
+        &mut out,
+    )
+    .unwrap();
+    out.truncate(len);
+    out
+}
+
 impl<'a> Bus<'a> {
     fn new(network: &Network, setup: &'a Setup) -> Bus<'a> {
+        Bus::with_images(network, setup, |image| image.to_vec())
+    }
+
+    /// The nodes booted with `image(compiled image)`.
+    fn with_images(
+        network: &Network,
+        setup: &'a Setup,
+        image: impl Fn(&[u8]) -> Vec<u8>,
+    ) -> Bus<'a> {
         let compiled = compile::compile(network).unwrap_or_else(|e| panic!("{e:?}"));
         let nodes = compiled
             .iter()
-            .map(|c| (c.id, c.image.clone(), boot(c.id, &c.image, 0)))
+            .map(|c| {
+                let image = image(&c.image);
+                let node = boot(c.id, &image, 0);
+                (c.id, image, node)
+            })
             .collect();
         let mut bus = Bus {
             now: 0,
@@ -227,10 +258,58 @@ fn touring(bus: &mut Bus) {
 }
 
 #[test]
-fn a_refusal_is_reported_clearly_and_the_intention_still_published() {
+fn the_nodes_apply_the_commands_and_filter_as_commanded() {
     let network = tour_guide();
     let setup = Setup::from_network(&network).unwrap();
     let mut bus = Bus::new(&network, &setup);
+    // At boot every filtered connection is closed.
+    let phi = |bus: &Bus, node: usize, port: u8, connection: u8| {
+        bus.nodes[node]
+            .2
+            .arbiter()
+            .unwrap()
+            .filter_phi(port, connection)
+    };
+    assert_eq!(phi(&bus, 0, 0, 0), Some(0));
+    bus.advance_to(S / 2);
+    touring(&mut bus);
+    bus.advance_to(S);
+    // Touring: FACE (head port 0, connection 0), QR (head port 1) and NAV, AVOID (base) open;
+    // VOICE (head port 0, connection 1) stays closed.
+    assert_eq!(
+        (phi(&bus, 0, 0, 0), phi(&bus, 0, 0, 1), phi(&bus, 0, 1, 0)),
+        (Some(1), Some(0), Some(1))
+    );
+    assert_eq!((phi(&bus, 1, 0, 0), phi(&bus, 1, 0, 1)), (Some(1), Some(1)));
+    // Acknowledged: each node answered with FilterStatus, nothing was refused or sent again.
+    let statuses = bus
+        .messages(S / 2)
+        .into_iter()
+        .filter(|(_, _, m)| matches!(m, Message::FilterStatus(_)))
+        .count();
+    assert!(statuses >= 4, "{statuses}");
+    let warnings: Vec<String> = bus
+        .reports_since(S / 2)
+        .into_iter()
+        .filter(|r| r.warning)
+        .map(|r| r.text.clone())
+        .collect();
+    assert!(warnings.is_empty(), "{warnings:#?}");
+    // The noise: voice opens, QR closes, faces one in three.
+    bus.desire(7, "voice", 3, 60_000);
+    bus.advance_to(2 * S);
+    assert_eq!(
+        (phi(&bus, 0, 0, 0), phi(&bus, 0, 0, 1), phi(&bus, 0, 1, 0)),
+        (Some(3), Some(1), Some(0))
+    );
+}
+
+#[test]
+fn a_refusal_is_reported_clearly_and_the_intention_still_published() {
+    let network = tour_guide();
+    let setup = Setup::from_network(&network).unwrap();
+    // Nodes whose tables carry no message filters (say, pushed from a file without `[hbba]`).
+    let mut bus = Bus::with_images(&network, &setup, without_filters);
     bus.advance_to(S / 2);
     touring(&mut bus);
     bus.advance_to(3 * S);

@@ -12,9 +12,10 @@
 //! `[[faults]]` answers nothing from its time on: its commands are sent again and given up, as
 //! on the bus.
 //!
-//! The boards do not run message filters yet, so the arbitration simulated beside this sees
-//! every connection open: what is recorded is the pass rate each filter is *commanded*
-//! (1/φ, 0 when closed), not frames dropped.
+//! The commands are frames on the simulated bus ([`IntentionRun::command_frames`]): the
+//! arbitration ([`super::simulate`]) applies each to the node it addresses at the instant it is
+//! sent, so the ports see the filters the intention commands (filtered connections start closed,
+//! as on the boards). The lanes record the pass rate each filter is commanded (1/φ, 0 closed).
 
 use pab_core::Instant;
 use pab_core::hbba::intention::{Event, Target, Workspace};
@@ -231,6 +232,19 @@ fn desire_frames(network: &Network, until_us: u64) -> Vec<(u64, u8, DesireFrame)
 }
 
 impl IntentionRun {
+    /// The filter commands as the frames the intention node sends (from
+    /// [`pab_core::protocol::INTENTION`] to each command's node), in the order sent.
+    pub fn command_frames(&self) -> Vec<super::BusFrame> {
+        self.commands
+            .iter()
+            .map(|c| super::BusFrame {
+                t_us: c.t_us,
+                frame: pab_core::protocol::Message::FilterSet(c.set)
+                    .to_frame(pab_core::protocol::INTENTION, c.node),
+            })
+            .collect()
+    }
+
     /// The plot's lanes: one per strategy (full while it is selected), then one per filtered
     /// connection (its commanded pass rate, 1/φ, 0 while closed; boot: closed).
     pub fn lanes(&self, network: &Network) -> Vec<LaneGroup> {
