@@ -32,6 +32,7 @@
 mod auth;
 mod ble;
 mod cases;
+mod hbba;
 mod take_and_return;
 mod value_port;
 
@@ -121,6 +122,7 @@ fn main() -> ! {
     auth::run();
     ble::run();
     value_port::run();
+    hbba::run();
     semihosting::eprint(format_args!("pab-an386-cost: done\n"));
     semihosting::exit(true)
 }
