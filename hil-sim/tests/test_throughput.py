@@ -130,9 +130,10 @@ def test_arm_node_accounts_for_every_frame_of_a_flood(session_for, iface, out_di
         # here can only be more: a frame is timestamped when sent, and queued (or dropped) when
         # the kernel's softirq gets to it, by then the node may have read further; and the node
         # may have read a frame it has not re-published yet. So: at least the capacity, and
-        # more by at most the frames offered in 20 ms (softirq delays on the loaded, emulated
-        # machine: measured up to 7 frames over a capacity of 22 at 2 600 frames/s).
-        slack = max(2, round(FLOOD / sent_in * 0.020))
+        # more by at most the frames offered in 50 ms (softirq and scheduling delays on the
+        # emulated machine: measured up to 7 frames over a capacity of 22 at 2 600 frames/s, and
+        # 315 over 22 at 13 900 frames/s, 21 ms of them, in a quiet fresh-clone run).
+        slack = max(2, round(FLOOD / sent_in * 0.050))
         assert capacity - 1 <= queued_at_first_loss <= capacity + slack, (
             f"frame {first_lost} was dropped with {queued_at_first_loss} frames waiting, "
             f"but the queue holds {capacity} (slack {slack})")

@@ -138,9 +138,17 @@ def test_take_and_return_with_10_percent_of_behaviour_frames_lost_and_the_arm_no
     unexplained_before = Counter(live_before) - Counter(replay_before)
     assert not unexplained_before, f"re-published, not delivered by the replay: {unexplained_before}"
     assert len(replay_before) - len(live_before) <= 1, (len(replay_before), len(live_before))
-    assert Counter(live_after) == Counter(replay_after), (
-        f"re-published, not delivered by the replay: {Counter(live_after) - Counter(replay_after)}; "
-        f"delivered by the replay, not re-published: {Counter(replay_after) - Counter(live_after)}")
+    unexplained_after = Counter(live_after) - Counter(replay_after)
+    assert not unexplained_after, f"re-published, not delivered by the replay: {unexplained_after}"
+    # The replay may deliver one frame more than the node re-published: the node stamps a frame
+    # when its process reads it, the replay uses the capture's kernel timestamps, so a frame at
+    # the edge of an activity's end can be judged on either side of it (seen once in a quiet
+    # fresh-clone run: a Rest Arm frame 8 ms after a τ boundary), and the session stops the node
+    # at the end, maybe with a frame read and not yet re-published. Never the other way: every
+    # frame the node re-published is one the replay delivers.
+    missing_after = Counter(replay_after) - Counter(live_after)
+    assert sum(missing_after.values()) <= 1, (
+        f"delivered by the replay, not re-published: {missing_after}")
     assert len(live_before) > 20 and len(live_after) > 20, (len(live_before), len(live_after))
 
     figures("take-and-return-under-faults", {
