@@ -2,7 +2,7 @@
 # Runs every check and test of the project, from a fresh clone on a fresh machine:
 #   ./test.sh
 # It installs what it needs (the Cortex-M target, rustfmt, clippy, llvm-tools) with rustup, then
-# checks formatting and lints, builds the core, the NUCLEO-G474RE firmware and the emulated
+# checks formatting, lints and the documentation's links, builds the core, the NUCLEO-G474RE firmware and the emulated
 # board's (and prints their flash and RAM sizes), counts the Cortex-M4 instructions per frame on
 # the emulated board and checks them against their goals (scripts/cortex-m4-cost.sh --check),
 # runs all tests (unit, property, end-to-end, command line, the node application on an
@@ -47,6 +47,10 @@ cargo clippy -p pab-app --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-fw-g474 --target thumbv7em-none-eabihf --release --locked -- -D warnings
 cargo clippy -p pab-slcan --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-fw-an386 --target thumbv7em-none-eabihf --release --locked -- -D warnings
+
+step "documentation (every public item's links resolve)"
+# The host crates' documentation, warnings denied: a broken or ambiguous intra-doc link fails.
+RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --locked --quiet
 
 step "pab-core for the boards (thumbv7em-none-eabihf)"
 cargo build -p pab-core --release --target thumbv7em-none-eabihf --locked

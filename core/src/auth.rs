@@ -1,7 +1,7 @@
 //! Authenticated configuration: AES-128-CMAC tags over what the tool sends and what the node
 //! answers, in the manner of AUTOSAR SecOC (payload + freshness + truncated MAC).
 //!
-//! Freshness is a challenge: the node hands out a 64-bit [nonce](nonce) (a boot salt that never
+//! Freshness is a challenge: the node hands out a 64-bit [nonce] (a boot salt that never
 //! repeats for one key, and a counter), and the next configuration message must carry a tag over
 //! it. Every MAC input starts with a [domain](Domain) byte and the node id, so that no tag can be
 //! moved from one use to another, nor from one node to another (even if two nodes share a key).

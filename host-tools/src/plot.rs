@@ -2,8 +2,8 @@
 //!
 //! One strip per connection, grouped by port; each strip draws the connection's stimulation over
 //! time, green while the connection is the one selected at its port (its frames get through) and
-//! orange otherwise. Under the ports, the competitive-dynamics groups' lanes ([`dynamics`]), then
-//! step lanes such as HBBA's selected strategies and filter pass rates ([`lanes`]), if any. An
+//! orange otherwise. Under the ports, the competitive-dynamics groups' lanes (`plot/dynamics.rs`), then
+//! step lanes such as HBBA's selected strategies and filter pass rates (`plot/lanes.rs`), if any. An
 //! optional bottom strip names the scenario's phases.
 
 use std::path::Path;
@@ -84,8 +84,8 @@ type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 /// The image is 1400 pixels wide. From top to bottom: the title (with a colour legend on the
 /// right), then for each port a header with its name and one strip per connection, then for each
 /// dynamics group a header with a legend and one lane per behaviour (1.5 strips high: n, ρ, m
-/// and the gate, [`dynamics`]), then for each lane group (HBBA's intention) a header and one
-/// half-strip lane per step series ([`lanes`]), then, if there are phases, a strip naming them. Each connection strip plots the stimulation (0 to 1,
+/// and the gate, `plot/dynamics.rs`), then for each lane group (HBBA's intention) a header and one
+/// half-strip lane per step series (`plot/lanes.rs`), then, if there are phases, a strip naming them. Each connection strip plots the stimulation (0 to 1,
 /// with a light line at the activation threshold 1) against time, from 0 to `data.until`
 /// seconds: green where the connection is selected at its port, orange elsewhere. A segment
 /// between two samples takes the colour of the first; samples sharing a time make a vertical

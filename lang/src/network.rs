@@ -1,5 +1,5 @@
-//! The network file: nodes, topics, ports, connections, BLE groups ([`ble`]), competitive-dynamics
-//! groups ([`dynamics`]), HBBA's resources and strategies ([`hbba`]), and a scenario of events.
+//! The network file: nodes, topics, ports, connections, BLE groups (`network/ble.rs`), competitive-dynamics
+//! groups (`network/dynamics.rs`), HBBA's resources and strategies (`network/hbba.rs`), and a scenario of events.
 //!
 //! Parsing is in two steps. `toml` turns the text into raw tables, keeping the byte span of every
 //! value; then [`Network::parse`] checks every name, number and rule and reports each mistake at

@@ -8,7 +8,7 @@
 //! - the simulator's arbiters, one per node ([`crate::sim::run`]): what `pabctl replay` shows;
 //! - the node application, one `pab_app::FullNode` per node (the Linux node's capacities),
 //!   booted from its compiled image and fed through `Node::on_frame` ([`node_records`]);
-//! - a board: [`job`] writes the file that a board's replay binary reads
+//! - a board: [`job()`] writes the file that a board's replay binary reads
 //!   (`pab-an386-replay` on the emulated Cortex-M4), which runs `pab_app::BoardNode`s through the
 //!   same `pab_app::replay` code.
 //!

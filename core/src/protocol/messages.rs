@@ -25,7 +25,7 @@ pub struct Heartbeat {
 
 /// The gates of a competitive-dynamics group (service 0x07), sent by the node that runs the group
 /// to [`super::BROADCAST`] whenever a gate changes and every [`Gates::PERIOD_US`] otherwise
-/// ([`crate::dynamics::gates`]).
+/// ([`crate::dynamics`]).
 ///
 /// ```text
 /// byte 0     group: its number in the network (the file's order of [dynamics.*], from 0)

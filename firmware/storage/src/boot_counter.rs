@@ -65,7 +65,7 @@
 //! ## NOR flash rules
 //!
 //! Every record is programmed once into erased words (the G4's rule, enforced by
-//! [`crate::testing::MemFlash`]). On the G4, reading a word whose program or erase was cut can
+//! `testing::MemFlash`, behind the `mem-flash` feature). On the G4, reading a word whose program or erase was cut can
 //! raise a double-ECC NMI, as for the table store (see the crate documentation): the board's
 //! NMI handler must tolerate it inside the counter's pages too.
 

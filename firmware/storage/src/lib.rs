@@ -148,7 +148,7 @@
 //!
 //! ## Testing
 //!
-//! The `mem-flash` feature adds [`testing::MemFlash`], an in-memory NOR flash that enforces the
+//! The `mem-flash` feature adds `testing::MemFlash`, an in-memory NOR flash that enforces the
 //! G4's rules, counts erases per page and simulates a power loss in the middle of any program or
 //! erase call (partially programmed words, partially erased pages). The crate's tests cut the
 //! power at every program and erase call of a save, after every save of histories of hundreds

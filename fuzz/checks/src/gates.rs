@@ -3,7 +3,7 @@
 //! the ports' commands), Gates frames from other nodes (well formed, of another size, mutated, or
 //! any payload, all through `Message::decode`), `dynamics_poll` at any instant (the same one twice,
 //! or after a stall long enough to drop a backlog), resets, and time that moves on by 0 µs to
-//! 2^62 µs from any start (across the counter's wrap). A script ends after [`STEP_BUDGET`] steps.
+//! 2^62 µs from any start (across the counter's wrap). A script ends after `STEP_BUDGET` steps.
 //!
 //! The table is valid by construction: 1 to 4 ports, each with a command topic (connection 0) and
 //! 0 to 31 gate connections ([`GATE_SLOT_FILTER`], 32 at most in all); connection 0 delivers iff

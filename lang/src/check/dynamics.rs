@@ -11,7 +11,7 @@
 //!   1 + ½(tanh(c m_j) − 1), about 0 while m_j = −1), and m_j rises only while j is active: none
 //!   of them ever starts, nor does anything that requires one of them.
 //! - **Unsaturable context**: a context whose largest possible value is below
-//!   [`activation_threshold`]: α stays negative, the behaviour never starts.
+//!   `activation_threshold`: α stays negative, the behaviour never starts.
 //!
 //! Warnings fail nothing: `pabctl check` prints them and still exits 0 on consistent rules.
 
