@@ -928,8 +928,11 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     #[inline(never)]
     fn on_protocol_frame(&mut self, frame: &Frame, now: Instant) -> Step {
         let node_id = self.config.node_id;
-        let (id, message) = match Message::decode(frame) {
-            Ok(decoded) => decoded,
+        // Only what a node acts on is decoded; another service's well-framed frame (a report,
+        // a desire) is not this node's business.
+        let (id, message) = match Message::decode_for_node(frame) {
+            Ok(Some(decoded)) => decoded,
+            Ok(None) => return Step::Continue,
             Err(_) => {
                 // Count malformed frames addressed to us; other nodes' business is not ours.
                 let addressed = FrameId::decode(&frame.id()).is_some_and(|id| id.is_for(node_id));

@@ -13,12 +13,41 @@ use pab_core::protocol::{
     TransferOpen, TransferStatus, TransferStatusCode,
 };
 
+/// The services a node acts on: the only ones `Message::decode_for_node` decodes.
+fn node_service(service: Service) -> bool {
+    matches!(
+        service,
+        Service::Gates
+            | Service::DiagnosticControl
+            | Service::TableTransfer
+            | Service::ChallengeRequest
+            | Service::TransferOpen
+            | Service::FilterProfile
+            | Service::FilterSet
+    )
+}
+
 /// Any frame, decoded; what decodes must encode to the same frame (at its service's priority).
+/// The nodes' decoder agrees with the full one: the same framing errors, the same message for a
+/// service a node acts on, nothing (and no error from its payload) for the others.
 pub fn decode(data: &[u8]) {
     let Ok(frame) = any_frame(&mut Unstructured::new(data)) else {
         return;
     };
-    match Message::decode(&frame) {
+    let full = Message::decode(&frame);
+    match (&full, Message::decode_for_node(&frame)) {
+        (Ok((id, message)), Ok(Some((node_id, node_message)))) => {
+            assert!(node_service(id.service));
+            assert_eq!((*id, message), (node_id, &node_message));
+        }
+        (Ok((id, _)), Ok(None)) => assert!(!node_service(id.service)),
+        (Err(protocol::DecodeError::Value { service }), Ok(None)) => {
+            assert!(!node_service(*service));
+        }
+        (Err(error), Err(node_error)) => assert_eq!(*error, node_error),
+        (full, node) => panic!("decode {full:?}, decode_for_node {node:?}"),
+    }
+    match full {
         Ok((id, message)) => {
             assert!(protocol::is_ours(&frame.id()));
             assert!(!frame.is_remote());
