@@ -328,8 +328,9 @@ pub(crate) fn compile(nodes: &[DecisionNode], steps: &mut [Step]) {
 
 /// [`evaluate`] on the steps [`compile`] made of a validated diagram: the same answer for every
 /// mask. One step per node on the path, a priority run counting as one; each step is a load, an
-/// AND and a branch.
-#[inline]
+/// AND and a branch. Out of line: inlined, its copies took 384 bytes of a board's flash and kept
+/// the callers' registers busy (the arbiter's frames cost 6 instructions more).
+#[inline(never)]
 pub(crate) fn walk(steps: &[Step], root: NodeRef, active: ConnectionSet) -> Option<u8> {
     let mut at = root.0;
     // Ends: every step's children are after it (validated diagram, preserved by `compile`).

@@ -50,9 +50,10 @@ MEDIAN_GOALS = [
 # (a load and an OR per port, and a wider port record), tables without groups included; and to
 # 164 / 529 with HBBA's message filters (issue 14): every connection a frame feeds has its filter
 # byte compared before its integrator (a load, a compare and a branch, five instructions with the
-# register moves), tables without filters included.
+# register moves), tables without filters included; then down to 158 / 528 when the decision walk
+# went out of line (its inlined copies had kept the callers' registers busy).
 NOT_MET = [
-    ("tr-arm", "fed", 200, 164, 529),
+    ("tr-arm", "fed", 200, 158, 528),
 ]
 
 # One SysTick tick of the 25 MHz CPU clock under -icount shift=0 (1 instruction per ns).
