@@ -369,25 +369,8 @@ fn draw(root: &Area, data: &PlotData, layout: &Layout) -> anyhow::Result<()> {
     draw_title(root, &data.title, layout.title)?;
 
     for (i, (port, place)) in data.ports.iter().zip(&layout.ports).enumerate() {
-        if i > 0 {
-            line(
-                root,
-                (MARGIN_X, place.header.y0),
-                (PLOT_X1, place.header.y0),
-                SEPARATOR,
-            )?;
-        }
-        let size = 16.0 * layout.scale;
-        let name = fit_line(root, &clean(&port.name), PLOT_X1 - MARGIN_X, size, true)?;
-        text(
-            root,
-            &name,
-            (MARGIN_X, place.header.middle()),
-            size,
-            true,
-            TEXT,
-            HPos::Left,
-        )?;
+        let room = PLOT_X1 - MARGIN_X;
+        draw_header(root, &place.header, &port.name, room, i > 0, layout.scale)?;
         for (connection, &b) in port.connections.iter().zip(&place.strips) {
             draw_connection(root, &axis, connection, b)?;
         }
@@ -397,26 +380,16 @@ fn draw(root: &Area, data: &PlotData, layout: &Layout) -> anyhow::Result<()> {
     }
 
     for (g, (group, place)) in data.dynamics.iter().zip(&layout.dynamics).enumerate() {
-        if !data.ports.is_empty() || g > 0 {
-            line(
-                root,
-                (MARGIN_X, place.header.y0),
-                (PLOT_X1, place.header.y0),
-                SEPARATOR,
-            )?;
-        }
-        let size = 16.0 * layout.scale;
         let legend = 13.0 * layout.scale;
         dynamics::draw_legend(root, place.header.middle(), legend)?;
-        let name = fit_line(root, &clean(&group.name), LABEL_X1 * 2.0, size, true)?;
-        text(
+        let separated = !data.ports.is_empty() || g > 0;
+        draw_header(
             root,
-            &name,
-            (MARGIN_X, place.header.middle()),
-            size,
-            true,
-            TEXT,
-            HPos::Left,
+            &place.header,
+            &group.name,
+            LABEL_X1 * 2.0,
+            separated,
+            layout.scale,
         )?;
         for (behaviour, &b) in group.behaviours.iter().zip(&place.strips) {
             dynamics::draw_lane(root, &axis, behaviour, b)?;
@@ -427,24 +400,15 @@ fn draw(root: &Area, data: &PlotData, layout: &Layout) -> anyhow::Result<()> {
     }
 
     for (g, (group, place)) in data.lanes.iter().zip(&layout.lanes).enumerate() {
-        if !data.ports.is_empty() || !data.dynamics.is_empty() || g > 0 {
-            line(
-                root,
-                (MARGIN_X, place.header.y0),
-                (PLOT_X1, place.header.y0),
-                SEPARATOR,
-            )?;
-        }
-        let size = 16.0 * layout.scale;
-        let name = fit_line(root, &clean(&group.name), PLOT_X1 - MARGIN_X, size, true)?;
-        text(
+        let separated = !data.ports.is_empty() || !data.dynamics.is_empty() || g > 0;
+        let room = PLOT_X1 - MARGIN_X;
+        draw_header(
             root,
-            &name,
-            (MARGIN_X, place.header.middle()),
-            size,
-            true,
-            TEXT,
-            HPos::Left,
+            &place.header,
+            &group.name,
+            room,
+            separated,
+            layout.scale,
         )?;
         for (lane, &b) in group.lanes.iter().zip(&place.strips) {
             lanes::draw_lane(root, &axis, lane, b)?;
@@ -698,6 +662,32 @@ fn draw_phases(
         }
     }
     rectangle(root, b, BORDER.stroke_width(1))
+}
+
+/// A section's header (a port, a dynamics group, a lane group): its name in bold, fitted into
+/// `room`, after a separator line when `separated` (not the first section).
+fn draw_header(
+    root: &Area,
+    header: &Band,
+    name: &str,
+    room: f64,
+    separated: bool,
+    scale: f64,
+) -> anyhow::Result<()> {
+    if separated {
+        line(root, (MARGIN_X, header.y0), (PLOT_X1, header.y0), SEPARATOR)?;
+    }
+    let size = 16.0 * scale;
+    let name = fit_line(root, &clean(name), room, size, true)?;
+    text(
+        root,
+        &name,
+        (MARGIN_X, header.middle()),
+        size,
+        true,
+        TEXT,
+        HPos::Left,
+    )
 }
 
 fn line(root: &Area, from: (f64, f64), to: (f64, f64), color: RGBColor) -> anyhow::Result<()> {
