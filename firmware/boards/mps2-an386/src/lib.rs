@@ -22,6 +22,9 @@
 
 #![no_std]
 
+// The boards' memcpy and memset (firmware/mem): 1.6 KB less flash than compiler_builtins'.
+use pab_mem as _;
+
 pub mod cmsdk;
 pub mod interrupts;
 pub mod logger;

@@ -1,0 +1,276 @@
+//! Checks pab-mem's `memcpy` and `memset` (and their AEABI forms) on the emulated Cortex-M4,
+//! where they run: every entry point, at every alignment of destination and source (0 to 7
+//! bytes past an 8-byte boundary; the `4`/`8` forms only where the AEABI promises it), every
+//! length from 0 to 72 bytes. Each call must write exactly its bytes (compared with a reference
+//! that copies one volatile byte at a time, so that it cannot itself become a `memcpy` call),
+//! leave the bytes around them alone, and return the destination where C says it does.
+//! Exits 0, or 1 with the first failure on standard error:
+//!
+//!     cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf \
+//!         --bin pab-an386-memcheck
+
+#![no_std]
+#![no_main]
+
+use core::hint::black_box;
+use core::ptr::{read_volatile, write_volatile};
+
+use pab_fw_an386::semihosting;
+
+// The entry points under test, as the compiler's calls reach them (pab-mem, linked through
+// pab_fw_an386).
+unsafe extern "C" {
+    fn memcpy(dest: *mut u8, src: *const u8, n: usize) -> *mut u8;
+    fn memset(dest: *mut u8, c: i32, n: usize) -> *mut u8;
+    fn __aeabi_memcpy(dest: *mut u8, src: *const u8, n: usize);
+    fn __aeabi_memcpy4(dest: *mut u8, src: *const u8, n: usize);
+    fn __aeabi_memcpy8(dest: *mut u8, src: *const u8, n: usize);
+    fn __aeabi_memset(dest: *mut u8, n: usize, c: i32);
+    fn __aeabi_memset4(dest: *mut u8, n: usize, c: i32);
+    fn __aeabi_memset8(dest: *mut u8, n: usize, c: i32);
+    fn __aeabi_memclr(dest: *mut u8, n: usize);
+    fn __aeabi_memclr4(dest: *mut u8, n: usize);
+    fn __aeabi_memclr8(dest: *mut u8, n: usize);
+}
+
+type Copying = unsafe extern "C" fn(*mut u8, *const u8, usize) -> *mut u8;
+type AeabiCopying = unsafe extern "C" fn(*mut u8, *const u8, usize);
+type Setting = unsafe extern "C" fn(*mut u8, i32, usize) -> *mut u8;
+type AeabiSetting = unsafe extern "C" fn(*mut u8, usize, i32);
+type Clearing = unsafe extern "C" fn(*mut u8, usize);
+
+const MAX_LEN: usize = 72;
+const OFFSETS: usize = 8;
+/// Room for the largest offset and length, and a guard byte on each side.
+const SIZE: usize = MAX_LEN + OFFSETS + 16;
+/// What the destination holds outside the bytes written.
+const GUARD: u8 = 0xA5;
+
+#[repr(C, align(8))]
+struct Buffer([u8; SIZE]);
+
+#[derive(Clone, Copy)]
+enum Copy {
+    Memcpy,
+    Aeabi,
+    Aeabi4,
+    Aeabi8,
+}
+
+#[derive(Clone, Copy)]
+enum Set {
+    Memset,
+    Aeabi,
+    Aeabi4,
+    Aeabi8,
+    Clear,
+    Clear4,
+    Clear8,
+}
+
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    let mut src = Buffer([0; SIZE]);
+    let mut dest = Buffer([0; SIZE]);
+    for (i, byte) in src.0.iter_mut().enumerate() {
+        // Distinct, and never the guard: a byte written from the wrong place shows.
+        *byte = (i as u8).wrapping_mul(7).wrapping_add(1) | 0x40;
+    }
+    let mut calls: u32 = 0;
+    for copy in [Copy::Memcpy, Copy::Aeabi, Copy::Aeabi4, Copy::Aeabi8] {
+        let align = match copy {
+            Copy::Memcpy | Copy::Aeabi => 1,
+            Copy::Aeabi4 => 4,
+            Copy::Aeabi8 => 8,
+        };
+        for d in (0..OFFSETS).step_by(align) {
+            for s in (0..OFFSETS).step_by(align) {
+                for n in 0..=MAX_LEN {
+                    check_copy(copy, &src, &mut dest, 8 + d, 8 + s, n);
+                    calls += 1;
+                }
+            }
+        }
+    }
+    let sets = [
+        Set::Memset,
+        Set::Aeabi,
+        Set::Aeabi4,
+        Set::Aeabi8,
+        Set::Clear,
+        Set::Clear4,
+        Set::Clear8,
+    ];
+    for set in sets {
+        let align = match set {
+            Set::Memset | Set::Aeabi | Set::Clear => 1,
+            Set::Aeabi4 | Set::Clear4 => 4,
+            Set::Aeabi8 | Set::Clear8 => 8,
+        };
+        for d in (0..OFFSETS).step_by(align) {
+            for n in 0..=MAX_LEN {
+                // An int whose high bits must be ignored, and one whose byte is 0.
+                for c in [0x1_5A, 0x3_00] {
+                    check_set(set, &mut dest, 8 + d, c, n);
+                    calls += 1;
+                }
+            }
+        }
+    }
+    semihosting::eprint(format_args!(
+        "pab-an386-memcheck: {calls} calls of memcpy, memset and their AEABI forms, all exact\n"
+    ));
+    semihosting::exit(true)
+}
+
+fn fill(buffer: &mut Buffer, value: u8) {
+    for byte in buffer.0.iter_mut() {
+        // Volatile, so that this loop is not itself a memset call.
+        unsafe { write_volatile(byte, value) };
+    }
+}
+
+fn byte(buffer: &Buffer, i: usize) -> u8 {
+    unsafe { read_volatile(&buffer.0[i]) }
+}
+
+fn check_copy(copy: Copy, src: &Buffer, dest: &mut Buffer, d: usize, s: usize, n: usize) {
+    fill(dest, GUARD);
+    let to = black_box(unsafe { dest.0.as_mut_ptr().add(d) });
+    let from = black_box(unsafe { src.0.as_ptr().add(s) });
+    let n = black_box(n);
+    // Called through pointers the compiler cannot see through: it knows what `memcpy` returns
+    // and would not look at the returned register.
+    let returned = unsafe {
+        match copy {
+            Copy::Memcpy => Some(black_box(memcpy as Copying)(to, from, n)),
+            Copy::Aeabi => {
+                black_box(__aeabi_memcpy as AeabiCopying)(to, from, n);
+                None
+            }
+            Copy::Aeabi4 => {
+                black_box(__aeabi_memcpy4 as AeabiCopying)(to, from, n);
+                None
+            }
+            Copy::Aeabi8 => {
+                black_box(__aeabi_memcpy8 as AeabiCopying)(to, from, n);
+                None
+            }
+        }
+    };
+    let name = match copy {
+        Copy::Memcpy => "memcpy",
+        Copy::Aeabi => "__aeabi_memcpy",
+        Copy::Aeabi4 => "__aeabi_memcpy4",
+        Copy::Aeabi8 => "__aeabi_memcpy8",
+    };
+    if returned.is_some_and(|r| r != to) {
+        fail(
+            name,
+            d,
+            s,
+            n,
+            "returned another address than the destination",
+        );
+    }
+    for i in 0..SIZE {
+        let expected = if (d..d + n).contains(&i) {
+            byte(src, s + (i - d))
+        } else {
+            GUARD
+        };
+        if byte(dest, i) != expected {
+            fail(
+                name,
+                d,
+                s,
+                n,
+                "wrote a wrong byte, or one outside the destination",
+            );
+        }
+    }
+}
+
+fn check_set(set: Set, dest: &mut Buffer, d: usize, c: i32, n: usize) {
+    fill(dest, GUARD);
+    let to = black_box(unsafe { dest.0.as_mut_ptr().add(d) });
+    let (n, c) = black_box((n, c));
+    let clears = matches!(set, Set::Clear | Set::Clear4 | Set::Clear8);
+    let returned = unsafe {
+        match set {
+            Set::Memset => Some(black_box(memset as Setting)(to, c, n)),
+            Set::Aeabi => {
+                black_box(__aeabi_memset as AeabiSetting)(to, n, c);
+                None
+            }
+            Set::Aeabi4 => {
+                black_box(__aeabi_memset4 as AeabiSetting)(to, n, c);
+                None
+            }
+            Set::Aeabi8 => {
+                black_box(__aeabi_memset8 as AeabiSetting)(to, n, c);
+                None
+            }
+            Set::Clear => {
+                black_box(__aeabi_memclr as Clearing)(to, n);
+                None
+            }
+            Set::Clear4 => {
+                black_box(__aeabi_memclr4 as Clearing)(to, n);
+                None
+            }
+            Set::Clear8 => {
+                black_box(__aeabi_memclr8 as Clearing)(to, n);
+                None
+            }
+        }
+    };
+    let name = match set {
+        Set::Memset => "memset",
+        Set::Aeabi => "__aeabi_memset",
+        Set::Aeabi4 => "__aeabi_memset4",
+        Set::Aeabi8 => "__aeabi_memset8",
+        Set::Clear => "__aeabi_memclr",
+        Set::Clear4 => "__aeabi_memclr4",
+        Set::Clear8 => "__aeabi_memclr8",
+    };
+    if returned.is_some_and(|r| r != to) {
+        fail(
+            name,
+            d,
+            0,
+            n,
+            "returned another address than the destination",
+        );
+    }
+    let value = if clears { 0 } else { c as u8 };
+    for i in 0..SIZE {
+        let expected = if (d..d + n).contains(&i) {
+            value
+        } else {
+            GUARD
+        };
+        if byte(dest, i) != expected {
+            fail(
+                name,
+                d,
+                0,
+                n,
+                "wrote a wrong byte, or one outside the destination",
+            );
+        }
+    }
+}
+
+fn fail(name: &str, d: usize, s: usize, n: usize, what: &str) -> ! {
+    semihosting::eprint(format_args!(
+        "pab-an386-memcheck: {name} to offset {d} from offset {s}, {n} bytes: {what}\n"
+    ));
+    semihosting::exit(false)
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    semihosting::eprint(format_args!("pab-an386-memcheck: panic: {info}\n"));
+    semihosting::exit(false)
+}
