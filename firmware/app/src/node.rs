@@ -256,7 +256,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             }
             Err((status, detail)) => {
                 warn!(
-                    "stored table refused: {:?} (detail {}); starting without a table",
+                    "stored table refused: {} (detail {}); starting without a table",
                     status, detail
                 );
                 self.boot_fault = Some([status.code(), detail, 0, 0, 0]);
@@ -271,7 +271,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// repeated after every heartbeat group until a table runs.
     pub fn boot_unreadable(&mut self, error: StoreError, now: Instant) {
         warn!(
-            "the stored table could not be read ({:?}); starting without a table",
+            "the stored table could not be read ({}); starting without a table",
             error
         );
         let failure = match error {
@@ -1036,7 +1036,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// A configuration message refused by the authentication rules: counted, and a fault says
     /// why, which service and from whom.
     fn unauthenticated(&mut self, failure: AuthFailure, id: &FrameId) {
-        warn!("configuration refused: {:?}", failure);
+        warn!("configuration refused: {}", failure);
         self.counters.errors = self.counters.errors.wrapping_add(1);
         self.raise(
             FaultCode::Unauthenticated,
@@ -1282,7 +1282,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     }
 
     fn refuse(&mut self, source: u8, status: TransferStatusCode, detail: u8, nonce: Option<u64>) {
-        warn!("table transfer refused: {:?}", status);
+        warn!("table transfer refused: {}", status);
         self.answer(source, status, detail, nonce);
         self.raise(FaultCode::TableRefused, [status.code(), detail, 0, 0, 0]);
     }

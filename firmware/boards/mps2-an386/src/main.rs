@@ -102,7 +102,7 @@ fn main() -> ! {
     });
     let store = match FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE) {
         Ok(store) => store,
-        Err(error) => fail(format_args!("table store: {error:?}")),
+        Err(error) => fail(format_args!("table store: {error}")),
     };
 
     interrupts::set_priority(Interrupt::SOFTWARE, EXECUTOR_PRIORITY);
