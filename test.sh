@@ -13,7 +13,7 @@
 # with cantools (in a venv made by scripts/python-env.sh from requirements-dev.txt), runs the HIL
 # harness's own unit tests (hil-sim/unit), the cross-runner test with the board firmware in QEMU
 # (scripts/cross-runner.sh: simulator, node application and emulated Cortex-M4 must record
-# identical verdicts), the emulated board's time check across its timer's wraps and its memcpy check, the panic check
+# identical verdicts), the emulated board's time check across its timer's wraps and its builtins check, the panic check
 # of the board firmware (scripts/panic-check.sh), the emulated board's watchdog test
 # (scripts/watchdog-test.sh), the keyed emulated board (scripts/keyed-board-test.sh), and the
 # hardware-in-the-loop suite (hil-sim/run-hil: on vcan0, or in a micro-VM; PAB_HIL_ACCEL=
@@ -134,11 +134,12 @@ step "emulated Cortex-M4: the time driver across TIMER0's wraps (pab-an386-timec
 cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf --bin pab-an386-timecheck \
     --locked -- -icount shift=10,sleep=off
 
-step "emulated Cortex-M4: pab-mem's memcpy and memset (pab-an386-memcheck, QEMU)"
-# Every entry point at every alignment and length up to 72 bytes, the bytes around untouched.
-# A broken loop could spin for ever: the timeout turns that into a failure.
+step "emulated Cortex-M4: pab-builtins' memcpy, memset and 64-bit division (pab-an386-builtinscheck, QEMU)"
+# Copies and fills at every alignment and length up to 72 bytes, the bytes around untouched;
+# divisions against a reference on edge cases and 200 000 random pairs. A broken loop could spin
+# for ever: the timeout turns that into a failure.
 timeout 300 cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf \
-    --bin pab-an386-memcheck --locked
+    --bin pab-an386-builtinscheck --locked
 
 step "emulated Cortex-M4: the watchdog restarts a hung node loop (scripts/watchdog-test.sh, QEMU)"
 # A hang-test build spins in its node loop on a trigger frame; the CMSDK APB watchdog must reset

@@ -42,7 +42,6 @@ use core::ops::Range;
 
 use defmt::{info, unwrap};
 use defmt_rtt as _;
-// The boards' memcpy and memset (firmware/mem): 1.6 KB less flash than compiler_builtins'.
 use embassy_executor::Spawner;
 use embassy_stm32::can::config::{
     FrameTransmissionConfig, GlobalFilter, NominalBitTiming, NonMatchingFilter, TxBufferMode,
@@ -57,9 +56,12 @@ use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, rcc};
 use embassy_time::Timer;
 use embedded_storage::nor_flash::ReadNorFlash;
-use pab_mem as _;
 use pab_storage::{BootCounter, FlashStore};
 use static_cell::StaticCell;
+
+// The boards' memcpy, memset and 64-bit division (firmware/builtins): 2.4 KB less flash than
+// compiler_builtins'.
+use pab_builtins as _;
 
 use consumer::BoardConsumer;
 use fdcan_bus::{FdcanBus, RxQueue, TxQueue};

@@ -1,32 +1,20 @@
-//! # pab-mem: compact `memcpy` and `memset` for the boards
+//! `memcpy` and `memset` and their AEABI forms (`__aeabi_memcpy`, `__aeabi_memcpy4`/`8`,
+//! `__aeabi_memset`, `__aeabi_memset4`/`8`, `__aeabi_memclr`, `__aeabi_memclr4`/`8`), which the
+//! compiler calls for struct moves, array initialisation and slice copies: 150 bytes of Thumb-2
+//! instead of compiler_builtins' 1 800, tuned for throughput on large blocks. `memcmp` and
+//! `memmove` stay compiler_builtins'.
 //!
-//! The boards' firmware copies and clears memory through the C symbols `memcpy`, `memset` and
-//! their AEABI forms (`__aeabi_memcpy`, `__aeabi_memcpy4`/`8`, `__aeabi_memset`,
-//! `__aeabi_memset4`/`8`, `__aeabi_memclr`, `__aeabi_memclr4`/`8`), which the compiler calls
-//! for struct moves, array initialisation and slice copies. Rust's `compiler_builtins` defines
-//! them as weak symbols, tuned for throughput on large blocks: 1 800 bytes of flash on a
-//! Cortex-M4. This crate defines them (strong symbols, so the linker takes these) in 150 bytes of
-//! Thumb-2: a word loop when the addresses allow it, a byte loop otherwise. `memcmp` and
-//! `memmove` stay `compiler_builtins`'.
-//!
-//! Why it is worth it: 1.6 KB is a quarter of what competitive dynamics needed to fit the
-//! boards' 64 KiB, and the boards' copies are small (frames, records, a table's entries): the
-//! large ones (a table swap, the node's construction at boot) run once per configuration.
-//! Measured on the emulated board (scripts/cortex-m4-cost.sh): no counted path changed by an
-//! instruction.
+//! Why it is enough: the boards' copies are small (frames, records, a table's entries); the large
+//! ones (a table swap, the node's construction at boot) run once per configuration. Measured on
+//! the emulated board (scripts/cortex-m4-cost.sh): no frame path changed by an instruction; the
+//! authentication's block copies cost a few per cent more (a command's tag 9 747 -> 10 096
+//! instructions).
 //!
 //! Cost: 5 instructions per word (4-byte aligned destination and source), 5 per byte otherwise,
 //! plus 6 to 9 per call. `memset` aligns its destination with bytes first, then stores words.
 //!
 //! Written in assembly rather than Rust because a Rust loop that copies bytes is recognised by
-//! LLVM as a copy and compiled into a call to `memcpy`, itself. Checked on the emulated board by
-//! `pab-an386-memcheck` (every alignment of destination and source, every length up to 72,
-//! the bytes around the destination untouched, the return values).
-//!
-//! Only for `thumbv7em` targets without an operating system (the boards); on any other target
-//! the crate is empty. A board crate links it with `use pab_mem as _;`.
-
-#![no_std]
+//! LLVM as a copy and compiled into a call to `memcpy`, itself.
 
 #[cfg(all(target_arch = "arm", target_os = "none"))]
 core::arch::global_asm!(

@@ -1,13 +1,20 @@
-//! Checks pab-mem's `memcpy` and `memset` (and their AEABI forms) on the emulated Cortex-M4,
-//! where they run: every entry point, at every alignment of destination and source (0 to 7
-//! bytes past an 8-byte boundary; the `4`/`8` forms only where the AEABI promises it), every
-//! length from 0 to 72 bytes. Each call must write exactly its bytes (compared with a reference
-//! that copies one volatile byte at a time, so that it cannot itself become a `memcpy` call),
-//! leave the bytes around them alone, and return the destination where C says it does.
+//! Checks pab-builtins' routines on the emulated Cortex-M4, where they run:
+//!
+//! - `memcpy` and `memset` and their AEABI forms: every entry point, at every alignment of
+//!   destination and source (0 to 7 bytes past an 8-byte boundary; the `4`/`8` forms only where
+//!   the AEABI promises it), every length from 0 to 72 bytes. Each call must write exactly its
+//!   bytes (compared with a reference that copies one volatile byte at a time, so that it cannot
+//!   itself become a `memcpy` call), leave the bytes around them alone, and return the
+//!   destination where C says it does;
+//! - `u64 / u64` and `u64 % u64` (`__aeabi_uldivmod`): quotient and remainder against a
+//!   shift-and-subtract reference in Rust, on edge cases (0, 1, 2^32 ± 1, 2^63, `u64::MAX`, a
+//!   numerator below, equal to or one above the denominator) and on 200 000 pseudo-random pairs
+//!   of every width of either operand.
+//!
 //! Exits 0, or 1 with the first failure on standard error:
 //!
 //!     cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf \
-//!         --bin pab-an386-memcheck
+//!         --bin pab-an386-builtinscheck
 
 #![no_std]
 #![no_main]
@@ -117,10 +124,116 @@ fn main() -> ! {
             }
         }
     }
+    let divisions = check_divisions();
     semihosting::eprint(format_args!(
-        "pab-an386-memcheck: {calls} calls of memcpy, memset and their AEABI forms, all exact\n"
+        "pab-an386-builtinscheck: {calls} calls of memcpy, memset and their AEABI forms, \
+         {divisions} 64-bit divisions, all exact\n"
     ));
     semihosting::exit(true)
+}
+
+/// Quotient and remainder by shift and subtract, one bit a round: no division operator, so
+/// nothing here calls the routine under test.
+fn reference_divmod(n: u64, d: u64) -> (u64, u64) {
+    let (mut q, mut r) = (0u64, 0u64);
+    for bit in (0..64).rev() {
+        let carry = r >> 63;
+        r = (r << 1) | ((n >> bit) & 1);
+        if carry != 0 || r >= d {
+            r = r.wrapping_sub(d);
+            q |= 1 << bit;
+        }
+    }
+    (q, r)
+}
+
+/// __aeabi_uldivmod called as the AEABI says, its remainder read from r2:r3: compiled `%` may
+/// compute the remainder from the quotient instead, and would not check those registers.
+fn uldivmod(n: u64, d: u64) -> (u64, u64) {
+    let (q0, q1, r0, r1): (u32, u32, u32, u32);
+    // SAFETY: the routine follows the AEABI: it reads r0-r3, writes r0-r3, may change r12, lr
+    // and the flags (asm! assumes the flags changed), and preserves everything else.
+    unsafe {
+        core::arch::asm!(
+            "bl __aeabi_uldivmod",
+            inout("r0") n as u32 => q0,
+            inout("r1") (n >> 32) as u32 => q1,
+            inout("r2") d as u32 => r0,
+            inout("r3") (d >> 32) as u32 => r1,
+            out("r12") _,
+            out("lr") _,
+        );
+    }
+    (
+        u64::from(q0) | u64::from(q1) << 32,
+        u64::from(r0) | u64::from(r1) << 32,
+    )
+}
+
+fn check_division(n: u64, d: u64) {
+    let (n, d) = black_box((n, d));
+    let expected = reference_divmod(n, d);
+    // `/` and `%` on u64 as the compiler calls them (d is never 0 here), and the routine's own
+    // remainder.
+    let (q, r) = (black_box(n / d), black_box(n % d));
+    if (q, r) != expected || uldivmod(n, d) != expected {
+        semihosting::eprint(format_args!(
+            "pab-an386-builtinscheck: {n} / {d}: quotient {q} remainder {r}, the routine says \
+             {:?}, expected {expected:?}\n",
+            uldivmod(n, d)
+        ));
+        semihosting::exit(false)
+    }
+}
+
+/// Returns how many divisions were checked.
+fn check_divisions() -> u32 {
+    let edges = [
+        0,
+        1,
+        2,
+        3,
+        1_000,
+        1_000_000,
+        (1 << 31) - 1,
+        1 << 31,
+        (1 << 32) - 1,
+        1 << 32,
+        (1 << 32) + 1,
+        (1 << 62) + 7,
+        (1 << 63) - 1,
+        1 << 63,
+        (1 << 63) + 1,
+        u64::MAX - 1,
+        u64::MAX,
+    ];
+    let mut count = 0;
+    for n in edges {
+        for d in edges.into_iter().filter(|&d| d != 0) {
+            check_division(n, d);
+            for near in [d.wrapping_sub(1), d.wrapping_add(1)] {
+                check_division(near, d);
+            }
+            count += 3;
+        }
+    }
+    // xorshift64: each operand shifted right by a pseudo-random amount, so that every width from
+    // 1 to 64 bits comes for both.
+    let mut x = 0x9E37_79B9_7F4A_7C15u64;
+    let mut next = || {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        x
+    };
+    for _ in 0..200_000 {
+        let (a, b, shifts) = (next(), next(), next());
+        let n = a >> (shifts % 64);
+        let d = (b >> ((shifts >> 8) % 64)).max(1);
+        check_division(n, d);
+        count += 1;
+    }
+    count
 }
 
 fn fill(buffer: &mut Buffer, value: u8) {
@@ -264,13 +377,13 @@ fn check_set(set: Set, dest: &mut Buffer, d: usize, c: i32, n: usize) {
 
 fn fail(name: &str, d: usize, s: usize, n: usize, what: &str) -> ! {
     semihosting::eprint(format_args!(
-        "pab-an386-memcheck: {name} to offset {d} from offset {s}, {n} bytes: {what}\n"
+        "pab-an386-builtinscheck: {name} to offset {d} from offset {s}, {n} bytes: {what}\n"
     ));
     semihosting::exit(false)
 }
 
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
-    semihosting::eprint(format_args!("pab-an386-memcheck: panic: {info}\n"));
+    semihosting::eprint(format_args!("pab-an386-builtinscheck: panic: {info}\n"));
     semihosting::exit(false)
 }
