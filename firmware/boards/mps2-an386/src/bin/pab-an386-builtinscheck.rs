@@ -29,6 +29,7 @@ use pab_fw_an386::semihosting;
 unsafe extern "C" {
     fn memcpy(dest: *mut u8, src: *const u8, n: usize) -> *mut u8;
     fn memset(dest: *mut u8, c: i32, n: usize) -> *mut u8;
+    fn memcmp(a: *const u8, b: *const u8, n: usize) -> i32;
     fn __aeabi_memcpy(dest: *mut u8, src: *const u8, n: usize);
     fn __aeabi_memcpy4(dest: *mut u8, src: *const u8, n: usize);
     fn __aeabi_memcpy8(dest: *mut u8, src: *const u8, n: usize);
@@ -42,6 +43,7 @@ unsafe extern "C" {
 
 type Copying = unsafe extern "C" fn(*mut u8, *const u8, usize) -> *mut u8;
 type AeabiCopying = unsafe extern "C" fn(*mut u8, *const u8, usize);
+type Comparing = unsafe extern "C" fn(*const u8, *const u8, usize) -> i32;
 type Setting = unsafe extern "C" fn(*mut u8, i32, usize) -> *mut u8;
 type AeabiSetting = unsafe extern "C" fn(*mut u8, usize, i32);
 type Clearing = unsafe extern "C" fn(*mut u8, usize);
@@ -124,12 +126,57 @@ fn main() -> ! {
             }
         }
     }
+    calls += check_compare(&src);
     let divisions = check_divisions();
     semihosting::eprint(format_args!(
-        "pab-an386-builtinscheck: {calls} calls of memcpy, memset and their AEABI forms, \
+        "pab-an386-builtinscheck: {calls} calls of memcpy, memset, memcmp and the AEABI forms, \
          {divisions} 64-bit divisions, all exact\n"
     ));
     semihosting::exit(true)
+}
+
+/// memcmp on every length up to 72 and offset pair, equal and with one byte changed at every
+/// position (up and down): its sign must say which is greater, and only the bytes before `n`
+/// count. Returns how many calls were checked.
+fn check_compare(src: &Buffer) -> u32 {
+    let compare = black_box(memcmp as Comparing);
+    let mut other = Buffer([0; SIZE]);
+    let mut calls = 0;
+    for a in 0..OFFSETS {
+        for b in 0..OFFSETS {
+            for n in 0..=MAX_LEN {
+                // `other` holds at b the bytes `src` holds at a.
+                for i in 0..SIZE {
+                    let from = (a + i).wrapping_sub(b);
+                    let value = if from < SIZE { byte(src, from) } else { 0x11 };
+                    unsafe { write_volatile(&mut other.0[i], value) };
+                }
+                let (x, y) = (src.0[8 + a..].as_ptr(), other.0[8 + b..].as_ptr());
+                if unsafe { compare(x, y, n) } != 0 {
+                    fail("memcmp", a, b, n, "equal bytes compared unequal");
+                }
+                calls += 1;
+                for at in 0..n {
+                    let original = byte(&other, 8 + b + at);
+                    for changed in [original.wrapping_add(1), original.wrapping_sub(1)] {
+                        unsafe { write_volatile(&mut other.0[8 + b + at], changed) };
+                        let result = unsafe { compare(x, y, n) };
+                        let ours = i32::from(byte(src, 8 + a + at));
+                        if result.signum() != (ours - i32::from(changed)).signum() {
+                            fail("memcmp", a, b, n, "the sign of a difference is wrong");
+                        }
+                        // A change past the compared bytes does not count.
+                        if unsafe { compare(x, y, at) } != 0 {
+                            fail("memcmp", a, b, at, "compared a byte past its length");
+                        }
+                        calls += 2;
+                    }
+                    unsafe { write_volatile(&mut other.0[8 + b + at], original) };
+                }
+            }
+        }
+    }
+    calls
 }
 
 /// Quotient and remainder by shift and subtract, one bit a round: no division operator, so
