@@ -1,5 +1,9 @@
 //! Logging that forwards to `defmt` on the boards and to `log` on Linux (embassy's habit), so the
 //! application logs the same way wherever it runs. With neither feature, logging compiles away.
+//!
+//! Integers are logged as `u32` (`u32::from(byte)`): under `log` on the emulated board each
+//! integer type brings its own `core::fmt` formatter into the flash (u8's and u16's, some 250
+//! bytes), and one is enough.
 #![allow(unused_macros)]
 
 #[cfg(all(feature = "defmt", feature = "log"))]

@@ -87,7 +87,7 @@ pub fn key_from_page<const P: usize, const C: usize, const N: usize, const IMG: 
             node.lock_configuration(reason);
             warn!(
                 "key page or boot counter invalid (reason {}): configuration locked",
-                reason
+                u32::from(reason)
             )
         }
     }

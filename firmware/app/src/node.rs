@@ -250,14 +250,16 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             Err((TransferStatusCode::WrongNode, image_node)) => {
                 warn!(
                     "stored table refused: the image is for node {}, this node is {}; starting without a table",
-                    image_node, node_id
+                    u32::from(image_node),
+                    u32::from(node_id)
                 );
                 self.boot_fault = Some([TransferStatusCode::WrongNode.code(), image_node, 0, 0, 0]);
             }
             Err((status, detail)) => {
                 warn!(
                     "stored table refused: {} (detail {}); starting without a table",
-                    status, detail
+                    status,
+                    u32::from(detail)
                 );
                 self.boot_fault = Some([status.code(), detail, 0, 0, 0]);
             }
@@ -718,7 +720,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     #[inline(never)]
     fn transfer_timed_out(&mut self) {
         if let Some(incoming) = self.incoming.take() {
-            warn!("table transfer from {} timed out", incoming.source);
+            warn!(
+                "table transfer from {} timed out",
+                u32::from(incoming.source)
+            );
             self.refuse(
                 incoming.source,
                 TransferStatusCode::Timeout,
@@ -734,7 +739,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     fn transfer_too_slow(&mut self) {
         self.receiver.abort();
         if let Some(incoming) = self.incoming.take() {
-            warn!("table transfer from {} too slow", incoming.source);
+            warn!(
+                "table transfer from {} too slow",
+                u32::from(incoming.source)
+            );
             self.refuse(
                 incoming.source,
                 TransferStatusCode::Timeout,
@@ -1030,7 +1038,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
 
     fn configure_diagnostic(&mut self, control: protocol::DiagnosticControl, now: Instant) {
         self.diagnostic.configure(control, now);
-        info!("diagnostic stream at {} Hz", control.rate_hz);
+        info!("diagnostic stream at {} Hz", u32::from(control.rate_hz));
     }
 
     /// A configuration message refused by the authentication rules: counted, and a fault says

@@ -80,7 +80,10 @@ fn main() -> ! {
     logger::init(log::LevelFilter::Info);
     TIME.start();
     uart::init();
-    log::info!("pab node {NODE_ID} on the emulated Cortex-M4 (mps2-an386), SLCAN on UART0");
+    log::info!(
+        "pab node {} on the emulated Cortex-M4 (mps2-an386), SLCAN on UART0",
+        u32::from(NODE_ID)
+    );
 
     // SAFETY: called once; memory.x keeps the program below the RAM-backed flash.
     let mut flash = unsafe { RamFlash::take() };
