@@ -1042,7 +1042,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     }
 
     /// A configuration message refused by the authentication rules: counted, and a fault says
-    /// why, which service and from whom.
+    /// why, which service and from whom. Out of line: nine refusals inlined it.
+    #[inline(never)]
     fn unauthenticated(&mut self, failure: AuthFailure, id: &FrameId) {
         warn!("configuration refused: {}", failure);
         self.counters.errors = self.counters.errors.wrapping_add(1);
@@ -1380,6 +1381,9 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         }
     }
 
+    /// Out of line: eleven senders (answers, statuses, the heartbeat group) each inlined the
+    /// encoding's call and the queueing.
+    #[inline(never)]
     fn send(&mut self, message: Message, destination: u8) {
         self.queue(message.to_frame(self.config.node_id, destination));
     }
