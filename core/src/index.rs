@@ -131,6 +131,18 @@ fn bucket(key: u32, multiplier: u32, count: usize) -> usize {
 }
 
 impl<const C: usize> FilterIndex<C> {
+    /// The index of no connection, in an arbiter being built until [`FilterIndex::new`]'s
+    /// replaces it.
+    pub(crate) const fn empty() -> Self {
+        FilterIndex {
+            buckets: Vec::new(),
+            multiplier: MULTIPLIERS[0],
+            keys: Vec::new(),
+            connections: Vec::new(),
+            masked: Vec::new(),
+        }
+    }
+
     /// The index of `connections` (a table's, in table order). `None` if there are more than `C`
     /// of them, or more than 2^15. Costs, per multiplier tried, a pass over the exact filters
     /// and one over the buckets, then a sort of the exact filters.
