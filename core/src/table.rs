@@ -685,19 +685,22 @@ fn slice<'a, T>(items: &'a [T], seen: &mut usize, count: impl Into<usize>) -> Op
 /// [`ble::CLAIM_SLOT_FILTER`], the claim of one group only, and not among the gated connections,
 /// which are connections of the port.
 fn check_claims(port: u8, connections: &[Connection], groups: &[Group]) -> Result<(), TableError> {
+    // Sets of connections in a u32, as `gated` is: with at most 32 connections, a claim beyond
+    // bit 31 is beyond the port as well (no bit, so refused). 64-bit sets gave the same verdicts
+    // in 28 bytes more of the NUCLEO-G474RE's flash with competitive dynamics, 88 without.
     let present = u32::try_from(connections.len())
         .ok()
-        .and_then(|count| 1u64.checked_shl(count))
-        .map_or(u64::MAX, |b| b.wrapping_sub(1));
-    let mut claims = 0u64;
+        .and_then(|count| 1u32.checked_shl(count))
+        .map_or(u32::MAX, |b| b.wrapping_sub(1));
+    let mut claims = 0u32;
     for (index, group) in groups.iter().enumerate() {
         let error = |error| TableError::Group {
             group: u8::try_from(index).unwrap_or(u8::MAX),
             error,
         };
         for entry in group.ports.iter().filter(|entry| entry.port == port) {
-            let claim = 1u64.checked_shl(u32::from(entry.claim)).unwrap_or(0);
-            let gated = u64::from(entry.gated);
+            let claim = 1u32.checked_shl(u32::from(entry.claim)).unwrap_or(0);
+            let gated = entry.gated;
             if claim & present == 0 || gated & !present != 0 || gated & claim != 0 {
                 return Err(error(GroupError::Connection { port }));
             }
