@@ -389,6 +389,9 @@ pub fn decode_body<const PORTS: usize, const CONNECTIONS: usize, const NODES: us
 
 /// The sizes of the lists of a table body, decoded without storing them; `None` if the body is
 /// not a table or has bytes after it. Costs one decode, one element at a time.
+// Out of line: it runs only on a body that did not decode, and inlined into the loader it took
+// 44 bytes more of the NUCLEO-G474RE's flash with competitive dynamics, 64 without.
+#[inline(never)]
 fn size_of_body(body: &[u8]) -> Option<(TableSize, usize)> {
     let mut r = crate::wire::Reader::new(body);
     let ports = r.count::<Port>();

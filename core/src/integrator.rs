@@ -276,11 +276,6 @@ impl Runtime {
     pub const fn stimulation(&self) -> &Stimulation {
         &self.stimulation
     }
-
-    /// τ's evaluation form.
-    pub(crate) const fn decay(&self) -> Decay {
-        self.decay
-    }
 }
 
 crate::wire::decode_struct!(Stimulation {
