@@ -1321,10 +1321,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// output). Holding is decided again at each local reading, each claim heard and each
     /// [`Arbiter::ble_poll`] (at least once a period), not at every change of activity: a
     /// gated connection that becomes active is seen at the next of those. Costs a filter test per
-    /// group. Out of line: the node calls it on every frame of a table with groups, and inlined
-    /// it kept the frame path's registers busy on tables without (measured: the node's frame
-    /// 6 instructions dearer).
-    #[inline(never)]
+    /// group.
     pub fn ble_frame(&mut self, frame: &Frame, now: Instant) {
         if self.groups.is_empty() {
             return;
