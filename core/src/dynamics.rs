@@ -576,7 +576,6 @@ fn tanh(c: u32, m: i32) -> i32 {
     if x < 0 { -magnitude } else { magnitude }
 }
 
-/// round(dt · 2^32 / τ): dt / τ in Q0.32, for τ > 0 and dt ≤ τ / 4 (so at most 2^30).
 /// γ dt / τ in Q0.32 (γ in Q8.8), rounded, saturating: γ · dt · 2^24 / τ by long division in
 /// 64-bit words (γ · dt < 2^48; a 128-bit division would cost a board kilobytes of flash).
 fn gamma_rate(gamma: u16, step_us: u32, tau_us: u32) -> u32 {
@@ -628,6 +627,10 @@ fn isqrt(mut x: u64) -> u64 {
     root
 }
 
+/// round(dt · 2^32 / τ): dt / τ in Q0.32, for τ > 0 and dt ≤ τ / 4 (so at most 2^30).
+// Out of line: inlined at each of its five callers it cost a board a 64-bit division's call
+// set-up each, for code run once per table.
+#[inline(never)]
 fn rate(step_us: u32, tau_us: u32) -> u32 {
     let scaled = (u64::from(step_us) << 32) + u64::from(tau_us / 2);
     scaled
