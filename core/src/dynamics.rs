@@ -340,28 +340,45 @@ impl Params {
     /// [`MAX_EXCLUSIONS`] exclusions cannot be held: [`Params::add_behaviour`],
     /// [`Params::exclude`] and decoding refuse them.)
     ///
-    /// Costs one pass over the behaviours and two over the exclusions; no division.
+    /// Costs one pass over the exclusions and two over the behaviours; no division.
     pub fn validate(&self) -> Result<(), ParamsError> {
-        let times = [
-            (self.step_us, Time::Step),
-            (self.unit_us, Time::Unit),
-            (self.tau_us, Time::Tau),
-            (self.tau_rho_fast_us, Time::TauRhoFast),
-            (self.tau_rho_slow_us, Time::TauRhoSlow),
-            (self.tau_n_us, Time::TauN),
-        ];
-        let memories = self
-            .behaviours
-            .iter()
-            .enumerate()
-            .map(|(i, b)| (b.memory_us, Time::Memory(i as u8)));
-        let mut fastest = u32::MAX;
-        for (micros, time) in times.into_iter().chain(memories) {
-            if micros == 0 {
-                return Err(ParamsError::NonPositiveTime(time));
+        // Tested one by one: a list of (time, which) pairs cost a board the list's stores.
+        let zero = if self.step_us == 0 {
+            Some(Time::Step)
+        } else if self.unit_us == 0 {
+            Some(Time::Unit)
+        } else if self.tau_us == 0 {
+            Some(Time::Tau)
+        } else if self.tau_rho_fast_us == 0 {
+            Some(Time::TauRhoFast)
+        } else if self.tau_rho_slow_us == 0 {
+            Some(Time::TauRhoSlow)
+        } else if self.tau_n_us == 0 {
+            Some(Time::TauN)
+        } else {
+            None
+        };
+        if let Some(time) = zero {
+            return Err(ParamsError::NonPositiveTime(time));
+        }
+        let mut fastest = self
+            .tau_us
+            .min(self.tau_rho_fast_us)
+            .min(self.tau_rho_slow_us)
+            .min(self.tau_n_us);
+        let count = self.behaviours.len();
+        // Bits 0..count: the behaviours of the group (count ≤ 32).
+        let members = u32::MAX.checked_shr(32 - count as u32).unwrap_or(0);
+        // One pass for the memories and the requirements; a requirement out of range is only
+        // reported after the checks that come before it (q, the seed). Bit i: behaviour i's is.
+        let mut beyond = 0u32;
+        for (i, b) in self.behaviours.iter().enumerate() {
+            if b.memory_us == 0 {
+                return Err(ParamsError::NonPositiveTime(Time::Memory(i as u8)));
             }
-            if !matches!(time, Time::Step | Time::Unit) {
-                fastest = fastest.min(micros);
+            fastest = fastest.min(b.memory_us);
+            if b.requires & !members != 0 {
+                beyond |= 1 << i;
             }
         }
         if self.noise == 0 {
@@ -370,13 +387,10 @@ impl Params {
         if self.seed == 0 {
             return Err(ParamsError::ZeroSeed);
         }
-        let count = self.behaviours.len();
-        // Bits 0..count: the behaviours of the group (count ≤ 32).
-        let members = u32::MAX.checked_shr(32 - count as u32).unwrap_or(0);
-        for (i, b) in self.behaviours.iter().enumerate() {
-            if b.requires & !members != 0 {
-                return Err(ParamsError::RequirementOutOfRange { behaviour: i as u8 });
-            }
+        if beyond != 0 {
+            return Err(ParamsError::RequirementOutOfRange {
+                behaviour: beyond.trailing_zeros() as u8,
+            });
         }
         // Per behaviour i: the j already declared, and Σ_j γ_ij (Q8.8; at most 31 · 2^16).
         let mut declared = [0u32; MAX_BEHAVIOURS];
@@ -412,12 +426,13 @@ impl Params {
             return Err(ParamsError::StepAboveQuarter);
         }
         // dt (2 + Σγ) / τ > 1 with Σγ in Q8.8: dt (512 + Σγ) > 256 τ. At most 2^32 · 2^22.
-        let heaviest = gamma_sum
-            .iter()
-            .enumerate()
-            .take(count)
-            .max_by_key(|&(i, &sum)| (sum, core::cmp::Reverse(i)));
-        let (behaviour, sum) = heaviest.map_or((0, 0), |(i, &sum)| (i as u8, sum));
+        // The heaviest: the first of the largest sums (the sums beyond the group are 0).
+        let (mut behaviour, mut sum) = (0, 0);
+        for (i, &s) in gamma_sum.iter().enumerate() {
+            if s > sum {
+                (behaviour, sum) = (i as u8, s);
+            }
+        }
         if u64::from(self.step_us) * (512 + u64::from(sum)) > 256 * u64::from(self.tau_us) {
             return Err(ParamsError::StepUnstable { behaviour });
         }
