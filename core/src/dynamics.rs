@@ -591,18 +591,16 @@ fn tanh(c: u32, m: i32) -> i32 {
     if x < 0 { -magnitude } else { magnitude }
 }
 
-/// γ dt / τ in Q0.32 (γ in Q8.8), rounded, saturating: γ · dt · 2^24 / τ by long division in
-/// 64-bit words (γ · dt < 2^48; a 128-bit division would cost a board kilobytes of flash).
+/// γ dt / τ in Q0.32 (γ in Q8.8), rounded, saturating: γ · dt · 2^24 / τ (γ · dt < 2^48; a
+/// 128-bit division would cost a board kilobytes of flash). Below saturation γ · dt < 2^8 τ <
+/// 2^40, so γ · dt · 2^24 fits 64 bits and one rounded division is exact.
 fn gamma_rate(gamma: u16, step_us: u32, tau_us: u32) -> u32 {
-    let tau = u64::from(tau_us.max(1));
+    let tau = tau_us.max(1);
     let numerator = u64::from(gamma) * u64::from(step_us);
-    let (whole, rest) = (numerator / tau, numerator % tau);
-    // rest < τ < 2^32: rest · 2^24 + τ/2 < 2^57.
-    let fraction = ((rest << 24) + tau / 2) / tau;
-    if whole >= 1 << 8 {
+    if numerator >= u64::from(tau) << 8 {
         return u32::MAX;
     }
-    u32::try_from((whole << 24) + fraction).unwrap_or(u32::MAX)
+    div_round(numerator << 24, tau)
 }
 
 /// √(dt / unit) in Q1.31, rounded down, from dt / unit in Q2.62 (long division in 31-bit
@@ -643,13 +641,17 @@ fn isqrt(mut x: u64) -> u64 {
 }
 
 /// round(dt · 2^32 / τ): dt / τ in Q0.32, for τ > 0 and dt ≤ τ / 4 (so at most 2^30).
-// Out of line: inlined at each of its five callers it cost a board a 64-bit division's call
-// set-up each, for code run once per table.
-#[inline(never)]
 fn rate(step_us: u32, tau_us: u32) -> u32 {
-    let scaled = (u64::from(step_us) << 32) + u64::from(tau_us / 2);
-    scaled
-        .checked_div(u64::from(tau_us))
+    div_round(u64::from(step_us) << 32, tau_us)
+}
+
+/// (numerator + ⌊divisor / 2⌋) / divisor, saturated to a `u32`; 0 for a divisor of 0. For
+/// numerator < 2^64 − 2^31, so that the sum cannot overflow. Out of line: inlined at each of its
+/// six callers it cost a board a 64-bit division's call set-up each, for code run once per table.
+#[inline(never)]
+fn div_round(numerator: u64, divisor: u32) -> u32 {
+    (numerator + u64::from(divisor / 2))
+        .checked_div(u64::from(divisor))
         .map_or(0, |r| u32::try_from(r).unwrap_or(u32::MAX))
 }
 
@@ -931,6 +933,53 @@ mod tests {
         assert_eq!(2 * i128::from(OPEN_Q58), 1 << 58);
         assert!(5 * i128::from(CLOSE_Q58) >= 1 << 59);
         assert!(5 * i128::from(CLOSE_Q58 - 1) < 1 << 59);
+    }
+
+    #[test]
+    fn gamma_rate_is_the_long_division_s() {
+        // The former form: γ dt · 2^24 / τ by long division in 64-bit words.
+        fn long(gamma: u16, step_us: u32, tau_us: u32) -> u32 {
+            let tau = u64::from(tau_us.max(1));
+            let numerator = u64::from(gamma) * u64::from(step_us);
+            let (whole, rest) = (numerator / tau, numerator % tau);
+            let fraction = ((rest << 24) + tau / 2) / tau;
+            if whole >= 1 << 8 {
+                return u32::MAX;
+            }
+            u32::try_from((whole << 24) + fraction).unwrap_or(u32::MAX)
+        }
+        let mut x = 0x2545_F491u32;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            x
+        };
+        for _ in 0..200_000 {
+            let (a, b, c) = (next(), next(), next());
+            let gamma = a as u16;
+            // Every magnitude of dt and τ, the edges included.
+            let step = b >> (a >> 27);
+            let tau = c >> ((a >> 22) & 31);
+            for (g, s, t) in [
+                (gamma, step, tau),
+                (gamma, step, 0),
+                (gamma, step, u32::MAX),
+                (u16::MAX, u32::MAX, tau),
+                (
+                    gamma,
+                    step,
+                    ((u64::from(gamma) * u64::from(step)) >> 8) as u32,
+                ),
+                (
+                    gamma,
+                    step,
+                    (((u64::from(gamma) * u64::from(step)) >> 8) as u32).wrapping_add(1),
+                ),
+            ] {
+                assert_eq!(gamma_rate(g, s, t), long(g, s, t), "{g} {s} {t}");
+            }
+        }
     }
 
     #[test]
