@@ -1003,22 +1003,26 @@ crate::wire::decode_struct!(Exclusion {
 });
 impl crate::wire::Decode for Params {
     fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
-        let mut params = Params {
-            step_us: r.decode(),
-            unit_us: r.decode(),
-            noise: r.decode(),
-            seed: r.decode(),
-            c: r.decode(),
-            tau_us: r.decode(),
-            tau_rho_fast_us: r.decode(),
-            tau_rho_slow_us: r.decode(),
-            tau_n_us: r.decode(),
-            behaviours: Vec::new(),
-            exclusions: Vec::new(),
-        };
-        // Filled in place: the exclusions' room is 1 KiB, a copy of it for each move.
-        r.fill(&mut params.behaviours);
-        r.fill(&mut params.exclusions);
+        let mut params = Params::new();
+        params.decode_in_place(r);
         params
+    }
+}
+
+impl Params {
+    /// [`crate::wire::Decode`] into `self`, whose lists must be empty: filled in place, the
+    /// exclusions' room is 1 KiB, a copy of it for each move.
+    pub(crate) fn decode_in_place(&mut self, r: &mut crate::wire::Reader<'_>) {
+        self.step_us = r.decode();
+        self.unit_us = r.decode();
+        self.noise = r.decode();
+        self.seed = r.decode();
+        self.c = r.decode();
+        self.tau_us = r.decode();
+        self.tau_rho_fast_us = r.decode();
+        self.tau_rho_slow_us = r.decode();
+        self.tau_n_us = r.decode();
+        r.fill(&mut self.behaviours);
+        r.fill(&mut self.exclusions);
     }
 }

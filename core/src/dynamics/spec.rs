@@ -404,11 +404,13 @@ impl crate::wire::Decode for Context {
 
 impl crate::wire::Decode for GroupSpec {
     fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
+        // Params read in place: decoded apart, its 2 KiB were copied into the group.
         let mut group = GroupSpec {
             number: r.decode(),
-            params: r.decode(),
+            params: Params::new(),
             contexts: Vec::new(),
         };
+        group.params.decode_in_place(r);
         r.fill(&mut group.contexts);
         group
     }
