@@ -340,28 +340,45 @@ impl Params {
     /// [`MAX_EXCLUSIONS`] exclusions cannot be held: [`Params::add_behaviour`],
     /// [`Params::exclude`] and decoding refuse them.)
     ///
-    /// Costs one pass over the behaviours and two over the exclusions; no division.
+    /// Costs one pass over the exclusions and two over the behaviours; no division.
     pub fn validate(&self) -> Result<(), ParamsError> {
-        let times = [
-            (self.step_us, Time::Step),
-            (self.unit_us, Time::Unit),
-            (self.tau_us, Time::Tau),
-            (self.tau_rho_fast_us, Time::TauRhoFast),
-            (self.tau_rho_slow_us, Time::TauRhoSlow),
-            (self.tau_n_us, Time::TauN),
-        ];
-        let memories = self
-            .behaviours
-            .iter()
-            .enumerate()
-            .map(|(i, b)| (b.memory_us, Time::Memory(i as u8)));
-        let mut fastest = u32::MAX;
-        for (micros, time) in times.into_iter().chain(memories) {
-            if micros == 0 {
-                return Err(ParamsError::NonPositiveTime(time));
+        // Tested one by one: a list of (time, which) pairs cost a board the list's stores.
+        let zero = if self.step_us == 0 {
+            Some(Time::Step)
+        } else if self.unit_us == 0 {
+            Some(Time::Unit)
+        } else if self.tau_us == 0 {
+            Some(Time::Tau)
+        } else if self.tau_rho_fast_us == 0 {
+            Some(Time::TauRhoFast)
+        } else if self.tau_rho_slow_us == 0 {
+            Some(Time::TauRhoSlow)
+        } else if self.tau_n_us == 0 {
+            Some(Time::TauN)
+        } else {
+            None
+        };
+        if let Some(time) = zero {
+            return Err(ParamsError::NonPositiveTime(time));
+        }
+        let mut fastest = self
+            .tau_us
+            .min(self.tau_rho_fast_us)
+            .min(self.tau_rho_slow_us)
+            .min(self.tau_n_us);
+        let count = self.behaviours.len();
+        // Bits 0..count: the behaviours of the group (count ≤ 32).
+        let members = u32::MAX.checked_shr(32 - count as u32).unwrap_or(0);
+        // One pass for the memories and the requirements; a requirement out of range is only
+        // reported after the checks that come before it (q, the seed). Bit i: behaviour i's is.
+        let mut beyond = 0u32;
+        for (i, b) in self.behaviours.iter().enumerate() {
+            if b.memory_us == 0 {
+                return Err(ParamsError::NonPositiveTime(Time::Memory(i as u8)));
             }
-            if !matches!(time, Time::Step | Time::Unit) {
-                fastest = fastest.min(micros);
+            fastest = fastest.min(b.memory_us);
+            if b.requires & !members != 0 {
+                beyond |= 1 << i;
             }
         }
         if self.noise == 0 {
@@ -370,13 +387,10 @@ impl Params {
         if self.seed == 0 {
             return Err(ParamsError::ZeroSeed);
         }
-        let count = self.behaviours.len();
-        // Bits 0..count: the behaviours of the group (count ≤ 32).
-        let members = u32::MAX.checked_shr(32 - count as u32).unwrap_or(0);
-        for (i, b) in self.behaviours.iter().enumerate() {
-            if b.requires & !members != 0 {
-                return Err(ParamsError::RequirementOutOfRange { behaviour: i as u8 });
-            }
+        if beyond != 0 {
+            return Err(ParamsError::RequirementOutOfRange {
+                behaviour: beyond.trailing_zeros() as u8,
+            });
         }
         // Per behaviour i: the j already declared, and Σ_j γ_ij (Q8.8; at most 31 · 2^16).
         let mut declared = [0u32; MAX_BEHAVIOURS];
@@ -412,12 +426,13 @@ impl Params {
             return Err(ParamsError::StepAboveQuarter);
         }
         // dt (2 + Σγ) / τ > 1 with Σγ in Q8.8: dt (512 + Σγ) > 256 τ. At most 2^32 · 2^22.
-        let heaviest = gamma_sum
-            .iter()
-            .enumerate()
-            .take(count)
-            .max_by_key(|&(i, &sum)| (sum, core::cmp::Reverse(i)));
-        let (behaviour, sum) = heaviest.map_or((0, 0), |(i, &sum)| (i as u8, sum));
+        // The heaviest: the first of the largest sums (the sums beyond the group are 0).
+        let (mut behaviour, mut sum) = (0, 0);
+        for (i, &s) in gamma_sum.iter().enumerate() {
+            if s > sum {
+                (behaviour, sum) = (i as u8, s);
+            }
+        }
         if u64::from(self.step_us) * (512 + u64::from(sum)) > 256 * u64::from(self.tau_us) {
             return Err(ParamsError::StepUnstable { behaviour });
         }
@@ -576,19 +591,16 @@ fn tanh(c: u32, m: i32) -> i32 {
     if x < 0 { -magnitude } else { magnitude }
 }
 
-/// round(dt · 2^32 / τ): dt / τ in Q0.32, for τ > 0 and dt ≤ τ / 4 (so at most 2^30).
-/// γ dt / τ in Q0.32 (γ in Q8.8), rounded, saturating: γ · dt · 2^24 / τ by long division in
-/// 64-bit words (γ · dt < 2^48; a 128-bit division would cost a board kilobytes of flash).
+/// γ dt / τ in Q0.32 (γ in Q8.8), rounded, saturating: γ · dt · 2^24 / τ (γ · dt < 2^48; a
+/// 128-bit division would cost a board kilobytes of flash). Below saturation γ · dt < 2^8 τ <
+/// 2^40, so γ · dt · 2^24 fits 64 bits and one rounded division is exact.
 fn gamma_rate(gamma: u16, step_us: u32, tau_us: u32) -> u32 {
-    let tau = u64::from(tau_us.max(1));
+    let tau = tau_us.max(1);
     let numerator = u64::from(gamma) * u64::from(step_us);
-    let (whole, rest) = (numerator / tau, numerator % tau);
-    // rest < τ < 2^32: rest · 2^24 + τ/2 < 2^57.
-    let fraction = ((rest << 24) + tau / 2) / tau;
-    if whole >= 1 << 8 {
+    if numerator >= u64::from(tau) << 8 {
         return u32::MAX;
     }
-    u32::try_from((whole << 24) + fraction).unwrap_or(u32::MAX)
+    div_round(numerator << 24, tau)
 }
 
 /// √(dt / unit) in Q1.31, rounded down, from dt / unit in Q2.62 (long division in 31-bit
@@ -628,10 +640,18 @@ fn isqrt(mut x: u64) -> u64 {
     root
 }
 
+/// round(dt · 2^32 / τ): dt / τ in Q0.32, for τ > 0 and dt ≤ τ / 4 (so at most 2^30).
 fn rate(step_us: u32, tau_us: u32) -> u32 {
-    let scaled = (u64::from(step_us) << 32) + u64::from(tau_us / 2);
-    scaled
-        .checked_div(u64::from(tau_us))
+    div_round(u64::from(step_us) << 32, tau_us)
+}
+
+/// (numerator + ⌊divisor / 2⌋) / divisor, saturated to a `u32`; 0 for a divisor of 0. For
+/// numerator < 2^64 − 2^31, so that the sum cannot overflow. Out of line: inlined at each of its
+/// six callers it cost a board a 64-bit division's call set-up each, for code run once per table.
+#[inline(never)]
+fn div_round(numerator: u64, divisor: u32) -> u32 {
+    (numerator + u64::from(divisor / 2))
+        .checked_div(u64::from(divisor))
         .map_or(0, |r| u32::try_from(r).unwrap_or(u32::MAX))
 }
 
@@ -916,6 +936,53 @@ mod tests {
     }
 
     #[test]
+    fn gamma_rate_is_the_long_division_s() {
+        // The former form: γ dt · 2^24 / τ by long division in 64-bit words.
+        fn long(gamma: u16, step_us: u32, tau_us: u32) -> u32 {
+            let tau = u64::from(tau_us.max(1));
+            let numerator = u64::from(gamma) * u64::from(step_us);
+            let (whole, rest) = (numerator / tau, numerator % tau);
+            let fraction = ((rest << 24) + tau / 2) / tau;
+            if whole >= 1 << 8 {
+                return u32::MAX;
+            }
+            u32::try_from((whole << 24) + fraction).unwrap_or(u32::MAX)
+        }
+        let mut x = 0x2545_F491u32;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            x
+        };
+        for _ in 0..200_000 {
+            let (a, b, c) = (next(), next(), next());
+            let gamma = a as u16;
+            // Every magnitude of dt and τ, the edges included.
+            let step = b >> (a >> 27);
+            let tau = c >> ((a >> 22) & 31);
+            for (g, s, t) in [
+                (gamma, step, tau),
+                (gamma, step, 0),
+                (gamma, step, u32::MAX),
+                (u16::MAX, u32::MAX, tau),
+                (
+                    gamma,
+                    step,
+                    ((u64::from(gamma) * u64::from(step)) >> 8) as u32,
+                ),
+                (
+                    gamma,
+                    step,
+                    (((u64::from(gamma) * u64::from(step)) >> 8) as u32).wrapping_add(1),
+                ),
+            ] {
+                assert_eq!(gamma_rate(g, s, t), long(g, s, t), "{g} {s} {t}");
+            }
+        }
+    }
+
+    #[test]
     fn noise_gain_is_q_sqrt_dt() {
         let mut p = Params::new();
         p.add_behaviour(500_000).unwrap();
@@ -936,22 +1003,26 @@ crate::wire::decode_struct!(Exclusion {
 });
 impl crate::wire::Decode for Params {
     fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
-        let mut params = Params {
-            step_us: r.decode(),
-            unit_us: r.decode(),
-            noise: r.decode(),
-            seed: r.decode(),
-            c: r.decode(),
-            tau_us: r.decode(),
-            tau_rho_fast_us: r.decode(),
-            tau_rho_slow_us: r.decode(),
-            tau_n_us: r.decode(),
-            behaviours: Vec::new(),
-            exclusions: Vec::new(),
-        };
-        // Filled in place: the exclusions' room is 1 KiB, a copy of it for each move.
-        r.fill(&mut params.behaviours);
-        r.fill(&mut params.exclusions);
+        let mut params = Params::new();
+        params.decode_in_place(r);
         params
+    }
+}
+
+impl Params {
+    /// [`crate::wire::Decode`] into `self`, whose lists must be empty: filled in place, the
+    /// exclusions' room is 1 KiB, a copy of it for each move.
+    pub(crate) fn decode_in_place(&mut self, r: &mut crate::wire::Reader<'_>) {
+        self.step_us = r.decode();
+        self.unit_us = r.decode();
+        self.noise = r.decode();
+        self.seed = r.decode();
+        self.c = r.decode();
+        self.tau_us = r.decode();
+        self.tau_rho_fast_us = r.decode();
+        self.tau_rho_slow_us = r.decode();
+        self.tau_n_us = r.decode();
+        r.fill(&mut self.behaviours);
+        r.fill(&mut self.exclusions);
     }
 }

@@ -735,11 +735,13 @@ fn connection_filter(
     if connection >= ports.get(port)?.connections {
         return None;
     }
+    // At most 255 connections per port and MAX_PORTS ports: the sums cannot overflow a usize,
+    // and plain additions spare the saturations.
     let first = ports.get(..port)?.iter().fold(0usize, |sum, p| {
-        sum.saturating_add(usize::from(p.connections))
+        sum.wrapping_add(usize::from(p.connections))
     });
     connections
-        .get(first.saturating_add(usize::from(connection)))
+        .get(first.wrapping_add(usize::from(connection)))
         .map(|c| c.filter)
 }
 

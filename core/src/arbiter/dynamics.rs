@@ -100,15 +100,17 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// The next instant at which [`Arbiter::dynamics_poll`] has work: a step, a repeat of the
     /// gates, or a source going silent.
     pub fn dynamics_deadline(&self, now: Instant) -> Option<Instant> {
-        let earliest = |a: Option<Instant>, b: Option<Instant>| match (a, b) {
-            (Some(a), Some(b)) => Some(if a.micros_since(b).is_some() { b } else { a }),
-            (a, None) => a,
-            (None, b) => b,
+        let mut soonest: Option<Instant> = None;
+        // One candidate at a time, so that the comparison is written once: on a tie the
+        // candidate (the same instant) is kept.
+        let mut consider = |due: Instant| {
+            if soonest.is_none_or(|soonest| soonest.micros_since(due).is_some()) {
+                soonest = Some(due);
+            }
         };
-        let mut soonest = None;
         for run in self.runs.iter() {
             // A group not started yet starts at the next poll.
-            soonest = earliest(soonest, Some(run.deadline().unwrap_or(now)));
+            consider(run.deadline().unwrap_or(now));
         }
         for (state, source) in self.sources.iter().zip(self.table.gate_sources()) {
             if source.owner != OWN {
@@ -118,7 +120,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 } else {
                     Some(now)
                 };
-                soonest = earliest(soonest, due);
+                if let Some(due) = due {
+                    consider(due);
+                }
             }
         }
         soonest

@@ -280,10 +280,10 @@ pub(crate) fn validate(
         for (b, context) in group.contexts.iter().enumerate() {
             validate_context(context, g, b as u8, filter)?;
         }
+        // Over a sub-slice: `take(position)` cost a board a counter in each of the three loops.
         if groups
-            .iter()
-            .take(position)
-            .any(|o| o.number == group.number)
+            .get(..position)
+            .is_some_and(|before| before.iter().any(|o| o.number == group.number))
         {
             return Err(DynamicsError::DuplicateGroup {
                 number: group.number,
@@ -295,10 +295,10 @@ pub(crate) fn validate(
             source: position as u8,
         };
         let count_ok = (1..=MAX_BEHAVIOURS).contains(&usize::from(source.behaviours));
+        // The group run under the source's number: at most one, the numbers were checked above.
+        let run = groups.iter().find(|g| g.number == source.group);
         let owner_ok = if source.owner == OWN {
-            groups.iter().any(|g| {
-                g.number == source.group && g.params.behaviours.len() == source.behaviours.into()
-            })
+            run.is_some_and(|g| g.params.behaviours.len() == source.behaviours.into())
         } else {
             source.owner <= crate::protocol::MAX_NODE_ID && source.owner != node
         };
@@ -307,10 +307,9 @@ pub(crate) fn validate(
         }
         // Group numbers are the network's: one number, one group, whoever runs it.
         let clash = sources
-            .iter()
-            .take(position)
-            .any(|o| o.group == source.group)
-            || (source.owner != OWN && groups.iter().any(|g| g.number == source.group));
+            .get(..position)
+            .is_some_and(|before| before.iter().any(|o| o.group == source.group))
+            || (source.owner != OWN && run.is_some());
         if clash {
             return Err(DynamicsError::DuplicateGroup {
                 number: source.group,
@@ -327,11 +326,11 @@ pub(crate) fn validate(
         if !behaviour_ok || filter(link.port, link.connection) != Some(GATE_SLOT_FILTER) {
             return Err(error);
         }
-        if links
-            .iter()
-            .take(position)
-            .any(|o| o.port == link.port && o.connection == link.connection)
-        {
+        if links.get(..position).is_some_and(|before| {
+            before
+                .iter()
+                .any(|o| o.port == link.port && o.connection == link.connection)
+        }) {
             return Err(error);
         }
     }
@@ -405,11 +404,13 @@ impl crate::wire::Decode for Context {
 
 impl crate::wire::Decode for GroupSpec {
     fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
+        // Params read in place: decoded apart, its 2 KiB were copied into the group.
         let mut group = GroupSpec {
             number: r.decode(),
-            params: r.decode(),
+            params: Params::new(),
             contexts: Vec::new(),
         };
+        group.params.decode_in_place(r);
         r.fill(&mut group.contexts);
         group
     }

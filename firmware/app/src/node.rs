@@ -615,23 +615,23 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         let before = skipped(arbiter);
         // One Gates frame per group a poll, its last: a poll that catches up several steps may
         // see several changes, and the frames would all leave at this instant, each stale but
-        // the last (its `changes` counts them all). A node reads at most MAX_GATE_SOURCES groups.
+        // the last (its `changes` counts them all). The groups are polled one after the other
+        // and their numbers differ (the table is validated), so a group's frames come in a row:
+        // only the last kept can be the same group's.
         let mut gates: heapless::Vec<protocol::Gates, { dynamics::MAX_DYNAMICS_GROUPS }> =
             heapless::Vec::new();
-        let mut lost: heapless::Vec<GatesLost, { dynamics::MAX_GATE_SOURCES }> =
-            heapless::Vec::new();
+        // A fault is only recorded, not sent: raised in the poll, no list to keep.
+        let faults = &mut self.faults;
         arbiter.dynamics_poll(
             now,
             |_| {},
-            |g| match gates.iter_mut().find(|kept| kept.group == g.group) {
-                Some(kept) => *kept = g,
-                None => {
+            |g| match gates.last_mut() {
+                Some(kept) if kept.group == g.group => *kept = g,
+                _ => {
                     let _ = gates.push(g);
                 }
             },
-            |l| {
-                let _ = lost.push(l);
-            },
+            |l: GatesLost| faults.raise(FaultCode::GatesLost, [l.owner, l.group, 0, 0, 0]),
         );
         let after = skipped(arbiter);
         let late = arbiter
@@ -640,9 +640,6 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             .position(|run| run.skipped() != 0);
         for g in gates.iter() {
             self.send(Message::Gates(*g), protocol::BROADCAST);
-        }
-        for l in lost.iter() {
-            self.raise(FaultCode::GatesLost, [l.owner, l.group, 0, 0, 0]);
         }
         if after != before {
             let [a, b, c, d] = after.to_le_bytes();
