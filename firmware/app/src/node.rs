@@ -1033,6 +1033,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         }
     }
 
+    #[inline(never)]
     fn configure_diagnostic(&mut self, control: protocol::DiagnosticControl, now: Instant) {
         self.diagnostic.configure(control, now);
         info!("diagnostic stream at {} Hz", u32::from(control.rate_hz));
@@ -1293,7 +1294,9 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         self.raise(FaultCode::TableRefused, [status.code(), detail, 0, 0, 0]);
     }
 
-    /// Sends the TransferStatus and, for an opened transfer (`nonce`), its Receipt.
+    /// Sends the TransferStatus and, for an opened transfer (`nonce`), its Receipt. Out of line:
+    /// two of its four callers had inlined it.
+    #[inline(never)]
     fn answer(&mut self, source: u8, status: TransferStatusCode, detail: u8, nonce: Option<u64>) {
         let running_version = self
             .running
@@ -1319,6 +1322,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         }
     }
 
+    #[inline(never)]
     fn send_transfer(&mut self, destination: u8, data: [u8; 8]) {
         self.send(Message::TableTransfer { data, len: 8 }, destination);
     }

@@ -16,7 +16,8 @@
 //!   region where the key page starts.
 //! - **Node id**: [`NODE_ID`], compiled in from the `PAB_NODE_ID` environment variable
 //!   (default 1): `PAB_NODE_ID=2 cargo fw-g474`. An invalid value is a compile error.
-//! - **LED**: LD2 (PA5) blinks at 1 Hz while the executor runs.
+//! - **LED**: LD2 (PA5) blinks at about 1 Hz while the node loop turns (set as it feeds the
+//!   watchdog: [`NodeWatchdog`]).
 //! - **Log**: defmt over RTT (`probe-rs run` prints it); `DEFMT_LOG=debug` at build time shows
 //!   every delivered frame.
 //! - **Watchdog**: the IWDG (its own 32 kHz LSI clock, independent of the system clock), timeout
@@ -54,7 +55,6 @@ use embassy_stm32::peripherals::IWDG;
 use embassy_stm32::time::Hertz;
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, rcc};
-use embassy_time::Timer;
 use embedded_storage::nor_flash::ReadNorFlash;
 use pab_storage::{BootCounter, FlashStore};
 use static_cell::StaticCell;
@@ -129,14 +129,23 @@ pub const WATCHDOG_TIMEOUT_US: u32 = 500_000;
 pub const FEED_INTERVAL_US: u64 = 100_000;
 const _: () = assert!(FEED_INTERVAL_US * 3 <= WATCHDOG_TIMEOUT_US as u64);
 
-/// The IWDG, as the node loop feeds it.
-struct NodeWatchdog(IndependentWatchdog<'static, IWDG>);
+/// The IWDG, as the node loop feeds it, and LD2, which follows bit 19 of the microsecond clock
+/// at each feed: it blinks at 0.95 Hz (a 2^20 µs period) while the node loop itself turns (it
+/// feeds at least every [`FEED_INTERVAL_US`], so each edge comes within 100 ms), and stops with
+/// it. Why here rather than in a task of its own: a hung node loop with a blinking LED would say
+/// the wrong thing, and the task took 284 bytes of flash.
+struct NodeWatchdog {
+    watchdog: IndependentWatchdog<'static, IWDG>,
+    led: Output<'static>,
+}
 
 impl pab_app::Watchdog for NodeWatchdog {
     const FEED_INTERVAL_US: u64 = FEED_INTERVAL_US;
 
     fn feed(&mut self) {
-        self.0.pet();
+        self.watchdog.pet();
+        let level = pab_app::now().as_micros() & (1 << 19) != 0;
+        self.led.set_level(level.into());
     }
 }
 
@@ -181,7 +190,7 @@ async fn main(spawner: Spawner) {
         BITRATE / 1000
     );
 
-    spawner.spawn(unwrap!(blink(Output::new(p.PA5, Level::Low, Speed::Low))));
+    let led = Output::new(p.PA5, Level::Low, Speed::Low);
 
     let mut can = CanConfigurator::new(p.FDCAN1, p.PA11, p.PA12, Irqs);
     let config = can
@@ -233,7 +242,7 @@ async fn main(spawner: Spawner) {
         bus,
         store,
         BoardConsumer::new(),
-        NodeWatchdog(watchdog)
+        NodeWatchdog { watchdog, led }
     )));
 }
 
@@ -268,15 +277,6 @@ async fn node_task(
     mut watchdog: NodeWatchdog,
 ) {
     pab_app::run_watched(node, &mut bus, &mut store, &mut consumer, &mut watchdog).await
-}
-
-/// LD2 blinks at 1 Hz: the executor is alive.
-#[embassy_executor::task]
-async fn blink(mut led: Output<'static>) {
-    loop {
-        led.toggle();
-        Timer::after_millis(500).await;
-    }
 }
 
 /// The flash's double-ECC error (a double word whose programming a power loss cut) raises an NMI.
