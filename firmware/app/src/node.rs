@@ -310,15 +310,9 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         } else {
             self.arbitrate(frame, now, consumer);
             if let Some(arbiter) = self.arbiter.as_mut()
-                && arbiter.has_groups()
+                && arbiter.observes_frames()
             {
-                arbiter.ble_frame(frame, now);
-            }
-            #[cfg(feature = "dynamics")]
-            if let Some(arbiter) = self.arbiter.as_mut()
-                && arbiter.has_dynamics()
-            {
-                arbiter.dynamics_frame(frame, now);
+                arbiter.observe(frame, now);
             }
             Step::Continue
         };
