@@ -75,7 +75,8 @@ scripts/cortex-m4-cost.sh --check
 
 step "tests"
 cargo test --locked
-# The core as the boards build it for now: without competitive dynamics, whose tables it refuses.
+# The core without competitive dynamics (`--no-default-features`), as a board built without the
+# runtime would have it: it refuses tables with dynamics instead of running them without gates.
 cargo test -p pab-core --no-default-features --lib --locked
 
 step "benchmarks, once each in test mode"

@@ -141,10 +141,14 @@ def test_person_takes_the_object_back_during_the_approach_and_the_system_returns
 def test_take_and_return_sequenced_by_competitive_dynamics(session_for, figures):
     """examples/take-and-return-dynamics.toml: the sequencing comes from a dynamics group on the
     arm node (take, hold, bring, release), whose gates the gaze and hand nodes read from the
-    arm's Gates frames over the bus. The three nodes are `pab-node` (the boards' firmware runs
-    no dynamics yet). The same phases A to F and the same end as the rule-only network."""
+    arm's Gates frames over the bus. The arm node is the boards' firmware on the emulated
+    Cortex-M4 (pab-fw-an386, through SLCAN), stepping the group at 1 kHz; the gaze and hand are
+    `pab-node`. The same phases A to F and the same end as the rule-only network."""
     person = TakeAndReturn()
-    session = session_for(person, network=nodes.EXAMPLES / "take-and-return-dynamics.toml")
+    session = session_for(person, network=nodes.EXAMPLES / "take-and-return-dynamics.toml",
+                          boards=("arm",))
+    board = session.nodes["arm"]
+    assert isinstance(board, BoardNode) and board.running()
     run_a_to_f(session, person)
     session.close()
     messages = analysis.read_log(session.log_path)
