@@ -324,6 +324,19 @@ fn check_copy(copy: Copy, src: &Buffer, dest: &mut Buffer, d: usize, s: usize, n
         Copy::Aeabi4 => "__aeabi_memcpy4",
         Copy::Aeabi8 => "__aeabi_memcpy8",
     };
+    verify(name, dest, to, returned, (d, s, n), |k| byte(src, s + k));
+}
+
+/// Fails unless `returned` (from an entry point that returns one) is `to`, byte `d + k` of
+/// `dest` is `inside(k)` for every k below `n`, and every other byte is still [`GUARD`].
+fn verify(
+    name: &str,
+    dest: &Buffer,
+    to: *mut u8,
+    returned: Option<*mut u8>,
+    (d, s, n): (usize, usize, usize),
+    inside: impl Fn(usize) -> u8,
+) {
     if returned.is_some_and(|r| r != to) {
         fail(
             name,
@@ -335,7 +348,7 @@ fn check_copy(copy: Copy, src: &Buffer, dest: &mut Buffer, d: usize, s: usize, n
     }
     for i in 0..SIZE {
         let expected = if (d..d + n).contains(&i) {
-            byte(src, s + (i - d))
+            inside(i - d)
         } else {
             GUARD
         };
@@ -394,32 +407,8 @@ fn check_set(set: Set, dest: &mut Buffer, d: usize, c: i32, n: usize) {
         Set::Clear4 => "__aeabi_memclr4",
         Set::Clear8 => "__aeabi_memclr8",
     };
-    if returned.is_some_and(|r| r != to) {
-        fail(
-            name,
-            d,
-            0,
-            n,
-            "returned another address than the destination",
-        );
-    }
     let value = if clears { 0 } else { c as u8 };
-    for i in 0..SIZE {
-        let expected = if (d..d + n).contains(&i) {
-            value
-        } else {
-            GUARD
-        };
-        if byte(dest, i) != expected {
-            fail(
-                name,
-                d,
-                0,
-                n,
-                "wrote a wrong byte, or one outside the destination",
-            );
-        }
-    }
+    verify(name, dest, to, returned, (d, 0, n), |_| value);
 }
 
 fn fail(name: &str, d: usize, s: usize, n: usize, what: &str) -> ! {
