@@ -28,11 +28,15 @@ def read_log(path: Path) -> list[can.Message]:
 
 def gateway_latency(messages: list[can.Message], topics: set[int], gateway_id: int) -> Latency:
     """For each frame on `gateway_id`, the delay since the latest frame on one of `topics` with the
-    same payload (payloads carry a publisher id and sequence number, so they match one frame)."""
+    same payload (payloads carry a publisher id and sequence number, so they match one frame).
+
+    In the order of the kernel's timestamps, not of the log's lines: the recorder reads frames from
+    several senders as the micro-VM's CPUs hand them over, and a behaviour's frame stamped before
+    the gateway re-published it can come after it in the log (seen once: 0.5 ms apart)."""
     last_seen: dict[bytes, float] = {}
     delays: list[float] = []
     unmatched = 0
-    for message in messages:
+    for message in sorted(messages, key=lambda m: m.timestamp):
         if message.is_extended_id:
             continue
         data = bytes(message.data)
