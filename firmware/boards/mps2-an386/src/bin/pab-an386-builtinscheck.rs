@@ -24,7 +24,7 @@ use core::ptr::{read_volatile, write_volatile};
 
 use pab_fw_an386::semihosting;
 
-// The entry points under test, as the compiler's calls reach them (pab-mem, linked through
+// The entry points under test, as the compiler's calls reach them (pab-builtins, linked through
 // pab_fw_an386).
 unsafe extern "C" {
     fn memcpy(dest: *mut u8, src: *const u8, n: usize) -> *mut u8;
