@@ -141,10 +141,11 @@ def test_arm_node_accounts_for_every_frame_of_a_flood(session_for, iface, out_di
     span = republished[-1].timestamp - flood[0].timestamp
     node_rate = (received - 1) / span
     if rcvbuf is None and gap_ms == 0 and lost:
-        # The default buffer holds 100 ms of a saturated 1 Mbit/s bus (2 128 frames); a flood
-        # offered faster than the node reads overflows any finite queue once the backlog
-        # reaches it: only then are frames lost.
-        assert offered > node_rate, (offered, node_rate)
+        # The default buffer holds 100 ms of a saturated 1 Mbit/s bus (2 128 frames): frames are
+        # lost only once the backlog reaches it, which the check of the queue at the first loss
+        # above asserts. Not the average rates: a node that reads faster on average still loses
+        # frames when the emulated machine stalls it longer than the queue lasts (a fresh run:
+        # offered 25 400 frames/s, read 28 200/s over the flood, frames lost with the queue full).
         print(f"full speed: {lost} of {FLOOD} frames lost: offered {offered:.0f} frames/s, the "
               f"node read {node_rate:.0f} frames/s, the queue was full ({queued_at_first_loss} "
               f"frames, capacity {capacity}) when frame {first_lost} came")
