@@ -46,6 +46,7 @@ cargo clippy -p pab-storage --target thumbv7em-none-eabihf --locked -- -D warnin
 cargo clippy -p pab-app --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-fw-g474 --target thumbv7em-none-eabihf --release --locked -- -D warnings
 cargo clippy -p pab-slcan --target thumbv7em-none-eabihf --locked -- -D warnings
+cargo clippy -p pab-builtins --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-fw-an386 --target thumbv7em-none-eabihf --release --locked -- -D warnings
 
 step "documentation (every public item's links resolve)"
