@@ -57,6 +57,8 @@ pub mod integrator;
 pub mod isotp;
 pub mod level;
 pub mod protocol;
+#[cfg(feature = "schema")]
+pub mod schema;
 pub mod table;
 pub mod time;
 pub mod value_port;

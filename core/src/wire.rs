@@ -122,6 +122,12 @@ impl<'a> Reader<'a> {
         self.varint(32) as u32
     }
 
+    /// A signed 32-bit integer: postcard's zigzag varint (0, −1, 1, −2 … as 0, 1, 2, 3 …).
+    pub(crate) fn i32(&mut self) -> i32 {
+        let z = self.u32();
+        ((z >> 1) as i32) ^ -((z & 1) as i32)
+    }
+
     /// An enum's variant index (a u32 varint) that must be below `variants`: serde's derive
     /// refuses an unknown index with a custom error (and 0 comes back).
     pub(crate) fn variant(&mut self, variants: u32) -> u32 {
@@ -230,6 +236,12 @@ impl Decode for bool {
 impl Decode for u16 {
     fn decode(r: &mut Reader<'_>) -> Self {
         r.u16()
+    }
+}
+
+impl Decode for i32 {
+    fn decode(r: &mut Reader<'_>) -> Self {
+        r.i32()
     }
 }
 

@@ -1,0 +1,134 @@
+//! The schema server (Bekey, Newman and co., "A client/server approach to open-architecture,
+//! behavior-based robot programming"): a fixed-rate reactive loop on a joint or hand board, in
+//! front of an impedance-controlled drive.
+//!
+//! A **schema** is one action primitive ([`Action`]) and a prioritised reaction table
+//! ([`Reaction`]: an [`Event`] and the [`Source`] of the next schema). Exactly one schema is
+//! installed at a time. Every period the [`Server`] runs the paper's loop, as DESIGN.md
+//! ("Schema server: decisions") fixes it:
+//!
+//! 1. the runner waits for the tick and calls [`Server::tick`];
+//! 2. the high-priority channel: an emergency stop, an abort or a schema received there is handled
+//!    at once (a schema there replaces the current one);
+//! 3. the sensor table (kept current by the runner between ticks, [`Server::set_pose`] and its
+//!    siblings) is checked for staleness, and one-shot is set once the action has run;
+//! 4. the reaction table is scanned in priority order, the built-in [`Safety`] events first; the
+//!    first event that holds is the triggering event;
+//! 5. the triggered schema is installed: its reaction table, one-shot false, its action, its
+//!    watchdog restarted;
+//! 6. one iteration of the action moves the attractor ([`Setpoint`]).
+//!
+//! Safety events (emergency stop, workspace limit, force limit, watchdog, stale sensor, loop
+//! overrun) are the server's, not the client's: a schema cannot remove them. Each one sets the
+//! attractor to the measured pose (so the impedance controller relieves every force), reports
+//! a fault, and leaves the server waiting on the high-priority channel with the queue kept but
+//! not run.
+//!
+//! # Numbers
+//!
+//! Positions are µm on the three translational axes and µrad on the three rotational ones, in
+//! `i32` ([`Pose`]); forces mN and torques mN·m ([`Wrench`]). A move's progress accumulates the
+//! sub-µm remainder of speed × period, so 1 mm/s at 1 kHz is exactly 1 µm a tick, and the move
+//! ends on the tick its progress reaches the distance, with the attractor exactly on the goal.
+//! Coordinates are bounded by [`MAX_COORD`] (±500 m or rad), so that every square and product is
+//! an exact `i64`; a schema with larger values is refused when it is decoded.
+//!
+//! # Costs
+//!
+//! A [`Server`] holds the current schema, the innate table, the queue and the high-priority slot
+//! by value: about 5.4 KiB at the default capacities. A tick makes no allocation and no
+//! division except one per moving axis; a schema is installed by copy.
+
+mod action;
+pub mod build;
+mod event;
+mod message;
+mod server;
+
+pub use action::{Action, Gripper, Setpoint};
+pub use event::{Event, Measure, Reaction, Source};
+pub use message::{MAX_ENCODED, Schema, SchemaError};
+pub use server::{Config, ConfigError, Origin, Refusal, Safety, Server, Tick, Transition, Trigger};
+
+/// Axes of a pose: x, y, z (µm), then rotations about x, y, z (µrad).
+pub const AXES: usize = 6;
+/// Reactions per schema: the paper leaves it open; 16 holds the assembly's largest schema with
+/// room (DESIGN.md).
+pub const MAX_REACTIONS: usize = 16;
+/// Schemas the client may queue: a full queue refuses, never overwrites (DESIGN.md).
+pub const QUEUE_DEPTH: usize = 8;
+/// Innate schemas a board's set-up can store.
+pub const MAX_INNATE: usize = 8;
+/// Extra sensors (beyond pose and wrench) a board reads from topics.
+pub const MAX_SENSORS: usize = 8;
+/// The largest coordinate, speed or distance a schema may carry, in µm or µrad (500 m): every
+/// difference of two coordinates fits 2^30, every square 2^60 and a sum of six squares an `i64`.
+pub const MAX_COORD: i32 = 500_000_000;
+/// Identifiers from here up name the server's own schemas ([`Schema::WAIT_QUEUE`] and the
+/// others); a client's schema has a smaller one.
+pub const BUILTIN_IDS: u16 = 0xFF00;
+
+/// A pose: µm on x, y, z and µrad about x, y, z.
+pub type Pose = [i32; AXES];
+/// A wrench: mN along x, y, z and mN·m about x, y, z.
+pub type Wrench = [i32; AXES];
+
+/// The integer square root (floor) of `v`: at most 32 iterations of shifts and adds, no
+/// division, the same on every target.
+pub(crate) const fn isqrt(v: u64) -> u64 {
+    let mut rem = v;
+    let mut root = 0u64;
+    let mut bit = 1u64 << 62;
+    while bit > v {
+        bit >>= 2;
+    }
+    while bit != 0 {
+        if rem >= root + bit {
+            rem -= root + bit;
+            root = (root >> 1) + bit;
+        } else {
+            root >>= 1;
+        }
+        bit >>= 2;
+    }
+    root
+}
+
+/// The Euclidean length of the translational part of `v` (µm), floor.
+pub(crate) fn length3(v: &[i64; AXES]) -> u64 {
+    let mut sum = 0u64;
+    for c in v.iter().take(3) {
+        // |c| ≤ 2^31 (a difference of two coordinates within MAX_COORD, or one of them), so
+        // each square is below 2^62 and three of them below 2^64.
+        sum = sum.saturating_add(c.unsigned_abs().saturating_mul(c.unsigned_abs()));
+    }
+    isqrt(sum)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn isqrt_is_the_floor_root() {
+        for v in [
+            0u64,
+            1,
+            2,
+            3,
+            4,
+            15,
+            16,
+            17,
+            99,
+            100,
+            101,
+            1 << 40,
+            u64::MAX,
+        ] {
+            let r = isqrt(v);
+            assert!(r * r <= v, "{v}");
+            assert!((r + 1).checked_mul(r + 1).is_none_or(|s| s > v), "{v}");
+        }
+    }
+}

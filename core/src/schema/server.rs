@@ -1,0 +1,725 @@
+//! The server: the loop's state and its seven steps.
+
+use heapless::{Deque, Vec};
+
+use super::action::Progress;
+use super::{
+    AXES, Action, Event, Gripper, MAX_INNATE, MAX_SENSORS, Measure, Pose, QUEUE_DEPTH, Reaction,
+    Schema, SchemaError, Setpoint, Source, Wrench,
+};
+use crate::time::Instant;
+
+/// The built-in safety events, in the order they are tested: before any reaction of any
+/// schema, and no schema can remove them.
+///
+/// Order: the emergency stop first (it is handled with the high-priority channel, step 2), then a
+/// stale sensor (the tests after it would read stale values), the workspace limit, the force
+/// limit, the watchdog and the overrun.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
+pub enum Safety {
+    /// An emergency-stop frame arrived.
+    EmergencyStop = 0,
+    /// The pose or wrench (or a sensor the current reactions read) is older than the board's
+    /// timeout, or was never received.
+    StaleSensor = 1,
+    /// The measured pose or the attractor went farther outside the workspace than when the
+    /// schema was installed (so that a schema bringing the robot back in is not stopped).
+    Limit = 2,
+    /// The force (or torque) magnitude is above the board's safety limit.
+    Force = 3,
+    /// The schema ran longer than its budget: failure to progress.
+    Watchdog = 4,
+    /// A tick came later than the board's overrun bound after the previous one.
+    Overrun = 5,
+}
+
+impl Safety {
+    /// The event's name, as the status frames and traces give it (`safety:<name>`).
+    pub const fn name(self) -> &'static str {
+        match self {
+            Safety::EmergencyStop => "estop",
+            Safety::StaleSensor => "stale",
+            Safety::Limit => "limit",
+            Safety::Force => "force",
+            Safety::Watchdog => "watchdog",
+            Safety::Overrun => "overrun",
+        }
+    }
+
+    /// The event from its number (a fault frame's byte).
+    pub const fn from_u8(v: u8) -> Option<Safety> {
+        Some(match v {
+            0 => Safety::EmergencyStop,
+            1 => Safety::StaleSensor,
+            2 => Safety::Limit,
+            3 => Safety::Force,
+            4 => Safety::Watchdog,
+            5 => Safety::Overrun,
+            _ => return None,
+        })
+    }
+}
+
+/// What ended a schema.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Trigger {
+    /// A schema arrived on the high-priority channel.
+    HighPriority,
+    /// An abort command.
+    Abort,
+    /// A safety event.
+    Safety(Safety),
+    /// The reaction at this index of the ended schema's table.
+    Reaction(u8),
+}
+
+/// A schema change: `ended` was replaced by `installed`, from `source`, because of `by`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Transition {
+    /// The schema that ended.
+    pub ended: u16,
+    /// Why.
+    pub by: Trigger,
+    /// The schema installed.
+    pub installed: u16,
+    /// Where it came from: a safety recovery counts as innate (the paper's hard-coded schema),
+    /// the waits as their channel.
+    pub source: Origin,
+}
+
+/// Where an installed schema came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Origin {
+    /// The board's own: an innate schema, or a safety recovery.
+    Innate,
+    /// The client's queue (or the wait for it).
+    Queue,
+    /// The high-priority channel (or the wait for it).
+    HighPriority,
+}
+
+impl Origin {
+    /// `innate`, `queue` or `high-priority`.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Origin::Innate => "innate",
+            Origin::Queue => "queue",
+            Origin::HighPriority => "high-priority",
+        }
+    }
+}
+
+/// Why the server refused a schema or a command.
+#[derive(Clone, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Refusal {
+    /// The schema is invalid.
+    Invalid(SchemaError),
+    /// A reaction names an innate schema the board does not have.
+    UnknownInnate,
+    /// The queue holds [`QUEUE_DEPTH`] schemas: a full queue refuses, never overwrites.
+    QueueFull,
+    /// A high-priority schema is already waiting for the next tick.
+    Busy,
+}
+
+/// A board's set-up: its loop, its safety bounds and its innate schemas.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Config {
+    /// The loop's period, µs (1 000 on the boards: 1 kHz).
+    pub period_us: u32,
+    /// A tick later than this after the previous one is an overrun, µs.
+    pub overrun_us: u32,
+    /// The workspace's lower corner (µm, µrad).
+    pub workspace_min: Pose,
+    /// The workspace's upper corner.
+    pub workspace_max: Pose,
+    /// The safety limit on the force's magnitude, mN (the contact thresholds of schemas are
+    /// lower).
+    pub force_limit: u32,
+    /// The safety limit on the torque's magnitude, mN·m (0: none).
+    pub torque_limit: u32,
+    /// The pose and wrench are stale this long after their last frame, µs.
+    pub stale_us: u32,
+    /// The extra sensors are stale this long after their last frame, µs.
+    pub sensor_stale_us: u32,
+    /// Added to 1.5 × an action's nominal time to make its default watchdog budget, ms.
+    pub watchdog_margin_ms: u32,
+    /// The impedance at start-up: stiffness N/m.
+    pub stiffness: u32,
+    /// Damping N·s/m.
+    pub damping: u32,
+    /// The innate schemas, by index.
+    pub innate: Vec<Schema, MAX_INNATE>,
+}
+
+/// Why a [`Config`] was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ConfigError {
+    /// A period of 0, or an overrun bound shorter than the period.
+    Period,
+    /// A workspace whose lower corner is above its upper one on some axis.
+    Workspace,
+    /// A force limit of 0.
+    ForceLimit,
+    /// An innate schema (its index) is invalid or names an innate schema beyond the table.
+    Innate(u8),
+}
+
+impl Config {
+    /// A set-up at `period_us` with the defaults: overrun at two periods, a ±1 m (rad)
+    /// workspace, 50 N, no torque limit, sensors stale after 20 periods (at least 50 ms), 1 s
+    /// watchdog margin, 2 000 N/m and 100 N·s/m, no innate schema.
+    pub fn new(period_us: u32) -> Config {
+        let stale = period_us.saturating_mul(20).max(50_000);
+        Config {
+            period_us,
+            overrun_us: period_us.saturating_mul(2),
+            workspace_min: [-1_000_000; AXES],
+            workspace_max: [1_000_000; AXES],
+            force_limit: 50_000,
+            torque_limit: 0,
+            stale_us: stale,
+            sensor_stale_us: stale,
+            watchdog_margin_ms: 1000,
+            stiffness: 2000,
+            damping: 100,
+            innate: Vec::new(),
+        }
+    }
+
+    /// Checks the set-up ([`ConfigError`] says what is wrong).
+    pub fn check(&self) -> Result<(), ConfigError> {
+        if self.period_us == 0 || self.overrun_us < self.period_us {
+            return Err(ConfigError::Period);
+        }
+        if self
+            .workspace_min
+            .iter()
+            .zip(&self.workspace_max)
+            .any(|(lo, hi)| lo > hi)
+        {
+            return Err(ConfigError::Workspace);
+        }
+        if self.force_limit == 0 {
+            return Err(ConfigError::ForceLimit);
+        }
+        for (i, s) in self.innate.iter().enumerate() {
+            if s.check().is_err() || !innate_known(s, self.innate.len()) {
+                return Err(ConfigError::Innate(i as u8));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Whether every innate source of `s` is within a table of `count`.
+fn innate_known(s: &Schema, count: usize) -> bool {
+    s.reactions.iter().all(|r| match r.next {
+        Source::Innate(i) => usize::from(i) < count,
+        Source::Queue | Source::HighPriority => true,
+    })
+}
+
+/// What a tick produced.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Tick {
+    /// The command for the drive (none until a pose has been received: the server has nothing
+    /// to hold the robot at before).
+    pub setpoint: Option<Setpoint>,
+    /// The schema changes of this tick, in order (at most three: the high-priority channel, a
+    /// triggering event, a limit the action's own iteration met).
+    pub transitions: Vec<Transition, 3>,
+}
+
+/// One reading and when it arrived.
+type Stamped<T> = Option<(T, Instant)>;
+
+/// The schema server of one board. See the [module](super) for the loop.
+pub struct Server {
+    config: Config,
+    current: Schema,
+    origin: Origin,
+    progress: Progress,
+    installed_at: Instant,
+    /// The measured pose when the current schema was installed ([`Measure::Displacement`]).
+    pose_at_install: Pose,
+    /// How far outside the workspace the measured pose and the attractor were then, per axis.
+    excess_at_install: [u32; AXES],
+    attractor_excess_at_install: [u32; AXES],
+    /// The watchdog's budget for the current schema, µs.
+    budget_us: Option<u64>,
+    queue: Deque<Schema, QUEUE_DEPTH>,
+    high_priority: Option<Schema>,
+    estop: bool,
+    abort: bool,
+    fault: Option<Safety>,
+    setpoint: Setpoint,
+    /// A pose has been received: the attractor means something.
+    armed: bool,
+    pose: Stamped<Pose>,
+    wrench: Stamped<Wrench>,
+    sensors: [Stamped<i32>; MAX_SENSORS],
+    last_tick: Option<Instant>,
+}
+
+impl Server {
+    /// A server with `config`, waiting on the queue.
+    ///
+    /// Fails when the set-up is invalid ([`Config::check`]).
+    pub fn new(config: Config) -> Result<Server, ConfigError> {
+        config.check()?;
+        let setpoint = Setpoint {
+            attractor: [0; AXES],
+            stiffness: config.stiffness,
+            damping: config.damping,
+            gripper: Gripper::Open,
+        };
+        Ok(Server {
+            current: wait_queue(),
+            origin: Origin::Queue,
+            progress: Progress::default(),
+            installed_at: Instant::default(),
+            pose_at_install: [0; AXES],
+            excess_at_install: [0; AXES],
+            attractor_excess_at_install: [0; AXES],
+            budget_us: None,
+            queue: Deque::new(),
+            high_priority: None,
+            estop: false,
+            abort: false,
+            fault: None,
+            setpoint,
+            armed: false,
+            pose: None,
+            wrench: None,
+            sensors: [None; MAX_SENSORS],
+            last_tick: None,
+            config,
+        })
+    }
+
+    /// The set-up.
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+
+    /// The installed schema's identifier.
+    pub fn current(&self) -> u16 {
+        self.current.id
+    }
+
+    /// The installed schema.
+    pub fn schema(&self) -> &Schema {
+        &self.current
+    }
+
+    /// The safety event the server is stopped on, until the high-priority channel installs a
+    /// schema.
+    pub fn fault(&self) -> Option<Safety> {
+        self.fault
+    }
+
+    /// Schemas in the queue.
+    pub fn queued(&self) -> usize {
+        self.queue.len()
+    }
+
+    /// Queues a client's schema; returns the queue's new length.
+    ///
+    /// Refused when invalid, when it names an unknown innate schema, or when the queue is full.
+    pub fn enqueue(&mut self, schema: Schema) -> Result<usize, Refusal> {
+        self.admit(&schema)?;
+        self.queue
+            .push_back(schema)
+            .map_err(|_| Refusal::QueueFull)?;
+        Ok(self.queue.len())
+    }
+
+    /// Hands a schema to the high-priority channel: installed at the next tick, replacing the
+    /// current one (and ending a fault).
+    ///
+    /// Refused when invalid, when it names an unknown innate schema, or when one is already
+    /// waiting.
+    pub fn high_priority(&mut self, schema: Schema) -> Result<(), Refusal> {
+        self.admit(&schema)?;
+        if self.high_priority.is_some() {
+            return Err(Refusal::Busy);
+        }
+        self.high_priority = Some(schema);
+        Ok(())
+    }
+
+    fn admit(&self, schema: &Schema) -> Result<(), Refusal> {
+        schema.check().map_err(Refusal::Invalid)?;
+        if innate_known(schema, self.config.innate.len()) {
+            Ok(())
+        } else {
+            Err(Refusal::UnknownInnate)
+        }
+    }
+
+    /// Abort: at the next tick the current schema ends, the queue is emptied and the server
+    /// waits on the high-priority channel, holding the attractor where it is.
+    pub fn abort(&mut self) {
+        self.abort = true;
+    }
+
+    /// Emergency stop: at the next tick, forces relieved, fault, wait on the high-priority
+    /// channel.
+    pub fn emergency_stop(&mut self) {
+        self.estop = true;
+    }
+
+    /// The measured pose, from its topic.
+    pub fn set_pose(&mut self, pose: Pose, at: Instant) {
+        self.pose = Some((pose, at));
+        if !self.armed {
+            // The first pose: hold the robot where it is.
+            self.setpoint.attractor = pose;
+            self.armed = true;
+        }
+    }
+
+    /// The measured wrench, from its topic.
+    pub fn set_wrench(&mut self, wrench: Wrench, at: Instant) {
+        self.wrench = Some((wrench, at));
+    }
+
+    /// An extra sensor's value, from its topic; `false` for an index beyond [`MAX_SENSORS`].
+    pub fn set_sensor(&mut self, index: usize, value: i32, at: Instant) -> bool {
+        match self.sensors.get_mut(index) {
+            Some(s) => {
+                *s = Some((value, at));
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// One pass of the loop at `now` (steps 2 to 6; the runner's timer is step 1).
+    ///
+    /// Costs a scan of the current reaction table and one iteration of its action; a schema
+    /// change copies one schema.
+    pub fn tick(&mut self, now: Instant) -> Tick {
+        let mut transitions = Vec::new();
+        let overrun = self
+            .last_tick
+            .and_then(|last| now.micros_since(last))
+            .is_some_and(|gap| gap > u64::from(self.config.overrun_us));
+        self.last_tick = Some(now);
+
+        // Step 2: the high-priority channel.
+        if core::mem::take(&mut self.estop) {
+            self.recover(Safety::EmergencyStop, now, &mut transitions);
+        } else if core::mem::take(&mut self.abort) {
+            self.queue.clear();
+            self.install(
+                wait_high_priority(),
+                Origin::HighPriority,
+                Trigger::Abort,
+                now,
+                &mut transitions,
+            );
+        } else if let Some(schema) = self.high_priority.take() {
+            self.fault = None;
+            self.install(
+                schema,
+                Origin::HighPriority,
+                Trigger::HighPriority,
+                now,
+                &mut transitions,
+            );
+        }
+
+        // Steps 3 and 4: the sensor table and the triggering event.
+        match self.trigger(now, overrun) {
+            Some(Err(cause)) => self.recover(cause, now, &mut transitions),
+            Some(Ok((index, next))) => {
+                let by = Trigger::Reaction(index);
+                // Step 5.
+                match next {
+                    Source::Innate(i) => match self.config.innate.get(usize::from(i)) {
+                        Some(s) => {
+                            let s = s.clone();
+                            self.install(s, Origin::Innate, by, now, &mut transitions);
+                        }
+                        // Checked when the schema was admitted; a wait is the safe answer.
+                        None => self.install(
+                            wait_high_priority(),
+                            Origin::HighPriority,
+                            by,
+                            now,
+                            &mut transitions,
+                        ),
+                    },
+                    Source::Queue => {
+                        let s = self.queue.pop_front().unwrap_or_else(wait_queue);
+                        self.install(s, Origin::Queue, by, now, &mut transitions);
+                    }
+                    Source::HighPriority => self.install(
+                        wait_high_priority(),
+                        Origin::HighPriority,
+                        by,
+                        now,
+                        &mut transitions,
+                    ),
+                }
+            }
+            None => {}
+        }
+
+        // Step 6: one iteration; an attractor leaving the workspace is not commanded.
+        let before = self.setpoint.attractor;
+        self.iterate(now);
+        if self.fault.is_none()
+            && self.excess_grew(&self.setpoint.attractor, &self.attractor_excess_at_install)
+        {
+            self.setpoint.attractor = before;
+            self.recover(Safety::Limit, now, &mut transitions);
+            self.iterate(now);
+        }
+
+        Tick {
+            setpoint: self.armed.then_some(self.setpoint),
+            transitions,
+        }
+    }
+
+    fn iterate(&mut self, now: Instant) {
+        let elapsed = now.micros_since(self.installed_at).unwrap_or(0);
+        let measured = self.pose.map_or(self.setpoint.attractor, |(p, _)| p);
+        self.current.action.iterate(
+            &mut self.progress,
+            &mut self.setpoint,
+            elapsed,
+            self.config.period_us,
+            &measured,
+        );
+    }
+
+    /// Steps 3 and 4: the safety event, or the first reaction that holds (its index and
+    /// source), or nothing.
+    fn trigger(&self, now: Instant, overrun: bool) -> Option<Result<(u8, Source), Safety>> {
+        if self.fault.is_none()
+            && let Some(cause) = self.safety(now, overrun)
+        {
+            return Some(Err(cause));
+        }
+        let one_shot = self.progress.iterations >= 1;
+        for (i, r) in self.current.reactions.iter().enumerate() {
+            if self.holds(r, one_shot, now) {
+                return Some(Ok((i as u8, r.next)));
+            }
+        }
+        None
+    }
+
+    fn safety(&self, now: Instant, overrun: bool) -> Option<Safety> {
+        let c = &self.config;
+        let fresh = |at: Instant, limit: u32| {
+            now.micros_since(at)
+                .is_none_or(|age| age <= u64::from(limit))
+        };
+        // The waits move nothing: a drive that is off while the board waits is no fault.
+        let waiting = self.current.id >= super::BUILTIN_IDS;
+        if !waiting {
+            let pose_ok = self.pose.is_some_and(|(_, at)| fresh(at, c.stale_us));
+            let wrench_ok = self.wrench.is_some_and(|(_, at)| fresh(at, c.stale_us));
+            let sensors_ok = self.current.reactions.iter().all(|r| match r.event {
+                Event::Above(Measure::Sensor(s), _) | Event::Below(Measure::Sensor(s), _) => self
+                    .sensors
+                    .get(usize::from(s))
+                    .copied()
+                    .flatten()
+                    .is_some_and(|(_, at)| fresh(at, c.sensor_stale_us)),
+                _ => true,
+            });
+            if !(pose_ok && wrench_ok && sensors_ok) {
+                return Some(Safety::StaleSensor);
+            }
+        }
+        if let Some((pose, _)) = &self.pose
+            && self.excess_grew(pose, &self.excess_at_install)
+        {
+            return Some(Safety::Limit);
+        }
+        if let Some((w, _)) = &self.wrench {
+            let [fx, fy, fz, tx, ty, tz] = *w;
+            if magnitude_above([fx, fy, fz], c.force_limit)
+                || (c.torque_limit != 0 && magnitude_above([tx, ty, tz], c.torque_limit))
+            {
+                return Some(Safety::Force);
+            }
+        }
+        if let Some(budget) = self.budget_us
+            && now
+                .micros_since(self.installed_at)
+                .is_some_and(|t| t > budget)
+        {
+            return Some(Safety::Watchdog);
+        }
+        if overrun {
+            return Some(Safety::Overrun);
+        }
+        None
+    }
+
+    fn holds(&self, r: &Reaction, one_shot: bool, now: Instant) -> bool {
+        let elapsed_us = now.micros_since(self.installed_at).unwrap_or(0);
+        let (m, threshold, above) = match r.event {
+            Event::OneShot => return one_shot,
+            Event::Done => return self.progress.done,
+            Event::Elapsed(ms) => return elapsed_us >= u64::from(ms) * 1000,
+            Event::QueueReady => return !self.queue.is_empty(),
+            Event::Above(m, t) => (m, t, true),
+            Event::Below(m, t) => (m, t, false),
+        };
+        let Some(value) = self.measure(m) else {
+            return false;
+        };
+        if above {
+            value >= i64::from(threshold)
+        } else {
+            value <= i64::from(threshold)
+        }
+    }
+
+    /// A value of the sensor table, or `None` when it has never been received.
+    fn measure(&self, m: Measure) -> Option<i64> {
+        let axis = |v: &[i32; AXES], a: u8| v.get(usize::from(a)).copied().map(i64::from);
+        match m {
+            Measure::Position(a) => axis(&self.pose?.0, a),
+            Measure::Displacement(a) => {
+                Some(axis(&self.pose?.0, a)? - axis(&self.pose_at_install, a)?)
+            }
+            Measure::Force(a) => axis(&self.wrench?.0, a),
+            Measure::Contact => {
+                let (w, _) = self.wrench?;
+                let (d, norm) = self.current.action.heading(&self.progress);
+                if norm == 0 {
+                    return Some(0);
+                }
+                // |F| < 2^31 and |d| ≤ 2^31: each product below 2^62, three of them summed
+                // saturating.
+                let dot = w.iter().zip(d).fold(0i64, |s, (f, d)| {
+                    s.saturating_add(i64::from(*f).saturating_mul(d))
+                });
+                Some(-dot / norm.min(i64::MAX as u64) as i64)
+            }
+            Measure::Sensor(s) => self
+                .sensors
+                .get(usize::from(s))
+                .copied()
+                .flatten()
+                .map(|(v, _)| i64::from(v)),
+        }
+    }
+
+    /// Whether `p` is farther outside the workspace than `then`, on some axis.
+    fn excess_grew(&self, p: &Pose, then: &[u32; AXES]) -> bool {
+        excess(&self.config, p)
+            .iter()
+            .zip(then)
+            .any(|(now, then)| now > then)
+    }
+
+    /// Step 5 for a safety event: the recovery schema (relieve, then wait on the high-priority
+    /// channel), and the fault kept until that channel installs a schema.
+    fn recover(&mut self, cause: Safety, now: Instant, out: &mut Vec<Transition, 3>) {
+        self.fault = Some(cause);
+        let recovery = Schema::builtin(
+            Schema::SAFETY + cause as u16,
+            Action::Relieve,
+            Some(Reaction {
+                event: Event::OneShot,
+                next: Source::HighPriority,
+            }),
+        );
+        self.install(recovery, Origin::Innate, Trigger::Safety(cause), now, out);
+    }
+
+    /// Step 5: the new reaction table, one-shot false, the new action from the current
+    /// attractor, the watchdog restarted.
+    fn install(
+        &mut self,
+        schema: Schema,
+        origin: Origin,
+        by: Trigger,
+        now: Instant,
+        out: &mut Vec<Transition, 3>,
+    ) {
+        let attractor = self.setpoint.attractor;
+        let measured = self.pose.map_or(attractor, |(p, _)| p);
+        self.budget_us = if schema.id >= super::BUILTIN_IDS {
+            None
+        } else if schema.watchdog_ms != 0 {
+            Some(u64::from(schema.watchdog_ms) * 1000)
+        } else {
+            schema.action.nominal_us(&attractor).map(|t| {
+                t.saturating_add(t / 2)
+                    .saturating_add(u64::from(self.config.watchdog_margin_ms) * 1000)
+            })
+        };
+        self.progress = schema.action.start(&attractor);
+        self.installed_at = now;
+        self.pose_at_install = measured;
+        self.excess_at_install = excess(&self.config, &measured);
+        self.attractor_excess_at_install = excess(&self.config, &attractor);
+        // At most three installs a tick (see `Tick`); a fourth could not be reported, and cannot
+        // happen: step 2, step 5 and step 6 install one each.
+        let _ = out.push(Transition {
+            ended: self.current.id,
+            by,
+            installed: schema.id,
+            source: origin,
+        });
+        self.origin = origin;
+        self.current = schema;
+    }
+}
+
+/// How far `p` is outside the workspace, per axis.
+fn excess(c: &Config, p: &Pose) -> [u32; AXES] {
+    let mut out = [0u32; AXES];
+    for (((o, v), lo), hi) in out
+        .iter_mut()
+        .zip(p)
+        .zip(&c.workspace_min)
+        .zip(&c.workspace_max)
+    {
+        let below = i64::from(*lo) - i64::from(*v);
+        let above = i64::from(*v) - i64::from(*hi);
+        *o = below.max(above).max(0).min(i64::from(u32::MAX)) as u32;
+    }
+    out
+}
+
+/// |v| > limit, without a root.
+fn magnitude_above(v: [i32; 3], limit: u32) -> bool {
+    let sum = v.iter().fold(0u64, |s, c| {
+        s.saturating_add(u64::from(c.unsigned_abs()) * u64::from(c.unsigned_abs()))
+    });
+    sum > u64::from(limit) * u64::from(limit)
+}
+
+fn wait_queue() -> Schema {
+    Schema::builtin(
+        Schema::WAIT_QUEUE,
+        Action::Idle { ms: 0 },
+        Some(Reaction {
+            event: Event::QueueReady,
+            next: Source::Queue,
+        }),
+    )
+}
+
+fn wait_high_priority() -> Schema {
+    Schema::builtin(Schema::WAIT_HIGH_PRIORITY, Action::Idle { ms: 0 }, None)
+}

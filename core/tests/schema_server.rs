@@ -1,0 +1,780 @@
+//! The schema server (`pab_core::schema`): the loop's steps as DESIGN.md ("Schema server:
+//! decisions") fixes them, each safety event, the queue and the high-priority channel, the
+//! fixed-point motion against an f64 reference, and properties over random schemas and inputs.
+
+use pab_core::Instant;
+use pab_core::schema::build;
+use pab_core::schema::{
+    AXES, Action, Config, Event, Gripper, MAX_ENCODED, Measure, Origin, Pose, QUEUE_DEPTH,
+    Reaction, Refusal, Safety, Schema, SchemaError, Server, Source, Tick, Trigger,
+};
+use proptest::prelude::*;
+
+const PERIOD: u32 = 1000;
+
+fn at(tick: u64) -> Instant {
+    Instant::from_micros(tick * u64::from(PERIOD))
+}
+
+/// A server, and a robot that follows its attractor exactly (a perfectly stiff drive) with no
+/// force on it: the loop's logic without a plant.
+struct Rig {
+    server: Server,
+    tick: u64,
+    pose: Pose,
+    wrench: [i32; AXES],
+}
+
+impl Rig {
+    fn new(config: Config) -> Rig {
+        let mut server = Server::new(config).expect("valid config");
+        server.set_pose([0; AXES], at(0));
+        server.set_wrench([0; AXES], at(0));
+        Rig {
+            server,
+            tick: 0,
+            pose: [0; AXES],
+            wrench: [0; AXES],
+        }
+    }
+
+    fn step(&mut self) -> Tick {
+        self.tick += 1;
+        let now = at(self.tick);
+        self.server.set_pose(self.pose, now);
+        self.server.set_wrench(self.wrench, now);
+        let out = self.server.tick(now);
+        if let Some(s) = out.setpoint {
+            self.pose = s.attractor;
+        }
+        out
+    }
+
+    /// Steps until a transition, at most `limit` ticks: the tick count and the transition.
+    fn until_transition(&mut self, limit: u64) -> (u64, pab_core::schema::Transition) {
+        for _ in 0..limit {
+            let out = self.step();
+            if let Some(t) = out.transitions.first() {
+                return (self.tick, *t);
+            }
+        }
+        panic!("no transition within {limit} ticks");
+    }
+}
+
+fn goal_x(x: i32) -> Pose {
+    [x, 0, 0, 0, 0, 0]
+}
+
+#[test]
+fn a_queued_schema_is_installed_from_the_wait_and_runs_in_the_same_tick() {
+    let mut rig = Rig::new(Config::new(PERIOD));
+    assert_eq!(rig.server.current(), Schema::WAIT_QUEUE);
+    rig.step();
+    assert_eq!(
+        rig.server.enqueue(build::move_to(1, goal_x(10), 1000)),
+        Ok(1)
+    );
+    let out = rig.step();
+    assert_eq!(out.transitions.len(), 1);
+    let t = out.transitions[0];
+    assert_eq!(
+        (t.ended, t.installed, t.by, t.source),
+        (Schema::WAIT_QUEUE, 1, Trigger::Reaction(0), Origin::Queue)
+    );
+    // Installed in step 5 and iterated in step 6 of the same tick: 1 mm/s is 1 µm a tick.
+    assert_eq!(out.setpoint.unwrap().attractor, goal_x(1));
+}
+
+#[test]
+fn one_millimetre_per_second_at_one_kilohertz_is_one_micrometre_a_tick_and_ends_on_the_goal() {
+    let mut rig = Rig::new(Config::new(PERIOD));
+    rig.server
+        .enqueue(build::move_to(1, goal_x(250), 1000))
+        .unwrap();
+    rig.server.enqueue(build::idle(2, 0)).unwrap();
+    for k in 1..=250 {
+        let out = rig.step();
+        assert_eq!(out.setpoint.unwrap().attractor[0], k, "tick {k}");
+        if k < 250 {
+            assert_eq!(rig.server.current(), 1);
+        }
+    }
+    // Done on tick 250 (the attractor is on the goal); the event is seen at the next tick.
+    let out = rig.step();
+    assert_eq!(out.transitions[0].ended, 1);
+    assert_eq!(out.transitions[0].installed, 2);
+    assert_eq!(out.transitions[0].by, Trigger::Reaction(0));
+}
+
+#[test]
+fn speeds_that_are_not_whole_micrometres_a_tick_lose_nothing() {
+    // 1.5 mm/s: 1.5 µm a tick, so 3 µm every two ticks exactly.
+    let mut rig = Rig::new(Config::new(PERIOD));
+    rig.server
+        .enqueue(build::move_to(1, goal_x(1_000_000), 1500))
+        .unwrap();
+    for k in 1..=1000u64 {
+        let x = rig.step().setpoint.unwrap().attractor[0];
+        assert_eq!(x as u64, k * 3 / 2, "tick {k}");
+    }
+    // 0.3 mm/s at 1 kHz: the attractor moves once every three or four ticks, 300 µm a second.
+    let mut rig = Rig::new(Config::new(PERIOD));
+    rig.server
+        .enqueue(build::move_to(1, goal_x(-1_000_000), 300))
+        .unwrap();
+    for _ in 0..1000 {
+        rig.step();
+    }
+    assert_eq!(rig.pose[0], -300);
+}
+
+#[test]
+fn an_atomic_action_runs_once_then_one_shot_installs_the_next() {
+    let mut rig = Rig::new(Config::new(PERIOD));
+    rig.server
+        .enqueue(build::gripper(1, Gripper::Closed))
+        .unwrap();
+    rig.server.enqueue(build::idle(2, 0)).unwrap();
+    let out = rig.step();
+    assert_eq!(out.transitions[0].installed, 1);
+    assert_eq!(out.setpoint.unwrap().gripper, Gripper::Closed);
+    let out = rig.step();
+    assert_eq!(out.transitions[0].ended, 1);
+    assert_eq!(out.transitions[0].installed, 2);
+    assert_eq!(out.transitions[0].by, Trigger::Reaction(0));
+}
+
+#[test]
+fn a_high_priority_schema_preempts_at_the_next_tick_and_has_not_run_before_one_shot() {
+    let mut rig = Rig::new(Config::new(PERIOD));
+    rig.server
+        .enqueue(build::move_to(1, goal_x(1000), 1000))
+        .unwrap();
+    rig.step();
+    rig.step();
+    let mut hp = build::gripper(7, Gripper::Closed);
+    hp.reactions[0].next = Source::HighPriority;
+    rig.server.high_priority(hp.clone()).unwrap();
+    assert_eq!(rig.server.high_priority(hp), Err(Refusal::Busy));
+    let out = rig.step();
+    assert_eq!(
+        out.transitions.len(),
+        1,
+        "one-shot must not fire before the action ran"
+    );
+    assert_eq!(out.transitions[0].installed, 7);
+    assert_eq!(out.transitions[0].by, Trigger::HighPriority);
+    assert_eq!(out.transitions[0].source, Origin::HighPriority);
+    let out = rig.step();
+    assert_eq!(out.transitions[0].installed, Schema::WAIT_HIGH_PRIORITY);
+    // The queue still holds nothing new; the move was pre-empted, not resumed.
+    assert_eq!(rig.server.queued(), 0);
+}
+
+#[test]
+fn an_emergency_stop_relieves_in_the_tick_it_is_seen_and_the_queue_waits_for_the_high_priority_channel()
+ {
+    let mut rig = Rig::new(Config::new(PERIOD));
+    rig.server
+        .enqueue(build::move_to(1, goal_x(100_000), 10_000))
+        .unwrap();
+    rig.server
+        .enqueue(build::move_to(2, goal_x(0), 10_000))
+        .unwrap();
+    for _ in 0..10 {
+        rig.step();
+    }
+    // The robot lags its attractor by 30 µm (the drive is soft): a stop holds it where it is.
+    rig.pose[0] -= 30;
+    let measured = rig.pose;
+    rig.server.emergency_stop();
+    rig.tick += 1;
+    rig.server.set_pose(measured, at(rig.tick));
+    let out = rig.server.tick(at(rig.tick));
+    assert_eq!(
+        out.transitions[0].by,
+        Trigger::Safety(Safety::EmergencyStop)
+    );
+    assert_eq!(
+        out.transitions[0].installed,
+        Schema::SAFETY + Safety::EmergencyStop as u16
+    );
+    assert_eq!(out.transitions[0].source, Origin::Innate);
+    assert_eq!(out.setpoint.unwrap().attractor, measured);
+    assert_eq!(rig.server.fault(), Some(Safety::EmergencyStop));
+    let (_, t) = rig.until_transition(5);
+    assert_eq!(t.installed, Schema::WAIT_HIGH_PRIORITY);
+    for _ in 0..100 {
+        assert!(rig.step().transitions.is_empty(), "the queue must not run");
+    }
+    assert_eq!(rig.server.queued(), 1);
+    assert_eq!(rig.pose, measured);
+    // The high-priority channel installs a schema and clears the fault; the queue runs after.
+    rig.server.high_priority(build::idle(9, 5)).unwrap();
+    let (_, t) = rig.until_transition(2);
+    assert_eq!((t.installed, t.by), (9, Trigger::HighPriority));
+    assert_eq!(rig.server.fault(), None);
+    let (_, t) = rig.until_transition(10);
+    assert_eq!(t.installed, 2);
+}
+
+#[test]
+fn abort_empties_the_queue_and_holds_the_attractor() {
+    let mut rig = Rig::new(Config::new(PERIOD));
+    rig.server
+        .enqueue(build::move_to(1, goal_x(100_000), 10_000))
+        .unwrap();
+    rig.server
+        .enqueue(build::move_to(2, goal_x(0), 10_000))
+        .unwrap();
+    for _ in 0..10 {
+        rig.step();
+    }
+    let held = rig.pose;
+    rig.server.abort();
+    let out = rig.step();
+    assert_eq!(out.transitions[0].by, Trigger::Abort);
+    assert_eq!(out.transitions[0].installed, Schema::WAIT_HIGH_PRIORITY);
+    assert_eq!(out.setpoint.unwrap().attractor, held);
+    assert_eq!(rig.server.queued(), 0);
+    assert_eq!(rig.server.fault(), None);
+}
+
+#[test]
+fn force_above_the_limit_is_a_safety_event_before_any_reaction() {
+    let mut config = Config::new(PERIOD);
+    config.force_limit = 20_000;
+    let mut rig = Rig::new(config);
+    // A touch-down whose contact threshold is above the safety limit: safety wins.
+    rig.server
+        .enqueue(build::move_to_touch(
+            1,
+            [0, 0, -1, 0, 0, 0],
+            1000,
+            30_000,
+            100_000,
+        ))
+        .unwrap();
+    rig.step();
+    rig.wrench = [0, 0, 25_000, 0, 0, 0];
+    let (_, t) = rig.until_transition(2);
+    assert_eq!(t.by, Trigger::Safety(Safety::Force));
+    // At 19.9 N along a diagonal the magnitude is below the limit: no event.
+    let mut rig = Rig::new(Config::new(PERIOD));
+    rig.server.enqueue(build::idle(1, 0)).unwrap();
+    rig.step();
+    rig.wrench = [14_000, 14_000, 0, 0, 0, 0];
+    for _ in 0..10 {
+        assert!(rig.step().transitions.is_empty());
+    }
+    rig.wrench = [30_000, 30_000, 30_000, 0, 0, 0];
+    assert_eq!(rig.step().transitions[0].by, Trigger::Safety(Safety::Force));
+}
+
+#[test]
+fn move_to_touch_ends_on_contact_against_its_direction() {
+    let mut rig = Rig::new(Config::new(PERIOD));
+    rig.server
+        .enqueue(build::move_to_touch(
+            1,
+            [0, 0, -5, 0, 0, 0],
+            1000,
+            3000,
+            100_000,
+        ))
+        .unwrap();
+    rig.server.enqueue(build::idle(2, 0)).unwrap();
+    for _ in 0..20 {
+        rig.step();
+    }
+    assert_eq!(rig.pose[2], -20);
+    // A sideways force is no contact; an upward one is.
+    rig.wrench = [5000, 0, 0, 0, 0, 0];
+    assert!(rig.step().transitions.is_empty());
+    rig.wrench = [0, 0, 3000, 0, 0, 0];
+    let t = rig.step().transitions[0];
+    assert_eq!((t.ended, t.installed, t.by), (1, 2, Trigger::Reaction(0)));
+}
+
+#[test]
+fn move_to_touch_that_meets_nothing_asks_the_high_priority_channel() {
+    let mut rig = Rig::new(Config::new(PERIOD));
+    rig.server
+        .enqueue(build::move_to_touch(1, [0, 0, -1, 0, 0, 0], 1000, 3000, 50))
+        .unwrap();
+    let (tick, t) = rig.until_transition(100);
+    assert_eq!(t.installed, 1);
+    let (end, t) = rig.until_transition(100);
+    assert_eq!(
+        (t.by, t.installed),
+        (Trigger::Reaction(1), Schema::WAIT_HIGH_PRIORITY)
+    );
+    assert_eq!(end - tick, 50);
+    assert_eq!(rig.pose[2], -50);
+}
+
+#[test]
+fn the_attractor_is_never_commanded_outside_the_workspace() {
+    let mut config = Config::new(PERIOD);
+    config.workspace_max[0] = 100;
+    let mut rig = Rig::new(config);
+    rig.server
+        .enqueue(build::move_to(1, goal_x(1000), 1000))
+        .unwrap();
+    let mut last = 0;
+    for _ in 0..200 {
+        let out = rig.step();
+        let x = out.setpoint.unwrap().attractor[0];
+        assert!(x <= 100, "commanded {x}");
+        if let Some(t) = out
+            .transitions
+            .iter()
+            .find(|t| matches!(t.by, Trigger::Safety(_)))
+        {
+            assert_eq!(t.by, Trigger::Safety(Safety::Limit));
+            assert_eq!(x, 100);
+            last = rig.tick;
+            break;
+        }
+    }
+    assert_eq!(last, 101, "the 101st µm is refused on its own tick");
+}
+
+#[test]
+fn a_robot_pushed_out_of_the_workspace_may_be_brought_back() {
+    let mut config = Config::new(PERIOD);
+    config.workspace_max[0] = 100;
+    let mut rig = Rig::new(config);
+    rig.server.enqueue(build::idle(1, 0)).unwrap();
+    rig.step();
+    // Pushed out by hand.
+    rig.pose[0] = 150;
+    let t = rig.step().transitions[0];
+    assert_eq!(t.by, Trigger::Safety(Safety::Limit));
+    rig.until_transition(3);
+    // Back in through the high-priority channel: no limit event while coming back.
+    rig.server
+        .high_priority(build::move_to(2, goal_x(50), 1000))
+        .unwrap();
+    rig.until_transition(2);
+    for _ in 0..100 {
+        let out = rig.step();
+        assert!(
+            out.transitions
+                .iter()
+                .all(|t| t.installed != Schema::SAFETY + Safety::Limit as u16)
+        );
+    }
+    assert_eq!(rig.pose[0], 50);
+}
+
+#[test]
+fn the_watchdog_ends_a_schema_that_overruns_its_budget() {
+    let mut config = Config::new(PERIOD);
+    config.watchdog_margin_ms = 100;
+    let mut rig = Rig::new(config);
+    // 10 ms nominal (10 µm at 1 mm/s): budget 10 × 1.5 + 100 ms. No reaction ends it.
+    let mut s = build::move_to(1, goal_x(10), 1000);
+    s.reactions.clear();
+    rig.server.enqueue(s).unwrap();
+    let (installed, _) = rig.until_transition(2);
+    let (end, t) = rig.until_transition(1000);
+    assert_eq!(t.by, Trigger::Safety(Safety::Watchdog));
+    assert_eq!(
+        end - installed,
+        116,
+        "115 ms of budget, exceeded on the next tick"
+    );
+}
+
+#[test]
+fn an_explicit_watchdog_budget_replaces_the_default() {
+    let mut rig = Rig::new(Config::new(PERIOD));
+    let mut s = build::idle(1, 0);
+    s.reactions.clear();
+    s.watchdog_ms = 20;
+    rig.server.enqueue(s).unwrap();
+    let (start, _) = rig.until_transition(2);
+    let (end, t) = rig.until_transition(100);
+    assert_eq!(t.by, Trigger::Safety(Safety::Watchdog));
+    assert_eq!(end - start, 21);
+}
+
+#[test]
+fn a_stale_pose_stops_a_moving_schema_but_not_a_wait() {
+    let mut server = Server::new(Config::new(PERIOD)).unwrap();
+    server.set_pose([0; AXES], at(0));
+    server.set_wrench([0; AXES], at(0));
+    // Waiting on the queue with no frames: no fault (nothing moves).
+    for k in 1..200 {
+        assert!(server.tick(at(k)).transitions.is_empty());
+    }
+    server.enqueue(build::move_to(1, goal_x(10), 1000)).unwrap();
+    // Installed from the wait (whose reactions step 4 scans), it runs one iteration; its own
+    // safety events are tested from the next tick on.
+    let out = server.tick(at(200));
+    assert_eq!(out.transitions[0].installed, 1);
+    let out = server.tick(at(201));
+    assert_eq!(out.transitions[0].by, Trigger::Safety(Safety::StaleSensor));
+}
+
+#[test]
+fn a_sensor_the_reactions_read_must_be_fresh() {
+    let mut rig = Rig::new(Config::new(PERIOD));
+    let mut s = build::idle(1, 0);
+    s.reactions[0] = Reaction {
+        event: Event::Above(Measure::Sensor(3), 10),
+        next: Source::Queue,
+    };
+    rig.server.enqueue(s).unwrap();
+    rig.server.set_sensor(3, 5, at(1));
+    let (_, t) = rig.until_transition(2);
+    assert_eq!(t.installed, 1);
+    rig.server.set_sensor(3, 11, at(2));
+    let t = rig.step().transitions[0];
+    assert_eq!(t.by, Trigger::Reaction(0));
+    assert!(!rig.server.set_sensor(8, 0, at(3)));
+    // Never refreshed: stale after 50 ms.
+    let mut s = build::idle(2, 0);
+    s.reactions[0].event = Event::Above(Measure::Sensor(4), 10);
+    rig.server.high_priority(s).unwrap();
+    // Installed in step 2, its sensor found stale in step 3 of the same tick.
+    let out = rig.step();
+    assert_eq!(out.transitions[0].installed, 2);
+    assert_eq!(out.transitions[1].by, Trigger::Safety(Safety::StaleSensor));
+}
+
+#[test]
+fn a_late_tick_is_an_overrun() {
+    let mut rig = Rig::new(Config::new(PERIOD));
+    rig.server.enqueue(build::idle(1, 0)).unwrap();
+    rig.step();
+    rig.tick += 2; // 3 ms since the previous tick: more than two periods.
+    let t = rig.step().transitions[0];
+    assert_eq!(t.by, Trigger::Safety(Safety::Overrun));
+}
+
+#[test]
+fn innate_schemas_are_installed_by_index_and_unknown_ones_refused() {
+    let mut config = Config::new(PERIOD);
+    config
+        .innate
+        .push(build::gripper(40, Gripper::Closed))
+        .unwrap();
+    let mut rig = Rig::new(config);
+    let mut s = build::idle(1, 2);
+    s.reactions[0].next = Source::Innate(0);
+    rig.server.enqueue(s.clone()).unwrap();
+    rig.until_transition(2);
+    let (_, t) = rig.until_transition(10);
+    assert_eq!((t.installed, t.source), (40, Origin::Innate));
+    s.reactions[0].next = Source::Innate(1);
+    assert_eq!(rig.server.enqueue(s), Err(Refusal::UnknownInnate));
+}
+
+#[test]
+fn a_full_queue_refuses_and_keeps_what_it_holds() {
+    let mut server = Server::new(Config::new(PERIOD)).unwrap();
+    for i in 0..QUEUE_DEPTH {
+        assert_eq!(server.enqueue(build::idle(i as u16 + 1, 1)), Ok(i + 1));
+    }
+    assert_eq!(server.enqueue(build::idle(99, 1)), Err(Refusal::QueueFull));
+    assert_eq!(server.queued(), QUEUE_DEPTH);
+}
+
+#[test]
+fn the_blind_search_presses_spirals_and_ends_when_the_part_drops() {
+    let mut rig = Rig::new(Config::new(PERIOD));
+    let search = Action::BlindSearch {
+        preload: 2000,
+        pitch: 100,
+        speed: 10_000,
+        radius: 1000,
+        wobble: 10_000,
+        wobble_ms: 400,
+    };
+    rig.server
+        .enqueue(build::blind_search(1, search, 1000))
+        .unwrap();
+    rig.server.enqueue(build::idle(2, 0)).unwrap();
+    // The measured pose does not follow z (the surface holds the part): keep it at 0.
+    let mut seen = std::collections::BTreeSet::new();
+    for _ in 0..300 {
+        let out = rig.step();
+        let a = out.setpoint.unwrap().attractor;
+        assert_eq!(a[2], -2000);
+        assert!(a[5].abs() <= 10_000);
+        seen.insert((a[0], a[1]));
+        rig.pose[2] = 0;
+    }
+    // 3 mm of spiral at 100 µm pitch: legs 100, 100, 200, 200, 300, 300, 400, 400, 500, 500
+    // end at 3 000 µm, at (300, 300).
+    assert!(seen.contains(&(100, 0)) && seen.contains(&(100, 100)) && seen.contains(&(-100, 100)));
+    assert!(seen.contains(&(-100, -100)) && seen.contains(&(200, -100)));
+    assert_eq!(rig.pose[0..2], [300, 300][..]);
+    rig.pose[2] = -1000;
+    let t = rig.step().transitions[0];
+    assert_eq!((t.ended, t.installed), (1, 2));
+}
+
+#[test]
+fn schemas_round_trip_through_postcard_and_bad_bytes_are_refused_whole() {
+    let s = build::move_to_touch(1, [0, 0, -1, 0, 0, 0], 2000, 3000, 40_000);
+    let mut buf = [0u8; MAX_ENCODED];
+    let bytes = postcard::to_slice(&s, &mut buf).unwrap();
+    assert_eq!(Schema::decode(bytes), Ok(s.clone()));
+    let mut longer = bytes.to_vec();
+    longer.push(0);
+    assert_eq!(Schema::decode(&longer), Err(SchemaError::TrailingBytes));
+    assert!(matches!(
+        Schema::decode(&bytes[..bytes.len() - 1]),
+        Err(SchemaError::Malformed(_))
+    ));
+    let mut reserved = s.clone();
+    reserved.id = Schema::WAIT_QUEUE;
+    let bytes = postcard::to_slice(&reserved, &mut buf).unwrap();
+    assert_eq!(Schema::decode(bytes), Err(SchemaError::ReservedId));
+    let mut far = build::move_to(1, [600_000_000, 0, 0, 0, 0, 0], 1);
+    let bytes = postcard::to_slice(&far, &mut buf).unwrap();
+    assert_eq!(Schema::decode(bytes), Err(SchemaError::OutOfRange));
+    far.action = Action::MoveTo {
+        goal: [0; AXES],
+        speed: 0,
+    };
+    let bytes = postcard::to_slice(&far, &mut buf).unwrap();
+    assert_eq!(Schema::decode(bytes), Err(SchemaError::Degenerate));
+    let mut axis = build::idle(1, 0);
+    axis.reactions[0].event = Event::Above(Measure::Force(6), 0);
+    let bytes = postcard::to_slice(&axis, &mut buf).unwrap();
+    assert_eq!(Schema::decode(bytes), Err(SchemaError::BadAxis));
+}
+
+// ---- Properties ----
+
+fn pose() -> impl Strategy<Value = Pose> {
+    prop::array::uniform6(-2_000_000i32..2_000_000)
+}
+
+fn measure() -> impl Strategy<Value = Measure> {
+    prop_oneof![
+        (0u8..8).prop_map(Measure::Position),
+        (0u8..8).prop_map(Measure::Displacement),
+        (0u8..8).prop_map(Measure::Force),
+        Just(Measure::Contact),
+        (0u8..10).prop_map(Measure::Sensor),
+    ]
+}
+
+fn event() -> impl Strategy<Value = Event> {
+    prop_oneof![
+        Just(Event::OneShot),
+        Just(Event::Done),
+        (0u32..50).prop_map(Event::Elapsed),
+        Just(Event::QueueReady),
+        (measure(), any::<i32>()).prop_map(|(m, t)| Event::Above(m, t)),
+        (measure(), any::<i32>()).prop_map(|(m, t)| Event::Below(m, t)),
+    ]
+}
+
+fn source() -> impl Strategy<Value = Source> {
+    prop_oneof![
+        (0u8..3).prop_map(Source::Innate),
+        Just(Source::Queue),
+        Just(Source::HighPriority)
+    ]
+}
+
+fn action() -> impl Strategy<Value = Action> {
+    let speed = 0u32..2_000_000;
+    prop_oneof![
+        (0u32..100).prop_map(|ms| Action::Idle { ms }),
+        any::<bool>().prop_map(|c| Action::Gripper(if c {
+            Gripper::Closed
+        } else {
+            Gripper::Open
+        })),
+        (any::<u32>(), any::<u32>())
+            .prop_map(|(stiffness, damping)| Action::SetImpedance { stiffness, damping }),
+        Just(Action::Relieve),
+        (pose(), speed.clone()).prop_map(|(goal, speed)| Action::MoveTo { goal, speed }),
+        (pose(), speed.clone(), 0u32..5_000_000).prop_map(|(direction, speed, distance)| {
+            Action::MoveToTouch {
+                direction,
+                speed,
+                distance,
+            }
+        }),
+        (
+            0u32..5000,
+            0u32..500,
+            speed,
+            0u32..10_000,
+            0u32..50_000,
+            0u32..1000
+        )
+            .prop_map(|(preload, pitch, speed, radius, wobble, wobble_ms)| {
+                Action::BlindSearch {
+                    preload,
+                    pitch,
+                    speed,
+                    radius,
+                    wobble,
+                    wobble_ms,
+                }
+            }),
+        (0u32..100).prop_map(|settle_ms| Action::Grasp { settle_ms }),
+        (0u32..100).prop_map(|settle_ms| Action::Release { settle_ms }),
+    ]
+}
+
+fn schema() -> impl Strategy<Value = Schema> {
+    (
+        1u16..0x1000,
+        action(),
+        prop::collection::vec((event(), source()), 0..5),
+        0u32..200,
+    )
+        .prop_map(|(id, action, reactions, watchdog_ms)| Schema {
+            id,
+            action,
+            reactions: reactions
+                .into_iter()
+                .map(|(event, next)| Reaction { event, next })
+                .collect(),
+            watchdog_ms,
+        })
+}
+
+#[derive(Debug, Clone)]
+enum Op {
+    Enqueue(Schema),
+    HighPriority(Schema),
+    Abort,
+    Stop,
+    Pose(Pose),
+    Wrench([i32; AXES]),
+    Sensor(usize, i32),
+    Tick(u64),
+}
+
+fn op() -> impl Strategy<Value = Op> {
+    prop_oneof![
+        2 => schema().prop_map(Op::Enqueue),
+        1 => schema().prop_map(Op::HighPriority),
+        1 => Just(Op::Abort),
+        1 => Just(Op::Stop),
+        3 => pose().prop_map(Op::Pose),
+        3 => prop::array::uniform6(-60_000i32..60_000).prop_map(Op::Wrench),
+        1 => (0usize..10, any::<i32>()).prop_map(|(i, v)| Op::Sensor(i, v)),
+        8 => (1u64..4).prop_map(Op::Tick),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(300))]
+
+    /// Whatever a client, the sensors and the clock do: no panic, every installed schema is one
+    /// that was admitted or a built-in one, a safety event always installs its recovery and
+    /// leaves a fault, the attractor is never commanded farther outside the workspace than it
+    /// was, and the queue never exceeds its depth.
+    #[test]
+    fn the_loop_keeps_its_invariants(ops in prop::collection::vec(op(), 1..300)) {
+        let mut config = Config::new(PERIOD);
+        config.workspace_min = [-1_500_000; AXES];
+        config.workspace_max = [1_500_000; AXES];
+        config.innate.push(build::idle(500, 3)).unwrap();
+        config.innate.push(build::gripper(501, Gripper::Closed)).unwrap();
+        config.innate.push(build::move_to(502, [0; AXES], 5000)).unwrap();
+        let mut server = Server::new(config.clone()).unwrap();
+        let mut admitted = std::collections::BTreeSet::from([500u16, 501, 502]);
+        let mut now = 0u64;
+        for op in ops {
+            match op {
+                Op::Enqueue(s) => {
+                    let id = s.id;
+                    if server.enqueue(s).is_ok() { admitted.insert(id); }
+                }
+                Op::HighPriority(s) => {
+                    let id = s.id;
+                    if server.high_priority(s).is_ok() { admitted.insert(id); }
+                }
+                Op::Abort => server.abort(),
+                Op::Stop => server.emergency_stop(),
+                Op::Pose(p) => server.set_pose(p, Instant::from_micros(now)),
+                Op::Wrench(w) => server.set_wrench(w, Instant::from_micros(now)),
+                Op::Sensor(i, v) => { server.set_sensor(i, v, Instant::from_micros(now)); }
+                Op::Tick(n) => {
+                    now += n * u64::from(PERIOD);
+                    let out = server.tick(Instant::from_micros(now));
+                    for t in &out.transitions {
+                        prop_assert!(admitted.contains(&t.installed) || t.installed >= pab_core::schema::BUILTIN_IDS);
+                        if let Trigger::Safety(cause) = t.by {
+                            prop_assert_eq!(t.installed, Schema::SAFETY + cause as u16);
+                        }
+                    }
+                    if out.transitions.iter().any(|t| matches!(t.by, Trigger::Safety(_))) {
+                        prop_assert!(server.fault().is_some());
+                    }
+                    prop_assert!(server.queued() <= QUEUE_DEPTH);
+                }
+            }
+        }
+    }
+
+    /// A move's attractor is the f64 straight line at constant speed, to within 1 µm, and ends
+    /// exactly on the goal on the tick its progress reaches the distance.
+    #[test]
+    fn moves_follow_the_f64_line(goal in prop::array::uniform3(-50_000i32..50_000), speed in 100u32..200_000, period in 200u32..5000) {
+        let goal: Pose = [goal[0], goal[1], goal[2], 0, 0, 0];
+        let mut config = Config::new(period);
+        config.overrun_us = period * 2;
+        let mut server = Server::new(config).unwrap();
+        server.enqueue(build::move_to(1, goal, speed)).unwrap();
+        let length = goal.iter().take(3).map(|c| f64::from(*c).powi(2)).sum::<f64>().sqrt();
+        let mut reached = None;
+        for k in 1..=200_000u64 {
+            let now = Instant::from_micros(k * u64::from(period));
+            server.set_pose([0; AXES], now);
+            server.set_wrench([0; AXES], now);
+            let a = server.tick(now).setpoint.unwrap().attractor;
+            // Progress after k ticks, from the exact integer product: floor(k·speed·period / 1e6).
+            let progress = ((k as u128 * u128::from(speed) * u128::from(period)) / 1_000_000) as f64;
+            if progress >= length.floor() && reached.is_none() {
+                prop_assert_eq!(a, goal, "tick {}", k);
+                reached = Some(k);
+                break;
+            }
+            for axis in 0..3 {
+                let expected = f64::from(goal[axis]) * progress / length.floor();
+                prop_assert!((f64::from(a[axis]) - expected).abs() <= 1.0, "tick {} axis {}: {} vs {}", k, axis, a[axis], expected);
+            }
+        }
+        prop_assert!(reached.is_some() || length < 1.0);
+    }
+
+    /// Any bytes: a schema or a typed error, never a panic; what decodes re-encodes to the same
+    /// bytes.
+    #[test]
+    fn any_bytes_decode_or_are_refused(bytes in prop::collection::vec(any::<u8>(), 0..300)) {
+        if let Ok(s) = Schema::decode(&bytes) {
+            let mut buf = [0u8; 512];
+            let again = postcard::to_slice(&s, &mut buf).unwrap();
+            prop_assert_eq!(Schema::decode(again), Ok(s));
+        }
+    }
+
+    /// Every valid schema round-trips, within MAX_ENCODED bytes.
+    #[test]
+    fn valid_schemas_round_trip(s in schema()) {
+        let mut buf = [0u8; 1024];
+        let bytes = postcard::to_slice(&s, &mut buf).unwrap();
+        match s.check() {
+            Ok(()) => {
+                prop_assert!(bytes.len() <= MAX_ENCODED);
+                prop_assert_eq!(Schema::decode(bytes), Ok(s));
+            }
+            Err(e) => prop_assert_eq!(Schema::decode(bytes), Err(e)),
+        }
+    }
+}
