@@ -104,7 +104,11 @@ for network in examples/*.toml examples/dynamics/*.toml; do
     mkdir -p "$(dirname "$out/$name")"
     "$pabctl" check "$network" > "$out/$name.check.txt"
     "$pabctl" compile "$network" -o "$out/$name" > "$out/$name.compile.txt"
-    "$pabctl" sim "$network" --trace "$out/$name.csv" --plot "$out/$name.png" > "$out/$name.sim.txt"
+    # A file with a schema server's [client] also writes its schema trace (--plot draws its run).
+    schema=()
+    if grep -q '^\[client\]' "$network"; then schema=(--schema-trace "$out/$name.schema.csv"); fi
+    "$pabctl" sim "$network" --trace "$out/$name.csv" --plot "$out/$name.png" "${schema[@]}" \
+        > "$out/$name.sim.txt"
     echo "$network: consistent, compiled, simulated ($out/$name.png)"
 done
 

@@ -80,7 +80,12 @@ fn a_queued_schema_is_installed_from_the_wait_and_runs_in_the_same_tick() {
     let t = out.transitions[0];
     assert_eq!(
         (t.ended, t.installed, t.by, t.source),
-        (Schema::WAIT_QUEUE, 1, Trigger::Reaction(0), Origin::Queue)
+        (
+            Schema::WAIT_QUEUE,
+            1,
+            Trigger::Reaction(0, Event::QueueReady),
+            Origin::Queue
+        )
     );
     // Installed in step 5 and iterated in step 6 of the same tick: 1 mm/s is 1 µm a tick.
     assert_eq!(out.setpoint.unwrap().attractor, goal_x(1));
@@ -104,7 +109,7 @@ fn one_millimetre_per_second_at_one_kilohertz_is_one_micrometre_a_tick_and_ends_
     let out = rig.step();
     assert_eq!(out.transitions[0].ended, 1);
     assert_eq!(out.transitions[0].installed, 2);
-    assert_eq!(out.transitions[0].by, Trigger::Reaction(0));
+    assert_eq!(out.transitions[0].by, Trigger::Reaction(0, Event::Done));
 }
 
 #[test]
@@ -142,7 +147,7 @@ fn an_atomic_action_runs_once_then_one_shot_installs_the_next() {
     let out = rig.step();
     assert_eq!(out.transitions[0].ended, 1);
     assert_eq!(out.transitions[0].installed, 2);
-    assert_eq!(out.transitions[0].by, Trigger::Reaction(0));
+    assert_eq!(out.transitions[0].by, Trigger::Reaction(0, Event::OneShot));
 }
 
 #[test]
@@ -294,7 +299,14 @@ fn move_to_touch_ends_on_contact_against_its_direction() {
     assert!(rig.step().transitions.is_empty());
     rig.wrench = [0, 0, 3000, 0, 0, 0];
     let t = rig.step().transitions[0];
-    assert_eq!((t.ended, t.installed, t.by), (1, 2, Trigger::Reaction(0)));
+    assert_eq!(
+        (t.ended, t.installed, t.by),
+        (
+            1,
+            2,
+            Trigger::Reaction(0, Event::Above(Measure::Contact, 3000))
+        )
+    );
 }
 
 #[test]
@@ -308,7 +320,10 @@ fn move_to_touch_that_meets_nothing_asks_the_high_priority_channel() {
     let (end, t) = rig.until_transition(100);
     assert_eq!(
         (t.by, t.installed),
-        (Trigger::Reaction(1), Schema::WAIT_HIGH_PRIORITY)
+        (
+            Trigger::Reaction(1, Event::Done),
+            Schema::WAIT_HIGH_PRIORITY
+        )
     );
     assert_eq!(end - tick, 50);
     assert_eq!(rig.pose[2], -50);
@@ -433,7 +448,10 @@ fn a_sensor_the_reactions_read_must_be_fresh() {
     assert_eq!(t.installed, 1);
     rig.server.set_sensor(3, 11, at(2));
     let t = rig.step().transitions[0];
-    assert_eq!(t.by, Trigger::Reaction(0));
+    assert_eq!(
+        t.by,
+        Trigger::Reaction(0, Event::Above(Measure::Sensor(3), 10))
+    );
     assert!(!rig.server.set_sensor(8, 0, at(3)));
     // Never refreshed: stale after 50 ms.
     let mut s = build::idle(2, 0);

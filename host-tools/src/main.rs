@@ -122,6 +122,12 @@ answered at once by the simulated nodes): the report lists each change of the se
 strategies and the filter commands sent, reductions before increases, and --plot adds a lane \
 per strategy (filled while selected) and per filtered connection (its commanded pass rate 1/φ, \
 0 closed). The boards do not run filters yet: the arbitration sees every connection open.
+With a schema server ([schema.NODE], [plant], [client]), its board runs the client's program \
+in virtual time against the simulated robot, at the board's period: the report names the \
+schemas installed, the parts inserted and any safety event; --schema-trace writes one CSV row \
+per installed schema (t,node,schema,source,event; the event `safety:<name>` for the built-in \
+ones) and --schema-plot draws the height, lateral position, contact force and installed schema \
+over time, from --from to --until (--plot draws it too when the file has no port).
 --candump writes the simulated bus as a candump -L log (each frame with its event's data, by \
 default none; the nodes' BLE claims and Gates too; times from 0 s on \
 interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a real bus.")]
@@ -145,6 +151,17 @@ interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a rea
         /// (t,group,behaviour,context,n,rho,m,gate; one row per behaviour per step).
         #[arg(long, value_name = "FILE.csv")]
         dynamics_trace: Option<PathBuf>,
+        /// Write the schema server's installed schemas as CSV
+        /// (t,node,schema,source,event; one row per installed schema).
+        #[arg(long, value_name = "FILE.csv")]
+        schema_trace: Option<PathBuf>,
+        /// Draw the schema server's run as PNG: height, lateral position, contact force and the
+        /// installed schema over time (from --from to --until).
+        #[arg(long, value_name = "FILE.png")]
+        schema_plot: Option<PathBuf>,
+        /// Start the schema plot's time axis here, seconds (default 0), to show one insertion.
+        #[arg(long, value_name = "SECONDS", value_parser = args::seconds)]
+        from: Option<f64>,
     },
     /// Choose the HBBA strategies for a set of desires: which run, the objective, each resource's
     /// use.
@@ -446,6 +463,9 @@ fn main() -> ExitCode {
             plot,
             candump,
             dynamics_trace,
+            schema_trace,
+            schema_plot,
+            from,
         } => run_sim(
             &network,
             until,
@@ -453,7 +473,18 @@ fn main() -> ExitCode {
             plot.as_deref(),
             candump.as_deref(),
             dynamics_trace.as_deref(),
-        ),
+        )
+        .and_then(|schema_only| {
+            // A file with a schema server and no port: its plot is the schema server's.
+            let schema_plot = schema_plot.or(if schema_only { plot } else { None });
+            run_schema_sim(
+                &network,
+                from,
+                until,
+                schema_trace.as_deref(),
+                schema_plot.as_deref(),
+            )
+        }),
         Command::Replay {
             network,
             capture,
@@ -784,8 +815,9 @@ fn run_sim(
     plot_path: Option<&Path>,
     candump_path: Option<&Path>,
     dynamics_path: Option<&Path>,
-) -> Result<(), Failure> {
+) -> Result<bool, Failure> {
     let network = Network::load(path)?;
+    let schema_only = network.ports.is_empty() && network.client.is_some();
     let nodes = compiled(&network, None)?;
     let options = Options {
         until,
@@ -813,7 +845,7 @@ fn run_sim(
         write_atomically(trace, &csv)?;
         println!("trace: {} ({} rows)", trace.display(), outcome.rows.len());
     }
-    if let Some(plot_path) = plot_path {
+    if let Some(plot_path) = plot_path.filter(|_| !schema_only) {
         let title = path
             .file_name()
             .map_or("network".into(), |n| n.to_string_lossy().into_owned());
@@ -846,6 +878,61 @@ fn run_sim(
             dynamics_path.display(),
             outcome.dynamics.len()
         );
+    }
+    Ok(schema_only)
+}
+
+/// The schema server's part of `pabctl sim`: runs when the file has a [client]; asked for
+/// without one, an error.
+fn run_schema_sim(
+    path: &Path,
+    from: Option<f64>,
+    until: Option<f64>,
+    trace: Option<&Path>,
+    plot_path: Option<&Path>,
+) -> Result<(), Failure> {
+    let network = Network::load(path)?;
+    if network.client.is_none() {
+        if trace.is_some() || plot_path.is_some() {
+            return Err(Failure::Input(
+                Diagnostic::file(
+                    path,
+                    "--schema-trace and --schema-plot need a schema server with a [client] in the file",
+                )
+                .into(),
+            ));
+        }
+        return Ok(());
+    }
+    let limits = sim::schema::Limits {
+        until_us: until.map_or(100_000 * 1_000_000, sim::micros),
+        settle_us: 100_000,
+    };
+    let run = sim::schema::simulate(&network, limits)
+        .map_err(|error| Failure::Input(Diagnostic::file(path, error.to_string()).into()))?;
+    print!("{}", sim::schema::report(&run, &network));
+    if let Some(trace) = trace {
+        let mut csv = Vec::new();
+        sim::schema::write_trace(&run, &network, &mut csv)
+            .map_err(|error| Failure::Output(format!("cannot write the schema trace: {error}")))?;
+        write_atomically(trace, &csv)?;
+        println!(
+            "schema trace: {} ({} rows)",
+            trace.display(),
+            run.installed.len()
+        );
+    }
+    if let Some(plot_path) = plot_path {
+        let title = path
+            .file_name()
+            .map_or("network".into(), |n| n.to_string_lossy().into_owned());
+        let end = run.end_us as f64 * 1e-6;
+        let from = from.unwrap_or(0.0);
+        plot::schema::render_png(&run, from, until.unwrap_or(end).min(end), &title, plot_path)
+            .map_err(|error| {
+                Failure::Output(format!("cannot draw {}: {error:#}", plot_path.display()))
+            })?;
+        println!("schema plot: {}", plot_path.display());
     }
     Ok(())
 }

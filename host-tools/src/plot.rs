@@ -21,6 +21,7 @@ use plotters::style::{
 
 mod dynamics;
 mod lanes;
+pub mod schema;
 
 pub use pab_lang::series::{
     BehaviourSeries, ConnectionSeries, DynamicsSample, DynamicsSeries, Lane, LaneGroup, LaneStep,
@@ -123,7 +124,7 @@ pub fn render_png(data: &PlotData, path: &Path) -> anyhow::Result<()> {
 
 /// Registers the embedded DejaVu Sans under the name plotters looks up for sans-serif text, so
 /// the plot does not depend on the fonts of the machine.
-fn register_fonts() -> anyhow::Result<()> {
+pub(crate) fn register_fonts() -> anyhow::Result<()> {
     static REGISTERED: OnceLock<bool> = OnceLock::new();
     let ok = *REGISTERED.get_or_init(|| {
         let family = FontFamily::SansSerif.as_str();
@@ -134,7 +135,7 @@ fn register_fonts() -> anyhow::Result<()> {
     Ok(())
 }
 
-fn draw_error(e: impl std::fmt::Display) -> anyhow::Error {
+pub(crate) fn draw_error(e: impl std::fmt::Display) -> anyhow::Error {
     anyhow!("cannot draw the plot: {e}")
 }
 

@@ -734,3 +734,62 @@ fn a_reader_that_stops_early_ends_pabctl_quietly_not_with_a_panic() {
 
 /// SIGPIPE's number on Linux.
 const SIGPIPE: i32 = 13;
+
+#[test]
+fn sim_writes_the_schema_servers_trace_and_plot() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("assembly.csv");
+    let png = dir.path().join("assembly.png");
+    let output = pabctl(&[
+        "sim",
+        &example("assembly.toml"),
+        "--schema-trace",
+        csv.to_str().unwrap(),
+        "--schema-plot",
+        png.to_str().unwrap(),
+        "--until",
+        "17",
+    ]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let stdout = text(&output.stdout);
+    assert!(
+        stdout.contains("schema server on `arm`: 10 schemas installed"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("parts inserted: 1 of 6"), "{stdout}");
+    let trace = std::fs::read_to_string(&csv).unwrap();
+    let lines: Vec<&str> = trace.lines().collect();
+    assert_eq!(lines[0], "t,node,schema,source,event");
+    assert_eq!(
+        lines[1],
+        "0.000000,arm,move_to(above_part_1),queue,queue-ready"
+    );
+    assert_eq!(
+        lines[8],
+        "16.139000,arm,release(),queue,below:displacement.z"
+    );
+    assert_eq!(lines.len(), 11);
+    let png = std::fs::read(&png).unwrap();
+    assert_eq!(&png[1..4], b"PNG");
+}
+
+#[test]
+fn schema_trace_without_a_client_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("x.csv");
+    let output = pabctl(&[
+        "sim",
+        &example("figure-1.toml"),
+        "--schema-trace",
+        csv.to_str().unwrap(),
+    ]);
+    assert_eq!(output.status.code(), Some(2), "{}", text(&output.stderr));
+    assert!(
+        text(&output.stderr).contains(
+            "--schema-trace and --schema-plot need a schema server with a [client] in the file"
+        ),
+        "{}",
+        text(&output.stderr)
+    );
+    assert!(!csv.exists());
+}

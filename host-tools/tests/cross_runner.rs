@@ -192,7 +192,7 @@ fn substance(records: &str) -> (usize, usize) {
     (rows.len(), delivered)
 }
 
-/// The examples whose runs the record format describes whole. Not those with value ports: a
+/// The examples whose runs the record format describes whole, those with ports. Not those with value ports: a
 /// value port's output is a combined frame, for which the record format (one line per verdict)
 /// has no column yet; `host-tools/tests/value_ports.rs` and the node's fuzz check compare those.
 fn examples() -> Vec<PathBuf> {
@@ -202,7 +202,8 @@ fn examples() -> Vec<PathBuf> {
         .filter(|path| path.extension().is_some_and(|e| e == "toml"))
         .filter(|path| {
             let network = Network::load(path).unwrap_or_else(|e| panic!("{e}"));
-            network.ports.iter().all(|port| port.value.is_none())
+            // A file without ports (the schema server's assembly) has no verdicts to compare.
+            !network.ports.is_empty() && network.ports.iter().all(|port| port.value.is_none())
         })
         .collect();
     paths.sort();

@@ -1,5 +1,6 @@
 //! The network file: nodes, topics, ports, connections, BLE groups (`network/ble.rs`), competitive-dynamics
-//! groups (`network/dynamics.rs`), HBBA's resources and strategies (`network/hbba.rs`), and a scenario of events.
+//! groups (`network/dynamics.rs`), HBBA's resources and strategies (`network/hbba.rs`), a schema
+//! server's board, plant and client (`network/schema.rs`), and a scenario of events.
 //!
 //! Parsing is in two steps. `toml` turns the text into raw tables, keeping the byte span of every
 //! value; then [`Network::parse`] checks every name, number and rule and reports each mistake at
@@ -32,6 +33,7 @@ mod ble;
 mod dynamics;
 mod gates;
 mod hbba;
+mod schema;
 
 pub use ble::{BleGroup, BleMember};
 pub use dynamics::{Context, DynamicsBehaviour, DynamicsGroup, WrittenBehaviour, WrittenExclusion};
@@ -40,6 +42,7 @@ pub use hbba::{
     BUS, DATA_LEN, Hbba, HbbaStrategy, MAX_BITRATE, Resource, ScriptedDesire, Solved,
     StrategyFilter, bus_cost,
 };
+pub use schema::{CALLS, Call, Client, Command, Defaults, MAX_CALLS, SchemaBoard, Timed};
 
 /// The topic of a connection that no topic feeds (a gate, [`Kind::Gate`]): no index of
 /// [`Network::topics`].
@@ -80,6 +83,10 @@ struct RawFile {
     #[serde(default)]
     dynamics: IndexMap<Spanned<String>, Spanned<dynamics::RawDynamics>>,
     hbba: Option<Spanned<hbba::RawHbba>>,
+    #[serde(default)]
+    schema: IndexMap<Spanned<String>, Spanned<schema::RawSchema>>,
+    plant: Option<Spanned<schema::RawPlant>>,
+    client: Option<Spanned<schema::RawClient>>,
 }
 
 /// `[[faults]] node = "r2", at = 12.0`: the node stops.
@@ -473,6 +480,12 @@ pub struct Network {
     pub hbba: Option<Hbba>,
     /// Scripted desires (`[[desires]]`, simulation only) in file order.
     pub desires: Vec<ScriptedDesire>,
+    /// The schema servers' boards (`[schema.NODE]`): at most one.
+    pub schema_boards: Vec<SchemaBoard>,
+    /// The robot a schema server drives in simulation (`[plant]`).
+    pub plant: Option<crate::sim::plant::PlantConfig>,
+    /// The schema server's client (`[client]`).
+    pub client: Option<Client>,
 }
 
 fn is_plain_name(name: &str) -> bool {
@@ -607,6 +620,9 @@ impl Builder<'_> {
                 );
             }
         }
+        let schema_boards = self.schema_boards(&raw.schema, &nodes);
+        let plant = self.plant(raw.plant.as_ref());
+        let client = self.client(raw.client.as_ref(), &nodes, &schema_boards);
         let mut nodes = nodes;
         for (index, port) in ports.iter().enumerate() {
             if let Some(node) = nodes.get_mut(port.node) {
@@ -627,6 +643,9 @@ impl Builder<'_> {
             dynamics,
             hbba,
             desires,
+            schema_boards,
+            plant,
+            client,
         }
     }
 

@@ -50,6 +50,8 @@ use crate::series::{ConnectionSeries, Phase, PlotData, PortSeries, Sample};
 
 mod dynamics;
 pub mod intention;
+pub mod plant;
+pub mod schema;
 
 pub use dynamics::{DynamicsRow, write_csv as write_dynamics_csv};
 pub use intention::IntentionRun;

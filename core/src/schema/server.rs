@@ -72,8 +72,8 @@ pub enum Trigger {
     Abort,
     /// A safety event.
     Safety(Safety),
-    /// The reaction at this index of the ended schema's table.
-    Reaction(u8),
+    /// The reaction at this index of the ended schema's table, and its event.
+    Reaction(u8, Event),
 }
 
 /// A schema change: `ended` was replaced by `installed`, from `source`, because of `by`.
@@ -441,8 +441,8 @@ impl Server {
         // Steps 3 and 4: the sensor table and the triggering event.
         match self.trigger(now, overrun) {
             Some(Err(cause)) => self.recover(cause, now, &mut transitions),
-            Some(Ok((index, next))) => {
-                let by = Trigger::Reaction(index);
+            Some(Ok((index, event, next))) => {
+                let by = Trigger::Reaction(index, event);
                 // Step 5.
                 match next {
                     Source::Innate(i) => match self.config.innate.get(usize::from(i)) {
@@ -504,9 +504,9 @@ impl Server {
         );
     }
 
-    /// Steps 3 and 4: the safety event, or the first reaction that holds (its index and
+    /// Steps 3 and 4: the safety event, or the first reaction that holds (its index, event and
     /// source), or nothing.
-    fn trigger(&self, now: Instant, overrun: bool) -> Option<Result<(u8, Source), Safety>> {
+    fn trigger(&self, now: Instant, overrun: bool) -> Option<Result<(u8, Event, Source), Safety>> {
         if self.fault.is_none()
             && let Some(cause) = self.safety(now, overrun)
         {
@@ -515,7 +515,7 @@ impl Server {
         let one_shot = self.progress.iterations >= 1;
         for (i, r) in self.current.reactions.iter().enumerate() {
             if self.holds(r, one_shot, now) {
-                return Some(Ok((i as u8, r.next)));
+                return Some(Ok((i as u8, r.event, r.next)));
             }
         }
         None

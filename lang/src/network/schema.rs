@@ -1,0 +1,1191 @@
+//! `[schema.NODE]`, `[plant]` and `[client]`: a schema server's board, the robot it drives in
+//! simulation, and the workstation client's program (README, "Schema server").
+//!
+//! ```toml
+//! [schema.arm]                 # node `arm` runs a schema server
+//! period_ms = 1                # the loop (1 kHz)
+//! force_limit_n = 30           # the safety limit on |F|
+//! workspace_mm = { min = [-200, -200, -20], max = [200, 200, 100] }
+//!
+//! [plant]                      # simulation only: the robot, the plate and the parts
+//! parts_mm = [[-100, -60]]     # where the parts stand
+//! holes_mm = [[-99.7, 60]]     # where the holes really are
+//!
+//! [client]                     # the client's program, in the paper's API
+//! node = "arm"
+//! program = ["move_to(above_part)", "move_to_touch(down)", "grasp()"]
+//! [client.places]
+//! above_part = [-100, -60, 35] # mm (and mrad for rotations, when six values)
+//! down = [0, 0, -1]            # a direction: only its direction counts
+//! ```
+//!
+//! A call is written `name(argument, key=value, …)` with numbers in the units of the client's
+//! defaults (mm, mm/s, N, ms, mrad); each becomes one schema made by
+//! [`pab_core::schema::build`], so a file's program sends exactly what the Rust and Python
+//! clients send for the same calls.
+
+use std::collections::HashMap;
+use std::ops::Range;
+
+use indexmap::IndexMap;
+use pab_core::schema::{AXES, Action, Config, Gripper, MAX_COORD, Pose, Schema, build};
+use serde::Deserialize;
+use toml::Spanned;
+
+use super::{Builder, Node, list_or_none};
+use crate::sim::plant::{Obstacle, PlantConfig};
+
+/// The longest program a file may hold, and the most commands (a typo in a generated file should
+/// not run for ever; ids stay below the board's reserved ones).
+pub const MAX_CALLS: usize = 10_000;
+
+/// `[schema.NODE]`: a board's set-up.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawSchema {
+    period_ms: Option<Spanned<f64>>,
+    overrun_ms: Option<Spanned<f64>>,
+    workspace_mm: Option<Spanned<RawBox>>,
+    rotation_limit_mrad: Option<Spanned<f64>>,
+    force_limit_n: Option<Spanned<f64>>,
+    torque_limit_nm: Option<Spanned<f64>>,
+    stale_ms: Option<Spanned<f64>>,
+    sensor_stale_ms: Option<Spanned<f64>>,
+    watchdog_margin_ms: Option<Spanned<f64>>,
+    stiffness_n_per_m: Option<Spanned<f64>>,
+    damping_ns_per_m: Option<Spanned<f64>>,
+    #[allow(dead_code)]
+    description: Option<String>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawBox {
+    min: Spanned<Vec<f64>>,
+    max: Spanned<Vec<f64>>,
+}
+
+/// `[plant]`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawPlant {
+    start_mm: Option<Spanned<Vec<f64>>>,
+    mass_kg: Option<Spanned<f64>>,
+    contact_stiffness_n_per_m: Option<Spanned<f64>>,
+    contact_damping_ns_per_m: Option<Spanned<f64>>,
+    part_height_mm: Option<Spanned<f64>>,
+    part_half_width_mm: Option<Spanned<f64>>,
+    clearance_mm: Option<Spanned<f64>>,
+    hole_depth_mm: Option<Spanned<f64>>,
+    grasp_tolerance_mm: Option<Spanned<f64>>,
+    insert_depth_mm: Option<Spanned<f64>>,
+    #[serde(default)]
+    parts_mm: Vec<Spanned<Vec<f64>>>,
+    #[serde(default)]
+    holes_mm: Vec<Spanned<Vec<f64>>>,
+    #[serde(default)]
+    obstacles: Vec<Spanned<RawObstacle>>,
+    #[allow(dead_code)]
+    description: Option<String>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawObstacle {
+    min_mm: Spanned<Vec<f64>>,
+    max_mm: Spanned<Vec<f64>>,
+}
+
+/// `[client]`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawClient {
+    node: Spanned<String>,
+    #[serde(default)]
+    program: Vec<Spanned<String>>,
+    #[serde(default)]
+    places: IndexMap<Spanned<String>, Spanned<Vec<f64>>>,
+    #[serde(default)]
+    commands: Vec<Spanned<RawCommand>>,
+    speed_mm_s: Option<Spanned<f64>>,
+    touch_speed_mm_s: Option<Spanned<f64>>,
+    contact_n: Option<Spanned<f64>>,
+    touch_distance_mm: Option<Spanned<f64>>,
+    settle_ms: Option<Spanned<f64>>,
+    preload_mm: Option<Spanned<f64>>,
+    pitch_mm: Option<Spanned<f64>>,
+    search_speed_mm_s: Option<Spanned<f64>>,
+    search_radius_mm: Option<Spanned<f64>>,
+    wobble_mrad: Option<Spanned<f64>>,
+    wobble_period_ms: Option<Spanned<f64>>,
+    insert_depth_mm: Option<Spanned<f64>>,
+    #[allow(dead_code)]
+    description: Option<String>,
+}
+
+/// `[[client.commands]] at = 12.0, call = "estop()"`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCommand {
+    at: Spanned<f64>,
+    call: Spanned<String>,
+}
+
+/// A schema server's board (`[schema.NODE]`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SchemaBoard {
+    /// Its node, as an index into [`super::Network::nodes`].
+    pub node: usize,
+    /// The server's set-up.
+    pub config: Config,
+    /// Where it is defined.
+    pub span: Range<usize>,
+}
+
+/// One call of the client's program: the schema it sends, and its name in traces.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Call {
+    /// The call as written (`move_to(above_part_1)`, `grasp()`, …).
+    pub name: String,
+    /// The schema (its id is the client's: the call's position, from 1).
+    pub schema: Schema,
+}
+
+/// What the client sends besides its program.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Command {
+    /// A schema on the high-priority channel.
+    HighPriority(Box<Call>),
+    /// Abort.
+    Abort,
+    /// The emergency-stop frame.
+    EmergencyStop,
+}
+
+/// A command and when it reaches the board, µs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Timed {
+    /// When, µs.
+    pub t_us: u64,
+    /// What.
+    pub command: Command,
+}
+
+/// The client (`[client]`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Client {
+    /// The board it programs, as an index into [`super::Network::nodes`].
+    pub node: usize,
+    /// Its program, in order.
+    pub program: Vec<Call>,
+    /// Its timed commands, in time order.
+    pub commands: Vec<Timed>,
+    /// The named places and directions (µm, µrad).
+    pub places: Vec<(String, Pose)>,
+    /// The defaults its calls use.
+    pub defaults: Defaults,
+}
+
+/// The client's defaults: the paper's API's optional arguments, in the board's units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Defaults {
+    /// `move_to`'s speed, µm/s (50 mm/s).
+    pub speed: u32,
+    /// `move_to_touch`'s speed, µm/s (5 mm/s).
+    pub touch_speed: u32,
+    /// `move_to_touch`'s contact threshold, mN (3 N).
+    pub contact: i32,
+    /// `move_to_touch`'s farthest travel, µm (50 mm).
+    pub touch_distance: u32,
+    /// `grasp` and `release`'s settling time, ms (200).
+    pub settle_ms: u32,
+    /// `blind_search`'s preload, µm (2 mm).
+    pub preload: u32,
+    /// Its spiral's pitch, µm (0.08 mm: at most twice the clearance).
+    pub pitch: u32,
+    /// Its speed along the spiral, µm/s (2 mm/s).
+    pub search_speed: u32,
+    /// The half-width it is expected to cover, µm (1 mm): its watchdog budget.
+    pub search_radius: u32,
+    /// Its rocking about z, µrad (20 mrad).
+    pub wobble: u32,
+    /// The rocking's period, ms (500).
+    pub wobble_ms: u32,
+    /// How far the part must drop for the search to end, µm (1 mm).
+    pub insert_depth: u32,
+}
+
+impl Default for Defaults {
+    fn default() -> Self {
+        Defaults {
+            speed: 50_000,
+            touch_speed: 5_000,
+            contact: 3_000,
+            touch_distance: 50_000,
+            settle_ms: 200,
+            preload: 2_000,
+            pitch: 80,
+            search_speed: 2_000,
+            search_radius: 1_000,
+            wobble: 20_000,
+            wobble_ms: 500,
+            insert_depth: 1_000,
+        }
+    }
+}
+
+/// A call parsed: its name, positional arguments and keyword arguments, with the byte offset of
+/// each within the call's text.
+struct Parsed<'a> {
+    name: &'a str,
+    positional: Vec<(&'a str, usize)>,
+    keywords: Vec<(&'a str, &'a str, usize)>,
+}
+
+/// Splits `name(a, k=v, …)`; the error names the offending column's cause.
+fn split_call(text: &str) -> Result<Parsed<'_>, (usize, String)> {
+    let open = text.find('(').ok_or((
+        0,
+        "a call is written `name(arguments)`, for example `grasp()`".to_string(),
+    ))?;
+    let name = text[..open].trim();
+    if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+        return Err((0, format!("`{}` is not a call's name", name)));
+    }
+    let inner = text[open + 1..].trim_end();
+    let Some(inner) = inner.strip_suffix(')') else {
+        return Err((text.len(), "the call's `)` is missing".to_string()));
+    };
+    let mut positional = Vec::new();
+    let mut keywords = Vec::new();
+    let mut offset = open + 1;
+    if !inner.trim().is_empty() {
+        for part in inner.split(',') {
+            let at = offset + (part.len() - part.trim_start().len());
+            offset += part.len() + 1;
+            let part = part.trim();
+            if part.is_empty() {
+                return Err((at, "an empty argument".to_string()));
+            }
+            match part.split_once('=') {
+                Some((k, v)) => keywords.push((k.trim(), v.trim(), at)),
+                None if keywords.is_empty() => positional.push((part, at)),
+                None => {
+                    return Err((
+                        at,
+                        format!("`{part}`: positional arguments come before keywords"),
+                    ));
+                }
+            }
+        }
+    }
+    Ok(Parsed {
+        name,
+        positional,
+        keywords,
+    })
+}
+
+/// The calls a program may hold, with their arguments: for `--help`-like messages.
+pub const CALLS: &str = "move_to(PLACE, speed=mm/s), move_to_touch(DIRECTION, speed=mm/s, contact=N, distance=mm), \
+     grasp(settle=ms), release(settle=ms), blind_search(preload=mm, pitch=mm, speed=mm/s, radius=mm, wobble=mrad, period=ms, depth=mm), \
+     idle(ms), open(), close(), relieve(), set_impedance(stiffness=N/m, damping=Ns/m); any of them also watchdog=ms";
+
+impl Builder<'_> {
+    pub(super) fn schema_boards(
+        &mut self,
+        raw: &IndexMap<Spanned<String>, Spanned<RawSchema>>,
+        nodes: &[Node],
+    ) -> Vec<SchemaBoard> {
+        let mut boards = Vec::new();
+        for (name, section) in raw {
+            let Some(node) = nodes.iter().position(|n| &n.name == name.get_ref()) else {
+                let known: Vec<&str> = nodes.iter().map(|n| n.name.as_str()).collect();
+                self.error(
+                    name.span(),
+                    format!(
+                        "[schema.{}]: node `{}` is not defined (nodes: {})",
+                        name.get_ref(),
+                        name.get_ref(),
+                        list_or_none(&known)
+                    ),
+                );
+                continue;
+            };
+            if !boards.is_empty() {
+                self.error(
+                    name.span(),
+                    "one schema server per network file: the simulator drives one plant with one client",
+                );
+                continue;
+            }
+            if let Some(config) = self.schema_config(section.get_ref()) {
+                boards.push(SchemaBoard {
+                    node,
+                    config,
+                    span: section.span(),
+                });
+            }
+        }
+        boards
+    }
+
+    /// A positive amount in `[min, max]` of a unit, scaled to an integer (rounded).
+    fn scaled(
+        &mut self,
+        value: Option<&Spanned<f64>>,
+        scale: f64,
+        default: u32,
+        what: &str,
+        unit: &str,
+        allow_zero: bool,
+    ) -> u32 {
+        let Some(value) = value else {
+            return default;
+        };
+        let v = *value.get_ref() * scale;
+        let max = f64::from(MAX_COORD);
+        if !v.is_finite() || v < 0.0 || v > max || (!allow_zero && v.round() < 1.0) {
+            let lowest = if allow_zero { "0" } else { "above 0" };
+            self.error(
+                value.span(),
+                format!("{what} must be {lowest} and at most {} {unit}", max / scale),
+            );
+            return default;
+        }
+        v.round() as u32
+    }
+
+    fn schema_config(&mut self, raw: &RawSchema) -> Option<Config> {
+        let errors = self.errors.len();
+        let period = self.scaled(
+            raw.period_ms.as_ref(),
+            1000.0,
+            1000,
+            "period_ms",
+            "ms",
+            false,
+        );
+        let mut config = Config::new(period);
+        config.overrun_us = self.scaled(
+            raw.overrun_ms.as_ref(),
+            1000.0,
+            config.overrun_us,
+            "overrun_ms",
+            "ms",
+            false,
+        );
+        if let Some(o) = &raw.overrun_ms
+            && config.overrun_us < config.period_us
+        {
+            self.error(o.span(), "overrun_ms must be at least period_ms");
+        }
+        let rotation = self.scaled(
+            raw.rotation_limit_mrad.as_ref(),
+            1000.0,
+            1_000_000,
+            "rotation_limit_mrad",
+            "mrad",
+            false,
+        ) as i32;
+        config.workspace_min = [
+            -1_000_000, -1_000_000, -1_000_000, -rotation, -rotation, -rotation,
+        ];
+        config.workspace_max = [
+            1_000_000, 1_000_000, 1_000_000, rotation, rotation, rotation,
+        ];
+        if let Some(w) = &raw.workspace_mm {
+            let min = self.point(&w.get_ref().min, "workspace_mm.min", 3);
+            let max = self.point(&w.get_ref().max, "workspace_mm.max", 3);
+            if let (Some(min), Some(max)) = (min, max) {
+                if min.iter().zip(&max).take(3).any(|(lo, hi)| lo > hi) {
+                    self.error(w.span(), "workspace_mm: min is above max on some axis");
+                }
+                config.workspace_min[..3].copy_from_slice(&min[..3]);
+                config.workspace_max[..3].copy_from_slice(&max[..3]);
+            }
+        }
+        config.force_limit = self.scaled(
+            raw.force_limit_n.as_ref(),
+            1000.0,
+            config.force_limit,
+            "force_limit_n",
+            "N",
+            false,
+        );
+        config.torque_limit = self.scaled(
+            raw.torque_limit_nm.as_ref(),
+            1000.0,
+            0,
+            "torque_limit_nm",
+            "N·m",
+            true,
+        );
+        config.stale_us = self.scaled(
+            raw.stale_ms.as_ref(),
+            1000.0,
+            config.stale_us,
+            "stale_ms",
+            "ms",
+            false,
+        );
+        config.sensor_stale_us = self.scaled(
+            raw.sensor_stale_ms.as_ref(),
+            1000.0,
+            config.sensor_stale_us,
+            "sensor_stale_ms",
+            "ms",
+            false,
+        );
+        config.watchdog_margin_ms = self.scaled(
+            raw.watchdog_margin_ms.as_ref(),
+            1.0,
+            config.watchdog_margin_ms,
+            "watchdog_margin_ms",
+            "ms",
+            true,
+        );
+        config.stiffness = self.scaled(
+            raw.stiffness_n_per_m.as_ref(),
+            1.0,
+            config.stiffness,
+            "stiffness_n_per_m",
+            "N/m",
+            false,
+        );
+        config.damping = self.scaled(
+            raw.damping_ns_per_m.as_ref(),
+            1.0,
+            config.damping,
+            "damping_ns_per_m",
+            "N·s/m",
+            true,
+        );
+        (self.errors.len() == errors).then_some(config)
+    }
+
+    /// A point in mm (three values; six with rotations in mrad) as a pose in µm and µrad.
+    fn point(&mut self, value: &Spanned<Vec<f64>>, what: &str, least: usize) -> Option<Pose> {
+        let v = value.get_ref();
+        if v.len() != least && v.len() != AXES {
+            self.error(
+                value.span(),
+                format!(
+                    "{what}: {} values; write [x, y, z] in mm{}",
+                    v.len(),
+                    if least == 3 {
+                        ", or six with rotations about x, y, z in mrad"
+                    } else {
+                        ""
+                    }
+                ),
+            );
+            return None;
+        }
+        let mut p = [0; AXES];
+        for (o, c) in p.iter_mut().zip(v) {
+            let um = c * 1000.0;
+            if !um.is_finite() || um.abs() > f64::from(MAX_COORD) {
+                self.error(
+                    value.span(),
+                    format!("{what}: {c} is beyond ±{} mm", MAX_COORD / 1000),
+                );
+                return None;
+            }
+            *o = um.round() as i32;
+        }
+        Some(p)
+    }
+
+    pub(super) fn plant(&mut self, raw: Option<&Spanned<RawPlant>>) -> Option<PlantConfig> {
+        let raw = raw?.get_ref();
+        let errors = self.errors.len();
+        let mut plant = PlantConfig::default();
+        let positive =
+            |b: &mut Self, v: &Option<Spanned<f64>>, scale: f64, what: &str, out: &mut f64| {
+                if let Some(v) = v {
+                    let x = *v.get_ref() * scale;
+                    if x.is_finite() && x > 0.0 && x <= 1e12 {
+                        *out = x;
+                    } else {
+                        b.error(v.span(), format!("{what} must be a positive number"));
+                    }
+                }
+            };
+        positive(self, &raw.mass_kg, 1.0, "mass_kg", &mut plant.mass_kg);
+        positive(
+            self,
+            &raw.contact_stiffness_n_per_m,
+            1.0,
+            "contact_stiffness_n_per_m",
+            &mut plant.contact_stiffness,
+        );
+        positive(
+            self,
+            &raw.contact_damping_ns_per_m,
+            1.0,
+            "contact_damping_ns_per_m",
+            &mut plant.contact_damping,
+        );
+        positive(
+            self,
+            &raw.part_height_mm,
+            1000.0,
+            "part_height_mm",
+            &mut plant.part_height,
+        );
+        positive(
+            self,
+            &raw.part_half_width_mm,
+            1000.0,
+            "part_half_width_mm",
+            &mut plant.part_half_width,
+        );
+        positive(
+            self,
+            &raw.clearance_mm,
+            1000.0,
+            "clearance_mm",
+            &mut plant.clearance,
+        );
+        positive(
+            self,
+            &raw.hole_depth_mm,
+            1000.0,
+            "hole_depth_mm",
+            &mut plant.hole_depth,
+        );
+        positive(
+            self,
+            &raw.grasp_tolerance_mm,
+            1000.0,
+            "grasp_tolerance_mm",
+            &mut plant.grasp_tolerance,
+        );
+        positive(
+            self,
+            &raw.insert_depth_mm,
+            1000.0,
+            "insert_depth_mm",
+            &mut plant.insert_depth,
+        );
+        if let Some(start) = &raw.start_mm
+            && let Some(p) = self.point(start, "start_mm", 3)
+        {
+            plant.start = [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])];
+        }
+        for (list, out, what) in [
+            (&raw.parts_mm, &mut plant.parts, "parts_mm"),
+            (&raw.holes_mm, &mut plant.holes, "holes_mm"),
+        ] {
+            for xy in list {
+                match xy.get_ref().as_slice() {
+                    [x, y] if x.is_finite() && y.is_finite() => out.push([x * 1000.0, y * 1000.0]),
+                    _ => self.error(xy.span(), format!("{what}: each entry is [x, y] in mm")),
+                }
+            }
+        }
+        for o in &raw.obstacles {
+            let min = self.point(&o.get_ref().min_mm, "min_mm", 3);
+            let max = self.point(&o.get_ref().max_mm, "max_mm", 3);
+            if let (Some(min), Some(max)) = (min, max) {
+                if min.iter().zip(&max).take(3).any(|(lo, hi)| lo >= hi) {
+                    self.error(
+                        o.span(),
+                        "an obstacle's min_mm must be below its max_mm on every axis",
+                    );
+                }
+                plant.obstacles.push(Obstacle {
+                    min: [0, 1, 2].map(|i| f64::from(min[i])),
+                    max: [0, 1, 2].map(|i| f64::from(max[i])),
+                });
+            }
+        }
+        (self.errors.len() == errors).then_some(plant)
+    }
+
+    pub(super) fn client(
+        &mut self,
+        raw: Option<&Spanned<RawClient>>,
+        nodes: &[Node],
+        boards: &[SchemaBoard],
+    ) -> Option<Client> {
+        let raw_span = raw?.span();
+        let raw = raw?.get_ref();
+        let errors = self.errors.len();
+        let node = nodes.iter().position(|n| &n.name == raw.node.get_ref());
+        match node {
+            None => {
+                let known: Vec<&str> = boards
+                    .iter()
+                    .filter_map(|b| nodes.get(b.node).map(|n| n.name.as_str()))
+                    .collect();
+                self.error(
+                    raw.node.span(),
+                    format!(
+                        "[client] node `{}` is not defined (schema servers: {})",
+                        raw.node.get_ref(),
+                        list_or_none(&known)
+                    ),
+                );
+            }
+            Some(n) if !boards.iter().any(|b| b.node == n) => self.error(
+                raw.node.span(),
+                format!(
+                    "[client] node `{}` runs no schema server: add a [schema.{}] section",
+                    raw.node.get_ref(),
+                    raw.node.get_ref()
+                ),
+            ),
+            Some(_) => {}
+        }
+        let mut d = Defaults::default();
+        d.speed = self.scaled(
+            raw.speed_mm_s.as_ref(),
+            1000.0,
+            d.speed,
+            "speed_mm_s",
+            "mm/s",
+            false,
+        );
+        d.touch_speed = self.scaled(
+            raw.touch_speed_mm_s.as_ref(),
+            1000.0,
+            d.touch_speed,
+            "touch_speed_mm_s",
+            "mm/s",
+            false,
+        );
+        d.contact = self.scaled(
+            raw.contact_n.as_ref(),
+            1000.0,
+            d.contact as u32,
+            "contact_n",
+            "N",
+            false,
+        ) as i32;
+        d.touch_distance = self.scaled(
+            raw.touch_distance_mm.as_ref(),
+            1000.0,
+            d.touch_distance,
+            "touch_distance_mm",
+            "mm",
+            false,
+        );
+        d.settle_ms = self.scaled(
+            raw.settle_ms.as_ref(),
+            1.0,
+            d.settle_ms,
+            "settle_ms",
+            "ms",
+            true,
+        );
+        d.preload = self.scaled(
+            raw.preload_mm.as_ref(),
+            1000.0,
+            d.preload,
+            "preload_mm",
+            "mm",
+            true,
+        );
+        d.pitch = self.scaled(
+            raw.pitch_mm.as_ref(),
+            1000.0,
+            d.pitch,
+            "pitch_mm",
+            "mm",
+            false,
+        );
+        d.search_speed = self.scaled(
+            raw.search_speed_mm_s.as_ref(),
+            1000.0,
+            d.search_speed,
+            "search_speed_mm_s",
+            "mm/s",
+            false,
+        );
+        d.search_radius = self.scaled(
+            raw.search_radius_mm.as_ref(),
+            1000.0,
+            d.search_radius,
+            "search_radius_mm",
+            "mm",
+            false,
+        );
+        d.wobble = self.scaled(
+            raw.wobble_mrad.as_ref(),
+            1000.0,
+            d.wobble,
+            "wobble_mrad",
+            "mrad",
+            true,
+        );
+        d.wobble_ms = self.scaled(
+            raw.wobble_period_ms.as_ref(),
+            1.0,
+            d.wobble_ms,
+            "wobble_period_ms",
+            "ms",
+            false,
+        );
+        d.insert_depth = self.scaled(
+            raw.insert_depth_mm.as_ref(),
+            1000.0,
+            d.insert_depth,
+            "insert_depth_mm",
+            "mm",
+            false,
+        );
+
+        let mut places = Vec::new();
+        let mut seen = HashMap::new();
+        for (name, value) in &raw.places {
+            if !self.printable(name, "place name") {
+                continue;
+            }
+            if seen.insert(name.get_ref().clone(), ()).is_some() {
+                continue;
+            }
+            if let Some(p) = self.point(value, &format!("place `{}`", name.get_ref()), 3) {
+                places.push((name.get_ref().clone(), p));
+            }
+        }
+        if raw.program.len() > MAX_CALLS {
+            self.error(
+                raw_span.clone(),
+                format!(
+                    "{} calls: a program holds at most {MAX_CALLS}",
+                    raw.program.len()
+                ),
+            );
+        }
+        let mut program = Vec::new();
+        for text in raw.program.iter().take(MAX_CALLS) {
+            let id = program.len() as u16 + 1;
+            if let Some(Made::Schema(schema)) = self.call(text, id, &places, &d, false) {
+                program.push(Call {
+                    name: text.get_ref().trim().to_string(),
+                    schema: *schema,
+                });
+            }
+        }
+        if raw.commands.len() > MAX_CALLS {
+            self.error(
+                raw_span.clone(),
+                format!("{} commands: a client holds at most {MAX_CALLS}", raw.commands.len()),
+            );
+        }
+        let mut commands: Vec<Timed> = Vec::new();
+        for (k, c) in raw.commands.iter().take(MAX_CALLS).enumerate() {
+            let c = c.get_ref();
+            let Some(at) = self.time(&c.at, "a command's `at`") else {
+                continue;
+            };
+            // High-priority schemas are numbered after the program's.
+            let id = (raw.program.len().min(MAX_CALLS) + k + 1) as u16;
+            let command = match self.call(&c.call, id, &places, &d, true) {
+                Some(Made::Schema(schema)) => Command::HighPriority(Box::new(Call {
+                    name: c.call.get_ref().trim().to_string(),
+                    schema: *schema,
+                })),
+                Some(Made::Abort) => Command::Abort,
+                Some(Made::EmergencyStop) => Command::EmergencyStop,
+                None => continue,
+            };
+            commands.push(Timed {
+                t_us: crate::sim::micros(at),
+                command,
+            });
+        }
+        commands.sort_by_key(|t| t.t_us);
+        if self.errors.len() != errors {
+            return None;
+        }
+        Some(Client {
+            node: node?,
+            program,
+            commands,
+            places,
+            defaults: d,
+        })
+    }
+
+    /// One call's schema (with id `id`), or, among commands, an abort or emergency stop.
+    fn call(
+        &mut self,
+        text: &Spanned<String>,
+        id: u16,
+        places: &[(String, Pose)],
+        d: &Defaults,
+        command: bool,
+    ) -> Option<Made> {
+        // The string's content starts after its opening quote.
+        let base = text.span().start + 1;
+        let at = |offset: usize| base + offset..base + offset + 1;
+        let parsed = match split_call(text.get_ref()) {
+            Ok(p) => p,
+            Err((offset, message)) => {
+                self.error(at(offset), message);
+                return None;
+            }
+        };
+        let mut args: HashMap<&str, (f64, usize)> = HashMap::new();
+        for (k, v, offset) in &parsed.keywords {
+            match v.parse::<f64>() {
+                Ok(x) if x.is_finite() && x >= 0.0 => {
+                    args.insert(k, (x, *offset));
+                }
+                _ => {
+                    self.error(
+                        at(*offset),
+                        format!("`{k}={v}`: a keyword's value is a number, 0 or more"),
+                    );
+                    return None;
+                }
+            }
+        }
+        let allowed: &[&str] = match parsed.name {
+            "move_to" => &["speed"],
+            "move_to_touch" => &["speed", "contact", "distance"],
+            "grasp" | "release" => &["settle"],
+            "blind_search" => &[
+                "preload", "pitch", "speed", "radius", "wobble", "period", "depth",
+            ],
+            "set_impedance" => &["stiffness", "damping"],
+            _ => &[],
+        };
+        for (k, _, offset) in &parsed.keywords {
+            if *k != "watchdog" && !allowed.contains(k) {
+                self.error(
+                    at(*offset),
+                    format!(
+                        "`{}` takes no `{k}` (it takes: {})",
+                        parsed.name,
+                        list_or_none(allowed)
+                    ),
+                );
+                return None;
+            }
+        }
+        let positional = |n: usize| parsed.positional.get(n).copied();
+        let expect_args = |b: &mut Self, n: usize| -> bool {
+            if let Some((extra, offset)) = positional(n) {
+                b.error(
+                    at(offset),
+                    format!(
+                        "`{}` takes {n} positional argument{}; `{extra}` is one too many",
+                        parsed.name,
+                        if n == 1 { "" } else { "s" }
+                    ),
+                );
+                false
+            } else {
+                true
+            }
+        };
+        // mm (or mm/s, N) → µm (µm/s, mN); ms stay ms; mrad → µrad.
+        let scaled = |b: &mut Self, key: &str, scale: f64, default: u32| -> Option<u32> {
+            let Some((v, offset)) = args.get(key).copied() else {
+                return Some(default);
+            };
+            let x = (v * scale).round();
+            if x > f64::from(MAX_COORD) {
+                b.error(at(offset), format!("`{key}` is too large"));
+                return None;
+            }
+            Some(x as u32)
+        };
+        let place = |b: &mut Self, what: &str| -> Option<Pose> {
+            let Some((name, offset)) = positional(0) else {
+                b.error(
+                    at(0),
+                    format!(
+                        "`{}` needs a {what}: `{}({what})`",
+                        parsed.name, parsed.name
+                    ),
+                );
+                return None;
+            };
+            match places.iter().find(|(n, _)| n == name) {
+                Some((_, p)) => Some(*p),
+                None => {
+                    let known: Vec<&str> = places.iter().map(|(n, _)| n.as_str()).collect();
+                    b.error(
+                        at(offset),
+                        format!(
+                            "place `{name}` is not in [client.places] ({})",
+                            list_or_none(&known)
+                        ),
+                    );
+                    None
+                }
+            }
+        };
+        let mut schema = match parsed.name {
+            "estop" | "abort" if command => {
+                if !expect_args(self, 0) {
+                    return None;
+                }
+                return Some(if parsed.name == "estop" {
+                    Made::EmergencyStop
+                } else {
+                    Made::Abort
+                });
+            }
+            "move_to" => {
+                let goal = place(self, "PLACE")?;
+                if !expect_args(self, 1) {
+                    return None;
+                }
+                let speed = scaled(self, "speed", 1000.0, d.speed)?;
+                build::move_to(id, goal, speed)
+            }
+            "move_to_touch" => {
+                let direction = place(self, "DIRECTION")?;
+                if !expect_args(self, 1) {
+                    return None;
+                }
+                let speed = scaled(self, "speed", 1000.0, d.touch_speed)?;
+                let contact = scaled(self, "contact", 1000.0, d.contact as u32)?;
+                let distance = scaled(self, "distance", 1000.0, d.touch_distance)?;
+                build::move_to_touch(id, direction, speed, contact as i32, distance)
+            }
+            "grasp" | "release" => {
+                if !expect_args(self, 0) {
+                    return None;
+                }
+                let settle = scaled(self, "settle", 1.0, d.settle_ms)?;
+                if parsed.name == "grasp" {
+                    build::grasp(id, settle)
+                } else {
+                    build::release(id, settle)
+                }
+            }
+            "blind_search" => {
+                if !expect_args(self, 0) {
+                    return None;
+                }
+                let search = Action::BlindSearch {
+                    preload: scaled(self, "preload", 1000.0, d.preload)?,
+                    pitch: scaled(self, "pitch", 1000.0, d.pitch)?,
+                    speed: scaled(self, "speed", 1000.0, d.search_speed)?,
+                    radius: scaled(self, "radius", 1000.0, d.search_radius)?,
+                    wobble: scaled(self, "wobble", 1000.0, d.wobble)?,
+                    wobble_ms: scaled(self, "period", 1.0, d.wobble_ms)?,
+                };
+                let depth = scaled(self, "depth", 1000.0, d.insert_depth)?;
+                build::blind_search(id, search, depth)
+            }
+            "idle" => {
+                let ms = match positional(0) {
+                    None => 0,
+                    Some((v, offset)) => match v.parse::<f64>() {
+                        Ok(x) if x.is_finite() && (0.0..=f64::from(MAX_COORD)).contains(&x) => {
+                            x.round() as u32
+                        }
+                        _ => {
+                            self.error(
+                                at(offset),
+                                format!("`idle({v})`: the time is a number of ms"),
+                            );
+                            return None;
+                        }
+                    },
+                };
+                if !expect_args(self, 1) {
+                    return None;
+                }
+                build::idle(id, ms)
+            }
+            "open" | "close" => {
+                if !expect_args(self, 0) {
+                    return None;
+                }
+                build::gripper(
+                    id,
+                    if parsed.name == "close" {
+                        Gripper::Closed
+                    } else {
+                        Gripper::Open
+                    },
+                )
+            }
+            "relieve" => {
+                if !expect_args(self, 0) {
+                    return None;
+                }
+                build::atomic(id, Action::Relieve)
+            }
+            "set_impedance" => {
+                if !expect_args(self, 0) {
+                    return None;
+                }
+                let stiffness = scaled(self, "stiffness", 1.0, 2000)?;
+                let damping = scaled(self, "damping", 1.0, 100)?;
+                build::atomic(id, Action::SetImpedance { stiffness, damping })
+            }
+            other => {
+                let extra = if command {
+                    "; a command may also be estop() or abort()"
+                } else {
+                    ""
+                };
+                self.error(
+                    at(0),
+                    format!("unknown call `{other}`: the calls are {CALLS}{extra}"),
+                );
+                return None;
+            }
+        };
+        if let Some((w, _)) = args.get("watchdog") {
+            schema.watchdog_ms = w.round().min(f64::from(MAX_COORD)) as u32;
+        }
+        if let Err(e) = schema.check() {
+            self.error(
+                text.span(),
+                format!(
+                    "`{}` makes a schema the board refuses: {e:?}",
+                    text.get_ref()
+                ),
+            );
+            return None;
+        }
+        Some(Made::Schema(Box::new(schema)))
+    }
+}
+
+/// What a call makes.
+enum Made {
+    Schema(Box<Schema>),
+    Abort,
+    EmergencyStop,
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::diagnostic::Source;
+    use crate::network::{Command, Network};
+
+    const BASE: &str = r#"
+[nodes.arm]
+id = 10
+
+[schema.arm]
+period_ms = 1
+force_limit_n = 30
+
+[client]
+node = "arm"
+"#;
+
+    fn errors(extra: &str) -> Vec<String> {
+        match Network::parse(Source::new("net.toml", format!("{BASE}{extra}"))) {
+            Ok(_) => Vec::new(),
+            Err(d) => d.0.iter().map(|d| d.to_string()).collect(),
+        }
+    }
+
+    #[test]
+    fn a_program_in_the_papers_api_becomes_the_builders_schemas() {
+        let text = format!(
+            "{BASE}program = [\"move_to(p, speed=20)\", \"move_to_touch(down, contact=5)\", \"grasp()\", \"idle(250)\"]\n\
+             [client.places]\np = [1, 2, 3]\ndown = [0, 0, -1]\n\
+             [[client.commands]]\nat = 1.5\ncall = \"estop()\"\n"
+        );
+        let network = Network::parse(Source::new("net.toml", text)).unwrap();
+        let client = network.client.unwrap();
+        let schemas: Vec<_> = client.program.iter().map(|c| c.schema.clone()).collect();
+        use pab_core::schema::build;
+        assert_eq!(
+            schemas,
+            vec![
+                build::move_to(1, [1000, 2000, 3000, 0, 0, 0], 20_000),
+                build::move_to_touch(2, [0, 0, -1000, 0, 0, 0], 5000, 5000, 50_000),
+                build::grasp(3, 200),
+                build::idle(4, 250),
+            ]
+        );
+        assert_eq!(network.schema_boards[0].config.force_limit, 30_000);
+        assert_eq!(client.commands[0].t_us, 1_500_000);
+        assert_eq!(client.commands[0].command, Command::EmergencyStop);
+    }
+
+    #[test]
+    fn mistakes_are_reported_at_their_line() {
+        let e = errors("program = [\"move_to(nowhere)\"]\n[client.places]\nhere = [0, 0, 0]\n");
+        assert_eq!(
+            e,
+            ["net.toml:11:21: error: place `nowhere` is not in [client.places] (here)"]
+        );
+        let e = errors("program = [\"fly()\"]\n");
+        assert!(
+            e[0].starts_with("net.toml:11:13: error: unknown call `fly`: the calls are move_to("),
+            "{e:?}"
+        );
+        let e = errors("program = [\"grasp(force=3)\"]\n");
+        assert_eq!(
+            e,
+            ["net.toml:11:19: error: `grasp` takes no `force` (it takes: settle)"]
+        );
+        let e = errors("program = [\"grasp(settle=-1)\"]\n");
+        assert_eq!(
+            e,
+            ["net.toml:11:19: error: `settle=-1`: a keyword's value is a number, 0 or more"]
+        );
+        let e = errors("program = [\"move_to(speed=3, p)\"]\n");
+        assert_eq!(
+            e,
+            ["net.toml:11:30: error: `p`: positional arguments come before keywords"]
+        );
+        let e = errors("program = [\"grasp(\"]\n");
+        assert_eq!(e, ["net.toml:11:19: error: the call's `)` is missing"]);
+        let e = errors("program = [\"estop()\"]\n");
+        assert!(
+            e[0].contains("unknown call `estop`") && !e[0].contains("estop() or abort()"),
+            "{e:?}"
+        );
+        let e = errors("[[client.commands]]\nat = 1\ncall = \"move_to()\"\n");
+        assert_eq!(
+            e,
+            ["net.toml:13:9: error: `move_to` needs a PLACE: `move_to(PLACE)`"]
+        );
+    }
+
+    #[test]
+    fn the_board_and_client_sections_are_checked() {
+        let e = errors("[schema.hand]\n");
+        assert!(
+            e[0].contains("[schema.hand]: node `hand` is not defined (nodes: arm)"),
+            "{e:?}"
+        );
+        let text = "[nodes.arm]\nid = 10\n[nodes.hand]\nid = 11\n[client]\nnode = \"hand\"\n";
+        let e: Vec<String> = Network::parse(Source::new("net.toml", text))
+            .unwrap_err()
+            .0
+            .iter()
+            .map(|d| d.to_string())
+            .collect();
+        assert_eq!(
+            e,
+            [
+                "net.toml:6:8: error: [client] node `hand` runs no schema server: add a [schema.hand] section"
+            ]
+        );
+        let text = "[nodes.arm]\nid = 10\n[schema.arm]\nperiod_ms = 0\nforce_limit_n = -1\noverrun_ms = 0.5\nworkspace_mm = { min = [0, 0, 0], max = [1, -1, 1] }\n";
+        let e: Vec<String> = Network::parse(Source::new("net.toml", text))
+            .unwrap_err()
+            .0
+            .iter()
+            .map(|d| d.to_string())
+            .collect();
+        assert_eq!(
+            e,
+            [
+                "net.toml:4:13: error: period_ms must be above 0 and at most 500000 ms",
+                "net.toml:5:17: error: force_limit_n must be above 0 and at most 500000 N",
+                "net.toml:6:14: error: overrun_ms must be at least period_ms",
+                "net.toml:7:16: error: workspace_mm: min is above max on some axis",
+            ]
+        );
+    }
+}

@@ -1,0 +1,330 @@
+//! The plant a schema server drives in simulation and in the HIL suite: an impedance-controlled
+//! end-effector over a plate with holes, a wrist force sensor, a gripper, and parts to pick.
+//!
+//! One model for every run that needs a robot: the deterministic tests and `pabctl sim` step it
+//! in virtual time; the HIL suite runs it as a process on the bus (`pabctl plant`). It is host
+//! code in f64 (a model of physics, not a mechanism: nothing here decides anything the board
+//! decides).
+//!
+//! # The model
+//!
+//! - A point mass `m` on x, y, z, pulled by the drive's impedance toward the attractor:
+//!   m·a = K·(attractor − x) − D·v + F_contact, integrated with semi-implicit Euler in
+//!   [`SUBSTEPS`] steps per board period (the contact is 100 times stiffer than the drive).
+//!   Rotations follow their attractor at once (no inertia, no contact): the paper's wobble only
+//!   reaches the trace.
+//! - The plate's top is z = 0. Parts stand on it at their feeder positions: blocks
+//!   2 × `part_half_width` wide and `part_height` tall. Holes are square, as wide as a part plus
+//!   twice `clearance` (±0.05 mm in the paper), `hole_depth` deep, with no chamfer: a held part
+//!   goes below the surface only with its centre within `clearance` of a hole's on both axes,
+//!   and the hole's walls then hold it there.
+//! - Contacts are penalty springs (`contact_stiffness`, `contact_damping`) along the surface's
+//!   normal: the plate and the parts' tops under the gripper's tip (empty) or under the held
+//!   part's bottom; the holes' walls; boxes ([`Obstacle`]) against the tip. Frictionless: the
+//!   tip slides under preload exactly where the attractor pulls it (a real plate's friction
+//!   would make it lag by μ × preload / K, which a stiffer lateral impedance cancels).
+//! - The wrist sensor reads the contact force on the robot (mN): pressing down on the plate reads
+//!   +z.
+//! - Closing the gripper takes the part whose top the tip is on (centre within
+//!   `grasp_tolerance`, tip within 1 mm of its top), at the offset it has; opening it lets the
+//!   part go: into the hole it is in (inserted once it is `insert_depth` below the surface, then
+//!   it drops to the bottom), or onto the plate.
+
+use pab_core::schema::{AXES, Gripper, Pose, Setpoint, Wrench};
+
+/// Integration steps per board period.
+pub const SUBSTEPS: u32 = 10;
+
+/// A box the tip cannot enter (µm): an obstacle on the way.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Obstacle {
+    /// Lower corner (x, y, z), µm.
+    pub min: [f64; 3],
+    /// Upper corner, µm.
+    pub max: [f64; 3],
+}
+
+/// The plant's geometry and physics. Lengths µm, as the board's.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlantConfig {
+    /// The moving mass, kg.
+    pub mass_kg: f64,
+    /// N/m.
+    pub contact_stiffness: f64,
+    /// N·s/m.
+    pub contact_damping: f64,
+    /// µm.
+    pub part_height: f64,
+    /// µm.
+    pub part_half_width: f64,
+    /// µm: the hole is this much wider than the part on each side.
+    pub clearance: f64,
+    /// µm.
+    pub hole_depth: f64,
+    /// How far the part's centre may be from the tip for a grasp to take it, µm.
+    pub grasp_tolerance: f64,
+    /// How deep in its hole a released part counts as inserted, µm.
+    pub insert_depth: f64,
+    /// The parts' centres on the plate (x, y), µm.
+    pub parts: Vec<[f64; 2]>,
+    /// The holes' centres (x, y), µm: where they really are.
+    pub holes: Vec<[f64; 2]>,
+    /// Boxes in the way.
+    pub obstacles: Vec<Obstacle>,
+    /// The tip's position at the start, µm.
+    pub start: [f64; 3],
+}
+
+impl Default for PlantConfig {
+    /// The paper's assembly: 15 mm parts, ±0.05 mm clearance, a 2 kg arm; no parts or holes.
+    fn default() -> Self {
+        PlantConfig {
+            mass_kg: 2.0,
+            contact_stiffness: 200_000.0,
+            contact_damping: 400.0,
+            part_height: 15_000.0,
+            part_half_width: 10_000.0,
+            clearance: 50.0,
+            hole_depth: 15_000.0,
+            grasp_tolerance: 2_000.0,
+            insert_depth: 1_000.0,
+            parts: Vec::new(),
+            holes: Vec::new(),
+            obstacles: Vec::new(),
+            start: [0.0, 0.0, 50_000.0],
+        }
+    }
+}
+
+/// Where a part is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PartState {
+    /// Standing on the plate, centre (x, y), µm.
+    OnPlate([f64; 2]),
+    /// In the gripper, its centre this far from the tip (x, y), µm.
+    Held([f64; 2]),
+    /// In hole `usize`, seated.
+    Inserted(usize),
+}
+
+/// The plant's state.
+#[derive(Clone, Debug)]
+pub struct Plant {
+    config: PlantConfig,
+    /// Tip position and velocity, metres and m/s.
+    x: [f64; 3],
+    v: [f64; 3],
+    rotation: [f64; 3],
+    /// The contact force on the robot, N.
+    force: [f64; 3],
+    parts: Vec<PartState>,
+    gripper: Gripper,
+    /// The hole the held part is in (its bottom below the surface), if any.
+    in_hole: Option<usize>,
+}
+
+const UM: f64 = 1e-6;
+
+impl Plant {
+    /// The plant at rest at `config.start`, every part on the plate, the gripper open.
+    pub fn new(config: PlantConfig) -> Plant {
+        let parts = config
+            .parts
+            .iter()
+            .map(|p| PartState::OnPlate(*p))
+            .collect();
+        Plant {
+            x: config.start.map(|c| c * UM),
+            v: [0.0; 3],
+            rotation: [0.0; 3],
+            force: [0.0; 3],
+            parts,
+            gripper: Gripper::Open,
+            in_hole: None,
+            config,
+        }
+    }
+
+    /// The geometry.
+    pub fn config(&self) -> &PlantConfig {
+        &self.config
+    }
+
+    /// The measured pose, µm and µrad, rounded.
+    pub fn pose(&self) -> Pose {
+        let mut p = [0; AXES];
+        for (o, x) in p.iter_mut().zip(self.x.iter().chain(&self.rotation)) {
+            *o = (x / UM).round() as i32;
+        }
+        p
+    }
+
+    /// The wrist sensor: the contact force on the robot, mN (no torque).
+    pub fn wrench(&self) -> Wrench {
+        let mut w = [0; AXES];
+        for (o, f) in w.iter_mut().zip(self.force) {
+            *o = (f * 1000.0).round() as i32;
+        }
+        w
+    }
+
+    /// The contact force's magnitude, N.
+    pub fn force_n(&self) -> f64 {
+        self.force.iter().map(|f| f * f).sum::<f64>().sqrt()
+    }
+
+    /// Where each part is.
+    pub fn parts(&self) -> &[PartState] {
+        &self.parts
+    }
+
+    /// Parts seated in a hole.
+    pub fn inserted(&self) -> usize {
+        self.parts
+            .iter()
+            .filter(|p| matches!(p, PartState::Inserted(_)))
+            .count()
+    }
+
+    /// Runs the plant for `period_us` under `setpoint`.
+    pub fn step(&mut self, setpoint: &Setpoint, period_us: u32) {
+        if setpoint.gripper != self.gripper {
+            self.gripper = setpoint.gripper;
+            match self.gripper {
+                Gripper::Closed => self.grasp(),
+                Gripper::Open => self.release(),
+            }
+        }
+        let k = f64::from(setpoint.stiffness);
+        let d = f64::from(setpoint.damping);
+        let attractor = [0, 1, 2].map(|i| f64::from(setpoint.attractor[i]) * UM);
+        for (r, a) in self.rotation.iter_mut().zip(&setpoint.attractor[3..]) {
+            *r = f64::from(*a) * UM;
+        }
+        let dt = f64::from(period_us) * 1e-6 / f64::from(SUBSTEPS);
+        for _ in 0..SUBSTEPS {
+            let contact = self.contact();
+            for i in 0..3 {
+                let f = k * (attractor[i] - self.x[i]) - d * self.v[i] + contact[i];
+                self.v[i] += f / self.config.mass_kg * dt;
+                self.x[i] += self.v[i] * dt;
+            }
+            self.force = contact;
+        }
+    }
+
+    /// The held part (index and offset from the tip, metres).
+    fn held(&self) -> Option<(usize, [f64; 2])> {
+        self.parts.iter().enumerate().find_map(|(i, p)| match p {
+            PartState::Held(o) => Some((i, [o[0] * UM, o[1] * UM])),
+            _ => None,
+        })
+    }
+
+    /// The contact force on the robot at the current state, N.
+    fn contact(&mut self) -> [f64; 3] {
+        let c = &self.config;
+        let (ks, ds) = (c.contact_stiffness, c.contact_damping);
+        let mut f = [0.0; 3];
+        let normal = |pen: f64, v: f64| (ks * pen - ds * v).max(0.0);
+        match self.held() {
+            Some((_, offset)) => {
+                let centre = [self.x[0] + offset[0], self.x[1] + offset[1]];
+                let bottom = self.x[2] - c.part_height * UM;
+                let half_gap = c.clearance * UM;
+                if bottom < 0.0 && self.in_hole.is_none() {
+                    // Only within the clearance does the part go in: no chamfer.
+                    self.in_hole = c.holes.iter().position(|h| {
+                        (centre[0] - h[0] * UM).abs() <= half_gap
+                            && (centre[1] - h[1] * UM).abs() <= half_gap
+                    });
+                } else if bottom >= 0.0 {
+                    self.in_hole = None;
+                }
+                match self.in_hole.and_then(|h| c.holes.get(h)) {
+                    Some(h) => {
+                        for axis in 0..2 {
+                            let e = centre[axis] - h[axis] * UM;
+                            if e.abs() > half_gap {
+                                f[axis] = -ks * (e.abs() - half_gap) * e.signum();
+                            }
+                        }
+                        let floor = -c.hole_depth * UM;
+                        if bottom < floor {
+                            f[2] = normal(floor - bottom, self.v[2]);
+                        }
+                    }
+                    None if bottom < 0.0 => f[2] = normal(-bottom, self.v[2]),
+                    None => {}
+                }
+            }
+            None => {
+                // The empty gripper's tip: on the tallest surface under it.
+                let mut surface: f64 = 0.0;
+                for p in &self.parts {
+                    if let PartState::OnPlate(at) = p
+                        && (self.x[0] - at[0] * UM).abs() <= c.part_half_width * UM
+                        && (self.x[1] - at[1] * UM).abs() <= c.part_half_width * UM
+                    {
+                        surface = surface.max(c.part_height * UM);
+                    }
+                }
+                if self.x[2] < surface {
+                    f[2] = normal(surface - self.x[2], self.v[2]);
+                }
+            }
+        }
+        for o in &self.config.obstacles {
+            let inside = (0..3).all(|i| self.x[i] > o.min[i] * UM && self.x[i] < o.max[i] * UM);
+            if inside {
+                // Out along the axis of least penetration.
+                let mut best = (f64::INFINITY, 0usize, 0.0f64);
+                for i in 0..3 {
+                    for (pen, sign) in [
+                        (self.x[i] - o.min[i] * UM, -1.0),
+                        (o.max[i] * UM - self.x[i], 1.0),
+                    ] {
+                        if pen < best.0 {
+                            best = (pen, i, sign);
+                        }
+                    }
+                }
+                let (pen, i, sign) = best;
+                f[i] += sign * (ks * pen - ds * self.v[i] * sign).max(0.0);
+            }
+        }
+        f
+    }
+
+    fn grasp(&mut self) {
+        let c = &self.config;
+        let tip = [self.x[0] / UM, self.x[1] / UM, self.x[2] / UM];
+        let found = self.parts.iter().position(|p| {
+            matches!(p, PartState::OnPlate(at)
+                if (at[0] - tip[0]).abs() <= c.grasp_tolerance
+                    && (at[1] - tip[1]).abs() <= c.grasp_tolerance
+                    && (tip[2] - c.part_height).abs() <= 1000.0)
+        });
+        if let Some(i) = found
+            && let Some(PartState::OnPlate(at)) = self.parts.get(i).copied()
+            && let Some(p) = self.parts.get_mut(i)
+        {
+            *p = PartState::Held([at[0] - tip[0], at[1] - tip[1]]);
+        }
+    }
+
+    fn release(&mut self) {
+        let Some((i, offset)) = self.held() else {
+            return;
+        };
+        let bottom = self.x[2] / UM - self.config.part_height;
+        let state = match self.in_hole {
+            Some(h) if bottom <= -self.config.insert_depth => PartState::Inserted(h),
+            _ => PartState::OnPlate([(self.x[0] + offset[0]) / UM, (self.x[1] + offset[1]) / UM]),
+        };
+        if let Some(p) = self.parts.get_mut(i) {
+            *p = state;
+        }
+        self.in_hole = None;
+    }
+}
