@@ -45,7 +45,7 @@
 use embedded_can::Id;
 use heapless::Vec;
 
-use crate::ble::{self, BleError, Claim, Eligibility, MAX_GROUPS, MAX_PEERS};
+use crate::ble::{BleError, Claim, Eligibility, MAX_GROUPS, MAX_PEERS};
 #[cfg(feature = "dynamics")]
 use crate::dynamics::{GroupRun, MAX_DYNAMICS_GROUPS, MAX_GATE_SOURCES, SourceState};
 
@@ -56,7 +56,7 @@ use crate::decision::{self, ConnectionSet, NodeRef, Step};
 use crate::frame::Frame;
 use crate::hbba::filters::{CommandError, FilterCounts, Throttles, UNFILTERED};
 use crate::index::{Cursor, FilterIndex, Lookup};
-use crate::integrator::{Integrator, ParamError, Stimulated};
+use crate::integrator::{Integrator, Stimulated};
 use crate::level::{Gain, Level};
 use crate::table::{Table, TableError};
 use crate::time::Instant;
@@ -489,6 +489,10 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// Validates the table again (it is cheap, and a `Table` can be deserialized without the
     /// loader), and fails with the first [`TableError`] found. Costs one pass over the table and
     /// the sort of its filters.
+    // Out of line: inlined into the node's loader, whose frame also holds the decoded table, it
+    // took 44 bytes more of the NUCLEO-G474RE's flash with competitive dynamics. Run once per
+    // table.
+    #[inline(never)]
     pub fn new(table: Table<PORTS, CONNECTIONS, NODES>) -> Result<Self, TableError> {
         table.validate()?;
         // Built where it is returned, not part by part and then moved into place: each move
@@ -510,6 +514,22 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             throttles: Throttles::new(table.filters()),
             table,
         };
+        match arbiter.build() {
+            Some(()) => Ok(arbiter),
+            None => Err(TableError::TooManyNodes),
+        }
+    }
+
+    /// Builds the run-time form of `self.table`, which [`Table::validate`] accepted, into this
+    /// arbiter's empty parts. Every `?` below but one is a capacity that a validated table
+    /// cannot exceed (its own, which this arbiter shares; at most 16 ports of 32 connections;
+    /// the value ports' and groups' fixed ones) or a parameter it has checked. They are kept (a
+    /// `None`, never a panic) but no longer each with an error of its own: that was 108 bytes
+    /// of the NUCLEO-G474RE's flash for paths no table takes. The one a validated table can
+    /// take is more than 2^16 decision nodes before a port (a capacity `NODES` beyond 65 536;
+    /// the steps' positions are `u16`): [`Arbiter::new`]'s [`TableError::TooManyNodes`], as
+    /// before.
+    fn build(&mut self) -> Option<()> {
         let Arbiter {
             ports,
             index,
@@ -525,30 +545,17 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             sources,
             throttles: _,
             table,
-        } = &mut arbiter;
+        } = self;
         for (position, (record, connections, nodes, roots)) in table.ranges().enumerate() {
-            let port = u8::try_from(position).map_err(|_| TableError::TooManyPorts)?;
-            let (Some(views), Some(nodes)) = (
-                table.connections().get(connections.clone()),
-                table.nodes().get(nodes.clone()),
-            ) else {
-                return Err(TableError::ConnectionCountMismatch);
-            };
-            let first_connection =
-                u16::try_from(slots.len()).map_err(|_| TableError::TooManyConnections)?;
+            let port = u8::try_from(position).ok()?;
+            let views = table.connections().get(connections)?;
+            let nodes = table.nodes().get(nodes)?;
+            let first_connection = u16::try_from(slots.len()).ok()?;
             for (index, connection) in views.iter().enumerate() {
-                let index = u8::try_from(index).map_err(|_| TableError::PortTooWide { port })?;
-                // `Runtime::new` less the checks `table.validate()` made above: they cannot fail
+                // `Runtime::new` less the checks `table.validate()` made: they cannot fail
                 // again, and inlined a second time they took 160 bytes of the NUCLEO-G474RE's
-                // flash. The decay's (τ > 0, validated too) is kept, with `Runtime::new`'s error.
-                let Some(decay) = Decay::new(connection.stimulation.decay_us()) else {
-                    return Err(TableError::Parameter {
-                        port,
-                        connection: index,
-                        error: ParamError::DecayTime,
-                    });
-                };
-                let (tau, reciprocal) = decay.parts();
+                // flash. The decay's (τ > 0, validated too) is kept.
+                let (tau, reciprocal) = Decay::new(connection.stimulation.decay_us())?.parts();
                 let slot = Slot {
                     integrator: Integrator::new(),
                     reciprocal,
@@ -556,29 +563,20 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                     gain: connection.stimulation.gain(),
                     rest_us: connection.stimulation.rest_us(),
                     port,
-                    index,
+                    index: u8::try_from(index).ok()?,
                     filter: UNFILTERED,
                 };
-                slots
-                    .push(slot)
-                    .map_err(|_| TableError::TooManyConnections)?;
+                slots.push(slot).ok()?;
             }
-            let first_step = u16::try_from(steps.len()).map_err(|_| TableError::TooManyNodes)?;
-            for _ in nodes {
-                steps
-                    .push(Step::NOBODY)
-                    .map_err(|_| TableError::TooManyNodes)?;
-            }
+            let first_step = u16::try_from(steps.len()).ok()?;
             let end = usize::from(first_step).saturating_add(nodes.len());
-            if let Some(compiled) = steps.get_mut(usize::from(first_step)..end) {
-                decision::compile(nodes, compiled);
-            }
+            steps.resize(end, Step::NOBODY).ok()?;
+            decision::compile(nodes, steps.get_mut(usize::from(first_step)..)?);
             let mut run = Port {
                 first_connection,
-                connections: u8::try_from(views.len())
-                    .map_err(|_| TableError::PortTooWide { port })?,
+                connections: u8::try_from(views.len()).ok()?,
                 first_step,
-                steps: u16::try_from(nodes.len()).map_err(|_| TableError::TooManyNodes)?,
+                steps: u16::try_from(nodes.len()).ok()?,
                 root: record.root(),
                 flagged: 0,
                 steady: 0,
@@ -591,62 +589,42 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 external: 0,
             };
             run.idle(steps.as_slice());
-            ports.push(run).map_err(|_| TableError::TooManyPorts)?;
+            ports.push(run).ok()?;
             if let Some(spec) = record.value() {
-                let roots = table
-                    .roots()
-                    .get(roots)
-                    .ok_or(TableError::RootCountMismatch)?;
-                let first = u8::try_from(value_slots.len())
-                    .map_err(|_| TableError::TooManyValueConnections)?;
+                let roots = table.roots().get(roots)?;
+                let first = u8::try_from(value_slots.len()).ok()?;
                 let own = slots.get(usize::from(first_connection)..).unwrap_or(&[]);
                 for (slot, &root) in own.iter().zip(roots) {
-                    value_slots
-                        .push(ValueSlot::new(slot.tau, root))
-                        .map_err(|_| TableError::TooManyValueConnections)?;
+                    value_slots.push(ValueSlot::new(slot.tau, root)).ok()?;
                 }
-                let count =
-                    u8::try_from(roots.len()).map_err(|_| TableError::PortTooWide { port })?;
+                let count = u8::try_from(roots.len()).ok()?;
                 values
                     .push(ValueState::new(port, first, count, spec))
-                    .map_err(|_| TableError::TooManyValuePorts)?;
+                    .ok()?;
                 *value_ports = value_ports.with(port);
             }
         }
-        *index = FilterIndex::new(table.connections()).ok_or(TableError::TooManyConnections)?;
+        *index = FilterIndex::new(table.connections())?;
         // Validated: the filtered connections exist, at most MAX_FILTERED (< UNFILTERED) of them.
         for (position, &connection) in table.filters().connections.iter().enumerate() {
             if let Some(slot) = slots.get_mut(usize::from(connection)) {
                 slot.filter = position as u8;
             }
         }
-        for (position, group) in table.groups().iter().enumerate() {
-            let error = |error| TableError::Group {
-                group: u8::try_from(position).unwrap_or(u8::MAX),
-                error,
-            };
-            let state = Eligibility::new(group.number, group.node, u64::from(group.period_us))
-                .map_err(|_| error(ble::GroupError::Period))?;
-            groups.push(state).map_err(|_| TableError::TooManyGroups)?;
+        for group in table.groups() {
+            let state =
+                Eligibility::new(group.number, group.node, u64::from(group.period_us)).ok()?;
+            groups.push(state).ok()?;
         }
         #[cfg(feature = "dynamics")]
-        for (position, spec) in table.dynamics().iter().enumerate() {
-            let run = GroupRun::new(spec).map_err(|error| {
-                TableError::Dynamics(crate::dynamics::DynamicsError::Params {
-                    group: u8::try_from(position).unwrap_or(u8::MAX),
-                    error,
-                })
-            })?;
-            runs.push(run)
-                .map_err(|_| TableError::Dynamics(crate::dynamics::DynamicsError::TooMany))?;
+        for spec in table.dynamics() {
+            runs.push(GroupRun::new(spec).ok()?).ok()?;
         }
         #[cfg(feature = "dynamics")]
         for _ in table.gate_sources() {
-            sources
-                .push(SourceState::new())
-                .map_err(|_| TableError::Dynamics(crate::dynamics::DynamicsError::TooMany))?;
+            sources.push(SourceState::new()).ok()?;
         }
-        Ok(arbiter)
+        Some(())
     }
 
     /// The table in use.

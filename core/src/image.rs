@@ -40,8 +40,7 @@
 //! with a reader of its own (`wire`), not serde: the format is postcard's, the code a fraction.
 
 use crate::crc32::Crc32;
-use crate::decision::{DecisionNode, NodeRef};
-use crate::table::{Connection, Port, Table, TableError};
+use crate::table::{Table, TableError};
 use crate::{MAX_CONNECTIONS, MAX_DECISION_NODES, MAX_PORTS};
 
 /// The first four bytes of every image.
@@ -289,9 +288,10 @@ pub fn read_header(bytes: &[u8]) -> Result<Header, LoadError> {
 /// default capacities.
 ///
 /// Costs one CRC pass over the image, one postcard decode and one validation pass; uses no heap
-/// and about `size_of::<Table<PORTS, CONNECTIONS, NODES>>()` of stack for the result. When the
-/// body does not decode, a second, storage-free decode tells [`LoadError::ExceedsCapacity`] (the
-/// table is too large for this node) from [`LoadError::Body`] (the bytes are not a table).
+/// and about `size_of::<Table<PORTS, CONNECTIONS, NODES>>()` of stack for the result. A list
+/// longer than this table's room does not stop the decode: the rest of the body is read (and
+/// checked) without being stored, which tells [`LoadError::ExceedsCapacity`] (the table is too
+/// large for this node) from [`LoadError::Body`] (the bytes are not a table).
 pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
     bytes: &[u8],
 ) -> Result<Loaded<PORTS, CONNECTIONS, NODES>, LoadError> {
@@ -322,33 +322,33 @@ pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
             computed,
         });
     }
-    let (table, rest) = match decode_body::<PORTS, CONNECTIONS, NODES>(body) {
-        Ok(decoded) => decoded,
-        Err(error) => {
-            let capacity = TableSize {
-                ports: PORTS,
-                connections: CONNECTIONS,
-                nodes: NODES,
-            };
-            return Err(match size_of_body(body) {
-                Some((needed, _))
-                    if needed.ports > capacity.ports
-                        || needed.connections > capacity.connections
-                        || needed.nodes > capacity.nodes =>
-                {
-                    LoadError::ExceedsCapacity { needed, capacity }
-                }
-                // Within the capacities but more value-port roots than connections: the root
-                // list (sized by the connections) overflowed. The verdict every loader gives
-                // such a body, before validation ([`too_many_roots`]).
-                Some((needed, roots)) if roots > needed.connections => {
-                    LoadError::Table(TableError::RootCountMismatch)
-                }
-                _ => LoadError::Body(error),
-            });
-        }
-    };
-    if !rest.is_empty() {
+    let mut r = crate::wire::Reader::new(body);
+    let (table, needed, roots) = Table::<PORTS, CONNECTIONS, NODES>::decode_sized(&mut r);
+    if let Some(error) = r.error() {
+        let capacity = TableSize {
+            ports: PORTS,
+            connections: CONNECTIONS,
+            nodes: NODES,
+        };
+        // Only a body that is a table and nothing else, whose only faults are lists longer than
+        // their room here, is told apart: the first fault then names what it needs.
+        return Err(if !r.is_whole() {
+            LoadError::Body(error)
+        } else if needed.ports > capacity.ports
+            || needed.connections > capacity.connections
+            || needed.nodes > capacity.nodes
+        {
+            LoadError::ExceedsCapacity { needed, capacity }
+        } else if roots > needed.connections {
+            // Within the capacities but more value-port roots than connections: the root list
+            // (sized by the connections) overflowed. The verdict every loader gives such a
+            // body, before validation ([`too_many_roots`]).
+            LoadError::Table(TableError::RootCountMismatch)
+        } else {
+            LoadError::Body(error)
+        });
+    }
+    if !r.rest().is_empty() {
         return Err(LoadError::BodyTrailingBytes);
     }
     too_many_roots(&table)?;
@@ -385,44 +385,6 @@ pub fn decode_body<const PORTS: usize, const CONNECTIONS: usize, const NODES: us
     body: &[u8],
 ) -> Result<(Table<PORTS, CONNECTIONS, NODES>, &[u8]), postcard::Error> {
     crate::wire::take(body)
-}
-
-/// The sizes of the lists of a table body, decoded without storing them; `None` if the body is
-/// not a table or has bytes after it. Costs one decode, one element at a time.
-// Out of line: it runs only on a body that did not decode, and inlined into the loader it took
-// 44 bytes more of the NUCLEO-G474RE's flash with competitive dynamics, 64 without.
-#[inline(never)]
-fn size_of_body(body: &[u8]) -> Option<(TableSize, usize)> {
-    let mut r = crate::wire::Reader::new(body);
-    let ports = r.count::<Port>();
-    let connections = r.count::<Connection>();
-    let nodes = r.count::<DecisionNode>();
-    // Counted so that the body's end is found; a valid table has at most one per connection.
-    let roots = r.count::<NodeRef>();
-    // Counted so that the body's end is found; a fixed capacity.
-    r.count::<crate::ble::Group>();
-    #[cfg(feature = "dynamics")]
-    {
-        r.count::<crate::dynamics::GroupSpec>();
-        r.count::<crate::dynamics::GateSource>();
-        r.count::<crate::dynamics::GateLink>();
-    }
-    #[cfg(not(feature = "dynamics"))]
-    for _ in 0..3 {
-        r.empty::<u8, 0>();
-    }
-    r.decode::<crate::hbba::filters::MessageFilters>();
-    if r.failed() {
-        return None;
-    }
-    r.rest().is_empty().then_some((
-        TableSize {
-            ports,
-            connections,
-            nodes,
-        },
-        roots,
-    ))
 }
 
 /// More value-port roots than connections: refused before validation, so that a node whose root
@@ -468,6 +430,208 @@ pub fn encode<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
     fields.copy_from_slice(&covered);
     crc_field.copy_from_slice(&crc.to_le_bytes());
     Ok(total)
+}
+
+#[cfg(test)]
+mod one_pass {
+    use super::*;
+    use crate::decision::{DecisionNode, NodeRef};
+    use crate::level::Gain;
+    use crate::table::Connection;
+    use crate::{Filter, Stimulation};
+
+    /// The loader's verdict on a body that did not decode, as it was made before
+    /// [`crate::wire::Reader::fill_within`]: a second decode that counts every list.
+    fn size_of_body(body: &[u8]) -> Option<(TableSize, usize)> {
+        let mut r = crate::wire::Reader::new(body);
+        let ports = r.count::<crate::table::Port>();
+        let connections = r.count::<Connection>();
+        let nodes = r.count::<DecisionNode>();
+        let roots = r.count::<NodeRef>();
+        r.count::<crate::ble::Group>();
+        #[cfg(feature = "dynamics")]
+        {
+            r.count::<crate::dynamics::GroupSpec>();
+            r.count::<crate::dynamics::GateSource>();
+            r.count::<crate::dynamics::GateLink>();
+        }
+        #[cfg(not(feature = "dynamics"))]
+        for _ in 0..3 {
+            r.empty::<u8, 0>();
+        }
+        r.decode::<crate::hbba::filters::MessageFilters>();
+        if r.error().is_some() {
+            return None;
+        }
+        r.rest().is_empty().then_some((
+            TableSize {
+                ports,
+                connections,
+                nodes,
+            },
+            roots,
+        ))
+    }
+
+    /// [`load`]'s verdict on the body alone (its checks after the CRC), made the former way.
+    fn former<const P: usize, const C: usize, const N: usize>(
+        body: &[u8],
+    ) -> Result<Table<P, C, N>, LoadError> {
+        let (table, rest) = match decode_body::<P, C, N>(body) {
+            Ok(decoded) => decoded,
+            Err(error) => {
+                let capacity = TableSize {
+                    ports: P,
+                    connections: C,
+                    nodes: N,
+                };
+                return Err(match size_of_body(body) {
+                    Some((needed, _))
+                        if needed.ports > capacity.ports
+                            || needed.connections > capacity.connections
+                            || needed.nodes > capacity.nodes =>
+                    {
+                        LoadError::ExceedsCapacity { needed, capacity }
+                    }
+                    Some((needed, roots)) if roots > needed.connections => {
+                        LoadError::Table(TableError::RootCountMismatch)
+                    }
+                    _ => LoadError::Body(error),
+                });
+            }
+        };
+        if !rest.is_empty() {
+            return Err(LoadError::BodyTrailingBytes);
+        }
+        too_many_roots(&table)?;
+        table.validate().map_err(LoadError::Table)?;
+        Ok(table)
+    }
+
+    fn image_of(body: &[u8]) -> std::vec::Vec<u8> {
+        let len = u32::try_from(body.len()).unwrap();
+        let covered = covered_header(1, 1, len);
+        let crc = Crc32::new().update(&covered).update(body).finish();
+        let mut image = covered.to_vec();
+        image.extend_from_slice(&crc.to_le_bytes());
+        image.extend_from_slice(body);
+        image
+    }
+
+    fn same<const P: usize, const C: usize, const N: usize>(body: &[u8]) {
+        let now = load::<P, C, N>(&image_of(body)).map(|loaded| loaded.table);
+        assert_eq!(now, former::<P, C, N>(body), "body {body:02x?}");
+    }
+
+    fn same_everywhere(body: &[u8]) {
+        same::<4, 64, 256>(body);
+        same::<2, 3, 2>(body);
+        same::<1, 1, 0>(body);
+        same::<16, 512, 1024>(body);
+    }
+
+    /// The one-pass loader gives every body the verdict of the former two-pass one, at
+    /// capacities the body fits and capacities it exceeds: on every one-byte change (to 0, 1,
+    /// 0x7F, 0x80, 0xFF and each single bit flipped), every truncation and every appended byte
+    /// of a few tables' bodies.
+    #[test]
+    fn the_one_pass_loader_gives_the_former_verdicts() {
+        let connection = |id: u32| Connection {
+            filter: Filter::exact(id, false).unwrap(),
+            stimulation: Stimulation::new(Gain::ONE, 1_000_000, 0).unwrap(),
+        };
+        let deliver = |k: u8| NodeRef::deliver(k).unwrap();
+        let node = DecisionNode {
+            var: 0,
+            low: deliver(1),
+            high: deliver(0),
+        };
+        let mut tables: std::vec::Vec<Table> = std::vec::Vec::new();
+        tables.push(Table::new());
+        let mut one = Table::new();
+        one.push_port(
+            &[connection(1), connection(2)],
+            &[node],
+            NodeRef::node(0).unwrap(),
+        )
+        .unwrap();
+        one.push_port(&[connection(3)], &[], deliver(0)).unwrap();
+        tables.push(one.clone());
+        let spec = crate::ValueSpec {
+            combine: crate::Combine::Min,
+            value: crate::Field {
+                offset: 0,
+                size: 2,
+                signed: false,
+                endian: crate::Endian::Little,
+            },
+            priority: None,
+        };
+        one.push_value_port(
+            &[connection(4), connection(5)],
+            &[],
+            spec,
+            &[deliver(0), deliver(1)],
+        )
+        .unwrap();
+        tables.push(one);
+        for table in &tables {
+            let mut body = [0u8; 4096];
+            let len = postcard::to_slice(table, &mut body).unwrap().len();
+            let body = &body[..len];
+            same_everywhere(body);
+            for at in 0..body.len() {
+                let mut changed = body.to_vec();
+                for value in [0u8, 1, 2, 3, 0x7F, 0x80, 0xFF]
+                    .into_iter()
+                    .chain((0..8).map(|bit| body[at] ^ (1 << bit)))
+                {
+                    changed[at] = value;
+                    same_everywhere(&changed);
+                }
+                same_everywhere(&body[..at]);
+            }
+            for extra in [0u8, 1, 0x80] {
+                let mut longer = body.to_vec();
+                longer.push(extra);
+                same_everywhere(&longer);
+            }
+        }
+    }
+
+    /// The same on the image fuzz targets' corpora (bodies with BLE groups, dynamics and
+    /// filters among them) and the emulated board's Take and Return images: each body, each
+    /// truncation of it, and each byte of it set to 0 and to 0xFF.
+    #[test]
+    fn the_one_pass_loader_gives_the_former_verdicts_on_the_corpora() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let mut files = std::vec::Vec::new();
+        for dir in [
+            "fuzz/corpus/image_fixed_crc",
+            "fuzz/corpus/image_raw",
+            "firmware/boards/mps2-an386/tables/take-and-return",
+        ] {
+            for entry in std::fs::read_dir(root.join(dir)).unwrap() {
+                files.push(entry.unwrap().path());
+            }
+        }
+        assert!(files.len() > 50, "the corpora were not found");
+        for file in files {
+            let bytes = std::fs::read(&file).unwrap();
+            let Some(body) = bytes.get(HEADER_LEN..) else {
+                continue;
+            };
+            same_everywhere(body);
+            for at in 0..body.len() {
+                same_everywhere(&body[..at]);
+                let mut changed = body.to_vec();
+                for value in [0u8, 0xFF] {
+                    changed[at] = value;
+                    same_everywhere(&changed);
+                }
+            }
+        }
+    }
 }
 
 #[cfg(all(test, not(feature = "dynamics")))]

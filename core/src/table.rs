@@ -822,25 +822,41 @@ impl crate::wire::Decode for Port {
 impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize> crate::wire::Decode
     for Table<PORTS, CONNECTIONS, NODES>
 {
+    fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
+        Self::decode_sized(r).0
+    }
+}
+
+impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
+    Table<PORTS, CONNECTIONS, NODES>
+{
+    /// The table's decode, with what its body holds: `(table, sizes, value-port roots)`, the
+    /// lengths read, including elements beyond the capacities ([`crate::wire::Reader::fill_within`]:
+    /// a list longer than its room is an error that leaves the rest of the body read, so that
+    /// the loader tells [`crate::image::LoadError::ExceedsCapacity`] from the sizes).
     // Out of line: inlined into the loader, each list's decode reached the table at large
     // offsets of the loader's frame; here the table is near. 156 bytes less of the
     // NUCLEO-G474RE's flash with competitive dynamics, 80 without. Run once per image.
     #[inline(never)]
-    fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
+    pub(crate) fn decode_sized(
+        r: &mut crate::wire::Reader<'_>,
+    ) -> (Self, crate::image::TableSize, usize) {
         // Each list is decoded into its field of the table being returned, not built apart and
         // moved in: a move per field was code, on the boards with the arbiter built in place
         // too (`Arbiter::new`) 72 bytes of flash with competitive dynamics, 48 without.
         let mut table = Table::new();
-        r.fill(&mut table.ports);
-        r.fill(&mut table.connections);
-        r.fill(&mut table.nodes);
-        r.fill(&mut table.roots);
-        r.fill(&mut table.groups);
+        let size = crate::image::TableSize {
+            ports: r.fill_within(&mut table.ports),
+            connections: r.fill_within(&mut table.connections),
+            nodes: r.fill_within(&mut table.nodes),
+        };
+        let roots = r.fill_within(&mut table.roots);
+        r.fill_within(&mut table.groups);
         #[cfg(feature = "dynamics")]
         {
-            r.fill(&mut table.dynamics);
-            r.fill(&mut table.gate_sources);
-            r.fill(&mut table.gate_links);
+            r.fill_within(&mut table.dynamics);
+            r.fill_within(&mut table.gate_sources);
+            r.fill_within(&mut table.gate_links);
         }
         // Without competitive dynamics the three lists must be empty: a table that has them
         // is refused, its body unreadable here (a node needs the feature to run it).
@@ -851,7 +867,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize> crate::wi
         // Format 6: after the dynamics part, the HBBA message filters.
         r.fill(&mut table.filters.connections);
         r.fill(&mut table.filters.profiles);
-        table
+        (table, size, roots)
     }
 }
 

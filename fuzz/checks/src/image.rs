@@ -152,7 +152,7 @@ fn check(bytes: &[u8]) -> Result<(), LoadError> {
                 ),
                 // Likewise; but a table too large for the board *followed by bytes* is `Body` on
                 // the board: it tells ExceedsCapacity only for a body that is a table and
-                // nothing else (`size_of_body`, by design), and this one is not.
+                // nothing else (`Reader::fill_within`, by design), and this one is not.
                 LoadError::BodyTrailingBytes => assert!(
                     matches!(
                         board,
