@@ -5,8 +5,8 @@
 use pab_core::Instant;
 use pab_core::schema::build;
 use pab_core::schema::{
-    AXES, Action, Config, Event, Gripper, MAX_ENCODED, Measure, Origin, Pose, QUEUE_DEPTH,
-    Reaction, Refusal, Safety, Schema, SchemaError, Server, Source, Tick, Trigger,
+    AXES, Action, Config, Event, Gripper, MAX_COORD, MAX_ENCODED, Measure, Origin, Pose,
+    QUEUE_DEPTH, Reaction, Refusal, Safety, Schema, SchemaError, Server, Source, Tick, Trigger,
 };
 use proptest::prelude::*;
 
@@ -795,4 +795,38 @@ proptest! {
             Err(e) => prop_assert_eq!(Schema::decode(bytes), Err(e)),
         }
     }
+}
+
+#[test]
+fn contact_against_a_move_from_the_end_of_the_pose_range_does_not_overflow() {
+    // A pose topic may report any i32 (a robot far beyond MAX_COORD, a broken sensor): the first
+    // one arms the attractor there, and a move's direction from it to a goal within MAX_COORD
+    // is then up to 2^31 + MAX_COORD per axis. Against a wrench at the end of its range the
+    // contact's dot product saturates at i64::MIN, whose negation overflowed (the fuzz target
+    // `schema` reads any pose).
+    let mut config = Config::new(PERIOD);
+    config.workspace_min = [i32::MIN; AXES];
+    config.workspace_max = [i32::MAX; AXES];
+    config.force_limit = u32::MAX;
+    let mut server = Server::new(config).unwrap();
+    let mut touch = build::move_to(1, [MAX_COORD, MAX_COORD, MAX_COORD, 0, 0, 0], 1);
+    touch.reactions[0] = Reaction {
+        event: Event::Above(Measure::Contact, 0),
+        next: Source::Queue,
+    };
+    server.enqueue(touch).unwrap();
+    for tick in 1..=2 {
+        server.set_pose([i32::MIN; AXES], at(tick));
+        server.set_wrench([i32::MIN; AXES], at(tick));
+        let out = server.tick(at(tick));
+        assert!(
+            out.transitions
+                .iter()
+                .all(|t| !matches!(t.by, Trigger::Safety(_))),
+            "{out:?}"
+        );
+    }
+    // The move goes +x, +y, +z and the force points the other way, as hard as it can: contact,
+    // which a wrapped negation read as a pull (so no contact).
+    assert_eq!(server.current(), Schema::WAIT_QUEUE);
 }

@@ -606,12 +606,14 @@ impl Server {
                 if norm == 0 {
                     return Some(0);
                 }
-                // |F| < 2^31 and |d| ≤ 2^31: each product below 2^62, three of them summed
-                // saturating.
+                // |F| ≤ 2^31, and |d| < 2^32 (a goal within MAX_COORD, from an attractor that a
+                // pose topic may have put anywhere in i32): each product below 2^63, three of
+                // them summed saturating, so the sum may be i64::MIN, whose plain negation
+                // overflows (a panic, or no contact at all once wrapped).
                 let dot = w.iter().zip(d).fold(0i64, |s, (f, d)| {
                     s.saturating_add(i64::from(*f).saturating_mul(d))
                 });
-                Some(-dot / norm.min(i64::MAX as u64) as i64)
+                Some(dot.saturating_neg() / norm.min(i64::MAX as u64) as i64)
             }
             Measure::Sensor(s) => self
                 .sensors

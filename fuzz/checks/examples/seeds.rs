@@ -92,6 +92,187 @@ fn main() {
             pab_fuzz_checks::gates::features,
         );
     }
+    if wanted("schema") {
+        schema_seeds(&write);
+    }
+}
+
+/// The `schema` target's scripts, written by hand (`pab_fuzz_checks::schema::encode_script`):
+/// a queue of moves and a grasp run to the end, an emergency stop in a move and the way back
+/// through the high-priority channel, a blind search that finds its hole, a move into the
+/// workspace's limit, late ticks and a robot that stops reporting, innate reflexes with an
+/// abort, and a contact measured at the ends of the pose and wrench ranges.
+fn schema_seeds(write: &dyn Fn(&str, &str, &[u8])) {
+    use pab_core::schema::{Action, Config, Event, Gripper, Measure, Reaction, Source, build};
+    use pab_fuzz_checks::schema::{Op, decode_script, encode_script};
+
+    let still = |ticks: u8| Op::Run {
+        ticks,
+        offset: [0; 6],
+        wrench: [0; 6],
+    };
+    let start = [Op::Pose([0; 6], 0), Op::Wrench([0; 6], 0)];
+    let config = Config::new(1000);
+    let mut scripts: Vec<(&str, Config, Vec<Op>)> = Vec::new();
+
+    let mut ops = start.to_vec();
+    ops.extend([
+        Op::Enqueue(build::move_to(1, [10_000, 0, 0, 0, 0, 0], 100_000)),
+        Op::Enqueue(build::move_to(2, [10_000, 5_000, -2_000, 0, 0, 0], 50_000)),
+        Op::Enqueue(build::grasp(3, 20)),
+        Op::Enqueue(build::move_to(4, [0, 0, 0, 0, 0, 100_000], 100_000)),
+        Op::Enqueue(build::gripper(5, Gripper::Open)),
+        still(255),
+        still(255),
+    ]);
+    scripts.push(("moves", config.clone(), ops));
+
+    let mut ops = start.to_vec();
+    ops.extend([
+        Op::Enqueue(build::move_to(1, [20_000, 0, 0, 0, 0, 0], 100_000)),
+        Op::Enqueue(build::idle(2, 50)),
+        still(50),
+        Op::EmergencyStop,
+        Op::Tick(1),
+        still(10),
+        Op::HighPriority(build::move_to(3, [0; 6], 100_000)),
+        still(100),
+        Op::Enqueue(build::idle(4, 0)),
+        still(5),
+    ]);
+    scripts.push(("estop", config.clone(), ops));
+
+    let search = Action::BlindSearch {
+        preload: 2_000,
+        pitch: 200,
+        speed: 5_000,
+        radius: 2_000,
+        wobble: 10_000,
+        wobble_ms: 100,
+    };
+    let mut ops = start.to_vec();
+    ops.extend([
+        Op::Enqueue(build::move_to_touch(
+            1,
+            [0, 0, -1, 0, 0, 0],
+            10_000,
+            3_000,
+            5_000,
+        )),
+        still(20),
+        // The surface pushes back with 4 N: contact.
+        Op::Run {
+            ticks: 5,
+            offset: [0, 0, 0, 0, 0, 0],
+            wrench: [0, 0, 4_000, 0, 0, 0],
+        },
+        Op::Enqueue(build::blind_search(2, search, 1_000)),
+        Op::Enqueue(build::grasp(3, 10)),
+    ]);
+    // The robot stays on the surface (z = -200 µm) under the preload while the attractor
+    // spirals, then the peg drops in.
+    for _ in 0..40 {
+        ops.extend([
+            Op::Pose([0, 0, -200, 0, 0, 0], 0),
+            Op::Wrench([0, 0, 3_000, 0, 0, 0], 0),
+            Op::Tick(1),
+        ]);
+    }
+    ops.extend([Op::Pose([0, 0, -1_400, 0, 0, 0], 0), Op::Tick(1), still(20)]);
+    scripts.push(("blind-search", config.clone(), ops));
+
+    let mut near = Config::new(1000);
+    near.workspace_max = [5_000; 6];
+    near.workspace_min = [-5_000; 6];
+    let mut ops = start.to_vec();
+    ops.extend([
+        Op::Enqueue(build::move_to(1, [8_000, 0, 0, 0, 0, 0], 100_000)),
+        still(100),
+        Op::HighPriority(build::move_to(2, [0; 6], 100_000)),
+        still(100),
+        Op::Pose([7_000, 0, 0, 0, 0, 0], 0),
+        Op::Tick(1),
+        Op::Tick(1),
+    ]);
+    scripts.push(("limit", near, ops));
+
+    let mut ops = start.to_vec();
+    ops.extend([
+        Op::Enqueue(build::move_to(1, [8_000, 0, 0, 0, 0, 0], 10_000)),
+        Op::Sensor(3, 7),
+        Op::Tick(1),
+        Op::Tick(4),
+        Op::Tick(100),
+        Op::Tick(1_000_000),
+        Op::HighPriority(build::idle(2, 0)),
+        Op::Tick(1),
+    ]);
+    scripts.push(("stale", config.clone(), ops));
+
+    let mut reflex = Config::new(1000);
+    reflex
+        .innate
+        .push(build::move_to(100, [0; 6], 20_000))
+        .expect("room for an innate schema");
+    // A touch that meets nothing in 300 µm goes to the innate move home, then the queue.
+    let mut guarded = build::move_to_touch(1, [1, 0, 0, 0, 0, 0], 10_000, 1_000, 300);
+    guarded.reactions[1].next = Source::Innate(0);
+    let mut watch = build::idle(2, 0);
+    watch.reactions[0] = Reaction {
+        event: Event::Above(Measure::Sensor(0), 100),
+        next: Source::Innate(0),
+    };
+    let mut ops = start.to_vec();
+    ops.extend([
+        Op::Enqueue(guarded),
+        Op::Enqueue(watch),
+        still(40),
+        Op::Sensor(0, 0),
+        still(10),
+        Op::Sensor(0, 500),
+        still(2),
+        Op::Enqueue(build::idle(3, 10)),
+        Op::Enqueue(build::idle(4, 10)),
+        Op::Abort,
+        Op::Tick(1),
+        Op::HighPriority(build::idle(5, 10)),
+        still(15),
+    ]);
+    scripts.push(("innate-abort", reflex, ops));
+
+    // A pose at the end of i32's range arms the attractor there; a move back with a contact
+    // reaction, against a wrench at the end of its range: the contact's dot product saturates
+    // (its negation overflowed, until the fix with core/tests/schema_server.rs's
+    // `contact_against_a_move_from_the_end_of_the_pose_range_does_not_overflow`).
+    let mut wide = Config::new(1000);
+    wide.workspace_min = [i32::MIN; 6];
+    wide.workspace_max = [i32::MAX; 6];
+    wide.force_limit = u32::MAX;
+    let max = pab_core::schema::MAX_COORD;
+    let mut touch = build::move_to(1, [max, max, max, 0, 0, 0], 1);
+    touch.reactions[0] = Reaction {
+        event: Event::Above(Measure::Contact, 0),
+        next: Source::Queue,
+    };
+    let ops = vec![
+        Op::Enqueue(touch),
+        Op::Run {
+            ticks: 3,
+            offset: [i32::MIN; 6],
+            wrench: [i32::MIN; 6],
+        },
+    ];
+    scripts.push(("contact-range", wide, ops));
+
+    for (name, config, ops) in scripts {
+        let bytes = encode_script(&config, &ops).expect("every schema fits its length byte");
+        assert_eq!(
+            decode_script(&bytes),
+            Some((config, ops)),
+            "the {name} script reads back as written"
+        );
+        write("schema", &format!("script-{name}"), &bytes);
+    }
 }
 
 /// The seeds of a structured target (`ble`, `gates`): scripts that reach something new

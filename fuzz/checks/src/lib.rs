@@ -20,6 +20,7 @@ pub mod isotp_tx;
 pub mod network;
 pub mod node;
 pub mod protocol;
+pub mod schema;
 
 mod crc;
 mod examples;
@@ -79,6 +80,10 @@ pub const TARGETS: &[Target] = &[
     Target {
         name: "intention",
         check: intention::check,
+    },
+    Target {
+        name: "schema",
+        check: schema::check,
     },
 ];
 

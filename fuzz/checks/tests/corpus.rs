@@ -69,7 +69,8 @@ fn every_target_has_a_replay_test() {
             "network",
             "ble",
             "gates",
-            "intention"
+            "intention",
+            "schema"
         ]
     );
 }
@@ -127,4 +128,9 @@ fn gates() {
 #[test]
 fn intention() {
     replay("intention");
+}
+
+#[test]
+fn schema() {
+    replay("schema");
 }
