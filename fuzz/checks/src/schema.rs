@@ -752,7 +752,7 @@ impl World {
                 Trigger::Safety(Safety::EmergencyStop) => Some(Step2::EmergencyStop),
                 Trigger::Abort => Some(Step2::Abort),
                 Trigger::HighPriority => Some(Step2::HighPriority),
-                Trigger::Safety(_) | Trigger::Reaction(_) => None,
+                Trigger::Safety(_) | Trigger::Reaction(..) => None,
             };
             if k == 0 {
                 assert_eq!(from_step2, step2, "{:?}", out.transitions);
@@ -778,11 +778,15 @@ impl World {
                     safety = true;
                     (recovery(cause), Origin::Innate)
                 }
-                Trigger::Reaction(index) => {
+                Trigger::Reaction(index, event) => {
                     let r = current
                         .reactions
                         .get(usize::from(index))
                         .unwrap_or_else(|| panic!("{t:?}: no such reaction in {current:?}"));
+                    assert_eq!(
+                        r.event, event,
+                        "{t:?}: the reported event is the reaction's"
+                    );
                     match r.next {
                         Source::Innate(i) => {
                             let s = self.config.innate.get(usize::from(i));

@@ -772,7 +772,10 @@ impl Builder<'_> {
         if raw.commands.len() > MAX_CALLS {
             self.error(
                 raw_span.clone(),
-                format!("{} commands: a client holds at most {MAX_CALLS}", raw.commands.len()),
+                format!(
+                    "{} commands: a client holds at most {MAX_CALLS}",
+                    raw.commands.len()
+                ),
             );
         }
         let mut commands: Vec<Timed> = Vec::new();
