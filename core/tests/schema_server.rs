@@ -743,7 +743,9 @@ proptest! {
     /// A move's attractor is the f64 straight line at constant speed, to within 1 µm, and ends
     /// exactly on the goal on the tick its progress reaches the distance.
     #[test]
-    fn moves_follow_the_f64_line(goal in prop::array::uniform3(-50_000i32..50_000), speed in 100u32..200_000, period in 200u32..5000) {
+    // Speeds and periods such that a move takes at most 34 600 ticks (87 mm at 5 mm/s, 0.5 ms):
+    // the loop below runs to the tick the move must have ended.
+    fn moves_follow_the_f64_line(goal in prop::array::uniform3(-50_000i32..50_000), speed in 5_000u32..200_000, period in 500u32..5000) {
         let goal: Pose = [goal[0], goal[1], goal[2], 0, 0, 0];
         let mut config = Config::new(period);
         config.overrun_us = period * 2;
@@ -751,7 +753,8 @@ proptest! {
         server.enqueue(build::move_to(1, goal, speed)).unwrap();
         let length = goal.iter().take(3).map(|c| f64::from(*c).powi(2)).sum::<f64>().sqrt();
         let mut reached = None;
-        for k in 1..=200_000u64 {
+        let ticks = (length.floor() * 1e6 / (f64::from(speed) * f64::from(period))).ceil() as u64 + 1;
+        for k in 1..=ticks {
             let now = Instant::from_micros(k * u64::from(period));
             server.set_pose([0; AXES], now);
             server.set_wrench([0; AXES], now);

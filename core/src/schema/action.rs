@@ -121,6 +121,8 @@ pub(crate) struct Progress {
     dir: [i64; AXES],
     /// |dir| over the axes `progress` counts on (translation, or rotation for a pure rotation).
     norm: u64,
+    /// `norm` is over the translational axes (a contact force can oppose the motion).
+    translates: bool,
     /// Where the motion ends, in units of `progress`.
     distance: u64,
     /// How far the attractor went, µm (µrad).
@@ -181,10 +183,15 @@ impl Action {
     pub(crate) fn heading(&self, progress: &Progress) -> ([i64; 3], u64) {
         match self {
             Action::MoveTo { .. } | Action::MoveToTouch { .. } => {
-                let d = [progress.dir[0], progress.dir[1], progress.dir[2]];
-                let mut full = [0i64; AXES];
-                full[..3].copy_from_slice(&d);
-                (d, length3(&full))
+                let [x, y, z, ..] = progress.dir;
+                (
+                    [x, y, z],
+                    if progress.translates {
+                        progress.norm
+                    } else {
+                        0
+                    },
+                )
             }
             // The preload presses down.
             Action::BlindSearch { .. } => ([0, 0, -1], 1),
@@ -204,6 +211,7 @@ impl Action {
                 p.dir = dir;
                 p.norm = norm;
                 p.distance = norm;
+                p.translates = dir.iter().take(3).any(|c| *c != 0);
             }
             Action::MoveToTouch {
                 direction: d,
@@ -214,6 +222,7 @@ impl Action {
                 p.dir = dir;
                 p.norm = norm;
                 p.distance = u64::from(distance);
+                p.translates = true;
             }
             _ => {}
         }
