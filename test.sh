@@ -140,9 +140,9 @@ step "emulated Cortex-M4: the time driver across TIMER0's wraps (pab-an386-timec
 cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf --bin pab-an386-timecheck \
     --locked -- -icount shift=10,sleep=off
 
-step "emulated Cortex-M4: pab-builtins' memcpy, memset, memcmp and 64-bit division (pab-an386-builtinscheck, QEMU)"
-# Copies, fills and comparisons at every alignment and length up to 72 bytes, the bytes around
-# untouched; divisions against a reference on edge cases and 200 000 random pairs. A broken loop
+step "emulated Cortex-M4: pab-builtins' memcpy, memset, memcmp, memmove and 64-bit division (pab-an386-builtinscheck, QEMU)"
+# Copies, fills, comparisons and overlapping moves at every alignment and length up to 72 bytes,
+# the bytes around untouched; divisions against a reference on edge cases and 200 000 random pairs. A broken loop
 # could spin for ever: the timeout turns that into a failure.
 timeout 300 cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf \
     --bin pab-an386-builtinscheck --locked

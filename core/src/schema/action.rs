@@ -252,7 +252,11 @@ impl Action {
                 p.done = true;
             }
             Action::Relieve => {
-                out.attractor = *measured;
+                // Element by element: a whole-array assignment here became a call to memmove,
+                // which the boards do not otherwise link (1.5 KB).
+                for (o, m) in out.attractor.iter_mut().zip(measured) {
+                    *o = *m;
+                }
                 p.done = true;
             }
             Action::Grasp { settle_ms } | Action::Release { settle_ms } => {
@@ -328,9 +332,8 @@ impl Progress {
         }
         // progress ≤ distance ≤ 2^31 and |dir| ≤ 2^31: the product fits an i64; norm > 0.
         let s = self.progress.min(1 << 31) as i64;
-        let n = self.norm.min(i64::MAX as u64) as i64;
         for (o, d) in out.iter_mut().zip(self.dir) {
-            *o = clamp(i64::from(*o) + d.saturating_mul(s) / n);
+            *o = clamp(i64::from(*o) + div_toward_zero(d.saturating_mul(s), self.norm));
         }
         out
     }
@@ -385,10 +388,11 @@ fn triangle(t_ms: u64, a: u32, t_ms_period: u32) -> i64 {
     if a == 0 || t_ms_period == 0 {
         return 0;
     }
-    let a = i64::from(a);
     let period = u64::from(t_ms_period);
-    // u ∈ [0, 4a): a quarter period per amplitude.
-    let u = ((t_ms % period) as i64) * 4 * a / period as i64;
+    // u ∈ [0, 4a): a quarter period per amplitude. Unsigned: the boards' one 64-bit division
+    // is unsigned (a signed one links compiler_builtins' 0.9 KB).
+    let u = ((t_ms % period) * 4 * u64::from(a) / period) as i64;
+    let a = i64::from(a);
     if u < a {
         u
     } else if u < 3 * a {
@@ -396,6 +400,12 @@ fn triangle(t_ms: u64, a: u32, t_ms_period: u32) -> i64 {
     } else {
         u - 4 * a
     }
+}
+
+/// `v / d` rounded toward zero, through an unsigned division (see [`triangle`]); `d > 0`.
+pub(crate) fn div_toward_zero(v: i64, d: u64) -> i64 {
+    let q = (v.unsigned_abs() / d.max(1)).min(i64::MAX as u64) as i64;
+    if v < 0 { -q } else { q }
 }
 
 /// `to − from` and its length: over the translational axes, or (`rotation_if_still` and no

@@ -613,7 +613,7 @@ impl Server {
                 let dot = w.iter().zip(d).fold(0i64, |s, (f, d)| {
                     s.saturating_add(i64::from(*f).saturating_mul(d))
                 });
-                Some(dot.saturating_neg() / norm.min(i64::MAX as u64) as i64)
+                Some(super::action::div_toward_zero(dot.saturating_neg(), norm))
             }
             Measure::Sensor(s) => self
                 .sensors

@@ -2,8 +2,10 @@
 //! `__aeabi_memset`, `__aeabi_memset4`/`8`, `__aeabi_memclr`, `__aeabi_memclr4`/`8`), which the
 //! compiler calls for struct moves, array initialisation and slice copies: 150 bytes of Thumb-2
 //! instead of compiler_builtins' 1 800, tuned for throughput on large blocks; and `memcmp`, byte
-//! by byte (what the boards compare is a few bytes: a filter, a key's tag). `memmove` stays
-//! compiler_builtins' (the boards do not call it).
+//! by byte (what the boards compare is a few bytes: a filter, a key's tag); and `memmove` and
+//! its AEABI forms: `memcpy` when the destination does not start inside the source, a byte loop
+//! from the end otherwise (28 bytes instead of compiler_builtins' 1 574, which a copy between two
+//! fields of one struct, such as the schema server's attractor := measured pose, pulls in).
 //!
 //! Why it is enough: the boards' copies are small (frames, records, a table's entries); the large
 //! ones (a table swap, the node's construction at boot) run once per configuration. Measured on
@@ -120,6 +122,37 @@ core::arch::global_asm!(
     "3:  mov r0, ip",
     "    bx lr",
     ".size __aeabi_memclr, . - __aeabi_memclr",
+    // memmove(dest, src, n) -> dest; __aeabi_memmove*(dest, src, n). dest − src (unsigned) ≥ n
+    // means the destination does not start inside the source: a forward copy is right (dest
+    // below src wraps to a large difference), and memcpy keeps dest for the result. Otherwise
+    // bytes from the last down.
+    ".section .text.pab_mem_move,\"ax\",%progbits",
+    ".global memmove",
+    ".global __aeabi_memmove",
+    ".global __aeabi_memmove4",
+    ".global __aeabi_memmove8",
+    ".type memmove,%function",
+    ".type __aeabi_memmove,%function",
+    ".type __aeabi_memmove4,%function",
+    ".type __aeabi_memmove8,%function",
+    ".thumb_func",
+    "memmove:",
+    ".thumb_func",
+    "__aeabi_memmove:",
+    ".thumb_func",
+    "__aeabi_memmove4:",
+    ".thumb_func",
+    "__aeabi_memmove8:",
+    "    subs r3, r0, r1",
+    "    cmp r3, r2",
+    "    bhs memcpy",
+    "1:  subs r2, r2, #1",
+    "    itt hs",
+    "    ldrbhs r3, [r1, r2]",
+    "    strbhs r3, [r0, r2]",
+    "    bhs 1b",
+    "    bx lr",
+    ".size memmove, . - memmove",
     // memcmp(a, b, n) -> the difference of the first bytes that differ (as unsigned chars),
     // or 0.
     ".section .text.pab_mem_compare,\"ax\",%progbits",

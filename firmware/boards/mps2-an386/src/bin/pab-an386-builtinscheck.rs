@@ -6,6 +6,10 @@
 //!   bytes (compared with a reference that copies one volatile byte at a time, so that it cannot
 //!   itself become a `memcpy` call), leave the bytes around them alone, and return the
 //!   destination where C says it does;
+//! - `memmove` and its AEABI forms: within one buffer, every destination and source offset from
+//!   0 to 15 (overlapping either way, or not; the `4`/`8` forms where both are so aligned),
+//!   every length from 0 to 72: the destination must hold the source's bytes as they were, and
+//!   nothing else may change;
 //! - `u64 / u64` and `u64 % u64` (`__aeabi_uldivmod`): quotient and remainder against a
 //!   shift-and-subtract reference in Rust, on edge cases (0, 1, 2^32 ± 1, 2^63, `u64::MAX`, a
 //!   numerator below, equal to or one above the denominator) and on 200 000 pseudo-random pairs
@@ -30,6 +34,10 @@ unsafe extern "C" {
     fn memcpy(dest: *mut u8, src: *const u8, n: usize) -> *mut u8;
     fn memset(dest: *mut u8, c: i32, n: usize) -> *mut u8;
     fn memcmp(a: *const u8, b: *const u8, n: usize) -> i32;
+    fn memmove(dest: *mut u8, src: *const u8, n: usize) -> *mut u8;
+    fn __aeabi_memmove(dest: *mut u8, src: *const u8, n: usize);
+    fn __aeabi_memmove4(dest: *mut u8, src: *const u8, n: usize);
+    fn __aeabi_memmove8(dest: *mut u8, src: *const u8, n: usize);
     fn __aeabi_memcpy(dest: *mut u8, src: *const u8, n: usize);
     fn __aeabi_memcpy4(dest: *mut u8, src: *const u8, n: usize);
     fn __aeabi_memcpy8(dest: *mut u8, src: *const u8, n: usize);
@@ -127,9 +135,10 @@ fn main() -> ! {
         }
     }
     calls += check_compare(&src);
+    calls += check_moves(&src, &mut dest);
     let divisions = check_divisions();
     semihosting::eprint(format_args!(
-        "pab-an386-builtinscheck: {calls} calls of memcpy, memset, memcmp and the AEABI forms, \
+        "pab-an386-builtinscheck: {calls} calls of memcpy, memset, memcmp, memmove and the AEABI forms, \
          {divisions} 64-bit divisions, all exact\n"
     ));
     semihosting::exit(true)
@@ -281,6 +290,73 @@ fn check_divisions() -> u32 {
         count += 1;
     }
     count
+}
+
+/// memmove within one buffer at every offset pair up to 15 and length up to 72, through every
+/// entry point (the `4`/`8` forms at their alignments): the moved bytes are the source's as they
+/// were before the call, and the rest of the buffer is untouched. Returns the calls checked.
+fn check_moves(pattern: &Buffer, work: &mut Buffer) -> u32 {
+    let mut calls = 0;
+    for (entry, align) in [(0, 1), (1, 1), (2, 4), (3, 8)] {
+        for d in (0..16).step_by(align) {
+            for s in (0..16).step_by(align) {
+                for n in 0..=MAX_LEN {
+                    for i in 0..SIZE {
+                        // Volatile: this loop must not itself become a memcpy call.
+                        unsafe { write_volatile(&mut work.0[i], byte(pattern, i)) };
+                    }
+                    let base = work.0.as_mut_ptr();
+                    let to = black_box(unsafe { base.add(d) });
+                    let from = black_box(unsafe { base.add(s) } as *const u8);
+                    let n = black_box(n);
+                    let returned = unsafe {
+                        match entry {
+                            0 => Some(black_box(memmove as Copying)(to, from, n)),
+                            1 => {
+                                black_box(__aeabi_memmove as AeabiCopying)(to, from, n);
+                                None
+                            }
+                            2 => {
+                                black_box(__aeabi_memmove4 as AeabiCopying)(to, from, n);
+                                None
+                            }
+                            _ => {
+                                black_box(__aeabi_memmove8 as AeabiCopying)(to, from, n);
+                                None
+                            }
+                        }
+                    };
+                    let name = [
+                        "memmove",
+                        "__aeabi_memmove",
+                        "__aeabi_memmove4",
+                        "__aeabi_memmove8",
+                    ][entry];
+                    if returned.is_some_and(|r| r != to) {
+                        fail(
+                            name,
+                            d,
+                            s,
+                            n,
+                            "returned another address than the destination",
+                        );
+                    }
+                    for i in 0..SIZE {
+                        let expected = if (d..d + n).contains(&i) {
+                            byte(pattern, s + (i - d))
+                        } else {
+                            byte(pattern, i)
+                        };
+                        if byte(work, i) != expected {
+                            fail(name, d, s, n, "moved a wrong byte, or changed one outside");
+                        }
+                    }
+                    calls += 1;
+                }
+            }
+        }
+    }
+    calls
 }
 
 fn fill(buffer: &mut Buffer, value: u8) {
