@@ -3,7 +3,7 @@
 //! ```text
 //! offset size  field
 //!      0    4  magic "PABT"
-//!      4    2  format version, little endian (this is format 6)
+//!      4    2  format version, little endian (this is format 7)
 //!      6    1  node id the table is for
 //!      7    1  reserved, must be 0
 //!      8    4  table version, little endian (newer tables have larger versions)
@@ -31,7 +31,9 @@
 //! ([`crate::dynamics`]): the groups the node runs (number, parameters, contexts), the groups whose
 //! gates it reads (owner, number, count) and the gate connections; format 6 adds, after those,
 //! HBBA's message filters ([`crate::hbba::filters::MessageFilters`]: the filtered connections and
-//! the profiles). This crate reads format 6 only: an image of another format is refused with
+//! the profiles); format 7 adds, last, the schema server the node runs, an option
+//! (`crate::schema::Setup`: the loop's set-up, its innate schemas and its drive's identifiers).
+//! This crate reads format 7 only: an image of another format is refused with
 //! [`LoadError::UnsupportedFormat`], which names the format found and the one expected.
 //!
 //! The body does not depend on the capacities of the [`Table`] that was encoded (postcard prefixes
@@ -46,7 +48,7 @@ use crate::{MAX_CONNECTIONS, MAX_DECISION_NODES, MAX_PORTS};
 /// The first four bytes of every image.
 pub const MAGIC: [u8; 4] = *b"PABT";
 /// The format this crate writes and reads.
-pub const FORMAT_VERSION: u16 = 6;
+pub const FORMAT_VERSION: u16 = 7;
 /// Bytes before the body.
 pub const HEADER_LEN: usize = 20;
 /// The largest image accepted, header included. A table at full capacity encodes in less.
@@ -460,6 +462,10 @@ mod one_pass {
             r.empty::<u8, 0>();
         }
         r.decode::<crate::hbba::filters::MessageFilters>();
+        #[cfg(feature = "schema")]
+        r.option::<crate::schema::Setup>();
+        #[cfg(not(feature = "schema"))]
+        r.none();
         if r.error().is_some() {
             return None;
         }
@@ -634,27 +640,27 @@ mod one_pass {
     }
 }
 
-#[cfg(all(test, not(feature = "dynamics")))]
+#[cfg(all(test, not(feature = "dynamics"), not(feature = "schema")))]
 mod without_dynamics {
     use super::*;
 
-    /// A board built without competitive dynamics reads the three lists only when empty: a
-    /// table that has a group is refused as a body it cannot read (InvalidTable on the bus),
-    /// never half-loaded.
+    /// A board built without competitive dynamics (or the schema server) reads the three lists
+    /// only when empty (the option only when absent): a table that has a group (a schema
+    /// server) is refused as a body it cannot read (InvalidTable on the bus), never half-loaded.
     #[test]
-    fn a_table_with_dynamics_is_refused_by_a_node_without_them() {
+    fn a_table_with_dynamics_or_a_schema_server_is_refused_by_a_node_without_them() {
         // An empty table: no port, connection, node, root or BLE group, the three dynamics
-        // lists, then no message filter and no profile.
-        let empty = [0u8; 10];
+        // lists, no message filter and no profile, no schema server.
+        let empty = [0u8; 11];
         let (table, rest) = decode_body::<4, 8, 16>(&empty).unwrap();
         assert!(rest.is_empty() && table.port_count() == 0);
-        for list in 0..3 {
+        for part in [5, 6, 7, 10] {
             let mut body = empty;
-            body[5 + list] = 1;
+            body[part] = 1;
             assert_eq!(
                 decode_body::<4, 8, 16>(&body).err(),
                 Some(postcard::Error::SerdeDeCustom),
-                "list {list}"
+                "byte {part}"
             );
         }
     }

@@ -44,11 +44,13 @@ pub mod build;
 mod event;
 mod message;
 mod server;
+mod setup;
 
 pub use action::{Action, Gripper, Setpoint};
 pub use event::{Event, Measure, Reaction, Source};
 pub use message::{MAX_ENCODED, Schema, SchemaError};
 pub use server::{Config, ConfigError, Origin, Refusal, Safety, Server, Tick, Transition, Trigger};
+pub use setup::{Drive, Setup, SetupError};
 
 /// Axes of a pose: x, y, z (µm), then rotations about x, y, z (µrad).
 pub const AXES: usize = 6;

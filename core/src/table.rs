@@ -106,6 +106,9 @@ pub struct Table<
     gate_sources: Vec<GateSource, TABLE_SOURCES>,
     gate_links: Vec<GateLink, TABLE_LINKS>,
     filters: MessageFilters,
+    /// Format 7: the schema server the node runs, if any.
+    #[cfg(feature = "schema")]
+    schema: Option<crate::schema::Setup>,
 }
 
 /// Why a table was refused. Ports and connections are numbered from 0, connections within their
@@ -150,6 +153,9 @@ pub enum TableError {
     Dynamics(DynamicsError),
     /// The HBBA message filters ([`crate::hbba::filters`]).
     Filters(FiltersError),
+    /// The schema server's set-up ([`crate::schema::Setup`]).
+    #[cfg(feature = "schema")]
+    Schema(crate::schema::SetupError),
     /// More BLE groups than [`MAX_GROUPS`].
     TooManyGroups,
     /// A BLE group is invalid ([`crate::ble`]).
@@ -233,6 +239,8 @@ impl core::fmt::Display for TableError {
             TableError::TooManyGroups => write!(f, "more than {MAX_GROUPS} BLE groups"),
             TableError::Dynamics(error) => write!(f, "{error}"),
             TableError::Filters(error) => write!(f, "{error}"),
+            #[cfg(feature = "schema")]
+            TableError::Schema(error) => write!(f, "{error}"),
             TableError::Group { group, error } => write!(f, "BLE group {group}: {error}"),
             TableError::ClaimFilter { port, connection } => write!(
                 f,
@@ -289,6 +297,8 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 connections: Vec::new(),
                 profiles: Vec::new(),
             },
+            #[cfg(feature = "schema")]
+            schema: None,
         }
     }
 
@@ -568,7 +578,24 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         self.filters
             .validate(self.connections.len())
             .map_err(TableError::Filters)?;
+        #[cfg(feature = "schema")]
+        if let Some(setup) = &self.schema {
+            setup.check().map_err(TableError::Schema)?;
+        }
         Ok(())
+    }
+
+    /// The schema server the node runs, if any.
+    #[cfg(feature = "schema")]
+    pub fn schema(&self) -> Option<&crate::schema::Setup> {
+        self.schema.as_ref()
+    }
+
+    /// Sets (or removes) the schema server the node runs. Checked with the rest of the table by
+    /// [`Table::validate`].
+    #[cfg(feature = "schema")]
+    pub fn set_schema(&mut self, setup: Option<crate::schema::Setup>) {
+        self.schema = setup;
     }
 
     /// The number of ports.
@@ -867,6 +894,14 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         // Format 6: after the dynamics part, the HBBA message filters.
         r.fill(&mut table.filters.connections);
         r.fill(&mut table.filters.profiles);
+        // Format 7: the schema server. Without the feature it must be absent: a node needs the
+        // feature to run it.
+        #[cfg(feature = "schema")]
+        {
+            table.schema = r.option();
+        }
+        #[cfg(not(feature = "schema"))]
+        r.none();
         (table, size, roots)
     }
 }

@@ -162,6 +162,15 @@ impl<'a> Reader<'a> {
         }
     }
 
+    /// An option that must be `None` (of a kind this build does not decode): a `Some` is the
+    /// custom error, as for a list longer than its capacity.
+    #[cfg(not(feature = "schema"))]
+    pub(crate) fn none(&mut self) {
+        if self.u8() != 0 {
+            self.fail(Error::SerdeDeCustom);
+        }
+    }
+
     pub(crate) fn option<T: Decode>(&mut self) -> Option<T> {
         match self.u8() {
             0 => None,
@@ -292,6 +301,17 @@ impl Decode for i32 {
 impl Decode for u32 {
     fn decode(r: &mut Reader<'_>) -> Self {
         r.u32()
+    }
+}
+
+/// A fixed-size array (postcard's tuple form: the elements, no length), such as a pose.
+impl<const N: usize> Decode for [i32; N] {
+    fn decode(r: &mut Reader<'_>) -> Self {
+        let mut out = [0; N];
+        for v in out.iter_mut() {
+            *v = r.i32();
+        }
+        out
     }
 }
 

@@ -620,6 +620,8 @@ struct RawTable {
     gate_sources: Vec<pab_core::dynamics::GateSource>,
     gate_links: Vec<pab_core::dynamics::GateLink>,
     filters: pab_core::hbba::filters::MessageFilters,
+    /// Format 7: the schema server (none here).
+    schema: Option<pab_core::schema::Setup>,
 }
 
 #[derive(Serialize)]
@@ -690,6 +692,7 @@ fn one_port(connections: Vec<RawConnection>, nodes: Vec<DecisionNode>, root: Nod
         gate_sources: vec![],
         gate_links: vec![],
         filters: Default::default(),
+        schema: None,
     }
 }
 
@@ -791,6 +794,7 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                 gate_sources: vec![],
                 gate_links: vec![],
                 filters: Default::default(),
+                schema: None,
             },
             TableError::ConnectionCountMismatch,
         ),
@@ -811,6 +815,7 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                 gate_sources: vec![],
                 gate_links: vec![],
                 filters: Default::default(),
+                schema: None,
             },
             TableError::ConnectionCountMismatch,
         ),
@@ -831,6 +836,7 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                 gate_sources: vec![],
                 gate_links: vec![],
                 filters: Default::default(),
+                schema: None,
             },
             TableError::NodeCountMismatch,
         ),
@@ -851,6 +857,7 @@ fn deserialized_tables_are_validated_by_the_arbiter() {
                 gate_sources: vec![],
                 gate_links: vec![],
                 filters: Default::default(),
+                schema: None,
             },
             TableError::PortTooWide { port: 0 },
         ),
@@ -1080,19 +1087,19 @@ fn an_image_larger_than_the_table_is_refused_with_what_it_needs() {
 
 #[test]
 fn images_of_older_formats_are_refused_naming_both_formats() {
-    assert_eq!(FORMAT_VERSION, 6);
-    for found in [1u16, 2, 3, 4, 5] {
+    assert_eq!(FORMAT_VERSION, 7);
+    for found in [1u16, 2, 3, 4, 5, 6] {
         let mut old = encode(&figure1_table(), 7, 1);
         old[4..6].copy_from_slice(&found.to_le_bytes());
         let crc = crc32(&[&old[..16], &old[HEADER_LEN..]].concat());
         old[16..20].copy_from_slice(&crc.to_le_bytes());
-        let expected = LoadError::UnsupportedFormat { found, expected: 6 };
+        let expected = LoadError::UnsupportedFormat { found, expected: 7 };
         assert_eq!(image::read_header(&old), Err(expected.clone()));
         assert_eq!(load_default(&old), Err(expected.clone()));
         assert_eq!(image::load::<4, 64, 256>(&old), Err(expected.clone()));
         assert_eq!(
             expected.to_string(),
-            format!("image format {found} is not supported (this node reads format 6)")
+            format!("image format {found} is not supported (this node reads format 7)")
         );
     }
 }
@@ -1262,6 +1269,7 @@ fn bad_value_ports() -> Vec<(RawTable, TableError)> {
             gate_sources: vec![],
             gate_links: vec![],
             filters: Default::default(),
+            schema: None,
         },
         TableError::TooManyValuePorts,
     ));

@@ -833,3 +833,95 @@ fn contact_against_a_move_from_the_end_of_the_pose_range_does_not_overflow() {
     // which a wrapped negation read as a pull (so no contact).
     assert_eq!(server.current(), Schema::WAIT_QUEUE);
 }
+
+// ---- The table image's schema server (format 7) ----
+
+fn setup() -> pab_core::schema::Setup {
+    let mut config = Config::new(PERIOD);
+    config.force_limit = 30_000;
+    config
+        .innate
+        .push(build::gripper(40, Gripper::Open))
+        .unwrap();
+    pab_core::schema::Setup {
+        config,
+        drive: pab_core::schema::Drive {
+            setpoint: pab_core::OutputId::new(0x300, false).unwrap(),
+            pose: pab_core::OutputId::new(0x310, false).unwrap(),
+            wrench: pab_core::OutputId::new(0x1234_5678, true).unwrap(),
+        },
+    }
+}
+
+/// An image of `table` for node 5 whatever it holds (the encoder would validate it first).
+fn raw_image(table: &pab_core::Table) -> Vec<u8> {
+    let mut area = vec![0u8; pab_core::image::MAX_IMAGE_LEN];
+    let body = postcard::to_slice(table, &mut area).unwrap().to_vec();
+    let mut image = b"PABT".to_vec();
+    image.extend_from_slice(&pab_core::image::FORMAT_VERSION.to_le_bytes());
+    image.extend_from_slice(&[5, 0]);
+    image.extend_from_slice(&1u32.to_le_bytes());
+    image.extend_from_slice(&(body.len() as u32).to_le_bytes());
+    let crc = pab_core::crc32::Crc32::new()
+        .update(&image)
+        .update(&body)
+        .finish();
+    image.extend_from_slice(&crc.to_le_bytes());
+    image.extend_from_slice(&body);
+    image
+}
+
+#[test]
+fn a_table_image_carries_the_schema_server_and_the_loader_checks_it() {
+    use pab_core::image::{self, LoadError};
+    use pab_core::schema::SetupError;
+    use pab_core::{Table, TableError};
+    let mut table: Table = Table::new();
+    table.set_schema(Some(setup()));
+    let mut buffer = vec![0u8; image::MAX_IMAGE_LEN];
+    let len = image::encode(&table, 5, 1, &mut buffer).unwrap();
+    let loaded: image::Loaded = image::load(&buffer[..len]).unwrap();
+    assert_eq!(loaded.table.schema(), Some(&setup()));
+    // A board's capacities read it too.
+    let board: image::Loaded<4, 64, 256> = image::load(&buffer[..len]).unwrap();
+    assert_eq!(board.table.schema(), Some(&setup()));
+
+    let refused = |s: pab_core::schema::Setup| {
+        let mut t: Table = Table::new();
+        t.set_schema(Some(s));
+        image::load::<16, 512, 2048>(&raw_image(&t)).map(|_| ())
+    };
+    let mut overlap = setup();
+    overlap.drive.pose = pab_core::OutputId::new(0x302, false).unwrap();
+    assert_eq!(
+        refused(overlap),
+        Err(LoadError::Table(TableError::Schema(
+            SetupError::DriveOverlap
+        )))
+    );
+    let mut last = setup();
+    last.drive.setpoint = pab_core::OutputId::new(0x7FE, false).unwrap();
+    assert!(matches!(
+        refused(last),
+        Err(LoadError::Table(TableError::Schema(SetupError::DriveId(_))))
+    ));
+    let mut period = setup();
+    period.config.period_us = 0;
+    assert_eq!(
+        refused(period),
+        Err(LoadError::Table(TableError::Schema(SetupError::Config(
+            pab_core::schema::ConfigError::Period
+        ))))
+    );
+    let mut innate = setup();
+    let mut bad = build::idle(41, 0);
+    bad.reactions[0].next = Source::Innate(5);
+    innate.config.innate.push(bad).unwrap();
+    assert_eq!(
+        refused(innate),
+        Err(LoadError::Table(TableError::Schema(SetupError::Config(
+            pab_core::schema::ConfigError::Innate(1)
+        ))))
+    );
+    assert_eq!(refused(setup()), Ok(()));
+}

@@ -369,6 +369,17 @@ fn compile_node(
             )
         })?;
     }
+    let node_index = network.nodes.iter().position(|n| n.name == node.name);
+    if let Some(board) = network
+        .schema_boards
+        .iter()
+        .find(|b| Some(b.node) == node_index)
+    {
+        table.set_schema(Some(pab_core::schema::Setup {
+            config: board.config.clone(),
+            drive: board.drive,
+        }));
+    }
     let mut buffer = vec![0u8; MAX_IMAGE_LEN];
     let length = image::encode(&table, node.id, network.version, &mut buffer).map_err(|error| {
         network.error(node.span.clone(), format!("node `{}`: {error}", node.name))

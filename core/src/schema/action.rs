@@ -453,11 +453,11 @@ impl Decode for Action {
             },
             3 => Action::Relieve,
             4 => Action::MoveTo {
-                goal: pose(r),
+                goal: r.decode(),
                 speed: r.u32(),
             },
             5 => Action::MoveToTouch {
-                direction: pose(r),
+                direction: r.decode(),
                 speed: r.u32(),
                 distance: r.u32(),
             },
@@ -473,13 +473,4 @@ impl Decode for Action {
             _ => Action::Release { settle_ms: r.u32() },
         }
     }
-}
-
-/// A pose: a fixed-size array, six values with no length (postcard's tuple form).
-pub(crate) fn pose(r: &mut Reader<'_>) -> Pose {
-    let mut p = [0; AXES];
-    for c in p.iter_mut() {
-        *c = r.i32();
-    }
-    p
 }

@@ -129,7 +129,8 @@ pub enum Refusal {
 }
 
 /// A board's set-up: its loop, its safety bounds and its innate schemas.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Config {
     /// The loop's period, µs (1 000 on the boards: 1 kHz).
     pub period_us: u32,

@@ -21,7 +21,7 @@ use pab_fuzz_checks::TARGETS;
 use pab_lang::diagnostic::Source;
 use pab_lang::network::Network;
 
-const NETWORKS: [&str; 7] = [
+const NETWORKS: [&str; 8] = [
     "figure-1",
     "take-an-object",
     "return-an-object",
@@ -29,6 +29,7 @@ const NETWORKS: [&str; 7] = [
     "value-ports",
     "subsumption",
     "tour-guide",
+    "assembly",
 ];
 
 fn main() {

@@ -4,6 +4,7 @@
 //! ```toml
 //! [schema.arm]                 # node `arm` runs a schema server
 //! period_ms = 1                # the loop (1 kHz)
+//! drive = { setpoint = 0x300, pose = 0x310, wrench = 0x320 }   # its drive's frames
 //! force_limit_n = 30           # the safety limit on |F|
 //! workspace_mm = { min = [-200, -200, -20], max = [200, 200, 100] }
 //!
@@ -28,7 +29,8 @@ use std::collections::HashMap;
 use std::ops::Range;
 
 use indexmap::IndexMap;
-use pab_core::schema::{AXES, Action, Config, Gripper, MAX_COORD, Pose, Schema, build};
+use pab_core::OutputId;
+use pab_core::schema::{AXES, Action, Config, Drive, Gripper, MAX_COORD, Pose, Schema, build};
 use serde::Deserialize;
 use toml::Spanned;
 
@@ -54,8 +56,20 @@ pub(super) struct RawSchema {
     watchdog_margin_ms: Option<Spanned<f64>>,
     stiffness_n_per_m: Option<Spanned<f64>>,
     damping_ns_per_m: Option<Spanned<f64>>,
+    drive: Spanned<RawDrive>,
     #[allow(dead_code)]
     description: Option<String>,
+}
+
+/// `drive = { setpoint = 0x300, pose = 0x310, wrench = 0x320, extended = false }`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawDrive {
+    setpoint: Spanned<i64>,
+    pose: Spanned<i64>,
+    wrench: Spanned<i64>,
+    #[serde(default)]
+    extended: bool,
 }
 
 #[derive(Deserialize)]
@@ -138,6 +152,8 @@ pub struct SchemaBoard {
     pub node: usize,
     /// The server's set-up.
     pub config: Config,
+    /// The drive's frames' identifiers.
+    pub drive: Drive,
     /// Where it is defined.
     pub span: Range<usize>,
 }
@@ -319,15 +335,74 @@ impl Builder<'_> {
                 );
                 continue;
             }
-            if let Some(config) = self.schema_config(section.get_ref()) {
+            let drive = self.drive(&section.get_ref().drive);
+            if let (Some(config), Some(drive)) = (self.schema_config(section.get_ref()), drive) {
                 boards.push(SchemaBoard {
                     node,
                     config,
+                    drive,
                     span: section.span(),
                 });
             }
         }
         boards
+    }
+
+    /// The drive's identifiers: each a base with the frames after it (setpoint 3, pose and
+    /// wrench 2), within the format, apart, and outside our protocol's identifiers.
+    fn drive(&mut self, raw: &Spanned<RawDrive>) -> Option<Drive> {
+        let d = raw.get_ref();
+        let mut ids = Vec::new();
+        for (value, what) in [
+            (&d.setpoint, "setpoint"),
+            (&d.pose, "pose"),
+            (&d.wrench, "wrench"),
+        ] {
+            let id = u32::try_from(*value.get_ref())
+                .ok()
+                .and_then(|v| OutputId::new(v, d.extended).ok());
+            match id {
+                Some(id) => ids.push(id),
+                None => {
+                    let max = if d.extended { "0x1FFFFFFF" } else { "0x7FF" };
+                    self.error(
+                        value.span(),
+                        format!(
+                            "drive.{what}: an identifier is 0..={max} (extended = {})",
+                            d.extended
+                        ),
+                    );
+                    return None;
+                }
+            }
+        }
+        let [setpoint, pose, wrench] = [ids[0], ids[1], ids[2]];
+        let drive = Drive {
+            setpoint,
+            pose,
+            wrench,
+        };
+        if let Err(e) = drive.check() {
+            self.error(
+                raw.span(),
+                format!(
+                    "drive: {e} (the set-point takes 3 identifiers from its own, the pose and the wrench 2 each)"
+                ),
+            );
+            return None;
+        }
+        if d.extended
+            && [setpoint, pose, wrench].iter().any(|id| {
+                (id.raw() & pab_core::protocol::PROTOCOL_MASK) == pab_core::protocol::PROTOCOL_VALUE
+            })
+        {
+            self.error(
+                raw.span(),
+                "drive: an identifier in the project's own protocol space (29-bit ids with 0b10 in bits 25..24)",
+            );
+            return None;
+        }
+        Some(drive)
     }
 
     /// A positive amount in `[min, max]` of a unit, scaled to an integer (rounded).
@@ -1076,6 +1151,7 @@ id = 10
 [schema.arm]
 period_ms = 1
 force_limit_n = 30
+drive = { setpoint = 0x300, pose = 0x310, wrench = 0x320 }
 
 [client]
 node = "arm"
@@ -1118,30 +1194,30 @@ node = "arm"
         let e = errors("program = [\"move_to(nowhere)\"]\n[client.places]\nhere = [0, 0, 0]\n");
         assert_eq!(
             e,
-            ["net.toml:11:21: error: place `nowhere` is not in [client.places] (here)"]
+            ["net.toml:12:21: error: place `nowhere` is not in [client.places] (here)"]
         );
         let e = errors("program = [\"fly()\"]\n");
         assert!(
-            e[0].starts_with("net.toml:11:13: error: unknown call `fly`: the calls are move_to("),
+            e[0].starts_with("net.toml:12:13: error: unknown call `fly`: the calls are move_to("),
             "{e:?}"
         );
         let e = errors("program = [\"grasp(force=3)\"]\n");
         assert_eq!(
             e,
-            ["net.toml:11:19: error: `grasp` takes no `force` (it takes: settle)"]
+            ["net.toml:12:19: error: `grasp` takes no `force` (it takes: settle)"]
         );
         let e = errors("program = [\"grasp(settle=-1)\"]\n");
         assert_eq!(
             e,
-            ["net.toml:11:19: error: `settle=-1`: a keyword's value is a number, 0 or more"]
+            ["net.toml:12:19: error: `settle=-1`: a keyword's value is a number, 0 or more"]
         );
         let e = errors("program = [\"move_to(speed=3, p)\"]\n");
         assert_eq!(
             e,
-            ["net.toml:11:30: error: `p`: positional arguments come before keywords"]
+            ["net.toml:12:30: error: `p`: positional arguments come before keywords"]
         );
         let e = errors("program = [\"grasp(\"]\n");
-        assert_eq!(e, ["net.toml:11:19: error: the call's `)` is missing"]);
+        assert_eq!(e, ["net.toml:12:19: error: the call's `)` is missing"]);
         let e = errors("program = [\"estop()\"]\n");
         assert!(
             e[0].contains("unknown call `estop`") && !e[0].contains("estop() or abort()"),
@@ -1150,13 +1226,13 @@ node = "arm"
         let e = errors("[[client.commands]]\nat = 1\ncall = \"move_to()\"\n");
         assert_eq!(
             e,
-            ["net.toml:13:9: error: `move_to` needs a PLACE: `move_to(PLACE)`"]
+            ["net.toml:14:9: error: `move_to` needs a PLACE: `move_to(PLACE)`"]
         );
     }
 
     #[test]
     fn the_board_and_client_sections_are_checked() {
-        let e = errors("[schema.hand]\n");
+        let e = errors("[schema.hand]\ndrive = { setpoint = 1, pose = 4, wrench = 6 }\n");
         assert!(
             e[0].contains("[schema.hand]: node `hand` is not defined (nodes: arm)"),
             "{e:?}"
@@ -1174,7 +1250,7 @@ node = "arm"
                 "net.toml:6:8: error: [client] node `hand` runs no schema server: add a [schema.hand] section"
             ]
         );
-        let text = "[nodes.arm]\nid = 10\n[schema.arm]\nperiod_ms = 0\nforce_limit_n = -1\noverrun_ms = 0.5\nworkspace_mm = { min = [0, 0, 0], max = [1, -1, 1] }\n";
+        let text = "[nodes.arm]\nid = 10\n[schema.arm]\nperiod_ms = 0\nforce_limit_n = -1\noverrun_ms = 0.5\nworkspace_mm = { min = [0, 0, 0], max = [1, -1, 1] }\ndrive = { setpoint = 0x7FE, pose = 0x310, wrench = 0x311 }\n";
         let e: Vec<String> = Network::parse(Source::new("net.toml", text))
             .unwrap_err()
             .0
@@ -1188,6 +1264,7 @@ node = "arm"
                 "net.toml:5:17: error: force_limit_n must be above 0 and at most 500000 N",
                 "net.toml:6:14: error: overrun_ms must be at least period_ms",
                 "net.toml:7:16: error: workspace_mm: min is above max on some axis",
+                "net.toml:8:9: error: drive: schema server: a drive identifier: a standard (11-bit) output id is at most 0x7ff (the set-point takes 3 identifiers from its own, the pose and the wrench 2 each)",
             ]
         );
     }

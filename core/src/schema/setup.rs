@@ -1,0 +1,126 @@
+//! A board's schema server as its table image carries it: the loop's set-up ([`Config`]) and the
+//! identifiers of its drive's frames (docs/can-protocol.md, "The drive's frames").
+
+use serde::{Deserialize, Serialize};
+
+use super::{Config, ConfigError};
+use crate::OutputId;
+use crate::consumer::OutputIdError;
+use crate::wire::decode_struct;
+
+/// The drive's frames: each a base identifier, the frames after it on the next ones.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Drive {
+    /// The attractor (x, y, z); the rotation on the next identifier, the impedance on the one
+    /// after: three identifiers.
+    pub setpoint: OutputId,
+    /// The measured pose; its rotation on the next identifier.
+    pub pose: OutputId,
+    /// The measured force; the torque on the next identifier.
+    pub wrench: OutputId,
+}
+
+/// The schema server of a board.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Setup {
+    /// The loop, its bounds and its innate schemas.
+    pub config: Config,
+    /// Where its drive listens and speaks.
+    pub drive: Drive,
+}
+
+/// Why a [`Setup`] was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SetupError {
+    /// The loop's set-up.
+    Config(ConfigError),
+    /// A drive identifier (or one of those after it) does not fit its format.
+    DriveId(OutputIdError),
+    /// Two of the drive's frames would share an identifier.
+    DriveOverlap,
+}
+
+impl Drive {
+    /// The identifiers it uses, each with the count from it: 3, 2 and 2.
+    fn ranges(&self) -> [(OutputId, u32); 3] {
+        [(self.setpoint, 3), (self.pose, 2), (self.wrench, 2)]
+    }
+
+    /// Checks that every identifier, the following ones included, fits its format and that no
+    /// two frames share one.
+    pub fn check(&self) -> Result<(), SetupError> {
+        let ranges = self.ranges();
+        for (id, count) in ranges {
+            id.validate().map_err(SetupError::DriveId)?;
+            // The last identifier of the range must fit too.
+            OutputId::new(id.raw().saturating_add(count - 1), id.is_extended())
+                .map_err(SetupError::DriveId)?;
+        }
+        for (i, (a, n)) in ranges.iter().enumerate() {
+            for (b, m) in ranges.iter().skip(i + 1) {
+                let overlap = a.is_extended() == b.is_extended()
+                    && a.raw() < b.raw().saturating_add(*m)
+                    && b.raw() < a.raw().saturating_add(*n);
+                if overlap {
+                    return Err(SetupError::DriveOverlap);
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Setup {
+    /// Checks the loop's set-up and the drive's identifiers.
+    pub fn check(&self) -> Result<(), SetupError> {
+        self.config.check().map_err(SetupError::Config)?;
+        self.drive.check()
+    }
+}
+
+impl core::fmt::Display for SetupError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            SetupError::Config(ConfigError::Period) => {
+                f.write_str("schema server: a period of 0, or an overrun bound below the period")
+            }
+            SetupError::Config(ConfigError::Workspace) => {
+                f.write_str("schema server: a workspace whose lower corner is above its upper one")
+            }
+            SetupError::Config(ConfigError::ForceLimit) => {
+                f.write_str("schema server: a force limit of 0")
+            }
+            SetupError::Config(ConfigError::Innate(i)) => {
+                write!(f, "schema server: innate schema {i} is invalid")
+            }
+            SetupError::DriveId(e) => write!(f, "schema server: a drive identifier: {e}"),
+            SetupError::DriveOverlap => {
+                f.write_str("schema server: two of the drive's frames share an identifier")
+            }
+        }
+    }
+}
+
+decode_struct!(Config {
+    period_us,
+    overrun_us,
+    workspace_min,
+    workspace_max,
+    force_limit,
+    torque_limit,
+    stale_us,
+    sensor_stale_us,
+    watchdog_margin_ms,
+    stiffness,
+    damping,
+    innate
+});
+decode_struct!(Drive {
+    setpoint,
+    pose,
+    wrench
+});
+decode_struct!(Setup { config, drive });
