@@ -41,6 +41,7 @@
 
 mod action;
 pub mod build;
+pub mod drive;
 mod event;
 mod message;
 mod server;
