@@ -9,7 +9,8 @@ use std::time::{Duration, Instant};
 use pab_core::Frame;
 use pab_core::protocol::{
     DiagnosticSample, Errors, Fault, FaultCode, FilterStatus, FrameId, Gates, Heartbeat, Message,
-    STORE_UNREADABLE, StoreFailure, TableStatus, Traffic, TransferStatus, TransferStatusCode,
+    STORE_UNREADABLE, SchemaAck, SchemaState, SchemaTransition, StoreFailure, TableStatus, Traffic,
+    TransferStatus, TransferStatusCode,
 };
 
 /// The latest of everything a node said.
@@ -33,6 +34,12 @@ pub struct NodeView {
     pub gates: BTreeMap<u8, (Gates, Instant)>,
     /// Its latest message filters' status, and when it arrived.
     pub filters: Option<(FilterStatus, Instant)>,
+    /// Its schema server's latest state, and when it arrived.
+    pub schema_state: Option<(SchemaState, Instant)>,
+    /// Its schema server's latest schema change, and when it arrived.
+    pub schema_transition: Option<(SchemaTransition, Instant)>,
+    /// Its latest answer to a schema, and when it arrived.
+    pub schema_ack: Option<(SchemaAck, Instant)>,
 }
 
 /// Every node heard from, by id.
@@ -69,7 +76,13 @@ impl Observer {
                 view.gates.insert(gates.group, (gates, at));
             }
             Message::FilterStatus(status) => view.filters = Some((status, at)),
-            Message::DiagnosticControl(_)
+            Message::SchemaState(state) => view.schema_state = Some((state, at)),
+            Message::SchemaTransition(change) => view.schema_transition = Some((change, at)),
+            Message::SchemaAck(ack) => view.schema_ack = Some((ack, at)),
+            Message::EmergencyStop
+            | Message::SchemaAbort
+            | Message::SchemaTransfer { .. }
+            | Message::DiagnosticControl(_)
             | Message::Desire(_)
             | Message::Intention(_)
             | Message::Exploitation(_)

@@ -3,7 +3,7 @@
 
     python host-tools/tests/dbc_cantools.py target/examples/take-and-return.dbc \
         [target/examples/multi-target-observation.dbc [target/examples/door-dynamics.dbc \
-        [target/examples/tour-guide.dbc]]]
+        [target/examples/tour-guide.dbc [target/examples/assembly.dbc]]]]
 
 The expected identifiers and payload bytes are built here from the layout documented in
 docs/can-protocol.md, not from pabctl's code: this is what a user decoding a capture relies on.
@@ -35,6 +35,12 @@ SERVICES = {  # name: (code, priority)
     "Challenge": (0x14, 2),
     "TransferOpen": (0x15, 3),
     "Receipt": (0x16, 2),
+    "EmergencyStop": (0x00, 0),
+    "SchemaAbort": (0x19, 1),
+    "SchemaTransfer": (0x1A, 2),
+    "SchemaAck": (0x1B, 2),
+    "SchemaTransition": (0x1C, 2),
+    "SchemaState": (0x1D, 5),
 }
 NODES = {"arm": 1, "hand": 2, "gaze": 3}  # examples/take-and-return.toml
 TOPICS = {
@@ -250,8 +256,58 @@ def hbba(path):
         check(profile.frame_id == expected and profile.length == 4, f"filter profile to {name}")
 
 
+def schema(path):
+    """The schema server's messages of examples/assembly.toml (node arm, id 10, runs the server):
+    docs/can-protocol.md, "Schema server"."""
+    db = cantools.database.load_file(path, strict=True)
+    arm = 10
+    stop = db.get_message_by_name("PAB_EmergencyStop_all")
+    check(stop.frame_id == 0x0200FF00 and stop.is_extended_frame and stop.length == 0,
+          f"emergency stop to all: id {stop.frame_id:#x}, length {stop.length}")
+    check(db.decode_message(stop.frame_id, b"") == {}, "the emergency stop has no signal")
+    for name, service, source, destination, length in [
+        ("PAB_EmergencyStop_arm", "EmergencyStop", TOOL, arm, 0),
+        ("PAB_SchemaAbort_arm", "SchemaAbort", TOOL, arm, 0),
+        ("PAB_SchemaAbort_all", "SchemaAbort", TOOL, BROADCAST, 0),
+        ("PAB_SchemaAck_arm", "SchemaAck", arm, TOOL, 8),
+        ("PAB_SchemaTransition_arm", "SchemaTransition", arm, BROADCAST, 8),
+        ("PAB_SchemaState_arm", "SchemaState", arm, BROADCAST, 8),
+    ]:
+        message = db.get_message_by_name(name)
+        expected = frame_id(service, source, destination)
+        check(message.frame_id == expected and message.is_extended_frame and message.length == length,
+              f"{name}: id {message.frame_id:#x} length {message.length}, expected {expected:#x} {length}")
+    transfer = SERVICES["SchemaTransfer"][0]
+    check(not any(m.is_extended_frame and (m.frame_id >> 16) & 0xFF == transfer for m in db.messages),
+          "no message for schema transfer (ISO-TP)")
+    # Schema 0x0102 refused: queue full, on the queue, 8 queued.
+    values = db.decode_message(frame_id("SchemaAck", arm, TOOL), bytes([0x09, 0, 2, 1, 8, 0, 0, 0]))
+    check(str(values["outcome"]) == "queue full (8): refused, nothing overwritten"
+          and str(values["channel"]) == "queue" and values["id"] == 0x0102 and values["queued"] == 8,
+          f"schema ack: {values}")
+    values = db.decode_message(frame_id("SchemaAck", arm, TOOL), bytes([0x0B, 0xFF, 0xFF, 0xFF, 0, 0, 0, 0]))
+    check(str(values["outcome"]) == "message longer than 257 bytes" and str(values["channel"]) == "unreadable"
+          and values["id"] == 0xFFFF, f"schema ack, unreadable: {values}")
+    # Schema 7 ended by the force limit, recovery 0xFF13 installed (innate), 3 queued.
+    values = db.decode_message(frame_id("SchemaTransition", arm, BROADCAST),
+                               bytes([7, 0, 0x13, 0xFF, 2, 3, 0, 3]))
+    check((values["ended"], values["installed"], str(values["trigger"]), values["detail"],
+           str(values["source"]), values["queued"]) == (7, 0xFF13, "safety event", 3, "innate", 3),
+          f"schema transition: {values}")
+    # Waiting for the queue, from the queue, no fault, armed, gripper closed, 1234 ms.
+    message = db.get_message_by_name("PAB_SchemaState_arm")
+    values = message.decode(bytes([0x00, 0xFF, 1, 0xFF, 0, 0b11, 0xD2, 0x04]))
+    check((values["current"], str(values["source"]), str(values["fault"]), values["armed"],
+           values["gripper_closed"], values["elapsed"]) == (0xFF00, "queue", "none", 1, 1, 1234),
+          f"schema state: {values}")
+    values = message.decode(bytes([5, 0, 2, 4, 1, 0, 0, 0]))
+    check(str(values["fault"]) == "watchdog" and str(values["source"]) == "high-priority",
+          f"schema state, stopped: {values}")
+    check(message.cycle_time == 100, f"schema state cycle time: {message.cycle_time}")
+
+
 if __name__ == "__main__":
-    if len(sys.argv) not in (2, 3, 4, 5):
+    if len(sys.argv) not in (2, 3, 4, 5, 6):
         print(__doc__, file=sys.stderr)
         sys.exit(2)
     try:
@@ -260,8 +316,10 @@ if __name__ == "__main__":
             claims(sys.argv[2])
         if len(sys.argv) >= 4:
             gates(sys.argv[3])
-        if len(sys.argv) == 5:
+        if len(sys.argv) >= 5:
             hbba(sys.argv[4])
+        if len(sys.argv) == 6:
+            schema(sys.argv[5])
     except Exception as error:  # a missing message, an undecodable frame: report, with what came before
         failures.append(f"{type(error).__name__}: {error}")
     for failure in failures:

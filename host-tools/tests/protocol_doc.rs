@@ -5,8 +5,8 @@
 use std::path::Path;
 
 use pab_core::protocol::{
-    AuthFailure, BROADCAST, FaultCode, FrameId, NodeState, Service, StoreFailure,
-    TransferStatusCode,
+    AuthFailure, BROADCAST, FaultCode, FrameId, NodeState, SchemaOutcome, SchemaSafety, Service,
+    StoreFailure, TransferStatusCode,
 };
 
 fn document() -> String {
@@ -139,6 +139,24 @@ fn auth_failures_match_the_code() {
         .map(|c| (u32::from(c.code()), format!("{c:?}"), c.description()))
         .collect();
     compare_enum("enum: AuthFailure", &expected, 2);
+}
+
+#[test]
+fn schema_outcomes_match_the_code() {
+    let expected: Vec<_> = SchemaOutcome::ALL
+        .iter()
+        .map(|c| (u32::from(c.code()), format!("{c:?}"), c.description()))
+        .collect();
+    compare_enum("enum: SchemaOutcome", &expected, 2);
+}
+
+#[test]
+fn schema_safety_events_match_the_code() {
+    let expected: Vec<_> = SchemaSafety::ALL
+        .iter()
+        .map(|c| (u32::from(c.code()), format!("{c:?}"), c.description()))
+        .collect();
+    compare_enum("enum: SchemaSafety", &expected, 1);
 }
 
 #[test]

@@ -5,9 +5,12 @@
 //! - **The project's own frames** (`docs/can-protocol.md`), one message per (service, node): the
 //!   node → all services (heartbeat, table status, traffic, errors, fault, diagnostic samples),
 //!   the transfer status each node sends to the tool, and the diagnostic control the tool sends
-//!   to each node (and to all nodes). Identifiers come from [`FrameId::raw`], the same code the
-//!   nodes run; nothing here recomputes the layout. Table transfer frames (ISO-TP) are not
-//!   signals: they are only named in the comments.
+//!   to each node (and to all nodes); for a schema server's board, its answers, transitions and
+//!   state, and the emergency stop and abort the tool sends it (and all). Identifiers come from
+//!   [`FrameId::raw`], the same code the nodes run; nothing here recomputes the layout. Table
+//!   and schema transfer frames (ISO-TP) are not signals: they are only named in the comments.
+//!   The drive's frames of a schema server (attractor, pose, wrench: 21-bit signals) are not
+//!   described: their ids are not in the network file yet.
 //! - **The network's topics**, one message per topic named after it, with eight one-byte signals
 //!   `data0`..`data7`: what a topic carries is its publisher's business, but a capture then shows
 //!   which topic each frame belongs to, and frames shorter than 8 bytes still decode byte by byte
@@ -21,7 +24,8 @@ use std::collections::HashSet;
 use std::fmt::Write as _;
 
 use pab_core::protocol::{
-    BROADCAST, FaultCode, FrameId, INTENTION, NodeState, PROTOCOL_MASK, PROTOCOL_VALUE, Service,
+    BROADCAST, FaultCode, FrameId, INTENTION, NodeState, PROTOCOL_MASK, PROTOCOL_VALUE, SchemaAck,
+    SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety, SchemaState, SchemaTrigger, Service,
     TOOL, TransferStatusCode,
 };
 
@@ -180,8 +184,31 @@ pub fn transfer_status_codes() -> Vec<(u32, &'static str)> {
         .collect()
 }
 
+/// The value table of a `wire_enum!` enumeration of the protocol, from its `ALL` and
+/// `description()`.
+macro_rules! wire_values {
+    ($enum:ty) => {
+        <$enum>::ALL
+            .iter()
+            .map(|c| (u32::from(c.code()), c.description()))
+            .collect::<Vec<(u32, &'static str)>>()
+    };
+}
+
+/// The value table of [`SchemaOutcome`].
+pub fn schema_outcomes() -> Vec<(u32, &'static str)> {
+    wire_values!(SchemaOutcome)
+}
+
+/// The value table of [`SchemaSafety`], and 255: none.
+pub fn schema_safeties() -> Vec<(u32, &'static str)> {
+    let mut values = wire_values!(SchemaSafety);
+    values.push((u32::from(SchemaState::NO_FAULT), "none"));
+    values
+}
+
 /// The signals of a service's payload, as `docs/can-protocol.md` lays them out; `None` for table
-/// transfer (ISO-TP segments, not a fixed layout).
+/// and schema transfer (ISO-TP segments, not a fixed layout).
 pub fn service_signals(service: Service) -> Option<Vec<DbcSignal>> {
     Some(match service {
         Service::Fault => {
@@ -491,6 +518,95 @@ pub fn service_signals(service: Service) -> Option<Vec<DbcSignal>> {
             signal("reserved", 24, 8, "0"),
             signal("sequence", 32, 16, "echoed in the node's FilterStatus"),
         ],
+        Service::EmergencyStop | Service::SchemaAbort => Vec::new(),
+        Service::SchemaTransfer => return None,
+        Service::SchemaAck => vec![
+            with_values(
+                signal(
+                    "outcome",
+                    0,
+                    8,
+                    "0 accepted, else why the schema was refused (SchemaOutcome)",
+                ),
+                schema_outcomes(),
+            ),
+            with_values(
+                signal(
+                    "channel",
+                    8,
+                    8,
+                    "channel of the message: 0 queue, 1 high-priority, 255 unreadable",
+                ),
+                {
+                    let mut values = wire_values!(SchemaChannel);
+                    values.push((u32::from(SchemaAck::NO_CHANNEL), "unreadable"));
+                    values
+                },
+            ),
+            signal(
+                "id",
+                16,
+                16,
+                "the schema's id (65535 when it could not be decoded)",
+            ),
+            signal("queued", 32, 8, "schemas in the queue after it"),
+            signal("reserved", 40, 24, "0"),
+        ],
+        Service::SchemaTransition => vec![
+            signal("ended", 0, 16, "the schema that ended"),
+            signal(
+                "installed",
+                16,
+                16,
+                "the schema installed (0xFF00 the wait for the queue, 0xFF01 the wait for the \
+                 high-priority channel, 0xFF10 + cause the recovery after a safety event)",
+            ),
+            with_values(
+                signal("trigger", 32, 8, "what ended the schema"),
+                wire_values!(SchemaTrigger),
+            ),
+            signal(
+                "detail",
+                40,
+                8,
+                "trigger 2 (safety): the cause, 0 emergency stop, 1 sensor stale, 2 workspace \
+                 limit, 3 force limit, 4 watchdog, 5 loop overrun; trigger 3 (reaction): the \
+                 reaction's index in the ended schema's table; otherwise 0",
+            ),
+            with_values(
+                signal("source", 48, 8, "where the installed schema came from"),
+                wire_values!(SchemaOrigin),
+            ),
+            signal("queued", 56, 8, "schemas in the queue after it"),
+        ],
+        Service::SchemaState => vec![
+            signal("current", 0, 16, "the installed schema"),
+            with_values(
+                signal("source", 16, 8, "where the installed schema came from"),
+                wire_values!(SchemaOrigin),
+            ),
+            with_values(
+                signal(
+                    "fault",
+                    24,
+                    8,
+                    "the safety event the server is stopped on, 255 when none",
+                ),
+                schema_safeties(),
+            ),
+            signal("queued", 32, 8, "schemas in the queue"),
+            signal("armed", 40, 1, "1: a pose has been received"),
+            signal("gripper_closed", 41, 1, "1: the gripper is closed"),
+            with_unit(
+                signal(
+                    "elapsed",
+                    48,
+                    16,
+                    "ms since the schema was installed, saturating",
+                ),
+                "ms",
+            ),
+        ],
         Service::TransferStatus => vec![
             with_values(
                 signal("status", 0, 8, "the outcome of the transfer"),
@@ -600,7 +716,29 @@ fn service_comment(service: Service) -> &'static str {
             "FilterSet (service 0x18, priority 3): sets one message filter of a node; answered \
              by FilterStatus or a FilterRefused fault."
         }
-        Service::TableTransfer => "",
+        Service::EmergencyStop => {
+            "EmergencyStop (service 0x00, priority 0, no payload): the lowest identifier of the \
+             protocol; a schema server halts within one loop period (attractor on the measured \
+             pose, SchemaSafety fault, waits on the high-priority channel). Accepted from any \
+             source."
+        }
+        Service::SchemaAbort => {
+            "SchemaAbort (service 0x19, priority 1, no payload): the client abandons its \
+             program; the schema server empties its queue and waits on the high-priority \
+             channel. Accepted from any source."
+        }
+        Service::SchemaAck => {
+            "SchemaAck (service 0x1B, priority 2): the answer to one SchemaTransfer message \
+             (ISO-TP, service 0x1A), to its sender."
+        }
+        Service::SchemaTransition => {
+            "SchemaTransition (service 0x1C, priority 2): a schema change of the server, on \
+             every change (several in one tick: in order)."
+        }
+        Service::SchemaState => {
+            "SchemaState (service 0x1D, priority 5): the schema server's state, every 100 ms."
+        }
+        Service::TableTransfer | Service::SchemaTransfer => "",
         Service::TransferStatus => {
             "TransferStatus (service 0x12, priority 2): the outcome of a table transfer, to the \
              tool."
@@ -616,11 +754,12 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
     let mut nodes = vec![TOOL_NODE.to_string()];
     let mut node_comments =
         vec!["The workstation tool (pabctl), address 0 in the pab protocol.".to_string()];
-    for node in &network.nodes {
+    let serves = |index: usize| network.schema_boards.iter().any(|b| b.node == index);
+    for (index, node) in network.nodes.iter().enumerate() {
         nodes.push(node_names.unique(identifier(&node.name, "node_")));
         let transfer = FrameId::new(Service::TableTransfer, TOOL, node.id).raw();
         let flow = FrameId::new(Service::TableTransfer, node.id, TOOL).raw();
-        node_comments.push(format!(
+        let mut comment = format!(
             "Node `{}`, id {} ({} port{}). Table images reach it by ISO-TP (ISO 15765-2) on \
              service 0x11, not described here: data 0x{transfer:08X} (tool to node), flow control \
              0x{flow:08X} (node to tool).",
@@ -628,7 +767,19 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
             node.id,
             node.ports.len(),
             if node.ports.len() == 1 { "" } else { "s" },
-        ));
+        );
+        if serves(index) {
+            let transfer = FrameId::new(Service::SchemaTransfer, TOOL, node.id).raw();
+            let flow = FrameId::new(Service::SchemaTransfer, node.id, TOOL).raw();
+            let _ = write!(
+                comment,
+                " It runs a schema server: schemas reach it by ISO-TP on service 0x1A (a channel \
+                 byte, then the schema), not described here: data 0x{transfer:08X} (tool to \
+                 node), flow control 0x{flow:08X} (node to tool). Its drive's frames are topics \
+                 of its own, not described here."
+            );
+        }
+        node_comments.push(comment);
     }
 
     let mut names = Names(HashSet::new());
@@ -644,6 +795,7 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
         // exploitation from the nodes with message filters.
         let runs_dynamics = network.dynamics.iter().any(|g| g.node == index);
         let filtered = has_filters(network, index);
+        let schema_server = serves(index);
         for service in Service::ALL {
             let destination = match service {
                 Service::DiagnosticControl
@@ -653,10 +805,22 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
                 | Service::Desire
                 | Service::Intention
                 | Service::FilterProfile
-                | Service::FilterSet => continue,
+                | Service::FilterSet
+                | Service::EmergencyStop
+                | Service::SchemaAbort
+                | Service::SchemaTransfer => continue,
                 Service::Gates if !runs_dynamics => continue,
                 Service::FilterStatus | Service::Exploitation if !filtered => continue,
-                Service::TransferStatus | Service::Challenge | Service::Receipt => TOOL,
+                Service::SchemaAck | Service::SchemaTransition | Service::SchemaState
+                    if !schema_server =>
+                {
+                    continue;
+                }
+                // The answer goes to the schema's sender: described from the tool.
+                Service::TransferStatus
+                | Service::Challenge
+                | Service::Receipt
+                | Service::SchemaAck => TOOL,
                 _ => BROADCAST,
             };
             let Some(signals) = service_signals(service) else {
@@ -681,7 +845,7 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
                         "all (0xFF)"
                     }
                 ),
-                cycle_ms: if service == Service::Gates {
+                cycle_ms: if matches!(service, Service::Gates | Service::SchemaState) {
                     Some(100)
                 } else {
                     (periodic.contains(&service) || service == Service::FilterStatus)
@@ -785,6 +949,43 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
             comment: format!("{} From the tool to {whom}.", service_comment(control)),
             cycle_ms: None,
         });
+    }
+
+    // The schema servers' stops: the emergency stop and the abort, from the tool (anyone may
+    // send them) to each board and to all.
+    let boards: Vec<(u8, String, String)> = network
+        .nodes
+        .iter()
+        .zip(nodes.iter().skip(1))
+        .enumerate()
+        .filter(|(index, _)| serves(*index))
+        .map(|(_, (node, dbc_node))| (node.id, dbc_node.clone(), format!("node `{}`", node.name)))
+        .collect();
+    if !boards.is_empty() {
+        let every: Vec<String> = boards.iter().map(|(_, name, _)| name.clone()).collect();
+        let all = (BROADCAST, "all".to_string(), "all nodes (0xFF)".to_string());
+        for service in [Service::EmergencyStop, Service::SchemaAbort] {
+            for (destination, suffix, whom) in boards.iter().chain([&all]) {
+                messages.push(DbcMessage {
+                    id: extended(FrameId::new(service, TOOL, *destination)),
+                    name: names.unique(format!("PAB_{service:?}_{suffix}")),
+                    dlc: service.payload_len() as u8,
+                    transmitter: TOOL_NODE.to_string(),
+                    receivers: if *destination == BROADCAST {
+                        every.clone()
+                    } else {
+                        vec![suffix.clone()]
+                    },
+                    signals: service_signals(service).unwrap_or_default(),
+                    comment: format!(
+                        "{} From the tool to {whom}; any node sends the same from its own \
+                         address.",
+                        service_comment(service)
+                    ),
+                    cycle_ms: None,
+                });
+            }
+        }
     }
 
     // HBBA: desires (described from the tool; any node may send them), the intention node's
@@ -979,9 +1180,9 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
             "Generated by pabctl dbc from {}. Messages PAB_* are the pab protocol \
              (docs/can-protocol.md): 29-bit ids, priority in bits 28..26, marker 0b10 in bits \
              25..24 (raw & 0x{PROTOCOL_MASK:08X} == 0x{PROTOCOL_VALUE:08X}), service in 23..16, \
-             destination in 15..8, source in 7..0. Table transfers (service 0x11, ISO-TP) are \
-             not listed: see the node comments for their ids. The other messages are the \
-             network's topics.",
+             destination in 15..8, source in 7..0. Table and schema transfers (services 0x11 and \
+             0x1A, ISO-TP) are not listed: see the node comments for their ids. The other \
+             messages are the network's topics.",
             network.source.path().display()
         ),
     })
@@ -1230,6 +1431,82 @@ tc = 3.0
             .all(|prefix| !m.name.starts_with(prefix))
         }));
         assert!(plain.nodes.iter().all(|n| n != INTENTION_NODE));
+    }
+
+    #[test]
+    fn a_schema_servers_board_has_its_reports_and_the_stops_to_it_and_to_all() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../examples/assembly.toml");
+        let text = std::fs::read_to_string(path).unwrap();
+        let dbc = build(&network(&text)).unwrap();
+        let find = |name: &str| {
+            dbc.messages
+                .iter()
+                .find(|m| m.name == name)
+                .unwrap_or_else(|| panic!("no {name}"))
+        };
+        // Node `arm`, id 10, runs the server.
+        let ack = find("PAB_SchemaAck_arm");
+        assert_eq!(
+            (ack.id, ack.dlc),
+            (
+                FrameId::new(Service::SchemaAck, 10, TOOL).raw() | EXTENDED_FLAG,
+                8
+            )
+        );
+        let change = find("PAB_SchemaTransition_arm");
+        assert_eq!(
+            change.id,
+            FrameId::new(Service::SchemaTransition, 10, BROADCAST).raw() | EXTENDED_FLAG
+        );
+        let state = find("PAB_SchemaState_arm");
+        assert_eq!((state.dlc, state.cycle_ms), (8, Some(100)));
+        let fault = state.signals.iter().find(|s| s.name == "fault").unwrap();
+        assert_eq!(fault.values.last(), Some(&(255, "none")));
+        assert_eq!(fault.max, "255");
+        let stop = find("PAB_EmergencyStop_all");
+        assert_eq!(
+            (stop.id, stop.dlc, stop.signals.len()),
+            (0x0200_FF00 | EXTENDED_FLAG, 0, 0)
+        );
+        assert_eq!(stop.receivers, ["arm"]);
+        assert_eq!(
+            find("PAB_EmergencyStop_arm").id,
+            FrameId::new(Service::EmergencyStop, TOOL, 10).raw() | EXTENDED_FLAG
+        );
+        let abort = find("PAB_SchemaAbort_arm");
+        assert_eq!(
+            (abort.id, abort.dlc),
+            (
+                FrameId::new(Service::SchemaAbort, TOOL, 10).raw() | EXTENDED_FLAG,
+                0
+            )
+        );
+        assert!(find("PAB_SchemaAbort_all").comment.contains("0x19"));
+        // ISO-TP: named in the node's comment only.
+        assert!(
+            !dbc.messages
+                .iter()
+                .any(|m| m.name.contains("SchemaTransfer"))
+        );
+        let transfer = FrameId::new(Service::SchemaTransfer, TOOL, 10).raw();
+        assert!(dbc.node_comments[1].contains(&format!("0x{transfer:08X}")));
+        // Every signal fits its message and no two overlap.
+        for message in &dbc.messages {
+            let mut used = 0u64;
+            for signal in &message.signals {
+                assert!(signal.start + signal.len <= 8 * u32::from(message.dlc));
+                let bits = ((1u128 << signal.len) - 1) << signal.start;
+                assert_eq!(used & bits as u64, 0, "{} overlaps", signal.name);
+                used |= bits as u64;
+            }
+        }
+        // Without a schema server: none of them.
+        let plain = build(&network(NET)).unwrap();
+        assert!(plain.messages.iter().all(|m| {
+            ["PAB_Schema", "PAB_EmergencyStop"]
+                .iter()
+                .all(|prefix| !m.name.starts_with(prefix))
+        }));
     }
 
     #[test]

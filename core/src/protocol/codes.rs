@@ -114,6 +114,11 @@ wire_enum! {
         /// connection, 3 the running table has no message filters); byte 1: the profile, or the
         /// port; byte 2: the connection; bytes 3-4: the command's sequence number, u16 LE.
         FilterRefused = 0x0060, "filter command refused";
+        /// A safety event stopped the schema server ([`crate::protocol::Service::EmergencyStop`],
+        /// a stale sensor, a limit, the watchdog, an overrun): the attractor is on the measured
+        /// pose and the server waits on the high-priority channel. Detail byte 0: the
+        /// [`SchemaSafety`]; bytes 1-2: the schema it ended, u16 LE.
+        SchemaSafety = 0x0070, "schema server stopped by a safety event";
     }
 }
 
@@ -201,6 +206,102 @@ wire_enum! {
     }
 }
 
+wire_enum! {
+    /// The answer to a schema message ([`super::SchemaAck`] byte 0): accepted, or why it was
+    /// refused (a refused schema changes nothing).
+    SchemaOutcome: u8 {
+        /// Queued, or waiting for the next tick on the high-priority channel.
+        Accepted = 0x00, "accepted";
+        /// Not postcard's encoding of a schema (or more reactions than a schema holds).
+        Malformed = 0x01, "not a schema's encoding";
+        /// Bytes after the schema.
+        TrailingBytes = 0x02, "bytes after the schema";
+        /// An id from 0xFF00 up: those name the server's own schemas.
+        ReservedId = 0x03, "id reserved for the server's own schemas (0xFF00 and up)";
+        /// An axis index of 6 or more.
+        BadAxis = 0x04, "axis index of 6 or more";
+        /// A sensor index of 8 or more.
+        BadSensor = 0x05, "sensor index of 8 or more";
+        /// A coordinate, speed, distance or time beyond ±500 m (µm, µrad).
+        OutOfRange = 0x06, "value beyond ±500 m (µm, µrad)";
+        /// An action that would never progress.
+        Degenerate = 0x07, "action that would never progress (speed 0, no direction, pitch 0)";
+        /// A reaction names an innate schema the board does not have.
+        UnknownInnate = 0x08, "names an innate schema the board does not have";
+        /// The queue is full: refused, nothing overwritten.
+        QueueFull = 0x09, "queue full (8): refused, nothing overwritten";
+        /// A high-priority schema is already waiting for the next tick.
+        Busy = 0x0A, "a high-priority schema is already waiting for the next tick";
+        /// The ISO-TP message is longer than a channel byte and the largest schema (257 bytes):
+        /// refused at its first frame.
+        TooLong = 0x0B, "message longer than 257 bytes";
+        /// The message's channel byte is neither 0 nor 1.
+        BadChannel = 0x0C, "channel byte neither 0 nor 1";
+        /// The node has a key: schema transfers need authentication, which does not exist yet.
+        Unauthenticated = 0x0D, "node has a key: schemas need authentication";
+        /// The node's table runs no schema server.
+        NoServer = 0x0E, "the node's table runs no schema server";
+    }
+}
+
+wire_enum! {
+    /// A safety event of the schema server ([`super::SchemaTransition`] detail,
+    /// [`super::SchemaState`] byte 3, the [`FaultCode::SchemaSafety`] fault's byte 0): the
+    /// numbers of `pab_core::schema::Safety`.
+    SchemaSafety: u8 {
+        /// An emergency-stop frame arrived.
+        EmergencyStop = 0, "emergency stop";
+        /// The pose, the wrench or a sensor the reactions read is stale.
+        StaleSensor = 1, "sensor stale";
+        /// The pose or the attractor went farther outside the workspace.
+        Limit = 2, "workspace limit";
+        /// The force or torque is above the board's safety limit.
+        Force = 3, "force limit";
+        /// The schema ran longer than its budget.
+        Watchdog = 4, "watchdog";
+        /// A tick came later than the board's overrun bound.
+        Overrun = 5, "loop overrun";
+    }
+}
+
+wire_enum! {
+    /// The channel of a schema message (its byte 0; [`super::SchemaAck`] byte 1).
+    SchemaChannel: u8 {
+        /// The queue: run after the schemas before it.
+        Queue = 0, "queue";
+        /// The high-priority channel: installed at the next tick, replacing the running schema
+        /// and ending a fault.
+        HighPriority = 1, "high-priority channel";
+    }
+}
+
+wire_enum! {
+    /// What ended a schema ([`super::SchemaTransition`] byte 4).
+    SchemaTrigger: u8 {
+        /// A schema arrived on the high-priority channel.
+        HighPriority = 0, "high-priority channel";
+        /// An abort (service 0x19).
+        Abort = 1, "abort";
+        /// A safety event (the detail byte says which).
+        Safety = 2, "safety event";
+        /// A reaction of the ended schema (the detail byte is its index in the table).
+        Reaction = 3, "reaction";
+    }
+}
+
+wire_enum! {
+    /// Where an installed schema came from ([`super::SchemaTransition`] byte 6,
+    /// [`super::SchemaState`] byte 2): `pab_core::schema::Origin`.
+    SchemaOrigin: u8 {
+        /// The board's own: an innate schema, or a safety recovery.
+        Innate = 0, "innate";
+        /// The client's queue (or the wait for it).
+        Queue = 1, "queue";
+        /// The high-priority channel (or the wait for it).
+        HighPriority = 2, "high-priority";
+    }
+}
+
 impl TransferStatusCode {
     /// Whether the new table is running after this outcome.
     pub const fn is_success(self) -> bool {
@@ -235,6 +336,27 @@ mod tests {
         for status in TransferStatusCode::ALL {
             assert_eq!(TransferStatusCode::from_code(status.code()), Some(*status));
         }
+        for outcome in SchemaOutcome::ALL {
+            assert_eq!(SchemaOutcome::from_code(outcome.code()), Some(*outcome));
+        }
+        for safety in SchemaSafety::ALL {
+            assert_eq!(SchemaSafety::from_code(safety.code()), Some(*safety));
+        }
+        for trigger in SchemaTrigger::ALL {
+            assert_eq!(SchemaTrigger::from_code(trigger.code()), Some(*trigger));
+        }
+        for origin in SchemaOrigin::ALL {
+            assert_eq!(SchemaOrigin::from_code(origin.code()), Some(*origin));
+        }
+        for channel in SchemaChannel::ALL {
+            assert_eq!(SchemaChannel::from_code(channel.code()), Some(*channel));
+        }
+        assert_eq!(SchemaOutcome::from_code(0x0F), None);
+        assert_eq!(SchemaSafety::from_code(6), None);
+        assert_eq!(SchemaSafety::from_code(0xFF), None);
+        assert_eq!(SchemaTrigger::from_code(4), None);
+        assert_eq!(SchemaOrigin::from_code(3), None);
+        assert_eq!(SchemaChannel::from_code(2), None);
         assert_eq!(NodeState::from_code(3), None);
         assert_eq!(FaultCode::from_code(0), None);
         assert_eq!(TransferStatusCode::from_code(0xFF), None);

@@ -1,7 +1,10 @@
 //! Payload codecs, one type per service. Every decoder checks the exact length and every enumerated
 //! or reserved field; a frame that fails is refused with a [`DecodeError`], never half-read.
 
-use super::{FaultCode, FrameId, NodeState, Service, TransferStatusCode};
+use super::{
+    FaultCode, FrameId, NodeState, SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety,
+    SchemaTrigger, Service, TransferStatusCode,
+};
 use crate::frame::Frame;
 
 /// A node's heartbeat (service 0x02), sent every heartbeat period (1 s by default) to
@@ -402,6 +405,133 @@ pub struct TransferStatus {
     pub running_version: u32,
 }
 
+/// The answer to a schema message (service 0x1B), node → the schema's sender, once per
+/// SchemaTransfer message, when it is complete (or refused at its first frame).
+///
+/// ```text
+/// byte 0     outcome (SchemaOutcome): 0 accepted, else why the schema was refused
+/// byte 1     channel of the message (0 queue, 1 high-priority; 0xFF when unreadable)
+/// bytes 2-3  the schema's id, u16 LE (0xFFFF when it could not be decoded)
+/// byte 4     schemas in the queue after it
+/// bytes 5-7  reserved, 0
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SchemaAck {
+    /// Accepted, or why not.
+    pub outcome: SchemaOutcome,
+    /// The message's channel; `None` (0xFF on the wire) when its channel byte could not be read
+    /// (a message refused at its first frame, or a channel byte neither 0 nor 1).
+    pub channel: Option<SchemaChannel>,
+    /// The schema's id, or [`SchemaAck::NO_ID`] when it could not be decoded.
+    pub id: u16,
+    /// Schemas in the queue after this one (0..=8 on the boards).
+    pub queued: u8,
+}
+
+impl SchemaAck {
+    /// [`SchemaAck::id`] of a message whose schema could not be decoded (never a client's id:
+    /// those are below 0xFF00).
+    pub const NO_ID: u16 = 0xFFFF;
+    /// Byte 1 of a message whose channel could not be read.
+    pub const NO_CHANNEL: u8 = 0xFF;
+}
+
+/// A schema change of the server (service 0x1C), node → all, on every change (several in one
+/// tick: in order). A client follows its program with these.
+///
+/// ```text
+/// bytes 0-1  the schema that ended, u16 LE
+/// bytes 2-3  the schema installed, u16 LE (0xFF00 the wait for the queue, 0xFF01 the wait for the
+///            high-priority channel, 0xFF10 + cause the recovery after a safety event)
+/// byte 4     trigger (SchemaTrigger): 0 high-priority channel, 1 abort, 2 safety, 3 reaction
+/// byte 5     detail: the safety cause (SchemaSafety) or the reaction's index in the ended
+///            schema's table; 0 otherwise
+/// byte 6     source of the installed schema (SchemaOrigin): 0 innate, 1 queue, 2 high-priority
+/// byte 7     schemas in the queue after it
+/// ```
+///
+/// A transition whose detail contradicts its trigger (an unknown safety cause, a detail after
+/// the high-priority channel or an abort) is refused ([`SchemaTransition::is_valid`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SchemaTransition {
+    /// The schema that ended.
+    pub ended: u16,
+    /// The schema installed.
+    pub installed: u16,
+    /// What ended it.
+    pub trigger: SchemaTrigger,
+    /// For [`SchemaTrigger::Safety`] the [`SchemaSafety`] code, for [`SchemaTrigger::Reaction`]
+    /// the reaction's index in the ended schema's table; 0 otherwise.
+    pub detail: u8,
+    /// Where the installed schema came from.
+    pub source: SchemaOrigin,
+    /// Schemas in the queue after the change.
+    pub queued: u8,
+}
+
+impl SchemaTransition {
+    /// Whether the detail fits the trigger: a known cause after a safety event, 0 after the
+    /// high-priority channel or an abort, any index after a reaction.
+    pub fn is_valid(&self) -> bool {
+        match self.trigger {
+            SchemaTrigger::HighPriority | SchemaTrigger::Abort => self.detail == 0,
+            SchemaTrigger::Safety => SchemaSafety::from_code(self.detail).is_some(),
+            SchemaTrigger::Reaction => true,
+        }
+    }
+
+    /// The safety event that ended the schema, for a [`SchemaTrigger::Safety`] trigger.
+    pub fn safety(&self) -> Option<SchemaSafety> {
+        match self.trigger {
+            SchemaTrigger::Safety => SchemaSafety::from_code(self.detail),
+            _ => None,
+        }
+    }
+}
+
+/// The schema server's state (service 0x1D), node → all, every 100 ms.
+///
+/// ```text
+/// bytes 0-1  the installed schema, u16 LE
+/// byte 2     its source (SchemaOrigin, as SchemaTransition byte 6)
+/// byte 3     the safety event the server is stopped on (SchemaSafety), 0xFF when none
+/// byte 4     schemas in the queue
+/// byte 5     flags: bit 0 armed (a pose has been received), bit 1 gripper closed; bits 2-7 0
+/// bytes 6-7  ms since it was installed, u16 LE, saturating
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SchemaState {
+    /// The installed schema's id.
+    pub current: u16,
+    /// Where it came from.
+    pub source: SchemaOrigin,
+    /// The safety event the server is stopped on (until the high-priority channel installs a
+    /// schema); `None` (0xFF on the wire) when running.
+    pub fault: Option<SchemaSafety>,
+    /// Schemas in the queue.
+    pub queued: u8,
+    /// A pose has been received: the attractor means something.
+    pub armed: bool,
+    /// The gripper is commanded closed.
+    pub gripper_closed: bool,
+    /// Milliseconds since the schema was installed, saturating at 65 535
+    /// ([`SchemaState::saturate_ms`]).
+    pub elapsed_ms: u16,
+}
+
+impl SchemaState {
+    /// Byte 3 when the server is not stopped on a safety event.
+    pub const NO_FAULT: u8 = 0xFF;
+
+    /// A duration in ms as [`SchemaState::elapsed_ms`] carries it: saturating at 65 535.
+    pub fn saturate_ms(ms: u64) -> u16 {
+        u16::try_from(ms).unwrap_or(u16::MAX)
+    }
+}
+
 /// Any frame of our protocol, decoded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -467,6 +597,25 @@ pub enum Message {
         /// The tag.
         tag: [u8; crate::auth::RECEIPT_TAG_LEN],
     },
+    /// Stop (service 0x00, no payload): from anyone, to a node or to all; never refused.
+    EmergencyStop,
+    /// Abandon the client's program (service 0x19, no payload): from anyone, to a node or to
+    /// all; never refused.
+    SchemaAbort,
+    /// One ISO-TP frame of a schema message (or its flow control), passed to [`crate::isotp`]:
+    /// the message is a channel byte ([`SchemaChannel`]) and the schema's postcard bytes.
+    SchemaTransfer {
+        /// The frame's bytes.
+        data: [u8; 8],
+        /// How many of them the frame carried.
+        len: u8,
+    },
+    /// See [`SchemaAck`].
+    SchemaAck(SchemaAck),
+    /// See [`SchemaTransition`].
+    SchemaTransition(SchemaTransition),
+    /// See [`SchemaState`].
+    SchemaState(SchemaState),
 }
 
 /// Why a frame in our identifier space was refused.
@@ -573,6 +722,12 @@ impl Message {
             Message::Challenge { .. } => Service::Challenge,
             Message::TransferOpen(_) => Service::TransferOpen,
             Message::Receipt { .. } => Service::Receipt,
+            Message::EmergencyStop => Service::EmergencyStop,
+            Message::SchemaAbort => Service::SchemaAbort,
+            Message::SchemaTransfer { .. } => Service::SchemaTransfer,
+            Message::SchemaAck(_) => Service::SchemaAck,
+            Message::SchemaTransition(_) => Service::SchemaTransition,
+            Message::SchemaState(_) => Service::SchemaState,
         }
     }
 
@@ -613,7 +768,7 @@ impl Message {
                 )
             }
             Message::DiagnosticControl(control) => (control_bytes(control, [0; 4]), 4),
-            Message::TableTransfer { data, len } => {
+            Message::TableTransfer { data, len } | Message::SchemaTransfer { data, len } => {
                 // The bytes the frame carries; a length beyond 8 carries all 8.
                 let len = (*len).min(8);
                 let mut bytes = *data;
@@ -634,7 +789,43 @@ impl Message {
             Message::AuthenticatedDiagnosticControl { control, tag } => {
                 (control_bytes(control, *tag), 8)
             }
-            Message::ChallengeRequest => ([0; 8], 0),
+            Message::ChallengeRequest | Message::EmergencyStop | Message::SchemaAbort => {
+                ([0; 8], 0)
+            }
+            // The schema server's reports as two words each: fewer instructions than eight byte
+            // stores on the boards (their encoders took 200 bytes of flash as byte arrays).
+            Message::SchemaAck(ack) => {
+                let channel = ack
+                    .channel
+                    .map_or(SchemaAck::NO_CHANNEL, SchemaChannel::code);
+                let low = u32::from(ack.outcome.code())
+                    | u32::from(channel) << 8
+                    | u32::from(ack.id) << 16;
+                (words(low, u32::from(ack.queued)), 8)
+            }
+            Message::SchemaTransition(change) => {
+                let low = u32::from(change.ended) | u32::from(change.installed) << 16;
+                let high = u32::from_le_bytes([
+                    change.trigger.code(),
+                    change.detail,
+                    change.source.code(),
+                    change.queued,
+                ]);
+                (words(low, high), 8)
+            }
+            Message::SchemaState(state) => {
+                let fault = state
+                    .fault
+                    .map_or(SchemaState::NO_FAULT, SchemaSafety::code);
+                let flags = state.armed as u8 | (state.gripper_closed as u8) << 1;
+                let low = u32::from(state.current)
+                    | u32::from(state.source.code()) << 16
+                    | u32::from(fault) << 24;
+                let high = u32::from(state.queued)
+                    | u32::from(flags) << 8
+                    | u32::from(state.elapsed_ms) << 16;
+                (words(low, high), 8)
+            }
             Message::Challenge { nonce } => (nonce.to_le_bytes(), 8),
             Message::TransferOpen(open) => {
                 let [l0, l1] = open.length.to_le_bytes();
@@ -719,8 +910,9 @@ impl Message {
     /// [`Message::decode`] for a node: the same checks of every frame's identifier, priority
     /// and length, but the payload decoded (and its values checked) only for the services a node
     /// acts on (Gates, DiagnosticControl, TableTransfer, ChallengeRequest, TransferOpen,
-    /// FilterProfile, FilterSet); `Ok(None)` for a well-framed frame of another service (a
-    /// report, a desire, another node's status), which a node does not read. The boards link
+    /// FilterProfile, FilterSet, EmergencyStop, SchemaAbort, SchemaTransfer); `Ok(None)` for a
+    /// well-framed frame of another service (a report, a desire, another node's status or schema
+    /// answers), which a node does not read. The boards link
     /// only this: the other services' decoders took 596 bytes of the NUCLEO-G474RE's flash.
     pub fn decode_for_node(frame: &Frame) -> Result<Option<(FrameId, Message)>, DecodeError> {
         let (id, padded, len) = Self::framing(frame)?;
@@ -747,7 +939,7 @@ impl Message {
         let expected = service.payload_len();
         let length_ok = match service {
             // ISO-TP frames may be unpadded: the transport checks their length.
-            Service::TableTransfer => !data.is_empty(),
+            Service::TableTransfer | Service::SchemaTransfer => !data.is_empty(),
             // The plain form, or the plain form and its tag.
             Service::DiagnosticControl => {
                 data.len() == expected || data.len() == expected + crate::auth::COMMAND_TAG_LEN
@@ -810,7 +1002,10 @@ impl Message {
             }
             // The bytes past the frame's length are zero, as the padding made them.
             Service::TableTransfer => Message::TableTransfer { data: padded, len },
+            Service::SchemaTransfer => Message::SchemaTransfer { data: padded, len },
             Service::ChallengeRequest => Message::ChallengeRequest,
+            Service::EmergencyStop => Message::EmergencyStop,
+            Service::SchemaAbort => Message::SchemaAbort,
             Service::TransferOpen => {
                 let flags = byte(data, 2);
                 if flags & !OPEN_REPLACE != 0 {
@@ -952,6 +1147,54 @@ impl Message {
                     delivering,
                 })
             }
+            Service::SchemaAck => {
+                if bytes_at::<3>(data, 5) != [0; 3] {
+                    return Err(bad);
+                }
+                let channel = match byte(data, 1) {
+                    SchemaAck::NO_CHANNEL => None,
+                    code => Some(SchemaChannel::from_code(code).ok_or(bad)?),
+                };
+                Message::SchemaAck(SchemaAck {
+                    outcome: SchemaOutcome::from_code(byte(data, 0)).ok_or(bad)?,
+                    channel,
+                    id: u16_at(data, 2),
+                    queued: byte(data, 4),
+                })
+            }
+            Service::SchemaTransition => {
+                let change = SchemaTransition {
+                    ended: u16_at(data, 0),
+                    installed: u16_at(data, 2),
+                    trigger: SchemaTrigger::from_code(byte(data, 4)).ok_or(bad)?,
+                    detail: byte(data, 5),
+                    source: SchemaOrigin::from_code(byte(data, 6)).ok_or(bad)?,
+                    queued: byte(data, 7),
+                };
+                if !change.is_valid() {
+                    return Err(bad);
+                }
+                Message::SchemaTransition(change)
+            }
+            Service::SchemaState => {
+                let flags = byte(data, 5);
+                if flags & !0b11 != 0 {
+                    return Err(bad);
+                }
+                let fault = match byte(data, 3) {
+                    SchemaState::NO_FAULT => None,
+                    code => Some(SchemaSafety::from_code(code).ok_or(bad)?),
+                };
+                Message::SchemaState(SchemaState {
+                    current: u16_at(data, 0),
+                    source: SchemaOrigin::from_code(byte(data, 2)).ok_or(bad)?,
+                    fault,
+                    queued: byte(data, 4),
+                    armed: flags & 1 != 0,
+                    gripper_closed: flags & 2 != 0,
+                    elapsed_ms: u16_at(data, 6),
+                })
+            }
             // Decoded by `node_message`.
             _ => return Err(bad),
         })
@@ -977,7 +1220,7 @@ mod tests {
     use super::*;
     use crate::protocol::BROADCAST;
 
-    fn samples() -> [Message; 20] {
+    fn samples() -> [Message; 26] {
         [
             Message::Fault(Fault {
                 code: FaultCode::TableRefused,
@@ -1080,7 +1323,194 @@ mod tests {
                 phi: 3,
                 sequence: 0xFFFF,
             }),
+            Message::EmergencyStop,
+            Message::SchemaAbort,
+            Message::SchemaTransfer {
+                data: [0x05, 1, 7, 0, 2, 0, 0, 0],
+                len: 6,
+            },
+            Message::SchemaAck(SchemaAck {
+                outcome: SchemaOutcome::QueueFull,
+                channel: Some(SchemaChannel::Queue),
+                id: 0x0102,
+                queued: 8,
+            }),
+            Message::SchemaTransition(SchemaTransition {
+                ended: 7,
+                installed: 0xFF12,
+                trigger: SchemaTrigger::Safety,
+                detail: SchemaSafety::Limit.code(),
+                source: SchemaOrigin::Innate,
+                queued: 3,
+            }),
+            Message::SchemaState(SchemaState {
+                current: 0xFF01,
+                source: SchemaOrigin::HighPriority,
+                fault: Some(SchemaSafety::Overrun),
+                queued: 2,
+                armed: true,
+                gripper_closed: false,
+                elapsed_ms: u16::MAX,
+            }),
         ]
+    }
+
+    /// Each schema report and its bytes, as docs/can-protocol.md lays them out.
+    #[test]
+    fn schema_frames_are_byte_exact() {
+        let ack = Message::SchemaAck(SchemaAck {
+            outcome: SchemaOutcome::Accepted,
+            channel: Some(SchemaChannel::HighPriority),
+            id: 0x0304,
+            queued: 5,
+        });
+        assert_eq!(ack.to_frame(10, 0).payload(), &[0, 1, 4, 3, 5, 0, 0, 0]);
+        let unreadable = Message::SchemaAck(SchemaAck {
+            outcome: SchemaOutcome::TooLong,
+            channel: None,
+            id: SchemaAck::NO_ID,
+            queued: 0,
+        });
+        assert_eq!(
+            unreadable.to_frame(10, 0).payload(),
+            &[0x0B, 0xFF, 0xFF, 0xFF, 0, 0, 0, 0]
+        );
+        let change = Message::SchemaTransition(SchemaTransition {
+            ended: 0x0102,
+            installed: 0x0304,
+            trigger: SchemaTrigger::Reaction,
+            detail: 2,
+            source: SchemaOrigin::Queue,
+            queued: 6,
+        });
+        assert_eq!(
+            change.to_frame(10, BROADCAST).payload(),
+            &[2, 1, 4, 3, 3, 2, 1, 6]
+        );
+        let state = Message::SchemaState(SchemaState {
+            current: 0x0102,
+            source: SchemaOrigin::Queue,
+            fault: None,
+            queued: 4,
+            armed: true,
+            gripper_closed: true,
+            elapsed_ms: 0x0304,
+        });
+        assert_eq!(
+            state.to_frame(10, BROADCAST).payload(),
+            &[2, 1, 1, 0xFF, 4, 0b11, 4, 3]
+        );
+        assert_eq!(SchemaState::saturate_ms(70_000), u16::MAX);
+        assert_eq!(SchemaState::saturate_ms(1_234), 1_234);
+        // The emergency stop from the tool to all: the lowest identifier of ours, no payload.
+        let stop = Message::EmergencyStop.to_frame(0, BROADCAST);
+        assert!(stop.payload().is_empty());
+        assert_eq!(
+            FrameId::decode(&stop.id()).map(|id| id.raw()),
+            Some(0x0200_FF00)
+        );
+    }
+
+    #[test]
+    fn schema_frames_refuse_unknown_codes_reserved_bits_and_bytes() {
+        let refused = |service: Service, payload: &[u8]| {
+            let id = FrameId::new(service, 10, BROADCAST).id();
+            let frame = Frame::data(id, payload).unwrap();
+            let full = Message::decode(&frame) == Err(DecodeError::Value { service });
+            // A node reads none of these reports: well framed, they are not its business.
+            full && Message::decode_for_node(&frame) == Ok(None)
+        };
+        let accepted = |service: Service, payload: &[u8]| {
+            let id = FrameId::new(service, 10, BROADCAST).id();
+            Message::decode(&Frame::data(id, payload).unwrap()).is_ok()
+        };
+        // SchemaAck: outcome past 0x0E, channel neither 0, 1 nor 0xFF, reserved bytes 5-7.
+        assert!(accepted(
+            Service::SchemaAck,
+            &[0x0E, 0xFF, 0, 0, 0, 0, 0, 0]
+        ));
+        assert!(refused(Service::SchemaAck, &[0x0F, 0, 0, 0, 0, 0, 0, 0]));
+        assert!(refused(Service::SchemaAck, &[0, 2, 0, 0, 0, 0, 0, 0]));
+        for at in 5..8 {
+            let mut payload = [0u8; 8];
+            payload[at] = 1;
+            assert!(refused(Service::SchemaAck, &payload), "byte {at}");
+        }
+        // SchemaTransition: trigger past 3, source past 2, a detail that contradicts its trigger.
+        assert!(accepted(
+            Service::SchemaTransition,
+            &[1, 0, 0, 0xFF, 3, 255, 2, 8]
+        ));
+        assert!(accepted(
+            Service::SchemaTransition,
+            &[1, 0, 0x15, 0xFF, 2, 5, 0, 8]
+        ));
+        assert!(refused(
+            Service::SchemaTransition,
+            &[1, 0, 0, 0, 4, 0, 0, 0]
+        ));
+        assert!(refused(
+            Service::SchemaTransition,
+            &[1, 0, 0, 0, 0, 0, 3, 0]
+        ));
+        assert!(refused(
+            Service::SchemaTransition,
+            &[1, 0, 0x16, 0xFF, 2, 6, 0, 0]
+        ));
+        assert!(refused(
+            Service::SchemaTransition,
+            &[1, 0, 0, 0, 0, 1, 2, 0]
+        ));
+        assert!(refused(
+            Service::SchemaTransition,
+            &[1, 0, 1, 0xFF, 1, 1, 2, 0]
+        ));
+        // SchemaState: source past 2, an unknown safety event, flag bits 2-7.
+        assert!(accepted(
+            Service::SchemaState,
+            &[0, 0, 2, 5, 8, 0b11, 0xFF, 0xFF]
+        ));
+        assert!(refused(Service::SchemaState, &[0, 0, 3, 0xFF, 0, 0, 0, 0]));
+        assert!(refused(Service::SchemaState, &[0, 0, 0, 6, 0, 0, 0, 0]));
+        for bit in 2..8 {
+            assert!(
+                refused(Service::SchemaState, &[0, 0, 0, 0xFF, 0, 1 << bit, 0, 0]),
+                "bit {bit}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_node_reads_the_stop_the_abort_and_schema_transfers_only() {
+        for message in samples() {
+            let frame = message.to_frame(0, 10);
+            let for_node = Message::decode_for_node(&frame).unwrap();
+            let acts = matches!(
+                message.service(),
+                Service::Gates
+                    | Service::DiagnosticControl
+                    | Service::TableTransfer
+                    | Service::ChallengeRequest
+                    | Service::TransferOpen
+                    | Service::FilterProfile
+                    | Service::FilterSet
+                    | Service::EmergencyStop
+                    | Service::SchemaAbort
+                    | Service::SchemaTransfer
+            );
+            assert_eq!(for_node.is_some(), acts, "{message:?}");
+            if let Some((_, decoded)) = for_node {
+                assert_eq!(decoded, message);
+            }
+        }
+        // The stop and the abort have no payload: any byte makes them malformed, for a node too.
+        for service in [Service::EmergencyStop, Service::SchemaAbort] {
+            let id = FrameId::new(service, 0, BROADCAST).id();
+            let padded = Frame::data(id, &[0]).unwrap();
+            let error = DecodeError::Length { service, len: 1 };
+            assert_eq!(Message::decode_for_node(&padded), Err(error));
+            assert_eq!(Message::decode(&padded), Err(error));
+        }
     }
 
     #[test]
@@ -1094,6 +1524,8 @@ mod tests {
             assert_eq!(id.service, message.service());
             if matches!(message, Message::AuthenticatedDiagnosticControl { .. }) {
                 assert_eq!(frame.payload().len(), 8);
+            } else if let Message::SchemaTransfer { len, .. } = message {
+                assert_eq!(frame.payload().len(), usize::from(len));
             } else if message.service() != Service::TableTransfer {
                 assert_eq!(frame.payload().len(), message.service().payload_len());
             }
@@ -1176,7 +1608,10 @@ mod tests {
         for message in samples() {
             let frame = message.to_frame(1, 0);
             let payload = frame.payload();
-            if message.service() == Service::TableTransfer {
+            if matches!(
+                message.service(),
+                Service::TableTransfer | Service::SchemaTransfer
+            ) {
                 let empty = Frame::data(frame.id(), &[]).unwrap();
                 assert!(matches!(
                     Message::decode(&empty),

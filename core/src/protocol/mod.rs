@@ -1,5 +1,5 @@
 //! The project's own frames: node heartbeat and status, faults, the diagnostic stream, its control,
-//! and table transfer. `docs/can-protocol.md` is the user-facing description of the same thing;
+//! table transfer, and the schema server's (emergency stop, abort, schema transfer and reports). `docs/can-protocol.md` is the user-facing description of the same thing;
 //! this module is its only implementation (nodes and `pabctl` both use it).
 //!
 //! # Identifier layout (29-bit extended)
@@ -10,8 +10,9 @@
 //!   0-7      0b10     8 bits    node or 0xFF  node or 0
 //! ```
 //!
-//! - **Priority** first, as in Cyphal/CAN, so that the bus itself ranks our traffic: faults (0)
-//!   win arbitration over everything else we send, the diagnostic stream (7) loses to everything.
+//! - **Priority** first, as in Cyphal/CAN, so that the bus itself ranks our traffic: the
+//!   emergency stop and faults (0) win arbitration over everything else we send (the emergency
+//!   stop, service 0, over faults too), the diagnostic stream (7) loses to everything.
 //! - **Marker** `0b10`: our frames occupy one quarter of the extended space, and a node tells
 //!   them from the topics it arbitrates with one mask. Any other value means "not ours".
 //! - **Service**: what the payload is ([`Service`]).
@@ -25,15 +26,18 @@
 
 mod codes;
 mod messages;
+#[cfg(feature = "schema")]
+mod schema;
 
 pub use codes::{
-    AuthFailure, FaultCode, NodeState, STORE_UNREADABLE, StoreFailure, TransferStatusCode,
+    AuthFailure, FaultCode, NodeState, STORE_UNREADABLE, SchemaChannel, SchemaOrigin,
+    SchemaOutcome, SchemaSafety, SchemaTrigger, StoreFailure, TransferStatusCode,
 };
 pub use messages::DecodeError;
 pub use messages::{
     DesireFrame, DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Exploitation, Fault,
     FilterProfile, FilterSet, FilterStatus, Gates, Heartbeat, Intention, Message, OPEN_REPLACE,
-    TableStatus, Traffic, TransferOpen, TransferStatus,
+    SchemaAck, SchemaState, SchemaTransition, TableStatus, Traffic, TransferOpen, TransferStatus,
 };
 
 use embedded_can::{ExtendedId, Id};
@@ -59,9 +63,12 @@ const MARKER: u32 = 0b10;
 pub struct Priority(u8);
 
 impl Priority {
-    /// Safety traffic: faults.
+    /// Safety traffic: the emergency stop and faults.
     pub const EXCEPTIONAL: Priority = Priority(0);
-    /// Answers the tool waits for (transfer status).
+    /// Stopping a program: the schema server's abort.
+    pub const URGENT: Priority = Priority(1);
+    /// Answers the tool waits for (transfer status), and the schema server's transfers and
+    /// answers.
     pub const HIGH: Priority = Priority(2);
     /// Commands from the tool.
     pub const COMMAND: Priority = Priority(3);
@@ -94,6 +101,9 @@ impl Priority {
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[repr(u8)]
 pub enum Service {
+    /// Anyone → node(s): stop (no payload). The schema server halts within one loop period; the
+    /// lowest identifier of all our frames.
+    EmergencyStop = 0x00,
     /// Node → all: a fault, rate-limited ([`Fault`]).
     Fault = 0x01,
     /// Node → all: state, uptime, table version ([`Heartbeat`]).
@@ -134,11 +144,24 @@ pub enum Service {
     FilterProfile = 0x17,
     /// Intention node → node: sets one message filter ([`FilterSet`]).
     FilterSet = 0x18,
+    /// Client → node(s): abandons the client's program (no payload): the schema server empties
+    /// its queue and waits on the high-priority channel.
+    SchemaAbort = 0x19,
+    /// Client ↔ node: ISO-TP frames of a schema message (client → node) and flow control (node
+    /// → client).
+    SchemaTransfer = 0x1A,
+    /// Node → the schema's sender: whether a schema message was accepted ([`SchemaAck`]).
+    SchemaAck = 0x1B,
+    /// Node → all: a schema change of the server ([`SchemaTransition`]).
+    SchemaTransition = 0x1C,
+    /// Node → all: the schema server's state, every 100 ms ([`SchemaState`]).
+    SchemaState = 0x1D,
 }
 
 impl Service {
     /// Every service, for tables (DBC export, documentation tests).
-    pub const ALL: [Service; 20] = [
+    pub const ALL: [Service; 26] = [
+        Service::EmergencyStop,
         Service::Fault,
         Service::Heartbeat,
         Service::TableStatus,
@@ -159,6 +182,11 @@ impl Service {
         Service::Receipt,
         Service::FilterProfile,
         Service::FilterSet,
+        Service::SchemaAbort,
+        Service::SchemaTransfer,
+        Service::SchemaAck,
+        Service::SchemaTransition,
+        Service::SchemaState,
     ];
 
     /// The service with this code.
@@ -176,8 +204,17 @@ impl Service {
     /// The priority frames of this service are sent with.
     pub const fn priority(self) -> Priority {
         match self {
-            Service::Fault => Priority::EXCEPTIONAL,
-            Service::TransferStatus | Service::Challenge | Service::Receipt => Priority::HIGH,
+            // The emergency stop beats everything of ours, faults included (service 0 < 1).
+            Service::EmergencyStop | Service::Fault => Priority::EXCEPTIONAL,
+            Service::SchemaAbort => Priority::URGENT,
+            // A schema, its answer and the schema changes a client follows its program with never
+            // wait behind commands, a table image or reports.
+            Service::TransferStatus
+            | Service::Challenge
+            | Service::Receipt
+            | Service::SchemaTransfer
+            | Service::SchemaAck
+            | Service::SchemaTransition => Priority::HIGH,
             // Gates are decisions other nodes' rules read: they wait for faults and the tool's
             // answers only, never behind heartbeats, claims or counters.
             // Filter commands likewise: a disable must not queue behind a board's counters.
@@ -192,7 +229,9 @@ impl Service {
             | Service::Desire
             | Service::Intention
             | Service::FilterStatus => Priority::NOMINAL,
-            Service::Traffic | Service::Errors | Service::Exploitation => Priority::LOW,
+            Service::Traffic | Service::Errors | Service::Exploitation | Service::SchemaState => {
+                Priority::LOW
+            }
             Service::TableTransfer => Priority::BULK,
             Service::Diagnostic => Priority::OPTIONAL,
         }
@@ -204,7 +243,7 @@ impl Service {
         match self {
             Service::DiagnosticControl | Service::Exploitation | Service::FilterProfile => 4,
             Service::FilterSet => 6,
-            Service::ChallengeRequest => 0,
+            Service::ChallengeRequest | Service::EmergencyStop | Service::SchemaAbort => 0,
             _ => 8,
         }
     }
@@ -324,13 +363,25 @@ mod tests {
         let id = FrameId::new(Service::Heartbeat, 3, BROADCAST);
         assert_eq!(id.raw(), 4 << 26 | 0b10 << 24 | 0x02 << 16 | 0xFF << 8 | 3);
         assert_eq!(id.raw(), 0x1202_FF03);
-        // A fault outranks everything we send.
+        // A fault outranks everything we send but the emergency stop, which outranks it too.
         let fault = FrameId::new(Service::Fault, 127, BROADCAST).raw();
+        let stop = FrameId::new(Service::EmergencyStop, 127, BROADCAST).raw();
+        assert_eq!(
+            FrameId::new(Service::EmergencyStop, TOOL, BROADCAST).raw(),
+            0x0200_FF00
+        );
+        assert!(stop < FrameId::new(Service::Fault, 1, 0).raw());
         for service in Service::ALL {
-            if service != Service::Fault {
+            if !matches!(service, Service::Fault | Service::EmergencyStop) {
                 assert!(fault < FrameId::new(service, 1, 0).raw());
+                assert!(stop < FrameId::new(service, 1, 0).raw());
             }
         }
+        // Service 0 is a service: its frames are ours, not an unknown code.
+        assert_eq!(
+            FrameId::from_raw(0x0200_0300).map(|id| id.service),
+            Some(Service::EmergencyStop)
+        );
     }
 
     #[test]

@@ -32,6 +32,14 @@ fn payload(service: Service) -> Vec<u8> {
         Service::Exploitation => vec![0, 0, 1, 0],
         Service::FilterProfile => vec![0; 4],
         Service::FilterSet => vec![0, 0, 1, 0, 0, 0],
+        Service::EmergencyStop | Service::SchemaAbort => vec![],
+        // A first frame announcing a 20-byte schema message, channel 0 (the queue).
+        Service::SchemaTransfer => vec![0x10, 20, 0, 1, 0, 2, 0, 0],
+        // Accepted on the queue, schema 1, one queued; schema 1 ended by its reaction 0, the
+        // wait for the queue installed; waiting on the queue, armed.
+        Service::SchemaAck => vec![0, 0, 1, 0, 1, 0, 0, 0],
+        Service::SchemaTransition => vec![1, 0, 0x00, 0xFF, 3, 0, 1, 0],
+        Service::SchemaState => vec![0x00, 0xFF, 1, 0xFF, 0, 1, 0, 0],
     }
 }
 
@@ -42,7 +50,10 @@ fn frame_with(service: Service, priority: u8) -> Frame {
         Service::DiagnosticControl
         | Service::TableTransfer
         | Service::ChallengeRequest
-        | Service::TransferOpen => protocol::TOOL,
+        | Service::TransferOpen
+        | Service::EmergencyStop
+        | Service::SchemaAbort
+        | Service::SchemaTransfer => protocol::TOOL,
         _ => 9,
     };
     let mut id = FrameId::new(service, source, Harness::NODE_ID);
@@ -116,13 +127,17 @@ fn a_frame_with_another_priority_than_its_services_is_refused_as_malformed() {
                 [[service.code(), 0, 0, 0, 0]],
                 "{service:?} at priority {priority}: BadCommand"
             );
-            // Never acted on: no flow control for a first frame, no diagnostic stream.
+            // Never acted on: no flow control for a first frame, no diagnostic stream, no answer
+            // to a schema, no schema change.
             let acted = h.messages_since(since).into_iter().any(|(_, _, message)| {
                 matches!(
                     message,
                     Message::TableTransfer { .. }
                         | Message::Diagnostic(_)
                         | Message::TransferStatus(_)
+                        | Message::SchemaTransfer { .. }
+                        | Message::SchemaAck(_)
+                        | Message::SchemaTransition(_)
                 )
             });
             assert!(!acted, "{service:?} at priority {priority}: acted on");

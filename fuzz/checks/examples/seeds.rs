@@ -77,6 +77,11 @@ fn main() {
             write(target.name, &format!("random-{i}"), &bytes);
         }
     }
+    // One frame and one message per protocol service.
+    for (service, decode, encode) in pab_fuzz_checks::protocol::service_seeds() {
+        write("protocol_decode", &format!("service-{service:?}"), &decode);
+        write("protocol_encode", &format!("service-{service:?}"), &encode);
+    }
     if wanted("ble") {
         script_seeds(
             &write,

@@ -8,8 +8,10 @@ use arbitrary::{Result, Unstructured};
 use embedded_can::{ExtendedId, Frame as _, Id, StandardId};
 use pab_core::Frame;
 use pab_core::protocol::{
-    self, DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Fault, FaultCode, FrameId,
-    Gates, Heartbeat, Message, NodeState, OPEN_REPLACE, Service, TableStatus, Traffic,
+    self, DesireFrame, DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Exploitation,
+    Fault, FaultCode, FilterProfile, FilterSet, FilterStatus, FrameId, Gates, Heartbeat, Intention,
+    Message, NodeState, OPEN_REPLACE, SchemaAck, SchemaChannel, SchemaOrigin, SchemaOutcome,
+    SchemaSafety, SchemaState, SchemaTransition, SchemaTrigger, Service, TableStatus, Traffic,
     TransferOpen, TransferStatus, TransferStatusCode,
 };
 
@@ -24,6 +26,9 @@ fn node_service(service: Service) -> bool {
             | Service::TransferOpen
             | Service::FilterProfile
             | Service::FilterSet
+            | Service::EmergencyStop
+            | Service::SchemaAbort
+            | Service::SchemaTransfer
     )
 }
 
@@ -96,6 +101,29 @@ pub fn encode(data: &[u8]) {
         );
         return;
     }
+    if let Message::SchemaTransition(change) = message
+        && !change.is_valid()
+    {
+        // A detail that contradicts its trigger: the decoder must refuse it.
+        assert_eq!(
+            decoded,
+            Err(protocol::DecodeError::Value {
+                service: Service::SchemaTransition
+            })
+        );
+        return;
+    }
+    if let Message::FilterStatus(status) = message
+        && !filter_status_valid(&status)
+    {
+        assert_eq!(
+            decoded,
+            Err(protocol::DecodeError::Value {
+                service: Service::FilterStatus
+            })
+        );
+        return;
+    }
     if let Message::DiagnosticControl(control) = message
         && control.rate_hz > DiagnosticControl::MAX_RATE_HZ
     {
@@ -112,7 +140,9 @@ pub fn encode(data: &[u8]) {
     assert_eq!(id, FrameId::new(message.service(), source, destination));
     assert_eq!(back, normalized(message));
     let len = match message {
-        Message::TableTransfer { len, .. } => usize::from(len),
+        Message::TableTransfer { len, .. } | Message::SchemaTransfer { len, .. } => {
+            usize::from(len)
+        }
         // DiagnosticControl's keyed form: the 4 bytes and the tag.
         Message::AuthenticatedDiagnosticControl { .. } => 8,
         _ => message.service().payload_len(),
@@ -132,8 +162,19 @@ fn normalized(message: Message) -> Message {
             data[usize::from(len)..].fill(0);
             Message::TableTransfer { data, len }
         }
+        Message::SchemaTransfer { mut data, len } => {
+            data[usize::from(len)..].fill(0);
+            Message::SchemaTransfer { data, len }
+        }
         other => other,
     }
+}
+
+/// FilterStatus's checks, as docs/can-protocol.md states them: a profile 0..=15 or 0xFF, no more
+/// closed and throttled filters than filtered ones.
+fn filter_status_valid(status: &FilterStatus) -> bool {
+    (status.profile < 16 || status.profile == FilterStatus::SET_ONE_BY_ONE)
+        && u16::from(status.closed) + u16::from(status.throttled) <= u16::from(status.filtered)
 }
 
 fn any_frame(u: &mut Unstructured<'_>) -> Result<Frame> {
@@ -166,7 +207,7 @@ fn pick<T: Copy>(u: &mut Unstructured<'_>, all: &[T]) -> Result<T> {
 }
 
 fn any_message(u: &mut Unstructured<'_>) -> Result<(Message, u8, u8)> {
-    let message = match u.int_in_range(0u8..=14)? {
+    let message = match u.int_in_range(0u8..=26)? {
         0 => Message::Fault(Fault {
             code: pick(u, FaultCode::ALL)?,
             count: u.arbitrary()?,
@@ -258,6 +299,79 @@ fn any_message(u: &mut Unstructured<'_>) -> Result<(Message, u8, u8)> {
                 changes: u.arbitrary()?,
             }
         }),
+        15 => Message::Desire(DesireFrame {
+            class: u.arbitrary()?,
+            intensity: u.arbitrary()?,
+            lease_ms: u.arbitrary()?,
+            id: u.arbitrary()?,
+        }),
+        16 => Message::Intention(Intention {
+            strategies: u.arbitrary()?,
+        }),
+        17 => Message::FilterStatus(FilterStatus {
+            profile: if u.ratio(1u8, 4)? {
+                FilterStatus::SET_ONE_BY_ONE
+            } else {
+                u.arbitrary()?
+            },
+            sequence: u.arbitrary()?,
+            filtered: u.arbitrary()?,
+            closed: u.arbitrary()?,
+            throttled: u.arbitrary()?,
+        }),
+        18 => Message::Exploitation(Exploitation {
+            port: u.arbitrary()?,
+            connection: u.arbitrary()?,
+            delivering: u.arbitrary()?,
+        }),
+        19 => Message::FilterProfile(FilterProfile {
+            profile: u.arbitrary()?,
+            sequence: u.arbitrary()?,
+        }),
+        20 => Message::FilterSet(FilterSet {
+            port: u.arbitrary()?,
+            connection: u.arbitrary()?,
+            phi: u.arbitrary()?,
+            sequence: u.arbitrary()?,
+        }),
+        21 => Message::EmergencyStop,
+        22 => Message::SchemaAbort,
+        23 => Message::SchemaTransfer {
+            data: u.arbitrary()?,
+            len: u.int_in_range(1..=8)?,
+        },
+        24 => Message::SchemaAck(SchemaAck {
+            outcome: pick(u, SchemaOutcome::ALL)?,
+            channel: if u.arbitrary()? {
+                Some(pick(u, SchemaChannel::ALL)?)
+            } else {
+                None
+            },
+            id: u.arbitrary()?,
+            queued: u.arbitrary()?,
+        }),
+        25 => Message::SchemaTransition(SchemaTransition {
+            ended: u.arbitrary()?,
+            installed: u.arbitrary()?,
+            trigger: pick(u, SchemaTrigger::ALL)?,
+            // Any byte: a detail that contradicts the trigger must be refused.
+            detail: if u.ratio(1u8, 4)? { 0 } else { u.arbitrary()? },
+            source: pick(u, SchemaOrigin::ALL)?,
+            queued: u.arbitrary()?,
+        }),
+        26 => Message::SchemaState(SchemaState {
+            current: u.arbitrary()?,
+            source: pick(u, SchemaOrigin::ALL)?,
+            fault: if u.arbitrary()? {
+                Some(pick(u, SchemaSafety::ALL)?)
+            } else {
+                None
+            },
+            queued: u.arbitrary()?,
+            armed: u.arbitrary()?,
+            gripper_closed: u.arbitrary()?,
+            elapsed_ms: u.arbitrary()?,
+        }),
         _ => Message::TransferStatus(TransferStatus {
             status: pick(u, TransferStatusCode::ALL)?,
             detail: u.arbitrary()?,
@@ -265,4 +379,97 @@ fn any_message(u: &mut Unstructured<'_>) -> Result<(Message, u8, u8)> {
         }),
     };
     Ok((message, u.arbitrary()?, u.arbitrary()?))
+}
+
+/// One input per service for each target, named after the service: the `protocol_decode` input
+/// makes a frame of that service at its priority with a well-formed payload, the
+/// `protocol_encode` input a message of that service (`DiagnosticControl`'s tagged form
+/// included), so that the replayed corpus exercises every service whatever campaigns keep.
+/// Returns `(service, decode input, encode input)`.
+pub fn service_seeds() -> Vec<(Service, Vec<u8>, Vec<u8>)> {
+    let filler: Vec<u8> = (0u8..64)
+        .map(|i| i.wrapping_mul(37).wrapping_add(11))
+        .collect();
+    let mut seeds: Vec<(Service, Vec<u8>, Vec<u8>)> = Vec::new();
+    // `any_message`'s first byte picks the variant (byte % 27).
+    for pick in 0u8..=26 {
+        let mut encode = vec![pick];
+        encode.extend_from_slice(&filler);
+        let Ok((message, source, destination)) = any_message(&mut Unstructured::new(&encode))
+        else {
+            continue;
+        };
+        let service = message.service();
+        if seeds.iter().any(|(seen, _, _)| *seen == service) {
+            continue;
+        }
+        // `any_frame`: not standard (1), ours (0), the priority, the service code, the two
+        // address bytes, then a length of its own (0, then the length), not remote (1), the
+        // payload.
+        let frame = message.to_frame(source, destination);
+        let payload = frame.payload();
+        let mut decode = vec![
+            1,
+            0,
+            service.priority().value(),
+            service.code(),
+            destination,
+            source,
+            0,
+            payload.len() as u8,
+            1,
+        ];
+        decode.extend_from_slice(payload);
+        seeds.push((service, decode, encode));
+    }
+    seeds
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_service_has_a_seed_in_the_committed_corpus() {
+        let seeds = service_seeds();
+        let corpus = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../corpus");
+        for service in Service::ALL {
+            let (_, decode_input, encode_input) = seeds
+                .iter()
+                .find(|(seen, _, _)| *seen == service)
+                .unwrap_or_else(|| panic!("no seed reaches {service:?}"));
+            // The decode input is a frame of the service at its priority, and a node or a tool
+            // reads its payload (no framing error).
+            let frame = any_frame(&mut Unstructured::new(decode_input)).unwrap();
+            let id = FrameId::decode(&frame.id()).unwrap();
+            assert_eq!(id.service, service);
+            assert!(id.has_service_priority());
+            assert!(
+                !matches!(
+                    Message::decode(&frame),
+                    Err(protocol::DecodeError::Length { .. }
+                        | protocol::DecodeError::Priority { .. }
+                        | protocol::DecodeError::Remote)
+                ),
+                "{service:?}"
+            );
+            decode(decode_input);
+            encode(encode_input);
+            for (target, input) in [
+                ("protocol_decode", decode_input),
+                ("protocol_encode", encode_input),
+            ] {
+                let path = corpus
+                    .join(target)
+                    .join(format!("seed-service-{service:?}"));
+                let committed = std::fs::read(&path).unwrap_or_else(|error| {
+                    panic!(
+                        "{}: {error} (cargo run -p pab-fuzz-checks --example seeds -- {target})",
+                        path.display()
+                    )
+                });
+                assert_eq!(&committed, input, "{}", path.display());
+            }
+        }
+    }
 }
