@@ -68,7 +68,9 @@ mod tests {
 
     #[test]
     fn fields_round_trip_and_saturate() {
-        for v in [0, 1, -1, 1000, -1000, FIELD_MAX, FIELD_MIN, 123_456, -654_321] {
+        for v in [
+            0, 1, -1, 1000, -1000, FIELD_MAX, FIELD_MIN, 123_456, -654_321,
+        ] {
             let frame = pack([v, -v.saturating_add(0).max(FIELD_MIN + 1), 7], true);
             let (values, flag) = unpack(&frame).unwrap();
             assert_eq!(values[0], v);

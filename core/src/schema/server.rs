@@ -321,6 +321,16 @@ impl Server {
         &self.current
     }
 
+    /// Where the installed schema came from.
+    pub fn origin(&self) -> Origin {
+        self.origin
+    }
+
+    /// Milliseconds from the installed schema's installation to `now` (0 if `now` is before).
+    pub fn elapsed_ms(&self, now: Instant) -> u64 {
+        now.micros_since(self.installed_at).unwrap_or(0) / 1000
+    }
+
     /// The safety event the server is stopped on, until the high-priority channel installs a
     /// schema.
     pub fn fault(&self) -> Option<Safety> {

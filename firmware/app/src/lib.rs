@@ -46,6 +46,8 @@ pub mod keying;
 pub mod node;
 pub mod replay;
 mod runner;
+#[cfg(feature = "schema")]
+pub mod schema;
 
 pub use auth::{CHALLENGE_LIFETIME_US, TAG_CHECKS_PER_SECOND};
 pub use bus::{BusError, CanBus};

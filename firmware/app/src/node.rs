@@ -163,7 +163,20 @@ pub struct Node<const P: usize, const C: usize, const N: usize, const IMG: usize
     /// Kept sorted by rank, highest first, equal ranks newest first: the next frame to send
     /// is the last one ([`Node::next_outgoing`] pops it).
     outbox: heapless::Vec<Frame, OUTBOX_LEN>,
+    /// The schema server of the running table, if it has one.
+    #[cfg(feature = "schema")]
+    schema: Option<crate::schema::SchemaRuntime>,
 }
+
+/// What the loader hands over besides the arbiter: the schema server's set-up, with the feature.
+#[cfg(feature = "schema")]
+type SchemaPart = Option<pab_core::schema::Setup>;
+/// What one call into the schema server sends: at most a tick's set-point (3 frames), its
+/// transitions (3) and their faults (3), a report.
+#[cfg(feature = "schema")]
+type SchemaOuts = heapless::Vec<crate::schema::Out, 12>;
+#[cfg(not(feature = "schema"))]
+type SchemaPart = ();
 
 impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C, N, IMG> {
     /// A node without a table, booted at `now`. Its first heartbeat goes out at once.
@@ -190,6 +203,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             filter_sequence: 0,
             exploited: [None; pab_core::MAX_PORTS],
             outbox: heapless::Vec::new(),
+            #[cfg(feature = "schema")]
+            schema: None,
         }
     }
 
@@ -236,11 +251,14 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         let bytes = self.receiver.buffer().get(..len).unwrap_or(&[]);
         let verdict = check_target(bytes, node_id)
             .and_then(|()| load::<P, C, N>(bytes))
-            .and_then(|(header, arbiter)| check_version(&header, None).map(|()| (header, arbiter)));
+            .and_then(|(header, arbiter, schema)| {
+                check_version(&header, None).map(|()| (header, arbiter, schema))
+            });
         match verdict {
-            Ok((header, arbiter)) => {
+            Ok((header, arbiter, schema)) => {
                 info!("booted with stored table version {}", header.table_version);
                 self.arbiter = Some(arbiter);
+                self.start_schema(schema, now);
                 self.running = Some(Running {
                     header,
                     image_len: u32::try_from(len).unwrap_or(u32::MAX),
@@ -308,6 +326,12 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 }
             }
         } else {
+            // The drive's pose and wrench are topics too: read by the schema server, and
+            // arbitrated like any frame.
+            #[cfg(feature = "schema")]
+            if let Some(runtime) = self.schema.as_mut() {
+                runtime.on_drive_frame(frame, now);
+            }
             self.arbitrate(frame, now, consumer);
             if let Some(arbiter) = self.arbiter.as_mut()
                 && arbiter.observes_frames()
@@ -514,6 +538,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         if self.arbiter.as_ref().is_some_and(Arbiter::has_filters) {
             self.exploitation(now);
         }
+        #[cfg(feature = "schema")]
+        self.schema_due(now);
     }
 
     /// HBBA's exploitation edges: for each port whose delivering connection (the one its
@@ -796,6 +822,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         );
         earlier(&mut deadline, self.faults.deadline());
         earlier(&mut deadline, self.store_due);
+        #[cfg(feature = "schema")]
+        earlier(&mut deadline, self.schema.as_ref().map(|s| s.deadline()));
         if let Some(arbiter) = self.arbiter.as_ref() {
             earlier(&mut deadline, self.diagnostic.deadline(now));
             earlier(&mut deadline, arbiter.deadline(now));
@@ -833,6 +861,12 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// The running table, if any.
     pub fn running(&self) -> Option<Running> {
         self.running
+    }
+
+    /// The running table's schema server, if it has one.
+    #[cfg(feature = "schema")]
+    pub fn schema(&self) -> Option<&crate::schema::SchemaRuntime> {
+        self.schema.as_ref()
     }
 
     /// The arbiter, if a table is running (read-only: for inspection and tests).
@@ -1023,7 +1057,102 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 self.filter_answer(result, [set.port, set.connection], set.sequence);
                 Step::Continue
             }
+            // The schema server's: stopping is accepted from anyone (docs/can-protocol.md,
+            // "Schema server"); a node without one ignores it.
+            #[cfg(feature = "schema")]
+            Message::EmergencyStop => {
+                if let Some(runtime) = self.schema.as_mut() {
+                    runtime.emergency_stop();
+                }
+                Step::Continue
+            }
+            #[cfg(feature = "schema")]
+            Message::SchemaAbort => {
+                if let Some(runtime) = self.schema.as_mut() {
+                    runtime.abort();
+                }
+                Step::Continue
+            }
+            // Point to point, as table transfers.
+            #[cfg(feature = "schema")]
+            Message::SchemaTransfer { data, len } if id.destination == node_id => {
+                let data = data.get(..usize::from(len)).unwrap_or(&data);
+                self.on_schema_transfer(id.source, data, now);
+                Step::Continue
+            }
             _ => Step::Continue,
+        }
+    }
+
+    /// Starts the schema server of the table that runs from `now`, or stops the previous
+    /// table's (a new table restarts it: its queue is the old table's business).
+    #[cfg(feature = "schema")]
+    fn start_schema(&mut self, setup: SchemaPart, now: Instant) {
+        self.schema =
+            setup.and_then(|s| crate::schema::SchemaRuntime::new(&s, self.config.isotp, now));
+    }
+
+    #[cfg(not(feature = "schema"))]
+    #[inline(always)]
+    fn start_schema(&mut self, _: SchemaPart, _: Instant) {}
+
+    /// A SchemaTransfer frame: to the server, or refused by a node that runs none.
+    #[cfg(feature = "schema")]
+    fn on_schema_transfer(&mut self, source: u8, data: &[u8], now: Instant) {
+        let keyed = self.guard.is_keyed();
+        let mut outs = SchemaOuts::new();
+        match self.schema.as_mut() {
+            Some(runtime) => runtime.on_transfer_frame(source, data, now, keyed, &mut |o| {
+                let _ = outs.push(o);
+            }),
+            // Only a message's first frame is answered: a multi-frame one gets no flow control.
+            None if matches!(
+                pab_core::isotp::pci::decode(data),
+                Ok((Pci::Single { .. } | Pci::First { .. }, _))
+            ) =>
+            {
+                self.send(
+                    Message::SchemaAck(protocol::SchemaAck {
+                        outcome: protocol::SchemaOutcome::NoServer,
+                        channel: None,
+                        id: protocol::SchemaAck::NO_ID,
+                        queued: 0,
+                    }),
+                    source,
+                );
+            }
+            None => {}
+        }
+        self.schema_outs(outs);
+    }
+
+    /// The schema server's work due by `now` (a tick, its reports).
+    #[cfg(feature = "schema")]
+    #[inline]
+    fn schema_due(&mut self, now: Instant) {
+        let Some(runtime) = self.schema.as_mut() else {
+            return;
+        };
+        if now.micros_since(runtime.deadline()).is_none() {
+            return;
+        }
+        let mut outs = SchemaOuts::new();
+        runtime.poll(now, &mut |o| {
+            let _ = outs.push(o);
+        });
+        self.schema_outs(outs);
+    }
+
+    #[cfg(feature = "schema")]
+    fn schema_outs(&mut self, outs: SchemaOuts) {
+        for out in outs {
+            match out {
+                crate::schema::Out::Drive(frame) => self.queue(frame),
+                crate::schema::Out::Protocol(message, destination) => {
+                    self.send(message, destination)
+                }
+                crate::schema::Out::Fault(code, detail) => self.raise(code, detail),
+            }
         }
     }
 
@@ -1209,8 +1338,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                     None => (nonce, flags),
                 };
                 match nonce {
-                    Some(nonce) => self.apply_authenticated(source, len, nonce, flags),
-                    None => self.apply(source, len, None, 0),
+                    Some(nonce) => self.apply_authenticated(source, len, nonce, flags, now),
+                    None => self.apply(source, len, None, 0, now),
                 }
             }
         }
@@ -1218,7 +1347,14 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
 
     /// A complete authenticated message: the image and its MAC. The MAC is checked first, before
     /// anything in the image is read.
-    fn apply_authenticated(&mut self, source: u8, len: usize, nonce: u64, flags: u8) -> Step {
+    fn apply_authenticated(
+        &mut self,
+        source: u8,
+        len: usize,
+        nonce: u64,
+        flags: u8,
+        now: Instant,
+    ) -> Step {
         let node_id = self.config.node_id;
         let image_len = len.checked_sub(IMAGE_MAC_LEN);
         let verified = image_len.is_some_and(|image_len| {
@@ -1229,7 +1365,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             }
         });
         match image_len {
-            Some(image_len) if verified => self.apply(source, image_len, Some(nonce), flags),
+            Some(image_len) if verified => self.apply(source, image_len, Some(nonce), flags, now),
             _ => {
                 self.refuse(source, TransferStatusCode::Unauthenticated, 0, Some(nonce));
                 Step::Continue
@@ -1239,7 +1375,14 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
 
     /// Checks a complete image in the documented order (header, node id, CRC and loader, then
     /// version) and, if it passes, swaps it in.
-    fn apply(&mut self, source: u8, len: usize, nonce: Option<u64>, flags: u8) -> Step {
+    fn apply(
+        &mut self,
+        source: u8,
+        len: usize,
+        nonce: Option<u64>,
+        flags: u8,
+        now: Instant,
+    ) -> Step {
         let bytes = self.receiver.buffer().get(..len).unwrap_or(&[]);
         // The keyed version reset: the key holder may replace any running version.
         let running = if flags & OPEN_REPLACE != 0 && nonce.is_some() {
@@ -1249,11 +1392,12 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         };
         let verdict = check_target(bytes, self.config.node_id)
             .and_then(|()| load::<P, C, N>(bytes))
-            .and_then(|(header, arbiter)| {
-                check_version(&header, running).map(|()| (header, arbiter))
+            .and_then(|(header, arbiter, schema)| {
+                check_version(&header, running).map(|()| (header, arbiter, schema))
             });
         match verdict {
-            Ok((header, mut arbiter)) => {
+            Ok((header, mut arbiter, schema)) => {
+                self.start_schema(schema, now);
                 // The connections the new table leaves unchanged go on where they are (a re-push
                 // of the same rules is no blackout); the others start at S = 0.
                 if let Some(previous) = self.arbiter.as_ref() {
@@ -1523,10 +1667,14 @@ fn check_version(
 /// Loads and validates an image for this node's capacities, and builds its arbiter.
 fn load<const P: usize, const C: usize, const N: usize>(
     bytes: &[u8],
-) -> Result<(Header, Arbiter<P, C, N>), (TransferStatusCode, u8)> {
+) -> Result<(Header, Arbiter<P, C, N>, SchemaPart), (TransferStatusCode, u8)> {
     let loaded = image::load::<P, C, N>(bytes).map_err(|error| status_of(&error))?;
+    #[cfg(feature = "schema")]
+    let schema = loaded.table.schema().cloned();
+    #[cfg(not(feature = "schema"))]
+    let schema = ();
     let arbiter = Arbiter::new(loaded.table).map_err(|_| (TransferStatusCode::InvalidTable, 0))?;
-    Ok((loaded.header, arbiter))
+    Ok((loaded.header, arbiter, schema))
 }
 
 /// The transfer status (and detail byte) a loader error maps to.

@@ -1,0 +1,277 @@
+//! The schema server on a node: `pab_core::schema::Server` ticked at its period, schemas taken
+//! over ISO-TP, the emergency stop and the abort, the drive's frames in and out, and the
+//! server's reports (docs/can-protocol.md, "Schema server").
+//!
+//! Sans-I/O like the node: frames and the time go in, frames to send come out through a sink
+//! ([`Out`]); the node routes them into its outbox. What a tick decides is the server's.
+//!
+//! Timing: the node calls [`SchemaRuntime::poll`] whenever its deadline passes, which includes
+//! [`SchemaRuntime::deadline`], the next tick. A late call runs one tick at the time it is
+//! called (never a burst of catch-up ticks: the attractor would jump), and the server sees the
+//! gap: beyond the overrun bound, that is its overrun safety event.
+
+use pab_core::isotp::{self, RxEvent};
+use pab_core::protocol::{
+    FaultCode, Message, SchemaAck, SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety,
+    SchemaState, SchemaTransition,
+};
+use pab_core::schema::{
+    self, AXES, Drive, MAX_ENCODED, Pose, Schema, Server, Setpoint, Setup, drive,
+};
+use pab_core::{Frame, Instant, OutputId};
+
+/// The longest SchemaTransfer message: the channel byte and a schema.
+pub const TRANSFER_LEN: usize = MAX_ENCODED + 1;
+/// SchemaState and the impedance frame go out this often, µs.
+const REPORT_PERIOD_US: u64 = 100_000;
+
+/// What the runtime asks the node to send or raise.
+pub enum Out {
+    /// A frame on the drive's identifiers.
+    Drive(Frame),
+    /// A frame of our protocol, to a destination (0xFF: all).
+    Protocol(Message, u8),
+    /// A fault (rate-limited by the node).
+    Fault(FaultCode, [u8; 5]),
+}
+
+/// A node's schema server.
+pub struct SchemaRuntime {
+    server: Server,
+    drive: Drive,
+    /// The pose as its two frames last said (translation, rotation).
+    pose: Pose,
+    wrench: Pose,
+    next_tick: Instant,
+    next_report: Instant,
+    /// The impedance last sent.
+    impedance: Option<(u32, u32)>,
+    receiver: isotp::Receiver<TRANSFER_LEN>,
+    /// The source of the transfer in progress.
+    sender: Option<u8>,
+}
+
+impl SchemaRuntime {
+    /// The runtime of `setup`, its first tick at `now`; `None` when the set-up is refused (the
+    /// loader checked it: not expected).
+    pub fn new(setup: &Setup, isotp: isotp::RxConfig, now: Instant) -> Option<SchemaRuntime> {
+        let server = Server::new(setup.config.clone()).ok()?;
+        Some(SchemaRuntime {
+            server,
+            drive: setup.drive,
+            pose: [0; AXES],
+            wrench: [0; AXES],
+            next_tick: now,
+            next_report: now,
+            impedance: None,
+            receiver: isotp::Receiver::new(isotp),
+            sender: None,
+        })
+    }
+
+    /// The server.
+    pub fn server(&self) -> &Server {
+        &self.server
+    }
+
+    /// When the runtime next has work: the next tick (or the transfer's N_Cr, if sooner).
+    pub fn deadline(&self) -> Instant {
+        match self.receiver.deadline() {
+            Some(d) if d.micros_since(self.next_tick).is_none() => d,
+            _ => self.next_tick,
+        }
+    }
+
+    /// A frame that is not ours: the drive's pose or wrench, read. Returns whether it was one.
+    pub fn on_drive_frame(&mut self, frame: &Frame, now: Instant) -> bool {
+        let (raw, extended) = frame.raw_id();
+        let offset = |base: OutputId| {
+            (base.is_extended() == extended)
+                .then(|| raw.checked_sub(base.raw()))
+                .flatten()
+                .filter(|o| *o < 2)
+        };
+        let Some((values, _)) = drive::unpack(frame.payload()) else {
+            return false;
+        };
+        if let Some(o) = offset(self.drive.pose) {
+            drive::place(&mut self.pose, 3 * o as usize, values);
+            self.server.set_pose(self.pose, now);
+            true
+        } else if let Some(o) = offset(self.drive.wrench) {
+            drive::place(&mut self.wrench, 3 * o as usize, values);
+            self.server.set_wrench(self.wrench, now);
+            true
+        } else {
+            false
+        }
+    }
+
+    /// An EmergencyStop frame: handled at the next tick.
+    pub fn emergency_stop(&mut self) {
+        self.server.emergency_stop();
+    }
+
+    /// A SchemaAbort frame: handled at the next tick.
+    pub fn abort(&mut self) {
+        self.server.abort();
+    }
+
+    /// One ISO-TP frame of a SchemaTransfer from `source`. `keyed`: the node has a key, and
+    /// refuses schemas (they need authentication, which schema transfers do not have yet).
+    pub fn on_transfer_frame(
+        &mut self,
+        source: u8,
+        data: &[u8],
+        now: Instant,
+        keyed: bool,
+        out: &mut impl FnMut(Out),
+    ) {
+        // One transfer at a time: another sender's frames wait until it ends (N_Cr).
+        if self.sender.is_some_and(|s| s != source) && self.receiver.in_progress().is_some() {
+            return;
+        }
+        let outcome = self.receiver.on_frame(data, now);
+        let ack = |outcome: SchemaOutcome, channel: u8, id: u16, queued: usize| {
+            Message::SchemaAck(SchemaAck {
+                outcome,
+                channel: SchemaChannel::from_code(channel),
+                id,
+                queued: queued.min(usize::from(u8::MAX)) as u8,
+            })
+        };
+        match outcome.event {
+            RxEvent::SendFlowControl(fc) => {
+                self.sender = Some(source);
+                out(Out::Protocol(transfer(fc), source));
+            }
+            RxEvent::Refused { flow_control, .. } => {
+                if let Some(fc) = flow_control {
+                    out(Out::Protocol(transfer(fc), source));
+                }
+                let queued = self.server.queued();
+                out(Out::Protocol(
+                    ack(SchemaOutcome::TooLong, 0xFF, 0xFFFF, queued),
+                    source,
+                ));
+            }
+            RxEvent::Complete(message) => {
+                self.sender = None;
+                let (channel, bytes) = match message.split_first() {
+                    Some((c, rest)) => (*c, rest),
+                    None => (0xFF, &[][..]),
+                };
+                let decoded = Schema::decode(bytes);
+                let id = decoded.as_ref().map_or(0xFFFF, |s| s.id);
+                let verdict = if keyed {
+                    Err(SchemaOutcome::Unauthenticated)
+                } else {
+                    match (channel, decoded) {
+                        (0 | 1, Err(e)) => Err(SchemaOutcome::from(&e)),
+                        (0, Ok(s)) => self
+                            .server
+                            .enqueue(s)
+                            .map(|_| ())
+                            .map_err(|r| SchemaOutcome::from(&r)),
+                        (1, Ok(s)) => self
+                            .server
+                            .high_priority(s)
+                            .map_err(|r| SchemaOutcome::from(&r)),
+                        _ => Err(SchemaOutcome::BadChannel),
+                    }
+                };
+                let outcome = verdict.err().unwrap_or(SchemaOutcome::Accepted);
+                let queued = self.server.queued();
+                out(Out::Protocol(ack(outcome, channel, id, queued), source));
+            }
+            RxEvent::Nothing | RxEvent::Ignored(_) => {}
+        }
+        if outcome.aborted.is_some() {
+            self.sender = None;
+        }
+    }
+
+    /// The work due by `now`: a tick (its set-point frames, its transitions and faults), the
+    /// periodic reports, a transfer's timeout.
+    pub fn poll(&mut self, now: Instant, out: &mut impl FnMut(Out)) {
+        if self.receiver.poll(now).is_some() {
+            self.sender = None;
+        }
+        if now.micros_since(self.next_tick).is_none() {
+            return;
+        }
+        let period = u64::from(self.server.config().period_us);
+        // The next tick a period after this one's due time, unless this one is late by more
+        // than a period: then a period after now (no burst of catch-up ticks).
+        let due = self.next_tick.wrapping_add_micros(period);
+        self.next_tick = if now.micros_since(due).is_some() {
+            now.wrapping_add_micros(period)
+        } else {
+            due
+        };
+        let tick = self.server.tick(now);
+        for t in &tick.transitions {
+            if let schema::Trigger::Safety(cause) = t.by {
+                out(Out::Fault(
+                    FaultCode::SchemaSafety,
+                    FaultCode::schema_safety_detail(cause, t.ended),
+                ));
+            }
+            let queued = self.server.queued();
+            out(Out::Protocol(
+                Message::SchemaTransition(SchemaTransition::from_transition(t, queued)),
+                0xFF,
+            ));
+        }
+        if let Some(s) = tick.setpoint {
+            self.send_setpoint(&s, now, out);
+        }
+        if now.micros_since(self.next_report).is_some() {
+            self.next_report = now.wrapping_add_micros(REPORT_PERIOD_US);
+            let elapsed = self.server.elapsed_ms(now);
+            out(Out::Protocol(
+                Message::SchemaState(SchemaState {
+                    current: self.server.current(),
+                    source: SchemaOrigin::from(self.server.origin()),
+                    fault: self.server.fault().map(SchemaSafety::from),
+                    queued: self.server.queued().min(255) as u8,
+                    armed: tick.setpoint.is_some(),
+                    gripper_closed: tick
+                        .setpoint
+                        .is_some_and(|s| s.gripper == schema::Gripper::Closed),
+                    elapsed_ms: SchemaState::saturate_ms(elapsed),
+                }),
+                0xFF,
+            ));
+        }
+    }
+
+    /// The attractor's two frames every tick; the impedance's when it changed and with every
+    /// report.
+    fn send_setpoint(&mut self, s: &Setpoint, now: Instant, out: &mut impl FnMut(Out)) {
+        let base = self.drive.setpoint;
+        let frame = |offset: u32, data: &[u8; 8]| {
+            Frame::with_raw_id(base.raw().saturating_add(offset), base.is_extended(), data)
+        };
+        let [translation, rotation] = drive::attractor_frames(s);
+        for (offset, data) in [(0, translation), (1, rotation)] {
+            if let Some(f) = frame(offset, &data) {
+                out(Out::Drive(f));
+            }
+        }
+        let impedance = (s.stiffness, s.damping);
+        if self.impedance != Some(impedance) || now.micros_since(self.next_report).is_some() {
+            self.impedance = Some(impedance);
+            if let Some(f) = frame(2, &drive::impedance_frame(s)) {
+                out(Out::Drive(f));
+            }
+        }
+    }
+}
+
+fn transfer(flow_control: [u8; 8]) -> Message {
+    Message::SchemaTransfer {
+        data: flow_control,
+        len: 8,
+    }
+}

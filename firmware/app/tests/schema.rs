@@ -1,0 +1,332 @@
+//! The schema server on a node (docs/can-protocol.md, "Schema server"), on the in-process bus:
+//! schemas over ISO-TP answered with SchemaAck, the loop ticked at its period with the drive's
+//! set-point on the bus every tick, transitions and faults reported, the emergency stop halting
+//! within one period, abort, SchemaState every 100 ms, and the refusals.
+
+mod common;
+
+use common::*;
+use pab_core::Instant;
+use pab_core::isotp::{Sender, TxConfig, TxEvent};
+use pab_core::protocol::{
+    BROADCAST, FaultCode, Message, SchemaAck, SchemaChannel, SchemaOrigin, SchemaOutcome,
+    SchemaSafety, SchemaTransition, SchemaTrigger, TOOL,
+};
+use pab_core::schema::{Config, Drive, Schema, Setup, build, drive};
+use pab_core::{Frame, OutputId};
+
+const SETPOINT: u32 = 0x300;
+const POSE: u32 = 0x310;
+const WRENCH: u32 = 0x320;
+
+fn setup() -> Setup {
+    let mut config = Config::new(1000);
+    config.workspace_min = [-500_000; 6];
+    config.workspace_max = [500_000; 6];
+    Setup {
+        config,
+        drive: Drive {
+            setpoint: OutputId::new(SETPOINT, false).unwrap(),
+            pose: OutputId::new(POSE, false).unwrap(),
+            wrench: OutputId::new(WRENCH, false).unwrap(),
+        },
+    }
+}
+
+fn schema_table() -> TestTable {
+    let mut table = priority_table(&[TOPIC_A], None);
+    table.set_schema(Some(setup()));
+    table
+}
+
+fn booted() -> Harness {
+    Harness::boot(Some(&image(&schema_table(), Harness::NODE_ID, 1)))
+}
+
+/// The drive reports `pose` (translation, rotation 0) and no force.
+fn report(h: &mut Harness, pose: [i32; 3]) {
+    h.feed(&frame(POSE, &drive::pack(pose, false)));
+    h.feed(&frame(POSE + 1, &drive::pack([0; 3], false)));
+    h.feed(&frame(WRENCH, &drive::pack([0; 3], false)));
+    h.feed(&frame(WRENCH + 1, &drive::pack([0; 3], false)));
+}
+
+/// Sends `schema` on `channel` from the tool over ISO-TP (SchemaTransfer), one frame per 100 µs,
+/// answering the node's flow control; returns the SchemaAck.
+fn send(h: &mut Harness, channel: u8, schema: &Schema) -> SchemaAck {
+    let mut message = vec![channel];
+    let mut buf = [0u8; 300];
+    message.extend_from_slice(postcard::to_slice(schema, &mut buf).unwrap());
+    send_bytes(h, &message)
+}
+
+fn send_bytes(h: &mut Harness, message: &[u8]) -> SchemaAck {
+    let since = h.now;
+    let mut sender = Sender::new(message, TxConfig::default()).unwrap();
+    let mut seen = h.sent.len();
+    for _ in 0..1000 {
+        match sender.poll(Instant::from_micros(h.now)) {
+            TxEvent::Send(data) => {
+                let frame =
+                    Message::SchemaTransfer { data, len: 8 }.to_frame(TOOL, Harness::NODE_ID);
+                h.feed(&frame);
+                h.advance_to(h.now + 100);
+            }
+            TxEvent::WaitUntil(until) => {
+                let mut answered = false;
+                while seen < h.sent.len() {
+                    let (_, frame) = h.sent[seen];
+                    seen += 1;
+                    if let Ok((id, Message::SchemaTransfer { data, len })) = Message::decode(&frame)
+                        && id.destination == TOOL
+                    {
+                        let _ = sender.on_flow_control(
+                            &data[..usize::from(len)],
+                            Instant::from_micros(h.now),
+                        );
+                        answered = true;
+                    }
+                }
+                if !answered {
+                    h.advance_to(until.as_micros().max(h.now + 100));
+                }
+            }
+            TxEvent::Done | TxEvent::Failed(_) => break,
+        }
+    }
+    acks(h, since).pop().expect("a SchemaAck")
+}
+
+fn acks(h: &Harness, since: u64) -> Vec<SchemaAck> {
+    h.messages_since(since)
+        .into_iter()
+        .filter_map(|(_, id, m)| match m {
+            Message::SchemaAck(a) if id.destination == TOOL => Some(a),
+            _ => None,
+        })
+        .collect()
+}
+
+fn transitions(h: &Harness, since: u64) -> Vec<(u64, SchemaTransition)> {
+    h.messages_since(since)
+        .into_iter()
+        .filter_map(|(t, id, m)| match m {
+            Message::SchemaTransition(tr) if id.destination == BROADCAST => Some((t, tr)),
+            _ => None,
+        })
+        .collect()
+}
+
+/// The attractor frames the node sent since `since`: (time, x, y, z, gripper closed).
+fn attractors(h: &Harness, since: u64) -> Vec<(u64, [i32; 3], bool)> {
+    h.sent
+        .iter()
+        .filter(|(t, f)| *t >= since && f.raw_id() == (SETPOINT, false))
+        .map(|(t, f)| {
+            let (values, flag) = drive::unpack(f.payload()).unwrap();
+            (*t, values, flag)
+        })
+        .collect()
+}
+
+#[test]
+fn a_queued_schema_is_acknowledged_installed_and_drives_the_attractor_every_tick() {
+    let mut h = booted();
+    report(&mut h, [1000, 0, 0]);
+    h.advance_to(h.now + 5_000);
+    let ack = send(
+        &mut h,
+        0,
+        &build::move_to(7, [1000 + 50, 0, 0, 0, 0, 0], 1000),
+    );
+    assert_eq!(ack.outcome, SchemaOutcome::Accepted);
+    assert_eq!((ack.channel, ack.id), (Some(SchemaChannel::Queue), 7));
+    let from = h.now;
+    // The drive follows the attractor.
+    for _ in 0..80 {
+        let target = attractors(&h, 0).last().map_or([1000, 0, 0], |a| a.1);
+        report(&mut h, target);
+        h.advance_to(h.now + 1000);
+    }
+    let tr = transitions(&h, from);
+    assert_eq!(tr[0].1.ended, Schema::WAIT_QUEUE);
+    assert_eq!(tr[0].1.installed, 7);
+    assert_eq!(tr[0].1.source, SchemaOrigin::Queue);
+    assert_eq!(tr[1].1.ended, 7, "done, back to the wait: {tr:?}");
+    assert_eq!(tr[1].1.trigger, SchemaTrigger::Reaction, "{tr:?}");
+    assert_eq!(tr[1].1.trigger, SchemaTrigger::Reaction);
+    // One attractor frame per 1 ms tick, 1 µm a tick at 1 mm/s, ending on the goal.
+    let a = attractors(&h, tr[0].0);
+    assert!(a.len() >= 60, "{}", a.len());
+    for w in a.windows(2).take(40) {
+        assert_eq!(w[1].0 - w[0].0, 1000, "{w:?}");
+    }
+    let xs: Vec<i32> = a.iter().map(|a| a.1[0]).collect();
+    assert_eq!(&xs[..5], &[1001, 1002, 1003, 1004, 1005]);
+    assert_eq!(*xs.last().unwrap(), 1050);
+    // The rotation and impedance frames are there too.
+    assert!(
+        h.sent
+            .iter()
+            .any(|(_, f)| f.raw_id() == (SETPOINT + 1, false))
+    );
+    assert!(
+        h.sent
+            .iter()
+            .any(|(_, f)| f.raw_id() == (SETPOINT + 2, false))
+    );
+}
+
+#[test]
+fn an_emergency_stop_halts_within_one_period_and_raises_its_fault() {
+    let mut h = booted();
+    report(&mut h, [0, 0, 0]);
+    h.advance_to(h.now + 2_000);
+    send(
+        &mut h,
+        0,
+        &build::move_to(1, [100_000, 0, 0, 0, 0, 0], 50_000),
+    );
+    for _ in 0..20 {
+        let last = attractors(&h, 0).last().unwrap().1;
+        report(&mut h, [last[0] - 30, 0, 0]);
+        h.advance_to(h.now + 1000);
+    }
+    let measured = attractors(&h, 0).last().unwrap().1[0] - 30;
+    report(&mut h, [measured, 0, 0]);
+    h.advance_to(h.now + 300);
+    let stop_at = h.now;
+    h.feed(&Message::EmergencyStop.to_frame(TOOL, BROADCAST));
+    h.advance_to(h.now + 5_000);
+    let tr = transitions(&h, stop_at);
+    let (t, stop) = tr[0];
+    assert!(
+        t - stop_at <= 1000,
+        "halted {} µs after the frame",
+        t - stop_at
+    );
+    assert_eq!(stop.trigger, SchemaTrigger::Safety);
+    assert_eq!(stop.safety(), Some(SchemaSafety::EmergencyStop));
+    assert_eq!(stop.installed, Schema::SAFETY);
+    // The halting tick's set-point is the measured pose, and stays there.
+    let after = attractors(&h, t);
+    assert_eq!(after[0].1[0], measured);
+    assert!(after.iter().all(|a| a.1[0] == measured));
+    let fault = h
+        .messages_since(stop_at)
+        .into_iter()
+        .find_map(|(_, _, m)| match m {
+            Message::Fault(f) if f.code == FaultCode::SchemaSafety => Some(f),
+            _ => None,
+        })
+        .expect("a SchemaSafety fault");
+    assert_eq!(fault.detail, [0, 1, 0, 0, 0]);
+    // Then the wait for the high-priority channel.
+    assert_eq!(tr[1].1.installed, Schema::WAIT_HIGH_PRIORITY);
+}
+
+#[test]
+fn abort_and_the_high_priority_channel() {
+    let mut h = booted();
+    report(&mut h, [0, 0, 0]);
+    h.advance_to(h.now + 2_000);
+    send(&mut h, 0, &build::idle(1, 0));
+    send(&mut h, 0, &build::idle(2, 0));
+    let since = h.now;
+    h.feed(&Message::SchemaAbort.to_frame(TOOL, Harness::NODE_ID));
+    h.advance_to(h.now + 2_000);
+    let tr = transitions(&h, since);
+    assert_eq!(tr[0].1.trigger, SchemaTrigger::Abort);
+    assert_eq!(tr[0].1.installed, Schema::WAIT_HIGH_PRIORITY);
+    assert_eq!(tr[0].1.queued, 0);
+    let since = h.now;
+    let ack = send(&mut h, 1, &build::idle(9, 0));
+    assert_eq!(
+        (ack.outcome, ack.channel),
+        (SchemaOutcome::Accepted, Some(SchemaChannel::HighPriority))
+    );
+    h.advance_to(h.now + 2_000);
+    let tr = transitions(&h, since);
+    assert_eq!(
+        (tr[0].1.installed, tr[0].1.trigger),
+        (9, SchemaTrigger::HighPriority)
+    );
+}
+
+#[test]
+fn bad_schemas_are_refused_with_their_reason_and_a_full_queue_refuses() {
+    let mut h = booted();
+    report(&mut h, [0, 0, 0]);
+    // A move keeps the queue from running.
+    send(&mut h, 1, &build::move_to(1, [400_000, 0, 0, 0, 0, 0], 1));
+    let ack = send_bytes(&mut h, &[0, 1, 2, 3]);
+    assert_eq!(ack.outcome, SchemaOutcome::Malformed);
+    let mut reserved = build::idle(1, 0);
+    reserved.id = 0xFF00;
+    assert_eq!(
+        send(&mut h, 0, &reserved).outcome,
+        SchemaOutcome::ReservedId
+    );
+    assert_eq!(
+        send(&mut h, 2, &build::idle(3, 0)).outcome,
+        SchemaOutcome::BadChannel
+    );
+    let mut innate = build::idle(4, 0);
+    innate.reactions[0].next = pab_core::schema::Source::Innate(0);
+    assert_eq!(
+        send(&mut h, 0, &innate).outcome,
+        SchemaOutcome::UnknownInnate
+    );
+    for k in 0..8u16 {
+        let ack = send(&mut h, 0, &build::idle(10 + k, 0));
+        assert_eq!(
+            (ack.outcome, ack.queued),
+            (SchemaOutcome::Accepted, k as u8 + 1)
+        );
+    }
+    let ack = send(&mut h, 0, &build::idle(20, 0));
+    assert_eq!(
+        (ack.outcome, ack.queued, ack.id),
+        (SchemaOutcome::QueueFull, 8, 20)
+    );
+}
+
+#[test]
+fn a_node_without_a_schema_server_or_with_a_key_refuses_schemas() {
+    let mut h = Harness::boot(Some(&image(
+        &priority_table(&[TOPIC_A], None),
+        Harness::NODE_ID,
+        1,
+    )));
+    assert_eq!(
+        send(&mut h, 0, &build::idle(1, 0)).outcome,
+        SchemaOutcome::NoServer
+    );
+    let key = pab_core::auth::Key::from_bytes([7; 16]);
+    let mut h = Harness::boot_keyed(Some(&image(&schema_table(), Harness::NODE_ID, 1)), &key, 1);
+    let ack = send(&mut h, 0, &build::idle(1, 0));
+    assert_eq!((ack.outcome, ack.id), (SchemaOutcome::Unauthenticated, 1));
+}
+
+#[test]
+fn the_state_is_streamed_every_100_ms() {
+    let mut h = booted();
+    report(&mut h, [0, 0, 0]);
+    let since = h.now;
+    h.advance_to(h.now + 1_000_000);
+    let states: Vec<(u64, pab_core::protocol::SchemaState)> = h
+        .messages_since(since)
+        .into_iter()
+        .filter_map(|(t, _, m)| match m {
+            Message::SchemaState(s) => Some((t, s)),
+            _ => None,
+        })
+        .collect();
+    assert!((10..=11).contains(&states.len()), "{}", states.len());
+    for w in states.windows(2) {
+        assert_eq!(w[1].0 - w[0].0, 100_000);
+    }
+    assert_eq!(states[0].1.current, Schema::WAIT_QUEUE);
+    assert!(states.last().unwrap().1.armed);
+    let _ = Frame::empty();
+}
