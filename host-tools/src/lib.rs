@@ -3,15 +3,18 @@
 //! The network language (read, check, compile, simulate, replay, DBC) is the `pab-lang` crate;
 //! this one adds what a workstation does with it: draws its plots ([`plot`]), and on a live bus
 //! ([`bus`]) pushes tables to the nodes ([`push`]), lists them ([`observe`]) and shows their
-//! arbitration as it happens ([`monitor`]). Key files ([`keys`]) and the command line's numbers
-//! ([`args`]) are here too, and `pabctl solve`'s report of HBBA's intention solver
-//! ([`solve`]).
+//! arbitration as it happens ([`monitor`]); a schema server's client ([`client`]) and the
+//! simulated robot in front of its board ([`plant`]). Key files ([`keys`]) and the command
+//! line's numbers ([`args`]) are here too, and `pabctl solve`'s report of HBBA's intention
+//! solver ([`solve`]).
 
 pub mod args;
 pub mod bus;
+pub mod client;
 pub mod keys;
 pub mod monitor;
 pub mod observe;
+pub mod plant;
 pub mod plot;
 pub mod push;
 pub mod solve;

@@ -313,6 +313,53 @@ is reported with the reason, and the command fails (exit status 4) after trying 
         #[arg(long, requires = "key")]
         replace: bool,
     },
+    /// Run the simulated robot of a schema server's board on a live bus.
+    #[command(long_about = "\
+Run the file's [plant] (the simulator's robot: an impedance-controlled end-effector over a plate \
+with holes, parts, a wrist force sensor) on --iface in real time, in front of the board of its \
+[client]: every period it reads the board's set-point frames (the drive's frames of \
+[schema.NODE] `drive`: attractor, rotation, impedance, gripper), integrates the model for one \
+period and publishes the measured pose and wrench. Until --duration or Ctrl-C; then prints the \
+parts inserted. --log writes one CSV row per step: t,x,y,z,attractor_x,attractor_y,attractor_z,\
+force_n,inserted (µm, N).")]
+    Plant {
+        /// The network file (TOML).
+        network: PathBuf,
+        /// The CAN interface (vcan0, can0...).
+        #[arg(long)]
+        iface: String,
+        /// Stop after this many seconds (default: until interrupted).
+        #[arg(long, value_name = "SECONDS", value_parser = args::seconds)]
+        duration: Option<f64>,
+        /// The step, ms (default: the board's period).
+        #[arg(long, value_name = "MS", value_parser = args::seconds)]
+        period_ms: Option<f64>,
+        /// Write every step as CSV.
+        #[arg(long, value_name = "FILE.csv")]
+        log: Option<PathBuf>,
+    },
+    /// Send the file's client program to a live schema server and follow it.
+    #[command(long_about = "\
+Send the calls of the file's [client] program to its board on --iface, over ISO-TP, each as the \
+queue takes it (8 deep), and follow the board's SchemaTransition frames until the last call has \
+ended or a safety event stops the board. Prints one line per installed schema; --trace writes \
+them as `pabctl sim --schema-trace` does (t,node,schema,source,event), so a live run and a \
+simulated one compare line by line. Exits 1 when a safety event stopped the board, 4 when the \
+board refused a call or did not answer. The timed [[client.commands]] are the simulator's: \
+not sent here.")]
+    Run {
+        /// The network file (TOML).
+        network: PathBuf,
+        /// The CAN interface (vcan0, can0...).
+        #[arg(long)]
+        iface: String,
+        /// Give up after this many seconds.
+        #[arg(long, value_name = "SECONDS", default_value = "600", value_parser = args::seconds)]
+        timeout: f64,
+        /// Write the installed schemas as CSV.
+        #[arg(long, value_name = "FILE.csv")]
+        trace: Option<PathBuf>,
+    },
     /// Create a node key file (32 hexadecimal characters, mode 0600).
     #[command(long_about = "\
 Write a new random 128-bit key (from /dev/urandom) to FILE as 32 hexadecimal characters and a \
@@ -427,6 +474,8 @@ enum Failure {
     Input(Diagnostics),
     Output(String),
     Bus(String),
+    /// A live schema server stopped on a safety event (exit status 1, like a verdict).
+    Stopped(String),
 }
 
 /// A reader that goes away (`pabctl sim NET.toml | head`) ends pabctl quietly, as it ends any
@@ -515,6 +564,19 @@ fn main() -> ExitCode {
             key.as_deref(),
             replace,
         ),
+        Command::Plant {
+            network,
+            iface,
+            duration,
+            period_ms,
+            log,
+        } => run_plant(&network, &iface, duration, period_ms, log.as_deref()),
+        Command::Run {
+            network,
+            iface,
+            timeout,
+            trace,
+        } => run_client_program(&network, &iface, timeout, trace.as_deref()),
         Command::Keygen { output } => run_keygen(&output),
         Command::Keypage { key, output } => run_keypage(&key, &output),
         Command::Nodes {
@@ -561,6 +623,10 @@ fn main() -> ExitCode {
         Err(Failure::Bus(message)) => {
             eprintln!("error: {message}");
             ExitCode::from(4)
+        }
+        Err(Failure::Stopped(message)) => {
+            eprintln!("{message}");
+            ExitCode::from(1)
         }
     }
 }
@@ -935,6 +1001,165 @@ fn run_schema_sim(
         println!("schema plot: {}", plot_path.display());
     }
     Ok(())
+}
+
+/// The schema server's board, client and plant of a file, for the live verbs.
+fn schema_parts<'n>(
+    path: &Path,
+    network: &'n Network,
+) -> Result<
+    (
+        &'n pab_lang::network::SchemaBoard,
+        &'n pab_lang::network::Client,
+    ),
+    Failure,
+> {
+    let missing = |what: &str| {
+        Failure::Input(Diagnostic::file(path, format!("the file has no {what}")).into())
+    };
+    let client = network.client.as_ref().ok_or_else(|| missing("[client]"))?;
+    let board = network
+        .schema_boards
+        .iter()
+        .find(|b| b.node == client.node)
+        .ok_or_else(|| missing("[schema.NODE] for its client"))?;
+    Ok((board, client))
+}
+
+fn run_plant(
+    path: &Path,
+    iface: &str,
+    duration: Option<f64>,
+    period_ms: Option<f64>,
+    log_path: Option<&Path>,
+) -> Result<(), Failure> {
+    let network = Network::load(path)?;
+    let (board, _) = schema_parts(path, &network)?;
+    let period_us = period_ms.map_or(board.config.period_us, |ms| {
+        (ms * 1000.0).round().max(1.0) as u32
+    });
+    let mut bus = bus::open(iface).map_err(|e| Failure::Bus(e.to_string()))?;
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    let mut csv = String::from("t,x,y,z,attractor_x,attractor_y,attractor_z,force_n,inserted\n");
+    let mut last_report = 0.0;
+    let plant = pabctl::plant::run(
+        bus.as_mut(),
+        board.drive,
+        network.plant.clone().unwrap_or_default(),
+        period_us,
+        duration.map(std::time::Duration::from_secs_f64),
+        &stop,
+        &mut |s| {
+            if log_path.is_some() {
+                csv.push_str(&format!(
+                    "{:.6},{},{},{},{},{},{},{:.3},{}\n",
+                    s.t,
+                    s.pose[0],
+                    s.pose[1],
+                    s.pose[2],
+                    s.attractor[0],
+                    s.attractor[1],
+                    s.attractor[2],
+                    s.force_n,
+                    s.inserted
+                ));
+            }
+            if s.t - last_report >= 5.0 {
+                last_report = s.t;
+                eprintln!(
+                    "t = {:.0} s: z {:.3} mm, force {:.1} N, {} inserted, {} set-point frames",
+                    s.t,
+                    f64::from(s.pose[2]) / 1000.0,
+                    s.force_n,
+                    s.inserted,
+                    s.setpoints
+                );
+            }
+        },
+    )
+    .map_err(|e| Failure::Bus(e.to_string()))?;
+    println!(
+        "parts inserted: {} of {}",
+        plant.inserted(),
+        plant.parts().len()
+    );
+    if let Some(log_path) = log_path {
+        write_atomically(log_path, csv.as_bytes())?;
+        println!("log: {}", log_path.display());
+    }
+    Ok(())
+}
+
+fn run_client_program(
+    path: &Path,
+    iface: &str,
+    timeout: f64,
+    trace_path: Option<&Path>,
+) -> Result<(), Failure> {
+    let network = Network::load(path)?;
+    let (board, client) = schema_parts(path, &network)?;
+    let node = network
+        .nodes
+        .get(board.node)
+        .ok_or_else(|| Failure::Input(Diagnostic::file(path, "no such node").into()))?;
+    let mut bus = bus::open(iface).map_err(|e| Failure::Bus(e.to_string()))?;
+    let mut arm = pabctl::client::Client::new(bus.as_mut(), node.id);
+    let outcome = pabctl::client::run_program(
+        &mut arm,
+        &client.program,
+        std::time::Duration::from_secs_f64(timeout),
+        &mut |row| {
+            println!(
+                "{:>10.3} s  {:<28} {:<14} {}",
+                row.t, row.schema, row.source, row.event
+            );
+        },
+    );
+    let outcome = match outcome {
+        Ok(outcome) => outcome,
+        Err(error) => return Err(Failure::Bus(format!("{}: {error}", node.name))),
+    };
+    if let Some(trace_path) = trace_path {
+        let mut csv = String::from("t,node,schema,source,event\n");
+        for row in &outcome.rows {
+            csv.push_str(&format!(
+                "{:.6},{},{},{},{}\n",
+                row.t,
+                node.name,
+                csv_field(&row.schema),
+                row.source,
+                row.event
+            ));
+        }
+        write_atomically(trace_path, csv.as_bytes())?;
+        println!(
+            "trace: {} ({} rows)",
+            trace_path.display(),
+            outcome.rows.len()
+        );
+    }
+    match outcome.safety {
+        Some(cause) => Err(Failure::Stopped(format!(
+            "{}: stopped by a safety event ({}) after {} of {} calls",
+            node.name,
+            cause.description(),
+            outcome.sent,
+            client.program.len()
+        ))),
+        None => {
+            println!("{}: {} calls run, no safety event", node.name, outcome.sent);
+            Ok(())
+        }
+    }
+}
+
+/// A CSV field, quoted when it holds a comma or a quote.
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
 }
 
 fn run_replay(

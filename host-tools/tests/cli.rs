@@ -793,3 +793,30 @@ fn schema_trace_without_a_client_is_an_error() {
     );
     assert!(!csv.exists());
 }
+
+#[test]
+fn the_live_schema_verbs_check_the_file_before_the_bus() {
+    // No [client]: an input error, before any bus is opened.
+    for verb in ["plant", "run"] {
+        let output = pabctl(&[verb, &example("figure-1.toml"), "--iface", "nosuch0"]);
+        assert_eq!(
+            output.status.code(),
+            Some(2),
+            "{verb}: {}",
+            text(&output.stderr)
+        );
+        assert!(
+            text(&output.stderr).contains("the file has no [client]"),
+            "{}",
+            text(&output.stderr)
+        );
+    }
+    // A schema server's file on an interface that does not exist: a bus error.
+    let output = pabctl(&["run", &example("assembly.toml"), "--iface", "nosuch0"]);
+    assert_eq!(output.status.code(), Some(4), "{}", text(&output.stderr));
+    assert!(
+        text(&output.stderr).contains("cannot open CAN interface \"nosuch0\""),
+        "{}",
+        text(&output.stderr)
+    );
+}

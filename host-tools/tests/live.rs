@@ -3,12 +3,11 @@
 //! Only the SocketCAN socket is left out (this kernel has none; the HIL suite covers it).
 
 use std::path::Path;
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use pab_app::{Config, FullNode, Step};
 use pab_core::Frame;
 use pab_core::isotp::{RxEvent, Sender, TxConfig, TxEvent};
 use pab_core::protocol::{self, Message, TransferStatus, TransferStatusCode};
@@ -16,79 +15,12 @@ use pab_lang::compile::{self, CompiledNode};
 use pab_lang::network::Network;
 use pabctl::bus::Bus;
 use pabctl::bus::memory::{MemoryBus, MemoryHub};
+
+mod common;
+use common::LiveNode;
 use pabctl::monitor;
 use pabctl::observe::{self, Observer};
 use pabctl::push::{self, Outcome, Timeouts};
-
-/// A node thread and what it stored.
-struct LiveNode {
-    stop: Arc<AtomicBool>,
-    stored: Arc<Mutex<Vec<Vec<u8>>>>,
-    thread: Option<JoinHandle<()>>,
-}
-
-impl LiveNode {
-    fn spawn(hub: &MemoryHub, id: u8, boot_image: Option<Vec<u8>>) -> LiveNode {
-        let stop = Arc::new(AtomicBool::new(false));
-        let stored = Arc::new(Mutex::new(Vec::new()));
-        let mut bus = hub.connect();
-        let (stop_flag, store) = (stop.clone(), stored.clone());
-        let thread = std::thread::spawn(move || {
-            run_node(&mut bus, id, boot_image, &stop_flag, &store);
-        });
-        LiveNode {
-            stop,
-            stored,
-            thread: Some(thread),
-        }
-    }
-}
-
-impl Drop for LiveNode {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::SeqCst);
-        if let Some(thread) = self.thread.take() {
-            let _ = thread.join();
-        }
-    }
-}
-
-/// What `pab_app::run` does, with std time and the in-process bus.
-fn run_node(
-    bus: &mut MemoryBus,
-    id: u8,
-    boot_image: Option<Vec<u8>>,
-    stop: &AtomicBool,
-    stored: &Mutex<Vec<Vec<u8>>>,
-) {
-    let start = Instant::now();
-    let now = || pab_core::Instant::from_micros(start.elapsed().as_micros() as u64);
-    let mut node = Box::new(FullNode::new(Config::new(id).unwrap(), now()));
-    let len = boot_image.map(|image| {
-        node.boot_buffer()[..image.len()].copy_from_slice(&image);
-        image.len()
-    });
-    node.boot(len, now());
-    while !stop.load(Ordering::SeqCst) {
-        while let Some(frame) = node.next_outgoing() {
-            bus.send(&frame).unwrap();
-        }
-        let wait = node
-            .deadline(now())
-            .micros_since(now())
-            .unwrap_or(0)
-            .min(5_000);
-        let step = match bus.receive(Duration::from_micros(wait)) {
-            Ok(Some(frame)) => node.on_frame(&frame, now(), &mut ()),
-            Ok(None) => node.poll(now(), &mut ()),
-            Err(_) => return,
-        };
-        if step == Step::Store {
-            stored.lock().unwrap().push(node.image_to_store().to_vec());
-            node.stored(true, now());
-        }
-    }
-}
 
 fn take_and_return() -> (Network, Vec<CompiledNode>) {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/take-and-return.toml");

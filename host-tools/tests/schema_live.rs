@@ -1,0 +1,174 @@
+//! A schema server's board, its robot and its client on a live bus, in real time: the node
+//! application on a thread (`pab-app`, the Linux node's code), the plant of `pabctl plant` on
+//! another, and the Rust client (`pabctl::client`) here, on the in-process bus. One insertion,
+//! and an emergency stop.
+//!
+//! The loop's overrun bound and the sensors' staleness are loose here (50 ms, 200 ms): the
+//! threads share two cores with the rest of the test suite, and the test is about what the
+//! frames do, not about a real-time host.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
+use std::time::Duration;
+
+use pab_core::protocol::SchemaSafety;
+use pab_lang::compile;
+use pab_lang::diagnostic::Source;
+use pab_lang::network::Network;
+use pab_lang::sim::plant::PartState;
+use pabctl::bus::memory::MemoryHub;
+use pabctl::client::{self, Client};
+use pabctl::plant;
+
+mod common;
+use common::LiveNode;
+
+const NETWORK: &str = r#"
+[nodes.arm]
+id = 10
+
+[schema.arm]
+period_ms = 1
+overrun_ms = 50
+stale_ms = 200
+force_limit_n = 30
+workspace_mm = { min = [-50, -50, -20], max = [50, 50, 60] }
+drive = { setpoint = 0x300, pose = 0x310, wrench = 0x320 }
+
+[plant]
+start_mm = [0, 0, 17]
+parts_mm = [[0, 0]]
+holes_mm = [[10.12, 0.06]]
+
+[client]
+node = "arm"
+speed_mm_s = 50
+touch_speed_mm_s = 10
+search_speed_mm_s = 4
+program = [
+    "move_to_touch(down)", "grasp(settle=50)", "move_to(above_part)", "move_to(above_slot)",
+    "move_to_touch(down)", "blind_search()", "release(settle=50)", "move_to(above_slot)",
+]
+
+[client.places]
+down = [0, 0, -1]
+above_part = [0, 0, 20]
+above_slot = [10, 0, 20]
+"#;
+
+struct Rig {
+    network: Network,
+    hub: MemoryHub,
+    _node: LiveNode,
+    stop: Arc<AtomicBool>,
+    plant: Option<std::thread::JoinHandle<pab_lang::sim::plant::Plant>>,
+}
+
+impl Rig {
+    fn start() -> Rig {
+        let network = Network::parse(Source::new("insertion.toml", NETWORK)).unwrap();
+        let image = compile::compile(&network).unwrap().remove(0).image;
+        let hub = MemoryHub::new();
+        let node = LiveNode::spawn(&hub, 10, Some(image));
+        let stop = Arc::new(AtomicBool::new(false));
+        let board = &network.schema_boards[0];
+        let (drive, config, plant_config) = (
+            board.drive,
+            board.config.clone(),
+            network.plant.clone().unwrap(),
+        );
+        let mut bus = hub.connect();
+        let flag = stop.clone();
+        let (ready, started) = mpsc::channel();
+        let plant = std::thread::spawn(move || {
+            let _ = ready.send(());
+            plant::run(
+                &mut bus,
+                drive,
+                plant_config,
+                config.period_us,
+                None,
+                &flag,
+                &mut |_| {},
+            )
+            .unwrap()
+        });
+        started.recv().unwrap();
+        Rig {
+            network,
+            hub,
+            _node: node,
+            stop,
+            plant: Some(plant),
+        }
+    }
+
+    fn finish(mut self) -> pab_lang::sim::plant::Plant {
+        self.stop.store(true, Ordering::SeqCst);
+        self.plant.take().unwrap().join().unwrap()
+    }
+}
+
+#[test]
+fn one_insertion_on_a_live_bus() {
+    let rig = Rig::start();
+    let mut tool = rig.hub.connect();
+    let mut arm = Client::new(&mut tool, 10);
+    // The board arms on the plant's first pose frames.
+    arm.pump(Duration::from_millis(300)).unwrap();
+    assert!(arm.status().is_some_and(|s| s.armed), "{:?}", arm.status());
+    let program = &rig.network.client.as_ref().unwrap().program;
+    let outcome =
+        client::run_program(&mut arm, program, Duration::from_secs(60), &mut |_| {}).unwrap();
+    assert_eq!(outcome.safety, None, "{:#?}", outcome.rows);
+    assert_eq!(outcome.sent, 8);
+    let events: Vec<(&str, &str)> = outcome
+        .rows
+        .iter()
+        .map(|r| (r.schema.as_str(), r.event.as_str()))
+        .collect();
+    assert_eq!(
+        events,
+        [
+            ("move_to_touch(down)", "queue-ready"),
+            ("grasp(settle=50)", "above:contact"),
+            ("move_to(above_part)", "done"),
+            ("move_to(above_slot)", "done"),
+            ("move_to_touch(down)", "done"),
+            ("blind_search()", "above:contact"),
+            ("release(settle=50)", "below:displacement.z"),
+            ("move_to(above_slot)", "done"),
+            ("wait-queue", "done"),
+        ]
+    );
+    let plant = rig.finish();
+    assert_eq!(plant.parts(), [PartState::Inserted(0)]);
+}
+
+#[test]
+fn an_emergency_stop_frame_halts_the_live_board() {
+    let rig = Rig::start();
+    let mut tool = rig.hub.connect();
+    let mut arm = Client::new(&mut tool, 10);
+    arm.pump(Duration::from_millis(300)).unwrap();
+    // A long move, stopped half way.
+    let id = arm.move_to([0, 40_000, 17_000, 0, 0, 0], 20_000).unwrap();
+    arm.pump(Duration::from_millis(300)).unwrap();
+    arm.estop(true).unwrap();
+    let ended = arm.wait_finished(id, Duration::from_secs(2)).unwrap();
+    assert_eq!(ended.safety(), Some(SchemaSafety::EmergencyStop));
+    arm.pump(Duration::from_millis(200)).unwrap();
+    let state = arm.status().unwrap();
+    assert_eq!(state.fault, Some(SchemaSafety::EmergencyStop));
+    assert_eq!(state.current, pab_core::schema::Schema::WAIT_HIGH_PRIORITY);
+    // Queued schemas wait for the high-priority channel.
+    let queued = arm.idle(5).unwrap();
+    assert!(
+        arm.wait_finished(queued, Duration::from_millis(300))
+            .is_err()
+    );
+    let plant = rig.finish();
+    // Stopped well before the end of the move.
+    assert!(plant.pose()[1] < 30_000, "{:?}", plant.pose());
+}
