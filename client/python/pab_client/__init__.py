@@ -3,12 +3,15 @@
 - :mod:`pab_client.schema`: schemas (actions, events, sources, reactions), their postcard
   encoding, and the builders of `pab_core::schema::build` (``move_to``, ``grasp``, ...), byte for
   byte what the Rust builders make (``tests/golden_schemas.json``);
-- :mod:`pab_client.protocol`: the schema server's frames (docs/can-protocol.md).
+- :mod:`pab_client.protocol`: the schema server's frames (docs/can-protocol.md);
+- :mod:`pab_client.client`: :class:`Client`, which sends schemas to a node over ISO-TP on a
+  python-can bus and follows its answers, transitions and state.
 
 Units are the board's integers: µm and µrad, µm/s, mN, ms (``mm()``, ``newtons()``, ``mrad()``
 and ``pose_mm()`` convert from the network file's mm, N and mrad).
 """
 
+from .client import FIRST_ID, LAST_ID, Client, ClientError, Ended, Refused, Timeout
 from .protocol import (
     SchemaAck,
     SchemaChannel,
@@ -45,6 +48,13 @@ from .schema import (
 )
 
 __all__ = [
+    "Client",
+    "ClientError",
+    "Refused",
+    "Timeout",
+    "Ended",
+    "FIRST_ID",
+    "LAST_ID",
     "SchemaAck",
     "SchemaChannel",
     "SchemaOrigin",

@@ -101,7 +101,8 @@ def test_transitions_round_trip_and_refuse_a_detail_against_their_trigger():
 
 
 def test_states_round_trip_and_refuse_reserved_flags():
-    for fault, armed, closed in itertools.product([None, *SchemaSafety], [False, True], [False, True]):
+    flags = [False, True]
+    for fault, armed, closed in itertools.product([None, *SchemaSafety], flags, flags):
         st = SchemaState(0x1234, SchemaOrigin.Queue, fault, 3, armed, closed, 65535)
         assert SchemaState.decode(st.encode()) == st
     good = SchemaState(1, SchemaOrigin.Innate, None, 0, True, False, 10).encode()
