@@ -8,7 +8,7 @@ answers, the server's transitions and state, abort and emergency stop.
         arm.move_to(pose_mm(-100, -60, 35), speed=20_000)       # µm, µm/s
         arm.move_to_touch((0, 0, -1), contact=3_000)             # direction; mN
         done = arm.grasp()
-        print(arm.wait_finished(done.id, timeout=30).trigger)    # SchemaTrigger.Reaction
+        print(arm.wait_finished(done.id, timeout=30).event)      # Event.Done()
 
 Units are the board's (µm, µrad, µm/s, mN, ms; see :mod:`pab_client.schema`).
 
