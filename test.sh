@@ -11,7 +11,8 @@
 # installs the nightly toolchain and cargo-fuzz; fails on any crash), runs every example through
 # `pabctl check` and `pabctl sim` (plots and traces land in target/examples/), checks the DBC export
 # with cantools (in a venv made by scripts/python-env.sh from requirements-dev.txt), runs the HIL
-# harness's own unit tests (hil-sim/unit), the cross-runner test with the board firmware in QEMU
+# harness's own unit tests (hil-sim/unit) and the schema server's Python client's tests
+# (client/python/tests), the cross-runner test with the board firmware in QEMU
 # (scripts/cross-runner.sh: simulator, node application and emulated Cortex-M4 must record
 # identical verdicts), the emulated board's time check across its timer's wraps and its builtins check, the panic check
 # of the board firmware (scripts/panic-check.sh), the emulated board's watchdog test
@@ -129,6 +130,12 @@ step "hardware-in-the-loop harness, host-side unit tests (hil-sim/unit)"
 # The micro-VM's accelerator decision against stand-ins for QEMU, and the guest kernel's module
 # resolution: no QEMU, no bus.
 "$venv/bin/python" -m pytest hil-sim/unit -q
+
+step "the schema server's Python client (client/python/tests)"
+# pab_client's builders against the golden vectors the Rust builders write
+# (lang/tests/client_golden.rs checks that file in `cargo test`), its frames, and the client on
+# python-can's virtual bus against a scripted node: no kernel CAN, no QEMU.
+"$venv/bin/python" -m pytest client/python/tests -q
 
 step "identical decisions on every runner: scripts/cross-runner.sh"
 # The same frames (every example's bus, the committed HIL log) through the simulator, the Linux

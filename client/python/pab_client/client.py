@@ -1,0 +1,588 @@
+"""A schema server's client over a python-can bus: schemas sent over ISO-TP (can-isotp), their
+answers, the server's transitions and state, abort and emergency stop.
+
+    import can
+    from pab_client import Client, pose_mm
+
+    with can.Bus(interface="socketcan", channel="can0") as bus, Client(bus, node=5) as arm:
+        arm.move_to(pose_mm(-100, -60, 35), speed=20_000)       # µm, µm/s
+        arm.move_to_touch((0, 0, -1), contact=3_000)             # direction; mN
+        done = arm.grasp()
+        print(arm.wait_finished(done.id, timeout=30).event)      # Event.Done()
+
+Units are the board's (µm, µrad, µm/s, mN, ms; see :mod:`pab_client.schema`).
+
+The client reads the bus through a ``can.Notifier`` (its own, or one passed in: python-can lets
+one notifier serve a bus), so that the ISO-TP layer and the reports share it; nothing else may
+``recv`` on that bus meanwhile.
+"""
+
+from __future__ import annotations
+
+import collections
+import queue
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Deque, Dict, List, Optional, Sequence
+
+import can
+import isotp
+
+from . import schema as s
+from .protocol import (
+    BROADCAST,
+    NO_ID,
+    TOOL,
+    MalformedFrame,
+    SchemaAck,
+    SchemaOutcome,
+    SchemaSafety,
+    SchemaState,
+    SchemaTransition,
+    SchemaTrigger,
+    abort_id,
+    decode_report,
+    emergency_stop_id,
+    transfer_ids,
+    transfer_message,
+)
+
+#: The first and last ids the client gives its schemas (below the server's own, 0xFF00).
+FIRST_ID = 1
+LAST_ID = 0xFEFF
+
+#: Outcomes that mean "no room yet": retried by :meth:`Client.install_when_room`.
+NO_ROOM = (SchemaOutcome.QueueFull, SchemaOutcome.Busy)
+
+
+class ClientError(Exception):
+    """Base of the client's errors."""
+
+
+class Refused(ClientError):
+    """The node refused the schema: `outcome` says why, `ack` is its whole answer."""
+
+    def __init__(self, ack: SchemaAck, node: int):
+        self.ack = ack
+        self.outcome = ack.outcome
+        self.node = node
+        super().__init__(
+            f"node {node} refused schema {ack.id:#06x}: {ack.outcome.name} "
+            f"({ack.outcome.description})"
+        )
+
+
+class Timeout(ClientError):
+    """No answer in time (no flow control, no SchemaAck, no transition or state)."""
+
+
+@dataclass(frozen=True)
+class Ended:
+    """How a schema of the client's ended (:meth:`Client.wait_finished`)."""
+
+    #: The schema's id.
+    id: int
+    #: The node's SchemaTransition that ended it.
+    transition: SchemaTransition
+    #: The reaction of the schema that fired (trigger Reaction), when the client sent it.
+    reaction: Optional[s.Reaction]
+
+    @property
+    def trigger(self) -> SchemaTrigger:
+        """Reaction (the schema's own event), HighPriority (replaced), Abort or Safety."""
+        return self.transition.trigger
+
+    @property
+    def event(self) -> Optional[s.Event]:
+        """The event that ended it, for trigger Reaction (``Done()``, ``Above(Contact(), ..)``)."""
+        return None if self.reaction is None else self.reaction.event
+
+    @property
+    def safety(self) -> Optional[SchemaSafety]:
+        """The safety event that ended it, for trigger Safety."""
+        return self.transition.safety
+
+    @property
+    def reaction_index(self) -> Optional[int]:
+        """The index of the reaction that fired, for trigger Reaction."""
+        return self.transition.detail if self.trigger == SchemaTrigger.Reaction else None
+
+    @property
+    def next(self) -> int:
+        """The id of the schema installed after it (0xFF00 the wait for the queue, 0xFF01 the
+        wait for the high-priority channel, 0xFF10 + cause a safety recovery)."""
+        return self.transition.installed
+
+
+class Client:
+    """A client of the schema server on `node`, over `bus` (a python-can bus with 29-bit
+    frames), speaking as `source` (0: the tool).
+
+    Every method that sends a schema returns the node's :class:`SchemaAck` when it accepted
+    it, raises :class:`Refused` when it did not, :class:`Timeout` when it did not answer.
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        node: int,
+        source: int = TOOL,
+        *,
+        notifier: Optional[can.Notifier] = None,
+        first_id: int = FIRST_ID,
+    ) -> None:
+        if not 1 <= node <= 127:
+            raise ValueError(f"node {node}: nodes are 1..=127")
+        if not 0 <= source <= 127:
+            raise ValueError(f"source {source}: 0 (the tool) or a node, 1..=127")
+        if not FIRST_ID <= first_id <= LAST_ID:
+            raise ValueError(f"first_id {first_id}: ids are {FIRST_ID}..={LAST_ID:#06x}")
+        self.bus = bus
+        self.node = node
+        self.source = source
+        self.txid, self.rxid = transfer_ids(node, source)
+        #: Report frames of the node that broke their layout (ignored).
+        self.malformed = 0
+        self._next_id = first_id
+        self._id_lock = threading.Lock()
+        self._transfer_lock = threading.Lock()
+        self._cond = threading.Condition()
+        self._acks: List[SchemaAck] = []
+        self._started: Dict[int, SchemaTransition] = {}
+        self._ended: Dict[int, SchemaTransition] = {}
+        self._sent: Dict[int, s.Schema] = {}
+        self._transitions: Deque[SchemaTransition] = collections.deque(maxlen=1024)
+        self._state: Optional[SchemaState] = None
+        self._state_seq = 0
+        self._report_seq = 0
+        self._queued: Optional[int] = None
+        self._flow_control: "queue.Queue[isotp.CanMessage]" = queue.Queue()
+        self._isotp_errors: List[Exception] = []
+        self._isotp = isotp.TransportLayer(
+            rxfn=self._isotp_rx,
+            txfn=self._isotp_tx,
+            address=isotp.Address(
+                isotp.AddressingMode.Normal_29bits, txid=self.txid, rxid=self.rxid
+            ),
+            error_handler=self._isotp_error,
+            params={
+                # docs/can-protocol.md, "Table transfer": classic CAN, every frame 8 bytes,
+                # padded with 0xCC; the node's flow control decides block size and STmin.
+                "tx_data_length": 8,
+                "tx_data_min_length": 8,
+                "tx_padding": 0xCC,
+                "can_fd": False,
+                "blocking_send": True,
+            },
+            read_timeout=0.01,
+        )
+        self._isotp.start()
+        self._own_notifier = notifier is None
+        self._notifier = notifier or can.Notifier(bus, [], timeout=0.05)
+        self._notifier.add_listener(self._on_message)
+        self._closed = False
+
+    # -- life ---------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Stops the ISO-TP layer and the notifier (if the client made it). The bus stays open."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._notifier.remove_listener(self._on_message)
+        except ValueError:
+            pass
+        if self._own_notifier:
+            self._notifier.stop()
+        self._isotp.stop()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # -- the bus ------------------------------------------------------------------------------
+
+    def _isotp_rx(self, timeout: float) -> Optional[isotp.CanMessage]:
+        try:
+            return self._flow_control.get(timeout=timeout)
+        except queue.Empty:
+            return None
+
+    def _isotp_tx(self, msg: isotp.CanMessage) -> None:
+        self.bus.send(
+            can.Message(
+                arbitration_id=msg.arbitration_id,
+                data=bytes(msg.data),
+                is_extended_id=True,
+            )
+        )
+
+    def _isotp_error(self, error: Exception) -> None:
+        self._isotp_errors.append(error)
+
+    def _on_message(self, msg: can.Message) -> None:
+        if msg.is_error_frame or msg.is_remote_frame or not msg.is_extended_id:
+            return
+        if msg.arbitration_id == self.rxid:
+            # The node's flow control for our transfers.
+            self._flow_control.put(
+                isotp.CanMessage(
+                    arbitration_id=msg.arbitration_id, data=bytes(msg.data), extended_id=True
+                )
+            )
+            return
+        try:
+            decoded = decode_report(msg.arbitration_id, True, bytes(msg.data))
+        except MalformedFrame:
+            self.malformed += 1
+            return
+        if decoded is None:
+            return
+        fid, report = decoded
+        if fid.source != self.node:
+            return
+        with self._cond:
+            if isinstance(report, SchemaAck):
+                if fid.destination != self.source:
+                    return
+                self._acks.append(report)
+            elif isinstance(report, SchemaTransition):
+                self._ended[report.ended] = report
+                self._started[report.installed] = report
+                self._transitions.append(report)
+                self._queued = report.queued
+            else:
+                self._state = report
+                self._state_seq += 1
+                self._queued = report.queued
+            if not isinstance(report, SchemaAck):
+                # A report of the queue's length (install_when_room waits for one).
+                self._report_seq += 1
+            self._cond.notify_all()
+
+    # -- schemas ------------------------------------------------------------------------------
+
+    def next_id(self) -> int:
+        """The id the next convenience call gives its schema: 1, 2, ... 0xFEFF, then 1 again."""
+        with self._id_lock:
+            sid = self._next_id
+            self._next_id = FIRST_ID if sid >= LAST_ID else sid + 1
+            return sid
+
+    def install(
+        self, schema: s.Schema, high_priority: bool = False, timeout: float = 1.0
+    ) -> SchemaAck:
+        """Sends `schema` to the node, on its queue or (`high_priority`) on the high-priority
+        channel (installed at the node's next tick, replacing the running schema and ending a
+        fault), and waits at most `timeout` s for the node's SchemaAck.
+
+        Returns the SchemaAck when the node accepted it; raises :class:`Refused` (with the
+        node's outcome) when it did not, :class:`Timeout` when the node did not answer the
+        transfer's flow control or sent no SchemaAck in time.
+        """
+        message = transfer_message(schema.encode(), high_priority)
+        deadline = time.monotonic() + timeout
+        with self._transfer_lock:
+            with self._cond:
+                self._acks.clear()
+                self._started.pop(schema.id, None)
+                self._ended.pop(schema.id, None)
+                self._sent[schema.id] = schema
+            while not self._flow_control.empty():
+                self._flow_control.get_nowait()
+            del self._isotp_errors[:]
+            failure: Optional[Exception] = None
+            try:
+                self._isotp.send(message, send_timeout=max(0.0, deadline - time.monotonic()))
+            except isotp.BlockingSendFailure as e:
+                failure = e
+                self._isotp.stop_sending()
+            # A transfer the node stopped (flow control "overflow") still has its answer.
+            ack_deadline = deadline if failure is None else max(deadline, time.monotonic() + 0.1)
+            ack = self._wait_ack(schema.id, ack_deadline)
+        what = f"node {self.node}: schema {schema.id:#06x}"
+        if ack is None:
+            if failure is not None:
+                errors = [str(e) or type(e).__name__ for e in self._isotp_errors]
+                why = "; ".join(errors) or str(failure)
+                raise Timeout(f"{what}: the transfer failed ({why})")
+            raise Timeout(f"{what}: no SchemaAck in {timeout} s")
+        if ack.outcome != SchemaOutcome.Accepted:
+            raise Refused(ack, self.node)
+        return ack
+
+    def _wait_ack(self, sid: int, deadline: float) -> Optional[SchemaAck]:
+        def ours() -> Optional[SchemaAck]:
+            for i, ack in enumerate(self._acks):
+                if ack.id in (sid, NO_ID):
+                    return self._acks.pop(i)
+            return None
+
+        with self._cond:
+            while True:
+                ack = ours()
+                if ack is not None:
+                    return ack
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return None
+                self._cond.wait(remaining)
+
+    def install_when_room(
+        self,
+        schema: s.Schema,
+        high_priority: bool = False,
+        timeout: float = 10.0,
+        ack_timeout: float = 1.0,
+        retry_s: float = 0.1,
+    ) -> SchemaAck:
+        """:meth:`install`, retried while the node answers ``QueueFull`` (its 8-deep queue is
+        full) or ``Busy`` (a high-priority schema waits for its tick): after such a refusal it
+        waits for a transition or state from the node showing room in the queue, at most
+        `retry_s` s, and tries again. Each try waits `ack_timeout` s for its answer; no try
+        starts after `timeout` s. Raises :class:`Timeout` (its ``__cause__`` the last
+        :class:`Refused`) when there was no room by then, :class:`Refused` for any other
+        refusal."""
+        deadline = time.monotonic() + timeout
+        while True:
+            with self._cond:
+                seq = self._report_seq
+            try:
+                return self.install(schema, high_priority, timeout=ack_timeout)
+            except Refused as refused:
+                if refused.outcome not in NO_ROOM:
+                    raise
+                last = refused
+            remaining = deadline - time.monotonic()
+            with self._cond:
+                room = remaining > 0 and self._cond.wait_for(
+                    lambda: self._report_seq > seq
+                    and (self._queued is None or self._queued < s.QUEUE_DEPTH),
+                    min(retry_s, remaining),
+                )
+            if not room and time.monotonic() >= deadline:
+                raise Timeout(
+                    f"node {self.node}: no room for schema {schema.id:#06x} in {timeout} s "
+                    f"({last.outcome.name})"
+                ) from last
+
+    def _build_and_install(
+        self, schema: s.Schema, high_priority: bool, timeout: float, wait_for_room: Optional[float]
+    ) -> SchemaAck:
+        if wait_for_room is None:
+            return self.install(schema, high_priority, timeout)
+        return self.install_when_room(
+            schema, high_priority, timeout=wait_for_room, ack_timeout=timeout
+        )
+
+    # The paper's calls: each builds its schema (pab_core::schema::build's reactions, the network
+    # file's defaults) with the next id and installs it. `high_priority`, `timeout` as for
+    # install; `wait_for_room` (s) retries a full queue as install_when_room does.
+
+    def move_to(
+        self,
+        goal: Sequence[int],
+        speed: int = 50_000,
+        *,
+        watchdog_ms: int = 0,
+        high_priority: bool = False,
+        timeout: float = 1.0,
+        wait_for_room: Optional[float] = None,
+    ) -> SchemaAck:
+        """The attractor to `goal` (µm, µrad) at `speed` µm/s:
+        :func:`pab_client.schema.move_to`."""
+        sc = s.move_to(self.next_id(), goal, speed, watchdog_ms=watchdog_ms)
+        return self._build_and_install(sc, high_priority, timeout, wait_for_room)
+
+    def move_to_touch(
+        self,
+        direction: Sequence[int],
+        speed: int = 5_000,
+        contact: int = 3_000,
+        distance: int = 50_000,
+        *,
+        watchdog_ms: int = 0,
+        high_priority: bool = False,
+        timeout: float = 1.0,
+        wait_for_room: Optional[float] = None,
+    ) -> SchemaAck:
+        """Along `direction` at `speed` µm/s until `contact` mN, at most `distance` µm:
+        :func:`pab_client.schema.move_to_touch`."""
+        sc = s.move_to_touch(
+            self.next_id(), direction, speed, contact, distance, watchdog_ms=watchdog_ms
+        )
+        return self._build_and_install(sc, high_priority, timeout, wait_for_room)
+
+    def grasp(
+        self,
+        settle_ms: int = 200,
+        *,
+        watchdog_ms: int = 0,
+        high_priority: bool = False,
+        timeout: float = 1.0,
+        wait_for_room: Optional[float] = None,
+    ) -> SchemaAck:
+        """Close the gripper, `settle_ms` ms: :func:`pab_client.schema.grasp`."""
+        sc = s.grasp(self.next_id(), settle_ms, watchdog_ms=watchdog_ms)
+        return self._build_and_install(sc, high_priority, timeout, wait_for_room)
+
+    def release(
+        self,
+        settle_ms: int = 200,
+        *,
+        watchdog_ms: int = 0,
+        high_priority: bool = False,
+        timeout: float = 1.0,
+        wait_for_room: Optional[float] = None,
+    ) -> SchemaAck:
+        """Open the gripper, `settle_ms` ms: :func:`pab_client.schema.release`."""
+        sc = s.release(self.next_id(), settle_ms, watchdog_ms=watchdog_ms)
+        return self._build_and_install(sc, high_priority, timeout, wait_for_room)
+
+    def blind_search(
+        self,
+        preload: int = 2_000,
+        pitch: int = 80,
+        speed: int = 2_000,
+        radius: int = 1_000,
+        wobble: int = 20_000,
+        wobble_ms: int = 500,
+        depth: int = 1_000,
+        *,
+        watchdog_ms: int = 0,
+        high_priority: bool = False,
+        timeout: float = 1.0,
+        wait_for_room: Optional[float] = None,
+    ) -> SchemaAck:
+        """The spiral search under preload until the part drops `depth` µm:
+        :func:`pab_client.schema.blind_search` (µm, µm/s, µrad, ms)."""
+        sc = s.blind_search(
+            self.next_id(),
+            preload,
+            pitch,
+            speed,
+            radius,
+            wobble,
+            wobble_ms,
+            depth,
+            watchdog_ms=watchdog_ms,
+        )
+        return self._build_and_install(sc, high_priority, timeout, wait_for_room)
+
+    def idle(
+        self,
+        ms: int = 0,
+        *,
+        watchdog_ms: int = 0,
+        high_priority: bool = False,
+        timeout: float = 1.0,
+        wait_for_room: Optional[float] = None,
+    ) -> SchemaAck:
+        """Hold the command `ms` ms (0: until aborted or replaced):
+        :func:`pab_client.schema.idle`."""
+        sc = s.idle(self.next_id(), ms, watchdog_ms=watchdog_ms)
+        return self._build_and_install(sc, high_priority, timeout, wait_for_room)
+
+    def open_gripper(self, **kwargs: Any) -> SchemaAck:
+        """Open the gripper at once (the network file's ``open()``)."""
+        return self._atomic(s.open_gripper, **kwargs)
+
+    def close_gripper(self, **kwargs: Any) -> SchemaAck:
+        """Close the gripper at once (the network file's ``close()``)."""
+        return self._atomic(s.close_gripper, **kwargs)
+
+    def relieve(self, **kwargs: Any) -> SchemaAck:
+        """The attractor to the measured pose: every force relieved."""
+        return self._atomic(s.relieve, **kwargs)
+
+    def set_impedance(self, stiffness: int = 2_000, damping: int = 100, **kwargs: Any) -> SchemaAck:
+        """The drive's stiffness (N/m) and damping (N·s/m)."""
+        return self._atomic(s.set_impedance, stiffness, damping, **kwargs)
+
+    def _atomic(
+        self,
+        build: Any,
+        *args: Any,
+        watchdog_ms: int = 0,
+        high_priority: bool = False,
+        timeout: float = 1.0,
+        wait_for_room: Optional[float] = None,
+    ) -> SchemaAck:
+        sc = build(self.next_id(), *args, watchdog_ms=watchdog_ms)
+        return self._build_and_install(sc, high_priority, timeout, wait_for_room)
+
+    # -- stopping -----------------------------------------------------------------------------
+
+    def abort(self, broadcast: bool = False) -> None:
+        """SchemaAbort to the node (or every node): it abandons the running schema and waits on
+        the high-priority channel. Never refused."""
+        self._send_empty(abort_id(BROADCAST if broadcast else self.node, self.source))
+
+    def estop(self, broadcast: bool = False) -> None:
+        """EmergencyStop to the node (or every node): it halts within one loop period (the
+        attractor to the measured pose) and waits on the high-priority channel, its queue kept
+        but not run. Never refused."""
+        self._send_empty(emergency_stop_id(BROADCAST if broadcast else self.node, self.source))
+
+    def _send_empty(self, arbitration_id: int) -> None:
+        # No payload: a padded stop or abort is malformed.
+        self.bus.send(can.Message(arbitration_id=arbitration_id, data=b"", is_extended_id=True))
+
+    # -- reports ------------------------------------------------------------------------------
+
+    def status(self, timeout: Optional[float] = None) -> Optional[SchemaState]:
+        """The node's latest SchemaState (None before the first). With a `timeout`, waits for
+        the next one received after the call instead (:class:`Timeout` if none comes)."""
+        with self._cond:
+            if timeout is None:
+                return self._state
+            seq = self._state_seq
+            if not self._cond.wait_for(lambda: self._state_seq > seq, timeout):
+                raise Timeout(f"node {self.node}: no SchemaState in {timeout} s")
+            return self._state
+
+    @property
+    def transitions(self) -> List[SchemaTransition]:
+        """The node's transitions received so far (the latest 1024), oldest first."""
+        with self._cond:
+            return list(self._transitions)
+
+    def wait_started(self, sid: int, timeout: Optional[float] = None) -> SchemaTransition:
+        """Waits until schema `sid` is installed (it appears as a transition's `installed`);
+        returns that transition. Counts transitions since its install (or since the client
+        started, for a schema it did not send)."""
+        with self._cond:
+            if not self._cond.wait_for(lambda: sid in self._started, timeout):
+                raise Timeout(f"node {self.node}: schema {sid:#06x} not started in {timeout} s")
+            return self._started[sid]
+
+    def wait_finished(self, sid: int, timeout: Optional[float] = None) -> Ended:
+        """Waits until schema `sid` ends (it appears as a transition's `ended`) and says how: its
+        own reaction (which one, and its event), the high-priority channel, an abort or a safety
+        event. A schema still in the queue when the server stops never ends: use a timeout."""
+        with self._cond:
+            if not self._cond.wait_for(lambda: sid in self._ended, timeout):
+                raise Timeout(f"node {self.node}: schema {sid:#06x} not finished in {timeout} s")
+            t = self._ended[sid]
+            sent = self._sent.get(sid)
+        reaction = None
+        if t.trigger == SchemaTrigger.Reaction and sent is not None:
+            if t.detail < len(sent.reactions):
+                reaction = sent.reactions[t.detail]
+        return Ended(sid, t, reaction)
+
+
+__all__ = [
+    "Client",
+    "ClientError",
+    "Refused",
+    "Timeout",
+    "Ended",
+    "FIRST_ID",
+    "LAST_ID",
+    "NO_ROOM",
+]

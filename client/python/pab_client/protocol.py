@@ -1,0 +1,373 @@
+"""The schema server's frames (docs/can-protocol.md, "Schema server"): identifiers, the reports a
+node sends (SchemaAck, SchemaTransition, SchemaState) decoded and checked as the nodes' own
+decoder (`pab_core::protocol`) checks them, and the frames a client sends (EmergencyStop,
+SchemaAbort, the SchemaTransfer message).
+
+Every frame of ours has a 29-bit identifier::
+
+    bit  28..26     25..24    23..16     15..8          7..0
+         priority   marker    service    destination    source
+         0..7       0b10      8 bits     node or 0xFF   node or 0 (the tool)
+
+and a fixed-length little-endian payload: a frame whose length differs, whose enumerated field
+holds an unknown code, whose reserved bits are set, or whose priority is not its service's, is
+refused whole (:class:`MalformedFrame`).
+"""
+
+from __future__ import annotations
+
+import enum
+import struct
+from dataclasses import dataclass
+from typing import Optional, Union
+
+PROTOCOL_MASK = 0x0300_0000
+PROTOCOL_VALUE = 0x0200_0000
+#: The workstation's address.
+TOOL = 0
+#: The broadcast destination.
+BROADCAST = 0xFF
+
+EMERGENCY_STOP = 0x00
+SCHEMA_ABORT = 0x19
+SCHEMA_TRANSFER = 0x1A
+SCHEMA_ACK = 0x1B
+SCHEMA_TRANSITION = 0x1C
+SCHEMA_STATE = 0x1D
+
+#: Each service's fixed priority (bits 28..26).
+PRIORITY = {
+    EMERGENCY_STOP: 0,
+    SCHEMA_ABORT: 1,
+    SCHEMA_TRANSFER: 2,
+    SCHEMA_ACK: 2,
+    SCHEMA_TRANSITION: 2,
+    SCHEMA_STATE: 5,
+}
+
+#: A SchemaTransfer message holds a channel byte and at most 256 bytes of schema.
+MAX_MESSAGE = 257
+#: SchemaAck's id when the schema could not be decoded.
+NO_ID = 0xFFFF
+#: SchemaAck's channel byte when the channel could not be read.
+NO_CHANNEL = 0xFF
+#: SchemaState's byte 3 when the server is not stopped on a safety event.
+NO_FAULT = 0xFF
+
+
+class MalformedFrame(ValueError):
+    """A frame of one of our services that breaks its layout: refused whole."""
+
+
+def frame_id(service: int, source: int, destination: int) -> int:
+    """The 29-bit identifier of one of our frames, e.g. ``frame_id(EMERGENCY_STOP, 0, 5)`` is
+    0x02000500."""
+    for value, what in ((source, "source"), (destination, "destination")):
+        if not 0 <= value <= 0xFF:
+            raise ValueError(f"{what} {value}: an address is 0..=255")
+    return PRIORITY[service] << 26 | 0b10 << 24 | service << 16 | destination << 8 | source
+
+
+@dataclass(frozen=True)
+class FrameId:
+    """An identifier of ours, taken apart."""
+
+    priority: int
+    service: int
+    destination: int
+    source: int
+
+    @staticmethod
+    def decode(arbitration_id: int, is_extended: bool = True) -> Optional["FrameId"]:
+        """The fields, or None for a frame outside our identifier space (a standard frame, or
+        another marker)."""
+        if not is_extended or arbitration_id & PROTOCOL_MASK != PROTOCOL_VALUE:
+            return None
+        return FrameId(
+            priority=(arbitration_id >> 26) & 0x7,
+            service=(arbitration_id >> 16) & 0xFF,
+            destination=(arbitration_id >> 8) & 0xFF,
+            source=arbitration_id & 0xFF,
+        )
+
+
+class SchemaOutcome(enum.IntEnum):
+    """SchemaAck byte 0: accepted, or why the schema was refused (a refused schema changes
+    nothing)."""
+
+    Accepted = 0x00
+    Malformed = 0x01
+    TrailingBytes = 0x02
+    ReservedId = 0x03
+    BadAxis = 0x04
+    BadSensor = 0x05
+    OutOfRange = 0x06
+    Degenerate = 0x07
+    UnknownInnate = 0x08
+    QueueFull = 0x09
+    Busy = 0x0A
+    TooLong = 0x0B
+    BadChannel = 0x0C
+    Unauthenticated = 0x0D
+    NoServer = 0x0E
+
+    @property
+    def description(self) -> str:
+        return _OUTCOME_TEXT[self]
+
+
+_OUTCOME_TEXT = {
+    SchemaOutcome.Accepted: "accepted",
+    SchemaOutcome.Malformed: "not a schema's encoding",
+    SchemaOutcome.TrailingBytes: "bytes after the schema",
+    SchemaOutcome.ReservedId: "id reserved for the server's own schemas (0xFF00 and up)",
+    SchemaOutcome.BadAxis: "axis index of 6 or more",
+    SchemaOutcome.BadSensor: "sensor index of 8 or more",
+    SchemaOutcome.OutOfRange: "value beyond ±500 m (µm, µrad)",
+    SchemaOutcome.Degenerate: "action that would never progress (speed 0, no direction, pitch 0)",
+    SchemaOutcome.UnknownInnate: "names an innate schema the board does not have",
+    SchemaOutcome.QueueFull: "queue full (8): refused, nothing overwritten",
+    SchemaOutcome.Busy: "a high-priority schema is already waiting for the next tick",
+    SchemaOutcome.TooLong: "message longer than 257 bytes",
+    SchemaOutcome.BadChannel: "channel byte neither 0 nor 1",
+    SchemaOutcome.Unauthenticated: "node has a key: schemas need authentication",
+    SchemaOutcome.NoServer: "the node's table runs no schema server",
+}
+
+
+class SchemaChannel(enum.IntEnum):
+    """A SchemaTransfer message's byte 0 (SchemaAck byte 1)."""
+
+    Queue = 0
+    HighPriority = 1
+
+
+class SchemaTrigger(enum.IntEnum):
+    """What ended a schema (SchemaTransition byte 4)."""
+
+    HighPriority = 0
+    Abort = 1
+    Safety = 2
+    Reaction = 3
+
+
+class SchemaOrigin(enum.IntEnum):
+    """Where an installed schema came from (SchemaTransition byte 6, SchemaState byte 2)."""
+
+    Innate = 0
+    Queue = 1
+    HighPriority = 2
+
+
+class SchemaSafety(enum.IntEnum):
+    """A safety event of the server (SchemaTransition detail, SchemaState byte 3)."""
+
+    EmergencyStop = 0
+    StaleSensor = 1
+    Limit = 2
+    Force = 3
+    Watchdog = 4
+    Overrun = 5
+
+
+def _code(enum_type, code: int, what: str):
+    try:
+        return enum_type(code)
+    except ValueError:
+        raise MalformedFrame(f"{what}: unknown code {code:#04x}") from None
+
+
+def _length(data: bytes, n: int, what: str) -> bytes:
+    data = bytes(data)
+    if len(data) != n:
+        raise MalformedFrame(f"{what}: {len(data)} bytes, not {n}")
+    return data
+
+
+@dataclass(frozen=True)
+class SchemaAck:
+    """A node's answer to one SchemaTransfer message (service 0x1B, node → its sender)."""
+
+    outcome: SchemaOutcome
+    #: The message's channel; None when it could not be read (0xFF on the wire).
+    channel: Optional[SchemaChannel]
+    #: The schema's id; NO_ID (0xFFFF) when it could not be decoded.
+    id: int
+    #: Schemas in the queue after this one.
+    queued: int
+
+    @property
+    def accepted(self) -> bool:
+        return self.outcome == SchemaOutcome.Accepted
+
+    @staticmethod
+    def decode(data: bytes) -> "SchemaAck":
+        data = _length(data, 8, "SchemaAck")
+        if data[5:8] != b"\x00\x00\x00":
+            raise MalformedFrame("SchemaAck: reserved bytes 5-7 not 0")
+        channel = (
+            None if data[1] == NO_CHANNEL else _code(SchemaChannel, data[1], "SchemaAck channel")
+        )
+        return SchemaAck(
+            outcome=_code(SchemaOutcome, data[0], "SchemaAck outcome"),
+            channel=channel,
+            id=data[2] | data[3] << 8,
+            queued=data[4],
+        )
+
+    def encode(self) -> bytes:
+        channel = NO_CHANNEL if self.channel is None else int(self.channel)
+        return struct.pack("<BBHB3x", int(self.outcome), channel, self.id, self.queued)
+
+
+@dataclass(frozen=True)
+class SchemaTransition:
+    """A schema change of a node's server (service 0x1C, node → all): `ended` gave way to
+    `installed`. A client's schema started when it is `installed`, finished when it is
+    `ended`."""
+
+    ended: int
+    installed: int
+    trigger: SchemaTrigger
+    #: The safety cause (trigger Safety) or the reaction's index in the ended schema's table
+    #: (trigger Reaction); 0 otherwise.
+    detail: int
+    #: Where the installed schema came from.
+    source: SchemaOrigin
+    #: Schemas in the queue after the change.
+    queued: int
+
+    @property
+    def safety(self) -> Optional[SchemaSafety]:
+        """The safety event that ended the schema, for a Safety trigger."""
+        if self.trigger == SchemaTrigger.Safety:
+            return SchemaSafety(self.detail)
+        return None
+
+    @staticmethod
+    def decode(data: bytes) -> "SchemaTransition":
+        data = _length(data, 8, "SchemaTransition")
+        ended, installed, trigger, detail, source, queued = struct.unpack("<HHBBBB", data)
+        t = SchemaTransition(
+            ended=ended,
+            installed=installed,
+            trigger=_code(SchemaTrigger, trigger, "SchemaTransition trigger"),
+            detail=detail,
+            source=_code(SchemaOrigin, source, "SchemaTransition source"),
+            queued=queued,
+        )
+        # The detail must fit the trigger (`SchemaTransition::is_valid`).
+        if t.trigger in (SchemaTrigger.HighPriority, SchemaTrigger.Abort) and detail != 0:
+            raise MalformedFrame(f"SchemaTransition: detail {detail} after {t.trigger.name}")
+        if t.trigger == SchemaTrigger.Safety:
+            _code(SchemaSafety, detail, "SchemaTransition safety cause")
+        return t
+
+    def encode(self) -> bytes:
+        return struct.pack(
+            "<HHBBBB",
+            self.ended,
+            self.installed,
+            int(self.trigger),
+            self.detail,
+            int(self.source),
+            self.queued,
+        )
+
+
+@dataclass(frozen=True)
+class SchemaState:
+    """A node's server state (service 0x1D, node → all, every 100 ms)."""
+
+    #: The installed schema's id.
+    current: int
+    source: SchemaOrigin
+    #: The safety event the server is stopped on; None when running.
+    fault: Optional[SchemaSafety]
+    queued: int
+    #: A pose has been received: the attractor means something.
+    armed: bool
+    gripper_closed: bool
+    #: ms since the schema was installed, saturating at 65 535.
+    elapsed_ms: int
+
+    @staticmethod
+    def decode(data: bytes) -> "SchemaState":
+        data = _length(data, 8, "SchemaState")
+        current, source, fault, queued, flags, elapsed = struct.unpack("<HBBBBH", data)
+        if flags & ~0b11:
+            raise MalformedFrame(f"SchemaState: reserved flag bits set ({flags:#04x})")
+        return SchemaState(
+            current=current,
+            source=_code(SchemaOrigin, source, "SchemaState source"),
+            fault=None if fault == NO_FAULT else _code(SchemaSafety, fault, "SchemaState fault"),
+            queued=queued,
+            armed=bool(flags & 1),
+            gripper_closed=bool(flags & 2),
+            elapsed_ms=elapsed,
+        )
+
+    def encode(self) -> bytes:
+        fault = NO_FAULT if self.fault is None else int(self.fault)
+        flags = int(self.armed) | int(self.gripper_closed) << 1
+        return struct.pack(
+            "<HBBBBH",
+            self.current,
+            int(self.source),
+            fault,
+            self.queued,
+            flags,
+            self.elapsed_ms,
+        )
+
+
+Report = Union[SchemaAck, SchemaTransition, SchemaState]
+
+_REPORTS = {
+    SCHEMA_ACK: SchemaAck,
+    SCHEMA_TRANSITION: SchemaTransition,
+    SCHEMA_STATE: SchemaState,
+}
+
+
+def decode_report(
+    arbitration_id: int, is_extended: bool, data: bytes
+) -> Optional["tuple[FrameId, Report]"]:
+    """A schema server's report (SchemaAck, SchemaTransition or SchemaState) with its
+    identifier's fields; None for any other frame. Raises :class:`MalformedFrame` for one of
+    those services at another priority or with a broken payload."""
+    fid = FrameId.decode(arbitration_id, is_extended)
+    if fid is None or fid.service not in _REPORTS:
+        return None
+    if fid.priority != PRIORITY[fid.service]:
+        raise MalformedFrame(
+            f"{_REPORTS[fid.service].__name__}: priority {fid.priority}, "
+            f"not {PRIORITY[fid.service]}"
+        )
+    return fid, _REPORTS[fid.service].decode(data)
+
+
+def emergency_stop_id(destination: int = BROADCAST, source: int = TOOL) -> int:
+    """EmergencyStop's identifier: 0x0200FF00 from the tool to all, 0x0200NN00 to node NN. The
+    frame has no payload (a padded one is malformed)."""
+    return frame_id(EMERGENCY_STOP, source, destination)
+
+
+def abort_id(destination: int = BROADCAST, source: int = TOOL) -> int:
+    """SchemaAbort's identifier: 0x0619NN00 from the tool to node NN. No payload."""
+    return frame_id(SCHEMA_ABORT, source, destination)
+
+
+def transfer_ids(node: int, source: int = TOOL) -> "tuple[int, int]":
+    """The SchemaTransfer identifiers of a client and a node: (client → node data, node → client
+    flow control), e.g. (0x0A1A0A00, 0x0A1A000A) for node 10."""
+    return frame_id(SCHEMA_TRANSFER, source, node), frame_id(SCHEMA_TRANSFER, node, source)
+
+
+def transfer_message(schema_bytes: bytes, high_priority: bool = False) -> bytes:
+    """A SchemaTransfer message: the channel byte (0 the queue, 1 the high-priority channel) and
+    the schema's encoding."""
+    message = bytes([1 if high_priority else 0]) + bytes(schema_bytes)
+    if len(message) > MAX_MESSAGE:
+        raise ValueError(f"a schema message is at most {MAX_MESSAGE} bytes, not {len(message)}")
+    return message
