@@ -7,7 +7,7 @@
 //! program is a sequence of calls. Units are the board's: µm, µrad, µm/s, mN, ms.
 //!
 //! ```no_run
-//! # fn main() -> std::io::Result<()> {
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! use pabctl::client::Client;
 //! let mut bus = pabctl::bus::open("vcan0")?;
 //! let mut arm = Client::new(bus.as_mut(), 10);
