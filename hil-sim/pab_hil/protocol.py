@@ -38,6 +38,14 @@ TRANSFER_OPEN = 0x15
 RECEIPT = 0x16
 FILTER_PROFILE = 0x17
 FILTER_SET = 0x18
+# The schema server (docs/can-protocol.md, "Schema server"): the harness names them; the client
+# that speaks them is `pab_client` (client/python).
+EMERGENCY_STOP = 0x00
+SCHEMA_ABORT = 0x19
+SCHEMA_TRANSFER = 0x1A
+SCHEMA_ACK = 0x1B
+SCHEMA_TRANSITION = 0x1C
+SCHEMA_STATE = 0x1D
 INTENTION_NODE = 126  # the intention node's address unless told otherwise
 
 PRIORITY = {
@@ -61,6 +69,12 @@ PRIORITY = {
     RECEIPT: 2,
     FILTER_PROFILE: 3,
     FILTER_SET: 3,
+    EMERGENCY_STOP: 0,
+    SCHEMA_ABORT: 1,
+    SCHEMA_TRANSFER: 2,
+    SCHEMA_ACK: 2,
+    SCHEMA_TRANSITION: 2,
+    SCHEMA_STATE: 5,
 }
 
 NODE_STATES = {0: "no table", 1: "operational", 2: "fault"}

@@ -38,9 +38,12 @@ def test_identifiers_match_the_protocol_document():
                 "FilterProfile": p.FILTER_PROFILE, "FilterSet": p.FILTER_SET,
                 "DiagnosticControl": p.DIAGNOSTIC_CONTROL, "TableTransfer": p.TABLE_TRANSFER,
                 "TransferStatus": p.TRANSFER_STATUS, "ChallengeRequest": p.CHALLENGE_REQUEST,
-                "Challenge": p.CHALLENGE, "TransferOpen": p.TRANSFER_OPEN, "Receipt": p.RECEIPT}
+                "Challenge": p.CHALLENGE, "TransferOpen": p.TRANSFER_OPEN, "Receipt": p.RECEIPT,
+                "EmergencyStop": p.EMERGENCY_STOP, "SchemaAbort": p.SCHEMA_ABORT,
+                "SchemaTransfer": p.SCHEMA_TRANSFER, "SchemaAck": p.SCHEMA_ACK,
+                "SchemaTransition": p.SCHEMA_TRANSITION, "SchemaState": p.SCHEMA_STATE}
     (rows,) = doc_tables("| frame | service | source | destination | identifier |")
-    assert len(rows) == 22
+    assert len(rows) == 30
     for frame, service, source, destination, identifier in rows:
         ident = p.frame_id(services[service], int(source, 0), int(destination, 0))
         assert ident == int(identifier, 16), frame
