@@ -159,6 +159,11 @@ interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a rea
         /// installed schema over time (from --from to --until).
         #[arg(long, value_name = "FILE.png")]
         schema_plot: Option<PathBuf>,
+        /// Write the schema server's client program as JSON: per call its name and its schema
+        /// (serde's form, the one `pab_client.Schema.from_json` reads), so that another client
+        /// sends exactly the file's schemas.
+        #[arg(long, value_name = "FILE.json")]
+        schema_program: Option<PathBuf>,
         /// Start the schema plot's time axis here, seconds (default 0), to show one insertion.
         #[arg(long, value_name = "SECONDS", value_parser = args::seconds)]
         from: Option<f64>,
@@ -319,7 +324,7 @@ Run the file's [plant] (the simulator's robot: an impedance-controlled end-effec
 with holes, parts, a wrist force sensor) on --iface in real time, in front of the board of its \
 [client]: every period it reads the board's set-point frames (the drive's frames of \
 [schema.NODE] `drive`: attractor, rotation, impedance, gripper), integrates the model for one \
-period and publishes the measured pose and wrench. Until --duration or Ctrl-C; then prints the \
+period and publishes the measured pose and wrench. Until --duration, Ctrl-C or SIGTERM; then prints the \
 parts inserted. --log writes one CSV row per step: t,x,y,z,attractor_x,attractor_y,attractor_z,\
 force_n,inserted (µm, N).")]
     Plant {
@@ -514,6 +519,7 @@ fn main() -> ExitCode {
             dynamics_trace,
             schema_trace,
             schema_plot,
+            schema_program,
             from,
         } => run_sim(
             &network,
@@ -532,6 +538,7 @@ fn main() -> ExitCode {
                 until,
                 schema_trace.as_deref(),
                 schema_plot.as_deref(),
+                schema_program.as_deref(),
             )
         }),
         Command::Replay {
@@ -956,19 +963,31 @@ fn run_schema_sim(
     until: Option<f64>,
     trace: Option<&Path>,
     plot_path: Option<&Path>,
+    program_path: Option<&Path>,
 ) -> Result<(), Failure> {
     let network = Network::load(path)?;
     if network.client.is_none() {
-        if trace.is_some() || plot_path.is_some() {
+        if trace.is_some() || plot_path.is_some() || program_path.is_some() {
             return Err(Failure::Input(
                 Diagnostic::file(
                     path,
-                    "--schema-trace and --schema-plot need a schema server with a [client] in the file",
+                    "--schema-trace, --schema-plot and --schema-program need a schema server with a [client] in the file",
                 )
                 .into(),
             ));
         }
         return Ok(());
+    }
+    if let (Some(program_path), Some(client)) = (program_path, network.client.as_ref()) {
+        let calls: Vec<serde_json::Value> = client
+            .program
+            .iter()
+            .map(|call| serde_json::json!({ "name": call.name, "schema": call.schema }))
+            .collect();
+        let text = serde_json::to_string_pretty(&calls)
+            .map_err(|e| Failure::Output(format!("cannot write the program: {e}")))?;
+        write_atomically(program_path, text.as_bytes())?;
+        println!("schema program: {} ({} calls)", program_path.display(), calls.len());
     }
     let limits = sim::schema::Limits {
         until_us: until.map_or(100_000 * 1_000_000, sim::micros),
@@ -1039,7 +1058,10 @@ fn run_plant(
         (ms * 1000.0).round().max(1.0) as u32
     });
     let mut bus = bus::open(iface).map_err(|e| Failure::Bus(e.to_string()))?;
-    let stop = std::sync::atomic::AtomicBool::new(false);
+    let stop = Arc::new(AtomicBool::new(false));
+    let handler = stop.clone();
+    // Ctrl-C or a SIGTERM ends the run as --duration does: the summary and the log are written.
+    let _ = ctrlc::set_handler(move || handler.store(true, Ordering::SeqCst));
     let mut csv = String::from("t,x,y,z,attractor_x,attractor_y,attractor_z,force_n,inserted\n");
     let mut last_report = 0.0;
     let plant = pabctl::plant::run(
