@@ -253,20 +253,26 @@ def test_an_emergency_stop_frame_halts_the_board_within_a_period(iface, tmp_path
     stop = next(m for m in frames if m.is_extended_id and m.arbitration_id == ESTOP_BROADCAST)
     after = [m for m in frames if m.timestamp >= stop.timestamp]
     transition = next(m for m in after if m.arbitration_id == TRANSITION and m.data[4] == 2)
-    # The halted set-point: the first attractor frame after the stop on the measured pose (the
-    # last pose frame before it), the gripper flag aside.
+    # The halted set-point: the first attractor frame after the stop that is on a measured pose
+    # (one of the last pose frames the node could have read: the plant publishes every period),
+    # the gripper flag aside; every attractor frame after it is the same.
+    def same(attractor: bytes, pose: bytes) -> bool:
+        return attractor[:7] == pose[:7] and (attractor[7] & 0x7F) == (pose[7] & 0x7F)
+
+    poses: list[bytes] = [bytes(m.data) for m in frames if m.timestamp < stop.timestamp
+                          and m.arbitration_id == POSE and not m.is_extended_id][-3:]
     halted = None
-    before = [m for m in frames if m.timestamp < stop.timestamp
-              and m.arbitration_id == POSE and not m.is_extended_id]
-    pose = bytes(before[-1].data) if before else None
     for m in after:
         if m.arbitration_id == POSE and not m.is_extended_id:
-            pose = bytes(m.data)
-        elif m.arbitration_id == SETPOINT and not m.is_extended_id and pose is not None:
-            if bytes(m.data)[:7] == pose[:7] and (m.data[7] & 0x7F) == (pose[7] & 0x7F):
+            poses = [*poses[-2:], bytes(m.data)]
+        elif m.arbitration_id == SETPOINT and not m.is_extended_id:
+            if any(same(bytes(m.data), p) for p in poses):
                 halted = m
                 break
+    held = [bytes(m.data) for m in after if m.arbitration_id == SETPOINT
+            and not m.is_extended_id and halted is not None and m.timestamp >= halted.timestamp]
     assert halted is not None, "no attractor frame on the measured pose after the stop"
+    assert len(set(held)) == 1, "the attractor moved after the halt"
     latency = {"transition_ms": 1000 * (transition.timestamp - stop.timestamp),
                "halted_setpoint_ms": 1000 * (halted.timestamp - stop.timestamp),
                "period_ms": 1000 * PERIOD_S}

@@ -56,8 +56,13 @@ pub fn run(
         // Read until this step is due.
         loop {
             let wait = next.saturating_duration_since(Instant::now());
-            let Some(frame) = bus.receive(wait)? else {
-                break;
+            let frame = match bus.receive(wait) {
+                Ok(Some(frame)) => frame,
+                Ok(None) => break,
+                // A signal (the SIGTERM that ends the run) interrupted the wait: the loop looks
+                // at `stop` next.
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => break,
+                Err(e) => return Err(e),
             };
             if read_setpoint(&frame, drive_ids, &mut attractor_frames, &mut setpoint) {
                 received += 1;
@@ -74,7 +79,10 @@ pub fn run(
         if let Some(s) = &setpoint {
             plant.step(s, period_us);
         }
-        publish(bus, drive_ids, &plant)?;
+        match publish(bus, drive_ids, &plant) {
+            Err(e) if e.kind() != io::ErrorKind::Interrupted => return Err(e),
+            _ => {}
+        }
         let pose = plant.pose();
         let attractor = setpoint.map_or([pose[0], pose[1], pose[2]], |s| {
             [s.attractor[0], s.attractor[1], s.attractor[2]]

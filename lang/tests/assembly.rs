@@ -114,7 +114,15 @@ fn an_obstacle_on_the_way_raises_the_force_event_and_the_board_stops() {
         min: [-110_000.0, -10_000.0, 0.0],
         max: [-90_000.0, 10_000.0, 60_000.0],
     });
-    let run = simulate(&network, LIMITS).unwrap();
+    // A second after the stop, to see the force relieved.
+    let run = simulate(
+        &network,
+        Limits {
+            settle_us: 1_000_000,
+            ..LIMITS
+        },
+    )
+    .unwrap();
     assert_eq!(run.fault, Some(Safety::Force));
     let names: Vec<String> = run.installed.iter().map(|i| i.name.clone()).collect();
     let at = names.iter().position(|n| n == "safety:force").unwrap();

@@ -76,7 +76,8 @@ pub struct Limits {
     /// Stop at this time, µs.
     pub until_us: u64,
     /// Stop once every call has been sent and the board waits (on the queue, or on the
-    /// high-priority channel with nothing timed left), this long after.
+    /// high-priority channel with nothing timed left), or once a safety event has stopped it
+    /// with nothing timed left, this long after.
     pub settle_us: u64,
 }
 
@@ -224,7 +225,10 @@ pub fn run(
         }
         let waiting = server.current() == Schema::WAIT_QUEUE
             || (server.current() == Schema::WAIT_HIGH_PRIORITY && pending.peek().is_none());
-        if sent == program.len() && waiting && server.queued() == 0 {
+        // Stopped on a safety event with nothing timed left: the queue will not run again, and
+        // the client cannot send what it still has (the queue does not drain).
+        let stopped = server.fault().is_some() && waiting;
+        if stopped || (sent == program.len() && waiting && server.queued() == 0) {
             let since = *idle_since.get_or_insert(t_us);
             if t_us - since >= limits.settle_us {
                 break;
