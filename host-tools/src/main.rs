@@ -987,7 +987,11 @@ fn run_schema_sim(
         let text = serde_json::to_string_pretty(&calls)
             .map_err(|e| Failure::Output(format!("cannot write the program: {e}")))?;
         write_atomically(program_path, text.as_bytes())?;
-        println!("schema program: {} ({} calls)", program_path.display(), calls.len());
+        println!(
+            "schema program: {} ({} calls)",
+            program_path.display(),
+            calls.len()
+        );
     }
     let limits = sim::schema::Limits {
         until_us: until.map_or(100_000 * 1_000_000, sim::micros),
