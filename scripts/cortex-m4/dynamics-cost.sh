@@ -8,47 +8,12 @@
 #   scripts/cortex-m4/dynamics-cost.sh      per case: median and largest instructions per step,
 #                                           and the share of a 170 MHz Cortex-M4 at 1 kHz
 #
-# Needs qemu-system-arm, gcc, python3 and llvm-nm (rustup's llvm-tools).
+# Needs qemu-system-arm, gcc, python3 and llvm-nm (rustup's llvm-tools): see measure.sh.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 
-scripts/need.sh qemu-system-arm gcc python3
-llvm_bin="$(rustc --print sysroot)/lib/rustlib/$(rustc -vV | sed -n 's/^host: //p')/bin"
-if [ ! -x "$llvm_bin/llvm-nm" ]; then
-    rustup component add llvm-tools
-fi
-
-target="${CARGO_TARGET_DIR:-$PWD/target}"
-work="$target/cortex-m4"
-mkdir -p "$work"
-plugin="$work/insn-count.so"
-source=scripts/cortex-m4/insn-count.c
-if [ ! -f "$plugin" ] || [ "$source" -nt "$plugin" ]; then
-    gcc -shared -fPIC -O2 -Wall -Wextra -Werror -fvisibility=hidden -o "$plugin" "$source"
-fi
-
-(cd scripts/cortex-m4/dynamics-cost &&
-    CARGO_TARGET_DIR="$target" cargo build -q --release --target thumbv7em-none-eabihf --locked)
-elf="$target/thumbv7em-none-eabihf/release/pab-dynamics-cost"
-
-address() {
-    "$llvm_bin/llvm-nm" "$elf" | awk -v name="$1" '$3 == name { print "0x" $1 }'
-}
-begin=$(address pab_cost_begin)
-end=$(address pab_cost_end)
-if [ -z "$begin" ] || [ -z "$end" ] || [ "$begin" = "$end" ]; then
-    echo "dynamics-cost: markers not found (or merged) in $elf" >&2
-    exit 1
-fi
-
-log="$work/dynamics.log"
-if ! qemu-system-arm -M mps2-an386 -nographic -monitor none \
-    -semihosting-config enable=on,target=native -icount shift=0 \
-    -plugin "$plugin,begin=$begin,end=$end" -kernel "$elf" 2> "$log" > /dev/null; then
-    tail -5 "$log" >&2
-    echo "dynamics-cost: the measurement program failed (log: $log)" >&2
-    exit 1
-fi
+. scripts/cortex-m4/measure.sh
+measure scripts/cortex-m4/dynamics-cost pab-dynamics-cost dynamics-cost
 
 # The code of the step: the measured function, into which LTO inlines `Dynamics::step`.
 step_bytes=$("$llvm_bin/llvm-nm" --print-size --size-sort -C "$elf" |
