@@ -786,7 +786,7 @@ fn schema_trace_without_a_client_is_an_error() {
     assert_eq!(output.status.code(), Some(2), "{}", text(&output.stderr));
     assert!(
         text(&output.stderr).contains(
-            "--schema-trace and --schema-plot need a schema server with a [client] in the file"
+            "--schema-trace, --schema-plot and --schema-program need a schema server with a [client] in the file"
         ),
         "{}",
         text(&output.stderr)
