@@ -304,6 +304,35 @@ def schema(path):
     check(str(values["fault"]) == "watchdog" and str(values["source"]) == "high-priority",
           f"schema state, stopped: {values}")
     check(message.cycle_time == 100, f"schema state cycle time: {message.cycle_time}")
+    drive(db)
+
+
+def pack21(values, flag):
+    """docs/can-protocol.md, "The drive's frames": three signed 21-bit values (two's
+    complement) in bits 0-20, 21-41, 42-62, the flag in bit 63, little endian."""
+    word = sum((v & 0x1FFFFF) << (21 * i) for i, v in enumerate(values)) | (flag << 63)
+    return word.to_bytes(8, "little")
+
+
+def drive(db):
+    """The drive's frames of examples/assembly.toml: drive = { setpoint = 0x300, pose = 0x310,
+    wrench = 0x320 } (standard ids)."""
+    for name, ident in [("Drive_Attractor_arm", 0x300), ("Drive_AttractorRotation_arm", 0x301),
+                        ("Drive_Impedance_arm", 0x302), ("Drive_Pose_arm", 0x310),
+                        ("Drive_PoseRotation_arm", 0x311), ("Drive_Wrench_arm", 0x320),
+                        ("Drive_Torque_arm", 0x321)]:
+        message = db.get_message_by_name(name)
+        check(message.frame_id == ident and not message.is_extended_frame and message.length == 8,
+              f"{name}: id {message.frame_id:#x}")
+    values = db.decode_message(0x300, pack21((-100_000, 60_000, -3), 1))
+    check((values["x"], values["y"], values["z"], values["gripper_closed"]) == (-100_000, 60_000, -3, 1),
+          f"attractor: {values}")
+    values = db.decode_message(0x320, pack21((-(1 << 20), (1 << 20) - 1, 7_000), 0))
+    check((values["fx"], values["fy"], values["fz"]) == (-(1 << 20), (1 << 20) - 1, 7_000),
+          f"wrench at the field's bounds: {values}")
+    values = db.decode_message(0x302, (2000).to_bytes(4, "little") + (120).to_bytes(4, "little"))
+    check((values["stiffness"], values["damping"]) == (2000, 120), f"impedance: {values}")
+    check(db.get_message_by_name("Drive_Attractor_arm").cycle_time == 1, "the attractor every 1 ms")
 
 
 if __name__ == "__main__":

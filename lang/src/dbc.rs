@@ -62,6 +62,8 @@ pub struct DbcSignal {
     pub values: Vec<(u32, &'static str)>,
     /// What it means.
     pub comment: String,
+    /// Two's complement (`@1-`), else unsigned (`@1+`).
+    pub signed: bool,
 }
 
 /// One message.
@@ -144,6 +146,7 @@ fn signal(name: &str, start: u32, len: u32, comment: &str) -> DbcSignal {
         unit: "",
         values: Vec::new(),
         comment: comment.to_string(),
+        signed: false,
     }
 }
 
@@ -361,6 +364,7 @@ pub fn service_signals(service: Service) -> Option<Vec<DbcSignal>> {
                 unit: "S",
                 values: Vec::new(),
                 comment: "stimulation S in 0..1 (Q1.31 on the wire: raw 2^31 = 1.0)".into(),
+                signed: false,
             },
         ],
         Service::DiagnosticControl => vec![
@@ -746,6 +750,151 @@ fn service_comment(service: Service) -> &'static str {
     }
 }
 
+/// Three signed 21-bit values and a flag (bit 63) in 8 bytes.
+fn triple(
+    names: [&str; 3],
+    unit: &'static str,
+    what: &str,
+    flag: Option<(&str, &str)>,
+) -> Vec<DbcSignal> {
+    let mut signals: Vec<DbcSignal> = names
+        .iter()
+        .enumerate()
+        .map(|(i, name)| DbcSignal {
+            unit,
+            max: ((1u64 << 20) - 1).to_string(),
+            signed: true,
+            ..signal(
+                name,
+                21 * i as u32,
+                21,
+                &format!("{what}, {name}; saturated at ±2^20"),
+            )
+        })
+        .collect();
+    if let Some((name, comment)) = flag {
+        signals.push(signal(name, 63, 1, comment));
+    }
+    signals
+}
+
+/// The Drive_* messages of one schema server's board.
+fn drive_messages(
+    messages: &mut Vec<DbcMessage>,
+    names: &mut Names,
+    board: &crate::network::SchemaBoard,
+    node_name: &str,
+    dbc_node: &str,
+) {
+    let id = |base: pab_core::OutputId, offset: u32| {
+        let raw = base.raw().saturating_add(offset);
+        if base.is_extended() {
+            raw | EXTENDED_FLAG
+        } else {
+            raw
+        }
+    };
+    let period_ms = (board.config.period_us / 1000).max(1);
+    let d = board.drive;
+    let out = |name: &str, base, offset, signals, comment: &str, cycle| DbcMessage {
+        id: id(base, offset),
+        name: name.to_string(),
+        dlc: 8,
+        transmitter: dbc_node.to_string(),
+        receivers: vec![UNKNOWN_NODE.to_string()],
+        signals,
+        comment: format!("{comment} Sent by node `{node_name}`'s schema server to its drive."),
+        cycle_ms: Some(cycle),
+    };
+    let inward = |name: &str, base, offset, signals, comment: &str| DbcMessage {
+        id: id(base, offset),
+        name: name.to_string(),
+        dlc: 8,
+        transmitter: UNKNOWN_NODE.to_string(),
+        receivers: vec![dbc_node.to_string()],
+        signals,
+        comment: format!("{comment} Read by node `{node_name}`'s schema server."),
+        cycle_ms: None,
+    };
+    let attractor = triple(
+        ["x", "y", "z"],
+        "um",
+        "the attractor",
+        Some(("gripper_closed", "1: the gripper is commanded closed")),
+    );
+    let rotation = triple(["rx", "ry", "rz"], "urad", "the attractor's rotation", None);
+    let impedance = vec![
+        DbcSignal {
+            unit: "N/m",
+            ..signal("stiffness", 0, 32, "the drive's stiffness")
+        },
+        DbcSignal {
+            unit: "N.s/m",
+            ..signal("damping", 32, 32, "the drive's damping")
+        },
+    ];
+    let made = [
+        out(
+            &names.unique(format!("Drive_Attractor_{dbc_node}")),
+            d.setpoint,
+            0,
+            attractor,
+            "The impedance controller's attractor, every loop period.",
+            period_ms,
+        ),
+        out(
+            &names.unique(format!("Drive_AttractorRotation_{dbc_node}")),
+            d.setpoint,
+            1,
+            rotation,
+            "The attractor's rotation, every loop period.",
+            period_ms,
+        ),
+        out(
+            &names.unique(format!("Drive_Impedance_{dbc_node}")),
+            d.setpoint,
+            2,
+            impedance,
+            "The drive's impedance, on change and every 100 ms.",
+            100,
+        ),
+        inward(
+            &names.unique(format!("Drive_Pose_{dbc_node}")),
+            d.pose,
+            0,
+            triple(["x", "y", "z"], "um", "the measured position", None),
+            "The drive's measured position.",
+        ),
+        inward(
+            &names.unique(format!("Drive_PoseRotation_{dbc_node}")),
+            d.pose,
+            1,
+            triple(["rx", "ry", "rz"], "urad", "the measured rotation", None),
+            "The drive's measured rotation.",
+        ),
+        inward(
+            &names.unique(format!("Drive_Wrench_{dbc_node}")),
+            d.wrench,
+            0,
+            triple(
+                ["fx", "fy", "fz"],
+                "mN",
+                "the contact force on the robot",
+                None,
+            ),
+            "The wrist sensor's force (pressing down on a surface reads +z).",
+        ),
+        inward(
+            &names.unique(format!("Drive_Torque_{dbc_node}")),
+            d.wrench,
+            1,
+            triple(["tx", "ty", "tz"], "mN.m", "the torque", None),
+            "The wrist sensor's torque.",
+        ),
+    ];
+    messages.extend(made);
+}
+
 /// The DBC database of `network`. Fails, with a diagnostic at the topic, if a topic lies in the
 /// protocol's identifier space (extended, bits 25..24 = 0b10): nodes never arbitrate such frames.
 pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
@@ -775,8 +924,8 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
                 comment,
                 " It runs a schema server: schemas reach it by ISO-TP on service 0x1A (a channel \
                  byte, then the schema), not described here: data 0x{transfer:08X} (tool to \
-                 node), flow control 0x{flow:08X} (node to tool). Its drive's frames are topics \
-                 of its own, not described here."
+                 node), flow control 0x{flow:08X} (node to tool). Its drive's frames are the \
+                 Drive_* messages."
             );
         }
         node_comments.push(comment);
@@ -853,6 +1002,18 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
                 },
             });
         }
+    }
+    // The schema servers' drives: the set-point the board sends every period, the pose and the
+    // wrench it reads (docs/can-protocol.md, "The drive's frames"), on the ids of the board's
+    // `drive`.
+    for board in &network.schema_boards {
+        let Some(dbc_node) = nodes.get(board.node + 1) else {
+            continue;
+        };
+        let Some(node) = network.nodes.get(board.node) else {
+            continue;
+        };
+        drive_messages(&mut messages, &mut names, board, &node.name, dbc_node);
     }
     // BLE claims: one message per node of a group. A DBC names whole identifiers, and a claim's
     // identifier carries its eligibility (higher eligibility, lower identifier), so the message
@@ -1233,13 +1394,20 @@ impl Dbc {
                 message.id, message.name, message.dlc, message.transmitter
             )?;
             for signal in &message.signals {
+                let (sign, min) = if signal.signed {
+                    ('-', format!("-{}", 1u64 << (signal.len - 1)))
+                } else {
+                    ('+', "0".to_string())
+                };
                 writeln!(
                     out,
-                    " SG_ {} : {}|{}@1+ ({},0) [0|{}] \"{}\" {}",
+                    " SG_ {} : {}|{}@1{} ({},0) [{}|{}] \"{}\" {}",
                     signal.name,
                     signal.start,
                     signal.len,
+                    sign,
                     signal.factor,
+                    min,
                     signal.max,
                     signal.unit,
                     message.receivers.join(",")
