@@ -598,6 +598,13 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         self.schema = setup;
     }
 
+    /// Takes the schema server's set-up out of the table: a node hands it to its server, which
+    /// owns it from then on (no copy of the innate schemas kept twice in RAM).
+    #[cfg(feature = "schema")]
+    pub fn take_schema(&mut self) -> Option<crate::schema::Setup> {
+        self.schema.take()
+    }
+
     /// The number of ports.
     pub fn port_count(&self) -> usize {
         self.ports.len()

@@ -1089,7 +1089,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     #[cfg(feature = "schema")]
     fn start_schema(&mut self, setup: SchemaPart, now: Instant) {
         self.schema =
-            setup.and_then(|s| crate::schema::SchemaRuntime::new(&s, self.config.isotp, now));
+            setup.and_then(|s| crate::schema::SchemaRuntime::new(s, self.config.isotp, now));
     }
 
     #[cfg(not(feature = "schema"))]
@@ -1668,9 +1668,10 @@ fn check_version(
 fn load<const P: usize, const C: usize, const N: usize>(
     bytes: &[u8],
 ) -> Result<(Header, Arbiter<P, C, N>, SchemaPart), (TransferStatusCode, u8)> {
-    let loaded = image::load::<P, C, N>(bytes).map_err(|error| status_of(&error))?;
+    #[cfg_attr(not(feature = "schema"), allow(unused_mut))]
+    let mut loaded = image::load::<P, C, N>(bytes).map_err(|error| status_of(&error))?;
     #[cfg(feature = "schema")]
-    let schema = loaded.table.schema().cloned();
+    let schema = loaded.table.take_schema();
     #[cfg(not(feature = "schema"))]
     let schema = ();
     let arbiter = Arbiter::new(loaded.table).map_err(|_| (TransferStatusCode::InvalidTable, 0))?;

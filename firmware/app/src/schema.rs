@@ -54,8 +54,8 @@ pub struct SchemaRuntime {
 impl SchemaRuntime {
     /// The runtime of `setup`, its first tick at `now`; `None` when the set-up is refused (the
     /// loader checked it: not expected).
-    pub fn new(setup: &Setup, isotp: isotp::RxConfig, now: Instant) -> Option<SchemaRuntime> {
-        let server = Server::new(setup.config.clone()).ok()?;
+    pub fn new(setup: Setup, isotp: isotp::RxConfig, now: Instant) -> Option<SchemaRuntime> {
+        let server = Server::new(setup.config).ok()?;
         Some(SchemaRuntime {
             server,
             drive: setup.drive,
