@@ -61,6 +61,14 @@ KEY_PAGE_ADDRESS = 0x0004_E000
 # id~mask, "passes when id & mask differ"; the mask holds CAN_EFF_FLAG, so only 29-bit frames
 # are left out.
 ROUTE_FILTER = "82000000~83F80000"
+# The one frame of services 0x00-0x07 a node does act on: the emergency stop (service 0x00, to
+# every node or to this one), which ROUTE_FILTER's mask cannot tell from the reports. A second
+# route, disjoint from the first: a board that runs a schema server must stop on it
+# (docs/can-protocol.md, "Serial-line bridge"). Format: id:mask, "passes when id & mask match".
+ESTOP_FILTER = "82000000:83FF0000"
+# What reaches a board by default: one route per filter (disjoint: a frame that passed two would
+# be delivered twice).
+TO_BOARD = (ROUTE_FILTER, ESTOP_FILTER)
 
 
 class BoardError(RuntimeError):
@@ -266,7 +274,7 @@ class BoardNode:
     routes: list[list[str]] = field(default_factory=list)
     # cangw filters of the routes from the bus to the board, one route each (keep them disjoint:
     # a frame that passes two is delivered twice). Default: everything but the reports to the tool.
-    to_board: tuple[str, ...] = (ROUTE_FILTER,)
+    to_board: tuple[str, ...] = TO_BOARD
 
     @property
     def can_iface(self) -> str:
@@ -329,8 +337,8 @@ class BoardNode:
             time.sleep(0.05)
         _run(["ip", "link", "set", "up", self.can_iface])
         # Frames routed onto a vcan are seen by its sockets only if echoed (-e). can-gw's hop
-        # limit (1) keeps each frame from coming back the way it went. The route to the board
-        # leaves out the nodes' reports to the tool (ROUTE_FILTER).
+        # limit (1) keeps each frame from coming back the way it went. The routes to the board
+        # leave out the nodes' reports to the tool (TO_BOARD).
         for route in (*(["-s", self.iface, "-d", self.can_iface, "-f", f] for f in self.to_board),
                       ["-s", self.can_iface, "-d", self.iface, "-e"]):
             _run(["cangw", "-A", *route])
