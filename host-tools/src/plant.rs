@@ -34,6 +34,88 @@ pub struct Sample {
     pub setpoints: u64,
 }
 
+/// The plant as the bus sees it, without I/O: it reads the board's set-point frames and makes
+/// the drive's pose and wrench frames. [`run`] paces it in real time on a bus; a rig in virtual
+/// time (the schema server's replay test) drives it frame by frame.
+pub struct BusPlant {
+    plant: Plant,
+    ids: Drive,
+    setpoint: Option<Setpoint>,
+    partial: (Option<[i32; 3]>, bool, Option<[i32; 3]>),
+    received: u64,
+}
+
+impl BusPlant {
+    /// `config`'s plant in front of a board whose drive is at `ids`.
+    pub fn new(ids: Drive, config: PlantConfig) -> BusPlant {
+        BusPlant {
+            plant: Plant::new(config),
+            ids,
+            setpoint: None,
+            partial: (None, false, None),
+            received: 0,
+        }
+    }
+
+    /// Reads `frame` if it is one of the board's set-point frames; returns whether it was.
+    pub fn on_frame(&mut self, frame: &Frame) -> bool {
+        let read = read_setpoint(frame, self.ids, &mut self.partial, &mut self.setpoint);
+        if read {
+            self.received += 1;
+        }
+        read
+    }
+
+    /// Integrates the model for `period_us` under the last set-point (still before the first).
+    pub fn step(&mut self, period_us: u32) {
+        if let Some(s) = &self.setpoint {
+            self.plant.step(s, period_us);
+        }
+    }
+
+    /// The drive's pose and the wrist's wrench now: four frames (translation, rotation of each).
+    pub fn frames(&self) -> Vec<Frame> {
+        let pose = self.plant.pose();
+        let wrench = self.plant.wrench();
+        let ids = self.ids;
+        [
+            (ids.pose, 0, [pose[0], pose[1], pose[2]]),
+            (ids.pose, 1, [pose[3], pose[4], pose[5]]),
+            (ids.wrench, 0, [wrench[0], wrench[1], wrench[2]]),
+            (ids.wrench, 1, [wrench[3], wrench[4], wrench[5]]),
+        ]
+        .into_iter()
+        .filter_map(|(base, offset, values)| {
+            Frame::with_raw_id(
+                base.raw().saturating_add(offset),
+                base.is_extended(),
+                &drive::pack(values, false),
+            )
+        })
+        .collect()
+    }
+
+    /// The model.
+    pub fn plant(&self) -> &Plant {
+        &self.plant
+    }
+
+    /// The last set-point read.
+    pub fn setpoint(&self) -> Option<Setpoint> {
+        self.setpoint
+    }
+
+    /// Set-point frames read so far.
+    pub fn received(&self) -> u64 {
+        self.received
+    }
+
+    /// The model, at the end.
+    pub fn into_plant(self) -> Plant {
+        self.plant
+    }
+}
+
 /// Runs the plant on `bus` at `period_us` until `stop` is set (or `duration` has passed),
 /// handing each step's sample to `log`; returns the plant at the end.
 pub fn run(
@@ -45,13 +127,10 @@ pub fn run(
     stop: &AtomicBool,
     log: &mut dyn FnMut(&Sample),
 ) -> io::Result<Plant> {
-    let mut plant = Plant::new(config);
-    let mut setpoint: Option<Setpoint> = None;
-    let mut received = 0u64;
+    let mut robot = BusPlant::new(drive_ids, config);
     let start = Instant::now();
     let period = Duration::from_micros(u64::from(period_us.max(1)));
     let mut next = start;
-    let mut attractor_frames = (None::<[i32; 3]>, false, None::<[i32; 3]>);
     while !stop.load(Ordering::SeqCst) && duration.is_none_or(|d| start.elapsed() < d) {
         // Read until this step is due.
         loop {
@@ -64,9 +143,7 @@ pub fn run(
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => break,
                 Err(e) => return Err(e),
             };
-            if read_setpoint(&frame, drive_ids, &mut attractor_frames, &mut setpoint) {
-                received += 1;
-            }
+            robot.on_frame(&frame);
             if Instant::now() >= next {
                 break;
             }
@@ -76,15 +153,17 @@ pub fn run(
             // Late: the next step a period from now, not a burst.
             next = Instant::now() + period;
         }
-        if let Some(s) = &setpoint {
-            plant.step(s, period_us);
+        robot.step(period_us);
+        for frame in robot.frames() {
+            match bus.send(&frame) {
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => break,
+                Err(e) => return Err(e),
+                Ok(()) => {}
+            }
         }
-        match publish(bus, drive_ids, &plant) {
-            Err(e) if e.kind() != io::ErrorKind::Interrupted => return Err(e),
-            _ => {}
-        }
+        let plant = robot.plant();
         let pose = plant.pose();
-        let attractor = setpoint.map_or([pose[0], pose[1], pose[2]], |s| {
+        let attractor = robot.setpoint().map_or([pose[0], pose[1], pose[2]], |s| {
             [s.attractor[0], s.attractor[1], s.attractor[2]]
         });
         log(&Sample {
@@ -93,10 +172,10 @@ pub fn run(
             attractor,
             force_n: plant.force_n(),
             inserted: plant.inserted(),
-            setpoints: received,
+            setpoints: robot.received(),
         });
     }
-    Ok(plant)
+    Ok(robot.into_plant())
 }
 
 /// The board's set-point frames: the attractor (translation with the gripper flag, rotation)
@@ -146,25 +225,4 @@ fn read_setpoint(
         }
     }
     true
-}
-
-fn publish(bus: &mut dyn Bus, ids: Drive, plant: &Plant) -> io::Result<()> {
-    let pose = plant.pose();
-    let wrench = plant.wrench();
-    let frames = [
-        (ids.pose, 0, [pose[0], pose[1], pose[2]]),
-        (ids.pose, 1, [pose[3], pose[4], pose[5]]),
-        (ids.wrench, 0, [wrench[0], wrench[1], wrench[2]]),
-        (ids.wrench, 1, [wrench[3], wrench[4], wrench[5]]),
-    ];
-    for (base, offset, values) in frames {
-        if let Some(frame) = Frame::with_raw_id(
-            base.raw().saturating_add(offset),
-            base.is_extended(),
-            &drive::pack(values, false),
-        ) {
-            bus.send(&frame)?;
-        }
-    }
-    Ok(())
 }

@@ -13,6 +13,12 @@
 //! is ignored by plain `cargo test` and run by `scripts/cross-runner.sh` (from `./test.sh`), which
 //! builds the firmware and passes its path in `PAB_AN386_REPLAY`; `PAB_REPLAY_CAPTURE` adds a
 //! capture (a fresh HIL log) replayed with `examples/take-and-return.toml`.
+//!
+//! A node that runs a schema server decides what it sends (the drive's set-points, its schema
+//! transitions): its runners' records hold its sent frames too. Its case is the bus of a closed
+//! loop in virtual time (`common::schema_rig`: the node application, the plant, a client): the
+//! node application replaying that bus must send exactly what the live node sent, in the order
+//! of the simulator's schemas, and the board must record exactly what the node application does.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -27,6 +33,8 @@ use pab_lang::compile::{self, CompiledNode};
 use pab_lang::network::Network;
 use pab_lang::replay::{self, Feed};
 use pab_lang::sim::{self, Options};
+
+mod common;
 
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
@@ -48,6 +56,18 @@ impl Case {
     fn new(name: &str, network: &Path, capture: Capture) -> Case {
         let network = Network::load(network).unwrap_or_else(|e| panic!("{e}"));
         let compiled = compile::compile(&network).unwrap_or_else(|e| panic!("{e:?}"));
+        let feed = Feed::from_capture(&capture);
+        Case {
+            name: name.to_string(),
+            network,
+            compiled,
+            capture,
+            feed,
+        }
+    }
+
+    /// `network` (already parsed and compiled) on `capture`.
+    fn of(name: &str, network: Network, compiled: Vec<CompiledNode>, capture: Capture) -> Case {
         let feed = Feed::from_capture(&capture);
         Case {
             name: name.to_string(),
@@ -567,8 +587,126 @@ fn protocol_frames_of_a_capture_are_not_fed_so_a_recorded_push_does_not_switch_t
     );
 }
 
+/// The schema server's rig: one insertion (nine calls), an emergency stop during the last move
+/// and a high-priority move after it, at the boards' 1 kHz.
+const SCHEMA_RIG: &str = r#"[nodes.arm]
+id = 10
+
+[schema.arm]
+period_ms = 1
+force_limit_n = 30
+workspace_mm = { min = [-50, -50, -20], max = [50, 50, 60] }
+drive = { setpoint = 0x300, pose = 0x310, wrench = 0x320 }
+
+[plant]
+start_mm = [0, 0, 17]
+parts_mm = [[0, 0]]
+holes_mm = [[10.12, 0.06]]
+
+[client]
+node = "arm"
+speed_mm_s = 50
+touch_speed_mm_s = 10
+search_speed_mm_s = 4
+program = [
+    "move_to_touch(down)", "grasp(settle=50)", "move_to(above_part)", "move_to(above_slot)",
+    "move_to_touch(down)", "blind_search()", "release(settle=50)", "move_to(above_slot)",
+    "move_to(away)",
+]
+
+[client.places]
+down = [0, 0, -1]
+above_part = [0, 0, 20]
+above_slot = [10, 0, 20]
+away = [30, 20, 40]
+
+[[client.commands]]
+at = 2.0
+call = "estop()"
+
+[[client.commands]]
+at = 2.2
+call = "move_to(above_slot)"
+"#;
+
+/// The rig's run long enough for its program and commands (the simulator's run ends at 2.6 s).
+const SCHEMA_RIG_US: u64 = 2_800_000;
+
+fn schema_case() -> (Case, common::schema_rig::RigRun) {
+    let network = Network::parse(pab_lang::diagnostic::Source::new(
+        "schema-rig.toml",
+        SCHEMA_RIG,
+    ))
+    .unwrap();
+    let compiled = compile::compile(&network).unwrap();
+    let run = common::schema_rig::run(&network, &compiled, SCHEMA_RIG_US);
+    let case = Case::of(
+        "the schema server's closed loop",
+        network,
+        compiled,
+        run.capture.clone(),
+    );
+    (case, run)
+}
+
+#[test]
+fn the_schema_servers_replay_sends_what_the_live_node_sent() {
+    let (case, run) = schema_case();
+    // The loop did what the program says: the part went in, every call and the high-priority
+    // move were accepted, the stop stopped the board.
+    assert_eq!(run.plant.inserted(), 1);
+    assert_eq!(run.accepted, 10);
+    let safety = protocol::SchemaTrigger::Safety;
+    assert_eq!(
+        run.transitions
+            .iter()
+            .filter(|t| t.trigger == safety)
+            .map(|t| protocol::SchemaSafety::from_code(t.detail))
+            .collect::<Vec<_>>(),
+        [Some(protocol::SchemaSafety::EmergencyStop)]
+    );
+    // The same schemas, from the same sources, in the same order as the simulator's (the rig's
+    // times differ: its schemas arrive over ISO-TP, the simulator's between two ticks).
+    let simulated = pab_lang::sim::schema::simulate(
+        &case.network,
+        pab_lang::sim::schema::Limits {
+            until_us: SCHEMA_RIG_US,
+            settle_us: 100_000,
+        },
+    )
+    .unwrap();
+    let expected: Vec<(u16, &str)> = simulated
+        .installed
+        .iter()
+        .map(|i| (i.id, i.source.name()))
+        .collect();
+    let live: Vec<(u16, &str)> = run
+        .transitions
+        .iter()
+        .map(|t| {
+            let origin = pab_core::schema::Origin::from(t.source);
+            (t.installed, origin.name())
+        })
+        .collect();
+    assert_eq!(live, expected);
+    assert!(
+        run.sent_lines.len() > 2 * 2600,
+        "{} frames sent",
+        run.sent_lines.len()
+    );
+
+    // Replayed from the capture, the node sends exactly what it sent live, at the same instants.
+    let node = case.node_application();
+    let replayed = common::schema_rig::sent_lines(&node);
+    assert_eq!(replayed.len(), run.sent_lines.len());
+    for (number, (r, l)) in replayed.iter().zip(&run.sent_lines).enumerate() {
+        assert_eq!(r, l, "sent frame {number}: replay against live");
+    }
+}
+
 /// The board (c) against the simulator (a), on every example, the committed HIL log and the
-/// capture in `PAB_REPLAY_CAPTURE` if set. Needs QEMU and the firmware: run by
+/// capture in `PAB_REPLAY_CAPTURE` if set; and against the node application (b) on the schema
+/// server's rig. Needs QEMU and the firmware: run by
 /// scripts/cross-runner.sh, which sets `PAB_AN386_REPLAY`.
 #[test]
 #[ignore = "needs qemu-system-arm and the firmware: run by scripts/cross-runner.sh (./test.sh)"]
@@ -646,4 +784,26 @@ fn board_firmware_agrees_with_the_simulator_and_the_node_application() {
         );
         assert_identical(&case.name, ("simulator", &simulator), ("board", &board));
     }
+
+    // The schema server on the board: the same sent frames, at the same instants, as the node
+    // application (the simulator's arbiters have no schema server: its order of schemas is
+    // checked against the rig in `the_schema_servers_replay_sends_what_the_live_node_sent`).
+    let (case, run) = schema_case();
+    let node = case.node_application();
+    let board = case.board(&elf);
+    let sent = common::schema_rig::sent_lines(&board);
+    eprintln!(
+        "{}: {} frames, {} sent by the board's schema server: node application and board \
+         identical ({} bytes of record)",
+        case.name,
+        case.feed.frames.len(),
+        sent.len(),
+        board.len()
+    );
+    assert_eq!(
+        sent, run.sent_lines,
+        "{}: the board against the live node",
+        case.name
+    );
+    assert_identical(&case.name, ("node application", &node), ("board", &board));
 }

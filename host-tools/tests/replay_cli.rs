@@ -82,9 +82,9 @@ fn a_recorded_hil_run_is_replayed_with_a_summary_and_the_port_timelines() {
     assert!(csv.starts_with("t,port,connection,stimulation,active,delivered\n"));
     assert_eq!(csv.lines().count(), 541, "one row per fed connection");
     let records = std::fs::read_to_string(&records).unwrap();
-    assert!(records.starts_with("# pab replay records 1\n# node 1: table version 1, crc 0x"));
+    assert!(records.starts_with("# pab replay records 2\n# node 1: table version 1, crc 0x"));
     assert!(
-        records.ends_with("# end: 459 frames, 540 verdicts\n"),
+        records.ends_with("# end: 459 frames, 540 verdicts, 0 sent\n"),
         "{records}"
     );
     assert!(std::fs::metadata(&plot).unwrap().len() > 10_000);

@@ -22,7 +22,9 @@
 //! which gates are open, which connections the intention filters), they are fed like
 //! application frames, and every runner hands them to the node's state; a claim to its
 //! group state (a node's own claims, coming back from the capture, are refused by
-//! it and change nothing). Re-published frames of gateway ports are ordinary traffic in a
+//! it and change nothing). **So are the schema server's commands** (EmergencyStop, SchemaAbort,
+//! SchemaTransfer): what a client or a stop button told a board's server, whose decisions the
+//! replay records (a node's own flow control, coming back addressed to the tool, is not for it). Re-published frames of gateway ports are ordinary traffic in a
 //! capture and are fed like any other; what the replayed nodes re-publish is dropped (the bus of
 //! a replay is the capture).
 
@@ -221,8 +223,9 @@ pub fn job(
     Ok(out)
 }
 
-/// Whether `frame` is a BLE claim (`pab_core::ble`) or a Gates frame (`pab_core::dynamics`): of
-/// our protocol, but traffic between nodes that a replay feeds.
+/// Whether `frame` is a BLE claim (`pab_core::ble`), a Gates frame (`pab_core::dynamics`), an
+/// HBBA filter command or a schema server's command: of our protocol, but traffic that a replay
+/// feeds.
 fn is_coordination(frame: &pab_core::Frame) -> bool {
     let claim = matches!(frame.id(), embedded_can::Id::Extended(id) if pab_core::ble::is_claim_id(id.as_raw()));
     claim
@@ -233,6 +236,9 @@ fn is_coordination(frame: &pab_core::Frame) -> bool {
                 protocol::Service::Gates
                     | protocol::Service::FilterSet
                     | protocol::Service::FilterProfile
+                    | protocol::Service::EmergencyStop
+                    | protocol::Service::SchemaAbort
+                    | protocol::Service::SchemaTransfer
             )
         )
 }

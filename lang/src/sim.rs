@@ -460,7 +460,9 @@ fn run_stopping(
     progress(sent);
     let mut records = run.records.unwrap_or_default();
     if options.records {
-        let _ = records::write_end(&mut records, sent as u64, run.verdicts);
+        // The simulator's arbiters send nothing of their own: the sent frames of a node that runs
+        // a schema server are in the node runners' records (pab_app::replay::records).
+        let _ = records::write_end(&mut records, sent as u64, run.verdicts, 0);
     }
     let mut rows = run.rows;
     rows.sort_by_key(|row| (row.t_us, row.connection));

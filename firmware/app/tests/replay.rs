@@ -202,7 +202,7 @@ fn the_record_of_a_replay_is_exact_text() {
     }
     let text = recorder.finish(frames.len() as u64).unwrap();
     let expected = format!(
-        "# pab replay records 1\n\
+        "# pab replay records 2\n\
          # node 5: table version 3, crc 0x{crc:08x}\n\
          t_us,id,ext,node,port,fed,resting,active,selected,delivered,levels\n\
          0,100,0,5,0,00000001,00000000,00000000,-,-,0:1073741824\n\
@@ -210,7 +210,7 @@ fn the_record_of_a_replay_is_exact_text() {
          250000,101,0,5,0,00000002,00000000,00000002,1,1,1:2147483648\n\
          2000000,100,0,5,0,00000001,00000000,00000000,-,-,0:1073741824\n\
          2000000,100,0,5,1,00000001,00000000,00000001,0,0,0:2147483648\n\
-         # end: 4 frames, 5 verdicts\n"
+         # end: 4 frames, 5 verdicts, 0 sent\n"
     );
     assert_eq!(text, expected);
 }

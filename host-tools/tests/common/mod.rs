@@ -3,6 +3,8 @@
 //! std time. Shared by the live-bus tests.
 #![allow(dead_code)]
 
+pub mod schema_rig;
+
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;

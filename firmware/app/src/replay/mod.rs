@@ -18,9 +18,9 @@ pub use records::Recorder;
 
 use core::fmt::Write;
 
-use pab_core::Instant;
 use pab_core::image::{self, Header};
 use pab_core::protocol::TransferStatusCode;
+use pab_core::{Frame, Instant};
 
 use crate::node::{Node, status_of};
 
@@ -55,20 +55,41 @@ pub fn boot<const P: usize, const C: usize, const N: usize, const IMG: usize>(
 }
 
 /// Feeds `frame` to `node` at its time, recording its verdicts with `recorder` under the node's
-/// id, and drops what the node sends (heartbeats, re-published frames: a replay's bus is the
-/// capture). Returns whether the node asked to store a table, which a replay never causes (its
-/// frames hold no table transfer).
+/// id. What the node sends is recorded only if it runs a schema server ([`records`] says why),
+/// and otherwise dropped (heartbeats, re-published frames: a replay's bus is the capture).
+/// Returns whether the node asked to store a table, which a replay never causes (its frames
+/// hold no table transfer).
 pub fn feed<const P: usize, const C: usize, const N: usize, const IMG: usize, W: Write>(
     node: &mut Node<P, C, N, IMG>,
     frame: &job::TimedFrame,
     recorder: &mut Recorder<W>,
 ) -> bool {
     recorder.node_id = node.config().node_id;
+    if runs_schema_server(node) {
+        feed_with(node, frame, recorder, &mut |recorder, sent, at| {
+            recorder.sent(&sent, at)
+        })
+    } else {
+        feed_with(node, frame, recorder, &mut |_, _, _| {})
+    }
+}
+
+/// [`feed`], handing every frame the node sends, with the time it sent it, to `sent` (with the
+/// recorder, which the node holds meanwhile). A closed-loop rig that reacts to what the node
+/// sends drives it through this, so that a replay of the rig's bus wakes the node at the very
+/// same instants.
+pub fn feed_with<const P: usize, const C: usize, const N: usize, const IMG: usize, W: Write>(
+    node: &mut Node<P, C, N, IMG>,
+    frame: &job::TimedFrame,
+    recorder: &mut Recorder<W>,
+    sent: &mut impl FnMut(&mut Recorder<W>, Frame, Instant),
+) -> bool {
     let now = frame.instant();
     // The node's own work between frames, at the instants it asks for, as its runner wakes it
     // (the steps of the dynamics it runs, which sample their contexts at those instants; its
-    // heartbeats and claims): what a live node would have done before this frame arrived. A
-    // deadline that polling does not move is not polled again (the node has nothing more due).
+    // heartbeats and claims; its schema server's ticks): what a live node would have done before
+    // this frame arrived. A deadline that polling does not move is not polled again (the node
+    // has nothing more due).
     let mut polled: Option<Instant> = None;
     loop {
         let due = node.deadline(now);
@@ -77,10 +98,27 @@ pub fn feed<const P: usize, const C: usize, const N: usize, const IMG: usize, W:
             break;
         }
         let _ = node.poll(due, recorder);
-        while node.next_outgoing().is_some() {}
+        while let Some(out) = node.next_outgoing() {
+            sent(recorder, out, due);
+        }
         polled = Some(due);
     }
     let step = node.on_frame(&frame.frame, now, recorder);
-    while node.next_outgoing().is_some() {}
+    while let Some(out) = node.next_outgoing() {
+        sent(recorder, out, now);
+    }
     step == crate::Step::Store
+}
+
+/// Whether `node` runs a schema server (never, without the feature).
+fn runs_schema_server<const P: usize, const C: usize, const N: usize, const IMG: usize>(
+    node: &Node<P, C, N, IMG>,
+) -> bool {
+    #[cfg(feature = "schema")]
+    return node.schema().is_some();
+    #[cfg(not(feature = "schema"))]
+    {
+        let _ = node;
+        false
+    }
 }

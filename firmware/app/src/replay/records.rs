@@ -1,12 +1,13 @@
 //! The record of a replay: every verdict of every node, as text, exact.
 //!
 //! ```text
-//! # pab replay records 1
+//! # pab replay records 2
 //! # node 1: table version 1, crc 0x3c5a9e01
 //! # node 3: image refused: table refused by the loader (status 0x17, detail 4)
 //! t_us,id,ext,node,port,fed,resting,active,selected,delivered,levels
 //! 500000,113,0,1,0,00002000,00000000,00002000,13,13,13:2147483648
-//! # end: 1234 frames, 567 verdicts
+//! > 501000,300,0,10,3075000000e6ff03
+//! # end: 1234 frames, 567 verdicts, 1 sent
 //! ```
 //!
 //! One line per frame and port it fed, in frame order, then node order (the order the runner
@@ -23,9 +24,18 @@
 //! | `selected`, `delivered` | a connection index, or `-` for none |
 //! | `levels` | for each fed connection, `index:level` with the level after the frame as its raw Q1.31 integer (2147483648 = 1.0), space-separated |
 //!
+//! A node that runs a schema server also has its **sent frames** recorded, one `>` line each, in
+//! the order it sent them among the verdicts: `> t_us,id,ext,node,data` (the time it sent the
+//! frame, the id as above, the payload in hex). What such a node decides is what it sends (the
+//! drive's set-points, the schema transitions, the acknowledgements, its heartbeats too); other
+//! nodes' sends (heartbeats, re-published frames) follow from their verdicts and are not
+//! recorded.
+//!
 //! The `# node` lines say which table each node runs (or why its image was refused); the `# end`
 //! line counts the frames fed and the lines written, so a runner that stopped early cannot match
 //! one that did not.
+//!
+//! Format 2 added the `>` lines and the `# end` line's `sent`.
 
 use core::fmt::{self, Write};
 
@@ -36,7 +46,7 @@ use pab_core::{Arbiter, Frame, Instant, Level, PortVerdict};
 use crate::Consumer;
 
 /// The format's first line.
-pub const PREAMBLE: &str = "# pab replay records 1\n";
+pub const PREAMBLE: &str = "# pab replay records 2\n";
 /// The column header, written after the `# node` lines.
 pub const COLUMNS: &str = "t_us,id,ext,node,port,fed,resting,active,selected,delivered,levels\n";
 
@@ -113,9 +123,27 @@ pub fn write_verdict(
     out.write_char('\n')
 }
 
+/// Writes the `>` line of `frame`, sent by node `node_id` at `t_us`.
+pub fn write_sent(out: &mut impl Write, t_us: u64, frame: &Frame, node_id: u8) -> fmt::Result {
+    let (id, extended) = frame.raw_id();
+    write!(out, "> {t_us},")?;
+    if extended {
+        write!(out, "{id:08X},1,{node_id},")?;
+    } else {
+        write!(out, "{id:03X},0,{node_id},")?;
+    }
+    for byte in frame.payload() {
+        write!(out, "{byte:02x}")?;
+    }
+    out.write_char('\n')
+}
+
 /// Writes the `# end` line.
-pub fn write_end(out: &mut impl Write, frames: u64, verdicts: u64) -> fmt::Result {
-    writeln!(out, "# end: {frames} frames, {verdicts} verdicts")
+pub fn write_end(out: &mut impl Write, frames: u64, verdicts: u64, sent: u64) -> fmt::Result {
+    writeln!(
+        out,
+        "# end: {frames} frames, {verdicts} verdicts, {sent} sent"
+    )
 }
 
 fn write_index(out: &mut impl Write, index: Option<u8>) -> fmt::Result {
@@ -136,6 +164,7 @@ pub struct Recorder<W> {
     /// The node whose verdicts come next.
     pub node_id: u8,
     verdicts: u64,
+    sent: u64,
     failed: bool,
 }
 
@@ -147,6 +176,7 @@ impl<W: Write> Recorder<W> {
             out,
             node_id: 0,
             verdicts: 0,
+            sent: 0,
             failed: false,
         }
     }
@@ -154,6 +184,22 @@ impl<W: Write> Recorder<W> {
     /// Lines written so far.
     pub fn verdicts(&self) -> u64 {
         self.verdicts
+    }
+
+    /// Sent frames recorded so far.
+    pub fn sent_frames(&self) -> u64 {
+        self.sent
+    }
+
+    /// Records `frame`, sent by [`Recorder::node_id`] at `now` (a `>` line).
+    pub fn sent(&mut self, frame: &Frame, now: Instant) {
+        if self.failed {
+            return;
+        }
+        match write_sent(&mut self.out, now.as_micros(), frame, self.node_id) {
+            Ok(()) => self.sent = self.sent.wrapping_add(1),
+            Err(_) => self.failed = true,
+        }
     }
 
     /// Whether a write failed (nothing was written after it).
@@ -169,7 +215,7 @@ impl<W: Write> Recorder<W> {
     /// Writes the `# end` line after `frames` frames and returns the writer, or `Err` if any
     /// write failed.
     pub fn finish(mut self, frames: u64) -> Result<W, fmt::Error> {
-        if self.failed || write_end(&mut self.out, frames, self.verdicts).is_err() {
+        if self.failed || write_end(&mut self.out, frames, self.verdicts, self.sent).is_err() {
             return Err(fmt::Error);
         }
         Ok(self.out)

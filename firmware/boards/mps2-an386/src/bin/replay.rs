@@ -1,5 +1,7 @@
 //! `pab-an386-replay`: the node application on the emulated Cortex-M4, fed recorded frames in
-//! virtual time, recording every verdict: the board's side of the cross-runner test.
+//! virtual time, recording every verdict (and the sent frames of a node that runs a schema
+//! server): the board's side of the cross-runner test. Built with the package's `schema` feature
+//! (the node application's schema server), which the board's own firmware does not have yet.
 //!
 //! Reads a replay job file from the host (`pab_app::replay::job`: the nodes' table images and the
 //! timestamped frames), boots one `pab_app::BoardNode` per node (the boards' capacities: 4 ports,
@@ -110,9 +112,9 @@ impl From<JobError> for Error {
 #[entry]
 fn main() -> ! {
     match run() {
-        Ok((frames, verdicts)) => {
+        Ok((frames, verdicts, sent)) => {
             semihosting::eprint(format_args!(
-                "pab-an386-replay: {frames} frames, {verdicts} verdicts\n"
+                "pab-an386-replay: {frames} frames, {verdicts} verdicts, {sent} sent\n"
             ));
             semihosting::exit(true)
         }
@@ -123,7 +125,8 @@ fn main() -> ! {
     }
 }
 
-fn run() -> Result<(u64, u64), Error> {
+/// The replay: (frames fed, verdicts recorded, sent frames recorded).
+fn run() -> Result<(u64, u64, u64), Error> {
     let mut command_line = [0u8; 1024];
     let arguments = host_file::command_line(&mut command_line)
         .map_err(|error| Error::Host("command line", error))?;
@@ -197,7 +200,7 @@ fn run() -> Result<(u64, u64), Error> {
     if input.read(&mut [0u8; 1]).map_err(read_error)? != 0 {
         return Err(Error::TrailingBytes);
     }
-    let verdicts = recorder.verdicts();
+    let (verdicts, sent) = (recorder.verdicts(), recorder.sent_frames());
     let mut out = recorder
         .finish(u64::from(header.frames))
         .map_err(|_| Error::Record)?;
@@ -206,7 +209,7 @@ fn run() -> Result<(u64, u64), Error> {
     if refused > 0 {
         return Err(Error::Refused { nodes: refused });
     }
-    Ok((u64::from(header.frames), verdicts))
+    Ok((u64::from(header.frames), verdicts, sent))
 }
 
 /// Reads and drops `len` bytes.
