@@ -317,6 +317,8 @@ impl Action {
 
 impl Progress {
     /// Adds one period at `speed` to `progress`, carrying the sub-µm remainder.
+    // Out of line: the three moving actions each inlined a copy.
+    #[inline(never)]
     fn advance(&mut self, speed: u32, period_us: u32) {
         // speed ≤ MAX_COORD < 2^29 and period_us < 2^32: the product is below 2^61.
         let total = u64::from(speed) * u64::from(period_us) + self.remainder;

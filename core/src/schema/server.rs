@@ -699,6 +699,8 @@ impl Server {
 }
 
 /// How far `p` is outside the workspace, per axis.
+// Out of line: three callers (install's two, the limit's test) each inlined a copy.
+#[inline(never)]
 fn excess(c: &Config, p: &Pose) -> [u32; AXES] {
     let mut out = [0u32; AXES];
     for (((o, v), lo), hi) in out
@@ -715,6 +717,8 @@ fn excess(c: &Config, p: &Pose) -> [u32; AXES] {
 }
 
 /// |v| > limit, without a root.
+// Out of line: the force's and the torque's tests each inlined a copy.
+#[inline(never)]
 fn magnitude_above(v: [i32; 3], limit: u32) -> bool {
     let sum = v.iter().fold(0u64, |s, c| {
         s.saturating_add(u64::from(c.unsigned_abs()) * u64::from(c.unsigned_abs()))
