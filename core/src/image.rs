@@ -3,7 +3,7 @@
 //! ```text
 //! offset size  field
 //!      0    4  magic "PABT"
-//!      4    2  format version, little endian (this is format 7)
+//!      4    2  format version, little endian (this is format 8)
 //!      6    1  node id the table is for
 //!      7    1  reserved, must be 0
 //!      8    4  table version, little endian (newer tables have larger versions)
@@ -32,8 +32,9 @@
 //! gates it reads (owner, number, count) and the gate connections; format 6 adds, after those,
 //! HBBA's message filters ([`crate::hbba::filters::MessageFilters`]: the filtered connections and
 //! the profiles); format 7 adds, last, the schema server the node runs, an option
-//! (`crate::schema::Setup`: the loop's set-up, its innate schemas and its drive's identifiers).
-//! This crate reads format 7 only: an image of another format is refused with
+//! (`crate::schema::Setup`: the loop's set-up, its innate schemas and its drive's identifiers);
+//! format 8 adds, last in that set-up, the topics of its extra sensors (identifier and field).
+//! This crate reads format 8 only: an image of another format is refused with
 //! [`LoadError::UnsupportedFormat`], which names the format found and the one expected.
 //!
 //! The body does not depend on the capacities of the [`Table`] that was encoded (postcard prefixes
@@ -48,7 +49,7 @@ use crate::{MAX_CONNECTIONS, MAX_DECISION_NODES, MAX_PORTS};
 /// The first four bytes of every image.
 pub const MAGIC: [u8; 4] = *b"PABT";
 /// The format this crate writes and reads.
-pub const FORMAT_VERSION: u16 = 7;
+pub const FORMAT_VERSION: u16 = 8;
 /// Bytes before the body.
 pub const HEADER_LEN: usize = 20;
 /// The largest image accepted, header included. A table at full capacity encodes in less.

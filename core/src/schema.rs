@@ -44,12 +44,14 @@ pub mod build;
 pub mod drive;
 mod event;
 mod message;
+mod sensor;
 mod server;
 mod setup;
 
 pub use action::{Action, Gripper, Setpoint};
 pub use event::{Event, Measure, Reaction, Source};
 pub use message::{MAX_ENCODED, Schema, SchemaError};
+pub use sensor::{Sensor, SensorError, feed_sensors};
 pub use server::{Config, ConfigError, Origin, Refusal, Safety, Server, Tick, Transition, Trigger};
 pub use setup::{Drive, Setup, SetupError};
 

@@ -834,7 +834,20 @@ fn contact_against_a_move_from_the_end_of_the_pose_range_does_not_overflow() {
     assert_eq!(server.current(), Schema::WAIT_QUEUE);
 }
 
-// ---- The table image's schema server (format 7) ----
+// ---- The table image's schema server (format 8) ----
+
+/// A sensor on `id` reading an unsigned little-endian field at `offset` of `size` bytes.
+fn sensor(id: pab_core::OutputId, offset: u8, size: u8) -> pab_core::schema::Sensor {
+    pab_core::schema::Sensor {
+        id,
+        field: pab_core::Field {
+            offset,
+            size,
+            signed: false,
+            endian: pab_core::Endian::Little,
+        },
+    }
+}
 
 fn setup() -> pab_core::schema::Setup {
     let mut config = Config::new(PERIOD);
@@ -843,6 +856,20 @@ fn setup() -> pab_core::schema::Setup {
         .innate
         .push(build::gripper(40, Gripper::Open))
         .unwrap();
+    // An innate reflex on a sensor: wait, and open the gripper once sensor 1 reads 500 or more.
+    let mut reflex = build::idle(41, 0);
+    reflex.reactions[0] = Reaction {
+        event: Event::Above(Measure::Sensor(1), 500),
+        next: Source::Innate(0),
+    };
+    config.innate.push(reflex).unwrap();
+    let mut sensors = heapless::Vec::new();
+    sensors
+        .push(sensor(pab_core::OutputId::new(0x330, false).unwrap(), 0, 2))
+        .unwrap();
+    sensors
+        .push(sensor(pab_core::OutputId::new(0x330, false).unwrap(), 4, 4))
+        .unwrap();
     pab_core::schema::Setup {
         config,
         drive: pab_core::schema::Drive {
@@ -850,6 +877,7 @@ fn setup() -> pab_core::schema::Setup {
             pose: pab_core::OutputId::new(0x310, false).unwrap(),
             wrench: pab_core::OutputId::new(0x1234_5678, true).unwrap(),
         },
+        sensors,
     }
 }
 
@@ -914,14 +942,211 @@ fn a_table_image_carries_the_schema_server_and_the_loader_checks_it() {
         ))))
     );
     let mut innate = setup();
-    let mut bad = build::idle(41, 0);
+    let mut bad = build::idle(42, 0);
     bad.reactions[0].next = Source::Innate(5);
     innate.config.innate.push(bad).unwrap();
     assert_eq!(
         refused(innate),
         Err(LoadError::Table(TableError::Schema(SetupError::Config(
-            pab_core::schema::ConfigError::Innate(1)
+            pab_core::schema::ConfigError::Innate(2)
         ))))
     );
     assert_eq!(refused(setup()), Ok(()));
+}
+
+#[test]
+fn the_loader_refuses_bad_sensor_topics_with_a_typed_error() {
+    use pab_core::image::LoadError;
+    use pab_core::schema::{SensorError, SetupError};
+    use pab_core::value_port::FieldError;
+    use pab_core::{OutputId, OutputIdError, Table, TableError};
+    let refused = |s: pab_core::schema::Setup| {
+        let mut t: Table = Table::new();
+        t.set_schema(Some(s));
+        pab_core::image::load::<16, 512, 2048>(&raw_image(&t)).map(|_| ())
+    };
+    let with = |i: usize, s: pab_core::schema::Sensor| {
+        let mut setup = setup();
+        setup.sensors[i] = s;
+        setup
+    };
+    let schema_error = |e| Err(LoadError::Table(TableError::Schema(e)));
+    // An identifier too wide for its format (the encoder would refuse it: raw bytes).
+    let wide = unchecked_output_id(0x800, false);
+    assert_eq!(
+        refused(with(1, sensor(wide, 0, 2))),
+        schema_error(SetupError::Sensor(
+            1,
+            SensorError::Id(OutputIdError::StandardTooWide)
+        ))
+    );
+    let id = OutputId::new(0x330, false).unwrap();
+    assert_eq!(
+        refused(with(0, sensor(id, 0, 3))),
+        schema_error(SetupError::Sensor(
+            0,
+            SensorError::Field(FieldError::BadSize { size: 3 })
+        ))
+    );
+    assert_eq!(
+        refused(with(0, sensor(id, 6, 4))),
+        schema_error(SetupError::Sensor(
+            0,
+            SensorError::Field(FieldError::OutOfFrame { offset: 6, size: 4 })
+        ))
+    );
+    // The pose's rotation frame (0x311) is the drive's.
+    let on_drive = OutputId::new(0x311, false).unwrap();
+    assert_eq!(
+        refused(with(0, sensor(on_drive, 0, 2))),
+        schema_error(SetupError::Sensor(0, SensorError::DriveOverlap))
+    );
+    // The same number as an extended identifier is another frame.
+    let extended = OutputId::new(0x311, true).unwrap();
+    assert_eq!(refused(with(0, sensor(extended, 0, 2))), Ok(()));
+    // The reflex reads sensor 1: with one sensor only it would go stale whenever it ran.
+    let mut one = setup();
+    one.sensors.pop();
+    assert_eq!(refused(one), schema_error(SetupError::UnknownSensor(1)));
+}
+
+/// An `OutputId` with any raw value, as bytes from the bus could hold (its constructor refuses
+/// a value beyond the format).
+fn unchecked_output_id(raw: u32, extended: bool) -> pab_core::OutputId {
+    let mut bytes = [0u8; 8];
+    let used = postcard::to_slice(&(raw, extended), &mut bytes)
+        .unwrap()
+        .len();
+    postcard::from_bytes(&bytes[..used]).unwrap()
+}
+
+#[test]
+fn a_sensor_frame_reaches_the_server_through_its_field() {
+    use pab_core::Frame;
+    use pab_core::schema::feed_sensors;
+    let setup = setup();
+    let mut server = Server::new(setup.config.clone()).unwrap();
+    server.set_pose([0; AXES], at(0));
+    server.set_wrench([0; AXES], at(0));
+    // The reflex (innate 1) waits for sensor 1 to read 500 or more; sent on the high-priority
+    // channel, as a client could.
+    server
+        .high_priority(setup.config.innate[1].clone())
+        .unwrap();
+    let frame =
+        |id: u32, extended: bool, data: &[u8]| Frame::with_raw_id(id, extended, data).unwrap();
+    let sensors = setup.sensors.as_slice();
+    let reading = |v: u32| {
+        let mut d = [0u8; 8];
+        d[4..].copy_from_slice(&v.to_le_bytes());
+        d
+    };
+    // Another identifier, or the same number extended: not the sensors' frame.
+    assert!(!feed_sensors(
+        sensors,
+        &frame(0x331, false, &reading(600)),
+        &mut server,
+        at(0)
+    ));
+    assert!(!feed_sensors(
+        sensors,
+        &frame(0x330, true, &reading(600)),
+        &mut server,
+        at(0)
+    ));
+    // A payload too short for sensor 1's field (bytes 4..8): sensor 0 alone is read, so the
+    // reflex, which reads sensor 1, meets a sensor never read: the stale-sensor event.
+    assert!(feed_sensors(
+        sensors,
+        &frame(0x330, false, &[1, 2, 3]),
+        &mut server,
+        at(0)
+    ));
+    let t = server.tick(at(1)).transitions;
+    assert_eq!(
+        t.iter().map(|t| t.by).collect::<Vec<_>>(),
+        [Trigger::HighPriority, Trigger::Safety(Safety::StaleSensor)]
+    );
+    // Read: 499 holds nothing; 500 (little endian) sends the reflex to innate 0.
+    server
+        .high_priority(setup.config.innate[1].clone())
+        .unwrap();
+    assert!(feed_sensors(
+        sensors,
+        &frame(0x330, false, &reading(499)),
+        &mut server,
+        at(1)
+    ));
+    let t = server.tick(at(2)).transitions;
+    assert_eq!(
+        t.iter().map(|t| t.by).collect::<Vec<_>>(),
+        [Trigger::HighPriority]
+    );
+    assert!(server.tick(at(3)).transitions.is_empty());
+    assert!(feed_sensors(
+        sensors,
+        &frame(0x330, false, &reading(500)),
+        &mut server,
+        at(3)
+    ));
+    let t = server.tick(at(4)).transitions;
+    assert_eq!(
+        (t[0].by, t[0].installed, t[0].source),
+        (
+            Trigger::Reaction(0, Event::Above(Measure::Sensor(1), 500)),
+            40,
+            Origin::Innate
+        )
+    );
+    // An unsigned 32-bit reading beyond i32 saturates rather than wrapping negative.
+    assert_eq!(
+        setup.sensors[1].read(&frame(0x330, false, &reading(u32::MAX))),
+        Some(i32::MAX)
+    );
+}
+
+/// Every truncation of an image with a schema server (innate schemas and sensors) is refused,
+/// and every byte of its body corrupted (three ways, the CRC made right again) either loads a
+/// set-up that passes its own check or is refused with a typed error: the loader's checks, not
+/// luck, stand between the bytes and the server.
+#[test]
+fn corrupted_schema_server_images_never_load_a_bad_set_up() {
+    use pab_core::Table;
+    use pab_core::image::{self, HEADER_LEN};
+    let mut table: Table = Table::new();
+    table.set_schema(Some(setup()));
+    let mut buffer = vec![0u8; image::MAX_IMAGE_LEN];
+    let len = image::encode(&table, 5, 1, &mut buffer).unwrap();
+    let valid = &buffer[..len];
+    for cut in 0..len {
+        assert!(
+            image::load::<16, 512, 2048>(&valid[..cut]).is_err(),
+            "{cut}"
+        );
+    }
+    let (mut loaded, mut refused) = (0, 0);
+    for at in HEADER_LEN..len {
+        for mask in [0x01u8, 0x80, 0xFF] {
+            let mut bad = valid.to_vec();
+            bad[at] ^= mask;
+            let crc = pab_core::crc32::Crc32::new()
+                .update(&bad[..16])
+                .update(&bad[HEADER_LEN..])
+                .finish();
+            bad[16..20].copy_from_slice(&crc.to_le_bytes());
+            match image::load::<16, 512, 2048>(&bad) {
+                Ok(l) => {
+                    loaded += 1;
+                    if let Some(s) = l.table.schema() {
+                        assert_eq!(s.check(), Ok(()), "byte {at} ^ {mask:#x}");
+                        assert!(Server::new(s.config.clone()).is_ok());
+                    }
+                }
+                Err(_) => refused += 1,
+            }
+        }
+    }
+    // Most corruptions are caught; some land on a value that is merely different (a threshold,
+    // a speed) and still valid.
+    assert!(refused > loaded, "{refused} refused, {loaded} loaded");
 }

@@ -378,6 +378,7 @@ fn compile_node(
         table.set_schema(Some(pab_core::schema::Setup {
             config: board.config.clone(),
             drive: board.drive,
+            sensors: board.sensors.iter().map(|s| s.sensor).collect(),
         }));
     }
     let mut buffer = vec![0u8; MAX_IMAGE_LEN];

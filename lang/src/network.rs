@@ -42,7 +42,9 @@ pub use hbba::{
     BUS, DATA_LEN, Hbba, HbbaStrategy, MAX_BITRATE, Resource, ScriptedDesire, Solved,
     StrategyFilter, bus_cost,
 };
-pub use schema::{CALLS, Call, Client, Command, Defaults, MAX_CALLS, SchemaBoard, Timed};
+pub use schema::{
+    CALLS, Call, Client, Command, Defaults, INNATE_IDS, MAX_CALLS, SchemaBoard, SensorTopic, Timed,
+};
 
 /// The topic of a connection that no topic feeds (a gate, [`Kind::Gate`]): no index of
 /// [`Network::topics`].
@@ -621,8 +623,9 @@ impl Builder<'_> {
             }
         }
         let schema_boards = self.schema_boards(&raw.schema, &nodes);
-        let plant = self.plant(raw.plant.as_ref());
-        let client = self.client(raw.client.as_ref(), &nodes, &schema_boards);
+        let plant = self.plant(raw.plant.as_ref(), &schema_boards);
+        let declared: Vec<&str> = raw.schema.keys().map(|k| k.get_ref().as_str()).collect();
+        let client = self.client(raw.client.as_ref(), &nodes, &schema_boards, &declared);
         let mut nodes = nodes;
         for (index, port) in ports.iter().enumerate() {
             if let Some(node) = nodes.get_mut(port.node) {

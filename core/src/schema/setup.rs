@@ -1,9 +1,11 @@
-//! A board's schema server as its table image carries it: the loop's set-up ([`Config`]) and the
-//! identifiers of its drive's frames (docs/can-protocol.md, "The drive's frames").
+//! A board's schema server as its table image carries it: the loop's set-up ([`Config`]), the
+//! identifiers of its drive's frames (docs/can-protocol.md, "The drive's frames") and its extra
+//! sensors' topics ([`Sensor`]).
 
+use heapless::Vec;
 use serde::{Deserialize, Serialize};
 
-use super::{Config, ConfigError};
+use super::{Config, ConfigError, Event, MAX_SENSORS, Measure, Sensor, SensorError};
 use crate::OutputId;
 use crate::consumer::OutputIdError;
 use crate::wire::decode_struct;
@@ -29,6 +31,8 @@ pub struct Setup {
     pub config: Config,
     /// Where its drive listens and speaks.
     pub drive: Drive,
+    /// Its extra sensors, by index ([`Measure::Sensor`]).
+    pub sensors: Vec<Sensor, MAX_SENSORS>,
 }
 
 /// Why a [`Setup`] was refused.
@@ -41,6 +45,11 @@ pub enum SetupError {
     DriveId(OutputIdError),
     /// Two of the drive's frames would share an identifier.
     DriveOverlap,
+    /// An extra sensor's topic (its index, and why).
+    Sensor(u8, SensorError),
+    /// An innate schema (its index) reads a sensor beyond the set-up's topics: it would stop on
+    /// a stale sensor every time it ran.
+    UnknownSensor(u8),
 }
 
 impl Drive {
@@ -74,10 +83,38 @@ impl Drive {
 }
 
 impl Setup {
-    /// Checks the loop's set-up and the drive's identifiers.
+    /// Checks the loop's set-up, the drive's identifiers and the sensors' topics (each within
+    /// its format, off the drive's frames, its field within a frame), and that the innate
+    /// schemas read only sensors it has.
     pub fn check(&self) -> Result<(), SetupError> {
         self.config.check().map_err(SetupError::Config)?;
-        self.drive.check()
+        self.drive.check()?;
+        let ranges = self.drive.ranges();
+        for (i, s) in self.sensors.iter().enumerate() {
+            let refuse = |e| SetupError::Sensor(i as u8, e);
+            s.id.validate().map_err(|e| refuse(SensorError::Id(e)))?;
+            s.field
+                .validate()
+                .map_err(|e| refuse(SensorError::Field(e)))?;
+            let on_drive = ranges.iter().any(|(id, n)| {
+                id.is_extended() == s.id.is_extended() && s.id.raw().wrapping_sub(id.raw()) < *n
+            });
+            if on_drive {
+                return Err(refuse(SensorError::DriveOverlap));
+            }
+        }
+        for (i, schema) in self.config.innate.iter().enumerate() {
+            let unknown = schema.reactions.iter().any(|r| match r.event {
+                Event::Above(Measure::Sensor(s), _) | Event::Below(Measure::Sensor(s), _) => {
+                    usize::from(s) >= self.sensors.len()
+                }
+                _ => false,
+            });
+            if unknown {
+                return Err(SetupError::UnknownSensor(i as u8));
+            }
+        }
+        Ok(())
     }
 }
 
@@ -100,6 +137,22 @@ impl core::fmt::Display for SetupError {
             SetupError::DriveOverlap => {
                 f.write_str("schema server: two of the drive's frames share an identifier")
             }
+            SetupError::Sensor(i, SensorError::Id(e)) => {
+                write!(f, "schema server: sensor {i}'s identifier: {e}")
+            }
+            SetupError::Sensor(i, SensorError::Field(e)) => {
+                write!(f, "schema server: sensor {i}'s field: {e}")
+            }
+            SetupError::Sensor(i, SensorError::DriveOverlap) => {
+                write!(
+                    f,
+                    "schema server: sensor {i} is on one of the drive's frames"
+                )
+            }
+            SetupError::UnknownSensor(i) => write!(
+                f,
+                "schema server: innate schema {i} reads a sensor the set-up has no topic for"
+            ),
         }
     }
 }
@@ -123,4 +176,8 @@ decode_struct!(Drive {
     pose,
     wrench
 });
-decode_struct!(Setup { config, drive });
+decode_struct!(Setup {
+    config,
+    drive,
+    sensors
+});

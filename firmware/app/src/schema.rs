@@ -16,7 +16,8 @@ use pab_core::protocol::{
     SchemaState, SchemaTransition,
 };
 use pab_core::schema::{
-    self, AXES, Drive, MAX_ENCODED, Pose, Schema, Server, Setpoint, Setup, drive,
+    self, AXES, Drive, MAX_ENCODED, MAX_SENSORS, Pose, Schema, Sensor, Server, Setpoint, Setup,
+    drive,
 };
 use pab_core::{Frame, Instant, OutputId};
 
@@ -39,6 +40,7 @@ pub enum Out {
 pub struct SchemaRuntime {
     server: Server,
     drive: Drive,
+    sensors: heapless::Vec<Sensor, MAX_SENSORS>,
     /// The pose as its two frames last said (translation, rotation).
     pose: Pose,
     wrench: Pose,
@@ -59,6 +61,7 @@ impl SchemaRuntime {
         Some(SchemaRuntime {
             server,
             drive: setup.drive,
+            sensors: setup.sensors.clone(),
             pose: [0; AXES],
             wrench: [0; AXES],
             next_tick: now,
@@ -82,8 +85,12 @@ impl SchemaRuntime {
         }
     }
 
-    /// A frame that is not ours: the drive's pose or wrench, read. Returns whether it was one.
+    /// A frame that is not ours: the drive's pose or wrench, or an extra sensor's, read.
+    /// Returns whether it was one.
     pub fn on_drive_frame(&mut self, frame: &Frame, now: Instant) -> bool {
+        if schema::feed_sensors(&self.sensors, frame, &mut self.server, now) {
+            return true;
+        }
         let (raw, extended) = frame.raw_id();
         let offset = |base: OutputId| {
             (base.is_extended() == extended)

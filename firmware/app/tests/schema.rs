@@ -12,17 +12,39 @@ use pab_core::protocol::{
     BROADCAST, FaultCode, Message, SchemaAck, SchemaChannel, SchemaOrigin, SchemaOutcome,
     SchemaSafety, SchemaTransition, SchemaTrigger, TOOL,
 };
-use pab_core::schema::{Config, Drive, Schema, Setup, build, drive};
-use pab_core::{Frame, OutputId};
+use pab_core::schema::{
+    Config, Drive, Event, Gripper, Measure, Reaction, Schema, Sensor, Setup, Source, build, drive,
+};
+use pab_core::{Endian, Field, Frame, OutputId};
 
 const SETPOINT: u32 = 0x300;
 const POSE: u32 = 0x310;
 const WRENCH: u32 = 0x320;
+/// The gripper's proximity sensor: mm, u16 big endian in bytes 2-3.
+const PROXIMITY: u32 = 0x330;
+/// Innate schema 0's id: close the gripper.
+const CLOSE: u16 = 60;
 
 fn setup() -> Setup {
     let mut config = Config::new(1000);
     config.workspace_min = [-500_000; 6];
     config.workspace_max = [500_000; 6];
+    config
+        .innate
+        .push(build::gripper(CLOSE, Gripper::Closed))
+        .unwrap();
+    let mut sensors = heapless::Vec::new();
+    sensors
+        .push(Sensor {
+            id: OutputId::new(PROXIMITY, false).unwrap(),
+            field: Field {
+                offset: 2,
+                size: 2,
+                signed: false,
+                endian: Endian::Big,
+            },
+        })
+        .unwrap();
     Setup {
         config,
         drive: Drive {
@@ -30,6 +52,7 @@ fn setup() -> Setup {
             pose: OutputId::new(POSE, false).unwrap(),
             wrench: OutputId::new(WRENCH, false).unwrap(),
         },
+        sensors,
     }
 }
 
@@ -226,6 +249,54 @@ fn an_emergency_stop_halts_within_one_period_and_raises_its_fault() {
 }
 
 #[test]
+fn a_sensor_frame_triggers_a_reaction_into_an_innate_schema() {
+    let mut h = booted();
+    report(&mut h, [0, 0, 0]);
+    h.advance_to(h.now + 2_000);
+    // Wait until the proximity sensor reads 20 mm or less, then close the gripper (innate 0).
+    let mut wait = build::idle(5, 0);
+    wait.reactions[0] = Reaction {
+        event: Event::Below(Measure::Sensor(0), 20),
+        next: Source::Innate(0),
+    };
+    assert_eq!(send(&mut h, 0, &wait).outcome, SchemaOutcome::Accepted);
+    let proximity = |mm: u16| {
+        let [hi, lo] = mm.to_be_bytes();
+        frame(PROXIMITY, &[0xFF, 0xFF, hi, lo])
+    };
+    let since = h.now;
+    for mm in [60u16, 40, 21] {
+        report(&mut h, [0, 0, 0]);
+        h.feed(&proximity(mm));
+        h.advance_to(h.now + 1000);
+    }
+    // A frame too short for the field is no reading: 21 mm still holds.
+    report(&mut h, [0, 0, 0]);
+    h.feed(&frame(PROXIMITY, &[0, 0, 0]));
+    h.advance_to(h.now + 1000);
+    let tr = transitions(&h, since);
+    assert_eq!(
+        tr.iter().map(|t| t.1.installed).collect::<Vec<_>>(),
+        [5],
+        "installed from the queue, no reaction yet: {tr:?}"
+    );
+    report(&mut h, [0, 0, 0]);
+    h.feed(&proximity(20));
+    let read_at = h.now;
+    h.advance_to(h.now + 1000);
+    let tr = transitions(&h, read_at);
+    let (t, close) = tr[0];
+    assert!(t - read_at <= 1000, "{} µs after the frame", t - read_at);
+    assert_eq!(
+        (close.ended, close.installed, close.trigger, close.detail),
+        (5, CLOSE, SchemaTrigger::Reaction, 0)
+    );
+    assert_eq!(close.source, SchemaOrigin::Innate);
+    // And the gripper closes on that tick's set-point.
+    assert!(attractors(&h, t).first().is_some_and(|a| a.2));
+}
+
+#[test]
 fn abort_and_the_high_priority_channel() {
     let mut h = booted();
     report(&mut h, [0, 0, 0]);
@@ -272,7 +343,8 @@ fn bad_schemas_are_refused_with_their_reason_and_a_full_queue_refuses() {
         SchemaOutcome::BadChannel
     );
     let mut innate = build::idle(4, 0);
-    innate.reactions[0].next = pab_core::schema::Source::Innate(0);
+    // The board has one innate schema.
+    innate.reactions[0].next = pab_core::schema::Source::Innate(1);
     assert_eq!(
         send(&mut h, 0, &innate).outcome,
         SchemaOutcome::UnknownInnate

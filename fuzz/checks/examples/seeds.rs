@@ -21,7 +21,7 @@ use pab_fuzz_checks::TARGETS;
 use pab_lang::diagnostic::Source;
 use pab_lang::network::Network;
 
-const NETWORKS: [&str; 8] = [
+const NETWORKS: [&str; 9] = [
     "figure-1",
     "take-an-object",
     "return-an-object",
@@ -30,6 +30,7 @@ const NETWORKS: [&str; 8] = [
     "subsumption",
     "tour-guide",
     "assembly",
+    "reflex",
 ];
 
 fn main() {

@@ -8,6 +8,17 @@
 //! force_limit_n = 30           # the safety limit on |F|
 //! workspace_mm = { min = [-200, -200, -20], max = [200, 200, 100] }
 //!
+//! [schema.arm.sensors.gap]     # an extra sensor: a topic and a field, named in reactions
+//! can_id = 0x330
+//! value = { offset = 0, size = 2 }
+//! scale = 0.01                 # mm per count: the board compares counts
+//! unit = "mm"
+//!
+//! [schema.arm.innate]          # the board's own schemas, installed by reactions
+//! careful = "move_to_touch(down, speed=2); done -> high_priority"
+//! [schema.arm.places]
+//! down = [0, 0, -1]
+//!
 //! [plant]                      # simulation only: the robot, the plate and the parts
 //! parts_mm = [[-100, -60]]     # where the parts stand
 //! holes_mm = [[-99.7, 60]]     # where the holes really are
@@ -23,18 +34,22 @@
 //! A call is written `name(argument, key=value, …)` with numbers in the units of the client's
 //! defaults (mm, mm/s, N, ms, mrad); each becomes one schema made by
 //! [`pab_core::schema::build`], so a file's program sends exactly what the Rust and Python
-//! clients send for the same calls.
+//! clients send for the same calls. Reactions may follow it, `; EVENT -> SOURCE` each
+//! (`"move_to(p); below(gap, 5) -> careful"`), placed before the call's own.
 
 use std::collections::HashMap;
 use std::ops::Range;
 
 use indexmap::IndexMap;
 use pab_core::OutputId;
-use pab_core::schema::{AXES, Action, Config, Drive, Gripper, MAX_COORD, Pose, Schema, build};
+use pab_core::schema::{
+    AXES, Action, BUILTIN_IDS, Config, Drive, Event, Gripper, MAX_COORD, MAX_INNATE, MAX_REACTIONS,
+    MAX_SENSORS, Measure, Pose, Reaction, Schema, Sensor, Source, build,
+};
 use serde::Deserialize;
 use toml::Spanned;
 
-use super::{Builder, Node, list_or_none};
+use super::{Builder, Node, RawField, list_or_none};
 use crate::sim::plant::{Obstacle, PlantConfig};
 
 /// The longest program a file may hold, and the most commands (a typo in a generated file should
@@ -57,8 +72,26 @@ pub(super) struct RawSchema {
     stiffness_n_per_m: Option<Spanned<f64>>,
     damping_ns_per_m: Option<Spanned<f64>>,
     drive: Spanned<RawDrive>,
+    #[serde(default)]
+    sensors: IndexMap<Spanned<String>, Spanned<RawSensor>>,
+    #[serde(default)]
+    places: IndexMap<Spanned<String>, Spanned<Vec<f64>>>,
+    #[serde(default)]
+    innate: IndexMap<Spanned<String>, Spanned<String>>,
     #[allow(dead_code)]
     description: Option<String>,
+}
+
+/// `[schema.NODE.sensors.NAME]`: an extra sensor's topic.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSensor {
+    can_id: Spanned<i64>,
+    #[serde(default)]
+    extended: bool,
+    value: Spanned<RawField>,
+    scale: Option<Spanned<f64>>,
+    unit: Option<Spanned<String>>,
 }
 
 /// `drive = { setpoint = 0x300, pose = 0x310, wrench = 0x320, extended = false }`.
@@ -99,6 +132,7 @@ pub(super) struct RawPlant {
     holes_mm: Vec<Spanned<Vec<f64>>>,
     #[serde(default)]
     obstacles: Vec<Spanned<RawObstacle>>,
+    range_finder: Option<Spanned<String>>,
     #[allow(dead_code)]
     description: Option<String>,
 }
@@ -150,12 +184,41 @@ struct RawCommand {
 pub struct SchemaBoard {
     /// Its node, as an index into [`super::Network::nodes`].
     pub node: usize,
-    /// The server's set-up.
+    /// The server's set-up (its innate schemas included, in file order).
     pub config: Config,
     /// The drive's frames' identifiers.
     pub drive: Drive,
+    /// Its extra sensors, in file order (their index in the server's sensor table).
+    pub sensors: Vec<SensorTopic>,
+    /// The innate schemas' names, by index.
+    pub innate: Vec<String>,
     /// Where it is defined.
     pub span: Range<usize>,
+}
+
+/// An extra sensor of a board (`[schema.NODE.sensors.NAME]`): what the board reads, and how
+/// the file's numbers relate to it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SensorTopic {
+    /// Its name in events (`above(NAME, 5)`).
+    pub name: String,
+    /// Its topic and field, as the board reads them.
+    pub sensor: Sensor,
+    /// `unit`s per count of the field: the board compares counts, the file writes units.
+    pub scale: f64,
+    /// The unit the file's thresholds are written in (text, for messages and plots).
+    pub unit: String,
+}
+
+/// The first id of the innate schemas: innate schema i has id `INNATE_IDS + i`, below the
+/// server's own and above any a program's calls take.
+pub const INNATE_IDS: u16 = BUILTIN_IDS - MAX_INNATE as u16;
+
+/// The names a call's reactions may use: the board's sensors and innate schemas.
+#[derive(Clone, Copy, Default)]
+struct Names<'a> {
+    sensors: &'a [SensorTopic],
+    innate: &'a [String],
 }
 
 /// One call of the client's program: the schema it sends, and its name in traces.
@@ -335,17 +398,209 @@ impl Builder<'_> {
                 );
                 continue;
             }
-            let drive = self.drive(&section.get_ref().drive);
-            if let (Some(config), Some(drive)) = (self.schema_config(section.get_ref()), drive) {
+            let raw = section.get_ref();
+            let errors = self.errors.len();
+            let drive = self.drive(&raw.drive);
+            let sensors = self.sensors(&raw.sensors, drive.as_ref());
+            let places = self.places(&raw.places);
+            let innate = self.innate(raw, name.get_ref(), &sensors, &places);
+            if let (Some(mut config), Some(drive)) = (self.schema_config(raw), drive)
+                && self.errors.len() == errors
+            {
+                let mut names = Vec::new();
+                for (name, schema) in innate {
+                    // `innate` took at most MAX_INNATE.
+                    let _ = config.innate.push(schema);
+                    names.push(name);
+                }
                 boards.push(SchemaBoard {
                     node,
                     config,
                     drive,
+                    sensors,
+                    innate: names,
                     span: section.span(),
                 });
             }
         }
         boards
+    }
+
+    /// `[schema.NODE.sensors.NAME]`: each a topic on its own identifier or sharing one (each
+    /// its own field), off the drive's frames.
+    fn sensors(
+        &mut self,
+        raw: &IndexMap<Spanned<String>, Spanned<RawSensor>>,
+        drive: Option<&Drive>,
+    ) -> Vec<SensorTopic> {
+        let mut out = Vec::new();
+        if raw.len() > MAX_SENSORS {
+            if let Some((name, _)) = raw.get_index(MAX_SENSORS) {
+                self.error(
+                    name.span(),
+                    format!(
+                        "sensors: {} of them; a board reads at most {MAX_SENSORS}",
+                        raw.len()
+                    ),
+                );
+            }
+            return out;
+        }
+        for (name, section) in raw {
+            let s = section.get_ref();
+            let what = format!("sensor `{}`", name.get_ref());
+            if !self.printable(name, "sensor name") {
+                continue;
+            }
+            if !is_identifier(name.get_ref()) || is_measure_word(name.get_ref()) {
+                self.error(
+                    name.span(),
+                    format!(
+                        "{what}: a sensor's name is letters, digits and _ (not starting with a digit), \
+                         and not `contact`, `position`, `displacement` or `force`"
+                    ),
+                );
+                continue;
+            }
+            let id = u32::try_from(*s.can_id.get_ref())
+                .ok()
+                .and_then(|v| OutputId::new(v, s.extended).ok());
+            let Some(id) = id else {
+                let max = if s.extended { "0x1FFFFFFF" } else { "0x7FF" };
+                self.error(
+                    s.can_id.span(),
+                    format!("{what}: can_id is 0..={max} (extended = {})", s.extended),
+                );
+                continue;
+            };
+            let on_drive = drive.is_some_and(|d| {
+                [(d.setpoint, 3), (d.pose, 2), (d.wrench, 2)]
+                    .iter()
+                    .any(|(base, n)| {
+                        base.is_extended() == id.is_extended()
+                            && id.raw().wrapping_sub(base.raw()) < *n
+                    })
+            });
+            if on_drive {
+                self.error(
+                    s.can_id.span(),
+                    format!("{what}: can_id is one of the drive's frames"),
+                );
+                continue;
+            }
+            if s.extended
+                && (id.raw() & pab_core::protocol::PROTOCOL_MASK)
+                    == pab_core::protocol::PROTOCOL_VALUE
+            {
+                self.error(
+                    s.can_id.span(),
+                    format!(
+                        "{what}: can_id is in the project's own protocol space (29-bit ids with 0b10 in bits 25..24)"
+                    ),
+                );
+                continue;
+            }
+            let Some(field) = self.field(&s.value, &format!("{what}: value")) else {
+                continue;
+            };
+            let scale = match &s.scale {
+                None => 1.0,
+                Some(v) if v.get_ref().is_finite() && *v.get_ref() > 0.0 => *v.get_ref(),
+                Some(v) => {
+                    self.error(
+                        v.span(),
+                        format!("{what}: scale is a positive number (units per count)"),
+                    );
+                    continue;
+                }
+            };
+            let unit = match &s.unit {
+                None => String::new(),
+                Some(u) if self.printable(u, "unit") => u.get_ref().clone(),
+                Some(_) => continue,
+            };
+            out.push(SensorTopic {
+                name: name.get_ref().clone(),
+                sensor: Sensor { id, field },
+                scale,
+                unit,
+            });
+        }
+        out
+    }
+
+    /// Named places and directions (`[client.places]`, `[schema.NODE.places]`), µm and µrad.
+    fn places(
+        &mut self,
+        raw: &IndexMap<Spanned<String>, Spanned<Vec<f64>>>,
+    ) -> Vec<(String, Pose)> {
+        let mut places = Vec::new();
+        let mut seen = HashMap::new();
+        for (name, value) in raw {
+            if !self.printable(name, "place name") {
+                continue;
+            }
+            if seen.insert(name.get_ref().clone(), ()).is_some() {
+                continue;
+            }
+            if let Some(p) = self.point(value, &format!("place `{}`", name.get_ref()), 3) {
+                places.push((name.get_ref().clone(), p));
+            }
+        }
+        places
+    }
+
+    /// `[schema.NODE.innate]`: `NAME = "CALL; EVENT -> SOURCE; …"`, by index in file order, with
+    /// the built-in defaults (a board has no client's).
+    fn innate(
+        &mut self,
+        raw: &RawSchema,
+        node: &str,
+        sensors: &[SensorTopic],
+        places: &[(String, Pose)],
+    ) -> Vec<(String, Schema)> {
+        if raw.innate.len() > MAX_INNATE {
+            if let Some((name, _)) = raw.innate.get_index(MAX_INNATE) {
+                self.error(
+                    name.span(),
+                    format!(
+                        "[schema.{node}.innate]: {} schemas; a board stores at most {MAX_INNATE}",
+                        raw.innate.len()
+                    ),
+                );
+            }
+            return Vec::new();
+        }
+        let names: Vec<String> = raw.innate.keys().map(|k| k.get_ref().clone()).collect();
+        let mut out = Vec::new();
+        for (i, (name, text)) in raw.innate.iter().enumerate() {
+            if !self.printable(name, "innate schema name") {
+                continue;
+            }
+            if !is_identifier(name.get_ref())
+                || matches!(name.get_ref().as_str(), "queue" | "high_priority")
+            {
+                self.error(
+                    name.span(),
+                    format!(
+                        "innate schema `{}`: a name is letters, digits and _ (not starting with a digit), and not `queue` or `high_priority`",
+                        name.get_ref()
+                    ),
+                );
+                continue;
+            }
+            let vocabulary = Names {
+                sensors,
+                innate: &names,
+            };
+            let id = INNATE_IDS + i as u16;
+            if let Some(Made::Schema(schema)) =
+                self.call(text, id, places, &Defaults::default(), false, vocabulary)
+            {
+                out.push((name.get_ref().clone(), *schema));
+            }
+        }
+        out
     }
 
     /// The drive's identifiers: each a base with the frames after it (setpoint 3, pose and
@@ -572,7 +827,11 @@ impl Builder<'_> {
         Some(p)
     }
 
-    pub(super) fn plant(&mut self, raw: Option<&Spanned<RawPlant>>) -> Option<PlantConfig> {
+    pub(super) fn plant(
+        &mut self,
+        raw: Option<&Spanned<RawPlant>>,
+        boards: &[SchemaBoard],
+    ) -> Option<PlantConfig> {
         let raw = raw?.get_ref();
         let errors = self.errors.len();
         let mut plant = PlantConfig::default();
@@ -676,6 +935,30 @@ impl Builder<'_> {
                 });
             }
         }
+        if let Some(name) = &raw.range_finder {
+            let sensors = boards.first().map_or(&[][..], |b| b.sensors.as_slice());
+            match sensors.iter().position(|s| &s.name == name.get_ref()) {
+                Some(i) if sensors[i].unit == "mm" => plant.range_finder = Some(i),
+                Some(_) => self.error(
+                    name.span(),
+                    format!(
+                        "range_finder: sensor `{}` must have unit = \"mm\": the plant publishes mm",
+                        name.get_ref()
+                    ),
+                ),
+                None => {
+                    let known: Vec<&str> = sensors.iter().map(|s| s.name.as_str()).collect();
+                    self.error(
+                        name.span(),
+                        format!(
+                            "range_finder: `{}` is not a sensor of the schema server (sensors: {})",
+                            name.get_ref(),
+                            list_or_none(&known)
+                        ),
+                    );
+                }
+            }
+        }
         (self.errors.len() == errors).then_some(plant)
     }
 
@@ -684,6 +967,7 @@ impl Builder<'_> {
         raw: Option<&Spanned<RawClient>>,
         nodes: &[Node],
         boards: &[SchemaBoard],
+        declared: &[&str],
     ) -> Option<Client> {
         let raw_span = raw?.span();
         let raw = raw?.get_ref();
@@ -704,6 +988,8 @@ impl Builder<'_> {
                     ),
                 );
             }
+            // A board whose section has mistakes is reported there, not here again.
+            Some(_) if declared.iter().any(|d| d == raw.node.get_ref()) => {}
             Some(n) if !boards.iter().any(|b| b.node == n) => self.error(
                 raw.node.span(),
                 format!(
@@ -812,19 +1098,12 @@ impl Builder<'_> {
             false,
         );
 
-        let mut places = Vec::new();
-        let mut seen = HashMap::new();
-        for (name, value) in &raw.places {
-            if !self.printable(name, "place name") {
-                continue;
-            }
-            if seen.insert(name.get_ref().clone(), ()).is_some() {
-                continue;
-            }
-            if let Some(p) = self.point(value, &format!("place `{}`", name.get_ref()), 3) {
-                places.push((name.get_ref().clone(), p));
-            }
-        }
+        let places = self.places(&raw.places);
+        let board = node.and_then(|n| boards.iter().find(|b| b.node == n));
+        let vocabulary = board.map_or_else(Names::default, |b| Names {
+            sensors: &b.sensors,
+            innate: &b.innate,
+        });
         if raw.program.len() > MAX_CALLS {
             self.error(
                 raw_span.clone(),
@@ -837,9 +1116,10 @@ impl Builder<'_> {
         let mut program = Vec::new();
         for text in raw.program.iter().take(MAX_CALLS) {
             let id = program.len() as u16 + 1;
-            if let Some(Made::Schema(schema)) = self.call(text, id, &places, &d, false) {
+            if let Some(Made::Schema(schema)) = self.call(text, id, &places, &d, false, vocabulary)
+            {
                 program.push(Call {
-                    name: text.get_ref().trim().to_string(),
+                    name: call_name(text.get_ref()),
                     schema: *schema,
                 });
             }
@@ -861,9 +1141,9 @@ impl Builder<'_> {
             };
             // High-priority schemas are numbered after the program's.
             let id = (raw.program.len().min(MAX_CALLS) + k + 1) as u16;
-            let command = match self.call(&c.call, id, &places, &d, true) {
+            let command = match self.call(&c.call, id, &places, &d, true, vocabulary) {
                 Some(Made::Schema(schema)) => Command::HighPriority(Box::new(Call {
-                    name: c.call.get_ref().trim().to_string(),
+                    name: call_name(c.call.get_ref()),
                     schema: *schema,
                 })),
                 Some(Made::Abort) => Command::Abort,
@@ -889,6 +1169,10 @@ impl Builder<'_> {
     }
 
     /// One call's schema (with id `id`), or, among commands, an abort or emergency stop.
+    ///
+    /// `CALL; EVENT -> SOURCE; …`: the reactions written after the call come before the call's
+    /// own (the first that holds wins, so `done -> high_priority` there replaces a call's
+    /// `done -> queue`).
     fn call(
         &mut self,
         text: &Spanned<String>,
@@ -896,17 +1180,48 @@ impl Builder<'_> {
         places: &[(String, Pose)],
         d: &Defaults,
         command: bool,
+        names: Names<'_>,
     ) -> Option<Made> {
         // The string's content starts after its opening quote.
         let base = text.span().start + 1;
         let at = |offset: usize| base + offset..base + offset + 1;
-        let parsed = match split_call(text.get_ref()) {
+        let full = text.get_ref().as_str();
+        let (call_text, reactions_at) = match full.find(';') {
+            Some(i) => (&full[..i], Some(i + 1)),
+            None => (full, None),
+        };
+        let parsed = match split_call(call_text) {
             Ok(p) => p,
             Err((offset, message)) => {
                 self.error(at(offset), message);
                 return None;
             }
         };
+        let mut written = Vec::new();
+        if let Some(start) = reactions_at {
+            let mut offset = start;
+            for part in full[start..].split(';') {
+                let lead = part.len() - part.trim_start().len();
+                match reaction(part.trim(), names) {
+                    Ok(r) => written.push(r),
+                    Err((o, message)) => {
+                        self.error(at(offset + lead + o), message);
+                        return None;
+                    }
+                }
+                offset += part.len() + 1;
+            }
+            if command && matches!(parsed.name, "estop" | "abort") {
+                self.error(
+                    at(start),
+                    format!(
+                        "`{}()` is a command, not a schema: it takes no reactions",
+                        parsed.name
+                    ),
+                );
+                return None;
+            }
+        }
         let mut args: HashMap<&str, (f64, usize)> = HashMap::new();
         for (k, v, offset) in &parsed.keywords {
             match v.parse::<f64>() {
@@ -1118,6 +1433,22 @@ impl Builder<'_> {
         if let Some((w, _)) = args.get("watchdog") {
             schema.watchdog_ms = w.round().min(f64::from(MAX_COORD)) as u32;
         }
+        if !written.is_empty() {
+            let own = std::mem::take(&mut schema.reactions);
+            for r in written.iter().chain(&own) {
+                if schema.reactions.push(*r).is_err() {
+                    self.error(
+                        at(reactions_at.unwrap_or(0)),
+                        format!(
+                            "{} reactions with the call's own {}: a schema holds at most {MAX_REACTIONS}",
+                            written.len() + own.len(),
+                            own.len()
+                        ),
+                    );
+                    return None;
+                }
+            }
+        }
         if let Err(e) = schema.check() {
             self.error(
                 text.span(),
@@ -1129,6 +1460,196 @@ impl Builder<'_> {
             return None;
         }
         Some(Made::Schema(Box::new(schema)))
+    }
+}
+
+/// A call's name in traces: its text up to its reactions.
+fn call_name(text: &str) -> String {
+    text.split(';').next().unwrap_or(text).trim().to_string()
+}
+
+/// Letters, digits and `_`, not starting with a digit.
+fn is_identifier(name: &str) -> bool {
+    name.chars().next().is_some_and(|c| !c.is_ascii_digit())
+        && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+}
+
+/// The words a measure starts with: no sensor may be called so.
+fn is_measure_word(name: &str) -> bool {
+    matches!(name, "contact" | "position" | "displacement" | "force")
+}
+
+const REACTION_HELP: &str = "a reaction is written `EVENT -> SOURCE`: EVENT one of done, one_shot, \
+     queue_ready, elapsed(ms), above(MEASURE, VALUE), below(MEASURE, VALUE); SOURCE queue, \
+     high_priority or an innate schema's name";
+const MEASURE_HELP: &str = "contact (N), position.AXIS or displacement.AXIS (mm; mrad about rx, \
+     ry, rz), force.AXIS (N; N·m about rx, ry, rz), with AXIS x, y, z, rx, ry or rz, or a sensor \
+     of [schema.NODE.sensors] (in its unit)";
+
+/// One reaction, `EVENT -> SOURCE`; an error's byte offset within `text` and its cause.
+fn reaction(text: &str, names: Names<'_>) -> Result<Reaction, (usize, String)> {
+    let list = |v: Vec<&str>| list_or_none(&v);
+    let Some(arrow) = text.find("->") else {
+        return Err((0, REACTION_HELP.to_string()));
+    };
+    let (event_text, source_text) = (&text[..arrow], &text[arrow + 2..]);
+    let source_at = arrow + 2 + (source_text.len() - source_text.trim_start().len());
+    let next = match source_text.trim() {
+        "queue" => Source::Queue,
+        "high_priority" => Source::HighPriority,
+        name => match names.innate.iter().position(|n| n == name) {
+            Some(i) => Source::Innate(i as u8),
+            None => {
+                return Err((
+                    source_at,
+                    format!(
+                        "`{name}` is not a source: queue, high_priority or an innate schema of the board (innate: {})",
+                        list(names.innate.iter().map(String::as_str).collect())
+                    ),
+                ));
+            }
+        },
+    };
+    let event_text = event_text.trim_end();
+    let event = match event_text {
+        "done" => Event::Done,
+        "one_shot" => Event::OneShot,
+        "queue_ready" => Event::QueueReady,
+        _ => {
+            let parsed = split_call(event_text).map_err(|_| (0, REACTION_HELP.to_string()))?;
+            if let Some((k, _, o)) = parsed.keywords.first() {
+                return Err((*o, format!("`{k}=`: an event takes no keywords")));
+            }
+            let args = &parsed.positional;
+            let arity = if parsed.name == "elapsed" { 1 } else { 2 };
+            if !matches!(parsed.name, "elapsed" | "above" | "below") {
+                return Err((
+                    0,
+                    format!("unknown event `{}`: {REACTION_HELP}", parsed.name),
+                ));
+            }
+            if args.len() != arity {
+                return Err((
+                    0,
+                    format!(
+                        "`{}` takes {arity} argument{}",
+                        parsed.name,
+                        if arity == 1 {
+                            ": a time in ms"
+                        } else {
+                            "s: a measure and a value"
+                        }
+                    ),
+                ));
+            }
+            let number = |(v, o): (&str, usize)| match v.parse::<f64>() {
+                Ok(x) if x.is_finite() => Ok(x),
+                _ => Err((o, format!("`{v}` is not a number"))),
+            };
+            if parsed.name == "elapsed" {
+                let ms = number(args[0])?;
+                if !(0.0..=f64::from(MAX_COORD)).contains(&ms) {
+                    return Err((
+                        args[0].1,
+                        format!("elapsed: {ms} ms is not 0 to {MAX_COORD}"),
+                    ));
+                }
+                Event::Elapsed(ms.round() as u32)
+            } else {
+                let above = parsed.name == "above";
+                let value = number(args[1])?;
+                let (measure, threshold) = threshold(args[0], value, above, names)?;
+                let threshold = threshold.ok_or((
+                    args[1].1,
+                    format!(
+                        "`{}` is beyond what a threshold holds (±2^31 of the board's units)",
+                        args[1].0
+                    ),
+                ))?;
+                if above {
+                    Event::Above(measure, threshold)
+                } else {
+                    Event::Below(measure, threshold)
+                }
+            }
+        }
+    };
+    Ok(Reaction { event, next })
+}
+
+/// The measure `m` names and `value` (in the file's units) in the board's: ×1000 for mm, mrad,
+/// N and N·m; counts for a sensor, rounded so that the board's integer comparison holds exactly
+/// when the value in units would (up for `above`, down for `below`). `None`: beyond `i32`.
+fn threshold(
+    (m, offset): (&str, usize),
+    value: f64,
+    above: bool,
+    names: Names<'_>,
+) -> Result<(Measure, Option<i32>), (usize, String)> {
+    const AXES_NAMES: [&str; AXES] = ["x", "y", "z", "rx", "ry", "rz"];
+    let fits = |x: f64| {
+        (f64::from(i32::MIN)..=f64::from(i32::MAX))
+            .contains(&x)
+            .then_some(x as i32)
+    };
+    let physical = |measure| Ok((measure, fits((value * 1000.0).round())));
+    let axis = |a: &str| {
+        AXES_NAMES
+            .iter()
+            .position(|n| *n == a)
+            .map(|i| i as u8)
+            .ok_or((
+                offset,
+                format!("`{m}`: the axes are x, y, z, rx, ry and rz"),
+            ))
+    };
+    match m.split_once('.') {
+        Some(("position", a)) => physical(Measure::Position(axis(a)?)),
+        Some(("displacement", a)) => physical(Measure::Displacement(axis(a)?)),
+        Some(("force", a)) => physical(Measure::Force(axis(a)?)),
+        None if m == "contact" => physical(Measure::Contact),
+        _ => {
+            let Some(i) = names.sensors.iter().position(|s| s.name == m) else {
+                let known: Vec<&str> = names.sensors.iter().map(|s| s.name.as_str()).collect();
+                return Err((
+                    offset,
+                    format!(
+                        "`{m}` is not a measure: {MEASURE_HELP} (sensors: {})",
+                        list_or_none(&known)
+                    ),
+                ));
+            };
+            let topic = &names.sensors[i];
+            let counts = value / topic.scale;
+            let nearest = counts.round();
+            // Within rounding of a whole count it is that count (0.3 mm / 0.1 mm is 2.999…).
+            let counts = if (counts - nearest).abs() <= 1e-9 * nearest.abs().max(1.0) {
+                nearest
+            } else if above {
+                counts.ceil()
+            } else {
+                counts.floor()
+            };
+            let (low, high) = topic.sensor.field.range();
+            let never = if above {
+                counts > high as f64
+            } else {
+                counts < low as f64
+            };
+            if never {
+                return Err((
+                    offset,
+                    format!(
+                        "`{}({m}, {value})` can never hold: sensor `{m}` reads {} to {} {}",
+                        if above { "above" } else { "below" },
+                        low as f64 * topic.scale,
+                        high as f64 * topic.scale,
+                        topic.unit
+                    ),
+                ));
+            }
+            Ok((Measure::Sensor(i as u8), fits(counts)))
+        }
     }
 }
 
@@ -1227,6 +1748,226 @@ node = "arm"
         assert_eq!(
             e,
             ["net.toml:14:9: error: `move_to` needs a PLACE: `move_to(PLACE)`"]
+        );
+    }
+
+    /// A board with two sensors and two innate schemas, and a program whose call reacts to
+    /// them.
+    const REFLEXES: &str =
+        "program = [\"move_to(p); below(gap, 0.25) -> retreat; above(grip, 1) -> high_priority\"]
+[client.places]
+p = [0, 0, -5]
+[schema.arm.sensors.gap]
+can_id = 0x330
+value = { offset = 0, size = 2 }
+scale = 0.1
+unit = \"mm\"
+[schema.arm.sensors.grip]
+can_id = 0x12345
+extended = true
+value = { offset = 1, size = 1, signed = true }
+unit = \"N\"
+[schema.arm.places]
+safe = [0, 0, 80]
+[schema.arm.innate]
+retreat = \"move_to(safe, speed=20); done -> high_priority\"
+hold = \"idle(); below(gap, 0.3) -> retreat\"
+";
+
+    #[test]
+    fn innate_schemas_and_sensors_are_named_in_reactions() {
+        use pab_core::schema::{Event, Measure, Reaction, Sensor, Source as From, build};
+        use pab_core::{Endian, Field, OutputId};
+        let network = Network::parse(Source::new("net.toml", format!("{BASE}{REFLEXES}")))
+            .unwrap_or_else(|e| panic!("{e:?}"));
+        let board = &network.schema_boards[0];
+        let names: Vec<_> = board.sensors.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(names, ["gap", "grip"]);
+        assert_eq!(
+            board.sensors[1].sensor,
+            Sensor {
+                id: OutputId::new(0x12345, true).unwrap(),
+                field: Field {
+                    offset: 1,
+                    size: 1,
+                    signed: true,
+                    endian: Endian::Little
+                }
+            }
+        );
+        assert_eq!(
+            (board.sensors[0].scale, board.sensors[0].unit.as_str()),
+            (0.1, "mm")
+        );
+        assert_eq!(board.innate, ["retreat", "hold"]);
+        let on = |event, next| Reaction { event, next };
+        let mut retreat =
+            build::move_to(crate::network::INNATE_IDS, [0, 0, 80_000, 0, 0, 0], 20_000);
+        retreat
+            .reactions
+            .insert(0, on(Event::Done, From::HighPriority))
+            .unwrap();
+        // 0.3 mm is 3 counts of 0.1 mm, though 0.3 / 0.1 is 2.999… in floating point.
+        let mut hold = build::idle(crate::network::INNATE_IDS + 1, 0);
+        hold.reactions
+            .insert(0, on(Event::Below(Measure::Sensor(0), 3), From::Innate(0)))
+            .unwrap();
+        assert_eq!(board.config.innate.as_slice(), [retreat, hold]);
+        // At most 0.25 mm is at most 2 counts (0.2 mm): the board's comparison of counts holds
+        // exactly when the reading in mm would.
+        let mut call = build::move_to(1, [0, 0, -5000, 0, 0, 0], 50_000);
+        call.reactions
+            .insert(0, on(Event::Below(Measure::Sensor(0), 2), From::Innate(0)))
+            .unwrap();
+        call.reactions
+            .insert(
+                1,
+                on(Event::Above(Measure::Sensor(1), 1), From::HighPriority),
+            )
+            .unwrap();
+        let client = network.client.as_ref().unwrap();
+        assert_eq!(client.program[0].schema, call);
+        assert_eq!(client.program[0].name, "move_to(p)");
+
+        // What the board loads: the image carries the sensors and the innate schemas.
+        let nodes = crate::compile::compile(&network).unwrap_or_else(|e| panic!("{e:?}"));
+        let loaded: pab_core::image::Loaded = pab_core::image::load(&nodes[0].image).unwrap();
+        let setup = loaded.table.schema().unwrap();
+        assert_eq!(setup.config.innate, board.config.innate);
+        let sensors: Vec<Sensor> = board.sensors.iter().map(|s| s.sensor).collect();
+        assert_eq!(setup.sensors.as_slice(), sensors.as_slice());
+    }
+
+    #[test]
+    fn reactions_sensors_and_innate_schemas_report_mistakes_at_their_line() {
+        let places = "[client.places]\np = [0, 0, 0]\n";
+        let sensor = "[schema.arm.sensors.gap]\ncan_id = 0x330\nvalue = { offset = 0, size = 1 }\nscale = 0.5\nunit = \"mm\"\n";
+        let e = errors(&format!(
+            "program = [\"move_to(p); done -> nowhere\"]\n{places}"
+        ));
+        assert_eq!(
+            e,
+            [
+                "net.toml:12:33: error: `nowhere` is not a source: queue, high_priority or an innate schema of the board (innate: none)"
+            ]
+        );
+        let e = errors(&format!("program = [\"move_to(p);done queue\"]\n{places}"));
+        assert!(
+            e[0].starts_with("net.toml:12:24: error: a reaction is written `EVENT -> SOURCE`"),
+            "{e:?}"
+        );
+        let e = errors(&format!(
+            "program = [\"move_to(p); below(gap2, 1) -> queue\"]\n{places}{sensor}"
+        ));
+        assert!(
+            e[0].starts_with(
+                "net.toml:12:31: error: `gap2` is not a measure: contact (N), position.AXIS"
+            ) && e[0].ends_with("(sensors: gap)"),
+            "{e:?}"
+        );
+        let e = errors(&format!(
+            "program = [\"move_to(p); above(gap, 200) -> queue\"]\n{places}{sensor}"
+        ));
+        assert_eq!(
+            e,
+            [
+                "net.toml:12:31: error: `above(gap, 200)` can never hold: sensor `gap` reads 0 to 127.5 mm"
+            ]
+        );
+        let e = errors(&format!(
+            "program = [\"move_to(p); above(force.w, 2) -> queue; elapsed(1, 2) -> queue\"]\n{places}"
+        ));
+        assert_eq!(
+            e,
+            ["net.toml:12:31: error: `force.w`: the axes are x, y, z, rx, ry and rz"]
+        );
+        let e = errors(&format!(
+            "program = [\"move_to(p); elapsed(1, 2) -> queue\"]\n{places}"
+        ));
+        assert_eq!(
+            e,
+            ["net.toml:12:25: error: `elapsed` takes 1 argument: a time in ms"]
+        );
+        let e = errors("[[client.commands]]\nat = 1\ncall = \"estop(); done -> queue\"\n");
+        assert_eq!(
+            e,
+            ["net.toml:14:17: error: `estop()` is a command, not a schema: it takes no reactions"]
+        );
+        // The sensors' own keys.
+        let e =
+            errors("[schema.arm.sensors.s]\ncan_id = 0x311\nvalue = { offset = 0, size = 2 }\n");
+        assert_eq!(
+            e,
+            ["net.toml:13:10: error: sensor `s`: can_id is one of the drive's frames"]
+        );
+        let e =
+            errors("[schema.arm.sensors.s]\ncan_id = 0x800\nvalue = { offset = 0, size = 2 }\n");
+        assert_eq!(
+            e,
+            ["net.toml:13:10: error: sensor `s`: can_id is 0..=0x7FF (extended = false)"]
+        );
+        let e = errors(
+            "[schema.arm.sensors.s]\ncan_id = 0x330\nvalue = { offset = 0, size = 3 }\nscale = 0\n",
+        );
+        assert_eq!(
+            e,
+            ["net.toml:14:30: error: sensor `s`: value: size = 3 is not 1, 2 or 4 (bytes)"]
+        );
+        let e = errors(
+            "[schema.arm.sensors.s]\ncan_id = 0x330\nvalue = { offset = 0, size = 2 }\nscale = 0\n",
+        );
+        assert_eq!(
+            e,
+            ["net.toml:15:9: error: sensor `s`: scale is a positive number (units per count)"]
+        );
+        let e = errors(
+            "[schema.arm.sensors.contact]\ncan_id = 0x330\nvalue = { offset = 0, size = 2 }\n",
+        );
+        assert!(
+            e[0].starts_with("net.toml:12:21: error: sensor `contact`: a sensor's name is"),
+            "{e:?}"
+        );
+        let e = errors(
+            "[schema.arm.sensors.s]\ncan_id = 0x330\nvalue = { offset = 0, size = 2 }\nrate = 3\n",
+        );
+        assert!(
+            e[0].starts_with("net.toml:15:1: error: unknown field `rate`"),
+            "{e:?}"
+        );
+        // Innate schemas: their calls and reactions, their names, their number.
+        let e = errors("[schema.arm.innate]\nx = \"idle(); done -> y\"\n");
+        assert_eq!(
+            e,
+            [
+                "net.toml:13:22: error: `y` is not a source: queue, high_priority or an innate schema of the board (innate: x)"
+            ]
+        );
+        let e = errors("[schema.arm.innate]\nx = \"move_to(nowhere)\"\n");
+        assert_eq!(
+            e,
+            ["net.toml:13:14: error: place `nowhere` is not in [client.places] (none)"]
+        );
+        let e = errors("[schema.arm.innate]\nqueue = \"idle()\"\n");
+        assert!(
+            e[0].starts_with("net.toml:13:1: error: innate schema `queue`: a name is"),
+            "{e:?}"
+        );
+        let many: String = (0..9).map(|i| format!("s{i} = \"idle()\"\n")).collect();
+        let e = errors(&format!("[schema.arm.innate]\n{many}"));
+        assert_eq!(
+            e,
+            ["net.toml:21:1: error: [schema.arm.innate]: 9 schemas; a board stores at most 8"]
+        );
+        // The plant's range finder publishes mm on a board sensor.
+        let e = errors(&format!(
+            "{}[plant]\nrange_finder = \"gap\"\n",
+            sensor.replace("\"mm\"", "\"cm\"")
+        ));
+        assert_eq!(
+            e,
+            [
+                "net.toml:18:16: error: range_finder: sensor `gap` must have unit = \"mm\": the plant publishes mm"
+            ]
         );
     }
 

@@ -25,6 +25,10 @@
 //!   would make it lag by μ × preload / K, which a stiffer lateral impedance cancels).
 //! - The wrist sensor reads the contact force on the robot (mN): pressing down on the plate reads
 //!   +z.
+//! - A range finder looks straight down from the tip (from the held part's bottom when it holds
+//!   one): the height above the tallest surface under it (the plate, a part's top, an obstacle's
+//!   top), 0 in contact or in a hole. The simulator publishes it on the board sensor `[plant]`'s
+//!   `range_finder` names.
 //! - Closing the gripper takes the part whose top the tip is on (centre within
 //!   `grasp_tolerance`, tip within 1 mm of its top), at the offset it has; opening it lets the
 //!   part go: into the hole it is in (inserted once it is `insert_depth` below the surface, then
@@ -73,6 +77,8 @@ pub struct PlantConfig {
     pub obstacles: Vec<Obstacle>,
     /// The tip's position at the start, µm.
     pub start: [f64; 3],
+    /// The board sensor (its index) the range finder's readings go to, if any.
+    pub range_finder: Option<usize>,
 }
 
 impl Default for PlantConfig {
@@ -92,6 +98,7 @@ impl Default for PlantConfig {
             holes: Vec::new(),
             obstacles: Vec::new(),
             start: [0.0, 0.0, 50_000.0],
+            range_finder: None,
         }
     }
 }
@@ -166,6 +173,36 @@ impl Plant {
             *o = (f * 1000.0).round() as i32;
         }
         w
+    }
+
+    /// The range finder: the height of the tip (or the held part's bottom) above the tallest
+    /// surface under it, µm, 0 at or below it.
+    pub fn range(&self) -> f64 {
+        let c = &self.config;
+        let tip = [self.x[0] / UM, self.x[1] / UM, self.x[2] / UM];
+        let under = |centre: &[f64; 2], half: [f64; 2]| {
+            (tip[0] - centre[0]).abs() <= half[0] && (tip[1] - centre[1]).abs() <= half[1]
+        };
+        let mut surface: f64 = 0.0;
+        for p in &self.parts {
+            if let PartState::OnPlate(at) = p
+                && under(at, [c.part_half_width; 2])
+            {
+                surface = surface.max(c.part_height);
+            }
+        }
+        for o in &c.obstacles {
+            let centre = [(o.min[0] + o.max[0]) / 2.0, (o.min[1] + o.max[1]) / 2.0];
+            let half = [(o.max[0] - o.min[0]) / 2.0, (o.max[1] - o.min[1]) / 2.0];
+            if under(&centre, half) && o.max[2] <= tip[2] {
+                surface = surface.max(o.max[2]);
+            }
+        }
+        let bottom = match self.held() {
+            Some(_) => tip[2] - c.part_height,
+            None => tip[2],
+        };
+        (bottom - surface).max(0.0)
     }
 
     /// The contact force's magnitude, N.

@@ -6,20 +6,21 @@
 //! it is full. Timed commands (a high-priority schema, an abort, an emergency stop) reach the
 //! server between two ticks, as a frame would. The plant ([`super::plant`]) integrates the
 //! drive's set-point between ticks and feeds its pose and wrench back before each tick, as the
-//! topics would.
+//! topics would; its range finder, when `[plant]` names a board sensor for it, goes out as that
+//! sensor's frame and is read by the board's own code (`pab_core::schema::feed_sensors`).
 //!
 //! Each installed schema is a row of the trace ([`Installed`]): its time, name, source and the
 //! event that triggered it.
 
-use pab_core::Instant;
 use pab_core::schema::{
-    Config, Event, Measure, Origin, Refusal, Safety, Schema, Server, Setpoint, Trigger,
+    Event, Measure, Origin, Refusal, Safety, Schema, Server, Setpoint, Trigger, feed_sensors,
 };
+use pab_core::{Frame, Instant};
 
 use super::SimError;
 use super::plant::{Plant, PlantConfig};
-use crate::network::Network;
 pub use crate::network::{Call, Command, Timed};
+use crate::network::{Network, SchemaBoard, SensorTopic};
 
 /// One installed schema.
 #[derive(Clone, Debug, PartialEq)]
@@ -106,6 +107,20 @@ pub fn event_name(event: &Event) -> String {
     }
 }
 
+/// `name` with a sensor's index replaced by its name in the file (`below:gap`, not
+/// `below:sensor.0`).
+fn sensor_named(name: String, event: &Event, board: &SchemaBoard) -> String {
+    match event {
+        Event::Above(Measure::Sensor(i), _) | Event::Below(Measure::Sensor(i), _) => {
+            match board.sensors.get(usize::from(*i)) {
+                Some(topic) => format!("{}:{}", name.split(':').next().unwrap_or(""), topic.name),
+                None => name,
+            }
+        }
+        _ => name,
+    }
+}
+
 /// The server's own schemas' names.
 pub fn builtin_name(id: u16) -> Option<String> {
     match id {
@@ -119,24 +134,46 @@ pub fn builtin_name(id: u16) -> Option<String> {
     }
 }
 
-/// Runs `program` (and `commands`) on a board with `config` driving a plant with `plant`.
+/// The frame the range finder's reading (µm) makes on `topic`: the reading in mm over the
+/// topic's scale, saturated to its field.
+fn range_frame(topic: &SensorTopic, range_um: f64) -> Option<Frame> {
+    let counts = (range_um / 1000.0 / topic.scale).round();
+    let mut data = [0u8; 8];
+    topic.sensor.field.write(
+        &mut data,
+        counts.clamp(i64::MIN as f64, i64::MAX as f64) as i64,
+    );
+    Frame::with_raw_id(topic.sensor.id.raw(), topic.sensor.id.is_extended(), &data)
+}
+
+/// Runs `program` (and `commands`) on `board` driving a plant with `plant`.
 ///
 /// Fails when the configuration or a call is refused by the board for any reason but a full
 /// queue (a malformed call is the file's error, not something to simulate).
 pub fn run(
-    config: Config,
+    board: &SchemaBoard,
     plant: PlantConfig,
     program: &[Call],
     commands: &[Timed],
     limits: Limits,
 ) -> Result<Run, SimError> {
+    let config = board.config.clone();
     let period = config.period_us;
     let innate: Vec<(u16, String, Schema)> = config
         .innate
         .iter()
         .enumerate()
-        .map(|(i, s)| (s.id, format!("innate.{i}"), s.clone()))
+        .map(|(i, s)| {
+            let name = board.innate.get(i).cloned();
+            (
+                s.id,
+                name.unwrap_or_else(|| format!("innate.{i}")),
+                s.clone(),
+            )
+        })
         .collect();
+    let sensors: Vec<_> = board.sensors.iter().map(|s| s.sensor).collect();
+    let range_finder = plant.range_finder.and_then(|i| board.sensors.get(i));
     let mut server = Server::new(config)
         .map_err(|e| SimError(format!("the board's set-up is refused: {e:?}")))?;
     let mut plant = Plant::new(plant);
@@ -186,6 +223,9 @@ pub fn run(
         }
         server.set_pose(plant.pose(), now);
         server.set_wrench(plant.wrench(), now);
+        if let Some(frame) = range_finder.and_then(|topic| range_frame(topic, plant.range())) {
+            feed_sensors(&sensors, &frame, &mut server, now);
+        }
         let tick = server.tick(now);
         for t in &tick.transitions {
             let event = match t.by {
@@ -195,7 +235,7 @@ pub fn run(
                     fault.get_or_insert(cause);
                     format!("safety:{}", cause.name())
                 }
-                Trigger::Reaction(_, event) => event_name(&event),
+                Trigger::Reaction(_, event) => sensor_named(event_name(&event), &event, board),
             };
             let name = builtin_name(t.installed)
                 .or_else(|| known(t.installed).map(|(n, _)| n.to_string()))
@@ -262,7 +302,7 @@ pub fn simulate(network: &Network, limits: Limits) -> Result<Run, SimError> {
         .find(|b| b.node == client.node)
         .ok_or_else(|| SimError("the client's node runs no schema server".into()))?;
     run(
-        board.config.clone(),
+        board,
         network.plant.clone().unwrap_or_default(),
         &client.program,
         &client.commands,
