@@ -59,6 +59,7 @@
 //! behaviour requires all those before it; 1.0 % to 10.8 % of a 170 MHz core at 1 kHz, counting
 //! one cycle per instruction. The step's code is about 1.4 KiB, the tanh table 708 bytes.
 
+use crate::isqrt::isqrt;
 use heapless::Vec;
 use serde::{Deserialize, Serialize};
 
@@ -618,28 +619,6 @@ fn sqrt_ratio(step_us: u32, unit_us: u32) -> u64 {
     isqrt((whole << 62) | (high << 31) | low)
 }
 
-/// ⌊√x⌋, digit by digit (two bits a round, 32 rounds at most): the same value as `u64::isqrt`,
-/// whose inlined table-driven form took a board 1 KB of flash (code and a 512-byte table) for a
-/// square root taken once per group and table.
-#[inline(never)]
-fn isqrt(mut x: u64) -> u64 {
-    let mut root = 0u64;
-    let mut bit = 1u64 << 62;
-    while bit > x {
-        bit >>= 2;
-    }
-    while bit != 0 {
-        if x >= root + bit {
-            x -= root + bit;
-            root = (root >> 1) + bit;
-        } else {
-            root >>= 1;
-        }
-        bit >>= 2;
-    }
-    root
-}
-
 /// round(dt · 2^32 / τ): dt / τ in Q0.32, for τ > 0 and dt ≤ τ / 4 (so at most 2^30).
 fn rate(step_us: u32, tau_us: u32) -> u32 {
     div_round(u64::from(step_us) << 32, tau_us)
@@ -869,29 +848,6 @@ impl Dynamics {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn isqrt_is_the_standard_library_s() {
-        let mut x = 0x9E37_79B9_7F4A_7C15u64;
-        for k in 0..64 {
-            for v in [1u64 << k, (1u64 << k) - 1, (1u64 << k) + 1, u64::MAX >> k] {
-                assert_eq!(isqrt(v), v.isqrt(), "{v}");
-            }
-        }
-        for _ in 0..100_000 {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            assert_eq!(isqrt(x), x.isqrt(), "{x}");
-            let small = x >> (x % 64);
-            assert_eq!(isqrt(small), small.isqrt(), "{small}");
-            let r = x >> 32;
-            assert_eq!(isqrt(r * r), r);
-            assert_eq!(isqrt(r * r + 2 * r), r);
-        }
-        assert_eq!(isqrt(0), 0);
-        assert_eq!(isqrt(u64::MAX), u64::MAX.isqrt());
-    }
 
     #[test]
     fn table_matches_std_tanh() {

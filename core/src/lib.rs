@@ -55,6 +55,7 @@ pub mod image;
 mod index;
 pub mod integrator;
 pub mod isotp;
+mod isqrt;
 pub mod level;
 pub mod protocol;
 #[cfg(feature = "schema")]

@@ -139,6 +139,9 @@ impl<'a> Reader<'a> {
         self.varint(16) as u16
     }
 
+    /// Out of line, unlike the other readers of a varint: inlined, each of its 19 callers (most
+    /// of them the schema server's fields) set up `varint`'s argument; one call is smaller.
+    #[inline(never)]
     pub(crate) fn u32(&mut self) -> u32 {
         // The last-byte check keeps the value within 32 bits.
         self.varint(32) as u32

@@ -125,7 +125,7 @@ pub struct RxOutcome<'a> {
 enum State {
     Idle,
     Receiving {
-        /// The announced length; at most `N`.
+        /// The announced length; at most the buffer's.
         total: usize,
         /// Bytes stored so far, `received < total`.
         received: usize,
@@ -145,8 +145,15 @@ enum State {
 /// event. The caller routes frames (by CAN id) and transmits the Flow Controls it is handed.
 #[derive(Clone, Debug)]
 pub struct Receiver<const N: usize> {
-    config: RxConfig,
+    core: Core,
     buffer: [u8; N],
+}
+
+/// A [`Receiver`] but its buffer: the frame handling is written once over `&mut [u8]`, so a
+/// node with receivers of two sizes (tables and schemas) has one copy of it, not one per `N`.
+#[derive(Clone, Debug)]
+struct Core {
+    config: RxConfig,
     state: State,
 }
 
@@ -154,15 +161,17 @@ impl<const N: usize> Receiver<N> {
     /// An idle receiver. Costs zeroing `N` bytes.
     pub fn new(config: RxConfig) -> Self {
         Receiver {
-            config,
+            core: Core {
+                config,
+                state: State::Idle,
+            },
             buffer: [0; N],
-            state: State::Idle,
         }
     }
 
     /// The configuration.
     pub fn config(&self) -> &RxConfig {
-        &self.config
+        &self.core.config
     }
 
     /// Handles one received frame's data field (1..=8 bytes), received at `now`.
@@ -180,20 +189,104 @@ impl<const N: usize> Receiver<N> {
     /// A Single or First Frame during a reception aborts it (`aborted: Some(Interrupted)`) and is
     /// then handled as above.
     pub fn on_frame(&mut self, data: &[u8], now: Instant) -> RxOutcome<'_> {
+        self.core.on_frame(&mut self.buffer, data, now)
+    }
+
+    /// Aborts the reception in progress if N_Cr has expired at `now` (then `Some(Timeout)`).
+    /// Call it at [`Receiver::deadline`]. Costs one comparison.
+    pub fn poll(&mut self, now: Instant) -> Option<RxError> {
+        self.core.poll(now)
+    }
+
+    /// When N_Cr expires for the reception in progress: the next Consecutive Frame must arrive
+    /// before. `None` when idle.
+    pub fn deadline(&self) -> Option<Instant> {
+        match self.core.state {
+            State::Receiving { deadline, .. } => Some(deadline),
+            State::Idle => None,
+        }
+    }
+
+    /// `(bytes received, message length)` of the reception in progress, `None` when idle.
+    pub fn in_progress(&self) -> Option<(usize, usize)> {
+        match self.core.state {
+            State::Receiving {
+                total, received, ..
+            } => Some((received, total)),
+            State::Idle => None,
+        }
+    }
+
+    /// The sequence number the next Consecutive Frame must carry, `None` when idle: a caller that
+    /// must not let a stray frame abort the reception (a node with a key) drops the others
+    /// before [`Receiver::on_frame`].
+    pub fn next_sequence_number(&self) -> Option<u8> {
+        match self.core.state {
+            State::Receiving { next_sn, .. } => Some(next_sn),
+            State::Idle => None,
+        }
+    }
+
+    /// The length announced by the First Frame of the reception in progress, `None` when idle.
+    ///
+    /// To refuse a message by its length: after the First Frame, call [`Receiver::abort`] instead
+    /// of transmitting the Flow Control (or transmit an Overflow Flow Control built with
+    /// [`pci::encode_flow_control`]); the sender then fails with N_Bs (or Overflow).
+    pub fn message_len(&self) -> Option<usize> {
+        self.in_progress().map(|(_, total)| total)
+    }
+
+    /// The bytes of the reception in progress received so far (empty when idle): a header can be
+    /// checked before the rest arrives, and the reception [aborted](Receiver::abort) early.
+    pub fn received(&self) -> &[u8] {
+        match self.core.state {
+            State::Receiving { received, .. } => self.buffer.get(..received).unwrap_or(&[]),
+            State::Idle => &[],
+        }
+    }
+
+    /// The whole buffer. After [`RxEvent::Complete`] the message is at its start and stays there
+    /// until the next Single or First Frame: a node can store the image it just applied without a
+    /// second buffer.
+    pub fn buffer(&self) -> &[u8] {
+        &self.buffer
+    }
+
+    /// The whole buffer, writable, when idle (`None` during a reception). A node reads its stored
+    /// image into it at boot, so the transfer buffer is the only image-sized buffer it has.
+    pub fn buffer_mut(&mut self) -> Option<&mut [u8]> {
+        match self.core.state {
+            State::Idle => Some(&mut self.buffer),
+            State::Receiving { .. } => None,
+        }
+    }
+
+    /// Drops the reception in progress, if any (returns whether there was one).
+    ///
+    /// The sender is not told (the standard has no frame for it mid-message): its remaining
+    /// Consecutive Frames are ignored as unexpected, and it fails on N_Bs at its next Flow Control
+    /// wait if the block size is not 0.
+    pub fn abort(&mut self) -> bool {
+        self.core.abort()
+    }
+}
+
+impl Core {
+    fn on_frame<'b>(&mut self, buffer: &'b mut [u8], data: &[u8], now: Instant) -> RxOutcome<'b> {
         let mut aborted = self.poll(now);
         let event = match pci::decode(data) {
             Err(error) => RxEvent::Ignored(Ignored::Malformed(error)),
             Ok((Pci::FlowControl { .. }, _)) => RxEvent::Ignored(Ignored::FlowControl),
             Ok((Pci::Single { len }, payload)) => {
                 aborted = aborted.or(self.interrupt());
-                self.single(len, payload)
+                single(buffer, len, payload)
             }
             Ok((Pci::First { len }, payload)) => {
                 aborted = aborted.or(self.interrupt());
-                self.first(len, payload, now)
+                self.first(buffer, len, payload, now)
             }
             Ok((Pci::Consecutive { sn }, payload)) => {
-                let (error, event) = self.consecutive(sn, payload, now);
+                let (error, event) = self.consecutive(buffer, sn, payload, now);
                 aborted = aborted.or(error);
                 event
             }
@@ -206,25 +299,17 @@ impl<const N: usize> Receiver<N> {
         self.abort().then_some(RxError::Interrupted)
     }
 
-    fn single(&mut self, len: u8, payload: &[u8]) -> RxEvent<'_> {
-        match self.buffer.get_mut(..payload.len()) {
-            Some(slot) => {
-                slot.copy_from_slice(payload);
-                RxEvent::Complete(slot)
-            }
-            // Single Frames get no Flow Control, so there is no way to tell the sender.
-            None => RxEvent::Refused {
-                reason: Refusal::TooLarge {
-                    len: u32::from(len),
-                },
-                flow_control: None,
-            },
-        }
-    }
-
-    fn first(&mut self, len: u32, payload: &[u8], now: Instant) -> RxEvent<'_> {
-        let total = usize::try_from(len).ok().filter(|total| *total <= N);
-        let (Some(total), Some(slot)) = (total, self.buffer.get_mut(..payload.len())) else {
+    fn first<'b>(
+        &mut self,
+        buffer: &'b mut [u8],
+        len: u32,
+        payload: &[u8],
+        now: Instant,
+    ) -> RxEvent<'b> {
+        let total = usize::try_from(len)
+            .ok()
+            .filter(|total| *total <= buffer.len());
+        let (Some(total), Some(slot)) = (total, buffer.get_mut(..payload.len())) else {
             // FS = Overflow: the message does not fit; the sender gives up at once (N_BUFFER_OVFLW)
             // instead of waiting N_Bs.
             return RxEvent::Refused {
@@ -245,12 +330,13 @@ impl<const N: usize> Receiver<N> {
         RxEvent::SendFlowControl(self.flow_control(FlowStatus::ContinueToSend))
     }
 
-    fn consecutive(
+    fn consecutive<'b>(
         &mut self,
+        buffer: &'b mut [u8],
         sn: u8,
         payload: &[u8],
         now: Instant,
-    ) -> (Option<RxError>, RxEvent<'_>) {
+    ) -> (Option<RxError>, RxEvent<'b>) {
         let State::Receiving {
             total,
             received,
@@ -281,7 +367,7 @@ impl<const N: usize> Receiver<N> {
         // (a range `received..received + needed` would leave the compiler a panic to keep).
         let (Some(data), Some(slot)) = (
             payload.get(..needed),
-            self.buffer
+            buffer
                 .get_mut(received..)
                 .and_then(|rest| rest.get_mut(..needed)),
         ) else {
@@ -297,7 +383,7 @@ impl<const N: usize> Receiver<N> {
         let received = received.saturating_add(needed);
         if received >= total {
             self.state = State::Idle;
-            return match self.buffer.get(..total) {
+            return match buffer.get(..total) {
                 Some(message) => (None, RxEvent::Complete(message)),
                 None => (None, RxEvent::Nothing),
             };
@@ -339,9 +425,7 @@ impl<const N: usize> Receiver<N> {
         )
     }
 
-    /// Aborts the reception in progress if N_Cr has expired at `now` (then `Some(Timeout)`).
-    /// Call it at [`Receiver::deadline`]. Costs one comparison.
-    pub fn poll(&mut self, now: Instant) -> Option<RxError> {
+    fn poll(&mut self, now: Instant) -> Option<RxError> {
         match self.state {
             State::Receiving { deadline, .. } if expired(now, deadline) => {
                 self.state = State::Idle;
@@ -351,77 +435,26 @@ impl<const N: usize> Receiver<N> {
         }
     }
 
-    /// When N_Cr expires for the reception in progress: the next Consecutive Frame must arrive
-    /// before. `None` when idle.
-    pub fn deadline(&self) -> Option<Instant> {
-        match self.state {
-            State::Receiving { deadline, .. } => Some(deadline),
-            State::Idle => None,
-        }
-    }
-
-    /// `(bytes received, message length)` of the reception in progress, `None` when idle.
-    pub fn in_progress(&self) -> Option<(usize, usize)> {
-        match self.state {
-            State::Receiving {
-                total, received, ..
-            } => Some((received, total)),
-            State::Idle => None,
-        }
-    }
-
-    /// The sequence number the next Consecutive Frame must carry, `None` when idle: a caller that
-    /// must not let a stray frame abort the reception (a node with a key) drops the others
-    /// before [`Receiver::on_frame`].
-    pub fn next_sequence_number(&self) -> Option<u8> {
-        match self.state {
-            State::Receiving { next_sn, .. } => Some(next_sn),
-            State::Idle => None,
-        }
-    }
-
-    /// The length announced by the First Frame of the reception in progress, `None` when idle.
-    ///
-    /// To refuse a message by its length: after the First Frame, call [`Receiver::abort`] instead
-    /// of transmitting the Flow Control (or transmit an Overflow Flow Control built with
-    /// [`pci::encode_flow_control`]); the sender then fails with N_Bs (or Overflow).
-    pub fn message_len(&self) -> Option<usize> {
-        self.in_progress().map(|(_, total)| total)
-    }
-
-    /// The bytes of the reception in progress received so far (empty when idle): a header can be
-    /// checked before the rest arrives, and the reception [aborted](Receiver::abort) early.
-    pub fn received(&self) -> &[u8] {
-        match self.state {
-            State::Receiving { received, .. } => self.buffer.get(..received).unwrap_or(&[]),
-            State::Idle => &[],
-        }
-    }
-
-    /// The whole buffer. After [`RxEvent::Complete`] the message is at its start and stays there
-    /// until the next Single or First Frame: a node can store the image it just applied without a
-    /// second buffer.
-    pub fn buffer(&self) -> &[u8] {
-        &self.buffer
-    }
-
-    /// The whole buffer, writable, when idle (`None` during a reception). A node reads its stored
-    /// image into it at boot, so the transfer buffer is the only image-sized buffer it has.
-    pub fn buffer_mut(&mut self) -> Option<&mut [u8]> {
-        match self.state {
-            State::Idle => Some(&mut self.buffer),
-            State::Receiving { .. } => None,
-        }
-    }
-
-    /// Drops the reception in progress, if any (returns whether there was one).
-    ///
-    /// The sender is not told (the standard has no frame for it mid-message): its remaining
-    /// Consecutive Frames are ignored as unexpected, and it fails on N_Bs at its next Flow Control
-    /// wait if the block size is not 0.
-    pub fn abort(&mut self) -> bool {
+    fn abort(&mut self) -> bool {
         let was_receiving = matches!(self.state, State::Receiving { .. });
         self.state = State::Idle;
         was_receiving
+    }
+}
+
+/// A Single Frame's message into `buffer`.
+fn single<'b>(buffer: &'b mut [u8], len: u8, payload: &[u8]) -> RxEvent<'b> {
+    match buffer.get_mut(..payload.len()) {
+        Some(slot) => {
+            slot.copy_from_slice(payload);
+            RxEvent::Complete(slot)
+        }
+        // Single Frames get no Flow Control, so there is no way to tell the sender.
+        None => RxEvent::Refused {
+            reason: Refusal::TooLarge {
+                len: u32::from(len),
+            },
+            flow_control: None,
+        },
     }
 }

@@ -151,15 +151,23 @@ impl Guard {
         now: Instant,
         verify: impl FnOnce(&Authenticator, u64) -> bool,
     ) -> Result<u64, AuthFailure> {
-        self.authenticator()?;
-        let challenge = self.fresh(now).ok_or(AuthFailure::Stale)?;
-        self.spend(now)?;
-        let authenticator = self.authenticator()?;
-        if !verify(authenticator, challenge.nonce) {
+        let (authenticator, nonce) = self.admit(now)?;
+        if !verify(authenticator, nonce) {
             return Err(AuthFailure::BadTag);
         }
         self.challenge = None;
-        Ok(challenge.nonce)
+        Ok(nonce)
+    }
+
+    /// [`Guard::check`] up to the tag: the key, the outstanding challenge's nonce and one check
+    /// of the budget. Out of line: one copy for the command and the TransferOpen checks instead
+    /// of one inlined into each.
+    #[inline(never)]
+    fn admit(&mut self, now: Instant) -> Result<(&Authenticator, u64), AuthFailure> {
+        self.authenticator()?;
+        let challenge = self.fresh(now).ok_or(AuthFailure::Stale)?;
+        self.spend(now)?;
+        Ok((self.authenticator()?, challenge.nonce))
     }
 
     /// Checks a tagged command to `node` of `service` with plain payload `payload`.
