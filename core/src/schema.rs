@@ -78,26 +78,7 @@ pub type Pose = [i32; AXES];
 /// A wrench: mN along x, y, z and mN·m about x, y, z.
 pub type Wrench = [i32; AXES];
 
-/// The integer square root (floor) of `v`: at most 32 iterations of shifts and adds, no
-/// division, the same on every target.
-pub(crate) const fn isqrt(v: u64) -> u64 {
-    let mut rem = v;
-    let mut root = 0u64;
-    let mut bit = 1u64 << 62;
-    while bit > v {
-        bit >>= 2;
-    }
-    while bit != 0 {
-        if rem >= root + bit {
-            rem -= root + bit;
-            root = (root >> 1) + bit;
-        } else {
-            root >>= 1;
-        }
-        bit >>= 2;
-    }
-    root
-}
+pub(crate) use crate::isqrt::isqrt;
 
 /// The Euclidean length of the translational part of `v` (µm), floor.
 pub(crate) fn length3(v: &[i64; AXES]) -> u64 {
@@ -108,32 +89,4 @@ pub(crate) fn length3(v: &[i64; AXES]) -> u64 {
         sum = sum.saturating_add(c.unsigned_abs().saturating_mul(c.unsigned_abs()));
     }
     isqrt(sum)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn isqrt_is_the_floor_root() {
-        for v in [
-            0u64,
-            1,
-            2,
-            3,
-            4,
-            15,
-            16,
-            17,
-            99,
-            100,
-            101,
-            1 << 40,
-            u64::MAX,
-        ] {
-            let r = isqrt(v);
-            assert!(r * r <= v, "{v}");
-            assert!((r + 1).checked_mul(r + 1).is_none_or(|s| s > v), "{v}");
-        }
-    }
 }
