@@ -416,9 +416,20 @@ pub fn encode<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
     let (header, body_area) = out
         .split_at_mut_checked(HEADER_LEN)
         .ok_or(EncodeError::BufferTooSmall)?;
-    let body_len = postcard::to_slice(table, body_area)
+    #[cfg_attr(feature = "schema", allow(unused_mut))]
+    let mut body_len = postcard::to_slice(table, body_area)
         .map_err(|_| EncodeError::BufferTooSmall)?
         .len();
+    // The format's last field, the schema server: `Table` has it only with the feature, so a
+    // build without it writes the field's absence itself (postcard's `None`, one 0 byte), or its
+    // images would end one byte early for every loader, its own included.
+    #[cfg(not(feature = "schema"))]
+    {
+        *body_area
+            .get_mut(body_len)
+            .ok_or(EncodeError::BufferTooSmall)? = 0;
+        body_len += 1;
+    }
     let total = HEADER_LEN.saturating_add(body_len);
     if total > MAX_IMAGE_LEN {
         return Err(EncodeError::TooLarge);
@@ -644,6 +655,23 @@ mod one_pass {
 #[cfg(all(test, not(feature = "dynamics"), not(feature = "schema")))]
 mod without_dynamics {
     use super::*;
+
+    /// A build without the features writes images it (and every loader) reads back: the schema
+    /// server's absence included.
+    #[test]
+    fn an_image_encoded_without_the_features_loads() {
+        let table: Table<4, 8, 16> = Table::new();
+        let mut out = [0u8; 64];
+        let len = encode(&table, 3, 1, &mut out).unwrap();
+        assert_eq!(
+            len,
+            HEADER_LEN + 11,
+            "the empty body of the format: 11 bytes"
+        );
+        let loaded = load::<4, 8, 16>(&out[..len]).unwrap();
+        assert_eq!(loaded.header.node_id, 3);
+        assert_eq!(loaded.table.port_count(), 0);
+    }
 
     /// A board built without competitive dynamics (or the schema server) reads the three lists
     /// only when empty (the option only when absent): a table that has a group (a schema
