@@ -124,9 +124,11 @@ venv=$(scripts/python-env.sh)
 "$pabctl" dbc examples/door-dynamics.toml -o "$out/door-dynamics.dbc"
 "$pabctl" dbc examples/tour-guide.toml -o "$out/tour-guide.dbc"
 "$pabctl" dbc examples/assembly.toml -o "$out/assembly.dbc"
+# A schema server's sensor topics, one of each kind of field (the fixture's comment).
+"$pabctl" dbc host-tools/tests/fixtures/sensors.toml -o "$out/sensors.dbc"
 "$venv/bin/python" host-tools/tests/dbc_cantools.py "$out/take-and-return.dbc" \
     "$out/multi-target-observation.dbc" "$out/door-dynamics.dbc" "$out/tour-guide.dbc" \
-    "$out/assembly.dbc"
+    "$out/assembly.dbc" "$out/sensors.dbc"
 
 step "hardware-in-the-loop harness, host-side unit tests (hil-sim/unit)"
 # The micro-VM's accelerator decision against stand-ins for QEMU, and the guest kernel's module

@@ -324,9 +324,10 @@ Run the file's [plant] (the simulator's robot: an impedance-controlled end-effec
 with holes, parts, a wrist force sensor) on --iface in real time, in front of the board of its \
 [client]: every period it reads the board's set-point frames (the drive's frames of \
 [schema.NODE] `drive`: attractor, rotation, impedance, gripper), integrates the model for one \
-period and publishes the measured pose and wrench. Until --duration, Ctrl-C or SIGTERM; then prints the \
-parts inserted. --log writes one CSV row per step: t,x,y,z,attractor_x,attractor_y,attractor_z,\
-force_n,inserted (µm, N).")]
+period and publishes the measured pose and wrench, and its range finder on the sensor that \
+[plant] `range_finder` names, if any (the frame `pabctl sim` feeds the board). Until \
+--duration, Ctrl-C or SIGTERM; then prints the parts inserted. --log writes one CSV row per \
+step: t,x,y,z,attractor_x,attractor_y,attractor_z,force_n,inserted (µm, N).")]
     Plant {
         /// The network file (TOML).
         network: PathBuf,
@@ -1070,7 +1071,7 @@ fn run_plant(
     let mut last_report = 0.0;
     let plant = pabctl::plant::run(
         bus.as_mut(),
-        board.drive,
+        board,
         network.plant.clone().unwrap_or_default(),
         period_us,
         duration.map(std::time::Duration::from_secs_f64),

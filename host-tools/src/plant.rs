@@ -1,7 +1,9 @@
 //! The simulated robot on a live bus (`pabctl plant`): the plant model of the simulator
 //! (`pab_lang::sim::plant`) stepped in real time, reading the board's set-point frames and
 //! publishing the drive's pose and the wrist's wrench (docs/can-protocol.md, "The drive's
-//! frames"). What the HIL suite puts in front of a schema server's board.
+//! frames"), and its range finder on the board sensor `[plant] range_finder` names, if any (the
+//! frame the simulator makes, `pab_lang::sim::schema::range_frame`). What the HIL suite puts in
+//! front of a schema server's board.
 //!
 //! Each step integrates the model for exactly one period (so the physics is the simulator's,
 //! whatever the host's timing), then publishes; steps are paced by the wall clock, and a late
@@ -13,7 +15,9 @@ use std::time::{Duration, Instant};
 
 use pab_core::Frame;
 use pab_core::schema::{Drive, Gripper, Setpoint, drive};
+use pab_lang::network::{SchemaBoard, SensorTopic};
 use pab_lang::sim::plant::{Plant, PlantConfig};
+use pab_lang::sim::schema::range_frame;
 
 use crate::bus::Bus;
 
@@ -35,22 +39,29 @@ pub struct Sample {
 }
 
 /// The plant as the bus sees it, without I/O: it reads the board's set-point frames and makes
-/// the drive's pose and wrench frames. [`run`] paces it in real time on a bus; a rig in virtual
-/// time (the schema server's replay test) drives it frame by frame.
+/// the drive's pose and wrench frames, and its range finder's. [`run`] paces it in real time on
+/// a bus; a rig in virtual time (the schema server's replay test) drives it frame by frame.
 pub struct BusPlant {
     plant: Plant,
     ids: Drive,
+    range_finder: Option<SensorTopic>,
     setpoint: Option<Setpoint>,
     partial: (Option<[i32; 3]>, bool, Option<[i32; 3]>),
     received: u64,
 }
 
 impl BusPlant {
-    /// `config`'s plant in front of a board whose drive is at `ids`.
-    pub fn new(ids: Drive, config: PlantConfig) -> BusPlant {
+    /// `config`'s plant in front of `board`: its drive's identifiers, and the sensor
+    /// `config.range_finder` names (an index into `board.sensors`, as the simulator reads it).
+    pub fn new(board: &SchemaBoard, config: PlantConfig) -> BusPlant {
+        let range_finder = config
+            .range_finder
+            .and_then(|i| board.sensors.get(i))
+            .cloned();
         BusPlant {
             plant: Plant::new(config),
-            ids,
+            ids: board.drive,
+            range_finder,
             setpoint: None,
             partial: (None, false, None),
             received: 0,
@@ -73,7 +84,8 @@ impl BusPlant {
         }
     }
 
-    /// The drive's pose and the wrist's wrench now: four frames (translation, rotation of each).
+    /// The drive's pose and the wrist's wrench now: four frames (translation, rotation of each),
+    /// then the range finder's frame when the plant has one.
     pub fn frames(&self) -> Vec<Frame> {
         let pose = self.plant.pose();
         let wrench = self.plant.wrench();
@@ -92,6 +104,11 @@ impl BusPlant {
                 &drive::pack(values, false),
             )
         })
+        .chain(
+            self.range_finder
+                .as_ref()
+                .and_then(|topic| range_frame(topic, self.plant.range())),
+        )
         .collect()
     }
 
@@ -116,18 +133,19 @@ impl BusPlant {
     }
 }
 
-/// Runs the plant on `bus` at `period_us` until `stop` is set (or `duration` has passed),
-/// handing each step's sample to `log`; returns the plant at the end.
+/// Runs `config`'s plant in front of `board` ([`BusPlant::new`]) on `bus` at `period_us` until
+/// `stop` is set (or `duration` has passed), handing each step's sample to `log`; returns the
+/// plant at the end.
 pub fn run(
     bus: &mut dyn Bus,
-    drive_ids: Drive,
+    board: &SchemaBoard,
     config: PlantConfig,
     period_us: u32,
     duration: Option<Duration>,
     stop: &AtomicBool,
     log: &mut dyn FnMut(&Sample),
 ) -> io::Result<Plant> {
-    let mut robot = BusPlant::new(drive_ids, config);
+    let mut robot = BusPlant::new(board, config);
     let start = Instant::now();
     let period = Duration::from_micros(u64::from(period_us.max(1)));
     let mut next = start;
@@ -225,4 +243,95 @@ fn read_setpoint(
         }
     }
     true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use pab_lang::diagnostic::Source;
+    use pab_lang::network::Network;
+
+    /// A board with a range finder `gap` (u16, 0.01 mm a count) on 0x330 and another sensor
+    /// before it, so that the plant must pick the sensor `range_finder` names, not the first.
+    fn network(range_finder: bool) -> Network {
+        let text = format!(
+            r#"
+[nodes.arm]
+id = 10
+
+[schema.arm]
+drive = {{ setpoint = 0x300, pose = 0x310, wrench = 0x320 }}
+
+[schema.arm.sensors.grip]
+can_id = 0x340
+value = {{ offset = 0, size = 1 }}
+
+[schema.arm.sensors.gap]
+can_id = 0x330
+value = {{ offset = 2, size = 2, endian = "big" }}
+scale = 0.01
+unit = "mm"
+
+[plant]
+start_mm = [0, 0, 50]
+parts_mm = [[0, 0]]
+{}
+"#,
+            if range_finder {
+                "range_finder = \"gap\""
+            } else {
+                ""
+            }
+        );
+        Network::parse(Source::new("plant.toml", &text)).unwrap()
+    }
+
+    fn plant(network: &Network) -> BusPlant {
+        BusPlant::new(
+            &network.schema_boards[0],
+            network.plant.clone().unwrap_or_default(),
+        )
+    }
+
+    /// The drive's four frames: pose and wrench, translation then rotation.
+    fn drive_ids(frames: &[Frame]) -> Vec<u32> {
+        frames.iter().take(4).map(|f| f.raw_id().0).collect()
+    }
+
+    #[test]
+    fn the_range_finder_goes_out_after_the_pose_and_wrench_as_the_simulator_makes_it() {
+        let network = network(true);
+        let topic = &network.schema_boards[0].sensors[1];
+        let mut robot = plant(&network);
+        // At the start the tip is 50 mm up over a 15 mm part: 35 mm, 3500 counts of 0.01 mm.
+        let frames = robot.frames();
+        assert_eq!(frames.len(), 5);
+        assert_eq!(drive_ids(&frames), [0x310, 0x311, 0x320, 0x321]);
+        assert_eq!(frames[4].raw_id(), (0x330, false));
+        assert_eq!(topic.sensor.read(&frames[4]), Some(3500));
+        // The field is big endian at byte 2: what the board's Field reads is where it was put.
+        assert_eq!(frames[4].payload()[2..4], 3500u16.to_be_bytes());
+
+        // Moved down toward the part for 200 ms: the same frame as the simulator's at that
+        // state, and its value the plant's range in counts.
+        let setpoint = Frame::with_raw_id(0x300, false, &drive::pack([0, 0, 40_000], false));
+        assert!(robot.on_frame(&setpoint.unwrap()));
+        for _ in 0..200 {
+            robot.step(1000);
+        }
+        let range_um = robot.plant().range();
+        assert!(range_um < 34_000.0, "the tip moved down: {range_um} µm");
+        let frames = robot.frames();
+        assert_eq!(frames.get(4).copied(), range_frame(topic, range_um));
+        let counts = (range_um / 10.0).round() as i32;
+        assert_eq!(topic.sensor.read(&frames[4]), Some(counts));
+    }
+
+    #[test]
+    fn without_a_range_finder_the_plant_sends_the_drives_four_frames() {
+        let network = network(false);
+        let frames = plant(&network).frames();
+        assert_eq!(drive_ids(&frames), [0x310, 0x311, 0x320, 0x321]);
+        assert_eq!(frames.len(), 4);
+    }
 }

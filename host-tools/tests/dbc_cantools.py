@@ -3,7 +3,10 @@
 
     python host-tools/tests/dbc_cantools.py target/examples/take-and-return.dbc \
         [target/examples/multi-target-observation.dbc [target/examples/door-dynamics.dbc \
-        [target/examples/tour-guide.dbc [target/examples/assembly.dbc]]]]
+        [target/examples/tour-guide.dbc [target/examples/assembly.dbc \
+        [target/examples/sensors.dbc]]]]]
+
+(the last from host-tools/tests/fixtures/sensors.toml).
 
 The expected identifiers and payload bytes are built here from the layout documented in
 docs/can-protocol.md, not from pabctl's code: this is what a user decoding a capture relies on.
@@ -335,8 +338,65 @@ def drive(db):
     check(db.get_message_by_name("Drive_Attractor_arm").cycle_time == 1, "the attractor every 1 ms")
 
 
+def field_bytes(raw, offset, size, signed, endian, length=8):
+    """A payload whose field carries `raw`, as pab_core::value_port::Field writes and reads it:
+    `size` bytes (1, 2 or 4) from byte `offset`, two's complement when signed, in `endian`
+    byte order; the other bytes 0."""
+    data = bytearray(length)
+    data[offset:offset + size] = raw.to_bytes(size, endian, signed=signed)
+    return bytes(data)
+
+
+def sensors(path):
+    """The sensor topics of host-tools/tests/fixtures/sensors.toml ([schema.arm.sensors.*],
+    node arm): a frame the board reads a raw count from (value_port::Field: offset, size,
+    signed, endian) decodes in cantools to raw × the sensor's scale, in its unit."""
+    db = cantools.database.load_file(path, strict=True)
+    # name: (message, id, extended, length, offset, size, signed, endian, scale, unit)
+    table = {
+        "gap": ("Sensor_gap_arm", 0x330, False, 2, 0, 2, False, "little", 0.01, "mm"),
+        "pressure": ("Sensor_pressure_temperature_arm", 0x331, False, 8, 2, 2, True, "big", 0.5, "kPa"),
+        "temperature": ("Sensor_pressure_temperature_arm", 0x331, False, 8, 7, 1, True, "little", 0.25, "degC"),
+        "ticks": ("Sensor_ticks_arm", 0x1234567, True, 8, 4, 4, False, "big", 1, None),
+        "torque": ("Sensor_torque_arm", 0x332, False, 5, 1, 4, True, "little", 0.001, "N.m"),
+    }
+    names = sorted(m.name for m in db.messages if m.name.startswith("Sensor_"))
+    check(names == sorted({row[0] for row in table.values()}), f"sensor messages: {names}")
+    for name, (message_name, ident, extended, length, offset, size, signed, endian, scale, unit) in table.items():
+        message = db.get_message_by_name(message_name)
+        check((message.frame_id, message.is_extended_frame, message.length) == (ident, extended, length),
+              f"{message_name}: id {message.frame_id:#x} extended={message.is_extended_frame} "
+              f"length {message.length}")
+        check(message.senders == [] or message.senders == ["Vector__XXX"],
+              f"{message_name}: the user's frame, no known sender: {message.senders}")
+        signal = message.get_signal_by_name(name)
+        check(signal.scale == scale and signal.unit == unit and signal.is_signed == signed,
+              f"{name}: scale {signal.scale} unit {signal.unit!r} signed {signal.is_signed}")
+        bits = 8 * size
+        low, high = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if signed else (0, (1 << bits) - 1)
+        # The field's bounds and a value whose every byte differs (a byte-order mistake shows).
+        for raw in (low, high, 0x12 if size == 1 else int.from_bytes(bytes(range(1, size + 1)), "big")):
+            raw = raw if raw <= high else raw - (1 << bits)
+            values = db.decode_message(ident, field_bytes(raw, offset, size, signed, endian))
+            check(abs(values[name] - raw * scale) <= 1e-9 * max(1, abs(raw * scale)),
+                  f"{name}: raw {raw} ({endian} endian at byte {offset}) decodes to {values[name]}, "
+                  f"expected {raw * scale}")
+    # Two sensors in one frame, each its own field.
+    data = bytearray(field_bytes(-300, 2, 2, True, "big"))
+    data[7] = (-7).to_bytes(1, "little", signed=True)[0]
+    values = db.decode_message(0x331, bytes(data))
+    check((values["pressure"], values["temperature"]) == (-150.0, -1.75), f"shared frame: {values}")
+    # The plant's range finder at 35 mm: round(35 / 0.01) counts, as sim::schema::range_frame
+    # writes it (8 bytes); the network's topic `range` on the same id joins the message.
+    values = db.decode_message(0x330, field_bytes(round(35 / 0.01), 0, 2, False, "little"))
+    check(abs(values["gap"] - 35.0) < 1e-9, f"range finder frame: {values}")
+    receivers = db.get_message_by_name("Sensor_gap_arm").receivers
+    check(set(receivers) == {"arm", "eye"}, f"Sensor_gap_arm receivers: {receivers}")
+    check(not any(m.name == "range" for m in db.messages), "topic `range` has no second message")
+
+
 if __name__ == "__main__":
-    if len(sys.argv) not in (2, 3, 4, 5, 6):
+    if len(sys.argv) not in (2, 3, 4, 5, 6, 7):
         print(__doc__, file=sys.stderr)
         sys.exit(2)
     try:
@@ -347,8 +407,10 @@ if __name__ == "__main__":
             gates(sys.argv[3])
         if len(sys.argv) >= 5:
             hbba(sys.argv[4])
-        if len(sys.argv) == 6:
+        if len(sys.argv) >= 6:
             schema(sys.argv[5])
+        if len(sys.argv) == 7:
+            sensors(sys.argv[6])
     except Exception as error:  # a missing message, an undecodable frame: report, with what came before
         failures.append(f"{type(error).__name__}: {error}")
     for failure in failures:

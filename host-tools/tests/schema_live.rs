@@ -73,11 +73,7 @@ impl Rig {
         let node = LiveNode::spawn(&hub, 10, Some(image));
         let stop = Arc::new(AtomicBool::new(false));
         let board = &network.schema_boards[0];
-        let (drive, config, plant_config) = (
-            board.drive,
-            board.config.clone(),
-            network.plant.clone().unwrap(),
-        );
+        let (board, plant_config) = (board.clone(), network.plant.clone().unwrap());
         let mut bus = hub.connect();
         let flag = stop.clone();
         let (ready, started) = mpsc::channel();
@@ -85,9 +81,9 @@ impl Rig {
             let _ = ready.send(());
             plant::run(
                 &mut bus,
-                drive,
+                &board,
                 plant_config,
-                config.period_us,
+                board.config.period_us,
                 None,
                 &flag,
                 &mut |_| {},

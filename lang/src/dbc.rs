@@ -1,6 +1,6 @@
 //! A DBC description of a network's traffic, for cantools, SavvyCAN, Wireshark and the like.
 //!
-//! Two kinds of messages:
+//! Three kinds of messages:
 //!
 //! - **The project's own frames** (`docs/can-protocol.md`), one message per (service, node): the
 //!   node → all services (heartbeat, table status, traffic, errors, fault, diagnostic samples),
@@ -9,16 +9,19 @@
 //!   state, and the emergency stop and abort the tool sends it (and all). Identifiers come from
 //!   [`FrameId::raw`], the same code the nodes run; nothing here recomputes the layout. Table
 //!   and schema transfer frames (ISO-TP) are not signals: they are only named in the comments.
-//!   The drive's frames of a schema server (attractor, pose, wrench: 21-bit signals) are not
-//!   described: their ids are not in the network file yet.
+//! - **A schema server's drive and sensors**: the drive's frames (`Drive_*`: attractor, pose,
+//!   wrench, signed 21-bit signals) on the ids of `[schema.NODE] drive`, and one `Sensor_*`
+//!   message per identifier its extra sensors read (`[schema.NODE.sensors.NAME]`), one signal
+//!   per sensor at its field, with the sensor's scale as factor and its unit.
 //! - **The network's topics**, one message per topic named after it, with eight one-byte signals
 //!   `data0`..`data7`: what a topic carries is its publisher's business, but a capture then shows
 //!   which topic each frame belongs to, and frames shorter than 8 bytes still decode byte by byte
 //!   (cantools: `allow_truncated=True`).
 //!
 //! Conventions: extended identifiers are written `raw | 0x8000_0000` (the DBC convention);
-//! every payload is little endian (`@1+`); enumerations get `VAL_` tables from the enums'
-//! `ALL` and `description()`; the heartbeat and its status frames carry `GenMsgCycleTime` 1000.
+//! payloads are little endian (`@1`) but a sensor's big-endian field (`@0`, Motorola);
+//! enumerations get `VAL_` tables from the enums' `ALL` and `description()`; the heartbeat and
+//! its status frames carry `GenMsgCycleTime` 1000.
 
 use std::collections::HashSet;
 use std::fmt::Write as _;
@@ -29,8 +32,10 @@ use pab_core::protocol::{
     TOOL, TransferStatusCode,
 };
 
+use pab_core::value_port::{Endian, Field};
+
 use crate::diagnostic::Diagnostics;
-use crate::network::Network;
+use crate::network::{Network, SchemaBoard, SensorTopic};
 
 /// The DBC node name of the workstation tool.
 pub const TOOL_NODE: &str = "PABCTL";
@@ -48,16 +53,22 @@ pub const Q31_FACTOR: &str = "0.0000000004656612873077392578125";
 pub struct DbcSignal {
     /// Its name (a C identifier).
     pub name: String,
-    /// Its least significant bit (little endian numbering: byte * 8 + bit).
+    /// Its start bit, in DBC's numbering (byte * 8 + bit, bit 0 the byte's least significant):
+    /// its least significant bit when little endian (`@1`), its most significant bit when big
+    /// endian (`@0`, Motorola: a field from byte `b` on starts at `b * 8 + 7`).
     pub start: u32,
     /// Its width in bits.
     pub len: u32,
-    /// The scale, as written.
-    pub factor: &'static str,
+    /// Its byte order: `@1` little endian (Intel), `@0` big endian (Motorola).
+    pub endian: Endian,
+    /// The scale, as written: physical = raw × factor.
+    pub factor: String,
+    /// The smallest physical value, as written.
+    pub min: String,
     /// The largest physical value, as written.
     pub max: String,
     /// Its unit.
-    pub unit: &'static str,
+    pub unit: String,
     /// Its value table: code, description.
     pub values: Vec<(u32, &'static str)>,
     /// What it means.
@@ -141,17 +152,19 @@ fn signal(name: &str, start: u32, len: u32, comment: &str) -> DbcSignal {
         name: name.to_string(),
         start,
         len,
-        factor: "1",
+        endian: Endian::Little,
+        factor: "1".to_string(),
+        min: "0".to_string(),
         max: ((1u64 << len) - 1).to_string(),
-        unit: "",
+        unit: String::new(),
         values: Vec::new(),
         comment: comment.to_string(),
         signed: false,
     }
 }
 
-fn with_unit(mut signal: DbcSignal, unit: &'static str) -> DbcSignal {
-    signal.unit = unit;
+fn with_unit(mut signal: DbcSignal, unit: &str) -> DbcSignal {
+    signal.unit = unit.to_string();
     signal
 }
 
@@ -356,15 +369,11 @@ pub fn service_signals(service: Service) -> Option<Vec<DbcSignal>> {
                 "round sequence number, shared by the round's samples, wrapping",
             ),
             DbcSignal {
-                name: "level".into(),
-                start: 32,
-                len: 32,
-                factor: Q31_FACTOR,
+                factor: Q31_FACTOR.to_string(),
                 max: "1".into(),
-                unit: "S",
-                values: Vec::new(),
+                unit: "S".to_string(),
                 comment: "stimulation S in 0..1 (Q1.31 on the wire: raw 2^31 = 1.0)".into(),
-                signed: false,
+                ..signal("level", 32, 32, "")
             },
         ],
         Service::DiagnosticControl => vec![
@@ -751,17 +760,13 @@ fn service_comment(service: Service) -> &'static str {
 }
 
 /// Three signed 21-bit values and a flag (bit 63) in 8 bytes.
-fn triple(
-    names: [&str; 3],
-    unit: &'static str,
-    what: &str,
-    flag: Option<(&str, &str)>,
-) -> Vec<DbcSignal> {
+fn triple(names: [&str; 3], unit: &str, what: &str, flag: Option<(&str, &str)>) -> Vec<DbcSignal> {
     let mut signals: Vec<DbcSignal> = names
         .iter()
         .enumerate()
         .map(|(i, name)| DbcSignal {
-            unit,
+            unit: unit.to_string(),
+            min: (-(1i64 << 20)).to_string(),
             max: ((1u64 << 20) - 1).to_string(),
             signed: true,
             ..signal(
@@ -782,7 +787,7 @@ fn triple(
 fn drive_messages(
     messages: &mut Vec<DbcMessage>,
     names: &mut Names,
-    board: &crate::network::SchemaBoard,
+    board: &SchemaBoard,
     node_name: &str,
     dbc_node: &str,
 ) {
@@ -825,11 +830,11 @@ fn drive_messages(
     let rotation = triple(["rx", "ry", "rz"], "urad", "the attractor's rotation", None);
     let impedance = vec![
         DbcSignal {
-            unit: "N/m",
+            unit: "N/m".to_string(),
             ..signal("stiffness", 0, 32, "the drive's stiffness")
         },
         DbcSignal {
-            unit: "N.s/m",
+            unit: "N.s/m".to_string(),
             ..signal("damping", 32, 32, "the drive's damping")
         },
     ];
@@ -893,6 +898,122 @@ fn drive_messages(
         ),
     ];
     messages.extend(made);
+}
+
+/// The signal of one extra sensor: its field where the board's `value_port::Field` reads it
+/// (byte offset, size, sign, byte order), scaled to the sensor's unit. DBC's physical value is
+/// raw × factor and the sensor's scale is units per count, so the factor is the scale; the board
+/// itself compares the raw counts.
+fn sensor_signal(topic: &SensorTopic, index: usize, range_finder: bool) -> DbcSignal {
+    let field: Field = topic.sensor.field;
+    let len = 8 * u32::from(field.size);
+    let first_bit = 8 * u32::from(field.offset);
+    // A single byte has no byte order: written little endian, which every tool reads alike.
+    // Big endian (Motorola) names the field by its most significant bit: bit 7 of its first byte.
+    let (endian, start, order) = match field.endian {
+        Endian::Big if field.size > 1 => (Endian::Big, first_bit + 7, " big endian"),
+        Endian::Little if field.size > 1 => (Endian::Little, first_bit, " little endian"),
+        _ => (Endian::Little, first_bit, ""),
+    };
+    let (low, high) = field.range();
+    let physical = |raw: i64| (raw as f64 * topic.scale).to_string();
+    let per_count = if topic.unit.is_empty() {
+        format!("{} per count", topic.scale)
+    } else {
+        format!("{} {} per count", topic.scale, topic.unit)
+    };
+    let mut comment = format!(
+        "Sensor `{}` (index {index}): {}{len}{order} at byte {}, {per_count} (the factor). The \
+         board compares the raw counts",
+        topic.name,
+        if field.signed { "i" } else { "u" },
+        field.offset,
+    );
+    if !field.signed && field.size == 4 {
+        // Sensor::read: the server's sensor table holds i32.
+        comment.push_str(" (a raw value above 2^31 - 1 reads as 2^31 - 1)");
+    }
+    comment.push('.');
+    if range_finder {
+        comment.push_str(
+            " The plant's range finder ([plant] range_finder): pabctl sim and pabctl plant publish \
+             the height under the tip on it, every loop period.",
+        );
+    }
+    DbcSignal {
+        endian,
+        factor: topic.scale.to_string(),
+        min: physical(low),
+        max: physical(high),
+        unit: topic.unit.clone(),
+        signed: field.signed,
+        ..signal(&topic.name, start, len, &comment)
+    }
+}
+
+/// The Sensor_* messages of one schema server's board: one per identifier its extra sensors
+/// (`[schema.NODE.sensors.NAME]`) read, with one signal per sensor on it (several may share an
+/// identifier, each its own field: DBC allows one message per identifier). Their frames are the
+/// user's (a device's, or the plant's range finder): the board only reads them. `range_finder`
+/// is the index of the sensor `[plant] range_finder` names, if it is this board's.
+fn sensor_messages(
+    messages: &mut Vec<DbcMessage>,
+    names: &mut Names,
+    board: &SchemaBoard,
+    range_finder: Option<usize>,
+    node_name: &str,
+    dbc_node: &str,
+) {
+    let mut topics: Vec<(pab_core::OutputId, Vec<usize>)> = Vec::new();
+    for (i, topic) in board.sensors.iter().enumerate() {
+        match topics.iter_mut().find(|(id, _)| *id == topic.sensor.id) {
+            Some((_, sensors)) => sensors.push(i),
+            None => topics.push((topic.sensor.id, vec![i])),
+        }
+    }
+    for (id, sensors) in topics {
+        let on_it: Vec<&SensorTopic> = sensors.iter().map(|&i| &board.sensors[i]).collect();
+        let joined: Vec<&str> = on_it.iter().map(|t| t.name.as_str()).collect();
+        let sections: Vec<String> = joined
+            .iter()
+            .map(|name| format!("[schema.{node_name}.sensors.{name}]"))
+            .collect();
+        // The shortest frame the board reads all of them from: longer ones decode the same.
+        let dlc = on_it
+            .iter()
+            .map(|t| t.sensor.field.offset + t.sensor.field.size)
+            .max()
+            .unwrap_or(8);
+        messages.push(DbcMessage {
+            id: if id.is_extended() {
+                id.raw() | EXTENDED_FLAG
+            } else {
+                id.raw()
+            },
+            name: names.unique(format!("Sensor_{}_{dbc_node}", joined.join("_"))),
+            dlc,
+            transmitter: UNKNOWN_NODE.to_string(),
+            receivers: vec![dbc_node.to_string()],
+            signals: sensors
+                .iter()
+                .map(|&i| sensor_signal(&board.sensors[i], i, range_finder == Some(i)))
+                .collect(),
+            comment: format!(
+                "A sensor topic of node `{node_name}`'s schema server ({}): the user's frames on \
+                 {} id 0x{:X}, from an unnamed sender, read by the board (value_port::Field) \
+                 into its sensor table for the reactions that name it. DLC is the shortest frame \
+                 it reads.",
+                sections.join(", "),
+                if id.is_extended() {
+                    "extended"
+                } else {
+                    "standard"
+                },
+                id.raw()
+            ),
+            cycle_ms: None,
+        });
+    }
 }
 
 /// The DBC database of `network`. Fails, with a diagnostic at the topic, if a topic lies in the
@@ -1005,8 +1126,10 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
     }
     // The schema servers' drives: the set-point the board sends every period, the pose and the
     // wrench it reads (docs/can-protocol.md, "The drive's frames"), on the ids of the board's
-    // `drive`.
-    for board in &network.schema_boards {
+    // `drive`; then its extra sensors' topics. A network topic on a sensor's identifier joins
+    // the sensor's message (below): its signals say more than raw bytes.
+    let mut sensor_ids: Vec<(u32, usize)> = Vec::new();
+    for (index, board) in network.schema_boards.iter().enumerate() {
         let Some(dbc_node) = nodes.get(board.node + 1) else {
             continue;
         };
@@ -1014,6 +1137,27 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
             continue;
         };
         drive_messages(&mut messages, &mut names, board, &node.name, dbc_node);
+        // `[plant] range_finder` is a sensor of the first board (the network file's reading).
+        let range_finder = network
+            .plant
+            .as_ref()
+            .and_then(|p| p.range_finder)
+            .filter(|_| index == 0);
+        let first = messages.len();
+        sensor_messages(
+            &mut messages,
+            &mut names,
+            board,
+            range_finder,
+            &node.name,
+            dbc_node,
+        );
+        sensor_ids.extend(
+            messages[first..]
+                .iter()
+                .enumerate()
+                .map(|(i, m)| (m.id, first + i)),
+        );
     }
     // BLE claims: one message per node of a group. A DBC names whole identifiers, and a claim's
     // identifier carries its eligibility (higher eligibility, lower identifier), so the message
@@ -1230,7 +1374,7 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
         }
     }
 
-    let mut seen_ids: Vec<(u32, usize)> = Vec::new();
+    let mut seen_ids = sensor_ids;
     for topic in &network.topics {
         let filter = topic.filter;
         if filter.is_extended() && filter.id() & PROTOCOL_MASK == PROTOCOL_VALUE {
@@ -1283,9 +1427,10 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
         } else {
             0x7FF
         };
+        // What the topic is; its own message's comment starts with its name, and a message it
+        // joins says "Also topic `NAME`: " before it.
         let mut comment = format!(
-            "Topic `{}`: {} id 0x{:X}",
-            topic.name,
+            "{} id 0x{:X}",
             if filter.is_extended() {
                 "extended"
             } else {
@@ -1302,20 +1447,39 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
                 filter.id()
             );
         }
-        comment.push_str(
-            ". Its payload is its publisher's: shown as raw bytes data0..data7 (DLC may be \
-             shorter than 8).",
-        );
-        if !feeds.is_empty() {
-            let _ = write!(comment, " Feeds {}.", feeds.join(", "));
-        }
+        comment.push('.');
+        let feeds = if feeds.is_empty() {
+            String::new()
+        } else {
+            format!(" Feeds {}.", feeds.join(", "))
+        };
         if let Some(&(_, first)) = seen_ids.iter().find(|(seen, _)| *seen == id) {
-            // Two topics with one base id and different masks: DBC allows one message per id.
+            // Two topics with one base id and different masks, or a topic a schema server's
+            // sensor reads: DBC allows one message per id, and the first one describes it.
             if let Some(message) = messages.get_mut(first) {
-                let _ = write!(message.comment, " Also topic `{}`: {comment}", topic.name);
+                let _ = write!(
+                    message.comment,
+                    " Also topic `{}`: {comment}{feeds}",
+                    topic.name
+                );
+                message.receivers.retain(|r| r != UNKNOWN_NODE);
+                for receiver in receivers {
+                    if !message.receivers.contains(&receiver) {
+                        message.receivers.push(receiver);
+                    }
+                }
+                if message.receivers.is_empty() {
+                    message.receivers.push(UNKNOWN_NODE.to_string());
+                }
             }
             continue;
         }
+        comment.insert_str(0, &format!("Topic `{}`: ", topic.name));
+        comment.push_str(
+            " Its payload is its publisher's: shown as raw bytes data0..data7 (DLC may be shorter \
+             than 8).",
+        );
+        comment.push_str(&feeds);
         seen_ids.push((id, messages.len()));
         messages.push(DbcMessage {
             id,
@@ -1342,7 +1506,8 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
              (docs/can-protocol.md): 29-bit ids, priority in bits 28..26, marker 0b10 in bits \
              25..24 (raw & 0x{PROTOCOL_MASK:08X} == 0x{PROTOCOL_VALUE:08X}), service in 23..16, \
              destination in 15..8, source in 7..0. Table and schema transfers (services 0x11 and \
-             0x1A, ISO-TP) are not listed: see the node comments for their ids. The other \
+             0x1A, ISO-TP) are not listed: see the node comments for their ids. Messages \
+             Drive_* and Sensor_* are a schema server's drive and sensor topics. The other \
              messages are the network's topics.",
             network.source.path().display()
         ),
@@ -1394,22 +1559,21 @@ impl Dbc {
                 message.id, message.name, message.dlc, message.transmitter
             )?;
             for signal in &message.signals {
-                let (sign, min) = if signal.signed {
-                    ('-', format!("-{}", 1u64 << (signal.len - 1)))
-                } else {
-                    ('+', "0".to_string())
+                let sign = if signal.signed { '-' } else { '+' };
+                let order = match signal.endian {
+                    Endian::Little => 1,
+                    Endian::Big => 0,
                 };
                 writeln!(
                     out,
-                    " SG_ {} : {}|{}@1{} ({},0) [{}|{}] \"{}\" {}",
+                    " SG_ {} : {}|{}@{order}{sign} ({},0) [{}|{}] \"{}\" {}",
                     signal.name,
                     signal.start,
                     signal.len,
-                    sign,
                     signal.factor,
-                    min,
+                    signal.min,
                     signal.max,
-                    signal.unit,
+                    text(&signal.unit),
                     message.receivers.join(",")
                 )?;
             }
@@ -1658,16 +1822,7 @@ tc = 3.0
         );
         let transfer = FrameId::new(Service::SchemaTransfer, TOOL, 10).raw();
         assert!(dbc.node_comments[1].contains(&format!("0x{transfer:08X}")));
-        // Every signal fits its message and no two overlap.
-        for message in &dbc.messages {
-            let mut used = 0u64;
-            for signal in &message.signals {
-                assert!(signal.start + signal.len <= 8 * u32::from(message.dlc));
-                let bits = ((1u128 << signal.len) - 1) << signal.start;
-                assert_eq!(used & bits as u64, 0, "{} overlaps", signal.name);
-                used |= bits as u64;
-            }
-        }
+        fits_without_overlap(&dbc);
         // Without a schema server: none of them.
         let plain = build(&network(NET)).unwrap();
         assert!(plain.messages.iter().all(|m| {
@@ -1728,16 +1883,7 @@ tc = 3.0
         let wide = find("wide");
         assert_eq!(wide.id, 0x1A_0000 | EXTENDED_FLAG);
         assert!(wide.comment.contains("mask 0x1FFF0000"), "{}", wide.comment);
-        // Every signal fits its message and no two overlap.
-        for message in &dbc.messages {
-            let mut used = 0u64;
-            for signal in &message.signals {
-                assert!(signal.start + signal.len <= 8 * u32::from(message.dlc));
-                let bits = ((1u128 << signal.len) - 1) << signal.start;
-                assert_eq!(used & bits as u64, 0, "{} overlaps", signal.name);
-                used |= bits as u64;
-            }
-        }
+        fits_without_overlap(&dbc);
     }
 
     #[test]
@@ -1770,5 +1916,179 @@ tc = 3.0
             "{message}"
         );
         assert!(message.contains("identifier space"), "{message}");
+    }
+
+    /// The payload bits `signal` covers, in DBC's numbering (byte * 8 + bit), most significant
+    /// first: a little-endian signal counts up from its start, a big-endian (Motorola) one
+    /// counts down from its start within a byte and goes on at bit 7 of the next byte.
+    fn bits(signal: &DbcSignal) -> Vec<u32> {
+        match signal.endian {
+            Endian::Little => (signal.start..signal.start + signal.len).rev().collect(),
+            Endian::Big => {
+                let mut bit = signal.start;
+                let mut out = vec![bit];
+                while out.len() < signal.len as usize {
+                    bit = if bit.is_multiple_of(8) {
+                        bit + 15
+                    } else {
+                        bit - 1
+                    };
+                    out.push(bit);
+                }
+                out
+            }
+        }
+    }
+
+    /// The raw value a DBC reader takes from `payload` for `signal`.
+    fn dbc_raw(signal: &DbcSignal, payload: &[u8; 8]) -> i64 {
+        let raw = bits(signal).iter().fold(0u64, |acc, &bit| {
+            acc << 1 | u64::from(payload[(bit / 8) as usize] >> (bit % 8) & 1)
+        });
+        if signal.signed && raw >> (signal.len - 1) & 1 == 1 {
+            raw as i64 - (1i64 << signal.len)
+        } else {
+            raw as i64
+        }
+    }
+
+    /// Every signal lies within its message and no two overlap.
+    fn fits_without_overlap(dbc: &Dbc) {
+        for message in &dbc.messages {
+            let mut used = 0u64;
+            for signal in &message.signals {
+                for bit in bits(signal) {
+                    assert!(
+                        bit < 8 * u32::from(message.dlc),
+                        "{}.{} is beyond its DLC",
+                        message.name,
+                        signal.name
+                    );
+                    assert_eq!(used >> bit & 1, 0, "{} overlaps", signal.name);
+                    used |= 1 << bit;
+                }
+            }
+        }
+    }
+
+    /// host-tools/tests/fixtures/sensors.toml: a board with one sensor of each kind of field
+    /// (the file cantools checks in ./test.sh).
+    fn sensors_network() -> Network {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../host-tools/tests/fixtures/sensors.toml"
+        );
+        network(&std::fs::read_to_string(path).unwrap())
+    }
+
+    #[test]
+    fn a_schema_servers_sensor_topics_are_messages_with_one_signal_per_field() {
+        let dbc = build(&sensors_network()).unwrap();
+        let sensors: Vec<(&str, u32, u8)> = dbc
+            .messages
+            .iter()
+            .filter(|m| m.name.starts_with("Sensor_"))
+            .map(|m| (m.name.as_str(), m.id, m.dlc))
+            .collect();
+        // One message per identifier (pressure and temperature share 0x331), the DLC the
+        // shortest frame the board reads.
+        assert_eq!(
+            sensors,
+            [
+                ("Sensor_gap_arm", 0x330, 2),
+                ("Sensor_pressure_temperature_arm", 0x331, 8),
+                ("Sensor_ticks_arm", 0x123_4567 | EXTENDED_FLAG, 8),
+                ("Sensor_torque_arm", 0x332, 5),
+            ]
+        );
+        let signal = |message: &str, name: &str| {
+            let message = dbc.messages.iter().find(|m| m.name == message).unwrap();
+            assert_eq!(message.transmitter, UNKNOWN_NODE);
+            message
+                .signals
+                .iter()
+                .find(|s| s.name == name)
+                .unwrap()
+                .clone()
+        };
+        let gap = signal("Sensor_gap_arm", "gap");
+        assert_eq!(
+            (gap.start, gap.len, gap.endian, gap.signed),
+            (0, 16, Endian::Little, false)
+        );
+        // physical = raw × factor: the factor is the scale, the bounds the field's in mm.
+        assert_eq!(
+            (gap.factor.as_str(), gap.min.as_str(), gap.max.as_str()),
+            ("0.01", "0", "655.35")
+        );
+        assert_eq!(gap.unit, "mm");
+        assert!(gap.comment.contains("range finder"), "{}", gap.comment);
+        let pressure = signal("Sensor_pressure_temperature_arm", "pressure");
+        // Motorola: the most significant bit, bit 7 of byte 2.
+        assert_eq!(
+            (
+                pressure.start,
+                pressure.len,
+                pressure.endian,
+                pressure.signed
+            ),
+            (23, 16, Endian::Big, true)
+        );
+        assert_eq!(
+            (pressure.min.as_str(), pressure.max.as_str()),
+            ("-16384", "16383.5")
+        );
+        let temperature = signal("Sensor_pressure_temperature_arm", "temperature");
+        assert_eq!((temperature.start, temperature.len), (56, 8));
+        let ticks = signal("Sensor_ticks_arm", "ticks");
+        assert_eq!(
+            (ticks.start, ticks.endian, ticks.unit.as_str()),
+            (39, Endian::Big, "")
+        );
+        assert!(ticks.comment.contains("2^31 - 1"), "{}", ticks.comment);
+        // The network's topic on the range finder's id joins its message: no second one.
+        let joined = dbc.messages.iter().find(|m| m.id == 0x330).unwrap();
+        assert_eq!(joined.receivers, ["arm", "eye"]);
+        assert!(
+            joined.comment.contains("Also topic `range`"),
+            "{}",
+            joined.comment
+        );
+        assert_eq!(dbc.messages.iter().filter(|m| m.id == 0x330).count(), 1);
+        fits_without_overlap(&dbc);
+
+        let text = dbc.render();
+        assert!(text.contains(" SG_ gap : 0|16@1+ (0.01,0) [0|655.35] \"mm\" arm,eye\n"));
+        assert!(
+            text.contains(" SG_ pressure : 23|16@0- (0.5,0) [-16384|16383.5] \"kPa\" arm\n"),
+            "{text}"
+        );
+        assert!(text.contains(&format!(
+            "BO_ {} Sensor_ticks_arm: 8 Vector__XXX\n",
+            0x123_4567 | EXTENDED_FLAG
+        )));
+    }
+
+    #[test]
+    fn a_dbc_reader_takes_from_a_sensor_frame_the_count_the_board_reads() {
+        let network = sensors_network();
+        let dbc = build(&network).unwrap();
+        for topic in &network.schema_boards[0].sensors {
+            let signal = dbc
+                .messages
+                .iter()
+                .flat_map(|m| &m.signals)
+                .find(|s| s.name == topic.name)
+                .unwrap();
+            let field = topic.sensor.field;
+            let (low, high) = field.range();
+            // The bounds, and a value whose bytes all differ (a byte-order mistake shows).
+            for value in [low, high, 0x0102_0304 % (high + 1)] {
+                let mut payload = [0u8; 8];
+                field.write(&mut payload, value);
+                assert_eq!(field.read(&payload), Some(value));
+                assert_eq!(dbc_raw(signal, &payload), value, "{}", topic.name);
+            }
+        }
     }
 }

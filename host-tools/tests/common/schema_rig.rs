@@ -82,7 +82,7 @@ pub fn run(network: &Network, compiled: &[CompiledNode], until_us: u64) -> RigRu
     let mut recorder = Recorder::new(String::new());
     recorder.node_id = node_id;
 
-    let mut plant = BusPlant::new(board.drive, network.plant.clone().unwrap_or_default());
+    let mut plant = BusPlant::new(board, network.plant.clone().unwrap_or_default());
     // The client's messages, program first, then the timed commands at their times.
     let program: Vec<Vec<u8>> = client
         .program

@@ -27,8 +27,8 @@
 //!   +z.
 //! - A range finder looks straight down from the tip (from the held part's bottom when it holds
 //!   one): the height above the tallest surface under it (the plate, a part's top, an obstacle's
-//!   top), 0 in contact or in a hole. The simulator publishes it on the board sensor `[plant]`'s
-//!   `range_finder` names.
+//!   top), 0 in contact or in a hole. The simulator and `pabctl plant` publish it on the board
+//!   sensor `[plant]`'s `range_finder` names (`super::schema::range_frame`).
 //! - Closing the gripper takes the part whose top the tip is on (centre within
 //!   `grasp_tolerance`, tip within 1 mm of its top), at the offset it has; opening it lets the
 //!   part go: into the hole it is in (inserted once it is `insert_depth` below the surface, then

@@ -135,8 +135,12 @@ pub fn builtin_name(id: u16) -> Option<String> {
 }
 
 /// The frame the range finder's reading (µm) makes on `topic`: the reading in mm over the
-/// topic's scale, saturated to its field.
-fn range_frame(topic: &SensorTopic, range_um: f64) -> Option<Frame> {
+/// topic's scale, rounded and saturated to its field (`value_port::Field::write`). The one
+/// encoding of the plant's range finder: the simulator here and `pabctl plant`
+/// (`pabctl::plant::BusPlant`) both publish it with this, so a board sees the same counts in
+/// virtual time and on a live bus. `None` only for an identifier no frame can carry (the
+/// network file refuses those).
+pub fn range_frame(topic: &SensorTopic, range_um: f64) -> Option<Frame> {
     let counts = (range_um / 1000.0 / topic.scale).round();
     let mut data = [0u8; 8];
     topic.sensor.field.write(
