@@ -618,7 +618,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         }
         #[cfg(feature = "dynamics")]
         for spec in table.dynamics() {
-            runs.push(GroupRun::new(spec).ok()?).ok()?;
+            // Started where it lives (`GroupRun::start`): built and moved, it was copied.
+            runs.push(GroupRun::BLANK).ok()?;
+            runs.last_mut()?.start(spec).ok()?;
         }
         #[cfg(feature = "dynamics")]
         for _ in table.gate_sources() {
