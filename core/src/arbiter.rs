@@ -604,7 +604,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 *value_ports = value_ports.with(port);
             }
         }
-        *index = FilterIndex::new(table.connections())?;
+        index.build(table.connections())?;
         // Validated: the filtered connections exist, at most MAX_FILTERED (< UNFILTERED) of them.
         for (position, &connection) in table.filters().connections.iter().enumerate() {
             if let Some(slot) = slots.get_mut(usize::from(connection)) {
