@@ -604,7 +604,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 *value_ports = value_ports.with(port);
             }
         }
-        *index = FilterIndex::new(table.connections())?;
+        index.build(table.connections())?;
         // Validated: the filtered connections exist, at most MAX_FILTERED (< UNFILTERED) of them.
         for (position, &connection) in table.filters().connections.iter().enumerate() {
             if let Some(slot) = slots.get_mut(usize::from(connection)) {
@@ -618,7 +618,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         }
         #[cfg(feature = "dynamics")]
         for spec in table.dynamics() {
-            runs.push(GroupRun::new(spec).ok()?).ok()?;
+            // Started where it lives (`GroupRun::start`): built and moved, it was copied.
+            runs.push(GroupRun::BLANK).ok()?;
+            runs.last_mut()?.start(spec).ok()?;
         }
         #[cfg(feature = "dynamics")]
         for _ in table.gate_sources() {

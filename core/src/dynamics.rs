@@ -649,49 +649,69 @@ impl Dynamics {
     /// per time constant, two per exclusion, three and a 64-bit square root for the noise: done
     /// once per table, so that [`Dynamics::step`] needs none.
     pub fn new(params: &Params) -> Result<Dynamics, ParamsError> {
+        let mut dynamics = Dynamics::BLANK;
+        dynamics.start(params)?;
+        Ok(dynamics)
+    }
+
+    /// All zeros, no behaviour: what [`Dynamics::start`] fills in place.
+    pub(crate) const BLANK: Dynamics = Dynamics {
+        count: 0,
+        rate_tau: 0,
+        rate_rho_fast: 0,
+        rate_rho_slow: 0,
+        rate_n: 0,
+        rate_memory: [0; MAX_BEHAVIOURS],
+        requires: [0; MAX_BEHAVIOURS],
+        required: 0,
+        c: 0,
+        noise_gain: 0,
+        pushes: Vec::new(),
+        rng: 0,
+        n: [0; MAX_BEHAVIOURS],
+        rho: [0; MAX_BEHAVIOURS],
+        m: [0; MAX_BEHAVIOURS],
+        gates: 0,
+    };
+
+    /// [`Dynamics::new`] written into `self`, a [`Dynamics::BLANK`] (its zeros are kept):
+    /// a board builds its groups where they live, inside the arbiter (returned by value, each
+    /// of the 2.7 KiB struct's moves through `Result`, the run and the arbiter's list was a
+    /// copy: 224 bytes of the NUCLEO-G474RE's flash). On an error `self` is unchanged.
+    pub(crate) fn start(&mut self, params: &Params) -> Result<(), ParamsError> {
         params.validate()?;
         let dt = params.step_us;
-        let mut rate_memory = [0; MAX_BEHAVIOURS];
-        let mut requires = [0; MAX_BEHAVIOURS];
         let mut required = 0;
         for ((b, rate_i), requires_i) in params
             .behaviours
             .iter()
-            .zip(rate_memory.iter_mut())
-            .zip(requires.iter_mut())
+            .zip(self.rate_memory.iter_mut())
+            .zip(self.requires.iter_mut())
         {
             *rate_i = rate(dt, b.memory_us);
             *requires_i = b.requires;
             required |= b.requires;
         }
-        let mut pushes = Vec::new();
         for e in params.exclusions.iter().filter(|e| e.gamma != 0) {
             // At most one entry per exclusion, and `params.exclusions` has the same capacity.
-            let _ = pushes.push(Push {
+            let _ = self.pushes.push(Push {
                 behaviour: e.behaviour,
                 by: e.by,
                 rate: gamma_rate(e.gamma, dt, params.tau_us),
             });
         }
         let gain = (u64::from(params.noise) * sqrt_ratio(dt, params.unit_us) + (1 << 30)) >> 31;
-        Ok(Dynamics {
-            count: params.behaviours.len() as u8,
-            rate_tau: rate(dt, params.tau_us),
-            rate_rho_fast: rate(dt, params.tau_rho_fast_us),
-            rate_rho_slow: rate(dt, params.tau_rho_slow_us),
-            rate_n: rate(dt, params.tau_n_us),
-            rate_memory,
-            requires,
-            required,
-            c: params.c,
-            noise_gain: u32::try_from(gain).unwrap_or(u32::MAX),
-            pushes,
-            rng: params.seed,
-            n: [0; MAX_BEHAVIOURS],
-            rho: [0; MAX_BEHAVIOURS],
-            m: [-ONE; MAX_BEHAVIOURS],
-            gates: 0,
-        })
+        self.count = params.behaviours.len() as u8;
+        self.rate_tau = rate(dt, params.tau_us);
+        self.rate_rho_fast = rate(dt, params.tau_rho_fast_us);
+        self.rate_rho_slow = rate(dt, params.tau_rho_slow_us);
+        self.rate_n = rate(dt, params.tau_n_us);
+        self.required = required;
+        self.c = params.c;
+        self.noise_gain = u32::try_from(gain).unwrap_or(u32::MAX);
+        self.rng = params.seed;
+        self.m = [-ONE; MAX_BEHAVIOURS];
+        Ok(())
     }
 
     /// The number of behaviours.

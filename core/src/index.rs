@@ -131,8 +131,8 @@ fn bucket(key: u32, multiplier: u32, count: usize) -> usize {
 }
 
 impl<const C: usize> FilterIndex<C> {
-    /// The index of no connection, in an arbiter being built until [`FilterIndex::new`]'s
-    /// replaces it.
+    /// The index of no connection, in an arbiter being built until [`FilterIndex::build`]
+    /// fills it.
     pub(crate) const fn empty() -> Self {
         FilterIndex {
             buckets: Vec::new(),
@@ -143,26 +143,36 @@ impl<const C: usize> FilterIndex<C> {
         }
     }
 
-    /// The index of `connections` (a table's, in table order). `None` if there are more than `C`
-    /// of them, or more than 2^15. Costs, per multiplier tried, a pass over the exact filters
-    /// and one over the buckets, then a sort of the exact filters.
+    /// The index of `connections` (a table's, in table order): [`FilterIndex::build`] into an
+    /// empty index.
+    #[cfg(test)]
+    pub(crate) fn new(connections: &[Connection]) -> Option<Self> {
+        let mut index = Self::empty();
+        index.build(connections)?;
+        Some(index)
+    }
+
+    /// Indexes `connections` (a table's, in table order) into `self`, an empty index
+    /// ([`FilterIndex::empty`]), where it lives: built apart and returned, the index was moved
+    /// into the arbiter (72 bytes of the NUCLEO-G474RE's flash). `None` if there are more than `C` of them, or more than 2^15 (`self` is
+    /// then left part-built). Costs, per multiplier tried, a pass over the exact filters and one
+    /// over the buckets, then a sort of the exact filters.
     // Out of line: inlined into the loader (and so into the node's loader, whose frame holds a
     // table and an arbiter), each of its locals was reached through a large stack offset, which
     // took 116 bytes more of the NUCLEO-G474RE's flash. Run once per table.
     #[inline(never)]
-    pub(crate) fn new(connections: &[Connection]) -> Option<Self> {
+    pub(crate) fn build(&mut self, connections: &[Connection]) -> Option<()> {
         // Positions are u16 (below 2^15 in `connections`, which keeps a flag in the top bit),
         // and so is the cursor over the masked filters.
         if connections.len() >= usize::from(MORE) {
             return None;
         }
         let mut exact: Vec<(u32, u16), C> = Vec::new();
-        let mut masked: Vec<u16, C> = Vec::new();
         for (position, connection) in connections.iter().enumerate() {
             let position = u16::try_from(position).ok()?;
             match connection.filter.exact_key() {
                 Some(key) => exact.push((key, position)).ok()?,
-                None => masked.push(position).ok()?,
+                None => self.masked.push(position).ok()?,
             }
         }
         // As many buckets as the capacity allows (a power of two): they cost memory the
@@ -170,9 +180,9 @@ impl<const C: usize> FilterIndex<C> {
         // one comparison.
         let count = C.checked_ilog2().map_or(0, |log| 1 << log);
         // The multiplier: the first that leaves the fewest keys sharing a bucket with another
-        // (counted in `buckets`, used as scratch: how many keys each bucket holds).
+        // (counted in `self.buckets`, used as scratch: how many keys each bucket holds).
         sort(&mut exact, &|&(key, connection)| (0, key, connection));
-        let mut buckets: Vec<(u32, u32), C> = Vec::new();
+        let buckets = &mut self.buckets;
         let mut best = (usize::MAX, MULTIPLIERS[0]);
         for multiplier in MULTIPLIERS {
             buckets.clear();
@@ -199,27 +209,21 @@ impl<const C: usize> FilterIndex<C> {
                 break;
             }
         }
+        buckets.clear();
         let multiplier = best.1;
         sort(&mut exact, &|&(key, connection)| {
             (bucket(key, multiplier, count), key, connection)
         });
-        let mut index = FilterIndex {
-            buckets: Vec::new(),
-            multiplier,
-            keys: Vec::new(),
-            connections: Vec::new(),
-            masked,
-        };
+        self.multiplier = multiplier;
         let mut entries = exact.iter().peekable();
         while let Some(&(key, connection)) = entries.next() {
             let more = entries.peek().is_some_and(|&&(next, _)| next == key);
-            index.keys.push(key).ok()?;
-            index
-                .connections
+            self.keys.push(key).ok()?;
+            self.connections
                 .push(if more { connection | MORE } else { connection })
                 .ok()?;
         }
-        let no_masked = index.masked.is_empty();
+        let no_masked = self.masked.is_empty();
         let mut start = 0usize;
         for b in 0..count {
             let mut end = start;
@@ -247,10 +251,10 @@ impl<const C: usize> FilterIndex<C> {
                 }
                 _ => word |= end_field << 16,
             }
-            index.buckets.push((first, word)).ok()?;
+            self.buckets.push((first, word)).ok()?;
             start = end;
         }
-        Some(index)
+        Some(())
     }
 
     /// What a frame with identifier `id` feeds, as far as its bucket tells: nothing, exactly one

@@ -67,19 +67,33 @@ pub struct StepView<'a> {
 impl GroupRun {
     /// The group of `spec` in its initial state, or why its parameters are invalid.
     pub fn new(spec: &GroupSpec) -> Result<GroupRun, ParamsError> {
-        Ok(GroupRun {
-            dynamics: Dynamics::new(&spec.params)?,
-            number: spec.number,
-            step_us: u64::from(spec.params.step_us),
-            next: None,
-            contexts: [0; MAX_BEHAVIOURS],
-            readings: [(0, Instant::from_micros(0)); MAX_BEHAVIOURS],
-            heard: 0,
-            sent: 0,
-            repeat: Instant::from_micros(0),
-            changes: 0,
-            skipped: 0,
-        })
+        let mut run = GroupRun::BLANK;
+        run.start(spec)?;
+        Ok(run)
+    }
+
+    /// All zeros: what [`GroupRun::start`] fills in place.
+    pub(crate) const BLANK: GroupRun = GroupRun {
+        dynamics: Dynamics::BLANK,
+        number: 0,
+        step_us: 0,
+        next: None,
+        contexts: [0; MAX_BEHAVIOURS],
+        readings: [(0, Instant::from_micros(0)); MAX_BEHAVIOURS],
+        heard: 0,
+        sent: 0,
+        repeat: Instant::from_micros(0),
+        changes: 0,
+        skipped: 0,
+    };
+
+    /// [`GroupRun::new`] written into `self`, a [`GroupRun::BLANK`] (see [`Dynamics::start`]).
+    /// On an error `self` is unchanged.
+    pub(crate) fn start(&mut self, spec: &GroupSpec) -> Result<(), ParamsError> {
+        self.dynamics.start(&spec.params)?;
+        self.number = spec.number;
+        self.step_us = u64::from(spec.params.step_us);
+        Ok(())
     }
 
     /// The integrator and its state.
