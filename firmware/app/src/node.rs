@@ -1529,10 +1529,17 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
 
     /// Queues a frame of our protocol (an answer, a claim) over the diagnostic stream if need
     /// be; when even that fails, the frame is lost and counted, with a TxOverrun fault. Out of
-    /// line: one copy for every sender.
+    /// line: one copy for every sender. Through [`enqueue_cold`] rather than an inlined
+    /// [`Node::enqueue_over_diagnostic`]: these frames are not the frame path, and the inlined
+    /// copy of the insertion took 228 bytes of the NUCLEO-G474RE's flash (a call more per
+    /// frame: the heartbeat group 54 instructions dearer).
     #[inline(never)]
     fn queue(&mut self, frame: Frame) {
-        if self.enqueue_over_diagnostic(frame).is_err() {
+        let queued = match enqueue_cold(&mut self.outbox, frame) {
+            Ok(()) => Ok(()),
+            Err(frame) => self.enqueue_in_place_of_diagnostic(frame),
+        };
+        if queued.is_err() {
             self.counters.errors = self.counters.errors.wrapping_add(1);
             self.faults.raise(FaultCode::TxOverrun, [0; 5]);
         }
@@ -1604,11 +1611,31 @@ fn enqueue(outbox: &mut heapless::Vec<Frame, OUTBOX_LEN>, frame: Frame) -> Resul
     Ok(())
 }
 
-/// [`enqueue`] out of line, for what is not the frame path (diagnostic samples, the full outbox's
-/// case): one copy of it instead of one per caller.
+/// [`enqueue`] out of line, for what is not the frame path (our protocol's frames, diagnostic
+/// samples, the full outbox's case): one copy of it instead of one per caller.
+///
+/// It pushes a placeholder and writes the frame over it: pushed as it came, the frame was copied
+/// by a byte-by-byte `memcpy` (the 18 bytes past its identifier's tag: 90 instructions), a word
+/// at a time this way.
 #[inline(never)]
 fn enqueue_cold(outbox: &mut heapless::Vec<Frame, OUTBOX_LEN>, frame: Frame) -> Result<(), Frame> {
-    enqueue(outbox, frame)
+    let rank = frame.arbitration_rank();
+    if outbox.push(Frame::empty()).is_err() {
+        return Err(frame);
+    }
+    let mut slots = outbox.iter_mut().rev();
+    let Some(mut new) = slots.next() else {
+        return Ok(());
+    };
+    *new = frame;
+    for before in slots {
+        if before.arbitration_rank() > rank {
+            break;
+        }
+        core::mem::swap(before, new);
+        new = before;
+    }
+    Ok(())
 }
 
 /// Removes the frame at `position` from `outbox`, keeping the others in order.
