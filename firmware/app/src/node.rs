@@ -992,16 +992,9 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 let verdict = if id.destination != node_id {
                     Err(AuthFailure::Broadcast)
                 } else {
-                    let mut payload = [0u8; 4];
-                    for (slot, byte) in payload.iter_mut().zip(
-                        control
-                            .rate_hz
-                            .to_le_bytes()
-                            .into_iter()
-                            .chain(control.ports.to_le_bytes()),
-                    ) {
-                        *slot = byte;
-                    }
+                    let [r0, r1] = control.rate_hz.to_le_bytes();
+                    let [p0, p1] = control.ports.to_le_bytes();
+                    let payload = [r0, r1, p0, p1];
                     self.guard
                         .command(node_id, id.service.code(), &payload, &tag, now)
                 };
