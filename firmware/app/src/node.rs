@@ -180,6 +180,10 @@ type SchemaPart = ();
 
 impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C, N, IMG> {
     /// A node without a table, booted at `now`. Its first heartbeat goes out at once.
+    ///
+    /// Out of line: a board builds its node once, at boot, in a `static`; inlined into the
+    /// start-up task it took 12 bytes more of the NUCLEO-G474RE's flash.
+    #[inline(never)]
     pub fn new(config: Config, now: Instant) -> Self {
         Node {
             receiver: isotp::Receiver::new(config.isotp),
@@ -248,22 +252,12 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             return;
         };
         let node_id = self.config.node_id;
-        let bytes = self.receiver.buffer().get(..len).unwrap_or(&[]);
-        let verdict = check_target(bytes, node_id)
-            .and_then(|()| load::<P, C, N>(bytes))
-            .and_then(|(header, arbiter, schema)| {
-                check_version(&header, None).map(|()| (header, arbiter, schema))
-            });
-        match verdict {
-            Ok((header, arbiter, schema)) => {
+        match self.take_image(len, None, now) {
+            Ok(header) => {
                 info!("booted with stored table version {}", header.table_version);
-                self.arbiter = Some(arbiter);
-                self.start_schema(schema, now);
-                self.running = Some(Running {
-                    header,
-                    image_len: u32::try_from(len).unwrap_or(u32::MAX),
-                    stored: true,
-                });
+                if let Some(running) = self.running.as_mut() {
+                    running.stored = true;
+                }
             }
             Err((TransferStatusCode::WrongNode, image_node)) => {
                 warn!(
@@ -998,16 +992,9 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 let verdict = if id.destination != node_id {
                     Err(AuthFailure::Broadcast)
                 } else {
-                    let mut payload = [0u8; 4];
-                    for (slot, byte) in payload.iter_mut().zip(
-                        control
-                            .rate_hz
-                            .to_le_bytes()
-                            .into_iter()
-                            .chain(control.ports.to_le_bytes()),
-                    ) {
-                        *slot = byte;
-                    }
+                    let [r0, r1] = control.rate_hz.to_le_bytes();
+                    let [p0, p1] = control.ports.to_le_bytes();
+                    let payload = [r0, r1, p0, p1];
                     self.guard
                         .command(node_id, id.service.code(), &payload, &tag, now)
                 };
@@ -1383,33 +1370,14 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         flags: u8,
         now: Instant,
     ) -> Step {
-        let bytes = self.receiver.buffer().get(..len).unwrap_or(&[]);
         // The keyed version reset: the key holder may replace any running version.
         let running = if flags & OPEN_REPLACE != 0 && nonce.is_some() {
             None
         } else {
-            self.running.as_ref()
+            self.running
         };
-        let verdict = check_target(bytes, self.config.node_id)
-            .and_then(|()| load::<P, C, N>(bytes))
-            .and_then(|(header, arbiter, schema)| {
-                check_version(&header, running).map(|()| (header, arbiter, schema))
-            });
-        match verdict {
-            Ok((header, mut arbiter, schema)) => {
-                self.start_schema(schema, now);
-                // The connections the new table leaves unchanged go on where they are (a re-push
-                // of the same rules is no blackout); the others start at S = 0.
-                if let Some(previous) = self.arbiter.as_ref() {
-                    arbiter.carry_over(previous);
-                }
-                // The swap: one assignment. The old arbiter ran every frame until here.
-                self.arbiter = Some(arbiter);
-                self.running = Some(Running {
-                    header,
-                    image_len: u32::try_from(len).unwrap_or(u32::MAX),
-                    stored: false,
-                });
+        match self.take_image(len, running, now) {
+            Ok(header) => {
                 self.diagnostic.restart_round();
                 self.awaiting_store = Some((source, nonce));
                 info!("table version {} applied", header.table_version);
@@ -1424,6 +1392,37 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 Step::Continue
             }
         }
+    }
+
+    /// The first `len` bytes of the transfer buffer checked in the documented order (header, node
+    /// id, CRC and loader, then the version rule against `running`) and, if they pass, swapped in
+    /// as the running table, not yet stored; its header. Shared by [`Node::boot`] and
+    /// [`Node::apply`]: their own copies of the checks and of the arbiter's swap took 966 bytes
+    /// more of the NUCLEO-G474RE's flash with the schema server.
+    fn take_image(
+        &mut self,
+        len: usize,
+        running: Option<Running>,
+        now: Instant,
+    ) -> Result<Header, (TransferStatusCode, u8)> {
+        let bytes = self.receiver.buffer().get(..len).unwrap_or(&[]);
+        let (header, mut arbiter, schema) =
+            check_target(bytes, self.config.node_id).and_then(|()| load::<P, C, N>(bytes))?;
+        check_version(&header, running.as_ref())?;
+        self.start_schema(schema, now);
+        // The connections the new table leaves unchanged go on where they are (a re-push of the
+        // same rules is no blackout); the others start at S = 0. At boot there is none.
+        if let Some(previous) = self.arbiter.as_ref() {
+            arbiter.carry_over(previous);
+        }
+        // The swap: one assignment. The old arbiter ran every frame until here.
+        self.arbiter = Some(arbiter);
+        self.running = Some(Running {
+            header,
+            image_len: u32::try_from(len).unwrap_or(u32::MAX),
+            stored: false,
+        });
+        Ok(header)
     }
 
     fn refuse(&mut self, source: u8, status: TransferStatusCode, detail: u8, nonce: Option<u64>) {
@@ -1529,10 +1528,17 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
 
     /// Queues a frame of our protocol (an answer, a claim) over the diagnostic stream if need
     /// be; when even that fails, the frame is lost and counted, with a TxOverrun fault. Out of
-    /// line: one copy for every sender.
+    /// line: one copy for every sender. Through [`enqueue_cold`] rather than an inlined
+    /// [`Node::enqueue_over_diagnostic`]: these frames are not the frame path, and the inlined
+    /// copy of the insertion took 228 bytes of the NUCLEO-G474RE's flash (a call more per
+    /// frame: the heartbeat group 54 instructions dearer).
     #[inline(never)]
     fn queue(&mut self, frame: Frame) {
-        if self.enqueue_over_diagnostic(frame).is_err() {
+        let queued = match enqueue_cold(&mut self.outbox, frame) {
+            Ok(()) => Ok(()),
+            Err(frame) => self.enqueue_in_place_of_diagnostic(frame),
+        };
+        if queued.is_err() {
             self.counters.errors = self.counters.errors.wrapping_add(1);
             self.faults.raise(FaultCode::TxOverrun, [0; 5]);
         }
@@ -1604,11 +1610,31 @@ fn enqueue(outbox: &mut heapless::Vec<Frame, OUTBOX_LEN>, frame: Frame) -> Resul
     Ok(())
 }
 
-/// [`enqueue`] out of line, for what is not the frame path (diagnostic samples, the full outbox's
-/// case): one copy of it instead of one per caller.
+/// [`enqueue`] out of line, for what is not the frame path (our protocol's frames, diagnostic
+/// samples, the full outbox's case): one copy of it instead of one per caller.
+///
+/// It pushes a placeholder and writes the frame over it: pushed as it came, the frame was copied
+/// by a byte-by-byte `memcpy` (the 18 bytes past its identifier's tag: 90 instructions), a word
+/// at a time this way.
 #[inline(never)]
 fn enqueue_cold(outbox: &mut heapless::Vec<Frame, OUTBOX_LEN>, frame: Frame) -> Result<(), Frame> {
-    enqueue(outbox, frame)
+    let rank = frame.arbitration_rank();
+    if outbox.push(Frame::empty()).is_err() {
+        return Err(frame);
+    }
+    let mut slots = outbox.iter_mut().rev();
+    let Some(mut new) = slots.next() else {
+        return Ok(());
+    };
+    *new = frame;
+    for before in slots {
+        if before.arbitration_rank() > rank {
+            break;
+        }
+        core::mem::swap(before, new);
+        new = before;
+    }
+    Ok(())
 }
 
 /// Removes the frame at `position` from `outbox`, keeping the others in order.
