@@ -28,7 +28,7 @@ use pab_app::{Config, FullNode, Step};
 use pab_core::isotp::{Sender, TxConfig, TxEvent};
 use pab_core::protocol::{self, Message};
 use pab_core::{Frame, Instant as At};
-use pab_lang::candump::{self, Capture, Captured};
+use pab_lang::candump::{self, Capture};
 use pab_lang::compile::{self, CompiledNode};
 use pab_lang::network::Network;
 use pab_lang::replay::{self, Feed};
@@ -533,21 +533,7 @@ fn protocol_frames_of_a_capture_are_not_fed_so_a_recorded_push_does_not_switch_t
         .chain(injected.iter().copied())
         .collect();
     frames.sort_by_key(|(t, _)| *t);
-    let capture = Capture {
-        frames: frames
-            .iter()
-            .enumerate()
-            .map(|(line, (t_us, frame))| Captured {
-                t_us: *t_us,
-                line: line + 1,
-                interface: 0,
-                frame: *frame,
-            })
-            .collect(),
-        interfaces: vec![("vcan0".into(), frames.len())],
-        error_frames: 0,
-        out_of_order: (0, 0),
-    };
+    let capture = Capture::from_frames("vcan0", &frames);
     let with_push = Case::new("with a recorded push", &path, capture);
     assert_eq!(with_push.feed.protocol_frames, injected.len());
     assert_eq!(with_push.feed.frames, clean.feed.frames);

@@ -62,6 +62,37 @@ pub struct Capture {
     pub out_of_order: (usize, u64),
 }
 
+impl Capture {
+    /// The capture of `frames` (time in µs, frame), in that order, as if recorded on one
+    /// interface `iface`: what a test or a rig in virtual time builds instead of reading a log.
+    pub fn from_frames(iface: &str, frames: &[(u64, Frame)]) -> Capture {
+        let mut out_of_order = (0usize, 0u64);
+        let mut latest = 0u64;
+        for (t_us, _) in frames {
+            if *t_us < latest {
+                out_of_order.0 += 1;
+                out_of_order.1 = out_of_order.1.max(latest - t_us);
+            }
+            latest = latest.max(*t_us);
+        }
+        Capture {
+            frames: frames
+                .iter()
+                .enumerate()
+                .map(|(line, (t_us, frame))| Captured {
+                    t_us: *t_us,
+                    line: line + 1,
+                    interface: 0,
+                    frame: *frame,
+                })
+                .collect(),
+            interfaces: vec![(iface.to_string(), frames.len())],
+            error_frames: 0,
+            out_of_order,
+        }
+    }
+}
+
 /// Reads the capture at `path`. `progress` is called with the bytes read so far, every 64 KiB and
 /// at the end.
 ///
@@ -413,6 +444,17 @@ mod tests {
             Line::Frame { t_us, frame, .. } => (t_us, frame),
             other => panic!("{other:?}"),
         }
+    }
+
+    #[test]
+    fn a_capture_of_frames_keeps_their_order_and_counts_steps_back() {
+        let frame = |t| (t, frame_of("(0.000000) vcan0 123#01").1);
+        let capture = Capture::from_frames("vcan0", &[frame(10), frame(30), frame(25), frame(5)]);
+        let times: Vec<u64> = capture.frames.iter().map(|c| c.t_us).collect();
+        assert_eq!(times, [10, 30, 25, 5]);
+        assert_eq!(capture.frames[3].line, 4);
+        assert_eq!(capture.out_of_order, (2, 25));
+        assert_eq!(capture.interfaces, [("vcan0".to_string(), 4)]);
     }
 
     #[test]

@@ -16,7 +16,7 @@ use pab_core::isotp::{FlowControlEffect, Sender, TxConfig, TxEvent};
 use pab_core::protocol::{self, Message, SchemaOutcome, SchemaTransition};
 use pab_core::schema::{MAX_ENCODED, Schema};
 use pab_core::{Frame, Instant};
-use pab_lang::candump::{Capture, Captured};
+use pab_lang::candump::Capture;
 use pab_lang::compile::CompiledNode;
 use pab_lang::network::{Command, Network};
 use pab_lang::sim::plant::Plant;
@@ -224,22 +224,7 @@ pub fn run(network: &Network, compiled: &[CompiledNode], until_us: u64) -> RigRu
         t += STEP_US;
     }
 
-    let frames: Vec<(u64, Frame)> = bus;
-    let capture = Capture {
-        frames: frames
-            .iter()
-            .enumerate()
-            .map(|(line, (t_us, frame))| Captured {
-                t_us: *t_us,
-                line: line + 1,
-                interface: 0,
-                frame: *frame,
-            })
-            .collect(),
-        interfaces: vec![("vcan0".into(), frames.len())],
-        error_frames: 0,
-        out_of_order: (0, 0),
-    };
+    let capture = Capture::from_frames("vcan0", &bus);
     let record = recorder.finish(0).unwrap();
     RigRun {
         capture,
