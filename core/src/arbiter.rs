@@ -1375,7 +1375,15 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
 
     /// The next instant at which [`Arbiter::ble_poll`] has work: a claim due, or one going stale.
     pub fn ble_deadline(&self, now: Instant) -> Option<Instant> {
-        let soonest = self.groups.iter().map(|state| state.due_in(now)).min()?;
+        if self.groups.is_empty() {
+            return None;
+        }
+        // A fold from the largest offset rather than `min`, which would inline `due_in` twice
+        // (once for the first group, once for the rest).
+        let soonest = self
+            .groups
+            .iter()
+            .fold(u64::MAX, |soonest, state| soonest.min(state.due_in(now)));
         Some(now.wrapping_add_micros(soonest))
     }
 
