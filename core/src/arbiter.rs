@@ -682,12 +682,16 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// active. A node with message filters wakes then to report exploitation edges. Read-only;
     /// costs a test per connection.
     pub fn activity_deadline(&self, now: Instant) -> Option<Instant> {
-        self.slots
+        // A fold from the largest value, with a flag for "none" (an end may saturate to it):
+        // `min` takes the first element apart, a second inlined copy of the test.
+        let (any, soonest) = self
+            .slots
             .iter()
             .filter(|slot| slot.is_active(now))
-            .map(|slot| slot.end().saturating_add(1))
-            .min()
-            .map(Instant::from_micros)
+            .fold((false, u64::MAX), |(_, soonest), slot| {
+                (true, soonest.min(slot.end().saturating_add(1)))
+            });
+        any.then_some(Instant::from_micros(soonest))
     }
 
     /// The slot of connection `connection` of port `port`.
@@ -1375,7 +1379,15 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
 
     /// The next instant at which [`Arbiter::ble_poll`] has work: a claim due, or one going stale.
     pub fn ble_deadline(&self, now: Instant) -> Option<Instant> {
-        let soonest = self.groups.iter().map(|state| state.due_in(now)).min()?;
+        if self.groups.is_empty() {
+            return None;
+        }
+        // A fold from the largest offset rather than `min`, which would inline `due_in` twice
+        // (once for the first group, once for the rest).
+        let soonest = self
+            .groups
+            .iter()
+            .fold(u64::MAX, |soonest, state| soonest.min(state.due_in(now)));
         Some(now.wrapping_add_micros(soonest))
     }
 

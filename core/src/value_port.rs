@@ -209,7 +209,13 @@ impl Field {
     /// Writes `value` (saturated) into the field of `data`; leaves `data` unchanged for a field
     /// that does not fit it.
     pub fn write(&self, data: &mut [u8; MAX_DATA_LEN], value: i64) {
-        let raw = self.saturate(value) as u32;
+        self.write_raw(data, self.saturate(value) as u32);
+    }
+
+    /// Writes the low bits of `raw` that the field holds, as [`Field::write`] does once it has
+    /// saturated: a Sum's output is saturated when it is combined, and a second clamp cost the
+    /// boards a copy of the 64-bit comparisons and every Sum frame their instructions.
+    fn write_raw(&self, data: &mut [u8; MAX_DATA_LEN], raw: u32) {
         let Some(bytes) = data.get_mut(usize::from(self.offset)..) else {
             return;
         };
@@ -670,12 +676,12 @@ impl ValueState {
     }
 }
 
-/// `frame` with `field` replaced by `value` (saturated), as Sum hands it over: a data frame of
+/// `frame` with `field` replaced by `value` (Sum's output, within the field's range), as Sum hands it over: a data frame of
 /// the same identifier and length, the bytes after the payload zero.
 #[inline(never)]
 fn summed(frame: &Frame, field: &Field, value: i64) -> Frame {
     let mut summed = frame.republished(frame.id());
-    field.write(summed.buffer_mut(), value);
+    field.write_raw(summed.buffer_mut(), value as u32);
     summed
 }
 

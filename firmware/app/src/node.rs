@@ -563,8 +563,9 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             }
             *last = now_selected;
         }
-        for edge in edges {
-            self.send(Message::Exploitation(edge), protocol::BROADCAST);
+        // By reference: the vector's by-value iterator slices, with a bounds check.
+        for edge in edges.iter() {
+            self.send(Message::Exploitation(*edge), protocol::BROADCAST);
         }
     }
 
