@@ -332,10 +332,12 @@ impl Progress {
         if self.norm == 0 {
             return out;
         }
-        // progress ≤ distance ≤ 2^31 and |dir| ≤ 2^31: the product fits an i64; norm > 0.
+        // s ≤ 2^31, and |dir| < 2^31 + 2^29 (a goal within MAX_COORD from an attractor anywhere
+        // in i32, or a direction within MAX_COORD): the product is below 2^63, so a plain
+        // multiply (a saturating 64-bit one is several times its code); norm > 0.
         let s = self.progress.min(1 << 31) as i64;
         for (o, d) in out.iter_mut().zip(self.dir) {
-            *o = clamp(i64::from(*o) + div_toward_zero(d.saturating_mul(s), self.norm));
+            *o = clamp(i64::from(*o) + div_toward_zero(d * s, self.norm));
         }
         out
     }
@@ -430,6 +432,8 @@ fn direction(to: &Pose, from: &Pose, rotation_if_still: bool) -> ([i64; AXES], u
 
 /// An `i64` coordinate back into an `i32` (saturating: never reached with coordinates within
 /// [`super::MAX_COORD`]).
+// Out of line: the search's four and the line's loop each inlined a copy.
+#[inline(never)]
 fn clamp(v: i64) -> i32 {
     v.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
 }

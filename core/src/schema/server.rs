@@ -618,12 +618,13 @@ impl Server {
                     return Some(0);
                 }
                 // |F| ≤ 2^31, and |d| < 2^32 (a goal within MAX_COORD, from an attractor that a
-                // pose topic may have put anywhere in i32): each product below 2^63, three of
-                // them summed saturating, so the sum may be i64::MIN, whose plain negation
-                // overflows (a panic, or no contact at all once wrapped).
-                let dot = w.iter().zip(d).fold(0i64, |s, (f, d)| {
-                    s.saturating_add(i64::from(*f).saturating_mul(d))
-                });
+                // pose topic may have put anywhere in i32): each product below 2^63, a plain
+                // multiply; three of them summed saturating, so the sum may be i64::MIN, whose
+                // plain negation overflows (a panic, or no contact at all once wrapped).
+                let dot = w
+                    .iter()
+                    .zip(d)
+                    .fold(0i64, |s, (f, d)| s.saturating_add(i64::from(*f) * d));
                 Some(super::action::div_toward_zero(dot.saturating_neg(), norm))
             }
             Measure::Sensor(s) => self
