@@ -146,8 +146,8 @@ const MICROS_PER_SECOND: u64 = 1_000_000;
 
 impl Action {
     /// The time the action takes if nothing stops it, µs (`None`: unbounded, an idle for
-    /// ever). The watchdog's default budget is made from it.
-    pub(crate) fn nominal_us(&self, from: &Pose) -> Option<u64> {
+    /// ever), `p` its [`Action::start`]. The watchdog's default budget is made from it.
+    pub(crate) fn nominal_us(&self, p: &Progress) -> Option<u64> {
         let travel = |distance: u64, speed: u32| {
             distance.saturating_mul(MICROS_PER_SECOND) / u64::from(speed.max(1))
         };
@@ -157,13 +157,10 @@ impl Action {
             | Action::Grasp { settle_ms: ms }
             | Action::Release { settle_ms: ms } => Some(u64::from(ms) * 1000),
             Action::Gripper(_) | Action::SetImpedance { .. } | Action::Relieve => Some(0),
-            Action::MoveTo { goal, speed } => {
-                let (_, norm) = direction(&goal, from, true);
-                Some(travel(norm, speed))
+            // The start measured the line (a move's length, a touch-down's distance) already.
+            Action::MoveTo { speed, .. } | Action::MoveToTouch { speed, .. } => {
+                Some(travel(p.distance, speed))
             }
-            Action::MoveToTouch {
-                speed, distance, ..
-            } => Some(travel(u64::from(distance), speed)),
             Action::BlindSearch {
                 pitch,
                 speed,
@@ -205,27 +202,22 @@ impl Action {
             start: *from,
             ..Progress::default()
         };
-        match *self {
-            Action::MoveTo { goal, .. } => {
-                let (dir, norm) = direction(&goal, from, true);
-                p.dir = dir;
-                p.norm = norm;
-                p.distance = norm;
-                p.translates = dir.iter().take(3).any(|c| *c != 0);
-            }
+        // One call of `direction` for both moves: it is large, and inlined or not, a call each
+        // cost more code than choosing its arguments.
+        let (to, from, touch) = match *self {
+            Action::MoveTo { goal, .. } => (goal, *from, None),
             Action::MoveToTouch {
                 direction: d,
                 distance,
                 ..
-            } => {
-                let (dir, norm) = direction(&d, &[0; AXES], false);
-                p.dir = dir;
-                p.norm = norm;
-                p.distance = u64::from(distance);
-                p.translates = true;
-            }
-            _ => {}
-        }
+            } => (d, [0; AXES], Some(distance)),
+            _ => return p,
+        };
+        let (dir, norm) = direction(&to, &from, touch.is_none());
+        p.dir = dir;
+        p.norm = norm;
+        p.distance = touch.map_or(norm, u64::from);
+        p.translates = touch.is_some() || dir.iter().take(3).any(|c| *c != 0);
         p
     }
 
@@ -267,26 +259,20 @@ impl Action {
                 };
                 p.done = elapsed_ms >= u64::from(settle_ms);
             }
-            Action::MoveTo { goal, speed } => {
+            // One arm for both moves: their steps differ only at the end.
+            Action::MoveTo { speed, .. } | Action::MoveToTouch { speed, .. } => {
                 if !p.done {
                     p.advance(speed, period_us);
-                    if p.progress >= p.distance {
+                    p.done = p.progress >= p.distance;
+                    out.attractor = match *self {
                         // The goal exactly, not start + dir × 1 rounded.
-                        out.attractor = goal;
-                        p.done = true;
-                    } else {
-                        out.attractor = p.along_line();
-                    }
-                }
-            }
-            Action::MoveToTouch { speed, .. } => {
-                if !p.done {
-                    p.advance(speed, period_us);
-                    if p.progress >= p.distance {
-                        p.progress = p.distance;
-                        p.done = true;
-                    }
-                    out.attractor = p.along_line();
+                        Action::MoveTo { goal, .. } if p.done => goal,
+                        _ => {
+                            // A touch-down ends on its distance (a move is short of it here).
+                            p.progress = p.progress.min(p.distance);
+                            p.along_line()
+                        }
+                    };
                 }
             }
             Action::BlindSearch {

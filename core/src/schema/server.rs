@@ -671,17 +671,17 @@ impl Server {
     ) {
         let attractor = self.setpoint.attractor;
         let measured = self.pose.map_or(attractor, |(p, _)| p);
+        self.progress = schema.action.start(&attractor);
         self.budget_us = if schema.id >= super::BUILTIN_IDS {
             None
         } else if schema.watchdog_ms != 0 {
             Some(u64::from(schema.watchdog_ms) * 1000)
         } else {
-            schema.action.nominal_us(&attractor).map(|t| {
+            schema.action.nominal_us(&self.progress).map(|t| {
                 t.saturating_add(t / 2)
                     .saturating_add(u64::from(self.config.watchdog_margin_ms) * 1000)
             })
         };
-        self.progress = schema.action.start(&attractor);
         self.installed_at = now;
         self.pose_at_install = measured;
         self.excess_at_install = excess(&self.config, &measured);
