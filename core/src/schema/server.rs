@@ -646,6 +646,8 @@ impl Server {
 
     /// Step 5 for a safety event: the recovery schema (relieve, then wait on the high-priority
     /// channel), and the fault kept until that channel installs a schema.
+    // Out of line: the tick's three callers each inlined a copy of the recovery schema.
+    #[inline(never)]
     fn recover(&mut self, cause: Safety, now: Instant, out: &mut Vec<Transition, 3>) {
         self.fault = Some(cause);
         let recovery = Schema::builtin(
