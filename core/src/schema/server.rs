@@ -455,26 +455,23 @@ impl Server {
             Some(Ok((index, event, next))) => {
                 let by = Trigger::Reaction(index, event);
                 // Step 5.
-                match next {
-                    Source::Innate(i) => match self.config.innate.get(usize::from(i)) {
-                        Some(s) => {
-                            let s = s.clone();
-                            self.install(s, Origin::Innate, by, now, &mut transitions);
-                        }
-                        // Checked when the schema was admitted; a wait is the safe answer.
-                        None => self.install(
-                            wait_high_priority(),
-                            Origin::HighPriority,
-                            by,
-                            now,
-                            &mut transitions,
-                        ),
-                    },
-                    Source::Queue => {
+                let innate = match next {
+                    Source::Innate(i) => self.config.innate.get(usize::from(i)),
+                    Source::Queue | Source::HighPriority => None,
+                };
+                match (next, innate) {
+                    (_, Some(s)) => {
+                        let s = s.clone();
+                        self.install(s, Origin::Innate, by, now, &mut transitions);
+                    }
+                    (Source::Queue, None) => {
                         let s = self.queue.pop_front().unwrap_or_else(wait_queue);
                         self.install(s, Origin::Queue, by, now, &mut transitions);
                     }
-                    Source::HighPriority => self.install(
+                    // One wait for the high-priority source and an unknown innate index (checked
+                    // when the schema was admitted; a wait is the safe answer): a copy of the
+                    // built-in schema less.
+                    (Source::Innate(_) | Source::HighPriority, None) => self.install(
                         wait_high_priority(),
                         Origin::HighPriority,
                         by,
