@@ -61,7 +61,7 @@ impl SchemaRuntime {
         Some(SchemaRuntime {
             server,
             drive: setup.drive,
-            sensors: setup.sensors.clone(),
+            sensors: setup.sensors,
             pose: [0; AXES],
             wrench: [0; AXES],
             next_tick: now,
