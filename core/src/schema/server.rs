@@ -634,6 +634,8 @@ impl Server {
     }
 
     /// Whether `p` is farther outside the workspace than `then`, on some axis.
+    // Out of line: the limit's test and the tick's step 6 each inlined a copy.
+    #[inline(never)]
     fn excess_grew(&self, p: &Pose, then: &[u32; AXES]) -> bool {
         excess(&self.config, p)
             .iter()
