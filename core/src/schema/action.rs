@@ -264,15 +264,15 @@ impl Action {
                 if !p.done {
                     p.advance(speed, period_us);
                     p.done = p.progress >= p.distance;
-                    out.attractor = match *self {
+                    match *self {
                         // The goal exactly, not start + dir × 1 rounded.
-                        Action::MoveTo { goal, .. } if p.done => goal,
+                        Action::MoveTo { goal, .. } if p.done => out.attractor = goal,
                         _ => {
                             // A touch-down ends on its distance (a move is short of it here).
                             p.progress = p.progress.min(p.distance);
-                            p.along_line()
+                            p.along_line(&mut out.attractor);
                         }
-                    };
+                    }
                 }
             }
             Action::BlindSearch {
@@ -312,11 +312,13 @@ impl Progress {
         self.remainder = total % MICROS_PER_SECOND;
     }
 
-    /// The attractor `progress` along `dir` from `start`.
-    fn along_line(&self) -> Pose {
-        let mut out = self.start;
+    /// The attractor `progress` along `dir` from `start`, into `out` (no copy made and moved).
+    fn along_line(&self, out: &mut Pose) {
+        for (o, s) in out.iter_mut().zip(self.start) {
+            *o = s;
+        }
         if self.norm == 0 {
-            return out;
+            return;
         }
         // s ≤ 2^31, and |dir| < 2^31 + 2^29 (a goal within MAX_COORD from an attractor anywhere
         // in i32, or a direction within MAX_COORD): the product is below 2^63, so a plain
@@ -325,7 +327,6 @@ impl Progress {
         for (o, d) in out.iter_mut().zip(self.dir) {
             *o = clamp(i64::from(*o) + div_toward_zero(d * s, self.norm));
         }
-        out
     }
 
     /// Walks `step` µm along the square spiral.
