@@ -232,8 +232,8 @@ impl SchemaRuntime {
                 0xFF,
             ));
         }
-        if let Some(s) = tick.setpoint {
-            self.send_setpoint(&s, now, out);
+        if let Some(s) = &tick.setpoint {
+            self.send_setpoint(s, now, out);
         }
         if now.micros_since(self.next_report).is_some() {
             self.next_report = now.wrapping_add_micros(REPORT_PERIOD_US);
