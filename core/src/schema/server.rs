@@ -637,10 +637,9 @@ impl Server {
     // Out of line: the limit's test and the tick's step 6 each inlined a copy.
     #[inline(never)]
     fn excess_grew(&self, p: &Pose, then: &[u32; AXES]) -> bool {
-        excess(&self.config, p)
-            .iter()
-            .zip(then)
-            .any(|(now, then)| now > then)
+        let mut now = [0; AXES];
+        excess(&self.config, p, &mut now);
+        now.iter().zip(then).any(|(now, then)| now > then)
     }
 
     /// Step 5 for a safety event: the recovery schema (relieve, then wait on the high-priority
@@ -685,8 +684,12 @@ impl Server {
         };
         self.installed_at = now;
         self.pose_at_install = measured;
-        self.excess_at_install = excess(&self.config, &measured);
-        self.attractor_excess_at_install = excess(&self.config, &attractor);
+        excess(&self.config, &measured, &mut self.excess_at_install);
+        excess(
+            &self.config,
+            &attractor,
+            &mut self.attractor_excess_at_install,
+        );
         // At most three installs a tick (see `Tick`); a fourth could not be reported, and cannot
         // happen: step 2, step 5 and step 6 install one each.
         let _ = out.push(Transition {
@@ -700,11 +703,11 @@ impl Server {
     }
 }
 
-/// How far `p` is outside the workspace, per axis.
+/// How far `p` is outside the workspace, per axis, into `out` (in place: install's two are
+/// the server's own fields, not copies made and moved in).
 // Out of line: three callers (install's two, the limit's test) each inlined a copy.
 #[inline(never)]
-fn excess(c: &Config, p: &Pose) -> [u32; AXES] {
-    let mut out = [0u32; AXES];
+fn excess(c: &Config, p: &Pose, out: &mut [u32; AXES]) {
     for (((o, v), lo), hi) in out
         .iter_mut()
         .zip(p)
@@ -715,7 +718,6 @@ fn excess(c: &Config, p: &Pose) -> [u32; AXES] {
         let above = i64::from(*v) - i64::from(*hi);
         *o = below.max(above).max(0).min(i64::from(u32::MAX)) as u32;
     }
-    out
 }
 
 /// |v| > limit, without a root.
