@@ -146,8 +146,8 @@ const MICROS_PER_SECOND: u64 = 1_000_000;
 
 impl Action {
     /// The time the action takes if nothing stops it, µs (`None`: unbounded, an idle for
-    /// ever). The watchdog's default budget is made from it.
-    pub(crate) fn nominal_us(&self, from: &Pose) -> Option<u64> {
+    /// ever), `p` its [`Action::start`]. The watchdog's default budget is made from it.
+    pub(crate) fn nominal_us(&self, p: &Progress) -> Option<u64> {
         let travel = |distance: u64, speed: u32| {
             distance.saturating_mul(MICROS_PER_SECOND) / u64::from(speed.max(1))
         };
@@ -157,13 +157,10 @@ impl Action {
             | Action::Grasp { settle_ms: ms }
             | Action::Release { settle_ms: ms } => Some(u64::from(ms) * 1000),
             Action::Gripper(_) | Action::SetImpedance { .. } | Action::Relieve => Some(0),
-            Action::MoveTo { goal, speed } => {
-                let (_, norm) = direction(&goal, from, true);
-                Some(travel(norm, speed))
+            // The start measured the line (a move's length, a touch-down's distance) already.
+            Action::MoveTo { speed, .. } | Action::MoveToTouch { speed, .. } => {
+                Some(travel(p.distance, speed))
             }
-            Action::MoveToTouch {
-                speed, distance, ..
-            } => Some(travel(u64::from(distance), speed)),
             Action::BlindSearch {
                 pitch,
                 speed,
@@ -205,27 +202,22 @@ impl Action {
             start: *from,
             ..Progress::default()
         };
-        match *self {
-            Action::MoveTo { goal, .. } => {
-                let (dir, norm) = direction(&goal, from, true);
-                p.dir = dir;
-                p.norm = norm;
-                p.distance = norm;
-                p.translates = dir.iter().take(3).any(|c| *c != 0);
-            }
+        // One call of `direction` for both moves: it is large, and inlined or not, a call each
+        // cost more code than choosing its arguments.
+        let (to, from, touch) = match *self {
+            Action::MoveTo { goal, .. } => (goal, *from, None),
             Action::MoveToTouch {
                 direction: d,
                 distance,
                 ..
-            } => {
-                let (dir, norm) = direction(&d, &[0; AXES], false);
-                p.dir = dir;
-                p.norm = norm;
-                p.distance = u64::from(distance);
-                p.translates = true;
-            }
-            _ => {}
-        }
+            } => (d, [0; AXES], Some(distance)),
+            _ => return p,
+        };
+        let (dir, norm) = direction(&to, &from, touch.is_none());
+        p.dir = dir;
+        p.norm = norm;
+        p.distance = touch.map_or(norm, u64::from);
+        p.translates = touch.is_some() || dir.iter().take(3).any(|c| *c != 0);
         p
     }
 
@@ -267,26 +259,20 @@ impl Action {
                 };
                 p.done = elapsed_ms >= u64::from(settle_ms);
             }
-            Action::MoveTo { goal, speed } => {
+            // One arm for both moves: their steps differ only at the end.
+            Action::MoveTo { speed, .. } | Action::MoveToTouch { speed, .. } => {
                 if !p.done {
                     p.advance(speed, period_us);
-                    if p.progress >= p.distance {
+                    p.done = p.progress >= p.distance;
+                    match *self {
                         // The goal exactly, not start + dir × 1 rounded.
-                        out.attractor = goal;
-                        p.done = true;
-                    } else {
-                        out.attractor = p.along_line();
+                        Action::MoveTo { goal, .. } if p.done => out.attractor = goal,
+                        _ => {
+                            // A touch-down ends on its distance (a move is short of it here).
+                            p.progress = p.progress.min(p.distance);
+                            p.along_line(&mut out.attractor);
+                        }
                     }
-                }
-            }
-            Action::MoveToTouch { speed, .. } => {
-                if !p.done {
-                    p.advance(speed, period_us);
-                    if p.progress >= p.distance {
-                        p.progress = p.distance;
-                        p.done = true;
-                    }
-                    out.attractor = p.along_line();
                 }
             }
             Action::BlindSearch {
@@ -326,18 +312,21 @@ impl Progress {
         self.remainder = total % MICROS_PER_SECOND;
     }
 
-    /// The attractor `progress` along `dir` from `start`.
-    fn along_line(&self) -> Pose {
-        let mut out = self.start;
-        if self.norm == 0 {
-            return out;
+    /// The attractor `progress` along `dir` from `start`, into `out` (no copy made and moved).
+    fn along_line(&self, out: &mut Pose) {
+        for (o, s) in out.iter_mut().zip(self.start) {
+            *o = s;
         }
-        // progress ≤ distance ≤ 2^31 and |dir| ≤ 2^31: the product fits an i64; norm > 0.
+        if self.norm == 0 {
+            return;
+        }
+        // s ≤ 2^31, and |dir| < 2^31 + 2^29 (a goal within MAX_COORD from an attractor anywhere
+        // in i32, or a direction within MAX_COORD): the product is below 2^63, so a plain
+        // multiply (a saturating 64-bit one is several times its code); norm > 0.
         let s = self.progress.min(1 << 31) as i64;
         for (o, d) in out.iter_mut().zip(self.dir) {
-            *o = clamp(i64::from(*o) + div_toward_zero(d.saturating_mul(s), self.norm));
+            *o = clamp(i64::from(*o) + div_toward_zero(d * s, self.norm));
         }
-        out
     }
 
     /// Walks `step` µm along the square spiral.
@@ -430,6 +419,8 @@ fn direction(to: &Pose, from: &Pose, rotation_if_still: bool) -> ([i64; AXES], u
 
 /// An `i64` coordinate back into an `i32` (saturating: never reached with coordinates within
 /// [`super::MAX_COORD`]).
+// Out of line: the search's four and the line's loop each inlined a copy.
+#[inline(never)]
 fn clamp(v: i64) -> i32 {
     v.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
 }

@@ -14,6 +14,8 @@ pub const FIELD_MAX: i32 = (1 << 20) - 1;
 pub const FIELD_MIN: i32 = -(1 << 20);
 
 /// Packs three values (saturated to 21 bits) and a flag.
+// Out of line: the attractor's two frames each inlined a copy.
+#[inline(never)]
 pub fn pack(values: [i32; 3], flag: bool) -> [u8; 8] {
     let mut word = 0u64;
     for (i, v) in values.iter().enumerate() {

@@ -94,15 +94,14 @@ impl Schema {
 
     /// A built-in schema: `action`, and one reaction.
     pub(crate) fn builtin(id: u16, action: Action, reaction: Option<Reaction>) -> Schema {
-        let mut reactions = Vec::new();
-        if let Some(r) = reaction {
-            // Capacity 16 > 1: never refused.
-            let _ = reactions.push(r);
-        }
         Schema {
             id,
             action,
-            reactions,
+            // From an array: no capacity check to inline (16 > 1).
+            reactions: match reaction {
+                Some(r) => Vec::from_array([r]),
+                None => Vec::new(),
+            },
             watchdog_ms: 0,
         }
     }

@@ -455,26 +455,23 @@ impl Server {
             Some(Ok((index, event, next))) => {
                 let by = Trigger::Reaction(index, event);
                 // Step 5.
-                match next {
-                    Source::Innate(i) => match self.config.innate.get(usize::from(i)) {
-                        Some(s) => {
-                            let s = s.clone();
-                            self.install(s, Origin::Innate, by, now, &mut transitions);
-                        }
-                        // Checked when the schema was admitted; a wait is the safe answer.
-                        None => self.install(
-                            wait_high_priority(),
-                            Origin::HighPriority,
-                            by,
-                            now,
-                            &mut transitions,
-                        ),
-                    },
-                    Source::Queue => {
+                let innate = match next {
+                    Source::Innate(i) => self.config.innate.get(usize::from(i)),
+                    Source::Queue | Source::HighPriority => None,
+                };
+                match (next, innate) {
+                    (_, Some(s)) => {
+                        let s = s.clone();
+                        self.install(s, Origin::Innate, by, now, &mut transitions);
+                    }
+                    (Source::Queue, None) => {
                         let s = self.queue.pop_front().unwrap_or_else(wait_queue);
                         self.install(s, Origin::Queue, by, now, &mut transitions);
                     }
-                    Source::HighPriority => self.install(
+                    // One wait for the high-priority source and an unknown innate index (checked
+                    // when the schema was admitted; a wait is the safe answer): a copy of the
+                    // built-in schema less.
+                    (Source::Innate(_) | Source::HighPriority, None) => self.install(
                         wait_high_priority(),
                         Origin::HighPriority,
                         by,
@@ -618,12 +615,13 @@ impl Server {
                     return Some(0);
                 }
                 // |F| ≤ 2^31, and |d| < 2^32 (a goal within MAX_COORD, from an attractor that a
-                // pose topic may have put anywhere in i32): each product below 2^63, three of
-                // them summed saturating, so the sum may be i64::MIN, whose plain negation
-                // overflows (a panic, or no contact at all once wrapped).
-                let dot = w.iter().zip(d).fold(0i64, |s, (f, d)| {
-                    s.saturating_add(i64::from(*f).saturating_mul(d))
-                });
+                // pose topic may have put anywhere in i32): each product below 2^63, a plain
+                // multiply; three of them summed saturating, so the sum may be i64::MIN, whose
+                // plain negation overflows (a panic, or no contact at all once wrapped).
+                let dot = w
+                    .iter()
+                    .zip(d)
+                    .fold(0i64, |s, (f, d)| s.saturating_add(i64::from(*f) * d));
                 Some(super::action::div_toward_zero(dot.saturating_neg(), norm))
             }
             Measure::Sensor(s) => self
@@ -636,15 +634,18 @@ impl Server {
     }
 
     /// Whether `p` is farther outside the workspace than `then`, on some axis.
+    // Out of line: the limit's test and the tick's step 6 each inlined a copy.
+    #[inline(never)]
     fn excess_grew(&self, p: &Pose, then: &[u32; AXES]) -> bool {
-        excess(&self.config, p)
-            .iter()
-            .zip(then)
-            .any(|(now, then)| now > then)
+        let mut now = [0; AXES];
+        excess(&self.config, p, &mut now);
+        now.iter().zip(then).any(|(now, then)| now > then)
     }
 
     /// Step 5 for a safety event: the recovery schema (relieve, then wait on the high-priority
     /// channel), and the fault kept until that channel installs a schema.
+    // Out of line: the tick's three callers each inlined a copy of the recovery schema.
+    #[inline(never)]
     fn recover(&mut self, cause: Safety, now: Instant, out: &mut Vec<Transition, 3>) {
         self.fault = Some(cause);
         let recovery = Schema::builtin(
@@ -670,21 +671,25 @@ impl Server {
     ) {
         let attractor = self.setpoint.attractor;
         let measured = self.pose.map_or(attractor, |(p, _)| p);
+        self.progress = schema.action.start(&attractor);
         self.budget_us = if schema.id >= super::BUILTIN_IDS {
             None
         } else if schema.watchdog_ms != 0 {
             Some(u64::from(schema.watchdog_ms) * 1000)
         } else {
-            schema.action.nominal_us(&attractor).map(|t| {
+            schema.action.nominal_us(&self.progress).map(|t| {
                 t.saturating_add(t / 2)
                     .saturating_add(u64::from(self.config.watchdog_margin_ms) * 1000)
             })
         };
-        self.progress = schema.action.start(&attractor);
         self.installed_at = now;
         self.pose_at_install = measured;
-        self.excess_at_install = excess(&self.config, &measured);
-        self.attractor_excess_at_install = excess(&self.config, &attractor);
+        excess(&self.config, &measured, &mut self.excess_at_install);
+        excess(
+            &self.config,
+            &attractor,
+            &mut self.attractor_excess_at_install,
+        );
         // At most three installs a tick (see `Tick`); a fourth could not be reported, and cannot
         // happen: step 2, step 5 and step 6 install one each.
         let _ = out.push(Transition {
@@ -698,11 +703,11 @@ impl Server {
     }
 }
 
-/// How far `p` is outside the workspace, per axis.
+/// How far `p` is outside the workspace, per axis, into `out` (in place: install's two are
+/// the server's own fields, not copies made and moved in).
 // Out of line: three callers (install's two, the limit's test) each inlined a copy.
 #[inline(never)]
-fn excess(c: &Config, p: &Pose) -> [u32; AXES] {
-    let mut out = [0u32; AXES];
+fn excess(c: &Config, p: &Pose, out: &mut [u32; AXES]) {
     for (((o, v), lo), hi) in out
         .iter_mut()
         .zip(p)
@@ -713,7 +718,6 @@ fn excess(c: &Config, p: &Pose) -> [u32; AXES] {
         let above = i64::from(*v) - i64::from(*hi);
         *o = below.max(above).max(0).min(i64::from(u32::MAX)) as u32;
     }
-    out
 }
 
 /// |v| > limit, without a root.

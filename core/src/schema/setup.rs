@@ -54,6 +54,8 @@ pub enum SetupError {
 
 impl Drive {
     /// The identifiers it uses, each with the count from it: 3, 2 and 2.
+    // Out of line: both checks inlined a copy.
+    #[inline(never)]
     fn ranges(&self) -> [(OutputId, u32); 3] {
         [(self.setpoint, 3), (self.pose, 2), (self.wrench, 2)]
     }

@@ -175,8 +175,18 @@ type SchemaPart = Option<pab_core::schema::Setup>;
 /// transitions (3) and their faults (3), a report.
 #[cfg(feature = "schema")]
 type SchemaOuts = heapless::Vec<crate::schema::Out, 12>;
+
 #[cfg(not(feature = "schema"))]
 type SchemaPart = ();
+
+/// Keeps one of the schema server's outputs for the node to send.
+// Out of line: each output the server's runtime makes inlined a copy of the push.
+#[cfg(feature = "schema")]
+#[inline(never)]
+fn collect(outs: &mut SchemaOuts, out: crate::schema::Out) {
+    // At most 12 a call (SchemaOuts): never refused.
+    let _ = outs.push(out);
+}
 
 impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C, N, IMG> {
     /// A node without a table, booted at `now`. Its first heartbeat goes out at once.
@@ -1090,9 +1100,9 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         let keyed = self.guard.is_keyed();
         let mut outs = SchemaOuts::new();
         match self.schema.as_mut() {
-            Some(runtime) => runtime.on_transfer_frame(source, data, now, keyed, &mut |o| {
-                let _ = outs.push(o);
-            }),
+            Some(runtime) => {
+                runtime.on_transfer_frame(source, data, now, keyed, &mut |o| collect(&mut outs, o))
+            }
             // Only a message's first frame is answered: a multi-frame one gets no flow control.
             None if matches!(
                 pab_core::isotp::pci::decode(data),
@@ -1125,9 +1135,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             return;
         }
         let mut outs = SchemaOuts::new();
-        runtime.poll(now, &mut |o| {
-            let _ = outs.push(o);
-        });
+        runtime.poll(now, &mut |o| collect(&mut outs, o));
         self.schema_outs(outs);
     }
 

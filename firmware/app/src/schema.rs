@@ -61,7 +61,7 @@ impl SchemaRuntime {
         Some(SchemaRuntime {
             server,
             drive: setup.drive,
-            sensors: setup.sensors.clone(),
+            sensors: setup.sensors,
             pose: [0; AXES],
             wrench: [0; AXES],
             next_tick: now,
@@ -139,28 +139,15 @@ impl SchemaRuntime {
             return;
         }
         let outcome = self.receiver.on_frame(data, now);
-        let ack = |outcome: SchemaOutcome, channel: u8, id: u16, queued: usize| {
-            Message::SchemaAck(SchemaAck {
-                outcome,
-                channel: SchemaChannel::from_code(channel),
-                id,
-                queued: queued.min(usize::from(u8::MAX)) as u8,
-            })
-        };
-        match outcome.event {
+        // The flow control to send and the answer (outcome, channel, id) of a refused or
+        // complete message, sent after the match: one copy of each frame's construction.
+        let (flow_control, answer) = match outcome.event {
             RxEvent::SendFlowControl(fc) => {
                 self.sender = Some(source);
-                out(Out::Protocol(transfer(fc), source));
+                (Some(fc), None)
             }
             RxEvent::Refused { flow_control, .. } => {
-                if let Some(fc) = flow_control {
-                    out(Out::Protocol(transfer(fc), source));
-                }
-                let queued = self.server.queued();
-                out(Out::Protocol(
-                    ack(SchemaOutcome::TooLong, 0xFF, 0xFFFF, queued),
-                    source,
-                ));
+                (flow_control, Some((SchemaOutcome::TooLong, 0xFF, 0xFFFF)))
             }
             RxEvent::Complete(message) => {
                 self.sender = None;
@@ -175,23 +162,37 @@ impl SchemaRuntime {
                 } else {
                     match (channel, decoded) {
                         (0 | 1, Err(e)) => Err(SchemaOutcome::from(&e)),
-                        (0, Ok(s)) => self
-                            .server
-                            .enqueue(s)
-                            .map(|_| ())
-                            .map_err(|r| SchemaOutcome::from(&r)),
-                        (1, Ok(s)) => self
-                            .server
-                            .high_priority(s)
-                            .map_err(|r| SchemaOutcome::from(&r)),
+                        (0 | 1, Ok(s)) => if channel == 0 {
+                            self.server.enqueue(s).map(|_| ())
+                        } else {
+                            self.server.high_priority(s)
+                        }
+                        .map_err(|r| SchemaOutcome::from(&r)),
                         _ => Err(SchemaOutcome::BadChannel),
                     }
                 };
-                let outcome = verdict.err().unwrap_or(SchemaOutcome::Accepted);
-                let queued = self.server.queued();
-                out(Out::Protocol(ack(outcome, channel, id, queued), source));
+                (
+                    None,
+                    Some((
+                        verdict.err().unwrap_or(SchemaOutcome::Accepted),
+                        channel,
+                        id,
+                    )),
+                )
             }
-            RxEvent::Nothing | RxEvent::Ignored(_) => {}
+            RxEvent::Nothing | RxEvent::Ignored(_) => (None, None),
+        };
+        if let Some(fc) = flow_control {
+            out(Out::Protocol(transfer(fc), source));
+        }
+        if let Some((outcome, channel, id)) = answer {
+            let ack = SchemaAck {
+                outcome,
+                channel: SchemaChannel::from_code(channel),
+                id,
+                queued: self.server.queued().min(usize::from(u8::MAX)) as u8,
+            };
+            out(Out::Protocol(Message::SchemaAck(ack), source));
         }
         if outcome.aborted.is_some() {
             self.sender = None;
@@ -217,6 +218,8 @@ impl SchemaRuntime {
             due
         };
         let tick = self.server.tick(now);
+        // Read once: nothing below changes the queue.
+        let queued = self.server.queued();
         for t in &tick.transitions {
             if let schema::Trigger::Safety(cause) = t.by {
                 out(Out::Fault(
@@ -224,14 +227,13 @@ impl SchemaRuntime {
                     FaultCode::schema_safety_detail(cause, t.ended),
                 ));
             }
-            let queued = self.server.queued();
             out(Out::Protocol(
                 Message::SchemaTransition(SchemaTransition::from_transition(t, queued)),
                 0xFF,
             ));
         }
-        if let Some(s) = tick.setpoint {
-            self.send_setpoint(&s, now, out);
+        if let Some(s) = &tick.setpoint {
+            self.send_setpoint(s, now, out);
         }
         if now.micros_since(self.next_report).is_some() {
             self.next_report = now.wrapping_add_micros(REPORT_PERIOD_US);
@@ -241,7 +243,7 @@ impl SchemaRuntime {
                     current: self.server.current(),
                     source: SchemaOrigin::from(self.server.origin()),
                     fault: self.server.fault().map(SchemaSafety::from),
-                    queued: self.server.queued().min(255) as u8,
+                    queued: queued.min(255) as u8,
                     armed: tick.setpoint.is_some(),
                     gripper_closed: tick
                         .setpoint
@@ -260,16 +262,17 @@ impl SchemaRuntime {
         let frame = |offset: u32, data: &[u8; 8]| {
             Frame::with_raw_id(base.raw().saturating_add(offset), base.is_extended(), data)
         };
-        let [translation, rotation] = drive::attractor_frames(s);
-        for (offset, data) in [(0, translation), (1, rotation)] {
-            if let Some(f) = frame(offset, &data) {
-                out(Out::Drive(f));
-            }
-        }
         let impedance = (s.stiffness, s.damping);
-        if self.impedance != Some(impedance) || now.micros_since(self.next_report).is_some() {
+        let with_impedance =
+            self.impedance != Some(impedance) || now.micros_since(self.next_report).is_some();
+        if with_impedance {
             self.impedance = Some(impedance);
-            if let Some(f) = frame(2, &drive::impedance_frame(s)) {
+        }
+        // The three frames through one loop: one copy of the frame's construction.
+        let [translation, rotation] = drive::attractor_frames(s);
+        let frames = [translation, rotation, drive::impedance_frame(s)];
+        for (offset, data) in (0..).zip(&frames).take(2 + usize::from(with_impedance)) {
+            if let Some(f) = frame(offset, data) {
                 out(Out::Drive(f));
             }
         }
