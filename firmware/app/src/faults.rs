@@ -93,14 +93,19 @@ impl FaultLimiter {
 
     /// When the next pending fault may be sent (`None` if nothing is pending).
     pub fn deadline(&self) -> Option<Instant> {
-        self.slots
-            .iter()
-            .filter(|slot| slot.pending > 0)
-            .map(|slot| match slot.last_sent {
-                Some(sent) => sent.wrapping_add_micros(self.interval_us),
-                None => Instant::from_micros(0),
-            })
-            .min_by_key(|instant| instant.as_micros())
+        // A loop rather than `min_by_key`, whose key closure was inlined four times (76 bytes of
+        // flash). The earliest of equal instants is the same instant either way.
+        let mut earliest: Option<u64> = None;
+        for slot in self.slots.iter().filter(|slot| slot.pending > 0) {
+            let at = match slot.last_sent {
+                Some(sent) => sent.wrapping_add_micros(self.interval_us).as_micros(),
+                None => 0,
+            };
+            if earliest.is_none_or(|e| at < e) {
+                earliest = Some(at);
+            }
+        }
+        earliest.map(Instant::from_micros)
     }
 }
 
