@@ -56,14 +56,7 @@ impl Case {
     fn new(name: &str, network: &Path, capture: Capture) -> Case {
         let network = Network::load(network).unwrap_or_else(|e| panic!("{e}"));
         let compiled = compile::compile(&network).unwrap_or_else(|e| panic!("{e:?}"));
-        let feed = Feed::from_capture(&capture);
-        Case {
-            name: name.to_string(),
-            network,
-            compiled,
-            capture,
-            feed,
-        }
+        Case::of(name, network, compiled, capture)
     }
 
     /// `network` (already parsed and compiled) on `capture`.
