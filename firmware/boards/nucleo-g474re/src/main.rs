@@ -237,13 +237,19 @@ async fn main(spawner: Spawner) {
     // Started last before the node task: from here on, only the node loop feeds it.
     let mut watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
     watchdog.unleash();
-    spawner.spawn(unwrap!(node_task(
+    let task = node_task(
         node,
         bus,
         store,
         BoardConsumer::new(),
-        NodeWatchdog { watchdog, led }
-    )));
+        NodeWatchdog { watchdog, led },
+    );
+    // Its pool holds one task and this is its only spawn, so the error (the pool is full) cannot
+    // come: not formatted (`unwrap!` would link `SpawnError`'s formatting, 72 bytes).
+    match task {
+        Ok(task) => spawner.spawn(task),
+        Err(_) => defmt::panic!("node task already spawned"),
+    }
 }
 
 /// HSE 24 MHz; SYSCLK 170 MHz from the PLL (24 / 6 * 85 / 2), boost mode; FDCAN on the HSE.
