@@ -44,16 +44,17 @@ use core::ops::Range;
 use defmt::{info, unwrap};
 use defmt_rtt as _;
 use embassy_executor::Spawner;
+use embassy_stm32::Peri;
 use embassy_stm32::can::config::{
     FrameTransmissionConfig, GlobalFilter, NominalBitTiming, NonMatchingFilter, TxBufferMode,
 };
 use embassy_stm32::can::{self, CanConfigurator, OperatingMode};
 use embassy_stm32::flash::{Blocking, Flash};
 use embassy_stm32::gpio::{Level, Output, Speed};
+use embassy_stm32::pac::iwdg::vals::{Key, Pr};
 use embassy_stm32::peripherals::FDCAN1;
 use embassy_stm32::peripherals::IWDG;
 use embassy_stm32::time::Hertz;
-use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, rcc};
 use embedded_storage::nor_flash::ReadNorFlash;
 use pab_storage::{BootCounter, FlashStore};
@@ -129,13 +130,53 @@ pub const WATCHDOG_TIMEOUT_US: u32 = 500_000;
 pub const FEED_INTERVAL_US: u64 = 100_000;
 const _: () = assert!(FEED_INTERVAL_US * 3 <= WATCHDOG_TIMEOUT_US as u64);
 
+/// The IWDG's count, µs: its LSI (32 kHz) divided by 4, the finest prescaler whose 12-bit reload
+/// still reaches [`WATCHDOG_TIMEOUT_US`] (the one embassy's driver would pick).
+const IWDG_TICK_US: u32 = 1_000_000 * 4 / embassy_stm32::rcc::LSI_FREQ.0;
+const IWDG_PRESCALER: Pr = Pr::DIVIDE_BY4;
+/// The counter runs from the reload value down to 0: reload + 1 counts make the timeout.
+const IWDG_RELOAD: u32 = WATCHDOG_TIMEOUT_US / IWDG_TICK_US - 1;
+const _: () = assert!(
+    (IWDG_RELOAD + 1) * IWDG_TICK_US == WATCHDOG_TIMEOUT_US && IWDG_RELOAD <= 0xFFF,
+    "the timeout must be a whole number of counts, at most 4096"
+);
+
+/// The IWDG, driven through its registers with the prescaler and reload fixed at compile time:
+/// embassy's driver (`wdg::IndependentWatchdog`) works them out at run time from the timeout,
+/// 376 bytes of flash for what the constants above say (its range check a panic site of its
+/// own). Holds the peripheral, so nothing else can drive it.
+struct Iwdg {
+    _peripheral: Peri<'static, IWDG>,
+}
+
+impl Iwdg {
+    /// Starts the IWDG with a timeout of [`WATCHDOG_TIMEOUT_US`]; once started, nothing but a
+    /// reset stops it.
+    fn start(iwdg: Peri<'static, IWDG>) -> Self {
+        let regs = embassy_stm32::pac::IWDG;
+        // The ENABLE key unlocks the prescaler and reload registers.
+        regs.kr().write(|w| w.set_key(Key::ENABLE));
+        regs.pr().write(|w| w.set_pr(IWDG_PRESCALER));
+        regs.rlr().write(|w| w.set_rl(IWDG_RELOAD as u16));
+        regs.kr().write(|w| w.set_key(Key::START));
+        Iwdg { _peripheral: iwdg }
+    }
+
+    /// Reloads the counter.
+    fn feed(&mut self) {
+        embassy_stm32::pac::IWDG
+            .kr()
+            .write(|w| w.set_key(Key::RESET));
+    }
+}
+
 /// The IWDG, as the node loop feeds it, and LD2, which follows bit 19 of the microsecond clock
 /// at each feed: it blinks at 0.95 Hz (a 2^20 µs period) while the node loop itself turns (it
 /// feeds at least every [`FEED_INTERVAL_US`], so each edge comes within 100 ms), and stops with
 /// it. Why here rather than in a task of its own: a hung node loop with a blinking LED would say
 /// the wrong thing, and the task took 284 bytes of flash.
 struct NodeWatchdog {
-    watchdog: IndependentWatchdog<'static, IWDG>,
+    watchdog: Iwdg,
     led: Output<'static>,
 }
 
@@ -143,7 +184,7 @@ impl pab_app::Watchdog for NodeWatchdog {
     const FEED_INTERVAL_US: u64 = FEED_INTERVAL_US;
 
     fn feed(&mut self) {
-        self.watchdog.pet();
+        self.watchdog.feed();
         let level = pab_app::now().as_micros() & (1 << 19) != 0;
         self.led.set_level(level.into());
     }
@@ -235,8 +276,7 @@ async fn main(spawner: Spawner) {
     });
     let store = unwrap!(FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE));
     // Started last before the node task: from here on, only the node loop feeds it.
-    let mut watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
-    watchdog.unleash();
+    let watchdog = Iwdg::start(p.IWDG);
     let task = node_task(
         node,
         bus,
