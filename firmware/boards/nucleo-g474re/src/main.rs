@@ -198,10 +198,15 @@ bind_interrupts!(struct Irqs {
     FDCAN1_IT1 => can::IT1InterruptHandler<FDCAN1>;
 });
 
-/// The node (arbiter, tables, an 8 KiB transfer buffer): in a `static`, not in a task's future.
-static NODE: StaticCell<pab_app::BoardNode> = StaticCell::new();
-static RX_QUEUE: StaticCell<RxQueue> = StaticCell::new();
-static TX_QUEUE: StaticCell<TxQueue> = StaticCell::new();
+/// The node (arbiter, tables, an 8 KiB transfer buffer) and the FDCAN driver's queues: in a
+/// `static`, not in a task's future. One cell for the three: each cell's claim is code of its
+/// own with a panic site (168 bytes of flash for two cells more).
+struct Statics {
+    node: pab_app::BoardNode,
+    rx: RxQueue,
+    tx: TxQueue,
+}
+static STATICS: StaticCell<Statics> = StaticCell::new();
 
 /// Turns on the flash's prefetch buffer and its instruction and data caches (the ART
 /// accelerator, FLASH_ACR PRFTEN, ICEN, DCEN).
@@ -233,6 +238,16 @@ async fn main(spawner: Spawner) {
 
     let led = Output::new(p.PA5, Level::Low, Speed::Low);
 
+    let config = unwrap!(pab_app::Config::new(NODE_ID));
+    // `init_with` lets the compiler build the node (15 KiB) directly in the static; should it go
+    // through a temporary on the stack instead, that happens once, at boot, with ~110 KiB free.
+    // The queues must be there before the FDCAN starts, so the node is built first too.
+    let Statics { node, rx, tx } = STATICS.init_with(|| Statics {
+        node: pab_app::BoardNode::new(config, pab_app::now()),
+        rx: RxQueue::new(),
+        tx: TxQueue::new(),
+    });
+
     let mut can = CanConfigurator::new(p.FDCAN1, p.PA11, p.PA12, Irqs);
     let config = can
         .config()
@@ -257,14 +272,10 @@ async fn main(spawner: Spawner) {
     can.set_config(config);
     let can = can
         .start(OperatingMode::NormalOperationMode)
-        .buffered(TX_QUEUE.init(TxQueue::new()), RX_QUEUE.init(RxQueue::new()));
+        .buffered(tx, rx);
     let bus = FdcanBus::new(can);
 
     let mut flash = Flash::new_blocking(p.FLASH);
-    let config = unwrap!(pab_app::Config::new(NODE_ID));
-    // `init_with` lets the compiler build the node (15 KiB) directly in the static; should it go
-    // through a temporary on the stack instead, that happens once, at boot, with ~110 KiB free.
-    let node = NODE.init_with(|| pab_app::BoardNode::new(config, pab_app::now()));
     // The key before anything else: a page that cannot be read counts as truncated (locked).
     let mut page = [0u8; pab_core::auth::page::LEN];
     let page: &[u8] = match flash.read(KEY_PAGE, &mut page) {
