@@ -31,6 +31,7 @@
 
 use embassy_futures::select::{Either, select};
 use embassy_stm32::can::enums::BusErrorMode;
+use embassy_stm32::can::frame::Header;
 use embassy_stm32::can::{self, BufferedCan};
 use embassy_time::{Duration, Timer, with_timeout};
 use pab_app::{BusError, CanBus};
@@ -110,12 +111,13 @@ impl CanBus for FdcanBus {
     }
 
     async fn transmit(&mut self, frame: &Frame) -> Result<(), BusError> {
-        let outgoing = if frame.is_remote() {
-            can::frame::Frame::new_remote(frame.id(), frame.payload().len())
-        } else {
-            can::frame::Frame::new_data(frame.id(), frame.payload())
-        };
-        let Ok(outgoing) = outgoing else {
+        // One constructor for data and remote frames (the driver's `new_data` and `new_remote`
+        // were two inlined copies, 112 bytes of flash). A remote frame's payload is empty, so its
+        // DLC is 0, as `new_remote(id, frame.payload().len())` made it; a payload has at most 8
+        // bytes, so its length fits the header's `u8`.
+        let payload = frame.payload();
+        let header = Header::new(frame.id(), payload.len() as u8, frame.is_remote());
+        let Ok(outgoing) = can::frame::Frame::new(header, payload) else {
             // Unreachable for a pab_core::Frame (at most 8 bytes, valid id); reported all the same.
             return Err(BusError::Other(0xFF));
         };
