@@ -381,3 +381,11 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     }
     cortex_m::asm::udf()
 }
+
+/// What follows a `defmt::panic!` (embassy's checks, `unwrap!`) once it has logged its message:
+/// stop as [`panic`] does. defmt's default handler went through core's `panic!` instead, whose
+/// handler logged a second line that says nothing (a location inside defmt): 64 bytes of flash.
+#[defmt::panic_handler]
+fn defmt_panic() -> ! {
+    cortex_m::asm::udf()
+}
