@@ -49,7 +49,7 @@ use embassy_stm32::can::config::{
     FrameTransmissionConfig, GlobalFilter, NominalBitTiming, NonMatchingFilter, TxBufferMode,
 };
 use embassy_stm32::can::{self, CanConfigurator, OperatingMode};
-use embassy_stm32::flash::{Blocking, Flash};
+use embassy_stm32::flash::Flash;
 use embassy_stm32::gpio::{Level, Output, Speed};
 use embassy_stm32::pac::iwdg::vals::{Key, Pr};
 use embassy_stm32::peripherals::FDCAN1;
@@ -58,7 +58,7 @@ use embassy_stm32::time::Hertz;
 use embassy_stm32::{bind_interrupts, rcc};
 use embedded_storage::nor_flash::ReadNorFlash;
 use pab_storage::{BootCounter, FlashStore};
-use static_cell::StaticCell;
+use static_cell::ConstStaticCell;
 
 // The boards' memcpy, memset, memcmp and 64-bit division (firmware/builtins): 2.5 KB less flash
 // than compiler_builtins'.
@@ -190,23 +190,23 @@ impl pab_app::Watchdog for NodeWatchdog {
     }
 }
 
-/// The store over the internal flash.
-type Store = FlashStore<Flash<'static, Blocking>>;
-
 bind_interrupts!(struct Irqs {
     FDCAN1_IT0 => can::IT0InterruptHandler<FDCAN1>;
     FDCAN1_IT1 => can::IT1InterruptHandler<FDCAN1>;
 });
 
-/// The node (arbiter, tables, an 8 KiB transfer buffer) and the FDCAN driver's queues: in a
-/// `static`, not in a task's future. One cell for the three: each cell's claim is code of its
-/// own with a panic site (168 bytes of flash for two cells more).
-struct Statics {
-    node: pab_app::BoardNode,
+/// The FDCAN driver's queues: the driver keeps references to them, so they live in a `static`,
+/// built at compile time (empty queues are all zeros, in .bss) rather than by code at boot. The
+/// node is not here: it lives in the main task's future, itself in a static (the executor's
+/// pool). Together, rather than a `StaticCell` for the node and the queues: 172 bytes of flash.
+struct Queues {
     rx: RxQueue,
     tx: TxQueue,
 }
-static STATICS: StaticCell<Statics> = StaticCell::new();
+static QUEUES: ConstStaticCell<Queues> = ConstStaticCell::new(Queues {
+    rx: RxQueue::new(),
+    tx: TxQueue::new(),
+});
 
 /// Turns on the flash's prefetch buffer and its instruction and data caches (the ART
 /// accelerator, FLASH_ACR PRFTEN, ICEN, DCEN).
@@ -227,7 +227,7 @@ fn enable_flash_prefetch_and_caches() {
 }
 
 #[embassy_executor::main]
-async fn main(spawner: Spawner) {
+async fn main(_spawner: Spawner) {
     let p = embassy_stm32::init(clocks());
     enable_flash_prefetch_and_caches();
     info!(
@@ -238,15 +238,9 @@ async fn main(spawner: Spawner) {
 
     let led = Output::new(p.PA5, Level::Low, Speed::Low);
 
-    let config = unwrap!(pab_app::Config::new(NODE_ID));
-    // `init_with` lets the compiler build the node (15 KiB) directly in the static; should it go
-    // through a temporary on the stack instead, that happens once, at boot, with ~110 KiB free.
-    // The queues must be there before the FDCAN starts, so the node is built first too.
-    let Statics { node, rx, tx } = STATICS.init_with(|| Statics {
-        node: pab_app::BoardNode::new(config, pab_app::now()),
-        rx: RxQueue::new(),
-        tx: TxQueue::new(),
-    });
+    let Some(Queues { rx, tx }) = QUEUES.try_take() else {
+        defmt::panic!("FDCAN queues taken twice");
+    };
 
     let mut can = CanConfigurator::new(p.FDCAN1, p.PA11, p.PA12, Irqs);
     let config = can
@@ -273,34 +267,39 @@ async fn main(spawner: Spawner) {
     let can = can
         .start(OperatingMode::NormalOperationMode)
         .buffered(tx, rx);
-    let bus = FdcanBus::new(can);
+    let mut bus = FdcanBus::new(can);
 
     let mut flash = Flash::new_blocking(p.FLASH);
+    let config = unwrap!(pab_app::Config::new(NODE_ID));
+    // Built in place in the task's future (40 KiB with the schema server; this task's stack
+    // frame is some 400 bytes). It must stay so: the node loop runs in this frame, so a node
+    // built in a temporary on the stack would keep that room under the loop's deepest calls.
+    let mut node = pab_app::BoardNode::new(config, pab_app::now());
     // The key before anything else: a page that cannot be read counts as truncated (locked).
     let mut page = [0u8; pab_core::auth::page::LEN];
     let page: &[u8] = match flash.read(KEY_PAGE, &mut page) {
         Ok(()) => &page,
         Err(_) => &[],
     };
-    pab_app::key_from_page(node, page, || {
+    pab_app::key_from_page(&mut node, page, || {
         BootCounter::new(&mut flash, BOOT_COUNTER_RANGE)?.increment()
     });
-    let store = unwrap!(FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE));
-    // Started last before the node task: from here on, only the node loop feeds it.
+    let mut store = unwrap!(FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE));
+    // Started last before the node loop: from here on, only the loop feeds it.
     let watchdog = Iwdg::start(p.IWDG);
-    let task = node_task(
-        node,
-        bus,
-        store,
-        BoardConsumer::new(),
-        NodeWatchdog { watchdog, led },
-    );
-    // Its pool holds one task and this is its only spawn, so the error (the pool is full) cannot
-    // come: not formatted (`unwrap!` would link `SpawnError`'s formatting, 72 bytes).
-    match task {
-        Ok(task) => spawner.spawn(task),
-        Err(_) => defmt::panic!("node task already spawned"),
-    }
+    // The node loop runs in this task rather than in one of its own: spawning one (its pool, the
+    // move of the loop's state into it, the check that the pool was free) took some 110 bytes of
+    // flash, and this task would only have returned.
+    let mut consumer = BoardConsumer::new();
+    let mut watchdog = NodeWatchdog { watchdog, led };
+    pab_app::run_watched(
+        &mut node,
+        &mut bus,
+        &mut store,
+        &mut consumer,
+        &mut watchdog,
+    )
+    .await
 }
 
 /// HSE 24 MHz; SYSCLK 170 MHz from the PLL (24 / 6 * 85 / 2), boost mode; FDCAN on the HSE.
@@ -322,18 +321,6 @@ fn clocks() -> embassy_stm32::Config {
     config.rcc.boost = true;
     config.rcc.mux.fdcansel = rcc::mux::Fdcansel::HSE;
     config
-}
-
-/// Runs the node forever, feeding the watchdog.
-#[embassy_executor::task]
-async fn node_task(
-    node: &'static mut pab_app::BoardNode,
-    mut bus: FdcanBus,
-    mut store: Store,
-    mut consumer: BoardConsumer,
-    mut watchdog: NodeWatchdog,
-) {
-    pab_app::run_watched(node, &mut bus, &mut store, &mut consumer, &mut watchdog).await
 }
 
 /// The flash's double-ECC error (a double word whose programming a power loss cut) raises an NMI.
