@@ -112,8 +112,11 @@ where
                 // stuck bus-off), must not turn this loop into a busy loop. A count of dropped
                 // frames comes with a frame that the next read returns: pausing then would only
                 // drop more.
+                // 1 ms from the clock read out of line (`now`): `Timer::after_millis` inlined
+                // another copy of the time driver's read and an overflow check (32 bytes).
                 if !matches!(error, BusError::Dropped(_)) {
-                    Timer::after_millis(1).await;
+                    let pause_end = now().as_micros().saturating_add(1_000);
+                    Timer::at(embassy_time::Instant::from_micros(pause_end)).await;
                 }
                 Step::Continue
             }
