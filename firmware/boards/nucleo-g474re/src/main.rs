@@ -302,7 +302,8 @@ async fn main(_spawner: Spawner) {
     .await
 }
 
-/// HSE 24 MHz; SYSCLK 170 MHz from the PLL (24 / 6 * 85 / 2), boost mode; FDCAN on the HSE.
+/// HSE 24 MHz; SYSCLK 170 MHz from the PLL (24 / 6 * 85 / 2), boost mode; FDCAN on the HSE; LSI
+/// on, RTC off.
 fn clocks() -> embassy_stm32::Config {
     let mut config = embassy_stm32::Config::default();
     config.rcc.hse = Some(rcc::Hse {
@@ -319,6 +320,14 @@ fn clocks() -> embassy_stm32::Config {
     });
     config.rcc.sys = rcc::Sysclk::PLL1_R;
     config.rcc.boost = true;
+    // The RTC unclocked: nothing here uses it. embassy's default clocks it from the LSI, at the
+    // price of a backup-domain reset and the clock's selection at every power-on (and 48 bytes
+    // of flash). The LSI itself stays on, started here as before: the IWDG runs from it.
+    config.rcc.ls = rcc::LsConfig {
+        rtc: rcc::RtcClockSource::DISABLE,
+        lsi: true,
+        lse: None,
+    };
     config.rcc.mux.fdcansel = rcc::mux::Fdcansel::HSE;
     config
 }
