@@ -148,18 +148,16 @@ impl Action {
     /// The time the action takes if nothing stops it, µs (`None`: unbounded, an idle for
     /// ever), `p` its [`Action::start`]. The watchdog's default budget is made from it.
     pub(crate) fn nominal_us(&self, p: &Progress) -> Option<u64> {
-        let travel = |distance: u64, speed: u32| {
-            distance.saturating_mul(MICROS_PER_SECOND) / u64::from(speed.max(1))
-        };
-        match *self {
-            Action::Idle { ms: 0 } => None,
+        // The distance and speed of the travelling actions, then one division for them all.
+        let (distance, speed) = match *self {
+            Action::Idle { ms: 0 } => return None,
             Action::Idle { ms }
             | Action::Grasp { settle_ms: ms }
-            | Action::Release { settle_ms: ms } => Some(u64::from(ms) * 1000),
-            Action::Gripper(_) | Action::SetImpedance { .. } | Action::Relieve => Some(0),
+            | Action::Release { settle_ms: ms } => return Some(u64::from(ms) * 1000),
+            Action::Gripper(_) | Action::SetImpedance { .. } | Action::Relieve => return Some(0),
             // The start measured the line (a move's length, a touch-down's distance) already.
             Action::MoveTo { speed, .. } | Action::MoveToTouch { speed, .. } => {
-                Some(travel(p.distance, speed))
+                (p.distance, speed)
             }
             Action::BlindSearch {
                 pitch,
@@ -168,11 +166,12 @@ impl Action {
                 ..
             } => {
                 // Legs come in pairs of length pitch·n for n = 1, 2, … while pitch·n ≤ 2·radius:
-                // pitch·n(n+1) in all.
-                let n = u64::from(radius) * 2 / u64::from(pitch.max(1));
-                Some(travel(u64::from(pitch).saturating_mul(n * (n + 1)), speed))
+                // pitch·n(n+1) in all. A checked radius is below 2^29: a 32-bit division.
+                let n = u64::from(radius.saturating_mul(2) / pitch.max(1));
+                (u64::from(pitch).saturating_mul(n * (n + 1)), speed)
             }
-        }
+        };
+        Some(distance.saturating_mul(MICROS_PER_SECOND) / u64::from(speed.max(1)))
     }
 
     /// The direction the action moves the attractor in (translation), for
