@@ -13,7 +13,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{AXES, Pose, isqrt, length3};
+use super::{AXES, Pose, length};
 use crate::wire::{Decode, Reader};
 
 /// A gripper command.
@@ -405,13 +405,10 @@ fn direction(to: &Pose, from: &Pose, rotation_if_still: bool) -> ([i64; AXES], u
     for ((d, t), f) in d.iter_mut().zip(to).zip(from) {
         *d = i64::from(*t) - i64::from(*f);
     }
-    let mut norm = length3(&d);
+    let (translation, rotation) = d.split_at(3);
+    let mut norm = length(translation);
     if norm == 0 && rotation_if_still {
-        let mut sum = 0u64;
-        for c in d.iter().skip(3) {
-            sum = sum.saturating_add(c.unsigned_abs().saturating_mul(c.unsigned_abs()));
-        }
-        norm = isqrt(sum);
+        norm = length(rotation);
     }
     (d, norm)
 }
