@@ -328,7 +328,13 @@ impl Server {
 
     /// Milliseconds from the installed schema's installation to `now` (0 if `now` is before).
     pub fn elapsed_ms(&self, now: Instant) -> u64 {
-        now.micros_since(self.installed_at).unwrap_or(0) / 1000
+        self.elapsed_us(now) / 1000
+    }
+
+    /// Microseconds from the installed schema's installation to `now` (0 if `now` is before):
+    /// the watchdog's, the reactions' and the action's one clock.
+    fn elapsed_us(&self, now: Instant) -> u64 {
+        now.micros_since(self.installed_at).unwrap_or(0)
     }
 
     /// The safety event the server is stopped on, until the high-priority channel installs a
@@ -501,7 +507,7 @@ impl Server {
     }
 
     fn iterate(&mut self, now: Instant) {
-        let elapsed = now.micros_since(self.installed_at).unwrap_or(0);
+        let elapsed = self.elapsed_us(now);
         let measured = self.pose.map_or(self.setpoint.attractor, |(p, _)| p);
         self.current.action.iterate(
             &mut self.progress,
@@ -515,21 +521,23 @@ impl Server {
     /// Steps 3 and 4: the safety event, or the first reaction that holds (its index, event and
     /// source), or nothing.
     fn trigger(&self, now: Instant, overrun: bool) -> Option<Result<(u8, Event, Source), Safety>> {
+        // Read once for the watchdog and every reaction.
+        let elapsed_us = self.elapsed_us(now);
         if self.fault.is_none()
-            && let Some(cause) = self.safety(now, overrun)
+            && let Some(cause) = self.safety(now, elapsed_us, overrun)
         {
             return Some(Err(cause));
         }
         let one_shot = self.progress.iterations >= 1;
         for (i, r) in self.current.reactions.iter().enumerate() {
-            if self.holds(r, one_shot, now) {
+            if self.holds(r, one_shot, elapsed_us) {
                 return Some(Ok((i as u8, r.event, r.next)));
             }
         }
         None
     }
 
-    fn safety(&self, now: Instant, overrun: bool) -> Option<Safety> {
+    fn safety(&self, now: Instant, elapsed_us: u64, overrun: bool) -> Option<Safety> {
         let c = &self.config;
         let fresh = |at: Instant, limit: u32| {
             now.micros_since(at)
@@ -566,11 +574,7 @@ impl Server {
                 return Some(Safety::Force);
             }
         }
-        if let Some(budget) = self.budget_us
-            && now
-                .micros_since(self.installed_at)
-                .is_some_and(|t| t > budget)
-        {
+        if self.budget_us.is_some_and(|budget| elapsed_us > budget) {
             return Some(Safety::Watchdog);
         }
         if overrun {
@@ -579,8 +583,7 @@ impl Server {
         None
     }
 
-    fn holds(&self, r: &Reaction, one_shot: bool, now: Instant) -> bool {
-        let elapsed_us = now.micros_since(self.installed_at).unwrap_or(0);
+    fn holds(&self, r: &Reaction, one_shot: bool, elapsed_us: u64) -> bool {
         let (m, threshold, above) = match r.event {
             Event::OneShot => return one_shot,
             Event::Done => return self.progress.done,
