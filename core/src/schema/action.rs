@@ -166,9 +166,10 @@ impl Action {
                 ..
             } => {
                 // Legs come in pairs of length pitch·n for n = 1, 2, … while pitch·n ≤ 2·radius:
-                // pitch·n(n+1) in all. A checked radius is below 2^29: a 32-bit division.
-                let n = u64::from(radius.saturating_mul(2) / pitch.max(1));
-                (u64::from(pitch).saturating_mul(n * (n + 1)), speed)
+                // pitch·n(n+1) in all. A checked radius is below 2^29: a 32-bit division; and
+                // pitch·n ≤ 2·radius whatever the radius, so the product is below 2^64.
+                let n = radius.saturating_mul(2) / pitch.max(1);
+                (u64::from(pitch * n) * (u64::from(n) + 1), speed)
             }
         };
         Some(distance.saturating_mul(MICROS_PER_SECOND) / u64::from(speed.max(1)))
