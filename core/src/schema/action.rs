@@ -196,29 +196,38 @@ impl Action {
         }
     }
 
-    /// Starts the action from the attractor `from`.
-    pub(crate) fn start(&self, from: &Pose) -> Progress {
-        let mut p = Progress {
+    /// Starts the action from the attractor `from`, into `p` (in place: the server's own field,
+    /// not a copy made and moved in).
+    pub(crate) fn start(&self, from: &Pose, p: &mut Progress) {
+        *p = Progress {
             start: *from,
             ..Progress::default()
         };
-        // One call of `direction` for both moves: it is large, and inlined or not, a call each
-        // cost more code than choosing its arguments.
-        let (to, from, touch) = match *self {
-            Action::MoveTo { goal, .. } => (goal, *from, None),
+        // One computation of the line for both moves: it is large, and a copy each cost more
+        // code than choosing its ends.
+        let (to, origin, touch) = match self {
+            Action::MoveTo { goal, .. } => (goal, from, None),
             Action::MoveToTouch {
-                direction: d,
+                direction,
                 distance,
                 ..
-            } => (d, [0; AXES], Some(distance)),
-            _ => return p,
+            } => (direction, &[0; AXES], Some(*distance)),
+            _ => return,
         };
-        let (dir, norm) = direction(&to, &from, touch.is_none());
-        p.dir = dir;
-        p.norm = norm;
-        p.distance = touch.map_or(norm, u64::from);
-        p.translates = touch.is_some() || dir.iter().take(3).any(|c| *c != 0);
-        p
+        for ((d, t), f) in p.dir.iter_mut().zip(to).zip(origin) {
+            *d = i64::from(*t) - i64::from(*f);
+        }
+        // The length over the translational axes; for a move without translation, over the
+        // rotational ones.
+        let (translation, rotation) = p.dir.split_at(3);
+        p.translates = translation.iter().any(|c| *c != 0);
+        p.norm = if p.translates || touch.is_some() {
+            length(translation)
+        } else {
+            length(rotation)
+        };
+        p.distance = touch.map_or(p.norm, u64::from);
+        p.translates |= touch.is_some();
     }
 
     /// One iteration: updates `out` from the action's state, `elapsed_us` after it started and
@@ -397,21 +406,6 @@ fn triangle(t_ms: u64, a: u32, t_ms_period: u32) -> i64 {
 pub(crate) fn div_toward_zero(v: i64, d: u64) -> i64 {
     let q = (v.unsigned_abs() / d.max(1)).min(i64::MAX as u64) as i64;
     if v < 0 { -q } else { q }
-}
-
-/// `to − from` and its length: over the translational axes, or (`rotation_if_still` and no
-/// translation) over the rotational ones.
-fn direction(to: &Pose, from: &Pose, rotation_if_still: bool) -> ([i64; AXES], u64) {
-    let mut d = [0i64; AXES];
-    for ((d, t), f) in d.iter_mut().zip(to).zip(from) {
-        *d = i64::from(*t) - i64::from(*f);
-    }
-    let (translation, rotation) = d.split_at(3);
-    let mut norm = length(translation);
-    if norm == 0 && rotation_if_still {
-        norm = length(rotation);
-    }
-    (d, norm)
 }
 
 /// An `i64` coordinate back into an `i32` (saturating: never reached with coordinates within

@@ -674,7 +674,7 @@ impl Server {
     ) {
         let attractor = self.setpoint.attractor;
         let measured = self.pose.map_or(attractor, |(p, _)| p);
-        self.progress = schema.action.start(&attractor);
+        schema.action.start(&attractor, &mut self.progress);
         self.budget_us = if schema.id >= super::BUILTIN_IDS {
             None
         } else if schema.watchdog_ms != 0 {
