@@ -465,26 +465,22 @@ impl Server {
                     Source::Innate(i) => self.config.innate.get(usize::from(i)),
                     Source::Queue | Source::HighPriority => None,
                 };
-                match (next, innate) {
-                    (_, Some(s)) => {
-                        let s = s.clone();
-                        self.install(s, Origin::Innate, by, now, &mut transitions);
-                    }
-                    (Source::Queue, None) => {
-                        let s = self.queue.pop_front().unwrap_or_else(wait_queue);
-                        self.install(s, Origin::Queue, by, now, &mut transitions);
-                    }
+                // One install for every source: a call each cost more code than choosing its
+                // schema.
+                let (s, origin) = match (next, innate) {
+                    (_, Some(s)) => (s.clone(), Origin::Innate),
+                    (Source::Queue, None) => (
+                        self.queue.pop_front().unwrap_or_else(wait_queue),
+                        Origin::Queue,
+                    ),
                     // One wait for the high-priority source and an unknown innate index (checked
                     // when the schema was admitted; a wait is the safe answer): a copy of the
                     // built-in schema less.
-                    (Source::Innate(_) | Source::HighPriority, None) => self.install(
-                        wait_high_priority(),
-                        Origin::HighPriority,
-                        by,
-                        now,
-                        &mut transitions,
-                    ),
-                }
+                    (Source::Innate(_) | Source::HighPriority, None) => {
+                        (wait_high_priority(), Origin::HighPriority)
+                    }
+                };
+                self.install(s, origin, by, now, &mut transitions);
             }
             None => {}
         }
