@@ -65,8 +65,8 @@ impl Drive {
     pub fn check(&self) -> Result<(), SetupError> {
         let ranges = self.ranges();
         for (id, count) in ranges {
-            id.validate().map_err(SetupError::DriveId)?;
-            // The last identifier of the range must fit too.
+            // The last identifier of the range fits its format only if the first does, and
+            // refuses with the same error (the format's) when either does not.
             OutputId::new(id.raw().saturating_add(count - 1), id.is_extended())
                 .map_err(SetupError::DriveId)?;
         }
