@@ -350,12 +350,16 @@ impl Progress {
                 return;
             }
             step -= length - self.along;
-            let (dx, dy) = leg_direction(self.leg);
             // Legs grow by one pitch per pair: a search stopped by its watchdog stays far
             // below these bounds; saturating keeps a schema without one finite.
             let length = length.min(1 << 40) as i64;
-            self.corner[0] = self.corner[0].saturating_add(dx * length);
-            self.corner[1] = self.corner[1].saturating_add(dy * length);
+            let (axis, backwards) = leg_axis(self.leg);
+            let c = &mut self.corner[axis];
+            *c = if backwards {
+                c.saturating_sub(length)
+            } else {
+                c.saturating_add(length)
+            };
             self.leg = self.leg.saturating_add(1);
             self.along = 0;
         }
@@ -363,24 +367,24 @@ impl Progress {
 
     /// The spiral's point, relative to its centre.
     fn spiral_point(&self, pitch: u64) -> (i64, i64) {
-        let (dx, dy) = leg_direction(self.leg);
+        let (axis, backwards) = leg_axis(self.leg);
         // ≤ a leg's length, which is ≤ pitch × 2^31 < 2^61.
         let along = self.along.min(pitch.max(1) * (u64::from(self.leg) / 2 + 1)) as i64;
-        (
-            self.corner[0].saturating_add(dx * along),
-            self.corner[1].saturating_add(dy * along),
-        )
+        let mut point = self.corner;
+        let c = &mut point[axis];
+        *c = if backwards {
+            c.saturating_sub(along)
+        } else {
+            c.saturating_add(along)
+        };
+        (point[0], point[1])
     }
 }
 
-/// +x, +y, −x, −y, …
-fn leg_direction(leg: u32) -> (i64, i64) {
-    match leg % 4 {
-        0 => (1, 0),
-        1 => (0, 1),
-        2 => (-1, 0),
-        _ => (0, -1),
-    }
+/// A leg's axis (0: x, 1: y) and whether it runs backwards: +x, +y, −x, −y, … (an axis and a
+/// sign rather than a unit vector: no multiply by it).
+fn leg_axis(leg: u32) -> (usize, bool) {
+    ((leg % 2) as usize, leg % 4 >= 2)
 }
 
 /// A triangle wave of amplitude `a` and period `t_ms`, 0 at t = 0, rising first.
