@@ -602,13 +602,13 @@ impl Server {
     fn measure(&self, m: Measure) -> Option<i64> {
         let axis = |v: &[i32; AXES], a: u8| v.get(usize::from(a)).copied().map(i64::from);
         match m {
-            Measure::Position(a) => axis(&self.pose?.0, a),
+            Measure::Position(a) => axis(&self.pose.as_ref()?.0, a),
             Measure::Displacement(a) => {
-                Some(axis(&self.pose?.0, a)? - axis(&self.pose_at_install, a)?)
+                Some(axis(&self.pose.as_ref()?.0, a)? - axis(&self.pose_at_install, a)?)
             }
-            Measure::Force(a) => axis(&self.wrench?.0, a),
+            Measure::Force(a) => axis(&self.wrench.as_ref()?.0, a),
             Measure::Contact => {
-                let (w, _) = self.wrench?;
+                let (w, _) = self.wrench.as_ref()?;
                 let (d, norm) = self.current.action.heading(&self.progress);
                 if norm == 0 {
                     return Some(0);
