@@ -600,13 +600,11 @@ impl Server {
 
     /// A value of the sensor table, or `None` when it has never been received.
     fn measure(&self, m: Measure) -> Option<i64> {
-        let axis = |v: &[i32; AXES], a: u8| v.get(usize::from(a)).copied().map(i64::from);
-        match m {
-            Measure::Position(a) => axis(&self.pose.as_ref()?.0, a),
-            Measure::Displacement(a) => {
-                Some(axis(&self.pose.as_ref()?.0, a)? - axis(&self.pose_at_install, a)?)
-            }
-            Measure::Force(a) => axis(&self.wrench.as_ref()?.0, a),
+        // The three measures of an axis share one read of it.
+        let (values, axis, relative) = match m {
+            Measure::Position(a) => (&self.pose.as_ref()?.0, a, false),
+            Measure::Displacement(a) => (&self.pose.as_ref()?.0, a, true),
+            Measure::Force(a) => (&self.wrench.as_ref()?.0, a, false),
             Measure::Contact => {
                 let (w, _) = self.wrench.as_ref()?;
                 let (d, norm) = self.current.action.heading(&self.progress);
@@ -621,14 +619,23 @@ impl Server {
                     .iter()
                     .zip(d)
                     .fold(0i64, |s, (f, d)| s.saturating_add(i64::from(*f) * d));
-                Some(super::action::div_toward_zero(dot.saturating_neg(), norm))
+                return Some(super::action::div_toward_zero(dot.saturating_neg(), norm));
             }
-            Measure::Sensor(s) => self
-                .sensors
-                .get(usize::from(s))
-                .copied()
-                .flatten()
-                .map(|(v, _)| i64::from(v)),
+            Measure::Sensor(s) => {
+                return self
+                    .sensors
+                    .get(usize::from(s))
+                    .copied()
+                    .flatten()
+                    .map(|(v, _)| i64::from(v));
+            }
+        };
+        let axis = usize::from(axis);
+        let value = i64::from(*values.get(axis)?);
+        if relative {
+            Some(value - i64::from(*self.pose_at_install.get(axis)?))
+        } else {
+            Some(value)
         }
     }
 
