@@ -87,9 +87,11 @@ pub(crate) use crate::isqrt::isqrt;
 pub(crate) fn length(v: &[i64]) -> u64 {
     let mut sum = 0u64;
     for c in v {
-        // |c| ≤ 2^31 (a difference of two coordinates within MAX_COORD, or one of them), so
-        // each square is below 2^62 and three of them below 2^64.
-        sum = sum.saturating_add(c.unsigned_abs().saturating_mul(c.unsigned_abs()));
+        // A difference of two `i32` coordinates is below 2^32 in magnitude: its square is a
+        // 32 × 32-bit product (the conversion saturates only what cannot occur), and three of
+        // them are summed saturating.
+        let a = u64::from(u32::try_from(c.unsigned_abs()).unwrap_or(u32::MAX));
+        sum = sum.saturating_add(a * a);
     }
     isqrt(sum)
 }
