@@ -535,10 +535,7 @@ impl Server {
 
     fn safety(&self, now: Instant, elapsed_us: u64, overrun: bool) -> Option<Safety> {
         let c = &self.config;
-        let fresh = |at: Instant, limit: u32| {
-            now.micros_since(at)
-                .is_none_or(|age| age <= u64::from(limit))
-        };
+        let fresh = |at: Instant, limit: u32| fresh(now, at, limit);
         // The waits move nothing: a drive that is off while the board waits is no fault.
         let waiting = self.current.id >= super::BUILTIN_IDS;
         if !waiting {
@@ -724,6 +721,14 @@ fn excess(c: &Config, p: &Pose, out: &mut [u32; AXES]) {
         let above = i64::from(*v) - i64::from(*hi);
         *o = below.max(above).max(0).min(i64::from(u32::MAX)) as u32;
     }
+}
+
+/// Whether a reading from `at` is at most `limit` µs old at `now` (one from the future is).
+// Out of line: the pose's, the wrench's and the sensors' tests each inlined a copy.
+#[inline(never)]
+fn fresh(now: Instant, at: Instant, limit: u32) -> bool {
+    now.micros_since(at)
+        .is_none_or(|age| age <= u64::from(limit))
 }
 
 /// |v| > limit, without a root.
