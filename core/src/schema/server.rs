@@ -352,10 +352,7 @@ impl Server {
     ///
     /// Refused when invalid, when it names an unknown innate schema, or when the queue is full.
     pub fn enqueue(&mut self, schema: Schema) -> Result<usize, Refusal> {
-        self.admit(&schema)?;
-        self.queue
-            .push_back(schema)
-            .map_err(|_| Refusal::QueueFull)?;
+        self.submit(schema, false)?;
         Ok(self.queue.len())
     }
 
@@ -365,7 +362,20 @@ impl Server {
     /// Refused when invalid, when it names an unknown innate schema, or when one is already
     /// waiting.
     pub fn high_priority(&mut self, schema: Schema) -> Result<(), Refusal> {
+        self.submit(schema, true)
+    }
+
+    /// [`Server::high_priority`] with `high_priority`, else [`Server::enqueue`]: for a runner
+    /// that takes both channels' schemas from one kind of message (one call site, one move of
+    /// the schema).
+    pub fn submit(&mut self, schema: Schema, high_priority: bool) -> Result<(), Refusal> {
         self.admit(&schema)?;
+        if !high_priority {
+            return self
+                .queue
+                .push_back(schema)
+                .map_err(|_| Refusal::QueueFull);
+        }
         if self.high_priority.is_some() {
             return Err(Refusal::Busy);
         }
