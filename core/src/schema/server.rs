@@ -212,7 +212,7 @@ impl Config {
             return Err(ConfigError::ForceLimit);
         }
         for (i, s) in self.innate.iter().enumerate() {
-            if s.check().is_err() || !innate_known(s, self.innate.len()) {
+            if admit(s, self.innate.len()).is_err() {
                 return Err(ConfigError::Innate(i as u8));
             }
         }
@@ -220,12 +220,21 @@ impl Config {
     }
 }
 
-/// Whether every innate source of `s` is within a table of `count`.
-fn innate_known(s: &Schema, count: usize) -> bool {
-    s.reactions.iter().all(|r| match r.next {
+/// Checks `s` ([`Schema::check`]) and that every innate source of it is within a table of
+/// `count`: a client's schema against the board's table, an innate one against its own.
+// Out of line: the set-up's check and a client's schema each inlined a copy.
+#[inline(never)]
+fn admit(s: &Schema, count: usize) -> Result<(), Refusal> {
+    s.check().map_err(Refusal::Invalid)?;
+    let known = s.reactions.iter().all(|r| match r.next {
         Source::Innate(i) => usize::from(i) < count,
         Source::Queue | Source::HighPriority => true,
-    })
+    });
+    if known {
+        Ok(())
+    } else {
+        Err(Refusal::UnknownInnate)
+    }
 }
 
 /// What a tick produced.
@@ -369,7 +378,7 @@ impl Server {
     /// that takes both channels' schemas from one kind of message (one call site, one move of
     /// the schema).
     pub fn submit(&mut self, schema: Schema, high_priority: bool) -> Result<(), Refusal> {
-        self.admit(&schema)?;
+        admit(&schema, self.config.innate.len())?;
         if !high_priority {
             return self
                 .queue
@@ -381,15 +390,6 @@ impl Server {
         }
         self.high_priority = Some(schema);
         Ok(())
-    }
-
-    fn admit(&self, schema: &Schema) -> Result<(), Refusal> {
-        schema.check().map_err(Refusal::Invalid)?;
-        if innate_known(schema, self.config.innate.len()) {
-            Ok(())
-        } else {
-            Err(Refusal::UnknownInnate)
-        }
     }
 
     /// Abort: at the next tick the current schema ends, the queue is emptied and the server
