@@ -727,9 +727,15 @@ fn excess(c: &Config, p: &Pose, out: &mut [u32; AXES]) {
         .zip(&c.workspace_min)
         .zip(&c.workspace_max)
     {
-        let below = i64::from(*lo) - i64::from(*v);
-        let above = i64::from(*v) - i64::from(*hi);
-        *o = below.max(above).max(0).min(i64::from(u32::MAX)) as u32;
+        // In 32 bits: a checked workspace has lo ≤ hi, so at most one side is exceeded, and
+        // the distance between two `i32` fits a `u32`.
+        *o = if v < lo {
+            lo.abs_diff(*v)
+        } else if v > hi {
+            v.abs_diff(*hi)
+        } else {
+            0
+        };
     }
 }
 
