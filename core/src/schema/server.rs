@@ -751,8 +751,9 @@ fn fresh(now: Instant, at: Instant, limit: u32) -> bool {
 // Out of line: the force's and the torque's tests each inlined a copy.
 #[inline(never)]
 fn magnitude_above(v: [i32; 3], limit: u32) -> bool {
+    // Each square is at most 2^62 (|c| ≤ 2^31), three of them below 2^64: plain adds.
     let sum = v.iter().fold(0u64, |s, c| {
-        s.saturating_add(u64::from(c.unsigned_abs()) * u64::from(c.unsigned_abs()))
+        s + u64::from(c.unsigned_abs()) * u64::from(c.unsigned_abs())
     });
     sum > u64::from(limit) * u64::from(limit)
 }
