@@ -545,12 +545,16 @@ impl Server {
 
     fn safety(&self, now: Instant, elapsed_us: u64, overrun: bool) -> Option<Safety> {
         let c = &self.config;
-        let fresh = |at: Instant, limit: u32| fresh(now, at, limit);
         // The waits move nothing: a drive that is off while the board waits is no fault.
         let waiting = self.current.id >= super::BUILTIN_IDS;
         if !waiting {
-            let pose_ok = self.pose.is_some_and(|(_, at)| fresh(at, c.stale_us));
-            let wrench_ok = self.wrench.is_some_and(|(_, at)| fresh(at, c.stale_us));
+            let pose_ok = self.pose.is_some_and(|(_, at)| fresh(now, at, c.stale_us));
+            let wrench_ok = self.wrench.is_some_and(|(_, at)| fresh(now, at, c.stale_us));
+            // Inlined in the loop: up to 16 calls a tick.
+            let fresh = |at: Instant, limit: u32| {
+                now.micros_since(at)
+                    .is_none_or(|age| age <= u64::from(limit))
+            };
             let sensors_ok = self.current.reactions.iter().all(|r| match r.event {
                 Event::Above(Measure::Sensor(s), _) | Event::Below(Measure::Sensor(s), _) => self
                     .sensors
@@ -740,7 +744,7 @@ fn excess(c: &Config, p: &Pose, out: &mut [u32; AXES]) {
 }
 
 /// Whether a reading from `at` is at most `limit` µs old at `now` (one from the future is).
-// Out of line: the pose's, the wrench's and the sensors' tests each inlined a copy.
+// Out of line: the pose's and the wrench's tests each inlined a copy.
 #[inline(never)]
 fn fresh(now: Instant, at: Instant, limit: u32) -> bool {
     now.micros_since(at)
