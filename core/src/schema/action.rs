@@ -176,23 +176,21 @@ impl Action {
     }
 
     /// The direction the action moves the attractor in (translation), for
-    /// [`super::Measure::Contact`]: its vector and length, or a zero length.
-    pub(crate) fn heading(&self, progress: &Progress) -> ([i64; 3], u64) {
+    /// [`super::Measure::Contact`]: its vector and length, or a zero length (by reference: no
+    /// copy of the vector made).
+    pub(crate) fn heading<'a>(&self, progress: &'a Progress) -> (&'a [i64], u64) {
         match self {
-            Action::MoveTo { .. } | Action::MoveToTouch { .. } => {
-                let [x, y, z, ..] = progress.dir;
-                (
-                    [x, y, z],
-                    if progress.translates {
-                        progress.norm
-                    } else {
-                        0
-                    },
-                )
-            }
+            Action::MoveTo { .. } | Action::MoveToTouch { .. } => (
+                &progress.dir[..3],
+                if progress.translates {
+                    progress.norm
+                } else {
+                    0
+                },
+            ),
             // The preload presses down.
-            Action::BlindSearch { .. } => ([0, 0, -1], 1),
-            _ => ([0; 3], 0),
+            Action::BlindSearch { .. } => (&[0, 0, -1], 1),
+            _ => (&[], 0),
         }
     }
 
