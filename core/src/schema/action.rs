@@ -229,14 +229,15 @@ impl Action {
     }
 
     /// One iteration: updates `out` from the action's state, `elapsed_us` after it started and
-    /// `period_us` after the previous iteration; `measured` is the sensor table's pose.
+    /// `period_us` after the previous iteration; `measured` is the sensor table's pose (`None`
+    /// before the first: the attractor stays).
     pub(crate) fn iterate(
         &self,
         p: &mut Progress,
         out: &mut Setpoint,
         elapsed_us: u64,
         period_us: u32,
-        measured: &Pose,
+        measured: Option<&Pose>,
     ) {
         let elapsed_ms = elapsed_us / 1000;
         match *self {
@@ -253,8 +254,10 @@ impl Action {
             Action::Relieve => {
                 // Element by element: a whole-array assignment here became a call to memmove,
                 // which the boards do not otherwise link (1.5 KB).
-                for (o, m) in out.attractor.iter_mut().zip(measured) {
-                    *o = *m;
+                if let Some(measured) = measured {
+                    for (o, m) in out.attractor.iter_mut().zip(measured) {
+                        *o = *m;
+                    }
                 }
                 p.done = true;
             }

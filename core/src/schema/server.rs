@@ -514,13 +514,13 @@ impl Server {
 
     fn iterate(&mut self, now: Instant) {
         let elapsed = self.elapsed_us(now);
-        let measured = self.pose.map_or(self.setpoint.attractor, |(p, _)| p);
+        // By reference: a copy of the pose (or the attractor) each tick otherwise.
         self.current.action.iterate(
             &mut self.progress,
             &mut self.setpoint,
             elapsed,
             self.config.period_us,
-            &measured,
+            self.pose.as_ref().map(|(p, _)| p),
         );
     }
 
