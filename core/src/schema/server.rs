@@ -284,14 +284,13 @@ impl Server {
     ///
     /// Fails when the set-up is invalid ([`Config::check`]).
     pub fn new(config: Config) -> Result<Server, ConfigError> {
-        config.check()?;
         let setpoint = Setpoint {
             attractor: [0; AXES],
             stiffness: config.stiffness,
             damping: config.damping,
             gripper: Gripper::Open,
         };
-        Ok(Server {
+        let server = Server {
             current: wait_queue(),
             origin: Origin::Queue,
             progress: Progress::default(),
@@ -312,7 +311,11 @@ impl Server {
             sensors: [None; MAX_SENSORS],
             last_tick: None,
             config,
-        })
+        };
+        // Checked once built, in place: a check of the argument before the move kept a copy of
+        // the set-up (2 KB with its innate schemas) for it, and its code.
+        server.config.check()?;
+        Ok(server)
     }
 
     /// The set-up.
