@@ -638,9 +638,7 @@ impl Server {
             Measure::Sensor(s) => {
                 return self
                     .sensors
-                    .get(usize::from(s))
-                    .copied()
-                    .flatten()
+                    .get(usize::from(s))?
                     .map(|(v, _)| i64::from(v));
             }
         };
