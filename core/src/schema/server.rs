@@ -577,9 +577,9 @@ impl Server {
             return Some(Safety::Limit);
         }
         if let Some((w, _)) = &self.wrench {
-            let [fx, fy, fz, tx, ty, tz] = *w;
-            if magnitude_above([fx, fy, fz], c.force_limit)
-                || (c.torque_limit != 0 && magnitude_above([tx, ty, tz], c.torque_limit))
+            let (force, torque) = w.split_at(3);
+            if magnitude_above(force, c.force_limit)
+                || (c.torque_limit != 0 && magnitude_above(torque, c.torque_limit))
             {
                 return Some(Safety::Force);
             }
@@ -752,11 +752,12 @@ fn fresh(now: Instant, at: Instant, limit: u32) -> bool {
         .is_none_or(|age| age <= u64::from(limit))
 }
 
-/// |v| > limit, without a root.
+/// |v| > limit, without a root; `v` is a force's or a torque's three components.
 // Out of line: the force's and the torque's tests each inlined a copy.
 #[inline(never)]
-fn magnitude_above(v: [i32; 3], limit: u32) -> bool {
-    // Each square is at most 2^62 (|c| ≤ 2^31), three of them below 2^64: plain adds.
+fn magnitude_above(v: &[i32], limit: u32) -> bool {
+    // Each square is at most 2^62 (|c| ≤ 2^31), three of them (a force, a torque) below 2^64:
+    // plain adds.
     let sum = v.iter().fold(0u64, |s, c| {
         s + u64::from(c.unsigned_abs()) * u64::from(c.unsigned_abs())
     });
