@@ -156,9 +156,7 @@ impl Action {
             | Action::Release { settle_ms: ms } => return Some(u64::from(ms) * 1000),
             Action::Gripper(_) | Action::SetImpedance { .. } | Action::Relieve => return Some(0),
             // The start measured the line (a move's length, a touch-down's distance) already.
-            Action::MoveTo { speed, .. } | Action::MoveToTouch { speed, .. } => {
-                (p.distance, speed)
-            }
+            Action::MoveTo { speed, .. } | Action::MoveToTouch { speed, .. } => (p.distance, speed),
             Action::BlindSearch {
                 pitch,
                 speed,

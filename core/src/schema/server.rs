@@ -383,10 +383,7 @@ impl Server {
     pub fn submit(&mut self, schema: Schema, high_priority: bool) -> Result<(), Refusal> {
         admit(&schema, self.config.innate.len())?;
         if !high_priority {
-            return self
-                .queue
-                .push_back(schema)
-                .map_err(|_| Refusal::QueueFull);
+            return self.queue.push_back(schema).map_err(|_| Refusal::QueueFull);
         }
         if self.high_priority.is_some() {
             return Err(Refusal::Busy);
@@ -552,19 +549,20 @@ impl Server {
         let waiting = self.current.id >= super::BUILTIN_IDS;
         if !waiting {
             let pose_ok = self.pose.is_some_and(|(_, at)| fresh(now, at, c.stale_us));
-            let wrench_ok = self.wrench.is_some_and(|(_, at)| fresh(now, at, c.stale_us));
-            // Inlined in the loop: up to 16 calls a tick.
-            let fresh = |at: Instant, limit: u32| {
-                now.micros_since(at)
-                    .is_none_or(|age| age <= u64::from(limit))
-            };
+            let wrench_ok = self
+                .wrench
+                .is_some_and(|(_, at)| fresh(now, at, c.stale_us));
+            // The sensors' test inlined, not `fresh`: up to 16 calls a tick.
             let sensors_ok = self.current.reactions.iter().all(|r| match r.event {
                 Event::Above(Measure::Sensor(s), _) | Event::Below(Measure::Sensor(s), _) => self
                     .sensors
                     .get(usize::from(s))
                     .copied()
                     .flatten()
-                    .is_some_and(|(_, at)| fresh(at, c.sensor_stale_us)),
+                    .is_some_and(|(_, at)| {
+                        now.micros_since(at)
+                            .is_none_or(|age| age <= u64::from(c.sensor_stale_us))
+                    }),
                 _ => true,
             });
             if !(pose_ok && wrench_ok && sensors_ok) {
@@ -636,10 +634,7 @@ impl Server {
                 return Some(super::action::div_toward_zero(dot.saturating_neg(), norm));
             }
             Measure::Sensor(s) => {
-                return self
-                    .sensors
-                    .get(usize::from(s))?
-                    .map(|(v, _)| i64::from(v));
+                return self.sensors.get(usize::from(s))?.map(|(v, _)| i64::from(v));
             }
         };
         let axis = usize::from(axis);
