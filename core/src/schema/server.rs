@@ -650,9 +650,13 @@ impl Server {
     // Out of line: the limit's test and the tick's step 6 each inlined a copy.
     #[inline(never)]
     fn excess_grew(&self, p: &Pose, then: &[u32; AXES]) -> bool {
-        let mut now = [0; AXES];
-        excess(&self.config, p, &mut now);
-        now.iter().zip(then).any(|(now, then)| now > then)
+        let c = &self.config;
+        // Axis by axis, without an array of the excesses.
+        p.iter()
+            .zip(&c.workspace_min)
+            .zip(&c.workspace_max)
+            .zip(then)
+            .any(|(((v, lo), hi), then)| axis_excess(*v, *lo, *hi) > *then)
     }
 
     /// Step 5 for a safety event: the recovery schema (relieve, then wait on the high-priority
@@ -727,15 +731,19 @@ fn excess(c: &Config, p: &Pose, out: &mut [u32; AXES]) {
         .zip(&c.workspace_min)
         .zip(&c.workspace_max)
     {
-        // In 32 bits: a checked workspace has lo ≤ hi, so at most one side is exceeded, and
-        // the distance between two `i32` fits a `u32`.
-        *o = if v < lo {
-            lo.abs_diff(*v)
-        } else if v > hi {
-            v.abs_diff(*hi)
-        } else {
-            0
-        };
+        *o = axis_excess(*v, *lo, *hi);
+    }
+}
+
+/// How far `v` is outside `lo..=hi`. In 32 bits: a checked workspace has lo ≤ hi, so at most
+/// one side is exceeded, and the distance between two `i32` fits a `u32`.
+fn axis_excess(v: i32, lo: i32, hi: i32) -> u32 {
+    if v < lo {
+        lo.abs_diff(v)
+    } else if v > hi {
+        v.abs_diff(hi)
+    } else {
+        0
     }
 }
 
