@@ -6,7 +6,7 @@
 //! an arm's reach and a wrist's turn. A value beyond is sent saturated (a limit event stops the
 //! robot long before).
 
-use super::{AXES, Gripper, Pose, Setpoint};
+use super::{Gripper, Pose, Setpoint};
 
 /// The largest value a field holds: 2^20 − 1.
 pub const FIELD_MAX: i32 = (1 << 20) - 1;
@@ -55,8 +55,11 @@ pub fn impedance_frame(s: &Setpoint) -> [u8; 8] {
 
 /// Puts three values from a frame into `pose` at `axis` (0: translation, 3: rotation).
 pub fn place(pose: &mut Pose, axis: usize, values: [i32; 3]) {
-    for (slot, v) in pose.iter_mut().skip(axis).take(AXES / 2).zip(values) {
-        *slot = v;
+    // By index, those that fit: a zip with the array by value copied it first.
+    for (i, v) in values.iter().enumerate() {
+        if let Some(slot) = pose.get_mut(axis.saturating_add(i)) {
+            *slot = *v;
+        }
     }
 }
 
