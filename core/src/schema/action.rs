@@ -322,8 +322,9 @@ impl Progress {
 
     /// The attractor `progress` along `dir` from `start`, into `out` (no copy made and moved).
     fn along_line(&self, out: &mut Pose) {
-        for (o, s) in out.iter_mut().zip(self.start) {
-            *o = s;
+        // By reference: zipped by value, the arrays were copied first.
+        for (o, s) in out.iter_mut().zip(&self.start) {
+            *o = *s;
         }
         if self.norm == 0 {
             return;
@@ -332,7 +333,7 @@ impl Progress {
         // in i32, or a direction within MAX_COORD): the product is below 2^63, so a plain
         // multiply (a saturating 64-bit one is several times its code); norm > 0.
         let s = self.progress.min(1 << 31) as i64;
-        for (o, d) in out.iter_mut().zip(self.dir) {
+        for (o, d) in out.iter_mut().zip(&self.dir) {
             *o = clamp(i64::from(*o) + div_toward_zero(d * s, self.norm));
         }
     }
