@@ -64,7 +64,7 @@ impl Drive {
     /// two frames share one.
     pub fn check(&self) -> Result<(), SetupError> {
         let ranges = self.ranges();
-        for (id, count) in ranges {
+        for (id, count) in &ranges {
             // The last identifier of the range fits its format only if the first does, and
             // refuses with the same error (the format's) when either does not.
             OutputId::new(id.raw().saturating_add(count - 1), id.is_extended())
