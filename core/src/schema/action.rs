@@ -354,12 +354,14 @@ impl Progress {
             // below these bounds; saturating keeps a schema without one finite.
             let length = length.min(1 << 40) as i64;
             let (axis, backwards) = leg_axis(self.leg);
-            let c = &mut self.corner[axis];
-            *c = if backwards {
-                c.saturating_sub(length)
-            } else {
-                c.saturating_add(length)
-            };
+            // `axis` is 0 or 1: the `None` never happens (and the check compiles away).
+            if let Some(c) = self.corner.get_mut(axis) {
+                *c = if backwards {
+                    c.saturating_sub(length)
+                } else {
+                    c.saturating_add(length)
+                };
+            }
             self.leg = self.leg.saturating_add(1);
             self.along = 0;
         }
@@ -371,12 +373,13 @@ impl Progress {
         // ≤ a leg's length, which is ≤ pitch × 2^31 < 2^61.
         let along = self.along.min(pitch.max(1) * (u64::from(self.leg) / 2 + 1)) as i64;
         let mut point = self.corner;
-        let c = &mut point[axis];
-        *c = if backwards {
-            c.saturating_sub(along)
-        } else {
-            c.saturating_add(along)
-        };
+        if let Some(c) = point.get_mut(axis) {
+            *c = if backwards {
+                c.saturating_sub(along)
+            } else {
+                c.saturating_add(along)
+            };
+        }
         (point[0], point[1])
     }
 }
