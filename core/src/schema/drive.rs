@@ -26,13 +26,10 @@ pub fn pack(values: [i32; 3], flag: bool) -> [u8; 8] {
 pub fn unpack(data: &[u8]) -> Option<([i32; 3], bool)> {
     let bytes: [u8; 8] = data.try_into().ok()?;
     let word = u64::from_le_bytes(bytes);
-    let mut values = [0i32; 3];
-    for (i, v) in values.iter_mut().enumerate() {
-        let field = ((word >> (21 * i)) & 0x1F_FFFF) as u32;
-        // Sign-extend from bit 20.
-        *v = ((field << 11) as i32) >> 11;
-    }
-    Some((values, word >> 63 != 0))
+    // The field's 21 bits at the top of a u32 (the shift drops the bits above them), then
+    // sign-extended from bit 20; constant shifts, as in `pack`.
+    let field = |shift: u32| ((((word >> shift) as u32) << 11) as i32) >> 11;
+    Some(([field(0), field(21), field(42)], word >> 63 != 0))
 }
 
 /// The two attractor frames of a set-point: translation (flag: gripper closed) and rotation.
