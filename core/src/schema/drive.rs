@@ -17,7 +17,9 @@ pub const FIELD_MIN: i32 = -(1 << 20);
 // Out of line: the attractor's two frames each inlined a copy.
 #[inline(never)]
 pub fn pack(values: [i32; 3], flag: bool) -> [u8; 8] {
-    let [x, y, z] = values.map(|v| u64::from(v.clamp(FIELD_MIN, FIELD_MAX) as u32 & 0x1F_FFFF));
+    let field = |v: i32| u64::from(v.clamp(FIELD_MIN, FIELD_MAX) as u32 & 0x1F_FFFF);
+    let [x, y, z] = values;
+    let (x, y, z) = (field(x), field(y), field(z));
     // Constant shifts: a 64-bit shift by a variable is a dozen instructions on a Cortex-M4.
     (x | y << 21 | z << 42 | u64::from(flag) << 63).to_le_bytes()
 }
