@@ -80,13 +80,18 @@ pub type Wrench = [i32; AXES];
 
 pub(crate) use crate::isqrt::isqrt;
 
-/// The Euclidean length of the translational part of `v` (µm), floor.
-pub(crate) fn length3(v: &[i64; AXES]) -> u64 {
+/// The Euclidean length of `v`, three differences of coordinates (a translation, µm, or a
+/// rotation, µrad), floor.
+// Out of line: a move's translation and its rotation each inlined a copy.
+#[inline(never)]
+pub(crate) fn length(v: &[i64]) -> u64 {
     let mut sum = 0u64;
-    for c in v.iter().take(3) {
-        // |c| ≤ 2^31 (a difference of two coordinates within MAX_COORD, or one of them), so
-        // each square is below 2^62 and three of them below 2^64.
-        sum = sum.saturating_add(c.unsigned_abs().saturating_mul(c.unsigned_abs()));
+    for c in v {
+        // A difference of two `i32` coordinates is below 2^32 in magnitude: its square is a
+        // 32 × 32-bit product (the conversion saturates only what cannot occur), and three of
+        // them are summed saturating.
+        let a = u64::from(u32::try_from(c.unsigned_abs()).unwrap_or(u32::MAX));
+        sum = sum.saturating_add(a * a);
     }
     isqrt(sum)
 }

@@ -13,7 +13,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{AXES, Pose, isqrt, length3};
+use super::{AXES, Pose, length};
 use crate::wire::{Decode, Reader};
 
 /// A gripper command.
@@ -148,19 +148,15 @@ impl Action {
     /// The time the action takes if nothing stops it, µs (`None`: unbounded, an idle for
     /// ever), `p` its [`Action::start`]. The watchdog's default budget is made from it.
     pub(crate) fn nominal_us(&self, p: &Progress) -> Option<u64> {
-        let travel = |distance: u64, speed: u32| {
-            distance.saturating_mul(MICROS_PER_SECOND) / u64::from(speed.max(1))
-        };
-        match *self {
-            Action::Idle { ms: 0 } => None,
+        // The distance and speed of the travelling actions, then one division for them all.
+        let (distance, speed) = match *self {
+            Action::Idle { ms: 0 } => return None,
             Action::Idle { ms }
             | Action::Grasp { settle_ms: ms }
-            | Action::Release { settle_ms: ms } => Some(u64::from(ms) * 1000),
-            Action::Gripper(_) | Action::SetImpedance { .. } | Action::Relieve => Some(0),
+            | Action::Release { settle_ms: ms } => return Some(u64::from(ms) * 1000),
+            Action::Gripper(_) | Action::SetImpedance { .. } | Action::Relieve => return Some(0),
             // The start measured the line (a move's length, a touch-down's distance) already.
-            Action::MoveTo { speed, .. } | Action::MoveToTouch { speed, .. } => {
-                Some(travel(p.distance, speed))
-            }
+            Action::MoveTo { speed, .. } | Action::MoveToTouch { speed, .. } => (p.distance, speed),
             Action::BlindSearch {
                 pitch,
                 speed,
@@ -168,68 +164,78 @@ impl Action {
                 ..
             } => {
                 // Legs come in pairs of length pitch·n for n = 1, 2, … while pitch·n ≤ 2·radius:
-                // pitch·n(n+1) in all.
-                let n = u64::from(radius) * 2 / u64::from(pitch.max(1));
-                Some(travel(u64::from(pitch).saturating_mul(n * (n + 1)), speed))
+                // pitch·n(n+1) in all. A checked radius is below 2^29: a 32-bit division; and
+                // pitch·n ≤ 2·radius whatever the radius, so the product is below 2^64.
+                let n = radius.saturating_mul(2) / pitch.max(1);
+                (u64::from(pitch * n) * (u64::from(n) + 1), speed)
             }
-        }
+        };
+        Some(distance.saturating_mul(MICROS_PER_SECOND) / u64::from(speed.max(1)))
     }
 
     /// The direction the action moves the attractor in (translation), for
-    /// [`super::Measure::Contact`]: its vector and length, or a zero length.
-    pub(crate) fn heading(&self, progress: &Progress) -> ([i64; 3], u64) {
+    /// [`super::Measure::Contact`]: its vector and length, or a zero length (by reference: no
+    /// copy of the vector made).
+    pub(crate) fn heading<'a>(&self, progress: &'a Progress) -> (&'a [i64], u64) {
         match self {
-            Action::MoveTo { .. } | Action::MoveToTouch { .. } => {
-                let [x, y, z, ..] = progress.dir;
-                (
-                    [x, y, z],
-                    if progress.translates {
-                        progress.norm
-                    } else {
-                        0
-                    },
-                )
-            }
+            Action::MoveTo { .. } | Action::MoveToTouch { .. } => (
+                &progress.dir[..3],
+                if progress.translates {
+                    progress.norm
+                } else {
+                    0
+                },
+            ),
             // The preload presses down.
-            Action::BlindSearch { .. } => ([0, 0, -1], 1),
-            _ => ([0; 3], 0),
+            Action::BlindSearch { .. } => (&[0, 0, -1], 1),
+            _ => (&[], 0),
         }
     }
 
-    /// Starts the action from the attractor `from`.
-    pub(crate) fn start(&self, from: &Pose) -> Progress {
-        let mut p = Progress {
+    /// Starts the action from the attractor `from`, into `p` (in place: the server's own field,
+    /// not a copy made and moved in).
+    pub(crate) fn start(&self, from: &Pose, p: &mut Progress) {
+        *p = Progress {
             start: *from,
             ..Progress::default()
         };
-        // One call of `direction` for both moves: it is large, and inlined or not, a call each
-        // cost more code than choosing its arguments.
-        let (to, from, touch) = match *self {
-            Action::MoveTo { goal, .. } => (goal, *from, None),
+        // One computation of the line for both moves: it is large, and a copy each cost more
+        // code than choosing its ends.
+        let (to, origin, touch) = match self {
+            Action::MoveTo { goal, .. } => (goal, from, None),
             Action::MoveToTouch {
-                direction: d,
+                direction,
                 distance,
                 ..
-            } => (d, [0; AXES], Some(distance)),
-            _ => return p,
+            } => (direction, &[0; AXES], Some(*distance)),
+            _ => return,
         };
-        let (dir, norm) = direction(&to, &from, touch.is_none());
-        p.dir = dir;
-        p.norm = norm;
-        p.distance = touch.map_or(norm, u64::from);
-        p.translates = touch.is_some() || dir.iter().take(3).any(|c| *c != 0);
-        p
+        for ((d, t), f) in p.dir.iter_mut().zip(to).zip(origin) {
+            *d = i64::from(*t) - i64::from(*f);
+        }
+        // The length over the translational axes; for a move without translation, over the
+        // rotational ones.
+        let (translation, rotation) = p.dir.split_at(3);
+        p.translates = translation.iter().any(|c| *c != 0);
+        p.norm = if p.translates || touch.is_some() {
+            length(translation)
+        } else {
+            length(rotation)
+        };
+        p.distance = touch.map_or(p.norm, u64::from);
+        p.translates |= touch.is_some();
     }
 
     /// One iteration: updates `out` from the action's state, `elapsed_us` after it started and
-    /// `period_us` after the previous iteration; `measured` is the sensor table's pose.
+    /// `period_us` after the previous iteration; `measured` is the sensor table's pose (`None`
+    /// before the first: the attractor stays).
     pub(crate) fn iterate(
         &self,
         p: &mut Progress,
         out: &mut Setpoint,
         elapsed_us: u64,
         period_us: u32,
-        measured: &Pose,
+        measured: Option<&Pose>,
     ) {
         let elapsed_ms = elapsed_us / 1000;
         match *self {
@@ -246,8 +252,10 @@ impl Action {
             Action::Relieve => {
                 // Element by element: a whole-array assignment here became a call to memmove,
                 // which the boards do not otherwise link (1.5 KB).
-                for (o, m) in out.attractor.iter_mut().zip(measured) {
-                    *o = *m;
+                if let Some(measured) = measured {
+                    for (o, m) in out.attractor.iter_mut().zip(measured) {
+                        *o = *m;
+                    }
                 }
                 p.done = true;
             }
@@ -314,8 +322,9 @@ impl Progress {
 
     /// The attractor `progress` along `dir` from `start`, into `out` (no copy made and moved).
     fn along_line(&self, out: &mut Pose) {
-        for (o, s) in out.iter_mut().zip(self.start) {
-            *o = s;
+        // By reference: zipped by value, the arrays were copied first.
+        for (o, s) in out.iter_mut().zip(&self.start) {
+            *o = *s;
         }
         if self.norm == 0 {
             return;
@@ -324,7 +333,7 @@ impl Progress {
         // in i32, or a direction within MAX_COORD): the product is below 2^63, so a plain
         // multiply (a saturating 64-bit one is several times its code); norm > 0.
         let s = self.progress.min(1 << 31) as i64;
-        for (o, d) in out.iter_mut().zip(self.dir) {
+        for (o, d) in out.iter_mut().zip(&self.dir) {
             *o = clamp(i64::from(*o) + div_toward_zero(d * s, self.norm));
         }
     }
@@ -341,12 +350,18 @@ impl Progress {
                 return;
             }
             step -= length - self.along;
-            let (dx, dy) = leg_direction(self.leg);
             // Legs grow by one pitch per pair: a search stopped by its watchdog stays far
             // below these bounds; saturating keeps a schema without one finite.
             let length = length.min(1 << 40) as i64;
-            self.corner[0] = self.corner[0].saturating_add(dx * length);
-            self.corner[1] = self.corner[1].saturating_add(dy * length);
+            let (axis, backwards) = leg_axis(self.leg);
+            // `axis` is 0 or 1: the `None` never happens (and the check compiles away).
+            if let Some(c) = self.corner.get_mut(axis) {
+                *c = if backwards {
+                    c.saturating_sub(length)
+                } else {
+                    c.saturating_add(length)
+                };
+            }
             self.leg = self.leg.saturating_add(1);
             self.along = 0;
         }
@@ -354,24 +369,25 @@ impl Progress {
 
     /// The spiral's point, relative to its centre.
     fn spiral_point(&self, pitch: u64) -> (i64, i64) {
-        let (dx, dy) = leg_direction(self.leg);
+        let (axis, backwards) = leg_axis(self.leg);
         // ≤ a leg's length, which is ≤ pitch × 2^31 < 2^61.
         let along = self.along.min(pitch.max(1) * (u64::from(self.leg) / 2 + 1)) as i64;
-        (
-            self.corner[0].saturating_add(dx * along),
-            self.corner[1].saturating_add(dy * along),
-        )
+        let mut point = self.corner;
+        if let Some(c) = point.get_mut(axis) {
+            *c = if backwards {
+                c.saturating_sub(along)
+            } else {
+                c.saturating_add(along)
+            };
+        }
+        (point[0], point[1])
     }
 }
 
-/// +x, +y, −x, −y, …
-fn leg_direction(leg: u32) -> (i64, i64) {
-    match leg % 4 {
-        0 => (1, 0),
-        1 => (0, 1),
-        2 => (-1, 0),
-        _ => (0, -1),
-    }
+/// A leg's axis (0: x, 1: y) and whether it runs backwards: +x, +y, −x, −y, … (an axis and a
+/// sign rather than a unit vector: no multiply by it).
+fn leg_axis(leg: u32) -> (usize, bool) {
+    ((leg % 2) as usize, leg % 4 >= 2)
 }
 
 /// A triangle wave of amplitude `a` and period `t_ms`, 0 at t = 0, rising first.
@@ -397,24 +413,6 @@ fn triangle(t_ms: u64, a: u32, t_ms_period: u32) -> i64 {
 pub(crate) fn div_toward_zero(v: i64, d: u64) -> i64 {
     let q = (v.unsigned_abs() / d.max(1)).min(i64::MAX as u64) as i64;
     if v < 0 { -q } else { q }
-}
-
-/// `to − from` and its length: over the translational axes, or (`rotation_if_still` and no
-/// translation) over the rotational ones.
-fn direction(to: &Pose, from: &Pose, rotation_if_still: bool) -> ([i64; AXES], u64) {
-    let mut d = [0i64; AXES];
-    for ((d, t), f) in d.iter_mut().zip(to).zip(from) {
-        *d = i64::from(*t) - i64::from(*f);
-    }
-    let mut norm = length3(&d);
-    if norm == 0 && rotation_if_still {
-        let mut sum = 0u64;
-        for c in d.iter().skip(3) {
-            sum = sum.saturating_add(c.unsigned_abs().saturating_mul(c.unsigned_abs()));
-        }
-        norm = isqrt(sum);
-    }
-    (d, norm)
 }
 
 /// An `i64` coordinate back into an `i32` (saturating: never reached with coordinates within

@@ -102,8 +102,15 @@ impl Decode for Event {
             1 => Event::Done,
             2 => Event::Elapsed(r.u32()),
             3 => Event::QueueReady,
-            4 => Event::Above(r.decode(), r.i32()),
-            _ => Event::Below(r.decode(), r.i32()),
+            variant => {
+                // Both thresholds: one read of the measure and the value.
+                let (m, t) = (r.decode(), r.i32());
+                if variant == 4 {
+                    Event::Above(m, t)
+                } else {
+                    Event::Below(m, t)
+                }
+            }
         }
     }
 }

@@ -116,21 +116,21 @@ fn pose_within(p: &super::Pose) -> bool {
 }
 
 fn check_action(a: &Action) -> Result<(), SchemaError> {
-    let (ranged, degenerate) = match *a {
+    // Each action's largest integer and its pose, then one range check for them all.
+    let (largest, pose, degenerate) = match *a {
         Action::Idle { ms }
         | Action::Grasp { settle_ms: ms }
-        | Action::Release { settle_ms: ms } => (within(ms), false),
-        Action::Gripper(_) | Action::Relieve => (true, false),
-        Action::SetImpedance { stiffness, damping } => {
-            (within(stiffness) && within(damping), false)
-        }
-        Action::MoveTo { goal, speed } => (pose_within(&goal) && within(speed), speed == 0),
+        | Action::Release { settle_ms: ms } => (ms, None, false),
+        Action::Gripper(_) | Action::Relieve => (0, None, false),
+        Action::SetImpedance { stiffness, damping } => (stiffness.max(damping), None, false),
+        Action::MoveTo { ref goal, speed } => (speed, Some(goal), speed == 0),
         Action::MoveToTouch {
-            direction,
+            ref direction,
             speed,
             distance,
         } => (
-            pose_within(&direction) && within(speed) && within(distance),
+            speed.max(distance),
+            Some(direction),
             speed == 0 || direction[..3] == [0; 3],
         ),
         Action::BlindSearch {
@@ -141,12 +141,17 @@ fn check_action(a: &Action) -> Result<(), SchemaError> {
             wobble,
             wobble_ms,
         } => (
-            [preload, pitch, speed, radius, wobble, wobble_ms]
-                .into_iter()
-                .all(within),
+            preload
+                .max(pitch)
+                .max(speed)
+                .max(radius)
+                .max(wobble)
+                .max(wobble_ms),
+            None,
             speed == 0 || pitch == 0 || (wobble != 0 && wobble_ms == 0),
         ),
     };
+    let ranged = within(largest) && pose.is_none_or(pose_within);
     if !ranged {
         Err(SchemaError::OutOfRange)
     } else if degenerate {

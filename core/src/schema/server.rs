@@ -212,7 +212,7 @@ impl Config {
             return Err(ConfigError::ForceLimit);
         }
         for (i, s) in self.innate.iter().enumerate() {
-            if s.check().is_err() || !innate_known(s, self.innate.len()) {
+            if admit(s, self.innate.len()).is_err() {
                 return Err(ConfigError::Innate(i as u8));
             }
         }
@@ -220,12 +220,21 @@ impl Config {
     }
 }
 
-/// Whether every innate source of `s` is within a table of `count`.
-fn innate_known(s: &Schema, count: usize) -> bool {
-    s.reactions.iter().all(|r| match r.next {
+/// Checks `s` ([`Schema::check`]) and that every innate source of it is within a table of
+/// `count`: a client's schema against the board's table, an innate one against its own.
+// Out of line: the set-up's check and a client's schema each inlined a copy.
+#[inline(never)]
+fn admit(s: &Schema, count: usize) -> Result<(), Refusal> {
+    s.check().map_err(Refusal::Invalid)?;
+    let known = s.reactions.iter().all(|r| match r.next {
         Source::Innate(i) => usize::from(i) < count,
         Source::Queue | Source::HighPriority => true,
-    })
+    });
+    if known {
+        Ok(())
+    } else {
+        Err(Refusal::UnknownInnate)
+    }
 }
 
 /// What a tick produced.
@@ -275,14 +284,13 @@ impl Server {
     ///
     /// Fails when the set-up is invalid ([`Config::check`]).
     pub fn new(config: Config) -> Result<Server, ConfigError> {
-        config.check()?;
         let setpoint = Setpoint {
             attractor: [0; AXES],
             stiffness: config.stiffness,
             damping: config.damping,
             gripper: Gripper::Open,
         };
-        Ok(Server {
+        let server = Server {
             current: wait_queue(),
             origin: Origin::Queue,
             progress: Progress::default(),
@@ -303,7 +311,11 @@ impl Server {
             sensors: [None; MAX_SENSORS],
             last_tick: None,
             config,
-        })
+        };
+        // Checked once built, in place: a check of the argument before the move kept a copy of
+        // the set-up (2 KB with its innate schemas) for it, and its code.
+        server.config.check()?;
+        Ok(server)
     }
 
     /// The set-up.
@@ -328,7 +340,13 @@ impl Server {
 
     /// Milliseconds from the installed schema's installation to `now` (0 if `now` is before).
     pub fn elapsed_ms(&self, now: Instant) -> u64 {
-        now.micros_since(self.installed_at).unwrap_or(0) / 1000
+        self.elapsed_us(now) / 1000
+    }
+
+    /// Microseconds from the installed schema's installation to `now` (0 if `now` is before):
+    /// the watchdog's, the reactions' and the action's one clock.
+    fn elapsed_us(&self, now: Instant) -> u64 {
+        now.micros_since(self.installed_at).unwrap_or(0)
     }
 
     /// The safety event the server is stopped on, until the high-priority channel installs a
@@ -346,10 +364,7 @@ impl Server {
     ///
     /// Refused when invalid, when it names an unknown innate schema, or when the queue is full.
     pub fn enqueue(&mut self, schema: Schema) -> Result<usize, Refusal> {
-        self.admit(&schema)?;
-        self.queue
-            .push_back(schema)
-            .map_err(|_| Refusal::QueueFull)?;
+        self.submit(schema, false)?;
         Ok(self.queue.len())
     }
 
@@ -359,21 +374,22 @@ impl Server {
     /// Refused when invalid, when it names an unknown innate schema, or when one is already
     /// waiting.
     pub fn high_priority(&mut self, schema: Schema) -> Result<(), Refusal> {
-        self.admit(&schema)?;
+        self.submit(schema, true)
+    }
+
+    /// [`Server::high_priority`] with `high_priority`, else [`Server::enqueue`]: for a runner
+    /// that takes both channels' schemas from one kind of message (one call site, one move of
+    /// the schema).
+    pub fn submit(&mut self, schema: Schema, high_priority: bool) -> Result<(), Refusal> {
+        admit(&schema, self.config.innate.len())?;
+        if !high_priority {
+            return self.queue.push_back(schema).map_err(|_| Refusal::QueueFull);
+        }
         if self.high_priority.is_some() {
             return Err(Refusal::Busy);
         }
         self.high_priority = Some(schema);
         Ok(())
-    }
-
-    fn admit(&self, schema: &Schema) -> Result<(), Refusal> {
-        schema.check().map_err(Refusal::Invalid)?;
-        if innate_known(schema, self.config.innate.len()) {
-            Ok(())
-        } else {
-            Err(Refusal::UnknownInnate)
-        }
     }
 
     /// Abort: at the next tick the current schema ends, the queue is emptied and the server
@@ -459,26 +475,22 @@ impl Server {
                     Source::Innate(i) => self.config.innate.get(usize::from(i)),
                     Source::Queue | Source::HighPriority => None,
                 };
-                match (next, innate) {
-                    (_, Some(s)) => {
-                        let s = s.clone();
-                        self.install(s, Origin::Innate, by, now, &mut transitions);
-                    }
-                    (Source::Queue, None) => {
-                        let s = self.queue.pop_front().unwrap_or_else(wait_queue);
-                        self.install(s, Origin::Queue, by, now, &mut transitions);
-                    }
+                // One install for every source: a call each cost more code than choosing its
+                // schema.
+                let (s, origin) = match (next, innate) {
+                    (_, Some(s)) => (s.clone(), Origin::Innate),
+                    (Source::Queue, None) => (
+                        self.queue.pop_front().unwrap_or_else(wait_queue),
+                        Origin::Queue,
+                    ),
                     // One wait for the high-priority source and an unknown innate index (checked
                     // when the schema was admitted; a wait is the safe answer): a copy of the
                     // built-in schema less.
-                    (Source::Innate(_) | Source::HighPriority, None) => self.install(
-                        wait_high_priority(),
-                        Origin::HighPriority,
-                        by,
-                        now,
-                        &mut transitions,
-                    ),
-                }
+                    (Source::Innate(_) | Source::HighPriority, None) => {
+                        (wait_high_priority(), Origin::HighPriority)
+                    }
+                };
+                self.install(s, origin, by, now, &mut transitions);
             }
             None => {}
         }
@@ -501,52 +513,56 @@ impl Server {
     }
 
     fn iterate(&mut self, now: Instant) {
-        let elapsed = now.micros_since(self.installed_at).unwrap_or(0);
-        let measured = self.pose.map_or(self.setpoint.attractor, |(p, _)| p);
+        let elapsed = self.elapsed_us(now);
+        // By reference: a copy of the pose (or the attractor) each tick otherwise.
         self.current.action.iterate(
             &mut self.progress,
             &mut self.setpoint,
             elapsed,
             self.config.period_us,
-            &measured,
+            self.pose.as_ref().map(|(p, _)| p),
         );
     }
 
     /// Steps 3 and 4: the safety event, or the first reaction that holds (its index, event and
     /// source), or nothing.
     fn trigger(&self, now: Instant, overrun: bool) -> Option<Result<(u8, Event, Source), Safety>> {
+        // Read once for the watchdog and every reaction.
+        let elapsed_us = self.elapsed_us(now);
         if self.fault.is_none()
-            && let Some(cause) = self.safety(now, overrun)
+            && let Some(cause) = self.safety(now, elapsed_us, overrun)
         {
             return Some(Err(cause));
         }
         let one_shot = self.progress.iterations >= 1;
         for (i, r) in self.current.reactions.iter().enumerate() {
-            if self.holds(r, one_shot, now) {
+            if self.holds(r, one_shot, elapsed_us) {
                 return Some(Ok((i as u8, r.event, r.next)));
             }
         }
         None
     }
 
-    fn safety(&self, now: Instant, overrun: bool) -> Option<Safety> {
+    fn safety(&self, now: Instant, elapsed_us: u64, overrun: bool) -> Option<Safety> {
         let c = &self.config;
-        let fresh = |at: Instant, limit: u32| {
-            now.micros_since(at)
-                .is_none_or(|age| age <= u64::from(limit))
-        };
         // The waits move nothing: a drive that is off while the board waits is no fault.
         let waiting = self.current.id >= super::BUILTIN_IDS;
         if !waiting {
-            let pose_ok = self.pose.is_some_and(|(_, at)| fresh(at, c.stale_us));
-            let wrench_ok = self.wrench.is_some_and(|(_, at)| fresh(at, c.stale_us));
+            let pose_ok = self.pose.is_some_and(|(_, at)| fresh(now, at, c.stale_us));
+            let wrench_ok = self
+                .wrench
+                .is_some_and(|(_, at)| fresh(now, at, c.stale_us));
+            // The sensors' test inlined, not `fresh`: up to 16 calls a tick.
             let sensors_ok = self.current.reactions.iter().all(|r| match r.event {
                 Event::Above(Measure::Sensor(s), _) | Event::Below(Measure::Sensor(s), _) => self
                     .sensors
                     .get(usize::from(s))
                     .copied()
                     .flatten()
-                    .is_some_and(|(_, at)| fresh(at, c.sensor_stale_us)),
+                    .is_some_and(|(_, at)| {
+                        now.micros_since(at)
+                            .is_none_or(|age| age <= u64::from(c.sensor_stale_us))
+                    }),
                 _ => true,
             });
             if !(pose_ok && wrench_ok && sensors_ok) {
@@ -559,18 +575,14 @@ impl Server {
             return Some(Safety::Limit);
         }
         if let Some((w, _)) = &self.wrench {
-            let [fx, fy, fz, tx, ty, tz] = *w;
-            if magnitude_above([fx, fy, fz], c.force_limit)
-                || (c.torque_limit != 0 && magnitude_above([tx, ty, tz], c.torque_limit))
+            let (force, torque) = w.split_at(3);
+            if magnitude_above(force, c.force_limit)
+                || (c.torque_limit != 0 && magnitude_above(torque, c.torque_limit))
             {
                 return Some(Safety::Force);
             }
         }
-        if let Some(budget) = self.budget_us
-            && now
-                .micros_since(self.installed_at)
-                .is_some_and(|t| t > budget)
-        {
+        if self.budget_us.is_some_and(|budget| elapsed_us > budget) {
             return Some(Safety::Watchdog);
         }
         if overrun {
@@ -579,8 +591,7 @@ impl Server {
         None
     }
 
-    fn holds(&self, r: &Reaction, one_shot: bool, now: Instant) -> bool {
-        let elapsed_us = now.micros_since(self.installed_at).unwrap_or(0);
+    fn holds(&self, r: &Reaction, one_shot: bool, elapsed_us: u64) -> bool {
         let (m, threshold, above) = match r.event {
             Event::OneShot => return one_shot,
             Event::Done => return self.progress.done,
@@ -601,15 +612,13 @@ impl Server {
 
     /// A value of the sensor table, or `None` when it has never been received.
     fn measure(&self, m: Measure) -> Option<i64> {
-        let axis = |v: &[i32; AXES], a: u8| v.get(usize::from(a)).copied().map(i64::from);
-        match m {
-            Measure::Position(a) => axis(&self.pose?.0, a),
-            Measure::Displacement(a) => {
-                Some(axis(&self.pose?.0, a)? - axis(&self.pose_at_install, a)?)
-            }
-            Measure::Force(a) => axis(&self.wrench?.0, a),
+        // The three measures of an axis share one read of it.
+        let (values, axis, relative) = match m {
+            Measure::Position(a) => (&self.pose.as_ref()?.0, a, false),
+            Measure::Displacement(a) => (&self.pose.as_ref()?.0, a, true),
+            Measure::Force(a) => (&self.wrench.as_ref()?.0, a, false),
             Measure::Contact => {
-                let (w, _) = self.wrench?;
+                let (w, _) = self.wrench.as_ref()?;
                 let (d, norm) = self.current.action.heading(&self.progress);
                 if norm == 0 {
                     return Some(0);
@@ -622,14 +631,18 @@ impl Server {
                     .iter()
                     .zip(d)
                     .fold(0i64, |s, (f, d)| s.saturating_add(i64::from(*f) * d));
-                Some(super::action::div_toward_zero(dot.saturating_neg(), norm))
+                return Some(super::action::div_toward_zero(dot.saturating_neg(), norm));
             }
-            Measure::Sensor(s) => self
-                .sensors
-                .get(usize::from(s))
-                .copied()
-                .flatten()
-                .map(|(v, _)| i64::from(v)),
+            Measure::Sensor(s) => {
+                return self.sensors.get(usize::from(s))?.map(|(v, _)| i64::from(v));
+            }
+        };
+        let axis = usize::from(axis);
+        let value = i64::from(*values.get(axis)?);
+        if relative {
+            Some(value - i64::from(*self.pose_at_install.get(axis)?))
+        } else {
+            Some(value)
         }
     }
 
@@ -637,9 +650,13 @@ impl Server {
     // Out of line: the limit's test and the tick's step 6 each inlined a copy.
     #[inline(never)]
     fn excess_grew(&self, p: &Pose, then: &[u32; AXES]) -> bool {
-        let mut now = [0; AXES];
-        excess(&self.config, p, &mut now);
-        now.iter().zip(then).any(|(now, then)| now > then)
+        let c = &self.config;
+        // Axis by axis, without an array of the excesses.
+        p.iter()
+            .zip(&c.workspace_min)
+            .zip(&c.workspace_max)
+            .zip(then)
+            .any(|(((v, lo), hi), then)| axis_excess(*v, *lo, *hi) > *then)
     }
 
     /// Step 5 for a safety event: the recovery schema (relieve, then wait on the high-priority
@@ -671,7 +688,7 @@ impl Server {
     ) {
         let attractor = self.setpoint.attractor;
         let measured = self.pose.map_or(attractor, |(p, _)| p);
-        self.progress = schema.action.start(&attractor);
+        schema.action.start(&attractor, &mut self.progress);
         self.budget_us = if schema.id >= super::BUILTIN_IDS {
             None
         } else if schema.watchdog_ms != 0 {
@@ -714,18 +731,38 @@ fn excess(c: &Config, p: &Pose, out: &mut [u32; AXES]) {
         .zip(&c.workspace_min)
         .zip(&c.workspace_max)
     {
-        let below = i64::from(*lo) - i64::from(*v);
-        let above = i64::from(*v) - i64::from(*hi);
-        *o = below.max(above).max(0).min(i64::from(u32::MAX)) as u32;
+        *o = axis_excess(*v, *lo, *hi);
     }
 }
 
-/// |v| > limit, without a root.
+/// How far `v` is outside `lo..=hi`. In 32 bits: a checked workspace has lo ≤ hi, so at most
+/// one side is exceeded, and the distance between two `i32` fits a `u32`.
+fn axis_excess(v: i32, lo: i32, hi: i32) -> u32 {
+    if v < lo {
+        lo.abs_diff(v)
+    } else if v > hi {
+        v.abs_diff(hi)
+    } else {
+        0
+    }
+}
+
+/// Whether a reading from `at` is at most `limit` µs old at `now` (one from the future is).
+// Out of line: the pose's and the wrench's tests each inlined a copy.
+#[inline(never)]
+fn fresh(now: Instant, at: Instant, limit: u32) -> bool {
+    now.micros_since(at)
+        .is_none_or(|age| age <= u64::from(limit))
+}
+
+/// |v| > limit, without a root; `v` is a force's or a torque's three components.
 // Out of line: the force's and the torque's tests each inlined a copy.
 #[inline(never)]
-fn magnitude_above(v: [i32; 3], limit: u32) -> bool {
+fn magnitude_above(v: &[i32], limit: u32) -> bool {
+    // Each square is at most 2^62 (|c| ≤ 2^31), three of them (a force, a torque) below 2^64:
+    // plain adds.
     let sum = v.iter().fold(0u64, |s, c| {
-        s.saturating_add(u64::from(c.unsigned_abs()) * u64::from(c.unsigned_abs()))
+        s + u64::from(c.unsigned_abs()) * u64::from(c.unsigned_abs())
     });
     sum > u64::from(limit) * u64::from(limit)
 }

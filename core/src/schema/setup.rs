@@ -64,24 +64,26 @@ impl Drive {
     /// two frames share one.
     pub fn check(&self) -> Result<(), SetupError> {
         let ranges = self.ranges();
-        for (id, count) in ranges {
-            id.validate().map_err(SetupError::DriveId)?;
-            // The last identifier of the range must fit too.
+        for (id, count) in &ranges {
+            // The last identifier of the range fits its format only if the first does, and
+            // refuses with the same error (the format's) when either does not.
             OutputId::new(id.raw().saturating_add(count - 1), id.is_extended())
                 .map_err(SetupError::DriveId)?;
         }
-        for (i, (a, n)) in ranges.iter().enumerate() {
-            for (b, m) in ranges.iter().skip(i + 1) {
-                let overlap = a.is_extended() == b.is_extended()
-                    && a.raw() < b.raw().saturating_add(*m)
-                    && b.raw() < a.raw().saturating_add(*n);
-                if overlap {
-                    return Err(SetupError::DriveOverlap);
-                }
+        for (i, a) in ranges.iter().enumerate() {
+            if ranges.iter().skip(i + 1).any(|b| overlap(*a, *b)) {
+                return Err(SetupError::DriveOverlap);
             }
         }
         Ok(())
     }
+}
+
+/// Whether two ranges of identifiers (the first, and the count from it) share one.
+fn overlap((a, n): (OutputId, u32), (b, m): (OutputId, u32)) -> bool {
+    a.is_extended() == b.is_extended()
+        && a.raw() < b.raw().saturating_add(m)
+        && b.raw() < a.raw().saturating_add(n)
 }
 
 impl Setup {
@@ -98,10 +100,7 @@ impl Setup {
             s.field
                 .validate()
                 .map_err(|e| refuse(SensorError::Field(e)))?;
-            let on_drive = ranges.iter().any(|(id, n)| {
-                id.is_extended() == s.id.is_extended() && s.id.raw().wrapping_sub(id.raw()) < *n
-            });
-            if on_drive {
+            if ranges.iter().any(|r| overlap(*r, (s.id, 1))) {
                 return Err(refuse(SensorError::DriveOverlap));
             }
         }

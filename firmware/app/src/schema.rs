@@ -162,12 +162,10 @@ impl SchemaRuntime {
                 } else {
                     match (channel, decoded) {
                         (0 | 1, Err(e)) => Err(SchemaOutcome::from(&e)),
-                        (0 | 1, Ok(s)) => if channel == 0 {
-                            self.server.enqueue(s).map(|_| ())
-                        } else {
-                            self.server.high_priority(s)
-                        }
-                        .map_err(|r| SchemaOutcome::from(&r)),
+                        (0 | 1, Ok(s)) => self
+                            .server
+                            .submit(s, channel == 1)
+                            .map_err(|r| SchemaOutcome::from(&r)),
                         _ => Err(SchemaOutcome::BadChannel),
                     }
                 };
