@@ -739,8 +739,24 @@ impl Message {
     /// registers taken apart and put back together into words after the match (488 bytes of
     /// the boards' flash, and 142 instructions of the heartbeat group).
     pub fn to_frame(&self, source: u8, destination: u8) -> Frame {
-        let id = FrameId::new(self.service(), source, destination).id();
-        let (data, len): (u64, u8) = match self {
+        let (data, len) = match self.report_payload() {
+            Some(payload) => payload,
+            None => self.command_payload(),
+        };
+        frame(self.service(), source, destination, data, len)
+    }
+
+    /// [`Message::to_frame`] for what a node sends: its reports, answers and gates; `None` for
+    /// a command (the tool's, the intention node's, a stop), which no node sends. A node links
+    /// only this encoder: the commands' took about 100 bytes of the boards' flash.
+    pub fn report_frame(&self, source: u8, destination: u8) -> Option<Frame> {
+        let (data, len) = self.report_payload()?;
+        Some(frame(self.service(), source, destination, data, len))
+    }
+
+    /// The payload of a message a node sends, and its length; `None` for a command.
+    fn report_payload(&self) -> Option<(u64, u8)> {
+        Some(match self {
             Message::Fault(fault) => {
                 let [c0, c1] = fault.code.code().to_le_bytes();
                 let [d0, d1, d2, d3, d4] = fault.detail;
@@ -773,7 +789,6 @@ impl Message {
                     8,
                 )
             }
-            Message::DiagnosticControl(control) => (le_word(control_bytes(control, [0; 4])), 4),
             Message::TableTransfer { data, len } | Message::SchemaTransfer { data, len } => {
                 // The bytes the frame carries; a length beyond 8 carries all 8.
                 let len = (*len).min(8);
@@ -792,10 +807,6 @@ impl Message {
                     8,
                 )
             }
-            Message::AuthenticatedDiagnosticControl { control, tag } => {
-                (le_word(control_bytes(control, *tag)), 8)
-            }
-            Message::ChallengeRequest | Message::EmergencyStop | Message::SchemaAbort => (0, 0),
             // The schema server's reports as two words each: fewer instructions than eight byte
             // stores on the boards (their encoders took 200 bytes of flash as byte arrays).
             Message::SchemaAck(ack) => {
@@ -831,11 +842,6 @@ impl Message {
                 (words(low, high), 8)
             }
             Message::Challenge { nonce } => (*nonce, 8),
-            Message::TransferOpen(open) => {
-                let [l0, l1] = open.length.to_le_bytes();
-                let [t0, t1, t2, t3, t4] = open.tag;
-                (le_word([l0, l1, open.flags, t0, t1, t2, t3, t4]), 8)
-            }
             Message::Receipt { tag } => (le_word(*tag), 8),
             Message::Gates(gates) => {
                 let [m0, m1, m2, m3] = gates.mask.to_le_bytes();
@@ -853,13 +859,6 @@ impl Message {
                     8,
                 )
             }
-            Message::Desire(desire) => {
-                let [i0, i1] = desire.intensity.to_le_bytes();
-                let [l0, l1] = desire.lease_ms.to_le_bytes();
-                let [d0, d1] = desire.id.to_le_bytes();
-                (le_word([desire.class, 0, i0, i1, l0, l1, d0, d1]), 8)
-            }
-            Message::Intention(intention) => (intention.strategies, 8),
             Message::FilterStatus(status) => {
                 let [s0, s1] = status.sequence.to_le_bytes();
                 (
@@ -889,6 +888,41 @@ impl Message {
                 ]),
                 4,
             ),
+            // Named one by one, so that a new message is put on one side or the other.
+            Message::DiagnosticControl(_)
+            | Message::AuthenticatedDiagnosticControl { .. }
+            | Message::ChallengeRequest
+            | Message::TransferOpen(_)
+            | Message::Desire(_)
+            | Message::Intention(_)
+            | Message::FilterProfile(_)
+            | Message::FilterSet(_)
+            | Message::EmergencyStop
+            | Message::SchemaAbort => return None,
+        })
+    }
+
+    /// The payload of a command, and its length (a message a node sends has none here: see
+    /// [`Message::report_payload`]).
+    fn command_payload(&self) -> (u64, u8) {
+        match self {
+            Message::DiagnosticControl(control) => (le_word(control_bytes(control, [0; 4])), 4),
+            Message::AuthenticatedDiagnosticControl { control, tag } => {
+                (le_word(control_bytes(control, *tag)), 8)
+            }
+            Message::ChallengeRequest | Message::EmergencyStop | Message::SchemaAbort => (0, 0),
+            Message::TransferOpen(open) => {
+                let [l0, l1] = open.length.to_le_bytes();
+                let [t0, t1, t2, t3, t4] = open.tag;
+                (le_word([l0, l1, open.flags, t0, t1, t2, t3, t4]), 8)
+            }
+            Message::Desire(desire) => {
+                let [i0, i1] = desire.intensity.to_le_bytes();
+                let [l0, l1] = desire.lease_ms.to_le_bytes();
+                let [d0, d1] = desire.id.to_le_bytes();
+                (le_word([desire.class, 0, i0, i1, l0, l1, d0, d1]), 8)
+            }
+            Message::Intention(intention) => (intention.strategies, 8),
             Message::FilterProfile(switch) => {
                 let [s0, s1] = switch.sequence.to_le_bytes();
                 (le_word([switch.profile, 0, s0, s1, 0, 0, 0, 0]), 4)
@@ -900,8 +934,8 @@ impl Message {
                     6,
                 )
             }
-        };
-        Frame::from_buffer(id, data.to_le_bytes(), len)
+            _ => (0, 0),
+        }
     }
 
     /// Decodes a frame of our protocol: its addresses and its message.
@@ -1206,6 +1240,16 @@ impl Message {
             _ => return Err(bad),
         })
     }
+}
+
+/// The frame of `service` from `source` to `destination` with the first `len` bytes of `data`
+/// (little endian).
+fn frame(service: Service, source: u8, destination: u8, data: u64, len: u8) -> Frame {
+    Frame::from_buffer(
+        FrameId::new(service, source, destination).id(),
+        data.to_le_bytes(),
+        len,
+    )
 }
 
 /// Two little-endian `u32`s, one after the other.
@@ -1541,6 +1585,26 @@ mod tests {
             } else if message.service() != Service::TableTransfer {
                 assert_eq!(frame.payload().len(), message.service().payload_len());
             }
+        }
+    }
+
+    #[test]
+    fn a_nodes_encoder_is_to_frame_without_the_commands() {
+        for message in samples() {
+            let command = matches!(
+                message.service(),
+                Service::DiagnosticControl
+                    | Service::ChallengeRequest
+                    | Service::TransferOpen
+                    | Service::Desire
+                    | Service::Intention
+                    | Service::FilterProfile
+                    | Service::FilterSet
+                    | Service::EmergencyStop
+                    | Service::SchemaAbort
+            );
+            let expected = (!command).then(|| message.to_frame(3, 9));
+            assert_eq!(message.report_frame(3, 9), expected, "{message:?}");
         }
     }
 

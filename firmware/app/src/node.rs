@@ -808,8 +808,11 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 let Some(sample) = self.diagnostic.next_sample(arbiter, now) else {
                     break;
                 };
-                let frame =
-                    Message::Diagnostic(sample).to_frame(self.config.node_id, protocol::BROADCAST);
+                let Some(frame) = Message::Diagnostic(sample)
+                    .report_frame(self.config.node_id, protocol::BROADCAST)
+                else {
+                    break;
+                };
                 if enqueue_cold(&mut self.outbox, frame).is_err() {
                     break;
                 }
@@ -1449,14 +1452,17 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         let running_version = self
             .running
             .map_or(0, |running| running.header.table_version);
-        let message = Message::TransferStatus(TransferStatus {
+        let Some(frame) = Message::TransferStatus(TransferStatus {
             status,
             detail,
             running_version,
-        });
-        self.send(message, source);
+        })
+        .report_frame(self.config.node_id, source) else {
+            return;
+        };
+        self.queue(frame);
         if let Some(nonce) = nonce {
-            let frame = message.to_frame(self.config.node_id, source);
+            // The Receipt is over the bytes of the TransferStatus just queued.
             let mut payload = [0u8; 8];
             for (slot, byte) in payload.iter_mut().zip(frame.payload()) {
                 *slot = *byte;
@@ -1531,10 +1537,13 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     }
 
     /// Out of line: eleven senders (answers, statuses, the heartbeat group) each inlined the
-    /// encoding's call and the queueing.
+    /// encoding's call and the queueing. A node sends no command: [`Message::report_frame`]
+    /// has none to encode.
     #[inline(never)]
     fn send(&mut self, message: Message, destination: u8) {
-        self.queue(message.to_frame(self.config.node_id, destination));
+        if let Some(frame) = message.report_frame(self.config.node_id, destination) {
+            self.queue(frame);
+        }
     }
 
     /// Queues a frame of our protocol (an answer, a claim) over the diagnostic stream if need
