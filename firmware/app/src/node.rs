@@ -398,8 +398,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
 
     /// Reports a frame that could not be sent (the bus is congested or the controller is off).
     pub fn on_transmit_error(&mut self, now: Instant) {
-        self.counters.errors = self.counters.errors.wrapping_add(1);
-        self.raise(FaultCode::TxOverrun, [0; 5]);
+        self.error(FaultCode::TxOverrun, [0; 5]);
         self.duties(now);
     }
 
@@ -689,8 +688,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             return;
         };
         if arbiter.on_gates(source, gates, now).is_err() {
-            self.counters.errors = self.counters.errors.wrapping_add(1);
-            self.raise(
+            self.error(
                 FaultCode::GatesRefused,
                 [source, gates.group, gates.behaviours, 0, 0],
             );
@@ -741,8 +739,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 Err(_) => (3, claim.node, claim.group),
             },
         };
-        self.counters.errors = self.counters.errors.wrapping_add(1);
-        self.raise(FaultCode::ClaimRefused, [reason, node, group, 0, 0]);
+        self.error(FaultCode::ClaimRefused, [reason, node, group, 0, 0]);
     }
 
     /// The reception of a transfer timed out: its sender learns why.
@@ -965,8 +962,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 .enqueue_over_diagnostic(frame.republished(output.id()))
                 .is_err()
         {
-            self.counters.errors = self.counters.errors.wrapping_add(1);
-            self.faults.raise(FaultCode::TxOverrun, [1, 0, 0, 0, 0]);
+            self.error(FaultCode::TxOverrun, [1, 0, 0, 0, 0]);
         }
     }
 
@@ -985,9 +981,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 // Count malformed frames addressed to us; other nodes' business is not ours.
                 let addressed = FrameId::decode(&frame.id()).is_some_and(|id| id.is_for(node_id));
                 if addressed {
-                    self.counters.errors = self.counters.errors.wrapping_add(1);
                     let service = FrameId::decode(&frame.id()).map_or(0, |id| id.service.code());
-                    self.raise(FaultCode::BadCommand, [service, 0, 0, 0, 0]);
+                    self.error(FaultCode::BadCommand, [service, 0, 0, 0, 0]);
                 }
                 return Step::Continue;
             }
@@ -1175,8 +1170,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     #[inline(never)]
     fn unauthenticated(&mut self, failure: AuthFailure, id: &FrameId) {
         warn!("configuration refused: {}", failure);
-        self.counters.errors = self.counters.errors.wrapping_add(1);
-        self.raise(
+        self.error(
             FaultCode::Unauthenticated,
             [failure.code(), id.service.code(), id.source, 0, 0],
         );
@@ -1566,8 +1560,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             Err(frame) => self.enqueue_in_place_of_diagnostic(frame),
         };
         if queued.is_err() {
-            self.counters.errors = self.counters.errors.wrapping_add(1);
-            self.faults.raise(FaultCode::TxOverrun, [0; 5]);
+            self.error(FaultCode::TxOverrun, [0; 5]);
         }
     }
 
@@ -1606,6 +1599,14 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
 
     fn raise(&mut self, code: FaultCode, detail: [u8; 5]) {
         self.faults.raise(code, detail);
+    }
+
+    /// An error: counted ([`Counters::errors`]), and its fault raised. Out of line: one copy of
+    /// the count for its seven callers.
+    #[inline(never)]
+    fn error(&mut self, code: FaultCode, detail: [u8; 5]) {
+        self.counters.errors = self.counters.errors.wrapping_add(1);
+        self.raise(code, detail);
     }
 }
 
