@@ -979,10 +979,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             Ok(None) => return Step::Continue,
             Err(_) => {
                 // Count malformed frames addressed to us; other nodes' business is not ours.
-                let addressed = FrameId::decode(&frame.id()).is_some_and(|id| id.is_for(node_id));
-                if addressed {
-                    let service = FrameId::decode(&frame.id()).map_or(0, |id| id.service.code());
-                    self.error(FaultCode::BadCommand, [service, 0, 0, 0, 0]);
+                if let Some(id) = FrameId::decode(&frame.id())
+                    && id.is_for(node_id)
+                {
+                    self.error(FaultCode::BadCommand, [id.service.code(), 0, 0, 0, 0]);
                 }
                 return Step::Continue;
             }
