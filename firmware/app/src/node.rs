@@ -276,20 +276,21 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                     running.stored = true;
                 }
             }
-            Err((TransferStatusCode::WrongNode, image_node)) => {
-                warn!(
-                    "stored table refused: the image is for node {}, this node is {}; starting without a table",
-                    u32::from(image_node),
-                    u32::from(node_id)
-                );
-                self.boot_fault = Some([TransferStatusCode::WrongNode.code(), image_node, 0, 0, 0]);
-            }
             Err((status, detail)) => {
-                warn!(
-                    "stored table refused: {} (detail {}); starting without a table",
-                    status,
-                    u32::from(detail)
-                );
+                if status == TransferStatusCode::WrongNode {
+                    warn!(
+                        "stored table refused: the image is for node {}, this node is {}; starting without a table",
+                        u32::from(detail),
+                        u32::from(node_id)
+                    );
+                } else {
+                    warn!(
+                        "stored table refused: {} (detail {}); starting without a table",
+                        status,
+                        u32::from(detail)
+                    );
+                }
+                // For WrongNode, the detail is the image's node id.
                 self.boot_fault = Some([status.code(), detail, 0, 0, 0]);
             }
         }
