@@ -40,6 +40,10 @@ pub const OUTBOX_LEN: usize = 16;
 /// Room the diagnostic stream leaves free in the outbox for everything else.
 const DIAGNOSTIC_RESERVE: usize = 6;
 
+/// No connection reported delivering yet, at any port. A constant rather than a repeat
+/// expression in [`Node::new`], which wrote it on the stack tag by tag and then copied it.
+const NOTHING_EXPLOITED: [Option<u8>; pab_core::MAX_PORTS] = [None; pab_core::MAX_PORTS];
+
 /// What the runner must do after [`Node::on_frame`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -222,7 +226,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             diagnostic: DiagnosticStream::default(),
             faults: FaultLimiter::new(config.fault_interval_us),
             filter_sequence: 0,
-            exploited: [None; pab_core::MAX_PORTS],
+            exploited: NOTHING_EXPLOITED,
             outbox: heapless::Vec::new(),
             #[cfg(feature = "schema")]
             schema: None,
