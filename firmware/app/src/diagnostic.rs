@@ -66,13 +66,13 @@ impl DiagnosticStream {
             Some(cursor) => cursor,
             None => {
                 // Not yet time for the next round.
-                now.micros_since(self.next_round)?;
+                let late = now.micros_since(self.next_round)?;
                 // Schedule from the nominal start, unless we fell more than a period behind
                 // (then from now, skipping the missed rounds).
-                let nominal = self.next_round.wrapping_add_micros(period);
-                self.next_round = match nominal.micros_since(now) {
-                    Some(_) => nominal,
-                    None => now.wrapping_add_micros(period),
+                self.next_round = if late <= period {
+                    self.next_round.wrapping_add_micros(period)
+                } else {
+                    now.wrapping_add_micros(period)
                 };
                 self.sequence = self.sequence.wrapping_add(1);
                 self.first_from(arbiter, 0)?

@@ -99,10 +99,11 @@ where
                 node.on_transmit_error(now());
             }
         }
-        let now_us = now().as_micros();
-        let deadline = node.deadline(now()).as_micros();
+        // One reading of the clock for both: the node's deadline and the next feed.
+        let now_at = now();
+        let deadline = node.deadline(now_at).as_micros();
         let wake = embassy_time::Instant::from_micros(
-            deadline.min(now_us.saturating_add(W::FEED_INTERVAL_US)),
+            deadline.min(now_at.as_micros().saturating_add(W::FEED_INTERVAL_US)),
         );
         let step = match select(bus.receive(), Timer::at(wake)).await {
             Either::First(Ok(frame)) => node.on_frame(&frame, now(), consumer),

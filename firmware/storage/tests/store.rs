@@ -377,3 +377,60 @@ fn errors_display() {
         "image of 20000 bytes exceeds the 8168 bytes a slot holds"
     );
 }
+
+/// A flash that reads whole 4-byte words only (`READ_SIZE` 4), over a board's memory: every read
+/// the store makes must start and end on a word.
+struct WordReads(BoardFlash);
+
+impl embedded_storage::nor_flash::ErrorType for WordReads {
+    type Error = pab_storage::testing::MemFlashError;
+}
+
+impl embedded_storage::nor_flash::ReadNorFlash for WordReads {
+    const READ_SIZE: usize = 4;
+
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        assert!(
+            offset.is_multiple_of(4) && bytes.len().is_multiple_of(4),
+            "read of {} bytes at {offset}",
+            bytes.len()
+        );
+        self.0.read(offset, bytes)
+    }
+
+    fn capacity(&self) -> usize {
+        self.0.capacity()
+    }
+}
+
+impl NorFlash for WordReads {
+    const WRITE_SIZE: usize = BoardFlash::WRITE_SIZE;
+    const ERASE_SIZE: usize = BoardFlash::ERASE_SIZE;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        self.0.erase(from, to)
+    }
+
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        self.0.write(offset, bytes)
+    }
+}
+
+#[test]
+fn images_of_any_length_round_trip_through_word_reads() {
+    let mut store =
+        FlashStore::new(WordReads(BoardFlash::new()), BOARD_RANGE, BOARD_SLOT).expect("layout");
+    let images = [
+        image_v1(),
+        image_v2(),
+        image_ports(3, 3),
+        image_connections(5, 4),
+    ];
+    assert!(images.iter().any(|image| image.len() % 4 != 0));
+    for image in &images {
+        save(&mut store, image).expect("save");
+        assert_eq!(load(&mut store), Ok(Some(image.clone())));
+    }
+    let mut store = FlashStore::new(store.into_flash(), BOARD_RANGE, BOARD_SLOT).expect("layout");
+    assert_eq!(load(&mut store), Ok(Some(images[3].clone())));
+}
