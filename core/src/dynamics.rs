@@ -57,7 +57,8 @@
 //! dynamics-cost.sh, the boards' `firmware` profile): about 1 700 instructions for 4 behaviours,
 //! 5 900 for 16 and 11 500 for 32 with one presupposition per pair, 18 300 for 32 where every
 //! behaviour requires all those before it; 1.0 % to 10.8 % of a 170 MHz core at 1 kHz, counting
-//! one cycle per instruction. The step's code is about 1.4 KiB, the tanh table 708 bytes.
+//! one cycle per instruction. The step's code is about 1.4 KiB, the tanh table 522 bytes
+//! (its entries near 1 kept as 16-bit distances to 1).
 
 use crate::isqrt::isqrt;
 use heapless::Vec;
@@ -543,6 +544,60 @@ const TANH: [u32; TANH_LEN + 1] = {
     table
 };
 
+/// 1.0 in Q2.30, the format of tanh and of the table's entries as the step reads them.
+const ONE_Q30: i32 = 1 << 30;
+
+/// From this k on, 1 − tanh(k / 16) is below 2^16 in Q2.30 (5.5e-5 at k = 84): the board keeps
+/// those entries as their distance to 1 in a `u16` ([`TANH_TAIL`]), the others in Q2.30
+/// ([`TANH_HEAD`]), 186 bytes of flash fewer than [`TANH`] (708). Both are [`TANH`]'s entries
+/// exactly (`tests::split_table_is_the_table`).
+const TANH_NEAR_ONE: usize = 84;
+
+/// tanh(k / 16) in Q2.30 for k < [`TANH_NEAR_ONE`]: [`TANH`]'s entries rounded to Q2.30.
+const TANH_HEAD: [u32; TANH_NEAR_ONE] = {
+    let mut head = [0; TANH_NEAR_ONE];
+    let mut k = 0;
+    while k < TANH_NEAR_ONE {
+        if let (Some((_, [slot, ..])), Some((_, [t, ..]))) =
+            (head.split_at_mut_checked(k), TANH.split_at_checked(k))
+        {
+            *slot = (*t + 1) >> 1;
+        }
+        k += 1;
+    }
+    head
+};
+
+/// 1 − tanh(k / 16) in Q2.30 for k from [`TANH_NEAR_ONE`] to 176: [`TANH`]'s entries rounded to
+/// Q2.30, from 1.
+const TANH_TAIL: [u16; TANH_LEN + 1 - TANH_NEAR_ONE] = {
+    let mut tail = [0; TANH_LEN + 1 - TANH_NEAR_ONE];
+    let mut k = TANH_NEAR_ONE;
+    while k <= TANH_LEN {
+        if let (Some((_, [slot, ..])), Some((_, [t, ..]))) = (
+            tail.split_at_mut_checked(k - TANH_NEAR_ONE),
+            TANH.split_at_checked(k),
+        ) {
+            let rest = ONE_Q30 as u32 - ((*t + 1) >> 1);
+            assert!(rest <= u16::MAX as u32, "a tail entry fits 16 bits");
+            *slot = rest as u16;
+        }
+        k += 1;
+    }
+    tail
+};
+
+/// tanh(k / 16) in Q2.30 for k ≤ 176, from the two tables (1.0 beyond, never asked).
+#[inline(always)]
+fn tanh_entry(k: usize) -> i32 {
+    match TANH_HEAD.get(k) {
+        Some(&t) => t as i32,
+        None => TANH_TAIL
+            .get(k - TANH_NEAR_ONE)
+            .map_or(ONE_Q30, |&rest| ONE_Q30 - i32::from(rest)),
+    }
+}
+
 /// (a · b) / 2^shift rounded to nearest, for 1 ≤ shift ≤ 62 and |a · b| + 2^(shift − 1) < 2^63:
 /// every caller states why its operands are that small. Plain arithmetic on purpose: the tests, built with
 /// overflow checks, would stop on a bound that does not hold.
@@ -562,7 +617,6 @@ const fn mul32(a: i32, b: i32, shift: u32) -> i64 {
 /// magnitude); within 1e-8 of the exact value (`tests::tanh_is_within_1e_8`). A table look-up,
 /// one 32 × 32-bit multiplication for x and nine for the polynomial (SMULL each).
 fn tanh(c: u32, m: i32) -> i32 {
-    const ONE_Q30: i32 = 1 << 30;
     // x in Q17.45: |c · m| < 2^32 · 2^29.
     let x = i64::from(c) * i64::from(m);
     let ax = x.unsigned_abs();
@@ -572,10 +626,8 @@ fn tanh(c: u32, m: i32) -> i32 {
         // The nearest entry k/16 and the rest r = |x| − k/16, |r| ≤ 1/32 (2^25 in Q2.30).
         let k = (ax + (1 << 40)) >> 41;
         let r = ((ax as i64 - (k << 41) as i64 + (1 << 14)) >> 15) as i32;
-        // The entry, from Q1.31 to Q2.30: at most 2^30.
-        let t = TANH
-            .get(k as usize)
-            .map_or(ONE_Q30, |&t| ((t + 1) >> 1) as i32);
+        // The entry: at most 2^30.
+        let t = tanh_entry(k as usize);
         // Taylor around k/16 to the fourth order (the fifth-order term is below 4e-9 for
         // |r| ≤ 1/32; the third order alone would leave 1.6e-7): tanh' = p = 1 − t²,
         // tanh'' / 2 = −t p, tanh''' / 6 = p (3t² − 1) / 3, tanh'''' / 24 = t p (2 − 3t²) / 3.
@@ -882,6 +934,13 @@ mod tests {
                 (f64::from(t) - exact).abs() <= 0.51,
                 "k {k}: {t} vs {exact}"
             );
+        }
+    }
+
+    #[test]
+    fn split_table_is_the_table() {
+        for (k, &t) in TANH.iter().enumerate() {
+            assert_eq!(tanh_entry(k), ((t + 1) >> 1) as i32, "k {k}");
         }
     }
 
