@@ -617,9 +617,8 @@ const fn mul32(a: i32, b: i32, shift: u32) -> i64 {
 /// magnitude); within 1e-8 of the exact value (`tests::tanh_is_within_1e_8`). A table look-up,
 /// one 32 × 32-bit multiplication for x and nine for the polynomial (SMULL each).
 fn tanh(c: u32, m: i32) -> i32 {
-    // x in Q17.45: |c · m| < 2^32 · 2^29.
-    let x = i64::from(c) * i64::from(m);
-    let ax = x.unsigned_abs();
+    // |x| in Q17.45: c · |m| < 2^32 · 2^29 (one UMULL); x has m's sign.
+    let ax = u64::from(c) * u64::from(m.unsigned_abs());
     let magnitude = if ax >= TANH_LIMIT << 45 {
         ONE_Q30
     } else {
@@ -644,7 +643,7 @@ fn tanh(c: u32, m: i32) -> i32 {
         let slope = p + q30(r, inner);
         (t + q30(r, slope)).clamp(0, ONE_Q30)
     };
-    if x < 0 { -magnitude } else { magnitude }
+    if m < 0 { -magnitude } else { magnitude }
 }
 
 /// γ dt / τ in Q0.32 (γ in Q8.8), rounded, saturating: γ · dt · 2^24 / τ (γ · dt < 2^48; a
@@ -866,7 +865,8 @@ impl Dynamics {
             // z = (D / 2^32) √3 with D = sum − 2^33 ∈ [−2^33, 2^33): D / 4 fits an i32 (the two
             // bits dropped move z by less than 1e-9), and z in Q2.29 is (D/4) · √3 / 2^30.
             let quarter = ((sum as i64 - (1 << 33)) >> 2) as i32;
-            let z = mul32(quarter, SQRT3, 30);
+            // |z| < 0.87 · 2^31: an i32.
+            let z = mul32(quarter, SQRT3, 30) as i32;
             // (4): I_i = C_i · Π over the required j of the factors; stays in [0, 1].
             let mut input = contexts.get(i).map_or(0, |&c| c.clamp(0, ONE)) as u32;
             let mut bits = requires;
@@ -884,31 +884,40 @@ impl Dynamics {
             // (1) as n · (kα − k|α| n² − Σ_j kγ_ij n_j²) + q√dt z, k = dt/τ, the bracket in Q2.30:
             // |kα| ≤ 1/4 (2^28), k|α|n² ≤ 1 (2^30), the pressure at most 4 (2^32), so the
             // bracket lies in [−5.25, 0.25] and its product with |n| ≤ 2 below 2^63.
-            let k_alpha = mul32(alpha, rate_tau, 31);
-            let k_alpha_n2 = (k_alpha.unsigned_abs() * u64::from(n2) + (1 << 28)) >> 29;
+            // kα and z fit 32 bits: their products are one multiplication each.
+            let k_alpha = mul32(alpha, rate_tau, 31) as i32;
+            let k_alpha_n2 = (u64::from(k_alpha.unsigned_abs()) * u64::from(n2) + (1 << 28)) >> 29;
             let push = ((pressure + (1 << 30)) >> 31) as i64;
-            let bracket = k_alpha - k_alpha_n2 as i64 - push;
+            let bracket = i64::from(k_alpha) - k_alpha_n2 as i64 - push;
             // q√dt < 2^32 and |z| < 2^31: the noise's product is below 2^63.
             let dn = mul_round(bracket, i64::from(n0), 30)
-                + mul_round(i64::from(self.noise_gain), z, 32);
-            // (3): (1 − ρ) I and ρ (I − 1) are within [−1, 1]; times rates ≤ 2^30.
+                + mul_round(i64::from(self.noise_gain), i64::from(z), 32);
+            // (3): (1 − ρ) I ∈ [0, 1] and ρ (I − 1) ∈ [−1, 0]; times rates ≤ 2^30, their sum
+            // within ±2^59: dρ within ±2^27, and ρ + dρ fits an i32.
             let rise = mul32(ONE - rho0, input, 29) as i32;
             let fall = mul32(rho0, input - ONE, 29) as i32;
-            let drho = (i64::from(rise) * i64::from(rate_rho_slow)
+            let drho = ((i64::from(rise) * i64::from(rate_rho_slow)
                 + i64::from(fall) * i64::from(rate_rho_fast)
                 + (1 << 31))
-                >> 32;
+                >> 32) as i32;
             // (5) as k_n (1 − m) · n² + k_i (1 + m) · (n² − 1), the rated factors in Q1.31: both
             // at most 2 · 1/4, below 2^30; times n² ≤ 2^31 and n² − 1 < 2^31, the sum below 2^62.
-            let up = mul32(ONE - m0, rate_n, 30);
-            let down = mul32(ONE + m0, rate_memory as i32, 30);
-            let dm =
-                (up * i64::from(n2) + down * (i64::from(n2) - i64::from(ONE)) + (1 << 30)) >> 31;
+            // Each factor fits 32 bits (one UMULL or SMULL a product): up, down ∈ [0, 2^30], n² − 1
+            // within [−2^29, 3 · 2^29] (wrapped in 32 bits, read back exactly as an i32). As
+            // (1 − m) + (1 + m) = 2, up + down ≤ 2^30 + 1: dm lies within [−2^28 − 1, 2^30 + 1]
+            // (n² − 1 ≥ −1, n² ≤ 4), and m + dm fits an i32.
+            let up = mul32(ONE - m0, rate_n, 30) as u32;
+            let down = mul32(ONE + m0, rate_memory as i32, 30) as i32;
+            let n2_less_one = n2.wrapping_sub(ONE as u32) as i32;
+            let dm = (((u64::from(up) * u64::from(n2)) as i64
+                + i64::from(down) * i64::from(n2_less_one)
+                + (1 << 30))
+                >> 31) as i32;
             let two = 2 * i64::from(ONE);
-            // Every value is clamped into the range of an i32 before the cast.
+            // n + dn can leave an i32: clamped in 64 bits before the cast; ρ and m in 32.
             *n = (i64::from(n0) + dn).clamp(-two, two) as i32;
-            *rho = (i64::from(rho0) + drho).clamp(0, i64::from(ONE)) as i32;
-            *m = (i64::from(m0) + dm).clamp(-i64::from(ONE), i64::from(ONE)) as i32;
+            *rho = (rho0 + drho).clamp(0, ONE);
+            *m = (m0 + dm).clamp(-ONE, ONE);
             // The gate, with hysteresis, from the new n: n · n exactly, in Q4.58.
             let q58 = i64::from(*n) * i64::from(*n);
             if q58 >= OPEN_Q58 {
