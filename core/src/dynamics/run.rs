@@ -115,6 +115,10 @@ impl GroupRun {
     }
 
     /// A frame seen at `now`: a reading for each topic context whose filter it matches.
+    // Out of line: inlined into `Arbiter::observe`, the walk over the groups and their contexts
+    // kept four running pointers on the stack, 96 bytes more of the NUCLEO-G474RE's flash. A
+    // table with groups pays a call per group and frame; one without, nothing.
+    #[inline(never)]
     pub fn on_frame(&mut self, spec: &GroupSpec, frame: &Frame, now: Instant) {
         let id = frame.id();
         for (b, context) in spec.contexts.iter().enumerate() {
