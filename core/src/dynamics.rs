@@ -57,8 +57,8 @@
 //! dynamics-cost.sh, the boards' `firmware` profile): about 1 700 instructions for 4 behaviours,
 //! 5 900 for 16 and 11 500 for 32 with one presupposition per pair, 18 300 for 32 where every
 //! behaviour requires all those before it; 1.0 % to 10.8 % of a 170 MHz core at 1 kHz, counting
-//! one cycle per instruction. The step's code is about 1.4 KiB, the tanh table 522 bytes
-//! (its entries near 1 kept as 16-bit distances to 1).
+//! one cycle per instruction. The step's code is about 1.4 KiB, the tanh table 473 bytes
+//! (its entries near 1 kept as 16- and 8-bit distances to 1).
 
 use crate::isqrt::isqrt;
 use heapless::Vec;
@@ -562,55 +562,78 @@ const TANH: [u32; TANH_LEN + 1] = {
 /// 1.0 in Q2.30, the format of tanh and of the table's entries as the step reads them.
 const ONE_Q30: i32 = 1 << 30;
 
-/// From this k on, 1 − tanh(k / 16) is below 2^16 in Q2.30 (5.5e-5 at k = 84): the board keeps
-/// those entries as their distance to 1 in a `u16` ([`TANH_TAIL`]), the others in Q2.30
-/// ([`TANH_HEAD`]), 186 bytes of flash fewer than [`TANH`] (708). Both are [`TANH`]'s entries
-/// exactly (`tests::split_table_is_the_table`).
+/// From this k on, 1 − tanh(k / 16) is below 2^16 in Q2.30 (5.5e-5 at k = 84), and from
+/// [`TANH_NEARER`] on below 2^8: the board keeps those entries as their distance to 1 in a `u16`
+/// ([`TANH_TAIL`]) and a `u8` ([`TANH_END`]), the others in Q2.30 ([`TANH_HEAD`]), 235 bytes of
+/// flash fewer than [`TANH`] (708). All are [`TANH`]'s entries exactly
+/// (`tests::split_table_is_the_table`).
 const TANH_NEAR_ONE: usize = 84;
+/// See [`TANH_NEAR_ONE`]: 1 − tanh(8) = 2.3e-7, 241 in Q2.30.
+const TANH_NEARER: usize = 128;
+
+/// 1 − tanh(k / 16) in Q2.30 for k ≤ 176, [`TANH`]'s entry rounded to Q2.30: what the tail
+/// tables hold.
+const fn tanh_rest(k: usize) -> u32 {
+    match TANH.split_at_checked(k) {
+        Some((_, [t, ..])) => ONE_Q30 as u32 - ((*t + 1) >> 1),
+        _ => 0,
+    }
+}
 
 /// tanh(k / 16) in Q2.30 for k < [`TANH_NEAR_ONE`]: [`TANH`]'s entries rounded to Q2.30.
 const TANH_HEAD: [u32; TANH_NEAR_ONE] = {
     let mut head = [0; TANH_NEAR_ONE];
     let mut k = 0;
     while k < TANH_NEAR_ONE {
-        if let (Some((_, [slot, ..])), Some((_, [t, ..]))) =
-            (head.split_at_mut_checked(k), TANH.split_at_checked(k))
-        {
-            *slot = (*t + 1) >> 1;
+        if let Some((_, [slot, ..])) = head.split_at_mut_checked(k) {
+            *slot = ONE_Q30 as u32 - tanh_rest(k);
         }
         k += 1;
     }
     head
 };
 
-/// 1 − tanh(k / 16) in Q2.30 for k from [`TANH_NEAR_ONE`] to 176: [`TANH`]'s entries rounded to
-/// Q2.30, from 1.
-const TANH_TAIL: [u16; TANH_LEN + 1 - TANH_NEAR_ONE] = {
-    let mut tail = [0; TANH_LEN + 1 - TANH_NEAR_ONE];
+/// 1 − tanh(k / 16) in Q2.30 for k from [`TANH_NEAR_ONE`] to [`TANH_NEARER`] − 1.
+const TANH_TAIL: [u16; TANH_NEARER - TANH_NEAR_ONE] = {
+    let mut tail = [0; TANH_NEARER - TANH_NEAR_ONE];
     let mut k = TANH_NEAR_ONE;
-    while k <= TANH_LEN {
-        if let (Some((_, [slot, ..])), Some((_, [t, ..]))) = (
-            tail.split_at_mut_checked(k - TANH_NEAR_ONE),
-            TANH.split_at_checked(k),
-        ) {
-            let rest = ONE_Q30 as u32 - ((*t + 1) >> 1);
-            assert!(rest <= u16::MAX as u32, "a tail entry fits 16 bits");
-            *slot = rest as u16;
+    while k < TANH_NEARER {
+        if let Some((_, [slot, ..])) = tail.split_at_mut_checked(k - TANH_NEAR_ONE) {
+            assert!(tanh_rest(k) <= u16::MAX as u32, "a tail entry fits 16 bits");
+            *slot = tanh_rest(k) as u16;
         }
         k += 1;
     }
     tail
 };
 
-/// tanh(k / 16) in Q2.30 for k ≤ 176, from the two tables (1.0 beyond, never asked).
+/// 1 − tanh(k / 16) in Q2.30 for k from [`TANH_NEARER`] to 176.
+const TANH_END: [u8; TANH_LEN + 1 - TANH_NEARER] = {
+    let mut end = [0; TANH_LEN + 1 - TANH_NEARER];
+    let mut k = TANH_NEARER;
+    while k <= TANH_LEN {
+        if let Some((_, [slot, ..])) = end.split_at_mut_checked(k - TANH_NEARER) {
+            assert!(tanh_rest(k) <= u8::MAX as u32, "an end entry fits 8 bits");
+            *slot = tanh_rest(k) as u8;
+        }
+        k += 1;
+    }
+    end
+};
+
+/// tanh(k / 16) in Q2.30 for k ≤ 176, from the three tables (1.0 beyond, never asked).
 #[inline(always)]
 fn tanh_entry(k: usize) -> i32 {
-    match TANH_HEAD.get(k) {
-        Some(&t) => t as i32,
-        None => TANH_TAIL
-            .get(k - TANH_NEAR_ONE)
-            .map_or(ONE_Q30, |&rest| ONE_Q30 - i32::from(rest)),
+    if let Some(&t) = TANH_HEAD.get(k) {
+        return t as i32;
     }
+    let rest = match TANH_TAIL.get(k - TANH_NEAR_ONE) {
+        Some(&rest) => u32::from(rest),
+        None => TANH_END
+            .get(k - TANH_NEARER)
+            .map_or(0, |&rest| u32::from(rest)),
+    };
+    ONE_Q30 - rest as i32
 }
 
 /// (a · b) / 2^shift rounded to nearest, for 1 ≤ shift ≤ 62 and |a · b| + 2^(shift − 1) < 2^63:
