@@ -776,7 +776,9 @@ impl Dynamics {
     pub(crate) fn start(&mut self, params: &Params) {
         let dt = params.step_us;
         let mut required = 0;
+        // The lanes beyond the group keep their zeros: nothing reads them.
         for (b, lane) in params.behaviours.iter().zip(self.lanes.iter_mut()) {
+            lane.state.m = -ONE;
             lane.rate_memory = rate(dt, b.memory_us);
             lane.requires = b.requires;
             required |= b.requires;
@@ -799,9 +801,6 @@ impl Dynamics {
         self.c = params.c;
         self.noise_gain = u32::try_from(gain).unwrap_or(u32::MAX);
         self.rng = params.seed;
-        for lane in self.lanes.iter_mut() {
-            lane.state.m = -ONE;
-        }
     }
 
     /// The number of behaviours.
