@@ -82,13 +82,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         }
         for (state, source) in self.sources.iter_mut().zip(self.table.gate_sources()) {
             if source.owner == OWN {
-                let own = self
-                    .table
-                    .dynamics()
-                    .iter()
-                    .zip(self.runs.iter())
-                    .find(|(spec, _)| spec.number == source.group);
-                state.mask = own.map_or(0, |(_, run)| run.gates());
+                // The run knows its number: no walk over the table's groups beside the runs.
+                let own = self.runs.iter().find(|run| run.number() == source.group);
+                state.mask = own.map_or(0, |run| run.gates());
             } else if state.poll(now) {
                 lost(GatesLost {
                     owner: source.owner,

@@ -109,6 +109,11 @@ impl GroupRun {
         self.dynamics.gates()
     }
 
+    /// The group's number in the network.
+    pub fn number(&self) -> u8 {
+        self.number
+    }
+
     /// Steps dropped because a poll came more than [`MAX_CATCH_UP`] steps late.
     pub fn skipped(&self) -> u32 {
         self.skipped
