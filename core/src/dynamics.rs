@@ -426,8 +426,8 @@ impl Params {
             *seen |= 1 << j;
             *sum = sum.saturating_add(u32::from(e.gamma));
         }
-        // dt > τ_min / 4, in integers: 4 dt > τ_min.
-        if 4 * u64::from(self.step_us) > u64::from(fastest) {
+        // dt > τ_min / 4, in integers: 4 dt > τ_min, that is dt > ⌊τ_min / 4⌋.
+        if self.step_us > fastest / 4 {
             return Err(ParamsError::StepAboveQuarter);
         }
         // dt (2 + Σγ) / τ > 1 with Σγ in Q8.8: dt (512 + Σγ) > 256 τ. At most 2^32 · 2^22.
