@@ -616,11 +616,15 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 Eligibility::new(group.number, group.node, u64::from(group.period_us)).ok()?;
             groups.push(state).ok()?;
         }
+        // Each group started where it lives (`GroupRun::start`; built and moved, it was copied),
+        // its parameters validated with the table. The blanks in one `resize`, cleared in
+        // place: pushed one at a time they were copied from a 3.4 KiB constant of zeros that
+        // LLVM kept in the flash.
         #[cfg(feature = "dynamics")]
-        for spec in table.dynamics() {
-            // Started where it lives (`GroupRun::start`): built and moved, it was copied.
-            runs.push(GroupRun::BLANK).ok()?;
-            runs.last_mut()?.start(spec).ok()?;
+        runs.resize(table.dynamics().len(), GroupRun::BLANK).ok()?;
+        #[cfg(feature = "dynamics")]
+        for (run, spec) in runs.iter_mut().zip(table.dynamics()) {
+            run.start(spec);
         }
         #[cfg(feature = "dynamics")]
         for _ in table.gate_sources() {

@@ -57,7 +57,8 @@
 //! dynamics-cost.sh, the boards' `firmware` profile): about 1 700 instructions for 4 behaviours,
 //! 5 900 for 16 and 11 500 for 32 with one presupposition per pair, 18 300 for 32 where every
 //! behaviour requires all those before it; 1.0 % to 10.8 % of a 170 MHz core at 1 kHz, counting
-//! one cycle per instruction. The step's code is about 1.4 KiB, the tanh table 708 bytes.
+//! one cycle per instruction. The step's code is about 1.4 KiB, the tanh table 473 bytes
+//! (its entries near 1 kept as 16- and 8-bit distances to 1).
 
 use crate::isqrt::isqrt;
 use heapless::Vec;
@@ -342,6 +343,9 @@ impl Params {
     /// [`Params::exclude`] and decoding refuse them.)
     ///
     /// Costs one pass over the exclusions and two over the behaviours; no division.
+    // Out of line: inlined into the loader's checks of the dynamics part, its one caller on a
+    // board, it took 100 bytes more of the NUCLEO-G474RE's flash.
+    #[inline(never)]
     pub fn validate(&self) -> Result<(), ParamsError> {
         // Tested one by one: a list of (time, which) pairs cost a board the list's stores.
         let zero = if self.step_us == 0 {
@@ -422,8 +426,8 @@ impl Params {
             *seen |= 1 << j;
             *sum = sum.saturating_add(u32::from(e.gamma));
         }
-        // dt > τ_min / 4, in integers: 4 dt > τ_min.
-        if 4 * u64::from(self.step_us) > u64::from(fastest) {
+        // dt > τ_min / 4, in integers: 4 dt > τ_min, that is dt > ⌊τ_min / 4⌋.
+        if self.step_us > fastest / 4 {
             return Err(ParamsError::StepAboveQuarter);
         }
         // dt (2 + Σγ) / τ > 1 with Σγ in Q8.8: dt (512 + Σγ) > 256 τ. At most 2^32 · 2^22.
@@ -484,10 +488,6 @@ pub struct Dynamics {
     rate_rho_fast: u32,
     rate_rho_slow: u32,
     rate_n: u32,
-    /// dt / τ_i per behaviour, Q0.32.
-    rate_memory: [u32; MAX_BEHAVIOURS],
-    /// A_i per behaviour.
-    requires: [u32; MAX_BEHAVIOURS],
     /// The behaviours some behaviour requires: only their tanh is needed.
     required: u32,
     /// c in Q16.16.
@@ -496,10 +496,29 @@ pub struct Dynamics {
     noise_gain: u32,
     pushes: Vec<Push, MAX_EXCLUSIONS>,
     rng: u32,
-    n: [i32; MAX_BEHAVIOURS],
-    rho: [i32; MAX_BEHAVIOURS],
-    m: [i32; MAX_BEHAVIOURS],
+    lanes: [Lane; MAX_BEHAVIOURS],
     gates: u32,
+}
+
+/// One behaviour of a running group: its state and its constants side by side, so that the step
+/// walks one array (walking five, it kept as many running pointers: 16 bytes more of the
+/// NUCLEO-G474RE's flash, and 3 instructions more per behaviour and step).
+#[derive(Clone, Copy, Debug)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+struct Lane {
+    state: State,
+    /// dt / τ_i, Q0.32.
+    rate_memory: u32,
+    /// A_i.
+    requires: u32,
+}
+
+impl Lane {
+    const BLANK: Lane = Lane {
+        state: State { n: 0, rho: 0, m: 0 },
+        rate_memory: 0,
+        requires: 0,
+    };
 }
 
 /// 1.0 in Q1.31, the format of tanh and of the presupposition factors.
@@ -540,6 +559,83 @@ const TANH: [u32; TANH_LEN + 1] = {
     table
 };
 
+/// 1.0 in Q2.30, the format of tanh and of the table's entries as the step reads them.
+const ONE_Q30: i32 = 1 << 30;
+
+/// From this k on, 1 − tanh(k / 16) is below 2^16 in Q2.30 (5.5e-5 at k = 84), and from
+/// [`TANH_NEARER`] on below 2^8: the board keeps those entries as their distance to 1 in a `u16`
+/// ([`TANH_TAIL`]) and a `u8` ([`TANH_END`]), the others in Q2.30 ([`TANH_HEAD`]), 235 bytes of
+/// flash fewer than [`TANH`] (708). All are [`TANH`]'s entries exactly
+/// (`tests::split_table_is_the_table`).
+const TANH_NEAR_ONE: usize = 84;
+/// See [`TANH_NEAR_ONE`]: 1 − tanh(8) = 2.3e-7, 241 in Q2.30.
+const TANH_NEARER: usize = 128;
+
+/// 1 − tanh(k / 16) in Q2.30 for k ≤ 176, [`TANH`]'s entry rounded to Q2.30: what the tail
+/// tables hold.
+const fn tanh_rest(k: usize) -> u32 {
+    match TANH.split_at_checked(k) {
+        Some((_, [t, ..])) => ONE_Q30 as u32 - ((*t + 1) >> 1),
+        _ => 0,
+    }
+}
+
+/// tanh(k / 16) in Q2.30 for k < [`TANH_NEAR_ONE`]: [`TANH`]'s entries rounded to Q2.30.
+const TANH_HEAD: [u32; TANH_NEAR_ONE] = {
+    let mut head = [0; TANH_NEAR_ONE];
+    let mut k = 0;
+    while k < TANH_NEAR_ONE {
+        if let Some((_, [slot, ..])) = head.split_at_mut_checked(k) {
+            *slot = ONE_Q30 as u32 - tanh_rest(k);
+        }
+        k += 1;
+    }
+    head
+};
+
+/// 1 − tanh(k / 16) in Q2.30 for k from [`TANH_NEAR_ONE`] to [`TANH_NEARER`] − 1.
+const TANH_TAIL: [u16; TANH_NEARER - TANH_NEAR_ONE] = {
+    let mut tail = [0; TANH_NEARER - TANH_NEAR_ONE];
+    let mut k = TANH_NEAR_ONE;
+    while k < TANH_NEARER {
+        if let Some((_, [slot, ..])) = tail.split_at_mut_checked(k - TANH_NEAR_ONE) {
+            assert!(tanh_rest(k) <= u16::MAX as u32, "a tail entry fits 16 bits");
+            *slot = tanh_rest(k) as u16;
+        }
+        k += 1;
+    }
+    tail
+};
+
+/// 1 − tanh(k / 16) in Q2.30 for k from [`TANH_NEARER`] to 176.
+const TANH_END: [u8; TANH_LEN + 1 - TANH_NEARER] = {
+    let mut end = [0; TANH_LEN + 1 - TANH_NEARER];
+    let mut k = TANH_NEARER;
+    while k <= TANH_LEN {
+        if let Some((_, [slot, ..])) = end.split_at_mut_checked(k - TANH_NEARER) {
+            assert!(tanh_rest(k) <= u8::MAX as u32, "an end entry fits 8 bits");
+            *slot = tanh_rest(k) as u8;
+        }
+        k += 1;
+    }
+    end
+};
+
+/// tanh(k / 16) in Q2.30 for k ≤ 176, from the three tables (1.0 beyond, never asked).
+#[inline(always)]
+fn tanh_entry(k: usize) -> i32 {
+    if let Some(&t) = TANH_HEAD.get(k) {
+        return t as i32;
+    }
+    let rest = match TANH_TAIL.get(k - TANH_NEAR_ONE) {
+        Some(&rest) => u32::from(rest),
+        None => TANH_END
+            .get(k - TANH_NEARER)
+            .map_or(0, |&rest| u32::from(rest)),
+    };
+    ONE_Q30 - rest as i32
+}
+
 /// (a · b) / 2^shift rounded to nearest, for 1 ≤ shift ≤ 62 and |a · b| + 2^(shift − 1) < 2^63:
 /// every caller states why its operands are that small. Plain arithmetic on purpose: the tests, built with
 /// overflow checks, would stop on a bound that does not hold.
@@ -559,20 +655,16 @@ const fn mul32(a: i32, b: i32, shift: u32) -> i64 {
 /// magnitude); within 1e-8 of the exact value (`tests::tanh_is_within_1e_8`). A table look-up,
 /// one 32 × 32-bit multiplication for x and nine for the polynomial (SMULL each).
 fn tanh(c: u32, m: i32) -> i32 {
-    const ONE_Q30: i32 = 1 << 30;
-    // x in Q17.45: |c · m| < 2^32 · 2^29.
-    let x = i64::from(c) * i64::from(m);
-    let ax = x.unsigned_abs();
+    // |x| in Q17.45: c · |m| < 2^32 · 2^29 (one UMULL); x has m's sign.
+    let ax = u64::from(c) * u64::from(m.unsigned_abs());
     let magnitude = if ax >= TANH_LIMIT << 45 {
         ONE_Q30
     } else {
         // The nearest entry k/16 and the rest r = |x| − k/16, |r| ≤ 1/32 (2^25 in Q2.30).
         let k = (ax + (1 << 40)) >> 41;
         let r = ((ax as i64 - (k << 41) as i64 + (1 << 14)) >> 15) as i32;
-        // The entry, from Q1.31 to Q2.30: at most 2^30.
-        let t = TANH
-            .get(k as usize)
-            .map_or(ONE_Q30, |&t| ((t + 1) >> 1) as i32);
+        // The entry: at most 2^30.
+        let t = tanh_entry(k as usize);
         // Taylor around k/16 to the fourth order (the fifth-order term is below 4e-9 for
         // |r| ≤ 1/32; the third order alone would leave 1.6e-7): tanh' = p = 1 − t²,
         // tanh'' / 2 = −t p, tanh''' / 6 = p (3t² − 1) / 3, tanh'''' / 24 = t p (2 − 3t²) / 3.
@@ -589,12 +681,15 @@ fn tanh(c: u32, m: i32) -> i32 {
         let slope = p + q30(r, inner);
         (t + q30(r, slope)).clamp(0, ONE_Q30)
     };
-    if x < 0 { -magnitude } else { magnitude }
+    if m < 0 { -magnitude } else { magnitude }
 }
 
 /// γ dt / τ in Q0.32 (γ in Q8.8), rounded, saturating: γ · dt · 2^24 / τ (γ · dt < 2^48; a
 /// 128-bit division would cost a board kilobytes of flash). Below saturation γ · dt < 2^8 τ <
 /// 2^40, so γ · dt · 2^24 fits 64 bits and one rounded division is exact.
+// Out of line: inlined into the loop over the exclusions of `Dynamics::start`, it took 24 bytes
+// more of the NUCLEO-G474RE's flash. Run once per exclusion and table.
+#[inline(never)]
 fn gamma_rate(gamma: u16, step_us: u32, tau_us: u32) -> u32 {
     let tau = tau_us.max(1);
     let numerator = u64::from(gamma) * u64::from(step_us);
@@ -649,8 +744,9 @@ impl Dynamics {
     /// per time constant, two per exclusion, three and a 64-bit square root for the noise: done
     /// once per table, so that [`Dynamics::step`] needs none.
     pub fn new(params: &Params) -> Result<Dynamics, ParamsError> {
+        params.validate()?;
         let mut dynamics = Dynamics::BLANK;
-        dynamics.start(params)?;
+        dynamics.start(params);
         Ok(dynamics)
     }
 
@@ -661,35 +757,30 @@ impl Dynamics {
         rate_rho_fast: 0,
         rate_rho_slow: 0,
         rate_n: 0,
-        rate_memory: [0; MAX_BEHAVIOURS],
-        requires: [0; MAX_BEHAVIOURS],
         required: 0,
         c: 0,
         noise_gain: 0,
         pushes: Vec::new(),
         rng: 0,
-        n: [0; MAX_BEHAVIOURS],
-        rho: [0; MAX_BEHAVIOURS],
-        m: [0; MAX_BEHAVIOURS],
+        lanes: [Lane::BLANK; MAX_BEHAVIOURS],
         gates: 0,
     };
 
     /// [`Dynamics::new`] written into `self`, a [`Dynamics::BLANK`] (its zeros are kept):
     /// a board builds its groups where they live, inside the arbiter (returned by value, each
     /// of the 2.7 KiB struct's moves through `Result`, the run and the arbiter's list was a
-    /// copy: 224 bytes of the NUCLEO-G474RE's flash). On an error `self` is unchanged.
-    pub(crate) fn start(&mut self, params: &Params) -> Result<(), ParamsError> {
-        params.validate()?;
+    /// copy: 224 bytes of the NUCLEO-G474RE's flash). For `params` that [`Params::validate`]
+    /// accepted: the arbiter builds its groups from a validated table and does not check them
+    /// again. Invalid parameters give a meaningless group, never a panic (a time of 0 gives a
+    /// rate of 0).
+    pub(crate) fn start(&mut self, params: &Params) {
         let dt = params.step_us;
         let mut required = 0;
-        for ((b, rate_i), requires_i) in params
-            .behaviours
-            .iter()
-            .zip(self.rate_memory.iter_mut())
-            .zip(self.requires.iter_mut())
-        {
-            *rate_i = rate(dt, b.memory_us);
-            *requires_i = b.requires;
+        // The lanes beyond the group keep their zeros: nothing reads them.
+        for (b, lane) in params.behaviours.iter().zip(self.lanes.iter_mut()) {
+            lane.state.m = -ONE;
+            lane.rate_memory = rate(dt, b.memory_us);
+            lane.requires = b.requires;
             required |= b.requires;
         }
         for e in params.exclusions.iter().filter(|e| e.gamma != 0) {
@@ -710,8 +801,6 @@ impl Dynamics {
         self.c = params.c;
         self.noise_gain = u32::try_from(gain).unwrap_or(u32::MAX);
         self.rng = params.seed;
-        self.m = [-ONE; MAX_BEHAVIOURS];
-        Ok(())
     }
 
     /// The number of behaviours.
@@ -734,10 +823,7 @@ impl Dynamics {
         if i >= self.len() {
             return None;
         }
-        match (self.n.get(i), self.rho.get(i), self.m.get(i)) {
-            (Some(&n), Some(&rho), Some(&m)) => Some(State { n, rho, m }),
-            _ => None,
-        }
+        self.lanes.get(i).map(|lane| lane.state)
     }
 
     /// The noise generator's state (the last xorshift32 output, or the seed before any step).
@@ -766,15 +852,15 @@ impl Dynamics {
         let mut factor = [1u32 << 31; MAX_BEHAVIOURS];
         // n_j² in Q2.29: at most 4 · 2^29 = 2^31, a u32.
         let mut square = [0u32; MAX_BEHAVIOURS];
-        for (j, ((f, s), &n)) in factor
+        for (j, ((f, s), lane)) in factor
             .iter_mut()
             .zip(square.iter_mut())
-            .zip(self.n.iter())
+            .zip(self.lanes.iter())
             .enumerate()
             .take(count)
         {
+            let State { n, m, .. } = lane.state;
             if self.required & (1 << j) != 0 {
-                let m = self.m.get(j).copied().unwrap_or(-ONE);
                 // ½(1 + tanh) in Q1.31 is exactly 2^30 + tanh in Q2.30: within [0, 2^31].
                 *f = ((1i64 << 30) + i64::from(tanh(self.c, m))) as u32;
             }
@@ -791,15 +877,12 @@ impl Dynamics {
         }
         let mut gates = self.gates;
         let lanes = self
-            .n
+            .lanes
             .iter_mut()
-            .zip(self.rho.iter_mut())
-            .zip(self.m.iter_mut())
-            .zip(self.rate_memory.iter().zip(self.requires.iter()))
             .zip(square.iter().zip(pressure.iter()))
             .enumerate()
             .take(count);
-        for (i, ((((n, rho), m), (&rate_memory, &requires)), (&n2, &pressure))) in lanes {
+        for (i, (lane, (&n2, &pressure))) in lanes {
             // The noise: four outputs, in declaration order, whatever the behaviour's state.
             let mut sum = 0u64;
             for _ in 0..4 {
@@ -809,10 +892,11 @@ impl Dynamics {
             // z = (D / 2^32) √3 with D = sum − 2^33 ∈ [−2^33, 2^33): D / 4 fits an i32 (the two
             // bits dropped move z by less than 1e-9), and z in Q2.29 is (D/4) · √3 / 2^30.
             let quarter = ((sum as i64 - (1 << 33)) >> 2) as i32;
-            let z = mul32(quarter, SQRT3, 30);
+            // |z| < 0.87 · 2^31: an i32.
+            let z = mul32(quarter, SQRT3, 30) as i32;
             // (4): I_i = C_i · Π over the required j of the factors; stays in [0, 1].
             let mut input = contexts.get(i).map_or(0, |&c| c.clamp(0, ONE)) as u32;
-            let mut bits = requires;
+            let mut bits = lane.requires;
             while bits != 0 {
                 let j = bits.trailing_zeros() as usize;
                 bits &= bits - 1;
@@ -821,39 +905,55 @@ impl Dynamics {
                 input = ((u64::from(input) * u64::from(f) + (1 << 30)) >> 31) as u32;
             }
             let input = input as i32;
-            let (n0, rho0, m0) = (*n, *rho, *m);
+            let State {
+                n: n0,
+                rho: rho0,
+                m: m0,
+            } = lane.state;
             // (2): α = 2ρI − 1 ∈ [−1, 1], an i32 in Q2.29.
             let alpha = (mul32(rho0, input, 28) - i64::from(ONE)) as i32;
             // (1) as n · (kα − k|α| n² − Σ_j kγ_ij n_j²) + q√dt z, k = dt/τ, the bracket in Q2.30:
             // |kα| ≤ 1/4 (2^28), k|α|n² ≤ 1 (2^30), the pressure at most 4 (2^32), so the
             // bracket lies in [−5.25, 0.25] and its product with |n| ≤ 2 below 2^63.
-            let k_alpha = mul32(alpha, rate_tau, 31);
-            let k_alpha_n2 = (k_alpha.unsigned_abs() * u64::from(n2) + (1 << 28)) >> 29;
+            // kα and z fit 32 bits: their products are one multiplication each.
+            let k_alpha = mul32(alpha, rate_tau, 31) as i32;
+            let k_alpha_n2 = (u64::from(k_alpha.unsigned_abs()) * u64::from(n2) + (1 << 28)) >> 29;
             let push = ((pressure + (1 << 30)) >> 31) as i64;
-            let bracket = k_alpha - k_alpha_n2 as i64 - push;
+            let bracket = i64::from(k_alpha) - k_alpha_n2 as i64 - push;
             // q√dt < 2^32 and |z| < 2^31: the noise's product is below 2^63.
             let dn = mul_round(bracket, i64::from(n0), 30)
-                + mul_round(i64::from(self.noise_gain), z, 32);
-            // (3): (1 − ρ) I and ρ (I − 1) are within [−1, 1]; times rates ≤ 2^30.
+                + mul_round(i64::from(self.noise_gain), i64::from(z), 32);
+            // (3): (1 − ρ) I ∈ [0, 1] and ρ (I − 1) ∈ [−1, 0]; times rates ≤ 2^30, their sum
+            // within ±2^59: dρ within ±2^27, and ρ + dρ fits an i32.
             let rise = mul32(ONE - rho0, input, 29) as i32;
             let fall = mul32(rho0, input - ONE, 29) as i32;
-            let drho = (i64::from(rise) * i64::from(rate_rho_slow)
+            let drho = ((i64::from(rise) * i64::from(rate_rho_slow)
                 + i64::from(fall) * i64::from(rate_rho_fast)
                 + (1 << 31))
-                >> 32;
+                >> 32) as i32;
             // (5) as k_n (1 − m) · n² + k_i (1 + m) · (n² − 1), the rated factors in Q1.31: both
             // at most 2 · 1/4, below 2^30; times n² ≤ 2^31 and n² − 1 < 2^31, the sum below 2^62.
-            let up = mul32(ONE - m0, rate_n, 30);
-            let down = mul32(ONE + m0, rate_memory as i32, 30);
-            let dm =
-                (up * i64::from(n2) + down * (i64::from(n2) - i64::from(ONE)) + (1 << 30)) >> 31;
+            // Each factor fits 32 bits (one UMULL or SMULL a product): up, down ∈ [0, 2^30], n² − 1
+            // within [−2^29, 3 · 2^29] (wrapped in 32 bits, read back exactly as an i32). As
+            // (1 − m) + (1 + m) = 2, up + down ≤ 2^30 + 1: dm lies within [−2^28 − 1, 2^30 + 1]
+            // (n² − 1 ≥ −1, n² ≤ 4), and m + dm fits an i32.
+            let up = mul32(ONE - m0, rate_n, 30) as u32;
+            let down = mul32(ONE + m0, lane.rate_memory as i32, 30) as i32;
+            let n2_less_one = n2.wrapping_sub(ONE as u32) as i32;
+            let dm = (((u64::from(up) * u64::from(n2)) as i64
+                + i64::from(down) * i64::from(n2_less_one)
+                + (1 << 30))
+                >> 31) as i32;
             let two = 2 * i64::from(ONE);
-            // Every value is clamped into the range of an i32 before the cast.
-            *n = (i64::from(n0) + dn).clamp(-two, two) as i32;
-            *rho = (i64::from(rho0) + drho).clamp(0, i64::from(ONE)) as i32;
-            *m = (i64::from(m0) + dm).clamp(-i64::from(ONE), i64::from(ONE)) as i32;
+            // n + dn can leave an i32: clamped in 64 bits before the cast; ρ and m in 32.
+            let n = (i64::from(n0) + dn).clamp(-two, two) as i32;
+            lane.state = State {
+                n,
+                rho: (rho0 + drho).clamp(0, ONE),
+                m: (m0 + dm).clamp(-ONE, ONE),
+            };
             // The gate, with hysteresis, from the new n: n · n exactly, in Q4.58.
-            let q58 = i64::from(*n) * i64::from(*n);
+            let q58 = i64::from(n) * i64::from(n);
             if q58 >= OPEN_Q58 {
                 gates |= 1 << i;
             } else if q58 < CLOSE_Q58 {
@@ -877,6 +977,13 @@ mod tests {
                 (f64::from(t) - exact).abs() <= 0.51,
                 "k {k}: {t} vs {exact}"
             );
+        }
+    }
+
+    #[test]
+    fn split_table_is_the_table() {
+        for (k, &t) in TANH.iter().enumerate() {
+            assert_eq!(tanh_entry(k), ((t + 1) >> 1) as i32, "k {k}");
         }
     }
 
