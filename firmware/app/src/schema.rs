@@ -37,20 +37,24 @@ pub enum Out {
 }
 
 /// A node's schema server.
+// Fields in declaration order (`repr(C)`): the small state read at every frame and tick first,
+// where its offsets fit in a load's or a store's immediate, the server and the transfer buffer
+// after it.
+#[repr(C)]
 pub struct SchemaRuntime {
-    server: Server,
-    drive: Drive,
-    sensors: heapless::Vec<Sensor, MAX_SENSORS>,
-    /// The pose as its two frames last said (translation, rotation).
-    pose: Pose,
-    wrench: Pose,
     next_tick: Instant,
     next_report: Instant,
     /// The impedance last sent.
     impedance: Option<(u32, u32)>,
-    receiver: isotp::Receiver<TRANSFER_LEN>,
     /// The source of the transfer in progress.
     sender: Option<u8>,
+    drive: Drive,
+    /// The pose as its two frames last said (translation, rotation).
+    pose: Pose,
+    wrench: Pose,
+    sensors: heapless::Vec<Sensor, MAX_SENSORS>,
+    server: Server,
+    receiver: isotp::Receiver<TRANSFER_LEN>,
 }
 
 impl SchemaRuntime {
