@@ -4,7 +4,8 @@
 #   scripts/firmware-size.sh            (builds pab-fw-g474 and pab-fw-an386; cargo skips them
 #                                        when up to date)
 # Needs llvm-size from rustup's llvm-tools component (installed here if missing). The firmware
-# must stay within 64 KiB of flash (text + data).
+# must stay within 64 KiB of flash (text + data), and its deepest chain of calls must leave 8 KiB
+# of its stack (scripts/stack-depth.py says how it is measured).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -32,6 +33,8 @@ report() {
         echo "firmware-size: $package takes $flash bytes of flash, more than 64 KiB" >&2
         exit 1
     fi
+    # The stack is what the statics leave of the RAM, with nothing below it but them.
+    python3 scripts/stack-depth.py "$elf"
 }
 
 echo "flash = text+data, RAM = data+bss (static)"
