@@ -1275,6 +1275,12 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             .is_some_and(|slot| slot.integrator.is_resting(&slot.decay(), slot.rest_us, now))
     }
 
+    /// Takes the schema server's set-up out of the running table ([`Table::take_schema`]).
+    #[cfg(feature = "schema")]
+    pub fn take_schema(&mut self) -> Option<crate::schema::Setup> {
+        self.table.take_schema()
+    }
+
     /// The number of ports.
     pub fn port_count(&self) -> usize {
         self.ports.len()

@@ -179,16 +179,11 @@ pub struct Node<const P: usize, const C: usize, const N: usize, const IMG: usize
     schema: Option<crate::schema::SchemaRuntime>,
 }
 
-/// What the loader hands over besides the arbiter: the schema server's set-up, with the feature.
-#[cfg(feature = "schema")]
-type SchemaPart = Option<pab_core::schema::Setup>;
 /// What one call into the schema server sends: at most a tick's set-point (3 frames), its
 /// transitions (3) and their faults (3), a report.
 #[cfg(feature = "schema")]
 type SchemaOuts = heapless::Vec<crate::schema::Out, 12>;
 
-#[cfg(not(feature = "schema"))]
-type SchemaPart = ();
 
 /// Keeps one of the schema server's outputs for the node to send.
 // Out of line: each output the server's runtime makes inlined a copy of the push.
@@ -1095,14 +1090,15 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// Starts the schema server of the table that runs from `now`, or stops the previous
     /// table's (a new table restarts it: its queue is the old table's business).
     #[cfg(feature = "schema")]
-    fn start_schema(&mut self, setup: SchemaPart, now: Instant) {
+    fn start_schema(&mut self, now: Instant) {
+        let setup = self.arbiter.as_mut().and_then(Arbiter::take_schema);
         self.schema =
             setup.and_then(|s| crate::schema::SchemaRuntime::new(s, self.config.isotp, now));
     }
 
     #[cfg(not(feature = "schema"))]
     #[inline(always)]
-    fn start_schema(&mut self, _: SchemaPart, _: Instant) {}
+    fn start_schema(&mut self, _: Instant) {}
 
     /// A SchemaTransfer frame: to the server, or refused by a node that runs none.
     #[cfg(feature = "schema")]
@@ -1428,10 +1424,9 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         now: Instant,
     ) -> Result<Header, (TransferStatusCode, u8)> {
         let bytes = self.receiver.buffer().get(..len).unwrap_or(&[]);
-        let (header, mut arbiter, schema) =
+        let (header, mut arbiter) =
             check_target(bytes, self.config.node_id).and_then(|()| load::<P, C, N>(bytes))?;
         check_version(&header, running.as_ref())?;
-        self.start_schema(schema, now);
         // The connections the new table leaves unchanged go on where they are (a re-push of the
         // same rules is no blackout); the others start at S = 0. At boot there is none.
         if let Some(previous) = self.arbiter.as_ref() {
@@ -1441,6 +1436,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         // `replace`: `= Some(arbiter)` built the new `Some` aside and copied it over the old one
         // (a second 25 KB copy, and 52 bytes of flash).
         self.arbiter.replace(arbiter);
+        // The schema server's set-up leaves the table only now, from its place in the node:
+        // taken out before, it was one more large value in this function's frame, which with
+        // the arbiter being built is the deepest stack the board ever has.
+        self.start_schema(now);
         self.running = Some(Running {
             header,
             image_len: u32::try_from(len).unwrap_or(u32::MAX),
@@ -1730,15 +1729,10 @@ fn check_version(
 /// Loads and validates an image for this node's capacities, and builds its arbiter.
 fn load<const P: usize, const C: usize, const N: usize>(
     bytes: &[u8],
-) -> Result<(Header, Arbiter<P, C, N>, SchemaPart), (TransferStatusCode, u8)> {
-    #[cfg_attr(not(feature = "schema"), allow(unused_mut))]
-    let mut loaded = image::load::<P, C, N>(bytes).map_err(|error| status_of(&error))?;
-    #[cfg(feature = "schema")]
-    let schema = loaded.table.take_schema();
-    #[cfg(not(feature = "schema"))]
-    let schema = ();
+) -> Result<(Header, Arbiter<P, C, N>), (TransferStatusCode, u8)> {
+    let loaded = image::load::<P, C, N>(bytes).map_err(|error| status_of(&error))?;
     let arbiter = Arbiter::new(loaded.table).map_err(|_| (TransferStatusCode::InvalidTable, 0))?;
-    Ok((loaded.header, arbiter, schema))
+    Ok((loaded.header, arbiter))
 }
 
 /// The transfer status (and detail byte) a loader error maps to.
