@@ -154,7 +154,9 @@ impl<'a> Reader<'a> {
     }
 
     /// An enum's variant index (a u32 varint) that must be below `variants`: serde's derive
-    /// refuses an unknown index with a custom error (and 0 comes back).
+    /// refuses an unknown index with a custom error (and 0 comes back). Out of line: inlined,
+    /// each of its callers (ten with the schema server) had its own comparison and failure.
+    #[inline(never)]
     pub(crate) fn variant(&mut self, variants: u32) -> u32 {
         let index = self.u32();
         if index < variants {
