@@ -177,12 +177,19 @@ impl<'a> Reader<'a> {
     }
 
     pub(crate) fn option<T: Decode>(&mut self) -> Option<T> {
+        self.some().then(|| T::decode(self))
+    }
+
+    /// An option's tag: whether a value follows. Out of line: one copy for every option type
+    /// (the schema server's set-up has them too).
+    #[inline(never)]
+    fn some(&mut self) -> bool {
         match self.u8() {
-            0 => None,
-            1 => Some(T::decode(self)),
+            0 => false,
+            1 => true,
             _ => {
                 self.fail(Error::DeserializeBadOption);
-                None
+                false
             }
         }
     }
