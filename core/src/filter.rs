@@ -45,6 +45,8 @@ impl Filter {
     }
 
     /// Checks the invariants.
+    // Out of line: the loader checks the connections', the BLE groups' and the dynamics' filters.
+    #[inline(never)]
     pub const fn validate(&self) -> Result<(), FilterError> {
         let widest = if self.extended {
             MAX_EXTENDED_ID
