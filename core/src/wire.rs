@@ -110,10 +110,16 @@ impl<'a> Reader<'a> {
 
     /// An unsigned LEB128 varint of at most `bits` bits (16, 32 or 64), as postcard reads one: at
     /// most ⌈bits/7⌉ bytes, and the last byte of a full-length one no larger than the bits left.
-    #[inline(never)]
+    #[inline(always)]
     fn varint(&mut self, bits: u32) -> u64 {
-        let max_bytes = bits.div_ceil(7);
-        let last_max = (1u8 << (bits % 7)) - 1;
+        // Worked out where `bits` is a constant: no division in the reader.
+        self.varint_within(bits.div_ceil(7), (1u8 << (bits % 7)) - 1)
+    }
+
+    /// [`Reader::varint`] of at most `max_bytes` bytes, the last of a full-length one at most
+    /// `last_max`.
+    #[inline(never)]
+    fn varint_within(&mut self, max_bytes: u32, last_max: u8) -> u64 {
         let mut out = 0u64;
         for i in 0..max_bytes {
             let Some((&byte, rest)) = self.bytes.split_first() else {
