@@ -326,7 +326,8 @@ pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
         });
     }
     let mut r = crate::wire::Reader::new(body);
-    let (table, needed, roots) = Table::<PORTS, CONNECTIONS, NODES>::decode_sized(&mut r);
+    let mut table = Table::new();
+    let (needed, roots) = table.decode_sized(&mut r);
     if let Some(error) = r.error() {
         let capacity = TableSize {
             ports: PORTS,

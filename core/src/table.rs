@@ -857,40 +857,45 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize> crate::wi
     for Table<PORTS, CONNECTIONS, NODES>
 {
     fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
-        Self::decode_sized(r).0
+        let mut table = Table::new();
+        table.decode_sized(r);
+        table
     }
 }
 
 impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     Table<PORTS, CONNECTIONS, NODES>
 {
-    /// The table's decode, with what its body holds: `(table, sizes, value-port roots)`, the
-    /// lengths read, including elements beyond the capacities ([`crate::wire::Reader::fill_within`]:
-    /// a list longer than its room is an error that leaves the rest of the body read, so that
-    /// the loader tells [`crate::image::LoadError::ExceedsCapacity`] from the sizes).
+    /// The table's decode into `self`, an empty table ([`Table::new`]), with what its body
+    /// holds: `(sizes, value-port roots)`, the lengths read, including elements beyond the
+    /// capacities ([`crate::wire::Reader::fill_within`]: a list longer than its room is an error
+    /// that leaves the rest of the body read, so that the loader tells
+    /// [`crate::image::LoadError::ExceedsCapacity`] from the sizes).
     // Out of line: inlined into the loader, each list's decode reached the table at large
     // offsets of the loader's frame; here the table is near. 156 bytes less of the
     // NUCLEO-G474RE's flash with competitive dynamics, 80 without. Run once per image.
     #[inline(never)]
     pub(crate) fn decode_sized(
+        &mut self,
         r: &mut crate::wire::Reader<'_>,
-    ) -> (Self, crate::image::TableSize, usize) {
-        // Each list is decoded into its field of the table being returned, not built apart and
-        // moved in: a move per field was code, on the boards with the arbiter built in place
-        // too (`Arbiter::new`) 72 bytes of flash with competitive dynamics, 48 without.
-        let mut table = Table::new();
+    ) -> (crate::image::TableSize, usize) {
+        // Each list is decoded into its field of the caller's table, not built apart and moved
+        // in: a move per field was code, on the boards with the arbiter built in place too
+        // (`Arbiter::new`) 72 bytes of flash with competitive dynamics, 48 without; a table
+        // built here and returned was moved too (and reached at large offsets of this frame),
+        // 152 bytes with the schema server, 56 without.
         let size = crate::image::TableSize {
-            ports: r.fill_within(&mut table.ports),
-            connections: r.fill_within(&mut table.connections),
-            nodes: r.fill_within(&mut table.nodes),
+            ports: r.fill_within(&mut self.ports),
+            connections: r.fill_within(&mut self.connections),
+            nodes: r.fill_within(&mut self.nodes),
         };
-        let roots = r.fill_within(&mut table.roots);
-        r.fill_within(&mut table.groups);
+        let roots = r.fill_within(&mut self.roots);
+        r.fill_within(&mut self.groups);
         #[cfg(feature = "dynamics")]
         {
-            r.fill_within(&mut table.dynamics);
-            r.fill_within(&mut table.gate_sources);
-            r.fill_within(&mut table.gate_links);
+            r.fill_within(&mut self.dynamics);
+            r.fill_within(&mut self.gate_sources);
+            r.fill_within(&mut self.gate_links);
         }
         // Without competitive dynamics the three lists must be empty: a table that has them
         // is refused, its body unreadable here (a node needs the feature to run it).
@@ -899,17 +904,17 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             r.empty::<u8, 0>();
         }
         // Format 6: after the dynamics part, the HBBA message filters.
-        r.fill(&mut table.filters.connections);
-        r.fill(&mut table.filters.profiles);
+        r.fill(&mut self.filters.connections);
+        r.fill(&mut self.filters.profiles);
         // Format 7: the schema server. Without the feature it must be absent: a node needs the
         // feature to run it.
         #[cfg(feature = "schema")]
         {
-            table.schema = r.option();
+            self.schema = r.option();
         }
         #[cfg(not(feature = "schema"))]
         r.none();
-        (table, size, roots)
+        (size, roots)
     }
 }
 
