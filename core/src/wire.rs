@@ -140,6 +140,8 @@ impl<'a> Reader<'a> {
         0
     }
 
+    /// Out of line, as [`Reader::u32`]: a call is smaller than setting up `varint`'s arguments.
+    #[inline(never)]
     pub(crate) fn u16(&mut self) -> u16 {
         // The last-byte check keeps the value within 16 bits.
         self.varint(16) as u16
