@@ -155,8 +155,8 @@ impl<const C: usize> FilterIndex<C> {
     /// Indexes `connections` (a table's, in table order) into `self`, an empty index
     /// ([`FilterIndex::empty`]), where it lives: built apart and returned, the index was moved
     /// into the arbiter (72 bytes of the NUCLEO-G474RE's flash). `None` if there are more than `C` of them, or more than 2^15 (`self` is
-    /// then left part-built). Costs, per multiplier tried, a pass over the exact filters and one
-    /// over the buckets, then a sort of the exact filters.
+    /// then left part-built). Costs, per multiplier tried, a pass over the exact filters (each
+    /// compared with those before it) and one over the buckets, then a sort of the exact filters.
     // Out of line: inlined into the loader (and so into the node's loader, whose frame holds a
     // table and an arbiter), each of its locals was reached through a large stack offset, which
     // took 116 bytes more of the NUCLEO-G474RE's flash. Run once per table.
@@ -181,18 +181,20 @@ impl<const C: usize> FilterIndex<C> {
         let count = C.checked_ilog2().map_or(0, |log| 1 << log);
         // The multiplier: the first that leaves the fewest keys sharing a bucket with another
         // (counted in `self.buckets`, used as scratch: how many keys each bucket holds).
-        sort(&mut exact, &|&(key, connection)| (0, key, connection));
         let buckets = &mut self.buckets;
         let mut best = (usize::MAX, MULTIPLIERS[0]);
         for multiplier in MULTIPLIERS {
             buckets.clear();
             buckets.resize(count, (EMPTY, 0)).ok()?;
-            let mut previous = None;
-            for &(key, _) in &exact {
-                if previous == Some(key) {
+            for (position, &(key, _)) in exact.iter().enumerate() {
+                // A key counts once, at its first filter. Found by comparing with the filters
+                // before it rather than after a sort by key, whose inlined copy took 140 bytes
+                // of the NUCLEO-G474RE's flash: a table is indexed once, when it is loaded (at
+                // most 2 016 comparisons per multiplier at the board's 64 connections).
+                let before = exact.get(..position).unwrap_or(&[]);
+                if before.iter().any(|&(other, _)| other == key) {
                     continue;
                 }
-                previous = Some(key);
                 if let Some(entry) = buckets.get_mut(bucket(key, multiplier, count)) {
                     entry.1 = entry.1.saturating_add(1);
                 }
