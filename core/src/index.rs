@@ -196,7 +196,8 @@ impl<const C: usize> FilterIndex<C> {
                     continue;
                 }
                 if let Some(entry) = buckets.get_mut(bucket(key, multiplier, count)) {
-                    entry.1 = entry.1.saturating_add(1);
+                    // At most `C` keys in a bucket: no overflow.
+                    entry.1 = entry.1.wrapping_add(1);
                 }
             }
             let shared: usize = buckets
@@ -233,16 +234,17 @@ impl<const C: usize> FilterIndex<C> {
                 .get(end)
                 .is_some_and(|&(key, _)| bucket(key, multiplier, count) == b)
             {
-                end = end.saturating_add(1);
+                // Below `exact.len()`: no overflow.
+                end = end.wrapping_add(1);
             }
             let first = exact.get(start).map_or(EMPTY, |&(key, _)| key);
             let with_first = exact.get(start..end).map_or(0, |run| {
                 run.iter().filter(|&&(key, _)| key == first).count()
             });
-            // Positions are below 2^15 (checked above).
-            let (start_field, end_field) = (u32::try_from(start).ok()?, u32::try_from(end).ok()?);
-            // The bucket holds no key but its first.
-            let alone = end.saturating_sub(start) == with_first;
+            // Positions are below 2^15 (checked above): the casts keep them whole.
+            let (start_field, end_field) = (start as u32, end as u32);
+            // The bucket holds no key but its first (`end` is not below `start`).
+            let alone = end.wrapping_sub(start) == with_first;
             let mut word = start_field;
             if alone && no_masked {
                 word |= ALONE;
