@@ -212,7 +212,6 @@ impl<const C: usize> FilterIndex<C> {
                 break;
             }
         }
-        buckets.clear();
         let multiplier = best.1;
         sort(&mut exact, &|&(key, connection)| {
             (bucket(key, multiplier, count), key, connection)
@@ -228,7 +227,8 @@ impl<const C: usize> FilterIndex<C> {
         }
         let no_masked = self.masked.is_empty();
         let mut start = 0usize;
-        for b in 0..count {
+        // Every bucket is rewritten: the search left `count` of them.
+        for (b, entry) in self.buckets.iter_mut().enumerate() {
             let mut end = start;
             while exact
                 .get(end)
@@ -255,7 +255,7 @@ impl<const C: usize> FilterIndex<C> {
                 }
                 _ => word |= end_field << 16,
             }
-            self.buckets.push((first, word)).ok()?;
+            *entry = (first, word);
             start = end;
         }
         Some(())
