@@ -526,33 +526,34 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// table it decodes; it costs one pass over the connections and one over the nodes.
     pub fn validate(&self) -> Result<(), TableError> {
         let () = Self::CAPACITIES_FIT;
-        let mut connections_seen = 0usize;
-        let mut nodes_seen = 0usize;
-        let mut roots_seen = 0usize;
+        // What the ports before have not taken of each list.
+        let mut connections_left: &[Connection] = &self.connections;
+        let mut nodes_left: &[DecisionNode] = &self.nodes;
+        let mut roots_left: &[NodeRef] = &self.roots;
         for (index, port) in self.ports.iter().enumerate() {
             let index = u8::try_from(index).map_err(|_| TableError::TooManyPorts)?;
             if usize::from(port.connections) > MAX_CONNECTIONS_PER_PORT {
                 return Err(TableError::PortTooWide { port: index });
             }
-            let connections = slice(&self.connections, &mut connections_seen, port.connections)
+            let connections = take(&mut connections_left, port.connections)
                 .ok_or(TableError::ConnectionCountMismatch)?;
-            let nodes = slice(&self.nodes, &mut nodes_seen, port.nodes)
-                .ok_or(TableError::NodeCountMismatch)?;
+            let nodes = take(&mut nodes_left, port.nodes).ok_or(TableError::NodeCountMismatch)?;
             let roots = match port.value {
-                Some(_) => slice(&self.roots, &mut roots_seen, port.connections)
-                    .ok_or(TableError::RootCountMismatch)?,
+                Some(_) => {
+                    take(&mut roots_left, port.connections).ok_or(TableError::RootCountMismatch)?
+                }
                 None => &[],
             };
             validate_port(index, port, connections, nodes, roots)?;
             check_claims(index, connections, &self.groups)?;
         }
-        if connections_seen != self.connections.len() {
+        if !connections_left.is_empty() {
             return Err(TableError::ConnectionCountMismatch);
         }
-        if nodes_seen != self.nodes.len() {
+        if !nodes_left.is_empty() {
             return Err(TableError::NodeCountMismatch);
         }
-        if roots_seen != self.roots.len() {
+        if !roots_left.is_empty() {
             return Err(TableError::RootCountMismatch);
         }
         let (ports, connections) = self.value_usage();
@@ -706,11 +707,10 @@ impl Port {
 /// A range of indices into one of a table's lists.
 pub(crate) type PortRange = Range<usize>;
 
-/// The next `count` items of `items` after `*seen`, advancing `*seen`.
-fn slice<'a, T>(items: &'a [T], seen: &mut usize, count: impl Into<usize>) -> Option<&'a [T]> {
-    let end = seen.checked_add(count.into())?;
-    let part = items.get(*seen..end)?;
-    *seen = end;
+/// The first `count` items of `*items`, which keep the rest.
+fn take<'a, T>(items: &mut &'a [T], count: impl Into<usize>) -> Option<&'a [T]> {
+    let (part, rest) = items.split_at_checked(count.into())?;
+    *items = rest;
     Some(part)
 }
 
