@@ -546,10 +546,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             throttles: _,
             table,
         } = self;
-        for (position, (record, connections, nodes, roots)) in table.ranges().enumerate() {
+        for (position, parts) in table.parts().enumerate() {
             let port = u8::try_from(position).ok()?;
-            let views = table.connections().get(connections)?;
-            let nodes = table.nodes().get(nodes)?;
+            let (record, views, nodes, roots) = parts?;
             let first_connection = u16::try_from(slots.len()).ok()?;
             for (index, connection) in views.iter().enumerate() {
                 // `Runtime::new` less the checks `table.validate()` made: they cannot fail
@@ -591,7 +590,6 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             run.idle(steps.as_slice());
             ports.push(run).ok()?;
             if let Some(spec) = record.value() {
-                let roots = table.roots().get(roots)?;
                 let first = u8::try_from(value_slots.len()).ok()?;
                 let own = slots.get(usize::from(first_connection)..).unwrap_or(&[]);
                 for (slot, &root) in own.iter().zip(roots) {

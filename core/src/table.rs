@@ -662,10 +662,30 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             })
     }
 
+    /// For each port, its record and its connections, decision nodes and value-port roots,
+    /// taken in turn off the front of each list; `None` for a port whose lists run short (in a
+    /// table that [`Table::validate`] refuses).
+    pub(crate) fn parts(&self) -> impl Iterator<Item = Option<PortParts<'_>>> + '_ {
+        let mut connections: &[Connection] = &self.connections;
+        let mut nodes: &[DecisionNode] = &self.nodes;
+        let mut roots: &[NodeRef] = &self.roots;
+        self.ports.iter().map(move |port| {
+            let root_count = if port.value.is_some() {
+                port.connections
+            } else {
+                0
+            };
+            Some((
+                *port,
+                take(&mut connections, port.connections)?,
+                take(&mut nodes, port.nodes)?,
+                take(&mut roots, root_count)?,
+            ))
+        })
+    }
+
     /// For each port, its record and the ranges of its connections, nodes and roots.
-    pub(crate) fn ranges(
-        &self,
-    ) -> impl Iterator<Item = (Port, PortRange, PortRange, PortRange)> + '_ {
+    fn ranges(&self) -> impl Iterator<Item = (Port, PortRange, PortRange, PortRange)> + '_ {
         let mut connections = 0usize;
         let mut nodes = 0usize;
         let mut roots = 0usize;
@@ -705,7 +725,11 @@ impl Port {
 }
 
 /// A range of indices into one of a table's lists.
-pub(crate) type PortRange = Range<usize>;
+type PortRange = Range<usize>;
+
+/// A port's record and its part of the table's connections, decision nodes and value-port
+/// roots ([`Table::parts`]).
+pub(crate) type PortParts<'a> = (Port, &'a [Connection], &'a [DecisionNode], &'a [NodeRef]);
 
 /// The first `count` items of `*items`, which keep the rest.
 fn take<'a, T>(items: &mut &'a [T], count: impl Into<usize>) -> Option<&'a [T]> {
