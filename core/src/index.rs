@@ -101,13 +101,13 @@ const MORE: u16 = 1 << 15;
 /// `Cursor::next` when the frame's exact entries are exhausted.
 const NO_MORE: u16 = u16::MAX;
 
-/// An order of the exact filters (key, connection) for [`sort`].
-type Order<'a> = &'a dyn Fn(&(u32, u16)) -> (usize, u32, u16);
-
-/// Sorts the exact filters by `order`. An insertion sort: a table is indexed once, when it is
-/// loaded (at most n²/2 moves, a fraction of a millisecond at the board's 64 connections), and
-/// it costs a hundred bytes of flash where the library's sort costs kilobytes.
-fn sort(exact: &mut [(u32, u16)], order: Order<'_>) {
+/// Sorts the exact filters by bucket (of `count`, under `multiplier`), then key, equal keys in
+/// table order (the order they come in: the sort is stable). An insertion sort: a table is
+/// indexed once, when it is loaded (at most n²/2 moves, a fraction of a millisecond at the
+/// board's 64 connections), and it costs a hundred bytes of flash where the library's sort costs
+/// kilobytes.
+fn sort(exact: &mut [(u32, u16)], multiplier: u32, count: usize) {
+    let order = |&(key, _): &(u32, u16)| (bucket(key, multiplier, count), key);
     for sorted in 1..exact.len() {
         let mut at = sorted;
         while at > 0 {
@@ -213,9 +213,7 @@ impl<const C: usize> FilterIndex<C> {
             }
         }
         let multiplier = best.1;
-        sort(&mut exact, &|&(key, connection)| {
-            (bucket(key, multiplier, count), key, connection)
-        });
+        sort(&mut exact, multiplier, count);
         self.multiplier = multiplier;
         let mut entries = exact.iter().peekable();
         while let Some(&(key, connection)) = entries.next() {
