@@ -448,12 +448,13 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
 
     /// How many value ports there are, and connections on them.
     fn value_usage(&self) -> (usize, usize) {
+        // At most `PORTS` ≤ 16 ports of 255 connections: no overflow.
         self.ports.iter().filter(|port| port.value.is_some()).fold(
             (0, 0),
             |(ports, connections), port| {
                 (
-                    ports.saturating_add(1),
-                    connections.saturating_add(usize::from(port.connections)),
+                    ports.wrapping_add(1),
+                    connections.wrapping_add(usize::from(port.connections)),
                 )
             },
         )
