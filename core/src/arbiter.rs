@@ -546,10 +546,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             throttles: _,
             table,
         } = self;
-        for (position, (record, connections, nodes, roots)) in table.ranges().enumerate() {
+        for (position, parts) in table.parts().enumerate() {
             let port = u8::try_from(position).ok()?;
-            let views = table.connections().get(connections)?;
-            let nodes = table.nodes().get(nodes)?;
+            let (record, views, nodes, roots) = parts?;
             let first_connection = u16::try_from(slots.len()).ok()?;
             for (index, connection) in views.iter().enumerate() {
                 // `Runtime::new` less the checks `table.validate()` made: they cannot fail
@@ -591,7 +590,6 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             run.idle(steps.as_slice());
             ports.push(run).ok()?;
             if let Some(spec) = record.value() {
-                let roots = table.roots().get(roots)?;
                 let first = u8::try_from(value_slots.len()).ok()?;
                 let own = slots.get(usize::from(first_connection)..).unwrap_or(&[]);
                 for (slot, &root) in own.iter().zip(roots) {
@@ -762,6 +760,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     // without. Run once per table swap.
     #[inline(never)]
     pub fn carry_over(&mut self, previous: &Self) -> usize {
+        for port in self.ports.iter_mut() {
+            port.idle(&self.steps);
+        }
         let mut carried = 0;
         let connections = self.table.connections();
         for (slot, connection) in self.slots.iter_mut().zip(connections) {
@@ -786,30 +787,23 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                     self.throttles.carry(slot.filter, throttle);
                 }
                 carried += 1;
+                // A carried connection that is flagged flags its port (marked here rather than
+                // in a second pass over each port's slots), with both intervals empty: the next
+                // frame or reading evaluates every flagged connection ([`Port::recompute`]), as
+                // after a frame out of order. (A port's connections are fewer than 32.)
+                if slot.integrator.active_flag()
+                    && let Some(port) = self.ports.get_mut(usize::from(slot.port))
+                {
+                    port.flagged |= bit(slot.index);
+                    (port.from, port.until) = (1, 0);
+                    (port.lapsed_from, port.lapsed_until) = (1, 0);
+                }
             }
         }
         self.throttles.settle(
             previous.throttles.profile(),
             self.table.filters() == previous.table.filters(),
         );
-        for port in self.ports.iter_mut() {
-            port.idle(&self.steps);
-            let flagged = port
-                .slots(&self.slots)
-                .iter()
-                .enumerate()
-                .filter(|(_, slot)| slot.integrator.active_flag())
-                .fold(0u32, |bits, (index, _)| {
-                    bits | 1u32.checked_shl(index as u32).unwrap_or(0)
-                });
-            if flagged != 0 {
-                // Both intervals empty: the next frame or reading evaluates every flagged
-                // connection ([`Port::recompute`]), as after a frame out of order.
-                port.flagged = flagged;
-                (port.from, port.until) = (1, 0);
-                (port.lapsed_from, port.lapsed_until) = (1, 0);
-            }
-        }
         carried
     }
 

@@ -300,7 +300,7 @@ pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
 ) -> Result<Loaded<PORTS, CONNECTIONS, NODES>, LoadError> {
     let header = read_header(bytes)?;
     // read_header bounded body_len by MAX_IMAGE_LEN, so this cannot overflow.
-    let total = HEADER_LEN.saturating_add(header.body_len as usize);
+    let total = HEADER_LEN.wrapping_add(header.body_len as usize);
     if bytes.len() < total {
         return Err(LoadError::Truncated {
             needed: total,
@@ -309,7 +309,8 @@ pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
     }
     if bytes.len() > total {
         return Err(LoadError::TrailingBytes {
-            extra: bytes.len().saturating_sub(total),
+            // More bytes than `total`: no underflow.
+            extra: bytes.len().wrapping_sub(total),
         });
     }
     let (Some(covered), Some(body)) = (bytes.get(..16), bytes.get(HEADER_LEN..)) else {
@@ -326,7 +327,8 @@ pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
         });
     }
     let mut r = crate::wire::Reader::new(body);
-    let (table, needed, roots) = Table::<PORTS, CONNECTIONS, NODES>::decode_sized(&mut r);
+    let mut table = Table::new();
+    let (needed, roots) = table.decode_sized(&mut r);
     if let Some(error) = r.error() {
         let capacity = TableSize {
             ports: PORTS,

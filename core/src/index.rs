@@ -101,13 +101,13 @@ const MORE: u16 = 1 << 15;
 /// `Cursor::next` when the frame's exact entries are exhausted.
 const NO_MORE: u16 = u16::MAX;
 
-/// An order of the exact filters (key, connection) for [`sort`].
-type Order<'a> = &'a dyn Fn(&(u32, u16)) -> (usize, u32, u16);
-
-/// Sorts the exact filters by `order`. An insertion sort: a table is indexed once, when it is
-/// loaded (at most n²/2 moves, a fraction of a millisecond at the board's 64 connections), and
-/// it costs a hundred bytes of flash where the library's sort costs kilobytes.
-fn sort(exact: &mut [(u32, u16)], order: Order<'_>) {
+/// Sorts the exact filters by bucket (of `count`, under `multiplier`), then key, equal keys in
+/// table order (the order they come in: the sort is stable). An insertion sort: a table is
+/// indexed once, when it is loaded (at most n²/2 moves, a fraction of a millisecond at the
+/// board's 64 connections), and it costs a hundred bytes of flash where the library's sort costs
+/// kilobytes.
+fn sort(exact: &mut [(u32, u16)], multiplier: u32, count: usize) {
+    let order = |&(key, _): &(u32, u16)| (bucket(key, multiplier, count), key);
     for sorted in 1..exact.len() {
         let mut at = sorted;
         while at > 0 {
@@ -155,8 +155,8 @@ impl<const C: usize> FilterIndex<C> {
     /// Indexes `connections` (a table's, in table order) into `self`, an empty index
     /// ([`FilterIndex::empty`]), where it lives: built apart and returned, the index was moved
     /// into the arbiter (72 bytes of the NUCLEO-G474RE's flash). `None` if there are more than `C` of them, or more than 2^15 (`self` is
-    /// then left part-built). Costs, per multiplier tried, a pass over the exact filters and one
-    /// over the buckets, then a sort of the exact filters.
+    /// then left part-built). Costs, per multiplier tried, a pass over the exact filters (each
+    /// compared with those before it) and one over the buckets, then a sort of the exact filters.
     // Out of line: inlined into the loader (and so into the node's loader, whose frame holds a
     // table and an arbiter), each of its locals was reached through a large stack offset, which
     // took 116 bytes more of the NUCLEO-G474RE's flash. Run once per table.
@@ -181,20 +181,23 @@ impl<const C: usize> FilterIndex<C> {
         let count = C.checked_ilog2().map_or(0, |log| 1 << log);
         // The multiplier: the first that leaves the fewest keys sharing a bucket with another
         // (counted in `self.buckets`, used as scratch: how many keys each bucket holds).
-        sort(&mut exact, &|&(key, connection)| (0, key, connection));
         let buckets = &mut self.buckets;
         let mut best = (usize::MAX, MULTIPLIERS[0]);
         for multiplier in MULTIPLIERS {
             buckets.clear();
             buckets.resize(count, (EMPTY, 0)).ok()?;
-            let mut previous = None;
-            for &(key, _) in &exact {
-                if previous == Some(key) {
+            for (position, &(key, _)) in exact.iter().enumerate() {
+                // A key counts once, at its first filter. Found by comparing with the filters
+                // before it rather than after a sort by key, whose inlined copy took 140 bytes
+                // of the NUCLEO-G474RE's flash: a table is indexed once, when it is loaded (at
+                // most 2 016 comparisons per multiplier at the board's 64 connections).
+                let before = exact.get(..position).unwrap_or(&[]);
+                if before.iter().any(|&(other, _)| other == key) {
                     continue;
                 }
-                previous = Some(key);
                 if let Some(entry) = buckets.get_mut(bucket(key, multiplier, count)) {
-                    entry.1 = entry.1.saturating_add(1);
+                    // At most `C` keys in a bucket: no overflow.
+                    entry.1 = entry.1.wrapping_add(1);
                 }
             }
             let shared: usize = buckets
@@ -209,11 +212,8 @@ impl<const C: usize> FilterIndex<C> {
                 break;
             }
         }
-        buckets.clear();
         let multiplier = best.1;
-        sort(&mut exact, &|&(key, connection)| {
-            (bucket(key, multiplier, count), key, connection)
-        });
+        sort(&mut exact, multiplier, count);
         self.multiplier = multiplier;
         let mut entries = exact.iter().peekable();
         while let Some(&(key, connection)) = entries.next() {
@@ -225,22 +225,24 @@ impl<const C: usize> FilterIndex<C> {
         }
         let no_masked = self.masked.is_empty();
         let mut start = 0usize;
-        for b in 0..count {
+        // Every bucket is rewritten: the search left `count` of them.
+        for (b, entry) in self.buckets.iter_mut().enumerate() {
             let mut end = start;
             while exact
                 .get(end)
                 .is_some_and(|&(key, _)| bucket(key, multiplier, count) == b)
             {
-                end = end.saturating_add(1);
+                // Below `exact.len()`: no overflow.
+                end = end.wrapping_add(1);
             }
             let first = exact.get(start).map_or(EMPTY, |&(key, _)| key);
             let with_first = exact.get(start..end).map_or(0, |run| {
                 run.iter().filter(|&&(key, _)| key == first).count()
             });
-            // Positions are below 2^15 (checked above).
-            let (start_field, end_field) = (u32::try_from(start).ok()?, u32::try_from(end).ok()?);
-            // The bucket holds no key but its first.
-            let alone = end.saturating_sub(start) == with_first;
+            // Positions are below 2^15 (checked above): the casts keep them whole.
+            let (start_field, end_field) = (start as u32, end as u32);
+            // The bucket holds no key but its first (`end` is not below `start`).
+            let alone = end.wrapping_sub(start) == with_first;
             let mut word = start_field;
             if alone && no_masked {
                 word |= ALONE;
@@ -251,7 +253,7 @@ impl<const C: usize> FilterIndex<C> {
                 }
                 _ => word |= end_field << 16,
             }
-            self.buckets.push((first, word)).ok()?;
+            *entry = (first, word);
             start = end;
         }
         Some(())

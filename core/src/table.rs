@@ -448,12 +448,13 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
 
     /// How many value ports there are, and connections on them.
     fn value_usage(&self) -> (usize, usize) {
+        // At most `PORTS` ≤ 16 ports of 255 connections: no overflow.
         self.ports.iter().filter(|port| port.value.is_some()).fold(
             (0, 0),
             |(ports, connections), port| {
                 (
-                    ports.saturating_add(1),
-                    connections.saturating_add(usize::from(port.connections)),
+                    ports.wrapping_add(1),
+                    connections.wrapping_add(usize::from(port.connections)),
                 )
             },
         )
@@ -526,33 +527,34 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// table it decodes; it costs one pass over the connections and one over the nodes.
     pub fn validate(&self) -> Result<(), TableError> {
         let () = Self::CAPACITIES_FIT;
-        let mut connections_seen = 0usize;
-        let mut nodes_seen = 0usize;
-        let mut roots_seen = 0usize;
+        // What the ports before have not taken of each list.
+        let mut connections_left: &[Connection] = &self.connections;
+        let mut nodes_left: &[DecisionNode] = &self.nodes;
+        let mut roots_left: &[NodeRef] = &self.roots;
         for (index, port) in self.ports.iter().enumerate() {
             let index = u8::try_from(index).map_err(|_| TableError::TooManyPorts)?;
             if usize::from(port.connections) > MAX_CONNECTIONS_PER_PORT {
                 return Err(TableError::PortTooWide { port: index });
             }
-            let connections = slice(&self.connections, &mut connections_seen, port.connections)
+            let connections = take(&mut connections_left, port.connections)
                 .ok_or(TableError::ConnectionCountMismatch)?;
-            let nodes = slice(&self.nodes, &mut nodes_seen, port.nodes)
-                .ok_or(TableError::NodeCountMismatch)?;
+            let nodes = take(&mut nodes_left, port.nodes).ok_or(TableError::NodeCountMismatch)?;
             let roots = match port.value {
-                Some(_) => slice(&self.roots, &mut roots_seen, port.connections)
-                    .ok_or(TableError::RootCountMismatch)?,
+                Some(_) => {
+                    take(&mut roots_left, port.connections).ok_or(TableError::RootCountMismatch)?
+                }
                 None => &[],
             };
             validate_port(index, port, connections, nodes, roots)?;
             check_claims(index, connections, &self.groups)?;
         }
-        if connections_seen != self.connections.len() {
+        if !connections_left.is_empty() {
             return Err(TableError::ConnectionCountMismatch);
         }
-        if nodes_seen != self.nodes.len() {
+        if !nodes_left.is_empty() {
             return Err(TableError::NodeCountMismatch);
         }
-        if roots_seen != self.roots.len() {
+        if !roots_left.is_empty() {
             return Err(TableError::RootCountMismatch);
         }
         let (ports, connections) = self.value_usage();
@@ -661,10 +663,30 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             })
     }
 
+    /// For each port, its record and its connections, decision nodes and value-port roots,
+    /// taken in turn off the front of each list; `None` for a port whose lists run short (in a
+    /// table that [`Table::validate`] refuses).
+    pub(crate) fn parts(&self) -> impl Iterator<Item = Option<PortParts<'_>>> + '_ {
+        let mut connections: &[Connection] = &self.connections;
+        let mut nodes: &[DecisionNode] = &self.nodes;
+        let mut roots: &[NodeRef] = &self.roots;
+        self.ports.iter().map(move |port| {
+            let root_count = if port.value.is_some() {
+                port.connections
+            } else {
+                0
+            };
+            Some((
+                *port,
+                take(&mut connections, port.connections)?,
+                take(&mut nodes, port.nodes)?,
+                take(&mut roots, root_count)?,
+            ))
+        })
+    }
+
     /// For each port, its record and the ranges of its connections, nodes and roots.
-    pub(crate) fn ranges(
-        &self,
-    ) -> impl Iterator<Item = (Port, PortRange, PortRange, PortRange)> + '_ {
+    fn ranges(&self) -> impl Iterator<Item = (Port, PortRange, PortRange, PortRange)> + '_ {
         let mut connections = 0usize;
         let mut nodes = 0usize;
         let mut roots = 0usize;
@@ -704,13 +726,16 @@ impl Port {
 }
 
 /// A range of indices into one of a table's lists.
-pub(crate) type PortRange = Range<usize>;
+type PortRange = Range<usize>;
 
-/// The next `count` items of `items` after `*seen`, advancing `*seen`.
-fn slice<'a, T>(items: &'a [T], seen: &mut usize, count: impl Into<usize>) -> Option<&'a [T]> {
-    let end = seen.checked_add(count.into())?;
-    let part = items.get(*seen..end)?;
-    *seen = end;
+/// A port's record and its part of the table's connections, decision nodes and value-port
+/// roots ([`Table::parts`]).
+pub(crate) type PortParts<'a> = (Port, &'a [Connection], &'a [DecisionNode], &'a [NodeRef]);
+
+/// The first `count` items of `*items`, which keep the rest.
+fn take<'a, T>(items: &mut &'a [T], count: impl Into<usize>) -> Option<&'a [T]> {
+    let (part, rest) = items.split_at_checked(count.into())?;
+    *items = rest;
     Some(part)
 }
 
@@ -857,40 +882,45 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize> crate::wi
     for Table<PORTS, CONNECTIONS, NODES>
 {
     fn decode(r: &mut crate::wire::Reader<'_>) -> Self {
-        Self::decode_sized(r).0
+        let mut table = Table::new();
+        table.decode_sized(r);
+        table
     }
 }
 
 impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     Table<PORTS, CONNECTIONS, NODES>
 {
-    /// The table's decode, with what its body holds: `(table, sizes, value-port roots)`, the
-    /// lengths read, including elements beyond the capacities ([`crate::wire::Reader::fill_within`]:
-    /// a list longer than its room is an error that leaves the rest of the body read, so that
-    /// the loader tells [`crate::image::LoadError::ExceedsCapacity`] from the sizes).
+    /// The table's decode into `self`, an empty table ([`Table::new`]), with what its body
+    /// holds: `(sizes, value-port roots)`, the lengths read, including elements beyond the
+    /// capacities ([`crate::wire::Reader::fill_within`]: a list longer than its room is an error
+    /// that leaves the rest of the body read, so that the loader tells
+    /// [`crate::image::LoadError::ExceedsCapacity`] from the sizes).
     // Out of line: inlined into the loader, each list's decode reached the table at large
     // offsets of the loader's frame; here the table is near. 156 bytes less of the
     // NUCLEO-G474RE's flash with competitive dynamics, 80 without. Run once per image.
     #[inline(never)]
     pub(crate) fn decode_sized(
+        &mut self,
         r: &mut crate::wire::Reader<'_>,
-    ) -> (Self, crate::image::TableSize, usize) {
-        // Each list is decoded into its field of the table being returned, not built apart and
-        // moved in: a move per field was code, on the boards with the arbiter built in place
-        // too (`Arbiter::new`) 72 bytes of flash with competitive dynamics, 48 without.
-        let mut table = Table::new();
+    ) -> (crate::image::TableSize, usize) {
+        // Each list is decoded into its field of the caller's table, not built apart and moved
+        // in: a move per field was code, on the boards with the arbiter built in place too
+        // (`Arbiter::new`) 72 bytes of flash with competitive dynamics, 48 without; a table
+        // built here and returned was moved too (and reached at large offsets of this frame),
+        // 152 bytes with the schema server, 56 without.
         let size = crate::image::TableSize {
-            ports: r.fill_within(&mut table.ports),
-            connections: r.fill_within(&mut table.connections),
-            nodes: r.fill_within(&mut table.nodes),
+            ports: r.fill_within(&mut self.ports),
+            connections: r.fill_within(&mut self.connections),
+            nodes: r.fill_within(&mut self.nodes),
         };
-        let roots = r.fill_within(&mut table.roots);
-        r.fill_within(&mut table.groups);
+        let roots = r.fill_within(&mut self.roots);
+        r.fill_within(&mut self.groups);
         #[cfg(feature = "dynamics")]
         {
-            r.fill_within(&mut table.dynamics);
-            r.fill_within(&mut table.gate_sources);
-            r.fill_within(&mut table.gate_links);
+            r.fill_within(&mut self.dynamics);
+            r.fill_within(&mut self.gate_sources);
+            r.fill_within(&mut self.gate_links);
         }
         // Without competitive dynamics the three lists must be empty: a table that has them
         // is refused, its body unreadable here (a node needs the feature to run it).
@@ -899,17 +929,17 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             r.empty::<u8, 0>();
         }
         // Format 6: after the dynamics part, the HBBA message filters.
-        r.fill(&mut table.filters.connections);
-        r.fill(&mut table.filters.profiles);
+        r.fill(&mut self.filters.connections);
+        r.fill(&mut self.filters.profiles);
         // Format 7: the schema server. Without the feature it must be absent: a node needs the
         // feature to run it.
         #[cfg(feature = "schema")]
         {
-            table.schema = r.option();
+            self.schema = r.option();
         }
         #[cfg(not(feature = "schema"))]
         r.none();
-        (table, size, roots)
+        (size, roots)
     }
 }
 

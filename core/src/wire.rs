@@ -110,10 +110,16 @@ impl<'a> Reader<'a> {
 
     /// An unsigned LEB128 varint of at most `bits` bits (16, 32 or 64), as postcard reads one: at
     /// most ⌈bits/7⌉ bytes, and the last byte of a full-length one no larger than the bits left.
-    #[inline(never)]
+    #[inline(always)]
     fn varint(&mut self, bits: u32) -> u64 {
-        let max_bytes = bits.div_ceil(7);
-        let last_max = (1u8 << (bits % 7)) - 1;
+        // Worked out where `bits` is a constant: no division in the reader.
+        self.varint_within(bits.div_ceil(7), (1u8 << (bits % 7)) - 1)
+    }
+
+    /// [`Reader::varint`] of at most `max_bytes` bytes, the last of a full-length one at most
+    /// `last_max`.
+    #[inline(never)]
+    fn varint_within(&mut self, max_bytes: u32, last_max: u8) -> u64 {
         let mut out = 0u64;
         for i in 0..max_bytes {
             let Some((&byte, rest)) = self.bytes.split_first() else {
@@ -134,6 +140,8 @@ impl<'a> Reader<'a> {
         0
     }
 
+    /// Out of line, as [`Reader::u32`]: a call is smaller than setting up `varint`'s arguments.
+    #[inline(never)]
     pub(crate) fn u16(&mut self) -> u16 {
         // The last-byte check keeps the value within 16 bits.
         self.varint(16) as u16
@@ -154,7 +162,9 @@ impl<'a> Reader<'a> {
     }
 
     /// An enum's variant index (a u32 varint) that must be below `variants`: serde's derive
-    /// refuses an unknown index with a custom error (and 0 comes back).
+    /// refuses an unknown index with a custom error (and 0 comes back). Out of line: inlined,
+    /// each of its callers (ten with the schema server) had its own comparison and failure.
+    #[inline(never)]
     pub(crate) fn variant(&mut self, variants: u32) -> u32 {
         let index = self.u32();
         if index < variants {
@@ -175,12 +185,19 @@ impl<'a> Reader<'a> {
     }
 
     pub(crate) fn option<T: Decode>(&mut self) -> Option<T> {
+        self.some().then(|| T::decode(self))
+    }
+
+    /// An option's tag: whether a value follows. Out of line: one copy for every option type
+    /// (the schema server's set-up has them too).
+    #[inline(never)]
+    fn some(&mut self) -> bool {
         match self.u8() {
-            0 => None,
-            1 => Some(T::decode(self)),
+            0 => false,
+            1 => true,
             _ => {
                 self.fail(Error::DeserializeBadOption);
-                None
+                false
             }
         }
     }
@@ -189,26 +206,15 @@ impl<'a> Reader<'a> {
         T::decode(self)
     }
 
-    /// A list, each element handed to `each` as it is decoded (not one that failed, nor any
-    /// after the bytes were dropped); an error from `each` is kept as the reader's and drops the
-    /// bytes. Returns the length read.
-    pub(crate) fn each<T: Decode>(
-        &mut self,
-        mut each: impl FnMut(T) -> Result<(), Error>,
-    ) -> usize {
-        self.list(&mut |r| {
-            let element = T::decode(r);
-            if !r.dropped
-                && let Err(error) = each(element)
-            {
-                r.fail(error);
-            }
-        })
-    }
-
-    /// [`Reader::each`]'s length and loop, one copy for every element type (a copy per list type
-    /// took 144 bytes more of the NUCLEO-G474RE's flash): `element` decodes and takes one
-    /// element. The loader runs it once per list of a table, never on the frame path.
+    /// A list: its length and loop, one copy for every element type (a copy per list type took
+    /// 144 bytes more of the NUCLEO-G474RE's flash): `element` decodes and takes one element.
+    /// Returns the length read. The loader runs it once per list of a table, never on the frame
+    /// path.
+    ///
+    /// An element whose decode failed is taken too (and the list ends there, the bytes
+    /// dropped): whatever a failed decode builds is never seen ([`take`] reports the error), so
+    /// the elements' takers need no test of their own (one per element type: 140 bytes of the
+    /// NUCLEO-G474RE's flash with the schema server, 76 without).
     #[inline(never)]
     fn list(&mut self, element: &mut dyn FnMut(&mut Self)) -> usize {
         // A length is a usize varint for postcard: read as on a 64-bit workstation on every
@@ -237,7 +243,12 @@ impl<'a> Reader<'a> {
     /// [`Reader::vec`] into an empty `Vec` already in place (a large struct's field), so that the
     /// list is not built elsewhere and moved: the same elements and errors.
     pub(crate) fn fill<T: Decode, const N: usize>(&mut self, out: &mut Vec<T, N>) {
-        self.each(|x| out.push(x).map_err(|_| Error::SerdeDeCustom));
+        self.list(&mut |r| {
+            let element = T::decode(r);
+            if out.push(element).is_err() {
+                r.fail(Error::SerdeDeCustom);
+            }
+        });
     }
 
     /// One of a table's own lists ([`crate::Table`]'s fields, not a list inside an element)
@@ -252,7 +263,7 @@ impl<'a> Reader<'a> {
     pub(crate) fn fill_within<T: Decode, const N: usize>(&mut self, out: &mut Vec<T, N>) -> usize {
         self.list(&mut |r| {
             let element = T::decode(r);
-            if !r.dropped && out.push(element).is_err() {
+            if out.push(element).is_err() {
                 r.overflow(Error::SerdeDeCustom);
             }
         })
@@ -273,7 +284,9 @@ impl<'a> Reader<'a> {
     /// [`Reader::fill_within`] to it.
     #[cfg(test)]
     pub(crate) fn count<T: Decode>(&mut self) -> usize {
-        self.each(|_: T| Ok(()))
+        self.list(&mut |r| {
+            T::decode(r);
+        })
     }
 }
 

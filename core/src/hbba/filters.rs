@@ -93,15 +93,17 @@ impl MessageFilters {
     /// Checks the part against a table of `connections` connections. Costs one pass over each
     /// list.
     pub fn validate(&self, connections: usize) -> Result<(), FiltersError> {
-        let mut previous: Option<u16> = None;
+        // The lowest connection the next may be (strictly increasing), widened so that the one
+        // after 65 535 is 65 536: a bound rather than an `Option` of the previous one.
+        let mut lowest = 0u32;
         for (position, &connection) in self.connections.iter().enumerate() {
-            let in_order = previous.is_none_or(|p| connection > p);
-            if !in_order || usize::from(connection) >= connections {
+            let connection = u32::from(connection);
+            if connection < lowest || connection as usize >= connections {
                 return Err(FiltersError::Connection {
                     position: position as u8,
                 });
             }
-            previous = Some(connection);
+            lowest = connection + 1;
         }
         for (k, profile) in self.profiles.iter().enumerate() {
             if profile.len() != self.connections.len() {
