@@ -908,11 +908,14 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         reception
     }
 
-    /// Feeds `connection` and the next ones of the frame that belong to the same port; then the
-    /// port's activity, decision and verdict. Returns the frame's next connection (of a later
-    /// port), if any. Out of line, one copy for the first port and the others (fan-out): a copy
-    /// inlined for the first port and one for the others took 850 bytes more of the
-    /// NUCLEO-G474RE's flash, for no fewer instructions.
+    /// Feeds `connection` and the frame's next connections while they belong to the same port
+    /// (several when filters overlap); then the port's activity, decision and verdict. Returns
+    /// the frame's next connection (of a later port), if any. Out of line, one copy for the
+    /// first port and the others (fan-out), and one loop for a port's first connection and the
+    /// others: a copy for each took 1.5 KB more of the NUCLEO-G474RE's flash. The frames that
+    /// take this path (several connections or a masked filter for their identifier;
+    /// `Arbiter::feed_one` takes the others) pay 20 to 45 instructions more per port for it (50
+    /// fewer on a port fed through overlapping filters).
     #[inline(never)]
     fn feed_port(
         &mut self,
@@ -923,15 +926,22 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         on_verdict: &mut impl FnMut(&PortVerdict),
         reception: &mut Reception,
     ) -> Option<usize> {
-        let (number, mut fed, mut resting) = self.stimulate(connection, now)?;
-        let after = self.index.next(cursor, id, self.table.connections());
-        let mut next = self.passing(after, cursor, id);
-        if let Some(more) = next
-            && self.slots.get(more).is_some_and(|slot| slot.port == number)
-        {
-            let (more_fed, more_resting, after) = self.feed_same_port(more, cursor, id, now);
-            (fed, resting, next) = (fed | more_fed, resting | more_resting, after);
-        }
+        let number = self.slots.get(connection)?.port;
+        let (mut fed, mut resting) = (0, 0);
+        let mut connection = connection;
+        let next = loop {
+            if let Some((_, bit, rest)) = self.stimulate(connection, now) {
+                fed |= bit;
+                resting |= rest;
+            }
+            let after = self.index.next(cursor, id, self.table.connections());
+            match self.passing(after, cursor, id) {
+                Some(more) if self.slots.get(more).is_some_and(|slot| slot.port == number) => {
+                    connection = more;
+                }
+                other => break other,
+            }
+        };
         self.conclude(number, fed, resting, now, on_verdict, reception);
         next
     }
@@ -969,38 +979,10 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         });
     }
 
-    /// Feeds `connection` and the frame's next connections while they belong to the same port
-    /// (overlapping filters): the fed and resting bits, and the frame's next connection after
-    /// them.
-    #[inline(never)]
-    fn feed_same_port(
-        &mut self,
-        connection: usize,
-        cursor: &mut Cursor,
-        id: &Id,
-        now: Instant,
-    ) -> (u32, u32, Option<usize>) {
-        let (mut fed, mut resting) = (0, 0);
-        let mut next = Some(connection);
-        let number = self.slots.get(connection).map(|slot| slot.port);
-        while let Some(connection) = next {
-            if self.slots.get(connection).map(|slot| slot.port) != number {
-                break;
-            }
-            if let Some((_, bit, rest)) = self.stimulate(connection, now) {
-                fed |= bit;
-                resting |= rest;
-            }
-            let after = self.index.next(cursor, id, self.table.connections());
-            next = self.passing(after, cursor, id);
-        }
-        (fed, resting, next)
-    }
-
     /// The first of `connection` and the frame's next connections whose HBBA filter lets the
     /// frame through: the others never see it. One byte compared per connection without a
-    /// filter. Out of line: its loop would otherwise be inlined at each of the three places a
-    /// frame's connections are walked (396 bytes of the NUCLEO-G474RE's flash more).
+    /// filter. Out of line: its loop would otherwise be inlined at each place a frame's
+    /// connections are walked (396 bytes of the NUCLEO-G474RE's flash more).
     #[inline(never)]
     fn passing(
         &mut self,
