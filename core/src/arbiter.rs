@@ -1203,8 +1203,15 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// The connection of port `port` whose frames would get through at `now`, or `None` (also for
     /// a port that does not exist). Read-only.
     pub fn selected(&self, port: u8, now: Instant) -> Option<u8> {
+        self.selected_holding(port, now, 0)
+    }
+
+    /// [`Arbiter::selected`] with the connections of `held` taken as active too (a BLE group's
+    /// claim, [`Arbiter::offered`]). Out of line: one copy for both.
+    #[inline(never)]
+    fn selected_holding(&self, port: u8, now: Instant, held: u32) -> Option<u8> {
         let record = self.ports.get(usize::from(port))?;
-        let active = record.activity(&self.slots, now) | record.external;
+        let active = record.activity(&self.slots, now) | record.external | held;
         decide(record.steps(&self.steps), record.root, active)
     }
 
@@ -1375,11 +1382,8 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             return 0;
         };
         let candidate = group.ports.iter().any(|entry| {
-            self.ports.get(usize::from(entry.port)).is_some_and(|port| {
-                let active = port.activity(&self.slots, now) | port.external | bit(entry.claim);
-                decide(port.steps(&self.steps), port.root, active)
-                    .is_some_and(|winner| entry.gated & bit(winner) != 0)
-            })
+            self.selected_holding(entry.port, now, bit(entry.claim))
+                .is_some_and(|winner| entry.gated & bit(winner) != 0)
         });
         if candidate { own } else { 0 }
     }
