@@ -694,7 +694,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         any.then_some(Instant::from_micros(soonest))
     }
 
-    /// The slot of connection `connection` of port `port`.
+    /// The slot of connection `connection` of port `port`. Out of line: the readings and the
+    /// filter commands look slots up with it.
+    #[inline(never)]
     fn slot_of(&self, port: u8, connection: u8) -> Option<&Slot> {
         let record = self.ports.get(usize::from(port))?;
         if connection >= record.connections {
@@ -1227,15 +1229,14 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
 
     /// The stimulation level of connection `connection` of port `port` at `now`. Read-only.
     pub fn level(&self, port: u8, connection: u8, now: Instant) -> Option<Level> {
-        let slot = self.port_slots(port)?.get(usize::from(connection))?;
+        let slot = self.slot_of(port, connection)?;
         Some(slot.integrator.level_with(&slot.decay(), now))
     }
 
     /// Whether connection `connection` of port `port` is in its rest time at `now` (ignoring
     /// frames); `false` for a connection that does not exist. Read-only.
     pub fn is_resting(&self, port: u8, connection: u8, now: Instant) -> bool {
-        self.port_slots(port)
-            .and_then(|slots| slots.get(usize::from(connection)))
+        self.slot_of(port, connection)
             .is_some_and(|slot| slot.integrator.is_resting(&slot.decay(), slot.rest_us, now))
     }
 
