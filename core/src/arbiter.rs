@@ -903,7 +903,12 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         let mut reception = Reception::default();
         let found = self.index.find(id);
         let (mut cursor, first) = self.index.first(found, id, self.table.connections());
-        let mut next = self.passing(first, &mut cursor, id);
+        let mut next = first;
+        if let Some(connection) = first
+            && !self.passes(connection)
+        {
+            next = self.next_passing(&mut cursor, id);
+        }
         while let Some(connection) = next {
             next = self.feed_port(connection, &mut cursor, id, now, on_verdict, &mut reception);
         }
@@ -936,8 +941,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 fed |= bit;
                 resting |= rest;
             }
-            let after = self.index.next(cursor, id, self.table.connections());
-            match self.passing(after, cursor, id) {
+            match self.next_passing(cursor, id) {
                 Some(more) if self.slots.get(more).is_some_and(|slot| slot.port == number) => {
                     connection = more;
                 }
@@ -981,25 +985,25 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         });
     }
 
-    /// The first of `connection` and the frame's next connections whose HBBA filter lets the
-    /// frame through: the others never see it. One byte compared per connection without a
-    /// filter. Out of line: its loop would otherwise be inlined at each place a frame's
-    /// connections are walked (396 bytes of the NUCLEO-G474RE's flash more).
+    /// Whether the frame gets through connection `connection`'s HBBA filter (the connections it
+    /// does not get through never see it). One byte compared for a connection without a filter.
+    #[inline(always)]
+    fn passes(&mut self, connection: usize) -> bool {
+        let filter = self.slots.get(connection).map_or(UNFILTERED, |s| s.filter);
+        filter == UNFILTERED || self.throttles.pass(filter)
+    }
+
+    /// The frame's next connection whose HBBA filter lets it through. Out of line: its loop
+    /// would otherwise be inlined at each place a frame's connections are walked (396 bytes of
+    /// the NUCLEO-G474RE's flash more); the cursor's step is in it alone.
     #[inline(never)]
-    fn passing(
-        &mut self,
-        mut connection: Option<usize>,
-        cursor: &mut Cursor,
-        id: &Id,
-    ) -> Option<usize> {
-        while let Some(candidate) = connection {
-            let filter = self.slots.get(candidate).map_or(UNFILTERED, |s| s.filter);
-            if filter == UNFILTERED || self.throttles.pass(filter) {
+    fn next_passing(&mut self, cursor: &mut Cursor, id: &Id) -> Option<usize> {
+        loop {
+            let candidate = self.index.next(cursor, id, self.table.connections())?;
+            if self.passes(candidate) {
                 return Some(candidate);
             }
-            connection = self.index.next(cursor, id, self.table.connections());
         }
-        None
     }
 
     /// Applies a frame at `now` to connection `connection` (index in the table) and records it in
