@@ -1406,11 +1406,8 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             };
             for entry in &group.ports {
                 if let Some(port) = self.ports.get_mut(usize::from(entry.port)) {
-                    if held {
-                        port.external |= bit(entry.claim);
-                    } else {
-                        port.external &= !bit(entry.claim);
-                    }
+                    let claim = bit(entry.claim);
+                    port.external = (port.external & !claim) | if held { claim } else { 0 };
                 }
             }
         }
