@@ -696,7 +696,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         any.then_some(Instant::from_micros(soonest))
     }
 
-    /// The slot of connection `connection` of port `port`.
+    /// The slot of connection `connection` of port `port`. Out of line: the readings and the
+    /// filter commands look slots up with it.
+    #[inline(never)]
     fn slot_of(&self, port: u8, connection: u8) -> Option<&Slot> {
         let record = self.ports.get(usize::from(port))?;
         if connection >= record.connections {
@@ -899,40 +901,28 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         let mut reception = Reception::default();
         let found = self.index.find(id);
         let (mut cursor, first) = self.index.first(found, id, self.table.connections());
-        let Some(first) = self.passing(first, &mut cursor, id) else {
-            return reception;
-        };
-        // The first port in line (a loop here would keep every array's address in a register
-        // across it, and spill them); the others, if any, through a loop out of line.
-        let next = self.feed_port(first, &mut cursor, id, now, on_verdict, &mut reception);
-        if let Some(connection) = next {
-            self.feed_ports(connection, &mut cursor, id, now, on_verdict, &mut reception);
+        let mut next = first;
+        if let Some(connection) = first
+            && !self.passes(connection)
+        {
+            next = self.next_passing(&mut cursor, id);
+        }
+        while let Some(connection) = next {
+            next = self.feed_port(connection, &mut cursor, id, now, on_verdict, &mut reception);
         }
         reception
     }
 
-    /// [`Arbiter::feed`]'s loop over the ports after the first, for a frame that feeds several
-    /// (fan-out).
+    /// Feeds `connection` and the frame's next connections while they belong to the same port
+    /// (several when filters overlap); then the port's activity, decision and verdict. Returns
+    /// the frame's next connection (of a later port), if any. Out of line, one copy for the
+    /// first port and the others (fan-out), and one loop for a port's first connection and the
+    /// others: a copy for each took 1.5 KB more of the NUCLEO-G474RE's flash. The frames that
+    /// take this path (several connections or a masked filter for their identifier;
+    /// `Arbiter::feed_one` takes the others) cost about what they did (on the emulated board, a
+    /// frame for two ports 642 -> 618 instructions, for three 877 either way, for one masked
+    /// filter 378 -> 392, for two overlapping connections of a port 693 -> 610).
     #[inline(never)]
-    fn feed_ports(
-        &mut self,
-        first: usize,
-        cursor: &mut Cursor,
-        id: &Id,
-        now: Instant,
-        on_verdict: &mut impl FnMut(&PortVerdict),
-        reception: &mut Reception,
-    ) {
-        let mut next = Some(first);
-        while let Some(connection) = next {
-            next = self.feed_port(connection, cursor, id, now, on_verdict, reception);
-        }
-    }
-
-    /// Feeds `connection` and the next ones of the frame that belong to the same port; then the
-    /// port's activity, decision and verdict. Returns the frame's next connection (of a later
-    /// port), if any.
-    #[inline(always)]
     fn feed_port(
         &mut self,
         connection: usize,
@@ -942,15 +932,21 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         on_verdict: &mut impl FnMut(&PortVerdict),
         reception: &mut Reception,
     ) -> Option<usize> {
-        let (number, mut fed, mut resting) = self.stimulate(connection, now)?;
-        let after = self.index.next(cursor, id, self.table.connections());
-        let mut next = self.passing(after, cursor, id);
-        if let Some(more) = next
-            && self.slots.get(more).is_some_and(|slot| slot.port == number)
-        {
-            let (more_fed, more_resting, after) = self.feed_same_port(more, cursor, id, now);
-            (fed, resting, next) = (fed | more_fed, resting | more_resting, after);
-        }
+        let number = self.slots.get(connection)?.port;
+        let (mut fed, mut resting) = (0, 0);
+        let mut connection = connection;
+        let next = loop {
+            if let Some((_, bit, rest)) = self.stimulate(connection, now) {
+                fed |= bit;
+                resting |= rest;
+            }
+            match self.next_passing(cursor, id) {
+                Some(more) if self.slots.get(more).is_some_and(|slot| slot.port == number) => {
+                    connection = more;
+                }
+                other => break other,
+            }
+        };
         self.conclude(number, fed, resting, now, on_verdict, reception);
         next
     }
@@ -988,53 +984,25 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         });
     }
 
-    /// Feeds `connection` and the frame's next connections while they belong to the same port
-    /// (overlapping filters): the fed and resting bits, and the frame's next connection after
-    /// them.
-    #[inline(never)]
-    fn feed_same_port(
-        &mut self,
-        connection: usize,
-        cursor: &mut Cursor,
-        id: &Id,
-        now: Instant,
-    ) -> (u32, u32, Option<usize>) {
-        let (mut fed, mut resting) = (0, 0);
-        let mut next = Some(connection);
-        let number = self.slots.get(connection).map(|slot| slot.port);
-        while let Some(connection) = next {
-            if self.slots.get(connection).map(|slot| slot.port) != number {
-                break;
-            }
-            if let Some((_, bit, rest)) = self.stimulate(connection, now) {
-                fed |= bit;
-                resting |= rest;
-            }
-            let after = self.index.next(cursor, id, self.table.connections());
-            next = self.passing(after, cursor, id);
-        }
-        (fed, resting, next)
+    /// Whether the frame gets through connection `connection`'s HBBA filter (the connections it
+    /// does not get through never see it). One byte compared for a connection without a filter.
+    #[inline(always)]
+    fn passes(&mut self, connection: usize) -> bool {
+        let filter = self.slots.get(connection).map_or(UNFILTERED, |s| s.filter);
+        filter == UNFILTERED || self.throttles.pass(filter)
     }
 
-    /// The first of `connection` and the frame's next connections whose HBBA filter lets the
-    /// frame through: the others never see it. One byte compared per connection without a
-    /// filter. Out of line: its loop would otherwise be inlined at each of the three places a
-    /// frame's connections are walked (396 bytes of the NUCLEO-G474RE's flash more).
+    /// The frame's next connection whose HBBA filter lets it through. Out of line: its loop
+    /// would otherwise be inlined at each place a frame's connections are walked (396 bytes of
+    /// the NUCLEO-G474RE's flash more); the cursor's step is in it alone.
     #[inline(never)]
-    fn passing(
-        &mut self,
-        mut connection: Option<usize>,
-        cursor: &mut Cursor,
-        id: &Id,
-    ) -> Option<usize> {
-        while let Some(candidate) = connection {
-            let filter = self.slots.get(candidate).map_or(UNFILTERED, |s| s.filter);
-            if filter == UNFILTERED || self.throttles.pass(filter) {
+    fn next_passing(&mut self, cursor: &mut Cursor, id: &Id) -> Option<usize> {
+        loop {
+            let candidate = self.index.next(cursor, id, self.table.connections())?;
+            if self.passes(candidate) {
                 return Some(candidate);
             }
-            connection = self.index.next(cursor, id, self.table.connections());
         }
-        None
     }
 
     /// Applies a frame at `now` to connection `connection` (index in the table) and records it in
@@ -1240,8 +1208,15 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// The connection of port `port` whose frames would get through at `now`, or `None` (also for
     /// a port that does not exist). Read-only.
     pub fn selected(&self, port: u8, now: Instant) -> Option<u8> {
+        self.selected_holding(port, now, 0)
+    }
+
+    /// [`Arbiter::selected`] with the connections of `held` taken as active too (a BLE group's
+    /// claim, [`Arbiter::offered`]). Out of line: one copy for both.
+    #[inline(never)]
+    fn selected_holding(&self, port: u8, now: Instant, held: u32) -> Option<u8> {
         let record = self.ports.get(usize::from(port))?;
-        let active = record.activity(&self.slots, now) | record.external;
+        let active = record.activity(&self.slots, now) | record.external | held;
         decide(record.steps(&self.steps), record.root, active)
     }
 
@@ -1257,15 +1232,14 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
 
     /// The stimulation level of connection `connection` of port `port` at `now`. Read-only.
     pub fn level(&self, port: u8, connection: u8, now: Instant) -> Option<Level> {
-        let slot = self.port_slots(port)?.get(usize::from(connection))?;
+        let slot = self.slot_of(port, connection)?;
         Some(slot.integrator.level_with(&slot.decay(), now))
     }
 
     /// Whether connection `connection` of port `port` is in its rest time at `now` (ignoring
     /// frames); `false` for a connection that does not exist. Read-only.
     pub fn is_resting(&self, port: u8, connection: u8, now: Instant) -> bool {
-        self.port_slots(port)
-            .and_then(|slots| slots.get(usize::from(connection)))
+        self.slot_of(port, connection)
             .is_some_and(|slot| slot.integrator.is_resting(&slot.decay(), slot.rest_us, now))
     }
 
@@ -1418,11 +1392,8 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             return 0;
         };
         let candidate = group.ports.iter().any(|entry| {
-            self.ports.get(usize::from(entry.port)).is_some_and(|port| {
-                let active = port.activity(&self.slots, now) | port.external | bit(entry.claim);
-                decide(port.steps(&self.steps), port.root, active)
-                    .is_some_and(|winner| entry.gated & bit(winner) != 0)
-            })
+            self.selected_holding(entry.port, now, bit(entry.claim))
+                .is_some_and(|winner| entry.gated & bit(winner) != 0)
         });
         if candidate { own } else { 0 }
     }
@@ -1440,11 +1411,8 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             };
             for entry in &group.ports {
                 if let Some(port) = self.ports.get_mut(usize::from(entry.port)) {
-                    if held {
-                        port.external |= bit(entry.claim);
-                    } else {
-                        port.external &= !bit(entry.claim);
-                    }
+                    let claim = bit(entry.claim);
+                    port.external = (port.external & !claim) | if held { claim } else { 0 };
                 }
             }
         }
