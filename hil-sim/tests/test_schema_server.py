@@ -324,9 +324,11 @@ def test_an_emergency_stop_frame_halts_the_emulated_board_within_a_period(iface,
     finally:
         rig.close()
     (out_dir / "figures.json").write_text(json.dumps(latency, indent=1))
-    # Within one period of the loop, plus the serial line both ways (about 1.4 ms a frame on the
-    # host's QEMU, README "Emulated board") and the micro-VM's scheduling.
-    assert latency["halted_setpoint_ms"] <= 1000 * PERIOD_S + 15, latency
+    # Halted in the fault's tick is asserted above; from the bus, the stop also waits behind the
+    # frames queued on the serial line to the board (the plant's pose and wrench every period,
+    # about 1.4 ms a frame on the host's QEMU, README "Emulated board"), and the halted set-point
+    # behind those queued from it: measured 8.6 and 12.2 ms on a loaded 2-core host.
+    assert latency["halted_setpoint_ms"] <= 1000 * PERIOD_S + 40, latency
 
 
 def test_an_obstacle_raises_the_force_event_and_the_board_stops(iface, tmp_path, out_dir):
