@@ -184,7 +184,6 @@ pub struct Node<const P: usize, const C: usize, const N: usize, const IMG: usize
 #[cfg(feature = "schema")]
 type SchemaOuts = heapless::Vec<crate::schema::Out, 12>;
 
-
 /// Keeps one of the schema server's outputs for the node to send.
 // Out of line: each output the server's runtime makes inlined a copy of the push.
 #[cfg(feature = "schema")]
