@@ -58,7 +58,7 @@ use crate::hbba::filters::{CommandError, FilterCounts, Throttles, UNFILTERED};
 use crate::index::{Cursor, FilterIndex, Lookup};
 use crate::integrator::{Integrator, Stimulated};
 use crate::level::{Gain, Level};
-use crate::table::{Table, TableError};
+use crate::table::{Table, TableError, Verdict};
 use crate::time::Instant;
 use crate::value_port::{
     Combined, Earliest, MAX_VALUE_CONNECTIONS, MAX_VALUE_PORTS, ValueSlot, ValueState,
@@ -489,12 +489,18 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// Validates the table again (it is cheap, and a `Table` can be deserialized without the
     /// loader), and fails with the first [`TableError`] found. Costs one pass over the table and
     /// the sort of its filters.
+    pub fn new(table: Table<PORTS, CONNECTIONS, NODES>) -> Result<Self, TableError> {
+        Self::new_as(table)
+    }
+
+    /// [`Arbiter::new`], refusing an invalid table with the verdict `R`: [`TableError`] says
+    /// what is wrong, [`Refused`](crate::Refused) only that something is.
     // Out of line: inlined into the node's loader, whose frame also holds the decoded table, it
     // took 44 bytes more of the NUCLEO-G474RE's flash with competitive dynamics. Run once per
     // table.
     #[inline(never)]
-    pub fn new(table: Table<PORTS, CONNECTIONS, NODES>) -> Result<Self, TableError> {
-        table.validate()?;
+    pub fn new_as<R: Verdict>(table: Table<PORTS, CONNECTIONS, NODES>) -> Result<Self, R> {
+        table.check()?;
         // Built where it is returned, not part by part and then moved into place: each move
         // was code, reaching the parts at large offsets in the loader's frame (flash on the
         // boards; with the table decoded in place too, see `Table`'s `Decode`).
@@ -516,7 +522,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         };
         match arbiter.build() {
             Some(()) => Ok(arbiter),
-            None => Err(TableError::TooManyNodes),
+            None => Err(R::refuse(|| TableError::TooManyNodes)),
         }
     }
 

@@ -43,7 +43,7 @@
 //! with a reader of its own (`wire`), not serde: the format is postcard's, the code a fraction.
 
 use crate::crc32::Crc32;
-use crate::table::{Table, TableError};
+use crate::table::{Table, TableError, Verdict};
 use crate::{MAX_CONNECTIONS, MAX_DECISION_NODES, MAX_PORTS};
 
 /// The first four bytes of every image.
@@ -95,10 +95,11 @@ pub struct TableSize {
     pub nodes: usize,
 }
 
-/// Why an image was refused.
+/// Why an image was refused; a table that breaks a rule is told by the verdict `T` (see
+/// [`Verdict`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum LoadError {
+pub enum LoadError<T = TableError> {
     /// Fewer bytes than the header, or than the header says the image has.
     Truncated {
         /// Bytes needed.
@@ -150,10 +151,10 @@ pub enum LoadError {
     /// The body decodes but leaves bytes unread.
     BodyTrailingBytes,
     /// The body decodes to a table that breaks a rule.
-    Table(TableError),
+    Table(T),
 }
 
-impl core::fmt::Display for LoadError {
+impl<T: core::fmt::Display> core::fmt::Display for LoadError<T> {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             LoadError::Truncated { needed, got } => {
@@ -232,6 +233,12 @@ fn covered_header(node_id: u8, table_version: u32, body_len: u32) -> [u8; 16] {
 /// against [`MAX_IMAGE_LEN`]. A receiver calls it on the first bytes of a transfer to refuse it
 /// early; it does not check the CRC.
 pub fn read_header(bytes: &[u8]) -> Result<Header, LoadError> {
+    read_header_as(bytes)
+}
+
+/// [`read_header`] with the loader's error for [`load_as`]: one copy of the code where the
+/// verdict is [`Refused`](crate::Refused) (it never fails with [`LoadError::Table`]).
+pub fn read_header_as<T>(bytes: &[u8]) -> Result<Header, LoadError<T>> {
     let header: [u8; HEADER_LEN] = bytes
         .get(..HEADER_LEN)
         .and_then(|header| header.try_into().ok())
@@ -298,7 +305,15 @@ pub fn read_header(bytes: &[u8]) -> Result<Header, LoadError> {
 pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
     bytes: &[u8],
 ) -> Result<Loaded<PORTS, CONNECTIONS, NODES>, LoadError> {
-    let header = read_header(bytes)?;
+    load_as(bytes)
+}
+
+/// [`load`], refusing an invalid table with the verdict `R`: [`TableError`] says what is wrong,
+/// [`Refused`](crate::Refused) only that something is. The same checks, in the same order.
+pub fn load_as<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize, R: Verdict>(
+    bytes: &[u8],
+) -> Result<Loaded<PORTS, CONNECTIONS, NODES>, LoadError<R>> {
+    let header = read_header_as(bytes)?;
     // read_header bounded body_len by MAX_IMAGE_LEN, so this cannot overflow.
     let total = HEADER_LEN.wrapping_add(header.body_len as usize);
     if bytes.len() < total {
@@ -348,7 +363,7 @@ pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
             // Within the capacities but more value-port roots than connections: the root list
             // (sized by the connections) overflowed. The verdict every loader gives such a
             // body, before validation ([`too_many_roots`]).
-            LoadError::Table(TableError::RootCountMismatch)
+            LoadError::Table(R::refuse(|| TableError::RootCountMismatch))
         } else {
             LoadError::Body(error)
         });
@@ -357,14 +372,14 @@ pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
         return Err(LoadError::BodyTrailingBytes);
     }
     too_many_roots(&table)?;
-    table.validate().map_err(LoadError::Table)?;
+    table.check().map_err(LoadError::Table)?;
     // A group's claims carry the node id its table names: it must be the image's own, or the
     // node would claim under another node's id.
     if let Some(position) = table.groups().iter().position(|g| g.node != header.node_id) {
-        return Err(LoadError::Table(TableError::Group {
+        return Err(LoadError::Table(R::refuse(|| TableError::Group {
             group: u8::try_from(position).unwrap_or(u8::MAX),
             error: crate::ble::GroupError::Node,
-        }));
+        })));
     }
     // Likewise a group read from "another" node under the image's own id: the node would wait
     // for gates only it could send.
@@ -373,11 +388,11 @@ pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
         .iter()
         .position(|s| s.owner == header.node_id)
     {
-        return Err(LoadError::Table(TableError::Dynamics(
-            crate::dynamics::DynamicsError::Source {
+        return Err(LoadError::Table(R::refuse(|| {
+            TableError::Dynamics(crate::dynamics::DynamicsError::Source {
                 source: u8::try_from(position).unwrap_or(u8::MAX),
-            },
-        )));
+            })
+        })));
     }
     Ok(Loaded { header, table })
 }
@@ -395,11 +410,13 @@ pub fn decode_body<const PORTS: usize, const CONNECTIONS: usize, const NODES: us
 /// More value-port roots than connections: refused before validation, so that a node whose root
 /// list overflowed while decoding (it has room for one root per connection of its capacity) and
 /// a node that decoded the list give the same verdict, whatever else is wrong with the table.
-fn too_many_roots<const P: usize, const C: usize, const N: usize>(
+fn too_many_roots<const P: usize, const C: usize, const N: usize, R: Verdict>(
     table: &Table<P, C, N>,
-) -> Result<(), LoadError> {
+) -> Result<(), LoadError<R>> {
     if table.roots().len() > table.connections().len() {
-        return Err(LoadError::Table(TableError::RootCountMismatch));
+        return Err(LoadError::Table(R::refuse(|| {
+            TableError::RootCountMismatch
+        })));
     }
     Ok(())
 }

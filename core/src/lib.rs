@@ -75,7 +75,7 @@ pub use filter::Filter;
 pub use frame::Frame;
 pub use integrator::{Integrator, ParamError, Stimulation};
 pub use level::{Gain, Level};
-pub use table::{Connection, PortView, Table, TableError};
+pub use table::{Connection, PortView, Refused, Table, TableError, Verdict};
 pub use time::Instant;
 pub use value_port::{
     Combine, Combined, Endian, Field, MAX_VALUE_CONNECTIONS, MAX_VALUE_PORTS, ValueSpec,

@@ -20,7 +20,7 @@ use pab_core::protocol::{
     NodeState, OPEN_REPLACE, STORE_UNREADABLE, Service, StoreFailure, TableStatus, Traffic,
     TransferOpen, TransferStatus, TransferStatusCode,
 };
-use pab_core::{Arbiter, Combined, Frame, Instant, MAX_VALUE_PORTS, PortVerdict};
+use pab_core::{Arbiter, Combined, Frame, Instant, MAX_VALUE_PORTS, PortVerdict, Refused};
 use pab_storage::StoreError;
 
 use crate::auth::{CHALLENGE_LIFETIME_US, Guard};
@@ -1701,7 +1701,7 @@ fn earlier(deadline: &mut Instant, candidate: Option<Instant>) {
 
 /// The header checks a node makes before loading: a readable header, for this node.
 fn check_target(bytes: &[u8], node_id: u8) -> Result<(), (TransferStatusCode, u8)> {
-    let header = image::read_header(bytes).map_err(|error| status_of(&error))?;
+    let header = image::read_header_as::<Refused>(bytes).map_err(|error| status_of(&error))?;
     if header.node_id != node_id {
         return Err((TransferStatusCode::WrongNode, header.node_id));
     }
@@ -1733,8 +1733,10 @@ fn check_version(
 fn load<const P: usize, const C: usize, const N: usize>(
     bytes: &[u8],
 ) -> Result<(Header, Arbiter<P, C, N>), (TransferStatusCode, u8)> {
-    let loaded = image::load::<P, C, N>(bytes).map_err(|error| status_of(&error))?;
-    let arbiter = Arbiter::new(loaded.table).map_err(|_| (TransferStatusCode::InvalidTable, 0))?;
+    // `Refused`: the status says only that the table is invalid, so the details are not built.
+    let loaded = image::load_as::<P, C, N, Refused>(bytes).map_err(|error| status_of(&error))?;
+    let arbiter = Arbiter::new_as::<Refused>(loaded.table)
+        .map_err(|Refused| (TransferStatusCode::InvalidTable, 0))?;
     Ok((loaded.header, arbiter))
 }
 
@@ -1743,7 +1745,7 @@ fn load<const P: usize, const C: usize, const N: usize>(
 // inlined copies took 36 bytes more of the NUCLEO-G474RE's flash with competitive dynamics, 44
 // without.
 #[inline(never)]
-pub fn status_of(error: &LoadError) -> (TransferStatusCode, u8) {
+pub fn status_of<T>(error: &LoadError<T>) -> (TransferStatusCode, u8) {
     match error {
         LoadError::Crc { .. } => (TransferStatusCode::CrcMismatch, 0),
         LoadError::Truncated { .. } => (TransferStatusCode::BadHeader, 1),

@@ -20,7 +20,7 @@ use core::fmt::Write;
 
 use pab_core::image::{self, Header};
 use pab_core::protocol::TransferStatusCode;
-use pab_core::{Frame, Instant};
+use pab_core::{Frame, Instant, Refused};
 
 use crate::node::{Node, status_of};
 
@@ -38,7 +38,7 @@ pub fn boot<const P: usize, const C: usize, const N: usize, const IMG: usize>(
     // The reason, if the image is refused: the loader's verdict at this node's capacities. Read
     // before booting because the boot buffer is the node's transfer buffer.
     let refusal = match node.boot_buffer().get(..len) {
-        Some(bytes) => image::load::<P, C, N>(bytes)
+        Some(bytes) => image::load_as::<P, C, N, Refused>(bytes)
             .err()
             .map(|error| status_of(&error)),
         None => Some((TransferStatusCode::TooLarge, 0)),
