@@ -488,23 +488,41 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     ///
     /// Validates the table again (it is cheap, and a `Table` can be deserialized without the
     /// loader), and fails with the first [`TableError`] found. Costs one pass over the table and
-    /// the sort of its filters.
+    /// the sort of its filters. [`Arbiter::new_in`] builds it in a place of the caller's instead.
     pub fn new(table: Table<PORTS, CONNECTIONS, NODES>) -> Result<Self, TableError> {
         Self::new_as(table)
     }
 
     /// [`Arbiter::new`], refusing an invalid table with the verdict `R`: [`TableError`] says
     /// what is wrong, [`Refused`](crate::Refused) only that something is.
-    // Out of line: inlined into the node's loader, whose frame also holds the decoded table, it
-    // took 44 bytes more of the NUCLEO-G474RE's flash with competitive dynamics. Run once per
-    // table.
-    #[inline(never)]
     pub fn new_as<R: Verdict>(table: Table<PORTS, CONNECTIONS, NODES>) -> Result<Self, R> {
-        table.check()?;
-        // Built where it is returned, not part by part and then moved into place: each move
-        // was code, reaching the parts at large offsets in the loader's frame (flash on the
-        // boards; with the table decoded in place too, see `Table`'s `Decode`).
-        let mut arbiter = Arbiter {
+        let mut slot = None;
+        match Self::new_in::<R, (), R>(&mut slot, |blank| {
+            *blank = table;
+            Ok(())
+        }) {
+            Ok(Ok(_)) => slot.ok_or_else(|| R::refuse(|| TableError::TooManyNodes)),
+            Ok(Err(error)) | Err(error) => Err(error),
+        }
+    }
+
+    /// [`Arbiter::new_as`], built in `slot` with the table that `fill` writes into the (empty)
+    /// table there, and left there: whatever `slot` held is replaced, by `None` when `fill`
+    /// fails (its error, outside) or the table is refused (inside). Returns what `fill` did and
+    /// the arbiter. For a caller with a place for it, as a node has for the arbiter that
+    /// replaces its running one, and a table to decode: [`crate::image::load_into_as`].
+    // Built where it stays, its table decoded where it stays: returned by value, the arbiter
+    // was in the frames of both `new` and the node's loader (the table three times there), 87
+    // KB of stack, more than the NUCLEO-G474RE had left with the schema server, and each move
+    // was a copy of 10 or 25 KB. Left to be inlined: kept out of line, the loader's error went
+    // through memory to the node, 256 bytes more of the NUCLEO-G474RE's flash.
+    pub fn new_in<R: Verdict, T, E>(
+        slot: &mut Option<Self>,
+        fill: impl FnOnce(&mut Table<PORTS, CONNECTIONS, NODES>) -> Result<T, E>,
+    ) -> Result<Result<(T, &mut Self), R>, E> {
+        // Part by part in place (the literal: empty lists are their lengths), not built aside
+        // and moved: each move was code, reaching the parts at large offsets in a frame.
+        let arbiter = slot.insert(Arbiter {
             ports: Vec::new(),
             index: FilterIndex::empty(),
             slots: Vec::new(),
@@ -517,13 +535,33 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             runs: Vec::new(),
             #[cfg(feature = "dynamics")]
             sources: Vec::new(),
-            throttles: Throttles::new(table.filters()),
-            table,
+            throttles: Throttles::default(),
+            table: Table::new(),
+        });
+        let filled = match fill(&mut arbiter.table) {
+            Ok(filled) => filled,
+            Err(error) => {
+                *slot = None;
+                return Err(error);
+            }
         };
-        match arbiter.build() {
-            Some(()) => Ok(arbiter),
-            None => Err(R::refuse(|| TableError::TooManyNodes)),
+        let built = match arbiter.table.check::<R>() {
+            Ok(()) => {
+                arbiter.throttles = Throttles::new(arbiter.table.filters());
+                arbiter
+                    .build()
+                    .ok_or_else(|| R::refuse(|| TableError::TooManyNodes))
+            }
+            Err(error) => Err(error),
+        };
+        if let Err(error) = built {
+            *slot = None;
+            return Ok(Err(error));
         }
+        Ok(slot
+            .as_mut()
+            .map(|arbiter| (filled, arbiter))
+            .ok_or_else(|| R::refuse(|| TableError::TooManyNodes)))
     }
 
     /// Builds the run-time form of `self.table`, which [`Table::validate`] accepted, into this

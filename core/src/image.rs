@@ -313,6 +313,34 @@ pub fn load<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
 pub fn load_as<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize, R: Verdict>(
     bytes: &[u8],
 ) -> Result<Loaded<PORTS, CONNECTIONS, NODES>, LoadError<R>> {
+    let mut table = Table::new();
+    let header = load_into_as(bytes, &mut table)?;
+    Ok(Loaded { header, table })
+}
+
+/// [`load`] into `table`, a place of the caller's (whatever it held is replaced): the image's
+/// header, its table left in `table`. On an error, `table` holds what was decoded of it.
+///
+/// For a caller with a place for the table, as the arbiter a node builds in place has
+/// ([`crate::Arbiter::new_in`]): returned in a [`Loaded`], the table was in the loader's frame
+/// and copied from there, twice, on its way to the arbiter.
+pub fn load_into<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>(
+    bytes: &[u8],
+    table: &mut Table<PORTS, CONNECTIONS, NODES>,
+) -> Result<Header, LoadError> {
+    load_into_as(bytes, table)
+}
+
+/// [`load_into`], refusing an invalid table with the verdict `R` (as [`load_as`]).
+pub fn load_into_as<
+    const PORTS: usize,
+    const CONNECTIONS: usize,
+    const NODES: usize,
+    R: Verdict,
+>(
+    bytes: &[u8],
+    table: &mut Table<PORTS, CONNECTIONS, NODES>,
+) -> Result<Header, LoadError<R>> {
     let header = read_header_as(bytes)?;
     // read_header bounded body_len by MAX_IMAGE_LEN, so this cannot overflow.
     let total = HEADER_LEN.wrapping_add(header.body_len as usize);
@@ -342,7 +370,7 @@ pub fn load_as<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize,
         });
     }
     let mut r = crate::wire::Reader::new(body);
-    let mut table = Table::new();
+    *table = Table::new();
     let (needed, roots) = table.decode_sized(&mut r);
     if let Some(error) = r.error() {
         let capacity = TableSize {
@@ -371,7 +399,7 @@ pub fn load_as<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize,
     if !r.rest().is_empty() {
         return Err(LoadError::BodyTrailingBytes);
     }
-    too_many_roots(&table)?;
+    too_many_roots(table)?;
     table.check().map_err(LoadError::Table)?;
     // A group's claims carry the node id its table names: it must be the image's own, or the
     // node would claim under another node's id.
@@ -394,7 +422,7 @@ pub fn load_as<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize,
             })
         })));
     }
-    Ok(Loaded { header, table })
+    Ok(header)
 }
 
 /// Decodes a table body (an image without its header) as the loader does, without validating

@@ -1427,18 +1427,20 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         now: Instant,
     ) -> Result<Header, (TransferStatusCode, u8)> {
         let bytes = self.receiver.buffer().get(..len).unwrap_or(&[]);
-        let (header, mut arbiter) =
-            check_target(bytes, self.config.node_id).and_then(|()| load::<P, C, N>(bytes))?;
+        // The new arbiter is built here, beside the running one: a refused image leaves
+        // `self.arbiter` as it was.
+        let mut fresh = None;
+        let (header, arbiter) = check_target(bytes, self.config.node_id)
+            .and_then(|()| load::<P, C, N>(&mut fresh, bytes))?;
         check_version(&header, running.as_ref())?;
         // The connections the new table leaves unchanged go on where they are (a re-push of the
         // same rules is no blackout); the others start at S = 0. At boot there is none.
         if let Some(previous) = self.arbiter.as_ref() {
             arbiter.carry_over(previous);
         }
-        // The swap: one assignment. The old arbiter ran every frame until here. Through
-        // `replace`: `= Some(arbiter)` built the new `Some` aside and copied it over the old one
-        // (a second 25 KB copy, and 52 bytes of flash).
-        self.arbiter.replace(arbiter);
+        // The swap: one assignment of the `Some` already built, one 25 KB copy. The old
+        // arbiter ran every frame until here.
+        self.arbiter = fresh;
         // The schema server's set-up leaves the table only now, from its place in the node:
         // taken out before, it was one more large value in this function's frame, which with
         // the arbiter being built is the deepest stack the board ever has.
@@ -1729,15 +1731,20 @@ fn check_version(
     Ok(())
 }
 
-/// Loads and validates an image for this node's capacities, and builds its arbiter.
-fn load<const P: usize, const C: usize, const N: usize>(
+/// Loads and validates an image for this node's capacities, and builds its arbiter in `slot`
+/// (the table decoded in its place there).
+fn load<'a, const P: usize, const C: usize, const N: usize>(
+    slot: &'a mut Option<Arbiter<P, C, N>>,
     bytes: &[u8],
-) -> Result<(Header, Arbiter<P, C, N>), (TransferStatusCode, u8)> {
+) -> Result<(Header, &'a mut Arbiter<P, C, N>), (TransferStatusCode, u8)> {
     // `Refused`: the status says only that the table is invalid, so the details are not built.
-    let loaded = image::load_as::<P, C, N, Refused>(bytes).map_err(|error| status_of(&error))?;
-    let arbiter = Arbiter::new_as::<Refused>(loaded.table)
-        .map_err(|Refused| (TransferStatusCode::InvalidTable, 0))?;
-    Ok((loaded.header, arbiter))
+    match Arbiter::new_in::<Refused, _, _>(slot, |table| {
+        image::load_into_as::<P, C, N, Refused>(bytes, table)
+    }) {
+        Ok(Ok(built)) => Ok(built),
+        Ok(Err(Refused)) => Err((TransferStatusCode::InvalidTable, 0)),
+        Err(error) => Err(status_of(&error)),
+    }
 }
 
 /// The transfer status (and detail byte) a loader error maps to.
