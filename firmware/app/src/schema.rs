@@ -61,9 +61,8 @@ impl SchemaRuntime {
     /// The runtime of `setup`, its first tick at `now`; `None` when the set-up is refused (the
     /// loader checked it: not expected).
     pub fn new(setup: Setup, isotp: isotp::RxConfig, now: Instant) -> Option<SchemaRuntime> {
-        let server = Server::new(setup.config).ok()?;
-        Some(SchemaRuntime {
-            server,
+        let runtime = SchemaRuntime {
+            server: Server::unchecked(setup.config),
             drive: setup.drive,
             sensors: setup.sensors,
             pose: [0; AXES],
@@ -73,7 +72,9 @@ impl SchemaRuntime {
             impedance: None,
             receiver: isotp::Receiver::new(isotp),
             sender: None,
-        })
+        };
+        runtime.server.config().check().ok()?;
+        Some(runtime)
     }
 
     /// The server.
