@@ -1095,8 +1095,15 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     #[cfg(feature = "schema")]
     fn start_schema(&mut self, now: Instant) {
         let setup = self.arbiter.as_mut().and_then(Arbiter::take_schema);
-        self.schema =
-            setup.and_then(|s| crate::schema::SchemaRuntime::new(s, self.config.isotp, now));
+        self.schema = setup.map(|s| crate::schema::SchemaRuntime::new(s, self.config.isotp, now));
+        // A set-up refused (the loader checked it: not expected) runs no server.
+        if self
+            .schema
+            .as_ref()
+            .is_some_and(|r| r.server().config().check().is_err())
+        {
+            self.schema = None;
+        }
     }
 
     #[cfg(not(feature = "schema"))]
