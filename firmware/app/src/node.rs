@@ -1095,15 +1095,9 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     #[cfg(feature = "schema")]
     fn start_schema(&mut self, now: Instant) {
         let setup = self.arbiter.as_mut().and_then(Arbiter::take_schema);
+        // Not checked again: the set-up comes from the arbiter just built, and `Arbiter::new`
+        // refused any table whose set-up fails `Setup::check` (its server's set-up included).
         self.schema = setup.map(|s| crate::schema::SchemaRuntime::new(s, self.config.isotp, now));
-        // A set-up refused (the loader checked it: not expected) runs no server.
-        if self
-            .schema
-            .as_ref()
-            .is_some_and(|r| r.server().config().check().is_err())
-        {
-            self.schema = None;
-        }
     }
 
     #[cfg(not(feature = "schema"))]

@@ -58,9 +58,8 @@ pub struct SchemaRuntime {
 }
 
 impl SchemaRuntime {
-    /// The runtime of `setup`, its first tick at `now`, its set-up not checked: the caller
-    /// checks [`Server::config`] once the runtime is in its place (the check here, behind an
-    /// `Option`, cost 12 bytes more of the NUCLEO-G474RE's flash).
+    /// The runtime of `setup`, its first tick at `now`. The set-up is not checked here: it must
+    /// have passed [`Setup::check`] (a table's does, when its arbiter is built).
     pub fn new(setup: Setup, isotp: isotp::RxConfig, now: Instant) -> SchemaRuntime {
         SchemaRuntime {
             server: Server::unchecked(setup.config),
