@@ -284,13 +284,24 @@ impl Server {
     ///
     /// Fails when the set-up is invalid ([`Config::check`]).
     pub fn new(config: Config) -> Result<Server, ConfigError> {
+        let server = Server::unchecked(config);
+        // Checked once built, in place: a check of the argument before the move kept a copy of
+        // the set-up (2 KB with its innate schemas) for it, and its code.
+        server.config.check()?;
+        Ok(server)
+    }
+
+    /// A server with `config`, not checked: for a caller that builds the server inside a larger
+    /// value and checks [`Server::config`] there, where a `Result` around the server made the
+    /// compiler build it aside and copy it in (5 KB, twice).
+    pub fn unchecked(config: Config) -> Server {
         let setpoint = Setpoint {
             attractor: [0; AXES],
             stiffness: config.stiffness,
             damping: config.damping,
             gripper: Gripper::Open,
         };
-        let server = Server {
+        Server {
             current: wait_queue(),
             origin: Origin::Queue,
             progress: Progress::default(),
@@ -311,11 +322,7 @@ impl Server {
             sensors: [None; MAX_SENSORS],
             last_tick: None,
             config,
-        };
-        // Checked once built, in place: a check of the argument before the move kept a copy of
-        // the set-up (2 KB with its innate schemas) for it, and its code.
-        server.config.check()?;
-        Ok(server)
+        }
     }
 
     /// The set-up.

@@ -58,12 +58,11 @@ pub struct SchemaRuntime {
 }
 
 impl SchemaRuntime {
-    /// The runtime of `setup`, its first tick at `now`; `None` when the set-up is refused (the
-    /// loader checked it: not expected).
-    pub fn new(setup: Setup, isotp: isotp::RxConfig, now: Instant) -> Option<SchemaRuntime> {
-        let server = Server::new(setup.config).ok()?;
-        Some(SchemaRuntime {
-            server,
+    /// The runtime of `setup`, its first tick at `now`. The set-up is not checked here: it must
+    /// have passed [`Setup::check`] (a table's does, when its arbiter is built).
+    pub fn new(setup: Setup, isotp: isotp::RxConfig, now: Instant) -> SchemaRuntime {
+        SchemaRuntime {
+            server: Server::unchecked(setup.config),
             drive: setup.drive,
             sensors: setup.sensors,
             pose: [0; AXES],
@@ -73,7 +72,7 @@ impl SchemaRuntime {
             impedance: None,
             receiver: isotp::Receiver::new(isotp),
             sender: None,
-        })
+        }
     }
 
     /// The server.
