@@ -490,27 +490,23 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// loader), and fails with the first [`TableError`] found. Costs one pass over the table and
     /// the sort of its filters. [`Arbiter::new_in`] builds it in a place of the caller's instead.
     pub fn new(table: Table<PORTS, CONNECTIONS, NODES>) -> Result<Self, TableError> {
-        Self::new_as(table)
-    }
-
-    /// [`Arbiter::new`], refusing an invalid table with the verdict `R`: [`TableError`] says
-    /// what is wrong, [`Refused`](crate::Refused) only that something is.
-    pub fn new_as<R: Verdict>(table: Table<PORTS, CONNECTIONS, NODES>) -> Result<Self, R> {
         let mut slot = None;
-        match Self::new_in::<R, (), R>(&mut slot, |blank| {
+        match Self::new_in::<TableError, (), TableError>(&mut slot, |blank| {
             *blank = table;
             Ok(())
         }) {
-            Ok(Ok(_)) => slot.ok_or_else(|| R::refuse(|| TableError::TooManyNodes)),
+            Ok(Ok(_)) => slot.ok_or(TableError::TooManyNodes),
             Ok(Err(error)) | Err(error) => Err(error),
         }
     }
 
-    /// [`Arbiter::new_as`], built in `slot` with the table that `fill` writes into the (empty)
+    /// [`Arbiter::new`], built in `slot` with the table that `fill` writes into the (empty)
     /// table there, and left there: whatever `slot` held is replaced, by `None` when `fill`
     /// fails (its error, outside) or the table is refused (inside). Returns what `fill` did and
-    /// the arbiter. For a caller with a place for it, as a node has for the arbiter that
-    /// replaces its running one, and a table to decode: [`crate::image::load_into_as`].
+    /// the arbiter; an invalid table is refused with the verdict `R` ([`TableError`] says what is
+    /// wrong, [`Refused`](crate::Refused) only that something is). For a caller with a place for
+    /// it, as a node has for the arbiter that replaces its running one, and a table to decode:
+    /// [`crate::image::load_into_as`].
     // Built where it stays, its table decoded where it stays: returned by value, the arbiter
     // was in the frames of both `new` and the node's loader (the table three times there), 87
     // KB of stack, more than the NUCLEO-G474RE had left with the schema server, and each move
