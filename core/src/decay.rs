@@ -16,7 +16,7 @@
 //! Evaluation: u (Q32) selects one of 64 segments; within a segment,
 //! g(u) = G_i + E_i · expm1(λ·r) with G_i = e^(−λ)(e^(λ i/64) − 1), E_i = e^(λ(i/64 − 1)) and r
 //! the remainder of u in the segment. `expm1` is a degree-6 Taylor polynomial (λ·r < 0.079, so its
-//! truncation error is below 5e-12 absolute). The 129 table constants are computed by `const fn`
+//! truncation error is below 5e-12 absolute). The 130 table constants are computed by `const fn`
 //! at compile time, so they cannot drift from the formula.
 //!
 //! Cost per evaluation, written for a 32-bit core: one 32 × 64-bit multiplication for u, and
@@ -49,17 +49,24 @@ const fn to_q32(value: f64) -> u32 {
     (value * Q32 + 0.5) as u32
 }
 
-/// G_i = e^(−λ)(e^(λ i/64) − 1), i = 0..=64, in Q32. G_64 = 1 − e^(−λ), the loss at u = 1.
+/// G_i + [`CEILING_MARGIN`], with G_i = e^(−λ)(e^(λ i/64) − 1), i = 0..=64, in Q32 (G_64 =
+/// 1 − e^(−λ), the loss at u = 1), and entry 65 the same as entry 64. One table for two uses:
+/// [`loss`] starts segment i at entry i (and takes the margin off), and [`ceiling`] bounds the
+/// loss over segment i by entry i + 1.
+// Why the margin is in the table: the ceiling, on every frame's path, is then a load, and loss()
+// takes it off in a rounding constant it adds anyway. A table of ceilings of its own was 260
+// bytes of flash, which the NUCLEO-G474RE's firmware needed for the schema server.
 // Evaluated at compile time: an index out of bounds would fail the build, not panic.
 #[allow(clippy::indexing_slicing)]
-const LOSS_AT: [u32; SEGMENTS + 1] = {
-    let mut table = [0; SEGMENTS + 1];
+static LOSS_AT: [u32; SEGMENTS + 2] = {
+    let mut table = [0; SEGMENTS + 2];
     let mut i = 0;
     while i <= SEGMENTS {
         let u = i as f64 / SEGMENTS as f64;
-        table[i] = to_q32(exp(-LAMBDA) * (exp(LAMBDA * u) - 1.0));
+        table[i] = to_q32(exp(-LAMBDA) * (exp(LAMBDA * u) - 1.0)) + CEILING_MARGIN;
         i += 1;
     }
+    table[SEGMENTS + 1] = table[SEGMENTS];
     table
 };
 
@@ -78,27 +85,19 @@ const SLOPE_AT: [u32; SEGMENTS] = {
 };
 
 /// The loss at u = 1: what remains after exactly τ is e^(−λ) of the level.
-const LOSS_AT_ONE: u32 = LOSS_AT[SEGMENTS];
+const LOSS_AT_ONE: u32 = LOSS_AT[SEGMENTS] - CEILING_MARGIN;
 
 /// How far above the loss at the end of its segment [`loss`] may be, in Q32 units, at most: the
 /// loss is within 1.5 units of g, which grows with u (`tests::loss_is_within_its_ceiling`).
 const CEILING_MARGIN: u32 = 16;
 
-/// An upper bound of [`loss`] over segment i (the next segment's start, plus a margin), for
-/// i = 0..=64 (64: u = 1 exactly). With it a frame that saturates the level anyway skips the
-/// evaluation of the loss.
-// Evaluated at compile time: an index out of bounds would fail the build, not panic.
-#[allow(clippy::indexing_slicing)]
-const LOSS_CEILING: [u32; SEGMENTS + 1] = {
-    let mut table = [0; SEGMENTS + 1];
-    let mut i = 0;
-    while i <= SEGMENTS {
-        let next = if i < SEGMENTS { i + 1 } else { SEGMENTS };
-        table[i] = LOSS_AT[next] + CEILING_MARGIN;
-        i += 1;
-    }
-    table
-};
+/// An upper bound of [`loss`] over segment `segment`, i = 0..=64 (64: u = 1 exactly): the next
+/// segment's start plus the margin; `None` past u = 1. With it a frame that saturates the level
+/// anyway skips the evaluation of the loss.
+#[inline(always)]
+fn ceiling(segment: usize) -> Option<u32> {
+    LOSS_AT.get(1..).and_then(|next| next.get(segment)).copied()
+}
 
 /// e^r − 1 for r in [0, 0.08), r in Q32, result in Q32.
 ///
@@ -129,10 +128,14 @@ fn loss(u: u64) -> u32 {
         (Some(&base), Some(&slope)) => {
             // λ · rest, in Q32: rest < 2^26, so 5 · rest < 2^29.
             let lambda_r = rest * LAMBDA as u32;
-            // Rounded to nearest: slope < 2^32 and expm1 < 2^29, the sum stays below 2^62.
-            let within = (u64::from(slope) * u64::from(expm1_small(lambda_r)) + (1 << 31)) >> 32;
-            // base + within ≤ G_(i+1) + a few units < 2^32.
-            base.saturating_add(within as u32)
+            // Rounded to nearest, less the margin that `base` carries: slope < 2^32 and expm1
+            // < 2^29, so the product and the rounding stay below 2^62; what is taken off, an
+            // integer of the upper word, only wraps it when `within` is below the margin.
+            let within = (u64::from(slope) * u64::from(expm1_small(lambda_r)))
+                .wrapping_add((1u64 << 31).wrapping_sub(u64::from(CEILING_MARGIN) << 32))
+                >> 32;
+            // G_i + margin + (within − margin), modulo 2^32: G_(i+1) + a few units < 2^32.
+            base.wrapping_add(within as u32)
         }
         // Only u = 2^32 exactly (dt = τ) reaches the last table entry.
         _ => LOSS_AT_ONE,
@@ -195,7 +198,7 @@ impl Decay {
         let elapsed = elapsed.min(self.micros);
         // As in `apply_within`: at most 2^56, it cannot wrap.
         let u = u64::from(elapsed).wrapping_mul(self.reciprocal) >> (RECIPROCAL_SHIFT - 32);
-        if let Some(&ceiling) = LOSS_CEILING.get((u >> SEGMENT_BITS) as usize) {
+        if let Some(ceiling) = ceiling((u >> SEGMENT_BITS) as usize) {
             // level − lost ≥ level − most_lost, and level + gain ≤ 2^32: no overflow.
             let most_lost = (u64::from(level.raw()) * u64::from(ceiling)) >> 32;
             if level.raw() - most_lost as u32 + gain.raw() >= Level::FULL.raw() {
@@ -262,7 +265,7 @@ mod tests {
         let tops = (1..=SEGMENTS as u64)
             .flat_map(|i| (i << SEGMENT_BITS) - (1 << 12)..(i << SEGMENT_BITS).min(1 << 32) + 1);
         for u in sweep.chain(tops) {
-            let ceiling = LOSS_CEILING[(u >> SEGMENT_BITS) as usize];
+            let ceiling = ceiling((u >> SEGMENT_BITS) as usize).unwrap();
             assert!(loss(u) <= ceiling, "u {u}: {} > {ceiling}", loss(u));
         }
     }
@@ -307,7 +310,9 @@ mod tests {
 
     #[test]
     fn tables_match_std_exp() {
-        for (i, &g) in LOSS_AT.iter().enumerate() {
+        assert_eq!(LOSS_AT[SEGMENTS + 1], LOSS_AT[SEGMENTS]);
+        for (i, &g) in LOSS_AT.iter().take(SEGMENTS + 1).enumerate() {
+            let g = g - CEILING_MARGIN;
             let u = i as f64 / SEGMENTS as f64;
             let exact = (-LAMBDA).exp() * (LAMBDA * u).exp_m1() * Q32;
             assert!((f64::from(g) - exact).abs() <= 1.0, "G_{i}: {g} vs {exact}");

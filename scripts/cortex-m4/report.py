@@ -51,9 +51,11 @@ MEDIAN_GOALS = [
 # 164 / 529 with HBBA's message filters (issue 14): every connection a frame feeds has its filter
 # byte compared before its integrator (a load, a compare and a branch, five instructions with the
 # register moves), tables without filters included; then down to 158 / 528 when the decision walk
-# went out of line (its inlined copies had kept the callers' registers busy).
+# went out of line (its inlined copies had kept the callers' registers busy); and up to 159 / 529
+# when the decay's ceiling came to be read from the loss table (one address computation more per
+# connection fed, for 260 bytes of flash that the schema server needed on the NUCLEO-G474RE).
 NOT_MET = [
-    ("tr-arm", "fed", 200, 158, 528),
+    ("tr-arm", "fed", 200, 159, 529),
 ]
 
 # One SysTick tick of the 25 MHz CPU clock under -icount shift=0 (1 instruction per ns).
