@@ -70,7 +70,7 @@ const FIELD: u32 = 0x7FFF;
 
 /// Where a frame's search stands: the next of its exact entries ([`NO_MORE`] when there are no
 /// others: equal keys are consecutive and flagged with [`MORE`]), and the next masked filter to
-/// test. Made by [`FilterIndex::first`], advanced by [`FilterIndex::next`].
+/// test. Made by [`FilterIndex::cursor`], advanced by [`FilterIndex::next`].
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Cursor {
     next: u16,
@@ -311,21 +311,15 @@ impl<const C: usize> FilterIndex<C> {
         Found { position: None }
     }
 
-    /// Starts the iteration over the connections of what [`FilterIndex::find`] found: the
-    /// cursor, and the first connection (without masked filters, the exact entry found).
+    /// The cursor of an iteration over the connections of what [`FilterIndex::find`] found:
+    /// [`FilterIndex::next`] yields the first of them (without masked filters, the exact entry
+    /// found).
     #[inline(always)]
-    pub(crate) fn first(
-        &self,
-        found: Found,
-        id: &Id,
-        connections: &[Connection],
-    ) -> (Cursor, Option<usize>) {
-        let mut cursor = Cursor {
+    pub(crate) fn cursor(&self, found: Found) -> Cursor {
+        Cursor {
             next: found.position.unwrap_or(NO_MORE),
             masked: 0,
-        };
-        let first = self.next(&mut cursor, id, connections);
-        (cursor, first)
+        }
     }
 
     /// The next connection (index in the table) the frame of `cursor` (identifier `id`) feeds,
@@ -399,11 +393,10 @@ mod tests {
             Lookup::Nothing => std::vec::Vec::new(),
             Lookup::One(connection) => std::vec![connection],
             Lookup::Several => {
-                let (mut cursor, mut next) = index.first(index.find(id), id, connections);
+                let mut cursor = index.cursor(index.find(id));
                 let mut all = std::vec::Vec::new();
-                while let Some(connection) = next {
+                while let Some(connection) = index.next(&mut cursor, id, connections) {
                     all.push(connection);
-                    next = index.next(&mut cursor, id, connections);
                 }
                 all
             }
