@@ -49,8 +49,6 @@ cargo clippy -p pab-fw-g474 --target thumbv7em-none-eabihf --release --locked --
 cargo clippy -p pab-slcan --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-builtins --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-fw-an386 --target thumbv7em-none-eabihf --release --locked -- -D warnings
-# ... and with the schema server, which its replay binary needs (required-features).
-cargo clippy -p pab-fw-an386 --features schema --target thumbv7em-none-eabihf --release --locked -- -D warnings
 
 step "documentation (every public item's links resolve)"
 # The host crates' documentation, warnings denied: a broken or ambiguous intra-doc link fails.

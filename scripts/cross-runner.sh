@@ -24,10 +24,8 @@ fi
 
 scripts/need.sh qemu-system-arm
 
-# With the schema server (the package's `schema` feature, which the board's own firmware does
-# not have yet: README, "Schema server: where it stands").
 cargo build --profile firmware --locked -p pab-fw-an386 --target thumbv7em-none-eabihf \
-    --bin pab-an386-replay --features schema
+    --bin pab-an386-replay
 target="${CARGO_TARGET_DIR:-target}"
 export PAB_AN386_REPLAY
 PAB_AN386_REPLAY=$(realpath "$target/thumbv7em-none-eabihf/firmware/pab-an386-replay")

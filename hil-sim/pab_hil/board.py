@@ -75,22 +75,11 @@ class BoardError(RuntimeError):
     pass
 
 
-# The board firmware with the schema server (pab-fw-an386's `schema` feature), built into a target
-# directory of its own so that it does not replace the board's firmware: the server is not in the
-# boards' firmware yet (it does not fit their 64 KiB of flash: README, "Schema server: where it
-# stands"), and the suite's schema server tests run it on the emulated board all the same.
-SCHEMA_TARGET = "board-schema"
-
-
-def firmware(schema: bool = False) -> Path:
-    """The board firmware's ELF (the `firmware` profile's build), with the schema server if
-    `schema`, or a MissingBinary saying how to build it."""
+def firmware() -> Path:
+    """The board firmware's ELF (the `firmware` profile's build; the schema server is in it), or
+    a MissingBinary saying how to build it."""
     target = Path(os.environ.get("CARGO_TARGET_DIR", REPO / "target"))
-    if schema:
-        path = target / SCHEMA_TARGET / TARGET / "firmware" / FIRMWARE
-        build = (f"CARGO_TARGET_DIR={target / SCHEMA_TARGET} cargo build --profile firmware "
-                 f"-p {FIRMWARE} --features schema --target {TARGET}")
-    elif "PAB_BOARD_ELF" in os.environ:
+    if "PAB_BOARD_ELF" in os.environ:
         path = Path(os.environ["PAB_BOARD_ELF"])
         build = "(PAB_BOARD_ELF names it)"
     else:
@@ -287,8 +276,6 @@ class BoardNode:
     # cangw filters of the routes from the bus to the board, one route each (keep them disjoint:
     # a frame that passes two is delivered twice). Default: everything but the reports to the tool.
     to_board: tuple[str, ...] = TO_BOARD
-    # The firmware with the schema server (`firmware(schema=True)`).
-    schema: bool = False
 
     @property
     def can_iface(self) -> str:
@@ -315,7 +302,7 @@ class BoardNode:
             {"can_id": heartbeat, "can_mask": 0x1FFFFFFF, "extended": True}])
         try:
             started = time.monotonic()
-            self.qemu = qemu_here_or_on_host(firmware(self.schema), log)
+            self.qemu = qemu_here_or_on_host(firmware(), log)
             line = self.qemu.start()
             self._bridge(line)
             deadline = started + START_TIMEOUT_S

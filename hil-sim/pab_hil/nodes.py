@@ -111,14 +111,12 @@ class NodeProcess:
 class Nodes:
     """The network's nodes, started together, each with its own table store: `pab-node`
     processes, and the emulated board (`pab_hil.board.BoardNode`) for the names in `boards`, with
-    `board_routes` as the cangw filters of what reaches it (default: `board.TO_BOARD`), its
-    firmware with the schema server if `board_schema`."""
+    `board_routes` as the cangw filters of what reaches it (default: `board.TO_BOARD`)."""
 
     def __init__(self, iface: str, work_dir: Path, node_ids: dict[str, int] = NODE_IDS,
                  boards: tuple[str, ...] = (),
                  node_args: dict[str, tuple[str, ...]] | None = None,
-                 board_routes: tuple[str, ...] | None = None,
-                 board_schema: bool = False) -> None:
+                 board_routes: tuple[str, ...] | None = None) -> None:
         from .board import TO_BOARD, UART_ENV, BoardNode
 
         unknown = set(boards) - set(node_ids)
@@ -132,7 +130,7 @@ class Nodes:
         self.store_root = Path(tempfile.mkdtemp(prefix="pab-hil-store-"))
         self.by_name: dict[str, NodeProcess | BoardNode] = {
             name: BoardNode(name, node_id, iface, work_dir / "logs",
-                            to_board=board_routes or TO_BOARD, schema=board_schema)
+                            to_board=board_routes or TO_BOARD)
             if name in boards
             else NodeProcess(name, node_id, iface, self.store_root / name, work_dir / "logs",
                              tuple((node_args or {}).get(name, ())))

@@ -10,8 +10,8 @@ simulator gives for the same file, and no safety event; an emergency stop frame 
 and the board stops; a search over a plate without a hole ends by its watchdog. Figures (the stop's
 latency, the schema transfer time, the plant's count of inserted parts) go to the test's output
 directory. The emergency stop is also run with the arm's node as the boards' firmware on the
-emulated Cortex-M4 (`pab_hil.board`), its firmware built with the server, whose schemas and
-drive frames cross its serial line.
+emulated Cortex-M4 (`pab_hil.board`), the boards' firmware with the server in it, whose schemas
+and drive frames cross its serial line.
 
 The HIL file differs from the example in what a real-time run on the micro-VM needs: a 5 ms
 period, a 100 ms overrun bound and 500 ms sensor staleness (the VM's scheduling, not the loop,
@@ -157,14 +157,14 @@ class Recorder:
 
 class Rig:
     """The arm's node with the file's table, the plant and a client, on the HIL bus. The node is
-    `pab-node` as node `ARM`, or with `board` the emulated Cortex-M4 (`pab_hil.board`) with the
-    schema server in its firmware, built as node 1 (`PAB_NODE_ID`'s default)."""
+    `pab-node` as node `ARM`, or with `board` the emulated Cortex-M4 (`pab_hil.board`), whose
+    firmware runs the same server, built as node 1 (`PAB_NODE_ID`'s default)."""
 
     def __init__(self, iface: str, network: Path, out: Path, board: bool = False) -> None:
         self.iface, self.network, self.out = iface, network, out
         self.node_id = node_id = BOARD if board else ARM
         self.nodes = nodes.Nodes(iface, out, node_ids={"arm": node_id},
-                                 boards=("arm",) if board else (), board_schema=board)
+                                 boards=("arm",) if board else ())
         self.nodes.start()
         pushed = nodes.push(network, iface, node="arm")
         assert pushed.ok, pushed.output
@@ -311,9 +311,9 @@ def test_an_emergency_stop_frame_halts_the_board_within_a_period(iface, tmp_path
 def test_an_emergency_stop_frame_halts_the_emulated_board_within_a_period(iface, tmp_path,
                                                                           out_dir):
     """The same stop with the arm's node as the boards' firmware on the emulated Cortex-M4
-    (pab-fw-an386 in QEMU, on the bus through SLCAN, slcand and cangw), built with the schema
-    server, which the boards' firmware does not have yet (it does not fit their 64 KiB of flash):
-    the server, its schemas over ISO-TP and its drive frames all cross the serial line."""
+    (pab-fw-an386 in QEMU, on the bus through SLCAN, slcand and cangw), whose firmware has the
+    schema server, as the NUCLEO-G474RE's: the server, its schemas over ISO-TP and its drive
+    frames all cross the serial line."""
     network = hil_network(tmp_path, "estop-board-hil", changes=[("id = 10\n", f"id = {BOARD}\n")])
     calls, _ = simulate(network, out_dir)
     rig = Rig(iface, network, out_dir, board=True)

@@ -121,7 +121,7 @@ With [hbba], the intention node's logic runs on the file's [[desires]] (the filt
 answered at once by the simulated nodes): the report lists each change of the selected \
 strategies and the filter commands sent, reductions before increases, and --plot adds a lane \
 per strategy (filled while selected) and per filtered connection (its commanded pass rate 1/φ, \
-0 closed). The boards do not run filters yet: the arbitration sees every connection open.
+0 closed); the simulated nodes apply the commands, so the arbitration sees the filters.
 With a schema server ([schema.NODE], [plant], [client]), its board runs the client's program \
 in virtual time against the simulated robot, at the board's period: the report names the \
 schemas installed, the parts inserted and any safety event; --schema-trace writes one CSV row \
