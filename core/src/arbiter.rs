@@ -516,6 +516,35 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         slot: &mut Option<Self>,
         fill: impl FnOnce(&mut Table<PORTS, CONNECTIONS, NODES>) -> Result<T, E>,
     ) -> Result<Result<(T, &mut Self), R>, E> {
+        Self::build_in(slot, fill, true)
+    }
+
+    /// [`Arbiter::new_in`] with the table of the image `bytes`, decoded in place
+    /// ([`crate::image::load_into_as`]): the image's header and the arbiter. The loader refuses
+    /// an invalid table (its [`LoadError::Table`](crate::image::LoadError::Table)), so the
+    /// table is not validated a second time; the verdict inside is the one [`Arbiter::new_in`]
+    /// gives a table it cannot build.
+    // The loader's validation is the arbiter's: a second pass (a call and its refusal) was 16
+    // bytes of the NUCLEO-G474RE's flash.
+    pub fn load_in<'a, R: Verdict>(
+        slot: &'a mut Option<Self>,
+        bytes: &[u8],
+    ) -> Result<Result<(crate::image::Header, &'a mut Self), R>, crate::image::LoadError<R>> {
+        Self::build_in(
+            slot,
+            |table| crate::image::load_into_as::<PORTS, CONNECTIONS, NODES, R>(bytes, table),
+            false,
+        )
+    }
+
+    /// [`Arbiter::new_in`], the table validated again only if `validate` (a table `fill` has
+    /// validated is valid).
+    #[inline(always)]
+    fn build_in<R: Verdict, T, E>(
+        slot: &mut Option<Self>,
+        fill: impl FnOnce(&mut Table<PORTS, CONNECTIONS, NODES>) -> Result<T, E>,
+        validate: bool,
+    ) -> Result<Result<(T, &mut Self), R>, E> {
         // Part by part in place (the literal: empty lists are their lengths), not built aside
         // and moved: each move was code, reaching the parts at large offsets in a frame.
         let arbiter = slot.insert(Arbiter {
@@ -541,7 +570,12 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 return Err(error);
             }
         };
-        let built = match arbiter.table.check::<R>() {
+        let checked = if validate {
+            arbiter.table.check::<R>()
+        } else {
+            Ok(())
+        };
+        let built = match checked {
             Ok(()) => {
                 arbiter.throttles = Throttles::new(arbiter.table.filters());
                 arbiter
