@@ -698,10 +698,12 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         for (run, spec) in runs.iter_mut().zip(table.dynamics()) {
             run.start(spec);
         }
+        // The sources, all unheard, in one `resize`: a push per source was 8 bytes more of the
+        // NUCLEO-G474RE's flash.
         #[cfg(feature = "dynamics")]
-        for _ in table.gate_sources() {
-            sources.push(SourceState::new()).ok()?;
-        }
+        sources
+            .resize(table.gate_sources().len(), SourceState::new())
+            .ok()?;
         Some(())
     }
 
