@@ -681,10 +681,10 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 slot.filter = position as u8;
             }
         }
+        // Validated with the table (`Group::validate`): `Eligibility::new`'s checks again were
+        // 28 bytes of the NUCLEO-G474RE's flash.
         for group in table.groups() {
-            let state =
-                Eligibility::new(group.number, group.node, u64::from(group.period_us)).ok()?;
-            groups.push(state).ok()?;
+            groups.push(Eligibility::of(group)).ok()?;
         }
         // Each group started where it lives (`GroupRun::start`; built and moved, it was copied),
         // its parameters validated with the table. The blanks in one `resize`, cleared in
