@@ -58,7 +58,7 @@ use crate::hbba::filters::{CommandError, FilterCounts, Throttles, UNFILTERED};
 use crate::index::{Cursor, FilterIndex, Lookup};
 use crate::integrator::{Integrator, Stimulated};
 use crate::level::{Gain, Level};
-use crate::table::{Table, TableError, Verdict};
+use crate::table::{Connection, Table, TableError, Verdict};
 use crate::time::Instant;
 use crate::value_port::{
     Combined, Earliest, MAX_VALUE_CONNECTIONS, MAX_VALUE_PORTS, ValueSlot, ValueState,
@@ -624,23 +624,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             let port = u8::try_from(position).ok()?;
             let (record, views, nodes, roots) = parts?;
             let first_connection = u16::try_from(slots.len()).ok()?;
-            for (index, connection) in views.iter().enumerate() {
-                // `Runtime::new` less the checks `table.validate()` made: they cannot fail
-                // again, and inlined a second time they took 160 bytes of the NUCLEO-G474RE's
-                // flash. The decay's (τ > 0, validated too) is kept.
-                let (tau, reciprocal) = Decay::new(connection.stimulation.decay_us())?.parts();
-                let slot = Slot {
-                    integrator: Integrator::new(),
-                    reciprocal,
-                    tau,
-                    gain: connection.stimulation.gain(),
-                    rest_us: connection.stimulation.rest_us(),
-                    port,
-                    index: u8::try_from(index).ok()?,
-                    filter: UNFILTERED,
-                };
-                slots.push(slot).ok()?;
-            }
+            push_slots(slots, views, port)?;
             let first_step = u16::try_from(steps.len()).ok()?;
             let end = usize::from(first_step).saturating_add(nodes.len());
             steps.resize(end, Step::NOBODY).ok()?;
@@ -1502,6 +1486,37 @@ fn push_value_slots(
 ) -> Option<()> {
     for (slot, &root) in own.iter().zip(roots) {
         value_slots.push(ValueSlot::new(slot.tau, root)).ok()?;
+    }
+    Some(())
+}
+
+/// The slots of port `port`, its connections `views` (validated with the table) at S = 0,
+/// appended to `slots`.
+// Out of line: inlined into `Arbiter::build`, deep in the node's loader, each slot's fields were
+// reached through addresses kept on the stack, 72 bytes more of the NUCLEO-G474RE's flash. Run
+// once per port and table.
+#[inline(never)]
+fn push_slots<const CONNECTIONS: usize>(
+    slots: &mut Vec<Slot, CONNECTIONS>,
+    views: &[Connection],
+    port: u8,
+) -> Option<()> {
+    for (index, connection) in views.iter().enumerate() {
+        // `Runtime::new` less the checks `table.validate()` made: they cannot fail again, and
+        // inlined a second time they took 160 bytes of the NUCLEO-G474RE's flash. The decay's
+        // (τ > 0, validated too) is kept.
+        let (tau, reciprocal) = Decay::new(connection.stimulation.decay_us())?.parts();
+        let slot = Slot {
+            integrator: Integrator::new(),
+            reciprocal,
+            tau,
+            gain: connection.stimulation.gain(),
+            rest_us: connection.stimulation.rest_us(),
+            port,
+            index: u8::try_from(index).ok()?,
+            filter: UNFILTERED,
+        };
+        slots.push(slot).ok()?;
     }
     Some(())
 }
