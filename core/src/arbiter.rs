@@ -629,7 +629,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             let end = usize::from(first_step).saturating_add(nodes.len());
             steps.resize(end, Step::NOBODY).ok()?;
             decision::compile(nodes, steps.get_mut(usize::from(first_step)..)?);
-            let mut run = Port {
+            let run = Port {
                 first_connection,
                 connections: u8::try_from(views.len()).ok()?,
                 first_step,
@@ -645,8 +645,8 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 decided: None,
                 external: 0,
             };
-            run.idle(steps.as_slice());
             ports.push(run).ok()?;
+            ports.last_mut()?.idle(steps.as_slice());
             if let Some(spec) = record.value() {
                 let first = u8::try_from(value_slots.len()).ok()?;
                 let own = slots.get(usize::from(first_connection)..).unwrap_or(&[]);
