@@ -431,7 +431,7 @@ impl Port {
     }
 
     /// Inactive, no connection flagged; the decision for the empty mask.
-    fn idle(&mut self, steps: &[Step]) {
+    fn idle(&mut self) {
         self.flagged = 0;
         self.steady = 0;
         self.from = 0;
@@ -439,7 +439,9 @@ impl Port {
         self.lapsed_from = 0;
         self.lapsed_until = u64::MAX;
         self.decided_for = 0;
-        self.decided = decide(self.steps(steps), self.root, 0);
+        // `decide` under the empty mask, without its walk: only an active connection can be
+        // selected, and none is.
+        self.decided = None;
     }
 }
 
@@ -646,7 +648,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 external: 0,
             };
             ports.push(run).ok()?;
-            ports.last_mut()?.idle(steps.as_slice());
+            ports.last_mut()?.idle();
             if let Some(spec) = record.value() {
                 let first = u8::try_from(value_slots.len()).ok()?;
                 let own = slots.get(usize::from(first_connection)..).unwrap_or(&[]);
@@ -772,7 +774,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             slot.integrator = Integrator::new();
         }
         for port in self.ports.iter_mut() {
-            port.idle(&self.steps);
+            port.idle();
         }
         for state in self.values.iter_mut() {
             state.clear(&mut self.value_slots);
@@ -821,7 +823,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     #[inline(never)]
     pub fn carry_over(&mut self, previous: &Self) -> usize {
         for port in self.ports.iter_mut() {
-            port.idle(&self.steps);
+            port.idle();
         }
         let mut carried = 0;
         let connections = self.table.connections();
