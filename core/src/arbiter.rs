@@ -637,18 +637,18 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 first_step,
                 steps: u16::try_from(nodes.len()).ok()?,
                 root: record.root(),
+                // Idle (`Port::idle`): inactive, no connection flagged, nobody selected.
                 flagged: 0,
                 steady: 0,
                 from: 0,
-                until: 0,
+                until: u64::MAX,
                 lapsed_from: 0,
-                lapsed_until: 0,
+                lapsed_until: u64::MAX,
                 decided_for: 0,
                 decided: None,
                 external: 0,
             };
             ports.push(run).ok()?;
-            ports.last_mut()?.idle();
             if let Some(spec) = record.value() {
                 let first = u8::try_from(value_slots.len()).ok()?;
                 let own = slots.get(usize::from(first_connection)..).unwrap_or(&[]);
