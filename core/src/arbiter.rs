@@ -1548,6 +1548,15 @@ mod tests {
     use crate::table::Connection;
     use embedded_can::StandardId;
 
+    /// `Port::idle` sets the empty mask's decision without a walk: whatever the diagram says
+    /// (here a root that delivers connection 0 at once), nobody is selected.
+    #[test]
+    fn nobody_is_selected_under_the_empty_mask() {
+        let root = NodeRef::deliver(0).unwrap();
+        assert_eq!(decide(&[], root, 0), None);
+        assert_eq!(decide(&[], root, 1), Some(0));
+    }
+
     #[test]
     fn an_inactive_connection_is_never_selected() {
         // A valid diagram that names C0 whatever the mask (root = terminal "C0 delivers"): C0 is
