@@ -58,7 +58,7 @@ use crate::hbba::filters::{CommandError, FilterCounts, Throttles, UNFILTERED};
 use crate::index::{Cursor, FilterIndex, Lookup};
 use crate::integrator::{Integrator, Stimulated};
 use crate::level::{Gain, Level};
-use crate::table::{Table, TableError, Verdict};
+use crate::table::{Connection, Table, TableError, Verdict};
 use crate::time::Instant;
 use crate::value_port::{
     Combined, Earliest, MAX_VALUE_CONNECTIONS, MAX_VALUE_PORTS, ValueSlot, ValueState,
@@ -431,7 +431,7 @@ impl Port {
     }
 
     /// Inactive, no connection flagged; the decision for the empty mask.
-    fn idle(&mut self, steps: &[Step]) {
+    fn idle(&mut self) {
         self.flagged = 0;
         self.steady = 0;
         self.from = 0;
@@ -439,7 +439,9 @@ impl Port {
         self.lapsed_from = 0;
         self.lapsed_until = u64::MAX;
         self.decided_for = 0;
-        self.decided = decide(self.steps(steps), self.root, 0);
+        // `decide` under the empty mask, without its walk: only an active connection can be
+        // selected, and none is.
+        self.decided = None;
     }
 }
 
@@ -516,6 +518,35 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         slot: &mut Option<Self>,
         fill: impl FnOnce(&mut Table<PORTS, CONNECTIONS, NODES>) -> Result<T, E>,
     ) -> Result<Result<(T, &mut Self), R>, E> {
+        Self::build_in(slot, fill, true)
+    }
+
+    /// [`Arbiter::new_in`] with the table of the image `bytes`, decoded in place
+    /// ([`crate::image::load_into_as`]): the image's header and the arbiter. The loader refuses
+    /// an invalid table (its [`LoadError::Table`](crate::image::LoadError::Table)), so the
+    /// table is not validated a second time; the verdict inside is the one [`Arbiter::new_in`]
+    /// gives a table it cannot build.
+    // The loader's validation is the arbiter's: a second pass (a call and its refusal) was 16
+    // bytes of the NUCLEO-G474RE's flash.
+    pub fn load_in<'a, R: Verdict>(
+        slot: &'a mut Option<Self>,
+        bytes: &[u8],
+    ) -> Result<Result<(crate::image::Header, &'a mut Self), R>, crate::image::LoadError<R>> {
+        Self::build_in(
+            slot,
+            |table| crate::image::load_into_as::<PORTS, CONNECTIONS, NODES, R>(bytes, table),
+            false,
+        )
+    }
+
+    /// [`Arbiter::new_in`], the table validated again only if `validate` (a table `fill` has
+    /// validated is valid).
+    #[inline(always)]
+    fn build_in<R: Verdict, T, E>(
+        slot: &mut Option<Self>,
+        fill: impl FnOnce(&mut Table<PORTS, CONNECTIONS, NODES>) -> Result<T, E>,
+        validate: bool,
+    ) -> Result<Result<(T, &mut Self), R>, E> {
         // Part by part in place (the literal: empty lists are their lengths), not built aside
         // and moved: each move was code, reaching the parts at large offsets in a frame.
         let arbiter = slot.insert(Arbiter {
@@ -541,7 +572,12 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 return Err(error);
             }
         };
-        let built = match arbiter.table.check::<R>() {
+        let checked = if validate {
+            arbiter.table.check::<R>()
+        } else {
+            Ok(())
+        };
+        let built = match checked {
             Ok(()) => {
                 arbiter.throttles = Throttles::new(arbiter.table.filters());
                 arbiter
@@ -587,54 +623,37 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             table,
         } = self;
         for (position, parts) in table.parts().enumerate() {
-            let port = u8::try_from(position).ok()?;
+            // At most 16 ports (a table's `CAPACITIES_FIT`): the cast keeps the index whole.
+            let port = position as u8;
             let (record, views, nodes, roots) = parts?;
             let first_connection = u16::try_from(slots.len()).ok()?;
-            for (index, connection) in views.iter().enumerate() {
-                // `Runtime::new` less the checks `table.validate()` made: they cannot fail
-                // again, and inlined a second time they took 160 bytes of the NUCLEO-G474RE's
-                // flash. The decay's (τ > 0, validated too) is kept.
-                let (tau, reciprocal) = Decay::new(connection.stimulation.decay_us())?.parts();
-                let slot = Slot {
-                    integrator: Integrator::new(),
-                    reciprocal,
-                    tau,
-                    gain: connection.stimulation.gain(),
-                    rest_us: connection.stimulation.rest_us(),
-                    port,
-                    index: u8::try_from(index).ok()?,
-                    filter: UNFILTERED,
-                };
-                slots.push(slot).ok()?;
-            }
+            push_slots(slots, views, port)?;
             let first_step = u16::try_from(steps.len()).ok()?;
             let end = usize::from(first_step).saturating_add(nodes.len());
             steps.resize(end, Step::NOBODY).ok()?;
             decision::compile(nodes, steps.get_mut(usize::from(first_step)..)?);
-            let mut run = Port {
+            let run = Port {
                 first_connection,
                 connections: u8::try_from(views.len()).ok()?,
                 first_step,
                 steps: u16::try_from(nodes.len()).ok()?,
                 root: record.root(),
+                // Idle (`Port::idle`): inactive, no connection flagged, nobody selected.
                 flagged: 0,
                 steady: 0,
                 from: 0,
-                until: 0,
+                until: u64::MAX,
                 lapsed_from: 0,
-                lapsed_until: 0,
+                lapsed_until: u64::MAX,
                 decided_for: 0,
                 decided: None,
                 external: 0,
             };
-            run.idle(steps.as_slice());
             ports.push(run).ok()?;
             if let Some(spec) = record.value() {
                 let first = u8::try_from(value_slots.len()).ok()?;
                 let own = slots.get(usize::from(first_connection)..).unwrap_or(&[]);
-                for (slot, &root) in own.iter().zip(roots) {
-                    value_slots.push(ValueSlot::new(slot.tau, root)).ok()?;
-                }
+                push_value_slots(value_slots, own, roots)?;
                 let count = u8::try_from(roots.len()).ok()?;
                 values
                     .push(ValueState::new(port, first, count, spec))
@@ -649,10 +668,10 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
                 slot.filter = position as u8;
             }
         }
+        // Validated with the table (`Group::validate`): `Eligibility::new`'s checks again were
+        // 28 bytes of the NUCLEO-G474RE's flash.
         for group in table.groups() {
-            let state =
-                Eligibility::new(group.number, group.node, u64::from(group.period_us)).ok()?;
-            groups.push(state).ok()?;
+            groups.push(Eligibility::of(group)).ok()?;
         }
         // Each group started where it lives (`GroupRun::start`; built and moved, it was copied),
         // its parameters validated with the table. The blanks in one `resize`, cleared in
@@ -664,10 +683,12 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         for (run, spec) in runs.iter_mut().zip(table.dynamics()) {
             run.start(spec);
         }
+        // The sources, all unheard, in one `resize`: a push per source was 8 bytes more of the
+        // NUCLEO-G474RE's flash.
         #[cfg(feature = "dynamics")]
-        for _ in table.gate_sources() {
-            sources.push(SourceState::new()).ok()?;
-        }
+        sources
+            .resize(table.gate_sources().len(), SourceState::new())
+            .ok()?;
         Some(())
     }
 
@@ -754,7 +775,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             slot.integrator = Integrator::new();
         }
         for port in self.ports.iter_mut() {
-            port.idle(&self.steps);
+            port.idle();
         }
         for state in self.values.iter_mut() {
             state.clear(&mut self.value_slots);
@@ -803,7 +824,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     #[inline(never)]
     pub fn carry_over(&mut self, previous: &Self) -> usize {
         for port in self.ports.iter_mut() {
-            port.idle(&self.steps);
+            port.idle();
         }
         let mut carried = 0;
         let connections = self.table.connections();
@@ -1455,6 +1476,54 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     }
 }
 
+/// A value port's slots, its connections' τ (`own`) with their `roots`, appended to
+/// `value_slots`.
+// Out of line: inlined into `Arbiter::build`, deep in the node's loader, each slot's fields were
+// reached through addresses kept on the stack, 36 bytes more of the NUCLEO-G474RE's flash. Run
+// once per value port and table.
+#[inline(never)]
+fn push_value_slots(
+    value_slots: &mut Vec<ValueSlot, MAX_VALUE_CONNECTIONS>,
+    own: &[Slot],
+    roots: &[NodeRef],
+) -> Option<()> {
+    for (slot, &root) in own.iter().zip(roots) {
+        value_slots.push(ValueSlot::new(slot.tau, root)).ok()?;
+    }
+    Some(())
+}
+
+/// The slots of port `port`, its connections `views` (validated with the table) at S = 0,
+/// appended to `slots`.
+// Out of line: inlined into `Arbiter::build`, deep in the node's loader, each slot's fields were
+// reached through addresses kept on the stack, 72 bytes more of the NUCLEO-G474RE's flash. Run
+// once per port and table.
+#[inline(never)]
+fn push_slots<const CONNECTIONS: usize>(
+    slots: &mut Vec<Slot, CONNECTIONS>,
+    views: &[Connection],
+    port: u8,
+) -> Option<()> {
+    for (index, connection) in views.iter().enumerate() {
+        // `Runtime::new` less the checks `table.validate()` made: they cannot fail again, and
+        // inlined a second time they took 160 bytes of the NUCLEO-G474RE's flash. The decay's
+        // (τ > 0, validated too) is kept.
+        let (tau, reciprocal) = Decay::new(connection.stimulation.decay_us())?.parts();
+        let slot = Slot {
+            integrator: Integrator::new(),
+            reciprocal,
+            tau,
+            gain: connection.stimulation.gain(),
+            rest_us: connection.stimulation.rest_us(),
+            port,
+            index: u8::try_from(index).ok()?,
+            filter: UNFILTERED,
+        };
+        slots.push(slot).ok()?;
+    }
+    Some(())
+}
+
 /// Bit `index` of a mask (0 for an index of 32 or more).
 #[inline]
 fn bit(index: u8) -> u32 {
@@ -1478,6 +1547,15 @@ mod tests {
     use crate::level::Gain;
     use crate::table::Connection;
     use embedded_can::StandardId;
+
+    /// `Port::idle` sets the empty mask's decision without a walk: whatever the diagram says
+    /// (here a root that delivers connection 0 at once), nobody is selected.
+    #[test]
+    fn nobody_is_selected_under_the_empty_mask() {
+        let root = NodeRef::deliver(0).unwrap();
+        assert_eq!(decide(&[], root, 0), None);
+        assert_eq!(decide(&[], root, 1), Some(0));
+    }
 
     #[test]
     fn an_inactive_connection_is_never_selected() {

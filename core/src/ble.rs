@@ -235,6 +235,19 @@ impl<const PEERS: usize> Eligibility<PEERS> {
         })
     }
 
+    /// [`Eligibility::new`] for `group`, which [`Group::validate`] accepted: without the checks
+    /// it made.
+    pub(crate) const fn of(group: &Group) -> Self {
+        Eligibility {
+            group: group.number,
+            node: group.node,
+            period_us: group.period_us as u64,
+            own: None,
+            peers: Vec::new(),
+            next_broadcast: None,
+        }
+    }
+
     /// The group.
     pub const fn group(&self) -> u8 {
         self.group

@@ -341,6 +341,7 @@ pub fn load_into_as<
     bytes: &[u8],
     table: &mut Table<PORTS, CONNECTIONS, NODES>,
 ) -> Result<Header, LoadError<R>> {
+    *table = Table::new();
     let header = read_header_as(bytes)?;
     // read_header bounded body_len by MAX_IMAGE_LEN, so this cannot overflow.
     let total = HEADER_LEN.wrapping_add(header.body_len as usize);
@@ -370,7 +371,6 @@ pub fn load_into_as<
         });
     }
     let mut r = crate::wire::Reader::new(body);
-    *table = Table::new();
     let (needed, roots) = table.decode_sized(&mut r);
     if let Some(error) = r.error() {
         let capacity = TableSize {

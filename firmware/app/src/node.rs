@@ -1749,9 +1749,7 @@ fn load<'a, const P: usize, const C: usize, const N: usize>(
     bytes: &[u8],
 ) -> Result<(Header, &'a mut Arbiter<P, C, N>), (TransferStatusCode, u8)> {
     // `Refused`: the status says only that the table is invalid, so the details are not built.
-    match Arbiter::new_in::<Refused, _, _>(slot, |table| {
-        image::load_into_as::<P, C, N, Refused>(bytes, table)
-    }) {
+    match Arbiter::load_in::<Refused>(slot, bytes) {
         Ok(Ok(built)) => Ok(built),
         Ok(Err(Refused)) => Err((TransferStatusCode::InvalidTable, 0)),
         Err(error) => Err(status_of(&error)),
