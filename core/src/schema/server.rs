@@ -4,8 +4,8 @@ use heapless::{Deque, Vec};
 
 use super::action::Progress;
 use super::{
-    AXES, Action, Event, Gripper, MAX_INNATE, MAX_SENSORS, Measure, Pose, QUEUE_DEPTH, Reaction,
-    Schema, SchemaError, Setpoint, Source, Wrench,
+    AXES, Event, Gripper, MAX_INNATE, MAX_SENSORS, Measure, Pose, QUEUE_DEPTH, Reaction, Schema,
+    SchemaError, Setpoint, Source, Wrench,
 };
 use crate::time::Instant;
 
@@ -672,14 +672,7 @@ impl Server {
     #[inline(never)]
     fn recover(&mut self, cause: Safety, now: Instant, out: &mut Vec<Transition, 3>) {
         self.fault = Some(cause);
-        let recovery = Schema::builtin(
-            Schema::SAFETY + cause as u16,
-            Action::Relieve,
-            Some(Reaction {
-                event: Event::OneShot,
-                next: Source::HighPriority,
-            }),
-        );
+        let recovery = Schema::builtin(Schema::SAFETY + cause as u16);
         self.install(recovery, Origin::Innate, Trigger::Safety(cause), now, out);
     }
 
@@ -775,16 +768,9 @@ fn magnitude_above(v: &[i32], limit: u32) -> bool {
 }
 
 fn wait_queue() -> Schema {
-    Schema::builtin(
-        Schema::WAIT_QUEUE,
-        Action::Idle { ms: 0 },
-        Some(Reaction {
-            event: Event::QueueReady,
-            next: Source::Queue,
-        }),
-    )
+    Schema::builtin(Schema::WAIT_QUEUE)
 }
 
 fn wait_high_priority() -> Schema {
-    Schema::builtin(Schema::WAIT_HIGH_PRIORITY, Action::Idle { ms: 0 }, None)
+    Schema::builtin(Schema::WAIT_HIGH_PRIORITY)
 }
