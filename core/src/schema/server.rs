@@ -352,6 +352,9 @@ impl Server {
 
     /// Microseconds from the installed schema's installation to `now` (0 if `now` is before):
     /// the watchdog's, the reactions' and the action's one clock.
+    // Out of line: the tick's two reads and the report's each inlined a copy (28 bytes of the
+    // NUCLEO-G474RE's flash).
+    #[inline(never)]
     fn elapsed_us(&self, now: Instant) -> u64 {
         now.micros_since(self.installed_at).unwrap_or(0)
     }
