@@ -238,7 +238,7 @@ fn admit(s: &Schema, count: usize) -> Result<(), Refusal> {
 }
 
 /// What a tick produced.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Tick {
     /// The command for the drive (none until a pose has been received: the server has nothing
     /// to hold the robot at before).
@@ -445,7 +445,18 @@ impl Server {
     /// Costs a scan of the current reaction table and one iteration of its action; a schema
     /// change copies one schema.
     pub fn tick(&mut self, now: Instant) -> Tick {
-        let mut transitions = Vec::new();
+        let mut tick = Tick::default();
+        self.tick_into(now, &mut tick);
+        tick
+    }
+
+    /// [`Server::tick`], its result written into `out` (what `out` held is replaced): for a
+    /// runner that keeps it in place.
+    // The board's: a `Tick` returned was built aside and moved out (20 bytes of the
+    // NUCLEO-G474RE's flash).
+    pub fn tick_into(&mut self, now: Instant, out: &mut Tick) {
+        let transitions = &mut out.transitions;
+        transitions.clear();
         // Through `fresh`: a gap beyond the bound is a stale tick (24 bytes of the
         // NUCLEO-G474RE's flash less than its own test).
         let overrun = self
@@ -455,7 +466,7 @@ impl Server {
 
         // Step 2: the high-priority channel.
         if core::mem::take(&mut self.estop) {
-            self.recover(Safety::EmergencyStop, now, &mut transitions);
+            self.recover(Safety::EmergencyStop, now, transitions);
         } else if core::mem::take(&mut self.abort) {
             self.queue.clear();
             self.install(
@@ -463,7 +474,7 @@ impl Server {
                 Origin::HighPriority,
                 Trigger::Abort,
                 now,
-                &mut transitions,
+                transitions,
             );
         } else if let Some(schema) = self.high_priority.take() {
             self.fault = None;
@@ -472,13 +483,13 @@ impl Server {
                 Origin::HighPriority,
                 Trigger::HighPriority,
                 now,
-                &mut transitions,
+                transitions,
             );
         }
 
         // Steps 3 and 4: the sensor table and the triggering event.
         match self.trigger(now, overrun) {
-            Some(Err(cause)) => self.recover(cause, now, &mut transitions),
+            Some(Err(cause)) => self.recover(cause, now, transitions),
             Some(Ok((index, event, next))) => {
                 let by = Trigger::Reaction(index, event);
                 // Step 5.
@@ -501,7 +512,7 @@ impl Server {
                         (wait_high_priority(), Origin::HighPriority)
                     }
                 };
-                self.install(s, origin, by, now, &mut transitions);
+                self.install(s, origin, by, now, transitions);
             }
             None => {}
         }
@@ -513,14 +524,11 @@ impl Server {
             && self.excess_grew(&self.setpoint.attractor, &self.attractor_excess_at_install)
         {
             self.setpoint.attractor = before;
-            self.recover(Safety::Limit, now, &mut transitions);
+            self.recover(Safety::Limit, now, transitions);
             self.iterate(now);
         }
 
-        Tick {
-            setpoint: self.armed.then_some(self.setpoint),
-            transitions,
-        }
+        out.setpoint = self.armed.then_some(self.setpoint);
     }
 
     fn iterate(&mut self, now: Instant) {
