@@ -218,7 +218,9 @@ impl SchemaRuntime {
         } else {
             due
         };
-        let tick = self.server.tick(now);
+        // Into place: see `Server::tick_into`.
+        let mut tick = schema::Tick::default();
+        self.server.tick_into(now, &mut tick);
         // Read once: nothing below changes the queue.
         let queued = self.server.queued();
         for t in &tick.transitions {
