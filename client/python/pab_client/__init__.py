@@ -11,7 +11,16 @@ Units are the board's integers: µm and µrad, µm/s, mN, ms (``mm()``, ``newton
 and ``pose_mm()`` convert from the network file's mm, N and mrad).
 """
 
-from .client import FIRST_ID, LAST_ID, Client, ClientError, Ended, Refused, Timeout
+from .client import (
+    FIRST_ID,
+    LAST_ID,
+    Client,
+    ClientError,
+    Ended,
+    Refused,
+    Timeout,
+    client_filters,
+)
 from .protocol import (
     SchemaAck,
     SchemaChannel,
@@ -49,6 +58,7 @@ from .schema import (
 
 __all__ = [
     "Client",
+    "client_filters",
     "ClientError",
     "Refused",
     "Timeout",

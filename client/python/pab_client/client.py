@@ -2,9 +2,10 @@
 answers, the server's transitions and state, abort and emergency stop.
 
     import can
-    from pab_client import Client, pose_mm
+    from pab_client import Client, client_filters, pose_mm
 
-    with can.Bus(interface="socketcan", channel="can0") as bus, Client(bus, node=5) as arm:
+    with can.Bus(interface="socketcan", channel="can0", can_filters=client_filters(5)) as bus, \
+            Client(bus, node=5) as arm:
         arm.move_to(pose_mm(-100, -60, 35), speed=20_000)       # µm, µm/s
         arm.move_to_touch((0, 0, -1), contact=3_000)             # direction; mN
         done = arm.grasp()
@@ -14,7 +15,10 @@ Units are the board's (µm, µrad, µm/s, mN, ms; see :mod:`pab_client.schema`).
 
 The client reads the bus through a ``can.Notifier`` (its own, or one passed in: python-can lets
 one notifier serve a bus), so that the ISO-TP layer and the reports share it; nothing else may
-``recv`` on that bus meanwhile.
+``recv`` on that bus meanwhile. Open the bus with :func:`client_filters`: the node's flow control
+must reach the ISO-TP layer within its timeout (1 s), and a bus without filters hands the
+notifier every frame of the bus first (on a loaded or emulated machine, a plant's 1 kHz poses
+delayed it past that).
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ from .protocol import (
     SchemaTransition,
     SchemaTrigger,
     abort_id,
+    client_filters,
     decode_report,
     emergency_stop_id,
     transfer_ids,
@@ -578,6 +583,7 @@ class Client:
 
 __all__ = [
     "Client",
+    "client_filters",
     "ClientError",
     "Refused",
     "Timeout",

@@ -364,6 +364,27 @@ def transfer_ids(node: int, source: int = TOOL) -> "tuple[int, int]":
     return frame_id(SCHEMA_TRANSFER, source, node), frame_id(SCHEMA_TRANSFER, node, source)
 
 
+def client_filters(node: int) -> "list[dict]":
+    """python-can ``can_filters`` that pass what a client of `node` reads, and nothing else:
+    the node's flow control for the client's transfers and its reports (SchemaAck,
+    SchemaTransition, SchemaState), whatever their destination.
+
+    On SocketCAN the kernel applies them, so a client's process never sees the rest of the bus:
+    a plant publishing pose and wrench at 1 kHz would otherwise reach the client's notifier
+    thread too, and under load bury the node's flow control and answers behind thousands of
+    frames the client ignores."""
+    if not 1 <= node <= 127:
+        raise ValueError(f"node {node}: nodes are 1..=127")
+    return [
+        {
+            "can_id": PROTOCOL_VALUE | service << 16 | node,
+            "can_mask": PROTOCOL_MASK | 0xFF << 16 | 0xFF,
+            "extended": True,
+        }
+        for service in (SCHEMA_TRANSFER, *_REPORTS)
+    ]
+
+
 def transfer_message(schema_bytes: bytes, high_priority: bool = False) -> bytes:
     """A SchemaTransfer message: the channel byte (0 the queue, 1 the high-priority channel) and
     the schema's encoding."""

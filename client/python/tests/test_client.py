@@ -11,7 +11,7 @@ from typing import Callable, List, Optional, Tuple
 import can
 import pytest
 
-from pab_client import Client, Refused, Timeout, schema as s
+from pab_client import Client, Refused, Timeout, client_filters, schema as s
 from pab_client import protocol as p
 from pab_client.protocol import (
     SchemaAck,
@@ -158,7 +158,8 @@ def rig():
     channel = f"pab-client-{next(_channels)}"
     node = FakeNode(channel)
     node.start()
-    bus = can.Bus(interface="virtual", channel=channel)
+    # Every test runs with the filters a client's bus is opened with: they pass what it reads.
+    bus = can.Bus(interface="virtual", channel=channel, can_filters=client_filters(NODE))
     client = Client(bus, NODE)
     yield client, node
     client.close()
@@ -423,3 +424,39 @@ def test_foreign_and_malformed_reports_are_ignored(rig):
     node.no_ack = True
     with pytest.raises(Timeout):
         client.install(s.idle(1, 1), timeout=0.2)
+
+
+def test_the_client_filters_keep_the_rest_of_the_bus_away():
+    channel = f"pab-client-{next(_channels)}"
+    sender = can.Bus(interface="virtual", channel=channel)
+    bus = can.Bus(interface="virtual", channel=channel, can_filters=client_filters(NODE))
+    ack = SchemaAck(SchemaOutcome.Accepted, SchemaChannel.Queue, 1, 0).encode()
+    passed = [
+        (p.transfer_ids(NODE)[1], bytes([0x30, 8, 0]) + b"\xcc" * 5),  # flow control
+        (p.frame_id(p.SCHEMA_ACK, NODE, p.TOOL), ack),
+        (p.frame_id(p.SCHEMA_TRANSITION, NODE, p.BROADCAST), bytes(8)),
+        (p.frame_id(p.SCHEMA_STATE, NODE, p.BROADCAST), bytes(8)),
+    ]
+    kept_away = [
+        (0x310, False, bytes(8)),  # a plant's pose
+        (0x310 | NODE << 8, False, bytes(8)),  # a standard id whose low byte is the node's
+        (p.frame_id(p.SCHEMA_STATE, NODE + 1, p.BROADCAST), True, bytes(8)),  # another node
+        (p.transfer_ids(NODE)[0], True, bytes(8)),  # the client's own transfer to the node
+        (0x1605FF00 | NODE, True, bytes(8)),  # the node's heartbeat
+        (NODE, True, bytes(8)),  # outside our identifier space
+    ]
+    try:
+        for arbitration_id, extended, data in kept_away:
+            sender.send(can.Message(arbitration_id=arbitration_id, is_extended_id=extended,
+                                    data=data))
+        for arbitration_id, data in passed:
+            sender.send(can.Message(arbitration_id=arbitration_id, is_extended_id=True, data=data))
+        received = []
+        while (msg := bus.recv(timeout=0.2)) is not None:
+            received.append((msg.arbitration_id, bytes(msg.data)))
+        assert received == passed
+    finally:
+        bus.shutdown()
+        sender.shutdown()
+    with pytest.raises(ValueError):
+        client_filters(0)
