@@ -81,6 +81,11 @@ def main(argv: list[str] | None = None) -> int:
                        help="force the host's vcan0 or the micro-VM (default: auto)")
     suite.add_argument("--timeout", type=float, default=600.0,
                        help="stop the micro-VM after this many seconds (default: 600)")
+    suite.add_argument("--hogs", type=int, default=os.environ.get("PAB_HIL_HOGS", "0"),
+                       metavar="N",
+                       help="run N busy processes at normal priority beside the suite, one per "
+                       "core for a machine half as fast (default: PAB_HIL_HOGS, else 0): the "
+                       "suite must pass on slower machines than yours")
     suite.add_argument("--command", default=None, metavar="CMD",
                        help="run this shell command instead of pytest, where the suite would run "
                        "(e.g. --command 'python -m pab_hil run take-and-return --plot "
@@ -88,8 +93,25 @@ def main(argv: list[str] | None = None) -> int:
     suite.add_argument("pytest_args", nargs=argparse.REMAINDER,
                        help="passed to pytest (after --)")
 
+    margins = commands.add_parser(
+        "margins",
+        help="the smallest margin of each timing bound over several runs' results",
+        description="Reads the timing bounds each run wrote (RESULTS/bounds.jsonl, where "
+        "run-hil --out put them) and prints, per bound, its smallest margin and the run it "
+        "came from.",
+    )
+    margins.add_argument("results", type=Path, nargs="+", metavar="RESULTS",
+                         help="a run's results directory (run-hil's --out)")
+
     args = parser.parse_args(argv)
     try:
+        if args.command == "margins":
+            from . import bounds
+
+            lines = bounds.smallest(args.results)
+            print("\n".join(lines) if lines else "no timing bounds in " +
+                  ", ".join(str(r) for r in args.results))
+            return 0 if lines else 1
         if args.command == "run":
             return run_scenario(args)
         return run_suite(args)
@@ -160,7 +182,7 @@ def _back_to_rest(session):
 
 
 def run_suite(args) -> int:
-    from . import board, vm
+    from . import vm
 
     vm.accel_mode()  # a mistyped PAB_HIL_ACCEL fails now, not after the build of the guest
     out: Path = args.out.resolve()
@@ -183,7 +205,49 @@ def run_suite(args) -> int:
         command = f"PATH={shlex.quote(str(Path(sys.executable).parent))}:$PATH; {args.command}"
     else:
         command = " ".join(shlex.quote(a) for a in pytest)
+    if args.hogs < 0:
+        print(f"run-hil: --hogs {args.hogs}: a number of processes, 0 or more", file=sys.stderr)
+        return 2
+    hogs = Hogs(args.hogs)
     started = time.monotonic()
+    try:
+        status, way_text = _run_where(args, way, command, out)
+    finally:
+        hogs.stop()
+    elapsed = time.monotonic() - started
+    _print_figures(out)
+    what = f"`{args.command}`" if args.command else "HIL suite"
+    verdict = "passed" if status == 0 else f"FAILED (status {status})"
+    slowed = f", beside {args.hogs} busy processes" if args.hogs else ""
+    print(f"run-hil: {what} {verdict} in {elapsed:.0f} s ({way_text}{slowed}); results in {out}")
+    return status
+
+
+class Hogs:
+    """`count` processes that spin at normal priority until stopped: a slower machine on purpose.
+    Each takes a core's share from the suite (and the micro-VM's QEMU) as another user's work
+    would."""
+
+    def __init__(self, count: int) -> None:
+        self.processes = [
+            subprocess.Popen([sys.executable, "-c", "while True: pass"],
+                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
+            for _ in range(count)
+        ]
+        if count:
+            from . import vm
+            vm.say(f"{count} busy processes run beside the suite (--hogs)")
+
+    def stop(self) -> None:
+        for process in self.processes:
+            process.kill()
+            process.wait()
+
+
+def _run_where(args, way: str, command: str, out: Path) -> tuple[int, str]:
+    """Runs `command` on this machine's vcan0 or in the micro-VM: (status, where)."""
+    from . import board, vm
+
     if way == "host":
         vm.say("using this machine's vcan0")
         status = subprocess.run(["/bin/sh", "-c", command], cwd=REPO).returncode
@@ -197,7 +261,7 @@ def run_suite(args) -> int:
             if path.resolve().is_relative_to("/run"):
                 print(f"run-hil: error: {what} ({path}) lies under /run, which the micro-VM "
                       "covers with its scratch space: use a directory elsewhere", file=sys.stderr)
-                return 2
+                return 2, "not run"
         # Bytecode for the harness now: the guest sees the sources read-only and would compile
         # them at every import, under emulation.
         subprocess.run([sys.executable, "-m", "compileall", "-q", str(REPO / "hil-sim")], check=True)
@@ -230,12 +294,7 @@ def run_suite(args) -> int:
             boards.close()
         status = outcome.status
         way_text = f"micro-VM, {outcome.accel}, booted in {outcome.boot_s:.1f} s"
-    elapsed = time.monotonic() - started
-    _print_figures(out)
-    what = f"`{args.command}`" if args.command else "HIL suite"
-    verdict = "passed" if status == 0 else f"FAILED (status {status})"
-    print(f"run-hil: {what} {verdict} in {elapsed:.0f} s ({way_text}); results in {out}")
-    return status
+    return status, way_text
 
 
 def _host_vcan(name: str) -> bool:
@@ -245,7 +304,10 @@ def _host_vcan(name: str) -> bool:
     if os.geteuid() != 0 or shutil.which("ip") is None:
         return False
     if shutil.which("modprobe"):
-        subprocess.run(["modprobe", "vcan"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        # can-isotp too: the tests' independent ISO-TP sender is the kernel's (pab_hil.transfer).
+        for module in ("vcan", "can-isotp"):
+            subprocess.run(["modprobe", module], stdout=subprocess.DEVNULL,
+                           stderr=subprocess.DEVNULL)
     added = subprocess.run(["ip", "link", "add", "dev", name, "type", "vcan"],
                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     if added.returncode != 0:
@@ -256,10 +318,14 @@ def _host_vcan(name: str) -> bool:
 
 
 def _print_figures(out: Path) -> None:
+    from . import bounds
+
     figures = sorted((out / "figures").glob("*.json")) if (out / "figures").exists() else []
     for path in figures:
         data = json.loads(path.read_text())
         print(f"run-hil: figure {path.stem}: " + ", ".join(f"{k} {v}" for k, v in data.items()))
+    for line in bounds.report(bounds.read(out)):
+        print(line)
     boot = out / "vm-boot.txt"
     if boot.exists():
         print(f"run-hil: figure micro-VM boot to first test: {boot.read_text().strip()}")

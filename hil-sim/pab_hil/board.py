@@ -51,24 +51,44 @@ START_TIMEOUT_S = 30.0
 # runs keyed (README, "Keys"). Unset: an unkeyed board, as before.
 KEY_PAGE_ENV = "PAB_KEY_PAGE"
 KEY_PAGE_ADDRESS = 0x0004_E000
-# cangw's filter on the route from the bus to the board: every frame but the nodes' reports to
-# the tool (29-bit protocol frames of services 0x01-0x07: faults, heartbeat group, diagnostic
-# stream; docs/can-protocol.md), which no node acts on and which are three quarters of Take and
-# Return's traffic. Commands and transfers (services 0x10 and up) and every other frame pass.
-# The serial line is the bottleneck: QEMU's model of the board's UART takes one byte per
-# main-loop iteration (about 50 us on an idle host, far more on a loaded one), and a frame is
-# some 25 bytes. A CAN controller's acceptance filter does this job on a board. Format:
-# id~mask, "passes when id & mask differ"; the mask holds CAN_EFF_FLAG, so only 29-bit frames
-# are left out.
-ROUTE_FILTER = "82000000~83F80000"
-# The one frame of services 0x00-0x07 a node does act on: the emergency stop (service 0x00, to
-# every node or to this one), which ROUTE_FILTER's mask cannot tell from the reports. A second
-# route, disjoint from the first: a board that runs a schema server must stop on it
-# (docs/can-protocol.md, "Serial-line bridge"). Format: id:mask, "passes when id & mask match".
-ESTOP_FILTER = "82000000:83FF0000"
-# What reaches a board by default: one route per filter (disjoint: a frame that passed two would
-# be delivered twice).
-TO_BOARD = (ROUTE_FILTER, ESTOP_FILTER)
+# What reaches a board: its CAN acceptance filter, as cangw routes from the bus to the serial
+# line, one route per filter. The serial line is the bottleneck: QEMU's model of the board's UART
+# takes one byte per main-loop iteration (about 50 us on an idle host, far more on a loaded one),
+# and a frame is some 25 bytes, about 700 frames a second; the line's queue (the slcan
+# interface's) holds `LINE_QUEUE` frames, and cangw drops what does not fit. So only what the
+# board acts on crosses it, as a CAN controller's acceptance filter would pass on a robot: every
+# frame outside our identifier space (the topics: `topics`, default all of them), the claims of
+# Broadcast of Local Eligibility, our frames addressed to the board, and our broadcasts but the
+# reports (services 0x01-0x06: faults, heartbeat group, diagnostic stream), which no node acts on
+# and which are three quarters of Take and Return's traffic. Our frames addressed to other nodes
+# or to the tool (another node's table transfer, its answers) stay off the line.
+#
+# cangw's format: `id:mask` passes when id & mask match, `id~mask` when they differ; the mask
+# holds CAN_EFF_FLAG (0x80000000), so a route tells 29-bit frames from 11-bit ones. The routes are
+# disjoint: a frame that passed two would be delivered twice.
+ALL_TOPICS = ("82000000~83000000",)  # every 11-bit frame, and every 29-bit one not ours
+# Claims (docs/can-protocol.md, "Broadcast of Local Eligibility"): bit 23 set, any priority.
+CLAIMS = "82800000:83800000"
+
+
+def acceptance(node_id: int, topics: tuple[str, ...] = ALL_TOPICS) -> tuple[str, ...]:
+    """The cangw filters of what reaches board `node_id` (see above): `topics`, the claims, our
+    frames to the board, and our broadcasts of the emergency stop (service 0x00), the Gates
+    (0x07) and every service from 0x08 on (ranges of services a mask can select: 0x08-0x0F,
+    0x10-0x1F, 0x20-0x3F, 0x40-0x7F; the claims hold 0x80 and up)."""
+    if not 1 <= node_id <= 127:
+        raise ValueError(f"node {node_id}: nodes are 1..=127")
+    ours = [f"8200{node_id:02X}00:8380FF00"]  # to the board: any service below the claims
+    for service, mask in ((0x00, 0xFF), (0x07, 0xFF), (0x08, 0xF8), (0x10, 0xF0), (0x20, 0xE0),
+                          (0x40, 0xC0)):
+        ours.append(f"82{service:02X}FF00:83{mask:02X}FF00")
+    return (*topics, CLAIMS, *ours)
+
+
+# Frames the slcan interface queues for the line (the kernel's default is 10): a burst (an ISO-TP
+# block of 8 and the frames around it) waits instead of being dropped by cangw. At about 1.4 ms
+# a frame, 256 frames are 0.36 s of the line: a delay the tests would see, never a silent loss.
+LINE_QUEUE = 256
 
 
 class BoardError(RuntimeError):
@@ -273,9 +293,11 @@ class BoardNode:
     slcand: subprocess.Popen | None = None
     boot_s: float = 0.0
     routes: list[list[str]] = field(default_factory=list)
+    # The line's counts when the board stopped (`link_statistics`).
+    statistics: dict[str, int] = field(default_factory=dict)
     # cangw filters of the routes from the bus to the board, one route each (keep them disjoint:
-    # a frame that passes two is delivered twice). Default: everything but the reports to the tool.
-    to_board: tuple[str, ...] = TO_BOARD
+    # a frame that passes two is delivered twice). Default: `acceptance(node_id)`.
+    to_board: tuple[str, ...] | None = None
 
     @property
     def can_iface(self) -> str:
@@ -336,11 +358,13 @@ class BoardNode:
                 raise BoardError(f"slcand did not make {self.can_iface} on {line} "
                                  f"(is the slcan module loaded?)")
             time.sleep(0.05)
+        _run(["ip", "link", "set", self.can_iface, "txqueuelen", str(LINE_QUEUE)])
         _run(["ip", "link", "set", "up", self.can_iface])
         # Frames routed onto a vcan are seen by its sockets only if echoed (-e). can-gw's hop
         # limit (1) keeps each frame from coming back the way it went. The routes to the board
-        # leave out the nodes' reports to the tool (TO_BOARD).
-        for route in (*(["-s", self.iface, "-d", self.can_iface, "-f", f] for f in self.to_board),
+        # are its acceptance filter (`acceptance`).
+        to_board = self.to_board if self.to_board is not None else acceptance(self.node_id)
+        for route in (*(["-s", self.iface, "-d", self.can_iface, "-f", f] for f in to_board),
                       ["-s", self.can_iface, "-d", self.iface, "-e"]):
             _run(["cangw", "-A", *route])
             self.routes.append(route)
@@ -355,7 +379,43 @@ class BoardNode:
         """The board stops at once (QEMU ends): a power cut, and the RAM-backed store is lost."""
         self.stop()
 
+    def link_statistics(self) -> dict[str, int]:
+        """The serial line's frame counts: frames to the board and from it (the kernel's slcan
+        interface), and frames lost on the way, by cangw (`refused`: the line's queue was full)
+        or by the interface (`dropped`). Empty once the interface is gone."""
+        stats = Path(f"/sys/class/net/{self.can_iface}/statistics")
+        try:
+            counts = {key: int((stats / name).read_text()) for key, name in (
+                ("to_board", "tx_packets"), ("to_board_dropped", "tx_dropped"),
+                ("from_board", "rx_packets"), ("from_board_dropped", "rx_dropped"))}
+        except (OSError, ValueError):
+            return {}
+        listed = subprocess.run(["cangw", "-L"], stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True).stdout
+        counts["to_board_refused"] = counts["from_board_refused"] = 0
+        for line in listed.splitlines():
+            # "cangw -A -s vcan0 -d pabslcan1 -f ... # 447 handled 0 dropped 298 deleted"
+            found = re.search(r"# \d+ handled (\d+) dropped", line)
+            if found is None:
+                continue
+            if f"-d {self.can_iface} " in line + " ":
+                counts["to_board_refused"] += int(found.group(1))
+            elif f"-s {self.can_iface} " in line:
+                counts["from_board_refused"] += int(found.group(1))
+        return counts
+
+    def line_losses(self) -> int:
+        """Frames the serial line lost either way (`link_statistics`, read when the board
+        stopped): a test that judges the board needs 0, or it would judge the emulation."""
+        return sum(value for key, value in self.statistics.items()
+                   if key.endswith(("_dropped", "_refused")))
+
     def stop(self) -> None:
+        if self.routes:
+            # What the line carried and lost, kept and written to the node's log directory.
+            self.statistics = self.link_statistics()
+            (self.log_dir / f"{self.name}-link.txt").write_text(
+                "".join(f"{key} {value}\n" for key, value in self.statistics.items()))
         while self.routes:
             route = self.routes.pop()
             subprocess.run(["cangw", "-D", *route], stdout=subprocess.DEVNULL,

@@ -8,6 +8,7 @@ not a debug build's). Nothing here imitates them.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -111,13 +112,14 @@ class NodeProcess:
 class Nodes:
     """The network's nodes, started together, each with its own table store: `pab-node`
     processes, and the emulated board (`pab_hil.board.BoardNode`) for the names in `boards`, with
-    `board_routes` as the cangw filters of what reaches it (default: `board.TO_BOARD`)."""
+    `board_routes` as the cangw filters of what reaches it (default: its acceptance filter,
+    `board.acceptance`)."""
 
     def __init__(self, iface: str, work_dir: Path, node_ids: dict[str, int] = NODE_IDS,
                  boards: tuple[str, ...] = (),
                  node_args: dict[str, tuple[str, ...]] | None = None,
                  board_routes: tuple[str, ...] | None = None) -> None:
-        from .board import TO_BOARD, UART_ENV, BoardNode
+        from .board import UART_ENV, BoardNode
 
         unknown = set(boards) - set(node_ids)
         if unknown:
@@ -130,7 +132,7 @@ class Nodes:
         self.store_root = Path(tempfile.mkdtemp(prefix="pab-hil-store-"))
         self.by_name: dict[str, NodeProcess | BoardNode] = {
             name: BoardNode(name, node_id, iface, work_dir / "logs",
-                            to_board=board_routes or TO_BOARD)
+                            to_board=board_routes)
             if name in boards
             else NodeProcess(name, node_id, iface, self.store_root / name, work_dir / "logs",
                              tuple((node_args or {}).get(name, ())))
@@ -150,6 +152,17 @@ class Nodes:
         shutil.rmtree(self.store_root, ignore_errors=True)
 
 
+# A node's time budget for a transfer (docs/can-protocol.md, "Table transfer"): 1 s, and 10 ms
+# for each consecutive frame the image needs (pab_app's TRANSFER_BASE_US, TRANSFER_PER_FRAME_US).
+TRANSFER_BASE_S = 1.0
+TRANSFER_PER_FRAME_S = 0.010
+
+
+def transfer_budget(length: int) -> float:
+    """s: how long a node gives a transfer of `length` bytes, its first frame to its last."""
+    return TRANSFER_BASE_S + TRANSFER_PER_FRAME_S * -(-max(0, length - 6) // 7)
+
+
 @dataclass
 class PushResult:
     returncode: int
@@ -158,6 +171,13 @@ class PushResult:
     @property
     def ok(self) -> bool:
         return self.returncode == 0
+
+    def transfers(self) -> dict[str, tuple[int, float]]:
+        """Per node pabctl reached: (bytes, seconds from the first frame to the last), from its
+        lines "NAME  node N  LEN bytes in MS ms  ok: ..."."""
+        found = re.finditer(r"^\s*(\S+)\s+node\s+\d+\s+(\d+) bytes in (\d+) ms", self.output,
+                            re.MULTILINE)
+        return {m.group(1): (int(m.group(2)), int(m.group(3)) / 1000) for m in found}
 
 
 def push(
@@ -177,6 +197,17 @@ def push(
         command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, timeout=timeout, text=True
     )
     return PushResult(result.returncode, result.stdout)
+
+
+def pushed_within_budget(bound, pushed: PushResult) -> None:
+    """Each node's table transfer in `pushed` (pabctl push), first frame to last, against the
+    node's own time budget for it (`transfer_budget`): the product's limit, not an allowance of
+    the suite. `bound` is the tests' fixture of that name."""
+    transfers = pushed.transfers()
+    if not transfers:
+        raise AssertionError(f"pabctl push printed no transfer time:\n{pushed.output}")
+    for name, (length, seconds) in transfers.items():
+        bound(f"{name}'s table transfer ({length} bytes)", seconds, most=transfer_budget(length))
 
 
 def compile_images(network: Path, output: Path, table_version: int | None = None) -> dict[str, bytes]:

@@ -1,11 +1,13 @@
-"""The harness's ears: a recorder process writes every frame on the bus to a candump log; the
+"""The harness's ears: candump, in a process of its own, writes every frame on the bus to a log; the
 harness's own socket hears the gateways' re-published frames (passed to the world, which obeys
 them) and the nodes' status frames (decoded, for the tests)."""
 
 from __future__ import annotations
 
-import multiprocessing
-import socket
+import platform
+import shutil
+import signal
+import subprocess
 import threading
 import time
 from collections import defaultdict
@@ -16,9 +18,6 @@ import can
 
 from . import protocol as p
 from . import world as w
-
-SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
-
 
 @dataclass
 class NodeView:
@@ -133,58 +132,106 @@ class Listening:
 
 
 class Recorder:
-    """The candump log, written by a process of its own so that it keeps up whatever the harness
-    does: every frame on the bus, with the kernel's receive timestamps."""
+    """The candump log: can-utils' `candump -L` in a process of its own, every frame on the bus
+    with the kernel's receive timestamps, in the format `canplayer` and python-can read.
+
+    A C program, not Python: under software emulation a Python recorder took about a millisecond
+    a frame, fell seconds behind a bus carrying a plant's 1 200 frames a second, and then needed
+    minutes to drain at the end. The socket's receive buffer is large (`RECORDER_BUFFER`), so
+    that a flood waits in the kernel rather than being dropped while candump writes."""
 
     def __init__(self, iface: str, log_path: Path) -> None:
+        candump = shutil.which("candump")
+        if candump is None:
+            raise RuntimeError("the bus recorder needs candump (Debian: apt-get install can-utils)")
         log_path.parent.mkdir(parents=True, exist_ok=True)
-        context = multiprocessing.get_context("fork")
-        self._ready = context.Event()
-        self._stop = context.Event()
-        self.process = context.Process(target=_record, args=(iface, log_path, self._ready, self._stop),
-                                       name="recorder", daemon=True)
-        self.process.start()
-        if not self._ready.wait(30):
-            self.process.kill()
-            raise RuntimeError(f"the bus recorder could not open {iface}")
+        self.log_path = log_path
+        self._log = open(log_path, "wb")
+        self.process = subprocess.Popen([candump, "-L", "-r", str(RECORDER_BUFFER), iface],
+                                        stdout=self._log, stderr=subprocess.PIPE)
+        # Ready once it waits for frames: its socket is bound, every later frame is recorded.
+        deadline = time.monotonic() + 30
+        while not _waiting_for_input(self.process.pid):
+            if self.process.poll() is not None:
+                error = self.process.stderr.read().decode(errors="replace").strip()
+                self._log.close()
+                raise RuntimeError(f"the bus recorder (candump) could not open {iface}: {error}")
+            if time.monotonic() > deadline:
+                self.close()
+                raise RuntimeError(f"the bus recorder (candump) did not start on {iface} in 30 s")
+            time.sleep(0.01)
 
     def close(self) -> None:
-        self._stop.set()
-        # It may be seconds behind after a flood: let it drain the kernel's queue to the file.
-        self.process.join(timeout=120)
-        if self.process.is_alive():
-            self.process.kill()
+        """Stops the recording once candump has written every frame received before the call.
+
+        candump stops at once on SIGINT, whatever its socket still holds: first it is let catch
+        up, until the log holds a frame stamped after the call (the bus is busy) or stops growing
+        for `IDLE_S` (the bus is quiet, or candump has caught up and holds the rest in its output
+        buffer, which it writes as it exits)."""
+        if self.process.poll() is None:
+            until = time.time()
+            size, still_since = -1, time.monotonic()
+            while True:
+                grown = self.log_path.stat().st_size
+                if grown != size:
+                    size, still_since = grown, time.monotonic()
+                if _last_timestamp(self.log_path) >= until:
+                    break
+                if time.monotonic() - still_since >= IDLE_S:
+                    break
+                time.sleep(0.02)
+            self.process.send_signal(signal.SIGINT)
+            try:
+                self.process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        if not self._log.closed:
+            self._log.close()
+        if self.process.stderr is not None:
+            self.process.stderr.close()
 
 
-# A CAN frame costs about 1 KiB of a socket's receive buffer; the default (~200 KiB) overflows in
-# a fraction of a second of flood while the recorder (Python) is busy writing.
+# A CAN frame costs about 1 KiB of a socket's receive buffer: 64 MiB holds a flood of some 60 000
+# frames while candump writes.
 RECORDER_BUFFER = 64 << 20
+# s: how long the log must stay the same size for candump to count as caught up.
+IDLE_S = 0.5
+
+# System calls a process waits for frames in, by machine: poll, select, recvmsg, pselect6, ppoll,
+# epoll_wait, epoll_pwait (candump waits in select).
+_WAIT_SYSCALLS = {
+    "x86_64": {7, 23, 47, 270, 271, 232, 281},
+    "aarch64": {73, 72, 212, 22},
+}.get(platform.machine(), set())
 
 
-def _large_buffer(sock: socket.socket, size: int) -> None:
-    try:  # root may exceed net.core.rmem_max; others get what rmem_max allows
-        sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, size)
-    except OSError:
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
-
-
-def _record(iface: str, log_path: Path, ready, stop) -> None:
-    bus = can.Bus(interface="socketcan", channel=iface)
-    _large_buffer(bus.socket, RECORDER_BUFFER)
-    # `.log` is candump's -L format: "(1700000000.123456) vcan0 110#0102030405060708 R".
-    writer = can.CanutilsLogWriter(str(log_path), channel=iface)
-    ready.set()
+def _waiting_for_input(pid: int) -> bool:
+    """Whether process `pid` sleeps in a system call that waits for input (/proc/PID/syscall:
+    its number first, "running" while it runs). On a machine whose numbers are not listed: once
+    it sleeps at all (it has no other reason to, once started)."""
     try:
-        while not stop.is_set():
-            message = bus.recv(timeout=0.1)
-            if message is not None:
-                writer.on_message_received(message)
-        # Whatever the kernel still holds for us.
-        while (message := bus.recv(timeout=0.05)) is not None:
-            writer.on_message_received(message)
-    finally:
-        writer.stop()
-        bus.shutdown()
+        first = Path(f"/proc/{pid}/syscall").read_text().split(maxsplit=1)[0]
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "S" \
+            and (not _WAIT_SYSCALLS or (first.isdigit() and int(first) in _WAIT_SYSCALLS))
+    except (OSError, IndexError):
+        return False
+
+
+def _last_timestamp(log_path: Path) -> float:
+    """The timestamp of the log's last whole line, 0 if none."""
+    with open(log_path, "rb") as f:
+        f.seek(0, 2)
+        size = f.tell()
+        f.seek(max(0, size - 512))
+        lines = f.read().split(b"\n")
+    for line in reversed(lines[:-1]):  # the part after the last newline may be half written
+        if line.startswith(b"(") and b")" in line:
+            try:
+                return float(line[1:line.index(b")")])
+            except ValueError:
+                return 0.0
+    return 0.0
 
 
 def samples(log_path: Path, epoch: float) -> list[Sample]:

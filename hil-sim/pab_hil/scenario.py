@@ -18,7 +18,7 @@ from pathlib import Path
 
 from . import protocol as p
 from .behaviours import BehaviourProcesses, Loss
-from .nodes import NODE_IDS, TAKE_AND_RETURN, Nodes, push
+from .nodes import NODE_IDS, TAKE_AND_RETURN, Nodes, PushResult, push
 from . import observe
 from .observe import Listening, Observer, Recorder
 from .person import TakeAndReturn
@@ -58,6 +58,7 @@ class Session:
         self.loss = loss  # behaviour frames dropped at random, if any
         self.behaviours: BehaviourProcesses | None = None
         self.recorder: Recorder | None = None
+        self.pushed: PushResult | None = None  # pabctl push's result, once started
         self.listening: Listening | None = None
         self.observer = Observer(self.world)
         self._stop = threading.Event()
@@ -79,14 +80,13 @@ class Session:
     def start(self) -> None:
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.world.epoch = time.time()
-        # Processes are forked before this process starts any thread of its own: the recorder
-        # first, so that the log holds the whole run, the table push included.
+        # The recorder first, so that the log holds the whole run, the table push included.
         self.recorder = Recorder(self.iface, self.log_path)
         self.nodes.start()
         self.progress(f"nodes started on {self.iface}: " + ", ".join(
             f"{name} (id {node.node_id}, pid {node.pid})" for name, node in self.nodes.by_name.items()
         ))
-        result = push(self.network, self.iface)
+        result = self.pushed = push(self.network, self.iface)
         (self.out_dir / "push.txt").write_text(result.output)
         if not result.ok:
             raise ScenarioError(f"pabctl push failed (status {result.returncode}):\n{result.output}")

@@ -186,15 +186,16 @@ def drive_id(robot: int) -> int:
 
 
 def board_routes(robot: int) -> tuple[str, ...]:
-    """cangw filters for a robot's base controller as the emulated board: its own behaviours'
-    topics and every 29-bit frame (claims, configuration). Its serial line carries a few
-    hundred frames a second; the whole team's traffic would saturate it, and a board's CAN
-    acceptance filters do this job on a robot. Disjoint, as BoardNode requires."""
-    return (
+    """cangw filters for a robot's base controller as the emulated board: its acceptance filter
+    (`pab_hil.board.acceptance`) with, of the topics, only its own behaviours'. Its serial line
+    carries a few hundred frames a second; the whole team's behaviours would saturate it, and a
+    board's CAN acceptance filters do this job on a robot."""
+    from .board import acceptance
+
+    return acceptance(robot, topics=(
         f"{0x100 + 0x10 * robot:08X}:800007F0",  # obs_<robot>1..4 (standard frames only)
         f"{wander_id(robot):08X}:800007FF",
-        "80000000:80000000",  # every extended frame
-    )
+    ))
 
 
 class TeamWorld:

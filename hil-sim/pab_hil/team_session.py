@@ -24,8 +24,9 @@ from pathlib import Path
 import can
 
 from . import team as t
-from .nodes import EXAMPLES, Nodes, push
+from .nodes import EXAMPLES, Nodes, PushResult, push
 from .observe import Recorder
+from .realtime import make_current_thread_realtime
 
 NETWORK = EXAMPLES / "multi-target-observation.toml"
 
@@ -46,9 +47,11 @@ class TeamSession:
         self.nodes = Nodes(iface, out_dir, node_ids=t.ROBOTS, boards=boards,
                            board_routes=board_routes)
         self.recorder: Recorder | None = None
+        self.pushed: PushResult | None = None  # pabctl push's result, once started
         self.bus: can.BusABC | None = None
         self.notifier: can.Notifier | None = None
         self.lag = 0.0  # s: how late the publishing loop ran at worst
+        self.realtime = False  # whether that loop got a real-time scheduling class
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -56,7 +59,7 @@ class TeamSession:
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.recorder = Recorder(self.iface, self.log_path)
         self.nodes.start()
-        result = push(self.network, self.iface)
+        result = self.pushed = push(self.network, self.iface)
         (self.out_dir / "push.txt").write_text(result.output)
         if not result.ok:
             raise TeamError(f"pabctl push failed (status {result.returncode}):\n{result.output}")
@@ -74,6 +77,9 @@ class TeamSession:
             self.world.deliver(robot, command)
 
     def _run(self) -> None:
+        # The team's behaviours are other robots' computers: their clock must not wait for the
+        # nodes under test (pab_hil.realtime).
+        self.realtime = make_current_thread_realtime()
         period = 1.0 / t.OBSERVER_HZ
         next_tick = time.monotonic()
         last = next_tick

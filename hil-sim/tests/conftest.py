@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from pab_hil.nodes import REPO
+from pab_hil import speed
+from pab_hil.nodes import REPO, pushed_within_budget
 from pab_hil.scenario import Session
 
 
@@ -60,14 +61,16 @@ def out_dir(hil_out, request) -> Path:
 
 
 @pytest.fixture
-def session_for(iface, out_dir):
-    """session_for(person, network=...) -> a started Session, closed after the test."""
+def session_for(iface, out_dir, bound):
+    """session_for(person, network=...) -> a started Session, closed after the test. Its table
+    transfers are bounds of the test (`pushed_within_budget`)."""
     sessions = []
 
     def start(person, **kwargs) -> Session:
         session = Session(iface, out_dir, person=person, **kwargs)
         sessions.append(session)
         session.start()
+        pushed_within_budget(bound, session.pushed)
         return session
 
     yield start
@@ -85,3 +88,65 @@ def figures(hil_out):
         (directory / f"{name}.json").write_text(json.dumps(values) + "\n")
 
     return write
+
+
+class Machine:
+    """This machine's speed against the reference's (pab_hil.speed): `allow(s)` is an allowance
+    of `s` seconds on the reference, scaled by `factor`; `board_allow(s, board)` one that the
+    emulated board's line adds, scaled by its own measure."""
+
+    def __init__(self) -> None:
+        self.factor = speed.machine_factor()
+
+    def allow(self, seconds: float) -> float:
+        return seconds * self.factor
+
+    def board_allow(self, seconds: float, board) -> float:
+        return seconds * max(self.factor, speed.board_factor(board.boot_s))
+
+
+@pytest.fixture(scope="session")
+def machine(hil_out) -> Machine:
+    found = Machine()
+    directory = hil_out / "figures"
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / "machine.json").write_text(json.dumps({
+        "vm_boot_s": os.environ.get(speed.VM_BOOT_ENV, "none (this machine's vcan0)"),
+        "factor": round(found.factor, 2),
+    }) + "\n")
+    return found
+
+
+BOUNDS = "bounds.jsonl"
+
+
+@pytest.fixture
+def bound(hil_out, request):
+    """bound(name, measured, most=..., least=..., unit="s", detail=...): a timing bound of the
+    test. Asserts least <= measured <= most (`detail` joins the failure's message), and records the bound with its margin (how far the measure stayed
+    from the nearer limit) in the results directory, one JSON line each, which run-hil prints
+    after the suite: a shrinking margin shows before it fails."""
+
+    def check(name: str, measured: float, *, most: float | None = None,
+              least: float | None = None, unit: str = "s", detail: object = "") -> None:
+        if most is None and least is None:
+            raise ValueError(f"bound {name!r}: give it a limit (most=, least= or both)")
+        margins = [m for m in ((None if most is None else most - measured),
+                               (None if least is None else measured - least)) if m is not None]
+        margin = min(margins)
+        # The share of an upper bound left unused (a latency's headroom); none for a lower bound,
+        # whose distance from 0 says nothing.
+        upper = most is not None and most > 0 and most - measured == margin
+        record = {"test": request.node.name, "name": name, "measured": measured, "least": least,
+                  "most": most, "unit": unit, "margin": margin,
+                  "margin_of_limit": margin / most if upper else None}
+        with open(hil_out / BOUNDS, "a") as f:
+            f.write(json.dumps(record) + "\n")
+        within = " and ".join(part for part in (
+            None if least is None else f">= {least:.4g}", None if most is None else f"<= {most:.4g}")
+            if part)
+        assert margin >= 0, (f"{name}: {measured:.4g} {unit}, outside its bound ({within} {unit})"
+                             + (f"; {detail}" if detail else ""))
+
+    return check
+

@@ -10,12 +10,17 @@ from pab_hil.nodes import NODE_IDS, TAKE_AND_RETURN
 from pab_hil.person import TakeAndReturn
 from pab_hil.phases import driver
 
-# Scheduling slack on top of the exact figures: the nodes, the behaviours and the observer are
-# processes on a possibly emulated machine.
+# s: scheduling slack on top of the exact figures, on the reference machine (scaled by
+# `machine.allow`): the nodes, the behaviours and the observer are processes on a possibly
+# emulated machine.
 SLACK = 0.8
+# s: how far a node's clock (it stamps a frame when it reads it) may run behind the bus's
+# timestamps, on the reference machine.
+CLOCKS = 0.1
 
 
-def test_killed_object_detector_decays_and_rest_arm_and_look_around_take_over(session_for):
+def test_killed_object_detector_decays_and_rest_arm_and_look_around_take_over(session_for, bound,
+                                                                             machine):
     network = tomllib.loads(TAKE_AND_RETURN.read_text())
     decay = network["connections"]["C1"]["tc"]  # object_pos -> arm.target
     assert network["connections"]["C3"]["tc"] == decay  # object_pos -> gaze.target
@@ -37,7 +42,8 @@ def test_killed_object_detector_decays_and_rest_arm_and_look_around_take_over(se
     # node then re-published from Rest Arm and Look Around.
     messages = analysis.read_log(session.log_path)
     last_object = max(m.timestamp for m in messages if m.arbitration_id == b.OBJECT_POS)
-    assert last_object - session.world.epoch <= killed_at + 0.05
+    bound("the last object frame after the kill", last_object - session.world.epoch - killed_at,
+          most=machine.allow(0.05))
 
     def first_after(gateway: int, topic: int, origin: str) -> float:
         """The first re-publication of a frame the behaviour published after the last object
@@ -55,8 +61,11 @@ def test_killed_object_detector_decays_and_rest_arm_and_look_around_take_over(se
     arm_takeover = first_after(0x200, b.REST_POSE, "rest-arm") - last_object
     gaze_takeover = first_after(0x201, b.LOOK_TARGET, "look-around") - last_object
     # Not before the decay time: C1 and C3 stay active, and inhibit C14 and C11, for `decay` s.
-    assert decay - 0.1 <= arm_takeover <= decay + rest_period + SLACK, arm_takeover
-    assert decay - 0.1 <= gaze_takeover <= decay + look_period + SLACK, gaze_takeover
+    early = decay - machine.allow(CLOCKS)
+    bound("Rest Arm's takeover", arm_takeover, least=early,
+          most=decay + rest_period + machine.allow(SLACK))
+    bound("Look Around's takeover", gaze_takeover, least=early,
+          most=decay + look_period + machine.allow(SLACK))
 
     # The nodes' own view: C1 (arm port 0, connection 0) went inactive with S decayed to 0.
     arm_samples = [s for s in session.samples(NODE_IDS["arm"])
@@ -69,4 +78,5 @@ def test_killed_object_detector_decays_and_rest_arm_and_look_around_take_over(se
     assert inactive, "C1 never became inactive in the arm node's diagnostic stream"
     assert inactive[0].sample.level == 0.0
     became_inactive = inactive[0].time - (last_object - session.world.epoch)
-    assert decay - 0.1 <= became_inactive <= decay + SLACK, became_inactive
+    bound("C1 inactive in the arm's stream", became_inactive, least=early,
+          most=decay + machine.allow(SLACK))

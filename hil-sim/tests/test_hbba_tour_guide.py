@@ -175,7 +175,7 @@ def within_capacities(strategies: set[str], desires: str) -> None:
         assert used <= capacities[resource], (resource, used, capacities)
 
 
-def test_tour_guide_desires_set_the_boards_filters(iface, out_dir, figures):
+def test_tour_guide_desires_set_the_boards_filters(iface, out_dir, figures, bound, machine):
     team = Nodes(iface, out_dir, node_ids=NODE_IDS)
     team.start()
     intent = None
@@ -283,8 +283,9 @@ def test_tour_guide_desires_set_the_boards_filters(iface, out_dir, figures):
     last_refresh = max(t for t, fid, data in rec.ours(p.DESIRE)
                        if data[0] == CLASSES.index("voice"))
     back = next(t for t, chosen in intentions(rec) if t > last_refresh and chosen == TOURING)
-    assert VOICE_LEASE_MS / 1000 - 0.1 <= back - last_refresh <= VOICE_LEASE_MS / 1000 + SLACK, \
-        back - last_refresh
+    bound("the intention back after the lease", back - last_refresh,
+          least=VOICE_LEASE_MS / 1000 - machine.allow(0.1),
+          most=VOICE_LEASE_MS / 1000 + machine.allow(SLACK))
 
     latency = acks[voice[3]] - first_voice_desire
     figures("hbba_desire_to_filters", {
@@ -292,4 +293,4 @@ def test_tour_guide_desires_set_the_boards_filters(iface, out_dir, figures):
         "desire_to_first_command_s": round(min(face[0], qr[0]) - first_voice_desire, 4),
         "reductions_acked_to_increase_s": round(voice[0] - max(acks[face[3]], acks[qr[3]]), 4),
     })
-    assert latency < SLACK, latency
+    bound("desire to the last filter acknowledged", latency, most=machine.allow(SLACK))

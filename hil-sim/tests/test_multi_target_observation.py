@@ -9,12 +9,14 @@ from __future__ import annotations
 import time
 
 from pab_hil import analysis, protocol as p, team as t
+from pab_hil.nodes import pushed_within_budget
 from pab_hil.team_session import TeamSession
 
 FREE_RUN_S = 30.0
 SETTLE_S = 1.5  # a scene's first claims, and the commands of the scene before, pass
 WATCH_S = 2.0
 TRANSIENT_S = 2 * t.BLE_PERIOD  # shared driving may last less than two periods
+# Allowances on the reference machine (scaled by `machine.allow`):
 CLOCKS_S = 0.01  # s: the bus's timestamps against a node's clock (the VM's latency)
 # s: how late a node may read a frame after the bus's timestamp: it stamps a frame when its
 # process reads it, and on the software-emulated micro-VM of a loaded 2-core runner that was
@@ -52,12 +54,14 @@ def drivers(drives, target: int, start: float, end: float) -> set[int]:
     return {d.robot for d in drives if d.target == target and d.end > start and d.start < end}
 
 
-def test_robots_share_targets_by_eligibility_and_take_over_from_a_dead_one(iface, out_dir, figures):
+def test_robots_share_targets_by_eligibility_and_take_over_from_a_dead_one(iface, out_dir, figures,
+                                                                         bound, machine):
     world = t.TeamWorld(START, convoy())
     session = TeamSession(iface, out_dir, world, boards=("r1",))
     scenes: dict[str, tuple[float, float]] = {}
     try:
         session.start()
+        pushed_within_budget(bound, session.pushed)
         free_start = time.time()
         time.sleep(FREE_RUN_S)
         scenes["free"] = (free_start, time.time())
@@ -85,6 +89,10 @@ def test_robots_share_targets_by_eligibility_and_take_over_from_a_dead_one(iface
         scenes["after-kill"] = (killed_at, time.time())
     finally:
         session.close()
+    # r1 was killed: its line's counts are those of that moment. Every frame routed to the board
+    # crossed its serial line (or the test would judge the line, not the node).
+    board = session.nodes["r1"]
+    assert board.line_losses() == 0, board.statistics
 
     messages = analysis.read_log(session.log_path)
     drives = t.drives(messages)
@@ -99,13 +107,14 @@ def test_robots_share_targets_by_eligibility_and_take_over_from_a_dead_one(iface
     #    and coverage never rises as priority falls.
     start, end = scenes["free"]
     free = [d for d in drives if d.end > start and d.start < end]
-    longest = 0.0
+    longest, where = 0.0, ""
     for target in t.TARGETS:
         for a, b, robots in t.shared(free, target):
-            longest = max(longest, b - a)
-            assert b - a < TRANSIENT_S, (
-                f"target {target} driven by robots {robots} together for {b - a:.3f} s "
-                f"from {a - start:.2f} s of the free run (see {out_dir / 'drives.txt'})")
+            if b - a > longest:
+                longest = b - a
+                where = (f"target {target} driven by robots {robots} together from {a - start:.2f} s "
+                         f"of the free run (see {out_dir / 'drives.txt'})")
+    bound("longest shared driving of a target", longest, most=TRANSIENT_S, detail=where)
     covered = [t.coverage(free, target, start, end) for target in t.TARGETS]
     assert covered[0] > 0.0, f"nobody ever drove towards target 1: {covered}"
     assert all(a >= b for a, b in zip(covered, covered[1:])), (
@@ -141,7 +150,7 @@ def test_robots_share_targets_by_eligibility_and_take_over_from_a_dead_one(iface
     readings = [m for m in messages
                 if not m.is_extended_id and m.arbitration_id == t.observer_id(2, 2)
                 and m.timestamp > last_claim]
-    latest = [m.timestamp for m in readings if m.timestamp > stale_at + RECEIVE_S]
+    latest = [m.timestamp for m in readings if m.timestamp > stale_at + machine.allow(RECEIVE_S)]
     assert latest, "r2 stopped reading target 2 after r1 was killed"
     taken = [m for m in messages
              if not m.is_extended_id and m.arbitration_id == t.drive_id(2) and m.timestamp >= last_claim
@@ -154,14 +163,12 @@ def test_robots_share_targets_by_eligibility_and_take_over_from_a_dead_one(iface
     assert passed, f"r2 re-published a command nobody published: {bytes(took.data).hex()}"
     reading = passed[-1]
     takeover = took.timestamp - last_claim
-    assert reading >= stale_at - CLOCKS_S, (
-        f"r2 let through a reading published {stale_at - reading:.3f} s before r1's claim went stale")
-    assert reading <= latest[0], (
-        f"r2 refused the readings of target 2 from {latest[0] - stale_at:.3f} s after r1's claim "
-        f"went stale (limit {RECEIVE_S} s) and let one through {reading - stale_at:.3f} s after")
-    assert took.timestamp - reading <= REACT_S, (
-        f"r2 re-published its reading of target 2 {took.timestamp - reading:.3f} s after it was "
-        f"published (limit {REACT_S} s; {takeover:.3f} s after r1's last claim)")
+    # Not a reading published before the claim went stale; not one after the first published
+    # RECEIVE_S past that (r2 refused the readings in between).
+    bound("r2's takeover reading after r1's claim went stale", reading - stale_at,
+          least=-machine.allow(CLOCKS_S), most=latest[0] - stale_at)
+    bound("r2's re-publication of that reading", took.timestamp - reading,
+          most=machine.allow(REACT_S), detail=f"{takeover:.3f} s after r1's last claim")
     # r1's last command still turns it for ROTATE_TIMEOUT (the world's rule; the drives keep it).
     r1_last = max(d.end for d in drives if d.robot == t.ROBOTS["r1"])
     assert drivers(drives, 2, max(took.timestamp, r1_last), end) == {2}
@@ -194,8 +201,10 @@ def test_robots_share_targets_by_eligibility_and_take_over_from_a_dead_one(iface
     # The behaviours' frames must keep the readings fresh: a tick late by `lag` leaves a gap of
     # lag + 1/OBSERVER_HZ between two frames of an observer, which must stay under the two
     # periods of freshness, or the robots would hand targets over for the harness's sake.
-    limit = 2 * t.BLE_PERIOD - 1 / t.OBSERVER_HZ
-    assert session.lag < limit, f"the behaviours ran {session.lag:.3f} s late (limit {limit:.3f} s)"
+    # The premise, not an allowance: it does not scale with the machine. The loop runs at a
+    # real-time priority where it may (pab_hil.realtime).
+    bound("the team world's lateness", session.lag, most=2 * t.BLE_PERIOD - 1 / t.OBSERVER_HZ,
+          detail=f"real-time priority: {session.realtime}")
 
 
 def drives_between(drives, start: float, end: float) -> str:

@@ -25,18 +25,18 @@ import csv
 import json
 import statistics
 import subprocess
-import threading
 import time
 from pathlib import Path
 
 import can
 import pytest
 
-from pab_client import Client
+from pab_client import Client, client_filters
 from pab_client.schema import Schema
 from pab_hil import nodes
 from pab_hil import protocol as p
 from pab_hil.nodes import REPO, binary
+from pab_hil.observe import Recorder
 
 ASSEMBLY = REPO / "examples" / "assembly.toml"
 ARM = 10
@@ -50,6 +50,8 @@ PERIOD_S = 0.005
 BOARD_PERIOD_S = 0.02
 ESTOP_BROADCAST = 0x0200FF00
 SETPOINT = 0x300
+# s: how long the client waits for each SchemaAck on the reference machine (its default).
+ACK_TIMEOUT_S = 1.0
 POSE = 0x310
 
 SAFETY_NAMES = {0: "estop", 1: "stale", 2: "limit", 3: "force", 4: "watchdog", 5: "overrun"}
@@ -138,34 +140,12 @@ def live_rows(client: Client, calls: list[dict]) -> list[tuple[str, str, str]]:
     return rows
 
 
-class Recorder:
-    """Every frame on the bus with its kernel timestamp, from a socket of its own."""
-
-    def __init__(self, iface: str) -> None:
-        self.bus = can.Bus(interface="socketcan", channel=iface)
-        self.frames: list[can.Message] = []
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            msg = self.bus.recv(0.05)
-            if msg is not None:
-                self.frames.append(msg)
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join()
-        self.bus.shutdown()
-
-
 class Rig:
     """The arm's node with the file's table, the plant and a client, on the HIL bus. The node is
     `pab-node` as node `ARM`, or with `board` the emulated Cortex-M4 (`pab_hil.board`), whose
     firmware runs the same server, built as node 1 (`PAB_NODE_ID`'s default)."""
 
-    def __init__(self, iface: str, network: Path, out: Path, board: bool = False) -> None:
+    def __init__(self, iface: str, network: Path, out: Path, bound, board: bool = False) -> None:
         self.iface, self.network, self.out = iface, network, out
         self.node_id = node_id = BOARD if board else ARM
         self.nodes = nodes.Nodes(iface, out, node_ids={"arm": node_id},
@@ -173,12 +153,16 @@ class Rig:
         self.nodes.start()
         pushed = nodes.push(network, iface, node="arm")
         assert pushed.ok, pushed.output
+        nodes.pushed_within_budget(bound, pushed)
         self.plant = subprocess.Popen(
             [str(binary("pabctl")), "plant", str(network), "--iface", iface,
              "--log", str(out / "plant.csv")],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        self.recorder = Recorder(iface)
-        self.bus = can.Bus(interface="socketcan", channel=iface)
+        # Every frame goes to the candump log, from a process of its own; the client's socket
+        # takes only the node's answers (its filters), so that neither falls behind the other's
+        # share of the bus (the plant alone sends 800 frames a second).
+        self.recorder = Recorder(iface, out / "bus.log")
+        self.bus = can.Bus(interface="socketcan", channel=iface, can_filters=client_filters(node_id))
         self.client = Client(self.bus, node_id)
         state = self.client.status(timeout=10)
         deadline = time.monotonic() + 10
@@ -191,6 +175,11 @@ class Rig:
         output, _ = self.plant.communicate(timeout=30)
         (self.out / "plant.txt").write_text(output)
         return output
+
+    def frames(self) -> list[can.Message]:
+        """Every frame on the bus so far, with the kernel's timestamps: ends the recording."""
+        self.recorder.close()
+        return list(can.CanutilsLogReader(str(self.out / "bus.log")))
 
     def close(self) -> None:
         if self.plant.poll() is None:
@@ -221,12 +210,13 @@ def send_program(client: Client, calls: list[dict], timeout: float,
     return transfers
 
 
-def test_six_parts_assembled_over_the_bus_as_simulated(iface, tmp_path, out_dir):
+def test_six_parts_assembled_over_the_bus_as_simulated(iface, tmp_path, out_dir, bound, machine):
     network = hil_network(tmp_path, "assembly-hil")
     calls, simulated = simulate(network, out_dir)
-    rig = Rig(iface, network, out_dir)
+    rig = Rig(iface, network, out_dir, bound)
+    ack_timeout = machine.allow(ACK_TIMEOUT_S)
     try:
-        transfers = send_program(rig.client, calls, timeout=120)
+        transfers = send_program(rig.client, calls, timeout=120, ack_timeout=ack_timeout)
         ended = rig.client.wait_finished(calls[-1]["schema"]["id"], timeout=180)
         time.sleep(0.5)
         summary = rig.stop_plant()
@@ -240,6 +230,7 @@ def test_six_parts_assembled_over_the_bus_as_simulated(iface, tmp_path, out_dir)
         "plant": summary.strip(),
     }
     (out_dir / "figures.json").write_text(json.dumps(figures, indent=1))
+    bound("slowest schema transfer, first frame to SchemaAck", max(transfers), most=ack_timeout)
     assert ended.trigger.name == "Reaction", ended
     assert rows == simulated
     assert not any(event.startswith("safety:") for _, _, event in rows)
@@ -260,7 +251,7 @@ def emergency_stop(rig: Rig, calls: list[dict], ack_timeout: float = 1.0,
     ended = rig.client.wait_finished(calls[0]["schema"]["id"], timeout=5)
     time.sleep(0.3)
     state = rig.client.status(timeout=2)
-    frames = list(rig.recorder.frames)
+    frames = rig.frames()
     assert ended.safety is not None and ended.safety.name == "EmergencyStop", ended
     assert state.fault is not None and state.fault.name == "EmergencyStop"
     assert state.current == 0xFF01
@@ -301,21 +292,24 @@ def emergency_stop(rig: Rig, calls: list[dict], ack_timeout: float = 1.0,
             "period_ms": 1000 * period_s, "schema_transfer_ms": 1000 * transfers[0]}
 
 
-def test_an_emergency_stop_frame_halts_the_board_within_a_period(iface, tmp_path, out_dir):
+def test_an_emergency_stop_frame_halts_the_board_within_a_period(iface, tmp_path, out_dir, bound,
+                                                                 machine):
     network = hil_network(tmp_path, "estop-hil")
     calls, _ = simulate(network, out_dir)
-    rig = Rig(iface, network, out_dir)
+    rig = Rig(iface, network, out_dir, bound)
     try:
-        latency = emergency_stop(rig, calls)
+        latency = emergency_stop(rig, calls, ack_timeout=machine.allow(ACK_TIMEOUT_S))
     finally:
         rig.close()
     (out_dir / "figures.json").write_text(json.dumps(latency, indent=1))
-    # Within one period of the loop, plus what the micro-VM's scheduler adds to a wake-up.
-    assert latency["halted_setpoint_ms"] <= 1000 * PERIOD_S + 10, latency
+    # Within one period of the loop, plus what the micro-VM's scheduler adds to a wake-up (10 ms
+    # on the reference machine).
+    bound("the stop frame to the halted set-point", latency["halted_setpoint_ms"] / 1000,
+          most=PERIOD_S + machine.allow(0.010), detail=latency)
 
 
 def test_an_emergency_stop_frame_halts_the_emulated_board_within_a_period(iface, tmp_path,
-                                                                          out_dir):
+                                                                          out_dir, bound, machine):
     """The same stop with the arm's node as the boards' firmware on the emulated Cortex-M4
     (pab-fw-an386 in QEMU, on the bus through SLCAN, slcand and cangw), whose firmware has the
     schema server, as the NUCLEO-G474RE's: the server, its schemas over ISO-TP and its drive
@@ -324,29 +318,36 @@ def test_an_emergency_stop_frame_halts_the_emulated_board_within_a_period(iface,
                           changes=[("id = 10\n", f"id = {BOARD}\n"),
                                    ("period_ms = 5\n", f"period_ms = {round(1000 * BOARD_PERIOD_S)}\n")])
     calls, _ = simulate(network, out_dir)
-    rig = Rig(iface, network, out_dir, board=True)
+    rig = Rig(iface, network, out_dir, bound, board=True)
+    board = rig.nodes["arm"]
+    # The schema's ISO-TP frames and their flow control cross the serial line (README,
+    # "Emulated board": about 1.4 ms a frame each way, more on a loaded host).
+    ack_timeout = machine.board_allow(5.0, board)
     try:
-        # The schema's ISO-TP frames and their flow control cross the serial line (README,
-        # "Emulated board": about 1.4 ms a frame each way, more on a loaded host).
-        latency = emergency_stop(rig, calls, ack_timeout=5.0, period_s=BOARD_PERIOD_S)
+        latency = emergency_stop(rig, calls, ack_timeout=ack_timeout, period_s=BOARD_PERIOD_S)
     finally:
         rig.close()
+    assert board.line_losses() == 0, board.statistics
     (out_dir / "figures.json").write_text(json.dumps(latency, indent=1))
     # Halted in the fault's tick is asserted above; from the bus, the stop also waits behind the
     # frames queued on the serial line to the board (the plant's pose and wrench, about 1.4 ms a
     # frame on the host's QEMU, README "Emulated board"), and the halted set-point behind those
-    # queued from it: measured 9.5 to 18 ms on an idle 2-core host.
-    assert latency["halted_setpoint_ms"] <= 1000 * BOARD_PERIOD_S + 40, latency
+    # queued from it: measured 9.5 to 18 ms on an idle 2-core host, 40 ms allowed there.
+    bound("the stop frame to the board's halted set-point", latency["halted_setpoint_ms"] / 1000,
+          most=BOARD_PERIOD_S + machine.board_allow(0.040, board), detail=latency)
+    bound("the board's schema transfer, first frame to SchemaAck",
+          latency["schema_transfer_ms"] / 1000, most=ack_timeout)
 
 
-def test_an_obstacle_raises_the_force_event_and_the_board_stops(iface, tmp_path, out_dir):
+def test_an_obstacle_raises_the_force_event_and_the_board_stops(iface, tmp_path, out_dir, bound,
+                                                                machine):
     network = hil_network(tmp_path, "obstacle-hil",
                           extra="\n[[plant.obstacles]]\nmin_mm = [-110, -10, 0]\n"
                                 "max_mm = [-90, 10, 60]\n")
     calls, simulated = simulate(network, out_dir)
-    rig = Rig(iface, network, out_dir)
+    rig = Rig(iface, network, out_dir, bound)
     try:
-        send_program(rig.client, calls[:9], timeout=60)
+        send_program(rig.client, calls[:9], timeout=60, ack_timeout=machine.allow(ACK_TIMEOUT_S))
         deadline = time.monotonic() + 60
         while not any(t.trigger.name == "Safety" for t in rig.client.transitions):
             assert time.monotonic() < deadline, "no safety event"
@@ -364,7 +365,8 @@ def test_an_obstacle_raises_the_force_event_and_the_board_stops(iface, tmp_path,
     assert "parts inserted: 0 of 6" in summary
 
 
-def test_a_search_over_a_plate_without_a_hole_ends_by_its_watchdog(iface, tmp_path, out_dir):
+def test_a_search_over_a_plate_without_a_hole_ends_by_its_watchdog(iface, tmp_path, out_dir,
+                                                                   bound, machine):
     network = hil_network(tmp_path, "no-hole-hil", changes=[
         ("search_radius_mm = 1\n", "search_radius_mm = 0.2\n"),
     ])
@@ -373,9 +375,9 @@ def test_a_search_over_a_plate_without_a_hole_ends_by_its_watchdog(iface, tmp_pa
     end = text.index("]]", start) + 2
     network.write_text(text[:start] + "holes_mm = []" + text[end:])
     calls, _ = simulate(network, out_dir)
-    rig = Rig(iface, network, out_dir)
+    rig = Rig(iface, network, out_dir, bound)
     try:
-        send_program(rig.client, calls[:9], timeout=60)
+        send_program(rig.client, calls[:9], timeout=60, ack_timeout=machine.allow(ACK_TIMEOUT_S))
         search = calls[6]["schema"]["id"]
         ended = rig.client.wait_finished(search, timeout=60)
     finally:

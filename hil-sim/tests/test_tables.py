@@ -39,7 +39,8 @@ def nobody_comes():
     return TakeAndReturn(show_at=math.inf)
 
 
-def test_new_table_takes_effect_without_restart_and_a_corrupted_one_is_refused(session_for, tmp_path):
+def test_new_table_takes_effect_without_restart_and_a_corrupted_one_is_refused(session_for, tmp_path,
+                                                                              bound):
     session = session_for(nobody_comes())
     session.wait_for(lambda: driver(session.world, "arm") == "rest-arm", 30, "the arm resting (A)")
     pids = {name: node.pid for name, node in session.nodes.by_name.items()}
@@ -48,6 +49,7 @@ def test_new_table_takes_effect_without_restart_and_a_corrupted_one_is_refused(s
 
     pushed = nodes.push(pointing_network(tmp_path), session.iface, node="arm", table_version=2)
     assert pushed.ok, pushed.output
+    nodes.pushed_within_budget(bound, pushed)
     session.wait_for(lambda: driver(session.world, "arm") == "look-around", 15,
                      "the arm following Look Around (the new rules)")
     assert driver(session.world, "gaze", within=1.5) == "look-around"

@@ -111,6 +111,8 @@ def test_take_and_return_with_the_arm_node_on_the_emulated_cortex_m4(
                      "Rest Arm's frames through the board again")
     assert driver(session.world, "arm") == "rest-arm"
     session.close()
+    # Every frame routed to the board crossed its serial line (or the test would judge the line).
+    assert board.line_losses() == 0, board.statistics
 
     latency = arm_latency(session)
     figures("latency-behaviour-to-arm-board", latency_figure(latency))
@@ -118,6 +120,8 @@ def test_take_and_return_with_the_arm_node_on_the_emulated_cortex_m4(
         "boot_to_first_heartbeat_s": round(board.boot_s, 2),
         "reset_to_stored_table_s": round(back_s, 2),
         "test_s": round(time.monotonic() - started, 1),
+        "line_frames_to_board": board.statistics.get("to_board"),
+        "line_frames_from_board": board.statistics.get("from_board"),
     })
 
 
@@ -138,7 +142,7 @@ def test_person_takes_the_object_back_during_the_approach_and_the_system_returns
     assert session.world.snapshot().holder == w.PERSON_KEEPS
 
 
-def test_take_and_return_sequenced_by_competitive_dynamics(session_for, figures):
+def test_take_and_return_sequenced_by_competitive_dynamics(session_for, figures, bound, machine):
     """examples/take-and-return-dynamics.toml: the sequencing comes from a dynamics group on the
     arm node (take, hold, bring, release), whose gates the gaze and hand nodes read from the
     arm's Gates frames over the bus. The arm node is the boards' firmware on the emulated
@@ -151,6 +155,7 @@ def test_take_and_return_sequenced_by_competitive_dynamics(session_for, figures)
     assert isinstance(board, BoardNode) and board.running()
     run_a_to_f(session, person)
     session.close()
+    assert board.line_losses() == 0, board.statistics
     messages = analysis.read_log(session.log_path)
     # The arm's Gates (service 0x07, priority 3, to all, from node 1): at every change and at
     # least every 100 ms while the arm runs.
@@ -158,8 +163,10 @@ def test_take_and_return_sequenced_by_competitive_dynamics(session_for, figures)
     times = [m.timestamp for m in messages if m.is_extended_id and m.arbitration_id == gates_id]
     assert len(times) > 100, f"{len(times)} Gates frames"
     gaps = [b - a for a, b in zip(times, times[1:])]
-    # 100 ms, and what a loaded micro-VM adds to a node's wake-up; the readers' silence is 0.3 s.
-    assert max(gaps) < 0.2, f"largest gap between two Gates frames: {max(gaps):.3f} s"
+    # 100 ms, and what a loaded micro-VM and the board's serial line add to its frames (100 ms on
+    # the reference machine); the readers' silence is 0.3 s.
+    bound("largest gap between two Gates frames", max(gaps),
+          most=0.1 + machine.board_allow(0.1, board))
     duration = times[-1] - times[0]
     figures("take-and-return-dynamics", {
         "gates_frames_per_s": round(len(times) / duration, 1),

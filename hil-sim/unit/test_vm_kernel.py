@@ -29,6 +29,7 @@ MODULES = {
     "kernel/net/can/can-raw": "can",
     "kernel/net/can/can": "",
     "kernel/net/can/can-gw": "can",
+    "kernel/net/can/can-isotp": "can",
     "kernel/drivers/net/can/vcan": "",
     "kernel/drivers/net/can/slcan/slcan": "can-dev",
     "kernel/drivers/net/can/dev/can-dev": "",

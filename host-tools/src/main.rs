@@ -9,7 +9,7 @@ use std::process::ExitCode;
 use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -716,6 +716,18 @@ fn run_push(
             "node {} <- version {}",
             node.id, header.table_version
         ));
+        // The transfer's time, first frame to last (what the node's time budget for a transfer
+        // counts: 1 s + 10 ms per consecutive frame), not the wait for its answer.
+        let mut first_frame: Option<Instant> = None;
+        let mut transferred: Option<Duration> = None;
+        let mut progress = |sent: usize, total: usize| {
+            let now = Instant::now();
+            let started = *first_frame.get_or_insert(now);
+            if sent >= total {
+                transferred = Some(now - started);
+            }
+            bar.set_position(sent as u64);
+        };
         let outcome = match &credentials {
             Some(credentials) => push::push_authenticated(
                 bus.as_mut(),
@@ -724,7 +736,7 @@ fn run_push(
                 &header,
                 credentials,
                 push::Timeouts::default(),
-                &mut |sent, _| bar.set_position(sent as u64),
+                &mut progress,
             ),
             None => push::push(
                 bus.as_mut(),
@@ -732,14 +744,15 @@ fn run_push(
                 &node.image,
                 &header,
                 push::Timeouts::default(),
-                &mut |sent, _| bar.set_position(sent as u64),
+                &mut progress,
             ),
         }
         .map_err(bus_failure(iface))?;
         bar.finish_and_clear();
         let mark = if outcome.is_success() { "ok" } else { "FAILED" };
+        let took = transferred.map_or(String::new(), |d| format!(" in {} ms", d.as_millis()));
         println!(
-            "{:>10}  node {:>3}  {} bytes  {mark}: {outcome}",
+            "{:>10}  node {:>3}  {} bytes{took}  {mark}: {outcome}",
             node.name,
             node.id,
             node.image.len()

@@ -24,8 +24,9 @@ from . import debian
 
 # What the guest needs, by module name; their dependencies are added from each module's depends=.
 #   9p over virtio: the host's root and the results directory;
-#   can-raw, vcan: the bus; can-gw and slcan: a board's serial-line CAN adapter, routed to vcan0.
-WANTED = ("virtio_pci", "9pnet_virtio", "9p", "can_raw", "vcan", "can_gw", "slcan")
+#   can-raw, vcan: the bus; can-gw and slcan: a board's serial-line CAN adapter, routed to vcan0;
+#   can-isotp: the kernel's ISO-TP, the tests' independent sender of table images.
+WANTED = ("virtio_pci", "9pnet_virtio", "9p", "can_raw", "vcan", "can_gw", "slcan", "can_isotp")
 
 # Metapackages that pull the distribution's generic kernel, most specific first.
 METAPACKAGES = ("linux-image-amd64", "linux-image-virtual", "linux-image-generic")
