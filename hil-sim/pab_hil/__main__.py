@@ -79,8 +79,10 @@ def main(argv: list[str] | None = None) -> int:
                        help=f"results directory (default: {DEFAULT_OUT})")
     suite.add_argument("--way", choices=["auto", "host", "vm"], default="auto",
                        help="force the host's vcan0 or the micro-VM (default: auto)")
-    suite.add_argument("--timeout", type=float, default=600.0,
-                       help="stop the micro-VM after this many seconds (default: 600)")
+    # A guard against a hung job, not a budget: the suite takes about 6 minutes on a quiet 2-core
+    # machine under software emulation and about 9 beside two busy processes.
+    suite.add_argument("--timeout", type=float, default=1800.0,
+                       help="stop the micro-VM after this many seconds (default: 1800)")
     suite.add_argument("--hogs", type=int, default=os.environ.get("PAB_HIL_HOGS", "0"),
                        metavar="N",
                        help="run N busy processes at normal priority beside the suite, one per "
