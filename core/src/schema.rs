@@ -52,7 +52,10 @@ pub use action::{Action, Gripper, Setpoint};
 pub use event::{Event, Measure, Reaction, Source};
 pub use message::{MAX_ENCODED, Schema, SchemaError};
 pub use sensor::{Sensor, SensorError, feed_sensors};
-pub use server::{Config, ConfigError, Origin, Refusal, Safety, Server, Tick, Transition, Trigger};
+pub use server::{
+    Channel, Config, ConfigError, Origin, Refusal, STOP_NUMBERS, Safety, Server, Tick, Transition,
+    Trigger,
+};
 pub use setup::{Drive, Setup, SetupError};
 
 /// Axes of a pose: x, y, z (µm), then rotations about x, y, z (µrad).

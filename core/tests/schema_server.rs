@@ -160,8 +160,8 @@ fn a_high_priority_schema_preempts_at_the_next_tick_and_has_not_run_before_one_s
     rig.step();
     let mut hp = build::gripper(7, Gripper::Closed);
     hp.reactions[0].next = Source::HighPriority;
-    rig.server.high_priority(hp.clone()).unwrap();
-    assert_eq!(rig.server.high_priority(hp), Err(Refusal::Busy));
+    rig.server.high_priority(hp.clone(), 0).unwrap();
+    assert_eq!(rig.server.high_priority(hp, 0), Err(Refusal::Busy));
     let out = rig.step();
     assert_eq!(
         out.transitions.len(),
@@ -215,8 +215,14 @@ fn an_emergency_stop_relieves_in_the_tick_it_is_seen_and_the_queue_waits_for_the
     }
     assert_eq!(rig.server.queued(), 1);
     assert_eq!(rig.pose, measured);
-    // The high-priority channel installs a schema and clears the fault; the queue runs after.
-    rig.server.high_priority(build::idle(9, 5)).unwrap();
+    // The high-priority channel installs a schema that acknowledges the stop (the first) and
+    // clears the fault; the queue runs after.
+    assert_eq!(
+        rig.server.high_priority(build::idle(9, 5), 0),
+        Err(Refusal::StopNotAcknowledged)
+    );
+    assert_eq!(rig.server.stop_number(), 1);
+    rig.server.high_priority(build::idle(9, 5), 1).unwrap();
     let (_, t) = rig.until_transition(2);
     assert_eq!((t.installed, t.by), (9, Trigger::HighPriority));
     assert_eq!(rig.server.fault(), None);
@@ -369,8 +375,9 @@ fn a_robot_pushed_out_of_the_workspace_may_be_brought_back() {
     assert_eq!(t.by, Trigger::Safety(Safety::Limit));
     rig.until_transition(3);
     // Back in through the high-priority channel: no limit event while coming back.
+    let stop = rig.server.stop_number();
     rig.server
-        .high_priority(build::move_to(2, goal_x(50), 1000))
+        .high_priority(build::move_to(2, goal_x(50), 1000), stop)
         .unwrap();
     rig.until_transition(2);
     for _ in 0..100 {
@@ -456,7 +463,7 @@ fn a_sensor_the_reactions_read_must_be_fresh() {
     // Never refreshed: stale after 50 ms.
     let mut s = build::idle(2, 0);
     s.reactions[0].event = Event::Above(Measure::Sensor(4), 10);
-    rig.server.high_priority(s).unwrap();
+    rig.server.high_priority(s, 0).unwrap();
     // Installed in step 2, its sensor found stale in step 3 of the same tick.
     let out = rig.step();
     assert_eq!(out.transitions[0].installed, 2);
@@ -715,7 +722,9 @@ proptest! {
                 }
                 Op::HighPriority(s) => {
                     let id = s.id;
-                    if server.high_priority(s).is_ok() { admitted.insert(id); }
+                    // A client that acknowledges every stop it saw.
+                    let stop = server.stop_number();
+                    if server.high_priority(s, stop).is_ok() { admitted.insert(id); }
                 }
                 Op::Abort => server.abort(),
                 Op::Stop => server.emergency_stop(),
@@ -1031,7 +1040,7 @@ fn a_sensor_frame_reaches_the_server_through_its_field() {
     // The reflex (innate 1) waits for sensor 1 to read 500 or more; sent on the high-priority
     // channel, as a client could.
     server
-        .high_priority(setup.config.innate[1].clone())
+        .high_priority(setup.config.innate[1].clone(), 0)
         .unwrap();
     let frame =
         |id: u32, extended: bool, data: &[u8]| Frame::with_raw_id(id, extended, data).unwrap();
@@ -1067,9 +1076,10 @@ fn a_sensor_frame_reaches_the_server_through_its_field() {
         t.iter().map(|t| t.by).collect::<Vec<_>>(),
         [Trigger::HighPriority, Trigger::Safety(Safety::StaleSensor)]
     );
-    // Read: 499 holds nothing; 500 (little endian) sends the reflex to innate 0.
+    // Read: 499 holds nothing; 500 (little endian) sends the reflex to innate 0. The stale
+    // sensor was the server's first stop: acknowledged.
     server
-        .high_priority(setup.config.innate[1].clone())
+        .high_priority(setup.config.innate[1].clone(), 1)
         .unwrap();
     assert!(feed_sensors(
         sensors,

@@ -25,7 +25,7 @@ use pab_core::protocol::{
     self, BROADCAST, Message, SchemaAck, SchemaChannel, SchemaOutcome, SchemaState,
     SchemaTransition,
 };
-use pab_core::schema::{Action, Gripper, MAX_ENCODED, Pose, Schema, build};
+use pab_core::schema::{Action, Channel, Gripper, MAX_ENCODED, Pose, Schema, build};
 
 use crate::bus::Bus;
 
@@ -106,16 +106,15 @@ impl<'b> Client<'b> {
         id
     }
 
-    /// Sends `schema` to the queue (or the high-priority channel) and waits for its SchemaAck.
+    /// Sends `schema` on `channel` and waits for its SchemaAck. A high-priority schema names the
+    /// stop number it acknowledges ([`Channel::HighPriority`]; the board's latest is
+    /// [`Client::stop_number`]): name it deliberately, once the program knows why the robot
+    /// stopped, since the board refuses a schema that names an older one.
     ///
     /// Fails with [`ClientError::Refused`] when the board refuses it (a full queue included:
     /// see [`Client::install_waiting`]).
-    pub fn install(
-        &mut self,
-        schema: &Schema,
-        high_priority: bool,
-    ) -> Result<SchemaAck, ClientError> {
-        let mut message = vec![if high_priority { 1 } else { 0 }];
+    pub fn install(&mut self, schema: &Schema, channel: Channel) -> Result<SchemaAck, ClientError> {
+        let mut message = vec![SchemaChannel::message_byte(channel)];
         let mut buffer = [0u8; MAX_ENCODED];
         let bytes = postcard::to_slice(schema, &mut buffer).map_err(|_| ClientError::TooLarge)?;
         message.extend_from_slice(bytes);
@@ -186,7 +185,7 @@ impl<'b> Client<'b> {
     ) -> Result<SchemaAck, ClientError> {
         let deadline = Instant::now() + patience;
         loop {
-            match self.install(schema, false) {
+            match self.install(schema, Channel::Queue) {
                 Err(ClientError::Refused(ack))
                     if ack.outcome == SchemaOutcome::QueueFull && Instant::now() < deadline =>
                 {
@@ -200,7 +199,7 @@ impl<'b> Client<'b> {
     /// `moveTo(pose)`, queued: returns its id.
     pub fn move_to(&mut self, goal: Pose, speed: u32) -> Result<u16, ClientError> {
         let id = self.take_id();
-        self.install(&build::move_to(id, goal, speed), false)
+        self.install(&build::move_to(id, goal, speed), Channel::Queue)
             .map(|_| id)
     }
 
@@ -215,7 +214,7 @@ impl<'b> Client<'b> {
         let id = self.take_id();
         self.install(
             &build::move_to_touch(id, direction, speed, contact, distance),
-            false,
+            Channel::Queue,
         )
         .map(|_| id)
     }
@@ -223,34 +222,36 @@ impl<'b> Client<'b> {
     /// `grasp()`, queued.
     pub fn grasp(&mut self, settle_ms: u32) -> Result<u16, ClientError> {
         let id = self.take_id();
-        self.install(&build::grasp(id, settle_ms), false)
+        self.install(&build::grasp(id, settle_ms), Channel::Queue)
             .map(|_| id)
     }
 
     /// `release()`, queued.
     pub fn release(&mut self, settle_ms: u32) -> Result<u16, ClientError> {
         let id = self.take_id();
-        self.install(&build::release(id, settle_ms), false)
+        self.install(&build::release(id, settle_ms), Channel::Queue)
             .map(|_| id)
     }
 
     /// `blind_search()`, queued: `search` is an [`Action::BlindSearch`].
     pub fn blind_search(&mut self, search: Action, depth: u32) -> Result<u16, ClientError> {
         let id = self.take_id();
-        self.install(&build::blind_search(id, search, depth), false)
+        self.install(&build::blind_search(id, search, depth), Channel::Queue)
             .map(|_| id)
     }
 
     /// `idle(ms)`, queued.
     pub fn idle(&mut self, ms: u32) -> Result<u16, ClientError> {
         let id = self.take_id();
-        self.install(&build::idle(id, ms), false).map(|_| id)
+        self.install(&build::idle(id, ms), Channel::Queue)
+            .map(|_| id)
     }
 
     /// Opens or closes the gripper at once, queued.
     pub fn gripper(&mut self, g: Gripper) -> Result<u16, ClientError> {
         let id = self.take_id();
-        self.install(&build::gripper(id, g), false).map(|_| id)
+        self.install(&build::gripper(id, g), Channel::Queue)
+            .map(|_| id)
     }
 
     /// Sends SchemaAbort to the board.
@@ -318,6 +319,11 @@ impl<'b> Client<'b> {
             Ok((id, Message::SchemaState(s))) if id.source == self.node => self.state = Some(s),
             _ => {}
         }
+    }
+
+    /// The board's latest stop number, from its last SchemaState (`None` before one came).
+    pub fn stop_number(&self) -> Option<u8> {
+        self.state.map(|s| s.stop)
     }
 }
 

@@ -563,7 +563,13 @@ pub fn service_signals(service: Service) -> Option<Vec<DbcSignal>> {
                 "the schema's id (65535 when it could not be decoded)",
             ),
             signal("queued", 32, 8, "schemas in the queue after it"),
-            signal("reserved", 40, 24, "0"),
+            signal(
+                "stop",
+                40,
+                8,
+                "the server's stop number (stops modulo 64) when it answered",
+            ),
+            signal("reserved", 48, 16, "0"),
         ],
         Service::SchemaTransition => vec![
             signal("ended", 0, 16, "the schema that ended"),
@@ -610,6 +616,13 @@ pub fn service_signals(service: Service) -> Option<Vec<DbcSignal>> {
             signal("queued", 32, 8, "schemas in the queue"),
             signal("armed", 40, 1, "1: a pose has been received"),
             signal("gripper_closed", 41, 1, "1: the gripper is closed"),
+            signal(
+                "stop",
+                42,
+                6,
+                "the stop number: the server's stops (emergency stops, aborts, safety events) \
+                 modulo 64, which a high-priority schema names to leave the latest one",
+            ),
             with_unit(
                 signal(
                     "elapsed",
@@ -1794,6 +1807,8 @@ tc = 3.0
         assert_eq!((state.dlc, state.cycle_ms), (8, Some(100)));
         let fault = state.signals.iter().find(|s| s.name == "fault").unwrap();
         assert_eq!(fault.values.last(), Some(&(255, "none")));
+        let stop_number = state.signals.iter().find(|s| s.name == "stop").unwrap();
+        assert_eq!((stop_number.start, stop_number.len), (42, 6));
         assert_eq!(fault.max, "255");
         let stop = find("PAB_EmergencyStop_all");
         assert_eq!(

@@ -37,6 +37,7 @@ from . import schema as s
 from .protocol import (
     BROADCAST,
     NO_ID,
+    STOP_NUMBERS,
     TOOL,
     MalformedFrame,
     SchemaAck,
@@ -162,6 +163,10 @@ class Client:
         self._state_seq = 0
         self._report_seq = 0
         self._queued: Optional[int] = None
+        # The latest stop number the node reported (SchemaState, SchemaAck), and the one the
+        # application acknowledged, which high-priority schemas name.
+        self._stop_seen: Optional[int] = None
+        self._stop_acknowledged: Optional[int] = None
         self._flow_control: "queue.Queue[isotp.CanMessage]" = queue.Queue()
         self._isotp_errors: List[Exception] = []
         self._isotp = isotp.TransportLayer(
@@ -255,6 +260,7 @@ class Client:
                 if fid.destination != self.source:
                     return
                 self._acks.append(report)
+                self._stop_seen = report.stop
             elif isinstance(report, SchemaTransition):
                 self._ended[report.ended] = report
                 self._started[report.installed] = report
@@ -264,6 +270,7 @@ class Client:
                 self._state = report
                 self._state_seq += 1
                 self._queued = report.queued
+                self._stop_seen = report.stop
             if not isinstance(report, SchemaAck):
                 # A report of the queue's length (install_when_room waits for one).
                 self._report_seq += 1
@@ -278,18 +285,63 @@ class Client:
             self._next_id = FIRST_ID if sid >= LAST_ID else sid + 1
             return sid
 
+    # -- stops --------------------------------------------------------------------------------
+
+    @property
+    def stop_number(self) -> Optional[int]:
+        """The node's latest stop number (its stops so far, emergency stops, aborts and safety
+        events, modulo 64), from its SchemaState and SchemaAck; None before either came."""
+        with self._cond:
+            return self._stop_seen
+
+    def acknowledge_stop(self, stop: Optional[int] = None, timeout: float = 1.0) -> int:
+        """Acknowledges the node's latest stop, or stop number `stop`: the high-priority schemas
+        sent from now on name it, and the first one the node takes ends that stop.
+
+        Call it deliberately, once the application knows why the robot stopped: a high-priority
+        schema names the stop it acknowledges, and the node refuses one that names an older
+        stop (``StopNotAcknowledged``), so a schema sent before an operator's stop never undoes
+        it. Without `stop`, the latest stop number the node reported, waiting up to `timeout` s
+        for a SchemaState if none came yet (:class:`Timeout`). Returns the number."""
+        if stop is None:
+            with self._cond:
+                if self._stop_seen is None and not self._cond.wait_for(
+                    lambda: self._stop_seen is not None, timeout
+                ):
+                    raise Timeout(f"node {self.node}: no SchemaState in {timeout} s")
+                stop = self._stop_seen
+        if not 0 <= stop < STOP_NUMBERS:
+            raise ValueError(f"stop number {stop}: 0..{STOP_NUMBERS - 1}")
+        with self._cond:
+            self._stop_acknowledged = stop
+        return stop
+
+    # -- schemas (continued) --------------------------------------------------------------------
+
     def install(
         self, schema: s.Schema, high_priority: bool = False, timeout: float = 1.0
     ) -> SchemaAck:
         """Sends `schema` to the node, on its queue or (`high_priority`) on the high-priority
         channel (installed at the node's next tick, replacing the running schema and ending a
-        fault), and waits at most `timeout` s for the node's SchemaAck.
+        stop), and waits at most `timeout` s for the node's SchemaAck. A high-priority schema
+        names the stop the application acknowledged (:meth:`acknowledge_stop`, needed once
+        before the first): the node refuses it if a stop came since (``StopNotAcknowledged``).
 
         Returns the SchemaAck when the node accepted it; raises :class:`Refused` (with the
         node's outcome) when it did not, :class:`Timeout` when the node did not answer the
         transfer's flow control or sent no SchemaAck in time.
         """
-        message = transfer_message(schema.encode(), high_priority)
+        stop = 0
+        if high_priority:
+            with self._cond:
+                acknowledged = self._stop_acknowledged
+            if acknowledged is None:
+                raise ClientError(
+                    f"node {self.node}: a high-priority schema names the stop it acknowledges: "
+                    "call acknowledge_stop() first"
+                )
+            stop = acknowledged
+        message = transfer_message(schema.encode(), high_priority, stop)
         deadline = time.monotonic() + timeout
         with self._transfer_lock:
             with self._cond:

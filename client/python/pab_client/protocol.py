@@ -110,6 +110,8 @@ class SchemaOutcome(enum.IntEnum):
     BadChannel = 0x0C
     Unauthenticated = 0x0D
     NoServer = 0x0E
+    StopNotAcknowledged = 0x0F
+    TimedOut = 0x10
 
     @property
     def description(self) -> str:
@@ -129,10 +131,17 @@ _OUTCOME_TEXT = {
     SchemaOutcome.QueueFull: "queue full (8): refused, nothing overwritten",
     SchemaOutcome.Busy: "a high-priority schema is already waiting for the next tick",
     SchemaOutcome.TooLong: "message longer than 257 bytes",
-    SchemaOutcome.BadChannel: "channel byte neither 0 nor 1",
+    SchemaOutcome.BadChannel: "channel byte neither the queue nor the high-priority channel",
     SchemaOutcome.Unauthenticated: "node has a key: schemas need authentication",
     SchemaOutcome.NoServer: "the node's table runs no schema server",
+    SchemaOutcome.StopNotAcknowledged: (
+        "names another stop than the latest: acknowledge the stop first"
+    ),
+    SchemaOutcome.TimedOut: "transfer timed out",
 }
+
+#: Stop numbers count a server's stops (emergency stops, aborts, safety events) modulo this.
+STOP_NUMBERS = 64
 
 
 class SchemaChannel(enum.IntEnum):
@@ -195,6 +204,8 @@ class SchemaAck:
     id: int
     #: Schemas in the queue after this one.
     queued: int
+    #: The server's stop number when it answered (what a StopNotAcknowledged refusal wanted).
+    stop: int = 0
 
     @property
     def accepted(self) -> bool:
@@ -203,8 +214,10 @@ class SchemaAck:
     @staticmethod
     def decode(data: bytes) -> "SchemaAck":
         data = _length(data, 8, "SchemaAck")
-        if data[5:8] != b"\x00\x00\x00":
-            raise MalformedFrame("SchemaAck: reserved bytes 5-7 not 0")
+        if data[6:8] != b"\x00\x00":
+            raise MalformedFrame("SchemaAck: reserved bytes 6-7 not 0")
+        if data[5] >= STOP_NUMBERS:
+            raise MalformedFrame(f"SchemaAck: stop number {data[5]}, not below {STOP_NUMBERS}")
         channel = (
             None if data[1] == NO_CHANNEL else _code(SchemaChannel, data[1], "SchemaAck channel")
         )
@@ -213,11 +226,14 @@ class SchemaAck:
             channel=channel,
             id=data[2] | data[3] << 8,
             queued=data[4],
+            stop=data[5],
         )
 
     def encode(self) -> bytes:
         channel = NO_CHANNEL if self.channel is None else int(self.channel)
-        return struct.pack("<BBHB3x", int(self.outcome), channel, self.id, self.queued)
+        return struct.pack(
+            "<BBHBB2x", int(self.outcome), channel, self.id, self.queued, self.stop % STOP_NUMBERS
+        )
 
 
 @dataclass(frozen=True)
@@ -290,13 +306,14 @@ class SchemaState:
     gripper_closed: bool
     #: ms since the schema was installed, saturating at 65 535.
     elapsed_ms: int
+    #: The stop number: the server's stops so far modulo 64, which a high-priority schema names
+    #: to leave the latest one.
+    stop: int = 0
 
     @staticmethod
     def decode(data: bytes) -> "SchemaState":
         data = _length(data, 8, "SchemaState")
         current, source, fault, queued, flags, elapsed = struct.unpack("<HBBBBH", data)
-        if flags & ~0b11:
-            raise MalformedFrame(f"SchemaState: reserved flag bits set ({flags:#04x})")
         return SchemaState(
             current=current,
             source=_code(SchemaOrigin, source, "SchemaState source"),
@@ -305,11 +322,12 @@ class SchemaState:
             armed=bool(flags & 1),
             gripper_closed=bool(flags & 2),
             elapsed_ms=elapsed,
+            stop=flags >> 2,
         )
 
     def encode(self) -> bytes:
         fault = NO_FAULT if self.fault is None else int(self.fault)
-        flags = int(self.armed) | int(self.gripper_closed) << 1
+        flags = int(self.armed) | int(self.gripper_closed) << 1 | (self.stop % STOP_NUMBERS) << 2
         return struct.pack(
             "<HBBBBH",
             self.current,
@@ -385,10 +403,14 @@ def client_filters(node: int) -> "list[dict]":
     ]
 
 
-def transfer_message(schema_bytes: bytes, high_priority: bool = False) -> bytes:
-    """A SchemaTransfer message: the channel byte (0 the queue, 1 the high-priority channel) and
-    the schema's encoding."""
-    message = bytes([1 if high_priority else 0]) + bytes(schema_bytes)
+def transfer_message(schema_bytes: bytes, high_priority: bool = False, stop: int = 0) -> bytes:
+    """A SchemaTransfer message: the channel byte and the schema's encoding. The channel byte is
+    0 for the queue; for the high-priority channel 1, with the stop number the client
+    acknowledges (`stop`, 0..63: the latest its SchemaState showed) in bits 2-7."""
+    if not 0 <= stop < STOP_NUMBERS:
+        raise ValueError(f"stop number {stop}: 0..{STOP_NUMBERS - 1}")
+    channel = 1 | stop << 2 if high_priority else 0
+    message = bytes([channel]) + bytes(schema_bytes)
     if len(message) > MAX_MESSAGE:
         raise ValueError(f"a schema message is at most {MAX_MESSAGE} bytes, not {len(message)}")
     return message

@@ -11,7 +11,7 @@ from typing import Callable, List, Optional, Tuple
 import can
 import pytest
 
-from pab_client import Client, Refused, Timeout, client_filters, schema as s
+from pab_client import Client, ClientError, Refused, Timeout, client_filters, schema as s
 from pab_client import protocol as p
 from pab_client.protocol import (
     SchemaAck,
@@ -46,6 +46,7 @@ class FakeNode(threading.Thread):
         self.frames: List[bytes] = []
         #: Every other frame of ours from the client: (id, data).
         self.others: List[Tuple[int, bytes]] = []
+        self.stop_number = 0  # the server's stops so far, modulo 64
         self.silent = False  # no flow control
         self.no_ack = False
         self.overflow = False  # flow control "overflow", then TooLong
@@ -107,17 +108,24 @@ class FakeNode(threading.Thread):
         if self.no_ack:
             return
         channel = message[0] if message else 0xFF
+        # Bits 0-1 the channel, bits 2-7 the stop number a high-priority schema acknowledges.
+        kind, named = channel & 0b11, channel >> 2
+        readable = kind == 1 or (kind == 0 and named == 0)
         try:
             schema = s.Schema.decode(message[1:])
         except s.DecodeError:
             schema = None
-        outcome, queued = self.answer(channel, schema)
+        if kind == 1 and named != self.stop_number:
+            outcome, queued = SchemaOutcome.StopNotAcknowledged, 0
+        else:
+            outcome, queued = self.answer(kind if readable else channel, schema)
         self._ack(
             SchemaAck(
                 outcome,
-                SchemaChannel(channel) if channel in (0, 1) else None,
+                SchemaChannel(kind) if readable else None,
                 p.NO_ID if schema is None else schema.id,
                 queued,
+                self.stop_number,
             )
         )
 
@@ -185,11 +193,29 @@ def test_install_sends_the_channel_byte_and_the_schema_and_returns_the_ack(rig):
     assert node.frames[0][0] >> 4 == 1 and all(len(f) == 8 for f in node.frames)
 
 
-def test_the_high_priority_channel(rig):
+def test_the_high_priority_channel_names_the_stop_the_application_acknowledged(rig):
     client, node = rig
+    # Not before a stop is acknowledged: nothing sent.
+    with pytest.raises(ClientError, match="acknowledge_stop"):
+        client.install(s.idle(1, 100), high_priority=True)
+    assert node.messages == []
+    node.state()
+    assert client.acknowledge_stop() == 0
     ack = client.install(s.idle(2, 100), high_priority=True)
     assert ack.channel == SchemaChannel.HighPriority
     assert node.messages[0][0] == 1
+    # The node stops (its third stop): a schema naming stop 0 is refused, and the answer tells
+    # the latest; the application acknowledges it and the next one is taken.
+    node.stop_number = 3
+    with pytest.raises(Refused) as refused:
+        client.install(s.idle(3, 100), high_priority=True)
+    assert refused.value.outcome == SchemaOutcome.StopNotAcknowledged
+    assert refused.value.ack.stop == 3 and client.stop_number == 3
+    assert client.acknowledge_stop() == 3
+    assert client.install(s.idle(4, 100), high_priority=True).accepted
+    assert node.messages[-1][0] == 1 | 3 << 2
+    with pytest.raises(ValueError):
+        client.acknowledge_stop(64)
 
 
 def test_a_short_message_is_a_single_frame(rig):
@@ -320,6 +346,7 @@ def test_convenience_calls_number_their_schemas(rig):
     assert client.release(settle_ms=100).id == 5
     assert client.idle(250).id == 6
     assert client.open_gripper().id == 7
+    client.acknowledge_stop(0)
     assert client.close_gripper(high_priority=True).channel == SchemaChannel.HighPriority
     assert client.relieve().id == 9
     assert client.set_impedance(3000, 50).id == 10

@@ -37,8 +37,9 @@ def test_identifiers_are_the_documents_examples():
 
 
 def test_codes_are_the_documents():
-    assert [o.value for o in SchemaOutcome] == list(range(0x0F))
+    assert [o.value for o in SchemaOutcome] == list(range(0x11))
     assert SchemaOutcome.QueueFull == 0x09 and SchemaOutcome.NoServer == 0x0E
+    assert SchemaOutcome.StopNotAcknowledged == 0x0F and SchemaOutcome.TimedOut == 0x10
     assert [c.name for c in SchemaSafety] == [
         "EmergencyStop",
         "StaleSensor",
@@ -51,15 +52,15 @@ def test_codes_are_the_documents():
 
 
 def test_acks_round_trip():
-    for outcome, channel, sid, queued in itertools.product(
-        SchemaOutcome, [None, *SchemaChannel], [0, 1, 0xFEFF, 0xFFFF], [0, 8, 255]
+    for outcome, channel, sid, queued, stop in itertools.product(
+        SchemaOutcome, [None, *SchemaChannel], [0, 1, 0xFEFF, 0xFFFF], [0, 8, 255], [0, 63]
     ):
-        ack = SchemaAck(outcome, channel, sid, queued)
+        ack = SchemaAck(outcome, channel, sid, queued, stop)
         data = ack.encode()
         assert len(data) == 8
         assert SchemaAck.decode(data) == ack
-    assert SchemaAck.decode(bytes.fromhex("00013412020000 00".replace(" ", ""))) == SchemaAck(
-        SchemaOutcome.Accepted, SchemaChannel.HighPriority, 0x1234, 2
+    assert SchemaAck.decode(bytes.fromhex("00013412020900 00".replace(" ", ""))) == SchemaAck(
+        SchemaOutcome.Accepted, SchemaChannel.HighPriority, 0x1234, 2, 9
     )
 
 
@@ -68,9 +69,10 @@ def test_acks_refused():
     for data in (
         good[:7],
         good + b"\x00",
-        bytes([0x0F]) + good[1:],  # unknown outcome
+        bytes([0x11]) + good[1:],  # unknown outcome
         good[:1] + b"\x02" + good[2:],  # channel neither 0, 1 nor 0xFF
-        good[:5] + b"\x01\x00\x00",  # reserved bytes
+        good[:5] + b"\x40\x00\x00",  # a stop number of 64
+        good[:6] + b"\x01\x00",  # reserved bytes
         good[:7] + b"\x80",
     ):
         with pytest.raises(MalformedFrame):
@@ -100,14 +102,17 @@ def test_transitions_round_trip_and_refuse_a_detail_against_their_trigger():
             SchemaTransition.decode(data)
 
 
-def test_states_round_trip_and_refuse_reserved_flags():
+def test_states_round_trip_with_their_stop_number_and_refuse_unknown_codes():
     flags = [False, True]
-    for fault, armed, closed in itertools.product([None, *SchemaSafety], flags, flags):
-        st = SchemaState(0x1234, SchemaOrigin.Queue, fault, 3, armed, closed, 65535)
+    for fault, armed, closed, stop in itertools.product(
+        [None, *SchemaSafety], flags, flags, [0, 1, 63]
+    ):
+        st = SchemaState(0x1234, SchemaOrigin.Queue, fault, 3, armed, closed, 65535, stop)
         assert SchemaState.decode(st.encode()) == st
+    # Byte 5: bit 0 armed, bit 1 gripper closed, bits 2-7 the stop number.
+    assert SchemaState.decode(bytes([1, 0, 1, 0xFF, 0, 0b0001_0101, 0, 0])).stop == 5
     good = SchemaState(1, SchemaOrigin.Innate, None, 0, True, False, 10).encode()
     for data in (
-        good[:5] + b"\x04" + good[6:],  # flag bit 2
         good[:3] + b"\x06" + good[4:],  # unknown safety event
         good[:2] + b"\x03" + good[3:],  # unknown source
         good[:6],

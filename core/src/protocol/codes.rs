@@ -235,12 +235,19 @@ wire_enum! {
         /// The ISO-TP message is longer than a channel byte and the largest schema (257 bytes):
         /// refused at its first frame.
         TooLong = 0x0B, "message longer than 257 bytes";
-        /// The message's channel byte is neither 0 nor 1.
-        BadChannel = 0x0C, "channel byte neither 0 nor 1";
+        /// The message's channel byte names neither the queue (0) nor the high-priority
+        /// channel (1 in its bits 0-1, the stop number in bits 2-7).
+        BadChannel = 0x0C, "channel byte neither the queue nor the high-priority channel";
         /// The node has a key: schema transfers need authentication, which does not exist yet.
         Unauthenticated = 0x0D, "node has a key: schemas need authentication";
         /// The node's table runs no schema server.
         NoServer = 0x0E, "the node's table runs no schema server";
+        /// A high-priority schema that names another stop number than the server's latest: sent
+        /// before the client saw a stop, it must not leave it (SchemaAck byte 5 is the latest).
+        StopNotAcknowledged = 0x0F, "names another stop than the latest: acknowledge the stop first";
+        /// The transfer did not complete within its budget (1 s + 10 ms per consecutive frame),
+        /// or a consecutive frame came later than N_Cr: the slot is free again.
+        TimedOut = 0x10, "transfer timed out";
     }
 }
 
@@ -351,7 +358,7 @@ mod tests {
         for channel in SchemaChannel::ALL {
             assert_eq!(SchemaChannel::from_code(channel.code()), Some(*channel));
         }
-        assert_eq!(SchemaOutcome::from_code(0x0F), None);
+        assert_eq!(SchemaOutcome::from_code(0x11), None);
         assert_eq!(SchemaSafety::from_code(6), None);
         assert_eq!(SchemaSafety::from_code(0xFF), None);
         assert_eq!(SchemaTrigger::from_code(4), None);

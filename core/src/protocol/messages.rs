@@ -413,7 +413,9 @@ pub struct TransferStatus {
 /// byte 1     channel of the message (0 queue, 1 high-priority; 0xFF when unreadable)
 /// bytes 2-3  the schema's id, u16 LE (0xFFFF when it could not be decoded)
 /// byte 4     schemas in the queue after it
-/// bytes 5-7  reserved, 0
+/// byte 5     the server's stop number (0..63, SchemaState byte 5 bits 2-7): what a refusal
+///            StopNotAcknowledged wanted
+/// bytes 6-7  reserved, 0
 /// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -427,6 +429,9 @@ pub struct SchemaAck {
     pub id: u16,
     /// Schemas in the queue after this one (0..=8 on the boards).
     pub queued: u8,
+    /// The server's stop number when it answered (`pab_core::schema::Server::stop_number`,
+    /// below 64).
+    pub stop: u8,
 }
 
 impl SchemaAck {
@@ -498,7 +503,9 @@ impl SchemaTransition {
 /// byte 2     its source (SchemaOrigin, as SchemaTransition byte 6)
 /// byte 3     the safety event the server is stopped on (SchemaSafety), 0xFF when none
 /// byte 4     schemas in the queue
-/// byte 5     flags: bit 0 armed (a pose has been received), bit 1 gripper closed; bits 2-7 0
+/// byte 5     bit 0 armed (a pose has been received), bit 1 gripper closed, bits 2-7 the stop
+///            number: the server's stops (emergency stops, aborts, safety events) modulo 64,
+///            which a high-priority schema names to leave the latest one
 /// bytes 6-7  ms since it was installed, u16 LE, saturating
 /// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -517,6 +524,8 @@ pub struct SchemaState {
     pub armed: bool,
     /// The gripper is commanded closed.
     pub gripper_closed: bool,
+    /// The stop number (`pab_core::schema::Server::stop_number`, below 64).
+    pub stop: u8,
     /// Milliseconds since the schema was installed, saturating at 65 535
     /// ([`SchemaState::saturate_ms`]).
     pub elapsed_ms: u16,
@@ -816,7 +825,9 @@ impl Message {
                 let low = u32::from(ack.outcome.code())
                     | u32::from(channel) << 8
                     | u32::from(ack.id) << 16;
-                (words(low, u32::from(ack.queued)), 8)
+                // The stop number is below 64 (the server's own): not masked here.
+                let high = u32::from(ack.queued) | u32::from(ack.stop) << 8;
+                (words(low, high), 8)
             }
             Message::SchemaTransition(change) => {
                 let low = u32::from(change.ended) | u32::from(change.installed) << 16;
@@ -832,7 +843,7 @@ impl Message {
                 let fault = state
                     .fault
                     .map_or(SchemaState::NO_FAULT, SchemaSafety::code);
-                let flags = state.armed as u8 | (state.gripper_closed as u8) << 1;
+                let flags = state.armed as u8 | (state.gripper_closed as u8) << 1 | state.stop << 2;
                 let low = u32::from(state.current)
                     | u32::from(state.source.code()) << 16
                     | u32::from(fault) << 24;
@@ -1189,7 +1200,7 @@ impl Message {
                 })
             }
             Service::SchemaAck => {
-                if bytes_at::<3>(data, 5) != [0; 3] {
+                if bytes_at::<2>(data, 6) != [0; 2] || byte(data, 5) >= 64 {
                     return Err(bad);
                 }
                 let channel = match byte(data, 1) {
@@ -1201,6 +1212,7 @@ impl Message {
                     channel,
                     id: u16_at(data, 2),
                     queued: byte(data, 4),
+                    stop: byte(data, 5),
                 })
             }
             Service::SchemaTransition => {
@@ -1219,9 +1231,6 @@ impl Message {
             }
             Service::SchemaState => {
                 let flags = byte(data, 5);
-                if flags & !0b11 != 0 {
-                    return Err(bad);
-                }
                 let fault = match byte(data, 3) {
                     SchemaState::NO_FAULT => None,
                     code => Some(SchemaSafety::from_code(code).ok_or(bad)?),
@@ -1233,6 +1242,7 @@ impl Message {
                     queued: byte(data, 4),
                     armed: flags & 1 != 0,
                     gripper_closed: flags & 2 != 0,
+                    stop: flags >> 2,
                     elapsed_ms: u16_at(data, 6),
                 })
             }
@@ -1390,6 +1400,7 @@ mod tests {
                 channel: Some(SchemaChannel::Queue),
                 id: 0x0102,
                 queued: 8,
+                stop: 63,
             }),
             Message::SchemaTransition(SchemaTransition {
                 ended: 7,
@@ -1406,6 +1417,7 @@ mod tests {
                 queued: 2,
                 armed: true,
                 gripper_closed: false,
+                stop: 63,
                 elapsed_ms: u16::MAX,
             }),
         ]
@@ -1419,13 +1431,15 @@ mod tests {
             channel: Some(SchemaChannel::HighPriority),
             id: 0x0304,
             queued: 5,
+            stop: 9,
         });
-        assert_eq!(ack.to_frame(10, 0).payload(), &[0, 1, 4, 3, 5, 0, 0, 0]);
+        assert_eq!(ack.to_frame(10, 0).payload(), &[0, 1, 4, 3, 5, 9, 0, 0]);
         let unreadable = Message::SchemaAck(SchemaAck {
             outcome: SchemaOutcome::TooLong,
             channel: None,
             id: SchemaAck::NO_ID,
             queued: 0,
+            stop: 0,
         });
         assert_eq!(
             unreadable.to_frame(10, 0).payload(),
@@ -1450,11 +1464,12 @@ mod tests {
             queued: 4,
             armed: true,
             gripper_closed: true,
+            stop: 5,
             elapsed_ms: 0x0304,
         });
         assert_eq!(
             state.to_frame(10, BROADCAST).payload(),
-            &[2, 1, 1, 0xFF, 4, 0b11, 4, 3]
+            &[2, 1, 1, 0xFF, 4, 0b0001_0111, 4, 3]
         );
         assert_eq!(SchemaState::saturate_ms(70_000), u16::MAX);
         assert_eq!(SchemaState::saturate_ms(1_234), 1_234);
@@ -1480,14 +1495,16 @@ mod tests {
             let id = FrameId::new(service, 10, BROADCAST).id();
             Message::decode(&Frame::data(id, payload).unwrap()).is_ok()
         };
-        // SchemaAck: outcome past 0x0E, channel neither 0, 1 nor 0xFF, reserved bytes 5-7.
+        // SchemaAck: outcome past 0x10, channel neither 0, 1 nor 0xFF, a stop number of 64 or
+        // more, reserved bytes 6-7.
         assert!(accepted(
             Service::SchemaAck,
-            &[0x0E, 0xFF, 0, 0, 0, 0, 0, 0]
+            &[0x10, 0xFF, 0, 0, 0, 63, 0, 0]
         ));
-        assert!(refused(Service::SchemaAck, &[0x0F, 0, 0, 0, 0, 0, 0, 0]));
+        assert!(refused(Service::SchemaAck, &[0x11, 0, 0, 0, 0, 0, 0, 0]));
         assert!(refused(Service::SchemaAck, &[0, 2, 0, 0, 0, 0, 0, 0]));
-        for at in 5..8 {
+        assert!(refused(Service::SchemaAck, &[0, 0, 0, 0, 0, 64, 0, 0]));
+        for at in 6..8 {
             let mut payload = [0u8; 8];
             payload[at] = 1;
             assert!(refused(Service::SchemaAck, &payload), "byte {at}");
@@ -1521,19 +1538,14 @@ mod tests {
             Service::SchemaTransition,
             &[1, 0, 1, 0xFF, 1, 1, 2, 0]
         ));
-        // SchemaState: source past 2, an unknown safety event, flag bits 2-7.
+        // SchemaState: source past 2, an unknown safety event; every flags byte is valid (its
+        // bits 2-7 are the stop number).
         assert!(accepted(
             Service::SchemaState,
-            &[0, 0, 2, 5, 8, 0b11, 0xFF, 0xFF]
+            &[0, 0, 2, 5, 8, 0xFF, 0xFF, 0xFF]
         ));
         assert!(refused(Service::SchemaState, &[0, 0, 3, 0xFF, 0, 0, 0, 0]));
         assert!(refused(Service::SchemaState, &[0, 0, 0, 6, 0, 0, 0, 0]));
-        for bit in 2..8 {
-            assert!(
-                refused(Service::SchemaState, &[0, 0, 0, 0xFF, 0, 1 << bit, 0, 0]),
-                "bit {bit}"
-            );
-        }
     }
 
     #[test]

@@ -3,9 +3,12 @@
 //! [`SchemaTransition`], [`super::SchemaState`] and [`FaultCode::SchemaSafety`] faults with these.
 
 use super::{
-    FaultCode, SchemaOrigin, SchemaOutcome, SchemaSafety, SchemaTransition, SchemaTrigger,
+    FaultCode, SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety, SchemaTransition,
+    SchemaTrigger,
 };
-use crate::schema::{Origin, Refusal, Safety, SchemaError, Transition, Trigger};
+use crate::schema::{
+    Channel, Origin, Refusal, STOP_NUMBERS, Safety, SchemaError, Transition, Trigger,
+};
 
 impl From<Safety> for SchemaSafety {
     fn from(safety: Safety) -> SchemaSafety {
@@ -74,6 +77,37 @@ impl From<&Refusal> for SchemaOutcome {
             Refusal::UnknownInnate => SchemaOutcome::UnknownInnate,
             Refusal::QueueFull => SchemaOutcome::QueueFull,
             Refusal::Busy => SchemaOutcome::Busy,
+            Refusal::StopNotAcknowledged => SchemaOutcome::StopNotAcknowledged,
+        }
+    }
+}
+
+impl SchemaChannel {
+    /// The channel a SchemaTransfer message's byte 0 names: bits 0-1 the channel (0 the queue,
+    /// 1 the high-priority channel), bits 2-7 the stop number the high-priority channel
+    /// acknowledges (0 for the queue). `None` for any other byte ([`SchemaOutcome::BadChannel`]).
+    pub fn of_message(byte: u8) -> Option<Channel> {
+        match (byte & 0b11, byte >> 2) {
+            (0, 0) => Some(Channel::Queue),
+            (1, stop) => Some(Channel::HighPriority { stop }),
+            _ => None,
+        }
+    }
+
+    /// Byte 0 of a SchemaTransfer message for `channel` (a stop number beyond 63 is taken
+    /// modulo 64, as the server counts).
+    pub fn message_byte(channel: Channel) -> u8 {
+        match channel {
+            Channel::Queue => 0,
+            Channel::HighPriority { stop } => 1 | (stop % STOP_NUMBERS) << 2,
+        }
+    }
+
+    /// The channel of `channel`, as SchemaAck byte 1 carries it.
+    pub fn of(channel: Channel) -> SchemaChannel {
+        match channel {
+            Channel::Queue => SchemaChannel::Queue,
+            Channel::HighPriority { .. } => SchemaChannel::HighPriority,
         }
     }
 }

@@ -126,7 +126,31 @@ pub enum Refusal {
     QueueFull,
     /// A high-priority schema is already waiting for the next tick.
     Busy,
+    /// A high-priority schema that names another stop than the server's latest
+    /// ([`Server::stop_number`]): sent before the client saw a stop, it must not leave it.
+    StopNotAcknowledged,
 }
+
+/// Where a client's schema goes ([`Server::submit`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Channel {
+    /// The queue: installed when a reaction takes the next queued schema.
+    Queue,
+    /// The high-priority channel: installed at the next tick, replacing the running schema and
+    /// ending a stop. It names the stop the client acknowledges ([`Server::stop_number`]): one
+    /// that names another is refused, so that a schema sent before a stop never leaves it.
+    HighPriority {
+        /// The stop number the client saw and acknowledges, `0..STOP_NUMBERS`.
+        stop: u8,
+    },
+}
+
+/// Stop numbers count the server's stops modulo this ([`Server::stop_number`]): six bits, what
+/// the SchemaTransfer message's channel byte and SchemaState's flags byte have room for. A
+/// schema in flight could be taken for an acknowledgement of a later stop only if exactly a
+/// multiple of 64 stops came during its flight, and the server takes at most one stop a tick.
+pub const STOP_NUMBERS: u8 = 64;
 
 /// A board's set-up: its loop, its safety bounds and its innate schemas.
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -269,6 +293,8 @@ pub struct Server {
     high_priority: Option<Schema>,
     estop: bool,
     abort: bool,
+    /// Stops so far (emergency stops, aborts, safety events), wrapping.
+    stops: u8,
     fault: Option<Safety>,
     setpoint: Setpoint,
     /// A pose has been received: the attractor means something.
@@ -314,6 +340,7 @@ impl Server {
             high_priority: None,
             estop: false,
             abort: false,
+            stops: 0,
             fault: None,
             setpoint,
             armed: false,
@@ -370,30 +397,40 @@ impl Server {
         self.queue.len()
     }
 
+    /// The server's stops so far (emergency stops, aborts, safety events), modulo
+    /// [`STOP_NUMBERS`]: what a high-priority schema names to acknowledge the latest stop
+    /// ([`Channel::HighPriority`]), and what SchemaState reports. 0 at start; a stop counts from
+    /// the tick that handles it.
+    pub fn stop_number(&self) -> u8 {
+        self.stops % STOP_NUMBERS
+    }
+
     /// Queues a client's schema; returns the queue's new length.
     ///
     /// Refused when invalid, when it names an unknown innate schema, or when the queue is full.
     pub fn enqueue(&mut self, schema: Schema) -> Result<usize, Refusal> {
-        self.submit(schema, false)?;
+        self.submit(schema, Channel::Queue)?;
         Ok(self.queue.len())
     }
 
-    /// Hands a schema to the high-priority channel: installed at the next tick, replacing the
-    /// current one (and ending a fault).
+    /// Hands a schema to the high-priority channel, acknowledging stop `stop`: installed at the
+    /// next tick, replacing the current one (and ending a stop), unless a stop comes first.
     ///
-    /// Refused when invalid, when it names an unknown innate schema, or when one is already
-    /// waiting.
-    pub fn high_priority(&mut self, schema: Schema) -> Result<(), Refusal> {
-        self.submit(schema, true)
+    /// Refused when invalid, when it names an unknown innate schema, when `stop` is not the
+    /// server's [`Server::stop_number`], or when one is already waiting.
+    pub fn high_priority(&mut self, schema: Schema, stop: u8) -> Result<(), Refusal> {
+        self.submit(schema, Channel::HighPriority { stop })
     }
 
-    /// [`Server::high_priority`] with `high_priority`, else [`Server::enqueue`]: for a runner
-    /// that takes both channels' schemas from one kind of message (one call site, one move of
-    /// the schema).
-    pub fn submit(&mut self, schema: Schema, high_priority: bool) -> Result<(), Refusal> {
+    /// [`Server::high_priority`] or [`Server::enqueue`] by `channel`: for a runner that takes
+    /// both channels' schemas from one kind of message (one call site, one move of the schema).
+    pub fn submit(&mut self, schema: Schema, channel: Channel) -> Result<(), Refusal> {
         admit(&schema, self.config.innate.len())?;
-        if !high_priority {
+        let Channel::HighPriority { stop } = channel else {
             return self.queue.push_back(schema).map_err(|_| Refusal::QueueFull);
+        };
+        if stop != self.stop_number() {
+            return Err(Refusal::StopNotAcknowledged);
         }
         if self.high_priority.is_some() {
             return Err(Refusal::Busy);
@@ -402,14 +439,16 @@ impl Server {
         Ok(())
     }
 
-    /// Abort: at the next tick the current schema ends, the queue is emptied and the server
-    /// waits on the high-priority channel, holding the attractor where it is.
+    /// Abort: at the next tick the current schema ends, the queue is emptied, a high-priority
+    /// schema waiting for that tick is discarded, and the server waits on the high-priority
+    /// channel for a schema that acknowledges the abort, holding the attractor where it is.
     pub fn abort(&mut self) {
         self.abort = true;
     }
 
-    /// Emergency stop: at the next tick, forces relieved, fault, wait on the high-priority
-    /// channel.
+    /// Emergency stop: at the next tick, forces relieved, fault, a high-priority schema waiting
+    /// for that tick discarded, and the wait on the high-priority channel for a schema that
+    /// acknowledges the stop; the queue is kept, not run.
     pub fn emergency_stop(&mut self) {
         self.estop = true;
     }
@@ -464,11 +503,23 @@ impl Server {
             .is_some_and(|last| !fresh(now, last, self.config.overrun_us));
         self.last_tick = Some(now);
 
-        // Step 2: the high-priority channel.
-        if core::mem::take(&mut self.estop) {
-            self.recover(Safety::EmergencyStop, now, transitions);
-        } else if core::mem::take(&mut self.abort) {
+        // Step 2: the high-priority channel. A stop ends everything that was about to run: a
+        // high-priority schema waiting for this tick was sent before the stop was seen (it
+        // named the stop number before this one), so it is discarded, not deferred.
+        // An abort in the same tick as an emergency stop still empties the queue; the two are
+        // one stop.
+        let estop = core::mem::take(&mut self.estop);
+        let abort = core::mem::take(&mut self.abort);
+        if estop || abort {
+            self.high_priority = None;
+        }
+        if abort {
             self.queue.clear();
+        }
+        if estop {
+            self.recover(Safety::EmergencyStop, now, transitions);
+        } else if abort {
+            self.stops = self.stops.wrapping_add(1);
             self.install(
                 wait_high_priority(),
                 Origin::HighPriority,
@@ -684,6 +735,7 @@ impl Server {
     #[inline(never)]
     fn recover(&mut self, cause: Safety, now: Instant, out: &mut Vec<Transition, 3>) {
         self.fault = Some(cause);
+        self.stops = self.stops.wrapping_add(1);
         let recovery = Schema::builtin(Schema::SAFETY + cause as u16);
         self.install(recovery, Origin::Innate, Trigger::Safety(cause), now, out);
     }

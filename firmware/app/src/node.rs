@@ -122,7 +122,7 @@ pub const TRANSFER_BASE_US: u64 = 1_000_000;
 /// See [`TRANSFER_BASE_US`].
 pub const TRANSFER_PER_FRAME_US: u64 = 10_000;
 
-fn transfer_deadline(start: Instant, length: usize) -> Instant {
+pub(crate) fn transfer_deadline(start: Instant, length: usize) -> Instant {
     let frames = u64::try_from(length.saturating_sub(6).div_ceil(7)).unwrap_or(u64::MAX);
     start.wrapping_add_micros(
         TRANSFER_BASE_US.saturating_add(frames.saturating_mul(TRANSFER_PER_FRAME_US)),
@@ -1131,6 +1131,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             {
                 self.send(
                     Message::SchemaAck(protocol::SchemaAck {
+                        stop: 0,
                         outcome: protocol::SchemaOutcome::NoServer,
                         channel: None,
                         id: protocol::SchemaAck::NO_ID,
@@ -1702,9 +1703,9 @@ fn remove(outbox: &mut heapless::Vec<Frame, OUTBOX_LEN>, position: usize) {
 }
 
 /// Moves `deadline` to `candidate` if that comes first. Out of line: one copy for the seven
-/// candidates of [`Node::deadline`].
+/// candidates of [`Node::deadline`] and the schema server's own.
 #[inline(never)]
-fn earlier(deadline: &mut Instant, candidate: Option<Instant>) {
+pub(crate) fn earlier(deadline: &mut Instant, candidate: Option<Instant>) {
     if let Some(candidate) = candidate
         && candidate.micros_since(*deadline).is_none()
     {

@@ -15,6 +15,8 @@ use pab_core::protocol::{
     FaultCode, Message, SchemaAck, SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety,
     SchemaState, SchemaTransition,
 };
+
+use crate::node::{earlier, transfer_deadline};
 use pab_core::schema::{
     self, AXES, Drive, MAX_ENCODED, MAX_SENSORS, Pose, Schema, Sensor, Server, Setpoint, Setup,
     drive,
@@ -46,8 +48,10 @@ pub struct SchemaRuntime {
     next_report: Instant,
     /// The impedance last sent.
     impedance: Option<(u32, u32)>,
-    /// The source of the transfer in progress.
-    sender: Option<u8>,
+    /// The source of the transfer in progress, and when it must be complete: its whole budget,
+    /// 1 s + 10 ms per consecutive frame, as a table's (a sender that trickles one frame per
+    /// N_Cr would otherwise hold the one slot for 37 s a message, and for ever by starting again).
+    sender: Option<(u8, Instant)>,
     drive: Drive,
     /// The pose as its two frames last said (translation, rotation).
     pose: Pose,
@@ -80,12 +84,13 @@ impl SchemaRuntime {
         &self.server
     }
 
-    /// When the runtime next has work: the next tick (or the transfer's N_Cr, if sooner).
+    /// When the runtime next has work: the next tick, or the transfer's N_Cr or budget if
+    /// sooner.
     pub fn deadline(&self) -> Instant {
-        match self.receiver.deadline() {
-            Some(d) if d.micros_since(self.next_tick).is_none() => d,
-            _ => self.next_tick,
-        }
+        let mut deadline = self.next_tick;
+        earlier(&mut deadline, self.receiver.deadline());
+        earlier(&mut deadline, self.sender.map(|(_, budget)| budget));
+        deadline
     }
 
     /// A frame that is not ours: the drive's pose or wrench, or an extra sensor's, read.
@@ -137,74 +142,99 @@ impl SchemaRuntime {
         keyed: bool,
         out: &mut impl FnMut(Out),
     ) {
-        // One transfer at a time: another sender's frames wait until it ends (N_Cr).
-        if self.sender.is_some_and(|s| s != source) && self.receiver.in_progress().is_some() {
+        // One transfer at a time: another sender's frames wait until it ends (N_Cr, or its
+        // budget).
+        if self.sender.is_some_and(|(s, _)| s != source) && self.receiver.in_progress().is_some() {
             return;
         }
         let outcome = self.receiver.on_frame(data, now);
+        let aborted = outcome.aborted.is_some();
         // The flow control to send and the answer (outcome, channel, id) of a refused or
         // complete message, sent after the match: one copy of each frame's construction.
         let (flow_control, answer) = match outcome.event {
-            RxEvent::SendFlowControl(fc) => {
-                self.sender = Some(source);
-                (Some(fc), None)
-            }
+            RxEvent::SendFlowControl(fc) => (Some(fc), None),
             RxEvent::Refused { flow_control, .. } => {
-                (flow_control, Some((SchemaOutcome::TooLong, 0xFF, 0xFFFF)))
+                (flow_control, Some((SchemaOutcome::TooLong, None, 0xFFFF)))
             }
             RxEvent::Complete(message) => {
-                self.sender = None;
                 let (channel, bytes) = match message.split_first() {
                     Some((c, rest)) => (*c, rest),
                     None => (0xFF, &[][..]),
                 };
                 let decoded = Schema::decode(bytes);
                 let id = decoded.as_ref().map_or(0xFFFF, |s| s.id);
+                let named = SchemaChannel::of_message(channel);
                 let verdict = if keyed {
                     Err(SchemaOutcome::Unauthenticated)
                 } else {
-                    match (channel, decoded) {
-                        (0 | 1, Err(e)) => Err(SchemaOutcome::from(&e)),
-                        (0 | 1, Ok(s)) => self
+                    match (named, decoded) {
+                        (Some(_), Err(e)) => Err(SchemaOutcome::from(&e)),
+                        (Some(named), Ok(s)) => self
                             .server
-                            .submit(s, channel == 1)
+                            .submit(s, named)
                             .map_err(|r| SchemaOutcome::from(&r)),
-                        _ => Err(SchemaOutcome::BadChannel),
+                        (None, _) => Err(SchemaOutcome::BadChannel),
                     }
                 };
                 (
                     None,
                     Some((
                         verdict.err().unwrap_or(SchemaOutcome::Accepted),
-                        channel,
+                        named.map(SchemaChannel::of),
                         id,
                     )),
                 )
             }
             RxEvent::Nothing | RxEvent::Ignored(_) => (None, None),
         };
+        if aborted || answer.is_some() {
+            self.sender = None;
+        }
         if let Some(fc) = flow_control {
+            // The budget runs from the first frame; a flow control later in the transfer (the
+            // next block) keeps it, and an overflow's ends it.
+            if answer.is_none() && self.sender.is_none_or(|(s, _)| s != source) {
+                let length = self.receiver.message_len().unwrap_or(0);
+                self.sender = Some((source, transfer_deadline(now, length)));
+            }
             out(Out::Protocol(transfer(fc), source));
         }
         if let Some((outcome, channel, id)) = answer {
-            let ack = SchemaAck {
-                outcome,
-                channel: SchemaChannel::from_code(channel),
-                id,
-                queued: self.server.queued().min(usize::from(u8::MAX)) as u8,
-            };
-            out(Out::Protocol(Message::SchemaAck(ack), source));
+            self.answer(source, outcome, channel, id, out);
         }
-        if outcome.aborted.is_some() {
-            self.sender = None;
-        }
+    }
+
+    /// The SchemaAck for `source`.
+    fn answer(
+        &self,
+        source: u8,
+        outcome: SchemaOutcome,
+        channel: Option<SchemaChannel>,
+        id: u16,
+        out: &mut impl FnMut(Out),
+    ) {
+        let ack = SchemaAck {
+            outcome,
+            channel,
+            id,
+            queued: self.server.queued().min(usize::from(u8::MAX)) as u8,
+            stop: self.server.stop_number(),
+        };
+        out(Out::Protocol(Message::SchemaAck(ack), source));
     }
 
     /// The work due by `now`: a tick (its set-point frames, its transitions and faults), the
     /// periodic reports, a transfer's timeout.
     pub fn poll(&mut self, now: Instant, out: &mut impl FnMut(Out)) {
-        if self.receiver.poll(now).is_some() {
+        // A transfer that ran out of time, between two frames (N_Cr) or as a whole (its
+        // budget): the slot is free, and its sender learns why. (A transfer in progress has a
+        // sender: it is set at the first frame, and cleared when the message ends.)
+        if let Some((source, budget)) = self.sender
+            && (self.receiver.poll(now).is_some() || now.micros_since(budget).is_some())
+        {
+            self.receiver.abort();
             self.sender = None;
+            self.answer(source, SchemaOutcome::TimedOut, None, 0xFFFF, out);
         }
         if now.micros_since(self.next_tick).is_none() {
             return;
@@ -251,6 +281,7 @@ impl SchemaRuntime {
                     gripper_closed: tick
                         .setpoint
                         .is_some_and(|s| s.gripper == schema::Gripper::Closed),
+                    stop: self.server.stop_number(),
                     elapsed_ms: SchemaState::saturate_ms(elapsed),
                 }),
                 0xFF,

@@ -4,153 +4,16 @@
 //! within one period, abort, SchemaState every 100 ms, and the refusals.
 
 mod common;
+mod schema_rig;
 
 use common::*;
-use pab_core::Instant;
-use pab_core::isotp::{Sender, TxConfig, TxEvent};
+use pab_core::Frame;
 use pab_core::protocol::{
-    BROADCAST, FaultCode, Message, SchemaAck, SchemaChannel, SchemaOrigin, SchemaOutcome,
-    SchemaSafety, SchemaTransition, SchemaTrigger, TOOL,
+    BROADCAST, FaultCode, Message, SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety,
+    SchemaTrigger, TOOL,
 };
-use pab_core::schema::{
-    Config, Drive, Event, Gripper, Measure, Reaction, Schema, Sensor, Setup, Source, build, drive,
-};
-use pab_core::{Endian, Field, Frame, OutputId};
-
-const SETPOINT: u32 = 0x300;
-const POSE: u32 = 0x310;
-const WRENCH: u32 = 0x320;
-/// The gripper's proximity sensor: mm, u16 big endian in bytes 2-3.
-const PROXIMITY: u32 = 0x330;
-/// Innate schema 0's id: close the gripper.
-const CLOSE: u16 = 60;
-
-fn setup() -> Setup {
-    let mut config = Config::new(1000);
-    config.workspace_min = [-500_000; 6];
-    config.workspace_max = [500_000; 6];
-    config
-        .innate
-        .push(build::gripper(CLOSE, Gripper::Closed))
-        .unwrap();
-    let mut sensors = heapless::Vec::new();
-    sensors
-        .push(Sensor {
-            id: OutputId::new(PROXIMITY, false).unwrap(),
-            field: Field {
-                offset: 2,
-                size: 2,
-                signed: false,
-                endian: Endian::Big,
-            },
-        })
-        .unwrap();
-    Setup {
-        config,
-        drive: Drive {
-            setpoint: OutputId::new(SETPOINT, false).unwrap(),
-            pose: OutputId::new(POSE, false).unwrap(),
-            wrench: OutputId::new(WRENCH, false).unwrap(),
-        },
-        sensors,
-    }
-}
-
-fn schema_table() -> TestTable {
-    let mut table = priority_table(&[TOPIC_A], None);
-    table.set_schema(Some(setup()));
-    table
-}
-
-fn booted() -> Harness {
-    Harness::boot(Some(&image(&schema_table(), Harness::NODE_ID, 1)))
-}
-
-/// The drive reports `pose` (translation, rotation 0) and no force.
-fn report(h: &mut Harness, pose: [i32; 3]) {
-    h.feed(&frame(POSE, &drive::pack(pose, false)));
-    h.feed(&frame(POSE + 1, &drive::pack([0; 3], false)));
-    h.feed(&frame(WRENCH, &drive::pack([0; 3], false)));
-    h.feed(&frame(WRENCH + 1, &drive::pack([0; 3], false)));
-}
-
-/// Sends `schema` on `channel` from the tool over ISO-TP (SchemaTransfer), one frame per 100 µs,
-/// answering the node's flow control; returns the SchemaAck.
-fn send(h: &mut Harness, channel: u8, schema: &Schema) -> SchemaAck {
-    let mut message = vec![channel];
-    let mut buf = [0u8; 300];
-    message.extend_from_slice(postcard::to_slice(schema, &mut buf).unwrap());
-    send_bytes(h, &message)
-}
-
-fn send_bytes(h: &mut Harness, message: &[u8]) -> SchemaAck {
-    let since = h.now;
-    let mut sender = Sender::new(message, TxConfig::default()).unwrap();
-    let mut seen = h.sent.len();
-    for _ in 0..1000 {
-        match sender.poll(Instant::from_micros(h.now)) {
-            TxEvent::Send(data) => {
-                let frame =
-                    Message::SchemaTransfer { data, len: 8 }.to_frame(TOOL, Harness::NODE_ID);
-                h.feed(&frame);
-                h.advance_to(h.now + 100);
-            }
-            TxEvent::WaitUntil(until) => {
-                let mut answered = false;
-                while seen < h.sent.len() {
-                    let (_, frame) = h.sent[seen];
-                    seen += 1;
-                    if let Ok((id, Message::SchemaTransfer { data, len })) = Message::decode(&frame)
-                        && id.destination == TOOL
-                    {
-                        let _ = sender.on_flow_control(
-                            &data[..usize::from(len)],
-                            Instant::from_micros(h.now),
-                        );
-                        answered = true;
-                    }
-                }
-                if !answered {
-                    h.advance_to(until.as_micros().max(h.now + 100));
-                }
-            }
-            TxEvent::Done | TxEvent::Failed(_) => break,
-        }
-    }
-    acks(h, since).pop().expect("a SchemaAck")
-}
-
-fn acks(h: &Harness, since: u64) -> Vec<SchemaAck> {
-    h.messages_since(since)
-        .into_iter()
-        .filter_map(|(_, id, m)| match m {
-            Message::SchemaAck(a) if id.destination == TOOL => Some(a),
-            _ => None,
-        })
-        .collect()
-}
-
-fn transitions(h: &Harness, since: u64) -> Vec<(u64, SchemaTransition)> {
-    h.messages_since(since)
-        .into_iter()
-        .filter_map(|(t, id, m)| match m {
-            Message::SchemaTransition(tr) if id.destination == BROADCAST => Some((t, tr)),
-            _ => None,
-        })
-        .collect()
-}
-
-/// The attractor frames the node sent since `since`: (time, x, y, z, gripper closed).
-fn attractors(h: &Harness, since: u64) -> Vec<(u64, [i32; 3], bool)> {
-    h.sent
-        .iter()
-        .filter(|(t, f)| *t >= since && f.raw_id() == (SETPOINT, false))
-        .map(|(t, f)| {
-            let (values, flag) = drive::unpack(f.payload()).unwrap();
-            (*t, values, flag)
-        })
-        .collect()
-}
+use pab_core::schema::{Event, Measure, Reaction, Schema, Source, build};
+use schema_rig::*;
 
 #[test]
 fn a_queued_schema_is_acknowledged_installed_and_drives_the_attractor_every_tick() {
@@ -310,8 +173,11 @@ fn abort_and_the_high_priority_channel() {
     assert_eq!(tr[0].1.trigger, SchemaTrigger::Abort);
     assert_eq!(tr[0].1.installed, Schema::WAIT_HIGH_PRIORITY);
     assert_eq!(tr[0].1.queued, 0);
+    // The abort is the server's first stop: a high-priority schema leaves it by naming stop 1
+    // (channel byte: 1, the stop number in bits 2-7).
+    assert_eq!(ack_stop(&send(&mut h, 1, &build::idle(8, 0))), 1);
     let since = h.now;
-    let ack = send(&mut h, 1, &build::idle(9, 0));
+    let ack = send(&mut h, 1 | 1 << 2, &build::idle(9, 0));
     assert_eq!(
         (ack.outcome, ack.channel),
         (SchemaOutcome::Accepted, Some(SchemaChannel::HighPriority))
@@ -322,6 +188,12 @@ fn abort_and_the_high_priority_channel() {
         (tr[0].1.installed, tr[0].1.trigger),
         (9, SchemaTrigger::HighPriority)
     );
+}
+
+/// The stop number a refusal for want of an acknowledgement names.
+fn ack_stop(ack: &pab_core::protocol::SchemaAck) -> u8 {
+    assert_eq!(ack.outcome, SchemaOutcome::StopNotAcknowledged, "{ack:?}");
+    ack.stop
 }
 
 #[test]

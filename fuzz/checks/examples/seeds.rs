@@ -111,7 +111,7 @@ fn main() {
 /// abort, and a contact measured at the ends of the pose and wrench ranges.
 fn schema_seeds(write: &dyn Fn(&str, &str, &[u8])) {
     use pab_core::schema::{Action, Config, Event, Gripper, Measure, Reaction, Source, build};
-    use pab_fuzz_checks::schema::{Op, decode_script, encode_script};
+    use pab_fuzz_checks::schema::{Ack, Op, decode_script, encode_script};
 
     let still = |ticks: u8| Op::Run {
         ticks,
@@ -142,12 +142,34 @@ fn schema_seeds(write: &dyn Fn(&str, &str, &[u8])) {
         Op::EmergencyStop,
         Op::Tick(1),
         still(10),
-        Op::HighPriority(build::move_to(3, [0; 6], 100_000)),
+        Op::HighPriority(build::move_to(3, [0; 6], 100_000), Ack::Latest),
         still(100),
         Op::Enqueue(build::idle(4, 0)),
         still(5),
     ]);
     scripts.push(("estop", config.clone(), ops));
+
+    // The client's high-priority move races the stop: accepted before the stop's tick, it is
+    // discarded there; one naming the old stop is refused; one naming the latest leaves it.
+    let mut ops = start.to_vec();
+    ops.extend([
+        Op::Enqueue(build::move_to(1, [20_000, 0, 0, 0, 0, 0], 100_000)),
+        still(20),
+        Op::HighPriority(
+            build::move_to(2, [-20_000, 0, 0, 0, 0, 0], 100_000),
+            Ack::Latest,
+        ),
+        Op::EmergencyStop,
+        still(20),
+        Op::HighPriority(build::idle(3, 0), Ack::Number(0)),
+        still(5),
+        Op::Abort,
+        Op::HighPriority(build::idle(4, 0), Ack::Latest),
+        still(5),
+        Op::HighPriority(build::idle(5, 0), Ack::Latest),
+        still(5),
+    ]);
+    scripts.push(("stop-race", config.clone(), ops));
 
     let search = Action::BlindSearch {
         preload: 2_000,
@@ -195,7 +217,7 @@ fn schema_seeds(write: &dyn Fn(&str, &str, &[u8])) {
     ops.extend([
         Op::Enqueue(build::move_to(1, [8_000, 0, 0, 0, 0, 0], 100_000)),
         still(100),
-        Op::HighPriority(build::move_to(2, [0; 6], 100_000)),
+        Op::HighPriority(build::move_to(2, [0; 6], 100_000), Ack::Latest),
         still(100),
         Op::Pose([7_000, 0, 0, 0, 0, 0], 0),
         Op::Tick(1),
@@ -211,7 +233,7 @@ fn schema_seeds(write: &dyn Fn(&str, &str, &[u8])) {
         Op::Tick(4),
         Op::Tick(100),
         Op::Tick(1_000_000),
-        Op::HighPriority(build::idle(2, 0)),
+        Op::HighPriority(build::idle(2, 0), Ack::Latest),
         Op::Tick(1),
     ]);
     scripts.push(("stale", config.clone(), ops));
@@ -242,7 +264,7 @@ fn schema_seeds(write: &dyn Fn(&str, &str, &[u8])) {
         Op::Enqueue(build::idle(4, 10)),
         Op::Abort,
         Op::Tick(1),
-        Op::HighPriority(build::idle(5, 10)),
+        Op::HighPriority(build::idle(5, 10), Ack::Latest),
         still(15),
     ]);
     scripts.push(("innate-abort", reflex, ops));

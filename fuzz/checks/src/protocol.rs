@@ -349,6 +349,7 @@ fn any_message(u: &mut Unstructured<'_>) -> Result<(Message, u8, u8)> {
             },
             id: u.arbitrary()?,
             queued: u.arbitrary()?,
+            stop: u.int_in_range(0..=63)?,
         }),
         25 => Message::SchemaTransition(SchemaTransition {
             ended: u.arbitrary()?,
@@ -370,6 +371,7 @@ fn any_message(u: &mut Unstructured<'_>) -> Result<(Message, u8, u8)> {
             queued: u.arbitrary()?,
             armed: u.arbitrary()?,
             gripper_closed: u.arbitrary()?,
+            stop: u.int_in_range(0..=63)?,
             elapsed_ms: u.arbitrary()?,
         }),
         _ => Message::TransferStatus(TransferStatus {

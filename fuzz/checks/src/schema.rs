@@ -62,7 +62,7 @@ use pab_core::Instant;
 use pab_core::schema::{
     AXES, Action, BUILTIN_IDS, Config, ConfigError, Event, Gripper, MAX_COORD, MAX_ENCODED,
     MAX_INNATE, MAX_REACTIONS, MAX_SENSORS, Measure, Origin, Pose, QUEUE_DEPTH, Reaction, Refusal,
-    Safety, Schema, SchemaError, Server, Source, Trigger, Wrench, build,
+    STOP_NUMBERS, Safety, Schema, SchemaError, Server, Source, Trigger, Wrench, build,
 };
 
 /// Time never runs further than this from the start (`Instant` compares instants less than
@@ -128,8 +128,9 @@ fn decode_checked(bytes: &[u8]) -> Option<Schema> {
 pub enum Op {
     /// `enqueue`.
     Enqueue(Schema),
-    /// `high_priority`.
-    HighPriority(Schema),
+    /// `high_priority`, naming a stop number: the server's latest, as a client that saw every
+    /// stop names it, or this one (taken modulo 64), as one that did not.
+    HighPriority(Schema, Ack),
     /// `abort`.
     Abort,
     /// `emergency_stop`.
@@ -152,6 +153,15 @@ pub enum Op {
         /// The measured wrench.
         wrench: Wrench,
     },
+}
+
+/// The stop number a high-priority operation names.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Ack {
+    /// The server's latest ([`Server::stop_number`]).
+    Latest,
+    /// This one, below [`STOP_NUMBERS`].
+    Number(u8),
 }
 
 /// The bytes that `check` reads as `config` and then `ops` (schemas as postcard bytes, every
@@ -187,9 +197,13 @@ pub fn encode_script(config: &Config, ops: &[Op]) -> Option<Vec<u8>> {
                 out.push(0);
                 encode_schema(s, &mut out)?;
             }
-            Op::HighPriority(s) => {
+            Op::HighPriority(s, ack) => {
                 out.push(1);
                 encode_schema(s, &mut out)?;
+                out.push(match ack {
+                    Ack::Latest => 0,
+                    Ack::Number(n) => 0x80 | (n % STOP_NUMBERS),
+                });
             }
             Op::Abort => out.push(2),
             Op::EmergencyStop => out.push(3),
@@ -317,7 +331,15 @@ fn read_op(u: &mut Unstructured) -> Result<Option<Op>> {
             None => return Ok(None),
         },
         1 => match read_schema(u)? {
-            Some(s) => Op::HighPriority(s),
+            Some(s) => {
+                let ack: u8 = u.arbitrary()?;
+                let ack = if ack < 0x80 {
+                    Ack::Latest
+                } else {
+                    Ack::Number(ack % STOP_NUMBERS)
+                };
+                Op::HighPriority(s, ack)
+            }
             None => return Ok(None),
         },
         2 => Op::Abort,
@@ -588,6 +610,8 @@ struct World {
     waiting: Option<Schema>,
     estop: bool,
     abort: bool,
+    /// Stops counted so far (the reference's own count of the server's).
+    stops: u64,
     current: Schema,
     /// The last pose set.
     pose: Option<Pose>,
@@ -617,6 +641,7 @@ impl World {
             waiting: None,
             estop: false,
             abort: false,
+            stops: 0,
             current: wait_queue(),
             pose: None,
             attractor: None,
@@ -657,13 +682,24 @@ impl World {
                 }
                 assert_eq!(self.server.queued(), self.queue.len());
             }
-            Op::HighPriority(s) => {
+            Op::HighPriority(s, ack) => {
+                let latest = (self.stops % u64::from(STOP_NUMBERS)) as u8;
+                assert_eq!(self.server.stop_number(), latest);
+                let stop = match ack {
+                    Ack::Latest => latest,
+                    Ack::Number(n) => n,
+                };
+                let acknowledged = if stop == latest {
+                    Ok(())
+                } else {
+                    Err(Refusal::StopNotAcknowledged)
+                };
                 let busy = match self.waiting {
                     Some(_) => Err(Refusal::Busy),
                     None => Ok(()),
                 };
-                let expected = self.admission(&s).and(busy);
-                let got = self.server.high_priority(s.clone());
+                let expected = self.admission(&s).and(acknowledged).and(busy);
+                let got = self.server.high_priority(s.clone(), stop);
                 assert_eq!(got, expected, "{s:?}");
                 if got.is_ok() {
                     self.admitted.insert(s.id);
@@ -730,9 +766,17 @@ impl World {
     fn tick(&mut self) {
         let fault_before = self.server.fault();
         let attractor_before = self.attractor;
+        // A stop ends everything that was about to run: the schema waiting on the high-priority
+        // channel is discarded, not installed at a later tick; an abort with the stop still
+        // empties the queue.
         let step2 = if std::mem::take(&mut self.estop) {
+            self.waiting = None;
+            if std::mem::take(&mut self.abort) {
+                self.queue.clear();
+            }
             Some(Step2::EmergencyStop)
         } else if std::mem::take(&mut self.abort) {
+            self.waiting = None;
             Some(Step2::Abort)
         } else if self.waiting.is_some() {
             Some(Step2::HighPriority)
@@ -768,9 +812,11 @@ impl World {
                 }
                 Trigger::Abort => {
                     self.queue.clear();
+                    self.stops += 1;
                     (wait_high_priority(), Origin::HighPriority)
                 }
                 Trigger::Safety(cause) => {
+                    self.stops += 1;
                     if cause != Safety::EmergencyStop {
                         assert_eq!(fault, None, "{cause:?} while stopped on a fault");
                     }
@@ -814,6 +860,19 @@ impl World {
         }
         assert_eq!(self.server.schema(), &current);
         assert_eq!(self.server.fault(), fault, "{:?}", out.transitions);
+        assert_eq!(
+            u64::from(self.server.stop_number()),
+            self.stops % u64::from(STOP_NUMBERS)
+        );
+        // A stop holds: after this tick's emergency stop or abort, the only way out is a schema
+        // that was accepted on the high-priority channel after it (none is waiting now).
+        if matches!(step2, Some(Step2::EmergencyStop | Step2::Abort)) {
+            assert!(self.waiting.is_none());
+            assert!(
+                current.id >= BUILTIN_IDS,
+                "a stop's tick ends on the server's own schema: {current:?}"
+            );
+        }
         assert_eq!(self.server.queued(), self.queue.len());
         assert!(self.server.queued() <= QUEUE_DEPTH);
         self.current = current;

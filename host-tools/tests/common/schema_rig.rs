@@ -13,8 +13,10 @@
 use pab_app::replay::{self, Recorder, job::TimedFrame};
 use pab_app::{Config, FullNode};
 use pab_core::isotp::{FlowControlEffect, Sender, TxConfig, TxEvent};
-use pab_core::protocol::{self, Message, SchemaOutcome, SchemaTransition};
-use pab_core::schema::{MAX_ENCODED, Schema};
+use std::cell::OnceCell;
+
+use pab_core::protocol::{self, Message, SchemaChannel, SchemaOutcome, SchemaTransition};
+use pab_core::schema::{Channel, MAX_ENCODED, Schema};
 use pab_core::{Frame, Instant};
 use pab_lang::candump::Capture;
 use pab_lang::compile::CompiledNode;
@@ -39,9 +41,10 @@ pub struct RigRun {
     pub accepted: usize,
 }
 
-/// A message the client sends: a schema on a channel (the SchemaTransfer payload), or a frame.
-enum Out {
-    Transfer(Vec<u8>),
+/// What the client sends at a time: a frame, or a schema on the high-priority channel (its
+/// message made when it is due: it names the latest stop number the client saw).
+enum Out<'a> {
+    HighPriority(usize, &'a Schema),
     Frame(Frame),
 }
 
@@ -87,12 +90,13 @@ pub fn run(network: &Network, compiled: &[CompiledNode], until_us: u64) -> RigRu
     let program: Vec<Vec<u8>> = client
         .program
         .iter()
-        .map(|call| transfer(&call.schema, 0))
+        .map(|call| transfer(&call.schema, SchemaChannel::message_byte(Channel::Queue)))
         .collect();
-    let timed: Vec<(u64, Out)> = client
+    let timed: Vec<(u64, Out<'_>)> = client
         .commands
         .iter()
-        .map(|t| {
+        .enumerate()
+        .map(|(index, t)| {
             let out = match &t.command {
                 Command::EmergencyStop => {
                     Out::Frame(Message::EmergencyStop.to_frame(protocol::TOOL, protocol::BROADCAST))
@@ -100,7 +104,7 @@ pub fn run(network: &Network, compiled: &[CompiledNode], until_us: u64) -> RigRu
                 Command::Abort => {
                     Out::Frame(Message::SchemaAbort.to_frame(protocol::TOOL, node_id))
                 }
-                Command::HighPriority(call) => Out::Transfer(transfer(&call.schema, 1)),
+                Command::HighPriority(call) => Out::HighPriority(index, &call.schema),
             };
             (t.t_us, out)
         })
@@ -114,6 +118,9 @@ pub fn run(network: &Network, compiled: &[CompiledNode], until_us: u64) -> RigRu
     let mut awaiting_ack = false;
     let mut next_call = 0usize;
     let mut urgent: Vec<&[u8]> = Vec::new();
+    // The high-priority messages, made when due; the latest stop number the node reported.
+    let high_priority: Vec<OnceCell<Vec<u8>>> = timed.iter().map(|_| OnceCell::new()).collect();
+    let mut stop_seen = 0u8;
     let mut next_timed = 0usize;
     let mut queue_full = false;
     let mut accepted = 0usize;
@@ -133,7 +140,11 @@ pub fn run(network: &Network, compiled: &[CompiledNode], until_us: u64) -> RigRu
             let _ = at;
             match out {
                 Out::Frame(frame) => to_node.push(*frame),
-                Out::Transfer(message) => urgent.push(message),
+                Out::HighPriority(index, schema) => {
+                    let channel =
+                        SchemaChannel::message_byte(Channel::HighPriority { stop: stop_seen });
+                    urgent.push(high_priority[*index].get_or_init(|| transfer(schema, channel)));
+                }
             }
             next_timed += 1;
         }
@@ -197,9 +208,11 @@ pub fn run(network: &Network, compiled: &[CompiledNode], until_us: u64) -> RigRu
                 }
                 // The node answers as the last frame completes the message, before the sender
                 // has said it is done: the transfer in flight is answered either way.
+                Message::SchemaState(state) => stop_seen = state.stop,
                 Message::SchemaAck(ack)
                     if id.destination == protocol::TOOL && (awaiting_ack || sending.is_some()) =>
                 {
+                    stop_seen = ack.stop;
                     awaiting_ack = false;
                     sending = None;
                     match ack.outcome {

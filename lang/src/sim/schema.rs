@@ -220,8 +220,11 @@ pub fn run(
             match &timed.command {
                 Command::EmergencyStop => server.emergency_stop(),
                 Command::Abort => server.abort(),
+                // The simulated client has seen every report up to now: its call acknowledges
+                // the latest stop the server counted (a stop asked at the same instant counts
+                // from the tick that handles it, and discards the call).
                 Command::HighPriority(call) => server
-                    .high_priority(call.schema.clone())
+                    .high_priority(call.schema.clone(), server.stop_number())
                     .map_err(|e| SimError(format!("the board refused {}: {e:?}", call.name)))?,
             }
         }

@@ -184,7 +184,12 @@ fn main() -> ! {
             fail("no transition on an emergency stop");
         }
         rig.step("estop", false);
-        if rig.server.high_priority(build::move_to(id, [0; 6], 50_000)).is_err() {
+        let stop = rig.server.stop_number();
+        if rig
+            .server
+            .high_priority(build::move_to(id, [0; 6], 50_000), stop)
+            .is_err()
+        {
             fail("high priority");
         }
         rig.step("estop-resume", false);
