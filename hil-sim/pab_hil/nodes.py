@@ -186,11 +186,15 @@ def push(
     node: str | None = None,
     table_version: int | None = None,
     timeout: float = 120.0,
+    key: Path | None = None,
 ) -> PushResult:
-    """`pabctl push`: the real path a table takes to a node (ISO-TP, then the node's checks)."""
+    """`pabctl push`: the real path a table takes to a node (ISO-TP, then the node's checks);
+    with `key` (a key file), the key holder's authenticated push."""
     command = [str(binary("pabctl")), "push", str(network), "--iface", iface]
     if node is not None:
         command += ["--node", node]
+    if key is not None:
+        command += ["--key", str(key)]
     if table_version is not None:
         command += ["--table-version", str(table_version)]
     result = subprocess.run(

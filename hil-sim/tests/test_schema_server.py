@@ -32,6 +32,7 @@ import can
 import pytest
 
 from pab_client import Client, client_filters
+from pab_client.auth import read_key
 from pab_client.schema import Schema
 from pab_hil import nodes
 from pab_hil import protocol as p
@@ -145,13 +146,17 @@ class Rig:
     `pab-node` as node `ARM`, or with `board` the emulated Cortex-M4 (`pab_hil.board`), whose
     firmware runs the same server, built as node 1 (`PAB_NODE_ID`'s default)."""
 
-    def __init__(self, iface: str, network: Path, out: Path, bound, board: bool = False) -> None:
+    def __init__(self, iface: str, network: Path, out: Path, bound, board: bool = False,
+                 key: Path | None = None) -> None:
+        """`key`: a key file (`pabctl keygen`); the node (`pab-node --key`) then takes its table
+        and its schemas from the key holder only, and the push and the client use it."""
         self.iface, self.network, self.out = iface, network, out
         self.node_id = node_id = BOARD if board else ARM
         self.nodes = nodes.Nodes(iface, out, node_ids={"arm": node_id},
-                                 boards=("arm",) if board else ())
+                                 boards=("arm",) if board else (),
+                                 node_args={"arm": ("--key", str(key))} if key else None)
         self.nodes.start()
-        pushed = nodes.push(network, iface, node="arm")
+        pushed = nodes.push(network, iface, node="arm", key=key)
         assert pushed.ok, pushed.output
         nodes.pushed_within_budget(bound, pushed)
         self.plant = subprocess.Popen(
@@ -163,7 +168,7 @@ class Rig:
         # share of the bus (the plant alone sends 800 frames a second).
         self.recorder = Recorder(iface, out / "bus.log")
         self.bus = can.Bus(interface="socketcan", channel=iface, can_filters=client_filters(node_id))
-        self.client = Client(self.bus, node_id)
+        self.client = Client(self.bus, node_id, key=read_key(key) if key else None)
         state = self.client.status(timeout=10)
         deadline = time.monotonic() + 10
         while not (state and state.armed) and time.monotonic() < deadline:
@@ -210,10 +215,17 @@ def send_program(client: Client, calls: list[dict], timeout: float,
     return transfers
 
 
-def test_six_parts_assembled_over_the_bus_as_simulated(iface, tmp_path, out_dir, bound, machine):
+def test_six_parts_assembled_over_the_bus_as_simulated_on_a_keyed_node(iface, tmp_path, out_dir,
+                                                                        bound, machine):
+    """The node has a key: its table comes by `pabctl push --key`, and every schema of the
+    program goes as the key holder's (a challenge, a TransferOpen, the message and its MAC, a
+    Receipt that verifies), as on a robot whose schemas must come from its own client only."""
     network = hil_network(tmp_path, "assembly-hil")
     calls, simulated = simulate(network, out_dir)
-    rig = Rig(iface, network, out_dir, bound)
+    key = tmp_path / "arm.key"
+    subprocess.run([str(binary("pabctl")), "keygen", "-o", str(key)], check=True,
+                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    rig = Rig(iface, network, out_dir, bound, key=key)
     ack_timeout = machine.allow(ACK_TIMEOUT_S)
     try:
         transfers = send_program(rig.client, calls, timeout=120, ack_timeout=ack_timeout)

@@ -20,14 +20,16 @@ use std::collections::BTreeMap;
 use std::io;
 use std::time::{Duration, Instant};
 
+use pab_core::auth::Authenticator;
 use pab_core::isotp::{FlowControlEffect, Sender, TxConfig, TxEvent};
 use pab_core::protocol::{
-    self, BROADCAST, Message, SchemaAck, SchemaChannel, SchemaOutcome, SchemaState,
-    SchemaTransition,
+    self, BROADCAST, Message, OPEN_SCHEMA, SchemaAck, SchemaChannel, SchemaOutcome, SchemaState,
+    SchemaTransition, TransferOpen,
 };
 use pab_core::schema::{Action, Channel, Gripper, MAX_ENCODED, Pose, Schema, build};
 
 use crate::bus::Bus;
+use crate::push;
 
 /// Why a call failed.
 #[derive(Debug)]
@@ -38,6 +40,9 @@ pub enum ClientError {
     Refused(SchemaAck),
     /// No answer in time (what was awaited).
     Timeout(&'static str),
+    /// With a key: the board's Receipt for the SchemaAck did not verify (a forged answer, or
+    /// another key), so the answer does not count.
+    BadReceipt(SchemaAck),
     /// The schema could not be encoded (more than the board takes).
     TooLarge,
 }
@@ -54,6 +59,12 @@ impl std::fmt::Display for ClientError {
                 ack.queued
             ),
             ClientError::Timeout(what) => write!(f, "no {what} in time"),
+            ClientError::BadReceipt(ack) => write!(
+                f,
+                "schema {}: the receipt of the board's answer does not verify (another key, or a \
+                 forged answer)",
+                ack.id
+            ),
             ClientError::TooLarge => write!(f, "the schema is longer than {MAX_ENCODED} bytes"),
         }
     }
@@ -74,6 +85,8 @@ pub const ACK_TIMEOUT: Duration = Duration::from_secs(1);
 pub struct Client<'b> {
     bus: &'b mut dyn Bus,
     node: u8,
+    /// The board's key, for a board that has one (each schema opened and its answer confirmed).
+    key: Option<Authenticator>,
     next_id: u16,
     /// The board's schema changes as they arrived, and when.
     transitions: Vec<(Instant, SchemaTransition)>,
@@ -88,10 +101,21 @@ impl<'b> Client<'b> {
         Client {
             bus,
             node,
+            key: None,
             next_id: 1,
             transitions: Vec::new(),
             state: None,
             ended: BTreeMap::new(),
+        }
+    }
+
+    /// A client of a board that has a key: every schema goes as the key holder's (a challenge,
+    /// a TransferOpen for a schema, the message and its MAC), and its SchemaAck counts only with
+    /// a Receipt that verifies (docs/can-protocol.md, "Authenticated configuration").
+    pub fn with_key(bus: &'b mut dyn Bus, node: u8, key: Authenticator) -> Client<'b> {
+        Client {
+            key: Some(key),
+            ..Client::new(bus, node)
         }
     }
 
@@ -118,6 +142,23 @@ impl<'b> Client<'b> {
         let mut buffer = [0u8; MAX_ENCODED];
         let bytes = postcard::to_slice(schema, &mut buffer).map_err(|_| ClientError::TooLarge)?;
         message.extend_from_slice(bytes);
+        // With a key: the challenge, the open for a schema, and the MAC after the message.
+        let mut opened = None;
+        if let Some(key) = &self.key {
+            let nonce = push::challenge(self.bus, self.node, ACK_TIMEOUT)?.ok_or(
+                ClientError::Timeout("challenge (does the board have a key?)"),
+            )?;
+            message.extend_from_slice(&key.image_mac(self.node, nonce, OPEN_SCHEMA, &message));
+            let length = u16::try_from(message.len()).map_err(|_| ClientError::TooLarge)?;
+            let open = TransferOpen {
+                length,
+                flags: OPEN_SCHEMA,
+                tag: key.open_tag(self.node, nonce, length, OPEN_SCHEMA),
+            };
+            self.bus
+                .send(&Message::TransferOpen(open).to_frame(protocol::TOOL, self.node))?;
+            opened = Some(nonce);
+        }
         let start = Instant::now();
         let clock = |now: Instant| {
             pab_core::Instant::from_micros(now.duration_since(start).as_micros() as u64)
@@ -157,14 +198,29 @@ impl<'b> Client<'b> {
             }
         }
         let deadline = Instant::now() + ACK_TIMEOUT;
+        // The Receipt may come first: its identifier ranks above SchemaAck's, so the board's
+        // outbox sends it first when both wait there.
+        let mut receipt = None;
         while let Some(wait) = deadline.checked_duration_since(Instant::now()) {
             let Some(frame) = self.bus.receive(wait)? else {
                 continue;
             };
+            match Message::decode(&frame) {
+                Ok((id, Message::Receipt { tag }))
+                    if id.source == self.node && id.destination == protocol::TOOL =>
+                {
+                    receipt = Some(tag);
+                    continue;
+                }
+                _ => {}
+            }
             if let Ok((id, Message::SchemaAck(ack))) = Message::decode(&frame)
                 && id.source == self.node
                 && id.destination == protocol::TOOL
             {
+                if let Some(nonce) = opened {
+                    self.confirm(&frame, &ack, nonce, receipt, deadline)?;
+                }
                 return if ack.outcome == SchemaOutcome::Accepted {
                     Ok(ack)
                 } else {
@@ -174,6 +230,51 @@ impl<'b> Client<'b> {
             self.keep(&frame);
         }
         Err(ClientError::Timeout("SchemaAck"))
+    }
+
+    /// With a key: the Receipt that follows the SchemaAck `ack_frame`, verified under the key for
+    /// the transfer's nonce (the running table's CRC and stored flag 0: a schema's receipt).
+    /// `early`: a Receipt that came before the SchemaAck.
+    fn confirm(
+        &mut self,
+        ack_frame: &pab_core::Frame,
+        ack: &SchemaAck,
+        nonce: u64,
+        early: Option<[u8; 8]>,
+        deadline: Instant,
+    ) -> Result<(), ClientError> {
+        let mut payload = [0u8; 8];
+        for (slot, byte) in payload.iter_mut().zip(ack_frame.payload()) {
+            *slot = *byte;
+        }
+        let mut tag = early;
+        while tag.is_none() {
+            let Some(wait) = deadline.checked_duration_since(Instant::now()) else {
+                return Err(ClientError::Timeout("Receipt"));
+            };
+            let Some(frame) = self.bus.receive(wait)? else {
+                continue;
+            };
+            match Message::decode(&frame) {
+                Ok((id, Message::Receipt { tag: received }))
+                    if id.source == self.node && id.destination == protocol::TOOL =>
+                {
+                    tag = Some(received);
+                }
+                _ => self.keep(&frame),
+            }
+        }
+        let node = self.node;
+        let verifies = |tag: [u8; 8]| {
+            self.key
+                .as_ref()
+                .is_some_and(|key| key.verify_receipt(node, nonce, &payload, 0, false, &tag))
+        };
+        if tag.is_some_and(verifies) {
+            Ok(())
+        } else {
+            Err(ClientError::BadReceipt(*ack))
+        }
     }
 
     /// [`Client::install`] to the queue, sending again while the queue is full (every 20 ms,

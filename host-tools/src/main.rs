@@ -365,6 +365,11 @@ not sent here.")]
         /// Write the installed schemas as CSV.
         #[arg(long, value_name = "FILE.csv")]
         trace: Option<PathBuf>,
+        /// The board's key file (`pabctl keygen`): every schema goes as the key holder's
+        /// (challenge, TransferOpen, the message and its MAC) and its answer counts only with a
+        /// Receipt that verifies. Needed by a board with a key, refused by one without.
+        #[arg(long, value_name = "FILE")]
+        key: Option<PathBuf>,
     },
     /// Create a node key file (32 hexadecimal characters, mode 0600).
     #[command(long_about = "\
@@ -584,7 +589,8 @@ fn main() -> ExitCode {
             iface,
             timeout,
             trace,
-        } => run_client_program(&network, &iface, timeout, trace.as_deref()),
+            key,
+        } => run_client_program(&network, &iface, timeout, trace.as_deref(), key.as_deref()),
         Command::Keygen { output } => run_keygen(&output),
         Command::Keypage { key, output } => run_keypage(&key, &output),
         Command::Nodes {
@@ -1135,7 +1141,9 @@ fn run_client_program(
     iface: &str,
     timeout: f64,
     trace_path: Option<&Path>,
+    key: Option<&Path>,
 ) -> Result<(), Failure> {
+    let key = key.map(read_key).transpose()?;
     let network = Network::load(path)?;
     let (board, client) = schema_parts(path, &network)?;
     let node = network
@@ -1143,7 +1151,10 @@ fn run_client_program(
         .get(board.node)
         .ok_or_else(|| Failure::Input(Diagnostic::file(path, "no such node").into()))?;
     let mut bus = bus::open(iface).map_err(|e| Failure::Bus(e.to_string()))?;
-    let mut arm = pabctl::client::Client::new(bus.as_mut(), node.id);
+    let mut arm = match key {
+        Some(key) => pabctl::client::Client::with_key(bus.as_mut(), node.id, key),
+        None => pabctl::client::Client::new(bus.as_mut(), node.id),
+    };
     let outcome = pabctl::client::run_program(
         &mut arm,
         &client.program,

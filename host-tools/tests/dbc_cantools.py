@@ -289,7 +289,7 @@ def schema(path):
           and str(values["channel"]) == "queue" and values["id"] == 0x0102 and values["queued"] == 8,
           f"schema ack: {values}")
     values = db.decode_message(frame_id("SchemaAck", arm, TOOL), bytes([0x0B, 0xFF, 0xFF, 0xFF, 0, 0, 0, 0]))
-    check(str(values["outcome"]) == "message longer than 257 bytes" and str(values["channel"]) == "unreadable"
+    check(str(values["outcome"]) == "message longer than 273 bytes" and str(values["channel"]) == "unreadable"
           and values["id"] == 0xFFFF, f"schema ack, unreadable: {values}")
     # Schema 7 ended by the force limit, recovery 0xFF13 installed (innate), 3 queued.
     values = db.decode_message(frame_id("SchemaTransition", arm, BROADCAST),

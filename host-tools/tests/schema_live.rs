@@ -12,7 +12,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::time::Duration;
 
-use pab_core::protocol::SchemaSafety;
+use pab_core::auth::{Authenticator, Key};
+use pab_core::protocol::{SchemaOutcome, SchemaSafety};
+use pab_core::schema::{Channel, build};
 use pab_lang::compile;
 use pab_lang::diagnostic::Source;
 use pab_lang::network::Network;
@@ -67,10 +69,15 @@ struct Rig {
 
 impl Rig {
     fn start() -> Rig {
+        Self::start_with(None)
+    }
+
+    /// The rig, its node with `key` when given.
+    fn start_with(key: Option<Key>) -> Rig {
         let network = Network::parse(Source::new("insertion.toml", NETWORK)).unwrap();
         let image = compile::compile(&network).unwrap().remove(0).image;
         let hub = MemoryHub::new();
-        let node = LiveNode::spawn(&hub, 10, Some(image));
+        let node = LiveNode::spawn_with(&hub, 10, Some(image), key);
         let stop = Arc::new(AtomicBool::new(false));
         let board = &network.schema_boards[0];
         let (board, plant_config) = (board.clone(), network.plant.clone().unwrap());
@@ -167,4 +174,56 @@ fn an_emergency_stop_frame_halts_the_live_board() {
     let plant = rig.finish();
     // Stopped well before the end of the move.
     assert!(plant.pose()[1] < 30_000, "{:?}", plant.pose());
+}
+
+#[test]
+fn a_keyed_board_takes_the_key_holders_schemas_and_leaves_a_stop_only_when_told() {
+    let key = Key::from_bytes([0x3C; 16]);
+    let rig = Rig::start_with(Some(key));
+    let mut tool = rig.hub.connect();
+    // Without the key: no flow control, no answer.
+    let mut plain = Client::new(&mut tool, 10);
+    plain.pump(Duration::from_millis(300)).unwrap();
+    assert!(matches!(
+        plain.install(&build::idle(1, 0), Channel::Queue),
+        Err(client::ClientError::Timeout(_))
+    ));
+    // Another key: no challenge answered for it, so no open either: no answer.
+    let mut wrong = Client::with_key(&mut tool, 10, Authenticator::new(&Key::from_bytes([1; 16])));
+    assert!(matches!(
+        wrong.install(&build::idle(2, 0), Channel::Queue),
+        Err(client::ClientError::Timeout(_))
+    ));
+    let mut arm = Client::with_key(&mut tool, 10, Authenticator::new(&key));
+    let id = arm.move_to([0, 40_000, 17_000, 0, 0, 0], 20_000).unwrap();
+    arm.pump(Duration::from_millis(300)).unwrap();
+    arm.estop(true).unwrap();
+    let ended = arm.wait_finished(id, Duration::from_secs(2)).unwrap();
+    assert_eq!(ended.safety(), Some(SchemaSafety::EmergencyStop));
+    arm.pump(Duration::from_millis(200)).unwrap();
+    let stop = arm.stop_number().expect("a SchemaState");
+    assert_eq!(stop, 1);
+    // A high-priority schema that names the stop before: refused, the robot stays stopped.
+    match arm.install(&build::idle(20, 0), Channel::HighPriority { stop: 0 }) {
+        Err(client::ClientError::Refused(ack)) => {
+            assert_eq!(
+                (ack.outcome, ack.stop),
+                (SchemaOutcome::StopNotAcknowledged, 1)
+            )
+        }
+        other => panic!("{other:?}"),
+    }
+    // The key holder acknowledges it: the stop ends.
+    arm.install(&build::idle(21, 0), Channel::HighPriority { stop })
+        .unwrap();
+    arm.pump(Duration::from_millis(100)).unwrap();
+    let started = arm
+        .transitions()
+        .iter()
+        .find(|(_, t)| t.installed == 21)
+        .map(|(_, t)| *t)
+        .expect("schema 21 installed");
+    assert_eq!(started.ended, pab_core::schema::Schema::WAIT_HIGH_PRIORITY);
+    assert!(arm.transitions().iter().all(|(_, t)| t.installed != 20));
+    rig.finish();
 }

@@ -466,3 +466,71 @@ fn the_vectors_cover_every_builder_and_variant() {
     assert!(vectors.iter().any(|v| v.schema.reactions.len() == 16));
     assert!(vectors.iter().any(|v| v.schema.id == 0xFEFF));
 }
+
+/// The authentication vectors of the Python client (`client/python/tests/golden_auth.json`):
+/// the tags and MACs `pab_core::auth::Authenticator` makes for a keyed schema transfer, which
+/// `pab_client.auth` must make byte for byte (`client/python/tests/test_auth.py`).
+fn golden_auth() -> Value {
+    use pab_core::auth::{Authenticator, Key};
+    use pab_core::protocol::{Message, OPEN_SCHEMA, SchemaAck, SchemaChannel};
+    let key_bytes: [u8; 16] = core::array::from_fn(|i| (i as u8).wrapping_mul(17).wrapping_add(3));
+    let auth = Authenticator::new(&Key::from_bytes(key_bytes));
+    let hex = |bytes: &[u8]| bytes.iter().map(|b| format!("{b:02x}")).collect::<String>();
+    let mut buffer = [0u8; MAX_ENCODED];
+    let schema = build::move_to(7, [100_000, -60_000, 35_000, 0, 0, 0], 50_000);
+    let mut message = vec![1 | 5 << 2];
+    message.extend_from_slice(postcard::to_slice(&schema, &mut buffer).expect("fits"));
+    let ack = Message::SchemaAck(SchemaAck {
+        outcome: pab_core::protocol::SchemaOutcome::Accepted,
+        channel: Some(SchemaChannel::HighPriority),
+        id: 7,
+        queued: 0,
+        stop: 5,
+    })
+    .to_frame(10, 0);
+    let vectors: Vec<Value> = [(10u8, 0x0000_0003_0000_0001u64), (127, u64::MAX)]
+        .into_iter()
+        .map(|(node, nonce)| {
+            let length = (message.len() + 16) as u16;
+            json!({
+                "node": node,
+                "nonce": nonce.to_string(),
+                "message": hex(&message),
+                "length": length,
+                "open_tag": hex(&auth.open_tag(node, nonce, length, OPEN_SCHEMA)),
+                "image_mac": hex(&auth.image_mac(node, nonce, OPEN_SCHEMA, &message)),
+                "ack": hex(ack.payload()),
+                "receipt_tag": hex(&auth.receipt_tag(node, nonce, ack.payload().try_into().expect("8 bytes"), 0, false)),
+            })
+        })
+        .collect();
+    json!({
+        "about": "Golden vectors of the Python client's authentication (pab_client.auth): a key, \
+                  and for two nodes and nonces a keyed schema transfer's TransferOpen tag, the \
+                  message's MAC and the Receipt tag of its SchemaAck, as pab_core::auth makes \
+                  them. Written and checked by lang/tests/client_golden.rs (PAB_BLESS=1 cargo \
+                  test -p pab-lang --test client_golden rewrites it); \
+                  client/python/tests/test_auth.py checks pab_client.auth against it.",
+        "key": hex(&key_bytes),
+        "vectors": vectors,
+    })
+}
+
+#[test]
+fn the_python_clients_authentication_vectors_are_what_the_core_makes() {
+    let expected = golden_auth();
+    let path = golden_path().with_file_name("golden_auth.json");
+    if std::env::var_os("PAB_BLESS").is_some() {
+        let text = serde_json::to_string_pretty(&expected).expect("serialisable") + "\n";
+        std::fs::write(&path, text).expect("writes the golden vectors");
+        return;
+    }
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
+        panic!(
+            "{}: {e}; write it with PAB_BLESS=1 cargo test -p pab-lang --test client_golden",
+            path.display()
+        )
+    });
+    let found: Value = serde_json::from_str(&text).expect("the golden file is JSON");
+    assert_eq!(found, expected, "the golden file (PAB_BLESS=1 rewrites it)");
+}

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import collections
 import queue
+import struct
 import threading
 import time
 from dataclasses import dataclass
@@ -34,11 +35,18 @@ import can
 import isotp
 
 from . import schema as s
+from . import auth
 from .protocol import (
     BROADCAST,
+    CHALLENGE,
+    CHALLENGE_REQUEST,
     NO_ID,
+    PRIORITY,
+    RECEIPT,
     STOP_NUMBERS,
     TOOL,
+    TRANSFER_OPEN,
+    FrameId,
     MalformedFrame,
     SchemaAck,
     SchemaOutcome,
@@ -50,6 +58,7 @@ from .protocol import (
     client_filters,
     decode_report,
     emergency_stop_id,
+    frame_id,
     transfer_ids,
     transfer_message,
 )
@@ -135,11 +144,15 @@ class Client:
         node: int,
         source: int = TOOL,
         *,
+        key: Optional[bytes] = None,
         notifier: Optional[can.Notifier] = None,
         first_id: int = FIRST_ID,
     ) -> None:
         if not 1 <= node <= 127:
             raise ValueError(f"node {node}: nodes are 1..=127")
+        if key is not None and (len(key) != 16 or source != TOOL):
+            raise ValueError("a key is 16 bytes (pab_client.auth.read_key), and a node with a key "
+                             "takes schemas from the tool (source 0) only")
         if not 0 <= source <= 127:
             raise ValueError(f"source {source}: 0 (the tool) or a node, 1..=127")
         if not FIRST_ID <= first_id <= LAST_ID:
@@ -147,6 +160,13 @@ class Client:
         self.bus = bus
         self.node = node
         self.source = source
+        #: The node's key: every schema goes as the key holder's (a challenge, a TransferOpen,
+        #: the message and its MAC) and its SchemaAck counts only with a Receipt that verifies.
+        self.key = key
+        self._challenges: List[int] = []
+        self._receipts: List[bytes] = []
+        # The TransferOpen to send right before the transfer's first frame (see _isotp_tx).
+        self._pending_open: Optional[can.Message] = None
         self.txid, self.rxid = transfer_ids(node, source)
         #: Report frames of the node that broke their layout (ignored).
         self.malformed = 0
@@ -223,6 +243,13 @@ class Client:
             return None
 
     def _isotp_tx(self, msg: isotp.CanMessage) -> None:
+        # The open goes out from the ISO-TP layer's thread, just before the first frame: sent
+        # from the caller's thread, it could reach the node after the first frame (each thread's
+        # frames are queued on the CPU it runs on; seen under software emulation), and the node
+        # drops a first frame that no open announced.
+        pending, self._pending_open = self._pending_open, None
+        if pending is not None:
+            self.bus.send(pending)
         self.bus.send(
             can.Message(
                 arbitration_id=msg.arbitration_id,
@@ -244,6 +271,17 @@ class Client:
                     arbitration_id=msg.arbitration_id, data=bytes(msg.data), extended_id=True
                 )
             )
+            return
+        fid = FrameId.decode(msg.arbitration_id, True)
+        if (fid is not None and fid.service in (CHALLENGE, RECEIPT) and fid.source == self.node
+                and fid.destination == self.source and len(msg.data) == 8
+                and fid.priority == PRIORITY[fid.service]):
+            with self._cond:
+                if fid.service == CHALLENGE:
+                    self._challenges.append(int.from_bytes(bytes(msg.data), "little"))
+                else:
+                    self._receipts.append(bytes(msg.data))
+                self._cond.notify_all()
             return
         try:
             decoded = decode_report(msg.arbitration_id, True, bytes(msg.data))
@@ -346,21 +384,30 @@ class Client:
         with self._transfer_lock:
             with self._cond:
                 self._acks.clear()
+                self._receipts.clear()
                 self._started.pop(schema.id, None)
                 self._ended.pop(schema.id, None)
                 self._sent[schema.id] = schema
             while not self._flow_control.empty():
                 self._flow_control.get_nowait()
             del self._isotp_errors[:]
+            nonce = None
+            if self.key is not None:
+                nonce = self._challenge(deadline)
+                message = self._open(message, nonce)
             failure: Optional[Exception] = None
             try:
                 self._isotp.send(message, send_timeout=max(0.0, deadline - time.monotonic()))
             except isotp.BlockingSendFailure as e:
                 failure = e
                 self._isotp.stop_sending()
+            finally:
+                self._pending_open = None
             # A transfer the node stopped (flow control "overflow") still has its answer.
             ack_deadline = deadline if failure is None else max(deadline, time.monotonic() + 0.1)
             ack = self._wait_ack(schema.id, ack_deadline)
+            if ack is not None and nonce is not None:
+                self._confirm(ack, nonce, ack_deadline)
         what = f"node {self.node}: schema {schema.id:#06x}"
         if ack is None:
             if failure is not None:
@@ -371,6 +418,44 @@ class Client:
         if ack.outcome != SchemaOutcome.Accepted:
             raise Refused(ack, self.node)
         return ack
+
+    def _challenge(self, deadline: float) -> int:
+        """Asks the node for a challenge; its nonce (:class:`Timeout` without one)."""
+        with self._cond:
+            self._challenges.clear()
+        self._send_empty(frame_id(CHALLENGE_REQUEST, self.source, self.node))
+        with self._cond:
+            if not self._cond.wait_for(lambda: self._challenges,
+                                       max(0.0, deadline - time.monotonic())):
+                raise Timeout(f"node {self.node}: no Challenge: is it on the bus, and does it "
+                              "have a key? (a node without one sends none)")
+            return self._challenges[-1]
+
+    def _open(self, message: bytes, nonce: int) -> bytes:
+        """The TransferOpen for `message`, sent before its first frame; returns the message
+        with its MAC, as it is sent."""
+        key = self.key
+        message = message + auth.image_mac(key, self.node, nonce, auth.OPEN_SCHEMA, message)
+        payload = struct.pack("<HB", len(message), auth.OPEN_SCHEMA) + auth.open_tag(
+            key, self.node, nonce, len(message), auth.OPEN_SCHEMA)
+        self._pending_open = can.Message(
+            arbitration_id=frame_id(TRANSFER_OPEN, self.source, self.node), data=payload,
+            is_extended_id=True)
+        return message
+
+    def _confirm(self, ack: SchemaAck, nonce: int, deadline: float) -> None:
+        """The Receipt for `ack` (which may have come first: its identifier ranks above
+        SchemaAck's), verified under the key; :class:`ClientError` when none comes or it does
+        not verify (a forged answer, or another key)."""
+        expected = auth.receipt_tag(self.key, self.node, nonce, ack.encode(), 0, False)
+        with self._cond:
+            if not self._cond.wait_for(lambda: self._receipts,
+                                       max(0.05, deadline - time.monotonic())):
+                raise ClientError(f"node {self.node}: no Receipt for schema {ack.id:#06x}")
+            tag = self._receipts.pop(0)
+        if tag != expected:
+            raise ClientError(f"node {self.node}: the Receipt for schema {ack.id:#06x} does "
+                              "not verify (another key, or a forged answer)")
 
     def _wait_ack(self, sid: int, deadline: float) -> Optional[SchemaAck]:
         def ours() -> Optional[SchemaAck]:

@@ -29,6 +29,10 @@ TOOL = 0
 BROADCAST = 0xFF
 
 EMERGENCY_STOP = 0x00
+CHALLENGE_REQUEST = 0x13
+CHALLENGE = 0x14
+TRANSFER_OPEN = 0x15
+RECEIPT = 0x16
 SCHEMA_ABORT = 0x19
 SCHEMA_TRANSFER = 0x1A
 SCHEMA_ACK = 0x1B
@@ -38,6 +42,10 @@ SCHEMA_STATE = 0x1D
 #: Each service's fixed priority (bits 28..26).
 PRIORITY = {
     EMERGENCY_STOP: 0,
+    CHALLENGE_REQUEST: 3,
+    CHALLENGE: 2,
+    TRANSFER_OPEN: 3,
+    RECEIPT: 2,
     SCHEMA_ABORT: 1,
     SCHEMA_TRANSFER: 2,
     SCHEMA_ACK: 2,
@@ -130,9 +138,9 @@ _OUTCOME_TEXT = {
     SchemaOutcome.UnknownInnate: "names an innate schema the board does not have",
     SchemaOutcome.QueueFull: "queue full (8): refused, nothing overwritten",
     SchemaOutcome.Busy: "a high-priority schema is already waiting for the next tick",
-    SchemaOutcome.TooLong: "message longer than 257 bytes",
+    SchemaOutcome.TooLong: "message longer than 273 bytes",
     SchemaOutcome.BadChannel: "channel byte neither the queue nor the high-priority channel",
-    SchemaOutcome.Unauthenticated: "node has a key: schemas need authentication",
+    SchemaOutcome.Unauthenticated: "the message's MAC does not verify (a node with a key)",
     SchemaOutcome.NoServer: "the node's table runs no schema server",
     SchemaOutcome.StopNotAcknowledged: (
         "names another stop than the latest: acknowledge the stop first"
@@ -384,8 +392,9 @@ def transfer_ids(node: int, source: int = TOOL) -> "tuple[int, int]":
 
 def client_filters(node: int) -> "list[dict]":
     """python-can ``can_filters`` that pass what a client of `node` reads, and nothing else:
-    the node's flow control for the client's transfers and its reports (SchemaAck,
-    SchemaTransition, SchemaState), whatever their destination.
+    the node's flow control for the client's transfers, its reports (SchemaAck,
+    SchemaTransition, SchemaState), and on a node with a key its Challenge and Receipt, whatever
+    their destination.
 
     On SocketCAN the kernel applies them, so a client's process never sees the rest of the bus:
     a plant publishing pose and wrench at 1 kHz would otherwise reach the client's notifier
@@ -399,7 +408,7 @@ def client_filters(node: int) -> "list[dict]":
             "can_mask": PROTOCOL_MASK | 0xFF << 16 | 0xFF,
             "extended": True,
         }
-        for service in (SCHEMA_TRANSFER, *_REPORTS)
+        for service in (SCHEMA_TRANSFER, CHALLENGE, RECEIPT, *_REPORTS)
     ]
 
 

@@ -11,7 +11,7 @@ from typing import Callable, List, Optional, Tuple
 import can
 import pytest
 
-from pab_client import Client, ClientError, Refused, Timeout, client_filters, schema as s
+from pab_client import Client, ClientError, Refused, Timeout, auth, client_filters, schema as s
 from pab_client import protocol as p
 from pab_client.protocol import (
     SchemaAck,
@@ -47,6 +47,12 @@ class FakeNode(threading.Thread):
         #: Every other frame of ours from the client: (id, data).
         self.others: List[Tuple[int, bytes]] = []
         self.stop_number = 0  # the server's stops so far, modulo 64
+        #: A node with this key: challenges, opens and MACs as docs/can-protocol.md says, and a
+        #: Receipt before each SchemaAck (its identifier ranks first, as on a real node).
+        self.key: Optional[bytes] = None
+        self.nonce = 0x1234_5678_0000_0000
+        self.opened: Optional[int] = None  # the nonce of the open the next transfer consumes
+        self.forge_receipt = False
         self.silent = False  # no flow control
         self.no_ack = False
         self.overflow = False  # flow control "overflow", then TooLong
@@ -65,9 +71,20 @@ class FakeNode(threading.Thread):
                 continue
             data = bytes(msg.data)
             if msg.arbitration_id != self.txid:
-                if p.FrameId.decode(msg.arbitration_id, msg.is_extended_id):
+                fid = p.FrameId.decode(msg.arbitration_id, msg.is_extended_id)
+                if fid is not None and self.key is not None and fid.destination == self.node:
+                    self._keyed(fid, data)
+                    continue
+                if fid:
                     self.others.append((msg.arbitration_id, data))
                 continue
+            kind = data[0] >> 4
+            if self.key is not None and kind in (0, 1):
+                # A keyed node takes a first or single frame only after an open of its length.
+                length = data[0] & 0xF if kind == 0 else (data[0] & 0xF) << 8 | data[1]
+                if self.opened is None or length != self._opened_length:
+                    continue
+                self._transfer_nonce, self.opened = self.opened, None
             self.frames.append(data)
             if len(data) != 8:
                 self.errors.append(f"frame of {len(data)} bytes")
@@ -103,7 +120,24 @@ class FakeNode(threading.Thread):
     def _flow_control(self) -> None:
         self._send(self.rxid, bytes([0x30, self.block_size, 0]) + b"\xcc" * 5)
 
+    def _keyed(self, fid, data: bytes) -> None:
+        if fid.service == p.CHALLENGE_REQUEST:
+            self.nonce += 1
+            self._send(p.frame_id(p.CHALLENGE, self.node, fid.source),
+                       self.nonce.to_bytes(8, "little"))
+        elif fid.service == p.TRANSFER_OPEN and len(data) == 8:
+            length, flags = data[0] | data[1] << 8, data[2]
+            if data[3:] == auth.open_tag(self.key, self.node, self.nonce, length, flags):
+                self.opened, self._opened_length = self.nonce, length
+
     def _complete(self, message: bytes) -> None:
+        if self.key is not None:
+            body, mac = message[:-16], message[-16:]
+            nonce = self._transfer_nonce
+            if mac != auth.image_mac(self.key, self.node, nonce, auth.OPEN_SCHEMA, body):
+                self.errors.append("a MAC that does not verify")
+                return
+            message = body
         self.messages.append(message)
         if self.no_ack:
             return
@@ -130,6 +164,12 @@ class FakeNode(threading.Thread):
         )
 
     def _ack(self, ack: SchemaAck) -> None:
+        if self.key is not None:
+            tag = auth.receipt_tag(self.key, self.node, self._transfer_nonce, ack.encode(), 0,
+                                   False)
+            if self.forge_receipt:
+                tag = bytes(8)
+            self._send(p.frame_id(p.RECEIPT, self.node, p.TOOL), tag)
         self._send(p.frame_id(p.SCHEMA_ACK, self.node, p.TOOL), ack.encode())
 
     def _send(self, arbitration_id: int, data: bytes) -> None:
@@ -487,3 +527,55 @@ def test_the_client_filters_keep_the_rest_of_the_bus_away():
         sender.shutdown()
     with pytest.raises(ValueError):
         client_filters(0)
+
+
+KEY = bytes(range(16))
+
+
+@pytest.fixture
+def keyed_rig():
+    channel = f"pab-client-{next(_channels)}"
+    node = FakeNode(channel)
+    node.key = KEY
+    node.start()
+    bus = can.Bus(interface="virtual", channel=channel, can_filters=client_filters(NODE))
+    yield bus, node
+    bus.shutdown()
+    node.stop()
+
+
+def test_with_the_key_every_schema_is_opened_macd_and_confirmed(keyed_rig):
+    bus, node = keyed_rig
+    with Client(bus, NODE, key=KEY) as client:
+        sc = s.move_to(1, (1000, 2000, 3000), 20_000)
+        assert client.install(sc).accepted
+        assert node.messages == [b"\x00" + sc.encode()]
+        assert client.install(s.idle(2, 10)).accepted
+    assert node.errors == []
+
+
+def test_a_receipt_that_does_not_verify_is_no_answer(keyed_rig):
+    bus, node = keyed_rig
+    node.forge_receipt = True
+    with Client(bus, NODE, key=KEY) as client:
+        with pytest.raises(ClientError, match="does not verify"):
+            client.install(s.idle(1, 10))
+
+
+def test_another_key_gets_no_transfer_through(keyed_rig):
+    bus, node = keyed_rig
+    with Client(bus, NODE, key=bytes(16)) as client:
+        with pytest.raises(Timeout):
+            client.install(s.idle(1, 10), timeout=0.3)
+    assert node.messages == []
+
+
+def test_a_key_is_sixteen_bytes_and_speaks_as_the_tool():
+    bus = can.Bus(interface="virtual", channel="pab-client-keys")
+    try:
+        with pytest.raises(ValueError):
+            Client(bus, NODE, key=bytes(15))
+        with pytest.raises(ValueError):
+            Client(bus, NODE, source=3, key=KEY)
+    finally:
+        bus.shutdown()

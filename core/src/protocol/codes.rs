@@ -232,14 +232,15 @@ wire_enum! {
         QueueFull = 0x09, "queue full (8): refused, nothing overwritten";
         /// A high-priority schema is already waiting for the next tick.
         Busy = 0x0A, "a high-priority schema is already waiting for the next tick";
-        /// The ISO-TP message is longer than a channel byte and the largest schema (257 bytes):
-        /// refused at its first frame.
-        TooLong = 0x0B, "message longer than 257 bytes";
+        /// The ISO-TP message is longer than a channel byte, the largest schema and a MAC (273
+        /// bytes): refused at its first frame.
+        TooLong = 0x0B, "message longer than 273 bytes";
         /// The message's channel byte names neither the queue (0) nor the high-priority
         /// channel (1 in its bits 0-1, the stop number in bits 2-7).
         BadChannel = 0x0C, "channel byte neither the queue nor the high-priority channel";
-        /// The node has a key: schema transfers need authentication, which does not exist yet.
-        Unauthenticated = 0x0D, "node has a key: schemas need authentication";
+        /// On a node with a key: the message's MAC does not verify (another key, or a message
+        /// changed in flight).
+        Unauthenticated = 0x0D, "the message's MAC does not verify (a node with a key)";
         /// The node's table runs no schema server.
         NoServer = 0x0E, "the node's table runs no schema server";
         /// A high-priority schema that names another stop number than the server's latest: sent

@@ -367,12 +367,17 @@ impl DiagnosticControl {
 /// Flag bit of [`TransferOpen::flags`]: replace whatever version runs (the keyed version reset:
 /// the image's version need not be newer; version 0 is still refused).
 pub const OPEN_REPLACE: u8 = 0x01;
+/// Flag bit of [`TransferOpen::flags`]: the open is for a schema message (SchemaTransfer), not a
+/// table image. Its MAC is the image MAC with this flag, so neither can stand for the other.
+pub const OPEN_SCHEMA: u8 = 0x02;
 
-/// Opens an authenticated table transfer (service 0x15), tool → node, on a node with a key.
+/// Opens an authenticated transfer (service 0x15), tool → node, on a node with a key: a table
+/// image (TableTransfer) or, with [`OPEN_SCHEMA`], a schema message (SchemaTransfer).
 ///
 /// ```text
-/// bytes 0-1  ISO-TP message length (the image and its 16-byte MAC), u16 LE
-/// byte 2     flags: bit 0 replace whatever version runs (OPEN_REPLACE); bits 1-7 reserved, 0
+/// bytes 0-1  ISO-TP message length (the image or schema message and its 16-byte MAC), u16 LE
+/// byte 2     flags: bit 0 replace whatever version runs (OPEN_REPLACE), bit 1 a schema
+///            (OPEN_SCHEMA), not both; bits 2-7 reserved, 0
 /// bytes 3-7  tag: CMAC (domain 2, node, nonce, length, flags), first 5 bytes
 /// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -380,7 +385,7 @@ pub const OPEN_REPLACE: u8 = 0x01;
 pub struct TransferOpen {
     /// The ISO-TP message length that the first frame must announce.
     pub length: u16,
-    /// [`OPEN_REPLACE`] or 0.
+    /// [`OPEN_REPLACE`], [`OPEN_SCHEMA`] or 0.
     pub flags: u8,
     /// The tag over the challenge.
     pub tag: [u8; crate::auth::OPEN_TAG_LEN],
@@ -1060,7 +1065,9 @@ impl Message {
             Service::SchemaAbort => Message::SchemaAbort,
             Service::TransferOpen => {
                 let flags = byte(data, 2);
-                if flags & !OPEN_REPLACE != 0 {
+                // Replacing a version means nothing to a schema.
+                if flags & !(OPEN_REPLACE | OPEN_SCHEMA) != 0 || flags == OPEN_REPLACE | OPEN_SCHEMA
+                {
                     return Err(bad);
                 }
                 Message::TransferOpen(TransferOpen {
@@ -1744,12 +1751,19 @@ mod tests {
             Message::decode(&reserved),
             Err(DecodeError::Value { .. })
         ));
+        // TransferOpen: a reserved flag bit, and replace and schema together, are refused.
         let id = FrameId::new(Service::TransferOpen, 0, 1).id();
-        let reserved_flag = Frame::data(id, &[0, 1, 2, 0, 0, 0, 0, 0]).unwrap();
-        assert!(matches!(
-            Message::decode(&reserved_flag),
-            Err(DecodeError::Value { .. })
-        ));
+        for flags in [4, 0x80, OPEN_REPLACE | OPEN_SCHEMA] {
+            let refused = Frame::data(id, &[0, 1, flags, 0, 0, 0, 0, 0]).unwrap();
+            assert!(
+                matches!(Message::decode(&refused), Err(DecodeError::Value { .. })),
+                "flags {flags:#04x}"
+            );
+        }
+        for flags in [0, OPEN_REPLACE, OPEN_SCHEMA] {
+            let taken = Frame::data(id, &[0, 1, flags, 0, 0, 0, 0, 0]).unwrap();
+            assert!(Message::decode(&taken).is_ok(), "flags {flags:#04x}");
+        }
         let id = FrameId::new(Service::TableStatus, 1, BROADCAST).id();
         let reserved_bit = Frame::data(id, &[0, 0, 0, 0, 0, 0, 0, 8]).unwrap();
         assert!(matches!(

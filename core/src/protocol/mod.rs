@@ -37,7 +37,8 @@ pub use messages::DecodeError;
 pub use messages::{
     DesireFrame, DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Exploitation, Fault,
     FilterProfile, FilterSet, FilterStatus, Gates, Heartbeat, Intention, Message, OPEN_REPLACE,
-    SchemaAck, SchemaState, SchemaTransition, TableStatus, Traffic, TransferOpen, TransferStatus,
+    OPEN_SCHEMA, SchemaAck, SchemaState, SchemaTransition, TableStatus, Traffic, TransferOpen,
+    TransferStatus,
 };
 
 use embedded_can::{ExtendedId, Id};

@@ -187,6 +187,9 @@ pub struct Node<const P: usize, const C: usize, const N: usize, const IMG: usize
 /// What one call into the schema server sends: at most a tick's set-point (3 frames), its
 /// transitions (3) and their faults (3), a report.
 #[cfg(feature = "schema")]
+use crate::schema::Keys;
+
+#[cfg(feature = "schema")]
 type SchemaOuts = heapless::Vec<crate::schema::Out, 12>;
 
 /// Keeps one of the schema server's outputs for the node to send.
@@ -1092,7 +1095,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             #[cfg(feature = "schema")]
             Message::SchemaTransfer { data, len } if id.destination == node_id => {
                 let data = data.get(..usize::from(len)).unwrap_or(&data);
-                self.on_schema_transfer(id.source, data, now);
+                self.on_schema_transfer(id, data, now);
                 Step::Continue
             }
             _ => Step::Continue,
@@ -1114,15 +1117,41 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     #[inline(always)]
     fn start_schema(&mut self, _: Instant) {}
 
-    /// A SchemaTransfer frame: to the server, or refused by a node that runs none.
+    /// A SchemaTransfer frame: to the server, or refused by a node that runs none. On a node
+    /// with a key, as a table's: only from the tool, a first frame only after a TransferOpen
+    /// for a schema ([`protocol::OPEN_SCHEMA`]) of its length, consecutive frames in sequence.
     #[cfg(feature = "schema")]
-    fn on_schema_transfer(&mut self, source: u8, data: &[u8], now: Instant) {
-        let keyed = self.guard.is_keyed();
+    fn on_schema_transfer(&mut self, id: FrameId, data: &[u8], now: Instant) {
+        let source = id.source;
+        let mut opened = None;
+        if self.guard.is_keyed() && self.schema.is_some() {
+            let next = self.schema.as_ref().and_then(|r| r.next_sequence_number());
+            let admitted = if source == protocol::TOOL {
+                self.admit_keyed(data, next, true, now)
+            } else {
+                Err(AuthFailure::NotTool)
+            };
+            match admitted {
+                Ok(open) => opened = open.map(|open| open.nonce),
+                Err(failure) => {
+                    self.unauthenticated(failure, id);
+                    return;
+                }
+            }
+        }
         let mut outs = SchemaOuts::new();
         match self.schema.as_mut() {
-            Some(runtime) => {
-                runtime.on_transfer_frame(source, data, now, keyed, &mut |o| collect(&mut outs, o))
-            }
+            Some(runtime) => runtime.on_transfer_frame(
+                source,
+                data,
+                now,
+                Keys {
+                    guard: &self.guard,
+                    node: self.config.node_id,
+                    opened,
+                },
+                &mut |o| collect(&mut outs, o),
+            ),
             // Only a message's first frame is answered: a multi-frame one gets no flow control.
             None if matches!(
                 pab_core::isotp::pci::decode(data),
@@ -1204,7 +1233,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         }
         match self.guard.open(self.config.node_id, open, now) {
             Ok(nonce) => {
-                if self.receiver.abort()
+                // An open for a table interrupts a table transfer in progress; one for a schema
+                // leaves it alone (a schema never waits behind a table).
+                if open.flags & protocol::OPEN_SCHEMA == 0
+                    && self.receiver.abort()
                     && let Some(incoming) = self.incoming.take()
                 {
                     self.refuse(
@@ -1229,37 +1261,31 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// frame only if a TransferOpen announced its length, a consecutive frame only with the
     /// sequence number expected. Refused frames are counted, raise a fault, and never disturb a
     /// transfer in progress. Returns the open that a first frame consumes.
+    /// `next`: the sequence number the receiver expects (`None` when idle); `schema`: the frame
+    /// is a SchemaTransfer's, whose first frame needs an open for a schema (and a table's one for
+    /// a table).
     fn admit_keyed(
         &mut self,
-        id: FrameId,
         data: &[u8],
+        next: Option<u8>,
+        schema: bool,
         now: Instant,
     ) -> Result<Option<Opened>, AuthFailure> {
         match isotp::pci::decode(data) {
-            Ok((Pci::First { len }, _)) => self.take_open(usize::try_from(len).ok(), now),
-            Ok((Pci::Single { len }, _)) => self.take_open(Some(usize::from(len)), now),
-            Ok((Pci::Consecutive { sn }, _)) => {
-                if self
-                    .receiver
-                    .next_sequence_number()
-                    .is_some_and(|next| next != sn)
-                {
-                    Err(AuthFailure::Sequence)
-                } else {
-                    Ok(None)
-                }
+            Ok((Pci::First { len }, _)) => self.take_open(usize::try_from(len).ok(), schema, now),
+            Ok((Pci::Single { len }, _)) => self.take_open(Some(usize::from(len)), schema, now),
+            Ok((Pci::Consecutive { sn }, _)) if next.is_some_and(|next| next != sn) => {
+                Err(AuthFailure::Sequence)
             }
-            // Flow controls and malformed frames: the receiver ignores them.
-            _ => {
-                let _ = id;
-                Ok(None)
-            }
+            // In sequence, flow controls and malformed frames: the receiver decides.
+            _ => Ok(None),
         }
     }
 
     fn take_open(
         &mut self,
         len: Option<usize>,
+        schema: bool,
         now: Instant,
     ) -> Result<Option<Opened>, AuthFailure> {
         let opened = self
@@ -1271,6 +1297,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                     .is_some_and(|left| left > 0)
             })
             .filter(|opened| len == Some(usize::from(opened.length)))
+            .filter(|opened| (opened.flags & protocol::OPEN_SCHEMA != 0) == schema)
             .ok_or(AuthFailure::Unopened)?;
         self.opened = None;
         Ok(Some(opened))
@@ -1294,7 +1321,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             return Step::Continue;
         }
         let opened = if self.guard.is_keyed() {
-            match self.admit_keyed(id, data, now) {
+            match self.admit_keyed(data, self.receiver.next_sequence_number(), false, now) {
                 Ok(opened) => opened,
                 Err(failure) => {
                     self.unauthenticated(failure, id);

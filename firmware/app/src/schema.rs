@@ -12,19 +12,34 @@
 
 use pab_core::isotp::{self, RxEvent};
 use pab_core::protocol::{
-    FaultCode, Message, SchemaAck, SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety,
+    self, FaultCode, Message, SchemaAck, SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety,
     SchemaState, SchemaTransition,
 };
 
+use crate::auth::Guard;
 use crate::node::{earlier, transfer_deadline};
+use pab_core::auth;
+
+/// What a node with a key contributes to a schema transfer: its [`Guard`] (the key), its id, and
+/// the nonce of the TransferOpen that the frame at hand consumed (a first or single frame the
+/// node admitted). An unkeyed node's guard says so, and no frame carries a nonce.
+pub struct Keys<'a> {
+    /// The node's authentication state.
+    pub(crate) guard: &'a Guard,
+    /// The node's id.
+    pub node: u8,
+    /// The nonce of the open this frame consumed.
+    pub opened: Option<u64>,
+}
 use pab_core::schema::{
     self, AXES, Drive, MAX_ENCODED, MAX_SENSORS, Pose, Schema, Sensor, Server, Setpoint, Setup,
     drive,
 };
 use pab_core::{Frame, Instant, OutputId};
 
-/// The longest SchemaTransfer message: the channel byte and a schema.
-pub const TRANSFER_LEN: usize = MAX_ENCODED + 1;
+/// The longest SchemaTransfer message: the channel byte and a schema, and on a node with a key
+/// its 16-byte MAC.
+pub const TRANSFER_LEN: usize = MAX_ENCODED + 1 + auth::IMAGE_MAC_LEN;
 /// SchemaState and the impedance frame go out this often, µs.
 const REPORT_PERIOD_US: u64 = 100_000;
 
@@ -52,6 +67,8 @@ pub struct SchemaRuntime {
     /// 1 s + 10 ms per consecutive frame, as a table's (a sender that trickles one frame per
     /// N_Cr would otherwise hold the one slot for 37 s a message, and for ever by starting again).
     sender: Option<(u8, Instant)>,
+    /// The nonce of the transfer in progress, on a node with a key.
+    nonce: Option<u64>,
     drive: Drive,
     /// The pose as its two frames last said (translation, rotation).
     pose: Pose,
@@ -76,6 +93,7 @@ impl SchemaRuntime {
             impedance: None,
             receiver: isotp::Receiver::new(isotp),
             sender: None,
+            nonce: None,
         }
     }
 
@@ -132,16 +150,27 @@ impl SchemaRuntime {
         self.server.abort();
     }
 
-    /// One ISO-TP frame of a SchemaTransfer from `source`. `keyed`: the node has a key, and
-    /// refuses schemas (they need authentication, which schema transfers do not have yet).
+    /// The sequence number the transfer in progress expects next (`None` when idle): a node
+    /// with a key drops a consecutive frame out of sequence before it reaches the receiver.
+    pub fn next_sequence_number(&self) -> Option<u8> {
+        self.receiver.next_sequence_number()
+    }
+
+    /// One ISO-TP frame of a SchemaTransfer from `source`. On a node with a key (`keys`), the
+    /// node admitted the frame, a first frame with its open's nonce, and the message is checked
+    /// against its MAC before anything in it is read; after the SchemaAck a Receipt confirms it.
     pub fn on_transfer_frame(
         &mut self,
         source: u8,
         data: &[u8],
         now: Instant,
-        keyed: bool,
+        keys: Keys<'_>,
         out: &mut impl FnMut(Out),
     ) {
+        let keyed = keys.guard.is_keyed();
+        if keys.opened.is_some() {
+            self.nonce = keys.opened;
+        }
         // One transfer at a time: another sender's frames wait until it ends (N_Cr, or its
         // budget).
         if self.sender.is_some_and(|(s, _)| s != source) && self.receiver.in_progress().is_some() {
@@ -157,14 +186,29 @@ impl SchemaRuntime {
                 (flow_control, Some((SchemaOutcome::TooLong, None, 0xFFFF)))
             }
             RxEvent::Complete(message) => {
-                let (channel, bytes) = match message.split_first() {
+                // With a key: the message and its MAC, checked first (a message too short for
+                // one is no message).
+                let message = match (keyed, self.nonce) {
+                    (false, _) => Some(message),
+                    (true, Some(nonce)) => message
+                        .len()
+                        .checked_sub(auth::IMAGE_MAC_LEN)
+                        .and_then(|len| message.split_at_checked(len))
+                        .filter(|(body, mac)| {
+                            keys.guard
+                                .image(keys.node, nonce, protocol::OPEN_SCHEMA, body, mac)
+                        })
+                        .map(|(body, _)| body),
+                    (true, None) => None,
+                };
+                let (channel, bytes) = match message.and_then(|m| m.split_first()) {
                     Some((c, rest)) => (*c, rest),
                     None => (0xFF, &[][..]),
                 };
                 let decoded = Schema::decode(bytes);
                 let id = decoded.as_ref().map_or(0xFFFF, |s| s.id);
                 let named = SchemaChannel::of_message(channel);
-                let verdict = if keyed {
+                let verdict = if message.is_none() {
                     Err(SchemaOutcome::Unauthenticated)
                 } else {
                     match (named, decoded) {
@@ -200,11 +244,22 @@ impl SchemaRuntime {
             out(Out::Protocol(transfer(fc), source));
         }
         if let Some((outcome, channel, id)) = answer {
-            self.answer(source, outcome, channel, id, out);
+            let ack = self.answer(source, outcome, channel, id, out);
+            // The Receipt of an opened transfer: a tag over its nonce and the SchemaAck's bytes
+            // (the running table's CRC and stored flag, which a table's receipt confirms, 0).
+            if let Some(nonce) = self.nonce.take() {
+                let mut payload = [0u8; 8];
+                let frame = Message::SchemaAck(ack).to_frame(keys.node, source);
+                for (slot, byte) in payload.iter_mut().zip(frame.payload()) {
+                    *slot = *byte;
+                }
+                let tag = keys.guard.receipt(keys.node, nonce, &payload, 0, false);
+                out(Out::Protocol(Message::Receipt { tag }, source));
+            }
         }
     }
 
-    /// The SchemaAck for `source`.
+    /// The SchemaAck for `source`; returns it.
     fn answer(
         &self,
         source: u8,
@@ -212,7 +267,7 @@ impl SchemaRuntime {
         channel: Option<SchemaChannel>,
         id: u16,
         out: &mut impl FnMut(Out),
-    ) {
+    ) -> SchemaAck {
         let ack = SchemaAck {
             outcome,
             channel,
@@ -221,6 +276,7 @@ impl SchemaRuntime {
             stop: self.server.stop_number(),
         };
         out(Out::Protocol(Message::SchemaAck(ack), source));
+        ack
     }
 
     /// The work due by `now`: a tick (its set-point frames, its transitions and faults), the
@@ -234,6 +290,7 @@ impl SchemaRuntime {
         {
             self.receiver.abort();
             self.sender = None;
+            self.nonce = None;
             self.answer(source, SchemaOutcome::TimedOut, None, 0xFFFF, out);
         }
         if now.micros_since(self.next_tick).is_none() {

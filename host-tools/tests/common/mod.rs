@@ -23,12 +23,22 @@ pub struct LiveNode {
 
 impl LiveNode {
     pub fn spawn(hub: &MemoryHub, id: u8, boot_image: Option<Vec<u8>>) -> LiveNode {
+        Self::spawn_with(hub, id, boot_image, None)
+    }
+
+    /// [`LiveNode::spawn`], the node with `key` (boot salt 1) when given.
+    pub fn spawn_with(
+        hub: &MemoryHub,
+        id: u8,
+        boot_image: Option<Vec<u8>>,
+        key: Option<pab_core::auth::Key>,
+    ) -> LiveNode {
         let stop = Arc::new(AtomicBool::new(false));
         let stored = Arc::new(Mutex::new(Vec::new()));
         let mut bus = hub.connect();
         let (stop_flag, store) = (stop.clone(), stored.clone());
         let thread = std::thread::spawn(move || {
-            run_node(&mut bus, id, boot_image, &stop_flag, &store);
+            run_node(&mut bus, id, boot_image, key, &stop_flag, &store);
         });
         LiveNode {
             stop,
@@ -52,12 +62,16 @@ fn run_node(
     bus: &mut MemoryBus,
     id: u8,
     boot_image: Option<Vec<u8>>,
+    key: Option<pab_core::auth::Key>,
     stop: &AtomicBool,
     stored: &Mutex<Vec<Vec<u8>>>,
 ) {
     let start = Instant::now();
     let now = || pab_core::Instant::from_micros(start.elapsed().as_micros() as u64);
     let mut node = Box::new(FullNode::new(Config::new(id).unwrap(), now()));
+    if let Some(key) = key {
+        node.set_key(&key, 1);
+    }
     let len = boot_image.map(|image| {
         node.boot_buffer()[..image.len()].copy_from_slice(&image);
         image.len()

@@ -76,6 +76,11 @@ pub fn send(h: &mut Harness, channel: u8, schema: &Schema) -> SchemaAck {
 }
 
 pub fn send_bytes(h: &mut Harness, message: &[u8]) -> SchemaAck {
+    try_send_bytes(h, message).expect("a SchemaAck")
+}
+
+/// [`send_bytes`], `None` when the node sent no SchemaAck (a node that ignored the transfer).
+pub fn try_send_bytes(h: &mut Harness, message: &[u8]) -> Option<SchemaAck> {
     let since = h.now;
     let mut sender = Sender::new(message, TxConfig::default()).unwrap();
     let mut seen = h.sent.len();
@@ -109,7 +114,7 @@ pub fn send_bytes(h: &mut Harness, message: &[u8]) -> SchemaAck {
             TxEvent::Done | TxEvent::Failed(_) => break,
         }
     }
-    acks(h, since).pop().expect("a SchemaAck")
+    acks(h, since).pop()
 }
 
 pub fn acks(h: &Harness, since: u64) -> Vec<SchemaAck> {

@@ -1,0 +1,68 @@
+"""Authenticated schema transfers to a node with a key (docs/can-protocol.md, "Authenticated
+configuration"): AES-128-CMAC tags as `pab_core::auth::Authenticator` makes them, every MAC input
+starting with its domain byte and the node id.
+
+    key = read_key("arm.key")                     # pabctl keygen's file: 32 hex characters
+    open_tag(key, node, nonce, length, OPEN_SCHEMA)
+    image_mac(key, node, nonce, OPEN_SCHEMA, message)
+    receipt_tag(key, node, nonce, schema_ack_payload, 0, False)
+
+The CMAC is the `cryptography` package's (OpenSSL's).
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+from cryptography.hazmat.primitives.ciphers import algorithms
+from cryptography.hazmat.primitives.cmac import CMAC
+
+#: Domains (the first byte of every MAC input).
+COMMAND, OPEN, IMAGE, RECEIPT = 0x01, 0x02, 0x03, 0x04
+#: TransferOpen flags: a table version reset; a schema message (not a table image).
+OPEN_REPLACE = 0x01
+OPEN_SCHEMA = 0x02
+#: Lengths of the tags and MACs.
+OPEN_TAG_LEN, IMAGE_MAC_LEN, RECEIPT_TAG_LEN = 5, 16, 8
+
+
+def read_key(path: "str | Path") -> bytes:
+    """A key file's 16 bytes: 32 hexadecimal characters, optionally one newline after them."""
+    text = Path(path).read_text()
+    if text.endswith("\n"):
+        text = text[:-1].removesuffix("\r")
+    if len(text) != 32:
+        raise ValueError(f"{path}: a key is 32 hexadecimal characters (128 bits), this has {len(text)}")
+    try:
+        return bytes.fromhex(text)
+    except ValueError:
+        raise ValueError(f"{path}: a key is 32 of 0-9, a-f") from None
+
+
+def cmac(key: bytes, *parts: bytes) -> bytes:
+    """AES-128-CMAC of the parts, concatenated (16 bytes)."""
+    if len(key) != 16:
+        raise ValueError(f"a key is 16 bytes, not {len(key)}")
+    mac = CMAC(algorithms.AES(key))
+    for part in parts:
+        mac.update(part)
+    return mac.finalize()
+
+
+def open_tag(key: bytes, node: int, nonce: int, length: int, flags: int) -> bytes:
+    """A TransferOpen's tag: CMAC(0x02, node, nonce, length, flags), its first 5 bytes."""
+    return cmac(key, bytes([OPEN, node]), struct.pack("<QHB", nonce, length, flags))[:OPEN_TAG_LEN]
+
+
+def image_mac(key: bytes, node: int, nonce: int, flags: int, message: bytes) -> bytes:
+    """The MAC after an opened transfer's message: CMAC(0x03, node, nonce, flags, message)."""
+    return cmac(key, bytes([IMAGE, node]), struct.pack("<QB", nonce, flags), bytes(message))
+
+
+def receipt_tag(key: bytes, node: int, nonce: int, answer: bytes, running_crc: int,
+                stored: bool) -> bytes:
+    """A Receipt's tag: CMAC(0x04, node, nonce, the answer's 8 bytes, CRC, stored), 8 bytes. For
+    a schema the answer is the SchemaAck's payload, the CRC and the stored flag 0."""
+    return cmac(key, bytes([RECEIPT, node]), struct.pack("<Q", nonce), bytes(answer),
+                struct.pack("<IB", running_crc, int(stored)))[:RECEIPT_TAG_LEN]
