@@ -387,18 +387,9 @@ fn golden() -> Value {
 fn the_python_clients_golden_vectors_are_what_the_rust_builders_make() {
     let expected = golden();
     let path = golden_path();
-    if std::env::var_os("PAB_BLESS").is_some() {
-        let text = serde_json::to_string_pretty(&expected).expect("serialisable") + "\n";
-        std::fs::write(&path, text).expect("writes the golden vectors");
+    let Some(found) = blessed_or_read(&path, &expected) else {
         return;
-    }
-    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
-        panic!(
-            "{}: {e}; write it with PAB_BLESS=1 cargo test -p pab-lang --test client_golden",
-            path.display()
-        )
-    });
-    let found: Value = serde_json::from_str(&text).expect("the golden file is JSON");
+    };
     let (Some(found_vectors), Some(expected_vectors)) =
         (found["vectors"].as_array(), expected["vectors"].as_array())
     else {
@@ -519,18 +510,26 @@ fn golden_auth() -> Value {
 #[test]
 fn the_python_clients_authentication_vectors_are_what_the_core_makes() {
     let expected = golden_auth();
-    let path = golden_path().with_file_name("golden_auth.json");
-    if std::env::var_os("PAB_BLESS").is_some() {
-        let text = serde_json::to_string_pretty(&expected).expect("serialisable") + "\n";
-        std::fs::write(&path, text).expect("writes the golden vectors");
+    let Some(found) = blessed_or_read(&golden_path().with_file_name("golden_auth.json"), &expected)
+    else {
         return;
+    };
+    assert_eq!(found, expected, "the golden file (PAB_BLESS=1 rewrites it)");
+}
+
+/// With `PAB_BLESS` set: writes `expected` to `path` and returns `None`. Otherwise the file's
+/// JSON, to compare.
+fn blessed_or_read(path: &std::path::Path, expected: &Value) -> Option<Value> {
+    if std::env::var_os("PAB_BLESS").is_some() {
+        let text = serde_json::to_string_pretty(expected).expect("serialisable") + "\n";
+        std::fs::write(path, text).expect("writes the golden vectors");
+        return None;
     }
-    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| {
         panic!(
             "{}: {e}; write it with PAB_BLESS=1 cargo test -p pab-lang --test client_golden",
             path.display()
         )
     });
-    let found: Value = serde_json::from_str(&text).expect("the golden file is JSON");
-    assert_eq!(found, expected, "the golden file (PAB_BLESS=1 rewrites it)");
+    Some(serde_json::from_str(&text).expect("the golden file is JSON"))
 }

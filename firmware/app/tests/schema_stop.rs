@@ -6,10 +6,10 @@ mod common;
 mod schema_rig;
 
 use common::*;
+use pab_core::Instant;
 use pab_core::isotp::{Sender, TxConfig, TxEvent};
 use pab_core::protocol::{BROADCAST, Message, SchemaOutcome, SchemaSafety, SchemaTrigger, TOOL};
 use pab_core::schema::{Schema, build};
-use pab_core::{Frame, Instant};
 use schema_rig::*;
 
 /// Ticks come every 1 000 µs from boot: the time just after the next one.
@@ -161,40 +161,15 @@ fn a_high_priority_schema_whose_transfer_spans_the_stop_is_refused() {
     let away = build::move_to(9, [-50_000, 0, 0, 0, 0, 0], 100_000);
     message.extend_from_slice(postcard::to_slice(&away, &mut buf).unwrap());
     assert!(message.len() > 7, "several frames");
-    let mut sender = Sender::new(&message, TxConfig::default()).unwrap();
     let since = h.now;
-    let mut seen = h.sent.len();
-    let mut frames = 0;
-    let mut ack = None;
-    while ack.is_none() && h.now < since + 100_000 {
-        match sender.poll(Instant::from_micros(h.now)) {
-            TxEvent::Send(data) => {
-                h.feed(&Message::SchemaTransfer { data, len: 8 }.to_frame(TOOL, Harness::NODE_ID));
-                frames += 1;
-                if frames == 1 {
-                    // The stop, and a few ticks, between the first frame and the rest.
-                    h.feed(&Message::EmergencyStop.to_frame(TOOL, BROADCAST));
-                    follow(&mut h, 3);
-                }
-            }
-            TxEvent::Done | TxEvent::Failed(_) => {}
-            TxEvent::WaitUntil(_) => {}
+    let ack = send_paced(&mut h, &message, 100, 100_000, |h, sent| {
+        if sent == 1 {
+            // The stop, and a few ticks, between the first frame and the rest.
+            h.feed(&Message::EmergencyStop.to_frame(TOOL, BROADCAST));
+            follow(h, 3);
         }
-        for (_, frame) in &h.sent[seen..] {
-            match Message::decode(frame) {
-                Ok((id, Message::SchemaTransfer { data, len })) if id.destination == TOOL => {
-                    let now = Instant::from_micros(h.now);
-                    let _ = sender.on_flow_control(&data[..usize::from(len)], now);
-                }
-                Ok((id, Message::SchemaAck(a))) if id.destination == TOOL => ack = Some(a),
-                _ => {}
-            }
-        }
-        seen = h.sent.len();
-        h.advance_to(h.now + 100);
-    }
+    });
     let ack = ack.expect("a SchemaAck");
-    assert!(frames > 1);
     assert_eq!(
         (ack.outcome, ack.stop),
         (SchemaOutcome::StopNotAcknowledged, 1)
@@ -218,37 +193,22 @@ fn a_trickled_transfer_loses_the_slot_within_its_budget() {
     message.extend_from_slice(postcard::to_slice(&build::idle(20, 0), &mut buf).unwrap());
     message.resize(250, 0);
     let started = h.now;
-    let mut sender = Sender::new(&message, TxConfig::default()).unwrap();
-    let mut seen = h.sent.len();
-    let mut timed_out = None;
     // One frame every 900 ms: never N_Cr (1 s) apart.
-    while h.now < started + 5_000_000 && timed_out.is_none() {
-        match sender.poll(Instant::from_micros(h.now)) {
-            TxEvent::Send(data) => {
-                h.feed(&Message::SchemaTransfer { data, len: 8 }.to_frame(TOOL, Harness::NODE_ID));
-            }
-            TxEvent::Done | TxEvent::Failed(_) => break,
-            TxEvent::WaitUntil(_) => {}
-        }
-        for (_, frame) in &h.sent[seen..] {
-            match Message::decode(frame) {
-                Ok((id, Message::SchemaTransfer { data, len })) if id.destination == TOOL => {
-                    let _ = sender
-                        .on_flow_control(&data[..usize::from(len)], Instant::from_micros(h.now));
-                }
-                Ok((id, Message::SchemaAck(ack))) if id.destination == TOOL => {
-                    timed_out = Some((h.now, ack));
-                }
-                _ => {}
-            }
-        }
-        seen = h.sent.len();
-        follow(&mut h, 900);
-    }
-    let (at, ack) = timed_out.expect("the trickle's SchemaAck");
+    let ack = send_paced(&mut h, &message, 900_000, 5_000_000, |_, _| {});
+    let ack = ack.expect("the trickle's SchemaAck");
     assert_eq!(ack.outcome, SchemaOutcome::TimedOut);
+    let answered = h
+        .messages_since(started)
+        .into_iter()
+        .find_map(|(t, _, m)| matches!(m, Message::SchemaAck(_)).then_some(t))
+        .unwrap();
+    // Exactly its budget after the first frame: the node polls at that deadline.
     let budget = 1_000_000 + 35 * 10_000;
-    assert!(at - started <= budget + 900_000, "{} µs", at - started);
+    assert!(
+        answered - started <= budget,
+        "answered {} µs after the first frame",
+        answered - started
+    );
     // The slot is free: another sender's schema goes through at once.
     assert_eq!(
         send(&mut h, 0, &build::idle(21, 0)).outcome,
@@ -270,31 +230,34 @@ fn latest_state(h: &mut Harness) -> pab_core::protocol::SchemaState {
         .expect("a SchemaState")
 }
 
-/// A schema message sent frame by frame, with `interrupt` fed between frame `at` and the next
-/// (`at` = the number of frames sent before it; the message's frame count: after the last).
-/// Returns the SchemaAck, if the node sent one, and whether the interruption came.
-fn send_interrupted(
+/// A schema message sent frame by frame as the node's flow control allows, a frame every
+/// `pace_us` µs, `before(h, sent)` called once before each frame and once after the last (`sent`:
+/// the frames sent so far). Returns the node's SchemaAck, if it sent one within `limit_us`.
+fn send_paced(
     h: &mut Harness,
     message: &[u8],
-    at: usize,
-    interrupt: &Frame,
-) -> (Option<pab_core::protocol::SchemaAck>, bool) {
+    pace_us: u64,
+    limit_us: u64,
+    mut before: impl FnMut(&mut Harness, usize),
+) -> Option<pab_core::protocol::SchemaAck> {
     let mut sender = Sender::new(message, TxConfig::default()).unwrap();
-    let since = h.now;
+    let until = h.now + limit_us;
     let mut seen = h.sent.len();
-    let (mut frames, mut ack, mut fed) = (0, None, false);
-    while h.now < since + 200_000 {
-        if frames == at && !fed {
-            h.feed(interrupt);
-            fed = true;
+    let total = if message.len() <= 7 {
+        1
+    } else {
+        1 + (message.len() - 6).div_ceil(7)
+    };
+    let (mut frames, mut called, mut ack) = (0, None, None);
+    // Past the answer only to make the call after the last frame.
+    while (ack.is_none() || (frames == total && called != Some(frames))) && h.now < until {
+        if called != Some(frames) {
+            before(h, frames);
+            called = Some(frames);
         }
-        match sender.poll(Instant::from_micros(h.now)) {
-            TxEvent::Send(data) => {
-                h.feed(&Message::SchemaTransfer { data, len: 8 }.to_frame(TOOL, Harness::NODE_ID));
-                frames += 1;
-            }
-            TxEvent::Done | TxEvent::Failed(_) if fed && ack.is_some() => break,
-            _ => {}
+        if let TxEvent::Send(data) = sender.poll(Instant::from_micros(h.now)) {
+            h.feed(&Message::SchemaTransfer { data, len: 8 }.to_frame(TOOL, Harness::NODE_ID));
+            frames += 1;
         }
         for (_, frame) in &h.sent[seen..] {
             match Message::decode(frame) {
@@ -307,9 +270,9 @@ fn send_interrupted(
             }
         }
         seen = h.sent.len();
-        h.advance_to(h.now + 100);
+        h.advance_to(h.now + pace_us);
     }
-    (ack, fed)
+    ack
 }
 
 /// Stops interleaved at every point of a transfer: an emergency stop or an abort before the
@@ -334,7 +297,13 @@ fn a_stop_at_every_point_of_a_high_priority_transfer_holds() {
             let mut h = moving();
             just_after_a_tick(&mut h);
             let since = h.now;
-            let (ack, fed) = send_interrupted(&mut h, &message, at, stop);
+            let mut fed = false;
+            let ack = send_paced(&mut h, &message, 100, 200_000, |h, sent| {
+                if sent == at {
+                    h.feed(stop);
+                    fed = true;
+                }
+            });
             assert!(fed);
             follow(&mut h, 30);
             let ack = ack.unwrap_or_else(|| panic!("no SchemaAck, stop after {at} frames"));
