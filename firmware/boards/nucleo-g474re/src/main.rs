@@ -351,7 +351,8 @@ unsafe fn NonMaskableInt() {
 /// `panic_fmt`. Only then can it see that the message is never read and drop the formatting
 /// every panic site prepares (`usize`'s `Display`, `Formatter::pad`): 1 932 bytes of flash on
 /// the BLE build, measured with `scripts/firmware-size.sh`, which fails if they come back and
-/// push the firmware past 64 KiB.
+/// push the firmware past 64 KiB. The messages themselves leave the flash only because LLVM's
+/// dead-argument elimination runs again after the inlining (`.cargo/config.toml`).
 #[panic_handler]
 #[allow(unused_attributes)]
 #[inline(always)]
