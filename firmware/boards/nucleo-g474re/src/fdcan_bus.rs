@@ -1,39 +1,58 @@
-//! The application's [`CanBus`] over embassy-stm32's FDCAN driver in buffered mode.
+//! The application's [`CanBus`] over embassy-stm32's FDCAN driver, with queues of its own.
 //!
-//! Receiving: the FDCAN interrupt drains the hardware RX FIFO (3 frames on the G4) into a
-//! [`RxQueue`] of [`RX_QUEUE`] entries, so frames that arrive while the node task is busy
-//! (arbitrating, waiting to transmit) wait there instead of overflowing the hardware FIFO.
+//! The driver runs in its unbuffered mode (its own interrupt handler clears the flags, recovers
+//! from bus-off and wakes nobody who matters), and [`QueueHandler`], bound to the same interrupt
+//! after it, does what the driver's buffered mode did, in the same order and under the same
+//! conditions: it moves one frame from the [`TX_QUEUE`]-frame transmit queue into the
+//! controller's TX FIFO if the FIFO has room, then, if a frame arrived, drains the hardware RX
+//! FIFOs (3 frames each on the G4) into the [`RX_QUEUE`]-frame receive queue, so frames that
+//! arrive while the node task is busy (arbitrating, waiting to transmit) wait there instead of
+//! overflowing the hardware FIFO. Both go through the driver's own reads and writes of the
+//! message RAM (`CanRx::read`, `CanTx::write`, polled once each). Why not the buffered mode: its
+//! queues are `embassy_sync` channels behind `dyn` references, whose every method, and the FD
+//! frames' copies of the driver's reads and writes, the firmware carried: some 2 KB of flash.
 //!
 //! **Cancel safety.** The runner drops a pending [`CanBus::receive`] when its timer fires first.
-//! `receive` awaits `BufferedCan::read`, which is `Channel::receive` on that queue: it takes an
-//! entry out of the channel only in the poll that returns it, so dropping the future before it
-//! completed leaves every frame in the queue for the next call. The periodic check of the
-//! controller state in between keeps its memory in `self.mode`, updated only in the poll that
-//! returns the change, so no transition is lost either.
+//! `receive` takes an entry out of the queue only in the poll that returns it, so dropping the
+//! future before it completed leaves every frame in the queue for the next call. The periodic
+//! check of the controller state in between keeps its memory in `self.mode`, updated only in the
+//! poll that returns the change, so no transition is lost either.
 //!
-//! Transmitting: frames go into a [`TxQueue`] that the interrupt feeds into the controller's TX
-//! FIFO (FIFO mode: frames leave in the order they were queued, which ISO-TP needs, and a full
-//! FIFO never aborts a pending frame as the driver's priority mode would). When the queue stays
-//! full for [`TX_TIMEOUT`] (nobody acknowledges, bus-off) the frame is dropped and reported, so
-//! the node keeps reading instead of blocking behind a dead bus. Identifier order is the node's
-//! outbox's work (`pab_app::node::OUTBOX_LEN`): frames already in this queue and the TX FIFO leave
-//! first in first out. The FDCAN's TX queue mode (`TxBufferMode::Priority`) is not used: it
-//! sends equal identifiers by buffer number, not in queue order, which would reorder a
-//! diagnostic round.
+//! Transmitting: frames go into the transmit queue that the interrupt feeds into the
+//! controller's TX FIFO (FIFO mode: frames leave in the order they were queued, which ISO-TP
+//! needs, and a full FIFO never aborts a pending frame as the driver's priority mode would). When
+//! the queue stays full for [`TX_TIMEOUT`] (nobody acknowledges, bus-off) the frame is dropped
+//! and reported, so the node keeps reading instead of blocking behind a dead bus. Identifier
+//! order is the node's outbox's work (`pab_app::node::OUTBOX_LEN`): frames already in this queue
+//! and the TX FIFO leave first in first out. The FDCAN's TX queue mode (`TxBufferMode::Priority`)
+//! is not used: it sends equal identifiers by buffer number, not in queue order, which would
+//! reorder a diagnostic round.
 //!
 //! Errors: the driver reports protocol errors (the controller's last error code: stuff, form,
-//! acknowledge, bit, CRC) as they are seen; error-passive and bus-off are states it does not
-//! report, so `receive` also looks at the controller state every [`STATE_POLL`] and reports each
-//! change (`ErrorPassive`, `BusOff`, `Recovered`). Bus-off recovery is automatic (the driver
-//! restarts the controller after the bus-off sequence). Known limit: when the RX queue is full
-//! the interrupt drops frames silently (the driver does not count them), so no
-//! [`BusError::Overrun`] is reported for them.
+//! acknowledge, bit, CRC) when it finds no more frame to read; error-passive and bus-off are
+//! states it does not report, so `receive` also looks at the controller state every
+//! [`STATE_POLL`] and reports each change (`ErrorPassive`, `BusOff`, `Recovered`). Bus-off
+//! recovery is automatic (the driver restarts the controller after the bus-off sequence). Known
+//! limit: when the receive queue is full the interrupt drops frames silently (as the driver's
+//! buffered mode did), so no [`BusError::Overrun`] is reported for them.
 
+use core::cell::RefCell;
+use core::future::{Future, poll_fn};
+use core::pin::pin;
+use core::sync::atomic::{AtomicBool, Ordering};
+use core::task::{Context, Poll, Waker};
+
+use critical_section::Mutex;
 use embassy_futures::select::{Either, select};
 use embassy_stm32::can::enums::BusErrorMode;
 use embassy_stm32::can::frame::Header;
-use embassy_stm32::can::{self, BufferedCan};
+use embassy_stm32::can::{self, Can, CanRx, CanTx, Properties};
+use embassy_stm32::interrupt::typelevel::{FDCAN1_IT0, Handler};
+use embassy_stm32::interrupt::{self, InterruptExt};
+use embassy_stm32::pac::FDCAN1;
+use embassy_sync::waitqueue::AtomicWaker;
 use embassy_time::{Duration, Instant, Timer, with_deadline};
+use heapless::Deque;
 use pab_app::{BusError, CanBus};
 use pab_core::Frame;
 
@@ -46,10 +65,91 @@ pub const TX_TIMEOUT: Duration = Duration::from_millis(10);
 /// How often `receive` looks at the controller state (error-active, error-passive, bus-off).
 pub const STATE_POLL: Duration = Duration::from_millis(50);
 
-/// The receive queue's storage (a `static`: the driver keeps a reference).
-pub type RxQueue = can::RxBuf<RX_QUEUE>;
-/// The transmit queue's storage.
-pub type TxQueue = can::TxBuf<TX_QUEUE>;
+/// What the interrupt and the node task share: the two queues.
+struct Queues {
+    /// Received frames, or the protocol error read after them, oldest first.
+    rx: Deque<Result<can::frame::Frame, can::enums::BusError>, RX_QUEUE>,
+    /// Frames to transmit, oldest first.
+    tx: Deque<can::frame::Frame, TX_QUEUE>,
+}
+
+/// Empty queues are all zeros: in .bss, not in flash.
+static QUEUES: Mutex<RefCell<Queues>> = Mutex::new(RefCell::new(Queues {
+    rx: Deque::new(),
+    tx: Deque::new(),
+}));
+/// The driver's two halves, the interrupt's alone once [`FdcanBus::new`] put them here (apart
+/// from the queues: `None` is not all zeros).
+static HALVES: Mutex<RefCell<Option<(CanTx<'static>, CanRx<'static>)>>> =
+    Mutex::new(RefCell::new(None));
+/// The node task waiting for a received frame.
+static RX_WAKER: AtomicWaker = AtomicWaker::new();
+/// The node task waiting for room in the transmit queue.
+static TX_WAKER: AtomicWaker = AtomicWaker::new();
+/// A new-message flag of either RX FIFO was set when the interrupt came (read by
+/// [`RxFlagHandler`] before the driver's handler clears the flags).
+static RX_FLAGGED: AtomicBool = AtomicBool::new(false);
+
+/// FDCAN1_IT0's first handler: notes whether a frame arrived (either RX FIFO's new-message flag),
+/// which the driver's handler, next, clears.
+pub struct RxFlagHandler;
+
+impl Handler<FDCAN1_IT0> for RxFlagHandler {
+    unsafe fn on_interrupt() {
+        let ir = FDCAN1.ir().read();
+        RX_FLAGGED.store(ir.rfn(0) || ir.rfn(1), Ordering::Relaxed);
+    }
+}
+
+/// FDCAN1_IT0's last handler, after the driver's: the queues' side of the interrupt, as the
+/// driver's buffered mode served them.
+pub struct QueueHandler;
+
+impl Handler<FDCAN1_IT0> for QueueHandler {
+    unsafe fn on_interrupt() {
+        critical_section::with(|cs| {
+            if let Some((tx_can, rx_can)) = &mut *HALVES.borrow_ref_mut(cs) {
+                serve(tx_can, rx_can, &mut QUEUES.borrow_ref_mut(cs));
+            }
+        });
+    }
+}
+
+/// Moves one frame from the transmit queue into the TX FIFO if it has room; then, if a frame
+/// arrived (flagged, or waiting in a FIFO: one that came after the driver's handler read the
+/// flags, which it has cleared), reads the RX FIFOs until they are empty, and the protocol error
+/// the controller holds, if any, after them, into the receive queue.
+fn serve(tx_can: &mut CanTx<'static>, rx_can: &mut CanRx<'static>, queues: &mut Queues) {
+    let Queues { rx, tx } = queues;
+    let mut cx = Context::from_waker(Waker::noop());
+    if let Some(frame) = tx.front() {
+        // Ready unless the TX FIFO is full (FIFO mode: the driver never aborts a pending frame).
+        if pin!(tx_can.write(frame)).poll(&mut cx).is_ready() {
+            tx.pop_front();
+            TX_WAKER.wake();
+        }
+    }
+    let arrived = RX_FLAGGED.load(Ordering::Relaxed)
+        || FDCAN1.rxfs(0).read().ffl() > 0
+        || FDCAN1.rxfs(1).read().ffl() > 0;
+    if arrived {
+        loop {
+            let received = match pin!(rx_can.read()).poll(&mut cx) {
+                Poll::Ready(Ok(envelope)) => Ok(envelope.frame),
+                Poll::Ready(Err(error)) => Err(error),
+                Poll::Pending => break,
+            };
+            let error = received.is_err();
+            // A full queue drops the frame, as the driver's channel did.
+            let _ = rx.push_back(received);
+            if error {
+                // Bus error states can persist: one report a pass (the driver's rule).
+                break;
+            }
+        }
+        RX_WAKER.wake();
+    }
+}
 
 /// The controller state as last reported to the node.
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -61,15 +161,21 @@ enum Mode {
 
 /// FDCAN1 as the node's bus.
 pub struct FdcanBus {
-    can: BufferedCan<'static, TX_QUEUE, RX_QUEUE>,
+    properties: Properties,
     mode: Mode,
 }
 
 impl FdcanBus {
-    /// Wraps a started, buffered FDCAN instance.
-    pub fn new(can: BufferedCan<'static, TX_QUEUE, RX_QUEUE>) -> Self {
+    /// Takes a started FDCAN instance: its two halves go to the interrupt.
+    pub fn new(can: Can<'static>) -> Self {
+        let (tx_can, rx_can, properties) = can.split();
+        // Nothing to drop: there were no halves before (forgotten rather than dropped, whose
+        // code, the driver's reference counts, took 92 bytes of flash).
+        critical_section::with(|cs| {
+            core::mem::forget(HALVES.borrow_ref_mut(cs).replace((tx_can, rx_can)));
+        });
         FdcanBus {
-            can,
+            properties,
             mode: Mode::Active,
         }
     }
@@ -77,7 +183,7 @@ impl FdcanBus {
     /// The controller state's change since the last report, as the error to report; `None` if
     /// it did not change.
     fn state_change(&mut self) -> Option<BusError> {
-        let mode = match self.can.properties().bus_error_mode() {
+        let mode = match self.properties.bus_error_mode() {
             BusErrorMode::ErrorActive => Mode::Active,
             BusErrorMode::ErrorPassive => Mode::Passive,
             BusErrorMode::BusOff => Mode::Off,
@@ -94,17 +200,27 @@ impl FdcanBus {
     }
 }
 
+/// The oldest entry of the receive queue, waiting for one. Cancel-safe: the entry leaves the
+/// queue in the poll that returns it.
+fn received() -> impl Future<Output = Result<Frame, BusError>> {
+    poll_fn(|cx| {
+        RX_WAKER.register(cx.waker());
+        match critical_section::with(|cs| QUEUES.borrow_ref_mut(cs).rx.pop_front()) {
+            Some(Ok(frame)) => Poll::Ready(Ok(pab_core::frame::from_frame(&frame))),
+            Some(Err(error)) => Poll::Ready(Err(protocol_error(&error))),
+            None => Poll::Pending,
+        }
+    })
+}
+
 impl CanBus for FdcanBus {
     async fn receive(&mut self) -> Result<Frame, BusError> {
         loop {
             if let Some(change) = self.state_change() {
                 return Err(change);
             }
-            match select(self.can.read(), Timer::at(after(STATE_POLL))).await {
-                Either::First(Ok(envelope)) => {
-                    return Ok(pab_core::frame::from_frame(&envelope.frame));
-                }
-                Either::First(Err(error)) => return Err(protocol_error(&error)),
+            match select(received(), Timer::at(after(STATE_POLL))).await {
+                Either::First(entry) => return entry,
                 Either::Second(()) => {}
             }
         }
@@ -121,9 +237,20 @@ impl CanBus for FdcanBus {
             // Unreachable for a pab_core::Frame (at most 8 bytes, valid id); reported all the same.
             return Err(BusError::Other(0xFF));
         };
-        with_deadline(after(TX_TIMEOUT), self.can.write(outgoing))
+        // Queued once there is room (cancel-safe: a frame is queued in the poll that returns),
+        // then the interrupt raised to feed it to the controller.
+        let queued = poll_fn(|cx| {
+            TX_WAKER.register(cx.waker());
+            match critical_section::with(|cs| QUEUES.borrow_ref_mut(cs).tx.push_back(outgoing)) {
+                Ok(()) => Poll::Ready(()),
+                Err(_) => Poll::Pending,
+            }
+        });
+        with_deadline(after(TX_TIMEOUT), queued)
             .await
-            .map_err(|_| BusError::Overrun)
+            .map_err(|_| BusError::Overrun)?;
+        interrupt::FDCAN1_IT0.pend();
+        Ok(())
     }
 }
 

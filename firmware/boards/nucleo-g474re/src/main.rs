@@ -58,14 +58,13 @@ use embassy_stm32::time::Hertz;
 use embassy_stm32::{bind_interrupts, rcc};
 use embedded_storage::nor_flash::ReadNorFlash;
 use pab_storage::{BootCounter, FlashStore};
-use static_cell::ConstStaticCell;
 
 // The boards' memcpy, memset, memcmp and 64-bit division (firmware/builtins): 2.5 KB less flash
 // than compiler_builtins'.
 use pab_builtins as _;
 
 use consumer::BoardConsumer;
-use fdcan_bus::{FdcanBus, RxQueue, TxQueue};
+use fdcan_bus::FdcanBus;
 
 /// This node's id (1..=127): `PAB_NODE_ID` at build time, 1 without it. Tables pushed to the
 /// node must be compiled for this id.
@@ -193,22 +192,12 @@ impl pab_app::Watchdog for NodeWatchdog {
     }
 }
 
+// IT0 carries every FDCAN interrupt. The driver's handler (unbuffered mode: it clears the flags
+// and recovers from bus-off) between the two of `fdcan_bus`, which note a frame's arrival before
+// it and serve the queues after it.
 bind_interrupts!(struct Irqs {
-    FDCAN1_IT0 => can::IT0InterruptHandler<FDCAN1>;
+    FDCAN1_IT0 => fdcan_bus::RxFlagHandler, can::IT0InterruptHandler<FDCAN1>, fdcan_bus::QueueHandler;
     FDCAN1_IT1 => can::IT1InterruptHandler<FDCAN1>;
-});
-
-/// The FDCAN driver's queues: the driver keeps references to them, so they live in a `static`,
-/// built at compile time (empty queues are all zeros, in .bss) rather than by code at boot. The
-/// node is not here: it lives in the main task's future, itself in a static (the executor's
-/// pool). Together, rather than a `StaticCell` for the node and the queues: 172 bytes of flash.
-struct Queues {
-    rx: RxQueue,
-    tx: TxQueue,
-}
-static QUEUES: ConstStaticCell<Queues> = ConstStaticCell::new(Queues {
-    rx: RxQueue::new(),
-    tx: TxQueue::new(),
 });
 
 /// Turns on the flash's prefetch buffer and its instruction and data caches (the ART
@@ -241,10 +230,6 @@ async fn main(_spawner: Spawner) {
 
     let led = Output::new(p.PA5, Level::Low, Speed::Low);
 
-    let Some(Queues { rx, tx }) = QUEUES.try_take() else {
-        defmt::panic!("FDCAN queues taken twice");
-    };
-
     let mut can = CanConfigurator::new(p.FDCAN1, p.PA11, p.PA12, Irqs);
     let config = can
         .config()
@@ -267,10 +252,7 @@ async fn main(_spawner: Spawner) {
         .set_automatic_retransmit(true)
         .set_automatic_bus_off_recovery(true);
     can.set_config(config);
-    let can = can
-        .start(OperatingMode::NormalOperationMode)
-        .buffered(tx, rx);
-    let mut bus = FdcanBus::new(can);
+    let mut bus = FdcanBus::new(can.start(OperatingMode::NormalOperationMode));
 
     let mut flash = Flash::new_blocking(p.FLASH);
     let config = unwrap!(pab_app::Config::new(NODE_ID));
@@ -369,7 +351,8 @@ unsafe fn NonMaskableInt() {
 /// `panic_fmt`. Only then can it see that the message is never read and drop the formatting
 /// every panic site prepares (`usize`'s `Display`, `Formatter::pad`): 1 932 bytes of flash on
 /// the BLE build, measured with `scripts/firmware-size.sh`, which fails if they come back and
-/// push the firmware past 64 KiB.
+/// push the firmware past 64 KiB. The messages themselves leave the flash only because LLVM's
+/// dead-argument elimination runs again after the inlining (`.cargo/config.toml`).
 #[panic_handler]
 #[allow(unused_attributes)]
 #[inline(always)]
