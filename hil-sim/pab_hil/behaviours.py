@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import can
 
 from . import world as w
+from .realtime import make_current_thread_realtime
 
 # The topics' CAN ids: the publishers' own, unchanged (see examples/take-and-return.toml).
 OBJECT_POS = 0x110
@@ -124,6 +125,8 @@ def publish_forever(behaviour: Behaviour, world: w.World, iface: str, loss: Loss
     drop frames at random and count them in `counts` (a shared array: frames sent, dropped); while
     `paused` (an event) is set, publish nothing."""
     signal.signal(signal.SIGTERM, lambda *_: os._exit(0))
+    # Another computer's sensor pipeline: its clock does not wait for the nodes (pab_hil.realtime).
+    make_current_thread_realtime()
     bus = can.Bus(interface="socketcan", channel=iface)
     rng = random.Random(f"{loss.seed}:{behaviour.name}") if loss else None
     period = 1.0 / behaviour.rate_hz

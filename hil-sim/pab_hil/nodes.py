@@ -17,6 +17,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from .realtime import make_realtime
+
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLES = REPO / "examples"
 TAKE_AND_RETURN = EXAMPLES / "take-and-return.toml"
@@ -77,6 +79,8 @@ class NodeProcess:
             stdout=log,
             stderr=subprocess.STDOUT,
         )
+        # A node under test runs as a robot's controller would: real-time (pab_hil.realtime).
+        make_realtime(self.process.pid)
         log.close()
         # A node that cannot start (no interface...) exits at once with status 2: say so here.
         time.sleep(0.2)

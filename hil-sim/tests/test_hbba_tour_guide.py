@@ -18,7 +18,9 @@ import tomllib
 
 import can
 
-from pab_hil import nodes, protocol as p
+from pab_hil import nodes
+from pab_hil import protocol as p
+from pab_hil.realtime import make_realtime
 from pab_hil.nodes import EXAMPLES, Nodes, binary
 
 TOUR_GUIDE = EXAMPLES / "tour-guide.toml"
@@ -192,6 +194,7 @@ def test_tour_guide_desires_set_the_boards_filters(iface, out_dir, figures, boun
         intent = subprocess.Popen([str(binary("pab-intent")), "--interface", iface,
                                    "--network", str(TOUR_GUIDE)],
                                   stdout=log, stderr=subprocess.STDOUT)
+        make_realtime(intent.pid)
         log.close()
         # The intention node's first Intention (nothing desired): it is up.
         wait_until("pab-intent's first Intention", lambda: intentions(rec), 30)

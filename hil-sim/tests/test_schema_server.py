@@ -38,6 +38,7 @@ from pab_hil import nodes
 from pab_hil import protocol as p
 from pab_hil.nodes import REPO, binary
 from pab_hil.observe import Recorder
+from pab_hil.realtime import make_realtime
 
 ASSEMBLY = REPO / "examples" / "assembly.toml"
 ARM = 10
@@ -159,10 +160,12 @@ class Rig:
         pushed = nodes.push(network, iface, node="arm", key=key)
         assert pushed.ok, pushed.output
         nodes.pushed_within_budget(bound, pushed)
+        # The plant is the robot's drive, a device of its own: real-time, as the node.
         self.plant = subprocess.Popen(
             [str(binary("pabctl")), "plant", str(network), "--iface", iface,
              "--log", str(out / "plant.csv")],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        make_realtime(self.plant.pid)
         # Every frame goes to the candump log, from a process of its own; the client's socket
         # takes only the node's answers (its filters), so that neither falls behind the other's
         # share of the bus (the plant alone sends 800 frames a second).
