@@ -17,7 +17,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from .realtime import make_realtime
+from .realtime import keep_softirq_ahead, make_realtime
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLES = REPO / "examples"
@@ -79,8 +79,10 @@ class NodeProcess:
             stdout=log,
             stderr=subprocess.STDOUT,
         )
-        # A node under test runs as a robot's controller would: real-time (pab_hil.realtime).
-        make_realtime(self.process.pid)
+        # A node under test runs as a robot's controller would: real-time, with the kernel's
+        # softirq threads ahead of it (pab_hil.realtime).
+        if make_realtime(self.process.pid):
+            keep_softirq_ahead()
         log.close()
         # A node that cannot start (no interface...) exits at once with status 2: say so here.
         time.sleep(0.2)

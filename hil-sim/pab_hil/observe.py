@@ -8,6 +8,7 @@ import platform
 import shutil
 import signal
 import subprocess
+import sys
 import threading
 import time
 from collections import defaultdict
@@ -165,19 +166,25 @@ class Recorder:
         """Stops the recording once candump has written every frame received before the call.
 
         candump stops at once on SIGINT, whatever its socket still holds: first it is let catch
-        up, until the log holds a frame stamped after the call (the bus is busy) or stops growing
-        for `IDLE_S` (the bus is quiet, or candump has caught up and holds the rest in its output
-        buffer, which it writes as it exits)."""
+        up, until the log holds a frame stamped after the call (the bus is busy) or candump has
+        been seen waiting for frames, its socket empty, for `IDLE_S` (the bus is quiet; what it
+        holds in its output buffer it writes as it exits). Not "the log stopped growing": a
+        candump kept off the CPU by the real-time nodes of a flood stops growing its log too,
+        and was stopped with 2 109 of the flood's 5 000 frames unread."""
         if self.process.poll() is None:
             until = time.time()
-            size, still_since = -1, time.monotonic()
-            while True:
-                grown = self.log_path.stat().st_size
-                if grown != size:
-                    size, still_since = grown, time.monotonic()
-                if _last_timestamp(self.log_path) >= until:
-                    break
-                if time.monotonic() - still_since >= IDLE_S:
+            deadline = time.monotonic() + CATCH_UP_S
+            waiting_since = None
+            while _last_timestamp(self.log_path) < until:
+                if _waiting_for_input(self.process.pid):
+                    waiting_since = waiting_since or time.monotonic()
+                    if time.monotonic() - waiting_since >= IDLE_S:
+                        break
+                else:
+                    waiting_since = None
+                if time.monotonic() > deadline:
+                    print(f"pab-hil: the bus recorder was still behind {CATCH_UP_S} s after the "
+                          f"run: {self.log_path} may lack its last frames", file=sys.stderr)
                     break
                 time.sleep(0.02)
             self.process.send_signal(signal.SIGINT)
@@ -195,8 +202,10 @@ class Recorder:
 # A CAN frame costs about 1 KiB of a socket's receive buffer: 64 MiB holds a flood of some 60 000
 # frames while candump writes.
 RECORDER_BUFFER = 64 << 20
-# s: how long the log must stay the same size for candump to count as caught up.
+# s: how long candump must be seen waiting for frames to count as caught up.
 IDLE_S = 0.5
+# s: how long it is given to catch up at most.
+CATCH_UP_S = 120
 
 # System calls a process waits for frames in, by machine: poll, select, recvmsg, pselect6, ppoll,
 # epoll_wait, epoll_pwait (candump waits in select).
@@ -204,6 +213,19 @@ _WAIT_SYSCALLS = {
     "x86_64": {7, 23, 47, 270, 271, 232, 281},
     "aarch64": {73, 72, 212, 22},
 }.get(platform.machine(), set())
+
+
+def backlog_drops() -> int | None:
+    """Frames the kernel dropped from its receive backlogs since boot, summed over CPUs (the
+    second column of /proc/net/softnet_stat); None where there is no such file.
+
+    On vcan every frame written reaches the other sockets through that backlog: a drop there is
+    a frame lost on the bus that no node and no socket counts (the writer's write succeeded)."""
+    try:
+        with open("/proc/net/softnet_stat") as stat:
+            return sum(int(line.split()[1], 16) for line in stat if line.strip())
+    except (OSError, IndexError, ValueError):
+        return None
 
 
 def _waiting_for_input(pid: int) -> bool:

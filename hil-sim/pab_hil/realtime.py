@@ -16,15 +16,31 @@ asks the scheduler for SCHED_FIFO where it may (root: the micro-VM). Measured:
 
 Where the class cannot be had (not root, not Linux), everything runs at normal priority, as
 before, and the bounds' allowances are what absorb the scheduler (`pab_hil.speed`).
+
+Once anything runs real-time, the kernel's softirq threads (`ksoftirqd/N`) must run ahead of it:
+on vcan every frame written reaches the other sockets through the writing CPU's receive backlog,
+which a softirq empties, and a kernel without PREEMPT_RT leaves that work to `ksoftirqd` at normal
+priority once it has run long. A node re-publishing a flood at SCHED_FIFO then kept `ksoftirqd` off
+its CPU, the backlog (`netdev_max_backlog`, 1 000 frames) overflowed and the kernel dropped frames
+the node had written, without an error to the node: 926 in one run of the flood tests beside two
+busy processes (`/proc/net/softnet_stat`, which those tests now read), the re-publications
+missing from the log. A robot's Linux controller that runs `pab-node`
+real-time needs the same (`chrt -f -p 11 $(pgrep ksoftirqd)`), or it loses the echo of its own
+frames to local listeners (on vcan: the bus).
 """
 
 from __future__ import annotations
 
+import atexit
 import os
 
 #: SCHED_FIFO's priority for the harness's loops: above every normal process, far below the
 #: kernel's own threads (which run at 50).
 PRIORITY = 10
+
+#: SCHED_FIFO's priority for the kernel's softirq threads while the suite runs loops real-time:
+#: just above them.
+SOFTIRQ_PRIORITY = PRIORITY + 1
 
 
 def make_current_thread_realtime(priority: int = PRIORITY) -> bool:
@@ -48,3 +64,48 @@ def make_realtime(pid: int, priority: int = PRIORITY) -> bool:
         return True
     except (AttributeError, OSError):
         return False
+
+
+_softirq_restore: dict[int, tuple[int, int]] = {}
+
+
+def keep_softirq_ahead(priority: int = SOFTIRQ_PRIORITY) -> int:
+    """Puts every `ksoftirqd/N` thread in SCHED_FIFO at `priority`, once per process, and puts
+    them back as they were when the process exits (on a developer's machine with vcan0, as root,
+    the suite leaves the kernel as it found it). Returns how many threads run at `priority`; 0
+    where that is not allowed."""
+    if not _softirq_restore:
+        for pid in _softirq_threads():
+            try:
+                policy = os.sched_getscheduler(pid)
+                previous = os.sched_getparam(pid).sched_priority
+                os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(priority))
+            except (AttributeError, OSError):
+                continue
+            _softirq_restore[pid] = (policy, previous)
+        if _softirq_restore:
+            atexit.register(_restore_softirq)
+    return len(_softirq_restore)
+
+
+def _softirq_threads() -> list[int]:
+    threads = []
+    for entry in os.scandir("/proc") if os.path.isdir("/proc") else ():
+        if not entry.name.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry.name}/comm") as comm:
+                if comm.read().startswith("ksoftirqd/"):
+                    threads.append(int(entry.name))
+        except OSError:
+            continue  # gone meanwhile
+    return threads
+
+
+def _restore_softirq() -> None:
+    for pid, (policy, priority) in _softirq_restore.items():
+        try:
+            os.sched_setscheduler(pid, policy, os.sched_param(priority))
+        except OSError:
+            pass  # nothing left to restore
+    _softirq_restore.clear()

@@ -5,14 +5,16 @@ by the kernel), re-publishes exactly what it counts as delivered, and the figure
 from __future__ import annotations
 
 import math
+import os
 import re
 import shutil
 import subprocess
 import time
+from pathlib import Path
 
 import pytest
 
-from pab_hil import analysis, behaviours as b, protocol as p, world as w
+from pab_hil import analysis, behaviours as b, observe, protocol as p, world as w
 from pab_hil.nodes import NODE_IDS
 from pab_hil.person import TakeAndReturn
 
@@ -21,6 +23,9 @@ ARM = NODE_IDS["arm"]
 # Sent after the flood has drained: the kernel reports the frames it dropped with the next frame
 # the node reads, and the flood's last losses need one. No table uses this identifier.
 SENTINEL = 0x7F0
+# Frames each CPU's receive backlog holds (the kernel's default, and the micro-VM's).
+BACKLOG = int(Path("/proc/sys/net/core/netdev_max_backlog").read_text()) \
+    if Path("/proc/sys/net/core/netdev_max_backlog").exists() else 1000
 SMALL_BUFFER = 16384  # bytes: 22 frames at 768 bytes each
 TRUESIZE = 768  # what the kernel charges per queued CAN frame (python -m pab_hil.truesize)
 
@@ -45,8 +50,8 @@ def frames_lost(messages, before=None):
 
 @pytest.mark.parametrize("gap_ms, rcvbuf", [(1, None), (0, None), (0, SMALL_BUFFER)],
                          ids=["paced-1ms", "full-speed", f"full-speed-{SMALL_BUFFER}-byte-buffer"])
-def test_arm_node_accounts_for_every_frame_of_a_flood(session_for, iface, out_dir, figures, gap_ms,
-                                                      rcvbuf):
+def test_arm_node_accounts_for_every_frame_of_a_flood(session_for, iface, out_dir, figures, bound,
+                                                      gap_ms, rcvbuf):
     node_args = {"arm": ("--rcvbuf", str(rcvbuf))} if rcvbuf else None
     session = session_for(TakeAndReturn(show_at=math.inf), behaviours=(), node_args=node_args)
     session.stream(0)
@@ -57,6 +62,7 @@ def test_arm_node_accounts_for_every_frame_of_a_flood(session_for, iface, out_di
     time.sleep(0.3)  # their last frames read
 
     before_traffic, before_errors = counters(session)
+    backlog_drops_before = observe.backlog_drops()
     cangen = shutil.which("cangen")
     assert cangen, "the flood needs cangen (can-utils: apt-get install can-utils)"
     # One frame per `gap_ms` (0: as fast as the socket takes them), waiting for room on ENOBUFS.
@@ -75,6 +81,7 @@ def test_arm_node_accounts_for_every_frame_of_a_flood(session_for, iface, out_di
         pytest.fail("the arm node was still reading the flood after 60 heartbeat groups")
     session.listening.send(SENTINEL, b"", extended=False)
     after_traffic, after_errors = counters(session)
+    backlog_drops = (observe.backlog_drops() or 0) - (backlog_drops_before or 0)
     session.close()
 
     messages = analysis.read_log(session.log_path)
@@ -99,6 +106,10 @@ def test_arm_node_accounts_for_every_frame_of_a_flood(session_for, iface, out_di
     # payloads are the flood's own.
     index = {bytes(m.data): i for i, m in enumerate(flood)}
     assert all(bytes(m.data) in index for m in republished)
+    # A re-publication the kernel dropped on its way to the other sockets is lost on the bus
+    # (vcan) with no error to the node: the softirq that carries frames to sockets was kept from
+    # running (pab_hil.realtime).
+    assert backlog_drops == 0, f"the kernel dropped {backlog_drops} frames from its receive backlogs"
     assert delivered == len(republished), (delivered, len(republished))
     # No flood frame is re-published twice, and every flood frame missing from the
     # re-publications between the first and the last was counted as lost (C1 stays active
@@ -127,16 +138,18 @@ def test_arm_node_accounts_for_every_frame_of_a_flood(session_for, iface, out_di
             if i not in present and republished[0].timestamp <= flood[i].timestamp)
         queued_at_first_loss = first_lost - 1 - read_up_to
         # The kernel drops a frame only when the queue holds `capacity` frames. What is measured
-        # here can only be more: a frame is timestamped when sent, and queued (or dropped) when
-        # the kernel's softirq gets to it, by then the node may have read further; and the node
-        # may have read a frame it has not re-published yet. So: at least the capacity, and
-        # more by at most the frames offered in 50 ms (softirq and scheduling delays on the
-        # emulated machine: measured up to 7 frames over a capacity of 22 at 2 600 frames/s, and
-        # 315 over 22 at 13 900 frames/s, 21 ms of them, in a quiet fresh-clone run).
-        slack = max(2, round(FLOOD / sent_in * 0.050))
-        assert capacity - 1 <= queued_at_first_loss <= capacity + slack, (
-            f"frame {first_lost} was dropped with {queued_at_first_loss} frames waiting, "
-            f"but the queue holds {capacity} (slack {slack})")
+        # here can only be more: a frame is timestamped when it is sent, into the sending CPU's
+        # backlog, and queued (or dropped) when the kernel's softirq gets to it; the frames ahead
+        # of it in the backlogs reach the node first, and it may read them meanwhile. And the
+        # node may have read a frame it has not re-published yet. So: at least the capacity, and
+        # more by at most what the backlogs hold and one. Not a time: how far the softirq
+        # trails the sender is the emulated machine's scheduling (in quiet fresh-clone runs, 7
+        # frames over a capacity of 22 at 2 600 frames/s and 315 at 13 900 frames/s; 201 at
+        # 3 400 frames/s beside two busy processes).
+        backlogs = BACKLOG * (os.cpu_count() or 1)
+        bound("frames waiting when the first was dropped", queued_at_first_loss, unit="frames",
+              least=capacity - 1, most=capacity + backlogs + 1,
+              detail=f"frame {first_lost}; the queue holds {capacity}, the backlogs {backlogs}")
     offered = FLOOD / sent_in
     span = republished[-1].timestamp - flood[0].timestamp
     node_rate = (received - 1) / span
