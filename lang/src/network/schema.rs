@@ -69,6 +69,9 @@ pub(super) struct RawSchema {
     stale_ms: Option<Spanned<f64>>,
     sensor_stale_ms: Option<Spanned<f64>>,
     watchdog_margin_ms: Option<Spanned<f64>>,
+    drive_speed_mm_s: Option<Spanned<f64>>,
+    drive_rate_rad_s: Option<Spanned<f64>>,
+    pose_noise_mm: Option<Spanned<f64>>,
     stiffness_n_per_m: Option<Spanned<f64>>,
     damping_ns_per_m: Option<Spanned<f64>>,
     drive: Spanned<RawDrive>,
@@ -773,6 +776,31 @@ impl Builder<'_> {
             config.watchdog_margin_ms,
             "watchdog_margin_ms",
             "ms",
+            true,
+        );
+        // The drive's own limits: a pose frame that jumps farther is implausible.
+        config.drive_speed = self.scaled(
+            raw.drive_speed_mm_s.as_ref(),
+            1000.0,
+            config.drive_speed,
+            "drive_speed_mm_s",
+            "mm/s",
+            false,
+        );
+        config.drive_rate = self.scaled(
+            raw.drive_rate_rad_s.as_ref(),
+            1_000_000.0,
+            config.drive_rate,
+            "drive_rate_rad_s",
+            "rad/s",
+            false,
+        );
+        config.pose_noise = self.scaled(
+            raw.pose_noise_mm.as_ref(),
+            1000.0,
+            config.pose_noise,
+            "pose_noise_mm",
+            "mm",
             true,
         );
         config.stiffness = self.scaled(
