@@ -843,7 +843,7 @@ fn contact_against_a_move_from_the_end_of_the_pose_range_does_not_overflow() {
     assert_eq!(server.current(), Schema::WAIT_QUEUE);
 }
 
-// ---- The table image's schema server (format 8) ----
+// ---- The table image's schema server (format 9) ----
 
 /// A sensor on `id` reading an unsigned little-endian field at `offset` of `size` bytes.
 fn sensor(id: pab_core::OutputId, offset: u8, size: u8) -> pab_core::schema::Sensor {

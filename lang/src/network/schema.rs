@@ -2037,4 +2037,44 @@ hold = \"idle(); below(gap, 0.3) -> retreat\"
             ]
         );
     }
+
+    #[test]
+    fn the_drives_limits_come_from_the_file_in_its_units() {
+        let base = "[nodes.arm]\nid = 10\n[schema.arm]\ndrive = { setpoint = 0x300, pose = 0x310, wrench = 0x320 }\n";
+        let network = Network::parse(Source::new(
+            "net.toml",
+            &format!("{base}drive_speed_mm_s = 250\ndrive_rate_rad_s = 1.5\npose_noise_mm = 0.2\n"),
+        ))
+        .unwrap();
+        let config = &network.schema_boards[0].config;
+        assert_eq!(
+            (config.drive_speed, config.drive_rate, config.pose_noise),
+            (250_000, 1_500_000, 200)
+        );
+        // The defaults: 2 m/s, 2π rad/s, 1 mm.
+        let config = &Network::parse(Source::new("net.toml", base))
+            .unwrap()
+            .schema_boards[0]
+            .config;
+        assert_eq!(
+            (config.drive_speed, config.drive_rate, config.pose_noise),
+            (2_000_000, 6_283_185, 1000)
+        );
+        let e: Vec<String> = Network::parse(Source::new(
+            "net.toml",
+            &format!("{base}drive_speed_mm_s = 0\npose_noise_mm = -1\n"),
+        ))
+        .unwrap_err()
+        .0
+        .iter()
+        .map(|d| d.to_string())
+        .collect();
+        assert_eq!(
+            e,
+            [
+                "net.toml:5:20: error: drive_speed_mm_s must be above 0 and at most 500000 mm/s",
+                "net.toml:6:17: error: pose_noise_mm must be 0 and at most 500000 mm",
+            ]
+        );
+    }
 }
