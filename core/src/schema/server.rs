@@ -874,16 +874,23 @@ fn axis_excess(v: i32, lo: i32, hi: i32) -> u32 {
 // Out of line: called for every pose frame, not inlined into the node's frame path.
 #[inline(never)]
 fn plausible(c: &Config, last: &Pose, next: &Pose, dt_us: u64) -> bool {
-    let allowance = |speed: u32| {
-        u64::from(speed)
-            .saturating_mul(dt_us)
-            .div_ceil(1_000_000)
-            .saturating_add(u64::from(c.pose_noise))
-    };
-    let (translation, rotation) = (allowance(c.drive_speed), allowance(c.drive_rate));
+    let (translation, rotation) = (
+        allowance(c.drive_speed, dt_us, c.pose_noise),
+        allowance(c.drive_rate, dt_us, c.pose_noise),
+    );
     last.iter().zip(next).enumerate().all(|(axis, (a, b))| {
         u64::from(a.abs_diff(*b)) <= if axis < 3 { translation } else { rotation }
     })
+}
+
+/// How far an axis may move in `dt_us` at `speed` (per second), plus `noise`: saturating.
+// Out of line: `plausible`'s two axes' kinds each inlined a copy (its 64-bit division).
+#[inline(never)]
+fn allowance(speed: u32, dt_us: u64, noise: u32) -> u64 {
+    u64::from(speed)
+        .saturating_mul(dt_us)
+        .div_ceil(1_000_000)
+        .saturating_add(u64::from(noise))
 }
 
 /// Whether a reading from `at` is at most `limit` µs old at `now` (one from the future is).
