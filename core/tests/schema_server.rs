@@ -843,7 +843,7 @@ fn contact_against_a_move_from_the_end_of_the_pose_range_does_not_overflow() {
     assert_eq!(server.current(), Schema::WAIT_QUEUE);
 }
 
-// ---- The table image's schema server (format 8) ----
+// ---- The table image's schema server (format 9) ----
 
 /// A sensor on `id` reading an unsigned little-endian field at `offset` of `size` bytes.
 fn sensor(id: pab_core::OutputId, offset: u8, size: u8) -> pab_core::schema::Sensor {
@@ -1159,4 +1159,112 @@ fn corrupted_schema_server_images_never_load_a_bad_set_up() {
     // Most corruptions are caught; some land on a value that is merely different (a threshold,
     // a speed) and still valid.
     assert!(refused > loaded, "{refused} refused, {loaded} loaded");
+}
+
+#[test]
+fn a_pose_that_jumps_farther_than_the_drive_can_move_stops_the_server_where_the_robot_is() {
+    let mut config = Config::new(PERIOD);
+    config.drive_speed = 500_000; // 0.5 m/s: 500 µm a tick
+    config.drive_rate = 1_000_000;
+    config.pose_noise = 200;
+    let mut rig = Rig::new(config);
+    rig.server
+        .enqueue(build::move_to(1, goal_x(50_000), 100_000))
+        .unwrap();
+    for _ in 0..20 {
+        rig.step();
+    }
+    // The robot measured where the attractor took it, then a forged pose 400 mm away just before
+    // the stop: not taken.
+    let true_pose = rig.pose;
+    let now = at(rig.tick);
+    rig.server.set_pose(true_pose, now);
+    rig.server.set_pose(goal_x(400_000), now);
+    rig.server.emergency_stop();
+    rig.tick += 1;
+    let out = rig.server.tick(at(rig.tick));
+    assert_eq!(
+        out.transitions[0].by,
+        Trigger::Safety(Safety::EmergencyStop)
+    );
+    // The stop's set-point is the last plausible pose, not the forged one.
+    assert_eq!(out.setpoint.unwrap().attractor, true_pose);
+    // True poses after it are taken, and the attractor stays on the robot.
+    for _ in 0..50 {
+        rig.step();
+    }
+    assert_eq!(rig.pose, true_pose);
+    // Running, an implausible pose is a safety event of its own.
+    let mut rig = Rig::new(config_with_drive());
+    rig.server
+        .enqueue(build::move_to(1, goal_x(50_000), 100_000))
+        .unwrap();
+    for _ in 0..5 {
+        rig.step();
+    }
+    let before = rig.pose;
+    rig.server.set_pose(before, at(rig.tick));
+    rig.server.set_pose(goal_x(-30_000), at(rig.tick));
+    rig.tick += 1;
+    let out = rig.server.tick(at(rig.tick));
+    assert_eq!(
+        out.transitions[0].by,
+        Trigger::Safety(Safety::ImplausibleSensor)
+    );
+    assert_eq!(out.setpoint.unwrap().attractor, before);
+    assert_eq!(rig.server.fault(), Some(Safety::ImplausibleSensor));
+}
+
+#[test]
+fn the_drive_moving_at_its_top_speed_is_plausible_on_every_axis() {
+    let mut config = config_with_drive();
+    config.pose_noise = 0;
+    let mut server = Server::new(config).unwrap();
+    let mut pose = [0; AXES];
+    server.set_pose(pose, at(0));
+    server.set_wrench([0; AXES], at(0));
+    // 500 µm a tick on x, 1 000 µrad a tick on rz: exactly the limits.
+    for tick in 1..=100u64 {
+        pose[0] += 500;
+        pose[5] -= 1000;
+        server.set_pose(pose, at(tick));
+        server.set_wrench([0; AXES], at(tick));
+        let out = server.tick(at(tick));
+        assert!(
+            out.transitions.is_empty(),
+            "tick {tick}: {:?}",
+            out.transitions
+        );
+    }
+    // One µm more than the drive can do in a tick: a safety event, also while the server waits
+    // on its queue (a wait is not tested for stale sensors, but an implausible pose is a sign).
+    pose[1] += 501;
+    server.set_pose(pose, at(101));
+    let out = server.tick(at(101));
+    assert_eq!(
+        out.transitions[0].by,
+        Trigger::Safety(Safety::ImplausibleSensor)
+    );
+    assert_eq!(server.fault(), Some(Safety::ImplausibleSensor));
+}
+
+fn config_with_drive() -> Config {
+    let mut config = Config::new(PERIOD);
+    config.drive_speed = 500_000;
+    config.drive_rate = 1_000_000;
+    config.pose_noise = 200;
+    config
+}
+
+#[test]
+fn a_drive_that_cannot_move_is_a_refused_set_up() {
+    let mut config = Config::new(PERIOD);
+    config.drive_speed = 0;
+    assert_eq!(
+        Server::new(config).err(),
+        Some(pab_core::schema::ConfigError::DriveLimits)
+    );
+    let mut config = Config::new(PERIOD);
+    config.drive_rate = 0;
+    assert!(Server::new(config).is_err());
 }

@@ -56,7 +56,8 @@ SETPOINT = 0x300
 ACK_TIMEOUT_S = 1.0
 POSE = 0x310
 
-SAFETY_NAMES = {0: "estop", 1: "stale", 2: "limit", 3: "force", 4: "watchdog", 5: "overrun"}
+SAFETY_NAMES = {0: "estop", 1: "stale", 2: "limit", 3: "force", 4: "watchdog", 5: "overrun",
+                6: "implausible"}
 AXES = ("x", "y", "z", "rx", "ry", "rz")
 
 

@@ -185,6 +185,7 @@ class SchemaSafety(enum.IntEnum):
     Force = 3
     Watchdog = 4
     Overrun = 5
+    ImplausibleSensor = 6
 
 
 def _code(enum_type, code: int, what: str):

@@ -47,6 +47,7 @@ def test_codes_are_the_documents():
         "Force",
         "Watchdog",
         "Overrun",
+        "ImplausibleSensor",
     ]
     assert SchemaOutcome.QueueFull.description.startswith("queue full")
 
@@ -96,7 +97,7 @@ def test_transitions_round_trip_and_refuse_a_detail_against_their_trigger():
         good[:4] + b"\x04" + good[5:],  # unknown trigger
         good[:6] + b"\x03" + good[7:],  # unknown source
         SchemaTransition(1, 2, SchemaTrigger.Safety, 0, SchemaOrigin.Innate, 0).encode()[:5]
-        + b"\x06\x00\x00",  # unknown safety cause
+        + b"\x07\x00\x00",  # unknown safety cause
     ):
         with pytest.raises(MalformedFrame):
             SchemaTransition.decode(data)
@@ -113,7 +114,7 @@ def test_states_round_trip_with_their_stop_number_and_refuse_unknown_codes():
     assert SchemaState.decode(bytes([1, 0, 1, 0xFF, 0, 0b0001_0101, 0, 0])).stop == 5
     good = SchemaState(1, SchemaOrigin.Innate, None, 0, True, False, 10).encode()
     for data in (
-        good[:3] + b"\x06" + good[4:],  # unknown safety event
+        good[:3] + b"\x07" + good[4:],  # unknown safety event
         good[:2] + b"\x03" + good[3:],  # unknown source
         good[:6],
     ):

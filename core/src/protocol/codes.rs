@@ -269,6 +269,8 @@ wire_enum! {
         Watchdog = 4, "watchdog";
         /// A tick came later than the board's overrun bound.
         Overrun = 5, "loop overrun";
+        /// The measured pose jumped farther than the drive can move.
+        ImplausibleSensor = 6, "implausible pose";
     }
 }
 
@@ -360,7 +362,7 @@ mod tests {
             assert_eq!(SchemaChannel::from_code(channel.code()), Some(*channel));
         }
         assert_eq!(SchemaOutcome::from_code(0x11), None);
-        assert_eq!(SchemaSafety::from_code(6), None);
+        assert_eq!(SchemaSafety::from_code(7), None);
         assert_eq!(SchemaSafety::from_code(0xFF), None);
         assert_eq!(SchemaTrigger::from_code(4), None);
         assert_eq!(SchemaOrigin::from_code(3), None);

@@ -768,6 +768,12 @@ impl Message {
         Some(frame(self.service(), source, destination, data, len))
     }
 
+    /// The 8 bytes of a report's payload as it goes on the wire (zeros past its length); `None`
+    /// for a command. What a Receipt's tag covers, without building the frame.
+    pub fn report_bytes(&self) -> Option<[u8; 8]> {
+        self.report_payload().map(|(word, _)| word.to_le_bytes())
+    }
+
     /// The payload of a message a node sends, and its length; `None` for a command.
     fn report_payload(&self) -> Option<(u64, u8)> {
         Some(match self {
@@ -1535,7 +1541,7 @@ mod tests {
         ));
         assert!(refused(
             Service::SchemaTransition,
-            &[1, 0, 0x16, 0xFF, 2, 6, 0, 0]
+            &[1, 0, 0x17, 0xFF, 2, 7, 0, 0]
         ));
         assert!(refused(
             Service::SchemaTransition,
@@ -1552,7 +1558,7 @@ mod tests {
             &[0, 0, 2, 5, 8, 0xFF, 0xFF, 0xFF]
         ));
         assert!(refused(Service::SchemaState, &[0, 0, 3, 0xFF, 0, 0, 0, 0]));
-        assert!(refused(Service::SchemaState, &[0, 0, 0, 6, 0, 0, 0, 0]));
+        assert!(refused(Service::SchemaState, &[0, 0, 0, 7, 0, 0, 0, 0]));
     }
 
     #[test]

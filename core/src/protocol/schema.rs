@@ -19,6 +19,7 @@ impl From<Safety> for SchemaSafety {
             Safety::Force => SchemaSafety::Force,
             Safety::Watchdog => SchemaSafety::Watchdog,
             Safety::Overrun => SchemaSafety::Overrun,
+            Safety::ImplausibleSensor => SchemaSafety::ImplausibleSensor,
         }
     }
 }
@@ -32,6 +33,7 @@ impl From<SchemaSafety> for Safety {
             SchemaSafety::Force => Safety::Force,
             SchemaSafety::Watchdog => Safety::Watchdog,
             SchemaSafety::Overrun => Safety::Overrun,
+            SchemaSafety::ImplausibleSensor => Safety::ImplausibleSensor,
         }
     }
 }
@@ -156,13 +158,14 @@ mod tests {
     use crate::protocol::{BROADCAST, Message};
     use crate::schema::{Event, Schema};
 
-    const SAFETIES: [Safety; 6] = [
+    const SAFETIES: [Safety; 7] = [
         Safety::EmergencyStop,
         Safety::StaleSensor,
         Safety::Limit,
         Safety::Force,
         Safety::Watchdog,
         Safety::Overrun,
+        Safety::ImplausibleSensor,
     ];
 
     #[test]

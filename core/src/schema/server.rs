@@ -13,8 +13,9 @@ use crate::time::Instant;
 /// schema, and no schema can remove them.
 ///
 /// Order: the emergency stop first (it is handled with the high-priority channel, step 2), then a
-/// stale sensor (the tests after it would read stale values), the workspace limit, the force
-/// limit, the watchdog and the overrun.
+/// stale sensor (the tests after it would read stale values), an implausible pose, the workspace
+/// limit, the force limit, the watchdog and the overrun. (The numbers are the wire codes, in the
+/// order the events came to be.)
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[repr(u8)]
@@ -33,6 +34,10 @@ pub enum Safety {
     Watchdog = 4,
     /// A tick came later than the board's overrun bound after the previous one.
     Overrun = 5,
+    /// The measured pose jumped farther than the drive can move since the previous one (its
+    /// speed limits, [`Config::drive_speed`], and the sensor's noise): a forged or broken pose
+    /// frame. The pose is not taken; the stop holds the last plausible one.
+    ImplausibleSensor = 6,
 }
 
 impl Safety {
@@ -45,6 +50,7 @@ impl Safety {
             Safety::Force => "force",
             Safety::Watchdog => "watchdog",
             Safety::Overrun => "overrun",
+            Safety::ImplausibleSensor => "implausible",
         }
     }
 
@@ -57,6 +63,7 @@ impl Safety {
             3 => Safety::Force,
             4 => Safety::Watchdog,
             5 => Safety::Overrun,
+            6 => Safety::ImplausibleSensor,
             _ => return None,
         })
     }
@@ -175,6 +182,14 @@ pub struct Config {
     pub sensor_stale_us: u32,
     /// Added to 1.5 × an action's nominal time to make its default watchdog budget, ms.
     pub watchdog_margin_ms: u32,
+    /// The drive's top speed on each translational axis, µm/s: a measured pose that moved
+    /// farther since the previous one (and [`Config::pose_noise`]) is implausible.
+    pub drive_speed: u32,
+    /// The drive's top rate on each rotational axis, µrad/s.
+    pub drive_rate: u32,
+    /// The pose sensor's noise: what a pose may move beyond the drive's speed between two
+    /// frames, µm on the translational axes and µrad on the rotational ones.
+    pub pose_noise: u32,
     /// The impedance at start-up: stiffness N/m.
     pub stiffness: u32,
     /// Damping N·s/m.
@@ -193,6 +208,8 @@ pub enum ConfigError {
     Workspace,
     /// A force limit of 0.
     ForceLimit,
+    /// A drive speed or rate of 0: every move would be implausible.
+    DriveLimits,
     /// An innate schema (its index) is invalid or names an innate schema beyond the table.
     Innate(u8),
 }
@@ -200,7 +217,8 @@ pub enum ConfigError {
 impl Config {
     /// A set-up at `period_us` with the defaults: overrun at two periods, a ±1 m (rad)
     /// workspace, 50 N, no torque limit, sensors stale after 20 periods (at least 50 ms), 1 s
-    /// watchdog margin, 2 000 N/m and 100 N·s/m, no innate schema.
+    /// watchdog margin, a drive of at most 2 m/s and 2π rad/s on each axis with a pose noise of
+    /// 1 mm (mrad), 2 000 N/m and 100 N·s/m, no innate schema.
     pub fn new(period_us: u32) -> Config {
         let stale = period_us.saturating_mul(20).max(50_000);
         Config {
@@ -213,6 +231,9 @@ impl Config {
             stale_us: stale,
             sensor_stale_us: stale,
             watchdog_margin_ms: 1000,
+            drive_speed: 2_000_000,
+            drive_rate: 6_283_185,
+            pose_noise: 1000,
             stiffness: 2000,
             damping: 100,
             innate: Vec::new(),
@@ -234,6 +255,9 @@ impl Config {
         }
         if self.force_limit == 0 {
             return Err(ConfigError::ForceLimit);
+        }
+        if self.drive_speed == 0 || self.drive_rate == 0 {
+            return Err(ConfigError::DriveLimits);
         }
         for (i, s) in self.innate.iter().enumerate() {
             if admit(s, self.innate.len()).is_err() {
@@ -293,6 +317,8 @@ pub struct Server {
     high_priority: Option<Schema>,
     estop: bool,
     abort: bool,
+    /// A pose frame jumped farther than the drive can move (checked at the next tick).
+    implausible: bool,
     /// Stops so far (emergency stops, aborts, safety events), wrapping.
     stops: u8,
     fault: Option<Safety>,
@@ -340,6 +366,7 @@ impl Server {
             high_priority: None,
             estop: false,
             abort: false,
+            implausible: false,
             stops: 0,
             fault: None,
             setpoint,
@@ -453,8 +480,22 @@ impl Server {
         self.estop = true;
     }
 
-    /// The measured pose, from its topic.
+    /// The measured pose, from its topic. Taken only if plausible: no axis moved farther since the
+    /// last pose taken than the drive's speed (rate) allows in the time between, plus the pose
+    /// noise; otherwise the next tick raises [`Safety::ImplausibleSensor`] and the server keeps
+    /// the last plausible pose (what a stop holds the robot at).
     pub fn set_pose(&mut self, pose: Pose, at: Instant) {
+        if let Some((last, then)) = &self.pose
+            && !plausible(
+                &self.config,
+                last,
+                &pose,
+                at.micros_since(*then).unwrap_or(0),
+            )
+        {
+            self.implausible = true;
+            return;
+        }
         self.pose = Some((pose, at));
         if !self.armed {
             // The first pose: hold the robot where it is.
@@ -539,7 +580,8 @@ impl Server {
         }
 
         // Steps 3 and 4: the sensor table and the triggering event.
-        match self.trigger(now, overrun) {
+        let implausible = core::mem::take(&mut self.implausible);
+        match self.trigger(now, overrun, implausible) {
             Some(Err(cause)) => self.recover(cause, now, transitions),
             Some(Ok((index, event, next))) => {
                 let by = Trigger::Reaction(index, event);
@@ -596,11 +638,16 @@ impl Server {
 
     /// Steps 3 and 4: the safety event, or the first reaction that holds (its index, event and
     /// source), or nothing.
-    fn trigger(&self, now: Instant, overrun: bool) -> Option<Result<(u8, Event, Source), Safety>> {
+    fn trigger(
+        &self,
+        now: Instant,
+        overrun: bool,
+        implausible: bool,
+    ) -> Option<Result<(u8, Event, Source), Safety>> {
         // Read once for the watchdog and every reaction.
         let elapsed_us = self.elapsed_us(now);
         if self.fault.is_none()
-            && let Some(cause) = self.safety(now, elapsed_us, overrun)
+            && let Some(cause) = self.safety(now, elapsed_us, overrun, implausible)
         {
             return Some(Err(cause));
         }
@@ -613,7 +660,13 @@ impl Server {
         None
     }
 
-    fn safety(&self, now: Instant, elapsed_us: u64, overrun: bool) -> Option<Safety> {
+    fn safety(
+        &self,
+        now: Instant,
+        elapsed_us: u64,
+        overrun: bool,
+        implausible: bool,
+    ) -> Option<Safety> {
         let c = &self.config;
         // The waits move nothing: a drive that is off while the board waits is no fault.
         let waiting = self.current.id >= super::BUILTIN_IDS;
@@ -638,6 +691,9 @@ impl Server {
             if !(pose_ok && wrench_ok && sensors_ok) {
                 return Some(Safety::StaleSensor);
             }
+        }
+        if implausible {
+            return Some(Safety::ImplausibleSensor);
         }
         if let Some((pose, _)) = &self.pose
             && self.excess_grew(pose, &self.excess_at_install)
@@ -809,6 +865,32 @@ fn axis_excess(v: i32, lo: i32, hi: i32) -> u32 {
     } else {
         0
     }
+}
+
+/// Whether `next` is a pose the drive can reach from `last` in `dt_us`: no translational axis
+/// moved more than `drive_speed` × dt + noise, no rotational one more than `drive_rate` × dt +
+/// noise. Per axis and in integers: a difference of two `i32` fits a `u32`, the allowance a
+/// saturating `u64`.
+// Out of line: called for every pose frame, not inlined into the node's frame path.
+#[inline(never)]
+fn plausible(c: &Config, last: &Pose, next: &Pose, dt_us: u64) -> bool {
+    let (translation, rotation) = (
+        allowance(c.drive_speed, dt_us, c.pose_noise),
+        allowance(c.drive_rate, dt_us, c.pose_noise),
+    );
+    last.iter().zip(next).enumerate().all(|(axis, (a, b))| {
+        u64::from(a.abs_diff(*b)) <= if axis < 3 { translation } else { rotation }
+    })
+}
+
+/// How far an axis may move in `dt_us` at `speed` (per second), plus `noise`: saturating.
+// Out of line: `plausible`'s two axes' kinds each inlined a copy (its 64-bit division).
+#[inline(never)]
+fn allowance(speed: u32, dt_us: u64, noise: u32) -> u64 {
+    u64::from(speed)
+        .saturating_mul(dt_us)
+        .div_ceil(1_000_000)
+        .saturating_add(u64::from(noise))
 }
 
 /// Whether a reading from `at` is at most `limit` µs old at `now` (one from the future is).

@@ -131,6 +131,9 @@ impl core::fmt::Display for SetupError {
             SetupError::Config(ConfigError::ForceLimit) => {
                 f.write_str("schema server: a force limit of 0")
             }
+            SetupError::Config(ConfigError::DriveLimits) => {
+                f.write_str("schema server: a drive speed or rate of 0")
+            }
             SetupError::Config(ConfigError::Innate(i)) => {
                 write!(f, "schema server: innate schema {i} is invalid")
             }
@@ -168,6 +171,9 @@ decode_struct!(Config {
     stale_us,
     sensor_stale_us,
     watchdog_margin_ms,
+    drive_speed,
+    drive_rate,
+    pose_noise,
     stiffness,
     damping,
     innate

@@ -248,11 +248,7 @@ impl SchemaRuntime {
             // The Receipt of an opened transfer: a tag over its nonce and the SchemaAck's bytes
             // (the running table's CRC and stored flag, which a table's receipt confirms, 0).
             if let Some(nonce) = self.nonce.take() {
-                let mut payload = [0u8; 8];
-                let frame = Message::SchemaAck(ack).to_frame(keys.node, source);
-                for (slot, byte) in payload.iter_mut().zip(frame.payload()) {
-                    *slot = *byte;
-                }
+                let payload = Message::SchemaAck(ack).report_bytes().unwrap_or_default();
                 let tag = keys.guard.receipt(keys.node, nonce, &payload, 0, false);
                 out(Out::Protocol(Message::Receipt { tag }, source));
             }

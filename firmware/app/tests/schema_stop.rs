@@ -327,3 +327,30 @@ fn a_stop_at_every_point_of_a_high_priority_transfer_holds() {
         }
     }
 }
+
+#[test]
+fn a_forged_pose_just_before_a_stop_does_not_move_where_the_stop_holds_the_robot() {
+    let mut h = moving();
+    let measured = attractors(&h, 0).last().unwrap().1[0] - 30;
+    report(&mut h, [measured, 0, 0]);
+    h.advance_to(h.now + 100);
+    // A participant's pose frame, 400 mm away, then the operator's stop.
+    h.feed(&frame(
+        POSE,
+        &pab_core::schema::drive::pack([400_000, 0, 0], false),
+    ));
+    let stop_at = h.now;
+    h.feed(&Message::EmergencyStop.to_frame(TOOL, BROADCAST));
+    // Ten seconds of true poses.
+    for _ in 0..10_000 {
+        report(&mut h, [measured, 0, 0]);
+        h.advance_to(h.now + 1000);
+    }
+    let held = attractors(&h, stop_at);
+    assert!(!held.is_empty());
+    assert!(
+        held.iter().all(|a| a.1 == [measured, 0, 0]),
+        "the stop held {:?}",
+        held.iter().find(|a| a.1 != [measured, 0, 0])
+    );
+}

@@ -155,12 +155,14 @@ impl core::fmt::Display for StoreError {
             StoreError::Flash(kind) => write!(f, "flash: {kind}"),
             StoreError::Layout(error) => write!(f, "store layout: {error}"),
             StoreError::ImageTooLarge { len, capacity } => {
+                let len = Bytes(*len);
                 write!(
                     f,
                     "image of {len} bytes exceeds the {capacity} bytes a slot holds"
                 )
             }
             StoreError::BufferTooSmall { needed, got } => {
+                let (needed, got) = (Bytes(*needed), Bytes(*got));
                 write!(f, "buffer of {got} bytes, the stored image has {needed}")
             }
             StoreError::Corrupt => f.write_str("no committed image verifies (flash corrupted)"),
@@ -173,3 +175,17 @@ impl core::fmt::Display for StoreError {
 }
 
 impl core::error::Error for StoreError {}
+
+/// A byte count, written as a `u32` whenever it fits (always on the boards, where `usize` is 32
+/// bits): the same digits, but the emulated board, which logs through `core::fmt`, keeps one
+/// integer formatter in its flash instead of two (`usize`'s took 224 bytes).
+struct Bytes(usize);
+
+impl core::fmt::Display for Bytes {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match u32::try_from(self.0) {
+            Ok(bytes) => bytes.fmt(f),
+            Err(_) => self.0.fmt(f),
+        }
+    }
+}

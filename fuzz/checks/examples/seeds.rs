@@ -171,6 +171,19 @@ fn schema_seeds(write: &dyn Fn(&str, &str, &[u8])) {
     ]);
     scripts.push(("stop-race", config.clone(), ops));
 
+    // A forged pose 400 mm away just before a stop: refused as implausible, the stop holds the
+    // last plausible pose; true poses after it are taken again.
+    let mut ops = start.to_vec();
+    ops.extend([
+        Op::Enqueue(build::move_to(1, [20_000, 0, 0, 0, 0, 0], 100_000)),
+        still(10),
+        Op::Pose([400_000, 0, 0, 0, 0, 0], 0),
+        Op::EmergencyStop,
+        Op::Tick(1),
+        still(20),
+    ]);
+    scripts.push(("implausible", config.clone(), ops));
+
     let search = Action::BlindSearch {
         preload: 2_000,
         pitch: 200,

@@ -184,6 +184,9 @@ pub fn encode_script(config: &Config, ops: &[Op]) -> Option<Vec<u8>> {
         c.watchdog_margin_ms,
         c.stiffness,
         c.damping,
+        c.drive_speed,
+        c.drive_rate,
+        c.pose_noise,
     ] {
         out.extend(v.to_le_bytes());
     }
@@ -311,6 +314,11 @@ fn read_config(u: &mut Unstructured) -> Result<Config> {
     if raw(5) {
         config.stiffness = u.arbitrary()?;
         config.damping = u.arbitrary()?;
+    }
+    if raw(6) {
+        config.drive_speed = u.arbitrary()?;
+        config.drive_rate = u.arbitrary()?;
+        config.pose_noise = u.arbitrary()?;
     }
     let count = usize::from(u.arbitrary::<u8>()?) % (MAX_INNATE + 1);
     for _ in 0..count {
@@ -524,6 +532,9 @@ fn reference_check(c: &Config) -> std::result::Result<(), ConfigError> {
     if c.force_limit == 0 {
         return Err(ConfigError::ForceLimit);
     }
+    if c.drive_speed == 0 || c.drive_rate == 0 {
+        return Err(ConfigError::DriveLimits);
+    }
     for (i, s) in c.innate.iter().enumerate() {
         if s.check().is_err() || !innate_known(s, c.innate.len()) {
             return Err(ConfigError::Innate(i as u8));
@@ -613,8 +624,12 @@ struct World {
     /// Stops counted so far (the reference's own count of the server's).
     stops: u64,
     current: Schema,
-    /// The last pose set.
+    /// The last pose the server took (a plausible one).
     pose: Option<Pose>,
+    /// That pose and when it was measured (µs since the start).
+    plausible: Option<(Pose, u64)>,
+    /// A pose frame since the last tick was implausible.
+    implausible: bool,
     /// The attractor, once a pose has been set (before, the server's is not commanded).
     attractor: Option<Pose>,
     /// The attractor's and the last pose's excess at the start of the tick that installed the
@@ -644,6 +659,8 @@ impl World {
             stops: 0,
             current: wait_queue(),
             pose: None,
+            plausible: None,
+            implausible: false,
             attractor: None,
             attractor_excess: None,
             pose_excess: None,
@@ -756,8 +773,28 @@ impl World {
         true
     }
 
+    /// A pose frame: the server takes it only if the drive could have got there from the last
+    /// pose it took (the reference's own arithmetic, in i128), and otherwise raises an
+    /// implausible sensor at the next tick; `pose` is the last pose taken.
     fn set_pose(&mut self, p: Pose, age: u16) {
+        let at = self.now.saturating_sub(u64::from(age));
         self.server.set_pose(p, self.at(age));
+        if let Some((last, then)) = self.plausible {
+            let dt = i128::from(at.saturating_sub(then));
+            let c = &self.config;
+            let fits = (0..AXES).all(|a| {
+                let speed = if a < 3 { c.drive_speed } else { c.drive_rate };
+                // ceil(speed * dt / 1e6) + noise
+                let allowed =
+                    (i128::from(speed) * dt + 999_999) / 1_000_000 + i128::from(c.pose_noise);
+                (i128::from(p[a]) - i128::from(last[a])).abs() <= allowed
+            });
+            if !fits {
+                self.implausible = true;
+                return;
+            }
+        }
+        self.plausible = Some((p, at));
         self.pose = Some(p);
         // The first pose arms the server: the attractor is set to it.
         self.attractor.get_or_insert(p);
@@ -766,6 +803,7 @@ impl World {
     fn tick(&mut self) {
         let fault_before = self.server.fault();
         let attractor_before = self.attractor;
+        let implausible = std::mem::take(&mut self.implausible);
         // A stop ends everything that was about to run: the schema waiting on the high-priority
         // channel is discarded, not installed at a later tick; an abort with the stop still
         // empties the queue.
@@ -817,6 +855,9 @@ impl World {
                 }
                 Trigger::Safety(cause) => {
                     self.stops += 1;
+                    if cause == Safety::ImplausibleSensor {
+                        assert!(implausible, "an implausible pose nobody sent");
+                    }
                     if cause != Safety::EmergencyStop {
                         assert_eq!(fault, None, "{cause:?} while stopped on a fault");
                     }
@@ -857,6 +898,17 @@ impl World {
             );
             assert!(t.installed >= BUILTIN_IDS || self.admitted.contains(&t.installed));
             current = schema;
+        }
+        // An implausible pose stops a running server at the next tick (a stale sensor tested
+        // before it may stop it first).
+        let running = (fault_before.is_none() && step2 != Some(Step2::EmergencyStop))
+            || step2 == Some(Step2::HighPriority);
+        if implausible && running {
+            assert!(
+                safety,
+                "an implausible pose did not stop the server: {:?}",
+                out.transitions
+            );
         }
         assert_eq!(self.server.schema(), &current);
         assert_eq!(self.server.fault(), fault, "{:?}", out.transitions);

@@ -69,6 +69,9 @@ pub(super) struct RawSchema {
     stale_ms: Option<Spanned<f64>>,
     sensor_stale_ms: Option<Spanned<f64>>,
     watchdog_margin_ms: Option<Spanned<f64>>,
+    drive_speed_mm_s: Option<Spanned<f64>>,
+    drive_rate_rad_s: Option<Spanned<f64>>,
+    pose_noise_mm: Option<Spanned<f64>>,
     stiffness_n_per_m: Option<Spanned<f64>>,
     damping_ns_per_m: Option<Spanned<f64>>,
     drive: Spanned<RawDrive>,
@@ -773,6 +776,31 @@ impl Builder<'_> {
             config.watchdog_margin_ms,
             "watchdog_margin_ms",
             "ms",
+            true,
+        );
+        // The drive's own limits: a pose frame that jumps farther is implausible.
+        config.drive_speed = self.scaled(
+            raw.drive_speed_mm_s.as_ref(),
+            1000.0,
+            config.drive_speed,
+            "drive_speed_mm_s",
+            "mm/s",
+            false,
+        );
+        config.drive_rate = self.scaled(
+            raw.drive_rate_rad_s.as_ref(),
+            1_000_000.0,
+            config.drive_rate,
+            "drive_rate_rad_s",
+            "rad/s",
+            false,
+        );
+        config.pose_noise = self.scaled(
+            raw.pose_noise_mm.as_ref(),
+            1000.0,
+            config.pose_noise,
+            "pose_noise_mm",
+            "mm",
             true,
         );
         config.stiffness = self.scaled(
@@ -2006,6 +2034,46 @@ hold = \"idle(); below(gap, 0.3) -> retreat\"
                 "net.toml:6:14: error: overrun_ms must be at least period_ms",
                 "net.toml:7:16: error: workspace_mm: min is above max on some axis",
                 "net.toml:8:9: error: drive: schema server: a drive identifier: a standard (11-bit) output id is at most 0x7ff (the set-point takes 3 identifiers from its own, the pose and the wrench 2 each)",
+            ]
+        );
+    }
+
+    #[test]
+    fn the_drives_limits_come_from_the_file_in_its_units() {
+        let base = "[nodes.arm]\nid = 10\n[schema.arm]\ndrive = { setpoint = 0x300, pose = 0x310, wrench = 0x320 }\n";
+        let network = Network::parse(Source::new(
+            "net.toml",
+            &format!("{base}drive_speed_mm_s = 250\ndrive_rate_rad_s = 1.5\npose_noise_mm = 0.2\n"),
+        ))
+        .unwrap();
+        let config = &network.schema_boards[0].config;
+        assert_eq!(
+            (config.drive_speed, config.drive_rate, config.pose_noise),
+            (250_000, 1_500_000, 200)
+        );
+        // The defaults: 2 m/s, 2π rad/s, 1 mm.
+        let config = &Network::parse(Source::new("net.toml", base))
+            .unwrap()
+            .schema_boards[0]
+            .config;
+        assert_eq!(
+            (config.drive_speed, config.drive_rate, config.pose_noise),
+            (2_000_000, 6_283_185, 1000)
+        );
+        let e: Vec<String> = Network::parse(Source::new(
+            "net.toml",
+            &format!("{base}drive_speed_mm_s = 0\npose_noise_mm = -1\n"),
+        ))
+        .unwrap_err()
+        .0
+        .iter()
+        .map(|d| d.to_string())
+        .collect();
+        assert_eq!(
+            e,
+            [
+                "net.toml:5:20: error: drive_speed_mm_s must be above 0 and at most 500000 mm/s",
+                "net.toml:6:17: error: pose_noise_mm must be 0 and at most 500000 mm",
             ]
         );
     }

@@ -9,7 +9,7 @@
 
 use core::fmt::Write as _;
 
-use log::{LevelFilter, Metadata, Record};
+use log::{Level, LevelFilter, Metadata, Record};
 
 use crate::semihosting;
 
@@ -33,12 +33,18 @@ impl log::Log for Semihosting {
         // formatter is enough (u64's would take 256 bytes more of the flash). 2^32 s is 136 years.
         let seconds = u32::try_from(micros / 1_000_000).unwrap_or(u32::MAX);
         let fraction = (micros % 1_000_000) as u32;
-        let _ = write!(
-            line,
-            "{seconds:>6}.{fraction:06} {:<5} {}",
-            record.level(),
-            record.args()
-        );
+        // The level padded to five characters by hand, and the line written out as it is: the
+        // same text as `{:<5}` and `{line}`, without the level's and the string's `Display`.
+        let level = match record.level() {
+            Level::Error => "ERROR ",
+            Level::Warn => "WARN  ",
+            Level::Info => "INFO  ",
+            Level::Debug => "DEBUG ",
+            Level::Trace => "TRACE ",
+        };
+        let _ = write!(line, "{seconds:>6}.{fraction:06} ")
+            .and_then(|()| line.write_str(level))
+            .and_then(|()| line.write_fmt(*record.args()));
         if line.len() == line.capacity() {
             let mut cut = line.capacity() - 4;
             while !line.is_char_boundary(cut) {
@@ -48,7 +54,7 @@ impl log::Log for Semihosting {
             let _ = line.push_str("...");
         }
         let _ = line.push('\n');
-        semihosting::eprint(format_args!("{line}"));
+        semihosting::eprint_str(&line);
     }
 
     fn flush(&self) {}

@@ -14,6 +14,14 @@ pub fn eprint(text: core::fmt::Arguments<'_>) {
     }
 }
 
+/// Writes `text` to the host's standard error as it is, in one call: [`eprint`] without the
+/// formatting.
+pub fn eprint_str(text: &str) {
+    if let Ok(mut stderr) = hio::hstderr() {
+        let _ = stderr.write_str(text);
+    }
+}
+
 /// Ends the emulation with `status` as QEMU's exit status (0 success, 1 failure).
 pub fn exit(success: bool) -> ! {
     debug::exit(if success {

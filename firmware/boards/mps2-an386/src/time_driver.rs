@@ -100,7 +100,7 @@ impl TimeDriver {
     }
 
     fn arm_next(&self, cs: CriticalSection<'_>) {
-        let mut queue = self.queue.borrow(cs).borrow_mut();
+        let mut queue = crate::borrow_mut(self.queue.borrow(cs));
         let mut next = queue.next_expiration(self.now_in(cs));
         while !self.set_alarm(cs, next) {
             next = queue.next_expiration(self.now_in(cs));
@@ -153,7 +153,7 @@ impl Driver for TimeDriver {
 
     fn schedule_wake(&self, at: u64, waker: &Waker) {
         critical_section::with(|cs| {
-            let scheduled = self.queue.borrow(cs).borrow_mut().schedule_wake(at, waker);
+            let scheduled = crate::borrow_mut(self.queue.borrow(cs)).schedule_wake(at, waker);
             if scheduled {
                 self.arm_next(cs);
             }

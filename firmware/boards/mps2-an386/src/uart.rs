@@ -112,7 +112,7 @@ fn drain_rx(state: &mut State) {
 pub fn on_rx_interrupt() {
     critical_section::with(|cs| {
         UART0.clear_interrupts(Uart::INT_RX);
-        drain_rx(&mut STATE.borrow_ref_mut(cs));
+        drain_rx(&mut crate::borrow_mut(STATE.borrow(cs)));
     });
     RX_WAKER.wake();
 }
@@ -120,7 +120,7 @@ pub fn on_rx_interrupt() {
 /// The next received byte, if any. Resumes paused reception once there is room.
 pub fn take() -> Option<u8> {
     critical_section::with(|cs| {
-        let mut state = STATE.borrow_ref_mut(cs);
+        let mut state = crate::borrow_mut(STATE.borrow(cs));
         let byte = state.rx.pop_front();
         if state.rx_paused {
             // Interrupt first, then drain: a byte arriving after this write raises it, one that
@@ -170,13 +170,13 @@ fn feed_tx(state: &mut State) {
 pub fn on_tx_interrupt() {
     critical_section::with(|cs| {
         UART0.clear_interrupts(Uart::INT_TX);
-        feed_tx(&mut STATE.borrow_ref_mut(cs));
+        feed_tx(&mut crate::borrow_mut(STATE.borrow(cs)));
     });
     TX_WAKER.wake();
 }
 
 fn try_send_in(cs: CriticalSection<'_>, bytes: &[u8]) -> bool {
-    let mut state = STATE.borrow_ref_mut(cs);
+    let mut state = crate::borrow_mut(STATE.borrow(cs));
     if TX_RING - state.tx.len() < bytes.len() {
         return false;
     }
