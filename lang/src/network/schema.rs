@@ -2043,7 +2043,7 @@ hold = \"idle(); below(gap, 0.3) -> retreat\"
         let base = "[nodes.arm]\nid = 10\n[schema.arm]\ndrive = { setpoint = 0x300, pose = 0x310, wrench = 0x320 }\n";
         let network = Network::parse(Source::new(
             "net.toml",
-            &format!("{base}drive_speed_mm_s = 250\ndrive_rate_rad_s = 1.5\npose_noise_mm = 0.2\n"),
+            format!("{base}drive_speed_mm_s = 250\ndrive_rate_rad_s = 1.5\npose_noise_mm = 0.2\n"),
         ))
         .unwrap();
         let config = &network.schema_boards[0].config;
@@ -2062,7 +2062,7 @@ hold = \"idle(); below(gap, 0.3) -> retreat\"
         );
         let e: Vec<String> = Network::parse(Source::new(
             "net.toml",
-            &format!("{base}drive_speed_mm_s = 0\npose_noise_mm = -1\n"),
+            format!("{base}drive_speed_mm_s = 0\npose_noise_mm = -1\n"),
         ))
         .unwrap_err()
         .0
