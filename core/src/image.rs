@@ -3,7 +3,7 @@
 //! ```text
 //! offset size  field
 //!      0    4  magic "PABT"
-//!      4    2  format version, little endian (this is format 9)
+//!      4    2  format version, little endian (this is format 10)
 //!      6    1  node id the table is for
 //!      7    1  reserved, must be 0
 //!      8    4  table version, little endian (newer tables have larger versions)
@@ -35,8 +35,11 @@
 //! (`crate::schema::Setup`: the loop's set-up, its innate schemas and its drive's identifiers);
 //! format 8 adds, last in that set-up, the topics of its extra sensors (identifier and field);
 //! format 9 adds to the loop's set-up, after its watchdog margin, the drive's top speed and rate
-//! and the pose sensor's noise (a pose that jumps farther is implausible).
-//! This crate reads format 9 only: an image of another format is refused with
+//! and the pose sensor's noise (a pose that jumps farther is implausible); format 10 gathers the
+//! safety bounds of that set-up ([`crate::schema::Limits`]: the workspace, force and torque
+//! limits where they were) and adds after the torque limit the contact, speed and rate limits and
+//! the joints' ranges and speeds.
+//! This crate reads format 10 only: an image of another format is refused with
 //! [`LoadError::UnsupportedFormat`], which names the format found and the one expected.
 //!
 //! The body does not depend on the capacities of the [`Table`] that was encoded (postcard prefixes
@@ -51,7 +54,7 @@ use crate::{MAX_CONNECTIONS, MAX_DECISION_NODES, MAX_PORTS};
 /// The first four bytes of every image.
 pub const MAGIC: [u8; 4] = *b"PABT";
 /// The format this crate writes and reads.
-pub const FORMAT_VERSION: u16 = 9;
+pub const FORMAT_VERSION: u16 = 10;
 /// Bytes before the body.
 pub const HEADER_LEN: usize = 20;
 /// The largest image accepted, header included. A table at full capacity encodes in less.

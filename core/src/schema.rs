@@ -18,8 +18,8 @@
 //!    watchdog restarted;
 //! 6. one iteration of the action moves the attractor ([`Setpoint`]).
 //!
-//! Safety events (emergency stop, workspace limit, force limit, watchdog, stale sensor, loop
-//! overrun) are the server's, not the client's: a schema cannot remove them. Each one sets the
+//! Safety events (emergency stop, stale sensor, implausible pose, workspace and joint limits,
+//! speed, force limit, watchdog, loop overrun) are the server's, not the client's: a schema cannot remove them. Each one sets the
 //! attractor to the measured pose (so the impedance controller relieves every force), reports
 //! a fault, and leaves the server waiting on the high-priority channel with the queue kept but
 //! not run.
@@ -43,6 +43,7 @@ mod action;
 pub mod build;
 pub mod drive;
 mod event;
+mod limits;
 mod message;
 mod sensor;
 mod server;
@@ -50,6 +51,7 @@ mod setup;
 
 pub use action::{Action, Gripper, Setpoint};
 pub use event::{Event, Measure, Reaction, Source};
+pub use limits::{Joint, Limits, LimitsError, MAX_JOINTS, SPEED_WINDOW_US};
 pub use message::{MAX_ENCODED, Schema, SchemaError};
 pub use sensor::{Sensor, SensorError, feed_sensors};
 pub use server::{

@@ -1087,19 +1087,22 @@ fn an_image_larger_than_the_table_is_refused_with_what_it_needs() {
 
 #[test]
 fn images_of_older_formats_are_refused_naming_both_formats() {
-    assert_eq!(FORMAT_VERSION, 9);
-    for found in [1u16, 2, 3, 4, 5, 6, 7, 8] {
+    assert_eq!(FORMAT_VERSION, 10);
+    for found in [1u16, 2, 3, 4, 5, 6, 7, 8, 9] {
         let mut old = encode(&figure1_table(), 7, 1);
         old[4..6].copy_from_slice(&found.to_le_bytes());
         let crc = crc32(&[&old[..16], &old[HEADER_LEN..]].concat());
         old[16..20].copy_from_slice(&crc.to_le_bytes());
-        let expected = LoadError::UnsupportedFormat { found, expected: 9 };
+        let expected = LoadError::UnsupportedFormat {
+            found,
+            expected: 10,
+        };
         assert_eq!(image::read_header(&old), Err(expected.clone()));
         assert_eq!(load_default(&old), Err(expected.clone()));
         assert_eq!(image::load::<4, 64, 256>(&old), Err(expected.clone()));
         assert_eq!(
             expected.to_string(),
-            format!("image format {found} is not supported (this node reads format 9)")
+            format!("image format {found} is not supported (this node reads format 10)")
         );
     }
 }

@@ -255,7 +255,7 @@ fn abort_empties_the_queue_and_holds_the_attractor() {
 #[test]
 fn force_above_the_limit_is_a_safety_event_before_any_reaction() {
     let mut config = Config::new(PERIOD);
-    config.force_limit = 20_000;
+    config.limits.force_limit = 20_000;
     let mut rig = Rig::new(config);
     // A touch-down whose contact threshold is above the safety limit: safety wins.
     rig.server
@@ -338,7 +338,7 @@ fn move_to_touch_that_meets_nothing_asks_the_high_priority_channel() {
 #[test]
 fn the_attractor_is_never_commanded_outside_the_workspace() {
     let mut config = Config::new(PERIOD);
-    config.workspace_max[0] = 100;
+    config.limits.workspace_max[0] = 100;
     let mut rig = Rig::new(config);
     rig.server
         .enqueue(build::move_to(1, goal_x(1000), 1000))
@@ -365,7 +365,7 @@ fn the_attractor_is_never_commanded_outside_the_workspace() {
 #[test]
 fn a_robot_pushed_out_of_the_workspace_may_be_brought_back() {
     let mut config = Config::new(PERIOD);
-    config.workspace_max[0] = 100;
+    config.limits.workspace_max[0] = 100;
     let mut rig = Rig::new(config);
     rig.server.enqueue(build::idle(1, 0)).unwrap();
     rig.step();
@@ -706,8 +706,8 @@ proptest! {
     #[test]
     fn the_loop_keeps_its_invariants(ops in prop::collection::vec(op(), 1..300)) {
         let mut config = Config::new(PERIOD);
-        config.workspace_min = [-1_500_000; AXES];
-        config.workspace_max = [1_500_000; AXES];
+        config.limits.workspace_min = [-1_500_000; AXES];
+        config.limits.workspace_max = [1_500_000; AXES];
         config.innate.push(build::idle(500, 3)).unwrap();
         config.innate.push(build::gripper(501, Gripper::Closed)).unwrap();
         config.innate.push(build::move_to(502, [0; AXES], 5000)).unwrap();
@@ -817,9 +817,9 @@ fn contact_against_a_move_from_the_end_of_the_pose_range_does_not_overflow() {
     // contact's dot product saturates at i64::MIN, whose negation overflowed (the fuzz target
     // `schema` reads any pose).
     let mut config = Config::new(PERIOD);
-    config.workspace_min = [i32::MIN; AXES];
-    config.workspace_max = [i32::MAX; AXES];
-    config.force_limit = u32::MAX;
+    config.limits.workspace_min = [i32::MIN; AXES];
+    config.limits.workspace_max = [i32::MAX; AXES];
+    config.limits.force_limit = u32::MAX;
     let mut server = Server::new(config).unwrap();
     let mut touch = build::move_to(1, [MAX_COORD, MAX_COORD, MAX_COORD, 0, 0, 0], 1);
     touch.reactions[0] = Reaction {
@@ -843,7 +843,7 @@ fn contact_against_a_move_from_the_end_of_the_pose_range_does_not_overflow() {
     assert_eq!(server.current(), Schema::WAIT_QUEUE);
 }
 
-// ---- The table image's schema server (format 9) ----
+// ---- The table image's schema server (format 10) ----
 
 /// A sensor on `id` reading an unsigned little-endian field at `offset` of `size` bytes.
 fn sensor(id: pab_core::OutputId, offset: u8, size: u8) -> pab_core::schema::Sensor {
@@ -860,7 +860,7 @@ fn sensor(id: pab_core::OutputId, offset: u8, size: u8) -> pab_core::schema::Sen
 
 fn setup() -> pab_core::schema::Setup {
     let mut config = Config::new(PERIOD);
-    config.force_limit = 30_000;
+    config.limits.force_limit = 30_000;
     config
         .innate
         .push(build::gripper(40, Gripper::Open))
@@ -1267,4 +1267,233 @@ fn a_drive_that_cannot_move_is_a_refused_set_up() {
     let mut config = Config::new(PERIOD);
     config.drive_rate = 0;
     assert!(Server::new(config).is_err());
+}
+
+// ---- Joint and speed limits, and limits tightened at run time ----
+
+fn joint(sensor: u8, min: i32, max: i32, rate: u32) -> pab_core::schema::Joint {
+    pab_core::schema::Joint {
+        sensor,
+        min,
+        max,
+        rate,
+    }
+}
+
+/// A rig whose board reads joint 0 on sensor 0, in [-1000, 1000] counts at most 2000 counts/s,
+/// with an idle schema installed.
+fn joint_rig(reading: i32) -> Rig {
+    let mut config = Config::new(PERIOD);
+    config
+        .limits
+        .joints
+        .push(joint(0, -1000, 1000, 2000))
+        .unwrap();
+    let mut rig = Rig::new(config);
+    rig.server.set_sensor(0, reading, at(0));
+    rig.server.enqueue(build::idle(1, 0)).unwrap();
+    rig.step();
+    assert_eq!(rig.server.current(), 1);
+    rig
+}
+
+/// Steps once with the joint reading `value`.
+fn joint_step(rig: &mut Rig, value: i32) -> Tick {
+    rig.server.set_sensor(0, value, at(rig.tick + 1));
+    rig.step()
+}
+
+#[test]
+fn a_joint_driven_out_of_its_range_stops_the_server() {
+    let mut rig = joint_rig(0);
+    // One count a tick (1000 counts/s, within its rate) up to its highest position...
+    for count in 1..=1000 {
+        assert!(
+            joint_step(&mut rig, count).transitions.is_empty(),
+            "{count}"
+        );
+    }
+    // ...and one beyond: the joint limit, the robot held where it is.
+    let out = joint_step(&mut rig, 1001);
+    assert_eq!(out.transitions[0].by, Trigger::Safety(Safety::JointLimit));
+    assert_eq!(rig.server.fault(), Some(Safety::JointLimit));
+    assert_eq!(out.setpoint.unwrap().attractor, rig.pose);
+}
+
+#[test]
+fn a_schema_that_brings_a_joint_back_into_its_range_is_not_stopped() {
+    // A joint 500 counts out of its range when the server starts: stopped at once (as a robot
+    // outside its workspace is).
+    let mut config = Config::new(PERIOD);
+    config
+        .limits
+        .joints
+        .push(joint(0, -1000, 1000, 2000))
+        .unwrap();
+    let mut rig = Rig::new(config);
+    rig.server.set_sensor(0, 1500, at(0));
+    let out = rig.step();
+    assert_eq!(out.transitions[0].by, Trigger::Safety(Safety::JointLimit));
+    // A schema installed there, acknowledging the stop: no stop while the joint comes back in
+    // or stays as far out, one when it goes farther.
+    let stop = rig.server.stop_number();
+    rig.server.high_priority(build::idle(1, 0), stop).unwrap();
+    joint_step(&mut rig, 1500);
+    assert_eq!((rig.server.current(), rig.server.fault()), (1, None));
+    for count in (1400..1500).rev().chain(1400..=1500) {
+        assert!(joint_step(&mut rig, count).transitions.is_empty());
+    }
+    let out = joint_step(&mut rig, 1501);
+    assert_eq!(out.transitions[0].by, Trigger::Safety(Safety::JointLimit));
+}
+
+#[test]
+fn a_joint_faster_than_its_rate_over_the_window_is_a_speed_event() {
+    let window = pab_core::schema::SPEED_WINDOW_US / u64::from(PERIOD);
+    assert_eq!(window, 20);
+    // 2000 counts/s is 40 counts in the 20 ms window (and a count of noise): two counts a tick
+    // run for ever...
+    let mut rig = joint_rig(0);
+    let mut reading = 0;
+    for _ in 0..10 * window {
+        reading += 2;
+        assert!(joint_step(&mut rig, reading).transitions.is_empty());
+    }
+    // ...three (60 counts a window) are stopped within two windows.
+    for tick in 1..=2 * window {
+        reading += 3;
+        if let Some(t) = joint_step(&mut rig, reading).transitions.first() {
+            assert_eq!(t.by, Trigger::Safety(Safety::Speed), "tick {tick}");
+            return;
+        }
+    }
+    panic!("no speed event");
+}
+
+/// A server with a 100 mm/s speed limit and 0.1 mm of pose noise, its robot moving to
+/// x = 20 mm at `speed` µm/s: the first safety event, if any, within 0.5 s.
+fn move_under_speed_limit(speed: u32) -> Option<(u64, Safety)> {
+    let mut config = Config::new(PERIOD);
+    config.limits.speed_limit = 100_000;
+    config.pose_noise = 100;
+    let mut rig = Rig::new(config);
+    rig.server
+        .enqueue(build::move_to(1, goal_x(20_000), speed))
+        .unwrap();
+    for _ in 0..500 {
+        let out = rig.step();
+        for t in &out.transitions {
+            if let Trigger::Safety(cause) = t.by {
+                // The stop holds the robot where it is.
+                assert_eq!(out.setpoint.unwrap().attractor, rig.pose);
+                return Some((rig.tick, cause));
+            }
+        }
+    }
+    None
+}
+
+#[test]
+fn the_pose_faster_than_the_speed_limit_is_a_speed_event_and_a_slower_move_is_not() {
+    assert_eq!(move_under_speed_limit(80_000), None);
+    assert_eq!(move_under_speed_limit(100_000), None);
+    // 150 mm/s: 3 mm in a window, above 2 mm + 0.2 mm; stopped at the end of the first window
+    // the robot moved through.
+    let (tick, cause) = move_under_speed_limit(150_000).expect("stopped");
+    assert_eq!(cause, Safety::Speed);
+    assert!(tick <= 1 + 2 * 20, "stopped at tick {tick}");
+}
+
+#[test]
+fn limits_tightened_at_run_time_stop_what_the_table_allowed_and_never_loosen() {
+    let mut config = Config::new(PERIOD);
+    config.limits.force_limit = 30_000;
+    let table = config.limits.clone();
+    let mut rig = Rig::new(config);
+    rig.server.enqueue(build::idle(1, 0)).unwrap();
+    rig.step();
+    // 20 N is within the table's 30 N...
+    rig.wrench = [0, 0, 20_000, 0, 0, 0];
+    assert!(rig.step().transitions.is_empty());
+    // ...a limit of 50 N is refused (looser than the table's), one of 15 N taken: the next tick
+    // stops on the force.
+    let mut loose = table.clone();
+    loose.force_limit = 50_000;
+    assert_eq!(
+        rig.server.set_limits(loose),
+        Err(Refusal::Limits(pab_core::schema::LimitsError::Looser))
+    );
+    assert_eq!(rig.server.limits(), &table);
+    let mut tight = table.clone();
+    tight.force_limit = 15_000;
+    rig.server.set_limits(tight.clone()).unwrap();
+    assert_eq!(rig.server.limits(), &tight);
+    let out = rig.step();
+    assert_eq!(out.transitions[0].by, Trigger::Safety(Safety::Force));
+    // Back to the table's: allowed, and 20 N runs again.
+    rig.server.set_limits(table.clone()).unwrap();
+    let stop = rig.server.stop_number();
+    rig.server.high_priority(build::idle(2, 0), stop).unwrap();
+    rig.step();
+    assert_eq!((rig.server.current(), rig.server.fault()), (2, None));
+    assert!(rig.step().transitions.is_empty());
+}
+
+#[test]
+fn a_workspace_tightened_around_the_robot_stops_it_and_the_way_back_in_is_allowed() {
+    let mut rig = Rig::new(Config::new(PERIOD));
+    rig.server
+        .enqueue(build::move_to(1, goal_x(10_000), 100_000))
+        .unwrap();
+    for _ in 0..200 {
+        rig.step();
+    }
+    assert_eq!(rig.pose[0], 10_000);
+    let mut tight = rig.server.limits().clone();
+    tight.workspace_max[0] = 5_000;
+    rig.server.set_limits(tight).unwrap();
+    let out = rig.step();
+    assert_eq!(out.transitions[0].by, Trigger::Safety(Safety::Limit));
+    // A move back inside, acknowledging the stop, runs to its end.
+    let stop = rig.server.stop_number();
+    rig.server
+        .high_priority(build::move_to(2, goal_x(0), 100_000), stop)
+        .unwrap();
+    for _ in 0..200 {
+        assert!(
+            rig.step()
+                .transitions
+                .iter()
+                .all(|t| !matches!(t.by, Trigger::Safety(_)))
+        );
+    }
+    assert_eq!(rig.pose[0], 0);
+}
+
+#[test]
+fn the_contact_limit_ends_a_touch_at_a_lighter_contact() {
+    let touch = || build::move_to_touch(1, [1, 0, 0, 0, 0, 0], 10_000, 3_000, 50_000);
+    // 2 N against the motion: below the touch's 3 N, it goes on; with a 1.5 N contact limit,
+    // the touch ends on contact.
+    for (limit, ends) in [(0, false), (1_500, true)] {
+        let mut config = Config::new(PERIOD);
+        config.limits.contact_limit = 2_500;
+        let mut rig = Rig::new(config);
+        if limit != 0 {
+            let mut l = rig.server.limits().clone();
+            l.contact_limit = limit;
+            rig.server.set_limits(l).unwrap();
+        }
+        rig.server.enqueue(touch()).unwrap();
+        rig.step();
+        rig.wrench = [-2_000, 0, 0, 0, 0, 0];
+        let out = rig.step();
+        let ended = out.transitions.iter().any(|t| {
+            matches!(
+                t.by,
+                Trigger::Reaction(_, Event::Above(Measure::Contact, _))
+            )
+        });
+        assert_eq!(ended, ends, "contact limit {limit}");
+    }
 }

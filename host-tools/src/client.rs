@@ -26,7 +26,7 @@ use pab_core::protocol::{
     self, BROADCAST, Message, OPEN_SCHEMA, SchemaAck, SchemaChannel, SchemaOutcome, SchemaState,
     SchemaTransition, TransferOpen,
 };
-use pab_core::schema::{Action, Channel, Gripper, MAX_ENCODED, Pose, Schema, build};
+use pab_core::schema::{Action, Channel, Gripper, Limits, MAX_ENCODED, Pose, Schema, build};
 
 use crate::bus::Bus;
 use crate::push;
@@ -138,10 +138,29 @@ impl<'b> Client<'b> {
     /// Fails with [`ClientError::Refused`] when the board refuses it (a full queue included:
     /// see [`Client::install_waiting`]).
     pub fn install(&mut self, schema: &Schema, channel: Channel) -> Result<SchemaAck, ClientError> {
-        let mut message = vec![SchemaChannel::message_byte(channel)];
         let mut buffer = [0u8; MAX_ENCODED];
         let bytes = postcard::to_slice(schema, &mut buffer).map_err(|_| ClientError::TooLarge)?;
-        message.extend_from_slice(bytes);
+        self.transfer(SchemaChannel::message_byte(channel), bytes)
+    }
+
+    /// Sets the bounds the board runs with ([`Limits`]): each within its table's, tighter or
+    /// back up to the table's, never looser; from the board's next tick. Waits for the
+    /// SchemaAck (on the limits channel).
+    ///
+    /// Fails with [`ClientError::Refused`] when the board refuses them
+    /// ([`SchemaOutcome::Looser`]: looser than the table's somewhere, other joints than the
+    /// table's, or inconsistent), or when it runs no schema server.
+    pub fn set_limits(&mut self, limits: &Limits) -> Result<SchemaAck, ClientError> {
+        let mut buffer = [0u8; MAX_ENCODED];
+        let bytes = postcard::to_slice(limits, &mut buffer).map_err(|_| ClientError::TooLarge)?;
+        self.transfer(SchemaChannel::Limits.code(), bytes)
+    }
+
+    /// One SchemaTransfer message: `channel` (its byte 0) then `body`; with a key, after a
+    /// challenge and its open, and confirmed by the board's Receipt.
+    fn transfer(&mut self, channel: u8, body: &[u8]) -> Result<SchemaAck, ClientError> {
+        let mut message = vec![channel];
+        message.extend_from_slice(body);
         // With a key: the challenge, the open for a schema, and the MAC after the message.
         let mut opened = None;
         if let Some(key) = &self.key {
@@ -433,6 +452,7 @@ pub fn channel_name(channel: Option<SchemaChannel>) -> &'static str {
     match channel {
         Some(SchemaChannel::Queue) => "queue",
         Some(SchemaChannel::HighPriority) => "high-priority",
+        Some(SchemaChannel::Limits) => "limits",
         None => "?",
     }
 }

@@ -212,8 +212,9 @@ wire_enum! {
     SchemaOutcome: u8 {
         /// Queued, or waiting for the next tick on the high-priority channel.
         Accepted = 0x00, "accepted";
-        /// Not postcard's encoding of a schema (or more reactions than a schema holds).
-        Malformed = 0x01, "not a schema's encoding";
+        /// Not postcard's encoding of a schema (or more reactions than a schema holds), or of
+        /// limits on the limits channel.
+        Malformed = 0x01, "not a schema's (or limits') encoding";
         /// Bytes after the schema.
         TrailingBytes = 0x02, "bytes after the schema";
         /// An id from 0xFF00 up: those name the server's own schemas.
@@ -235,9 +236,9 @@ wire_enum! {
         /// The ISO-TP message is longer than a channel byte, the largest schema and a MAC (273
         /// bytes): refused at its first frame.
         TooLong = 0x0B, "message longer than 273 bytes";
-        /// The message's channel byte names neither the queue (0) nor the high-priority
-        /// channel (1 in its bits 0-1, the stop number in bits 2-7).
-        BadChannel = 0x0C, "channel byte neither the queue nor the high-priority channel";
+        /// The message's channel byte names neither the queue (0), the high-priority channel
+        /// (1 in its bits 0-1, the stop number in bits 2-7) nor the limits (2).
+        BadChannel = 0x0C, "channel byte neither the queue, the high-priority channel nor the limits";
         /// On a node with a key: the message's MAC does not verify (another key, or a message
         /// changed in flight).
         Unauthenticated = 0x0D, "the message's MAC does not verify (a node with a key)";
@@ -249,6 +250,9 @@ wire_enum! {
         /// The transfer did not complete within its budget (1 s + 10 ms per consecutive frame),
         /// or a consecutive frame came later than N_Cr: the slot is free again.
         TimedOut = 0x10, "transfer timed out";
+        /// Limits on the limits channel looser than the table's somewhere, with other joints than
+        /// the table's, or inconsistent (a lower bound above its upper one, a force limit of 0).
+        Looser = 0x11, "limits looser than the table's, or inconsistent";
     }
 }
 
@@ -271,6 +275,10 @@ wire_enum! {
         Overrun = 5, "loop overrun";
         /// The measured pose jumped farther than the drive can move.
         ImplausibleSensor = 6, "implausible pose";
+        /// A joint went farther outside its range.
+        JointLimit = 7, "joint limit";
+        /// The pose's translation or rotation, or a joint, moved faster than its limit.
+        Speed = 8, "speed limit";
     }
 }
 
@@ -282,6 +290,9 @@ wire_enum! {
         /// The high-priority channel: installed at the next tick, replacing the running schema
         /// and ending a fault.
         HighPriority = 1, "high-priority channel";
+        /// The limits in force ([`crate::schema::Limits`]): a run-time command that tightens
+        /// the table's bounds (or sets them back), never looser.
+        Limits = 2, "limits";
     }
 }
 
@@ -361,12 +372,12 @@ mod tests {
         for channel in SchemaChannel::ALL {
             assert_eq!(SchemaChannel::from_code(channel.code()), Some(*channel));
         }
-        assert_eq!(SchemaOutcome::from_code(0x11), None);
-        assert_eq!(SchemaSafety::from_code(7), None);
+        assert_eq!(SchemaOutcome::from_code(0x12), None);
+        assert_eq!(SchemaSafety::from_code(9), None);
         assert_eq!(SchemaSafety::from_code(0xFF), None);
         assert_eq!(SchemaTrigger::from_code(4), None);
         assert_eq!(SchemaOrigin::from_code(3), None);
-        assert_eq!(SchemaChannel::from_code(2), None);
+        assert_eq!(SchemaChannel::from_code(3), None);
         assert_eq!(NodeState::from_code(3), None);
         assert_eq!(FaultCode::from_code(0), None);
         assert_eq!(TransferStatusCode::from_code(0xFF), None);

@@ -414,9 +414,9 @@ pub struct TransferStatus {
 /// SchemaTransfer message, when it is complete (or refused at its first frame).
 ///
 /// ```text
-/// byte 0     outcome (SchemaOutcome): 0 accepted, else why the schema was refused
-/// byte 1     channel of the message (0 queue, 1 high-priority; 0xFF when unreadable)
-/// bytes 2-3  the schema's id, u16 LE (0xFFFF when it could not be decoded)
+/// byte 0     outcome (SchemaOutcome): 0 accepted, else why the schema (or limits) was refused
+/// byte 1     channel of the message (0 queue, 1 high-priority, 2 limits; 0xFF when unreadable)
+/// bytes 2-3  the schema's id, u16 LE (0xFFFF when it could not be decoded, and for limits)
 /// byte 4     schemas in the queue after it
 /// byte 5     the server's stop number (0..63, SchemaState byte 5 bits 2-7): what a refusal
 ///            StopNotAcknowledged wanted
@@ -428,7 +428,7 @@ pub struct SchemaAck {
     /// Accepted, or why not.
     pub outcome: SchemaOutcome,
     /// The message's channel; `None` (0xFF on the wire) when its channel byte could not be read
-    /// (a message refused at its first frame, or a channel byte neither 0 nor 1).
+    /// (a message refused at its first frame, or a channel byte neither 0, 1 nor 2).
     pub channel: Option<SchemaChannel>,
     /// The schema's id, or [`SchemaAck::NO_ID`] when it could not be decoded.
     pub id: u16,
@@ -617,7 +617,8 @@ pub enum Message {
     /// all; never refused.
     SchemaAbort,
     /// One ISO-TP frame of a schema message (or its flow control), passed to [`crate::isotp`]:
-    /// the message is a channel byte ([`SchemaChannel`]) and the schema's postcard bytes.
+    /// the message is a channel byte ([`SchemaChannel`]) and the schema's postcard bytes, or on
+    /// the limits channel the postcard bytes of [`crate::schema::Limits`].
     SchemaTransfer {
         /// The frame's bytes.
         data: [u8; 8],
@@ -1508,14 +1509,18 @@ mod tests {
             let id = FrameId::new(service, 10, BROADCAST).id();
             Message::decode(&Frame::data(id, payload).unwrap()).is_ok()
         };
-        // SchemaAck: outcome past 0x10, channel neither 0, 1 nor 0xFF, a stop number of 64 or
+        // SchemaAck: outcome past 0x11, channel neither 0, 1, 2 nor 0xFF, a stop number of 64 or
         // more, reserved bytes 6-7.
         assert!(accepted(
             Service::SchemaAck,
-            &[0x10, 0xFF, 0, 0, 0, 63, 0, 0]
+            &[0x11, 0xFF, 0, 0, 0, 63, 0, 0]
         ));
-        assert!(refused(Service::SchemaAck, &[0x11, 0, 0, 0, 0, 0, 0, 0]));
-        assert!(refused(Service::SchemaAck, &[0, 2, 0, 0, 0, 0, 0, 0]));
+        assert!(accepted(
+            Service::SchemaAck,
+            &[0x11, 2, 0xFF, 0xFF, 0, 0, 0, 0]
+        ));
+        assert!(refused(Service::SchemaAck, &[0x12, 0, 0, 0, 0, 0, 0, 0]));
+        assert!(refused(Service::SchemaAck, &[0, 3, 0, 0, 0, 0, 0, 0]));
         assert!(refused(Service::SchemaAck, &[0, 0, 0, 0, 0, 64, 0, 0]));
         for at in 6..8 {
             let mut payload = [0u8; 8];
@@ -1541,7 +1546,7 @@ mod tests {
         ));
         assert!(refused(
             Service::SchemaTransition,
-            &[1, 0, 0x17, 0xFF, 2, 7, 0, 0]
+            &[1, 0, 0x19, 0xFF, 2, 9, 0, 0]
         ));
         assert!(refused(
             Service::SchemaTransition,
@@ -1558,7 +1563,7 @@ mod tests {
             &[0, 0, 2, 5, 8, 0xFF, 0xFF, 0xFF]
         ));
         assert!(refused(Service::SchemaState, &[0, 0, 3, 0xFF, 0, 0, 0, 0]));
-        assert!(refused(Service::SchemaState, &[0, 0, 0, 7, 0, 0, 0, 0]));
+        assert!(refused(Service::SchemaState, &[0, 0, 0, 9, 0, 0, 0, 0]));
     }
 
     #[test]

@@ -20,6 +20,8 @@ impl From<Safety> for SchemaSafety {
             Safety::Watchdog => SchemaSafety::Watchdog,
             Safety::Overrun => SchemaSafety::Overrun,
             Safety::ImplausibleSensor => SchemaSafety::ImplausibleSensor,
+            Safety::JointLimit => SchemaSafety::JointLimit,
+            Safety::Speed => SchemaSafety::Speed,
         }
     }
 }
@@ -34,6 +36,8 @@ impl From<SchemaSafety> for Safety {
             SchemaSafety::Watchdog => Safety::Watchdog,
             SchemaSafety::Overrun => Safety::Overrun,
             SchemaSafety::ImplausibleSensor => Safety::ImplausibleSensor,
+            SchemaSafety::JointLimit => Safety::JointLimit,
+            SchemaSafety::Speed => Safety::Speed,
         }
     }
 }
@@ -80,6 +84,7 @@ impl From<&Refusal> for SchemaOutcome {
             Refusal::QueueFull => SchemaOutcome::QueueFull,
             Refusal::Busy => SchemaOutcome::Busy,
             Refusal::StopNotAcknowledged => SchemaOutcome::StopNotAcknowledged,
+            Refusal::Limits(_) => SchemaOutcome::Looser,
         }
     }
 }
@@ -158,7 +163,7 @@ mod tests {
     use crate::protocol::{BROADCAST, Message};
     use crate::schema::{Event, Schema};
 
-    const SAFETIES: [Safety; 7] = [
+    const SAFETIES: [Safety; 9] = [
         Safety::EmergencyStop,
         Safety::StaleSensor,
         Safety::Limit,
@@ -166,6 +171,8 @@ mod tests {
         Safety::Watchdog,
         Safety::Overrun,
         Safety::ImplausibleSensor,
+        Safety::JointLimit,
+        Safety::Speed,
     ];
 
     #[test]
@@ -219,6 +226,14 @@ mod tests {
             (Refusal::UnknownInnate, SchemaOutcome::UnknownInnate),
             (Refusal::QueueFull, SchemaOutcome::QueueFull),
             (Refusal::Busy, SchemaOutcome::Busy),
+            (
+                Refusal::StopNotAcknowledged,
+                SchemaOutcome::StopNotAcknowledged,
+            ),
+            (
+                Refusal::Limits(crate::schema::LimitsError::Looser),
+                SchemaOutcome::Looser,
+            ),
         ];
         for (refusal, outcome) in cases {
             assert_eq!(SchemaOutcome::from(&refusal), outcome, "{refusal:?}");

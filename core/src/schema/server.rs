@@ -3,9 +3,10 @@
 use heapless::{Deque, Vec};
 
 use super::action::Progress;
+use super::limits::{allowance, axis_excess, too_fast};
 use super::{
-    AXES, Event, Gripper, MAX_INNATE, MAX_SENSORS, Measure, Pose, QUEUE_DEPTH, Reaction, Schema,
-    SchemaError, Setpoint, Source, Wrench,
+    AXES, Event, Gripper, Joint, Limits, LimitsError, MAX_INNATE, MAX_JOINTS, MAX_SENSORS, Measure,
+    Pose, QUEUE_DEPTH, Reaction, SPEED_WINDOW_US, Schema, SchemaError, Setpoint, Source, Wrench,
 };
 use crate::time::Instant;
 
@@ -14,8 +15,8 @@ use crate::time::Instant;
 ///
 /// Order: the emergency stop first (it is handled with the high-priority channel, step 2), then a
 /// stale sensor (the tests after it would read stale values), an implausible pose, the workspace
-/// limit, the force limit, the watchdog and the overrun. (The numbers are the wire codes, in the
-/// order the events came to be.)
+/// limit, a joint's limit, the speed, the force limit, the watchdog and the overrun. (The numbers
+/// are the wire codes, in the order the events came to be.)
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[repr(u8)]
@@ -38,6 +39,11 @@ pub enum Safety {
     /// speed limits, [`Config::drive_speed`], and the sensor's noise): a forged or broken pose
     /// frame. The pose is not taken; the stop holds the last plausible one.
     ImplausibleSensor = 6,
+    /// A joint went farther outside its range than when the schema was installed.
+    JointLimit = 7,
+    /// The measured translation or rotation, or a joint, moved faster than its limit over the
+    /// speed window ([`super::SPEED_WINDOW_US`]).
+    Speed = 8,
 }
 
 impl Safety {
@@ -51,6 +57,8 @@ impl Safety {
             Safety::Watchdog => "watchdog",
             Safety::Overrun => "overrun",
             Safety::ImplausibleSensor => "implausible",
+            Safety::JointLimit => "joint",
+            Safety::Speed => "speed",
         }
     }
 
@@ -64,6 +72,8 @@ impl Safety {
             4 => Safety::Watchdog,
             5 => Safety::Overrun,
             6 => Safety::ImplausibleSensor,
+            7 => Safety::JointLimit,
+            8 => Safety::Speed,
             _ => return None,
         })
     }
@@ -136,6 +146,8 @@ pub enum Refusal {
     /// A high-priority schema that names another stop than the server's latest
     /// ([`Server::stop_number`]): sent before the client saw a stop, it must not leave it.
     StopNotAcknowledged,
+    /// Run-time limits looser than the table's, or inconsistent ([`Server::set_limits`]).
+    Limits(LimitsError),
 }
 
 /// Where a client's schema goes ([`Server::submit`]).
@@ -167,15 +179,9 @@ pub struct Config {
     pub period_us: u32,
     /// A tick later than this after the previous one is an overrun, µs.
     pub overrun_us: u32,
-    /// The workspace's lower corner (µm, µrad).
-    pub workspace_min: Pose,
-    /// The workspace's upper corner.
-    pub workspace_max: Pose,
-    /// The safety limit on the force's magnitude, mN (the contact thresholds of schemas are
-    /// lower).
-    pub force_limit: u32,
-    /// The safety limit on the torque's magnitude, mN·m (0: none).
-    pub torque_limit: u32,
+    /// The safety bounds: the loosest the board runs with ([`Server::set_limits`] may tighten
+    /// them at run time).
+    pub limits: Limits,
     /// The pose and wrench are stale this long after their last frame, µs.
     pub stale_us: u32,
     /// The extra sensors are stale this long after their last frame, µs.
@@ -204,10 +210,8 @@ pub struct Config {
 pub enum ConfigError {
     /// A period of 0, or an overrun bound shorter than the period.
     Period,
-    /// A workspace whose lower corner is above its upper one on some axis.
-    Workspace,
-    /// A force limit of 0.
-    ForceLimit,
+    /// The safety bounds are inconsistent.
+    Limits(LimitsError),
     /// A drive speed or rate of 0: every move would be implausible.
     DriveLimits,
     /// An innate schema (its index) is invalid or names an innate schema beyond the table.
@@ -215,8 +219,8 @@ pub enum ConfigError {
 }
 
 impl Config {
-    /// A set-up at `period_us` with the defaults: overrun at two periods, a ±1 m (rad)
-    /// workspace, 50 N, no torque limit, sensors stale after 20 periods (at least 50 ms), 1 s
+    /// A set-up at `period_us` with the defaults: overrun at two periods, [`Limits::new`] (a
+    /// ±1 m (rad) workspace, 50 N, no other bound), sensors stale after 20 periods (at least 50 ms), 1 s
     /// watchdog margin, a drive of at most 2 m/s and 2π rad/s on each axis with a pose noise of
     /// 1 mm (mrad), 2 000 N/m and 100 N·s/m, no innate schema.
     pub fn new(period_us: u32) -> Config {
@@ -224,10 +228,7 @@ impl Config {
         Config {
             period_us,
             overrun_us: period_us.saturating_mul(2),
-            workspace_min: [-1_000_000; AXES],
-            workspace_max: [1_000_000; AXES],
-            force_limit: 50_000,
-            torque_limit: 0,
+            limits: Limits::new(),
             stale_us: stale,
             sensor_stale_us: stale,
             watchdog_margin_ms: 1000,
@@ -245,17 +246,7 @@ impl Config {
         if self.period_us == 0 || self.overrun_us < self.period_us {
             return Err(ConfigError::Period);
         }
-        if self
-            .workspace_min
-            .iter()
-            .zip(&self.workspace_max)
-            .any(|(lo, hi)| lo > hi)
-        {
-            return Err(ConfigError::Workspace);
-        }
-        if self.force_limit == 0 {
-            return Err(ConfigError::ForceLimit);
-        }
+        self.limits.check().map_err(ConfigError::Limits)?;
         if self.drive_speed == 0 || self.drive_rate == 0 {
             return Err(ConfigError::DriveLimits);
         }
@@ -311,6 +302,11 @@ pub struct Server {
     /// How far outside the workspace the measured pose and the attractor were then, per axis.
     excess_at_install: [u32; AXES],
     attractor_excess_at_install: [u32; AXES],
+    /// How far outside its range each joint was then.
+    joint_excess_at_install: [u32; MAX_JOINTS],
+    /// Bounds set at run time, in force instead of the table's (`None`: the table's, so that a
+    /// server is made without a copy of them).
+    limits: Option<Limits>,
     /// The watchdog's budget for the current schema, µs.
     budget_us: Option<u64>,
     queue: Deque<Schema, QUEUE_DEPTH>,
@@ -319,6 +315,11 @@ pub struct Server {
     abort: bool,
     /// A pose frame jumped farther than the drive can move (checked at the next tick).
     implausible: bool,
+    /// The pose or a joint moved faster than its limit (checked at the next tick).
+    speeding: bool,
+    /// The pose, and each joint's reading, at the start of the speed window.
+    speed_from: Stamped<Pose>,
+    joint_from: [Stamped<i32>; MAX_JOINTS],
     /// Stops so far (emergency stops, aborts, safety events), wrapping.
     stops: u8,
     fault: Option<Safety>,
@@ -361,12 +362,17 @@ impl Server {
             pose_at_install: [0; AXES],
             excess_at_install: [0; AXES],
             attractor_excess_at_install: [0; AXES],
+            joint_excess_at_install: [0; MAX_JOINTS],
+            limits: None,
             budget_us: None,
             queue: Deque::new(),
             high_priority: None,
             estop: false,
             abort: false,
             implausible: false,
+            speeding: false,
+            speed_from: None,
+            joint_from: [None; MAX_JOINTS],
             stops: 0,
             fault: None,
             setpoint,
@@ -480,6 +486,23 @@ impl Server {
         self.estop = true;
     }
 
+    /// The bounds in force: the table's ([`Config::limits`]) until [`Server::set_limits`].
+    pub fn limits(&self) -> &Limits {
+        self.limits.as_ref().unwrap_or(&self.config.limits)
+    }
+
+    /// Sets the bounds in force from the next tick: each within the table's (tighter, or back to
+    /// the table's), never looser ([`Limits::check_within`]). A robot outside a tightened
+    /// workspace or joint range stops at the next tick (it is farther outside than when its
+    /// schema was installed); the schema that brings it back in is not stopped.
+    pub fn set_limits(&mut self, limits: Limits) -> Result<(), Refusal> {
+        limits
+            .check_within(&self.config.limits)
+            .map_err(Refusal::Limits)?;
+        self.limits = Some(limits);
+        Ok(())
+    }
+
     /// The measured pose, from its topic. Taken only if plausible: no axis moved farther since the
     /// last pose taken than the drive's speed (rate) allows in the time between, plus the pose
     /// noise; otherwise the next tick raises [`Safety::ImplausibleSensor`] and the server keeps
@@ -497,6 +520,18 @@ impl Server {
             return;
         }
         self.pose = Some((pose, at));
+        // The speed over the window: from the pose at its start to this one.
+        match self.speed_from {
+            Some((from, then)) => {
+                let dt = at.micros_since(then).unwrap_or(0);
+                if dt >= SPEED_WINDOW_US {
+                    self.speeding |=
+                        too_fast(self.limits(), &from, &pose, dt, self.config.pose_noise);
+                    self.speed_from = Some((pose, at));
+                }
+            }
+            None => self.speed_from = Some((pose, at)),
+        }
         if !self.armed {
             // The first pose: hold the robot where it is.
             self.setpoint.attractor = pose;
@@ -511,13 +546,29 @@ impl Server {
 
     /// An extra sensor's value, from its topic; `false` for an index beyond [`MAX_SENSORS`].
     pub fn set_sensor(&mut self, index: usize, value: i32, at: Instant) -> bool {
-        match self.sensors.get_mut(index) {
-            Some(s) => {
-                *s = Some((value, at));
-                true
+        let Some(s) = self.sensors.get_mut(index) else {
+            return false;
+        };
+        *s = Some((value, at));
+        // The joints it measures: their speed over the window, within one count of noise.
+        let limits = self.limits.as_ref().unwrap_or(&self.config.limits);
+        for (joint, from) in limits.joints.iter().zip(&mut self.joint_from) {
+            if usize::from(joint.sensor) != index {
+                continue;
             }
-            None => false,
+            match *from {
+                Some((last, then)) => {
+                    let dt = at.micros_since(then).unwrap_or(0);
+                    if dt >= SPEED_WINDOW_US {
+                        self.speeding |= joint.rate != 0
+                            && u64::from(last.abs_diff(value)) > allowance(joint.rate, dt, 1);
+                        *from = Some((value, at));
+                    }
+                }
+                None => *from = Some((value, at)),
+            }
         }
+        true
     }
 
     /// One pass of the loop at `now` (steps 2 to 6; the runner's timer is step 1).
@@ -581,7 +632,8 @@ impl Server {
 
         // Steps 3 and 4: the sensor table and the triggering event.
         let implausible = core::mem::take(&mut self.implausible);
-        match self.trigger(now, overrun, implausible) {
+        let speeding = core::mem::take(&mut self.speeding);
+        match self.trigger(now, overrun, implausible, speeding) {
             Some(Err(cause)) => self.recover(cause, now, transitions),
             Some(Ok((index, event, next))) => {
                 let by = Trigger::Reaction(index, event);
@@ -643,11 +695,12 @@ impl Server {
         now: Instant,
         overrun: bool,
         implausible: bool,
+        speeding: bool,
     ) -> Option<Result<(u8, Event, Source), Safety>> {
         // Read once for the watchdog and every reaction.
         let elapsed_us = self.elapsed_us(now);
         if self.fault.is_none()
-            && let Some(cause) = self.safety(now, elapsed_us, overrun, implausible)
+            && let Some(cause) = self.safety(now, elapsed_us, overrun, implausible, speeding)
         {
             return Some(Err(cause));
         }
@@ -666,8 +719,10 @@ impl Server {
         elapsed_us: u64,
         overrun: bool,
         implausible: bool,
+        speeding: bool,
     ) -> Option<Safety> {
         let c = &self.config;
+        let limits = self.limits();
         // The waits move nothing: a drive that is off while the board waits is no fault.
         let waiting = self.current.id >= super::BUILTIN_IDS;
         if !waiting {
@@ -675,19 +730,24 @@ impl Server {
             let wrench_ok = self
                 .wrench
                 .is_some_and(|(_, at)| fresh(now, at, c.stale_us));
-            // The sensors' test inlined, not `fresh`: up to 16 calls a tick.
-            let sensors_ok = self.current.reactions.iter().all(|r| match r.event {
-                Event::Above(Measure::Sensor(s), _) | Event::Below(Measure::Sensor(s), _) => self
-                    .sensors
+            // The sensors' test inlined, not `fresh`: up to 24 calls a tick. The sensors the
+            // reactions read, and those of the joints (a joint's limit needs its reading).
+            let sensor_ok = |s: u8| {
+                self.sensors
                     .get(usize::from(s))
                     .copied()
                     .flatten()
                     .is_some_and(|(_, at)| {
                         now.micros_since(at)
                             .is_none_or(|age| age <= u64::from(c.sensor_stale_us))
-                    }),
+                    })
+            };
+            let sensors_ok = self.current.reactions.iter().all(|r| match r.event {
+                Event::Above(Measure::Sensor(s), _) | Event::Below(Measure::Sensor(s), _) => {
+                    sensor_ok(s)
+                }
                 _ => true,
-            });
+            }) && limits.joints.iter().all(|j| sensor_ok(j.sensor));
             if !(pose_ok && wrench_ok && sensors_ok) {
                 return Some(Safety::StaleSensor);
             }
@@ -700,10 +760,21 @@ impl Server {
         {
             return Some(Safety::Limit);
         }
+        if limits
+            .joints
+            .iter()
+            .zip(&self.joint_excess_at_install)
+            .any(|(j, then)| joint_excess(&self.sensors, j) > *then)
+        {
+            return Some(Safety::JointLimit);
+        }
+        if speeding {
+            return Some(Safety::Speed);
+        }
         if let Some((w, _)) = &self.wrench {
             let (force, torque) = w.split_at(3);
-            if magnitude_above(force, c.force_limit)
-                || (c.torque_limit != 0 && magnitude_above(torque, c.torque_limit))
+            if magnitude_above(force, limits.force_limit)
+                || (limits.torque_limit != 0 && magnitude_above(torque, limits.torque_limit))
             {
                 return Some(Safety::Force);
             }
@@ -723,6 +794,7 @@ impl Server {
             Event::Done => return self.progress.done,
             Event::Elapsed(ms) => return elapsed_us >= u64::from(ms) * 1000,
             Event::QueueReady => return !self.queue.is_empty(),
+            Event::Above(Measure::Contact, t) => (Measure::Contact, self.limits().contact(t), true),
             Event::Above(m, t) => (m, t, true),
             Event::Below(m, t) => (m, t, false),
         };
@@ -776,11 +848,11 @@ impl Server {
     // Out of line: the limit's test and the tick's step 6 each inlined a copy.
     #[inline(never)]
     fn excess_grew(&self, p: &Pose, then: &[u32; AXES]) -> bool {
-        let c = &self.config;
+        let l = self.limits();
         // Axis by axis, without an array of the excesses.
         p.iter()
-            .zip(&c.workspace_min)
-            .zip(&c.workspace_max)
+            .zip(&l.workspace_min)
+            .zip(&l.workspace_max)
             .zip(then)
             .any(|(((v, lo), hi), then)| axis_excess(*v, *lo, *hi) > *then)
     }
@@ -821,12 +893,12 @@ impl Server {
         };
         self.installed_at = now;
         self.pose_at_install = measured;
-        excess(&self.config, &measured, &mut self.excess_at_install);
-        excess(
-            &self.config,
-            &attractor,
-            &mut self.attractor_excess_at_install,
-        );
+        let limits = self.limits.as_ref().unwrap_or(&self.config.limits);
+        excess(limits, &measured, &mut self.excess_at_install);
+        excess(limits, &attractor, &mut self.attractor_excess_at_install);
+        for (then, j) in self.joint_excess_at_install.iter_mut().zip(&limits.joints) {
+            *then = joint_excess(&self.sensors, j);
+        }
         // At most three installs a tick (see `Tick`); a fourth could not be reported, and cannot
         // happen: step 2, step 5 and step 6 install one each.
         let _ = out.push(Transition {
@@ -844,26 +916,24 @@ impl Server {
 /// the server's own fields, not copies made and moved in).
 // Out of line: three callers (install's two, the limit's test) each inlined a copy.
 #[inline(never)]
-fn excess(c: &Config, p: &Pose, out: &mut [u32; AXES]) {
+fn excess(l: &Limits, p: &Pose, out: &mut [u32; AXES]) {
     for (((o, v), lo), hi) in out
         .iter_mut()
         .zip(p)
-        .zip(&c.workspace_min)
-        .zip(&c.workspace_max)
+        .zip(&l.workspace_min)
+        .zip(&l.workspace_max)
     {
         *o = axis_excess(*v, *lo, *hi);
     }
 }
 
-/// How far `v` is outside `lo..=hi`. In 32 bits: a checked workspace has lo ≤ hi, so at most
-/// one side is exceeded, and the distance between two `i32` fits a `u32`.
-fn axis_excess(v: i32, lo: i32, hi: i32) -> u32 {
-    if v < lo {
-        lo.abs_diff(v)
-    } else if v > hi {
-        v.abs_diff(hi)
-    } else {
-        0
+/// How far outside its range joint `j` is, by its sensor's last reading (0 before one).
+// Out of line: the joint limit's test and the install each inlined a copy.
+#[inline(never)]
+fn joint_excess(sensors: &[Stamped<i32>; MAX_SENSORS], j: &Joint) -> u32 {
+    match sensors.get(usize::from(j.sensor)) {
+        Some(Some((v, _))) => axis_excess(*v, j.min, j.max),
+        _ => 0,
     }
 }
 
@@ -881,16 +951,6 @@ fn plausible(c: &Config, last: &Pose, next: &Pose, dt_us: u64) -> bool {
     last.iter().zip(next).enumerate().all(|(axis, (a, b))| {
         u64::from(a.abs_diff(*b)) <= if axis < 3 { translation } else { rotation }
     })
-}
-
-/// How far an axis may move in `dt_us` at `speed` (per second), plus `noise`: saturating.
-// Out of line: `plausible`'s two axes' kinds each inlined a copy (its 64-bit division).
-#[inline(never)]
-fn allowance(speed: u32, dt_us: u64, noise: u32) -> u64 {
-    u64::from(speed)
-        .saturating_mul(dt_us)
-        .div_ceil(1_000_000)
-        .saturating_add(u64::from(noise))
 }
 
 /// Whether a reading from `at` is at most `limit` µs old at `now` (one from the future is).

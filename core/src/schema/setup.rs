@@ -50,6 +50,9 @@ pub enum SetupError {
     /// An innate schema (its index) reads a sensor beyond the set-up's topics: it would stop on
     /// a stale sensor every time it ran.
     UnknownSensor(u8),
+    /// A joint's limits (its index) name a sensor beyond the set-up's topics: every schema would
+    /// stop on a stale sensor.
+    UnknownJointSensor(u8),
 }
 
 impl Drive {
@@ -104,6 +107,15 @@ impl Setup {
                 return Err(refuse(SensorError::DriveOverlap));
             }
         }
+        if let Some(i) = self
+            .config
+            .limits
+            .joints
+            .iter()
+            .position(|j| usize::from(j.sensor) >= self.sensors.len())
+        {
+            return Err(SetupError::UnknownJointSensor(i as u8));
+        }
         for (i, schema) in self.config.innate.iter().enumerate() {
             let unknown = schema.reactions.iter().any(|r| match r.event {
                 Event::Above(Measure::Sensor(s), _) | Event::Below(Measure::Sensor(s), _) => {
@@ -125,12 +137,7 @@ impl core::fmt::Display for SetupError {
             SetupError::Config(ConfigError::Period) => {
                 f.write_str("schema server: a period of 0, or an overrun bound below the period")
             }
-            SetupError::Config(ConfigError::Workspace) => {
-                f.write_str("schema server: a workspace whose lower corner is above its upper one")
-            }
-            SetupError::Config(ConfigError::ForceLimit) => {
-                f.write_str("schema server: a force limit of 0")
-            }
+            SetupError::Config(ConfigError::Limits(e)) => write!(f, "schema server: {e}"),
             SetupError::Config(ConfigError::DriveLimits) => {
                 f.write_str("schema server: a drive speed or rate of 0")
             }
@@ -153,6 +160,10 @@ impl core::fmt::Display for SetupError {
                     "schema server: sensor {i} is on one of the drive's frames"
                 )
             }
+            SetupError::UnknownJointSensor(i) => write!(
+                f,
+                "schema server: joint {i} is read from a sensor the set-up has no topic for"
+            ),
             SetupError::UnknownSensor(i) => write!(
                 f,
                 "schema server: innate schema {i} reads a sensor the set-up has no topic for"
@@ -164,10 +175,7 @@ impl core::fmt::Display for SetupError {
 decode_struct!(Config {
     period_us,
     overrun_us,
-    workspace_min,
-    workspace_max,
-    force_limit,
-    torque_limit,
+    limits,
     stale_us,
     sensor_stale_us,
     watchdog_margin_ms,

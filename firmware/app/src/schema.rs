@@ -20,7 +20,7 @@ use crate::auth::Guard;
 use crate::node::{earlier, transfer_deadline};
 use pab_core::auth;
 
-/// What a node with a key contributes to a schema transfer: its [`Guard`] (the key), its id, and
+/// What a node with a key contributes to a schema transfer: its guard (the key), its id, and
 /// the nonce of the TransferOpen that the frame at hand consumed (a first or single frame the
 /// node admitted). An unkeyed node's guard says so, and no frame carries a nonce.
 pub struct Keys<'a> {
@@ -32,8 +32,8 @@ pub struct Keys<'a> {
     pub opened: Option<u64>,
 }
 use pab_core::schema::{
-    self, AXES, Drive, MAX_ENCODED, MAX_SENSORS, Pose, Schema, Sensor, Server, Setpoint, Setup,
-    drive,
+    self, AXES, Drive, Limits, MAX_ENCODED, MAX_SENSORS, Pose, Schema, Sensor, Server, Setpoint,
+    Setup, drive,
 };
 use pab_core::{Frame, Instant, OutputId};
 
@@ -205,27 +205,32 @@ impl SchemaRuntime {
                     Some((c, rest)) => (*c, rest),
                     None => (0xFF, &[][..]),
                 };
-                let decoded = Schema::decode(bytes);
-                let id = decoded.as_ref().map_or(0xFFFF, |s| s.id);
                 let named = SchemaChannel::of_message(channel);
-                let verdict = if message.is_none() {
-                    Err(SchemaOutcome::Unauthenticated)
-                } else {
-                    match (named, decoded) {
-                        (Some(_), Err(e)) => Err(SchemaOutcome::from(&e)),
-                        (Some(named), Ok(s)) => self
-                            .server
+                let limits = channel == SchemaChannel::Limits.code();
+                let decoded = Schema::decode(bytes).map_err(|e| SchemaOutcome::from(&e));
+                let id = decoded.as_ref().map_or(0xFFFF, |s| s.id);
+                let verdict = match (message, named) {
+                    (None, _) => Err(SchemaOutcome::Unauthenticated),
+                    (Some(_), Some(named)) => decoded.and_then(|s| {
+                        self.server
                             .submit(s, named)
-                            .map_err(|r| SchemaOutcome::from(&r)),
-                        (None, _) => Err(SchemaOutcome::BadChannel),
-                    }
+                            .map_err(|r| SchemaOutcome::from(&r))
+                    }),
+                    // The limits channel: the bounds in force, within the table's.
+                    (Some(_), None) if limits => set_limits(&mut self.server, bytes),
+                    (Some(_), None) => Err(SchemaOutcome::BadChannel),
+                };
+                let channel = match named {
+                    Some(named) => Some(SchemaChannel::of(named)),
+                    None => limits.then_some(SchemaChannel::Limits),
                 };
                 (
                     None,
                     Some((
                         verdict.err().unwrap_or(SchemaOutcome::Accepted),
-                        named.map(SchemaChannel::of),
-                        id,
+                        channel,
+                        // Limits have no id; bytes that happen to decode as a schema too are not one.
+                        if limits { 0xFFFF } else { id },
                     )),
                 )
             }
@@ -364,6 +369,17 @@ impl SchemaRuntime {
             }
         }
     }
+}
+
+/// The limits in a message on the limits channel, set on `server` if they are within the
+/// table's.
+// Out of line, and of the server alone: the message's bytes are the receiver's.
+#[inline(never)]
+fn set_limits(server: &mut Server, bytes: &[u8]) -> Result<(), SchemaOutcome> {
+    let limits = Limits::decode(bytes).map_err(|e| SchemaOutcome::from(&e))?;
+    server
+        .set_limits(limits)
+        .map_err(|r| SchemaOutcome::from(&r))
 }
 
 fn transfer(flow_control: [u8; 8]) -> Message {

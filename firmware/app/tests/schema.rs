@@ -211,8 +211,13 @@ fn bad_schemas_are_refused_with_their_reason_and_a_full_queue_refuses() {
         SchemaOutcome::ReservedId
     );
     assert_eq!(
-        send(&mut h, 2, &build::idle(3, 0)).outcome,
+        send(&mut h, 3, &build::idle(3, 0)).outcome,
         SchemaOutcome::BadChannel
+    );
+    // Channel 2 is the limits': a schema's bytes are no limits.
+    assert_eq!(
+        send(&mut h, 2, &build::idle(3, 0)).outcome,
+        SchemaOutcome::Malformed
     );
     let mut innate = build::idle(4, 0);
     // The board has one innate schema.

@@ -222,3 +222,46 @@ fn latest_queue(h: &Harness) -> u8 {
         })
         .expect("a SchemaState")
 }
+
+/// The limits channel's message: byte 2, then the limits.
+fn limits_message(limits: &pab_core::schema::Limits) -> Vec<u8> {
+    let mut bytes = vec![2];
+    let mut buf = [0u8; 300];
+    bytes.extend_from_slice(postcard::to_slice(limits, &mut buf).unwrap());
+    bytes
+}
+
+#[test]
+fn only_the_key_holder_tightens_the_limits_and_never_beyond_the_tables() {
+    let mut h = keyed();
+    let table = setup().config.limits;
+    let mut tight = table.clone();
+    tight.force_limit = 10_000;
+    // Without the key: no answer, and the limits in force are the table's.
+    let plain = try_send_bytes(&mut h, &limits_message(&tight));
+    assert!(plain.is_none());
+    let in_force = |h: &Harness| h.node.schema().unwrap().server().limits().clone();
+    assert_eq!(in_force(&h), table);
+    // With it: accepted on the limits channel, confirmed by a Receipt.
+    let (ack, receipt, nonce) = send_keyed_with(&mut h, &limits_message(&tight), &KEY, OPEN_SCHEMA);
+    let ack = ack.expect("a SchemaAck");
+    assert_eq!(
+        (ack.outcome, ack.channel, ack.id),
+        (
+            SchemaOutcome::Accepted,
+            Some(pab_core::protocol::SchemaChannel::Limits),
+            SchemaAck::NO_ID
+        )
+    );
+    assert!(receipt_verifies(&ack, nonce, &receipt.expect("a Receipt")));
+    assert_eq!(in_force(&h), tight);
+    // Looser than the table's, even with the key: refused, nothing changed.
+    let mut loose = table.clone();
+    loose.force_limit += 1;
+    let (ack, _, _) = send_keyed_with(&mut h, &limits_message(&loose), &KEY, OPEN_SCHEMA);
+    assert_eq!(ack.unwrap().outcome, SchemaOutcome::Looser);
+    assert_eq!(in_force(&h), tight);
+    // Bytes that are no limits: Malformed.
+    let (ack, _, _) = send_keyed_with(&mut h, &[2, 0xFF], &KEY, OPEN_SCHEMA);
+    assert_eq!(ack.unwrap().outcome, SchemaOutcome::Malformed);
+}

@@ -110,7 +110,9 @@ fn main() {
 /// workspace's limit, late ticks and a robot that stops reporting, innate reflexes with an
 /// abort, and a contact measured at the ends of the pose and wrench ranges.
 fn schema_seeds(write: &dyn Fn(&str, &str, &[u8])) {
-    use pab_core::schema::{Action, Config, Event, Gripper, Measure, Reaction, Source, build};
+    use pab_core::schema::{
+        Action, Config, Event, Gripper, Joint, Measure, Reaction, Source, build,
+    };
     use pab_fuzz_checks::schema::{Ack, Op, decode_script, encode_script};
 
     let still = |ticks: u8| Op::Run {
@@ -224,8 +226,8 @@ fn schema_seeds(write: &dyn Fn(&str, &str, &[u8])) {
     scripts.push(("blind-search", config.clone(), ops));
 
     let mut near = Config::new(1000);
-    near.workspace_max = [5_000; 6];
-    near.workspace_min = [-5_000; 6];
+    near.limits.workspace_max = [5_000; 6];
+    near.limits.workspace_min = [-5_000; 6];
     let mut ops = start.to_vec();
     ops.extend([
         Op::Enqueue(build::move_to(1, [8_000, 0, 0, 0, 0, 0], 100_000)),
@@ -287,9 +289,9 @@ fn schema_seeds(write: &dyn Fn(&str, &str, &[u8])) {
     // (its negation overflowed, until the fix with core/tests/schema_server.rs's
     // `contact_against_a_move_from_the_end_of_the_pose_range_does_not_overflow`).
     let mut wide = Config::new(1000);
-    wide.workspace_min = [i32::MIN; 6];
-    wide.workspace_max = [i32::MAX; 6];
-    wide.force_limit = u32::MAX;
+    wide.limits.workspace_min = [i32::MIN; 6];
+    wide.limits.workspace_max = [i32::MAX; 6];
+    wide.limits.force_limit = u32::MAX;
     let max = pab_core::schema::MAX_COORD;
     let mut touch = build::move_to(1, [max, max, max, 0, 0, 0], 1);
     touch.reactions[0] = Reaction {
@@ -305,6 +307,45 @@ fn schema_seeds(write: &dyn Fn(&str, &str, &[u8])) {
         },
     ];
     scripts.push(("contact-range", wide, ops));
+
+    // A joint on sensor 0 and a speed limit of 50 mm/s: the limits tightened at run time (and
+    // a looser set refused), a move too fast for them, the joint driven out of its range.
+    let mut bounded = Config::new(1000);
+    bounded.limits.speed_limit = 50_000;
+    bounded
+        .limits
+        .joints
+        .push(Joint {
+            sensor: 0,
+            min: -1000,
+            max: 1000,
+            rate: 2000,
+        })
+        .expect("room for a joint");
+    let mut tight = bounded.limits.clone();
+    tight.speed_limit = 20_000;
+    tight.joints[0].max = 500;
+    let mut loose = bounded.limits.clone();
+    loose.force_limit += 1;
+    let mut ops = start.to_vec();
+    ops.extend([
+        Op::Sensor(0, 0),
+        Op::Limits(loose),
+        Op::Limits(tight),
+        Op::Enqueue(build::move_to(1, [10_000, 0, 0, 0, 0, 0], 40_000)),
+    ]);
+    for step in 0..30 {
+        ops.extend([Op::Sensor(0, 20 * step), still(1)]);
+    }
+    ops.extend([
+        Op::HighPriority(build::idle(2, 0), Ack::Latest),
+        Op::Sensor(0, 700),
+        still(2),
+        Op::Limits(bounded.limits.clone()),
+        Op::HighPriority(build::idle(3, 0), Ack::Latest),
+        still(30),
+    ]);
+    scripts.push(("limits", bounded, ops));
 
     for (name, config, ops) in scripts {
         let bytes = encode_script(&config, &ops).expect("every schema fits its length byte");

@@ -60,9 +60,10 @@ use std::collections::{BTreeSet, VecDeque};
 use arbitrary::{Result, Unstructured};
 use pab_core::Instant;
 use pab_core::schema::{
-    AXES, Action, BUILTIN_IDS, Config, ConfigError, Event, Gripper, MAX_COORD, MAX_ENCODED,
-    MAX_INNATE, MAX_REACTIONS, MAX_SENSORS, Measure, Origin, Pose, QUEUE_DEPTH, Reaction, Refusal,
-    STOP_NUMBERS, Safety, Schema, SchemaError, Server, Source, Trigger, Wrench, build,
+    AXES, Action, BUILTIN_IDS, Config, ConfigError, Event, Gripper, Joint, Limits, LimitsError,
+    MAX_COORD, MAX_ENCODED, MAX_INNATE, MAX_JOINTS, MAX_REACTIONS, MAX_SENSORS, Measure, Origin,
+    Pose, QUEUE_DEPTH, Reaction, Refusal, SPEED_WINDOW_US, STOP_NUMBERS, Safety, Schema,
+    SchemaError, Server, Source, Trigger, Wrench, build,
 };
 
 /// Time never runs further than this from the start (`Instant` compares instants less than
@@ -85,7 +86,7 @@ pub fn check(data: &[u8]) {
         if u.is_empty() {
             break;
         }
-        let op = match read_op(&mut u) {
+        let op = match read_op(&mut u, &world.config.limits) {
             Ok(Some(op)) => op,
             Ok(None) => continue,
             Err(_) => break,
@@ -141,6 +142,8 @@ pub enum Op {
     Wrench(Wrench, u16),
     /// `set_sensor` (any index), stamped now.
     Sensor(u8, i32),
+    /// `set_limits`: the table's limits with some fields replaced by any value.
+    Limits(Limits),
     /// A tick this many periods after the previous time (0: at the same time).
     Tick(u32),
     /// This many ticks one period apart, each after the pose (the attractor plus `offset`, or
@@ -173,12 +176,12 @@ pub fn encode_script(config: &Config, ops: &[Op]) -> Option<Vec<u8>> {
     for v in [c.period_us, c.overrun_us] {
         out.extend(v.to_le_bytes());
     }
-    for v in c.workspace_min.iter().chain(&c.workspace_max) {
+    for v in c.limits.workspace_min.iter().chain(&c.limits.workspace_max) {
         out.extend(v.to_le_bytes());
     }
     for v in [
-        c.force_limit,
-        c.torque_limit,
+        c.limits.force_limit,
+        c.limits.torque_limit,
         c.stale_us,
         c.sensor_stale_us,
         c.watchdog_margin_ms,
@@ -190,6 +193,7 @@ pub fn encode_script(config: &Config, ops: &[Op]) -> Option<Vec<u8>> {
     ] {
         out.extend(v.to_le_bytes());
     }
+    encode_extra_limits(&c.limits, &mut out);
     out.push(c.innate.len() as u8);
     for s in &c.innate {
         encode_schema(s, &mut out)?;
@@ -225,6 +229,18 @@ pub fn encode_script(config: &Config, ops: &[Op]) -> Option<Vec<u8>> {
                 out.push(*index);
                 out.extend(value.to_le_bytes());
             }
+            Op::Limits(l) => {
+                out.push(12);
+                // Every field raw.
+                out.extend(0xFFFF_u16.to_le_bytes());
+                for v in l.workspace_min.iter().chain(&l.workspace_max) {
+                    out.extend(v.to_le_bytes());
+                }
+                for v in [l.force_limit, l.torque_limit] {
+                    out.extend(v.to_le_bytes());
+                }
+                encode_extra_limits(l, &mut out);
+            }
             Op::Tick(periods) => {
                 out.push(7);
                 if *periods < 5 {
@@ -250,6 +266,64 @@ pub fn encode_script(config: &Config, ops: &[Op]) -> Option<Vec<u8>> {
     Some(out)
 }
 
+/// The contact, speed and rate limits and the joints, as `read_extra_limits` reads them.
+fn encode_extra_limits(l: &Limits, out: &mut Vec<u8>) {
+    for v in [l.contact_limit, l.speed_limit, l.rate_limit] {
+        out.extend(v.to_le_bytes());
+    }
+    out.push(l.joints.len() as u8);
+    for j in &l.joints {
+        out.push(j.sensor);
+        out.extend(j.min.to_le_bytes());
+        out.extend(j.max.to_le_bytes());
+        out.extend(j.rate.to_le_bytes());
+    }
+}
+
+fn read_extra_limits(u: &mut Unstructured, l: &mut Limits) -> Result<()> {
+    l.contact_limit = u.arbitrary()?;
+    l.speed_limit = u.arbitrary()?;
+    l.rate_limit = u.arbitrary()?;
+    l.joints.clear();
+    for _ in 0..usize::from(u.arbitrary::<u8>()?) % (MAX_JOINTS + 1) {
+        // Capacity MAX_JOINTS: never refused.
+        let _ = l.joints.push(Joint {
+            sensor: u.arbitrary()?,
+            min: u.arbitrary()?,
+            max: u.arbitrary()?,
+            rate: u.arbitrary()?,
+        });
+    }
+    Ok(())
+}
+
+/// Run-time limits: `table`'s, with the fields whose bit is set read raw.
+fn read_limits(u: &mut Unstructured, table: &Limits) -> Result<Limits> {
+    let flags: u16 = u.arbitrary()?;
+    let raw = |bit: u8| flags & (1 << bit) != 0;
+    let mut l = table.clone();
+    if raw(0) {
+        for v in l.workspace_min.iter_mut().chain(&mut l.workspace_max) {
+            *v = u.arbitrary()?;
+        }
+    }
+    if raw(1) {
+        l.force_limit = u.arbitrary()?;
+        l.torque_limit = u.arbitrary()?;
+    }
+    if raw(2) {
+        read_extra_limits(u, &mut l)?;
+    } else if raw(3) {
+        // Each joint's range narrowed by an amount from the input (a tighter one, mostly).
+        for j in &mut l.joints {
+            let (a, b): (u16, u16) = (u.arbitrary()?, u.arbitrary()?);
+            j.min = j.min.saturating_add(i32::from(a));
+            j.max = j.max.saturating_sub(i32::from(b));
+        }
+    }
+    Ok(l)
+}
+
 /// A schema as a script's postcard-bytes form: kind 0, length, bytes.
 fn encode_schema(s: &Schema, out: &mut Vec<u8>) -> Option<()> {
     let mut buf = [0u8; 2 * MAX_ENCODED];
@@ -267,7 +341,7 @@ pub fn decode_script(data: &[u8]) -> Option<(Config, Vec<Op>)> {
     let config = read_config(&mut u).ok()?;
     let mut ops = Vec::new();
     while !u.is_empty() && ops.len() < MAX_OPS {
-        match read_op(&mut u).ok()? {
+        match read_op(&mut u, &config.limits).ok()? {
             Some(op) => ops.push(op),
             None => continue,
         }
@@ -289,20 +363,21 @@ fn read_config(u: &mut Unstructured) -> Result<Config> {
     }
     if raw(1) {
         for v in config
+            .limits
             .workspace_min
             .iter_mut()
-            .chain(&mut config.workspace_max)
+            .chain(&mut config.limits.workspace_max)
         {
             *v = u.arbitrary()?;
         }
     } else {
         let half = [1_000_000, 100, 50_000, MAX_COORD][usize::from(u.arbitrary::<u8>()? % 4)];
-        config.workspace_min = [-half; AXES];
-        config.workspace_max = [half; AXES];
+        config.limits.workspace_min = [-half; AXES];
+        config.limits.workspace_max = [half; AXES];
     }
     if raw(2) {
-        config.force_limit = u.arbitrary()?;
-        config.torque_limit = u.arbitrary()?;
+        config.limits.force_limit = u.arbitrary()?;
+        config.limits.torque_limit = u.arbitrary()?;
     }
     if raw(3) {
         config.stale_us = u.arbitrary()?;
@@ -320,6 +395,9 @@ fn read_config(u: &mut Unstructured) -> Result<Config> {
         config.drive_rate = u.arbitrary()?;
         config.pose_noise = u.arbitrary()?;
     }
+    if raw(7) {
+        read_extra_limits(u, &mut config.limits)?;
+    }
     let count = usize::from(u.arbitrary::<u8>()?) % (MAX_INNATE + 1);
     for _ in 0..count {
         if let Some(s) = read_schema(u)? {
@@ -331,9 +409,9 @@ fn read_config(u: &mut Unstructured) -> Result<Config> {
 }
 
 /// The next operation (`None`: a schema that did not decode, nothing to do).
-fn read_op(u: &mut Unstructured) -> Result<Option<Op>> {
+fn read_op(u: &mut Unstructured, table: &Limits) -> Result<Option<Op>> {
     let kind: u8 = u.arbitrary()?;
-    Ok(Some(match kind % 12 {
+    Ok(Some(match kind % 13 {
         0 => match read_schema(u)? {
             Some(s) => Op::Enqueue(s),
             None => return Ok(None),
@@ -363,6 +441,7 @@ fn read_op(u: &mut Unstructured) -> Result<Option<Op>> {
                 u32::from(n % 5)
             })
         }
+        12 => Op::Limits(read_limits(u, table)?),
         _ => Op::Run {
             ticks: u.arbitrary()?,
             offset: u.arbitrary()?,
@@ -526,12 +605,7 @@ fn reference_check(c: &Config) -> std::result::Result<(), ConfigError> {
     if c.period_us == 0 || c.overrun_us < c.period_us {
         return Err(ConfigError::Period);
     }
-    if (0..AXES).any(|a| c.workspace_min[a] > c.workspace_max[a]) {
-        return Err(ConfigError::Workspace);
-    }
-    if c.force_limit == 0 {
-        return Err(ConfigError::ForceLimit);
-    }
+    reference_limits(&c.limits).map_err(ConfigError::Limits)?;
     if c.drive_speed == 0 || c.drive_rate == 0 {
         return Err(ConfigError::DriveLimits);
     }
@@ -543,27 +617,93 @@ fn reference_check(c: &Config) -> std::result::Result<(), ConfigError> {
     Ok(())
 }
 
+/// `Limits::check` as `LimitsError` documents it.
+fn reference_limits(l: &Limits) -> std::result::Result<(), LimitsError> {
+    if (0..AXES).any(|a| l.workspace_min[a] > l.workspace_max[a]) {
+        return Err(LimitsError::Workspace);
+    }
+    if l.force_limit == 0 {
+        return Err(LimitsError::ForceLimit);
+    }
+    match l.joints.iter().position(|j| j.min > j.max) {
+        Some(i) => Err(LimitsError::Joint(i as u8)),
+        None => Ok(()),
+    }
+}
+
+/// `Server::set_limits`'s verdict as documented: consistent, and each bound within the
+/// table's (a corner or range inside, a limit at most the table's and not none where it has
+/// one, the same joints in the same order).
+fn reference_within(l: &Limits, table: &Limits) -> std::result::Result<(), Refusal> {
+    reference_limits(l).map_err(Refusal::Limits)?;
+    let within = |new: u32, old: u32| old == 0 || (1..=old).contains(&new);
+    let inside = (0..AXES).all(|a| {
+        l.workspace_min[a] >= table.workspace_min[a] && l.workspace_max[a] <= table.workspace_max[a]
+    }) && within(l.force_limit, table.force_limit)
+        && within(l.torque_limit, table.torque_limit)
+        && within(l.contact_limit, table.contact_limit)
+        && within(l.speed_limit, table.speed_limit)
+        && within(l.rate_limit, table.rate_limit)
+        && l.joints.len() == table.joints.len()
+        && l.joints.iter().zip(&table.joints).all(|(n, o)| {
+            n.sensor == o.sensor && n.min >= o.min && n.max <= o.max && within(n.rate, o.rate)
+        });
+    if inside {
+        Ok(())
+    } else {
+        Err(Refusal::Limits(LimitsError::Looser))
+    }
+}
+
+/// Whether the pose moved faster than `l` allows from `last` to `next` in `dt` µs, in i128:
+/// the translation's (rotation's) magnitude above the limit × dt (rounded up) plus twice the
+/// noise, a limit of 0 none, an allowance of 2^32 or more none (as documented).
+fn reference_too_fast(l: &Limits, last: &Pose, next: &Pose, dt: u64, noise: u32) -> bool {
+    [(0usize, l.speed_limit), (3, l.rate_limit)]
+        .iter()
+        .any(|&(axis, limit)| {
+            let allowed =
+                (i128::from(limit) * i128::from(dt) + 999_999) / 1_000_000 + 2 * i128::from(noise);
+            let moved: i128 = (axis..axis + 3)
+                .map(|a| (i128::from(next[a]) - i128::from(last[a])).pow(2))
+                .sum();
+            limit != 0 && allowed <= i128::from(u32::MAX) && moved > allowed * allowed
+        })
+}
+
 fn innate_known(s: &Schema, count: usize) -> bool {
     s.reactions
         .iter()
         .all(|r| !matches!(r.next, Source::Innate(i) if usize::from(i) >= count))
 }
 
+/// How far `v` is outside `lo..=hi`.
+fn outside(v: i32, lo: i32, hi: i32) -> u64 {
+    let (v, lo, hi) = (i64::from(v), i64::from(lo), i64::from(hi));
+    (lo - v).max(v - hi).max(0) as u64
+}
+
 /// How far `p` is outside the workspace, per axis.
-fn excess(c: &Config, p: &Pose) -> [u64; AXES] {
+fn excess(l: &Limits, p: &Pose) -> [u64; AXES] {
     let mut out = [0; AXES];
     for (a, o) in out.iter_mut().enumerate() {
-        let (v, lo, hi) = (
-            i64::from(p[a]),
-            i64::from(c.workspace_min[a]),
-            i64::from(c.workspace_max[a]),
-        );
-        *o = (lo - v).max(v - hi).max(0) as u64;
+        *o = outside(p[a], l.workspace_min[a], l.workspace_max[a]);
     }
     out
 }
 
-fn no_farther(now: &[u64; AXES], then: &[u64; AXES]) -> bool {
+/// How far each joint is outside its range, by its sensor's last reading (0 before one).
+fn joint_excess(l: &Limits, sensors: &[Option<i32>; MAX_SENSORS]) -> [u64; MAX_JOINTS] {
+    let mut out = [0; MAX_JOINTS];
+    for (o, j) in out.iter_mut().zip(&l.joints) {
+        if let Some(Some(v)) = sensors.get(usize::from(j.sensor)) {
+            *o = outside(*v, j.min, j.max);
+        }
+    }
+    out
+}
+
+fn no_farther(now: &[u64], then: &[u64]) -> bool {
     now.iter().zip(then).all(|(n, t)| n <= t)
 }
 
@@ -630,6 +770,17 @@ struct World {
     plausible: Option<(Pose, u64)>,
     /// A pose frame since the last tick was implausible.
     implausible: bool,
+    /// The bounds in force.
+    limits: Limits,
+    /// The pose and each joint at the start of their speed windows (µs since the start).
+    speed_from: Option<(Pose, u64)>,
+    joint_from: [Option<(i32, u64)>; MAX_JOINTS],
+    /// A pose or joint moved too fast since the last tick.
+    speeding: bool,
+    /// The sensors' last readings.
+    sensors: [Option<i32>; MAX_SENSORS],
+    /// The joints' excess when the current schema was installed.
+    joint_excess: [u64; MAX_JOINTS],
     /// The attractor, once a pose has been set (before, the server's is not commanded).
     attractor: Option<Pose>,
     /// The attractor's and the last pose's excess at the start of the tick that installed the
@@ -645,11 +796,13 @@ impl World {
         assert_eq!(made.as_ref().err().copied(), expected.err(), "{config:?}");
         let server = made.ok()?;
         assert_eq!(server.config(), &config);
+        assert_eq!(server.limits(), &config.limits);
         assert_eq!(server.schema(), &wait_queue());
         assert_eq!((server.fault(), server.queued()), (None, 0));
         Some(World {
             server,
             admitted: config.innate.iter().map(|s| s.id).collect(),
+            limits: config.limits.clone(),
             config,
             now: 0,
             queue: VecDeque::new(),
@@ -661,6 +814,11 @@ impl World {
             pose: None,
             plausible: None,
             implausible: false,
+            speed_from: None,
+            joint_from: [None; MAX_JOINTS],
+            speeding: false,
+            sensors: [None; MAX_SENSORS],
+            joint_excess: [0; MAX_JOINTS],
             attractor: None,
             attractor_excess: None,
             pose_excess: None,
@@ -739,6 +897,38 @@ impl World {
                     .server
                     .set_sensor(usize::from(index), value, self.at(0));
                 assert_eq!(taken, usize::from(index) < MAX_SENSORS);
+                if let Some(slot) = self.sensors.get_mut(usize::from(index)) {
+                    *slot = Some(value);
+                    // The joints it reads: their speed over the window, within one count.
+                    let now = self.now;
+                    for (j, from) in self.limits.joints.iter().zip(&mut self.joint_from) {
+                        if j.sensor != index {
+                            continue;
+                        }
+                        match *from {
+                            Some((last, then)) if now - then >= SPEED_WINDOW_US => {
+                                let allowed = (i128::from(j.rate) * i128::from(now - then)
+                                    + 999_999)
+                                    / 1_000_000
+                                    + 1;
+                                let moved = (i128::from(value) - i128::from(last)).abs();
+                                self.speeding |= j.rate != 0 && moved > allowed;
+                                *from = Some((value, now));
+                            }
+                            Some(_) => {}
+                            None => *from = Some((value, now)),
+                        }
+                    }
+                }
+            }
+            Op::Limits(l) => {
+                let expected = reference_within(&l, &self.config.limits);
+                let got = self.server.set_limits(l.clone());
+                assert_eq!(got, expected, "{l:?}");
+                if got.is_ok() {
+                    self.limits = l;
+                }
+                assert_eq!(self.server.limits(), &self.limits);
             }
             Op::Tick(periods) => {
                 let step = u64::from(periods).saturating_mul(self.config.period_us.into());
@@ -796,6 +986,16 @@ impl World {
         }
         self.plausible = Some((p, at));
         self.pose = Some(p);
+        match self.speed_from {
+            Some((from, then)) if at.saturating_sub(then) >= SPEED_WINDOW_US => {
+                let dt = at - then;
+                self.speeding |=
+                    reference_too_fast(&self.limits, &from, &p, dt, self.config.pose_noise);
+                self.speed_from = Some((p, at));
+            }
+            Some(_) => {}
+            None => self.speed_from = Some((p, at)),
+        }
         // The first pose arms the server: the attractor is set to it.
         self.attractor.get_or_insert(p);
     }
@@ -804,6 +1004,7 @@ impl World {
         let fault_before = self.server.fault();
         let attractor_before = self.attractor;
         let implausible = std::mem::take(&mut self.implausible);
+        let speeding = std::mem::take(&mut self.speeding);
         // A stop ends everything that was about to run: the schema waiting on the high-priority
         // channel is discarded, not installed at a later tick; an abort with the stop still
         // empties the queue.
@@ -858,6 +1059,9 @@ impl World {
                     if cause == Safety::ImplausibleSensor {
                         assert!(implausible, "an implausible pose nobody sent");
                     }
+                    if cause == Safety::Speed {
+                        assert!(speeding, "a speed event with nothing too fast");
+                    }
                     if cause != Safety::EmergencyStop {
                         assert_eq!(fault, None, "{cause:?} while stopped on a fault");
                     }
@@ -910,6 +1114,13 @@ impl World {
                 out.transitions
             );
         }
+        if speeding && running {
+            assert!(
+                safety,
+                "a pose or joint too fast did not stop the server: {:?}",
+                out.transitions
+            );
+        }
         assert_eq!(self.server.schema(), &current);
         assert_eq!(self.server.fault(), fault, "{:?}", out.transitions);
         assert_eq!(
@@ -941,12 +1152,19 @@ impl World {
             }
         }
         if !out.transitions.is_empty() {
-            self.attractor_excess = attractor_before.map(|a| excess(&self.config, &a));
-            self.pose_excess = self.pose.map(|p| excess(&self.config, &p));
+            self.attractor_excess = attractor_before.map(|a| excess(&self.limits, &a));
+            self.pose_excess = self.pose.map(|p| excess(&self.limits, &p));
+            self.joint_excess = joint_excess(&self.limits, &self.sensors);
         }
         if fault.is_none() {
+            let joints = joint_excess(&self.limits, &self.sensors);
+            assert!(
+                no_farther(&joints, &self.joint_excess),
+                "joints farther out ({joints:?}) than at install ({:?}) without a fault",
+                self.joint_excess
+            );
             if let (Some(then), Some(a)) = (self.attractor_excess, self.attractor) {
-                let now = excess(&self.config, &a);
+                let now = excess(&self.limits, &a);
                 assert!(
                     no_farther(&now, &then),
                     "attractor {a:?} farther out ({now:?}) than at install ({then:?}): {:?}",
@@ -954,7 +1172,7 @@ impl World {
                 );
             }
             if let (Some(then), Some(p)) = (self.pose_excess, self.pose) {
-                let now = excess(&self.config, &p);
+                let now = excess(&self.limits, &p);
                 assert!(
                     no_farther(&now, &then),
                     "pose {p:?} farther out ({now:?}) than at install ({then:?}) without a fault"

@@ -43,8 +43,8 @@ use std::ops::Range;
 use indexmap::IndexMap;
 use pab_core::OutputId;
 use pab_core::schema::{
-    AXES, Action, BUILTIN_IDS, Config, Drive, Event, Gripper, MAX_COORD, MAX_INNATE, MAX_REACTIONS,
-    MAX_SENSORS, Measure, Pose, Reaction, Schema, Sensor, Source, build,
+    AXES, Action, BUILTIN_IDS, Config, Drive, Event, Gripper, Joint, MAX_COORD, MAX_INNATE,
+    MAX_REACTIONS, MAX_SENSORS, Measure, Pose, Reaction, Schema, Sensor, Source, build,
 };
 use serde::Deserialize;
 use toml::Spanned;
@@ -66,6 +66,9 @@ pub(super) struct RawSchema {
     rotation_limit_mrad: Option<Spanned<f64>>,
     force_limit_n: Option<Spanned<f64>>,
     torque_limit_nm: Option<Spanned<f64>>,
+    contact_limit_n: Option<Spanned<f64>>,
+    speed_limit_mm_s: Option<Spanned<f64>>,
+    rate_limit_rad_s: Option<Spanned<f64>>,
     stale_ms: Option<Spanned<f64>>,
     sensor_stale_ms: Option<Spanned<f64>>,
     watchdog_margin_ms: Option<Spanned<f64>>,
@@ -95,6 +98,17 @@ struct RawSensor {
     value: Spanned<RawField>,
     scale: Option<Spanned<f64>>,
     unit: Option<Spanned<String>>,
+    joint: Option<Spanned<RawJoint>>,
+}
+
+/// `joint = { min = -90, max = 90, speed = 60 }`: the sensor reads a joint, whose range (and top
+/// speed per second) in the sensor's unit are safety limits.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawJoint {
+    min: Spanned<f64>,
+    max: Spanned<f64>,
+    speed: Option<Spanned<f64>>,
 }
 
 /// `drive = { setpoint = 0x300, pose = 0x310, wrench = 0x320, extended = false }`.
@@ -211,6 +225,8 @@ pub struct SensorTopic {
     pub scale: f64,
     /// The unit the file's thresholds are written in (text, for messages and plots).
     pub unit: String,
+    /// The joint it reads, when it has limits (`joint = { … }`), in counts.
+    pub joint: Option<Joint>,
 }
 
 /// The first id of the innate schemas: innate schema i has id `INNATE_IDS + i`, below the
@@ -410,6 +426,10 @@ impl Builder<'_> {
             if let (Some(mut config), Some(drive)) = (self.schema_config(raw), drive)
                 && self.errors.len() == errors
             {
+                // The joints' limits, from their sensors (at most MAX_SENSORS = MAX_JOINTS).
+                for joint in sensors.iter().filter_map(|s| s.joint) {
+                    let _ = config.limits.joints.push(joint);
+                }
                 let mut names = Vec::new();
                 for (name, schema) in innate {
                     // `innate` took at most MAX_INNATE.
@@ -522,14 +542,98 @@ impl Builder<'_> {
                 Some(u) if self.printable(u, "unit") => u.get_ref().clone(),
                 Some(_) => continue,
             };
+            let joint = match &s.joint {
+                Some(j) => match self.joint(j, out.len(), field.range(), scale, &what, &unit) {
+                    Some(joint) => Some(joint),
+                    None => continue,
+                },
+                None => None,
+            };
             out.push(SensorTopic {
                 name: name.get_ref().clone(),
                 sensor: Sensor { id, field },
                 scale,
                 unit,
+                joint,
             });
         }
         out
+    }
+
+    /// `joint = { min, max, speed }` of sensor `index` (its field's `range` of counts, `scale`
+    /// units a count): the range in whole counts within the file's (the bounds rounded inwards),
+    /// the speed in counts per second (rounded down, at least 1).
+    fn joint(
+        &mut self,
+        raw: &Spanned<RawJoint>,
+        index: usize,
+        range: (i64, i64),
+        scale: f64,
+        what: &str,
+        unit: &str,
+    ) -> Option<Joint> {
+        let j = raw.get_ref();
+        let errors = self.errors.len();
+        let unit = if unit.is_empty() {
+            String::new()
+        } else {
+            format!(" {unit}")
+        };
+        let (low, high) = (range.0 as f64, range.1 as f64);
+        // Within rounding of a whole count it is that count (0.3 / 0.1 is 2.999…).
+        let counts = |v: f64, inwards: fn(f64) -> f64| {
+            let c = v / scale;
+            if (c - c.round()).abs() <= 1e-9 * c.abs().max(1.0) {
+                c.round()
+            } else {
+                inwards(c)
+            }
+        };
+        let bound = |this: &mut Self, v: &Spanned<f64>, name: &str, inwards: fn(f64) -> f64| {
+            let c = counts(*v.get_ref(), inwards);
+            if !c.is_finite() || c < low || c > high {
+                this.error(
+                    v.span(),
+                    format!(
+                        "{what}: joint.{name} is outside what the sensor reads ({} to {}{unit})",
+                        low * scale,
+                        high * scale
+                    ),
+                );
+                0
+            } else {
+                c as i32
+            }
+        };
+        let min = bound(self, &j.min, "min", f64::ceil);
+        let max = bound(self, &j.max, "max", f64::floor);
+        if self.errors.len() == errors && min > max {
+            self.error(
+                raw.span(),
+                format!("{what}: joint.min is above joint.max (in whole counts of the sensor)"),
+            );
+        }
+        let rate = match &j.speed {
+            None => 0,
+            Some(v) => {
+                let c = (*v.get_ref() / scale).floor();
+                if !c.is_finite() || c < 1.0 || c > f64::from(u32::MAX) {
+                    self.error(
+                        v.span(),
+                        format!(
+                            "{what}: joint.speed is at least one count a second ({scale}{unit} a second)"
+                        ),
+                    );
+                }
+                c.clamp(0.0, f64::from(u32::MAX)) as u32
+            }
+        };
+        (self.errors.len() == errors).then_some(Joint {
+            sensor: index as u8,
+            min,
+            max,
+            rate,
+        })
     }
 
     /// Named places and directions (`[client.places]`, `[schema.NODE.places]`), µm and µrad.
@@ -721,10 +825,11 @@ impl Builder<'_> {
             "mrad",
             false,
         ) as i32;
-        config.workspace_min = [
+        let limits = &mut config.limits;
+        limits.workspace_min = [
             -1_000_000, -1_000_000, -1_000_000, -rotation, -rotation, -rotation,
         ];
-        config.workspace_max = [
+        limits.workspace_max = [
             1_000_000, 1_000_000, 1_000_000, rotation, rotation, rotation,
         ];
         if let Some(w) = &raw.workspace_mm {
@@ -734,24 +839,49 @@ impl Builder<'_> {
                 if min.iter().zip(&max).take(3).any(|(lo, hi)| lo > hi) {
                     self.error(w.span(), "workspace_mm: min is above max on some axis");
                 }
-                config.workspace_min[..3].copy_from_slice(&min[..3]);
-                config.workspace_max[..3].copy_from_slice(&max[..3]);
+                config.limits.workspace_min[..3].copy_from_slice(&min[..3]);
+                config.limits.workspace_max[..3].copy_from_slice(&max[..3]);
             }
         }
-        config.force_limit = self.scaled(
+        config.limits.force_limit = self.scaled(
             raw.force_limit_n.as_ref(),
             1000.0,
-            config.force_limit,
+            config.limits.force_limit,
             "force_limit_n",
             "N",
             false,
         );
-        config.torque_limit = self.scaled(
+        config.limits.torque_limit = self.scaled(
             raw.torque_limit_nm.as_ref(),
             1000.0,
             0,
             "torque_limit_nm",
             "N·m",
+            true,
+        );
+        // The bounds 0 leaves off: a contact threshold, the pose's speed and rate.
+        config.limits.contact_limit = self.scaled(
+            raw.contact_limit_n.as_ref(),
+            1000.0,
+            0,
+            "contact_limit_n",
+            "N",
+            true,
+        );
+        config.limits.speed_limit = self.scaled(
+            raw.speed_limit_mm_s.as_ref(),
+            1000.0,
+            0,
+            "speed_limit_mm_s",
+            "mm/s",
+            true,
+        );
+        config.limits.rate_limit = self.scaled(
+            raw.rate_limit_rad_s.as_ref(),
+            1_000_000.0,
+            0,
+            "rate_limit_rad_s",
+            "rad/s",
             true,
         );
         config.stale_us = self.scaled(
@@ -1733,7 +1863,7 @@ node = "arm"
                 build::idle(4, 250),
             ]
         );
-        assert_eq!(network.schema_boards[0].config.force_limit, 30_000);
+        assert_eq!(network.schema_boards[0].config.limits.force_limit, 30_000);
         assert_eq!(client.commands[0].t_us, 1_500_000);
         assert_eq!(client.commands[0].command, Command::EmergencyStop);
     }
@@ -2034,6 +2164,75 @@ hold = \"idle(); below(gap, 0.3) -> retreat\"
                 "net.toml:6:14: error: overrun_ms must be at least period_ms",
                 "net.toml:7:16: error: workspace_mm: min is above max on some axis",
                 "net.toml:8:9: error: drive: schema server: a drive identifier: a standard (11-bit) output id is at most 0x7ff (the set-point takes 3 identifiers from its own, the pose and the wrench 2 each)",
+            ]
+        );
+    }
+
+    #[test]
+    fn safety_limits_and_joints_come_from_the_file_in_their_units() {
+        let base = "[nodes.arm]\nid = 10\n[schema.arm]\ndrive = { setpoint = 0x300, pose = 0x310, wrench = 0x320 }\n";
+        let text = format!(
+            "{base}speed_limit_mm_s = 250\nrate_limit_rad_s = 0.5\ncontact_limit_n = 4\n\
+             [schema.arm.sensors.gap]\ncan_id = 0x330\nvalue = {{ offset = 0, size = 2 }}\n\
+             [schema.arm.sensors.elbow]\ncan_id = 0x331\nvalue = {{ offset = 0, size = 2, signed = true }}\n\
+             scale = 0.1\nunit = \"deg\"\njoint = {{ min = -90.05, max = 120, speed = 45 }}\n"
+        );
+        let network = Network::parse(Source::new("net.toml", text)).unwrap();
+        let limits = &network.schema_boards[0].config.limits;
+        assert_eq!(
+            (limits.speed_limit, limits.rate_limit, limits.contact_limit),
+            (250_000, 500_000, 4_000)
+        );
+        // Sensor 1, in counts of 0.1 degree: the range rounded inwards, the speed down.
+        assert_eq!(
+            limits.joints.as_slice(),
+            [pab_core::schema::Joint {
+                sensor: 1,
+                min: -900,
+                max: 1200,
+                rate: 450
+            }]
+        );
+        // None by default.
+        let network = Network::parse(Source::new("net.toml", base)).unwrap();
+        let limits = &network.schema_boards[0].config.limits;
+        assert_eq!(
+            (
+                limits.speed_limit,
+                limits.rate_limit,
+                limits.contact_limit,
+                limits.joints.len()
+            ),
+            (0, 0, 0, 0)
+        );
+        // A range the sensor cannot read, crossed, and a speed below a count a second.
+        let bad = |joint: &str| {
+            let text = format!(
+                "{base}[schema.arm.sensors.elbow]\ncan_id = 0x331\nvalue = {{ offset = 0, size = 1 }}\njoint = {joint}\n"
+            );
+            Network::parse(Source::new("net.toml", text))
+                .unwrap_err()
+                .0
+                .iter()
+                .map(|d| d.to_string())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(
+            bad("{ min = -1, max = 10 }"),
+            [
+                "net.toml:8:17: error: sensor `elbow`: joint.min is outside what the sensor reads (0 to 255)"
+            ]
+        );
+        assert_eq!(
+            bad("{ min = 10, max = 5 }"),
+            [
+                "net.toml:8:9: error: sensor `elbow`: joint.min is above joint.max (in whole counts of the sensor)"
+            ]
+        );
+        assert_eq!(
+            bad("{ min = 0, max = 5, speed = 0.5 }"),
+            [
+                "net.toml:8:37: error: sensor `elbow`: joint.speed is at least one count a second (1 a second)"
             ]
         );
     }

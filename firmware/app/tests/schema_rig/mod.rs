@@ -19,8 +19,8 @@ pub const CLOSE: u16 = 60;
 
 pub fn setup() -> Setup {
     let mut config = Config::new(1000);
-    config.workspace_min = [-500_000; 6];
-    config.workspace_max = [500_000; 6];
+    config.limits.workspace_min = [-500_000; 6];
+    config.limits.workspace_max = [500_000; 6];
     config
         .innate
         .push(build::gripper(CLOSE, Gripper::Closed))

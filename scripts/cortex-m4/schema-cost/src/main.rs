@@ -80,8 +80,8 @@ struct Rig {
 impl Rig {
     fn new() -> Rig {
         let mut config = Config::new(PERIOD);
-        config.workspace_min = [-500_000; 6];
-        config.workspace_max = [500_000; 6];
+        config.limits.workspace_min = [-500_000; 6];
+        config.limits.workspace_max = [500_000; 6];
         let Ok(mut server) = Server::new(config) else {
             fail("config")
         };
