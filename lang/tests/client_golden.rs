@@ -1,9 +1,13 @@
 //! The Python client's golden vectors (`client/python/tests/golden_schemas.json`): builder calls
 //! with their arguments, and the schema `pab_core::schema::build` makes for them, with the
 //! network file's defaults (`pab_lang::network::Defaults`) for every argument a call leaves out,
-//! as serde_json shows it, as postcard's bytes, and with what the board's check answers.
+//! as serde_json shows it, as postcard's bytes, and with what the board's check answers; and
+//! safety bounds (`pab_core::schema::Limits`, the limits channel's body) with their bytes and
+//! what a board with one table's limits answers for them.
 //! `client/python/tests/test_schema.py` asserts that `pab_client.schema` makes the same bytes
 //! for the same calls; this test asserts that the file holds what the Rust builders make now.
+//! `golden_codes.json` holds the schema server's wire codes, names and descriptions
+//! (`client/python/tests/test_protocol.py` holds `pab_client.protocol` to them).
 //!
 //! After a deliberate change of the builders, the defaults or the encoding, rewrite the file:
 //! `PAB_BLESS=1 cargo test -p pab-lang --test client_golden`, and commit it with the change
@@ -11,9 +15,10 @@
 
 use std::path::PathBuf;
 
-use pab_core::protocol::SchemaOutcome;
+use pab_core::protocol::{SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety, SchemaTrigger};
 use pab_core::schema::{
-    Action, Event, Gripper, MAX_ENCODED, Measure, Pose, Reaction, Schema, Source, build,
+    Action, Event, Gripper, Joint, Limits, MAX_ENCODED, MAX_JOINTS, Measure, Pose, Reaction,
+    Refusal, Schema, Source, build,
 };
 use pab_lang::network::Defaults;
 use serde_json::{Value, json};
@@ -370,16 +375,129 @@ fn entry(vector: &Vector) -> Value {
     })
 }
 
+/// The table's limits the `limits` vectors are checked against: a speed limit, a torque
+/// limit, two joints (one without a speed).
+fn limits_table() -> Limits {
+    let mut table = Limits::new();
+    table.torque_limit = 5_000;
+    table.speed_limit = 250_000;
+    table.workspace_min[2] = -20_000;
+    table.workspace_max[2] = 100_000;
+    table.joints.push(joint(1, -900, 1200, 450)).unwrap();
+    table.joints.push(joint(3, 0, 4095, 0)).unwrap();
+    table
+}
+
+fn joint(sensor: u8, min: i32, max: i32, rate: u32) -> Joint {
+    Joint {
+        sensor,
+        min,
+        max,
+        rate,
+    }
+}
+
+/// Limits for the limits channel: the table's, tighter ones, every varint length and extreme,
+/// the most joints, and the refusals (looser somewhere, other joints, inconsistent).
+fn limits_vectors() -> Vec<Limits> {
+    let table = limits_table();
+    let with = |change: &dyn Fn(&mut Limits)| {
+        let mut l = table.clone();
+        change(&mut l);
+        l
+    };
+    let mut extremes = Limits::new();
+    extremes.workspace_min = [i32::MIN, -1, -64, -65, -8192, 0];
+    extremes.workspace_max = [i32::MAX, 0, 63, 64, 8191, 8192];
+    extremes.force_limit = u32::MAX;
+    extremes.torque_limit = 127;
+    extremes.contact_limit = 128;
+    extremes.speed_limit = 16_383;
+    extremes.rate_limit = 16_384;
+    for i in 0..MAX_JOINTS as u8 {
+        let j = match i {
+            0 => joint(255, i32::MIN, i32::MAX, u32::MAX),
+            _ => joint(i, -i32::from(i) * 1000, i32::from(i) * 1000, u32::from(i)),
+        };
+        extremes.joints.push(j).unwrap();
+    }
+    vec![
+        Limits::new(),
+        table.clone(),
+        // Tighter everywhere.
+        with(&|l| {
+            l.workspace_min = [-200_000, -200_000, -10_000, -500_000, -500_000, -1_000_000];
+            l.workspace_max = [200_000, 150_000, 90_000, 500_000, 500_000, 1_000_000];
+            l.force_limit = 20_000;
+            l.torque_limit = 1_000;
+            l.contact_limit = 4_000;
+            l.speed_limit = 100_000;
+            l.rate_limit = 0;
+            l.joints[0] = joint(1, -450, 600, 100);
+            l.joints[1] = joint(3, 100, 4000, 50);
+        }),
+        extremes,
+        // Looser: a corner, a limit, none where the table has one, a joint's range or speed,
+        // other joints.
+        with(&|l| l.workspace_max[2] = 100_001),
+        with(&|l| l.workspace_min[5] = -1_000_001),
+        with(&|l| l.force_limit = 50_001),
+        with(&|l| l.speed_limit = 0),
+        with(&|l| l.torque_limit = 5_001),
+        with(&|l| l.joints[0].min = -901),
+        with(&|l| l.joints[0].rate = 0),
+        with(&|l| l.joints[1].sensor = 2),
+        with(&|l| {
+            l.joints.pop();
+        }),
+        // Inconsistent: a crossed corner or joint, a force limit of 0.
+        with(&|l| {
+            l.workspace_min[0] = 10;
+            l.workspace_max[0] = -10;
+        }),
+        with(&|l| l.joints[1] = joint(3, 20, 10, 0)),
+        with(&|l| l.force_limit = 0),
+    ]
+}
+
+fn limits_entry(limits: &Limits) -> Value {
+    let mut buffer = [0u8; 2 * MAX_ENCODED];
+    let bytes = postcard::to_slice(limits, &mut buffer).expect("limits fit");
+    assert!(
+        bytes.len() <= MAX_ENCODED,
+        "the limits channel's body fits a message"
+    );
+    // The board's decoder reads them back.
+    assert_eq!(Limits::decode(bytes).as_ref(), Ok(limits));
+    let within = limits
+        .check_within(&limits_table())
+        .err()
+        .map(|e| format!("{:?}", SchemaOutcome::from(&Refusal::Limits(e))));
+    json!({
+        "limits": serde_json::to_value(limits).expect("serialisable"),
+        "hex": bytes.iter().map(|b| format!("{b:02x}")).collect::<String>(),
+        "within": within,
+    })
+}
+
 fn golden() -> Value {
     json!({
         "about": "Golden vectors of the Python client (pab_client.schema): each builder call \
                   with its keyword arguments (those left out take the network file's defaults), \
                   the schema pab_core::schema::build makes for it (serde_json's form), its \
-                  postcard bytes, and the board's check (null: accepted, else the SchemaOutcome). \
+                  postcard bytes, and the board's check (null: accepted, else the SchemaOutcome); \
+                  and under `limits`, safety bounds (pab_core::schema::Limits, serde_json's \
+                  form) with their postcard bytes and what a board whose table has the limits \
+                  `table` answers for them on the limits channel (`within`: null accepted, else \
+                  the SchemaOutcome). \
                   Written and checked by lang/tests/client_golden.rs \
                   (PAB_BLESS=1 cargo test -p pab-lang --test client_golden rewrites it); \
                   client/python/tests/test_schema.py checks the Python builders against it.",
         "vectors": vectors().iter().map(entry).collect::<Vec<_>>(),
+        "limits": {
+            "table": serde_json::to_value(limits_table()).expect("serialisable"),
+            "vectors": limits_vectors().iter().map(limits_entry).collect::<Vec<_>>(),
+        },
     })
 }
 
@@ -512,6 +630,43 @@ fn the_python_clients_authentication_vectors_are_what_the_core_makes() {
     let expected = golden_auth();
     let Some(found) = blessed_or_read(&golden_path().with_file_name("golden_auth.json"), &expected)
     else {
+        return;
+    };
+    assert_eq!(found, expected, "the golden file (PAB_BLESS=1 rewrites it)");
+}
+
+/// The schema server's wire codes (`pab_core::protocol`'s `wire_enum!`s): each enumeration's
+/// values with their code, name and description, which `pab_client.protocol` must repeat.
+fn golden_codes() -> Value {
+    macro_rules! codes {
+        ($enum:ty) => {
+            <$enum>::ALL
+                .iter()
+                .map(|v| json!({"code": v.code(), "name": format!("{v:?}"), "description": v.description()}))
+                .collect::<Vec<_>>()
+        };
+    }
+    json!({
+        "about": "The schema server's wire codes, names and descriptions (pab_core::protocol), \
+                  which pab_client.protocol repeats. Written and checked by \
+                  lang/tests/client_golden.rs (PAB_BLESS=1 cargo test -p pab-lang --test \
+                  client_golden rewrites it); client/python/tests/test_protocol.py checks \
+                  pab_client.protocol against it.",
+        "SchemaOutcome": codes!(SchemaOutcome),
+        "SchemaSafety": codes!(SchemaSafety),
+        "SchemaChannel": codes!(SchemaChannel),
+        "SchemaTrigger": codes!(SchemaTrigger),
+        "SchemaOrigin": codes!(SchemaOrigin),
+    })
+}
+
+#[test]
+fn the_python_clients_codes_are_the_wire_enums() {
+    let expected = golden_codes();
+    let Some(found) = blessed_or_read(
+        &golden_path().with_file_name("golden_codes.json"),
+        &expected,
+    ) else {
         return;
     };
     assert_eq!(found, expected, "the golden file (PAB_BLESS=1 rewrites it)");

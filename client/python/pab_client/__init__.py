@@ -2,7 +2,8 @@
 
 - :mod:`pab_client.schema`: schemas (actions, events, sources, reactions), their postcard
   encoding, and the builders of `pab_core::schema::build` (``move_to``, ``grasp``, ...), byte for
-  byte what the Rust builders make (``tests/golden_schemas.json``);
+  byte what the Rust builders make (``tests/golden_schemas.json``); and the board's safety
+  bounds, ``Limits``, which ``Client.set_limits`` tightens at run time;
 - :mod:`pab_client.protocol`: the schema server's frames (docs/can-protocol.md);
 - :mod:`pab_client.client`: :class:`Client`, which sends schemas to a node over ISO-TP on a
   python-can bus and follows its answers, transitions and state.
@@ -35,6 +36,8 @@ from .schema import (
     Action,
     Event,
     Gripper,
+    Joint,
+    Limits,
     Measure,
     Reaction,
     Schema,
@@ -76,6 +79,8 @@ __all__ = [
     "Action",
     "Event",
     "Gripper",
+    "Joint",
+    "Limits",
     "Measure",
     "Reaction",
     "Schema",

@@ -29,7 +29,7 @@ import struct
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Deque, Dict, List, Optional, Sequence
+from typing import Any, Callable, Deque, Dict, List, Optional, Sequence
 
 import can
 import isotp
@@ -49,6 +49,7 @@ from .protocol import (
     FrameId,
     MalformedFrame,
     SchemaAck,
+    SchemaChannel,
     SchemaOutcome,
     SchemaSafety,
     SchemaState,
@@ -59,6 +60,7 @@ from .protocol import (
     decode_report,
     emergency_stop_id,
     frame_id,
+    limits_message,
     transfer_ids,
     transfer_message,
 )
@@ -76,15 +78,16 @@ class ClientError(Exception):
 
 
 class Refused(ClientError):
-    """The node refused the schema: `outcome` says why, `ack` is its whole answer."""
+    """The node refused the schema (or the limits): `outcome` says why, `ack` is its whole
+    answer."""
 
     def __init__(self, ack: SchemaAck, node: int):
         self.ack = ack
         self.outcome = ack.outcome
         self.node = node
+        what = "limits" if ack.channel == SchemaChannel.Limits else f"schema {ack.id:#06x}"
         super().__init__(
-            f"node {node} refused schema {ack.id:#06x}: {ack.outcome.name} "
-            f"({ack.outcome.description})"
+            f"node {node} refused {what}: {ack.outcome.name} ({ack.outcome.description})"
         )
 
 
@@ -134,8 +137,9 @@ class Client:
     """A client of the schema server on `node`, over `bus` (a python-can bus with 29-bit
     frames), speaking as `source` (0: the tool).
 
-    Every method that sends a schema returns the node's :class:`SchemaAck` when it accepted
-    it, raises :class:`Refused` when it did not, :class:`Timeout` when it did not answer.
+    Every method that sends a schema (or, :meth:`set_limits`, the safety bounds) returns the
+    node's :class:`SchemaAck` when it accepted it, raises :class:`Refused` when it did not,
+    :class:`Timeout` when it did not answer.
     """
 
     def __init__(
@@ -380,14 +384,47 @@ class Client:
                 )
             stop = acknowledged
         message = transfer_message(schema.encode(), high_priority, stop)
+
+        def forget() -> None:
+            # Under the condition: the id's earlier start and end are another schema's.
+            self._started.pop(schema.id, None)
+            self._ended.pop(schema.id, None)
+            self._sent[schema.id] = schema
+
+        return self._transfer(message, schema.id, f"schema {schema.id:#06x}", timeout, forget)
+
+    def set_limits(self, limits: s.Limits, timeout: float = 1.0) -> SchemaAck:
+        """Sets the safety bounds the node runs with (:class:`pab_client.schema.Limits`), from
+        its next tick: a SchemaTransfer message on the limits channel (channel byte 2), on a
+        node with a key opened, MAC'd and confirmed by a Receipt as a schema is. Each bound must
+        be within the table's: tighter, or back up to the table's, never looser.
+
+        Returns the SchemaAck (channel ``Limits``, id 0xFFFF) when the node took them; raises
+        :class:`Refused` when it did not (``Looser``: looser than the table's somewhere, other
+        joints than the table's, or inconsistent; ``NoServer``, ``Malformed``, ...),
+        :class:`Timeout` as :meth:`install` does."""
+        if not isinstance(limits, s.Limits):
+            raise TypeError(f"set_limits takes a pab_client.schema.Limits, not {limits!r}")
+        return self._transfer(limits_message(limits.encode()), NO_ID, "limits", timeout)
+
+    def _transfer(
+        self,
+        message: bytes,
+        sid: int,
+        what: str,
+        timeout: float,
+        before: Optional[Callable[[], None]] = None,
+    ) -> SchemaAck:
+        """Sends one SchemaTransfer message (with a key: after a challenge and its open, with
+        its MAC) and waits for its SchemaAck, the one naming `sid` (or NO_ID), and with a key
+        its Receipt. `before` runs under the reports' lock before anything is sent."""
         deadline = time.monotonic() + timeout
         with self._transfer_lock:
             with self._cond:
                 self._acks.clear()
                 self._receipts.clear()
-                self._started.pop(schema.id, None)
-                self._ended.pop(schema.id, None)
-                self._sent[schema.id] = schema
+                if before is not None:
+                    before()
             while not self._flow_control.empty():
                 self._flow_control.get_nowait()
             del self._isotp_errors[:]
@@ -405,10 +442,10 @@ class Client:
                 self._pending_open = None
             # A transfer the node stopped (flow control "overflow") still has its answer.
             ack_deadline = deadline if failure is None else max(deadline, time.monotonic() + 0.1)
-            ack = self._wait_ack(schema.id, ack_deadline)
+            ack = self._wait_ack(sid, ack_deadline)
             if ack is not None and nonce is not None:
-                self._confirm(ack, nonce, ack_deadline)
-        what = f"node {self.node}: schema {schema.id:#06x}"
+                self._confirm(ack, nonce, ack_deadline, what)
+        what = f"node {self.node}: {what}"
         if ack is None:
             if failure is not None:
                 errors = [str(e) or type(e).__name__ for e in self._isotp_errors]
@@ -443,7 +480,7 @@ class Client:
             is_extended_id=True)
         return message
 
-    def _confirm(self, ack: SchemaAck, nonce: int, deadline: float) -> None:
+    def _confirm(self, ack: SchemaAck, nonce: int, deadline: float, what: str) -> None:
         """The Receipt for `ack` (which may have come first: its identifier ranks above
         SchemaAck's), verified under the key; :class:`ClientError` when none comes or it does
         not verify (a forged answer, or another key)."""
@@ -451,11 +488,11 @@ class Client:
         with self._cond:
             if not self._cond.wait_for(lambda: self._receipts,
                                        max(0.05, deadline - time.monotonic())):
-                raise ClientError(f"node {self.node}: no Receipt for schema {ack.id:#06x}")
+                raise ClientError(f"node {self.node}: no Receipt for {what}")
             tag = self._receipts.pop(0)
         if tag != expected:
-            raise ClientError(f"node {self.node}: the Receipt for schema {ack.id:#06x} does "
-                              "not verify (another key, or a forged answer)")
+            raise ClientError(f"node {self.node}: the Receipt for {what} does not verify "
+                              "(another key, or a forged answer)")
 
     def _wait_ack(self, sid: int, deadline: float) -> Optional[SchemaAck]:
         def ours() -> Optional[SchemaAck]:

@@ -1,7 +1,7 @@
 """The schema server's frames (docs/can-protocol.md, "Schema server"): identifiers, the reports a
 node sends (SchemaAck, SchemaTransition, SchemaState) decoded and checked as the nodes' own
 decoder (`pab_core::protocol`) checks them, and the frames a client sends (EmergencyStop,
-SchemaAbort, the SchemaTransfer message).
+SchemaAbort, the SchemaTransfer message: a schema, or on the limits channel the safety bounds).
 
 Every frame of ours has a 29-bit identifier::
 
@@ -53,7 +53,7 @@ PRIORITY = {
     SCHEMA_STATE: 5,
 }
 
-#: A SchemaTransfer message holds a channel byte and at most 256 bytes of schema.
+#: A SchemaTransfer message holds a channel byte and at most 256 bytes of schema (or limits).
 MAX_MESSAGE = 257
 #: SchemaAck's id when the schema could not be decoded.
 NO_ID = 0xFFFF
@@ -120,15 +120,18 @@ class SchemaOutcome(enum.IntEnum):
     NoServer = 0x0E
     StopNotAcknowledged = 0x0F
     TimedOut = 0x10
+    Looser = 0x11
 
     @property
     def description(self) -> str:
+        """The one-line description of `pab_core::protocol::SchemaOutcome` (and of
+        docs/can-protocol.md's table)."""
         return _OUTCOME_TEXT[self]
 
 
 _OUTCOME_TEXT = {
     SchemaOutcome.Accepted: "accepted",
-    SchemaOutcome.Malformed: "not a schema's encoding",
+    SchemaOutcome.Malformed: "not a schema's (or limits') encoding",
     SchemaOutcome.TrailingBytes: "bytes after the schema",
     SchemaOutcome.ReservedId: "id reserved for the server's own schemas (0xFF00 and up)",
     SchemaOutcome.BadAxis: "axis index of 6 or more",
@@ -139,13 +142,16 @@ _OUTCOME_TEXT = {
     SchemaOutcome.QueueFull: "queue full (8): refused, nothing overwritten",
     SchemaOutcome.Busy: "a high-priority schema is already waiting for the next tick",
     SchemaOutcome.TooLong: "message longer than 273 bytes",
-    SchemaOutcome.BadChannel: "channel byte neither the queue nor the high-priority channel",
+    SchemaOutcome.BadChannel: (
+        "channel byte neither the queue, the high-priority channel nor the limits"
+    ),
     SchemaOutcome.Unauthenticated: "the message's MAC does not verify (a node with a key)",
     SchemaOutcome.NoServer: "the node's table runs no schema server",
     SchemaOutcome.StopNotAcknowledged: (
         "names another stop than the latest: acknowledge the stop first"
     ),
     SchemaOutcome.TimedOut: "transfer timed out",
+    SchemaOutcome.Looser: "limits looser than the table's, or inconsistent",
 }
 
 #: Stop numbers count a server's stops (emergency stops, aborts, safety events) modulo this.
@@ -153,10 +159,24 @@ STOP_NUMBERS = 64
 
 
 class SchemaChannel(enum.IntEnum):
-    """A SchemaTransfer message's byte 0 (SchemaAck byte 1)."""
+    """A SchemaTransfer message's byte 0 (SchemaAck byte 1): the queue, the high-priority
+    channel (1 in bits 0-1, the acknowledged stop number in bits 2-7), or the limits (the
+    board's safety bounds, :class:`pab_client.schema.Limits`)."""
 
     Queue = 0
     HighPriority = 1
+    Limits = 2
+
+    @property
+    def description(self) -> str:
+        return _CHANNEL_TEXT[self]
+
+
+_CHANNEL_TEXT = {
+    SchemaChannel.Queue: "queue",
+    SchemaChannel.HighPriority: "high-priority channel",
+    SchemaChannel.Limits: "limits",
+}
 
 
 class SchemaTrigger(enum.IntEnum):
@@ -167,6 +187,18 @@ class SchemaTrigger(enum.IntEnum):
     Safety = 2
     Reaction = 3
 
+    @property
+    def description(self) -> str:
+        return _TRIGGER_TEXT[self]
+
+
+_TRIGGER_TEXT = {
+    SchemaTrigger.HighPriority: "high-priority channel",
+    SchemaTrigger.Abort: "abort",
+    SchemaTrigger.Safety: "safety event",
+    SchemaTrigger.Reaction: "reaction",
+}
+
 
 class SchemaOrigin(enum.IntEnum):
     """Where an installed schema came from (SchemaTransition byte 6, SchemaState byte 2)."""
@@ -175,9 +207,23 @@ class SchemaOrigin(enum.IntEnum):
     Queue = 1
     HighPriority = 2
 
+    @property
+    def description(self) -> str:
+        return _ORIGIN_TEXT[self]
+
+
+_ORIGIN_TEXT = {
+    SchemaOrigin.Innate: "innate",
+    SchemaOrigin.Queue: "queue",
+    SchemaOrigin.HighPriority: "high-priority",
+}
+
 
 class SchemaSafety(enum.IntEnum):
-    """A safety event of the server (SchemaTransition detail, SchemaState byte 3)."""
+    """A safety event of the server (SchemaTransition detail, SchemaState byte 3). The numbers
+    are the order the events came to be; the server tests them (after the emergency stop) in
+    this order: stale sensor, implausible pose, workspace limit, joint limit, speed, force,
+    watchdog, overrun."""
 
     EmergencyStop = 0
     StaleSensor = 1
@@ -186,6 +232,25 @@ class SchemaSafety(enum.IntEnum):
     Watchdog = 4
     Overrun = 5
     ImplausibleSensor = 6
+    JointLimit = 7
+    Speed = 8
+
+    @property
+    def description(self) -> str:
+        return _SAFETY_TEXT[self]
+
+
+_SAFETY_TEXT = {
+    SchemaSafety.EmergencyStop: "emergency stop",
+    SchemaSafety.StaleSensor: "sensor stale",
+    SchemaSafety.Limit: "workspace limit",
+    SchemaSafety.Force: "force limit",
+    SchemaSafety.Watchdog: "watchdog",
+    SchemaSafety.Overrun: "loop overrun",
+    SchemaSafety.ImplausibleSensor: "implausible pose",
+    SchemaSafety.JointLimit: "joint limit",
+    SchemaSafety.Speed: "speed limit",
+}
 
 
 def _code(enum_type, code: int, what: str):
@@ -209,7 +274,7 @@ class SchemaAck:
     outcome: SchemaOutcome
     #: The message's channel; None when it could not be read (0xFF on the wire).
     channel: Optional[SchemaChannel]
-    #: The schema's id; NO_ID (0xFFFF) when it could not be decoded.
+    #: The schema's id; NO_ID (0xFFFF) when it could not be decoded, and for limits.
     id: int
     #: Schemas in the queue after this one.
     queued: int
@@ -423,4 +488,13 @@ def transfer_message(schema_bytes: bytes, high_priority: bool = False, stop: int
     message = bytes([channel]) + bytes(schema_bytes)
     if len(message) > MAX_MESSAGE:
         raise ValueError(f"a schema message is at most {MAX_MESSAGE} bytes, not {len(message)}")
+    return message
+
+
+def limits_message(limits_bytes: bytes) -> bytes:
+    """A SchemaTransfer message on the limits channel: the channel byte 2 and the encoding of
+    :class:`pab_client.schema.Limits`."""
+    message = bytes([SchemaChannel.Limits]) + bytes(limits_bytes)
+    if len(message) > MAX_MESSAGE:
+        raise ValueError(f"a limits message is at most {MAX_MESSAGE} bytes, not {len(message)}")
     return message

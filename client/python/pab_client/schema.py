@@ -22,6 +22,10 @@ rounding as `pab-lang` does (half away from zero).
 The server refuses a schema whose values are out of its ranges (:meth:`Schema.check` says what
 it would answer); the classes here only refuse what cannot be encoded at all (a value outside
 its integer type, more than 16 reactions).
+
+:class:`Limits` (with its :class:`Joint` entries) are the board's safety bounds,
+`pab_core::schema::Limits`, which the SchemaTransfer's limits channel carries in the same
+encoding (``Client.set_limits``); ``tests/golden_schemas.json`` holds Rust's bytes for them too.
 """
 
 from __future__ import annotations
@@ -691,6 +695,190 @@ def _check_action(a: Action) -> Optional[SchemaOutcome]:
 
 
 # ---------------------------------------------------------------------------------------------
+# The safety bounds of core/src/schema/limits.rs.
+
+#: Joints a board's limits bound: one per extra sensor at most.
+MAX_JOINTS = MAX_SENSORS
+
+
+@dataclass(frozen=True)
+class Joint:
+    """One joint's bounds (`pab_core::schema::Joint`), in the counts of the extra sensor that
+    reads its position: its range `min` ..= `max`, and its top speed `rate` in counts per
+    second (0: none)."""
+
+    sensor: int
+    min: int
+    max: int
+    rate: int = 0
+
+    def __post_init__(self) -> None:
+        _int(self.sensor, 0, U8_MAX, "Joint.sensor")
+        _int(self.min, I32_MIN, I32_MAX, "Joint.min")
+        _int(self.max, I32_MIN, I32_MAX, "Joint.max")
+        _int(self.rate, 0, U32_MAX, "Joint.rate")
+
+
+_NEW_WORKSPACE = 1_000_000
+
+
+@dataclass(frozen=True)
+class Limits:
+    """A board's safety bounds (`pab_core::schema::Limits`): the workspace's corners (µm,
+    µrad: six values each), the limits on the force's and torque's magnitudes (mN, mN·m), the
+    highest contact force a schema may wait for (mN), the measured pose's top speed (µm/s) and
+    rate (µrad/s), and each joint's range and speed. A limit of 0 is none, except the force
+    limit, which a board always has. The defaults are `Limits::new()`: ±1 m (rad), 50 N, no
+    other bound.
+
+    The table carries the loosest bounds a board may run with; at run time a client may set
+    others (``Client.set_limits``), each within the table's: tighter, or back up to the
+    table's, never looser (:meth:`check_within` says what the board answers)."""
+
+    workspace_min: Tuple[int, ...] = (-_NEW_WORKSPACE,) * AXES
+    workspace_max: Tuple[int, ...] = (_NEW_WORKSPACE,) * AXES
+    force_limit: int = 50_000
+    torque_limit: int = 0
+    contact_limit: int = 0
+    speed_limit: int = 0
+    rate_limit: int = 0
+    joints: Tuple[Joint, ...] = ()
+
+    def __post_init__(self) -> None:
+        for name in ("workspace_min", "workspace_max"):
+            corner = tuple(getattr(self, name))
+            if len(corner) != AXES:
+                raise ValueError(
+                    f"Limits.{name}: a corner is 6 values (x, y, z µm, then µrad about x, y, z)"
+                )
+            for c in corner:
+                _int(c, I32_MIN, I32_MAX, f"Limits.{name}")
+            object.__setattr__(self, name, corner)
+        for name in ("force_limit", "torque_limit", "contact_limit", "speed_limit", "rate_limit"):
+            _int(getattr(self, name), 0, U32_MAX, f"Limits.{name}")
+        joints = tuple(self.joints)
+        if len(joints) > MAX_JOINTS:
+            raise ValueError(f"limits bound at most {MAX_JOINTS} joints")
+        for j in joints:
+            if not isinstance(j, Joint):
+                raise TypeError(f"Limits.joints: Joints are needed, not {j!r}")
+        object.__setattr__(self, "joints", joints)
+
+    def encode(self) -> bytes:
+        """postcard's encoding (the fields in order; the joints a length, then each one's
+        sensor byte, min, max and rate): what follows the channel byte on the limits
+        channel."""
+        w = _Writer()
+        for c in self.workspace_min + self.workspace_max:
+            w.i32(c)
+        for limit in (
+            self.force_limit,
+            self.torque_limit,
+            self.contact_limit,
+            self.speed_limit,
+            self.rate_limit,
+        ):
+            w.varint(limit)
+        w.varint(len(self.joints))
+        for j in self.joints:
+            w.u8(j.sensor)
+            w.i32(j.min)
+            w.i32(j.max)
+            w.varint(j.rate)
+        return bytes(w.out)
+
+    @staticmethod
+    def decode(data: bytes) -> "Limits":
+        """Exactly one Limits from its encoding (:class:`DecodeError` otherwise, with the
+        board's answer: ``Malformed``, or ``TrailingBytes``). Not checked: see
+        :meth:`check_within`."""
+        r = _Reader(data)
+        low = tuple(r.i32() for _ in range(AXES))
+        high = tuple(r.i32() for _ in range(AXES))
+        limits = [r.u32() for _ in range(5)]
+        n = r.length()
+        if n > MAX_JOINTS:
+            raise DecodeError(f"{n} joints: at most {MAX_JOINTS}")
+        joints = tuple(Joint(r.u8(), r.i32(), r.i32(), r.u32()) for _ in range(n))
+        if r.at != len(r.data):
+            raise DecodeError(
+                f"{len(r.data) - r.at} bytes after the limits", SchemaOutcome.TrailingBytes
+            )
+        return Limits(low, high, *limits, joints)
+
+    def check(self) -> Optional[SchemaOutcome]:
+        """Whether the bounds are consistent, as `Limits::check` decides it: None, or
+        ``Looser`` (the board's answer) for a lower corner above its upper one, a force limit
+        of 0, or a joint whose min is above its max."""
+        crossed = any(lo > hi for lo, hi in zip(self.workspace_min, self.workspace_max))
+        if crossed or self.force_limit == 0 or any(j.min > j.max for j in self.joints):
+            return SchemaOutcome.Looser
+        return None
+
+    def check_within(self, table: "Limits") -> Optional[SchemaOutcome]:
+        """What the board answers for these limits when its table's are `table`
+        (`Limits::check_within`): None when it takes them, ``Looser`` when they are
+        inconsistent (:meth:`check`) or looser than the table's somewhere: a corner or a
+        joint's range beyond the table's, a limit above the table's (or none where the table
+        has one), other joints than the table's (the same sensors, in the same order)."""
+        if self.check() is not None:
+            return SchemaOutcome.Looser
+
+        def within(new: int, old: int) -> bool:
+            # 0 is none: none is within none only.
+            return old == 0 or 0 < new <= old
+
+        joints = len(self.joints) == len(table.joints) and all(
+            new.sensor == old.sensor
+            and new.min >= old.min
+            and new.max <= old.max
+            and within(new.rate, old.rate)
+            for new, old in zip(self.joints, table.joints)
+        )
+        inside = (
+            all(n >= o for n, o in zip(self.workspace_min, table.workspace_min))
+            and all(n <= o for n, o in zip(self.workspace_max, table.workspace_max))
+            and joints
+            and within(self.force_limit, table.force_limit)
+            and within(self.torque_limit, table.torque_limit)
+            and within(self.contact_limit, table.contact_limit)
+            and within(self.speed_limit, table.speed_limit)
+            and within(self.rate_limit, table.rate_limit)
+        )
+        return None if inside else SchemaOutcome.Looser
+
+    def to_json(self) -> dict:
+        """serde_json's form of the Rust value (as in ``tests/golden_schemas.json``)."""
+        return {
+            "workspace_min": list(self.workspace_min),
+            "workspace_max": list(self.workspace_max),
+            "force_limit": self.force_limit,
+            "torque_limit": self.torque_limit,
+            "contact_limit": self.contact_limit,
+            "speed_limit": self.speed_limit,
+            "rate_limit": self.rate_limit,
+            "joints": [
+                {"sensor": j.sensor, "min": j.min, "max": j.max, "rate": j.rate}
+                for j in self.joints
+            ],
+        }
+
+    @staticmethod
+    def from_json(value: dict) -> "Limits":
+        """The limits from serde_json's form of the Rust value."""
+        return Limits(
+            tuple(value["workspace_min"]),
+            tuple(value["workspace_max"]),
+            value["force_limit"],
+            value["torque_limit"],
+            value["contact_limit"],
+            value["speed_limit"],
+            value["rate_limit"],
+            tuple(Joint(j["sensor"], j["min"], j["max"], j["rate"]) for j in value["joints"]),
+        )
+
+
+# ---------------------------------------------------------------------------------------------
 # Units
 
 
@@ -874,6 +1062,9 @@ __all__ = [
     "Action",
     "Reaction",
     "Schema",
+    "MAX_JOINTS",
+    "Joint",
+    "Limits",
     "mm",
     "newtons",
     "mrad",

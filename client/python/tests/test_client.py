@@ -47,6 +47,10 @@ class FakeNode(threading.Thread):
         #: Every other frame of ours from the client: (id, data).
         self.others: List[Tuple[int, bytes]] = []
         self.stop_number = 0  # the server's stops so far, modulo 64
+        #: The table's limits, which limits on the limits channel must be within; the limits
+        #: in force (the table's, until a client sets others).
+        self.table_limits = s.Limits()
+        self.limits = self.table_limits
         #: A node with this key: challenges, opens and MACs as docs/can-protocol.md says, and a
         #: Receipt before each SchemaAck (its identifier ranks first, as on a real node).
         self.key: Optional[bytes] = None
@@ -142,6 +146,17 @@ class FakeNode(threading.Thread):
         if self.no_ack:
             return
         channel = message[0] if message else 0xFF
+        if channel == SchemaChannel.Limits:
+            # The limits channel: decoded, within the table's, or refused whole; no id.
+            try:
+                limits = s.Limits.decode(message[1:])
+                outcome = limits.check_within(self.table_limits) or SchemaOutcome.Accepted
+            except s.DecodeError as e:
+                limits, outcome = None, e.outcome
+            if outcome == SchemaOutcome.Accepted:
+                self.limits = limits
+            self._ack(SchemaAck(outcome, SchemaChannel.Limits, p.NO_ID, 0, self.stop_number))
+            return
         # Bits 0-1 the channel, bits 2-7 the stop number a high-priority schema acknowledges.
         kind, named = channel & 0b11, channel >> 2
         readable = kind == 1 or (kind == 0 and named == 0)
@@ -552,6 +567,55 @@ def test_with_the_key_every_schema_is_opened_macd_and_confirmed(keyed_rig):
         assert node.messages == [b"\x00" + sc.encode()]
         assert client.install(s.idle(2, 10)).accepted
     assert node.errors == []
+
+
+def test_limits_go_on_channel_2_and_a_looser_one_is_refused(rig):
+    client, node = rig
+    node.table_limits = s.Limits(speed_limit=250_000, joints=[s.Joint(1, -900, 1200, 450)])
+    tight = s.Limits(
+        force_limit=20_000, speed_limit=100_000, joints=[s.Joint(1, -450, 600, 100)]
+    )
+    ack = client.set_limits(tight)
+    assert ack == SchemaAck(SchemaOutcome.Accepted, SchemaChannel.Limits, p.NO_ID, 0)
+    assert node.messages == [b"\x02" + tight.encode()]
+    assert node.limits == tight
+    # Looser than the table's (no speed limit where it has one): refused whole, nothing set.
+    with pytest.raises(Refused) as refused:
+        client.set_limits(s.Limits(joints=[s.Joint(1, -450, 600, 100)]))
+    assert refused.value.outcome == SchemaOutcome.Looser
+    assert refused.value.ack.channel == SchemaChannel.Limits
+    assert "refused limits: Looser" in str(refused.value)
+    assert node.limits == tight
+    # Back up to the table's.
+    assert client.set_limits(node.table_limits).accepted
+    assert node.limits == node.table_limits
+    with pytest.raises(TypeError):
+        client.set_limits(s.move_to(1, (0, 0, 0)))
+
+
+def test_limits_without_an_answer_are_a_timeout(rig):
+    client, node = rig
+    node.no_ack = True
+    with pytest.raises(Timeout, match="limits: no SchemaAck"):
+        client.set_limits(s.Limits(), timeout=0.3)
+    assert node.messages == [b"\x02" + s.Limits().encode()]
+
+
+def test_with_the_key_limits_are_opened_macd_and_confirmed_as_schemas(keyed_rig):
+    bus, node = keyed_rig
+    tight = s.Limits(force_limit=10_000)
+    with Client(bus, NODE, key=KEY) as client:
+        assert client.set_limits(tight).channel == SchemaChannel.Limits
+        assert node.messages == [b"\x02" + tight.encode()]
+        assert node.limits == tight
+        node.forge_receipt = True
+        with pytest.raises(ClientError, match="Receipt for limits does not verify"):
+            client.set_limits(s.Limits())
+    with Client(bus, NODE, key=bytes(16)) as client:
+        with pytest.raises(Timeout):
+            client.set_limits(s.Limits(), timeout=0.3)
+    assert node.errors == []
+    assert len(node.messages) == 2
 
 
 def test_a_receipt_that_does_not_verify_is_no_answer(keyed_rig):

@@ -2,6 +2,8 @@
 round trips, and every refusal the nodes' decoder makes."""
 
 import itertools
+import json
+import pathlib
 
 import pytest
 
@@ -36,8 +38,22 @@ def test_identifiers_are_the_documents_examples():
         p.frame_id(p.SCHEMA_ABORT, 0, 256)
 
 
+CODES = json.loads((pathlib.Path(__file__).parent / "golden_codes.json").read_text())
+
+
+@pytest.mark.parametrize(
+    "enum_type", [SchemaOutcome, SchemaSafety, SchemaChannel, SchemaTrigger, SchemaOrigin]
+)
+def test_codes_names_and_descriptions_are_the_rust_wire_enums(enum_type):
+    # golden_codes.json: pab_core::protocol's wire_enum!s, written by lang/tests/client_golden.rs.
+    assert [
+        {"code": v.value, "name": v.name, "description": v.description} for v in enum_type
+    ] == CODES[enum_type.__name__]
+
+
 def test_codes_are_the_documents():
-    assert [o.value for o in SchemaOutcome] == list(range(0x11))
+    assert [o.value for o in SchemaOutcome] == list(range(0x12))
+    assert SchemaOutcome.Looser == 0x11
     assert SchemaOutcome.QueueFull == 0x09 and SchemaOutcome.NoServer == 0x0E
     assert SchemaOutcome.StopNotAcknowledged == 0x0F and SchemaOutcome.TimedOut == 0x10
     assert [c.name for c in SchemaSafety] == [
@@ -48,7 +64,11 @@ def test_codes_are_the_documents():
         "Watchdog",
         "Overrun",
         "ImplausibleSensor",
+        "JointLimit",
+        "Speed",
     ]
+    assert SchemaSafety.JointLimit == 7 and SchemaSafety.Speed == 8
+    assert [c.name for c in SchemaChannel] == ["Queue", "HighPriority", "Limits"]
     assert SchemaOutcome.QueueFull.description.startswith("queue full")
 
 
@@ -70,8 +90,8 @@ def test_acks_refused():
     for data in (
         good[:7],
         good + b"\x00",
-        bytes([0x11]) + good[1:],  # unknown outcome
-        good[:1] + b"\x02" + good[2:],  # channel neither 0, 1 nor 0xFF
+        bytes([0x12]) + good[1:],  # unknown outcome
+        good[:1] + b"\x03" + good[2:],  # channel neither 0, 1, 2 nor 0xFF
         good[:5] + b"\x40\x00\x00",  # a stop number of 64
         good[:6] + b"\x01\x00",  # reserved bytes
         good[:7] + b"\x80",
@@ -97,7 +117,7 @@ def test_transitions_round_trip_and_refuse_a_detail_against_their_trigger():
         good[:4] + b"\x04" + good[5:],  # unknown trigger
         good[:6] + b"\x03" + good[7:],  # unknown source
         SchemaTransition(1, 2, SchemaTrigger.Safety, 0, SchemaOrigin.Innate, 0).encode()[:5]
-        + b"\x07\x00\x00",  # unknown safety cause
+        + b"\x09\x00\x00",  # unknown safety cause
     ):
         with pytest.raises(MalformedFrame):
             SchemaTransition.decode(data)
@@ -114,7 +134,7 @@ def test_states_round_trip_with_their_stop_number_and_refuse_unknown_codes():
     assert SchemaState.decode(bytes([1, 0, 1, 0xFF, 0, 0b0001_0101, 0, 0])).stop == 5
     good = SchemaState(1, SchemaOrigin.Innate, None, 0, True, False, 10).encode()
     for data in (
-        good[:3] + b"\x07" + good[4:],  # unknown safety event
+        good[:3] + b"\x09" + good[4:],  # unknown safety event
         good[:2] + b"\x03" + good[3:],  # unknown source
         good[:6],
     ):
@@ -145,3 +165,12 @@ def test_transfer_message_is_the_channel_byte_and_the_schema():
     p.transfer_message(bytes(256))
     with pytest.raises(ValueError):
         p.transfer_message(bytes(257))
+
+
+def test_a_limits_message_is_channel_byte_2_and_the_limits():
+    assert p.limits_message(b"\x01\x02") == b"\x02\x01\x02"
+    # The limits channel's answer: channel 2, no id.
+    ack = SchemaAck.decode(bytes([0x11, 2, 0xFF, 0xFF, 0, 0, 0, 0]))
+    assert ack == SchemaAck(SchemaOutcome.Looser, SchemaChannel.Limits, p.NO_ID, 0)
+    with pytest.raises(ValueError):
+        p.limits_message(bytes(257))

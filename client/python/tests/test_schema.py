@@ -1,5 +1,5 @@
-"""pab_client.schema against the Rust builders (golden_schemas.json, written and checked by
-lang/tests/client_golden.rs), and the encoding's own properties."""
+"""pab_client.schema against the Rust builders and pab_core's Limits (golden_schemas.json,
+written and checked by lang/tests/client_golden.rs), and the encodings' own properties."""
 
 import json
 import pathlib
@@ -12,6 +12,8 @@ from pab_client.protocol import SchemaOutcome
 
 GOLDEN = json.loads((pathlib.Path(__file__).parent / "golden_schemas.json").read_text())
 VECTORS = GOLDEN["vectors"]
+LIMITS_TABLE = s.Limits.from_json(GOLDEN["limits"]["table"])
+LIMITS = GOLDEN["limits"]["vectors"]
 
 
 def build(vector):
@@ -163,3 +165,94 @@ def test_variants_read_like_the_rust_enums():
     assert s.Action.Gripper(s.Gripper.Closed)._to_json() == {"Gripper": "Closed"}
     assert s.Event.Done() != s.Event.OneShot()
     assert s.Measure.Position(2) != s.Measure.Displacement(2)
+
+
+@pytest.mark.parametrize("vector", LIMITS, ids=[f"limits-{i}" for i in range(len(LIMITS))])
+def test_limits_encode_as_the_rust_limits_and_are_checked_as_the_board_checks_them(vector):
+    limits = s.Limits.from_json(vector["limits"])
+    assert limits.encode().hex() == vector["hex"]
+    assert limits.to_json() == vector["limits"]
+    assert s.Limits.decode(bytes.fromhex(vector["hex"])) == limits
+    within = limits.check_within(LIMITS_TABLE)
+    assert (None if within is None else within.name) == vector["within"]
+
+
+def test_the_limits_vectors_take_some_and_refuse_some():
+    answers = [v["within"] for v in LIMITS]
+    assert None in answers and "Looser" in answers
+    assert any(len(v["limits"]["joints"]) == s.MAX_JOINTS for v in LIMITS)
+
+
+def test_the_default_limits_are_the_boards():
+    limits = s.Limits()
+    assert limits == s.Limits.from_json(LIMITS[0]["limits"])
+    assert limits.check() is None
+    assert limits.check_within(limits) is None
+
+
+def test_limits_refuse_what_cannot_be_encoded():
+    with pytest.raises(ValueError):
+        s.Limits(workspace_min=(0, 0, 0))  # a corner is six values
+    with pytest.raises(ValueError):
+        s.Limits(force_limit=-1)
+    with pytest.raises(ValueError):
+        s.Limits(speed_limit=2**32)
+    with pytest.raises(ValueError):
+        s.Limits(joints=[s.Joint(i, 0, 1) for i in range(9)])
+    with pytest.raises(ValueError):
+        s.Joint(256, 0, 1)
+    with pytest.raises(ValueError):
+        s.Joint(0, -(2**31) - 1, 1)
+    with pytest.raises(TypeError):
+        s.Limits(joints=[(0, 0, 1, 0)])
+    with pytest.raises(TypeError):
+        s.Limits(contact_limit=1.5)
+
+
+def test_limits_decoding_refuses_what_the_board_refuses():
+    good = LIMITS_TABLE.encode()
+    for cut in range(len(good)):
+        with pytest.raises(s.DecodeError) as e:
+            s.Limits.decode(good[:cut])
+        assert e.value.outcome == SchemaOutcome.Malformed
+    with pytest.raises(s.DecodeError) as e:
+        s.Limits.decode(good + b"\x00")
+    assert e.value.outcome == SchemaOutcome.TrailingBytes
+    # Nine joints: more than a board bounds.
+    nine = s.Limits().encode()[:-1] + bytes([9]) + bytes(4) * 9
+    with pytest.raises(s.DecodeError) as e:
+        s.Limits.decode(nine)
+    assert e.value.outcome == SchemaOutcome.Malformed
+
+
+def test_limits_tighten_and_come_back_but_never_loosen():
+    table = s.Limits(speed_limit=250_000, joints=[s.Joint(2, -1000, 1000, 500)])
+    tight = s.Limits(
+        workspace_min=(-200_000,) + (-1_000_000,) * 5,
+        workspace_max=(1_000_000,) * 2 + (300_000,) + (1_000_000,) * 3,
+        force_limit=10_000,
+        torque_limit=2_000,
+        contact_limit=5_000,
+        speed_limit=100_000,
+        rate_limit=500_000,
+        joints=[s.Joint(2, -500, 800, 100)],
+    )
+    assert tight.check_within(table) is None
+    assert table.check_within(tight) == SchemaOutcome.Looser
+    assert table.check_within(table) is None
+    rng = random.Random(10)
+    for _ in range(200):
+        limits = s.Limits(
+            tuple(rng.randrange(-(2**31), 2**31) for _ in range(6)),
+            tuple(rng.randrange(-(2**31), 2**31) for _ in range(6)),
+            *(rng.choice([0, 1, rng.randrange(2**32)]) for _ in range(5)),
+            [
+                s.Joint(rng.randrange(256), rng.randrange(-(2**31), 2**31),
+                        rng.randrange(-(2**31), 2**31), rng.randrange(2**32))
+                for _ in range(rng.randrange(9))
+            ],
+        )
+        data = limits.encode()
+        assert s.Limits.decode(data) == limits
+        assert s.Limits.from_json(limits.to_json()) == limits
+        assert len(data) + 1 <= 257
