@@ -57,7 +57,7 @@ ACK_TIMEOUT_S = 1.0
 POSE = 0x310
 
 SAFETY_NAMES = {0: "estop", 1: "stale", 2: "limit", 3: "force", 4: "watchdog", 5: "overrun",
-                6: "implausible"}
+                6: "implausible", 7: "joint", 8: "speed"}
 AXES = ("x", "y", "z", "rx", "ry", "rz")
 
 
@@ -113,7 +113,7 @@ def schema_name(sid: int, names: dict[int, str]) -> str:
         return "wait-queue"
     if sid == 0xFF01:
         return "wait-high-priority"
-    if 0xFF10 <= sid < 0xFF16:
+    if 0xFF10 <= sid < 0xFF10 + len(SAFETY_NAMES):
         return f"safety:{SAFETY_NAMES[sid - 0xFF10]}"
     return names[sid]
 
