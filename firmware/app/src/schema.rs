@@ -207,18 +207,25 @@ impl SchemaRuntime {
                 };
                 let named = SchemaChannel::of_message(channel);
                 let limits = channel == SchemaChannel::Limits.code();
-                let decoded = Schema::decode(bytes).map_err(|e| SchemaOutcome::from(&e));
-                let id = decoded.as_ref().map_or(0xFFFF, |s| s.id);
-                let verdict = match (message, named) {
-                    (None, _) => Err(SchemaOutcome::Unauthenticated),
-                    (Some(_), Some(named)) => decoded.and_then(|s| {
-                        self.server
-                            .submit(s, named)
-                            .map_err(|r| SchemaOutcome::from(&r))
-                    }),
-                    // The limits channel: the bounds in force, within the table's.
-                    (Some(_), None) if limits => set_limits(&mut self.server, bytes),
-                    (Some(_), None) => Err(SchemaOutcome::BadChannel),
+                let (verdict, id) = match (message, named) {
+                    (None, _) => (Err(SchemaOutcome::Unauthenticated), SchemaAck::NO_ID),
+                    // The limits channel: the bounds in force, within the table's (no id).
+                    (Some(_), None) if limits => {
+                        (set_limits(&mut self.server, bytes), SchemaAck::NO_ID)
+                    }
+                    (Some(_), _) => {
+                        let decoded = Schema::decode(bytes).map_err(|e| SchemaOutcome::from(&e));
+                        let id = decoded.as_ref().map_or(SchemaAck::NO_ID, |s| s.id);
+                        let verdict = match named {
+                            Some(named) => decoded.and_then(|s| {
+                                self.server
+                                    .submit(s, named)
+                                    .map_err(|r| SchemaOutcome::from(&r))
+                            }),
+                            None => Err(SchemaOutcome::BadChannel),
+                        };
+                        (verdict, id)
+                    }
                 };
                 let channel = match named {
                     Some(named) => Some(SchemaChannel::of(named)),
@@ -229,8 +236,7 @@ impl SchemaRuntime {
                     Some((
                         verdict.err().unwrap_or(SchemaOutcome::Accepted),
                         channel,
-                        // Limits have no id; bytes that happen to decode as a schema too are not one.
-                        if limits { 0xFFFF } else { id },
+                        id,
                     )),
                 )
             }
