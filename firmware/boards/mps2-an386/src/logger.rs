@@ -12,7 +12,7 @@ use core::fmt::Write as _;
 use log::{Level, LevelFilter, Metadata, Record};
 use pab_core::decimal::Decimal;
 
-use crate::semihosting;
+use crate::semihosting::{self, TEXT_CAPACITY, Text};
 
 struct Semihosting;
 
@@ -28,7 +28,7 @@ impl log::Log for Semihosting {
             return;
         }
         // One line, formatted first, written with one call: semihosting writes are slow.
-        let mut line = heapless::String::<192>::new();
+        let mut line = Text::line();
         let micros = embassy_time::Instant::now().as_micros();
         // Seconds and microseconds as u32s, written through `Decimal` as the messages' integers
         // are: the text of `{seconds:>6}.{fraction:06}` without core::fmt's integer formatters
@@ -49,19 +49,17 @@ impl log::Log for Semihosting {
             Level::Debug => "DEBUG ",
             Level::Trace => "TRACE ",
         };
+        // The pieces of a line that does not fit are taken up to the first that does not, as a
+        // `heapless::String` would; one that ends exactly full is cut for "...".
         let _ = write!(line, "{seconds}.{fraction} ")
             .and_then(|()| line.write_str(level))
             .and_then(|()| line.write_fmt(*record.args()));
-        if line.len() == line.capacity() {
-            let mut cut = line.capacity() - 4;
-            while !line.is_char_boundary(cut) {
-                cut -= 1;
-            }
-            line.truncate(cut);
-            let _ = line.push_str("...");
+        if line.is_full() {
+            line.truncate_to_char(TEXT_CAPACITY - 4);
+            let _ = line.write_str("...");
         }
-        let _ = line.push('\n');
-        semihosting::eprint_str(&line);
+        let _ = line.write_str("\n");
+        semihosting::eprint_bytes(line.as_bytes());
     }
 
     fn flush(&self) {}
