@@ -153,8 +153,17 @@ impl core::fmt::Display for LayoutError {
 impl core::fmt::Display for StoreError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
-            StoreError::Flash(kind) => write!(f, "flash: {kind}"),
-            StoreError::Layout(error) => write!(f, "store layout: {error}"),
+            // Written in two pieces, not through `write!`: the same text without the
+            // arguments' formatting (the kind's and the error's `Display` through a reference,
+            // two copies of some 46 bytes on the emulated board).
+            StoreError::Flash(kind) => {
+                f.write_str("flash: ")?;
+                kind.fmt(f)
+            }
+            StoreError::Layout(error) => {
+                f.write_str("store layout: ")?;
+                error.fmt(f)
+            }
             StoreError::ImageTooLarge { len, capacity } => {
                 let (len, capacity) = (Bytes(*len), Decimal::new(*capacity));
                 write!(
