@@ -46,6 +46,7 @@ mod const_exp;
 pub mod consumer;
 pub mod crc32;
 mod decay;
+pub mod decimal;
 pub mod decision;
 pub mod dynamics;
 pub mod filter;

@@ -21,6 +21,7 @@ use pab_core::auth::page;
 use pab_storage::CounterError;
 
 use crate::Node;
+use crate::fmt::int;
 
 /// The `KeyPageInvalid` reason of a boot counter failure, plus [`CounterError::code`]: 0x11
 /// flash error, 0x12 layout, 0x13 count exhausted, 0x14 record does not read back. (Reasons
@@ -80,14 +81,14 @@ pub fn key_from_page<const P: usize, const C: usize, const N: usize, const IMG: 
         Keying::Keyed { boot_salt } => {
             info!(
                 "keyed: only authenticated configuration is accepted (boot {})",
-                boot_salt
+                int(boot_salt)
             )
         }
         Keying::Locked { reason } => {
             node.lock_configuration(reason);
             warn!(
                 "key page or boot counter invalid (reason {}): configuration locked",
-                u32::from(reason)
+                int(u32::from(reason))
             )
         }
     }

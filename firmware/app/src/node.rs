@@ -27,6 +27,7 @@ use crate::auth::{CHALLENGE_LIFETIME_US, Guard};
 use crate::bus::BusError;
 use crate::diagnostic::DiagnosticStream;
 use crate::faults::FaultLimiter;
+use crate::fmt::int;
 use crate::{Config, Consumer};
 
 /// Frames waiting to be sent. Heartbeat groups (4 frames), faults and transfer answers fit with
@@ -279,7 +280,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         let node_id = self.config.node_id;
         match self.take_image(len, None, now) {
             Ok(header) => {
-                info!("booted with stored table version {}", header.table_version);
+                info!(
+                    "booted with stored table version {}",
+                    int(header.table_version)
+                );
                 if let Some(running) = self.running.as_mut() {
                     running.stored = true;
                 }
@@ -288,14 +292,14 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 if status == TransferStatusCode::WrongNode {
                     warn!(
                         "stored table refused: the image is for node {}, this node is {}; starting without a table",
-                        u32::from(detail),
-                        u32::from(node_id)
+                        int(u32::from(detail)),
+                        int(u32::from(node_id))
                     );
                 } else {
                     warn!(
                         "stored table refused: {} (detail {}); starting without a table",
                         status,
-                        u32::from(detail)
+                        int(u32::from(detail))
                     );
                 }
                 // For WrongNode, the detail is the image's node id.
@@ -763,7 +767,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         if let Some(incoming) = self.incoming.take() {
             warn!(
                 "table transfer from {} timed out",
-                u32::from(incoming.source)
+                int(u32::from(incoming.source))
             );
             self.refuse(
                 incoming.source,
@@ -782,7 +786,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         if let Some(incoming) = self.incoming.take() {
             warn!(
                 "table transfer from {} too slow",
-                u32::from(incoming.source)
+                int(u32::from(incoming.source))
             );
             self.refuse(
                 incoming.source,
@@ -1207,7 +1211,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     #[inline(never)]
     fn configure_diagnostic(&mut self, control: protocol::DiagnosticControl, now: Instant) {
         self.diagnostic.configure(control, now);
-        info!("diagnostic stream at {} Hz", u32::from(control.rate_hz));
+        info!(
+            "diagnostic stream at {} Hz",
+            int(u32::from(control.rate_hz))
+        );
     }
 
     /// A configuration message refused by the authentication rules: counted, and a fault says
@@ -1440,7 +1447,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             Ok(header) => {
                 self.diagnostic.restart_round();
                 self.awaiting_store = Some((source, nonce));
-                info!("table version {} applied", header.table_version);
+                info!("table version {} applied", int(header.table_version));
                 Step::Store
             }
             Err((TransferStatusCode::AlreadyCurrent, detail)) => {

@@ -10,8 +10,9 @@
 use core::fmt::Write as _;
 
 use log::{Level, LevelFilter, Metadata, Record};
+use pab_core::decimal::Decimal;
 
-use crate::semihosting;
+use crate::semihosting::{self, TEXT_CAPACITY, Text};
 
 struct Semihosting;
 
@@ -27,12 +28,18 @@ impl log::Log for Semihosting {
             return;
         }
         // One line, formatted first, written with one call: semihosting writes are slow.
-        let mut line = heapless::String::<192>::new();
+        let mut line = Text::line();
         let micros = embassy_time::Instant::now().as_micros();
-        // Seconds and microseconds as u32s: the messages' integers are u32s too, and one
-        // formatter is enough (u64's would take 256 bytes more of the flash). 2^32 s is 136 years.
+        // Seconds and microseconds as u32s, written through `Decimal` as the messages' integers
+        // are: the text of `{seconds:>6}.{fraction:06}` without core::fmt's integer formatters
+        // (u32's and its padding, some 630 bytes of the flash; u64's 256 more). 2^32 s is 136
+        // years.
         let seconds = u32::try_from(micros / 1_000_000).unwrap_or(u32::MAX);
         let fraction = (micros % 1_000_000) as u32;
+        let (seconds, fraction) = (
+            Decimal::padded(seconds, 6, b' '),
+            Decimal::padded(fraction, 6, b'0'),
+        );
         // The level padded to five characters by hand, and the line written out as it is: the
         // same text as `{:<5}` and `{line}`, without the level's and the string's `Display`.
         let level = match record.level() {
@@ -42,19 +49,17 @@ impl log::Log for Semihosting {
             Level::Debug => "DEBUG ",
             Level::Trace => "TRACE ",
         };
-        let _ = write!(line, "{seconds:>6}.{fraction:06} ")
+        // The pieces of a line that does not fit are taken up to the first that does not, as a
+        // `heapless::String` would; one that ends exactly full is cut for "...".
+        let _ = write!(line, "{seconds}.{fraction} ")
             .and_then(|()| line.write_str(level))
             .and_then(|()| line.write_fmt(*record.args()));
-        if line.len() == line.capacity() {
-            let mut cut = line.capacity() - 4;
-            while !line.is_char_boundary(cut) {
-                cut -= 1;
-            }
-            line.truncate(cut);
-            let _ = line.push_str("...");
+        if line.is_full() {
+            line.truncate_to_char(TEXT_CAPACITY - 4);
+            let _ = line.write_str("...");
         }
-        let _ = line.push('\n');
-        semihosting::eprint_str(&line);
+        let _ = line.write_str("\n");
+        semihosting::eprint_bytes(line.as_bytes());
     }
 
     fn flush(&self) {}

@@ -36,6 +36,7 @@
 
 use embassy_executor::InterruptExecutor;
 use embedded_storage::nor_flash::ReadNorFlash;
+use pab_core::decimal::Decimal;
 use pab_fw_an386::interrupts::{self, Interrupt};
 use pab_fw_an386::ram_flash::{BOOT_COUNTER_RANGE, KEY_PAGE, RamFlash, STORE_RANGE};
 use pab_fw_an386::slcan_bus::SlcanBus;
@@ -82,7 +83,7 @@ fn main() -> ! {
     uart::init();
     log::info!(
         "pab node {} on the emulated Cortex-M4 (mps2-an386), SLCAN on UART0",
-        u32::from(NODE_ID)
+        Decimal::new(u32::from(NODE_ID))
     );
 
     // SAFETY: called once; memory.x keeps the program below the RAM-backed flash.
@@ -237,15 +238,16 @@ unsafe fn NonMaskableInt() {
 
 /// Says where and why on QEMU's stderr, and fails the emulation: the text of `{info}`
 /// (`panicked at FILE:LINE:COLUMN:` and the message on the next line), written out here so that
-/// the file's name goes through `write_str`, not through `&str`'s `Display` (which pads).
+/// the file's name goes through `write_str`, not through `&str`'s `Display` (which pads), and the
+/// line and column through `Decimal`, not through `u32`'s `Display` (see [`pab_core::decimal`]).
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
     match info.location() {
         Some(at) => fail(format_args!(
             "panic: panicked at {}:{}:{}:\n{}",
             Verbatim(at.file()),
-            at.line(),
-            at.column(),
+            Decimal::new(at.line()),
+            Decimal::new(at.column()),
             info.message()
         )),
         None => fail(format_args!("panic: panicked:\n{}", info.message())),

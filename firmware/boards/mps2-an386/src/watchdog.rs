@@ -8,6 +8,8 @@
 
 use core::sync::atomic::{AtomicBool, Ordering};
 
+use pab_core::decimal::Decimal;
+
 use crate::cmsdk::{self, PCLK_HZ};
 use crate::semihosting;
 
@@ -49,8 +51,10 @@ impl pab_app::Watchdog for BoardWatchdog {
 pub fn on_nmi() {
     static SAID: AtomicBool = AtomicBool::new(false);
     if !SAID.swap(true, Ordering::Relaxed) {
+        // Through `Decimal`: the board has no `core::fmt` integer formatter (logger.rs).
+        let half = Decimal::new(HALF_TIMEOUT_MS);
         semihosting::eprint(format_args!(
-            "pab-fw-an386: watchdog: the node loop has not fed it for {HALF_TIMEOUT_MS} ms; reset in {HALF_TIMEOUT_MS} ms\n"
+            "pab-fw-an386: watchdog: the node loop has not fed it for {half} ms; reset in {half} ms\n"
         ));
     }
 }

@@ -1,13 +1,13 @@
 //! The application's [`CanBus`] over embassy-stm32's FDCAN driver, with queues of its own.
 //!
-//! The driver runs in its unbuffered mode (its own interrupt handler clears the flags, recovers
-//! from bus-off and wakes nobody who matters), and [`QueueHandler`], bound to the same interrupt
-//! after it, does what the driver's buffered mode did, in the same order and under the same
-//! conditions: it moves one frame from the [`TX_QUEUE`]-frame transmit queue into the
-//! controller's TX FIFO if the FIFO has room, then, if a frame arrived, drains the hardware RX
-//! FIFOs (3 frames each on the G4) into the [`RX_QUEUE`]-frame receive queue, so frames that
-//! arrive while the node task is busy (arbitrating, waiting to transmit) wait there instead of
-//! overflowing the hardware FIFO. Both go through the driver's own reads and writes of the
+//! The driver runs in its unbuffered mode, and [`Interrupt`], FDCAN1_IT0's handler, does what the
+//! driver's own handler does in that mode (it clears the flags and recovers from bus-off; its
+//! wakers wake nobody who matters), then what the driver's buffered mode did, in the same order
+//! and under the same conditions: it moves one frame from the [`TX_QUEUE`]-frame transmit queue
+//! into the controller's TX FIFO if the FIFO has room, then, if a frame arrived, drains the
+//! hardware RX FIFOs (3 frames each on the G4) into the [`RX_QUEUE`]-frame receive queue, so
+//! frames that arrive while the node task is busy (arbitrating, waiting to transmit) wait there
+//! instead of overflowing the hardware FIFO. Both go through the driver's own reads and writes of the
 //! message RAM (`CanRx::read`, `CanTx::write`, polled once each). Why not the buffered mode: its
 //! queues are `embassy_sync` channels behind `dyn` references, whose every method, and the FD
 //! frames' copies of the driver's reads and writes, the firmware carried: some 2 KB of flash.
@@ -39,7 +39,6 @@
 use core::cell::RefCell;
 use core::future::{Future, poll_fn};
 use core::pin::pin;
-use core::sync::atomic::{AtomicBool, Ordering};
 use core::task::{Context, Poll, Waker};
 
 use critical_section::Mutex;
@@ -86,40 +85,57 @@ static HALVES: Mutex<RefCell<Option<(CanTx<'static>, CanRx<'static>)>>> =
 static RX_WAKER: AtomicWaker = AtomicWaker::new();
 /// The node task waiting for room in the transmit queue.
 static TX_WAKER: AtomicWaker = AtomicWaker::new();
-/// A new-message flag of either RX FIFO was set when the interrupt came (read by
-/// [`RxFlagHandler`] before the driver's handler clears the flags).
-static RX_FLAGGED: AtomicBool = AtomicBool::new(false);
+/// FDCAN1_IT0's handler, in place of the driver's `can::IT0InterruptHandler` (whose binding
+/// `main.rs` claims for it): what the driver's handler does with the driver in its unbuffered
+/// mode, then the queues served as the driver's buffered mode served them ([`serve`]).
+///
+/// Why not the driver's own handler: it serves the driver's three modes, chosen at run time from
+/// a `static`, so its buffered paths (the FD frames' read and write, the RX FIFOs' drain into its
+/// channels: `RxMode::on_interrupt`) came along, some 2.5 KB of flash, though the driver never
+/// runs buffered here. What it does unbuffered (embassy-stm32 0.6, `can/fdcan.rs`), done here:
+/// - it acknowledges TC, TEFN, each RX FIFO's new-message flag and the bus-off status change
+///   that it read set (write 1 to clear; here in one write);
+/// - it wakes the tasks waiting in `CanTx::write` and `CanRx::read`: the only ones are
+///   [`serve`]'s polls, with a no-op waker, so not waking them changes nothing;
+/// - on a bus-off status change, with automatic recovery on (`main.rs` configures it, and the
+///   driver reads it only once `CanConfigurator::start` ran, which [`FdcanBus::new`], which puts
+///   the halves here, follows) and the controller in bus-off, it clears CCCR.INIT, which starts
+///   the recovery sequence.
+pub struct Interrupt;
 
-/// FDCAN1_IT0's first handler: notes whether a frame arrived (either RX FIFO's new-message flag),
-/// which the driver's handler, next, clears.
-pub struct RxFlagHandler;
-
-impl Handler<FDCAN1_IT0> for RxFlagHandler {
+impl Handler<FDCAN1_IT0> for Interrupt {
     unsafe fn on_interrupt() {
         let ir = FDCAN1.ir().read();
-        RX_FLAGGED.store(ir.rfn(0) || ir.rfn(1), Ordering::Relaxed);
-    }
-}
-
-/// FDCAN1_IT0's last handler, after the driver's: the queues' side of the interrupt, as the
-/// driver's buffered mode served them.
-pub struct QueueHandler;
-
-impl Handler<FDCAN1_IT0> for QueueHandler {
-    unsafe fn on_interrupt() {
+        let arrived = ir.rfn(0) || ir.rfn(1);
+        FDCAN1.ir().write(|w| {
+            w.set_tc(ir.tc());
+            w.set_tefn(ir.tefn());
+            w.set_rfn(0, ir.rfn(0));
+            w.set_rfn(1, ir.rfn(1));
+            w.set_bo(ir.bo());
+        });
         critical_section::with(|cs| {
             if let Some((tx_can, rx_can)) = &mut *HALVES.borrow_ref_mut(cs) {
-                serve(tx_can, rx_can, &mut QUEUES.borrow_ref_mut(cs));
+                // Halves here: started, automatic recovery on (see above).
+                if ir.bo() && FDCAN1.psr().read().bo() {
+                    FDCAN1.cccr().modify(|w| w.set_init(false));
+                }
+                serve(tx_can, rx_can, &mut QUEUES.borrow_ref_mut(cs), arrived);
             }
         });
     }
 }
 
 /// Moves one frame from the transmit queue into the TX FIFO if it has room; then, if a frame
-/// arrived (flagged, or waiting in a FIFO: one that came after the driver's handler read the
-/// flags, which it has cleared), reads the RX FIFOs until they are empty, and the protocol error
+/// arrived (`flagged`, or waiting in a FIFO: one that came after [`Interrupt`] read the flags,
+/// which it has cleared), reads the RX FIFOs until they are empty, and the protocol error
 /// the controller holds, if any, after them, into the receive queue.
-fn serve(tx_can: &mut CanTx<'static>, rx_can: &mut CanRx<'static>, queues: &mut Queues) {
+fn serve(
+    tx_can: &mut CanTx<'static>,
+    rx_can: &mut CanRx<'static>,
+    queues: &mut Queues,
+    flagged: bool,
+) {
     let Queues { rx, tx } = queues;
     let mut cx = Context::from_waker(Waker::noop());
     if let Some(frame) = tx.front() {
@@ -129,9 +145,7 @@ fn serve(tx_can: &mut CanTx<'static>, rx_can: &mut CanRx<'static>, queues: &mut 
             TX_WAKER.wake();
         }
     }
-    let arrived = RX_FLAGGED.load(Ordering::Relaxed)
-        || FDCAN1.rxfs(0).read().ffl() > 0
-        || FDCAN1.rxfs(1).read().ffl() > 0;
+    let arrived = flagged || FDCAN1.rxfs(0).read().ffl() > 0 || FDCAN1.rxfs(1).read().ffl() > 0;
     if arrived {
         loop {
             let received = match pin!(rx_can.read()).poll(&mut cx) {

@@ -192,13 +192,25 @@ impl pab_app::Watchdog for NodeWatchdog {
     }
 }
 
-// IT0 carries every FDCAN interrupt. The driver's handler (unbuffered mode: it clears the flags
-// and recovers from bus-off) between the two of `fdcan_bus`, which note a frame's arrival before
-// it and serve the queues after it.
+// IT0 carries every FDCAN interrupt: `fdcan_bus::Interrupt` does what the driver's handler does
+// in its unbuffered mode, then serves the queues.
 bind_interrupts!(struct Irqs {
-    FDCAN1_IT0 => fdcan_bus::RxFlagHandler, can::IT0InterruptHandler<FDCAN1>, fdcan_bus::QueueHandler;
+    FDCAN1_IT0 => fdcan_bus::Interrupt;
     FDCAN1_IT1 => can::IT1InterruptHandler<FDCAN1>;
 });
+
+// SAFETY: `CanConfigurator::new` asks for the driver's IT0 handler bound to FDCAN1_IT0, so that
+// the driver's flags are cleared and its bus-off recovered. `fdcan_bus::Interrupt`, bound there
+// instead, does each of the things that handler does with the driver unbuffered, the only mode
+// this firmware starts it in (its doc lists them, against embassy-stm32 0.6's `fdcan.rs`);
+// linking the handler itself took its buffered modes' code along (1.9 KiB of flash).
+unsafe impl
+    embassy_stm32::interrupt::typelevel::Binding<
+        embassy_stm32::interrupt::typelevel::FDCAN1_IT0,
+        can::IT0InterruptHandler<FDCAN1>,
+    > for Irqs
+{
+}
 
 /// Turns on the flash's prefetch buffer and its instruction and data caches (the ART
 /// accelerator, FLASH_ACR PRFTEN, ICEN, DCEN).
