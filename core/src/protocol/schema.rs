@@ -84,7 +84,7 @@ impl From<&Refusal> for SchemaOutcome {
             Refusal::QueueFull => SchemaOutcome::QueueFull,
             Refusal::Busy => SchemaOutcome::Busy,
             Refusal::StopNotAcknowledged => SchemaOutcome::StopNotAcknowledged,
-            Refusal::Limits(_) => SchemaOutcome::Looser,
+            Refusal::Looser => SchemaOutcome::Looser,
         }
     }
 }
@@ -230,10 +230,7 @@ mod tests {
                 Refusal::StopNotAcknowledged,
                 SchemaOutcome::StopNotAcknowledged,
             ),
-            (
-                Refusal::Limits(crate::schema::LimitsError::Looser),
-                SchemaOutcome::Looser,
-            ),
+            (Refusal::Looser, SchemaOutcome::Looser),
         ];
         for (refusal, outcome) in cases {
             assert_eq!(SchemaOutcome::from(&refusal), outcome, "{refusal:?}");

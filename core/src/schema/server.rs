@@ -146,8 +146,9 @@ pub enum Refusal {
     /// A high-priority schema that names another stop than the server's latest
     /// ([`Server::stop_number`]): sent before the client saw a stop, it must not leave it.
     StopNotAcknowledged,
-    /// Run-time limits looser than the table's, or inconsistent ([`Server::set_limits`]).
-    Limits(LimitsError),
+    /// Run-time limits looser than the table's, or inconsistent ([`Server::set_limits`];
+    /// [`Limits::check_within`] says which).
+    Looser,
 }
 
 /// Where a client's schema goes ([`Server::submit`]).
@@ -498,7 +499,7 @@ impl Server {
     pub fn set_limits(&mut self, limits: Limits) -> Result<(), Refusal> {
         limits
             .check_within(&self.config.limits)
-            .map_err(Refusal::Limits)?;
+            .map_err(|_| Refusal::Looser)?;
         self.limits = Some(limits);
         Ok(())
     }
@@ -507,6 +508,8 @@ impl Server {
     /// last pose taken than the drive's speed (rate) allows in the time between, plus the pose
     /// noise; otherwise the next tick raises [`Safety::ImplausibleSensor`] and the server keeps
     /// the last plausible pose (what a stop holds the robot at).
+    // Out of line: the node's frame path inlined it, its speed window and all.
+    #[inline(never)]
     pub fn set_pose(&mut self, pose: Pose, at: Instant) {
         if let Some((last, then)) = &self.pose
             && !plausible(
@@ -545,6 +548,8 @@ impl Server {
     }
 
     /// An extra sensor's value, from its topic; `false` for an index beyond [`MAX_SENSORS`].
+    // Out of line: the node's frame path inlined it, with its joints' speed.
+    #[inline(never)]
     pub fn set_sensor(&mut self, index: usize, value: i32, at: Instant) -> bool {
         let Some(s) = self.sensors.get_mut(index) else {
             return false;

@@ -635,7 +635,7 @@ fn reference_limits(l: &Limits) -> std::result::Result<(), LimitsError> {
 /// table's (a corner or range inside, a limit at most the table's and not none where it has
 /// one, the same joints in the same order).
 fn reference_within(l: &Limits, table: &Limits) -> std::result::Result<(), Refusal> {
-    reference_limits(l).map_err(Refusal::Limits)?;
+    reference_limits(l).map_err(|_| Refusal::Looser)?;
     let within = |new: u32, old: u32| old == 0 || (1..=old).contains(&new);
     let inside = (0..AXES).all(|a| {
         l.workspace_min[a] >= table.workspace_min[a] && l.workspace_max[a] <= table.workspace_max[a]
@@ -648,11 +648,7 @@ fn reference_within(l: &Limits, table: &Limits) -> std::result::Result<(), Refus
         && l.joints.iter().zip(&table.joints).all(|(n, o)| {
             n.sensor == o.sensor && n.min >= o.min && n.max <= o.max && within(n.rate, o.rate)
         });
-    if inside {
-        Ok(())
-    } else {
-        Err(Refusal::Limits(LimitsError::Looser))
-    }
+    if inside { Ok(()) } else { Err(Refusal::Looser) }
 }
 
 /// Whether the pose moved faster than `l` allows from `last` to `next` in `dt` µs, in i128:
