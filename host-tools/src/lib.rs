@@ -12,6 +12,7 @@ pub mod args;
 pub mod bus;
 pub mod client;
 pub mod keys;
+pub mod limits;
 pub mod monitor;
 pub mod observe;
 pub mod plant;

@@ -371,6 +371,58 @@ not sent here.")]
         #[arg(long, value_name = "FILE")]
         key: Option<PathBuf>,
     },
+    /// Tighten a live schema server's safety limits, or set them back to its table's.
+    #[command(long_about = "\
+Set the safety bounds a schema server's board runs with, at run time: the table's (from the \
+network file's [schema.NODE]) with the options given applied, each tighter than the table's or \
+back up to it, never looser. The board takes them from its next tick (a robot outside a \
+tightened workspace or joint range stops at once; a schema that brings it back is not stopped) \
+and keeps them until it restarts or gets a new table; `pabctl limits NET --iface can0` with no \
+option sets the table's back. Units are the network file's: N, N·m, mm, mm/s, rad/s, and a \
+joint's sensor's unit (--joint elbow=-45:90:30 is elbow's range -45..90 and 30 a second). \
+Every bound that would be looser is named before anything is sent. On a board with a key, \
+--key is needed (the limits are authenticated like a schema). Exits 2 for limits that cannot \
+be set, 4 when the board refused them or did not answer.\n\n\
+Examples:\n  pabctl limits arm.toml --iface can0 --force-limit-n 10 --speed-limit-mm-s 100\n  \
+pabctl limits arm.toml --iface can0 --workspace-max-mm 100,100,50 --key arm.key\n  \
+pabctl limits arm.toml --dry-run --joint elbow=-45:90")]
+    Limits {
+        /// The network file (TOML): its [schema.NODE] is the board's table.
+        network: PathBuf,
+        /// The CAN interface (vcan0, can0...); not needed with --dry-run.
+        #[arg(long, required_unless_present = "dry_run")]
+        iface: Option<String>,
+        /// The board's key file (`pabctl keygen`), for a board with a key.
+        #[arg(long, value_name = "FILE")]
+        key: Option<PathBuf>,
+        /// The safety limit on |F|, N.
+        #[arg(long, value_name = "N")]
+        force_limit_n: Option<f64>,
+        /// The safety limit on |T|, N·m.
+        #[arg(long, value_name = "NM")]
+        torque_limit_nm: Option<f64>,
+        /// The highest contact force a schema may wait for, N.
+        #[arg(long, value_name = "N")]
+        contact_limit_n: Option<f64>,
+        /// The top speed of the measured translation, mm/s.
+        #[arg(long, value_name = "MM_S")]
+        speed_limit_mm_s: Option<f64>,
+        /// The top rate of the measured rotation, rad/s.
+        #[arg(long, value_name = "RAD_S")]
+        rate_limit_rad_s: Option<f64>,
+        /// The workspace's lower corner, mm.
+        #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = pabctl::limits::point)]
+        workspace_min_mm: Option<[f64; 3]>,
+        /// The workspace's upper corner, mm.
+        #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = pabctl::limits::point)]
+        workspace_max_mm: Option<[f64; 3]>,
+        /// A joint's range (and speed per second), in its sensor's unit; repeat for several.
+        #[arg(long = "joint", value_name = "SENSOR=MIN:MAX[:SPEED]", value_parser = pabctl::limits::joint)]
+        joints: Vec<pabctl::limits::JointOverride>,
+        /// Print the limits and check them; send nothing.
+        #[arg(long)]
+        dry_run: bool,
+    },
     /// Create a node key file (32 hexadecimal characters, mode 0600).
     #[command(long_about = "\
 Write a new random 128-bit key (from /dev/urandom) to FILE as 32 hexadecimal characters and a \
@@ -591,6 +643,33 @@ fn main() -> ExitCode {
             trace,
             key,
         } => run_client_program(&network, &iface, timeout, trace.as_deref(), key.as_deref()),
+        Command::Limits {
+            network,
+            iface,
+            key,
+            force_limit_n,
+            torque_limit_nm,
+            contact_limit_n,
+            speed_limit_mm_s,
+            rate_limit_rad_s,
+            workspace_min_mm,
+            workspace_max_mm,
+            joints,
+            dry_run,
+        } => {
+            let overrides = pabctl::limits::Overrides {
+                force_limit_n,
+                torque_limit_nm,
+                contact_limit_n,
+                speed_limit_mm_s,
+                rate_limit_rad_s,
+                workspace_min_mm,
+                workspace_max_mm,
+                joints,
+            };
+            let iface = if dry_run { None } else { iface };
+            run_limits(&network, iface.as_deref(), key.as_deref(), &overrides)
+        }
         Command::Keygen { output } => run_keygen(&output),
         Command::Keypage { key, output } => run_keypage(&key, &output),
         Command::Nodes {
@@ -1201,6 +1280,53 @@ fn run_client_program(
             println!("{}: {} calls run, no safety event", node.name, outcome.sent);
             Ok(())
         }
+    }
+}
+
+fn run_limits(
+    path: &Path,
+    iface: Option<&str>,
+    key: Option<&Path>,
+    overrides: &pabctl::limits::Overrides,
+) -> Result<(), Failure> {
+    let key = key.map(read_key).transpose()?;
+    let network = Network::load(path)?;
+    let board = network.schema_boards.first().ok_or_else(|| {
+        Failure::Input(Diagnostic::file(path, "the file has no [schema.NODE]").into())
+    })?;
+    let node = network
+        .nodes
+        .get(board.node)
+        .ok_or_else(|| Failure::Input(Diagnostic::file(path, "no such node").into()))?;
+    let limits = pabctl::limits::apply(board, overrides).map_err(|errors| {
+        Failure::Input(Diagnostics(
+            errors
+                .into_iter()
+                .map(|e| Diagnostic::file(path, format!("{}: {e}", node.name)))
+                .collect(),
+        ))
+    })?;
+    for line in pabctl::limits::describe(board, &limits) {
+        println!("{}: {line}", node.name);
+    }
+    let Some(iface) = iface else {
+        println!(
+            "{}: within the table's limits (dry run: nothing sent)",
+            node.name
+        );
+        return Ok(());
+    };
+    let mut bus = bus::open(iface).map_err(|e| Failure::Bus(e.to_string()))?;
+    let mut client = match key {
+        Some(key) => pabctl::client::Client::with_key(bus.as_mut(), node.id, key),
+        None => pabctl::client::Client::new(bus.as_mut(), node.id),
+    };
+    match client.set_limits(&limits) {
+        Ok(_) => {
+            println!("{}: limits in force from its next tick", node.name);
+            Ok(())
+        }
+        Err(error) => Err(Failure::Bus(format!("{}: {error}", node.name))),
     }
 }
 

@@ -820,3 +820,72 @@ fn the_live_schema_verbs_check_the_file_before_the_bus() {
         text(&output.stderr)
     );
 }
+
+#[test]
+fn limits_are_checked_against_the_table_before_anything_is_sent() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("arm.toml");
+    std::fs::write(
+        &path,
+        "[nodes.arm]\nid = 10\n[schema.arm]\nforce_limit_n = 30\nspeed_limit_mm_s = 250\n\
+         drive = { setpoint = 0x300, pose = 0x310, wrench = 0x320 }\n\
+         [schema.arm.sensors.elbow]\ncan_id = 0x331\nvalue = { offset = 0, size = 2, signed = true }\n\
+         scale = 0.1\nunit = \"deg\"\njoint = { min = -90, max = 120, speed = 45 }\n",
+    )
+    .unwrap();
+    let net = path.display().to_string();
+    let output = pabctl(&[
+        "limits",
+        &net,
+        "--dry-run",
+        "--force-limit-n",
+        "10",
+        "--workspace-max-mm",
+        "100,100,50",
+        "--joint",
+        "elbow=-45:90:30",
+    ]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let stdout = text(&output.stdout);
+    for line in [
+        "arm: force limit 10 N",
+        "arm: speed limit 250 mm/s",
+        "arm: workspace [-1000, -1000, -1000] to [100, 100, 50] mm",
+        "arm: joint elbow: -45 to 90 deg, speed 30 deg/s",
+        "arm: within the table's limits (dry run: nothing sent)",
+    ] {
+        assert!(stdout.contains(line), "{line:?} in {stdout}");
+    }
+    // Every looser bound named at once, exit 2, nothing sent (no --iface needed to fail).
+    let output = pabctl(&[
+        "limits",
+        &net,
+        "--dry-run",
+        "--force-limit-n",
+        "40",
+        "--speed-limit-mm-s",
+        "0",
+        "--workspace-min-mm",
+        "-1300,0,0",
+        "--joint",
+        "elbow=-100:90",
+        "--joint",
+        "wrist=0:1",
+    ]);
+    assert_eq!(output.status.code(), Some(2));
+    let stderr = text(&output.stderr);
+    for line in [
+        "error: arm: --joint wrist: no such sensor (sensors: elbow)",
+        "error: arm: force_limit_n: 40 N is looser than the table's 30 N (limits may only tighten)",
+        "error: arm: speed_limit_mm_s: none is looser than the table's 250 mm/s",
+        "error: arm: workspace x: a lowest -1300 mm is below the table's -1000 mm",
+        "error: arm: joint elbow: a lowest -100 deg is below the table's -90 deg",
+    ] {
+        assert!(stderr.contains(line), "{line:?} in {stderr}");
+    }
+    assert!(text(&output.stdout).is_empty());
+    // Without --dry-run, a bus is needed.
+    let output = pabctl(&["limits", &net]);
+    assert_eq!(output.status.code(), Some(2));
+    assert!(text(&output.stderr).contains("--iface"));
+}

@@ -227,3 +227,33 @@ fn a_keyed_board_takes_the_key_holders_schemas_and_leaves_a_stop_only_when_told(
     assert!(arm.transitions().iter().all(|(_, t)| t.installed != 20));
     rig.finish();
 }
+
+#[test]
+fn limits_tightened_on_a_live_board_stop_a_push_the_table_allowed() {
+    let rig = Rig::start();
+    let mut tool = rig.hub.connect();
+    let mut arm = Client::new(&mut tool, 10);
+    arm.pump(Duration::from_millis(300)).unwrap();
+    let table = rig.network.schema_boards[0].config.limits.clone();
+    // Looser than the table's 30 N: refused, Looser, on the limits channel.
+    let mut loose = table.clone();
+    loose.force_limit = 40_000;
+    match arm.set_limits(&loose) {
+        Err(client::ClientError::Refused(ack)) => {
+            assert_eq!(ack.outcome, SchemaOutcome::Looser);
+            assert_eq!(ack.channel, Some(pab_core::protocol::SchemaChannel::Limits));
+        }
+        other => panic!("{other:?}"),
+    }
+    // A touch that presses 5 N into the part: fine under the table's limit, a force stop under
+    // a 2 N one.
+    let mut tight = table.clone();
+    tight.force_limit = 2_000;
+    arm.set_limits(&tight).unwrap();
+    let id = arm
+        .move_to_touch([0, 0, -1, 0, 0, 0], 10_000, 5_000, 30_000)
+        .unwrap();
+    let ended = arm.wait_finished(id, Duration::from_secs(5)).unwrap();
+    assert_eq!(ended.safety(), Some(SchemaSafety::Force), "{ended:?}");
+    rig.finish();
+}

@@ -19,7 +19,8 @@ use crate::wire::decode_struct;
 /// Joints a board's limits bound: one per extra sensor at most.
 pub const MAX_JOINTS: usize = MAX_SENSORS;
 
-/// Measured speeds are the displacement over at least this long, µs (see the [module](self)).
+/// Measured speeds are the displacement over at least this long, µs: at 1 kHz a pose noise of
+/// 1 mm is a metre a second between two frames, over 20 ms it is 50 mm/s.
 pub const SPEED_WINDOW_US: u64 = 20_000;
 
 /// One joint's bounds, in the counts of the extra sensor that measures it.
