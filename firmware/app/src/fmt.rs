@@ -51,17 +51,18 @@ macro_rules! warn {
 /// with the maximum, a [`log::Record`] built and handed to the logger), done here once. `log`'s
 /// macros leave at each site the comparison and a tuple of the target, the module path and the
 /// caller's [`Location`](core::panic::Location) built on the stack, and a `Location` in the flash:
-/// some 70 bytes a site on the emulated board, for a dozen sites.
+/// some 70 bytes a site on the emulated board, for a dozen sites. Public for the boards' own
+/// messages (the emulated board's boot line), which then share it.
 ///
 /// Hosted (the Linux node, tests), the record is the one `log`'s macros make: the module's path
 /// as its target and module path, the caller's file and line (through `#[track_caller]`). On the
 /// bare-metal boards, whose logger prints the level and the message only (the emulated board's
-/// `logger.rs`; the G474 logs through defmt), the record's target and module path are the crate's
-/// name and it has no file or line, so that the call sites pass neither.
+/// `logger.rs`; the G474 logs through defmt), the record's target and module path are `pab_app`,
+/// whoever calls, and it has no file or line, so that the call sites pass neither.
 #[cfg(feature = "log")]
 #[inline(never)]
 #[cfg_attr(not(target_os = "none"), track_caller)]
-pub(crate) fn log(level: log::Level, module_path: &'static str, args: core::fmt::Arguments<'_>) {
+pub fn log(level: log::Level, module_path: &'static str, args: core::fmt::Arguments<'_>) {
     if level > log::STATIC_MAX_LEVEL || level > log::max_level() {
         return;
     }
