@@ -13,8 +13,13 @@ macro_rules! debug {
     ($s:literal $(, $x:expr)* $(,)?) => {{
         #[cfg(feature = "defmt")]
         ::defmt::debug!($s $(, $x)*);
+        // Debug's messages may be per frame: compared with the maximum level before their
+        // arguments are put together (info's and warn's, a few per boot or table, are compared
+        // in `log`).
         #[cfg(feature = "log")]
-        ::log::debug!($s $(, $x)*);
+        if ::log::Level::Debug <= ::log::STATIC_MAX_LEVEL && ::log::Level::Debug <= ::log::max_level() {
+            $crate::fmt::log(::log::Level::Debug, module_path!(), format_args!($s $(, $x)*));
+        }
         #[cfg(not(any(feature = "defmt", feature = "log")))]
         let _ = ($( & $x ),*);
     }};
@@ -25,7 +30,7 @@ macro_rules! info {
         #[cfg(feature = "defmt")]
         ::defmt::info!($s $(, $x)*);
         #[cfg(feature = "log")]
-        ::log::info!($s $(, $x)*);
+        $crate::fmt::log(::log::Level::Info, module_path!(), format_args!($s $(, $x)*));
         #[cfg(not(any(feature = "defmt", feature = "log")))]
         let _ = ($( & $x ),*);
     }};
@@ -36,10 +41,47 @@ macro_rules! warn {
         #[cfg(feature = "defmt")]
         ::defmt::warn!($s $(, $x)*);
         #[cfg(feature = "log")]
-        ::log::warn!($s $(, $x)*);
+        $crate::fmt::log(::log::Level::Warn, module_path!(), format_args!($s $(, $x)*));
         #[cfg(not(any(feature = "defmt", feature = "log")))]
         let _ = ($( & $x ),*);
     }};
+}
+
+/// A message for `log`, out of line: what `log`'s macros do at each call site (the level compared
+/// with the maximum, a [`log::Record`] built and handed to the logger), done here once. `log`'s
+/// macros leave at each site the comparison and a tuple of the target, the module path and the
+/// caller's [`Location`](core::panic::Location) built on the stack, and a `Location` in the flash:
+/// some 70 bytes a site on the emulated board, for a dozen sites. Public for the boards' own
+/// messages (the emulated board's boot line), which then share it.
+///
+/// Hosted (the Linux node, tests), the record is the one `log`'s macros make: the module's path
+/// as its target and module path, the caller's file and line (through `#[track_caller]`). On the
+/// bare-metal boards, whose logger prints the level and the message only (the emulated board's
+/// `logger.rs`; the G474 logs through defmt), the record's target and module path are `pab_app`,
+/// whoever calls, and it has no file or line, so that the call sites pass neither.
+#[cfg(feature = "log")]
+#[inline(never)]
+#[cfg_attr(not(target_os = "none"), track_caller)]
+pub fn log(level: log::Level, module_path: &'static str, args: core::fmt::Arguments<'_>) {
+    if level > log::STATIC_MAX_LEVEL || level > log::max_level() {
+        return;
+    }
+    let mut record = log::Record::builder();
+    #[cfg(not(target_os = "none"))]
+    {
+        let location = core::panic::Location::caller();
+        record
+            .target(module_path)
+            .module_path_static(Some(module_path))
+            .file_static(Some(location.file()))
+            .line(Some(location.line()));
+    }
+    #[cfg(target_os = "none")]
+    {
+        let _ = module_path;
+        record.target("pab_app").module_path_static(Some("pab_app"));
+    }
+    log::logger().log(&record.args(args).level(level).build());
 }
 
 /// An integer for a log message: the same digits as `{}` of the `u32`. Under `log`, through

@@ -54,6 +54,8 @@ pub use bus::{BusError, CanBus};
 pub use config::{
     Config, ConfigError, DEFAULT_STORE_INTERVAL_US, MAX_STORE_INTERVAL_US, parse_node_id,
 };
+#[cfg(feature = "log")]
+pub use fmt::log;
 pub use keying::{BOOT_COUNTER_FAILED, Keying, key_from_page};
 pub use node::{Counters, Node, Running, Step};
 pub use pab_storage::{StoreError, TableStore};

@@ -537,12 +537,12 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     #[inline]
     fn duties(&mut self, now: Instant) {
         if self.receiver.poll(now).is_some() {
-            self.transfer_timed_out();
+            self.transfer_timeout(false);
         }
         if let Some(incoming) = self.incoming
             && now.micros_since(incoming.deadline).is_some()
         {
-            self.transfer_too_slow();
+            self.transfer_timeout(true);
         }
         if now.micros_since(self.next_heartbeat).is_some() {
             self.heartbeat_due(now);
@@ -761,37 +761,26 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         self.error(FaultCode::ClaimRefused, [reason, node, group, 0, 0]);
     }
 
-    /// The reception of a transfer timed out: its sender learns why.
+    /// The transfer in progress lost its slot (Timeout), and its sender learns why: its
+    /// reception timed out (`too_slow` false: detail 0), or it used up its time budget
+    /// ([`TRANSFER_BASE_US`]; `too_slow`: detail 1, the reception aborted). One function for
+    /// both, which differ only in these, so that the taking and the refusal are in the flash once.
     #[inline(never)]
-    fn transfer_timed_out(&mut self) {
-        if let Some(incoming) = self.incoming.take() {
-            warn!(
-                "table transfer from {} timed out",
-                int(u32::from(incoming.source))
-            );
-            self.refuse(
-                incoming.source,
-                TransferStatusCode::Timeout,
-                0,
-                incoming.nonce,
-            );
+    fn transfer_timeout(&mut self, too_slow: bool) {
+        if too_slow {
+            self.receiver.abort();
         }
-    }
-
-    /// The transfer used up its time budget ([`TRANSFER_BASE_US`]): it loses the slot (Timeout,
-    /// detail 1).
-    #[inline(never)]
-    fn transfer_too_slow(&mut self) {
-        self.receiver.abort();
         if let Some(incoming) = self.incoming.take() {
-            warn!(
-                "table transfer from {} too slow",
-                int(u32::from(incoming.source))
-            );
+            let source = int(u32::from(incoming.source));
+            if too_slow {
+                warn!("table transfer from {} too slow", source);
+            } else {
+                warn!("table transfer from {} timed out", source);
+            }
             self.refuse(
                 incoming.source,
                 TransferStatusCode::Timeout,
-                1,
+                u8::from(too_slow),
                 incoming.nonce,
             );
         }

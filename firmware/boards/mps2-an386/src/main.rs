@@ -81,9 +81,15 @@ fn main() -> ! {
     logger::init(log::LevelFilter::Info);
     TIME.start();
     uart::init();
-    log::info!(
-        "pab node {} on the emulated Cortex-M4 (mps2-an386), SLCAN on UART0",
-        Decimal::new(u32::from(NODE_ID))
+    // Through pab-app's out-of-line `log`, as its own messages: `log::info!` would inline
+    // `log`'s record building here for this one line.
+    pab_app::log(
+        log::Level::Info,
+        module_path!(),
+        format_args!(
+            "pab node {} on the emulated Cortex-M4 (mps2-an386), SLCAN on UART0",
+            Decimal::new(u32::from(NODE_ID))
+        ),
     );
 
     // SAFETY: called once; memory.x keeps the program below the RAM-backed flash.
