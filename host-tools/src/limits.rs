@@ -8,24 +8,33 @@
 use pab_core::schema::{Limits, MAX_COORD};
 use pab_lang::network::SchemaBoard;
 
-/// What the command line changes; every other bound stays the table's.
-#[derive(Clone, Debug, Default, PartialEq)]
+/// What the command line changes (`pabctl limits`' options); every other bound stays the
+/// table's.
+#[derive(Clone, Debug, Default, PartialEq, clap::Args)]
 pub struct Overrides {
-    /// `--force-limit-n`.
+    /// The safety limit on |F|, N.
+    #[arg(long, value_name = "N")]
     pub force_limit_n: Option<f64>,
-    /// `--torque-limit-nm`.
+    /// The safety limit on |T|, N·m.
+    #[arg(long, value_name = "NM")]
     pub torque_limit_nm: Option<f64>,
-    /// `--contact-limit-n`.
+    /// The highest contact force a schema may wait for, N.
+    #[arg(long, value_name = "N")]
     pub contact_limit_n: Option<f64>,
-    /// `--speed-limit-mm-s`.
+    /// The top speed of the measured translation, mm/s.
+    #[arg(long, value_name = "MM_S")]
     pub speed_limit_mm_s: Option<f64>,
-    /// `--rate-limit-rad-s`.
+    /// The top rate of the measured rotation, rad/s.
+    #[arg(long, value_name = "RAD_S")]
     pub rate_limit_rad_s: Option<f64>,
-    /// `--workspace-min-mm X,Y,Z`.
+    /// The workspace's lower corner, mm.
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = point)]
     pub workspace_min_mm: Option<[f64; 3]>,
-    /// `--workspace-max-mm X,Y,Z`.
+    /// The workspace's upper corner, mm.
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = point)]
     pub workspace_max_mm: Option<[f64; 3]>,
-    /// `--joint SENSOR=MIN:MAX[:SPEED]`, in the sensor's unit.
+    /// A joint's range (and speed per second), in its sensor's unit; repeat for several.
+    #[arg(long = "joint", value_name = "SENSOR=MIN:MAX[:SPEED]", value_parser = joint)]
     pub joints: Vec<JointOverride>,
 }
 
@@ -195,17 +204,19 @@ pub fn apply(board: &SchemaBoard, o: &Overrides) -> Result<Limits, Vec<String>> 
     }
 }
 
+/// A limit in its unit (`value` / `scale`), or `none` for 0.
+fn limit(value: u32, scale: f64, unit: &str) -> String {
+    if value == 0 {
+        "none".to_string()
+    } else {
+        format!("{} {unit}", f64::from(value) / scale)
+    }
+}
+
 /// Every bound of `l` looser than the table's or inconsistent, in the network file's words.
 pub fn looser(board: &SchemaBoard, l: &Limits) -> Vec<String> {
     let t = &board.config.limits;
     let mut out = Vec::new();
-    let limit = |value: u32, scale: f64, unit: &str| {
-        if value == 0 {
-            "none".to_string()
-        } else {
-            format!("{} {unit}", f64::from(value) / scale)
-        }
-    };
     for (key, new, old, scale, unit) in [
         ("force_limit_n", l.force_limit, t.force_limit, 1000.0, "N"),
         (
@@ -312,13 +323,6 @@ pub fn looser(board: &SchemaBoard, l: &Limits) -> Vec<String> {
 
 /// The limits in one line each, in the network file's units.
 pub fn describe(board: &SchemaBoard, l: &Limits) -> Vec<String> {
-    let limit = |value: u32, scale: f64, unit: &str| {
-        if value == 0 {
-            "none".to_string()
-        } else {
-            format!("{} {unit}", f64::from(value) / scale)
-        }
-    };
     let mm = |p: &[i32; 6]| {
         p[..3]
             .iter()

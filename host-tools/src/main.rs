@@ -395,30 +395,8 @@ pabctl limits arm.toml --dry-run --joint elbow=-45:90")]
         /// The board's key file (`pabctl keygen`), for a board with a key.
         #[arg(long, value_name = "FILE")]
         key: Option<PathBuf>,
-        /// The safety limit on |F|, N.
-        #[arg(long, value_name = "N")]
-        force_limit_n: Option<f64>,
-        /// The safety limit on |T|, N·m.
-        #[arg(long, value_name = "NM")]
-        torque_limit_nm: Option<f64>,
-        /// The highest contact force a schema may wait for, N.
-        #[arg(long, value_name = "N")]
-        contact_limit_n: Option<f64>,
-        /// The top speed of the measured translation, mm/s.
-        #[arg(long, value_name = "MM_S")]
-        speed_limit_mm_s: Option<f64>,
-        /// The top rate of the measured rotation, rad/s.
-        #[arg(long, value_name = "RAD_S")]
-        rate_limit_rad_s: Option<f64>,
-        /// The workspace's lower corner, mm.
-        #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = pabctl::limits::point)]
-        workspace_min_mm: Option<[f64; 3]>,
-        /// The workspace's upper corner, mm.
-        #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = pabctl::limits::point)]
-        workspace_max_mm: Option<[f64; 3]>,
-        /// A joint's range (and speed per second), in its sensor's unit; repeat for several.
-        #[arg(long = "joint", value_name = "SENSOR=MIN:MAX[:SPEED]", value_parser = pabctl::limits::joint)]
-        joints: Vec<pabctl::limits::JointOverride>,
+        #[command(flatten)]
+        overrides: pabctl::limits::Overrides,
         /// Print the limits and check them; send nothing.
         #[arg(long)]
         dry_run: bool,
@@ -647,26 +625,9 @@ fn main() -> ExitCode {
             network,
             iface,
             key,
-            force_limit_n,
-            torque_limit_nm,
-            contact_limit_n,
-            speed_limit_mm_s,
-            rate_limit_rad_s,
-            workspace_min_mm,
-            workspace_max_mm,
-            joints,
+            overrides,
             dry_run,
         } => {
-            let overrides = pabctl::limits::Overrides {
-                force_limit_n,
-                torque_limit_nm,
-                contact_limit_n,
-                speed_limit_mm_s,
-                rate_limit_rad_s,
-                workspace_min_mm,
-                workspace_max_mm,
-                joints,
-            };
             let iface = if dry_run { None } else { iface };
             run_limits(&network, iface.as_deref(), key.as_deref(), &overrides)
         }
