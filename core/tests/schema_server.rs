@@ -1236,9 +1236,16 @@ fn the_drive_moving_at_its_top_speed_is_plausible_on_every_axis() {
             out.transitions
         );
     }
-    // One µm more than the drive can do in a tick: a safety event, also while the server waits
-    // on its queue (a wait is not tested for stale sensors, but an implausible pose is a sign).
-    pose[1] += 501;
+    // Two frames arriving together (the first waited behind others): plausible as long as the
+    // drive could have moved that far while the first may have been late, the overrun bound
+    // (2 ms here: 1 000 µm).
+    pose[0] += 1000;
+    server.set_pose(pose, at(100));
+    assert!(server.tick(at(100)).transitions.is_empty());
+    // One µm more than the drive can do in a tick and a frame's lateness: a safety event, also
+    // while the server waits on its queue (a wait is not tested for stale sensors, but an
+    // implausible pose is a sign).
+    pose[1] += 1501;
     server.set_pose(pose, at(101));
     let out = server.tick(at(101));
     assert_eq!(

@@ -505,19 +505,15 @@ impl Server {
     }
 
     /// The measured pose, from its topic. Taken only if plausible: no axis moved farther since the
-    /// last pose taken than the drive's speed (rate) allows in the time between, plus the pose
-    /// noise; otherwise the next tick raises [`Safety::ImplausibleSensor`] and the server keeps
-    /// the last plausible pose (what a stop holds the robot at).
+    /// last pose taken than the drive's speed (rate) allows in the time between (plus the
+    /// lateness a frame may have, [`Config::overrun_us`]), plus the pose noise; otherwise the next
+    /// tick raises [`Safety::ImplausibleSensor`] and the server keeps the last plausible pose
+    /// (what a stop holds the robot at).
     // Out of line: the node's frame path inlined it, its speed window and all.
     #[inline(never)]
     pub fn set_pose(&mut self, pose: Pose, at: Instant) {
         if let Some((last, then)) = &self.pose
-            && !plausible(
-                &self.config,
-                last,
-                &pose,
-                at.micros_since(*then).unwrap_or(0),
-            )
+            && !plausible(&self.config, last, &pose, self.span(at, *then))
         {
             self.implausible = true;
             return;
@@ -526,10 +522,10 @@ impl Server {
         // The speed over the window: from the pose at its start to this one.
         match self.speed_from {
             Some((from, then)) => {
-                let dt = at.micros_since(then).unwrap_or(0);
-                if dt >= SPEED_WINDOW_US {
+                if at.micros_since(then).unwrap_or(0) >= SPEED_WINDOW_US {
+                    let span = self.span(at, then);
                     self.speeding |=
-                        too_fast(self.limits(), &from, &pose, dt, self.config.pose_noise);
+                        too_fast(self.limits(), &from, &pose, span, self.config.pose_noise);
                     self.speed_from = Some((pose, at));
                 }
             }
@@ -540,6 +536,17 @@ impl Server {
             self.setpoint.attractor = pose;
             self.armed = true;
         }
+    }
+
+    /// How long the sensor may have had between two readings that arrived at `then` and `at`:
+    /// the time between their arrivals, plus how late the first may have arrived. A frame that
+    /// waited behind others (on the bus, in a driver's queue) and arrives with the next is
+    /// counted as late as a tick may be ([`Config::overrun_us`]), so that two frames arriving
+    /// together are not taken for a jump; a later one is a loop overrun anyway.
+    fn span(&self, at: Instant, then: Instant) -> u64 {
+        at.micros_since(then)
+            .unwrap_or(0)
+            .saturating_add(u64::from(self.config.overrun_us))
     }
 
     /// The measured wrench, from its topic.
@@ -557,6 +564,7 @@ impl Server {
         *s = Some((value, at));
         // The joints it measures: their speed over the window, within one count of noise.
         let limits = self.limits.as_ref().unwrap_or(&self.config.limits);
+        let late = u64::from(self.config.overrun_us);
         for (joint, from) in limits.joints.iter().zip(&mut self.joint_from) {
             if usize::from(joint.sensor) != index {
                 continue;
@@ -565,8 +573,10 @@ impl Server {
                 Some((last, then)) => {
                     let dt = at.micros_since(then).unwrap_or(0);
                     if dt >= SPEED_WINDOW_US {
+                        // As `span`: the frame may have waited as long as a tick may.
+                        let span = dt.saturating_add(late);
                         self.speeding |= joint.rate != 0
-                            && u64::from(last.abs_diff(value)) > allowance(joint.rate, dt, 1);
+                            && u64::from(last.abs_diff(value)) > allowance(joint.rate, span, 1);
                         *from = Some((value, at));
                     }
                 }

@@ -903,8 +903,9 @@ impl World {
                         }
                         match *from {
                             Some((last, then)) if now - then >= SPEED_WINDOW_US => {
-                                let allowed = (i128::from(j.rate) * i128::from(now - then)
-                                    + 999_999)
+                                // The frame may have arrived as late as a tick may.
+                                let span = (now - then) + u64::from(self.config.overrun_us);
+                                let allowed = (i128::from(j.rate) * i128::from(span) + 999_999)
                                     / 1_000_000
                                     + 1;
                                 let moved = (i128::from(value) - i128::from(last)).abs();
@@ -966,7 +967,9 @@ impl World {
         let at = self.now.saturating_sub(u64::from(age));
         self.server.set_pose(p, self.at(age));
         if let Some((last, then)) = self.plausible {
-            let dt = i128::from(at.saturating_sub(then));
+            // The time between the arrivals, plus the lateness a frame may have (the overrun
+            // bound).
+            let dt = i128::from(at.saturating_sub(then)) + i128::from(self.config.overrun_us);
             let c = &self.config;
             let fits = (0..AXES).all(|a| {
                 let speed = if a < 3 { c.drive_speed } else { c.drive_rate };
@@ -984,7 +987,7 @@ impl World {
         self.pose = Some(p);
         match self.speed_from {
             Some((from, then)) if at.saturating_sub(then) >= SPEED_WINDOW_US => {
-                let dt = at - then;
+                let dt = (at - then).saturating_add(u64::from(self.config.overrun_us));
                 self.speeding |=
                     reference_too_fast(&self.limits, &from, &p, dt, self.config.pose_noise);
                 self.speed_from = Some((p, at));
