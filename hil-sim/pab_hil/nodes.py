@@ -149,6 +149,7 @@ class Nodes:
         return self.by_name[name]
 
     def start(self) -> None:
+        _LIVE.add(self)
         for node in self.by_name.values():
             node.start()
 
@@ -156,6 +157,24 @@ class Nodes:
         for node in self.by_name.values():
             node.stop()
         shutil.rmtree(self.store_root, ignore_errors=True)
+        _LIVE.discard(self)
+
+
+# Every started `Nodes` not stopped yet. A test that fails between starting its nodes and
+# stopping them would otherwise leave them on the bus, where the next test's node of the same id
+# answers its transfers twice: one failure becomes a cascade (seen as every later test of a file
+# failing with transfer timeouts). conftest stops the leftovers after each test.
+_LIVE: set[Nodes] = set()
+
+
+def stop_leftovers() -> list[str]:
+    """Stops every started `Nodes` that was not stopped; returns the names of their nodes."""
+    names = []
+    for group in list(_LIVE):
+        names.extend(f"{name} (id {node.node_id})" for name, node in group.by_name.items()
+                     if node.running())
+        group.stop()
+    return names
 
 
 # A node's time budget for a transfer (docs/can-protocol.md, "Table transfer"): 1 s, and 10 ms

@@ -150,9 +150,12 @@ class Recorder:
         self._log = open(log_path, "wb")
         self.process = subprocess.Popen([candump, "-L", "-r", str(RECORDER_BUFFER), iface],
                                         stdout=self._log, stderr=subprocess.PIPE)
-        # Ready once it waits for frames: its socket is bound, every later frame is recorded.
+        # Ready once its socket is bound, so that every later frame is recorded: once it waits
+        # for frames (a quiet bus), or once it has written one (a busy bus, where it may never be
+        # seen waiting: a plant's 800 frames a second beside two busy processes kept it running
+        # or runnable at every look for 30 s).
         deadline = time.monotonic() + 30
-        while not _waiting_for_input(self.process.pid):
+        while not (_waiting_for_input(self.process.pid) or _last_timestamp(log_path) > 0):
             if self.process.poll() is not None:
                 error = self.process.stderr.read().decode(errors="replace").strip()
                 self._log.close()

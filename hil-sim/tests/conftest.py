@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from pab_hil import speed
-from pab_hil.nodes import REPO, pushed_within_budget
+from pab_hil.nodes import REPO, pushed_within_budget, stop_leftovers
 from pab_hil.scenario import Session
 
 
@@ -28,6 +28,29 @@ def pytest_runtest_setup(item):
         capture = item.config.pluginmanager.get_plugin("capturemanager")
         with capture.global_and_fixture_disabled():
             print(f"\npab-hil: first test starting ({item.nodeid})", flush=True)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_teardown(item, nextitem):
+    """After each test's own teardown: no node of it stays on the bus. A failed test may leave its
+    nodes running (a failure between start and stop); they are stopped here, so that the next
+    test's nodes are alone. A test that passed and left nodes running has a bug of its own: its
+    teardown fails, naming them."""
+    result = yield
+    leftovers = stop_leftovers()
+    failed = any(getattr(item, f"rep_{when}", None) is not None
+                 and getattr(item, f"rep_{when}").failed for when in ("setup", "call"))
+    if leftovers and not failed:
+        raise AssertionError("the test left nodes running on the bus: " + ", ".join(leftovers))
+    return result
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    """Keeps each phase's report on the item (`rep_setup`, `rep_call`) for the teardown above."""
+    report = yield
+    setattr(item, f"rep_{report.when}", report)
+    return report
 
 
 def pytest_addoption(parser):

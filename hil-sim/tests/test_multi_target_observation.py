@@ -163,10 +163,17 @@ def test_robots_share_targets_by_eligibility_and_take_over_from_a_dead_one(iface
     assert passed, f"r2 re-published a command nobody published: {bytes(took.data).hex()}"
     reading = passed[-1]
     takeover = took.timestamp - last_claim
-    # Not a reading published before the claim went stale; not one after the first published
-    # RECEIVE_S past that (r2 refused the readings in between).
+    # Not a reading published before the claim went stale; and r2 refused none published more
+    # than RECEIVE_S past that (equivalently: the reading it took is no later than the first one
+    # published RECEIVE_S past it). The refused readings are measured, not the one taken: the
+    # one taken is at most that first one by construction, which left its margin always 0.
+    earliest = stale_at - machine.allow(CLOCKS_S)
     bound("r2's takeover reading after r1's claim went stale", reading - stale_at,
-          least=-machine.allow(CLOCKS_S), most=latest[0] - stale_at)
+          least=-machine.allow(CLOCKS_S))
+    refused = [m.timestamp for m in readings if earliest <= m.timestamp < reading]
+    bound("the latest reading r2 refused after r1's claim went stale",
+          max(refused, default=earliest) - stale_at, most=machine.allow(RECEIVE_S),
+          detail=f"r2 took the reading of {reading - stale_at:.3f} s")
     bound("r2's re-publication of that reading", took.timestamp - reading,
           most=machine.allow(REACT_S), detail=f"{takeover:.3f} s after r1's last claim")
     # r1's last command still turns it for ROTATE_TIMEOUT (the world's rule; the drives keep it).

@@ -21,6 +21,7 @@ run under a minute.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import statistics
@@ -151,28 +152,44 @@ class Rig:
     def __init__(self, iface: str, network: Path, out: Path, bound, board: bool = False,
                  key: Path | None = None) -> None:
         """`key`: a key file (`pabctl keygen`); the node (`pab-node --key`) then takes its table
-        and its schemas from the key holder only, and the push and the client use it."""
+        and its schemas from the key holder only, and the push and the client use it. What is
+        started is stopped by `close`, or at once if the rig fails to come up."""
         self.iface, self.network, self.out = iface, network, out
         self.node_id = node_id = BOARD if board else ARM
+        self._stack = contextlib.ExitStack()
+        try:
+            self._start(bound, board, key)
+        except BaseException:
+            self._stack.close()
+            raise
+
+    def _start(self, bound, board: bool, key: Path | None) -> None:
+        iface, network, out, node_id = self.iface, self.network, self.out, self.node_id
+        stack = self._stack
         self.nodes = nodes.Nodes(iface, out, node_ids={"arm": node_id},
                                  boards=("arm",) if board else (),
                                  node_args={"arm": ("--key", str(key))} if key else None)
+        stack.callback(self.nodes.stop)
         self.nodes.start()
         pushed = nodes.push(network, iface, node="arm", key=key)
         assert pushed.ok, pushed.output
         nodes.pushed_within_budget(bound, pushed)
+        # Every frame goes to the candump log, from a process of its own; the client's socket
+        # takes only the node's answers (its filters), so that neither falls behind the other's
+        # share of the bus (the plant alone sends 800 frames a second).
+        self.recorder = Recorder(iface, out / "bus.log")
+        stack.callback(self.recorder.close)
         # The plant is the robot's drive, a device of its own: real-time, as the node.
         self.plant = subprocess.Popen(
             [str(binary("pabctl")), "plant", str(network), "--iface", iface,
              "--log", str(out / "plant.csv")],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        stack.callback(lambda: self.plant.poll() is None and self.stop_plant())
         make_realtime(self.plant.pid)
-        # Every frame goes to the candump log, from a process of its own; the client's socket
-        # takes only the node's answers (its filters), so that neither falls behind the other's
-        # share of the bus (the plant alone sends 800 frames a second).
-        self.recorder = Recorder(iface, out / "bus.log")
         self.bus = can.Bus(interface="socketcan", channel=iface, can_filters=client_filters(node_id))
+        stack.callback(self.bus.shutdown)
         self.client = Client(self.bus, node_id, key=read_key(key) if key else None)
+        stack.callback(self.client.close)
         state = self.client.status(timeout=10)
         deadline = time.monotonic() + 10
         while not (state and state.armed) and time.monotonic() < deadline:
@@ -191,12 +208,9 @@ class Rig:
         return list(can.CanutilsLogReader(str(self.out / "bus.log")))
 
     def close(self) -> None:
-        if self.plant.poll() is None:
-            self.stop_plant()
-        self.client.close()
-        self.bus.shutdown()
-        self.recorder.close()
-        self.nodes.stop()
+        """Stops what `__init__` started, the last first; each step runs whatever the others
+        raise (the nodes are stopped even if the plant would not end)."""
+        self._stack.close()
 
 
 def send_program(client: Client, calls: list[dict], timeout: float,
