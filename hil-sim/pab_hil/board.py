@@ -111,6 +111,22 @@ def firmware() -> Path:
     return path
 
 
+# The test build of the board's firmware with the flash model of the G474 in single-bank mode
+# (feature `single-bank`: erases and programs stall the CPU, the modelled CAN controller keeps
+# three frames meanwhile), which hil-sim/run-hil builds and keeps here.
+SINGLE_BANK_FIRMWARE = REPO / "target" / "hil-board" / f"{FIRMWARE}-single-bank"
+
+
+def single_bank_firmware() -> Path:
+    """The single-bank test build's ELF, or a MissingBinary saying how to build it."""
+    if not SINGLE_BANK_FIRMWARE.is_file():
+        raise MissingBinary(
+            f"{SINGLE_BANK_FIRMWARE} is missing: hil-sim/run-hil builds it (cargo build --profile "
+            f"firmware -p {FIRMWARE} --target {TARGET} --bin {FIRMWARE} --features single-bank, "
+            f"then a copy of the ELF there)")
+    return SINGLE_BANK_FIRMWARE
+
+
 def qemu_command(elf: Path, serial: str, monitor: Path) -> list[str]:
     """QEMU's command line for the board: UART0 on `serial` (a QEMU -serial value), the human
     monitor on the unix socket `monitor` (for system_reset), semihosting (the log, on stderr),
@@ -298,6 +314,9 @@ class BoardNode:
     # cangw filters of the routes from the bus to the board, one route each (keep them disjoint:
     # a frame that passes two is delivered twice). Default: `acceptance(node_id)`.
     to_board: tuple[str, ...] | None = None
+    # The firmware's ELF: default `firmware()`, the production build (e.g.
+    # `single_bank_firmware()`, the flash model of the G474 in single-bank mode).
+    elf: Path | None = None
 
     @property
     def can_iface(self) -> str:
@@ -324,7 +343,7 @@ class BoardNode:
             {"can_id": heartbeat, "can_mask": 0x1FFFFFFF, "extended": True}])
         try:
             started = time.monotonic()
-            self.qemu = qemu_here_or_on_host(firmware(), log)
+            self.qemu = qemu_here_or_on_host(self.elf or firmware(), log)
             line = self.qemu.start()
             self._bridge(line)
             deadline = started + START_TIMEOUT_S

@@ -58,12 +58,12 @@ pub use config::{
 pub use fmt::log;
 pub use keying::{BOOT_COUNTER_FAILED, Keying, key_from_page};
 pub use node::{Counters, Node, Running, Step};
-pub use pab_storage::{StoreError, TableStore};
+pub use pab_storage::{SaveProgress, StoreError, TableStore};
 pub use runner::{Watchdog, now, run, run_watched};
 
 /// Re-exported so runners name one store trait.
 pub mod store {
-    pub use pab_storage::{StoreError, TableStore};
+    pub use pab_storage::{SaveProgress, StoreError, TableStore};
 }
 
 use pab_core::{Arbiter, Frame, Instant, PortVerdict};

@@ -324,7 +324,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 StoreFailure::TooLarge
             }
             StoreError::Corrupt => StoreFailure::Corrupt,
-            StoreError::Layout(_) | StoreError::SequenceExhausted | StoreError::VerifyFailed => {
+            StoreError::Layout(_)
+            | StoreError::SequenceExhausted
+            | StoreError::VerifyFailed
+            | StoreError::NoSave => {
                 StoreFailure::Other
             }
         };

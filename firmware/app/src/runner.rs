@@ -8,7 +8,7 @@ use pab_core::Instant;
 use crate::Consumer;
 use crate::bus::{BusError, CanBus};
 use crate::node::{Node, Step};
-use crate::store::TableStore;
+use crate::store::{SaveProgress, TableStore};
 
 /// Now, on embassy's clock, as a core [`Instant`].
 ///
@@ -26,7 +26,8 @@ pub fn now() -> Instant {
 /// loop itself stops (a hang in the node, the driver or the store), not when the bus is quiet.
 pub trait Watchdog {
     /// The longest the loop waits between two feeds, µs. The watchdog's timeout must be well
-    /// above it plus the longest single step of the loop (a table save: tens of milliseconds).
+    /// above it plus the longest single step of the loop (a step of a table save: a page erase on a
+    /// flash that cannot erase in the background, up to 40 ms on the G474, else about a millisecond).
     const FEED_INTERVAL_US: u64;
     /// Restarts the watchdog's countdown. Costs one register write on the boards.
     fn feed(&mut self);
@@ -38,13 +39,25 @@ impl Watchdog for () {
     fn feed(&mut self) {}
 }
 
+/// How long the loop waits for frames between two checks of a page erase running in the
+/// background, µs: a twentieth of the G474's typical erase (22 ms), and long enough that the checks
+/// cost nothing measurable.
+pub const SAVE_POLL_US: u64 = 1_000;
+/// The longest a save waits for its next step while frames keep the loop busy, µs: a step is
+/// taken after a frame once this has passed, so that a saturated bus delays a save but never
+/// starves it.
+pub const SAVE_STARVED_US: u64 = 20_000;
+
 /// Boots `node` from `store`, then runs it forever: reads frames, arbitrates, answers, stores new
 /// tables, sends what the node has to send, and wakes at the node's deadlines.
 ///
-/// While a new table is being stored (a flash write: milliseconds) no frame is read; the
-/// driver's receive queue holds what arrives meanwhile. The node rate-limits saves
-/// ([`crate::Config::store_interval_us`]): a save that waits for its turn comes out of
-/// [`Node::poll`] at its deadline.
+/// A new table is stored in steps ([`TableStore::continue_save`]), taken when no frame is waiting
+/// (or at least every [`SAVE_STARVED_US`]): a step programs one small chunk (about a millisecond
+/// on the G474) or starts or checks a page erase that runs in the background, so the node goes on
+/// reading, arbitrating and sending while the table is written; the driver's receive queue holds
+/// what arrives during a step. The node refuses transfers until the save is done (its image
+/// stays in the transfer buffer) and rate-limits saves ([`crate::Config::store_interval_us`]): a
+/// save that waits for its turn comes out of [`Node::poll`] at its deadline.
 pub async fn run<B, S, K, const P: usize, const C: usize, const N: usize, const IMG: usize>(
     node: &mut Node<P, C, N, IMG>,
     bus: &mut B,
@@ -92,6 +105,8 @@ where
         Ok(stored) => node.boot(stored, now()),
         Err(error) => node.boot_unreadable(error, now()),
     }
+    // The save in progress, if any: when its next step is due (µs on the node's clock).
+    let mut save_due: Option<u64> = None;
     loop {
         watchdog.feed();
         while let Some(frame) = node.next_outgoing() {
@@ -99,14 +114,24 @@ where
                 node.on_transmit_error(now());
             }
         }
-        // One reading of the clock for both: the node's deadline and the next feed.
+        // One reading of the clock for all: the node's deadline, the next feed, the save's step.
         let now_at = now();
         let deadline = node.deadline(now_at).as_micros();
-        let wake = embassy_time::Instant::from_micros(
-            deadline.min(now_at.as_micros().saturating_add(W::FEED_INTERVAL_US)),
-        );
+        let feed = now_at.as_micros().saturating_add(W::FEED_INTERVAL_US);
+        let wake = deadline.min(feed).min(save_due.unwrap_or(u64::MAX));
+        let wake = embassy_time::Instant::from_micros(wake);
+        // `select` polls the bus first: a waiting frame always goes before a save's step.
         let step = match select(bus.receive(), Timer::at(wake)).await {
-            Either::First(Ok(frame)) => node.on_frame(&frame, now(), consumer),
+            Either::First(Ok(frame)) => {
+                let step = node.on_frame(&frame, now(), consumer);
+                // A save that has waited SAVE_STARVED_US for the bus to fall quiet steps anyway.
+                if let Some(due) = save_due
+                    && now().as_micros() >= due.saturating_add(SAVE_STARVED_US)
+                {
+                    save_due = save_step(node, store, now());
+                }
+                step
+            }
             Either::First(Err(error)) => {
                 node.on_bus_error(error, now());
                 // A driver that fails at once, again and again (a closed socket, a controller
@@ -121,12 +146,45 @@ where
                 }
                 Step::Continue
             }
-            Either::Second(()) => node.poll(now(), consumer),
+            Either::Second(()) => {
+                let at = now();
+                if save_due.is_some_and(|due| at.as_micros() >= due) {
+                    save_due = save_step(node, store, at);
+                }
+                node.poll(now(), consumer)
+            }
         };
         // A new table to store: at once, or when the store interval let its turn come.
         if step == Step::Store {
-            let ok = store.save(node.image_to_store()).is_ok();
-            node.stored(ok, now());
+            // A save that cannot start (the image does not fit, the flash fails) is reported by
+            // its first step, which then finds no save in progress: one place tells the node.
+            let _ = store.start_save(node.image_to_store());
+            save_due = Some(now().as_micros());
+        }
+    }
+}
+
+/// One step of the save in progress; when the next is due (`None` once the save has ended, and
+/// the node told how).
+// Out of line: two callers, and one call site in the loop's future (the step's flag computed in
+// both branches, the call after them) took 36 bytes more of the emulated board's flash.
+#[inline(never)]
+fn save_step<S: TableStore, const P: usize, const C: usize, const N: usize, const IMG: usize>(
+    node: &mut Node<P, C, N, IMG>,
+    store: &mut S,
+    now: Instant,
+) -> Option<u64> {
+    let at = now.as_micros();
+    match store.continue_save(node.image_to_store()) {
+        Ok(SaveProgress::Ready) => Some(at),
+        Ok(SaveProgress::Erasing) => Some(at.saturating_add(SAVE_POLL_US)),
+        Ok(SaveProgress::Done) => {
+            node.stored(true, now);
+            None
+        }
+        Err(_) => {
+            node.stored(false, now);
+            None
         }
     }
 }

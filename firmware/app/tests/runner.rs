@@ -9,7 +9,7 @@ use common::*;
 use embassy_futures::select::{Either, select};
 use futures::StreamExt;
 use futures::channel::mpsc::{UnboundedReceiver, UnboundedSender, unbounded};
-use pab_app::{BusError, CanBus, Config, StoreError, TableStore};
+use pab_app::{BusError, CanBus, Config, SaveProgress, StoreError, TableStore};
 use pab_core::isotp::{Sender, TxConfig, TxEvent};
 use pab_core::protocol::{self, Message, TransferStatusCode};
 use pab_core::{Frame, Instant};
@@ -65,6 +65,16 @@ async fn push(
     to_node: &UnboundedSender<Frame>,
     from_node: &mut UnboundedReceiver<Frame>,
 ) -> protocol::TransferStatus {
+    push_then(image, to_node, from_node, None).await
+}
+
+/// [`push`], sending `then` right after the image's last frame (before the node's answer).
+async fn push_then(
+    image: &[u8],
+    to_node: &UnboundedSender<Frame>,
+    from_node: &mut UnboundedReceiver<Frame>,
+    then: Option<Frame>,
+) -> protocol::TransferStatus {
     let mut sender = Sender::new(image, TxConfig::default()).unwrap();
     loop {
         match sender.poll(now()) {
@@ -85,7 +95,12 @@ async fn push(
                     _ => {}
                 }
             }
-            TxEvent::Done => break,
+            TxEvent::Done => {
+                if let Some(frame) = then {
+                    to_node.unbounded_send(frame).unwrap();
+                }
+                break;
+            }
             TxEvent::Failed(error) => panic!("transfer failed: {error:?}"),
         }
     }
@@ -175,6 +190,40 @@ fn a_pushed_table_is_stored_in_flash_and_the_node_boots_with_it() {
 }
 
 #[test]
+fn the_node_reads_and_answers_frames_while_a_table_is_saved() {
+    // Each page erase runs in the background for 30 checks of the flash: some 30 ms at the
+    // runner's SAVE_POLL_US.
+    let mut flash = Flash::new();
+    flash.set_erase_polls(30);
+    let v1 = image(&priority_table(&[TOPIC_A], None), Harness::NODE_ID, 1);
+    // The first frame of another transfer, sent right after v1's last frame: the node refuses it
+    // `Busy` while it stores v1. A runner that stored v1 before reading the next frame would
+    // answer v1's transfer first.
+    let mut other = Sender::new(&v1, TxConfig::default()).unwrap();
+    let TxEvent::Send(data) = other.poll(now()) else {
+        panic!("a first frame")
+    };
+    let second = Message::TableTransfer { data, len: 8 }.to_frame(protocol::TOOL, Harness::NODE_ID);
+    let pushed = v1.clone();
+    let flash = with_running_node(flash, |to_node, mut from_node| async move {
+        let (_, first) = next_message(&mut from_node).await;
+        assert!(matches!(first, Message::Heartbeat(_)), "{first:?}");
+        let during = push_then(&pushed, &to_node, &mut from_node, Some(second)).await;
+        assert_eq!(during.status, TransferStatusCode::Busy, "{during:?}");
+        let stored = loop {
+            if let (_, Message::TransferStatus(status)) = next_message(&mut from_node).await {
+                break status;
+            }
+        };
+        assert_eq!(stored.status, TransferStatusCode::Applied, "{stored:?}");
+        assert_eq!(stored.running_version, 1);
+    });
+    let mut reopened = store(flash);
+    let mut buf = vec![0u8; 8192];
+    assert_eq!(reopened.load(&mut buf).unwrap(), Some(&v1[..]));
+}
+
+#[test]
 fn an_empty_flash_boots_without_a_table() {
     with_running_node(Flash::new(), |to_node, mut from_node| async move {
         // Keep the bus open while the node runs.
@@ -236,8 +285,12 @@ impl TableStore for UnreadableStore {
         Err(StoreError::Flash(FlashErrorKind::Other))
     }
 
-    fn save(&mut self, _image: &[u8]) -> Result<(), StoreError> {
+    fn start_save(&mut self, _image: &[u8]) -> Result<(), StoreError> {
         Err(StoreError::Flash(FlashErrorKind::Other))
+    }
+
+    fn continue_save(&mut self, _image: &[u8]) -> Result<SaveProgress, StoreError> {
+        Err(StoreError::NoSave)
     }
 }
 

@@ -14,7 +14,7 @@ use std::io::{self, Read, Write};
 use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
 use std::path::{Path, PathBuf};
 
-use pab_app::store::{StoreError, TableStore};
+use pab_app::store::{SaveProgress, StoreError, TableStore};
 use pab_core::image::MAX_IMAGE_LEN;
 use pab_storage::FlashErrorKind;
 
@@ -27,6 +27,8 @@ pub struct FileStore {
     dir: Option<PathBuf>,
     /// The `--table` image, read whole at start so that a bad one stops the process there.
     boot_image: Option<Vec<u8>>,
+    /// A save written by `start_save` whose `continue_save` has not reported it yet.
+    written: bool,
 }
 
 /// Why an image file was not read.
@@ -184,7 +186,11 @@ impl FileStore {
             }
             None => None,
         };
-        Ok(FileStore { dir, boot_image })
+        Ok(FileStore {
+            dir,
+            boot_image,
+            written: false,
+        })
     }
 
     fn stored_path(&self) -> Option<PathBuf> {
@@ -234,12 +240,25 @@ impl TableStore for FileStore {
         }
     }
 
-    fn save(&mut self, image: &[u8]) -> Result<(), StoreError> {
+    /// Writes the file at once (a file's write and rename take a fraction of a millisecond, not a
+    /// flash erase's tens): the one step of `continue_save` only reports it.
+    fn start_save(&mut self, image: &[u8]) -> Result<(), StoreError> {
+        self.written = false;
         let Some(path) = self.stored_path() else {
             log::warn!("no --store directory: the new table will be lost when the node stops");
             return Err(StoreError::Flash(FlashErrorKind::Other));
         };
-        write_atomically(&path, image).map_err(|error| io_failure("cannot write", &path, &error))
+        write_atomically(&path, image).map_err(|error| io_failure("cannot write", &path, &error))?;
+        self.written = true;
+        Ok(())
+    }
+
+    fn continue_save(&mut self, _image: &[u8]) -> Result<SaveProgress, StoreError> {
+        if core::mem::take(&mut self.written) {
+            Ok(SaveProgress::Done)
+        } else {
+            Err(StoreError::NoSave)
+        }
     }
 }
 

@@ -76,6 +76,9 @@ pub enum StoreError {
     SequenceExhausted,
     /// After programming, the slot does not read back as written (a failing flash).
     VerifyFailed,
+    /// [`crate::TableStore::continue_save`] without a save in progress, or with another image
+    /// than the one [`crate::TableStore::start_save`] was given (nothing was committed).
+    NoSave,
 }
 
 /// Why a [`crate::BootCounter`] operation failed.
@@ -180,6 +183,7 @@ impl core::fmt::Display for StoreError {
                 f.write_str("sequence numbers exhausted (format the range)")
             }
             StoreError::VerifyFailed => f.write_str("slot does not read back as written"),
+            StoreError::NoSave => f.write_str("no save in progress for this image"),
         }
     }
 }

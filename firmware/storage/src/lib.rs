@@ -5,13 +5,15 @@
 //! [`FlashStore`] implements it over any `embedded_storage` [`NorFlash`], for instance a board's
 //! internal flash.
 //!
-//! Both are blocking, on purpose: a `load` or `save` returns only when the flash work is done.
-//! On the STM32G474 (single bank) the CPU stalls during a program or an erase anyway (it fetches
-//! its code from the bank being written), so an async store would yield nothing to other tasks;
-//! and every `async fn` that can return carries a "resumed after completion" state that panics,
-//! which the compiler cannot prove unreachable: the boards' firmware would link a panic call
-//! site per async fn of this crate (`scripts/panic-check.sh` fails on them). A node's loop calls
-//! the store between two frames; the CAN driver's receive queue holds what arrives meanwhile.
+//! A save runs in steps ([`TableStore::start_save`], then [`TableStore::continue_save`]), each
+//! bounded: the start or the check of one page erase, or the programming and read-back of one
+//! [`SAVE_CHUNK`]. A node reads its frames between the steps. On a flash that erases in the
+//! background ([`BackgroundErase`]: the G474 in dual-bank mode erasing the bank the code does not
+//! run from), no step waits for an erase; [`Blocking`] makes any [`NorFlash`] a store's flash
+//! whose erases complete within their step. The steps are plain functions, not `async fn`: every
+//! `async fn` that can return carries a "resumed after completion" state that panics, which the
+//! compiler cannot prove unreachable, and the boards' firmware would link a panic call site per
+//! async fn of this crate (`scripts/panic-check.sh` fails on them).
 //!
 //! ## The guarantee
 //!
@@ -52,7 +54,8 @@
 //! [`pab_core::crc32`]). A slot is *committed* when its header verifies and its length fits the
 //! slot; it is *valid* when, moreover, its image matches the image CRC.
 //!
-//! `save(image)`:
+//! `save(image)` (step 1 and 2 are `start_save`; each erase, each chunk and the commit a step of
+//! `continue_save`):
 //!
 //! 1. Read every header. The new sequence number is the highest committed one plus one. The
 //!    *current* slot is the valid slot with the highest sequence number (what `load` returns).
@@ -60,9 +63,9 @@
 //!    one if nothing is valid, slot 0 on an empty range). With K ≥ 2 it is never the current
 //!    slot, so the image `load` returns now is never touched.
 //! 3. Erase only the target's pages that header and image occupy (`ceil((24 + len) / page)`),
-//!    first page first, which invalidates the target's old header.
-//! 4. Program the image after the header area, in 256-byte chunks (the last word padded with
-//!    0xFF), read it back and compare ([`StoreError::VerifyFailed`] otherwise).
+//!    one page at a time, first page first, which invalidates the target's old header.
+//! 4. Program the image after the header area, in [`SAVE_CHUNK`]-byte chunks (the last word
+//!    padded with 0xFF), reading each back ([`StoreError::VerifyFailed`] if it differs).
 //! 5. Program the header, read it back. **This write is the commit**: before it completes, the
 //!    target has no header that verifies (erased, or cut mid-write: the header CRC, stored in
 //!    its last word, fails) and `load` returns the current image; after it, the target is the
@@ -144,7 +147,9 @@
 //! guarantee.
 //!
 //! embassy-stm32's blocking flash driver for the G4 (`Flash::new_blocking`) is a [`NorFlash`]
-//! as it is: `FlashStore::new(Flash::new_blocking(p.FLASH), range, slot_size)`.
+//! as it is: `FlashStore::new(Blocking(Flash::new_blocking(p.FLASH)), range, slot_size)` saves
+//! with erases that stop the caller; the NUCLEO-G474RE's firmware erases in the background
+//! instead (its `flash` module).
 //!
 //! ## Testing
 //!
@@ -171,11 +176,13 @@
     )
 )]
 
+mod background;
 pub mod boot_counter;
 mod error;
 #[cfg(feature = "mem-flash")]
 pub mod testing;
 
+pub use background::{BackgroundErase, Blocking};
 pub use boot_counter::BootCounter;
 pub use error::{CounterError, FlashErrorKind, LayoutError, StoreError};
 
@@ -186,16 +193,50 @@ use pab_core::crc32::{Crc32, crc32};
 
 /// Where a node keeps its latest accepted table image.
 ///
-/// Blocking (see the crate documentation for why): each call returns when the storage work is
-/// done, which on a board's flash means milliseconds for a `load` and up to tens of
-/// milliseconds for a `save` (page erases), during which the caller's task does nothing else.
+/// A save runs in steps ([`start_save`](Self::start_save), then
+/// [`continue_save`](Self::continue_save) until [`SaveProgress::Done`]), so that a node reads
+/// its frames between them: on a board each step takes at most a chunk's programming (about a
+/// millisecond) or the start or check of a page erase (microseconds; the erase itself runs in
+/// the background on a [`BackgroundErase`] flash). [`save`](Self::save) runs all the steps at
+/// once, for callers that can wait. The power-loss guarantee holds at every step.
 pub trait TableStore {
     /// Reads the latest committed image into `buf`; `Ok(None)` if none was ever committed.
     fn load<'b>(&mut self, buf: &'b mut [u8]) -> Result<Option<&'b [u8]>, StoreError>;
+    /// Begins storing `image`: checks that it fits and chooses where it goes. Nothing is written
+    /// yet; a save already in progress is abandoned (it never committed, so `load` still returns
+    /// what it returned before it). The caller keeps `image` unchanged until the save is done.
+    fn start_save(&mut self, image: &[u8]) -> Result<(), StoreError>;
+    /// Does the next step of the save [`start_save`](Self::start_save) began, with the same
+    /// `image`. [`SaveProgress::Done`] once the image is committed (the next `load` returns it,
+    /// also after a power loss); an error ends the save (`load` returns the previous image).
+    /// Without a save in progress: `Err(`[`StoreError::NoSave`]`)`.
+    fn continue_save(&mut self, image: &[u8]) -> Result<SaveProgress, StoreError>;
     /// Stores `image` so the next `load` (also after a power loss at any point of this call once it
-    /// returned `Ok`) returns it.
-    fn save(&mut self, image: &[u8]) -> Result<(), StoreError>;
+    /// returned `Ok`) returns it: every step at once, waiting for the page erases.
+    fn save(&mut self, image: &[u8]) -> Result<(), StoreError> {
+        self.start_save(image)?;
+        while self.continue_save(image)? != SaveProgress::Done {}
+        Ok(())
+    }
 }
+
+/// Where a step-wise save stands after a step ([`TableStore::continue_save`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SaveProgress {
+    /// More work is ready: call again as soon as the caller has nothing more urgent.
+    Ready,
+    /// A page erase runs in the background: call again later (a millisecond is about a twentieth
+    /// of an erase on the G474); calling sooner only checks the flash's busy flag.
+    Erasing,
+    /// The image is committed.
+    Done,
+}
+
+/// Bytes programmed per step of a save: 16 of the G474's double words, about 1.3 ms of
+/// programming (82 µs each, datasheet typical), in which a saturated 500 kbit/s bus brings some
+/// six frames, well within what the board's receive queue holds.
+pub const SAVE_CHUNK: usize = 128;
 
 /// Bytes moved per flash read or write: the stack buffer of `load` and `save`.
 const CHUNK: usize = 256;
@@ -263,6 +304,30 @@ pub struct FlashStore<F: NorFlash> {
     /// Bytes reserved for the header at the start of each slot: `HEADER_LEN` rounded up to the
     /// flash's write and read sizes.
     header_area: u32,
+    /// The save in progress, if any.
+    saving: Option<Saving>,
+}
+
+/// A save in progress: the slot it writes, the header it will commit, and how far it got.
+#[derive(Clone, Copy, Debug)]
+struct Saving {
+    /// The target slot's first byte.
+    start: u32,
+    header: Header,
+    phase: Phase,
+}
+
+/// The steps of a save, in the order that makes it power-loss safe (crate documentation,
+/// `save`): the pages erased first to last, the image programmed and read back chunk by chunk,
+/// the header last.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    /// Erasing the page at this offset: `started` once `start_erase` returned.
+    Erase { page: u32, started: bool },
+    /// Programming the image from this many bytes in.
+    Program { done: u32 },
+    /// Programming the header: the commit.
+    Commit,
 }
 
 impl<F: NorFlash> FlashStore<F> {
@@ -312,6 +377,7 @@ impl<F: NorFlash> FlashStore<F> {
             slots,
             slot_size,
             header_area,
+            saving: None,
         })
     }
 
@@ -342,6 +408,7 @@ impl<F: NorFlash> FlashStore<F> {
     /// answering [`StoreError::Corrupt`] or [`StoreError::SequenceExhausted`]).
     pub fn format(&mut self) -> Result<(), StoreError> {
         // `new` checked that the range (slots * slot_size bytes from start) lies in the flash.
+        self.saving = None;
         let end = self
             .start
             .saturating_add(self.slots.saturating_mul(self.slot_size));
@@ -452,41 +519,32 @@ impl<F: NorFlash> FlashStore<F> {
         Ok(crc.finish() == header.crc)
     }
 
-    /// Programs `bytes` at `address` (write-size aligned) in chunks, the last word padded with
-    /// 0xFF, then reads them back.
-    fn program(&mut self, address: u32, bytes: &[u8]) -> Result<(), StoreError> {
+    /// Programs `piece` (at most [`CHUNK`] bytes) at `address` (write-size aligned), the last
+    /// word padded with 0xFF, then reads it back ([`StoreError::VerifyFailed`] if it differs).
+    fn program(&mut self, address: u32, piece: &[u8]) -> Result<(), StoreError> {
         let mut chunk = [0xFFu8; CHUNK];
-        let mut at = address;
-        for piece in bytes.chunks(CHUNK) {
-            let padded = piece.len().next_multiple_of(F::WRITE_SIZE);
-            let area = chunk
-                .get_mut(..padded)
-                .ok_or(StoreError::Layout(LayoutError::UnsupportedGeometry))?;
-            area.fill(0xFF);
-            area.get_mut(..piece.len())
-                .ok_or(StoreError::Layout(LayoutError::UnsupportedGeometry))?
-                .copy_from_slice(piece);
-            self.flash
-                .write(at, area)
-                .map_err(|e| StoreError::Flash(FlashErrorKind::of(&e)))?;
-            at = at.saturating_add(CHUNK as u32);
-        }
-        let mut at = address;
-        for piece in bytes.chunks(CHUNK) {
-            let area = chunk
-                .get_mut(..piece.len())
-                .ok_or(StoreError::Layout(LayoutError::UnsupportedGeometry))?;
-            self.read_at(at, area)?;
-            if area != piece {
-                return Err(StoreError::VerifyFailed);
-            }
-            at = at.saturating_add(CHUNK as u32);
+        let padded = piece.len().next_multiple_of(F::WRITE_SIZE);
+        let area = chunk
+            .get_mut(..padded)
+            .ok_or(StoreError::Layout(LayoutError::UnsupportedGeometry))?;
+        area.get_mut(..piece.len())
+            .ok_or(StoreError::Layout(LayoutError::UnsupportedGeometry))?
+            .copy_from_slice(piece);
+        self.flash
+            .write(address, area)
+            .map_err(|e| StoreError::Flash(FlashErrorKind::of(&e)))?;
+        let back = chunk
+            .get_mut(..piece.len())
+            .ok_or(StoreError::Layout(LayoutError::UnsupportedGeometry))?;
+        self.read_at(address, back)?;
+        if back != piece {
+            return Err(StoreError::VerifyFailed);
         }
         Ok(())
     }
 }
 
-impl<F: NorFlash> TableStore for FlashStore<F> {
+impl<F: BackgroundErase> TableStore for FlashStore<F> {
     fn load<'b>(&mut self, buf: &'b mut [u8]) -> Result<Option<&'b [u8]>, StoreError> {
         let mut bound = None;
         let mut committed = false;
@@ -517,7 +575,8 @@ impl<F: NorFlash> TableStore for FlashStore<F> {
         }
     }
 
-    fn save(&mut self, image: &[u8]) -> Result<(), StoreError> {
+    fn start_save(&mut self, image: &[u8]) -> Result<(), StoreError> {
+        self.saving = None;
         let too_large = StoreError::ImageTooLarge {
             len: image.len(),
             capacity: self.capacity(),
@@ -555,23 +614,73 @@ impl<F: NorFlash> TableStore for FlashStore<F> {
             None => 1,
         };
         let start = self.slot_start(target);
+        self.saving = Some(Saving {
+            start,
+            header: Header {
+                sequence,
+                len,
+                crc: crc32(image),
+            },
+            phase: Phase::Erase {
+                page: start,
+                started: false,
+            },
+        });
+        Ok(())
+    }
+
+    fn continue_save(&mut self, image: &[u8]) -> Result<SaveProgress, StoreError> {
+        let mut saving = self.saving.take().ok_or(StoreError::NoSave)?;
+        // The image must be the one `start_save` was given: its length decides the pages erased
+        // and its CRC the header (a different image of the same length is caught by the commit's
+        // check below, before anything is committed).
+        if u32::try_from(image.len()).ok() != Some(saving.header.len) {
+            return Err(StoreError::NoSave);
+        }
         let flash_error = |e: F::Error| StoreError::Flash(FlashErrorKind::of(&e));
-        // Erase the pages header and image occupy (len <= capacity, so this stays in the slot);
-        // the old header goes first, with the first page.
-        let used = self
-            .header_area
-            .saturating_add(len)
-            .next_multiple_of(F::ERASE_SIZE as u32);
-        self.flash
-            .erase(start, start.saturating_add(used))
-            .map_err(flash_error)?;
-        self.program(start.saturating_add(self.header_area), image)?;
-        // The commit: the header, programmed last.
-        let header = Header {
-            sequence,
-            len,
-            crc: crc32(image),
+        let image_start = saving.start.saturating_add(self.header_area);
+        let (progress, next) = match saving.phase {
+            Phase::Erase { page, started: false } => {
+                self.flash.start_erase(page).map_err(flash_error)?;
+                (SaveProgress::Erasing, Phase::Erase { page, started: true })
+            }
+            Phase::Erase { page, started: true } => {
+                if !self.flash.erase_done().map_err(flash_error)? {
+                    (SaveProgress::Erasing, saving.phase)
+                } else {
+                    // The pages header and image occupy (len <= capacity: inside the slot), the
+                    // old header's first.
+                    let end = image_start.saturating_add(saving.header.len);
+                    let next = page.saturating_add(F::ERASE_SIZE as u32);
+                    if next < end {
+                        (SaveProgress::Ready, Phase::Erase { page: next, started: false })
+                    } else {
+                        (SaveProgress::Ready, Phase::Program { done: 0 })
+                    }
+                }
+            }
+            Phase::Program { done } => {
+                let rest = image.get(done as usize..).unwrap_or(&[]);
+                let piece = rest.get(..SAVE_CHUNK).unwrap_or(rest);
+                if piece.is_empty() {
+                    (SaveProgress::Ready, Phase::Commit)
+                } else {
+                    self.program(image_start.saturating_add(done), piece)?;
+                    let done = done.saturating_add(SAVE_CHUNK as u32);
+                    (SaveProgress::Ready, Phase::Program { done })
+                }
+            }
+            Phase::Commit => {
+                if crc32(image) != saving.header.crc {
+                    return Err(StoreError::NoSave);
+                }
+                // The commit: the header, programmed last.
+                self.program(saving.start, &saving.header.encode())?;
+                return Ok(SaveProgress::Done);
+            }
         };
-        self.program(start, &header.encode())
+        saving.phase = next;
+        self.saving = Some(saving);
+        Ok(progress)
     }
 }

@@ -35,6 +35,8 @@ use embedded_storage::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
 };
 
+use crate::BackgroundErase;
+
 /// Why a [`MemFlash`] operation failed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -87,6 +89,10 @@ pub struct MemFlash<const PAGES: usize, const ERASE_SIZE: usize, const WRITE_SIZ
     fail_at: Option<u32>,
     power_lost: bool,
     rng: u64,
+    /// How many `erase_done` calls answer "still erasing" after each `start_erase`.
+    erase_polls: u32,
+    /// Of those, how many are left for the erase started last.
+    erase_pending: u32,
 }
 
 impl<const PAGES: usize, const ERASE_SIZE: usize, const WRITE_SIZE: usize> Default
@@ -115,7 +121,16 @@ impl<const PAGES: usize, const ERASE_SIZE: usize, const WRITE_SIZE: usize>
             fail_at: None,
             power_lost: false,
             rng: 0x9E37_79B9_7F4A_7C15,
+            erase_polls: 1,
+            erase_pending: 0,
         }
+    }
+
+    /// How many [`BackgroundErase::erase_done`] calls answer `Ok(false)` after each
+    /// [`BackgroundErase::start_erase`] (default 1): a background erase that takes its time.
+    /// The erase itself happens at `start_erase` (a power loss armed for it cuts it there).
+    pub fn set_erase_polls(&mut self, polls: u32) {
+        self.erase_polls = polls;
     }
 
     /// A flash full of pseudo-random bytes from `seed` (as if another program had used it).
@@ -384,5 +399,29 @@ impl<const PAGES: usize, const ERASE_SIZE: usize, const WRITE_SIZE: usize> NorFl
         }
         self.rng = rng;
         Err(MemFlashError::PowerLost)
+    }
+}
+
+impl<const PAGES: usize, const ERASE_SIZE: usize, const WRITE_SIZE: usize> BackgroundErase
+    for MemFlash<PAGES, ERASE_SIZE, WRITE_SIZE>
+{
+    fn start_erase(&mut self, offset: u32) -> Result<(), Self::Error> {
+        let end = offset.saturating_add(ERASE_SIZE as u32);
+        self.erase(offset, end)?;
+        self.erase_pending = self.erase_polls;
+        Ok(())
+    }
+
+    fn erase_done(&mut self) -> Result<bool, Self::Error> {
+        if self.power_lost {
+            return Err(MemFlashError::PowerLost);
+        }
+        match self.erase_pending.checked_sub(1) {
+            Some(left) => {
+                self.erase_pending = left;
+                Ok(false)
+            }
+            None => Ok(true),
+        }
     }
 }

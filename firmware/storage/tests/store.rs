@@ -6,7 +6,7 @@ mod common;
 use common::*;
 use embedded_storage::nor_flash::NorFlash;
 use pab_storage::testing::MemFlash;
-use pab_storage::{FlashStore, LayoutError, StoreError, TableStore};
+use pab_storage::{Blocking, FlashStore, LayoutError, StoreError, TableStore};
 
 #[test]
 fn a_fresh_flash_holds_nothing() {
@@ -419,7 +419,8 @@ impl NorFlash for WordReads {
 #[test]
 fn images_of_any_length_round_trip_through_word_reads() {
     let mut store =
-        FlashStore::new(WordReads(BoardFlash::new()), BOARD_RANGE, BOARD_SLOT).expect("layout");
+        FlashStore::new(Blocking(WordReads(BoardFlash::new())), BOARD_RANGE, BOARD_SLOT)
+            .expect("layout");
     let images = [
         image_v1(),
         image_v2(),

@@ -17,9 +17,44 @@
 //! 0xFF) or be written with zeros, else the write fails with [`RamFlashError::NotErased`] and
 //! changes nothing; reads are byte-granular. A program that relies on AND-writes fails here as it
 //! would on the G4.
+//!
+//! **Times, as on the G474** (datasheet typical): a page erase takes [`ERASE_US`], a double word's
+//! program [`PROGRAM_WORD_US`], in one of two layouts ([`LAYOUT`]):
+//!
+//! - [`Layout::DualBank`] (the default, as the NUCLEO-G474RE runs: the store in the bank the code
+//!   does not run from): an erase runs in the background ([`BackgroundErase`]) while the CPU goes
+//!   on; a program keeps the CPU waiting for the controller, interrupts served.
+//! - [`Layout::SingleBank`] (feature `single-bank`, a test build: the code and the store share
+//!   the bank): every erase and program stalls the CPU, interrupts included, for its whole time,
+//!   while the modelled CAN controller keeps three frames and loses the rest
+//!   ([`crate::uart::stalled_receive`]).
+//!
+//! The time is spent on the board's clock (embassy-time, which QEMU runs at the host's pace), so
+//! HIL tests see what a save costs the node.
 
 use embedded_storage::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
+};
+use pab_storage::BackgroundErase;
+
+/// A page erase on the G474, µs (datasheet typical; 40 ms at most).
+pub const ERASE_US: u64 = 22_000;
+/// A double word's program on the G474, µs (datasheet typical; 91 µs at most).
+pub const PROGRAM_WORD_US: u64 = 82;
+/// Which of the G474's flash layouts the model follows (module documentation).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// Erases in the background; programs wait with interrupts served.
+    DualBank,
+    /// Every erase and program stalls the CPU with interrupts masked.
+    SingleBank,
+}
+
+/// The layout of this build: [`Layout::SingleBank`] with the `single-bank` feature.
+pub const LAYOUT: Layout = if cfg!(feature = "single-bank") {
+    Layout::SingleBank
+} else {
+    Layout::DualBank
 };
 
 /// Where the region starts (memory.x ends the program region here).
@@ -66,6 +101,8 @@ impl NorFlashError for RamFlashError {
 /// The region as a NOR flash; offsets count from [`FLASH_BASE`].
 pub struct RamFlash {
     memory: &'static mut [u8],
+    /// When the erase running in the background ends, µs on the board's clock.
+    erase_until: u64,
 }
 
 impl RamFlash {
@@ -79,7 +116,43 @@ impl RamFlash {
         // SAFETY: the region is RAM of this machine, unused by the program (see above), and
         // any byte value is a valid u8.
         let memory = unsafe { core::slice::from_raw_parts_mut(FLASH_BASE as *mut u8, FLASH_LEN) };
-        RamFlash { memory }
+        RamFlash {
+            memory,
+            erase_until: 0,
+        }
+    }
+
+    /// Spends `us` as the flash controller would: in a critical section on a single bank (the
+    /// CPU stalls, nothing runs), else waiting with interrupts served.
+    // Out of line: erases and writes share it.
+    #[inline(never)]
+    fn spend(&self, us: u64) {
+        let end = pab_app::now().as_micros().saturating_add(us);
+        #[cfg(feature = "single-bank")]
+        critical_section::with(|cs| {
+            let mut fifo = crate::uart::StallFifo::default();
+            while pab_app::now().as_micros() < end {
+                crate::uart::stalled_receive(cs, &mut fifo);
+            }
+        });
+        #[cfg(not(feature = "single-bank"))]
+        while pab_app::now().as_micros() < end {
+            core::hint::spin_loop();
+        }
+    }
+
+    /// Sets the pages of `from..to` to 0xFF, checking the range.
+    fn clear(&mut self, from: u32, to: u32) -> Result<usize, RamFlashError> {
+        let len = to.checked_sub(from).ok_or(RamFlashError::OutOfBounds)? as usize;
+        let range = self.range(from, len)?;
+        if range.start % PAGE != 0 || range.end % PAGE != 0 {
+            return Err(RamFlashError::NotAligned);
+        }
+        self.memory
+            .get_mut(range)
+            .ok_or(RamFlashError::OutOfBounds)?
+            .fill(0xFF);
+        Ok(len / PAGE)
     }
 
     fn range(&self, offset: u32, len: usize) -> Result<core::ops::Range<usize>, RamFlashError> {
@@ -115,16 +188,10 @@ impl NorFlash for RamFlash {
     const WRITE_SIZE: usize = WORD;
     const ERASE_SIZE: usize = PAGE;
 
+    /// Waits for every page's erase (the boot counter's, a store's format).
     fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
-        let len = to.checked_sub(from).ok_or(RamFlashError::OutOfBounds)? as usize;
-        let range = self.range(from, len)?;
-        if range.start % PAGE != 0 || range.end % PAGE != 0 {
-            return Err(RamFlashError::NotAligned);
-        }
-        self.memory
-            .get_mut(range)
-            .ok_or(RamFlashError::OutOfBounds)?
-            .fill(0xFF);
+        let pages = self.clear(from, to)?;
+        self.spend(ERASE_US.saturating_mul(pages as u64));
         Ok(())
     }
 
@@ -146,6 +213,27 @@ impl NorFlash for RamFlash {
             return Err(RamFlashError::NotErased);
         }
         target.copy_from_slice(bytes);
+        self.spend(PROGRAM_WORD_US.saturating_mul((bytes.len() / WORD) as u64));
         Ok(())
+    }
+}
+
+impl BackgroundErase for RamFlash {
+    /// The page reads erased at once (what it holds while the erase runs is undefined on the
+    /// G474, and nothing reads it then); the time is spent in the background on a dual bank, at
+    /// once and stalled on a single bank.
+    fn start_erase(&mut self, offset: u32) -> Result<(), Self::Error> {
+        self.clear(offset, offset.saturating_add(PAGE as u32))?;
+        match LAYOUT {
+            Layout::SingleBank => self.spend(ERASE_US),
+            Layout::DualBank => {
+                self.erase_until = pab_app::now().as_micros().saturating_add(ERASE_US);
+            }
+        }
+        Ok(())
+    }
+
+    fn erase_done(&mut self) -> Result<bool, Self::Error> {
+        Ok(pab_app::now().as_micros() >= self.erase_until)
     }
 }

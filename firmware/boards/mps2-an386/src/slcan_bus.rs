@@ -6,7 +6,9 @@
 //!   every frame line the host sends (`t`, `T`, `r`, `R`) is a frame from the bus. Commands
 //!   (`O`, `C`, `S6`, `V`...) are answered and not passed on. A malformed line is answered with
 //!   BEL and reported as [`BusError::Other`]`(`[`MALFORMED_LINE`]`)`, a line too long as
-//!   [`BusError::Other`]`(`[`LINE_TOO_LONG`]`)`; bytes the UART lost as [`BusError::Overrun`].
+//!   [`BusError::Other`]`(`[`LINE_TOO_LONG`]`)`; bytes the UART lost as [`BusError::Overrun`];
+//!   frames the modelled controller lost while a single-bank flash stalled the CPU (feature
+//!   `single-bank`, [`uart::stalled_receive`]) as [`BusError::Dropped`] with their count.
 //! - **Transmitting**: each frame of the node becomes one line (`format_frame`), queued whole in
 //!   the UART's transmit ring; when the ring stays full for [`TX_TIMEOUT`] (nobody reads the
 //!   line) the frame is dropped and reported. While the host has closed the channel (`C`), the
@@ -46,6 +48,7 @@ pub struct SlcanBus {
     reader: LineReader,
     device: Device,
     overruns_reported: u32,
+    stall_lost_reported: u32,
 }
 
 impl SlcanBus {
@@ -55,6 +58,7 @@ impl SlcanBus {
             reader: LineReader::new(),
             device: Device::new(serial),
             overruns_reported: uart::overruns(),
+            stall_lost_reported: uart::stall_lost(),
         }
     }
 
@@ -65,6 +69,12 @@ impl SlcanBus {
             self.overruns_reported = overruns;
             self.device.note_overrun();
             return Some(Err(BusError::Overrun));
+        }
+        // Frames the modelled controller lost while a single-bank flash stalled the CPU.
+        let lost = uart::stall_lost().wrapping_sub(self.stall_lost_reported);
+        if lost != 0 {
+            self.stall_lost_reported = uart::stall_lost();
+            return Some(Err(BusError::Dropped(lost)));
         }
         while let Some(byte) = uart::take() {
             let Some(line) = self.reader.push(byte) else {

@@ -108,6 +108,56 @@ fn drain_rx(state: &mut State) {
     }
 }
 
+/// Frames the G474's FDCAN holds in its receive FIFO (RX FIFO 0) while the CPU cannot read
+/// them.
+#[cfg(feature = "single-bank")]
+pub const STALL_FIFO_FRAMES: u32 = 3;
+/// Frames lost while the CPU stalled ([`stalled_receive`]), since boot; wrapping.
+#[cfg(feature = "single-bank")]
+static STALL_LOST: AtomicU32 = AtomicU32::new(0);
+
+/// Frames lost while the CPU stalled, since boot; wrapping (0 without the `single-bank` model).
+pub fn stall_lost() -> u32 {
+    #[cfg(feature = "single-bank")]
+    return STALL_LOST.load(Ordering::Relaxed);
+    #[cfg(not(feature = "single-bank"))]
+    0
+}
+
+/// Lines of frames kept during one stall ([`stalled_receive`]).
+#[cfg(feature = "single-bank")]
+#[derive(Default)]
+pub struct StallFifo {
+    kept: u32,
+}
+
+/// The G474's FDCAN while a flash operation on a single bank stalls the CPU, interrupts included:
+/// the bus does not wait, frames keep arriving and are acknowledged; the first
+/// [`STALL_FIFO_FRAMES`] wait in the controller's FIFO, the others are lost (its message-lost
+/// flag). Called over and over by the stalled flash, with interrupts masked (`cs`): the UART's
+/// bytes are taken as they come, the lines of the first frames kept in the ring, the others
+/// dropped and counted ([`stall_lost`]). Without it, QEMU would hold the bytes back until the
+/// stall ends and nothing would be lost: the serial line waits, a CAN bus does not.
+#[cfg(feature = "single-bank")]
+pub fn stalled_receive(cs: CriticalSection<'_>, fifo: &mut StallFifo) {
+    let mut state = crate::borrow_mut(STATE.borrow(cs));
+    let mut moved = false;
+    while UART0.state() & Uart::RX_FULL != 0 {
+        let byte = UART0.read_data();
+        moved = true;
+        if fifo.kept < STALL_FIFO_FRAMES && state.rx.push_back(byte).is_ok() {
+            if byte == b'\r' {
+                fifo.kept += 1;
+            }
+        } else if byte == b'\r' {
+            STALL_LOST.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+    if moved {
+        wake_back_end();
+    }
+}
+
 /// UART0's RX interrupt.
 pub fn on_rx_interrupt() {
     critical_section::with(|cs| {

@@ -57,7 +57,7 @@ use embassy_stm32::peripherals::IWDG;
 use embassy_stm32::time::Hertz;
 use embassy_stm32::{bind_interrupts, rcc};
 use embedded_storage::nor_flash::ReadNorFlash;
-use pab_storage::{BootCounter, FlashStore};
+use pab_storage::{Blocking, BootCounter, FlashStore};
 
 // The boards' memcpy, memset, memcmp and 64-bit division (firmware/builtins): 2.5 KB less flash
 // than compiler_builtins'.
@@ -281,7 +281,8 @@ async fn main(_spawner: Spawner) {
     pab_app::key_from_page(&mut node, page, || {
         BootCounter::new(&mut flash, BOOT_COUNTER_RANGE)?.increment()
     });
-    let mut store = unwrap!(FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE));
+    // Single bank: an erase stalls the CPU whatever the driver does, so it completes in its step.
+    let mut store = unwrap!(FlashStore::new(Blocking(flash), STORE_RANGE, STORE_SLOT_SIZE));
     // Started last before the node loop: from here on, only the loop feeds it.
     let watchdog = Iwdg::start(p.IWDG);
     // The node loop runs in this task rather than in one of its own: spawning one (its pool, the

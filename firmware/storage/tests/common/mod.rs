@@ -149,7 +149,7 @@ pub fn store<const P: usize, const E: usize, const W: usize>(
 }
 
 /// What `load` returns, as an owned copy; every image returned must pass `image::load`.
-pub fn load<F: embedded_storage::nor_flash::NorFlash>(
+pub fn load<F: pab_storage::BackgroundErase>(
     store: &mut FlashStore<F>,
 ) -> Result<Option<Vec<u8>>, StoreError> {
     let mut buf = vec![0u8; image::MAX_IMAGE_LEN];
@@ -165,7 +165,7 @@ pub fn load<F: embedded_storage::nor_flash::NorFlash>(
     Ok(loaded)
 }
 
-pub fn save<F: embedded_storage::nor_flash::NorFlash>(
+pub fn save<F: pab_storage::BackgroundErase>(
     store: &mut FlashStore<F>,
     image: &[u8],
 ) -> Result<(), StoreError> {
