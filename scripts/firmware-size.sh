@@ -38,7 +38,7 @@ report() {
 }
 
 echo "flash = text+data, RAM = data+bss (static)"
-report pab-fw-g474 "NUCLEO-G474RE" "the 452 KiB program region, 512 KiB chip" \
+report pab-fw-g474 "NUCLEO-G474RE" "the 256 KiB program region (bank 1), 512 KiB chip" \
     "128 KiB; the rest is the stack"
 report pab-fw-an386 "emulated Cortex-M4, QEMU mps2-an386" "the 256 KiB program region" \
     "4 MiB; the rest is the stack"

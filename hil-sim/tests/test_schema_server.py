@@ -33,6 +33,7 @@ import can
 import pytest
 
 from pab_client import Client, client_filters
+from pab_client.client import Refused, Timeout
 from pab_client.auth import read_key
 from pab_client.schema import Schema
 from pab_hil import nodes
@@ -217,10 +218,15 @@ def send_program(client: Client, calls: list[dict], timeout: float,
                  ack_timeout: float = 1.0) -> list[float]:
     """Installs each call's schema as the queue takes it, waiting up to `ack_timeout` s for each
     SchemaAck; returns the transfer times (first frame to SchemaAck) of the first eight, which
-    find room at once. Stops sending on a safety event."""
+    find room at once. Stops sending on a safety event, also while it waits for room: a stopped
+    server's queue no longer drains (on a slow machine the obstacle's stop came while the ninth
+    schema waited, which then waited its whole `timeout` for room that never came)."""
+    def stopped() -> bool:
+        return any(t.trigger.name == "Safety" for t in client.transitions)
+
     transfers = []
     for index, call in enumerate(calls):
-        if any(t.trigger.name == "Safety" for t in client.transitions):
+        if stopped():
             break
         schema = Schema.from_json(call["schema"])
         if index < 8:
@@ -228,8 +234,21 @@ def send_program(client: Client, calls: list[dict], timeout: float,
             started = time.monotonic()
             client.install(schema, timeout=ack_timeout)
             transfers.append(time.monotonic() - started)
-        else:
-            client.install_when_room(schema, timeout=timeout, ack_timeout=ack_timeout)
+            continue
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                client.install_when_room(schema, timeout=min(1.0, timeout),
+                                         ack_timeout=ack_timeout)
+                break
+            except Timeout as no_room:
+                # No room (its cause the node's refusal); any other timeout is a failure.
+                if not isinstance(no_room.__cause__, Refused):
+                    raise
+                if stopped():
+                    return transfers
+                if time.monotonic() >= deadline:
+                    raise
     return transfers
 
 

@@ -327,9 +327,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             StoreError::Layout(_)
             | StoreError::SequenceExhausted
             | StoreError::VerifyFailed
-            | StoreError::NoSave => {
-                StoreFailure::Other
-            }
+            | StoreError::NoSave => StoreFailure::Other,
         };
         self.boot_fault = Some([STORE_UNREADABLE, failure.code(), 0, 0, 0]);
         self.duties(now);

@@ -175,16 +175,13 @@ fn save_step<S: TableStore, const P: usize, const C: usize, const N: usize, cons
     now: Instant,
 ) -> Option<u64> {
     let at = now.as_micros();
-    match store.continue_save(node.image_to_store()) {
-        Ok(SaveProgress::Ready) => Some(at),
-        Ok(SaveProgress::Erasing) => Some(at.saturating_add(SAVE_POLL_US)),
-        Ok(SaveProgress::Done) => {
-            node.stored(true, now);
-            None
-        }
-        Err(_) => {
-            node.stored(false, now);
-            None
-        }
-    }
+    // One call of `stored` for both ends: two took 64 bytes more of the NUCLEO-G474RE's flash.
+    let ok = match store.continue_save(node.image_to_store()) {
+        Ok(SaveProgress::Ready) => return Some(at),
+        Ok(SaveProgress::Erasing) => return Some(at.saturating_add(SAVE_POLL_US)),
+        Ok(SaveProgress::Done) => true,
+        Err(_) => false,
+    };
+    node.stored(ok, now);
+    None
 }

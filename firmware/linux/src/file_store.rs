@@ -248,7 +248,8 @@ impl TableStore for FileStore {
             log::warn!("no --store directory: the new table will be lost when the node stops");
             return Err(StoreError::Flash(FlashErrorKind::Other));
         };
-        write_atomically(&path, image).map_err(|error| io_failure("cannot write", &path, &error))?;
+        write_atomically(&path, image)
+            .map_err(|error| io_failure("cannot write", &path, &error))?;
         self.written = true;
         Ok(())
     }

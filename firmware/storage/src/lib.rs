@@ -640,11 +640,23 @@ impl<F: BackgroundErase> TableStore for FlashStore<F> {
         let flash_error = |e: F::Error| StoreError::Flash(FlashErrorKind::of(&e));
         let image_start = saving.start.saturating_add(self.header_area);
         let (progress, next) = match saving.phase {
-            Phase::Erase { page, started: false } => {
+            Phase::Erase {
+                page,
+                started: false,
+            } => {
                 self.flash.start_erase(page).map_err(flash_error)?;
-                (SaveProgress::Erasing, Phase::Erase { page, started: true })
+                (
+                    SaveProgress::Erasing,
+                    Phase::Erase {
+                        page,
+                        started: true,
+                    },
+                )
             }
-            Phase::Erase { page, started: true } => {
+            Phase::Erase {
+                page,
+                started: true,
+            } => {
                 if !self.flash.erase_done().map_err(flash_error)? {
                     (SaveProgress::Erasing, saving.phase)
                 } else {
@@ -653,7 +665,13 @@ impl<F: BackgroundErase> TableStore for FlashStore<F> {
                     let end = image_start.saturating_add(saving.header.len);
                     let next = page.saturating_add(F::ERASE_SIZE as u32);
                     if next < end {
-                        (SaveProgress::Ready, Phase::Erase { page: next, started: false })
+                        (
+                            SaveProgress::Ready,
+                            Phase::Erase {
+                                page: next,
+                                started: false,
+                            },
+                        )
                     } else {
                         (SaveProgress::Ready, Phase::Program { done: 0 })
                     }

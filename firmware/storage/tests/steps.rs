@@ -35,8 +35,14 @@ fn every_step_does_one_flash_operation_at_most_and_waits_for_no_erase() {
         let pages = (24 + image.len()).div_ceil(4096);
         assert_eq!(pages, 4, "{}", image.len());
         let done = steps(&mut store, &image);
-        assert!(done.iter().all(|&(_, operations)| operations <= 1), "{done:?}");
-        let erasing = done.iter().filter(|(p, _)| *p == SaveProgress::Erasing).count();
+        assert!(
+            done.iter().all(|&(_, operations)| operations <= 1),
+            "{done:?}"
+        );
+        let erasing = done
+            .iter()
+            .filter(|(p, _)| *p == SaveProgress::Erasing)
+            .count();
         // Each page: the step that starts it and `polls` checks while it runs.
         assert_eq!(erasing, pages * (1 + polls as usize), "{done:?}");
         let chunks = image.len().div_ceil(SAVE_CHUNK);
@@ -77,16 +83,20 @@ fn an_abandoned_save_leaves_the_previous_image() {
     )
     .len();
     for stop in 0..total {
-        let mut store = FlashStore::new(store.flash_mut().clone(), LARGE_RANGE, LARGE_SLOT)
-            .expect("layout");
+        let mut store =
+            FlashStore::new(store.flash_mut().clone(), LARGE_RANGE, LARGE_SLOT).expect("layout");
         store.start_save(&next).expect("start");
         for _ in 0..stop {
             assert_ne!(store.continue_save(&next), Ok(SaveProgress::Done));
         }
-        assert_eq!(load(&mut store), Ok(Some(image_v1())), "stopped after {stop} steps");
+        assert_eq!(
+            load(&mut store),
+            Ok(Some(image_v1())),
+            "stopped after {stop} steps"
+        );
         // A node that restarts (a new store over the same flash) finds the first image too.
-        let mut rebooted = FlashStore::new(store.flash_mut().clone(), LARGE_RANGE, LARGE_SLOT)
-            .expect("layout");
+        let mut rebooted =
+            FlashStore::new(store.flash_mut().clone(), LARGE_RANGE, LARGE_SLOT).expect("layout");
         assert_eq!(load(&mut rebooted), Ok(Some(image_v1())));
         let third = image_v2();
         steps(&mut store, &third);
@@ -99,13 +109,21 @@ fn a_step_without_its_save_or_with_another_image_commits_nothing() {
     let mut store = FlashStore::new(LargeFlash::new(), LARGE_RANGE, LARGE_SLOT).expect("layout");
     assert_eq!(store.continue_save(&image_v1()), Err(StoreError::NoSave));
     store.save(&image_v1()).expect("first");
-    assert_eq!(store.continue_save(&image_v1()), Err(StoreError::NoSave), "after Done");
+    assert_eq!(
+        store.continue_save(&image_v1()),
+        Err(StoreError::NoSave),
+        "after Done"
+    );
 
     // Another length: refused at once.
     let next = image_large(2);
     store.start_save(&next).expect("start");
     assert_eq!(store.continue_save(&image_v1()), Err(StoreError::NoSave));
-    assert_eq!(store.continue_save(&next), Err(StoreError::NoSave), "the save ended");
+    assert_eq!(
+        store.continue_save(&next),
+        Err(StoreError::NoSave),
+        "the save ended"
+    );
 
     // The same length, other bytes (a buffer overwritten under the save): never committed.
     let mut other = next.clone();
@@ -126,8 +144,8 @@ fn a_power_loss_at_any_step_leaves_the_old_or_the_new_image() {
     let mut base = FlashStore::new(LargeFlash::new(), LARGE_RANGE, LARGE_SLOT).expect("layout");
     base.save(&old).expect("old");
     let operations = {
-        let mut probe = FlashStore::new(base.flash_mut().clone(), LARGE_RANGE, LARGE_SLOT)
-            .expect("layout");
+        let mut probe =
+            FlashStore::new(base.flash_mut().clone(), LARGE_RANGE, LARGE_SLOT).expect("layout");
         let before = probe.flash_mut().operations();
         steps(&mut probe, &new);
         probe.flash_mut().operations() - before

@@ -418,9 +418,12 @@ impl NorFlash for WordReads {
 
 #[test]
 fn images_of_any_length_round_trip_through_word_reads() {
-    let mut store =
-        FlashStore::new(Blocking(WordReads(BoardFlash::new())), BOARD_RANGE, BOARD_SLOT)
-            .expect("layout");
+    let mut store = FlashStore::new(
+        Blocking(WordReads(BoardFlash::new())),
+        BOARD_RANGE,
+        BOARD_SLOT,
+    )
+    .expect("layout");
     let images = [
         image_v1(),
         image_v2(),

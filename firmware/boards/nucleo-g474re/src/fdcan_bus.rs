@@ -18,27 +18,33 @@
 //! check of the controller state in between keeps its memory in `self.mode`, updated only in the
 //! poll that returns the change, so no transition is lost either.
 //!
-//! Transmitting: frames go into the transmit queue that the interrupt feeds into the
-//! controller's TX FIFO (FIFO mode: frames leave in the order they were queued, which ISO-TP
-//! needs, and a full FIFO never aborts a pending frame as the driver's priority mode would). When
-//! the queue stays full for [`TX_TIMEOUT`] (nobody acknowledges, bus-off) the frame is dropped
-//! and reported, so the node keeps reading instead of blocking behind a dead bus. Identifier
-//! order is the node's outbox's work (`pab_app::node::OUTBOX_LEN`): frames already in this queue
-//! and the TX FIFO leave first in first out. The FDCAN's TX queue mode (`TxBufferMode::Priority`)
-//! is not used: it sends equal identifiers by buffer number, not in queue order, which would
-//! reorder a diagnostic round.
+//! Transmitting, **by priority**: frames go into the transmit queue, and the interrupt hands the
+//! controller the queued frame that would win arbitration (the lowest identifier, as the bus
+//! compares them: `pab_core::Frame::arbitration_rank`; among equal identifiers the oldest, so ISO-TP's frames and
+//! a diagnostic round keep their order), one at a time: only when the controller's TX FIFO is
+//! empty, so a high-priority frame waits behind at most the one frame of ours already on its way,
+//! never behind a FIFO of losers. The FDCAN's own priority mode (`TxBufferMode::Priority`) is not
+//! used: it sends equal identifiers by buffer number, not in queue order, which would reorder
+//! ISO-TP's frames. When the queue stays full for [`TX_TIMEOUT`] (nobody acknowledges, bus-off)
+//! the frame is dropped and reported, so the node keeps reading instead of blocking behind a
+//! dead bus.
 //!
 //! Errors: the driver reports protocol errors (the controller's last error code: stuff, form,
-//! acknowledge, bit, CRC) when it finds no more frame to read; error-passive and bus-off are
-//! states it does not report, so `receive` also looks at the controller state every
-//! [`STATE_POLL`] and reports each change (`ErrorPassive`, `BusOff`, `Recovered`). Bus-off
-//! recovery is automatic (the driver restarts the controller after the bus-off sequence). Known
-//! limit: when the receive queue is full the interrupt drops frames silently (as the driver's
-//! buffered mode did), so no [`BusError::Overrun`] is reported for them.
+//! acknowledge, bit, CRC) when it finds no more frame to read. Error-passive and bus-off are
+//! latched by the interrupt when the controller enters them (IR.EP, IR.BO), so a bus-off that
+//! recovers within milliseconds (the recovery sequence takes some 2.8 ms at 500 kbit/s) is still
+//! reported; `receive` reports each latched entry, then looks at the controller state (also every
+//! [`STATE_POLL`]) for the way back (`ErrorPassive`, `BusOff`, `Recovered`). Bus-off recovery is
+//! automatic (the driver restarts the controller after the bus-off sequence).
+//!
+//! Lost frames are counted ([`BusError::Dropped`]): a frame that finds the receive queue full,
+//! and a frame the controller itself lost into a full RX FIFO (IR.RF0L, IR.RF1L: the FIFO says
+//! that it lost, not how many, so each such flag counts one, the least it lost).
 
 use core::cell::RefCell;
 use core::future::{Future, poll_fn};
 use core::pin::pin;
+use core::sync::atomic::{AtomicU8, AtomicU32, Ordering};
 use core::task::{Context, Poll, Waker};
 
 use critical_section::Mutex;
@@ -68,14 +74,14 @@ pub const STATE_POLL: Duration = Duration::from_millis(50);
 struct Queues {
     /// Received frames, or the protocol error read after them, oldest first.
     rx: Deque<Result<can::frame::Frame, can::enums::BusError>, RX_QUEUE>,
-    /// Frames to transmit, oldest first.
-    tx: Deque<can::frame::Frame, TX_QUEUE>,
+    /// Frames to transmit, oldest first, each with its `Frame::arbitration_rank`.
+    tx: heapless::Vec<(u32, can::frame::Frame), TX_QUEUE>,
 }
 
 /// Empty queues are all zeros: in .bss, not in flash.
 static QUEUES: Mutex<RefCell<Queues>> = Mutex::new(RefCell::new(Queues {
     rx: Deque::new(),
-    tx: Deque::new(),
+    tx: heapless::Vec::new(),
 }));
 /// The driver's two halves, the interrupt's alone once [`FdcanBus::new`] put them here (apart
 /// from the queues: `None` is not all zeros).
@@ -83,6 +89,12 @@ static HALVES: Mutex<RefCell<Option<(CanTx<'static>, CanRx<'static>)>>> =
     Mutex::new(RefCell::new(None));
 /// The node task waiting for a received frame.
 static RX_WAKER: AtomicWaker = AtomicWaker::new();
+/// Frames lost before the node read them, since boot; wrapping.
+static LOST: AtomicU32 = AtomicU32::new(0);
+/// The controller states entered since `receive` last looked ([`BUS_OFF`], [`PASSIVE`]).
+static ENTERED: AtomicU8 = AtomicU8::new(0);
+const BUS_OFF: u8 = 1;
+const PASSIVE: u8 = 2;
 /// The node task waiting for room in the transmit queue.
 static TX_WAKER: AtomicWaker = AtomicWaker::new();
 /// FDCAN1_IT0's handler, in place of the driver's `can::IT0InterruptHandler` (whose binding
@@ -112,8 +124,21 @@ impl Handler<FDCAN1_IT0> for Interrupt {
             w.set_tefn(ir.tefn());
             w.set_rfn(0, ir.rfn(0));
             w.set_rfn(1, ir.rfn(1));
+            w.set_rfl(0, ir.rfl(0));
+            w.set_rfl(1, ir.rfl(1));
+            w.set_ep(ir.ep());
             w.set_bo(ir.bo());
         });
+        let fifo_lost = u32::from(ir.rfl(0)) + u32::from(ir.rfl(1));
+        if fifo_lost != 0 {
+            LOST.fetch_add(fifo_lost, Ordering::Relaxed);
+        }
+        let psr = FDCAN1.psr().read();
+        let entered =
+            (u8::from(ir.bo() && psr.bo()) * BUS_OFF) | (u8::from(ir.ep() && psr.ep()) * PASSIVE);
+        if entered != 0 {
+            ENTERED.fetch_or(entered, Ordering::Relaxed);
+        }
         critical_section::with(|cs| {
             if let Some((tx_can, rx_can)) = &mut *HALVES.borrow_ref_mut(cs) {
                 // Halves here: started, automatic recovery on (see above).
@@ -138,12 +163,15 @@ fn serve(
 ) {
     let Queues { rx, tx } = queues;
     let mut cx = Context::from_waker(Waker::noop());
-    if let Some(frame) = tx.front() {
-        // Ready unless the TX FIFO is full (FIFO mode: the driver never aborts a pending frame).
-        if pin!(tx_can.write(frame)).poll(&mut cx).is_ready() {
-            tx.pop_front();
-            TX_WAKER.wake();
-        }
+    // The frame that wins arbitration among ours: the first of the lowest key (`min_by_key`
+    // returns the first of equal minima), into an empty TX FIFO only (3 free elements).
+    let next = tx.iter().enumerate().min_by_key(|(_, (key, _))| *key);
+    if let Some((index, (_, frame))) = next
+        && FDCAN1.txfqs().read().tffl() == 3
+        && pin!(tx_can.write(frame)).poll(&mut cx).is_ready()
+    {
+        tx.remove(index);
+        TX_WAKER.wake();
     }
     let arrived = flagged || FDCAN1.rxfs(0).read().ffl() > 0 || FDCAN1.rxfs(1).read().ffl() > 0;
     if arrived {
@@ -154,8 +182,10 @@ fn serve(
                 Poll::Pending => break,
             };
             let error = received.is_err();
-            // A full queue drops the frame, as the driver's channel did.
-            let _ = rx.push_back(received);
+            // A full queue drops the frame, counted.
+            if rx.push_back(received).is_err() {
+                LOST.fetch_add(1, Ordering::Relaxed);
+            }
             if error {
                 // Bus error states can persist: one report a pass (the driver's rule).
                 break;
@@ -177,12 +207,21 @@ enum Mode {
 pub struct FdcanBus {
     properties: Properties,
     mode: Mode,
+    /// [`LOST`] as last reported.
+    lost_reported: u32,
 }
 
 impl FdcanBus {
     /// Takes a started FDCAN instance: its two halves go to the interrupt.
     pub fn new(can: Can<'static>) -> Self {
         let (tx_can, rx_can, properties) = can.split();
+        // The interrupts the driver leaves off: a frame lost into a full RX FIFO, error-passive
+        // entered (bus-off's it enables itself). All on interrupt line 0 (ILS at reset).
+        FDCAN1.ie().modify(|w| {
+            w.set_rfle(0, true);
+            w.set_rfle(1, true);
+            w.set_epe(true);
+        });
         // Nothing to drop: there were no halves before (forgotten rather than dropped, whose
         // code, the driver's reference counts, took 92 bytes of flash).
         critical_section::with(|cs| {
@@ -191,16 +230,31 @@ impl FdcanBus {
         FdcanBus {
             properties,
             mode: Mode::Active,
+            lost_reported: 0,
         }
     }
 
-    /// The controller state's change since the last report, as the error to report; `None` if
-    /// it did not change.
+    /// What to report before the next frame: frames lost since the last report, else the
+    /// controller state's change (a state entered since, first); `None` if nothing changed.
     fn state_change(&mut self) -> Option<BusError> {
-        let mode = match self.properties.bus_error_mode() {
-            BusErrorMode::ErrorActive => Mode::Active,
-            BusErrorMode::ErrorPassive => Mode::Passive,
-            BusErrorMode::BusOff => Mode::Off,
+        let lost = LOST.load(Ordering::Relaxed);
+        if lost != self.lost_reported {
+            let count = lost.wrapping_sub(self.lost_reported);
+            self.lost_reported = lost;
+            return Some(BusError::Dropped(count));
+        }
+        // A state entered since the last look goes first, even if the controller has left it.
+        let entered = ENTERED.swap(0, Ordering::Relaxed);
+        let mode = if entered & BUS_OFF != 0 {
+            Mode::Off
+        } else if entered & PASSIVE != 0 && self.mode == Mode::Active {
+            Mode::Passive
+        } else {
+            match self.properties.bus_error_mode() {
+                BusErrorMode::ErrorActive => Mode::Active,
+                BusErrorMode::ErrorPassive => Mode::Passive,
+                BusErrorMode::BusOff => Mode::Off,
+            }
         };
         if mode == self.mode {
             return None;
@@ -253,9 +307,10 @@ impl CanBus for FdcanBus {
         };
         // Queued once there is room (cancel-safe: a frame is queued in the poll that returns),
         // then the interrupt raised to feed it to the controller.
+        let key = frame.arbitration_rank();
         let queued = poll_fn(|cx| {
             TX_WAKER.register(cx.waker());
-            match critical_section::with(|cs| QUEUES.borrow_ref_mut(cs).tx.push_back(outgoing)) {
+            match critical_section::with(|cs| QUEUES.borrow_ref_mut(cs).tx.push((key, outgoing))) {
                 Ok(()) => Poll::Ready(()),
                 Err(_) => Poll::Pending,
             }

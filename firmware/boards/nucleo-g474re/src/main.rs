@@ -7,13 +7,15 @@
 //!   standard and extended frame (data and remote) accepted into RX FIFO 0, through
 //!   [`fdcan_bus::FdcanBus`]. The FDCAN kernel clock is the 24 MHz crystal (HSE), so the bit
 //!   timing is exact and independent of the system clock (170 MHz from the PLL).
-//! - **Table store**: the top 48 KiB of flash ([`STORE_RANGE`]), a ring of four 12 KiB slots
-//!   (`pab-storage`).
-//! - **Key**: the 4 KiB page at [`KEY_PAGE`] (0x0807_1000), written with `pabctl keypage` and
+//! - **Flash**: in dual-bank mode, the chip's factory setting (no option byte to change): the
+//!   program in bank 1, everything the firmware writes in bank 2, whose page erases run in the
+//!   background while the node reads frames ([`bank_flash`]).
+//! - **Table store**: the top 40 KiB of bank 2 ([`STORE_RANGE`]), a ring of four 10 KiB slots
+//!   (`pab-storage`), saved in steps between frames.
+//! - **Key**: the 2 KiB page at [`KEY_PAGE`] (0x0807_4800), written with `pabctl keypage` and
 //!   probe-rs (README, "Keys"): erased = no key, a valid record = keyed, anything else = no
 //!   configuration accepted; boots counted in the two pages of [`BOOT_COUNTER_RANGE`] for the
-//!   challenges' boot salt ([`pab_app::key_from_page`]). `memory.x` ends the program's FLASH
-//!   region where the key page starts.
+//!   challenges' boot salt ([`pab_app::key_from_page`]).
 //! - **Node id**: [`NODE_ID`], compiled in from the `PAB_NODE_ID` environment variable
 //!   (default 1): `PAB_NODE_ID=2 cargo fw-g474`. An invalid value is a compile error.
 //! - **LED**: LD2 (PA5) blinks at about 1 Hz while the node loop turns (set as it feeds the
@@ -29,12 +31,13 @@
 //!
 //! Built with the workspace's `firmware` profile (fat LTO, one codegen unit, opt-level "s": the
 //! root `Cargo.toml` says why). Build and flash: `cargo run --profile firmware -p pab-fw-g474
-//! --target thumbv7em-none-eabihf` (the root `.cargo/config.toml` sets probe-rs as the runner). The chip must be in single-bank mode
-//! (option bit DBANK = 0); see the README's "Boards" section.
+//! --target thumbv7em-none-eabihf` (the root `.cargo/config.toml` sets probe-rs as the runner).
+//! Not run on hardware yet.
 
 #![no_std]
 #![no_main]
 
+mod bank_flash;
 mod consumer;
 mod fdcan_bus;
 
@@ -57,12 +60,13 @@ use embassy_stm32::peripherals::IWDG;
 use embassy_stm32::time::Hertz;
 use embassy_stm32::{bind_interrupts, rcc};
 use embedded_storage::nor_flash::ReadNorFlash;
-use pab_storage::{Blocking, BootCounter, FlashStore};
+use pab_storage::{BootCounter, FlashStore};
 
 // The boards' memcpy, memset, memcmp and 64-bit division (firmware/builtins): 2.5 KB less flash
 // than compiler_builtins'.
 use pab_builtins as _;
 
+use bank_flash::BankFlash;
 use consumer::BoardConsumer;
 use fdcan_bus::FdcanBus;
 
@@ -91,38 +95,46 @@ const _: () = assert!(
     "BITRATE must divide 24 MHz / 16 (e.g. 125, 250 or 500 kbit/s); 1 Mbit/s needs 12 or 24 quanta"
 );
 
-/// The table store: offsets from the flash base (0x0800_0000) as the flash driver counts them,
-/// so 0x0807_4000..0x0808_0000, the top 48 KiB. `memory.x` ends FLASH at 0x0807_4000 (464 KiB).
-pub const STORE_RANGE: Range<u32> = 0x7_4000..0x8_0000;
-/// A ring of four slots of 12 KiB (3 pages) each: every slot holds its 24-byte header and any
+/// Bank 2's first byte, as an offset from the flash base (0x0800_0000) as the flash driver counts
+/// them: the chip in dual-bank mode (its factory setting), two banks of 256 KiB. The program runs
+/// from bank 1 (`memory.x` gives it 256 KiB); everything the firmware writes lives in bank 2, so
+/// that no erase or program stalls the CPU ([`bank_flash`]).
+pub const BANK2: u32 = 0x4_0000;
+/// Erase page of the G474's flash in dual-bank mode.
+pub const PAGE: u32 = 2048;
+
+/// The table store: 0x0807_6000..0x0808_0000, the top 40 KiB of bank 2.
+pub const STORE_RANGE: Range<u32> = 0x7_6000..0x8_0000;
+/// A ring of four slots of 10 KiB (5 pages) each: every slot holds its 24-byte header and any
 /// image the node's 8 KiB transfer buffer can receive; each page is erased once per four saves.
-pub const STORE_SLOT_SIZE: u32 = 12 * 1024;
+pub const STORE_SLOT_SIZE: u32 = 10 * 1024;
 const _: () = assert!(
     STORE_SLOT_SIZE as usize >= 8192 + pab_storage::SLOT_HEADER_LEN
-        && (STORE_RANGE.end - STORE_RANGE.start).is_multiple_of(STORE_SLOT_SIZE),
+        && (STORE_RANGE.end - STORE_RANGE.start).is_multiple_of(STORE_SLOT_SIZE)
+        && STORE_SLOT_SIZE.is_multiple_of(PAGE),
     "a slot must hold the largest image plus its header, and the range whole slots"
 );
 
-/// The key page: one 4 KiB page (offset from the flash base, so 0x0807_1000..0x0807_2000) that
-/// holds nothing but the key record (`pabctl keypage`), so that writing it (probe-rs erases the
-/// whole page) touches nothing else. `memory.x` ends FLASH at 0x0807_1000 (452 KiB).
-pub const KEY_PAGE: u32 = 0x7_1000;
-/// The boot counter: two 4 KiB pages (0x0807_2000..0x0807_4000), right below the table store.
-/// One 16-byte record per keyed boot, each page erased once per 512 boots.
-pub const BOOT_COUNTER_RANGE: Range<u32> = 0x7_2000..0x7_4000;
-/// Erase page of the G474's flash in single-bank mode.
-const PAGE: u32 = 4096;
+/// The key page: one 2 KiB page (0x0807_4800..0x0807_5000) that holds nothing but the key record
+/// (`pabctl keypage`), so that writing it (probe-rs erases the whole page) touches nothing else.
+pub const KEY_PAGE: u32 = 0x7_4800;
+/// The boot counter: two 2 KiB pages (0x0807_5000..0x0807_6000), between the key page and the
+/// table store. One 16-byte record per keyed boot, each page erased once per 256 boots.
+pub const BOOT_COUNTER_RANGE: Range<u32> = 0x7_5000..0x7_6000;
 const _: () = assert!(
-    KEY_PAGE.is_multiple_of(PAGE)
+    KEY_PAGE >= BANK2
+        && KEY_PAGE.is_multiple_of(PAGE)
         && KEY_PAGE + PAGE == BOOT_COUNTER_RANGE.start
         && BOOT_COUNTER_RANGE.end - BOOT_COUNTER_RANGE.start == 2 * PAGE
-        && BOOT_COUNTER_RANGE.end == STORE_RANGE.start,
-    "key page, boot counter and table store follow each other, page-aligned"
+        && BOOT_COUNTER_RANGE.end == STORE_RANGE.start
+        && STORE_RANGE.end == 2 * BANK2,
+    "key page, boot counter and table store follow each other, page-aligned, at the top of bank 2"
 );
 
 /// The IWDG's timeout, µs: a node loop that has not turned for this long resets the chip. Well
-/// above the loop's longest step (a table save: three 4 KiB page erases, up to 40 ms each by the
-/// datasheet, and 8 KiB of programming) and the LSI's tolerance (the timeout can be shorter by
+/// above the loop's longest step (a step of a table save: a 128-byte program, about a
+/// millisecond; the page erases run in the background) and the boot's (the boot counter's page
+/// erase, up to 40 ms by the datasheet), and the LSI's tolerance (the timeout can be shorter by
 /// some 10 % on a fast LSI).
 pub const WATCHDOG_TIMEOUT_US: u32 = 500_000;
 /// How often the node loop feeds the IWDG at the latest, µs.
@@ -152,6 +164,12 @@ impl Iwdg {
     /// Starts the IWDG with a timeout of [`WATCHDOG_TIMEOUT_US`]; once started, nothing but a
     /// reset stops it.
     fn start(iwdg: Peri<'static, IWDG>) -> Self {
+        // Frozen while a debugger halts the core (DBGMCU_APB1FZR1.DBG_IWDG_STOP, reset only by a
+        // power-on): a breakpoint would otherwise reset the board within the timeout. Without a
+        // debugger the bit changes nothing.
+        embassy_stm32::pac::DBGMCU
+            .apb1lfzr()
+            .modify(|w| w.set_iwdg(true));
         let regs = embassy_stm32::pac::IWDG;
         // The ENABLE key unlocks the prescaler and reload registers.
         regs.kr().write(|w| w.set_key(Key::ENABLE));
@@ -241,6 +259,10 @@ async fn main(_spawner: Spawner) {
     );
 
     let led = Output::new(p.PA5, Level::Low, Speed::Low);
+    // Before the CAN controller joins the bus: embassy stops here if the chip's banks are not
+    // what the build expects (DBANK cleared by someone), and a board that stops must not be
+    // acknowledging others' frames meanwhile.
+    let mut flash = BankFlash::new(Flash::new_blocking(p.FLASH));
 
     let mut can = CanConfigurator::new(p.FDCAN1, p.PA11, p.PA12, Irqs);
     let config = can
@@ -252,7 +274,9 @@ async fn main(_spawner: Spawner) {
             sync_jump_width: unwrap!(NonZeroU8::new(SJW)),
         })
         .set_frame_transmit(FrameTransmissionConfig::ClassicCanOnly)
-        // Frames leave in the order they were queued (ISO-TP), none is ever aborted.
+        // FIFO mode, fed one frame at a time from a queue ordered by priority (`fdcan_bus`):
+        // frames of equal identifier leave in the order they were queued (ISO-TP), none is ever
+        // aborted.
         .set_tx_buffer_mode(TxBufferMode::Fifo)
         .set_global_filter(
             GlobalFilter::default()
@@ -266,7 +290,6 @@ async fn main(_spawner: Spawner) {
     can.set_config(config);
     let mut bus = FdcanBus::new(can.start(OperatingMode::NormalOperationMode));
 
-    let mut flash = Flash::new_blocking(p.FLASH);
     let config = unwrap!(pab_app::Config::new(NODE_ID));
     // Built in place in the task's future (40 KiB with the schema server; this task's stack
     // frame is some 400 bytes). It must stay so: the node loop runs in this frame, so a node
@@ -281,8 +304,7 @@ async fn main(_spawner: Spawner) {
     pab_app::key_from_page(&mut node, page, || {
         BootCounter::new(&mut flash, BOOT_COUNTER_RANGE)?.increment()
     });
-    // Single bank: an erase stalls the CPU whatever the driver does, so it completes in its step.
-    let mut store = unwrap!(FlashStore::new(Blocking(flash), STORE_RANGE, STORE_SLOT_SIZE));
+    let mut store = unwrap!(FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE));
     // Started last before the node loop: from here on, only the loop feeds it.
     let watchdog = Iwdg::start(p.IWDG);
     // The node loop runs in this task rather than in one of its own: spawning one (its pool, the
@@ -331,7 +353,7 @@ fn clocks() -> embassy_stm32::Config {
 }
 
 /// The flash's double-ECC error (a double word whose programming a power loss cut) raises an NMI.
-/// Inside the table store, the boot counter and the key page that is expected after a power loss
+/// Inside the table store, the boot counter and the key page (bank 2) that is expected after a power loss
 /// during a save, a boot count or the page's writing: clear the flag and return, so the read
 /// completes with bad bytes that the store's CRC, the counter's record check or the key page's
 /// CRC rejects (the store falls back to the other slot, the counter skips the record, the key
@@ -340,8 +362,13 @@ fn clocks() -> embassy_stm32::Config {
 unsafe fn NonMaskableInt() {
     let flash = embassy_stm32::pac::FLASH;
     let eccr = flash.eccr().read();
-    // Single-bank mode: ADDR_ECC is the byte offset of the failing double word in the flash.
-    if eccr.eccd() && (KEY_PAGE..STORE_RANGE.end).contains(&eccr.addr_ecc()) {
+    // Dual-bank mode: ADDR_ECC is the byte offset of the failing double word within its bank,
+    // BK_ECC the bank (set: bank 2). (ECCD2, a second word of a 128-bit line, exists only in
+    // single-bank mode.)
+    if eccr.eccd()
+        && eccr.bk_ecc()
+        && (KEY_PAGE - BANK2..STORE_RANGE.end - BANK2).contains(&eccr.addr_ecc())
+    {
         // ECCD is write-1-to-clear; writing 0 to the other bits leaves ECCC alone and keeps the
         // ECC-correction interrupt disabled (its reset state, which embassy does not change).
         flash.eccr().write(|w| w.set_eccd(true));
