@@ -31,13 +31,19 @@ from pab_hil.observe import Recorder
 
 ARM = NODE_IDS["arm"]
 # The load: cangen bursts every GAP_MS, BOARD_BURST frames of BOARD_ID (routed to the board)
-# and OTHER_BURST of OTHER_ID (not routed): 2 000 frames a second, 333 of them the board's.
+# and OTHER_BURST of OTHER_ID (not routed): 3 000 frames a second asked, 333 of them the
+# board's. cangen's pauses run long under software emulation (it reached three quarters of the
+# rate asked in the micro-VM), so the bus carries some 2 000 a second there; the rate the bus
+# log shows is a figure of the test (`load_frames_per_s`) and a bound (LOAD_FPS at least, on the
+# reference machine).
 GAP_MS = 3
 BOARD_ID, BOARD_BURST = 0x123, 1
-OTHER_ID, OTHER_BURST = 0x7F0, 5
-LOAD_FPS = 1000 * (BOARD_BURST + OTHER_BURST) / GAP_MS
-# s of load before the push and after its answer.
+OTHER_ID, OTHER_BURST = 0x7F0, 8
+LOAD_FPS = 2000
+# s of load before the first push and after the last answer.
 SETTLE_S = 1.0
+# Tables saved under load, one after the other (the node saves at most once a second).
+SAVES = 5
 
 
 def cangen(iface: str, ident: int, burst: int) -> subprocess.Popen:
@@ -49,9 +55,9 @@ def cangen(iface: str, ident: int, burst: int) -> subprocess.Popen:
 
 
 def save_under_load(iface: str, out_dir, elf, bound) -> dict:
-    """Boots the board with `elf`, pushes version 1, starts the load, pushes version 2 (stored
-    under load: `pabctl push` reports it Applied only once stored), and returns what the bus and
-    the board said."""
+    """Boots the board with `elf`, pushes version 1, starts the load, pushes versions 2 to
+    1 + SAVES (each stored under load: `pabctl push` reports a table Applied only once stored),
+    and returns what the bus and the board said."""
     if shutil.which("cangen") is None:
         pytest.fail("cangen is missing (Debian: apt-get install can-utils)")
     routes = (f"{BOARD_ID:03X}:C00007FF",
@@ -70,10 +76,13 @@ def save_under_load(iface: str, out_dir, elf, bound) -> dict:
         load = [cangen(iface, BOARD_ID, BOARD_BURST), cangen(iface, OTHER_ID, OTHER_BURST)]
         time.sleep(SETTLE_S)
         pushed_at = time.time()
-        second = nodes.push(TAKE_AND_RETURN, iface, node="arm", table_version=2)
+        # SAVES tables, each stored under load (a page erase and two chunks each: the table is
+        # 190 bytes); each push returns once its table is stored.
+        for version in range(2, 2 + SAVES):
+            pushed = nodes.push(TAKE_AND_RETURN, iface, node="arm", table_version=version)
+            assert pushed.ok, pushed.output
+            nodes.pushed_within_budget(bound, pushed)
         answered_at = time.time()
-        assert second.ok, second.output
-        nodes.pushed_within_budget(bound, second)
         time.sleep(SETTLE_S)
         load_end = time.time()
     finally:
@@ -101,7 +110,8 @@ def save_under_load(iface: str, out_dir, elf, bound) -> dict:
         "board_frames": sum(1 for m in loaded if m.arbitration_id == BOARD_ID),
         "frames_lost_by_the_board": lost,
         "line_losses": arm.line_losses(),
-        "push_to_applied_s": answered_at - pushed_at,
+        "saves": SAVES,
+        "pushes_to_last_applied_s": answered_at - pushed_at,
         "load_s": load_end - pushed_at + SETTLE_S,
     }
 
@@ -113,7 +123,7 @@ def test_a_table_saved_under_load_loses_no_frame_on_the_dual_bank_layout(iface, 
     # The load the test claims: the rate cangen reached, as the bus recorded it (a loaded machine
     # sends more slowly; the frames to the board during the save are what matter, and they are
     # counted).
-    bound("the load on the bus", found["load_frames_per_s"], least=LOAD_FPS / 2 / machine.factor,
+    bound("the load on the bus", found["load_frames_per_s"], least=LOAD_FPS / machine.factor,
           unit="frames/s", detail=found)
     assert found["line_losses"] == 0, found
     assert found["frames_lost_by_the_board"] == 0, found
@@ -123,9 +133,10 @@ def test_the_same_save_on_the_single_bank_layout_loses_frames(iface, out_dir, bo
                                                                figures):
     found = save_under_load(iface, out_dir, board.single_bank_firmware(), bound)
     figures("save-under-load-single-bank", found)
-    bound("the load on the bus", found["load_frames_per_s"], least=LOAD_FPS / 2 / machine.factor,
+    bound("the load on the bus", found["load_frames_per_s"], least=LOAD_FPS / machine.factor,
           unit="frames/s", detail=found)
     assert found["line_losses"] == 0, found
-    # A page erase stalls the CPU for 22 ms: some seven of the board's frames arrive, three fit
-    # the controller's FIFO.
+    # Each save's page erase stalls the CPU for 22 ms, in which some six of the board's frames
+    # arrive on the bus and three fit the controller's FIFO (fewer reach the emulated board within
+    # the stall: its serial line is slower than the bus).
     assert found["frames_lost_by_the_board"] > 0, found

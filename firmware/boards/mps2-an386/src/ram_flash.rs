@@ -133,6 +133,10 @@ impl RamFlash {
             let mut fifo = crate::uart::StallFifo::default();
             while pab_app::now().as_micros() < end {
                 crate::uart::stalled_receive(cs, &mut fifo);
+                // A pause without device accesses: under QEMU every access to a device takes
+                // the emulator's global lock, and a loop of nothing but accesses kept QEMU's
+                // main loop, which hands over the serial line's bytes, from getting it.
+                cortex_m::asm::delay(2_000);
             }
         });
         #[cfg(not(feature = "single-bank"))]
