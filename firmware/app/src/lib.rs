@@ -59,7 +59,7 @@ pub use fmt::log;
 pub use keying::{BOOT_COUNTER_FAILED, Keying, key_from_page};
 pub use node::{Counters, Node, Running, Step};
 pub use pab_storage::{SaveProgress, StoreError, TableStore};
-pub use runner::{SAVE_POLL_US, SAVE_STARVED_US, Watchdog, now, run, run_watched};
+pub use runner::{SAVE_POLL_US, SAVE_STARVED_US, SENDS_PER_TURN, Watchdog, now, run, run_watched};
 
 /// Re-exported so runners name one store trait.
 pub mod store {

@@ -43,17 +43,26 @@ impl Watchdog for () {
 /// background, µs: a twentieth of the G474's typical erase (22 ms), and long enough that the checks
 /// cost nothing measurable.
 pub const SAVE_POLL_US: u64 = 1_000;
-/// The longest a save waits for its next step while frames keep the loop busy, µs: a step is
-/// taken after a frame once this has passed, so that a saturated bus delays a save but never
-/// starves it.
+/// The longest a save waits for its next step while frames keep the loop busy, µs: from then on a
+/// step is taken after every frame until the bus falls quiet, so that a saturated bus delays a
+/// save but never starves it.
 pub const SAVE_STARVED_US: u64 = 20_000;
+
+/// The most frames the loop hands the bus per turn. On a bus where nobody acknowledges, a send
+/// takes the driver's whole timeout (10 ms on the G474) and fails, and each failure is a duty
+/// point at which the node may queue more (a fault, the diagnostic stream's samples): a loop that
+/// sent until the outbox was empty could send forever and never feed the watchdog again. 16
+/// failed sends are 160 ms, well within the G474's 500 ms timeout; frames left over go out next
+/// turn.
+pub const SENDS_PER_TURN: usize = 16;
 
 /// Boots `node` from `store`, then runs it forever: reads frames, arbitrates, answers, stores new
 /// tables, sends what the node has to send, and wakes at the node's deadlines.
 ///
 /// A new table is stored in steps ([`TableStore::continue_save`]), taken when no frame is waiting
-/// (or at least every [`SAVE_STARVED_US`]): a step programs one small chunk (about a millisecond
-/// on the G474) or starts or checks a page erase that runs in the background, so the node goes on
+/// (or, once a save has waited [`SAVE_STARVED_US`], after every frame): a step programs one small
+/// chunk (less than a frame's time on the bus) or starts or checks a page erase that runs in the
+/// background, so the node goes on
 /// reading, arbitrating and sending while the table is written; the driver's receive queue holds
 /// what arrives during a step. The node refuses transfers until the save is done (its image
 /// stays in the transfer buffer) and rate-limits saves ([`crate::Config::store_interval_us`]): a
@@ -109,13 +118,18 @@ where
     let mut save_due: Option<u64> = None;
     loop {
         watchdog.feed();
-        while let Some(frame) = node.next_outgoing() {
+        for _ in 0..SENDS_PER_TURN {
+            let Some(frame) = node.next_outgoing() else {
+                break;
+            };
             if bus.transmit(&frame).await.is_err() {
                 node.on_transmit_error(now());
             }
         }
         // One reading of the clock for all: the node's deadline, the next feed, the save's step.
         let now_at = now();
+        // Frames left after a full turn of sends (a failing bus only: a working one takes the
+        // outbox's 16 in one turn) go at the node's next duty point or frame.
         let deadline = node.deadline(now_at).as_micros();
         let feed = now_at.as_micros().saturating_add(W::FEED_INTERVAL_US);
         let wake = deadline.min(feed).min(save_due.unwrap_or(u64::MAX));
@@ -124,11 +138,14 @@ where
         let step = match select(bus.receive(), Timer::at(wake)).await {
             Either::First(Ok(frame)) => {
                 let step = node.on_frame(&frame, now(), consumer);
-                // A save that has waited SAVE_STARVED_US for the bus to fall quiet steps anyway.
+                // A save that has waited SAVE_STARVED_US for the bus to fall quiet steps anyway,
+                // then after every frame until it ends (`save_step` keeps its due time): a step
+                // is shorter than a frame, so a saturated bus neither starves the save nor
+                // outruns the node.
                 if let Some(due) = save_due
                     && now().as_micros() >= due.saturating_add(SAVE_STARVED_US)
                 {
-                    save_due = save_step(node, store, now());
+                    save_due = save_step(node, store, now(), due);
                 }
                 step
             }
@@ -148,8 +165,10 @@ where
             }
             Either::Second(()) => {
                 let at = now();
-                if save_due.is_some_and(|due| at.as_micros() >= due) {
-                    save_due = save_step(node, store, at);
+                if let Some(due) = save_due
+                    && at.as_micros() >= due
+                {
+                    save_due = save_step(node, store, at, due);
                 }
                 node.poll(now(), consumer)
             }
@@ -164,8 +183,10 @@ where
     }
 }
 
-/// One step of the save in progress; when the next is due (`None` once the save has ended, and
-/// the node told how).
+/// One step of the save in progress, which was due at `due`; when the next is due (`None` once
+/// the save has ended, and the node told how). A step that leaves more ready keeps `due`: the
+/// next is due at once, and a save that has waited [`SAVE_STARVED_US`] for the bus to fall quiet
+/// stays that late, so that it steps after every frame until it ends.
 // Out of line: two callers, and one call site in the loop's future (the step's flag computed in
 // both branches, the call after them) took 36 bytes more of the emulated board's flash.
 #[inline(never)]
@@ -173,11 +194,12 @@ fn save_step<S: TableStore, const P: usize, const C: usize, const N: usize, cons
     node: &mut Node<P, C, N, IMG>,
     store: &mut S,
     now: Instant,
+    due: u64,
 ) -> Option<u64> {
     let at = now.as_micros();
     // One call of `stored` for both ends: two took 64 bytes more of the NUCLEO-G474RE's flash.
     let ok = match store.continue_save(node.image_to_store()) {
-        Ok(SaveProgress::Ready) => return Some(at),
+        Ok(SaveProgress::Ready) => return Some(due),
         Ok(SaveProgress::Erasing) => return Some(at.saturating_add(SAVE_POLL_US)),
         Ok(SaveProgress::Done) => true,
         Err(_) => false,

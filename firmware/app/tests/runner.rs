@@ -343,3 +343,95 @@ fn a_store_that_cannot_be_read_raises_the_stored_table_fault() {
     });
     assert_eq!(node.state(), protocol::NodeState::NoTable);
 }
+
+/// A bus where nobody acknowledges: each send takes the G474 driver's 10 ms timeout and fails;
+/// the only frame it ever brings is `first` (the tool's request for the diagnostic stream), then
+/// nothing. It counts the sends.
+struct DeadBus {
+    first: Option<Frame>,
+    sends: std::rc::Rc<std::cell::Cell<usize>>,
+}
+
+impl CanBus for DeadBus {
+    async fn receive(&mut self) -> Result<Frame, BusError> {
+        match self.first.take() {
+            Some(frame) => Ok(frame),
+            None => std::future::pending().await,
+        }
+    }
+
+    async fn transmit(&mut self, _frame: &Frame) -> Result<(), BusError> {
+        embassy_time::Timer::after(embassy_time::Duration::from_millis(10)).await;
+        self.sends.set(self.sends.get() + 1);
+        Err(BusError::Overrun)
+    }
+}
+
+/// A watchdog that notes how many sends the bus had seen at each feed.
+struct CountingWatchdog {
+    sends: std::rc::Rc<std::cell::Cell<usize>>,
+    at_feeds: Vec<usize>,
+}
+
+impl pab_app::Watchdog for CountingWatchdog {
+    const FEED_INTERVAL_US: u64 = 100_000;
+    fn feed(&mut self) {
+        self.at_feeds.push(self.sends.get());
+    }
+}
+
+#[test]
+fn a_dead_bus_with_the_diagnostic_stream_on_does_not_starve_the_watchdog() {
+    // A port of 32 connections sampled 200 times a second: 6 400 samples a second queued as the
+    // outbox has room, far more than a dead bus drains (one send per 10 ms). Each failed send is
+    // a point where the node queues more: the loop must still come back to the watchdog.
+    let ids: Vec<u32> = (0..32).map(|k| 0x100 + k).collect();
+    let table = priority_table(&ids, None);
+    let mut store = store(Flash::new());
+    store.save(&image(&table, Harness::NODE_ID, 1)).unwrap();
+    let control = Message::DiagnosticControl(protocol::DiagnosticControl {
+        rate_hz: 200,
+        ports: 1,
+    })
+    .to_frame(protocol::TOOL, Harness::NODE_ID);
+    let sends = std::rc::Rc::new(std::cell::Cell::new(0));
+    let mut bus = DeadBus {
+        first: Some(control),
+        sends: sends.clone(),
+    };
+    let mut watchdog = CountingWatchdog {
+        sends: sends.clone(),
+        at_feeds: Vec::new(),
+    };
+    let mut node = Box::new(TestNode::new(Config::new(Harness::NODE_ID).unwrap(), now()));
+    futures::executor::block_on(async {
+        let window = embassy_time::Timer::after(embassy_time::Duration::from_millis(1_000));
+        match select(
+            pab_app::run_watched(&mut node, &mut bus, &mut store, &mut (), &mut watchdog),
+            window,
+        )
+        .await
+        {
+            Either::First(never) => match never {},
+            Either::Second(()) => {}
+        }
+    });
+    let feeds = &watchdog.at_feeds;
+    // It kept sending (the bus is dead, not the node)...
+    assert!(sends.get() >= 20, "{} sends in 1 s", sends.get());
+    // ...and fed the watchdog all along: counted in sends, not in time, so that a slow machine
+    // cannot make it fail. The G474's watchdog fires after 500 ms, 50 failed sends of 10 ms;
+    // at most half of that between two feeds, and since the last one.
+    const MOST: usize = 25;
+    let most = feeds
+        .windows(2)
+        .map(|pair| pair[1] - pair[0])
+        .max()
+        .unwrap_or(0);
+    assert!(most <= MOST, "{most} sends between two feeds ({feeds:?})");
+    assert!(
+        sends.get() - feeds.last().copied().unwrap_or(0) <= MOST,
+        "{} sends in all, the last feed after {feeds:?}",
+        sends.get()
+    );
+}

@@ -233,10 +233,18 @@ pub enum SaveProgress {
     Done,
 }
 
-/// Bytes programmed per step of a save: 16 of the G474's double words, about 1.3 ms of
-/// programming (82 µs each, datasheet typical), in which a saturated 500 kbit/s bus brings some
-/// six frames, well within what the board's receive queue holds.
-pub const SAVE_CHUNK: usize = 128;
+/// Bytes programmed per step of a save (or one write unit of a flash whose unit is larger): two
+/// of the G474's double words, 164 µs of programming (82 µs each, datasheet typical; 182 µs at
+/// its maximum of 91 µs). That is less than one classic frame's time at 500 kbit/s (at least 222 µs for eight data bytes): a step delays a frame, or a
+/// schema server's tick, by less than a frame delays the next one, so a node that takes a step
+/// after every frame of a saturated bus keeps pace with it. A chunk of 128 bytes (1.3 ms) would
+/// make a 1 kHz server's tick later than its overrun bound (one period late) whenever a step came
+/// just before it.
+pub const SAVE_CHUNK: usize = 16;
+
+// The promise above, in the datasheet's worst case: two double words (91 µs each) within the
+// shortest 8-byte classic frame at 500 kbit/s (111 bits, 2 µs each).
+const _: () = assert!(SAVE_CHUNK / 8 * 91 < 111 * 2);
 
 /// Bytes moved per flash read or write: the stack buffer of `load` and `save`.
 const CHUNK: usize = 256;
@@ -679,12 +687,15 @@ impl<F: BackgroundErase> TableStore for FlashStore<F> {
             }
             Phase::Program { done } => {
                 let rest = image.get(done as usize..).unwrap_or(&[]);
-                let piece = rest.get(..SAVE_CHUNK).unwrap_or(rest);
+                // A chunk is whole write units: a flash that writes more than SAVE_CHUNK bytes
+                // at once gets one unit a step.
+                let chunk = SAVE_CHUNK.next_multiple_of(F::WRITE_SIZE);
+                let piece = rest.get(..chunk).unwrap_or(rest);
                 if piece.is_empty() {
                     (SaveProgress::Ready, Phase::Commit)
                 } else {
                     self.program(image_start.saturating_add(done), piece)?;
-                    let done = done.saturating_add(SAVE_CHUNK as u32);
+                    let done = done.saturating_add(chunk as u32);
                     (SaveProgress::Ready, Phase::Program { done })
                 }
             }
