@@ -51,7 +51,7 @@ pub fn write_new(path: &Path, key: &Key) -> Result<(), String> {
 }
 
 /// The key page record of `key` (32 bytes: magic, format, key, CRC): what a board reads at its
-/// key page's address (README, "Keys").
+/// key page's address (docs/keys.md).
 pub fn page_image(key: &Key) -> [u8; page::LEN] {
     page::encode(key)
 }

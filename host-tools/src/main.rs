@@ -44,8 +44,8 @@ A network file (TOML) declares [nodes.NAME] (id), [topics.NAME] (can_id, extende
 [ports.\"NODE.PORT\"], [connections.NAME] (topic, port, st, tc, tr, rule) and, for simulation, \
 [[events]] (topic with rate_hz/from/to or at = [...]) and [[phases]] (name, from, to), and for \
 HBBA's intention solver [hbba] (resources, bitrate), [hbba.strategies.NAME] (class, utility, \
-costs, filters, requires) and, for simulation, [[desires]] (class, intensity, from, to). See the \
-README for the full reference.
+costs, filters, requires) and, for simulation, [[desires]] (class, intensity, from, to). See \
+docs/network-file.md for the full reference.
 
 Exit status: 0 success; 1 the rules are inconsistent; 2 the input cannot be read or is invalid; \
 3 an output cannot be written; 4 the bus cannot be used or a node refused or did not answer.";
@@ -249,7 +249,7 @@ capture must not replace them halfway. Frames that no topic of NET matches are l
 simulation's scenario).
 --records writes every verdict exactly, one line per frame and port it fed (masks in hex, levels \
 as raw Q1.31 integers): the record that the cross-runner test compares between the simulator, \
-the Linux node and the board firmware (see the README, \"Replay records\").
+the Linux node and the board firmware (see docs/pabctl.md, \"Replay records\").
 --board-job writes the tables and the frames replayed for pab-an386-replay, the same replay on \
 the emulated Cortex-M4 (QEMU mps2-an386), which writes the same records:
   pabctl replay NET.toml CAPTURE.log --records sim.txt --board-job job.bin
@@ -416,7 +416,7 @@ file can configure the node.")]
     /// Write a board's key page image from a key file.
     #[command(long_about = "\
 Write the 32-byte key page record of KEYFILE (magic PABK, format 1, the key, CRC-32) to \
-FILE.bin, to be written at the board's key page address (README, \"Keys\": probe-rs download \
+FILE.bin, to be written at the board's key page address (docs/keys.md: probe-rs download \
 --binary-format bin --base-address ...).")]
     Keypage {
         /// The key file (`pabctl keygen`).
@@ -534,6 +534,13 @@ impl From<Diagnostics> for Failure {
     fn from(diagnostics: Diagnostics) -> Self {
         Failure::Input(diagnostics)
     }
+}
+
+/// Whether diagnostics get colour: on a terminal only, and never with `NO_COLOR` set
+/// (no-color.org), so that logs and pipes get plain text.
+fn colour() -> bool {
+    use std::io::IsTerminal;
+    std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").is_none()
 }
 
 fn main() -> ExitCode {
@@ -657,7 +664,7 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(Failure::Inconsistent(errors)) => {
             for error in &errors {
-                eprintln!("{error}");
+                eprintln!("{}\n", error.render(colour()));
             }
             eprintln!(
                 "the rules are inconsistent: {} error{}",
@@ -667,7 +674,10 @@ fn main() -> ExitCode {
             ExitCode::from(1)
         }
         Err(Failure::Input(diagnostics)) => {
-            eprintln!("{diagnostics}");
+            eprintln!("{}", diagnostics.render(colour()));
+            if diagnostics.0.len() > 1 {
+                eprintln!("\n{} errors", diagnostics.0.len());
+            }
             ExitCode::from(2)
         }
         Err(Failure::Output(message)) => {
@@ -885,9 +895,11 @@ fn run_check(path: &Path) -> Result<(), Failure> {
     let network = Network::load(path)?;
     let report = check::check(&network);
     // Warnings (competitive dynamics that cannot behave as written) fail nothing.
-    let warnings = check::dynamics::warnings(&network);
+    let mut warnings = check::connections::warnings(&network);
+    warnings.extend(check::dynamics::warnings(&network));
+    warnings.sort_by_key(|warning| warning.0.position);
     for warning in &warnings {
-        eprintln!("{warning}");
+        eprintln!("{}\n", warning.render(colour()));
     }
     if !warnings.is_empty() {
         eprintln!("{} warning{}", warnings.len(), plural(warnings.len()));
@@ -1501,7 +1513,7 @@ fn run_solve(path: &Path, desires: &str, json: bool) -> Result<(), Failure> {
     let input = |message: String| Failure::Input(Diagnostic::file(path, message).into());
     let Some(hbba) = &network.hbba else {
         return Err(input(
-            "no [hbba] section: `solve` needs resources and strategies (README, \"The network file\")"
+            "no [hbba] section: `solve` needs resources and strategies (docs/network-file.md)"
                 .into(),
         ));
     };

@@ -192,7 +192,7 @@ pub fn nodes_table(observer: &Observer, names: &BTreeMap<u8, String>, now: Insta
             let _ = writeln!(
                 out,
                 "warning: node {id}{name} has no key: it accepts configuration from anyone on the \
-                 bus (README, \"Keys\": pabctl keygen, pab-node --key, the board's key page)"
+                 bus (docs/keys.md: pabctl keygen, pab-node --key, the board's key page)"
             );
         }
     }

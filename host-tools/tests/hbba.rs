@@ -221,15 +221,15 @@ fn every_mistake_is_reported_at_its_line() {
                 "[hbba.strategies.c_low]",
                 "[hbba.strategies.c_low]\nflavour = 1",
             ),
-            "net.toml:31:1: error: unknown field `flavour`",
+            "net.toml:31:1: error: unknown key `flavour`",
         ),
         (
             base.replace("resources = {", "resource = {"),
-            "unknown field `resource`",
+            "unknown key `resource`",
         ),
         (
             base.replace("rate_hz = 30.0", "rate = 30.0"),
-            "net.toml:5:1: error: unknown field `rate`",
+            "net.toml:5:1: error: unknown key `rate`",
         ),
         (
             base.replace("[nodes.b]\nid = 1", "[nodes.b]\nid = 126"),

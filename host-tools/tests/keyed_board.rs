@@ -1,6 +1,6 @@
 //! A keyed emulated board, end to end: the firmware (`pab-fw-an386`) in QEMU's `mps2-an386` with
 //! a key page made by `pabctl keygen` and `pabctl keypage`, planted by QEMU's loader as the
-//! README says, talked to over its SLCAN serial line with pabctl's own push code:
+//! docs/keys.md says, talked to over its SLCAN serial line with pabctl's own push code:
 //!
 //! - its TableStatus says keyed;
 //! - a plain DiagnosticControl and a plain push are refused (`Unauthenticated` fault, no

@@ -126,7 +126,12 @@ fn every_malformed_line_is_reported_with_its_place_and_nothing_is_written() {
             "missing {expected:?} in:\n{stderr}"
         );
     }
-    assert_eq!(stderr.lines().count(), 4, "{stderr}");
+    assert_eq!(
+        stderr.lines().filter(|l| l.contains(": error: ")).count(),
+        4,
+        "{stderr}"
+    );
+    assert!(stderr.ends_with("\n4 errors\n"), "{stderr}");
     assert!(output.stdout.is_empty());
     assert!(!trace.exists());
 }

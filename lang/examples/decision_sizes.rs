@@ -1,4 +1,4 @@
-//! Measures the two candidate representations of a port's decision, for the README:
+//! Measures the two candidate representations of a port's decision, for docs/figures.md:
 //!
 //! - one multi-terminal decision diagram per port (what the tables hold): mask -> winner;
 //! - one BDD per connection for D_i = x_i & rule_i, evaluated for the frame's connection only.

@@ -130,11 +130,7 @@ pub fn parse(
             reported = read_so_far;
             progress(read_so_far);
         }
-        let at = |column: usize, message: String| Diagnostic {
-            path: path.to_path_buf(),
-            position: Some((number, column)),
-            message,
-        };
+        let at = |column: usize, message: String| Diagnostic::at(path, number, column, message);
         let Ok(text) = std::str::from_utf8(&bytes) else {
             errors.push(at(1, "not text (invalid UTF-8)".into()));
             continue;

@@ -20,6 +20,8 @@
 
 use std::fmt::Write as _;
 
+/// Warnings about connections and the network as a whole (`pabctl check` prints them).
+pub mod connections;
 /// Warnings about `[dynamics.*]` groups (`pabctl check` prints them; they fail nothing).
 pub mod dynamics;
 

@@ -34,6 +34,7 @@ mod dynamics;
 mod gates;
 mod hbba;
 mod schema;
+mod structure;
 
 pub use ble::{BleGroup, BleMember};
 pub use dynamics::{Context, DynamicsBehaviour, DynamicsGroup, WrittenBehaviour, WrittenExclusion};
@@ -105,16 +106,14 @@ struct RawFault {
 #[serde(deny_unknown_fields)]
 struct RawMeta {
     version: Option<Spanned<i64>>,
-    #[allow(dead_code)]
-    description: Option<String>,
+    description: Option<Spanned<String>>,
 }
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawNode {
     id: Spanned<i64>,
-    #[allow(dead_code)]
-    description: Option<String>,
+    description: Option<Spanned<String>>,
 }
 
 #[derive(Deserialize)]
@@ -125,8 +124,7 @@ struct RawTopic {
     extended: bool,
     mask: Option<Spanned<i64>>,
     rate_hz: Option<Spanned<f64>>,
-    #[allow(dead_code)]
-    description: Option<String>,
+    description: Option<Spanned<String>>,
 }
 
 #[derive(Deserialize)]
@@ -136,8 +134,6 @@ struct RawPort {
     combine: Option<Spanned<String>>,
     value: Option<Spanned<RawField>>,
     priority: Option<Spanned<RawField>>,
-    #[allow(dead_code)]
-    description: Option<String>,
 }
 
 /// `value = { offset = 0, size = 2, signed = false, endian = "little" }` (or `priority = ...`)
@@ -173,8 +169,6 @@ struct RawConnection {
     kind: Option<Spanned<String>>,
     period: Option<Spanned<f64>>,
     inhibits: Option<Spanned<String>>,
-    #[allow(dead_code)]
-    description: Option<String>,
 }
 
 #[derive(Deserialize)]
@@ -208,6 +202,8 @@ pub struct Node {
     pub id: u8,
     /// Its ports, as indices into [`Network::ports`], in file order.
     pub ports: Vec<usize>,
+    /// What the file says it is (`description`): the DBC export's comment on it.
+    pub description: Option<String>,
     /// Where it is defined.
     pub span: Range<usize>,
 }
@@ -224,6 +220,8 @@ pub struct Topic {
     pub rate_hz: Option<f64>,
     /// The same in whole µHz (rounded to nearest).
     pub rate_uhz: Option<u64>,
+    /// What the file says it carries (`description`): the DBC export's comment on its message.
+    pub description: Option<String>,
     /// Where it is defined.
     pub span: Range<usize>,
 }
@@ -248,8 +246,7 @@ pub struct Port {
     pub span: Range<usize>,
 }
 
-/// What a connection does at its port (`kind = "..."` in the file; README, "Ayllu connection
-/// kinds"). Every kind compiles into ordinary connections and rules ([`crate::kinds`]).
+/// What a connection does at its port (`kind = "..."` in the file; docs/ayllu.md). Every kind compiles into ordinary connections and rules ([`crate::kinds`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kind {
     /// Delivers by its own rule: today's connections (the default).
@@ -276,7 +273,7 @@ pub enum Kind {
 }
 
 impl Kind {
-    /// Every kind, in the order the README lists them.
+    /// Every kind, in the order docs/ayllu.md lists them.
     pub const ALL: [Kind; 5] = [
         Kind::Normal,
         Kind::Suppress,
@@ -460,6 +457,9 @@ pub struct Network {
     pub source: Source,
     /// The version its tables get (`[network] version`, default 1).
     pub version: u32,
+    /// What the file says the network is (`[network] description`): the DBC export's comment on
+    /// the whole database.
+    pub description: Option<String>,
     /// Nodes in file order.
     pub nodes: Vec<Node>,
     /// Topics in file order.
@@ -508,14 +508,23 @@ impl Network {
 
     /// Checks the network file held by `source`.
     pub fn parse(source: Source) -> Result<Network, Diagnostics> {
-        let raw: RawFile = toml::from_str(source.text()).map_err(|error| {
-            let span = error.span().unwrap_or(0..0);
-            source.error(span, error.message().trim_end().to_string())
-        })?;
+        // Every structural mistake at once; the meaning is checked only on a file without any.
+        let raw: RawFile = structure::read(&source)?;
         let mut errors = Vec::new();
+        let declared = Declared {
+            nodes: raw.nodes.keys().map(|k| k.get_ref().clone()).collect(),
+            topics: raw.topics.keys().map(|k| k.get_ref().clone()).collect(),
+            ports: raw.ports.keys().map(|k| k.get_ref().clone()).collect(),
+            connections: raw
+                .connections
+                .keys()
+                .map(|k| k.get_ref().clone())
+                .collect(),
+        };
         let network = Builder {
             source: &source,
             errors: &mut errors,
+            declared,
         }
         .build(raw);
         if errors.is_empty() {
@@ -551,6 +560,17 @@ impl Network {
 struct Builder<'a> {
     source: &'a Source,
     errors: &'a mut Vec<Diagnostic>,
+    declared: Declared,
+}
+
+/// The names the file declares, whether or not their declaration was accepted. A reference to a
+/// declared name that was refused is a consequence of that refusal, reported at the declaration:
+/// not reported again where it is used (a cascade before its cause, otherwise).
+struct Declared {
+    nodes: std::collections::HashSet<String>,
+    topics: std::collections::HashSet<String>,
+    ports: std::collections::HashSet<String>,
+    connections: std::collections::HashSet<String>,
 }
 
 impl Builder<'_> {
@@ -632,9 +652,12 @@ impl Builder<'_> {
                 node.ports.push(index);
             }
         }
+        let description =
+            self.description(raw.network.as_ref().and_then(|m| m.description.as_ref()));
         Network {
             source: self.source.clone(),
             version,
+            description,
             nodes,
             topics,
             ports,
@@ -650,6 +673,13 @@ impl Builder<'_> {
             plant,
             client,
         }
+    }
+
+    /// A `description`, if printable (it goes into DBC files and onto terminals).
+    fn description(&mut self, text: Option<&Spanned<String>>) -> Option<String> {
+        let text = text?;
+        self.printable(text, "description")
+            .then(|| text.get_ref().clone())
     }
 
     fn version(&mut self, meta: Option<&RawMeta>) -> u32 {
@@ -701,10 +731,12 @@ impl Builder<'_> {
                 continue;
             }
             ids.insert(id, name.get_ref().clone());
+            let description = self.description(node.get_ref().description.as_ref());
             nodes.push(Node {
                 name: name.get_ref().clone(),
                 id,
                 ports: Vec::new(),
+                description,
                 span: node.span(),
             });
         }
@@ -787,11 +819,13 @@ impl Builder<'_> {
             let Some((rate_hz, rate_uhz)) = self.topic_rate(raw_topic) else {
                 continue;
             };
+            let description = self.description(raw_topic.description.as_ref());
             topics.push(Topic {
                 name: name.get_ref().clone(),
                 filter,
                 rate_hz,
                 rate_uhz,
+                description,
                 span: topic.span(),
             });
         }
@@ -844,12 +878,16 @@ impl Builder<'_> {
                 continue;
             }
             let Some(node) = nodes.iter().position(|node| node.name == node_name) else {
+                if self.declared.nodes.contains(node_name) {
+                    continue;
+                }
                 let known: Vec<&str> = nodes.iter().map(|node| node.name.as_str()).collect();
                 self.error(
                     name.span(),
                     format!(
-                        "port `{full}` is on node `{node_name}`, which is not defined (nodes: {})",
-                        list_or_none(&known)
+                        "port `{full}` is on node `{node_name}`, which is not defined (nodes: {}){}",
+                        list_or_none(&known),
+                        suggest(node_name, &known)
                     ),
                 );
                 continue;
@@ -1235,12 +1273,16 @@ impl Builder<'_> {
             };
             let port_name = port_value.get_ref();
             let Some(port) = ports.iter().position(|port| &port.name == port_name) else {
+                if self.declared.ports.contains(port_name.as_str()) {
+                    continue;
+                }
                 let known: Vec<&str> = ports.iter().map(|port| port.name.as_str()).collect();
                 self.error(
                     port_value.span(),
                     format!(
-                        "port `{port_name}` is not defined (ports: {})",
-                        list_or_none(&known)
+                        "port `{port_name}` is not defined (ports: {}){}",
+                        list_or_none(&known),
+                        suggest(port_name, &known)
                     ),
                 );
                 continue;
@@ -1287,13 +1329,14 @@ impl Builder<'_> {
     fn topic_index(&mut self, name: &Spanned<String>, topics: &[Topic]) -> Option<usize> {
         let wanted = name.get_ref();
         let found = topics.iter().position(|topic| &topic.name == wanted);
-        if found.is_none() {
+        if found.is_none() && !self.declared.topics.contains(wanted.as_str()) {
             let known: Vec<&str> = topics.iter().map(|topic| topic.name.as_str()).collect();
             self.error(
                 name.span(),
                 format!(
-                    "topic `{wanted}` is not defined (topics: {})",
-                    list_or_none(&known)
+                    "topic `{wanted}` is not defined (topics: {}){}",
+                    list_or_none(&known),
+                    suggest(wanted, &known)
                 ),
             );
         }
@@ -1508,9 +1551,14 @@ impl Builder<'_> {
                 .collect();
             let port_name = port.name.clone();
             let port_node = port.node;
+            let declared = &self.declared.connections;
             let resolve = |name: &str| -> Result<usize, String> {
                 if let Some((_, index)) = names.iter().find(|(n, _)| n == name) {
                     return Ok(*index);
+                }
+                if declared.contains(name) && !connections.iter().any(|c| c.name == name) {
+                    // Declared but refused (its own error says why): no mistake of this rule's.
+                    return Err(String::new());
                 }
                 if gates::split(name).is_some() {
                     return Err(gates::unknown(dynamics, name));
@@ -1536,8 +1584,9 @@ impl Builder<'_> {
                         listed.join(", ")
                     ),
                     None => format!(
-                        "unknown connection `{name}`; the connections of port `{port_name}` are {}",
-                        listed.join(", ")
+                        "unknown connection `{name}`; the connections of port `{port_name}` are {}{}",
+                        listed.join(", "),
+                        suggest(name, &listed)
                     ),
                 })
             };
@@ -1554,6 +1603,8 @@ impl Builder<'_> {
                         connection.rule_span = rule.span();
                     }
                 }
+                // A cascade of a refused connection: reported at its declaration.
+                Err(error) if error.message.is_empty() => {}
                 Err(error) => {
                     let at = text_start + error.offset;
                     self.error(
@@ -1589,12 +1640,16 @@ impl Builder<'_> {
             let raw_event = event.get_ref();
             let topic_name = raw_event.topic.get_ref();
             let Some(topic) = topics.iter().position(|topic| &topic.name == topic_name) else {
+                if self.declared.topics.contains(topic_name.as_str()) {
+                    continue;
+                }
                 let known: Vec<&str> = topics.iter().map(|topic| topic.name.as_str()).collect();
                 self.error(
                     raw_event.topic.span(),
                     format!(
-                        "topic `{topic_name}` is not defined (topics: {})",
-                        list_or_none(&known)
+                        "topic `{topic_name}` is not defined (topics: {}){}",
+                        list_or_none(&known),
+                        suggest(topic_name, &known)
                     ),
                 );
                 continue;
@@ -1728,13 +1783,17 @@ impl Builder<'_> {
             let raw_fault = fault.get_ref();
             let wanted = raw_fault.node.get_ref();
             let Some(node) = nodes.iter().position(|node| &node.name == wanted) else {
+                if self.declared.nodes.contains(wanted.as_str()) {
+                    continue;
+                }
                 let known: Vec<&str> = nodes.iter().map(|node| node.name.as_str()).collect();
                 self.error(
                     raw_fault.node.span(),
                     format!(
-                        "node `{}` is not defined (nodes: {})",
+                        "node `{}` is not defined (nodes: {}){}",
                         shown::escaped(wanted),
-                        list_or_none(&known)
+                        list_or_none(&known),
+                        suggest(wanted, &known)
                     ),
                 );
                 continue;
@@ -1791,6 +1850,13 @@ impl Builder<'_> {
         }
         phases
     }
+}
+
+/// "; did you mean `x`?" when `wanted` is a slip of one of `known`, else nothing.
+fn suggest(wanted: &str, known: &[&str]) -> String {
+    crate::diagnostic::did_you_mean(wanted, known.iter().copied())
+        .map(|near| format!("; did you mean `{}`?", shown::escaped(near)))
+        .unwrap_or_default()
 }
 
 fn list_or_none(names: &[&str]) -> String {
@@ -1929,12 +1995,12 @@ at = [4.0, 4.5, 5.0, 5.5, 6.0, 6.5]   # or explicit times
         let errors = with("{ can_id = 0x300, priority = 1 }");
         assert_eq!(errors.len(), 1, "{errors:?}");
         assert!(
-            errors[0].starts_with("net.toml:12:31: error: unknown field `priority`"),
+            errors[0].starts_with("net.toml:12:31: error: unknown key `priority`"),
             "{errors:?}"
         );
         let errors = with("{ extended = true }");
         assert!(
-            errors[0].starts_with("net.toml:12:13: error: missing field `can_id`"),
+            errors[0].starts_with("net.toml:12:13: error: missing key `can_id`"),
             "{errors:?}"
         );
     }
@@ -1944,12 +2010,12 @@ at = [4.0, 4.5, 5.0, 5.5, 6.0, 6.5]   # or explicit times
         let errors = errors("[nodes.gaze]\nid = 3\nspeed = 4\n");
         assert_eq!(errors.len(), 1);
         assert!(
-            errors[0].starts_with("net.toml:3:1: error: unknown field `speed`"),
+            errors[0].starts_with("net.toml:3:1: error: unknown key `speed`"),
             "{errors:?}"
         );
         let errors = self::errors("[nodes.gaze]\nid = \"three\"\n");
         assert!(
-            errors[0].starts_with("net.toml:2:6: error: invalid type"),
+            errors[0].starts_with("net.toml:2:6: error: `id` is a node id, an integer 1 to 127: id = 1, not the string"),
             "{errors:?}"
         );
     }

@@ -259,8 +259,12 @@ fn mistakes_are_reported_at_their_line_with_their_cause() {
             5,
             "gamma of behaviour `a`: `c` is not a behaviour",
         ),
-        (format!("{group}speed = 2\n{a}"), 3, "unknown field `speed`"),
-        (format!("{group}seed = \"one\"\n{a}"), 3, "invalid type"),
+        (format!("{group}speed = 2\n{a}"), 3, "unknown key `speed`"),
+        (
+            format!("{group}seed = \"one\"\n{a}"),
+            3,
+            "`seed` is an integer, not the string \"one\"",
+        ),
         (
             // 4 ms > 10 ms / 4: Params::validate refuses, at the group's header.
             format!("{group}step = 0.004\n{a}"),
@@ -288,14 +292,14 @@ fn mistakes_are_reported_at_their_line_with_their_cause() {
         (
             format!("{group}[dynamics.door.behaviours.a]\ncontext = true\n"),
             4,
-            "invalid type: boolean `true`, expected a connection name, a constant in [0, 1], or { topic, value, scale, timeout }",
+            "`context` is a connection name, a constant in [0, 1], or { topic, value, scale, timeout }, not boolean `true`",
         ),
         (
             format!(
                 "{group}[dynamics.door.behaviours.a]\ncontext = {{ topic = \"seen\", value = {{ offset = 0, size = 1 }}, scale = 255.0, timeout = 0.2, every = 1 }}\n"
             ),
             4,
-            "unknown field `every`",
+            "unknown key `every`",
         ),
         (
             format!("{group}{a}excludes = [\"a\"]\n"),

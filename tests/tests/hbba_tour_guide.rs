@@ -240,12 +240,12 @@ fn desire_mistakes_are_reported_at_their_lines() {
     let errors = Network::parse(Source::new("net.toml", text))
         .unwrap_err()
         .to_string();
-    assert!(errors.contains("unknown field `lease`"), "{errors}");
+    assert!(errors.contains("unknown key `lease`"), "{errors}");
     let (text, _) = with_desire("class = \"face\"\nintensity = 1\nfrom = 0.0\n");
     let errors = Network::parse(Source::new("net.toml", text))
         .unwrap_err()
         .to_string();
-    assert!(errors.contains("missing field `to`"), "{errors}");
+    assert!(errors.contains("missing key `to`"), "{errors}");
     // Without [hbba].
     let text =
         "[nodes.a]\nid = 1\n[[desires]]\nclass = \"face\"\nintensity = 1\nfrom = 0.0\nto = 1.0\n";

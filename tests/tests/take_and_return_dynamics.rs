@@ -58,7 +58,7 @@ fn taking_the_object_back_during_the_approach_returns_to_a() {
 fn the_gaze_and_the_hand_follow_the_arms_gates_at_the_instant_they_change() {
     let scenario = Scenario::run("take-and-return-dynamics");
     // The arm's Gates frames: one at every change and a repeat every 100 ms otherwise, so about
-    // ten a second (the figure the README gives for a group's bus load).
+    // ten a second (the figure docs/dynamics.md gives for a group's bus load).
     let gates = &scenario.outcome.gates;
     let seconds = scenario.outcome.until_us as f64 / 1e6;
     let rate = gates.len() as f64 / seconds;

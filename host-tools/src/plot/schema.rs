@@ -1,6 +1,6 @@
 //! A schema server's run: the end-effector's height (measured and attractor), its lateral
 //! position, the contact force, and a lane naming the schema installed at each moment, on one
-//! time axis. What the README's insertion figure shows.
+//! time axis. What the book's insertion figure shows (docs/schema-server.md).
 
 use std::path::Path;
 

@@ -1,5 +1,5 @@
-//! `[ble.NAME]`: Broadcast of Local Eligibility peer groups (README, "Broadcast of Local
-//! Eligibility"), and the claim connections their names become in rules.
+//! `[ble.NAME]`: Broadcast of Local Eligibility peer groups (docs/ayllu.md,
+//! "Broadcast of Local Eligibility"), and the claim connections their names become in rules.
 //!
 //! A group is one task shared by its nodes. A rule that names the group (`rule = "OBS11 &
 //! observe_t1"`) reads "this node holds the task": the port gets one more connection, a
@@ -29,8 +29,6 @@ pub(super) struct RawBle {
     value: Option<Spanned<RawField>>,
     #[serde(default)]
     nodes: IndexMap<Spanned<String>, Spanned<String>>,
-    #[allow(dead_code)]
-    description: Option<String>,
 }
 
 /// A BLE peer group: one task, one behaviour instance per node.
@@ -495,7 +493,7 @@ rule = "OBS2 & task"
             ),
             (
                 format!("[ble.task]\nperiod = 0.1\nvalue = {{ offset = 0, size = 2 }}\nwho = 1\n{nodes}"),
-                "unknown field `who`",
+                "unknown key `who`",
             ),
         ] {
             let message = error(&extra);

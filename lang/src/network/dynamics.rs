@@ -37,8 +37,6 @@ pub(super) struct RawDynamics {
     gamma: Option<Spanned<f64>>,
     #[serde(default)]
     behaviours: IndexMap<Spanned<String>, Spanned<RawBehaviour>>,
-    #[allow(dead_code)]
-    description: Option<String>,
 }
 
 /// `[dynamics.NAME.behaviours.B] context = ..., memory = 50.0, excludes = [...], gamma = {...},
@@ -54,8 +52,6 @@ struct RawBehaviour {
     gamma: IndexMap<Spanned<String>, Spanned<f64>>,
     #[serde(default)]
     requires: Vec<Spanned<String>>,
-    #[allow(dead_code)]
-    description: Option<String>,
 }
 
 /// `context = "C3"`, `context = 1.0` or `context = { topic, value, scale, timeout }`.

@@ -1,5 +1,5 @@
-//! `[hbba]`: the resources, strategies and classes of HBBA's intention solver (README, "HBBA:
-//! where it stands"), checked at their lines, and the [`pab_core::hbba::Instance`] they make.
+//! `[hbba]`: the resources, strategies and classes of HBBA's intention solver (docs/hbba.md),
+//! checked at their lines, and the [`pab_core::hbba::Instance`] they make.
 //!
 //! ```toml
 //! [hbba]
@@ -55,8 +55,6 @@ pub(super) struct RawHbba {
     bitrate: Option<Spanned<i64>>,
     #[serde(default)]
     strategies: IndexMap<Spanned<String>, Spanned<RawStrategy>>,
-    #[allow(dead_code)]
-    description: Option<String>,
 }
 
 /// `[hbba.strategies.NAME] class, utility, costs, filters, requires`.
@@ -68,8 +66,6 @@ struct RawStrategy {
     costs: Option<RawMap>,
     filters: Option<RawMap>,
     requires: Option<RawMap>,
-    #[allow(dead_code)]
-    description: Option<String>,
 }
 
 /// `[[desires]] class, intensity, from, to`: a desire the simulation issues.

@@ -1,5 +1,5 @@
 //! `[schema.NODE]`, `[plant]` and `[client]`: a schema server's board, the robot it drives in
-//! simulation, and the workstation client's program (README, "Schema server").
+//! simulation, and the workstation client's program (docs/schema-server.md).
 //!
 //! ```toml
 //! [schema.arm]                 # node `arm` runs a schema server
@@ -84,8 +84,6 @@ pub(super) struct RawSchema {
     places: IndexMap<Spanned<String>, Spanned<Vec<f64>>>,
     #[serde(default)]
     innate: IndexMap<Spanned<String>, Spanned<String>>,
-    #[allow(dead_code)]
-    description: Option<String>,
 }
 
 /// `[schema.NODE.sensors.NAME]`: an extra sensor's topic.
@@ -150,8 +148,6 @@ pub(super) struct RawPlant {
     #[serde(default)]
     obstacles: Vec<Spanned<RawObstacle>>,
     range_finder: Option<Spanned<String>>,
-    #[allow(dead_code)]
-    description: Option<String>,
 }
 
 #[derive(Deserialize)]
@@ -184,8 +180,6 @@ pub(super) struct RawClient {
     wobble_mrad: Option<Spanned<f64>>,
     wobble_period_ms: Option<Spanned<f64>>,
     insert_depth_mm: Option<Spanned<f64>>,
-    #[allow(dead_code)]
-    description: Option<String>,
 }
 
 /// `[[client.commands]] at = 12.0, call = "estop()"`.
@@ -2089,7 +2083,7 @@ hold = \"idle(); below(gap, 0.3) -> retreat\"
             "[schema.arm.sensors.s]\ncan_id = 0x330\nvalue = { offset = 0, size = 2 }\nrate = 3\n",
         );
         assert!(
-            e[0].starts_with("net.toml:15:1: error: unknown field `rate`"),
+            e[0].starts_with("net.toml:15:1: error: unknown key `rate`"),
             "{e:?}"
         );
         // Innate schemas: their calls and reactions, their names, their number.
