@@ -2,7 +2,8 @@
 # Runs every check and test of the project, from a fresh clone on a fresh machine:
 #   ./test.sh
 # It installs what it needs (the Cortex-M target, rustfmt, clippy, llvm-tools) with rustup, then
-# checks formatting, lints and the documentation's links, builds the core, the NUCLEO-G474RE firmware and the emulated
+# checks formatting, lints and the documentation's links, builds the book (mdBook) and checks
+# its links, builds the core, the NUCLEO-G474RE firmware and the emulated
 # board's (and prints their flash and RAM sizes), counts the Cortex-M4 instructions per frame on
 # the emulated board and checks them against their goals (scripts/cortex-m4-cost.sh --check),
 # runs all tests (unit, property, end-to-end, command line, the node application on an
@@ -54,6 +55,25 @@ step "documentation (every public item's links resolve)"
 # The host crates' documentation, warnings denied: a broken or ambiguous intra-doc link fails.
 RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --locked --quiet
 
+step "the book (docs/: mdBook, its links and anchors, the README's)"
+# mdBook, the Rust ecosystem's book tool, built once without its server and file watcher (about
+# two minutes); the build fails on a page missing from SUMMARY.md or a broken include.
+MDBOOK_VERSION=0.5.4
+if ! mdbook --version 2>/dev/null | grep -qx "mdbook v$MDBOOK_VERSION"; then
+    cargo install mdbook --version "$MDBOOK_VERSION" --locked --no-default-features --quiet
+fi
+# mdBook reports a broken link target or a missing file as a warning and still exits 0: any
+# WARN or ERROR line fails the step.
+mkdir -p target
+if ! mdbook build docs > target/mdbook.log 2>&1 || grep -E "WARN|ERROR" target/mdbook.log; then
+    cat target/mdbook.log
+    echo "mdbook: the book does not build cleanly (above)" >&2
+    exit 1
+fi
+# Every relative link and #anchor of the README, the changelog and the book resolves, the book's
+# pages link only inside docs/ and are all in its summary, and none names a past issue.
+python3 scripts/check-docs.py
+
 step "pab-core for the boards (thumbv7em-none-eabihf)"
 cargo build -p pab-core --release --target thumbv7em-none-eabihf --locked
 cargo build -p pab-storage --release --target thumbv7em-none-eabihf --locked
@@ -87,7 +107,7 @@ cargo test -p pab-core --benches --locked
 step "fuzzing: every target for 15 s (scripts/fuzz.sh, nightly + cargo-fuzz)"
 # `cargo test` above replayed the committed corpus (fuzz/corpus) and any reproducers
 # (fuzz/artifacts) on stable; this runs libFuzzer itself from that corpus, briefly: a crash, a hang
-# (20 s) or running out of memory fails the run. Long campaigns: README "Fuzzing".
+# (20 s) or running out of memory fails the run. Long campaigns: docs/fuzzing.md.
 scripts/fuzz.sh 15
 
 step "examples"

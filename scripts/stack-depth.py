@@ -13,7 +13,7 @@ and for the calls through pointers (trait objects, wakers), which this does not 
 
 Why: the stack grows down into the statics with nothing to stop it (no MPU guard), so an
 overflow corrupts the node instead of faulting. The deepest stack is a table being loaded: the
-new arbiter is built while the old one runs (README, "NUCLEO-G474RE"). It is not a proof (no
+new arbiter is built while the old one runs (docs/nucleo-g474re.md). It is not a proof (no
 calls through pointers, a frame that moves `sp` twice counted twice), but it fails when a
 change makes a frame grow by kilobytes, as the schema server's set-up once did.
 """

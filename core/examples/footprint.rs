@@ -1,5 +1,5 @@
 //! Prints the RAM footprint of pab-core's types, at the default capacities and for the board
-//! profile, for the README:
+//! profile, for docs/figures.md:
 //!
 //!     cargo run -p pab-core --example footprint
 //!

@@ -38,7 +38,7 @@
 //! within τ, and skips the decay when the frame saturates the level anyway (`decay.rs`). On a
 //! Cortex-M4 a frame that feeds one connection costs about 120 to 500 instructions (150 for most
 //! frames of Take and Return; more when the decay is evaluated, an activity lapses or the
-//! decision is walked), one that feeds none about 25 (README, "Figures";
+//! decision is walked), one that feeds none about 25 (docs/figures.md;
 //! `scripts/cortex-m4-cost.sh`). The decisions are those of the straightforward evaluation, bit
 //! for bit: `core/tests/equivalence.rs` compares them with it on random tables and frames.
 
@@ -879,8 +879,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// a stimulation per connection it feeds, the port's activity (read from its state, or a
     /// test per active connection after a deadline), and, if the activity changed, a decision
     /// walk of at most one step per connection of the port (a priority run is one step). On a
-    /// Cortex-M4, from about 25 instructions (a frame for other nodes) to a few hundred (README,
-    /// "Figures").
+    /// Cortex-M4, from about 25 instructions (a frame for other nodes) to a few hundred (docs/figures.md).
     #[inline(always)]
     pub fn receive(
         &mut self,
@@ -1087,7 +1086,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// fed, a filter test per connection of the port, the fields read once and the frame copied
     /// into each connection it feeds, a decision walk per connection of the port only when the
     /// port's activity changed since its last combination, and two passes over its connections
-    /// (README, "Cortex-M4").
+    /// (docs/figures.md, "Cortex-M4").
     pub fn receive_frame(
         &mut self,
         frame: &Frame,

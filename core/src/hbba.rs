@@ -7,7 +7,7 @@
 //! filters (connection, φ) and may require other classes. The solver picks the strategies; the
 //! filters they set are what the boards then apply ([`intention`]: the workspace that keeps the
 //! desires, solves and plans the filter commands, disables before enables; the boards do not
-//! run filters yet: README, "HBBA: where it stands").
+//! run filters yet: docs/hbba.md).
 //!
 //! # The problem (DESIGN.md, "HBBA: decisions")
 //!

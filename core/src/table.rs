@@ -16,7 +16,7 @@
 //! port, in port order); an ordinary port has none.
 //!
 //! Memory: `size_of::<Table<P, C, N>>()` is about 26·C + 6·N + 32·P bytes (`cargo run -p
-//! pab-core --example footprint` tells exactly, README "Figures").
+//! pab-core --example footprint` tells exactly, docs/figures.md).
 
 use core::ops::Range;
 

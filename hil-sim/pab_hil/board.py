@@ -7,7 +7,7 @@ Linux parts make that a SocketCAN interface on the bus:
                                    cangw (can-gw): slcan interface <-> vcan0, both ways
 
 The serial line is either a pseudo-terminal of a QEMU started here (`LocalQemu`: a workstation
-with vcan, the way the README runs it by hand), or the micro-VM's second serial port, whose other
+with vcan, the way docs/hil.md runs it by hand), or the micro-VM's second serial port, whose other
 end is a QEMU started on the micro-VM's host (`RemoteQemu`, served by `HostBoards`). The second is
 how the suite runs in the micro-VM: qemu-system-arm nested inside the emulated x86 guest handles
 one received byte per QEMU main-loop iteration and took 100-130 ms per SLCAN frame there, far too
@@ -48,7 +48,7 @@ UART_ENV = "PAB_HIL_BOARD_UART"
 CONTROL_ENV = "PAB_HIL_BOARD_CONTROL"
 START_TIMEOUT_S = 30.0
 # A key page image (`pabctl keypage KEY -o FILE`) to plant at the board's key page: the board then
-# runs keyed (README, "Keys"). Unset: an unkeyed board, as before.
+# runs keyed (docs/keys.md). Unset: an unkeyed board, as before.
 KEY_PAGE_ENV = "PAB_KEY_PAGE"
 KEY_PAGE_ADDRESS = 0x0004_E000
 # What reaches a board: its CAN acceptance filter, as cangw routes from the bus to the serial

@@ -103,7 +103,7 @@ def session_for(iface, out_dir, bound):
 
 @pytest.fixture
 def figures(hil_out):
-    """figures(name, {...}): writes one figure record for the README, printed by run-hil."""
+    """figures(name, {...}): writes one figure record (docs/figures.md), printed by run-hil."""
     directory = hil_out / "figures"
 
     def write(name: str, values: dict) -> None:

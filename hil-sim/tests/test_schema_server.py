@@ -1,4 +1,4 @@
-"""The schema server on the bus (README, "Schema server"): the arm's node (`pab-node`, the Linux
+"""The schema server on the bus (docs/schema-server.md): the arm's node (`pab-node`, the Linux
 node's code) runs the schema server of examples/assembly.toml at 200 Hz, the paper's rate;
 `pabctl plant` is the robot in front of it (the simulator's plant, in real time); the Python
 client `pab_client` sends the paper's program, the file's own schemas (`pabctl sim
@@ -47,8 +47,8 @@ ARM = 10
 # The emulated board's node id: its firmware's build default.
 BOARD = 1
 PERIOD_S = 0.005
-# The emulated board's period: its serial line carries some 700 frames a second each way (README,
-# "Emulated board": about 1.4 ms a frame), and the plant publishes four frames a period (pose and
+# The emulated board's period: its serial line carries some 700 frames a second each way (docs/mps2-an386.md:
+# about 1.4 ms a frame), and the plant publishes four frames a period (pose and
 # wrench, two each): at 5 ms that is 800 a second, more than the line, whose queues then grow
 # until frames are lost (a schema's ISO-TP frames among them). At 20 ms, 200 a second.
 BOARD_PERIOD_S = 0.02
@@ -369,8 +369,8 @@ def test_an_emergency_stop_frame_halts_the_emulated_board_within_a_period(iface,
     calls, _ = simulate(network, out_dir)
     rig = Rig(iface, network, out_dir, bound, board=True)
     board = rig.nodes["arm"]
-    # The schema's ISO-TP frames and their flow control cross the serial line (README,
-    # "Emulated board": about 1.4 ms a frame each way, more on a loaded host).
+    # The schema's ISO-TP frames and their flow control cross the serial line (docs/mps2-an386.md:
+    # about 1.4 ms a frame each way, more on a loaded host).
     ack_timeout = machine.board_allow(5.0, board)
     try:
         latency = emergency_stop(rig, calls, ack_timeout=ack_timeout, period_s=BOARD_PERIOD_S)
@@ -380,7 +380,7 @@ def test_an_emergency_stop_frame_halts_the_emulated_board_within_a_period(iface,
     (out_dir / "figures.json").write_text(json.dumps(latency, indent=1))
     # Halted in the fault's tick is asserted above; from the bus, the stop also waits behind the
     # frames queued on the serial line to the board (the plant's pose and wrench, about 1.4 ms a
-    # frame on the host's QEMU, README "Emulated board"), and the halted set-point behind those
+    # frame on the host's QEMU, docs/mps2-an386.md), and the halted set-point behind those
     # queued from it: measured 9.5 to 18 ms on an idle 2-core host, 40 ms allowed there.
     bound("the stop frame to the board's halted set-point", latency["halted_setpoint_ms"] / 1000,
           most=BOARD_PERIOD_S + machine.board_allow(0.040, board), detail=latency)

@@ -61,7 +61,7 @@ def test_phases_a_to_f_end_with_the_object_handed_to_the_person(session_for, out
 
     plot_session(session, out_dir / "take-and-return.png", title="take and return, closed loop")
 
-    # What the bus shows, and the figures for the README.
+    # What the bus shows, and the figures for the book.
     latency = arm_latency(session)
     messages = analysis.read_log(session.log_path)
     duration = messages[-1].timestamp - messages[0].timestamp

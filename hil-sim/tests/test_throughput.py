@@ -1,5 +1,5 @@
 """A flood of frames on one topic: the arm node accounts for every frame (read, or counted as lost
-by the kernel), re-publishes exactly what it counts as delivered, and the figures for the README
+by the kernel), re-publishes exactly what it counts as delivered, and the figures for the book
 (how fast the node kept up, and how much it lost)."""
 
 from __future__ import annotations

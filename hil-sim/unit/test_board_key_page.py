@@ -1,4 +1,4 @@
-"""The board's QEMU command line plants the key page of $PAB_KEY_PAGE (README, "Keys")."""
+"""The board's QEMU command line plants the key page of $PAB_KEY_PAGE (docs/keys.md)."""
 
 from __future__ import annotations
 

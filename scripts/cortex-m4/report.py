@@ -42,7 +42,7 @@ MEDIAN_GOALS = [
 
 # A goal of issue 10 not met: (case, class, goal, median ceiling, max ceiling). The check reports
 # it as not met on every run, and fails if the frames get more expensive than they are now (the
-# counts are exact, so any regression shows). README, "Cortex-M4", says where the instructions go:
+# counts are exact, so any regression shows). docs/figures.md, "Cortex-M4", says where the instructions go:
 # the largest arm-node frames are those at which an activity lapses and the decision is walked.
 # The ceilings moved once, from 151 / 491 to 154 / 523, when the firmware profile went from
 # opt-level 2 to "s" to keep every mechanism within 64 KiB of flash (issue 11; Cargo.toml says why),

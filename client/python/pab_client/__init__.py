@@ -1,4 +1,4 @@
-"""pab_client: a Python client of the pab schema server (README, "Schema server").
+"""pab_client: a Python client of the pab schema server (docs/schema-server.md).
 
 - :mod:`pab_client.schema`: schemas (actions, events, sources, reactions), their postcard
   encoding, and the builders of `pab_core::schema::build` (``move_to``, ``grasp``, ...), byte for

@@ -1,7 +1,7 @@
 //! A board's key at boot: what its key page and its boot counter make of the node.
 //!
 //! A board keeps its key in a dedicated flash page (written with `pabctl keypage` and a flasher;
-//! README, "Keys") and counts its boots in flash pages of its own ([`pab_storage::BootCounter`]).
+//! docs/keys.md) and counts its boots in flash pages of its own ([`pab_storage::BootCounter`]).
 //! At boot, before the node runs, [`key_from_page`] decides, the same way on every board:
 //!
 //! - **erased page** (the record is all 0xFF): no key; the node takes configuration from anyone

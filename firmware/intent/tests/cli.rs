@@ -122,8 +122,9 @@ fn the_help_example_frame_is_the_desire_it_claims() {
     ))
     .unwrap();
     assert_eq!(network.hbba.unwrap().classes[2], "voice");
-    // The README gives the same line.
+    // The book gives the same line.
     let readme =
-        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../README.md")).unwrap();
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/nodes.md"))
+            .unwrap();
     assert!(readme.contains(&format!("cansend vcan0 {line}")));
 }

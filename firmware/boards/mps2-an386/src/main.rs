@@ -29,7 +29,7 @@
 //!   build has no such frame.
 //!
 //! Run: `cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf -- -serial pty`
-//! (the README's "Boards" section has the whole bridge).
+//! (docs/mps2-an386.md has the whole bridge).
 
 #![no_std]
 #![no_main]

@@ -13,7 +13,7 @@
 //! one write; at the end PER off, errors cleared, the data cache reset and back on, lock): kept
 //! in step with it at every embassy upgrade.
 //!
-//! Not run on hardware yet (the README's board section says so).
+//! Not run on hardware yet (docs/nucleo-g474re.md says so).
 
 use embassy_stm32::flash::{Blocking, Error, Flash};
 use embassy_stm32::pac::FLASH;

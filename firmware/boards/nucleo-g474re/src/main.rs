@@ -13,7 +13,7 @@
 //! - **Table store**: the top 40 KiB of bank 2 ([`STORE_RANGE`]), a ring of four 10 KiB slots
 //!   (`pab-storage`), saved in steps between frames.
 //! - **Key**: the 2 KiB page at [`KEY_PAGE`] (0x0807_4800), written with `pabctl keypage` and
-//!   probe-rs (README, "Keys"): erased = no key, a valid record = keyed, anything else = no
+//!   probe-rs (docs/keys.md): erased = no key, a valid record = keyed, anything else = no
 //!   configuration accepted; boots counted in the two pages of [`BOOT_COUNTER_RANGE`] for the
 //!   challenges' boot salt ([`pab_app::key_from_page`]).
 //! - **Node id**: [`NODE_ID`], compiled in from the `PAB_NODE_ID` environment variable
