@@ -67,11 +67,10 @@ pub(crate) fn read<T: DeserializeOwned>(source: &Source) -> Result<T, Diagnostic
             }
             // An unknown key that is a slip of a known one stood for it: that one is not
             // "missing" either.
-            if let Some(field) = quoted_after(&message, "unknown field ") {
-                let expected = expected_names(&message);
-                if let Some(near) = did_you_mean(&field, expected.iter().map(String::as_str)) {
-                    blanked.push((near.to_string(), span.start));
-                }
+            if let Some(near) = quoted_after(&message, "unknown field ")
+                .and_then(|field| nearest_expected(&field, &message))
+            {
+                blanked.push((near, span.start));
             }
             extent
         };
@@ -94,10 +93,7 @@ fn word(message: &str, text: &str, span: &Range<usize>) -> String {
         } else {
             "key"
         };
-        let hint = match did_you_mean(&field, expected.iter().map(String::as_str)) {
-            Some(near) => format!("; did you mean `{near}`?"),
-            None => String::new(),
-        };
+        let hint = did_you_mean_hint(&field, message);
         return format!(
             "unknown {what} `{field}`{hint} (known here: {})",
             expected.join(", ")
@@ -105,10 +101,7 @@ fn word(message: &str, text: &str, span: &Range<usize>) -> String {
     }
     if let Some(variant) = quoted_after(message, "unknown variant ") {
         let expected = expected_names(message);
-        let hint = match did_you_mean(&variant, expected.iter().map(String::as_str)) {
-            Some(near) => format!("; did you mean `{near}`?"),
-            None => String::new(),
-        };
+        let hint = did_you_mean_hint(&variant, message);
         return format!(
             "unknown value `{variant}`{hint} (one of: {})",
             expected.join(", ")
@@ -141,6 +134,19 @@ fn word(message: &str, text: &str, span: &Range<usize>) -> String {
         return format!("missing key `{field}`: this table needs it");
     }
     message.to_string()
+}
+
+/// The name among those serde's `message` expected that `name` is a slip of.
+fn nearest_expected(name: &str, message: &str) -> Option<String> {
+    let expected = expected_names(message);
+    did_you_mean(name, expected.iter().map(String::as_str)).map(str::to_string)
+}
+
+/// "; did you mean `x`?" for [`nearest_expected`], or nothing.
+fn did_you_mean_hint(name: &str, message: &str) -> String {
+    nearest_expected(name, message)
+        .map(|near| format!("; did you mean `{near}`?"))
+        .unwrap_or_default()
 }
 
 /// What a key holds and an example, from its name: the file's units are in its keys' names
