@@ -16,8 +16,9 @@
 # (client/python/tests), the cross-runner test with the board firmware in QEMU
 # (scripts/cross-runner.sh: simulator, node application and emulated Cortex-M4 must record
 # identical verdicts), the emulated board's time check across its timer's wraps and its builtins check, the panic check
-# of the board firmware (scripts/panic-check.sh), the emulated board's watchdog test
-# (scripts/watchdog-test.sh), the keyed emulated board (scripts/keyed-board-test.sh), and the
+# of the board firmware (scripts/panic-check.sh), the emulated board's watchdog and stack-guard
+# test (scripts/watchdog-test.sh: a hung loop, an overflowed stack), the keyed emulated board
+# (scripts/keyed-board-test.sh), and the
 # hardware-in-the-loop suite (hil-sim/run-hil: on vcan0, or in a micro-VM; PAB_HIL_ACCEL=
 # auto|kvm|tcg picks its accelerator), whose fresh Take and Return log then goes through the
 # cross-runner test too.
@@ -34,6 +35,12 @@ rustup component add rustfmt clippy llvm-tools
 cargo --version
 # The emulated board (QEMU's mps2-an386) and the instruction-counting plugin it is measured with.
 scripts/need.sh qemu-system-arm gcc python3
+# flip-link, the boards' linker (.cargo/config.toml): the stack below the statics, so that an
+# overflow faults instead of writing over them. Built once (some ten seconds).
+FLIP_LINK_VERSION=0.1.12
+if ! cargo install --list | grep -qx "flip-link v$FLIP_LINK_VERSION:"; then
+    cargo install flip-link --version "$FLIP_LINK_VERSION" --locked --quiet
+fi
 
 step "formatting"
 cargo fmt --all -- --check
@@ -178,7 +185,7 @@ step "emulated Cortex-M4: pab-builtins' memcpy, memset, memcmp, memmove and 64-b
 timeout 300 cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf \
     --bin pab-an386-builtinscheck --locked
 
-step "emulated Cortex-M4: the watchdog restarts a hung node loop (scripts/watchdog-test.sh, QEMU)"
+step "emulated Cortex-M4: the watchdog restarts a hung node loop, an overflowed stack faults (scripts/watchdog-test.sh, QEMU)"
 # A hang-test build spins in its node loop on a trigger frame; the CMSDK APB watchdog must reset
 # the machine and the node boot again with its stored table. The production build has no trigger.
 scripts/watchdog-test.sh

@@ -33,7 +33,7 @@ report() {
         echo "firmware-size: $package takes $flash bytes of flash, more than 64 KiB" >&2
         exit 1
     fi
-    # The stack is what the statics leave of the RAM, with nothing below it but them.
+    # The stack is what the statics leave of the RAM, below them (flip-link).
     python3 scripts/stack-depth.py "$elf"
 }
 

@@ -5,17 +5,20 @@
 
 Reads the ELF's disassembly (llvm-objdump from rustup's llvm-tools) and, per function, the
 bytes its prologue takes (`push`, `vpush`, `sub sp`); follows every direct call and tail call
-(`bl`, `b` to another function) and prints the deepest chain. The stack is what cortex-m-rt
-leaves between the end of the statics (`_stack_end`) and the top of RAM (`_stack_start`).
-Fails (status 1) when less than `--margin` bytes (default 8 KiB) would be left below the
-deepest chain: that is room for the interrupt handlers, which stack on top of whatever runs,
-and for the calls through pointers (trait objects, wakers), which this does not follow.
+(`bl`, `b` to another function) and prints the deepest chain. The stack is what flip-link (the
+boards' linker, `.cargo/config.toml`) leaves below the statics: from the RAM's start
+(`_stack_end`) up to the first static (`_stack_start`). Fails (status 1) when the stack is not
+below every static (the firmware was linked without flip-link), or when less than `--margin`
+bytes (default 8 KiB) would be left below the deepest chain: that is room for the interrupt
+handlers, which stack on top of whatever runs, and for the calls through pointers (trait
+objects, wakers), which this does not follow.
 
-Why: the stack grows down into the statics with nothing to stop it (no MPU guard), so an
-overflow corrupts the node instead of faulting. The deepest stack is a table being loaded: the
-new arbiter is built while the old one runs (docs/nucleo-g474re.md). It is not a proof (no
-calls through pointers, a frame that moves `sp` twice counted twice), but it fails when a
-change makes a frame grow by kilobytes, as the schema server's set-up once did.
+Why: an overflow runs off the RAM's start and faults (a HardFault, then the watchdog's reset),
+which stops the node rather than corrupting it; the margin keeps that from happening in the
+first place. The deepest stack is a table being loaded: the new arbiter is built while the old
+one runs (docs/nucleo-g474re.md). It is not a proof (no calls through pointers, a frame that
+moves `sp` twice counted twice), but it fails when a change makes a frame grow by kilobytes, as
+the schema server's set-up once did.
 """
 
 from __future__ import annotations
@@ -128,6 +131,11 @@ def main() -> int:
     frame, calls, indirect = parse(args.elf)
     total, chain, cycles = deepest(frame, calls)
     stack = symbol(args.elf, "_stack_start") - symbol(args.elf, "_stack_end")
+    if symbol(args.elf, "_stack_start") > symbol(args.elf, "__sdata"):
+        print(f"stack-depth: {args.elf}: the stack's top lies above the statics, which it would "
+              f"grow into: link with flip-link (the linker in .cargo/config.toml; `cargo install "
+              f"flip-link`)", file=sys.stderr)
+        return 1
     left = stack - total
     print(f"stack: {stack} bytes; the deepest direct call chain takes {total} "
           f"({left} left; {len(indirect)} functions also call through pointers):")
@@ -137,7 +145,7 @@ def main() -> int:
         print(f"  (a call back into its own chain, not followed: {name})")
     if left < args.margin:
         print(f"stack-depth: less than {args.margin} bytes of stack left below the deepest chain "
-              f"({left}): the stack would grow into the statics", file=sys.stderr)
+              f"({left}): the node could overflow it", file=sys.stderr)
         return 1
     return 0
 

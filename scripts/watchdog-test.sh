@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
-# The emulated board's watchdog: the node loop hangs (a test build with the `hang-test` feature,
-# on a trigger frame), the CMSDK APB watchdog resets the machine, and the node boots again with
-# its stored table (scripts/watchdog_test.py says how). Also checks that the production firmware
-# has no hang trigger.
+# The emulated board's watchdog and stack guard (a test build with the `hang-test` feature, on
+# trigger frames): the node loop hangs, the CMSDK APB watchdog resets the machine, and the node
+# boots again with its stored table; the node loop recurses until its stack overflows, which
+# runs off the RAM's start (flip-link put the stack below the statics) and faults without
+# reaching the static data (scripts/watchdog_test.py says how). Also checks that the production
+# firmware has no trigger.
 #   scripts/watchdog-test.sh
 # Builds pab-fw-an386 with the `hang-test` feature (the `firmware` profile), keeps that ELF as
 # target/watchdog-test/pab-fw-an386-hang-test, then rebuilds the production one. Needs

@@ -22,10 +22,14 @@
 //! - **Node id**: [`NODE_ID`], from `PAB_NODE_ID` at build time (default 1), as on the G474.
 //! - **Log**: `log` on QEMU's standard error through semihosting (run QEMU with
 //!   `-semihosting-config enable=on,target=native`).
-//! - **Watchdog**: the CMSDK APB watchdog, fed by the node loop; a loop stuck for 500 ms resets
-//!   the machine ([`pab_fw_an386::watchdog`]).
+//! - **Watchdog**: the CMSDK APB watchdog, started first at boot and fed by the node loop; a boot
+//!   or a loop stuck for 500 ms resets the machine ([`pab_fw_an386::watchdog`]).
+//! - **Stack**: below the static data (flip-link, the linker in `.cargo/config.toml`): an
+//!   overflow runs off the RAM's start instead of writing over the node (scripts/watchdog-test.sh
+//!   shows it, and what QEMU makes of it: docs/no-panic-and-watchdog.md).
 //! - **Feature `hang-test`** (tests only: scripts/watchdog-test.sh): the node loop spins forever
-//!   on receiving the frame [`hang::TRIGGER_ID`], to show the watchdog's reset. The production
+//!   on receiving the frame [`hang::TRIGGER_ID`], and recurses until its stack overflows on
+//!   [`hang::OVERFLOW_ID`], to show the watchdog's reset and the stack's guard. The production
 //!   build has no such frame.
 //!
 //! Run: `cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf -- -serial pty`
@@ -78,6 +82,9 @@ const EXECUTOR_PRIORITY: u8 = 0xE0;
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
+    // The watchdog first: a boot that hangs ends in a reset, as a stuck loop does. From here on
+    // only the node loop feeds it (it feeds once before the node's boot).
+    let watchdog = BoardWatchdog::start();
     logger::init(log::LevelFilter::Info);
     TIME.start();
     uart::init();
@@ -117,8 +124,6 @@ fn main() -> ! {
 
     interrupts::set_priority(Interrupt::SOFTWARE, EXECUTOR_PRIORITY);
     let spawner = EXECUTOR.start(Interrupt::SOFTWARE);
-    // Started last before the node task: from here on, only the node loop feeds it.
-    let watchdog = BoardWatchdog::start();
     match node_task(node, bus, store, watchdog) {
         Ok(task) => spawner.spawn(task),
         Err(_) => fail(format_args!("cannot spawn the node task")),
@@ -161,14 +166,18 @@ type Bus = hang::HangOnTrigger;
 mod hang {
     use pab_app::{BusError, CanBus};
     use pab_core::Frame;
+    use pab_core::decimal::Decimal;
     use pab_fw_an386::semihosting;
     use pab_fw_an386::slcan_bus::SlcanBus;
 
     /// The frame that hangs the loop: extended id 0x1FFF_FFFF (no pab service uses it).
     pub const TRIGGER_ID: u32 = 0x1FFF_FFFF;
+    /// The frame that overflows the stack: extended id 0x1FFF_FFFE.
+    pub const OVERFLOW_ID: u32 = 0x1FFF_FFFE;
 
     /// SLCAN, but a received [`TRIGGER_ID`] frame never returns: the node loop spins in its
-    /// receive, interrupts still run, and nothing feeds the watchdog.
+    /// receive, interrupts still run, and nothing feeds the watchdog; a received [`OVERFLOW_ID`]
+    /// frame recurses until the stack overflows ([`overflow`]).
     pub struct HangOnTrigger(SlcanBus);
 
     impl HangOnTrigger {
@@ -188,12 +197,45 @@ mod hang {
                     core::hint::spin_loop();
                 }
             }
+            if frame.raw_id() == (OVERFLOW_ID, true) {
+                semihosting::eprint(format_args!(
+                    "pab-fw-an386: hang-test: the stack overflows\n"
+                ));
+                overflow(0);
+            }
             Ok(frame)
         }
 
         async fn transmit(&mut self, frame: &Frame) -> Result<(), BusError> {
             self.0.transmit(frame).await
         }
+    }
+
+    unsafe extern "C" {
+        // cortex-m-rt's link.x: where the static data (.data, .bss, .uninit) begin and end.
+        static __sdata: u8;
+        static __euninit: u8;
+    }
+
+    /// Recurses with 64 bytes of its own a call, checking at each where its frame lies: with
+    /// the stack below the statics, the recursion runs off the RAM's start and faults; without,
+    /// its frames come into the static data, which it says before it fails the emulation.
+    #[inline(never)]
+    #[allow(unconditional_recursion)]
+    fn overflow(depth: u32) -> u32 {
+        let frame = core::hint::black_box([depth; 16]);
+        let at = core::ptr::addr_of!(frame) as usize;
+        // Only the symbols' addresses, never their contents.
+        let statics =
+            core::ptr::addr_of!(__sdata) as usize..core::ptr::addr_of!(__euninit) as usize;
+        if statics.contains(&at) {
+            semihosting::eprint(format_args!(
+                "pab-fw-an386: hang-test: the stack ran into the static data at depth {}\n",
+                Decimal::new(depth)
+            ));
+            semihosting::exit(false)
+        }
+        overflow(depth.wrapping_add(1)).wrapping_add(frame[3])
     }
 }
 

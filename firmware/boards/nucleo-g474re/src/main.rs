@@ -162,8 +162,11 @@ struct Iwdg {
 
 impl Iwdg {
     /// Starts the IWDG with a timeout of [`WATCHDOG_TIMEOUT_US`]; once started, nothing but a
-    /// reset stops it.
-    fn start(iwdg: Peri<'static, IWDG>) -> Self {
+    /// reset stops it. Called first thing at boot, before embassy's init takes the peripheral
+    /// (handed over by [`Iwdg::claim`]): the IWDG runs on its own LSI, which it starts itself,
+    /// so it needs no clock set up, and a boot that hangs (embassy waits for the crystal without
+    /// a limit) ends in a reset.
+    fn start() -> Started {
         // Frozen while a debugger halts the core (DBGMCU_APB1FZR1.DBG_IWDG_STOP, reset only by a
         // power-on): a breakpoint would otherwise reset the board within the timeout. Without a
         // debugger the bit changes nothing.
@@ -176,6 +179,11 @@ impl Iwdg {
         regs.pr().write(|w| w.set_pr(IWDG_PRESCALER));
         regs.rlr().write(|w| w.set_rl(IWDG_RELOAD as u16));
         regs.kr().write(|w| w.set_key(Key::START));
+        Started(())
+    }
+
+    /// The started IWDG with its peripheral, once embassy's init has handed it out.
+    fn claim(_started: Started, iwdg: Peri<'static, IWDG>) -> Self {
         Iwdg { _peripheral: iwdg }
     }
 
@@ -185,6 +193,21 @@ impl Iwdg {
             .kr()
             .write(|w| w.set_key(Key::RESET));
     }
+}
+
+/// The IWDG started ([`Iwdg::start`]), before its peripheral exists.
+struct Started(());
+
+/// Says whether the IWDG reset the chip last (RCC_CSR.IWDGRSTF), then clears the reset flags,
+/// so that the next boot reads only its own cause. A boot that hangs before the node loop (a
+/// crystal that never starts) says so at every restart, every [`WATCHDOG_TIMEOUT_US`]; the bus
+/// sees no heartbeat from it.
+fn report_watchdog_reset() {
+    let rcc = embassy_stm32::pac::RCC;
+    if rcc.csr().read().iwdgrstf() {
+        defmt::error!("reset by the watchdog: the last boot or node loop hung");
+    }
+    rcc.csr().modify(|w| w.set_rmvf(true));
 }
 
 /// The IWDG, as the node loop feeds it, and LD2, which follows bit 19 of the microsecond clock
@@ -250,6 +273,9 @@ fn enable_flash_prefetch_and_caches() {
 
 #[embassy_executor::main]
 async fn main(_spawner: Spawner) {
+    // The watchdog first: from here on a boot that hangs ends in a reset.
+    let started = Iwdg::start();
+    report_watchdog_reset();
     let p = embassy_stm32::init(clocks());
     enable_flash_prefetch_and_caches();
     info!(
@@ -305,8 +331,8 @@ async fn main(_spawner: Spawner) {
         BootCounter::new(&mut flash, BOOT_COUNTER_RANGE)?.increment()
     });
     let mut store = unwrap!(FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE));
-    // Started last before the node loop: from here on, only the loop feeds it.
-    let watchdog = Iwdg::start(p.IWDG);
+    // Only the node loop feeds it from here on (once before the node's boot, then every turn).
+    let watchdog = Iwdg::claim(started, p.IWDG);
     // The node loop runs in this task rather than in one of its own: spawning one (its pool, the
     // move of the loop's state into it, the check that the pool was free) took some 110 bytes of
     // flash, and this task would only have returned.
