@@ -19,3 +19,4 @@ pub mod plant;
 pub mod plot;
 pub mod push;
 pub mod solve;
+pub mod starter;

@@ -413,6 +413,21 @@ file can configure the node.")]
         #[arg(short, long, value_name = "FILE")]
         output: PathBuf,
     },
+    /// Write a starter network file: the tutorial's, or one of the examples.
+    #[command(long_about = "\
+Write a network file to start from, one that `pabctl check` accepts: the tutorial's (a grasp and \
+a release competing for a gripper, commented key by key), or with --example NAME one of the \
+project's examples, built into pabctl (an unknown NAME lists them). Refuses to overwrite an \
+existing file. Then: `pabctl check FILE`, `pabctl sim FILE --plot FILE.png`.")]
+    Init {
+        /// The file to create.
+        #[arg(default_value = "network.toml")]
+        file: PathBuf,
+        /// Start from this example instead of the tutorial's network (assembly, tour-guide,
+        /// take-and-return, ...).
+        #[arg(long, value_name = "NAME")]
+        example: Option<String>,
+    },
     /// Write a board's key page image from a key file.
     #[command(long_about = "\
 Write the 32-byte key page record of KEYFILE (magic PABK, format 1, the key, CRC-32) to \
@@ -638,6 +653,7 @@ fn main() -> ExitCode {
             let iface = if dry_run { None } else { iface };
             run_limits(&network, iface.as_deref(), key.as_deref(), &overrides)
         }
+        Command::Init { file, example } => run_init(&file, example.as_deref()),
         Command::Keygen { output } => run_keygen(&output),
         Command::Keypage { key, output } => run_keypage(&key, &output),
         Command::Nodes {
@@ -707,6 +723,36 @@ fn read_key(path: &Path) -> Result<pab_core::auth::Authenticator, Failure> {
     let key = pabctl::keys::read(path)
         .map_err(|message| Failure::Input(Diagnostic::file(path, message).into()))?;
     Ok(pab_core::auth::Authenticator::new(&key))
+}
+
+fn run_init(file: &Path, example: Option<&str>) -> Result<(), Failure> {
+    let name = example.unwrap_or(pabctl::starter::DEFAULT);
+    let text = pabctl::starter::find(name).map_err(|message| {
+        Failure::Input(Diagnostic::file(Path::new("--example"), message).into())
+    })?;
+    // create_new: a file that is there, whoever wrote it, is never replaced.
+    let mut out = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(file)
+        .map_err(|error| match error.kind() {
+            std::io::ErrorKind::AlreadyExists => format!(
+                "{}: already exists; pabctl init never overwrites a file (give another name)",
+                file.display()
+            ),
+            _ => format!("{}: cannot create: {error}", file.display()),
+        })
+        .map_err(Failure::Output)?;
+    use std::io::Write as _;
+    out.write_all(text.as_bytes())
+        .map_err(|error| Failure::Output(format!("{}: {error}", file.display())))?;
+    let what = if example.is_some() {
+        format!("the example `{name}`")
+    } else {
+        "the tutorial's network (docs/tutorial.md)".to_string()
+    };
+    println!("{}: {what} written; next: pabctl check {0}", file.display());
+    Ok(())
 }
 
 fn run_keygen(output: &Path) -> Result<(), Failure> {

@@ -899,3 +899,55 @@ fn limits_are_checked_against_the_table_before_anything_is_sent() {
     assert_eq!(output.status.code(), Some(2));
     assert!(text(&output.stderr).contains("--iface"));
 }
+
+#[test]
+fn init_writes_the_tutorials_network_which_check_accepts_and_never_overwrites() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("network.toml");
+    let path = file.display().to_string();
+    let written = pabctl(&["init", &path]);
+    assert!(written.status.success(), "{}", text(&written.stderr));
+    assert!(text(&written.stdout).contains("next: pabctl check"));
+    let tutorial = std::fs::read_to_string(examples().join("first-network.toml")).unwrap();
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), tutorial);
+    let checked = pabctl(&["check", &path]);
+    assert_eq!(checked.status.code(), Some(0), "{}", text(&checked.stdout));
+
+    // A second init leaves the file as it is, whatever it holds now.
+    std::fs::write(&file, "# mine\n").unwrap();
+    let again = pabctl(&["init", &path]);
+    assert_eq!(again.status.code(), Some(3));
+    assert!(
+        text(&again.stderr).contains("already exists"),
+        "{}",
+        text(&again.stderr)
+    );
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "# mine\n");
+}
+
+#[test]
+fn init_with_an_example_writes_it_and_a_slip_of_its_name_gets_the_nearest() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("tour.toml");
+    let path = file.display().to_string();
+    let written = pabctl(&["init", &path, "--example", "tour-guide"]);
+    assert!(written.status.success(), "{}", text(&written.stderr));
+    assert_eq!(
+        std::fs::read_to_string(&file).unwrap(),
+        std::fs::read_to_string(examples().join("tour-guide.toml")).unwrap()
+    );
+    let other = dir.path().join("other.toml");
+    let slip = pabctl(&[
+        "init",
+        &other.display().to_string(),
+        "--example",
+        "tour-guid",
+    ]);
+    assert_eq!(slip.status.code(), Some(2));
+    assert!(
+        text(&slip.stderr).contains("did you mean `tour-guide`?"),
+        "{}",
+        text(&slip.stderr)
+    );
+    assert!(!other.exists(), "nothing written for an unknown example");
+}
