@@ -11,6 +11,7 @@
 pub mod args;
 pub mod bus;
 pub mod client;
+pub mod json;
 pub mod keys;
 pub mod limits;
 pub mod monitor;

@@ -84,6 +84,10 @@ Exit status: 0 consistent, 1 inconsistent, 2 unreadable or invalid file.")]
     Check {
         /// The network file (TOML).
         network: PathBuf,
+        /// Also print the verdict as one JSON object on standard output (docs/pabctl.md, "JSON
+        /// output"); the text goes to standard error.
+        #[arg(long)]
+        json: bool,
     },
     /// Compile one table image per node into a directory (DIR/<node>.pab).
     #[command(long_about = "\
@@ -101,6 +105,10 @@ id, the table version and a CRC-32. Nothing is written if the network is inconsi
         /// version`, else 1; 0 is reserved: heartbeats report it for "no table").
         #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = args::table_version)]
         table_version: Option<u32>,
+        /// Also print the images written as a JSON array on standard output (docs/pabctl.md,
+        /// "JSON output"); the text goes to standard error.
+        #[arg(long)]
+        json: bool,
     },
     /// Run every node of the network on a simulated bus, with the events of the file.
     #[command(long_about = "\
@@ -562,12 +570,13 @@ fn main() -> ExitCode {
     restore_sigpipe();
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Check { network } => run_check(&network),
+        Command::Check { network, json } => run_check(&network, json),
         Command::Compile {
             network,
             output,
             table_version,
-        } => run_compile(&network, &output, table_version),
+            json,
+        } => run_compile(&network, &output, table_version, json),
         Command::Sim {
             network,
             until,
@@ -937,8 +946,16 @@ fn run_monitor(
     Ok(())
 }
 
-fn run_check(path: &Path) -> Result<(), Failure> {
-    let network = Network::load(path)?;
+fn run_check(path: &Path, json: bool) -> Result<(), Failure> {
+    let network = match Network::load(path) {
+        Ok(network) => network,
+        Err(errors) => {
+            if json {
+                println!("{}", pabctl::json::invalid(path, &errors.0));
+            }
+            return Err(errors.into());
+        }
+    };
     let report = check::check(&network);
     // Warnings (competitive dynamics that cannot behave as written) fail nothing.
     let mut warnings = check::connections::warnings(&network);
@@ -950,20 +967,36 @@ fn run_check(path: &Path) -> Result<(), Failure> {
     if !warnings.is_empty() {
         eprintln!("{} warning{}", warnings.len(), plural(warnings.len()));
     }
-    print!("{}", report.summary(&network));
+    if json {
+        let shown: Vec<&Diagnostic> = warnings.iter().map(|w| &w.0).collect();
+        println!("{}", pabctl::json::check(path, &network, &report, &shown));
+        // The text for a person, on standard error.
+        eprint!("{}", report.summary(&network));
+    } else {
+        print!("{}", report.summary(&network));
+    }
     if report.is_consistent() {
-        println!(
+        let say = if json { eprintln_line } else { println_line };
+        say(format!(
             "{}: consistent ({} port{}, {} connection{})",
             path.display(),
             network.ports.len(),
             plural(network.ports.len()),
             network.connections.len(),
             plural(network.connections.len())
-        );
+        ));
         Ok(())
     } else {
         Err(Failure::Inconsistent(report.errors(&network)))
     }
+}
+
+fn println_line(line: String) {
+    println!("{line}");
+}
+
+fn eprintln_line(line: String) {
+    eprintln!("{line}");
 }
 
 fn compiled(network: &Network, table_version: Option<u32>) -> Result<Vec<CompiledNode>, Failure> {
@@ -974,15 +1007,21 @@ fn compiled(network: &Network, table_version: Option<u32>) -> Result<Vec<Compile
     compile::compile(&network).map_err(Failure::Inconsistent)
 }
 
-fn run_compile(path: &Path, output: &Path, table_version: Option<u32>) -> Result<(), Failure> {
+fn run_compile(
+    path: &Path,
+    output: &Path,
+    table_version: Option<u32>,
+    json: bool,
+) -> Result<(), Failure> {
     let network = Network::load(path)?;
     let nodes = compiled(&network, table_version)?;
     fs::create_dir_all(output)
         .map_err(|error| Failure::Output(format!("cannot create {}: {error}", output.display())))?;
+    let say = if json { eprintln_line } else { println_line };
     for node in &nodes {
         let file = output.join(format!("{}.pab", node.name));
         write_atomically(&file, &node.image)?;
-        println!(
+        say(format!(
             "{}  {} bytes  (node id {}, table version {}, {} port{}, {} connection{}, {} decision node{})",
             file.display(),
             node.image.len(),
@@ -994,7 +1033,11 @@ fn run_compile(path: &Path, output: &Path, table_version: Option<u32>) -> Result
             plural(node.connections),
             node.decision_nodes,
             plural(node.decision_nodes),
-        );
+        ));
+    }
+    if json {
+        let version = table_version.unwrap_or(network.version);
+        println!("{}", pabctl::json::compiled(output, &nodes, version));
     }
     Ok(())
 }

@@ -951,3 +951,105 @@ fn init_with_an_example_writes_it_and_a_slip_of_its_name_gets_the_nearest() {
     );
     assert!(!other.exists(), "nothing written for an unknown example");
 }
+
+fn json(output: &Output) -> serde_json::Value {
+    serde_json::from_slice(&output.stdout).unwrap_or_else(|error| {
+        panic!(
+            "stdout is not one JSON value ({error}):\n{}",
+            text(&output.stdout)
+        )
+    })
+}
+
+#[test]
+fn check_json_gives_the_verdict_port_by_port_and_keeps_stdout_for_the_json() {
+    let consistent = pabctl(&["check", &example("first-network.toml"), "--json"]);
+    assert_eq!(consistent.status.code(), Some(0));
+    let found = json(&consistent);
+    assert_eq!(found["valid"], true);
+    assert_eq!(found["consistent"], true);
+    assert_eq!(found["errors"], serde_json::json!([]));
+    let port = &found["ports"][0];
+    assert_eq!(port["port"], "hand.command");
+    assert_eq!(port["node"], "hand");
+    assert_eq!(port["connections"], serde_json::json!(["GRASP", "RELEASE"]));
+    assert_eq!(port["masks"], 4);
+    assert_eq!(port["idle_masks"], 1);
+    // The person's text went to standard error.
+    assert!(text(&consistent.stderr).contains("consistent (1 port, 2 connections)"));
+
+    let dir = tempfile::tempdir().unwrap();
+    let variant = inconsistent_variant(dir.path());
+    let inconsistent = pabctl(&["check", &variant, "--json"]);
+    assert_eq!(inconsistent.status.code(), Some(1));
+    let found = json(&inconsistent);
+    assert_eq!(found["consistent"], false);
+    let overlaps: Vec<&serde_json::Value> = found["ports"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|p| p["overlaps"].as_array().unwrap())
+        .collect();
+    assert!(!overlaps.is_empty(), "{found}");
+    assert!(
+        overlaps[0]["active"]
+            .as_array()
+            .is_some_and(|a| !a.is_empty())
+    );
+    let error = &found["errors"][0];
+    assert!(
+        error["line"].as_u64().is_some_and(|line| line > 0),
+        "{error}"
+    );
+    assert!(
+        error["message"]
+            .as_str()
+            .unwrap()
+            .contains("can both deliver")
+    );
+}
+
+#[test]
+fn check_json_on_an_invalid_file_lists_its_errors_with_their_lines() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("bad.toml");
+    std::fs::write(&file, "[nodes.a]\nidd = 1\n").unwrap();
+    let output = pabctl(&["check", &file.display().to_string(), "--json"]);
+    assert_eq!(output.status.code(), Some(2));
+    let found = json(&output);
+    assert_eq!(found["valid"], false);
+    assert_eq!(found["errors"][0]["line"], 2);
+    assert_eq!(found["errors"][0]["column"], 1);
+    assert!(
+        found["errors"][0]["message"]
+            .as_str()
+            .unwrap()
+            .contains("did you mean `id`?")
+    );
+}
+
+#[test]
+fn compile_json_lists_each_image_as_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("tables");
+    let output = pabctl(&[
+        "compile",
+        &example("take-and-return.toml"),
+        "-o",
+        &out.display().to_string(),
+        "--json",
+    ]);
+    assert!(output.status.success(), "{}", text(&output.stderr));
+    let found = json(&output);
+    let images = found.as_array().unwrap();
+    assert_eq!(images.len(), 3, "{found}");
+    for image in images {
+        let file = PathBuf::from(image["file"].as_str().unwrap());
+        assert_eq!(
+            std::fs::metadata(&file).unwrap().len(),
+            image["bytes"].as_u64().unwrap(),
+            "{image}"
+        );
+        assert_eq!(image["table_version"], 1);
+    }
+}
