@@ -107,6 +107,9 @@ cargo test --locked
 # The core without competitive dynamics (`--no-default-features`), as a board built without the
 # runtime would have it: it refuses tables with dynamics instead of running them without gates.
 cargo test -p pab-core --no-default-features --lib --locked
+# The book's "Your own board" example: the node over stand-ins for a CAN driver, a flash and a
+# watchdog; it checks what the table says happens and exits 1 otherwise.
+cargo run -q -p pab-app --example your_own_board --locked
 
 step "benchmarks, once each in test mode"
 cargo test -p pab-core --benches --locked
