@@ -102,3 +102,77 @@ pub fn compiled(output: &Path, nodes: &[CompiledNode], table_version: u32) -> Va
             .collect(),
     )
 }
+
+/// `pabctl nodes --json`: per node heard, by id: `id`, `name` (from the network file, `null`
+/// without one), `state`, `uptime_s` and `table_version` (from its heartbeat; `null` before
+/// one), `crc` (the running table's, 8 hex digits; `null` without a table or a status),
+/// `stored`, `keyed`, `received`, `delivered`, `discarded`, `errors` (`null` until its frames
+/// said), and `last_fault` (`code`, `description`, `count`, `seconds_ago`; `null` without one).
+pub fn nodes(
+    observer: &crate::observe::Observer,
+    names: &std::collections::BTreeMap<u8, String>,
+    now: std::time::Instant,
+) -> Value {
+    Value::Array(
+        observer
+            .nodes()
+            .iter()
+            .map(|(id, view)| {
+                let heartbeat = view.heartbeat.map(|(heartbeat, _)| heartbeat);
+                let table = view.table.filter(|table| table.crc != 0);
+                json!({
+                    "id": id,
+                    "name": names.get(id),
+                    "state": heartbeat.map(|h| h.state.description()),
+                    "uptime_s": heartbeat.map(|h| h.uptime_s),
+                    "table_version": heartbeat.map(|h| h.table_version),
+                    "crc": table.map(|t| format!("{:08x}", t.crc)),
+                    "stored": table.map(|t| t.stored),
+                    "keyed": view.table.map(|t| t.keyed),
+                    "received": view.traffic.map(|t| t.received),
+                    "delivered": view.traffic.map(|t| t.delivered),
+                    "discarded": view.errors.map(|e| e.discarded),
+                    "errors": view.errors.map(|e| e.errors),
+                    "last_fault": view.last_fault.map(|(fault, at)| json!({
+                        "code": fault.code.code(),
+                        "description": crate::observe::describe_fault(&fault),
+                        "count": fault.count,
+                        "seconds_ago": now.saturating_duration_since(at).as_secs_f64(),
+                    })),
+                })
+            })
+            .collect(),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::observe::Observer;
+    use pab_core::protocol::{BROADCAST, Heartbeat, Message, NodeState};
+    use std::collections::BTreeMap;
+    use std::time::Instant;
+
+    #[test]
+    fn a_node_heard_only_by_its_heartbeat_has_nulls_for_what_it_did_not_say() {
+        let mut observer = Observer::new();
+        let at = Instant::now();
+        let heartbeat = Message::Heartbeat(Heartbeat {
+            state: NodeState::Operational,
+            uptime_s: 42,
+            table_version: 3,
+        });
+        observer.observe(&heartbeat.to_frame(2, BROADCAST), at);
+        let names = BTreeMap::from([(2, "hand".to_string())]);
+        let found = nodes(&observer, &names, at);
+        assert_eq!(
+            found,
+            json!([{
+                "id": 2, "name": "hand", "state": "operational", "uptime_s": 42,
+                "table_version": 3, "crc": null, "stored": null, "keyed": null,
+                "received": null, "delivered": null, "discarded": null, "errors": null,
+                "last_fault": null,
+            }])
+        );
+    }
+}

@@ -469,6 +469,10 @@ nodes are named.")]
             value_parser = args::listen_seconds
         )]
         listen: f64,
+        /// Print the nodes as a JSON array on standard output instead of the table
+        /// (docs/pabctl.md, "JSON output").
+        #[arg(long)]
+        json: bool,
     },
     /// Live view of every port: connections' stimulation, activity and who delivers.
     #[command(long_about = "\
@@ -669,7 +673,8 @@ fn main() -> ExitCode {
             iface,
             network,
             listen,
-        } => run_nodes(&iface, network.as_deref(), listen),
+            json,
+        } => run_nodes(&iface, network.as_deref(), listen, json),
         Command::Monitor {
             network,
             iface,
@@ -881,7 +886,7 @@ fn run_push(
     Ok(())
 }
 
-fn run_nodes(iface: &str, network: Option<&Path>, listen: f64) -> Result<(), Failure> {
+fn run_nodes(iface: &str, network: Option<&Path>, listen: f64, json: bool) -> Result<(), Failure> {
     let names = match network {
         Some(path) => Network::load(path)?
             .nodes
@@ -900,10 +905,12 @@ fn run_nodes(iface: &str, network: Option<&Path>, listen: f64) -> Result<(), Fai
             "no node heard on {iface} within {listen} s"
         )));
     }
-    print!(
-        "{}",
-        observe::nodes_table(&observer, &names, std::time::Instant::now())
-    );
+    let now = std::time::Instant::now();
+    if json {
+        println!("{}", pabctl::json::nodes(&observer, &names, now));
+    } else {
+        print!("{}", observe::nodes_table(&observer, &names, now));
+    }
     Ok(())
 }
 
@@ -1042,6 +1049,42 @@ fn run_compile(
     Ok(())
 }
 
+/// Refuses, before a run rather than after it, the output files that could not be written as
+/// asked: a plot that is not a `.png`, the only format drawn (exit 2, with every such mistake),
+/// or a file in a directory that does not exist (exit 3, as any output that cannot be written).
+/// Each `(flag, path, is_plot)`.
+fn refuse_unwritable(outputs: &[(&str, Option<&Path>, bool)]) -> Result<(), Failure> {
+    let mut invalid = Vec::new();
+    let mut unwritable = Vec::new();
+    for &(flag, output, is_plot) in outputs {
+        let Some(output) = output else { continue };
+        let png = output
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+        if is_plot && !png {
+            invalid.push(Diagnostic::file(
+                output,
+                format!("{flag}: plots are drawn as PNG only: give a FILE.png"),
+            ));
+        }
+        let parent = output.parent().filter(|p| !p.as_os_str().is_empty());
+        if let Some(parent) = parent.filter(|p| !p.is_dir()) {
+            unwritable.push(format!(
+                "cannot write {} ({flag}): the directory {} does not exist (create it first)",
+                output.display(),
+                parent.display()
+            ));
+        }
+    }
+    if !invalid.is_empty() {
+        return Err(Failure::Input(Diagnostics(invalid)));
+    }
+    if !unwritable.is_empty() {
+        return Err(Failure::Output(unwritable.join("\n")));
+    }
+    Ok(())
+}
+
 fn run_sim(
     path: &Path,
     until: Option<f64>,
@@ -1050,7 +1093,22 @@ fn run_sim(
     candump_path: Option<&Path>,
     dynamics_path: Option<&Path>,
 ) -> Result<bool, Failure> {
+    refuse_unwritable(&[
+        ("--trace", trace, false),
+        ("--plot", plot_path, true),
+        ("--candump", candump_path, false),
+        ("--dynamics-trace", dynamics_path, false),
+    ])?;
     let network = Network::load(path)?;
+    if dynamics_path.is_some() && network.dynamics.is_empty() {
+        return Err(Failure::Input(
+            Diagnostic::file(
+                path,
+                "--dynamics-trace: the network has no [dynamics.*] group, so nothing to trace",
+            )
+            .into(),
+        ));
+    }
     let schema_only = network.ports.is_empty() && network.client.is_some();
     let nodes = compiled(&network, None)?;
     let options = Options {
@@ -1126,6 +1184,11 @@ fn run_schema_sim(
     plot_path: Option<&Path>,
     program_path: Option<&Path>,
 ) -> Result<(), Failure> {
+    refuse_unwritable(&[
+        ("--schema-trace", trace, false),
+        ("--schema-plot", plot_path, true),
+        ("--schema-program", program_path, false),
+    ])?;
     let network = Network::load(path)?;
     if network.client.is_none() {
         if trace.is_some() || plot_path.is_some() || program_path.is_some() {
@@ -1445,6 +1508,12 @@ fn run_replay(
     if !errors.is_empty() {
         return Err(Failure::Input(Diagnostics(errors)));
     }
+    refuse_unwritable(&[
+        ("--trace", trace, false),
+        ("--plot", plot_path, true),
+        ("--records", records_path, false),
+        ("--board-job", job_path, false),
+    ])?;
     let network = Network::load(path)?;
     let nodes = compiled(&network, None)?;
     let size = fs::metadata(capture_path).map_or(0, |m| m.len());

@@ -1053,3 +1053,47 @@ fn compile_json_lists_each_image_as_written() {
         assert_eq!(image["table_version"], 1);
     }
 }
+
+#[test]
+fn sim_refuses_outputs_it_could_not_write_before_it_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("no-such-dir").join("trace.csv");
+    let svg = dir.path().join("plot.svg");
+    let not_png = pabctl(&[
+        "sim",
+        &example("first-network.toml"),
+        "--plot",
+        &svg.display().to_string(),
+    ]);
+    assert_eq!(not_png.status.code(), Some(2));
+    let said = text(&not_png.stderr);
+    assert!(
+        said.contains("--plot: plots are drawn as PNG only"),
+        "{said}"
+    );
+    // Refused before the run: nothing simulated, nothing written.
+    assert_eq!(text(&not_png.stdout), "");
+    assert!(!svg.exists());
+
+    let no_dir = pabctl(&[
+        "sim",
+        &example("first-network.toml"),
+        "--trace",
+        &missing.display().to_string(),
+    ]);
+    assert_eq!(no_dir.status.code(), Some(3));
+    let said = text(&no_dir.stderr);
+    assert!(said.contains("(--trace): the directory"), "{said}");
+    assert_eq!(text(&no_dir.stdout), "");
+
+    let trace = dir.path().join("dynamics.csv");
+    let nothing = pabctl(&[
+        "sim",
+        &example("first-network.toml"),
+        "--dynamics-trace",
+        &trace.display().to_string(),
+    ]);
+    assert_eq!(nothing.status.code(), Some(2));
+    assert!(text(&nothing.stderr).contains("no [dynamics.*] group"));
+    assert!(!trace.exists(), "no empty trace written");
+}
