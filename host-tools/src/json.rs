@@ -145,6 +145,68 @@ pub fn nodes(
     )
 }
 
+/// `pabctl sim --json`: `file`, `frames` (frames on the simulated bus), `nodes`, `until_s`, and
+/// per port, in file order: `port`, `node`, `changes` (each time the connection that gets
+/// through changes: `t_s`, `delivers`, the connection or `null` for nobody, and its `topic`),
+/// and `connections` (`name`, `kind`, `frames`, `delivered`, `discarded`).
+pub fn sim(path: &Path, network: &Network, outcome: &pab_lang::sim::Outcome) -> Value {
+    let ports: Vec<Value> = network
+        .ports
+        .iter()
+        .enumerate()
+        .map(|(index, port)| {
+            let changes: Vec<Value> = outcome
+                .timelines
+                .get(index)
+                .into_iter()
+                .flatten()
+                .map(|change| {
+                    let connection = change.selected.and_then(|c| network.connections.get(c));
+                    json!({
+                        "t_s": change.t_us as f64 / 1e6,
+                        "delivers": connection.map(|c| c.name.as_str()),
+                        "topic": connection
+                            .and_then(|c| network.topics.get(c.topic))
+                            .map(|t| t.name.as_str()),
+                    })
+                })
+                .collect();
+            let connections: Vec<Value> = port
+                .connections
+                .iter()
+                .filter_map(|&c| Some((c, network.connections.get(c)?)))
+                .map(|(c, connection)| {
+                    let frames = outcome.rows_of(c, 0, u64::MAX).count();
+                    let delivered = outcome
+                        .rows_of(c, 0, u64::MAX)
+                        .filter(|row| row.delivered)
+                        .count();
+                    json!({
+                        "name": connection.name,
+                        "kind": connection.kind.name(),
+                        "frames": frames,
+                        "delivered": delivered,
+                        "discarded": frames - delivered,
+                    })
+                })
+                .collect();
+            json!({
+                "port": port.name,
+                "node": network.nodes.get(port.node).map(|n| n.name.as_str()),
+                "changes": changes,
+                "connections": connections,
+            })
+        })
+        .collect();
+    json!({
+        "file": path.display().to_string(),
+        "frames": outcome.frames,
+        "nodes": network.nodes.len(),
+        "until_s": outcome.until_us as f64 / 1e6,
+        "ports": ports,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -175,6 +175,10 @@ interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a rea
         /// Start the schema plot's time axis here, seconds (default 0), to show one insertion.
         #[arg(long, value_name = "SECONDS", value_parser = args::seconds)]
         from: Option<f64>,
+        /// Also print the run's summary as one JSON object on standard output (docs/pabctl.md,
+        /// "JSON output"); the text goes to standard error.
+        #[arg(long)]
+        json: bool,
     },
     /// Choose the HBBA strategies for a set of desires: which run, the objective, each resource's
     /// use.
@@ -592,6 +596,7 @@ fn main() -> ExitCode {
             schema_plot,
             schema_program,
             from,
+            json,
         } => run_sim(
             &network,
             until,
@@ -599,6 +604,7 @@ fn main() -> ExitCode {
             plot.as_deref(),
             candump.as_deref(),
             dynamics_trace.as_deref(),
+            json,
         )
         .and_then(|schema_only| {
             // A file with a schema server and no port: its plot is the schema server's.
@@ -610,6 +616,7 @@ fn main() -> ExitCode {
                 schema_trace.as_deref(),
                 schema_plot.as_deref(),
                 schema_program.as_deref(),
+                if json { eprintln_line } else { println_line },
             )
         }),
         Command::Replay {
@@ -1092,7 +1099,10 @@ fn run_sim(
     plot_path: Option<&Path>,
     candump_path: Option<&Path>,
     dynamics_path: Option<&Path>,
+    json: bool,
 ) -> Result<bool, Failure> {
+    // With --json, standard output is the JSON's alone.
+    let say = if json { eprintln_line } else { println_line };
     refuse_unwritable(&[
         ("--trace", trace, false),
         ("--plot", plot_path, true),
@@ -1120,22 +1130,29 @@ fn run_sim(
     };
     let outcome = sim::simulate(&network, &nodes, &options)
         .map_err(|error| Failure::Input(Diagnostic::file(path, error.to_string()).into()))?;
-    println!(
+    say(format!(
         "{}: {} frames on {} node{}, until t = {} s",
         path.display(),
         outcome.frames,
         network.nodes.len(),
         plural(network.nodes.len()),
         sim::seconds_text(outcome.until_us)
-    );
-    print!("{}", outcome.report(&network));
+    ));
+    let report = outcome.report(&network);
+    if !report.is_empty() {
+        say(report.trim_end().to_string());
+    }
     if let Some(trace) = trace {
         let mut csv = Vec::new();
         outcome
             .write_csv(&network, &mut csv)
             .map_err(|error| Failure::Output(format!("cannot write the trace: {error}")))?;
         write_atomically(trace, &csv)?;
-        println!("trace: {} ({} rows)", trace.display(), outcome.rows.len());
+        say(format!(
+            "trace: {} ({} rows)",
+            trace.display(),
+            outcome.rows.len()
+        ));
     }
     if let Some(plot_path) = plot_path.filter(|_| !schema_only) {
         let title = path
@@ -1144,7 +1161,7 @@ fn run_sim(
         plot::render_png(&outcome.plot_data(&network, &title), plot_path).map_err(|error| {
             Failure::Output(format!("cannot draw {}: {error:#}", plot_path.display()))
         })?;
-        println!("plot: {}", plot_path.display());
+        say(format!("plot: {}", plot_path.display()));
     }
     if let Some(candump_path) = candump_path {
         let frames = sim::event_frames(&network)
@@ -1157,7 +1174,10 @@ fn run_sim(
             written += 1;
         }
         write_atomically(candump_path, log.as_bytes())?;
-        println!("candump: {} ({written} frames)", candump_path.display());
+        say(format!(
+            "candump: {} ({written} frames)",
+            candump_path.display()
+        ));
     }
     if let Some(dynamics_path) = dynamics_path {
         let mut csv = Vec::new();
@@ -1165,11 +1185,14 @@ fn run_sim(
             Failure::Output(format!("cannot write the dynamics trace: {error}"))
         })?;
         write_atomically(dynamics_path, &csv)?;
-        println!(
+        say(format!(
             "dynamics trace: {} ({} rows)",
             dynamics_path.display(),
             outcome.dynamics.len()
-        );
+        ));
+    }
+    if json {
+        println!("{}", pabctl::json::sim(path, &network, &outcome));
     }
     Ok(schema_only)
 }
@@ -1183,6 +1206,7 @@ fn run_schema_sim(
     trace: Option<&Path>,
     plot_path: Option<&Path>,
     program_path: Option<&Path>,
+    say: fn(String),
 ) -> Result<(), Failure> {
     refuse_unwritable(&[
         ("--schema-trace", trace, false),
@@ -1211,11 +1235,11 @@ fn run_schema_sim(
         let text = serde_json::to_string_pretty(&calls)
             .map_err(|e| Failure::Output(format!("cannot write the program: {e}")))?;
         write_atomically(program_path, text.as_bytes())?;
-        println!(
+        say(format!(
             "schema program: {} ({} calls)",
             program_path.display(),
             calls.len()
-        );
+        ));
     }
     let limits = sim::schema::Limits {
         until_us: until.map_or(100_000 * 1_000_000, sim::micros),
@@ -1223,17 +1247,20 @@ fn run_schema_sim(
     };
     let run = sim::schema::simulate(&network, limits)
         .map_err(|error| Failure::Input(Diagnostic::file(path, error.to_string()).into()))?;
-    print!("{}", sim::schema::report(&run, &network));
+    let report = sim::schema::report(&run, &network);
+    if !report.is_empty() {
+        say(report.trim_end().to_string());
+    }
     if let Some(trace) = trace {
         let mut csv = Vec::new();
         sim::schema::write_trace(&run, &network, &mut csv)
             .map_err(|error| Failure::Output(format!("cannot write the schema trace: {error}")))?;
         write_atomically(trace, &csv)?;
-        println!(
+        say(format!(
             "schema trace: {} ({} rows)",
             trace.display(),
             run.installed.len()
-        );
+        ));
     }
     if let Some(plot_path) = plot_path {
         let title = path
@@ -1245,7 +1272,7 @@ fn run_schema_sim(
             .map_err(|error| {
                 Failure::Output(format!("cannot draw {}: {error:#}", plot_path.display()))
             })?;
-        println!("schema plot: {}", plot_path.display());
+        say(format!("schema plot: {}", plot_path.display()));
     }
     Ok(())
 }

@@ -1097,3 +1097,43 @@ fn sim_refuses_outputs_it_could_not_write_before_it_runs() {
     assert!(text(&nothing.stderr).contains("no [dynamics.*] group"));
     assert!(!trace.exists(), "no empty trace written");
 }
+
+#[test]
+fn sim_json_gives_who_gets_through_when_and_each_connections_counts() {
+    let output = pabctl(&["sim", &example("first-network.toml"), "--json"]);
+    assert!(output.status.success(), "{}", text(&output.stderr));
+    let found = json(&output);
+    assert_eq!(found["nodes"], 1);
+    let port = &found["ports"][0];
+    assert_eq!(port["port"], "hand.command");
+    let changes: Vec<(f64, Option<&str>)> = port["changes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| (c["t_s"].as_f64().unwrap(), c["delivers"].as_str()))
+        .collect();
+    // The tutorial's story: the grasp, the release while pressed, the grasp again, nobody.
+    let who: Vec<Option<&str>> = changes.iter().map(|c| c.1).collect();
+    assert_eq!(
+        who,
+        [None, Some("GRASP"), Some("RELEASE"), Some("GRASP"), None],
+        "{changes:?}"
+    );
+    let mut frames = 0;
+    for connection in port["connections"].as_array().unwrap() {
+        let n = connection["frames"].as_u64().unwrap();
+        assert_eq!(
+            connection["delivered"].as_u64().unwrap() + connection["discarded"].as_u64().unwrap(),
+            n
+        );
+        frames += n;
+    }
+    assert_eq!(found["frames"].as_u64().unwrap(), frames);
+    // The text went to standard error.
+    assert!(text(&output.stderr).contains("63 frames on 1 node"));
+
+    // A schema server's run: its text to standard error too, standard output stays JSON.
+    let schema = pabctl(&["sim", &example("assembly.toml"), "--json"]);
+    assert!(schema.status.success(), "{}", text(&schema.stderr));
+    assert_eq!(json(&schema)["ports"], serde_json::json!([]));
+}
