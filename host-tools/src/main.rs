@@ -296,6 +296,10 @@ Examples:
         /// (pab-an386-replay), which writes the same records.
         #[arg(long, value_name = "FILE")]
         board_job: Option<PathBuf>,
+        /// Also print the replay's summary as one JSON object on standard output
+        /// (docs/pabctl.md, "JSON output"); the text goes to standard error.
+        #[arg(long)]
+        json: bool,
     },
     /// Compile the network and push each node's table over CAN; wait until each node runs it.
     #[command(long_about = "\
@@ -626,6 +630,7 @@ fn main() -> ExitCode {
             plot,
             records,
             board_job,
+            json,
         } => run_replay(
             &network,
             &capture,
@@ -633,6 +638,7 @@ fn main() -> ExitCode {
             plot.as_deref(),
             records.as_deref(),
             board_job.as_deref(),
+            json,
         ),
         Command::Push {
             network,
@@ -1498,7 +1504,10 @@ fn run_replay(
     plot_path: Option<&Path>,
     records_path: Option<&Path>,
     job_path: Option<&Path>,
+    json: bool,
 ) -> Result<(), Failure> {
+    // With --json, standard output is the JSON's alone.
+    let say = if json { eprintln_line } else { println_line };
     // An output that is an input would destroy it (`--trace yesterday.log`): refuse before
     // reading anything.
     let inputs = [path, capture_path];
@@ -1576,7 +1585,7 @@ fn run_replay(
         .iter()
         .map(|(name, _)| name.as_str())
         .collect();
-    println!(
+    say(format!(
         "{}: {} frames over {} s on {} (time 0 = {}); {} replayed on {} node{}, {} of the pab \
          protocol not fed{}",
         capture_path.display(),
@@ -1592,14 +1601,14 @@ fn run_replay(
             0 => String::new(),
             n => format!(", {n} error frame{} skipped", plural(n)),
         }
-    );
+    ));
     if let (count @ 1.., step) = capture.out_of_order {
-        println!(
+        say(format!(
             "{count} frame{} out of time order in the file (at most {} s early): replayed in \
              time order",
             plural(count),
             sim::seconds_text(step)
-        );
+        ));
     }
     let unmatched = feed.unmatched(&network);
     if !unmatched.is_empty() {
@@ -1615,7 +1624,7 @@ fn run_replay(
                 }
             })
             .collect();
-        println!(
+        say(format!(
             "{total} frame{} match no topic: {}{}",
             plural(total),
             listed.join(", "),
@@ -1624,26 +1633,37 @@ fn run_replay(
             } else {
                 String::new()
             }
-        );
+        ));
     }
-    print!("{}", outcome.report(&network));
+    let report = outcome.report(&network);
+    if !report.is_empty() {
+        say(report.trim_end().to_string());
+    }
     if let Some(trace) = trace {
         let mut csv = Vec::new();
         outcome
             .write_csv(&network, &mut csv)
             .map_err(|error| Failure::Output(format!("cannot write the trace: {error}")))?;
         write_atomically(trace, &csv)?;
-        println!("trace: {} ({} rows)", trace.display(), outcome.rows.len());
+        say(format!(
+            "trace: {} ({} rows)",
+            trace.display(),
+            outcome.rows.len()
+        ));
     }
     if let Some(records_path) = records_path {
         write_atomically(records_path, outcome.records.as_bytes())?;
-        println!("records: {}", records_path.display());
+        say(format!("records: {}", records_path.display()));
     }
     if let Some(job_path) = job_path {
         let job = replay::job(&network, &nodes, &feed.frames)
             .map_err(|error| Failure::Input(Diagnostic::file(path, error.to_string()).into()))?;
         write_atomically(job_path, &job)?;
-        println!("board job: {} ({} bytes)", job_path.display(), job.len());
+        say(format!(
+            "board job: {} ({} bytes)",
+            job_path.display(),
+            job.len()
+        ));
     }
     if let Some(plot_path) = plot_path {
         let title = capture_path
@@ -1654,7 +1674,23 @@ fn run_replay(
         plot::render_png(&data, plot_path).map_err(|error| {
             Failure::Output(format!("cannot draw {}: {error:#}", plot_path.display()))
         })?;
-        println!("plot: {}", plot_path.display());
+        say(format!("plot: {}", plot_path.display()));
+    }
+    if json {
+        let mut found = pabctl::json::sim(path, &network, &outcome);
+        found["capture"] = capture_path.display().to_string().into();
+        found["captured"] = captured.into();
+        found["replayed"] = feed.frames.len().into();
+        found["protocol_frames"] = feed.protocol_frames.into();
+        found["error_frames"] = capture.error_frames.into();
+        found["unmatched"] = unmatched
+            .iter()
+            .map(|((id, extended), count)| {
+                serde_json::json!({"id": id, "extended": extended, "count": count})
+            })
+            .collect::<Vec<_>>()
+            .into();
+        println!("{found}");
     }
     Ok(())
 }

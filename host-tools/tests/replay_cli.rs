@@ -195,3 +195,32 @@ fn sim_writes_its_bus_as_a_candump_log() {
             .all(|line| line.starts_with('(') && line.contains(" vcan0 "))
     );
 }
+
+#[test]
+fn replay_json_gives_the_capture_s_counts_and_the_port_timelines() {
+    let output = pabctl(&["replay", &path(NETWORK), &path(HIL_LOG), "--json"]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let found: serde_json::Value = serde_json::from_slice(&output.stdout)
+        .unwrap_or_else(|error| panic!("not JSON ({error}): {}", text(&output.stdout)));
+    // The same fixture as the text's test above.
+    assert_eq!(found["captured"], 4790);
+    assert_eq!(found["replayed"], 459);
+    assert_eq!(found["protocol_frames"], 4331);
+    let unmatched: u64 = found["unmatched"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|u| u["count"].as_u64().unwrap())
+        .sum();
+    assert_eq!(unmatched, 161);
+    assert_eq!(found["ports"][0]["port"], "arm.target");
+    assert!(
+        found["ports"][0]["changes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|c| c["delivers"] == "C14" && c["topic"] == "rest_pose")
+    );
+    // The text went to standard error.
+    assert!(text(&output.stderr).contains("4790 frames over 23.877701 s on vcan0"));
+}
