@@ -36,7 +36,13 @@ pub fn invalid(path: &Path, errors: &[Diagnostic]) -> Value {
 /// masks, the masks in which nothing delivers, every overlap (two connections and a smallest
 /// set of active connections under which both deliver) and every connection that can never
 /// deliver; the `errors` (the same as the text's) and the `warnings`.
-pub fn check(path: &Path, network: &Network, report: &Report, warnings: &[&Diagnostic]) -> Value {
+pub fn check(
+    path: &Path,
+    network: &Network,
+    report: &Report,
+    errors: &[Diagnostic],
+    warnings: &[&Diagnostic],
+) -> Value {
     let ports: Vec<Value> = report
         .ports
         .iter()
@@ -75,7 +81,7 @@ pub fn check(path: &Path, network: &Network, report: &Report, warnings: &[&Diagn
         "file": path.display().to_string(),
         "valid": true,
         "consistent": report.is_consistent(),
-        "errors": report.errors(network).iter().map(diagnostic).collect::<Vec<_>>(),
+        "errors": errors.iter().map(diagnostic).collect::<Vec<_>>(),
         "warnings": warnings.iter().map(|d| diagnostic(d)).collect::<Vec<_>>(),
         "ports": ports,
     })

@@ -987,9 +987,14 @@ fn run_check(path: &Path, json: bool) -> Result<(), Failure> {
     if !warnings.is_empty() {
         eprintln!("{} warning{}", warnings.len(), plural(warnings.len()));
     }
+    // Found once, for the JSON and for the verdict.
+    let errors = report.errors(&network);
     if json {
         let shown: Vec<&Diagnostic> = warnings.iter().map(|w| &w.0).collect();
-        println!("{}", pabctl::json::check(path, &network, &report, &shown));
+        println!(
+            "{}",
+            pabctl::json::check(path, &network, &report, &errors, &shown)
+        );
         // The text for a person, on standard error.
         eprint!("{}", report.summary(&network));
     } else {
@@ -1007,7 +1012,7 @@ fn run_check(path: &Path, json: bool) -> Result<(), Failure> {
         ));
         Ok(())
     } else {
-        Err(Failure::Inconsistent(report.errors(&network)))
+        Err(Failure::Inconsistent(errors))
     }
 }
 

@@ -25,10 +25,10 @@ fn section<'a>(text: &'a str, title: &str) -> Vec<&'a str> {
         .collect()
 }
 
-/// Every `--long` option named in `text`, as written (`--plot`), but `--help` and `--version`.
-fn long_options(text: &str) -> BTreeSet<String> {
+/// Every option named in `text`, as written: the long ones (`--plot`), but `--help` and
+/// `--version`, and the short ones a synopsis may use (`-o DIR`).
+fn options_named(text: &str) -> BTreeSet<String> {
     let mut found = BTreeSet::new();
-    // And the short ones a synopsis may use (`-o DIR`).
     for word in text.split_whitespace() {
         let word = word.trim_start_matches('[');
         if word.len() == 2 && word.starts_with('-') && word.as_bytes()[1].is_ascii_alphabetic() {
@@ -60,14 +60,14 @@ fn synopsis() -> BTreeMap<String, BTreeSet<String>> {
         if let Some(rest) = line.strip_prefix("    pabctl ") {
             let name = rest.split_whitespace().next().unwrap_or("").to_string();
             let options = commands.entry(name.clone()).or_insert_with(BTreeSet::new);
-            options.extend(long_options(rest));
+            options.extend(options_named(rest));
             current = Some(name);
         } else if line.starts_with("        ") && line.trim_start().starts_with('[') {
             if let Some(name) = &current {
                 commands
                     .get_mut(name)
                     .expect("entered above")
-                    .extend(long_options(line));
+                    .extend(options_named(line));
             }
         } else if !line.is_empty() {
             // The synopsis is the page's first block: it ends at the first line of prose.
@@ -110,7 +110,7 @@ fn the_books_synopsis_has_every_command_and_option_that_pabctl_help_shows() {
                 continue;
             }
             let flags = flags.split("  ").next().unwrap_or(flags);
-            if let Some(long) = long_options(flags).pop_first() {
+            if let Some(long) = options_named(flags).pop_first() {
                 if let Some(short) = flags.strip_prefix('-').filter(|f| !f.starts_with('-')) {
                     shorts.insert(format!("-{}", &short[..1]), long.clone());
                 }

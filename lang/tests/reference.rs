@@ -105,7 +105,7 @@ fn every_table_of_the_reference_lists_exactly_the_keys_the_parser_accepts() {
     let block = reference_block();
     let lines: Vec<&str> = block.lines().collect();
     // Each header's line index and kind, and the keys the reference documents per kind.
-    let mut headers = Vec::new();
+    let mut headers: Vec<(usize, String)> = Vec::new();
     let mut documented: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
     let mut current: Option<String> = None;
     for (index, line) in lines.iter().enumerate() {
@@ -113,13 +113,10 @@ fn every_table_of_the_reference_lists_exactly_the_keys_the_parser_accepts() {
             documented.entry(kind.clone()).or_default();
             // A table under another documents its key there: `[ble.t.nodes]` is `ble.*`'s
             // `nodes`, `[dynamics.d.behaviours.b]` is `dynamics.*`'s `behaviours`.
-            for (parent, _) in headers
-                .iter()
-                .map(|(_, k): &(usize, String)| (k.clone(), ()))
-            {
+            for (_, parent) in &headers {
                 if let Some(rest) = kind.strip_prefix(&format!("{parent}.")) {
                     let key = rest.split('.').next().unwrap_or(rest).to_string();
-                    documented.entry(parent).or_default().insert(key);
+                    documented.entry(parent.clone()).or_default().insert(key);
                 }
             }
             headers.push((index, kind.clone()));
