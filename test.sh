@@ -139,7 +139,7 @@ for network in examples/*.toml examples/dynamics/*.toml; do
     schema=()
     if grep -q '^\[client\]' "$network"; then schema=(--schema-trace "$out/$name.schema.csv"); fi
     "$pabctl" sim "$network" --trace "$out/$name.csv" --plot "$out/$name.png" "${schema[@]}" \
-        > "$out/$name.sim.txt"
+        --candump "$out/$name.log" > "$out/$name.sim.txt"
     echo "$network: consistent, compiled, simulated ($out/$name.png)"
 done
 
@@ -147,16 +147,27 @@ step "DBC export, decoded by cantools"
 # The venv holds the pinned requirements-dev.txt (cantools); creating it needs PyPI once.
 # A missing python3, venv or cantools fails the run: this step is never skipped.
 venv=$(scripts/python-env.sh)
-"$pabctl" dbc examples/take-and-return.toml -o "$out/take-and-return.dbc"
-"$pabctl" dbc examples/multi-target-observation.toml -o "$out/multi-target-observation.dbc"
-"$pabctl" dbc examples/door-dynamics.toml -o "$out/door-dynamics.dbc"
-"$pabctl" dbc examples/tour-guide.toml -o "$out/tour-guide.dbc"
-"$pabctl" dbc examples/assembly.toml -o "$out/assembly.dbc"
+# Every example's simulated bus (the examples step's --candump), decoded strictly by the command
+# a user types (`python -m cantools decode NET.dbc < bus.log`, no --no-strict), with the claims of
+# the capture listed (--claims-from); a schema server's examples put no frame on the simulated
+# bus, and their databases still load strictly. Then the committed capture of the HIL suite's
+# real bus (heartbeats, table transfers, re-published frames) with Take and Return's database.
+pairs=()
+for network in examples/*.toml; do
+    name=$(basename "$network" .toml)
+    claims=()
+    if [ -s "$out/$name.log" ]; then claims=(--claims-from "$out/$name.log"); fi
+    "$pabctl" dbc "$network" "${claims[@]}" -o "$out/$name.dbc"
+    pairs+=("$out/$name.dbc" "$out/$name.log")
+done
+"$pabctl" dbc examples/take-and-return.toml -o "$out/take-and-return-hil.dbc"
+pairs+=("$out/take-and-return-hil.dbc" host-tools/tests/fixtures/take-and-return-hil.log)
+"$venv/bin/python" host-tools/tests/dbc_strict.py "${pairs[@]}"
 # A schema server's sensor topics, one of each kind of field (the fixture's comment).
 "$pabctl" dbc host-tools/tests/fixtures/sensors.toml -o "$out/sensors.dbc"
 "$venv/bin/python" host-tools/tests/dbc_cantools.py "$out/take-and-return.dbc" \
     "$out/multi-target-observation.dbc" "$out/door-dynamics.dbc" "$out/tour-guide.dbc" \
-    "$out/assembly.dbc" "$out/sensors.dbc"
+    "$out/assembly.dbc" "$out/sensors.dbc" "$out/value-ports.dbc"
 
 step "hardware-in-the-loop harness, host-side unit tests (hil-sim/unit)"
 # The micro-VM's accelerator decision against stand-ins for QEMU, and the guest kernel's module

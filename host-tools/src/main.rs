@@ -137,8 +137,8 @@ per installed schema (t,node,schema,source,event; the event `safety:<name>` for 
 ones) and --schema-plot draws the height, lateral position, contact force and installed schema \
 over time, from --from to --until (--plot draws it too when the file has no port).
 --candump writes the simulated bus as a candump -L log (each frame with its event's data, by \
-default none; the nodes' BLE claims and Gates too; times from 0 s on \
-interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a real bus.")]
+default its topic's `length` of zeros; the intention's filter commands, the nodes' BLE claims and \
+Gates too; times from 0 s on interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a real bus.")]
     Sim {
         /// The network file (TOML).
         network: PathBuf,
@@ -527,7 +527,20 @@ and TransferStatus (node to tool), and PAB_DiagnosticControl_<node> and PAB_Diag
 statuses; the diagnostic level is scaled to 0..1. Table transfers (ISO-TP, service 0x11) are not \
 signals: their ids are in the node comments.
 - each topic of the network, named after it, on its can_id (a masked topic: its base id only), \
-with 8 one-byte signals data0..data7: the payload is the publisher's.
+its DLC the topic's `length` (default 8): the fields the network reads from its frames (value \
+ports, BLE eligibilities, dynamics contexts) as signals with their size, sign and byte order, the \
+other bytes as one-byte signals dataN.
+- each BLE group member's claim. A claim's identifier carries its eligibility, and tools such as \
+cantools match whole identifiers: the database lists each member's claim at eligibility 0, and \
+with --claims-from CAPTURE.log every claim of that capture too (each must decode as a claim of a \
+member; the others are errors at their line).
+
+With the frames of the topics' lengths, `python -m cantools decode NET.dbc < CAPTURE.log` decodes \
+every frame of the capture strictly (without --no-strict):
+
+    pabctl sim NET.toml --candump bus.log
+    pabctl dbc NET.toml --claims-from bus.log -o NET.dbc
+    python -m cantools decode NET.dbc < bus.log
 
 DBC node PABCTL is the workstation tool; node names are the network's (made C identifiers: other \
 characters become _, a leading digit gets node_). Extended ids are written with bit 31 set, as DBC \
@@ -541,6 +554,10 @@ extended with bits 25..24 = 0b10, is an error); 3 the output cannot be written."
         /// The DBC file to write, or - for standard output.
         #[arg(short, long, value_name = "FILE.dbc")]
         output: PathBuf,
+        /// List the BLE claims of this candump -L capture too (each eligibility a claim
+        /// identifier of its own)
+        #[arg(long, value_name = "CAPTURE.log")]
+        claims_from: Option<PathBuf>,
     },
 }
 
@@ -696,7 +713,11 @@ fn main() -> ExitCode {
             plain,
             key,
         } => run_monitor(&network, &iface, rate, duration, plain, key.as_deref()),
-        Command::Dbc { network, output } => run_dbc(&network, &output),
+        Command::Dbc {
+            network,
+            output,
+            claims_from,
+        } => run_dbc(&network, &output, claims_from.as_deref()),
         Command::Solve {
             network,
             desires,
@@ -1710,9 +1731,19 @@ fn progress_bar(total: u64, template: &str) -> ProgressBar {
     )
 }
 
-fn run_dbc(path: &Path, output: &Path) -> Result<(), Failure> {
+fn run_dbc(path: &Path, output: &Path, claims_from: Option<&Path>) -> Result<(), Failure> {
     let network = Network::load(path)?;
-    let database = dbc::build(&network)?;
+    let claims = match claims_from {
+        None => Vec::new(),
+        Some(capture_path) => {
+            let size = fs::metadata(capture_path).map_or(0, |m| m.len());
+            let bar = progress_bar(size, "reading {bytes}/{total_bytes}");
+            let capture = candump::read(capture_path, &mut |read| bar.set_position(read));
+            bar.finish_and_clear();
+            dbc::claims_in(&network, &capture?, capture_path)?
+        }
+    };
+    let database = dbc::build(&network, &claims)?;
     let text = database.render();
     if output.as_os_str() == "-" {
         let mut stdout = io::stdout().lock();

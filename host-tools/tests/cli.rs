@@ -321,7 +321,7 @@ fn dbc_writes_the_protocol_and_topic_messages() {
     ]);
     assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
     assert!(
-        text(&output.stdout).contains("45 messages"),
+        text(&output.stdout).contains("54 messages"),
         "{}",
         text(&output.stdout)
     );
@@ -348,7 +348,22 @@ fn dbc_writes_the_protocol_and_topic_messages() {
         dbc.contains("BO_ 2383478528 PAB_DiagnosticControl_all: 4 PABCTL\n"),
         "{dbc}"
     );
-    assert!(!dbc.contains("TableTransfer_"), "{dbc}");
+    // The tool's table transfer to gaze: ISO-TP frames, padded to 8 bytes.
+    let transfer = pab_core::protocol::FrameId::new(
+        pab_core::protocol::Service::TableTransfer,
+        pab_core::protocol::TOOL,
+        3,
+    )
+    .raw();
+    assert!(
+        dbc.contains(&format!(
+            "BO_ {} PAB_TableTransfer_gaze: 8 PABCTL\n",
+            transfer | 0x8000_0000
+        )),
+        "{dbc}"
+    );
+    // gaze.target re-publishes on 0x201 (513).
+    assert!(dbc.contains("BO_ 513 gaze_target_out: 8 gaze\n"), "{dbc}");
     assert!(!dir.path().join("sub/take-and-return.dbc.part").exists());
 
     let stdout = pabctl(&["dbc", &example("take-and-return.toml"), "-o", "-"]);
@@ -391,7 +406,74 @@ fn dbc_exit_statuses() {
     let help = pabctl(&["dbc", "--help"]);
     let help = text(&help.stdout);
     assert!(help.contains("PAB_<Service>_<node>"), "{help}");
-    assert!(help.contains("data0..data7"), "{help}");
+    assert!(help.contains("dataN"), "{help}");
+    assert!(help.contains("--claims-from"), "{help}");
+}
+
+#[test]
+fn dbc_lists_the_claims_of_a_capture_and_refuses_frames_that_are_not_claims_of_members() {
+    let dir = tempfile::tempdir().unwrap();
+    let network = example("multi-target-observation.toml");
+    let log = dir.path().join("bus.log");
+    let sim = pabctl(&["sim", &network, "--candump", log.to_str().unwrap()]);
+    assert_eq!(sim.status.code(), Some(0), "{}", text(&sim.stderr));
+    let dbc = dir.path().join("net.dbc");
+    let written = |claims: Option<&std::path::Path>| {
+        let mut args = vec![
+            "dbc".to_string(),
+            network.clone(),
+            "-o".to_string(),
+            dbc.display().to_string(),
+        ];
+        if let Some(capture) = claims {
+            args.extend(["--claims-from".to_string(), capture.display().to_string()]);
+        }
+        let refs: Vec<&str> = args.iter().map(String::as_str).collect();
+        pabctl(&refs)
+    };
+    let output = written(None);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let without = std::fs::read_to_string(&dbc).unwrap();
+    let output = written(Some(&log));
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let with = std::fs::read_to_string(&dbc).unwrap();
+    // Every claim identifier of the capture is a message of the second database only.
+    let claims: std::collections::BTreeSet<u32> = std::fs::read_to_string(&log)
+        .unwrap()
+        .lines()
+        .filter_map(|line| line.split_whitespace().nth(2)?.split_once('#'))
+        .filter_map(|(id, _)| u32::from_str_radix(id, 16).ok())
+        .filter(|&id| pab_core::ble::is_claim_id(id))
+        .collect();
+    assert!(claims.len() > 3, "{claims:?}");
+    for id in &claims {
+        let declared = format!("BO_ {} PAB_Claim_", id | 0x8000_0000);
+        assert!(with.contains(&declared), "{declared}");
+    }
+    assert!(
+        claims
+            .iter()
+            .any(|id| !without.contains(&format!("BO_ {} ", id | 0x8000_0000)))
+    );
+    // A claim from node 99, in no group, on line 2: exit 2, the line named, nothing written.
+    let bad = dir.path().join("bad.log");
+    std::fs::write(
+        &bad,
+        "(0.000000) vcan0 110#0000000000000000\n(0.100000) vcan0 12FFFFE3#01000000\n",
+    )
+    .unwrap();
+    std::fs::remove_file(&dbc).unwrap();
+    let output = written(Some(&bad));
+    assert_eq!(output.status.code(), Some(2));
+    let stderr = text(&output.stderr);
+    assert!(
+        stderr.contains(&format!(
+            "{}:2:1: error: a BLE claim from node id 99, which is in no BLE group",
+            bad.display()
+        )),
+        "{stderr}"
+    );
+    assert!(!dbc.exists());
 }
 
 #[test]

@@ -4,9 +4,9 @@
     python host-tools/tests/dbc_cantools.py target/examples/take-and-return.dbc \
         [target/examples/multi-target-observation.dbc [target/examples/door-dynamics.dbc \
         [target/examples/tour-guide.dbc [target/examples/assembly.dbc \
-        [target/examples/sensors.dbc]]]]]
+        [target/examples/sensors.dbc [target/examples/value-ports.dbc]]]]]]
 
-(the last from host-tools/tests/fixtures/sensors.toml).
+(sensors.dbc from host-tools/tests/fixtures/sensors.toml).
 
 The expected identifiers and payload bytes are built here from the layout documented in
 docs/can-protocol.md, not from pabctl's code: this is what a user decoding a capture relies on.
@@ -46,6 +46,7 @@ SERVICES = {  # name: (code, priority)
     "SchemaState": (0x1D, 5),
 }
 NODES = {"arm": 1, "hand": 2, "gaze": 3}  # examples/take-and-return.toml
+OUTPUTS = {"arm_target_out": 0x200, "gaze_target_out": 0x201, "hand_command_out": 0x202}
 TOPICS = {
     "object_pos": 0x110,
     "face_pos": 0x111,
@@ -90,22 +91,38 @@ def main(path):
     expected["PAB_DiagnosticControl_all"] = (frame_id("DiagnosticControl", TOOL, BROADCAST), True)
     for topic, can_id in TOPICS.items():
         expected[topic] = (can_id, False)
+    # ISO-TP table transfers: the tool's frames to each node and its flow control back.
+    for node, node_id in NODES.items():
+        expected[f"PAB_TableTransfer_{node}"] = (frame_id("TableTransfer", TOOL, node_id), True)
+        expected[f"PAB_TableTransferFlow_{node}"] = (frame_id("TableTransfer", node_id, TOOL), True)
+    # The ports that re-publish what they deliver (`republish` in the example).
+    for port, can_id in OUTPUTS.items():
+        expected[port] = (can_id, False)
     actual = {m.name: (m.frame_id, m.is_extended_frame) for m in db.messages}
     for name, (can_id, extended) in expected.items():
         got = actual.get(name)
         check(got == (can_id, extended), f"{name}: expected id {can_id:#x} extended={extended}, got {got}")
     extra = set(actual) - set(expected)
     check(not extra, f"unexpected messages: {sorted(extra)}")
-    table_transfer = SERVICES["TableTransfer"][0]
-    check(
-        not any(m.is_extended_frame and (m.frame_id >> 16) & 0xFF == table_transfer for m in db.messages),
-        "no message for table transfer (ISO-TP)",
-    )
     check({n.name for n in db.nodes} == {"PABCTL", *NODES}, f"nodes: {[n.name for n in db.nodes]}")
 
     def decode(name, data, **options):
         message = db.get_message_by_name(name)
         return message, db.decode_message(message.frame_id, bytes(data), **options)
+
+    # A table transfer's first frame to node 1: PCI 0x1 (first frame), length 0x0B5 = 181 bytes,
+    # then the image's first bytes; padded to 8 bytes, like every ISO-TP frame of ours.
+    message, values = decode("PAB_TableTransfer_arm", [0x10, 0xB5, 0x50, 0x41, 0x42, 0x54, 2, 0])
+    check(message.length == 8 and message.senders == ["PABCTL"], f"table transfer: {message}")
+    check((str(values["pci_type"]), values["pci_low"], values["data1"]) == ("first frame", 0, 0xB5),
+          f"table transfer first frame: {values}")
+    _, values = decode("PAB_TableTransferFlow_arm", [0x30, 8, 0, 0xCC, 0xCC, 0xCC, 0xCC, 0xCC])
+    check((str(values["pci_type"]), values["pci_low"], values["data1"]) == ("flow control", 0, 8),
+          f"table transfer flow control: {values}")
+    # A re-published frame: the delivered frame's payload, 8 bytes (the ports' topics' length).
+    message, values = decode("arm_target_out", [1, 2, 3, 4, 5, 6, 7, 8])
+    check(message.length == 8 and values["data7"] == 8 and message.senders == ["arm"],
+          f"arm_target_out: {message.senders} {values}")
 
     # Heartbeat from node 3: state 1 (operational), uptime 0x123456 s, table version 7.
     data = [1, 0x56, 0x34, 0x12, 7, 0, 0, 0]
@@ -280,9 +297,18 @@ def schema(path):
         expected = frame_id(service, source, destination)
         check(message.frame_id == expected and message.is_extended_frame and message.length == length,
               f"{name}: id {message.frame_id:#x} length {message.length}, expected {expected:#x} {length}")
-    transfer = SERVICES["SchemaTransfer"][0]
-    check(not any(m.is_extended_frame and (m.frame_id >> 16) & 0xFF == transfer for m in db.messages),
-          "no message for schema transfer (ISO-TP)")
+    for name, source, destination in [
+        ("PAB_SchemaTransfer_arm", TOOL, arm),
+        ("PAB_SchemaTransferFlow_arm", arm, TOOL),
+    ]:
+        message = db.get_message_by_name(name)
+        expected = frame_id("SchemaTransfer", source, destination)
+        check(message.frame_id == expected and message.length == 8,
+              f"{name}: id {message.frame_id:#x} length {message.length}, expected {expected:#x} 8")
+    # A single frame of 3 bytes: PCI 0x03, then the channel byte and two bytes of the schema.
+    values = db.decode_message(frame_id("SchemaTransfer", TOOL, arm), bytes([3, 1, 2, 3, 0xCC, 0xCC, 0xCC, 0xCC]))
+    check((str(values["pci_type"]), values["pci_low"], values["data1"]) == ("single frame", 3, 1),
+          f"schema transfer single frame: {values}")
     # Schema 0x0102 refused: queue full, on the queue, 8 queued.
     values = db.decode_message(frame_id("SchemaAck", arm, TOOL), bytes([0x09, 0, 2, 1, 8, 0, 0, 0]))
     check(str(values["outcome"]) == "queue full (8): refused, nothing overwritten"
@@ -395,8 +421,24 @@ def sensors(path):
     check(not any(m.name == "range" for m in db.messages), "topic `range` has no second message")
 
 
+def value_ports(path):
+    """examples/value-ports.toml: topics of `length = 2` whose bytes 0-1 are port base.nearest's
+    value (u16, little endian), a signal of its own; the port re-publishes on 0x320."""
+    db = cantools.database.load_file(path, strict=True)
+    for topic, can_id in {"range_left": 0x1A0, "range_front": 0x1A1, "range_right": 0x1A2}.items():
+        message = db.get_message_by_name(topic)
+        check((message.frame_id, message.length) == (can_id, 2), f"{topic}: {message.frame_id:#x} {message.length}")
+        signals = {s.name: (s.start, s.length, s.is_signed, s.byte_order) for s in message.signals}
+        check(signals == {"nearest": (0, 16, False, "little_endian")}, f"{topic} signals: {signals}")
+    values = db.decode_message(0x1A0, bytes([0xDC, 0x05]))
+    check(values == {"nearest": 1500}, f"range_left decodes 1500 mm: {values}")
+    message = db.get_message_by_name("base_nearest_out")
+    check((message.frame_id, message.length) == (0x320, 2), f"base_nearest_out: {message.frame_id:#x} {message.length}")
+    check(db.decode_message(0x320, bytes([0x58, 0x02])) == {"nearest": 600}, "base_nearest_out decodes 600 mm")
+
+
 if __name__ == "__main__":
-    if len(sys.argv) not in (2, 3, 4, 5, 6, 7):
+    if len(sys.argv) not in (2, 3, 4, 5, 6, 7, 8):
         print(__doc__, file=sys.stderr)
         sys.exit(2)
     try:
@@ -409,8 +451,10 @@ if __name__ == "__main__":
             hbba(sys.argv[4])
         if len(sys.argv) >= 6:
             schema(sys.argv[5])
-        if len(sys.argv) == 7:
+        if len(sys.argv) >= 7:
             sensors(sys.argv[6])
+        if len(sys.argv) == 8:
+            value_ports(sys.argv[7])
     except Exception as error:  # a missing message, an undecodable frame: report, with what came before
         failures.append(f"{type(error).__name__}: {error}")
     for failure in failures:

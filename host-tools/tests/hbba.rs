@@ -109,21 +109,28 @@ fn the_section_is_read_in_file_order_with_computed_bus_costs() {
 #[test]
 fn the_bus_cost_is_rounded_up_per_strategy_and_closed_filters_cost_nothing() {
     // 30 Hz, φ 1, 11-bit: 4050 bit/s of 500 kbit/s = 0.81 % -> 1.
-    assert_eq!(bus_cost(&[(30_000_000, 1, false)], 500_000), 1);
+    assert_eq!(bus_cost(&[(30_000_000, 1, false, 8)], 500_000), 1);
     // Exactly 1 %: 5000 bit/s = 1 %, not 2.
-    assert_eq!(bus_cost(&[(37_037_037, 1, false)], 500_000), 1);
+    assert_eq!(bus_cost(&[(37_037_037, 1, false, 8)], 500_000), 1);
     assert_eq!(
-        bus_cost(&[(1_000_000 * 5000 / 135 + 1, 1, false)], 500_000),
+        bus_cost(&[(1_000_000 * 5000 / 135 + 1, 1, false, 8)], 500_000),
         2
     );
     // 100 Hz through φ 3 on a 29-bit id: 33.3 Hz × 160 = 5333.3 bit/s of 125 kbit/s = 4.27 % -> 5.
-    assert_eq!(bus_cost(&[(100_000_000, 3, true)], 125_000), 5);
+    assert_eq!(bus_cost(&[(100_000_000, 3, true, 8)], 125_000), 5);
     // φ 0 closes: nothing on the bus.
-    assert_eq!(bus_cost(&[(100_000_000, 0, true)], 125_000), 0);
+    assert_eq!(bus_cost(&[(100_000_000, 0, true, 8)], 125_000), 0);
     assert_eq!(bus_cost(&[], 125_000), 0);
+    // A 2-byte frame on an 11-bit id: 55 + 10·2 = 75 bits; 100 Hz of them, 7 500 bit/s of
+    // 500 kbit/s = 1.5 % -> 2, where 8-byte frames would cost 2.7 % -> 3.
+    assert_eq!(bus_cost(&[(100_000_000, 1, false, 2)], 500_000), 2);
+    assert_eq!(bus_cost(&[(100_000_000, 1, false, 8)], 500_000), 3);
     // Several connections: summed, then rounded: 2 × 0.81 % = 1.62 % -> 2.
     assert_eq!(
-        bus_cost(&[(30_000_000, 1, false), (30_000_000, 1, false)], 500_000),
+        bus_cost(
+            &[(30_000_000, 1, false, 8), (30_000_000, 1, false, 8)],
+            500_000
+        ),
         2
     );
 }

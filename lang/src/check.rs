@@ -29,7 +29,7 @@ use biodivine_lib_bdd::{Bdd, BddValuation, BddVariable, BddVariableSet};
 
 use crate::diagnostic::Diagnostic;
 use crate::kinds;
-use crate::network::{Connection, Kind, Network, RULE_EXCERPT};
+use crate::network::{Connection, Kind, Network, RULE_EXCERPT, combine_name};
 use crate::rule::Rule;
 use crate::shown;
 
@@ -452,16 +452,6 @@ fn written_alone_delivers(names: &[String], connection: &Connection) -> bool {
     let variables = BddVariableSet::new(&refs);
     let own = variables.mk_var(BddVariable::from_index(connection.index));
     !own.and(&to_bdd(&connection.rule, &variables)).is_false()
-}
-
-/// The network file's word for a combination.
-pub fn combine_name(combine: pab_core::Combine) -> &'static str {
-    match combine {
-        pab_core::Combine::Max => "max",
-        pab_core::Combine::Min => "min",
-        pab_core::Combine::Sum => "sum",
-        pab_core::Combine::Priority => "priority",
-    }
 }
 
 /// `{C1, C6}` for a mask.

@@ -13,10 +13,13 @@
 //!   wrench, signed 21-bit signals) on the ids of `[schema.NODE] drive`, and one `Sensor_*`
 //!   message per identifier its extra sensors read (`[schema.NODE.sensors.NAME]`), one signal
 //!   per sensor at its field, with the sensor's scale as factor and its unit.
-//! - **The network's topics**, one message per topic named after it, with eight one-byte signals
-//!   `data0`..`data7`: what a topic carries is its publisher's business, but a capture then shows
-//!   which topic each frame belongs to, and frames shorter than 8 bytes still decode byte by byte
-//!   (cantools: `allow_truncated=True`).
+//! - **The network's topics**, one message per topic named after it, its DLC the topic's
+//!   `length`: each field the network reads from its frames (a value port's value and priority,
+//!   a BLE group's eligibility, a dynamics behaviour's context) is a signal with its size, sign
+//!   and byte order, and every other byte a one-byte signal `dataN`. What else a topic carries
+//!   is its publisher's business; a capture then shows which topic each frame belongs to and
+//!   what the network reads from it, and decodes strictly (`cantools decode` without
+//!   `--no-strict`) when the frames have the topic's length.
 //!
 //! Conventions: extended identifiers are written `raw | 0x8000_0000` (the DBC convention);
 //! payloads are little endian (`@1`) but a sensor's big-endian field (`@0`, Motorola);
@@ -32,6 +35,7 @@ use pab_core::protocol::{
     TOOL, TransferStatusCode,
 };
 
+use pab_core::ble::Claim;
 use pab_core::value_port::{Endian, Field};
 
 use crate::diagnostic::Diagnostics;
@@ -920,20 +924,17 @@ fn drive_messages(
 fn sensor_signal(topic: &SensorTopic, index: usize, range_finder: bool) -> DbcSignal {
     let field: Field = topic.sensor.field;
     let len = 8 * u32::from(field.size);
-    let first_bit = 8 * u32::from(field.offset);
-    // A single byte has no byte order: written little endian, which every tool reads alike.
-    // Big endian (Motorola) names the field by its most significant bit: bit 7 of its first byte.
-    let (endian, start, order) = match field.endian {
-        Endian::Big if field.size > 1 => (Endian::Big, first_bit + 7, " big endian"),
-        Endian::Little if field.size > 1 => (Endian::Little, first_bit, " little endian"),
-        _ => (Endian::Little, first_bit, ""),
-    };
     let (low, high) = field.range();
     let physical = |raw: i64| (raw as f64 * topic.scale).to_string();
     let per_count = if topic.unit.is_empty() {
         format!("{} per count", topic.scale)
     } else {
         format!("{} {} per count", topic.scale, topic.unit)
+    };
+    let order = match field.endian {
+        Endian::Big if field.size > 1 => " big endian",
+        Endian::Little if field.size > 1 => " little endian",
+        _ => "",
     };
     let mut comment = format!(
         "Sensor `{}` (index {index}): {}{len}{order} at byte {}, {per_count} (the factor). The \
@@ -954,14 +955,99 @@ fn sensor_signal(topic: &SensorTopic, index: usize, range_finder: bool) -> DbcSi
         );
     }
     DbcSignal {
-        endian,
         factor: topic.scale.to_string(),
         min: physical(low),
         max: physical(high),
         unit: topic.unit.clone(),
-        signed: field.signed,
-        ..signal(&topic.name, start, len, &comment)
+        ..field_signal(&topic.name, field, &comment)
     }
+}
+
+/// The signal of a field as a board's `value_port::Field` reads it (byte offset, size, sign,
+/// byte order), in raw counts.
+fn field_signal(name: &str, field: Field, comment: &str) -> DbcSignal {
+    let len = 8 * u32::from(field.size);
+    let first_bit = 8 * u32::from(field.offset);
+    // A single byte has no byte order: written little endian, which every tool reads alike.
+    // Big endian (Motorola) names the field by its most significant bit: bit 7 of its first byte.
+    let (endian, start) = match field.endian {
+        Endian::Big if field.size > 1 => (Endian::Big, first_bit + 7),
+        _ => (Endian::Little, first_bit),
+    };
+    let (low, high) = field.range();
+    DbcSignal {
+        endian,
+        min: low.to_string(),
+        max: high.to_string(),
+        signed: field.signed,
+        ..signal(name, start, len, comment)
+    }
+}
+
+/// The signals of a topic's message: each field the network reads from its frames
+/// ([`Network::topic_fields`]: value ports, BLE eligibilities, dynamics contexts), then one byte
+/// signal `dataN` for each byte of its `length` that no field covers. A field that overlaps one
+/// listed before it is named in the comment instead (cantools refuses overlapping signals).
+fn topic_signals(network: &Network, topic: usize, length: u8) -> (Vec<DbcSignal>, String) {
+    let mut covered = [false; 8];
+    let mut signals = Vec::new();
+    let mut also = String::new();
+    for field in network.topic_fields(topic) {
+        let bytes = usize::from(field.offset)..usize::from(field.offset) + usize::from(field.size);
+        let inside = covered.get(bytes.clone());
+        if inside.is_none_or(|bytes| bytes.iter().any(|&b| b)) {
+            let _ = write!(
+                also,
+                " {} reads bytes {}..{} too (`{}`).",
+                field.reader, bytes.start, bytes.end, field.name
+            );
+            continue;
+        }
+        covered[bytes].iter_mut().for_each(|b| *b = true);
+        let core = Field {
+            offset: field.offset,
+            size: field.size,
+            signed: field.signed,
+            endian: if field.big_endian {
+                Endian::Big
+            } else {
+                Endian::Little
+            },
+        };
+        let comment = format!(
+            "{}{} at byte {}{}, read by {}.",
+            if field.signed { "i" } else { "u" },
+            8 * u32::from(field.size),
+            field.offset,
+            match (field.size > 1, field.big_endian) {
+                (false, _) => "",
+                (true, true) => ", big endian",
+                (true, false) => ", little endian",
+            },
+            field.reader
+        );
+        // `dataN` names the raw bytes below: a field of that name (port `a.data1`) is prefixed.
+        let mut name = identifier(&field.name, "field_");
+        if name
+            .strip_prefix("data")
+            .is_some_and(|n| n.parse::<u8>().is_ok())
+        {
+            name.insert_str(0, "field_");
+        }
+        signals.push(field_signal(&name, core, &comment));
+    }
+    for byte in 0..length.min(8) {
+        if !covered[usize::from(byte)] {
+            let name = format!("data{byte}");
+            signals.push(signal(
+                &name,
+                8 * u32::from(byte),
+                8,
+                &format!("payload byte {byte}"),
+            ));
+        }
+    }
+    (signals, also)
 }
 
 /// The Sensor_* messages of one schema server's board: one per identifier its extra sensors
@@ -1029,9 +1115,159 @@ fn sensor_messages(
     }
 }
 
+/// The two messages of one node's ISO-TP transfer on `service` (table or schema): the tool's
+/// data frames to the node and the node's flow control back. Both 8 bytes (our ISO-TP pads
+/// every frame): the PCI type and low nibble as signals, bytes 1..7 raw.
+fn transfer_messages(
+    messages: &mut Vec<DbcMessage>,
+    names: &mut Names,
+    service: Service,
+    node: &crate::network::Node,
+    dbc_node: &str,
+) {
+    let what = if service == Service::TableTransfer {
+        "a table image"
+    } else {
+        "a schema (a channel byte, then the schema)"
+    };
+    let signals = |direction: &str| {
+        let mut signals = vec![
+            DbcSignal {
+                values: vec![
+                    (0, "single frame"),
+                    (1, "first frame"),
+                    (2, "consecutive frame"),
+                    (3, "flow control"),
+                ],
+                ..signal(
+                    "pci_type",
+                    4,
+                    4,
+                    &format!(
+                        "ISO-TP protocol control information, high nibble of byte 0 ({direction})"
+                    ),
+                )
+            },
+            signal(
+                "pci_low",
+                0,
+                4,
+                "low nibble of byte 0: a single frame's length, the high bits of a first frame's \
+                 length (byte 1 the low bits; 0 with a 32-bit length in bytes 2-5), a consecutive \
+                 frame's sequence number, or a flow control's status (0 continue, 1 wait, 2 \
+                 overflow)",
+            ),
+        ];
+        signals.extend((1..8u32).map(|i| {
+            signal(
+                &format!("data{i}"),
+                8 * i,
+                8,
+                &format!("byte {i}: the message's bytes, or a first frame's length, or a flow control's block size (1) and STmin (2); 0xCC pads"),
+            )
+        }));
+        signals
+    };
+    let code = service as u8;
+    messages.push(DbcMessage {
+        id: extended(FrameId::new(service, TOOL, node.id)),
+        name: names.unique(format!("PAB_{service:?}_{dbc_node}")),
+        dlc: 8,
+        transmitter: TOOL_NODE.to_string(),
+        receivers: vec![dbc_node.to_string()],
+        signals: signals("tool to node"),
+        comment: format!(
+            "{service:?} (service 0x{code:02X}): ISO-TP (ISO 15765-2) frames carrying {what} from \
+             the tool to node `{}` (id {}), padded to 8 bytes with 0xCC. See \
+             docs/can-protocol.md.",
+            node.name, node.id
+        ),
+        cycle_ms: None,
+    });
+    messages.push(DbcMessage {
+        id: extended(FrameId::new(service, node.id, TOOL)),
+        name: names.unique(format!("PAB_{service:?}Flow_{dbc_node}")),
+        dlc: 8,
+        transmitter: dbc_node.to_string(),
+        receivers: vec![TOOL_NODE.to_string()],
+        signals: signals("node to tool"),
+        comment: format!(
+            "{service:?} (service 0x{code:02X}): node `{}`'s ISO-TP flow control frames to the \
+             tool during a transfer to it, padded to 8 bytes.",
+            node.name
+        ),
+        cycle_ms: None,
+    });
+}
+
+/// The BLE claims of a capture, for [`build`]: every frame with a claim's identifier must
+/// decode as one (`Claim::decode`, the nodes' own check) from a node that is in a BLE group of
+/// `network`; each that does not is reported at its line. Claims are listed once per (node,
+/// eligibility).
+pub fn claims_in(
+    network: &Network,
+    capture: &crate::candump::Capture,
+    path: &std::path::Path,
+) -> Result<Vec<Claim>, Diagnostics> {
+    let mut claims: Vec<Claim> = Vec::new();
+    let mut errors = Vec::new();
+    let members: Vec<u8> = network
+        .nodes
+        .iter()
+        .enumerate()
+        .filter(|(index, _)| network.groups.iter().any(|g| g.member(*index).is_some()))
+        .map(|(_, node)| node.id)
+        .collect();
+    for captured in &capture.frames {
+        let (raw, extended) = captured.frame.raw_id();
+        if !(extended && pab_core::ble::is_claim_id(raw)) {
+            continue;
+        }
+        let at =
+            |message: String| crate::diagnostic::Diagnostic::at(path, captured.line, 1, message);
+        match Claim::decode(&captured.frame) {
+            Ok(claim) if !members.contains(&claim.node) => errors.push(at(format!(
+                "a BLE claim from node id {}, which is in no BLE group of {}",
+                claim.node,
+                network.source.path().display()
+            ))),
+            Ok(claim) => {
+                if !claims
+                    .iter()
+                    .any(|c| c.node == claim.node && c.eligibility == claim.eligibility)
+                {
+                    claims.push(claim);
+                }
+            }
+            Err(error) => errors.push(at(format!(
+                "a frame with a BLE claim's identifier that is not a claim: {error}"
+            ))),
+        }
+    }
+    if errors.is_empty() {
+        return Ok(claims);
+    }
+    // A capture of another network has thousands: the first twenty say what is wrong.
+    const SHOWN: usize = 20;
+    if errors.len() > SHOWN {
+        let more = errors.len() - SHOWN;
+        errors.truncate(SHOWN);
+        errors.push(crate::diagnostic::Diagnostic::file(
+            path,
+            format!("{more} more frames like these"),
+        ));
+    }
+    Err(Diagnostics(errors))
+}
+
 /// The DBC database of `network`. Fails, with a diagnostic at the topic, if a topic lies in the
 /// protocol's identifier space (extended, bits 25..24 = 0b10): nodes never arbitrate such frames.
-pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
+///
+/// `claims` are BLE claims to list beyond each group member's claim at eligibility 0 (those of a
+/// capture, [`claims_in`]): a claim's identifier carries its eligibility, and a DBC names whole
+/// identifiers, so a tool that matches identifiers exactly (cantools) decodes only the claims
+/// listed. A claim of a node that is in no group is not listed.
+pub fn build(network: &Network, claims: &[Claim]) -> Result<Dbc, Diagnostics> {
     let mut errors = Vec::new();
     let mut node_names = Names(HashSet::from([TOOL_NODE.to_string()]));
     let mut nodes = vec![TOOL_NODE.to_string()];
@@ -1175,10 +1411,10 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
                 .map(|(i, m)| (m.id, first + i)),
         );
     }
-    // BLE claims: one message per node of a group. A DBC names whole identifiers, and a claim's
-    // identifier carries its eligibility (higher eligibility, lower identifier), so the message
-    // is the node's claim at eligibility 0 ("not a candidate"); its payload reads the same at
-    // every eligibility.
+    // BLE claims: messages per node of a group. A DBC names whole identifiers, and a claim's
+    // identifier carries its eligibility (higher eligibility, lower identifier), so each node gets
+    // its claim at eligibility 0 ("not a candidate") and one per eligibility of `claims`; the
+    // payload reads the same at every eligibility.
     for (index, (node, dbc_node)) in network.nodes.iter().zip(nodes.iter().skip(1)).enumerate() {
         let groups: Vec<&crate::network::BleGroup> = network
             .groups
@@ -1188,14 +1424,14 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
         let Some(period) = groups.iter().map(|g| g.period_us).min() else {
             continue;
         };
-        let Some(frame) = (pab_core::ble::Claim {
-            group: 0,
-            node: node.id,
-            eligibility: 0,
-        })
-        .frame() else {
-            continue;
-        };
+        let mut eligibilities: Vec<u16> = claims
+            .iter()
+            .filter(|c| c.node == node.id)
+            .map(|c| c.eligibility)
+            .chain([0])
+            .collect();
+        eligibilities.sort_unstable();
+        eligibilities.dedup();
         let peers: Vec<String> = network
             .nodes
             .iter()
@@ -1210,15 +1446,28 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
             .iter()
             .map(|g| format!("{} = {}", g.number, g.name))
             .collect();
-        messages.push(DbcMessage {
+        for eligibility in eligibilities {
+            let Some(frame) = (Claim {
+                group: 0,
+                node: node.id,
+                eligibility,
+            })
+            .frame() else {
+                continue;
+            };
+            messages.push(DbcMessage {
             id: frame.raw_id().0 | EXTENDED_FLAG,
-            name: names.unique(format!("PAB_Claim_{dbc_node}")),
+            name: names.unique(if eligibility == 0 {
+                format!("PAB_Claim_{dbc_node}")
+            } else {
+                format!("PAB_Claim_{dbc_node}_e{eligibility}")
+            }),
             dlc: 4,
             transmitter: dbc_node.clone(),
             receivers: if peers.is_empty() {
                 vec![UNKNOWN_NODE.to_string()]
             } else {
-                peers
+                peers.clone()
             },
             signals: vec![
                 signal(
@@ -1236,10 +1485,114 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
                 signal("Reserved", 24, 8, "0"),
             ],
             comment: format!(
-                "BLE claim of node `{}` (id {}), once per period per group. The identifier ranks the claim (bits 22..7: 0xFFFF - eligibility; bits 6..0: the node id), so it changes with the eligibility: this message is the claim at eligibility 0; every claim of the node has this payload layout. See docs/can-protocol.md, Broadcast of Local Eligibility.",
+                "BLE claim of node `{}` (id {}), once per period per group. The identifier ranks the claim (bits 22..7: 0xFFFF - eligibility; bits 6..0: the node id), so it changes with the eligibility: this message is the claim at eligibility {eligibility}; every claim of the node has this payload layout (pabctl dbc --claims-from CAPTURE lists the eligibilities of a capture). See docs/can-protocol.md, Broadcast of Local Eligibility.",
                 node.name, node.id
             ),
             cycle_ms: Some(period.div_ceil(1000)),
+        });
+        }
+    }
+
+    // Table and schema transfers: ISO-TP frames (docs/can-protocol.md), always padded to 8
+    // bytes, so a capture of a transfer decodes byte by byte; the PCI's type and low nibble are
+    // signals, the reassembled message is not (a DBC describes single frames).
+    for (index, (node, dbc_node)) in network.nodes.iter().zip(nodes.iter().skip(1)).enumerate() {
+        transfer_messages(
+            &mut messages,
+            &mut names,
+            Service::TableTransfer,
+            node,
+            dbc_node,
+        );
+        if serves(index) {
+            transfer_messages(
+                &mut messages,
+                &mut names,
+                Service::SchemaTransfer,
+                node,
+                dbc_node,
+            );
+        }
+    }
+    // Ports that re-publish what they deliver: the delivered frame's payload on the port's id.
+    for port in &network.ports {
+        let pab_core::Consumer::Republish(output) = port.consumer else {
+            continue;
+        };
+        let Some(dbc_node) = nodes.get(port.node + 1) else {
+            continue;
+        };
+        let topics: Vec<usize> = port
+            .connections
+            .iter()
+            .filter_map(|&c| network.connections.get(c))
+            .map(|c| c.topic)
+            .filter(|&t| t < network.topics.len())
+            .collect();
+        let length = topics
+            .iter()
+            .filter_map(|&t| network.topics.get(t))
+            .map(|t| t.length)
+            .max()
+            .unwrap_or(8);
+        let mut signals = Vec::new();
+        if let Some(spec) = &port.value {
+            let name = port.name.rsplit('.').next().unwrap_or(&port.name);
+            signals.push(field_signal(
+                &identifier(name, "field_"),
+                spec.value,
+                &format!(
+                    "the port's value (combine = \"{}\"), as in the delivered frame",
+                    crate::network::combine_name(spec.combine)
+                ),
+            ));
+        }
+        let covered = |byte: u8| {
+            port.value.as_ref().is_some_and(|spec| {
+                (spec.value.offset..spec.value.offset.saturating_add(spec.value.size))
+                    .contains(&byte)
+            })
+        };
+        for byte in (0..length.min(8)).filter(|&b| !covered(b)) {
+            signals.push(signal(
+                &format!("data{byte}"),
+                8 * u32::from(byte),
+                8,
+                &format!("payload byte {byte} of the delivered frame"),
+            ));
+        }
+        let id = if output.is_extended() {
+            output.raw() | EXTENDED_FLAG
+        } else {
+            output.raw()
+        };
+        let lengths: Vec<u8> = topics
+            .iter()
+            .filter_map(|&t| network.topics.get(t))
+            .map(|t| t.length)
+            .collect();
+        let uneven = if lengths.iter().any(|&l| l != length) {
+            " Its topics' lengths differ: frames shorter than the DLC come from the shorter ones."
+        } else {
+            ""
+        };
+        messages.push(DbcMessage {
+            id,
+            name: names.unique(format!("{}_out", identifier(&port.name, "port_"))),
+            dlc: length,
+            transmitter: dbc_node.clone(),
+            receivers: vec![UNKNOWN_NODE.to_string()],
+            signals,
+            comment: format!(
+                "Port `{}` re-publishes every frame it delivers (`republish`): the delivered \
+                 frame's payload, from node `{}`.{uneven}",
+                port.name,
+                network
+                    .nodes
+                    .get(port.node)
+                    .map_or("?", |n| n.name.as_str())
+            ),
+            cycle_ms: None,
         });
     }
 
@@ -1391,7 +1744,7 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
     }
 
     let mut seen_ids = sensor_ids;
-    for topic in &network.topics {
+    for (index, topic) in network.topics.iter().enumerate() {
         let filter = topic.filter;
         if filter.is_extended() && filter.id() & PROTOCOL_MASK == PROTOCOL_VALUE {
             errors.push(network.error(
@@ -1495,21 +1848,22 @@ pub fn build(network: &Network) -> Result<Dbc, Diagnostics> {
             continue;
         }
         comment.insert_str(0, &format!("Topic `{}`: ", topic.name));
-        comment.push_str(
-            " Its payload is its publisher's: shown as raw bytes data0..data7 (DLC may be shorter \
-             than 8).",
+        let (signals, also) = topic_signals(network, index, topic.length);
+        let _ = write!(
+            comment,
+            " {} data bytes (its `length`): the fields the network reads from them as signals, \
+             the other bytes raw (dataN).{also}",
+            topic.length
         );
         comment.push_str(&feeds);
         seen_ids.push((id, messages.len()));
         messages.push(DbcMessage {
             id,
             name: names.unique(identifier(&topic.name, "topic_")),
-            dlc: 8,
+            dlc: topic.length,
             transmitter: UNKNOWN_NODE.to_string(),
             receivers,
-            signals: (0..8u32)
-                .map(|i| signal(&format!("data{i}"), 8 * i, 8, &format!("payload byte {i}")))
-                .collect(),
+            signals,
             comment,
             cycle_ms: None,
         });
@@ -1680,6 +2034,55 @@ tc = 3.0
     }
 
     #[test]
+    fn a_captures_claims_are_listed_and_frames_that_are_not_claims_of_members_refused() {
+        let net = network(include_str!("../../examples/multi-target-observation.toml"));
+        let claim = |node: u8, eligibility: u16| Claim {
+            group: 1,
+            node,
+            eligibility,
+        };
+        let good = claim(2, 500).frame().unwrap();
+        let stranger = claim(99, 7).frame().unwrap();
+        // The identifier says 500, the payload 501: a claim no node would keep.
+        let mut bytes = [1, 0xF4, 0x01, 0];
+        bytes[1] = 0xF5;
+        let forged = pab_core::Frame::data(good.id(), &bytes).unwrap();
+        let path = std::path::Path::new("bus.log");
+        let capture = |frames: &[pab_core::Frame]| {
+            let timed: Vec<(u64, pab_core::Frame)> = frames.iter().map(|f| (0, *f)).collect();
+            crate::candump::Capture::from_frames("vcan0", &timed)
+        };
+        let claims = claims_in(&net, &capture(&[good, good]), path).unwrap();
+        assert_eq!(claims, [claim(2, 500)]);
+        let dbc = build(&net, &claims).unwrap();
+        let listed: Vec<u32> = dbc
+            .messages
+            .iter()
+            .filter(|m| m.name.starts_with("PAB_Claim_r2"))
+            .map(|m| m.id & !EXTENDED_FLAG)
+            .collect();
+        assert_eq!(
+            listed,
+            [claim(2, 0).frame().unwrap().raw_id().0, good.raw_id().0]
+        );
+        let errors = claims_in(&net, &capture(&[good, stranger, forged]), path).unwrap_err();
+        let text: Vec<String> = errors.0.iter().map(|e| e.render(false)).collect();
+        assert_eq!(text.len(), 2, "{text:#?}");
+        assert!(
+            text[0].starts_with(
+                "bus.log:2:1: error: a BLE claim from node id 99, which is in no BLE group"
+            ),
+            "{text:#?}"
+        );
+        assert!(
+            text[1].starts_with(
+                "bus.log:3:1: error: a frame with a BLE claim's identifier that is not a claim"
+            ),
+            "{text:#?}"
+        );
+    }
+
+    #[test]
     fn identifiers_are_c_identifiers() {
         assert_eq!(identifier("arm", "n_"), "arm");
         assert_eq!(identifier("2nd-hand", "n_"), "n_2nd_hand");
@@ -1693,7 +2096,7 @@ tc = 3.0
             "/../examples/door-dynamics.toml"
         );
         let text = std::fs::read_to_string(path).unwrap();
-        let dbc = build(&network(&text)).unwrap();
+        let dbc = build(&network(&text), &[]).unwrap();
         let gates: Vec<_> = dbc
             .messages
             .iter()
@@ -1714,7 +2117,7 @@ tc = 3.0
         );
         // Without dynamics: no gates.
         assert!(
-            build(&network(NET))
+            build(&network(NET), &[])
                 .unwrap()
                 .messages
                 .iter()
@@ -1726,7 +2129,7 @@ tc = 3.0
     fn an_hbba_network_has_desires_the_intention_and_each_filtered_nodes_filter_frames() {
         let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../examples/tour-guide.toml");
         let text = std::fs::read_to_string(path).unwrap();
-        let dbc = build(&network(&text)).unwrap();
+        let dbc = build(&network(&text), &[]).unwrap();
         assert!(dbc.nodes.iter().any(|n| n == INTENTION_NODE));
         let find = |name: &str| {
             dbc.messages
@@ -1775,7 +2178,7 @@ tc = 3.0
             assert_eq!(find(&format!("PAB_FilterProfile_{node}")).dlc, 4);
         }
         // Without [hbba]: none of them.
-        let plain = build(&network(NET)).unwrap();
+        let plain = build(&network(NET), &[]).unwrap();
         assert!(plain.messages.iter().all(|m| {
             [
                 "PAB_Desire",
@@ -1793,7 +2196,7 @@ tc = 3.0
     fn a_schema_servers_board_has_its_reports_and_the_stops_to_it_and_to_all() {
         let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../examples/assembly.toml");
         let text = std::fs::read_to_string(path).unwrap();
-        let dbc = build(&network(&text)).unwrap();
+        let dbc = build(&network(&text), &[]).unwrap();
         let find = |name: &str| {
             dbc.messages
                 .iter()
@@ -1840,17 +2243,22 @@ tc = 3.0
             )
         );
         assert!(find("PAB_SchemaAbort_all").comment.contains("0x19"));
-        // ISO-TP: named in the node's comment only.
-        assert!(
-            !dbc.messages
-                .iter()
-                .any(|m| m.name.contains("SchemaTransfer"))
-        );
+        // ISO-TP: the tool's frames and the board's flow control, 8 bytes each (padded).
         let transfer = FrameId::new(Service::SchemaTransfer, TOOL, 10).raw();
         assert!(dbc.node_comments[1].contains(&format!("0x{transfer:08X}")));
+        let data = find("PAB_SchemaTransfer_arm");
+        assert_eq!((data.id, data.dlc), (transfer | EXTENDED_FLAG, 8));
+        let flow = find("PAB_SchemaTransferFlow_arm");
+        assert_eq!(
+            (flow.id, flow.dlc),
+            (
+                FrameId::new(Service::SchemaTransfer, 10, TOOL).raw() | EXTENDED_FLAG,
+                8
+            )
+        );
         fits_without_overlap(&dbc);
         // Without a schema server: none of them.
-        let plain = build(&network(NET)).unwrap();
+        let plain = build(&network(NET), &[]).unwrap();
         assert!(plain.messages.iter().all(|m| {
             ["PAB_Schema", "PAB_EmergencyStop"]
                 .iter()
@@ -1860,7 +2268,7 @@ tc = 3.0
 
     #[test]
     fn messages_per_node_service_and_topic() {
-        let dbc = build(&network(NET)).unwrap();
+        let dbc = build(&network(NET), &[]).unwrap();
         assert_eq!(dbc.nodes, ["PABCTL", "arm", "node_2nd_hand"]);
         let find = |name: &str| {
             dbc.messages
@@ -1889,19 +2297,26 @@ tc = 3.0
             all.id,
             FrameId::new(Service::DiagnosticControl, TOOL, BROADCAST).raw() | EXTENDED_FLAG
         );
-        // 9 services per node (7 + Challenge, Receipt), diagnostic control per node and
-        // broadcast, ChallengeRequest and TransferOpen per node, 2 topics.
-        assert_eq!(dbc.messages.len(), 2 * 9 + 3 + 2 * 2 + 2);
+        // 9 services per node (7 + Challenge, Receipt), a table transfer's two directions per
+        // node, diagnostic control per node and broadcast, ChallengeRequest and TransferOpen
+        // per node, 2 topics.
+        assert_eq!(dbc.messages.len(), 2 * 9 + 2 * 2 + 3 + 2 * 2 + 2);
         let open = find("PAB_TransferOpen_arm");
         assert_eq!(open.dlc, 8);
         assert_eq!(open.transmitter, "PABCTL");
         assert_eq!(find("PAB_ChallengeRequest_arm").dlc, 0);
         assert_eq!(find("PAB_Receipt_arm").signals.len(), 2);
-        assert!(
-            !dbc.messages
-                .iter()
-                .any(|m| m.name.contains("TableTransfer"))
+        let transfer = find("PAB_TableTransfer_arm");
+        assert_eq!(
+            (transfer.id, transfer.dlc, transfer.transmitter.as_str()),
+            (
+                FrameId::new(Service::TableTransfer, TOOL, 1).raw() | EXTENDED_FLAG,
+                8,
+                "PABCTL"
+            )
         );
+        assert_eq!(transfer.signals[0].name, "pci_type");
+        assert_eq!(transfer.signals[0].values.len(), 4);
         let topic = find("object_pos");
         assert_eq!(topic.id, 0x110);
         assert_eq!(topic.receivers, ["arm", "node_2nd_hand"]);
@@ -1914,7 +2329,7 @@ tc = 3.0
 
     #[test]
     fn the_text_has_the_dbc_sections() {
-        let text = build(&network(NET)).unwrap().render();
+        let text = build(&network(NET), &[]).unwrap().render();
         assert!(text.contains("BU_: PABCTL arm node_2nd_hand\n"), "{text}");
         assert!(
             text.contains("BO_ 2449669889 PAB_Heartbeat_arm: 8 arm\n"),
@@ -1935,7 +2350,7 @@ tc = 3.0
     fn topics_in_the_protocol_space_are_refused() {
         let text = NET.replace("can_id = 0x1A0000", "can_id = 0x12020000");
         let text = text.replace("mask = 0x1FFF0000", "mask = 0x1FFFFFFF");
-        let errors = build(&network(&text)).unwrap_err();
+        let errors = build(&network(&text), &[]).unwrap_err();
         let message = errors.to_string();
         assert!(
             message.starts_with("net.toml:8:1: error: topic `wide`"),
@@ -2009,7 +2424,7 @@ tc = 3.0
 
     #[test]
     fn a_schema_servers_sensor_topics_are_messages_with_one_signal_per_field() {
-        let dbc = build(&sensors_network()).unwrap();
+        let dbc = build(&sensors_network(), &[]).unwrap();
         let sensors: Vec<(&str, u32, u8)> = dbc
             .messages
             .iter()
@@ -2098,7 +2513,7 @@ tc = 3.0
     #[test]
     fn a_dbc_reader_takes_from_a_sensor_frame_the_count_the_board_reads() {
         let network = sensors_network();
-        let dbc = build(&network).unwrap();
+        let dbc = build(&network, &[]).unwrap();
         for topic in &network.schema_boards[0].sensors {
             let signal = dbc
                 .messages

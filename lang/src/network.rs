@@ -31,6 +31,7 @@ use crate::shown;
 
 mod ble;
 mod dynamics;
+mod fields;
 mod gates;
 mod hbba;
 mod schema;
@@ -38,14 +39,25 @@ mod structure;
 
 pub use ble::{BleGroup, BleMember};
 pub use dynamics::{Context, DynamicsBehaviour, DynamicsGroup, WrittenBehaviour, WrittenExclusion};
+pub use fields::TopicField;
 pub use gates::lookup as gate;
 pub use hbba::{
-    BUS, DATA_LEN, Hbba, HbbaStrategy, MAX_BITRATE, Resource, ScriptedDesire, Solved,
-    StrategyFilter, bus_cost,
+    BUS, Hbba, HbbaStrategy, MAX_BITRATE, Resource, ScriptedDesire, Solved, StrategyFilter,
+    bus_cost,
 };
 pub use schema::{
     CALLS, Call, Client, Command, Defaults, INNATE_IDS, MAX_CALLS, SchemaBoard, SensorTopic, Timed,
 };
+
+/// The network file's word for a combination (`combine = "min"`).
+pub fn combine_name(combine: Combine) -> &'static str {
+    match combine {
+        Combine::Max => "max",
+        Combine::Min => "min",
+        Combine::Sum => "sum",
+        Combine::Priority => "priority",
+    }
+}
 
 /// The topic of a connection that no topic feeds (a gate, [`Kind::Gate`]): no index of
 /// [`Network::topics`].
@@ -124,6 +136,7 @@ struct RawTopic {
     extended: bool,
     mask: Option<Spanned<i64>>,
     rate_hz: Option<Spanned<f64>>,
+    length: Option<Spanned<i64>>,
     description: Option<Spanned<String>>,
 }
 
@@ -220,6 +233,9 @@ pub struct Topic {
     pub rate_hz: Option<f64>,
     /// The same in whole µHz (rounded to nearest).
     pub rate_uhz: Option<u64>,
+    /// How many data bytes its frames carry (`length`, 0 to 8; default 8): the DBC export's
+    /// DLC, the simulated frames' length, and the bytes a field of its frames may read.
+    pub length: u8,
     /// What the file says it carries (`description`): the DBC export's comment on its message.
     pub description: Option<String>,
     /// Where it is defined.
@@ -654,7 +670,7 @@ impl Builder<'_> {
         }
         let description =
             self.description(raw.network.as_ref().and_then(|m| m.description.as_ref()));
-        Network {
+        let network = Network {
             source: self.source.clone(),
             version,
             description,
@@ -672,7 +688,9 @@ impl Builder<'_> {
             schema_boards,
             plant,
             client,
-        }
+        };
+        self.fields_within_lengths(&raw.topics, &network);
+        network
     }
 
     /// A `description`, if printable (it goes into DBC files and onto terminals).
@@ -819,12 +837,16 @@ impl Builder<'_> {
             let Some((rate_hz, rate_uhz)) = self.topic_rate(raw_topic) else {
                 continue;
             };
+            let Some(length) = self.topic_length(raw_topic) else {
+                continue;
+            };
             let description = self.description(raw_topic.description.as_ref());
             topics.push(Topic {
                 name: name.get_ref().clone(),
                 filter,
                 rate_hz,
                 rate_uhz,
+                length,
                 description,
                 span: topic.span(),
             });
@@ -850,6 +872,60 @@ impl Builder<'_> {
             return None;
         }
         Some((Some(hz), Some(micro as u64)))
+    }
+
+    /// A topic's `length`: 8 without one, `None` after reporting a bad one.
+    fn topic_length(&mut self, raw: &RawTopic) -> Option<u8> {
+        let Some(length) = &raw.length else {
+            return Some(MAX_DATA_LEN as u8);
+        };
+        let value = *length.get_ref();
+        match u8::try_from(value)
+            .ok()
+            .filter(|&l| usize::from(l) <= MAX_DATA_LEN)
+        {
+            Some(length) => Some(length),
+            None => {
+                self.error(
+                    length.span(),
+                    format!(
+                        "length = {value}: the data bytes of the topic's frames, 0 to {MAX_DATA_LEN} (a classic CAN frame)"
+                    ),
+                );
+                None
+            }
+        }
+    }
+
+    /// Every field the network reads from a topic's frames (value ports, BLE eligibilities,
+    /// dynamics contexts) must lie within the topic's `length`: a field past it would never
+    /// read a byte. Reported at the `length` that cut it short.
+    fn fields_within_lengths(
+        &mut self,
+        raw: &IndexMap<Spanned<String>, Spanned<RawTopic>>,
+        network: &Network,
+    ) {
+        for (index, topic) in network.topics.iter().enumerate() {
+            let Some(length) = raw
+                .iter()
+                .find(|(name, _)| name.get_ref() == &topic.name)
+                .and_then(|(_, raw)| raw.get_ref().length.as_ref())
+            else {
+                continue;
+            };
+            for field in network.topic_fields(index) {
+                let end = u16::from(field.offset) + u16::from(field.size);
+                if end > u16::from(topic.length) {
+                    self.error(
+                        length.span(),
+                        format!(
+                            "topic `{}` carries {} bytes (`length = {}`), but {} reads bytes {}..{} of its frames",
+                            topic.name, topic.length, topic.length, field.reader, field.offset, end
+                        ),
+                    );
+                }
+            }
+        }
     }
 
     fn ports(
@@ -1724,7 +1800,7 @@ impl Builder<'_> {
                     }
                 }
             };
-            let Some(data) = self.payload(raw_event.data.as_ref()) else {
+            let Some(data) = self.payload(raw_event.data.as_ref(), &topics[topic]) else {
                 continue;
             };
             frames = frames.saturating_add(schedule.count());
@@ -1745,11 +1821,15 @@ impl Builder<'_> {
         events
     }
 
-    /// An event's `data = [...]`: at most 8 bytes, each 0..=255 (default: no data). `None`
-    /// after reporting what is wrong.
-    fn payload(&mut self, raw: Option<&Spanned<Vec<Spanned<i64>>>>) -> Option<Vec<u8>> {
+    /// An event's `data = [...]`: as many bytes as its topic's `length`, each 0..=255 (default:
+    /// that many zeros). `None` after reporting what is wrong.
+    fn payload(
+        &mut self,
+        raw: Option<&Spanned<Vec<Spanned<i64>>>>,
+        topic: &Topic,
+    ) -> Option<Vec<u8>> {
         let Some(raw) = raw else {
-            return Some(Vec::new());
+            return Some(vec![0; usize::from(topic.length)]);
         };
         if raw.get_ref().len() > MAX_DATA_LEN {
             self.error(
@@ -1773,6 +1853,25 @@ impl Builder<'_> {
                     return None;
                 }
             }
+        }
+        if bytes.len() != usize::from(topic.length) {
+            let length = if topic.length as usize == MAX_DATA_LEN {
+                format!("{MAX_DATA_LEN} (its `length`, {MAX_DATA_LEN} by default)")
+            } else {
+                format!("{} (its `length`)", topic.length)
+            };
+            self.error(
+                raw.span(),
+                format!(
+                    "data has {} byte{}, but topic `{}`'s frames carry {length}: write {} bytes, or set `length = {}` on the topic",
+                    bytes.len(),
+                    if bytes.len() == 1 { "" } else { "s" },
+                    topic.name,
+                    topic.length,
+                    bytes.len()
+                ),
+            );
+            return None;
         }
         Some(bytes)
     }
@@ -2380,15 +2479,23 @@ topic = "t3"
 
     #[test]
     fn events_carry_data_and_faults_stop_nodes() {
-        let text = format!("{FIGURE_1}data = [0x0A, 0]\n[[faults]]\nnode = \"gaze\"\nat = 12.5\n");
+        // object_pos's frames carry 2 bytes; face_pos's the default 8, zeros without `data`.
+        let two = FIGURE_1.replace("can_id = 0x111\n", "can_id = 0x111\nlength = 2\n");
+        let text = format!("{two}data = [0x0A, 0]\n[[faults]]\nnode = \"gaze\"\nat = 12.5\n");
         let network = parse(&text).unwrap();
-        assert_eq!(network.events[0].data, Vec::<u8>::new());
+        assert_eq!(network.topics[0].length, 8);
+        assert_eq!(network.topics[1].length, 2);
+        assert_eq!(network.events[0].data, vec![0; 8]);
         assert_eq!(network.events[1].data, vec![0x0A, 0]);
         assert_eq!(network.faults, vec![Fault { node: 0, at: 12.5 }]);
         let bad = [
             (
                 "data = [1, 2, 3, 4, 5, 6, 7, 8, 9]\n",
                 "data has 9 bytes; a CAN frame carries at most 8",
+            ),
+            (
+                "data = [1, 2, 3]\n",
+                "data has 3 bytes, but topic `object_pos`'s frames carry 8 (its `length`, 8 by default): write 8 bytes, or set `length = 3` on the topic",
             ),
             ("data = [0x100]\n", "data byte 256 is not in 0..=255"),
             ("data = [-1]\n", "data byte -1 is not in 0..=255"),
@@ -2410,6 +2517,50 @@ topic = "t3"
             assert_eq!(errors.len(), 1, "{extra}: {errors:?}");
             assert!(errors[0].contains(message), "{extra}: {errors:?}");
         }
+    }
+
+    #[test]
+    fn a_topic_length_is_0_to_8_and_bounds_the_fields_read_from_it() {
+        for (length, message) in [
+            (
+                "9",
+                "length = 9: the data bytes of the topic's frames, 0 to 8",
+            ),
+            (
+                "-1",
+                "length = -1: the data bytes of the topic's frames, 0 to 8",
+            ),
+        ] {
+            let text = FIGURE_1.replace(
+                "can_id = 0x111\n",
+                &format!("can_id = 0x111\nlength = {length}\n"),
+            );
+            let errors = errors(&text);
+            assert_eq!(errors.len(), 1, "{errors:?}");
+            assert!(errors[0].contains(message), "{errors:?}");
+        }
+        let ports = |length: u8| {
+            format!(
+                "[nodes.base]\nid = 4\n[topics.range]\ncan_id = 0x1A0\nlength = {length}\n\
+                 [ports.\"base.nearest\"]\ncombine = \"min\"\nvalue = {{ offset = 1, size = 2 }}\n\
+                 [connections.R]\ntopic = \"range\"\nport = \"base.nearest\"\nst = 1.0\ntc = 0.3\n"
+            )
+        };
+        let network = parse(&ports(3)).unwrap();
+        let fields = network.topic_fields(0);
+        assert_eq!(fields.len(), 1, "{fields:?}");
+        assert_eq!(
+            (fields[0].name.as_str(), fields[0].offset, fields[0].size),
+            ("nearest", 1, 2)
+        );
+        let errors = errors(&ports(2));
+        assert_eq!(errors.len(), 1, "{errors:?}");
+        assert!(
+            errors[0].contains(
+                "topic `range` carries 2 bytes (`length = 2`), but port `base.nearest` (combine = \"min\") reads bytes 1..3 of its frames"
+            ),
+            "{errors:?}"
+        );
     }
 
     #[test]

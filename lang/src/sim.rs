@@ -76,7 +76,7 @@ pub struct Options {
 pub struct BusFrame {
     /// When, µs.
     pub t_us: u64,
-    /// The frame (an event's frames carry its `data`, by default none).
+    /// The frame (an event's frames carry its `data`, by default its topic's `length` of zeros).
     pub frame: pab_core::Frame,
 }
 

@@ -438,7 +438,10 @@ fn a_stopped_node_receives_nothing_and_delivers_nothing() {
 
 #[test]
 fn event_frames_carry_their_data() {
-    let text = INHIBIT.replace("at = [2.2]", "at = [2.2]\ndata = [0x0A, 0x00]");
+    // Topic f's frames carry 2 bytes; the other topics' the default 8, zeros without `data`.
+    let text = INHIBIT
+        .replace("at = [2.2]", "at = [2.2]\ndata = [0x0A, 0x00]")
+        .replace("can_id = 0x210\n", "can_id = 0x210\nlength = 2\n");
     let network = network("kinds", &text);
     let frames = sim::event_frames(&network).unwrap();
     let f = frames
@@ -449,6 +452,6 @@ fn event_frames_carry_their_data() {
         frames
             .iter()
             .filter(|f| f.t_us != 2_200_000)
-            .all(|f| f.frame.payload().is_empty())
+            .all(|f| f.frame.payload() == [0; 8])
     );
 }

@@ -135,6 +135,7 @@ fn topic_and_constant_contexts() {
 id = 5
 [topics.seen]
 can_id = 0x121
+length = 2
 [ports."base.p"]
 [connections.SEEN]
 topic = "seen"

@@ -218,8 +218,10 @@ id = 4
 id = 9
 [topics.obs_a]
 can_id = {id_a:#x}
+length = 2
 [topics.obs_b]
 can_id = {id_b:#x}
+length = 2
 [ports."a.drive"]
 [ports."b.drive"]
 [connections.OA]

@@ -18,7 +18,7 @@
 //! order: the solver's tie-break uses both. A strategy's **bus cost** is computed from the
 //! frames its filters let through: for each connection it sets to φ ≥ 1, its topic's `rate_hz`
 //! / φ frames a second of the worst-case length with bit stuffing, 55 + 10·n bits for an 11-bit
-//! identifier and 80 + 10·n for a 29-bit one, n = 8 data bytes (a topic declares no length);
+//! identifier and 80 + 10·n for a 29-bit one, n the topic's data `length` (8 by default);
 //! the sum as a percentage of `bitrate`, rounded up ([`bus_cost`]). A strategy whose cost of a
 //! resource exceeds that resource's capacity can never be selected, and is refused.
 
@@ -40,8 +40,6 @@ use crate::shown;
 /// The resource whose capacity is a percentage of the bus's bit rate and whose costs are
 /// computed from the strategies' filters.
 pub const BUS: &str = "bus";
-/// The data length assumed for every topic's frames in bus costs: the longest classic frame.
-pub const DATA_LEN: u64 = 8;
 /// The fastest `bitrate`: classic CAN's 1 Mbit/s.
 pub const MAX_BITRATE: i64 = 1_000_000;
 
@@ -149,16 +147,18 @@ pub struct Hbba {
 }
 
 /// A strategy's bus cost, in percent of `bitrate` (> 0), rounded up: its filtered frames are
-/// `(rate in µHz, φ, extended)` per connection; each φ ≥ 1 lets through rate / φ frames a second of
-/// 55 + 10·8 bits (11-bit identifier) or 80 + 10·8 (29-bit), worst-case stuffing included. Each
-/// connection's bit rate is rounded up to a whole µbit/s, then the sum to a whole percent, so the
-/// cost is never below the exact one. φ = 0 (closed) costs nothing.
-pub fn bus_cost(frames: &[(u64, u16, bool)], bitrate: u32) -> u64 {
+/// `(rate in µHz, φ, extended, data length)` per connection; each φ ≥ 1 lets through rate / φ
+/// frames a second of 55 + 10·n bits (11-bit identifier, n data bytes) or 80 + 10·n (29-bit), the
+/// frame's length with worst-case bit stuffing: 47 + 8n + ⌊(34 + 8n − 1)/4⌋ and
+/// 67 + 8n + ⌊(54 + 8n − 1)/4⌋ bits, which are exactly those. Each connection's bit rate is
+/// rounded up to a whole µbit/s, then the sum to a whole percent, so the cost is never below the
+/// exact one. φ = 0 (closed) costs nothing.
+pub fn bus_cost(frames: &[(u64, u16, bool, u8)], bitrate: u32) -> u64 {
     let micro_bits: u128 = frames
         .iter()
-        .filter(|&&(_, phi, _)| phi != 0)
-        .map(|&(rate_uhz, phi, extended)| {
-            let bits = if extended { 80 } else { 55 } + 10 * DATA_LEN;
+        .filter(|&&(_, phi, _, _)| phi != 0)
+        .map(|&(rate_uhz, phi, extended, length)| {
+            let bits = if extended { 80 } else { 55 } + 10 * u64::from(length);
             (u128::from(rate_uhz) * u128::from(bits)).div_ceil(u128::from(phi))
         })
         .sum();
@@ -625,7 +625,7 @@ impl Builder<'_> {
             }
         }
         let mut filters: Vec<StrategyFilter> = Vec::new();
-        let mut frames: Vec<(u64, u16, bool)> = Vec::new();
+        let mut frames: Vec<(u64, u16, bool, u8)> = Vec::new();
         if let Some(map) = &raw.filters {
             if map.get_ref().len() > MAX_FILTERS {
                 self.error(
@@ -671,7 +671,12 @@ impl Builder<'_> {
                     let topic = connections.get(index).and_then(|c| topics.get(c.topic));
                     match topic {
                         Some(topic) => match topic.rate_uhz {
-                            Some(rate) => frames.push((rate, phi_value, topic.filter.is_extended())),
+                            Some(rate) => frames.push((
+                                rate,
+                                phi_value,
+                                topic.filter.is_extended(),
+                                topic.length,
+                            )),
                             None => self.error(
                                 connection.span(),
                                 format!(
