@@ -60,7 +60,8 @@ Examples:
   pabctl nodes --iface vcan0
   pabctl monitor examples/take-and-return.toml --iface vcan0
   pabctl dbc examples/take-and-return.toml -o out/take-and-return.dbc
-  pabctl solve examples/tour-guide.toml --desires \"face=2,nav=2,voice=3\"";
+  pabctl solve examples/tour-guide.toml --desires \"face=2,nav=2,voice=3\"
+  pabctl schema > docs/network-file.schema.json";
 
 #[derive(Parser)]
 #[command(name = "pabctl", version, about = ABOUT, long_about = LONG_ABOUT, after_help = AFTER_HELP)]
@@ -559,6 +560,18 @@ extended with bits 25..24 = 0b10, is an error); 3 the output cannot be written."
         #[arg(long, value_name = "CAPTURE.log")]
         claims_from: Option<PathBuf>,
     },
+    /// Print the network file's JSON Schema, for editors (docs/network-file.schema.json).
+    #[command(long_about = "\
+Print the network file's JSON Schema (draft 7) on standard output: every table and key the \
+parser takes, with its type and a description, unknown keys refused. Editors that complete and \
+check TOML with a JSON Schema (taplo, VS Code's Even Better TOML) use it; the repository's copy \
+is docs/network-file.schema.json, which this regenerates:
+
+  pabctl schema > docs/network-file.schema.json
+
+The schema is derived from the parser's own tables, so it takes exactly what `pabctl check` \
+takes in shape; names, ranges and rules are still for `pabctl check` to judge.")]
+    Schema,
 }
 
 /// How a command failed, and the exit status that says so.
@@ -718,6 +731,9 @@ fn main() -> ExitCode {
             output,
             claims_from,
         } => run_dbc(&network, &output, claims_from.as_deref()),
+        Command::Schema => io::stdout()
+            .write_all(pab_lang::network::json_schema().as_bytes())
+            .map_err(|error| Failure::Output(format!("standard output: {error}"))),
         Command::Solve {
             network,
             desires,

@@ -240,6 +240,24 @@ fn unwritable_outputs_exit_3() {
     assert!(text(&output.stderr).contains("cannot write /proc/forbidden/trace.csv"));
 }
 
+/// `pabctl schema` is the command that regenerates docs/network-file.schema.json: it prints the
+/// committed file byte for byte (lang/tests/json_schema.rs checks that file against the parser).
+#[test]
+fn schema_prints_the_committed_json_schema() {
+    let output = pabctl(&["schema"]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let committed = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/network-file.schema.json"),
+    )
+    .expect("docs/network-file.schema.json");
+    assert!(
+        text(&output.stdout) == committed,
+        "pabctl schema differs from docs/network-file.schema.json: regenerate it with \
+         `cargo run -q -p pabctl -- schema > docs/network-file.schema.json`"
+    );
+    assert!(output.stderr.is_empty(), "{}", text(&output.stderr));
+}
+
 #[test]
 fn help_explains_the_concepts() {
     let output = pabctl(&["--help"]);

@@ -22,8 +22,10 @@ use pab_core::{
     Combine, Consumer, Endian, Field, Filter, MAX_CONNECTIONS_PER_PORT, MAX_PORTS, OutputId,
     Stimulation, ValueSpec,
 };
+use schemars::transform::RecursiveTransform;
+use schemars::{JsonSchema, Schema};
 use serde::Deserialize;
-use toml::Spanned;
+use spanned::Spanned;
 
 use crate::diagnostic::{Diagnostic, Diagnostics, Source};
 use crate::rule::{self, Rule};
@@ -35,6 +37,7 @@ mod fields;
 mod gates;
 mod hbba;
 mod schema;
+mod spanned;
 mod structure;
 
 pub use ble::{BleGroup, BleMember};
@@ -70,139 +73,237 @@ pub const MAX_EVENT_FRAMES: u64 = 10_000_000;
 pub const MAX_TIME_S: f64 = 1_000_000.0;
 /// The highest `rate_hz` of a topic: more frames a second than a 1 Mbit/s bus carries.
 pub const MAX_RATE_HZ: f64 = 100_000.0;
+/// A value port's combinations, as the file writes them (`combine = "..."`): what the parser
+/// takes and the JSON Schema lists.
+const COMBINES: [(&str, Combine); 4] = [
+    ("max", Combine::Max),
+    ("min", Combine::Min),
+    ("sum", Combine::Sum),
+    ("priority", Combine::Priority),
+];
+/// A field's byte orders (`endian = "..."`; "little" when not written), as [`COMBINES`].
+const ENDIANS: [(&str, Endian); 2] = [("little", Endian::Little), ("big", Endian::Big)];
 /// How much of a rule's text a message repeats (characters); longer rules are shortened with `…`.
 pub const RULE_EXCERPT: usize = 80;
 
-#[derive(Deserialize)]
+/// A network file (docs/network-file.md): nodes, topics, ports, connections, BLE groups,
+/// competitive dynamics, HBBA, a schema server, and a simulation's scenario. Unknown keys are
+/// errors.
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawFile {
+    /// Optional: the network's version and description.
     network: Option<RawMeta>,
+    /// The nodes (controller boards or their Linux stand-ins), by name.
     #[serde(default)]
     nodes: IndexMap<Spanned<String>, Spanned<RawNode>>,
+    /// The topics (streams of CAN frames), by name.
     #[serde(default)]
     topics: IndexMap<Spanned<String>, Spanned<RawTopic>>,
+    /// The ports (a node's inputs), by `"<node>.<port>"`.
     #[serde(default)]
     ports: IndexMap<Spanned<String>, Spanned<RawPort>>,
+    /// The connections from topics to ports, by the name rules refer to (letters, digits, _); in
+    /// file order, the variables of their port's rules.
     #[serde(default)]
     connections: IndexMap<Spanned<String>, Spanned<RawConnection>>,
+    /// Simulation only: frames published on a topic.
     #[serde(default)]
     events: Vec<Spanned<RawEvent>>,
+    /// Simulation only, optional: labels for the plot's bottom strip.
     #[serde(default)]
     phases: Vec<Spanned<RawPhase>>,
+    /// Simulation only, optional, with `[hbba]`: desires `pabctl sim` issues (at most 32).
     #[serde(default)]
     desires: Vec<Spanned<hbba::RawDesire>>,
+    /// Simulation only, optional: nodes that stop (one per node).
     #[serde(default)]
     faults: Vec<Spanned<RawFault>>,
+    /// Broadcast of Local Eligibility peer groups, by the name rules refer to.
     #[serde(default)]
     ble: IndexMap<Spanned<String>, Spanned<ble::RawBle>>,
+    /// Competitive-dynamics groups, by name (rules name a gate as `GROUP.BEHAVIOUR`).
     #[serde(default)]
     dynamics: IndexMap<Spanned<String>, Spanned<dynamics::RawDynamics>>,
+    /// Optional: HBBA's intention solver, its resources and strategies (hbba.md).
     hbba: Option<Spanned<hbba::RawHbba>>,
+    /// The node that runs a schema server (at most one), by its node's name (schema-server.md).
     #[serde(default)]
     schema: IndexMap<Spanned<String>, Spanned<schema::RawSchema>>,
+    /// Simulation only: the robot a schema server drives; every key optional.
     plant: Option<Spanned<schema::RawPlant>>,
+    /// The schema server's client: its program and commands.
     client: Option<Spanned<schema::RawClient>>,
 }
 
 /// `[[faults]] node = "r2", at = 12.0`: the node stops.
-#[derive(Deserialize)]
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawFault {
+    /// Required: the node that stops (receives nothing, sends nothing, its ports deliver nothing).
     node: Spanned<String>,
+    /// Required: from when, in seconds (a frame of that microsecond included).
     at: Spanned<f64>,
+    /// Optional: a remark for the reader; not used.
     #[allow(dead_code)]
     note: Option<String>,
 }
 
-#[derive(Deserialize)]
+/// `[network]`: the network as a whole.
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawMeta {
+    /// Optional: the table version compiled into the images, 1..=4294967295 (default 1; 0 is
+    /// reserved: heartbeats report it for "no table").
     version: Option<Spanned<i64>>,
+    /// Optional: what the network is; the DBC export's comment on the whole database.
     description: Option<Spanned<String>>,
 }
 
-#[derive(Deserialize)]
+/// `[nodes.NAME]`: a node; its name is used in port names and image file names.
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawNode {
+    /// Required: the node's id on the bus, 1..=127, unique.
     id: Spanned<i64>,
+    /// Optional: what the board is; its node comment in the DBC export.
     description: Option<Spanned<String>>,
 }
 
-#[derive(Deserialize)]
+/// `[topics.NAME]`: a stream of CAN frames.
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawTopic {
+    /// Required: the frames' identifier, 11-bit (0..=0x7FF), or 29-bit (0..=0x1FFFFFFF) with
+    /// `extended = true`.
     can_id: Spanned<i64>,
+    /// Optional, default false: a 29-bit identifier.
     #[serde(default)]
     extended: bool,
+    /// Optional: a frame matches when (frame_id & mask) == can_id; default all bits (exact
+    /// match); can_id may not have bits outside mask.
     mask: Option<Spanned<i64>>,
+    /// Optional: frames per second the publisher sends, (0, 100000], kept in whole µHz; what
+    /// HBBA's bus costs are computed from (required on a topic whose connection a strategy lets
+    /// through when `[hbba]` has a `bus` resource).
     rate_hz: Option<Spanned<f64>>,
+    /// Optional, default 8: the data bytes of its frames, 0..=8; the DLC of its DBC message and
+    /// the length of its simulated frames (an event's `data` has exactly this many bytes); every
+    /// field read from its frames must lie within it.
     length: Option<Spanned<i64>>,
+    /// Optional: what the frames carry; their message's comment in the DBC export.
     description: Option<Spanned<String>>,
 }
 
-#[derive(Deserialize)]
+/// `[ports."NODE.PORT"]`: an input of a node; an arbitrated port (one winner) unless `combine`
+/// makes it a value port.
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawPort {
+    /// Optional: the node also re-publishes the frames this port delivers on this id (a gateway in
+    /// front of an actuator that cannot be changed). Default: the node's application only.
     republish: Option<Spanned<RawRepublish>>,
+    /// Optional: a value port and how it combines its connections' values. Default: an
+    /// arbitrated port (one winner).
+    #[schemars(extend("enum" = COMBINES.map(|(name, _)| name)))]
     combine: Option<Spanned<String>>,
+    /// The field a value port combines: required with `combine`, refused without.
     value: Option<Spanned<RawField>>,
+    /// The field that ranks frames: required for `combine = "priority"` and only there.
     priority: Option<Spanned<RawField>>,
 }
 
 /// `value = { offset = 0, size = 2, signed = false, endian = "little" }` (or `priority = ...`)
-/// on a value port.
-#[derive(Deserialize)]
+/// on a value port: where an integer is in a frame's data.
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawField {
+    /// Required: the field's first byte, offset + size <= 8.
     offset: Spanned<i64>,
+    /// Required: its size in bytes, 1, 2 or 4 (1 or 2 for a BLE group's eligibility).
     size: Spanned<i64>,
+    /// Optional, default false: a two's-complement integer.
     #[serde(default)]
     signed: bool,
+    /// Optional, default "little": its byte order.
+    #[schemars(extend("enum" = ENDIANS.map(|(name, _)| name)))]
     endian: Option<Spanned<String>>,
 }
 
 /// `republish = { can_id = 0x300, extended = false }` on a port.
-#[derive(Deserialize)]
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawRepublish {
+    /// Required: the identifier, 11-bit up to 0x7FF, or 29-bit up to 0x1FFFFFFF with `extended`.
     can_id: Spanned<i64>,
+    /// Optional, default false: a 29-bit identifier.
     #[serde(default)]
     extended: bool,
 }
 
-#[derive(Deserialize)]
+/// `[connections.NAME]`: a connection from a topic to a port (docs/ayllu.md for the kinds).
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawConnection {
+    /// Required: the topic whose frames feed it.
     topic: Spanned<String>,
+    /// The port (`"<node>.<port>"`) they compete for; none for `kind = "inhibit"`, which acts at
+    /// every port the topic it inhibits feeds.
     port: Option<Spanned<String>>,
+    /// σ, the stimulation each frame adds, in (0, 1] (at least 2^-16); normal connections only.
     st: Option<Spanned<f64>>,
+    /// τ in seconds, (0, 3600], kept in whole microseconds: the decay time; normal connections
+    /// only.
     tc: Option<Spanned<f64>>,
+    /// τr in seconds, [0, 3600]; optional, default 0; normal connections only.
     tr: Option<Spanned<f64>>,
+    /// Optional: when it may deliver while active, a formula of its port's connections (`!`,
+    /// `&`, `|`, parentheses, true, false); default: the connection's own name. Not on suppress,
+    /// inhibit or write-inhibit connections.
     rule: Option<Spanned<String>>,
+    /// Optional, default "normal": what the connection does at its port.
+    #[schemars(extend("enum" = Kind::ALL.map(Kind::name)))]
     kind: Option<Spanned<String>>,
+    /// Seconds, (0, 3600], kept in whole microseconds: required for special kinds (all but
+    /// normal), refused on normal ones.
     period: Option<Spanned<f64>>,
+    /// The topic an inhibit or write-inhibit connection holds back: required for those kinds.
     inhibits: Option<Spanned<String>>,
 }
 
-#[derive(Deserialize)]
+/// `[[events]]`: frames published on a topic in a simulation, either at `rate_hz` from `from` to
+/// `to` or at the times of `at`.
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawEvent {
+    /// Required: the topic the frames are published on.
     topic: Spanned<String>,
+    /// Optional: the frames' payload, at most 8 bytes 0..=255; default none.
     data: Option<Spanned<Vec<Spanned<i64>>>>,
+    /// Frames per second: at from, from + 1/rate_hz, ... while t < to.
     rate_hz: Option<Spanned<f64>>,
+    /// Optional, with rate_hz: the first frame's time in seconds, default 0.
     from: Option<Spanned<f64>>,
+    /// With rate_hz: the end in seconds (exclusive).
     to: Option<Spanned<f64>>,
+    /// Or explicit times, in seconds.
     at: Option<Spanned<Vec<f64>>>,
+    /// Optional: a remark for the reader; not used.
     #[allow(dead_code)]
     note: Option<String>,
 }
 
-#[derive(Deserialize)]
+/// `[[phases]]`: a label for the plot's bottom strip.
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawPhase {
+    /// Required: the label.
     name: Spanned<String>,
+    /// Required: its start, seconds.
     from: Spanned<f64>,
+    /// Required: its end, seconds.
     to: Spanned<f64>,
+    /// Optional: a remark shown with it.
     note: Option<Spanned<String>>,
 }
 
@@ -514,6 +615,62 @@ fn is_plain_name(name: &str) -> bool {
 }
 
 const PLAIN_NAME: &str = "use letters, digits, `_` and `-`";
+
+/// The network file's JSON Schema (draft 7), for editors that complete and check TOML with one
+/// (taplo, Even Better TOML): pretty-printed, with a final newline, as committed in
+/// docs/network-file.schema.json and printed by `pabctl schema`.
+///
+/// It is derived from the raw tables the parser reads the file into, so it takes exactly their
+/// keys (an unknown key is refused: `additionalProperties: false`), with their types and their
+/// doc comments as descriptions, and the values of `combine`, `endian` and `kind` from the lists
+/// the parser checks them against. It checks a file's shape only: names, ranges and everything
+/// else [`Network::parse`] reports stay the parser's.
+pub fn json_schema() -> String {
+    let mut settings = schemars::generate::SchemaSettings::draft07();
+    // Before the draft-7 transforms, which move a `$ref`'s siblings into an `allOf`.
+    settings
+        .transforms
+        .insert(0, Box::new(RecursiveTransform(for_toml as fn(&mut Schema))));
+    let mut schema = settings.into_generator().into_root_schema_for::<RawFile>();
+    schema.insert("title".into(), "pab network file".into());
+    let mut text = serde_json::to_string_pretty(&schema).expect("a schema is JSON");
+    text.push('\n');
+    text
+}
+
+/// `schema` as a TOML file's, not a Rust type's: without the null that schemars allows for an
+/// `Option` (TOML has none: an optional key is one left out), so `"type": ["integer", "null"]`
+/// becomes `"type": "integer"` and `"anyOf": [X, {"type": "null"}]` becomes X with the schema's
+/// own keys (its description); without `format`s that name Rust's types (`int64`, `double`);
+/// with each description's lines, wrapped as a doc comment, joined into one.
+fn for_toml(schema: &mut Schema) {
+    use serde_json::Value;
+    let Some(object) = schema.as_object_mut() else {
+        return;
+    };
+    if let Some(Value::Array(types)) = object.get_mut("type") {
+        types.retain(|t| t != "null");
+        if let [only] = types.as_slice() {
+            let only = only.clone();
+            object.insert("type".into(), only);
+        }
+    }
+    let is_null = |value: &Value| value.get("type").is_some_and(|t| t == "null");
+    if let Some(Value::Array(options)) = object.get_mut("anyOf") {
+        options.retain(|option| !is_null(option));
+        if let [Value::Object(only)] = options.as_slice() {
+            let only = only.clone();
+            object.remove("anyOf");
+            for (key, value) in only {
+                object.entry(key).or_insert(value);
+            }
+        }
+    }
+    object.remove("format");
+    if let Some(Value::String(description)) = object.get_mut("description") {
+        *description = description.replace('\n', " ");
+    }
+}
 
 impl Network {
     /// Reads and checks the network file at `path`.
@@ -1012,17 +1169,15 @@ impl Builder<'_> {
             }
             return None;
         };
-        let combine = match combine_text.get_ref().as_str() {
-            "max" => Some(Combine::Max),
-            "min" => Some(Combine::Min),
-            "sum" => Some(Combine::Sum),
-            "priority" => Some(Combine::Priority),
-            other => {
+        let written = combine_text.get_ref().as_str();
+        let combine = match COMBINES.iter().find(|(name, _)| *name == written) {
+            Some(&(_, combine)) => Some(combine),
+            None => {
                 self.error(
                     combine_text.span(),
                     format!(
                         "combine = \"{}\" is not a combination: \"max\", \"min\", \"sum\" or \"priority\"",
-                        shown::escaped(other)
+                        shown::escaped(written)
                     ),
                 );
                 None
@@ -1092,24 +1247,21 @@ impl Builder<'_> {
             );
             ok = false;
         }
-        let endian = match field
-            .endian
-            .as_ref()
-            .map(|endian| endian.get_ref().as_str())
-        {
-            None | Some("little") => Endian::Little,
-            Some("big") => Endian::Big,
-            Some(other) => {
-                let span = field.endian.as_ref().map_or(raw.span(), Spanned::span);
-                self.error(
-                    span,
-                    format!(
-                        "{key}: endian = \"{}\" is not \"little\" or \"big\"",
-                        shown::escaped(other)
-                    ),
-                );
-                return None;
-            }
+        let endian = match &field.endian {
+            None => Endian::Little,
+            Some(written) => match ENDIANS.iter().find(|(name, _)| name == written.get_ref()) {
+                Some(&(_, endian)) => endian,
+                None => {
+                    self.error(
+                        written.span(),
+                        format!(
+                            "{key}: endian = \"{}\" is not \"little\" or \"big\"",
+                            shown::escaped(written.get_ref())
+                        ),
+                    );
+                    return None;
+                }
+            },
         };
         if !ok {
             return None;

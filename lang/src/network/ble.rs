@@ -10,11 +10,12 @@
 
 use std::ops::Range;
 
+use super::spanned::Spanned;
 use indexmap::IndexMap;
 use pab_core::ble::{EligibilityField, MAX_GROUP_PORTS, MAX_GROUPS, MAX_PEERS, MAX_PERIOD_US};
 use pab_core::{Endian, MAX_CONNECTIONS_PER_PORT, Stimulation};
+use schemars::JsonSchema;
 use serde::Deserialize;
-use toml::Spanned;
 
 use super::{Builder, Connection, Kind, Node, Port, RawConnection, RawField, Topic, list_or_none};
 use crate::rule::{self, Rule};
@@ -22,11 +23,18 @@ use crate::shown;
 
 /// `[ble.NAME] period = 0.1, value = { offset = 0, size = 2 }` and `[ble.NAME.nodes] r1 =
 /// "TOPIC", ...`.
-#[derive(Deserialize)]
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub(super) struct RawBle {
+    /// Required: seconds between a node's claims, whole microseconds in (0, 3600].
+    #[schemars(required)]
     period: Option<Spanned<f64>>,
+    /// Required: where each node's eligibility is in its topic's frames: size 1 or 2 bytes,
+    /// unsigned; endian "little" (default) or "big".
+    #[schemars(required)]
     value: Option<Spanned<RawField>>,
+    /// Its nodes (2 to 8): node = the topic that carries its own eligibility for the task (a
+    /// node may be in at most 4 groups).
     #[serde(default)]
     nodes: IndexMap<Spanned<String>, Spanned<String>>,
 }

@@ -6,50 +6,73 @@
 //! `memory`); [`DynamicsGroup::params`] holds them as `pab_core::dynamics::Params` stores them
 //! (µs, Q8.8, Q16.16, Q0.32), checked by `Params::validate`. Gates do not enter rules yet.
 
+use std::borrow::Cow;
 use std::fmt;
 use std::ops::Range;
 
+use super::spanned::Spanned;
 use indexmap::IndexMap;
 use pab_core::Field;
 use pab_core::dynamics::{C_ONE, GAMMA_ONE, MAX_BEHAVIOURS, Params, ParamsError, Time};
+use schemars::{JsonSchema, Schema, SchemaGenerator, json_schema};
 use serde::Deserialize;
 use serde::de::{self, Deserializer, MapAccess, Visitor};
-use toml::Spanned;
 
 use super::{Builder, Connection, Node, Port, RawField, Topic, list_or_none};
 use crate::rule;
 use crate::shown;
 
 /// `[dynamics.NAME] node = "base", step = 0.001, ...` and its behaviours.
-#[derive(Deserialize)]
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub(super) struct RawDynamics {
+    /// Required: the node that runs the group.
+    #[schemars(required)]
     node: Option<Spanned<String>>,
+    /// Seconds per integration step, default 0.001; steps at t = k * step.
     step: Option<Spanned<f64>>,
+    /// Seconds per time unit of the equations, default 0.01.
     unit: Option<Spanned<f64>>,
+    /// q, per square-root unit, in (0, 1), default 0.001.
     noise: Option<Spanned<f64>>,
+    /// The noise generator's seed, 1..=4294967295, default 1.
     seed: Option<Spanned<i64>>,
+    /// Steepness of the presupposition's tanh, default 10.
     c: Option<Spanned<f64>>,
+    /// τ in units, default 1 (kept in whole microseconds).
     tau: Option<Spanned<f64>>,
+    /// τ_ρ1 in units, default 1 (kept in whole microseconds).
     tau_rho_fast: Option<Spanned<f64>>,
+    /// τ_ρ2 in units, default 20 (kept in whole microseconds).
     tau_rho_slow: Option<Spanned<f64>>,
+    /// τ_n in units, default 1 (kept in whole microseconds).
     tau_n: Option<Spanned<f64>>,
+    /// γ of every declared exclusion in this group, [0, 255], default 3.
     gamma: Option<Spanned<f64>>,
+    /// Its behaviours, in file order (1 to 32), by name.
     #[serde(default)]
     behaviours: IndexMap<Spanned<String>, Spanned<RawBehaviour>>,
 }
 
 /// `[dynamics.NAME.behaviours.B] context = ..., memory = 50.0, excludes = [...], gamma = {...},
 /// requires = [...]`.
-#[derive(Deserialize)]
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawBehaviour {
+    /// Required: its sensor context, a connection's name, a constant in [0, 1], or a topic's
+    /// field.
+    #[schemars(required)]
     context: Option<Spanned<RawContext>>,
+    /// τ_i in units, optional, default 50.
     memory: Option<Spanned<f64>>,
+    /// Optional: behaviours of the group that push this one off while active (γ = the group's
+    /// gamma).
     #[serde(default)]
     excludes: Vec<Spanned<String>>,
+    /// Optional: per-pair γ, behaviour = γ (declares the exclusion if excludes does not).
     #[serde(default)]
     gamma: IndexMap<Spanned<String>, Spanned<f64>>,
+    /// Optional: behaviours that must have been active before this one can start.
     #[serde(default)]
     requires: Vec<Spanned<String>>,
 }
@@ -61,13 +84,42 @@ enum RawContext {
     Topic(RawTopicContext),
 }
 
-#[derive(Deserialize)]
+/// `context = { topic, value, scale, timeout }`: the last frame's field / scale, 0 before any
+/// frame and once timeout seconds have passed.
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawTopicContext {
+    /// Required: the topic whose frames carry the context.
     topic: Spanned<String>,
+    /// Required: the field, with the keys of a value port's value.
     value: Spanned<RawField>,
+    /// Required: the divisor, from 1/256 to 16777215, kept in 1/256.
     scale: Spanned<f64>,
+    /// Required: seconds a frame's value holds, up to 3600.
     timeout: Spanned<f64>,
+}
+
+/// As its `Deserialize` takes it: a string, a number or a table.
+impl JsonSchema for RawContext {
+    fn schema_name() -> Cow<'static, str> {
+        "RawContext".into()
+    }
+
+    fn json_schema(generator: &mut SchemaGenerator) -> Schema {
+        json_schema!({
+            "anyOf": [
+                {
+                    "description": "The activity (0 or 1) of a connection on the group's node, by name.",
+                    "type": "string",
+                },
+                {
+                    "description": "A constant in [0, 1].",
+                    "type": "number",
+                },
+                generator.subschema_for::<RawTopicContext>(),
+            ],
+        })
+    }
 }
 
 impl<'de> Deserialize<'de> for RawContext {

@@ -9,11 +9,11 @@
 
 use std::ops::Range;
 
+use super::spanned::Spanned;
 use indexmap::IndexMap;
 use pab_core::MAX_CONNECTIONS_PER_PORT;
 use pab_core::Stimulation;
 use pab_core::dynamics::{MAX_GATE_LINKS, MAX_GATE_SOURCES};
-use toml::Spanned;
 
 use super::{Builder, Connection, DynamicsGroup, Kind, NO_TOPIC, Port, RawConnection};
 use crate::rule::{self, Rule};

@@ -24,13 +24,14 @@
 
 use std::ops::Range;
 
+use super::spanned::Spanned;
 use indexmap::IndexMap;
 use pab_core::hbba::{
     self, FilterSetting, Instance, Intensities, MAX_CLASSES, MAX_FILTERS, MAX_REQUIRES,
     MAX_RESOURCES, MAX_STRATEGIES, Requirement, Solver, Strategy,
 };
+use schemars::JsonSchema;
 use serde::Deserialize;
-use toml::Spanned;
 
 use pab_core::hbba::intention::{MAX_FILTERED, Target};
 
@@ -46,33 +47,50 @@ pub const MAX_BITRATE: i64 = 1_000_000;
 type RawMap = Spanned<IndexMap<Spanned<String>, Spanned<i64>>>;
 
 /// `[hbba] resources = { ... }, bitrate = N` and `[hbba.strategies.NAME]`.
-#[derive(Deserialize)]
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub(super) struct RawHbba {
+    /// Optional: named capacities, 1 to 8 resources, each a whole number 1..=4294967295; `bus`
+    /// is a percentage (1 to 100) of bitrate, and its costs are computed, never written.
     resources: Option<RawMap>,
+    /// Bit/s, 1 to 1000000: required with a `bus` resource, refused without.
     bitrate: Option<Spanned<i64>>,
+    /// The strategies (1 to 64, file order), by name: letters, digits, _ -.
     #[serde(default)]
     strategies: IndexMap<Spanned<String>, Spanned<RawStrategy>>,
 }
 
 /// `[hbba.strategies.NAME] class, utility, costs, filters, requires`.
-#[derive(Deserialize)]
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawStrategy {
+    /// Required: the class of desire it fulfils (up to 16 classes).
+    #[schemars(required)]
     class: Option<Spanned<String>>,
+    /// Required: 0..=65535; choosing it adds intensity × utility.
+    #[schemars(required)]
     utility: Option<Spanned<i64>>,
+    /// Optional: resource = its cost, 0..=4294967295 (default 0); not `bus`, whose cost is
+    /// computed.
     costs: Option<RawMap>,
+    /// Optional, up to 8: connection = φ, 0..=255 (0 closes, 1 passes every frame, N one frame
+    /// in N).
     filters: Option<RawMap>,
+    /// Optional, up to 4: class = the least utility of the strategy chosen for it.
     requires: Option<RawMap>,
 }
 
 /// `[[desires]] class, intensity, from, to`: a desire the simulation issues.
-#[derive(Deserialize)]
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub(super) struct RawDesire {
+    /// Required: a class of the strategies.
     class: Spanned<String>,
+    /// Required: 1..=65535.
     intensity: Spanned<i64>,
+    /// Required: issued at (seconds), refreshed while it lasts.
     from: Spanned<f64>,
+    /// Required: withdrawn at (seconds), after `from`.
     to: Spanned<f64>,
 }
 

@@ -40,14 +40,15 @@
 use std::collections::HashMap;
 use std::ops::Range;
 
+use super::spanned::Spanned;
 use indexmap::IndexMap;
 use pab_core::OutputId;
 use pab_core::schema::{
     AXES, Action, BUILTIN_IDS, Config, Drive, Event, Gripper, Joint, MAX_COORD, MAX_INNATE,
     MAX_REACTIONS, MAX_SENSORS, Measure, Pose, Reaction, Schema, Sensor, Source, build,
 };
+use schemars::JsonSchema;
 use serde::Deserialize;
-use toml::Spanned;
 
 use super::{Builder, Node, RawField, list_or_none};
 use crate::sim::plant::{Obstacle, PlantConfig};
@@ -57,136 +58,219 @@ use crate::sim::plant::{Obstacle, PlantConfig};
 pub const MAX_CALLS: usize = 10_000;
 
 /// `[schema.NODE]`: a board's set-up.
-#[derive(Deserialize)]
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub(super) struct RawSchema {
+    /// The loop's period in ms, above 0, default 1 (1 kHz).
     period_ms: Option<Spanned<f64>>,
+    /// Ms: a tick later than this after the previous one is the overrun safety event (default two
+    /// periods; at least period_ms).
     overrun_ms: Option<Spanned<f64>>,
+    /// The workspace limit on x, y, z in mm (default ±1000 mm).
     workspace_mm: Option<Spanned<RawBox>>,
+    /// The workspace's bound on the three rotations, ± mrad, default 1000.
     rotation_limit_mrad: Option<Spanned<f64>>,
+    /// The force safety limit on |F| in N, default 50.
     force_limit_n: Option<Spanned<f64>>,
+    /// The torque safety limit on |T| in N·m, default 0 (none).
     torque_limit_nm: Option<Spanned<f64>>,
+    /// The highest contact force in N a schema may wait for, default 0 (none).
     contact_limit_n: Option<Spanned<f64>>,
+    /// The measured pose's top translation speed in mm/s over a 20 ms window, default 0 (none).
     speed_limit_mm_s: Option<Spanned<f64>>,
+    /// The measured pose's top rotation rate in rad/s over a 20 ms window, default 0 (none).
     rate_limit_rad_s: Option<Spanned<f64>>,
+    /// Ms after their last reading the pose and wrench are stale (default 20 periods, at least
+    /// 50 ms).
     stale_ms: Option<Spanned<f64>>,
+    /// The same for the extra sensors, ms (default: as stale_ms).
     sensor_stale_ms: Option<Spanned<f64>>,
+    /// A schema's default watchdog budget is 1.5 × its action's nominal time plus this, ms
+    /// (default 1000).
     watchdog_margin_ms: Option<Spanned<f64>>,
+    /// The drive's top speed on each of x, y, z in mm/s (default 2000): a measured pose that
+    /// moved farther is implausible.
     drive_speed_mm_s: Option<Spanned<f64>>,
+    /// The drive's top rate on each rotation in rad/s (default 6.283).
     drive_rate_rad_s: Option<Spanned<f64>>,
+    /// The pose sensor's noise in mm on x, y, z (and mrad on the rotations), default 1.
     pose_noise_mm: Option<Spanned<f64>>,
+    /// The impedance's stiffness at start-up, N/m, default 2000.
     stiffness_n_per_m: Option<Spanned<f64>>,
+    /// The impedance's damping at start-up, N·s/m, default 100.
     damping_ns_per_m: Option<Spanned<f64>>,
+    /// Required: the drive's frames (docs/can-protocol.md, "The drive's frames").
     drive: Spanned<RawDrive>,
+    /// Optional: extra sensors (at most 8, indexed in file order), by the name reactions read:
+    /// letters, digits, _, not `contact`, `position`, `displacement` or `force`.
     #[serde(default)]
     sensors: IndexMap<Spanned<String>, Spanned<RawSensor>>,
+    /// Optional: places for the innate schemas' calls, as `[client.places]`: name = [x, y, z]
+    /// in mm (six values: rotations in mrad too).
     #[serde(default)]
     places: IndexMap<Spanned<String>, Spanned<Vec<f64>>>,
+    /// Optional: the board's innate schemas (at most 8): name = a call of `[client]`'s program,
+    /// reactions included; a name is letters, digits, _, not `queue` or `high_priority`.
     #[serde(default)]
     innate: IndexMap<Spanned<String>, Spanned<String>>,
 }
 
 /// `[schema.NODE.sensors.NAME]`: an extra sensor's topic.
-#[derive(Deserialize)]
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawSensor {
+    /// Required: its one identifier, matched exactly: 11-bit, or 29-bit with `extended = true`;
+    /// not one of the drive's.
     can_id: Spanned<i64>,
+    /// Optional, default false: a 29-bit identifier.
     #[serde(default)]
     extended: bool,
+    /// Required: the field that carries the reading (keys as a value port's value).
     value: Spanned<RawField>,
+    /// Optional, default 1: `unit`s per count of the field.
     scale: Option<Spanned<f64>>,
+    /// Optional: the unit the file's thresholds are written in.
     unit: Option<Spanned<String>>,
+    /// Optional: the sensor reads a joint, whose range and top speed are safety limits.
     joint: Option<Spanned<RawJoint>>,
 }
 
 /// `joint = { min = -90, max = 90, speed = 60 }`: the sensor reads a joint, whose range (and top
 /// speed per second) in the sensor's unit are safety limits.
-#[derive(Deserialize)]
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawJoint {
+    /// Required: the joint's lowest reading, in the sensor's unit.
     min: Spanned<f64>,
+    /// Required: its highest reading, in the sensor's unit.
     max: Spanned<f64>,
+    /// Optional: its top speed per second in the sensor's unit, default none.
     speed: Option<Spanned<f64>>,
 }
 
 /// `drive = { setpoint = 0x300, pose = 0x310, wrench = 0x320, extended = false }`.
-#[derive(Deserialize)]
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawDrive {
+    /// Required: the attractor's identifier (its rotation on +1, the impedance on +2).
     setpoint: Spanned<i64>,
+    /// Required: the measured pose's identifier (its rotation on +1).
     pose: Spanned<i64>,
+    /// Required: the force's identifier (the torque on +1).
     wrench: Spanned<i64>,
+    /// Optional, default false: 29-bit identifiers.
     #[serde(default)]
     extended: bool,
 }
 
-#[derive(Deserialize)]
+/// `workspace_mm = { min = [-200, -200, -20], max = [200, 200, 100] }`.
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawBox {
+    /// Required: the lowest x, y, z, mm.
     min: Spanned<Vec<f64>>,
+    /// Required: the highest x, y, z, mm.
     max: Spanned<Vec<f64>>,
 }
 
 /// `[plant]`.
-#[derive(Deserialize)]
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub(super) struct RawPlant {
+    /// The tip at the start, [x, y, z] in mm, default [0, 0, 50].
     start_mm: Option<Spanned<Vec<f64>>>,
+    /// The moving mass, kg, default 2.
     mass_kg: Option<Spanned<f64>>,
+    /// Its contacts' stiffness, N/m, default 200000.
     contact_stiffness_n_per_m: Option<Spanned<f64>>,
+    /// Its contacts' damping, N·s/m, default 400.
     contact_damping_ns_per_m: Option<Spanned<f64>>,
+    /// The parts' height, mm, default 15.
     part_height_mm: Option<Spanned<f64>>,
+    /// Half the parts' width, mm (default 10).
     part_half_width_mm: Option<Spanned<f64>>,
+    /// The holes are as wide as a part plus this on each side, mm, default 0.05 (no
+    /// chamfer).
     clearance_mm: Option<Spanned<f64>>,
+    /// The holes' depth, mm, default 15.
     hole_depth_mm: Option<Spanned<f64>>,
+    /// A grasp takes the part whose centre is this near the tip, mm, default 2.
     grasp_tolerance_mm: Option<Spanned<f64>>,
+    /// A part released this deep in a hole is inserted, mm, default 1.
     insert_depth_mm: Option<Spanned<f64>>,
+    /// Where the parts stand, [x, y] in mm each.
     #[serde(default)]
     parts_mm: Vec<Spanned<Vec<f64>>>,
+    /// Where the holes really are, [x, y] in mm each.
     #[serde(default)]
     holes_mm: Vec<Spanned<Vec<f64>>>,
+    /// Boxes in the way.
     #[serde(default)]
     obstacles: Vec<Spanned<RawObstacle>>,
+    /// Optional: a sensor of `[schema.NODE]` (unit = "mm") on which the plant publishes its
+    /// range finder.
     range_finder: Option<Spanned<String>>,
 }
 
-#[derive(Deserialize)]
+/// `{ min_mm = [-110, -10, 0], max_mm = [-90, 10, 60] }`: a box in the way.
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawObstacle {
+    /// Required: its lowest x, y, z, mm.
     min_mm: Spanned<Vec<f64>>,
+    /// Required: its highest x, y, z, mm.
     max_mm: Spanned<Vec<f64>>,
 }
 
 /// `[client]`.
-#[derive(Deserialize)]
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub(super) struct RawClient {
+    /// Required: a node with `[schema.NODE]`.
     node: Spanned<String>,
+    /// The calls, sent to the queue in order (e.g. "move_to(above_part)"), each optionally
+    /// followed by reactions `; EVENT -> SOURCE`.
     #[serde(default)]
     program: Vec<Spanned<String>>,
+    /// Named places and directions: name = [x, y, z] in mm (six values: rotations in mrad too).
     #[serde(default)]
     places: IndexMap<Spanned<String>, Spanned<Vec<f64>>>,
+    /// Optional: calls at a time, on the high-priority channel.
     #[serde(default)]
     commands: Vec<Spanned<RawCommand>>,
+    /// move_to's speed, mm/s, default 50.
     speed_mm_s: Option<Spanned<f64>>,
+    /// move_to_touch's speed, mm/s, default 5.
     touch_speed_mm_s: Option<Spanned<f64>>,
+    /// move_to_touch's contact force, N, default 3.
     contact_n: Option<Spanned<f64>>,
+    /// move_to_touch's distance, mm, default 50.
     touch_distance_mm: Option<Spanned<f64>>,
+    /// grasp's and release's settling time, ms, default 200.
     settle_ms: Option<Spanned<f64>>,
+    /// blind_search's preload, mm, default 2.
     preload_mm: Option<Spanned<f64>>,
+    /// blind_search's spiral pitch, mm, default 0.08.
     pitch_mm: Option<Spanned<f64>>,
+    /// blind_search's speed, mm/s, default 2.
     search_speed_mm_s: Option<Spanned<f64>>,
+    /// blind_search's radius, mm, default 1 (sets its watchdog budget).
     search_radius_mm: Option<Spanned<f64>>,
+    /// blind_search's wobble about z, mrad, default 20.
     wobble_mrad: Option<Spanned<f64>>,
+    /// blind_search's wobble period, ms, default 500.
     wobble_period_ms: Option<Spanned<f64>>,
+    /// blind_search's depth (the part's drop that ends it), mm, default 1.
     insert_depth_mm: Option<Spanned<f64>>,
 }
 
 /// `[[client.commands]] at = 12.0, call = "estop()"`.
-#[derive(Deserialize)]
+#[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RawCommand {
+    /// Required: when, in seconds.
     at: Spanned<f64>,
+    /// Required: estop(), abort(), or any call (a schema installed at once).
     call: Spanned<String>,
 }
 
