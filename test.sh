@@ -142,6 +142,16 @@ for network in examples/*.toml examples/dynamics/*.toml; do
         --candump "$out/$name.log" > "$out/$name.sim.txt"
     echo "$network: consistent, compiled, simulated ($out/$name.png)"
 done
+# The same plot as SVG (same drawing code, texts as text): one with gates and one with Ayllu's
+# windows; each must be one <svg> element.
+for name in door-dynamics subsumption; do
+    "$pabctl" sim "examples/$name.toml" --plot "$out/$name.svg" > /dev/null
+    if [[ "$(head -c 5 "$out/$name.svg")" != "<svg " ]] || ! tail -c 8 "$out/$name.svg" | grep -q '</svg>'; then
+        echo "$out/$name.svg: not an SVG" >&2
+        exit 1
+    fi
+    echo "examples/$name.toml: drawn as SVG ($out/$name.svg)"
+done
 
 step "DBC export, decoded by cantools"
 # The venv holds the pinned requirements-dev.txt (cantools); creating it needs PyPI once.

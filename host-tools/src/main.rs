@@ -124,8 +124,11 @@ whenever that changes, and per connection how many frames it received and delive
 --trace writes one CSV row per frame per connection it fed, after the update:
   t,port,connection,stimulation,active,delivered
 --plot draws each connection's stimulation over time, green while it is the one that gets \
-through at its port and orange otherwise (like Fig. 5 of the port-arbitration paper), and under \
-the ports a lane per [dynamics.*] behaviour: n, ρ and m, on green where its gate is open.
+through at its port and orange otherwise (like Fig. 5 of the port-arbitration paper); a \
+suppress, inhibit, write-inhibit or override connection as its windows (a band from each \
+activation to its expiry, named after its kind), a gate a rule names (`door.search`) as a band \
+while it is open; and under the ports a lane per [dynamics.*] behaviour: n, ρ and m, on green \
+where its gate is open. FILE.png draws a PNG, FILE.svg an SVG (its texts as text).
 With [hbba], the intention node's logic runs on the file's [[desires]] (the filter commands \
 answered at once by the simulated nodes): the report lists each change of the selected \
 strategies and the filter commands sent, reductions before increases, and --plot adds a lane \
@@ -150,8 +153,8 @@ Gates too; times from 0 s on interface vcan0): `pabctl replay` reads it back, `c
         /// Write the trace as CSV.
         #[arg(long, value_name = "FILE.csv")]
         trace: Option<PathBuf>,
-        /// Draw the stimulation plot as PNG.
-        #[arg(long, value_name = "FILE.png")]
+        /// Draw the stimulation plot: PNG or SVG, by the file name's extension (.png, .svg).
+        #[arg(long, value_name = "FILE.png|FILE.svg")]
         plot: Option<PathBuf>,
         /// Write the simulated bus's frames as a candump -L log.
         #[arg(long, value_name = "FILE.log")]
@@ -164,9 +167,10 @@ Gates too; times from 0 s on interface vcan0): `pabctl replay` reads it back, `c
         /// (t,node,schema,source,event; one row per installed schema).
         #[arg(long, value_name = "FILE.csv")]
         schema_trace: Option<PathBuf>,
-        /// Draw the schema server's run as PNG: height, lateral position, contact force and the
-        /// installed schema over time (from --from to --until).
-        #[arg(long, value_name = "FILE.png")]
+        /// Draw the schema server's run: height, lateral position, contact force and the
+        /// installed schema over time (from --from to --until); PNG or SVG, by the file name's
+        /// extension (.png, .svg).
+        #[arg(long, value_name = "FILE.png|FILE.svg")]
         schema_plot: Option<PathBuf>,
         /// Write the schema server's client program as JSON: per call its name and its schema
         /// (serde's form, the one `pab_client.Schema.from_json` reads), so that another client
@@ -287,8 +291,8 @@ Examples:
         /// Write the trace as CSV (the format of `pabctl sim --trace`).
         #[arg(long, value_name = "FILE.csv")]
         trace: Option<PathBuf>,
-        /// Draw the stimulation plot as PNG.
-        #[arg(long, value_name = "FILE.png")]
+        /// Draw the stimulation plot: PNG or SVG, by the file name's extension (.png, .svg).
+        #[arg(long, value_name = "FILE.png|FILE.svg")]
         plot: Option<PathBuf>,
         /// Write every verdict in the replay record format.
         #[arg(long, value_name = "FILE")]
@@ -1105,7 +1109,7 @@ fn run_compile(
 }
 
 /// Refuses, before a run rather than after it, the output files that could not be written as
-/// asked: a plot that is not a `.png`, the only format drawn (exit 2, with every such mistake),
+/// asked: a plot that is neither a `.png` nor a `.svg`, the formats drawn (exit 2, with every such mistake),
 /// or a file in a directory that does not exist (exit 3, as any output that cannot be written).
 /// Each `(flag, path, is_plot)`.
 fn refuse_unwritable(outputs: &[(&str, Option<&Path>, bool)]) -> Result<(), Failure> {
@@ -1113,13 +1117,13 @@ fn refuse_unwritable(outputs: &[(&str, Option<&Path>, bool)]) -> Result<(), Fail
     let mut unwritable = Vec::new();
     for &(flag, output, is_plot) in outputs {
         let Some(output) = output else { continue };
-        let png = output
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("png"));
-        if is_plot && !png {
+        if is_plot && plot::Format::of(output).is_none() {
             invalid.push(Diagnostic::file(
                 output,
-                format!("{flag}: plots are drawn as PNG only: give a FILE.png"),
+                format!(
+                    "{flag}: plots are drawn as PNG or SVG: give a file name ending in {}",
+                    plot::EXTENSIONS
+                ),
             ));
         }
         let parent = output.parent().filter(|p| !p.as_os_str().is_empty());
@@ -1206,7 +1210,7 @@ fn run_sim(
         let title = path
             .file_name()
             .map_or("network".into(), |n| n.to_string_lossy().into_owned());
-        plot::render_png(&outcome.plot_data(&network, &title), plot_path).map_err(|error| {
+        plot::render(&outcome.plot_data(&network, &title), plot_path).map_err(|error| {
             Failure::Output(format!("cannot draw {}: {error:#}", plot_path.display()))
         })?;
         say(format!("plot: {}", plot_path.display()));
@@ -1316,7 +1320,7 @@ fn run_schema_sim(
             .map_or("network".into(), |n| n.to_string_lossy().into_owned());
         let end = run.end_us as f64 * 1e-6;
         let from = from.unwrap_or(0.0);
-        plot::schema::render_png(&run, from, until.unwrap_or(end).min(end), &title, plot_path)
+        plot::schema::render(&run, from, until.unwrap_or(end).min(end), &title, plot_path)
             .map_err(|error| {
                 Failure::Output(format!("cannot draw {}: {error:#}", plot_path.display()))
             })?;
@@ -1713,7 +1717,7 @@ fn run_replay(
             .map_or("capture".into(), |n| n.to_string_lossy().into_owned());
         let mut data = outcome.plot_data(&network, &title);
         data.phases.clear();
-        plot::render_png(&data, plot_path).map_err(|error| {
+        plot::render(&data, plot_path).map_err(|error| {
             Failure::Output(format!("cannot draw {}: {error:#}", plot_path.display()))
         })?;
         say(format!("plot: {}", plot_path.display()));

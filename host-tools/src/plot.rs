@@ -7,43 +7,35 @@
 //! optional bottom strip names the scenario's phases.
 
 use std::path::Path;
-use std::sync::OnceLock;
 
-use anyhow::{anyhow, ensure};
-use plotters::backend::BitMapBackend;
-use plotters::coord::Shift;
-use plotters::drawing::{DrawingArea, IntoDrawingArea};
+use anyhow::ensure;
 use plotters::element::{PathElement, Rectangle, Text};
 use plotters::style::text_anchor::{HPos, Pos, VPos};
-use plotters::style::{
-    Color, FontDesc, FontFamily, FontStyle, RGBColor, ShapeStyle, TextStyle, WHITE, register_font,
-};
+use plotters::style::{Color, RGBColor, ShapeStyle};
 
 mod dynamics;
 mod lanes;
 pub mod schema;
+mod style;
+mod windows;
 
 pub use pab_lang::series::{
     BehaviourSeries, ConnectionSeries, DynamicsSample, DynamicsSeries, Lane, LaneGroup, LaneStep,
-    Phase, PlotData, PortSeries, Sample,
+    Phase, PlotData, PortSeries, Sample, Shows,
+};
+pub use style::{EXTENSIONS, Format};
+
+use style::{
+    Area, BACKGROUND, BORDER, Canvas, GRID, HEADER_SIZE, LABEL_SIZE, LABEL_X1, LEGEND_SIZE,
+    MARGIN_X, MIN_FONT, NOT_SELECTED, PLOT_X0, PLOT_X1, Picture, SELECTED, SEPARATOR, SHADES,
+    SOFT_TEXT, TEXT, THRESHOLD, TICK_SIZE, TITLE_H, TITLE_SIZE, VALUE_SIZE, WIDTH, draw_error,
+    font,
 };
 
-/// Width of every image, pixels.
-const WIDTH: u32 = 1400;
 /// No image gets taller than this: past it, strips (and, if need be, everything else) shrink.
 const MAX_HEIGHT: u32 = 6000;
 
-/// Left edge of the texts (title aside, which is centred).
-const MARGIN_X: f64 = 14.0;
-/// Right end of the connection labels; the y tick labels sit between it and the plot area.
-const LABEL_X1: f64 = 276.0;
-/// Left edge of the plot area (time 0).
-const PLOT_X0: f64 = 300.0;
-/// Right edge of the plot area (time `until`).
-const PLOT_X1: f64 = WIDTH as f64 - 24.0;
-
 // Natural heights (pixels) of the rows the image is made of.
-const TITLE_H: f64 = 48.0;
 const HEADER_H: f64 = 30.0;
 /// One connection: its strip plus the gap to the next one.
 const STRIP_H: f64 = 66.0;
@@ -61,82 +53,54 @@ const BOTTOM_H: f64 = 10.0;
 const LEVEL_LO: f64 = -0.06;
 const LEVEL_HI: f64 = 1.14;
 
-/// Texts smaller than this are left out (the strips have shrunk too much to hold them).
-const MIN_FONT: f64 = 6.0;
 /// Labels longer than this are cut before being measured.
 const MAX_LABEL_CHARS: usize = 300;
 
-/// Stimulation while the connection is the one selected at its port.
-const SELECTED: RGBColor = RGBColor(0, 150, 0);
-/// Stimulation while another connection (or none) is selected.
-const NOT_SELECTED: RGBColor = RGBColor(255, 140, 0);
-const TEXT: RGBColor = RGBColor(20, 20, 20);
-const SOFT_TEXT: RGBColor = RGBColor(90, 90, 90);
-const BORDER: RGBColor = RGBColor(150, 150, 150);
-const GRID: RGBColor = RGBColor(232, 232, 232);
-const THRESHOLD: RGBColor = RGBColor(185, 185, 185);
-const SEPARATOR: RGBColor = RGBColor(205, 205, 205);
-const PHASE_SHADES: [RGBColor; 2] = [RGBColor(228, 228, 228), RGBColor(196, 196, 196)];
-
-type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
-
-/// Draws `data` into a PNG file at `path`.
+/// Draws `data` into a PNG or SVG file at `path`, after its extension (`.png` or `.svg`); both
+/// are drawn by the same code, the SVG with its texts as text.
 ///
 /// The image is 1400 pixels wide. From top to bottom: the title (with a colour legend on the
 /// right), then for each port a header with its name and one strip per connection, then for each
 /// dynamics group a header with a legend and one lane per behaviour (1.5 strips high: n, ρ, m
 /// and the gate, `plot/dynamics.rs`), then for each lane group (HBBA's intention) a header and one
-/// half-strip lane per step series (`plot/lanes.rs`), then, if there are phases, a strip naming them. Each connection strip plots the stimulation (0 to 1,
-/// with a light line at the activation threshold 1) against time, from 0 to `data.until`
-/// seconds: green where the connection is selected at its port, orange elsewhere. A segment
-/// between two samples takes the colour of the first; samples sharing a time make a vertical
-/// jump. Samples with a non-finite time or level are skipped, levels are clamped to the strip
-/// and the curve is clipped to the time axis.
+/// half-strip lane per step series (`plot/lanes.rs`), then, if there are phases, a strip naming
+/// them. A connection strip shows what its [`Shows`] says (`plot/windows.rs` for windows and
+/// gates); a stimulation strip plots the stimulation (0 to 1, with a light line at the
+/// activation threshold 1) against time, from 0 to `data.until` seconds: green where the
+/// connection is selected at its port, orange elsewhere. A segment between two samples takes
+/// the colour of the first; samples sharing a time make a vertical jump. Samples with a
+/// non-finite time or level are skipped, levels are clamped to the strip and the curve is
+/// clipped to the time axis.
 ///
 /// A connection strip is 66 pixels high (gap included); when the image would be taller than
 /// 6000 pixels, strips shrink (down to 20 pixels), then everything below the title does.
 ///
-/// Fails if `data.until` is not a finite positive number, if `path` does not end in `.png`, or
-/// if the file cannot be written.
-pub fn render_png(data: &PlotData, path: &Path) -> anyhow::Result<()> {
+/// Fails if `data.until` is not a finite positive number, if `path` ends in neither `.png` nor
+/// `.svg`, or if the file cannot be written.
+pub fn render(data: &PlotData, path: &Path) -> anyhow::Result<()> {
     ensure!(
         data.until.is_finite() && data.until > 0.0,
         "cannot plot: the time axis must end after 0 s, but it ends at {} s",
         data.until
     );
-    let is_png = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .is_some_and(|e| e.eq_ignore_ascii_case("png"));
-    ensure!(
-        is_png,
-        "cannot plot into {}: the file name must end in .png",
-        path.display()
-    );
-    register_fonts()?;
-
     let layout = Layout::new(data);
-    let root = BitMapBackend::new(path, (WIDTH, layout.height)).into_drawing_area();
-    draw(&root, data, &layout)?;
-    root.present()
-        .map_err(|e| anyhow!("cannot write the plot to {}: {e}", path.display()))
+    style::render(&Stimulation { data, layout }, path)
 }
 
-/// Registers the embedded DejaVu Sans under the name plotters looks up for sans-serif text, so
-/// the plot does not depend on the fonts of the machine.
-pub(crate) fn register_fonts() -> anyhow::Result<()> {
-    static REGISTERED: OnceLock<bool> = OnceLock::new();
-    let ok = *REGISTERED.get_or_init(|| {
-        let family = FontFamily::SansSerif.as_str();
-        register_font(family, FontStyle::Normal, dejavu::sans::regular()).is_ok()
-            && register_font(family, FontStyle::Bold, dejavu::sans::bold()).is_ok()
-    });
-    ensure!(ok, "cannot load the embedded DejaVu Sans font");
-    Ok(())
+/// The stimulation plot as a picture.
+struct Stimulation<'a> {
+    data: &'a PlotData,
+    layout: Layout,
 }
 
-pub(crate) fn draw_error(e: impl std::fmt::Display) -> anyhow::Error {
-    anyhow!("cannot draw the plot: {e}")
+impl Picture for Stimulation<'_> {
+    fn size(&self) -> (u32, u32) {
+        (WIDTH, self.layout.height)
+    }
+
+    fn draw<DB: Canvas>(&self, root: &Area<DB>) -> anyhow::Result<()> {
+        draw(root, self.data, &self.layout)
+    }
 }
 
 /// A horizontal band of the image, in pixels from the top.
@@ -364,8 +328,8 @@ fn px(x: f64, y: f64) -> (i32, i32) {
     (x.round() as i32, y.round() as i32)
 }
 
-fn draw(root: &Area, data: &PlotData, layout: &Layout) -> anyhow::Result<()> {
-    root.fill(&WHITE).map_err(draw_error)?;
+fn draw<DB: Canvas>(root: &Area<DB>, data: &PlotData, layout: &Layout) -> anyhow::Result<()> {
+    root.fill(&BACKGROUND).map_err(draw_error)?;
     let axis = TimeAxis::new(data.until);
     draw_title(root, &data.title, layout.title)?;
 
@@ -381,7 +345,7 @@ fn draw(root: &Area, data: &PlotData, layout: &Layout) -> anyhow::Result<()> {
     }
 
     for (g, (group, place)) in data.dynamics.iter().zip(&layout.dynamics).enumerate() {
-        let legend = 13.0 * layout.scale;
+        let legend = LEGEND_SIZE * layout.scale;
         dynamics::draw_legend(root, place.header.middle(), legend)?;
         let separated = !data.ports.is_empty() || g > 0;
         draw_header(
@@ -425,7 +389,7 @@ fn draw(root: &Area, data: &PlotData, layout: &Layout) -> anyhow::Result<()> {
     }
     if let Some(b) = layout.caption {
         let x = (PLOT_X0 + PLOT_X1) / 2.0;
-        let size = 13.0 * layout.scale;
+        let size = LEGEND_SIZE * layout.scale;
         text(
             root,
             "time (s)",
@@ -440,9 +404,9 @@ fn draw(root: &Area, data: &PlotData, layout: &Layout) -> anyhow::Result<()> {
 }
 
 /// The title, centred, and a legend of the two colours on the right.
-fn draw_title(root: &Area, title: &str, b: Band) -> anyhow::Result<()> {
+fn draw_title<DB: Canvas>(root: &Area<DB>, title: &str, b: Band) -> anyhow::Result<()> {
     let y = b.middle();
-    let size = 13.0;
+    let size = LEGEND_SIZE;
     let mut x = PLOT_X1;
     for (name, color) in [("not selected", NOT_SELECTED), ("selected", SELECTED)] {
         x -= text_width(root, name, size, false)?;
@@ -454,7 +418,7 @@ fn draw_title(root: &Area, title: &str, b: Band) -> anyhow::Result<()> {
         x -= 18.0;
     }
 
-    let size = 22.0;
+    let size = TITLE_SIZE;
     let room = x - 20.0 - MARGIN_X;
     let title = fit_line(root, &clean(title), room, size, true)?;
     let half = text_width(root, &title, size, true)? / 2.0;
@@ -464,9 +428,10 @@ fn draw_title(root: &Area, title: &str, b: Band) -> anyhow::Result<()> {
     text(root, &title, (centre, y), size, true, TEXT, HPos::Center)
 }
 
-/// One connection's strip: grid, threshold, box, level ticks, label and curve.
-fn draw_connection(
-    root: &Area,
+/// One connection's strip: grid, then what it shows (a stimulation: threshold, box, level ticks
+/// and curve; a window or a gate: bands, `plot/windows.rs`), then its label.
+fn draw_connection<DB: Canvas>(
+    root: &Area<DB>,
     axis: &TimeAxis,
     connection: &ConnectionSeries,
     b: Band,
@@ -474,48 +439,74 @@ fn draw_connection(
     if b.height() < 1.0 {
         return Ok(());
     }
+    draw_grid(root, axis, b)?;
+    match &connection.shows {
+        Shows::Stimulation => {
+            let threshold = level_y(1.0, b);
+            let mut x = PLOT_X0;
+            while x < PLOT_X1 {
+                let end = (x + 6.0).min(PLOT_X1);
+                line(root, (x, threshold), (end, threshold), THRESHOLD)?;
+                x += 10.0;
+            }
+            rectangle(root, b, BORDER.stroke_width(1))?;
+            if b.height() >= 28.0 {
+                for (level, name) in [(0.0, "0"), (1.0, "1")] {
+                    let at = (PLOT_X0 - 6.0, level_y(level, b));
+                    text(root, name, at, VALUE_SIZE, false, SOFT_TEXT, HPos::Right)?;
+                }
+            }
+            draw_curve(root, axis, &connection.samples, b)?;
+        }
+        Shows::Window { kind, delivers } => {
+            windows::draw_windows(root, axis, connection, kind, *delivers, b)?;
+        }
+        Shows::Gate => windows::draw_gate(root, axis, connection, b)?,
+    }
+    draw_label(root, &connection.label, &connection.name, b, 3)
+}
+
+/// The vertical grid lines of the time ticks across box `b`.
+fn draw_grid<DB: Canvas>(root: &Area<DB>, axis: &TimeAxis, b: Band) -> anyhow::Result<()> {
     for &(t, _) in &axis.ticks {
         let x = axis.x(t);
         line(root, (x, b.y0), (x, b.y1), GRID)?;
     }
-    let threshold = level_y(1.0, b);
-    let mut x = PLOT_X0;
-    while x < PLOT_X1 {
-        let end = (x + 6.0).min(PLOT_X1);
-        line(root, (x, threshold), (end, threshold), THRESHOLD)?;
-        x += 10.0;
-    }
-    rectangle(root, b, BORDER.stroke_width(1))?;
+    Ok(())
+}
 
-    if b.height() >= 28.0 {
-        for (level, name) in [(0.0, "0"), (1.0, "1")] {
-            let at = (PLOT_X0 - 6.0, level_y(level, b));
-            text(root, name, at, 10.0, false, SOFT_TEXT, HPos::Right)?;
-        }
+/// A strip's or a lane's label left of its box `b` (its `name` if the label is blank), on at most
+/// `max_lines` lines, as many as the box's height holds.
+fn draw_label<DB: Canvas>(
+    root: &Area<DB>,
+    label: &str,
+    name: &str,
+    b: Band,
+    max_lines: usize,
+) -> anyhow::Result<()> {
+    let label = if label.trim().is_empty() { name } else { label };
+    let size = style::snap(LABEL_SIZE.min(b.height() * 0.7));
+    if size < MIN_FONT {
+        return Ok(());
     }
-
-    let label = if connection.label.trim().is_empty() {
-        &connection.name
-    } else {
-        &connection.label
-    };
-    let size = 13f64.min(b.height() * 0.7);
-    if size >= MIN_FONT {
-        let line_h = size * 1.3;
-        let max_lines = ((b.height() / line_h).floor() as usize).clamp(1, 3);
-        let lines = wrap(root, &clean(label), LABEL_X1 - MARGIN_X, size, max_lines)?;
-        let first = b.middle() - (lines.len() as f64 - 1.0) * line_h / 2.0;
-        for (k, l) in lines.iter().enumerate() {
-            let at = (MARGIN_X, first + k as f64 * line_h);
-            text(root, l, at, size, false, TEXT, HPos::Left)?;
-        }
+    let line_h = size * 1.3;
+    let max_lines = ((b.height() / line_h).floor() as usize).clamp(1, max_lines.max(1));
+    let lines = wrap(root, &clean(label), LABEL_X1 - MARGIN_X, size, max_lines)?;
+    let first = b.middle() - (lines.len() as f64 - 1.0) * line_h / 2.0;
+    for (k, l) in lines.iter().enumerate() {
+        let at = (MARGIN_X, first + k as f64 * line_h);
+        text(root, l, at, size, false, TEXT, HPos::Left)?;
     }
-
-    draw_curve(root, axis, &connection.samples, b)
+    Ok(())
 }
 
 /// The stimulation, 2 pixels wide, in runs of segments of the same colour.
-fn draw_curve(root: &Area, axis: &TimeAxis, samples: &[Sample], b: Band) -> anyhow::Result<()> {
+fn draw_curve<DB: Canvas>(
+    root: &Area<DB>,
+    axis: &TimeAxis,
+    samples: &[Sample],
+    b: Band,
+) -> anyhow::Result<()> {
     let color = |selected: bool| if selected { SELECTED } else { NOT_SELECTED };
     let mut runs: Vec<(bool, Vec<(i32, i32)>)> = Vec::new();
     let mut usable = samples
@@ -594,14 +585,14 @@ fn clip(a: (f64, f64, bool), z: (f64, f64, bool), until: f64) -> Option<((f64, f
 }
 
 /// Tick marks under the box `above` and their labels in `row`.
-fn draw_ticks(
-    root: &Area,
+fn draw_ticks<DB: Canvas>(
+    root: &Area<DB>,
     axis: &TimeAxis,
     above: Band,
     row: Band,
     scale: f64,
 ) -> anyhow::Result<()> {
-    let size = 12.0 * scale;
+    let size = TICK_SIZE * scale;
     for (t, label) in &axis.ticks {
         let x = axis.x(*t);
         line(root, (x, above.y1), (x, above.y1 + 4.0 * scale), BORDER)?;
@@ -619,19 +610,19 @@ fn draw_ticks(
 }
 
 /// The phases as alternately shaded bands, each with its name centred if it fits.
-fn draw_phases(
-    root: &Area,
+fn draw_phases<DB: Canvas>(
+    root: &Area<DB>,
     axis: &TimeAxis,
     phases: &[Phase],
     b: Band,
     scale: f64,
 ) -> anyhow::Result<()> {
-    let size = 14f64.min(b.height() * 0.6);
+    let size = LABEL_SIZE.min(b.height() * 0.6);
     text(
         root,
         "phases",
         (MARGIN_X, b.middle()),
-        13.0 * scale,
+        LEGEND_SIZE * scale,
         false,
         SOFT_TEXT,
         HPos::Left,
@@ -646,7 +637,7 @@ fn draw_phases(
             continue;
         }
         let (x0, x1) = (axis.x(from), axis.x(to));
-        let band = Rectangle::new([px(x0, b.y0), px(x1, b.y1)], PHASE_SHADES[shade].filled());
+        let band = Rectangle::new([px(x0, b.y0), px(x1, b.y1)], SHADES[shade].filled());
         root.draw(&band).map_err(draw_error)?;
         shade = 1 - shade;
         let name = clean(&phase.name);
@@ -667,8 +658,8 @@ fn draw_phases(
 
 /// A section's header (a port, a dynamics group, a lane group): its name in bold, fitted into
 /// `room`, after a separator line when `separated` (not the first section).
-fn draw_header(
-    root: &Area,
+fn draw_header<DB: Canvas>(
+    root: &Area<DB>,
     header: &Band,
     name: &str,
     room: f64,
@@ -678,7 +669,7 @@ fn draw_header(
     if separated {
         line(root, (MARGIN_X, header.y0), (PLOT_X1, header.y0), SEPARATOR)?;
     }
-    let size = 16.0 * scale;
+    let size = HEADER_SIZE * scale;
     let name = fit_line(root, &clean(name), room, size, true)?;
     text(
         root,
@@ -691,28 +682,24 @@ fn draw_header(
     )
 }
 
-fn line(root: &Area, from: (f64, f64), to: (f64, f64), color: RGBColor) -> anyhow::Result<()> {
+fn line<DB: Canvas>(
+    root: &Area<DB>,
+    from: (f64, f64),
+    to: (f64, f64),
+    color: RGBColor,
+) -> anyhow::Result<()> {
     let path = PathElement::new(vec![px(from.0, from.1), px(to.0, to.1)], color);
     root.draw(&path).map_err(draw_error)
 }
 
-fn rectangle(root: &Area, b: Band, style: ShapeStyle) -> anyhow::Result<()> {
+fn rectangle<DB: Canvas>(root: &Area<DB>, b: Band, style: ShapeStyle) -> anyhow::Result<()> {
     let r = Rectangle::new([px(PLOT_X0, b.y0), px(PLOT_X1, b.y1)], style);
     root.draw(&r).map_err(draw_error)
 }
 
-fn font(size: f64, bold: bool) -> TextStyle<'static> {
-    let style = if bold {
-        FontStyle::Bold
-    } else {
-        FontStyle::Normal
-    };
-    TextStyle::from(FontDesc::new(FontFamily::SansSerif, size, style))
-}
-
 /// Draws `s` starting at, centred on or ending at `x` (after `h`), its capitals centred on `y`.
-fn text(
-    root: &Area,
+fn text<DB: Canvas>(
+    root: &Area<DB>,
     s: &str,
     (x, y): (f64, f64),
     size: f64,
@@ -720,21 +707,21 @@ fn text(
     color: RGBColor,
     h: HPos,
 ) -> anyhow::Result<()> {
+    let size = style::snap(size);
     if s.is_empty() || size < MIN_FONT {
         return Ok(());
     }
-    let style = font(size, bold).color(&color).pos(Pos::new(h, VPos::Top));
-    // The ab_glyph backend puts the baseline half a size below the top anchor.
-    let top = y - size * TEXT_RAISE;
+    let style = DB::font(size, bold)
+        .color(&color)
+        .pos(Pos::new(h, VPos::Top));
+    let top = y - size * DB::TEXT_RAISE;
     root.draw(&Text::new(s, px(x, top), style))
         .map_err(draw_error)
 }
 
-/// How far above the wanted centre of the capitals the top anchor goes, in font sizes.
-const TEXT_RAISE: f64 = 0.19;
-
-fn text_width(root: &Area, s: &str, size: f64, bold: bool) -> anyhow::Result<f64> {
-    if s.is_empty() || size < MIN_FONT {
+/// The width of `s` in the plot font (the rasteriser's measure, whatever the canvas).
+fn text_width<DB: Canvas>(root: &Area<DB>, s: &str, size: f64, bold: bool) -> anyhow::Result<f64> {
+    if s.is_empty() || style::snap(size) < MIN_FONT {
         return Ok(0.0);
     }
     let (w, _) = root
@@ -752,7 +739,13 @@ fn clean(s: &str) -> String {
 }
 
 /// `s`, shortened with an ellipsis if it is wider than `room`.
-fn fit_line(root: &Area, s: &str, room: f64, size: f64, bold: bool) -> anyhow::Result<String> {
+fn fit_line<DB: Canvas>(
+    root: &Area<DB>,
+    s: &str,
+    room: f64,
+    size: f64,
+    bold: bool,
+) -> anyhow::Result<String> {
     if text_width(root, s, size, bold)? <= room {
         return Ok(s.to_string());
     }
@@ -770,8 +763,8 @@ fn fit_line(root: &Area, s: &str, room: f64, size: f64, bold: bool) -> anyhow::R
 /// Breaks a label into at most `max_lines` lines no wider than `room`: between fields (runs of
 /// two or more spaces) if the label has several, else between words; the last line is
 /// shortened with an ellipsis if the rest does not fit.
-fn wrap(
-    root: &Area,
+fn wrap<DB: Canvas>(
+    root: &Area<DB>,
     s: &str,
     room: f64,
     size: f64,
@@ -826,13 +819,19 @@ mod tests {
     use image::{Rgb, RgbImage};
 
     fn sample(t: f64, level: f64, selected: bool) -> Sample {
-        Sample { t, level, selected }
+        Sample {
+            t,
+            level,
+            active: level >= 1.0,
+            selected,
+        }
     }
 
     fn connection(name: &str, label: &str, samples: Vec<Sample>) -> ConnectionSeries {
         ConnectionSeries {
             name: name.to_string(),
             label: label.to_string(),
+            shows: Shows::Stimulation,
             samples,
         }
     }
@@ -890,7 +889,7 @@ mod tests {
     fn render(data: &PlotData) -> anyhow::Result<RgbImage> {
         let dir = tempfile::tempdir()?;
         let path = dir.path().join("plot.png");
-        render_png(data, &path)?;
+        super::render(data, &path)?;
         Ok(image::open(&path)?.to_rgb8())
     }
 
@@ -978,7 +977,7 @@ mod tests {
         let (phases, ticks) = layout.phases.unwrap();
         assert!(dark(&img, PLOT_X0..PLOT_X1, phases) > 30);
         assert!(dark(&img, PLOT_X0..PLOT_X1, ticks) > 30);
-        for shade in PHASE_SHADES {
+        for shade in SHADES {
             assert!(columns(&img, phases, shade).len() > 1000);
         }
         let white = img.pixels().filter(|p| **p == Rgb([255, 255, 255])).count();
@@ -1147,7 +1146,7 @@ mod tests {
         let img = render(&with_phases).unwrap();
         assert_eq!(img.dimensions(), (1400, 144));
         let (phases, _) = Layout::new(&with_phases).phases.unwrap();
-        assert!(columns(&img, phases, PHASE_SHADES[1]).len() > 1000);
+        assert!(columns(&img, phases, SHADES[1]).len() > 1000);
 
         // A port without connections and a connection without samples.
         let hollow = PlotData {
@@ -1179,19 +1178,21 @@ mod tests {
         let path = dir.path().join("plot.png");
         for until in [0.0, -1.0, f64::NAN, f64::INFINITY] {
             let data = PlotData { until, ..small() };
-            assert!(render_png(&data, &path).is_err(), "until = {until}");
+            assert!(super::render(&data, &path).is_err(), "until = {until}");
             assert!(!path.exists());
         }
-        assert!(render_png(&PlotData::default(), &path).is_err());
+        assert!(super::render(&PlotData::default(), &path).is_err());
         assert!(!path.exists());
     }
 
     #[test]
     fn other_file_names_and_unwritable_places_are_errors() {
         let dir = tempfile::tempdir().unwrap();
-        assert!(render_png(&small(), &dir.path().join("plot.svg")).is_err());
-        assert!(render_png(&small(), &dir.path().join("missing/plot.png")).is_err());
-        assert!(render_png(&small(), &dir.path().join("plot.PNG")).is_ok());
+        assert!(super::render(&small(), &dir.path().join("plot.pdf")).is_err());
+        assert!(!dir.path().join("plot.pdf").exists());
+        assert!(super::render(&small(), &dir.path().join("plot.svg")).is_ok());
+        assert!(super::render(&small(), &dir.path().join("missing/plot.png")).is_err());
+        assert!(super::render(&small(), &dir.path().join("plot.PNG")).is_ok());
     }
 
     #[test]

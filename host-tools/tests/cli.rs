@@ -1158,22 +1158,24 @@ fn compile_json_lists_each_image_as_written() {
 fn sim_refuses_outputs_it_could_not_write_before_it_runs() {
     let dir = tempfile::tempdir().unwrap();
     let missing = dir.path().join("no-such-dir").join("trace.csv");
-    let svg = dir.path().join("plot.svg");
-    let not_png = pabctl(&[
+    let pdf = dir.path().join("plot.pdf");
+    let not_drawn = pabctl(&[
         "sim",
         &example("first-network.toml"),
         "--plot",
-        &svg.display().to_string(),
+        &pdf.display().to_string(),
     ]);
-    assert_eq!(not_png.status.code(), Some(2));
-    let said = text(&not_png.stderr);
+    assert_eq!(not_drawn.status.code(), Some(2));
+    let said = text(&not_drawn.stderr);
     assert!(
-        said.contains("--plot: plots are drawn as PNG only"),
+        said.contains(
+            "--plot: plots are drawn as PNG or SVG: give a file name ending in .png or .svg"
+        ),
         "{said}"
     );
     // Refused before the run: nothing simulated, nothing written.
-    assert_eq!(text(&not_png.stdout), "");
-    assert!(!svg.exists());
+    assert_eq!(text(&not_drawn.stdout), "");
+    assert!(!pdf.exists());
 
     let no_dir = pabctl(&[
         "sim",
@@ -1236,4 +1238,84 @@ fn sim_json_gives_who_gets_through_when_and_each_connections_counts() {
     let schema = pabctl(&["sim", &example("assembly.toml"), "--json"]);
     assert!(schema.status.success(), "{}", text(&schema.stderr));
     assert_eq!(json(&schema)["ports"], serde_json::json!([]));
+}
+
+/// The `<text>` elements' contents of an SVG, trimmed, after checking that it is one `<svg>`
+/// element (a cheap well-formedness check: no XML parser among the dependencies).
+fn svg_texts(svg: &str) -> Vec<String> {
+    assert!(svg.starts_with("<svg "), "{}", &svg[..svg.len().min(200)]);
+    assert!(svg.trim_end().ends_with("</svg>"));
+    assert_eq!(svg.matches("<text").count(), svg.matches("</text>").count());
+    svg.split("<text")
+        .skip(1)
+        .filter_map(|part| {
+            let body = part.split_once('>')?.1;
+            Some(body.split_once("</text>")?.0.trim().to_string())
+        })
+        .collect()
+}
+
+#[test]
+fn sim_draws_an_svg_whose_texts_are_text_with_its_gates_and_windows() {
+    let dir = tempfile::tempdir().unwrap();
+    let door = dir.path().join("door.svg");
+    let output = pabctl(&[
+        "sim",
+        &example("door-dynamics.toml"),
+        "--plot",
+        door.to_str().unwrap(),
+    ]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let svg = std::fs::read_to_string(&door).unwrap();
+    let texts = svg_texts(&svg);
+    for name in ["WANDER", "APPROACH", "LOOK", "CORRIDOR"] {
+        assert!(
+            texts.iter().any(|t| t.starts_with(name)),
+            "{name}: {texts:?}"
+        );
+    }
+    // The gates' strips: their names and a band named inside while open, not "?".
+    for gate in ["door.search", "door.recognise", "door.approach"] {
+        let label = format!("{gate}  gate of [dynamics.door]");
+        assert!(texts.contains(&label), "{label}: {texts:?}");
+    }
+    assert!(texts.iter().any(|t| t == "door.search open"), "{texts:?}");
+    assert!(!texts.iter().any(|t| t.contains(" ? ")), "{texts:?}");
+    // Decimals with a plain point.
+    assert!(texts.iter().any(|t| t.contains("τ 0.1 s")), "{texts:?}");
+    assert!(!svg.contains('·'));
+    // The gate's green.
+    assert!(svg.contains("fill=\"#C4E8C4\""));
+
+    let subsumption = dir.path().join("subsumption.svg");
+    let output = pabctl(&[
+        "sim",
+        &example("subsumption.toml"),
+        "--plot",
+        subsumption.to_str().unwrap(),
+    ]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let texts = svg_texts(&std::fs::read_to_string(&subsumption).unwrap());
+    for kind in ["suppress", "inhibit", "write-inhibit", "override"] {
+        assert!(texts.iter().any(|t| t == kind), "{kind}: {texts:?}");
+    }
+}
+
+#[test]
+fn sim_draws_the_schema_plot_as_svg() {
+    let dir = tempfile::tempdir().unwrap();
+    let svg = dir.path().join("assembly.svg");
+    let output = pabctl(&[
+        "sim",
+        &example("assembly.toml"),
+        "--schema-plot",
+        svg.to_str().unwrap(),
+        "--until",
+        "17",
+    ]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let texts = svg_texts(&std::fs::read_to_string(&svg).unwrap());
+    for expected in ["assembly.toml", "contact force (N)", "installed schema"] {
+        assert!(texts.iter().any(|t| t == expected), "{expected}: {texts:?}");
+    }
 }

@@ -225,3 +225,21 @@ fn replay_json_gives_the_capture_s_counts_and_the_port_timelines() {
     // The text went to standard error.
     assert!(text(&output.stderr).contains("4790 frames over 23.877701 s on vcan0"));
 }
+
+#[test]
+fn replay_draws_its_plot_as_svg_too() {
+    let dir = tempfile::tempdir().unwrap();
+    let plot = dir.path().join("replay.svg");
+    let output = pabctl(&[
+        "replay",
+        &path(NETWORK),
+        &path(HIL_LOG),
+        "--plot",
+        plot.to_str().unwrap(),
+    ]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let svg = std::fs::read_to_string(&plot).unwrap();
+    assert!(svg.starts_with("<svg "));
+    assert!(svg.trim_end().ends_with("</svg>"));
+    assert!(svg.contains("<text"));
+}

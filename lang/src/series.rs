@@ -1,5 +1,5 @@
 //! What a stimulation plot shows, as data: the simulator and a replay build it from the boards'
-//! code's states; `pabctl`'s plot draws it (PNG). Kept apart from the drawing so that the network
+//! code's states; `pabctl`'s plot draws it (PNG or SVG). Kept apart from the drawing so that the network
 //! language carries no image library.
 
 /// Everything a plot shows. Built by the simulator; the plot only draws it.
@@ -36,8 +36,29 @@ pub struct ConnectionSeries {
     pub name: String,
     /// A longer label, e.g. "C1  object_pos  σ 0.2  τ 3 s".
     pub label: String,
+    /// What its strip shows.
+    pub shows: Shows,
     /// Samples in increasing time order (several samples may share a time: a jump).
     pub samples: Vec<Sample>,
+}
+
+/// What a connection's strip shows of its samples.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum Shows {
+    /// The stimulation level, coloured by whether the connection is selected.
+    #[default]
+    Stimulation,
+    /// The windows in which a special connection (suppress, inhibit, write-inhibit, override) is
+    /// active: from a frame until its period has passed without one.
+    Window {
+        /// The kind as the file writes it, e.g. "suppress".
+        kind: String,
+        /// Whether its frames can get through (an override): then the window also shows when
+        /// it is selected.
+        delivers: bool,
+    },
+    /// A competitive-dynamics gate (a rule naming `group.behaviour`): open while active.
+    Gate,
 }
 
 /// The state of one connection at one time.
@@ -47,6 +68,9 @@ pub struct Sample {
     pub t: f64,
     /// Stimulation level in [0, 1].
     pub level: f64,
+    /// Whether the connection is active (its x in the rules): for a special connection, within
+    /// its period after a frame; for a gate, while the port's node reads it open.
+    pub active: bool,
     /// Whether the connection is the one selected at its port at this time.
     pub selected: bool,
 }

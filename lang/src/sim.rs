@@ -46,7 +46,7 @@ use pab_core::{Arbiter, Frame, Instant};
 
 use crate::compile::CompiledNode;
 use crate::network::{MAX_TIME_S, Network};
-use crate::series::{ConnectionSeries, Phase, PlotData, PortSeries, Sample};
+use crate::series::{ConnectionSeries, Phase, PlotData, PortSeries, Sample, Shows};
 
 mod dynamics;
 pub mod intention;
@@ -769,6 +769,9 @@ impl Run<'_> {
             // Gates (a capture's, in a replay): the dynamics' traffic, never arbitrated.
             if dynamics::is_gates(&frame.frame) {
                 self.hear_gates(station, &frame.frame, frame.t_us);
+                if self.options.samples {
+                    self.sample_gate_changes(frame.t_us);
+                }
                 continue;
             }
             // HBBA's filter commands: applied by the node they address, as a node does (a
@@ -966,6 +969,7 @@ impl Run<'_> {
             .get(port)
             .map(|p| p.connections.clone())
             .unwrap_or_default();
+        let activity = entry.arbiter.activity(local_port, now);
         for (local, connection) in connections.into_iter().enumerate() {
             let Ok(local) = u8::try_from(local) else {
                 continue;
@@ -979,8 +983,46 @@ impl Run<'_> {
                 samples.push(Sample {
                     t: t_us as f64 / 1e6,
                     level,
+                    active: activity.contains(local) && !stopped,
                     selected: selected == Some(local),
                 });
+            }
+        }
+    }
+
+    /// Samples, at `t_us`, the ports with a gate connection whose gate changed since its last
+    /// sample (a step of the dynamics, a Gates frame heard): a gate's strip then opens and
+    /// closes at the instants the port's node reads it so, not at the next sample.
+    fn sample_gate_changes(&mut self, t_us: u64) {
+        let now = Instant::from_micros(t_us);
+        for port in 0..self.network.ports.len() {
+            let Some((station, local_port)) = self.locate(port) else {
+                continue;
+            };
+            let Some(entry) = self.stations.get(station) else {
+                continue;
+            };
+            let stopped = entry.stopped(t_us);
+            let activity = entry.arbiter.activity(local_port, now);
+            let Some(connections) = self.network.ports.get(port).map(|p| &p.connections) else {
+                continue;
+            };
+            let changed = connections.iter().enumerate().any(|(local, &connection)| {
+                let is_gate = self
+                    .network
+                    .connections
+                    .get(connection)
+                    .is_some_and(|c| c.kind == crate::network::Kind::Gate);
+                let open = u8::try_from(local).is_ok_and(|l| activity.contains(l)) && !stopped;
+                let last = self
+                    .samples
+                    .get(connection)
+                    .and_then(|s| s.last())
+                    .map(|s| s.active);
+                is_gate && last != Some(open)
+            });
+            if changed {
+                self.sample_port(station, local_port, port, t_us);
             }
         }
     }
@@ -1169,11 +1211,13 @@ impl Outcome {
                             samples.push(Sample {
                                 t,
                                 level: level(held),
+                                active: held,
                                 selected: held,
                             });
                             samples.push(Sample {
                                 t,
                                 level: level(now),
+                                active: now,
                                 selected: now,
                             });
                             held = now;
@@ -1181,11 +1225,13 @@ impl Outcome {
                         samples.push(Sample {
                             t: until,
                             level: if held { 1.0 } else { 0.0 },
+                            active: held,
                             selected: held,
                         });
                         ConnectionSeries {
                             name: name.to_string(),
                             label: format!("{name}  holds the task (eligibility: {topic})"),
+                            shows: Shows::Stimulation,
                             samples,
                         }
                     })
@@ -1218,23 +1264,35 @@ impl Outcome {
                         } else {
                             crate::shown::excerpt(&c.rule_text, crate::network::RULE_EXCERPT)
                         };
-                        let label = if c.kind.is_special() {
+                        let (label, shows) = if c.kind == crate::network::Kind::Gate {
+                            let group = c.name.split_once('.').map_or("?", |(group, _)| group);
+                            let label = format!("{}  gate of [dynamics.{group}]", c.name);
+                            (label, Shows::Gate)
+                        } else if c.kind.is_special() {
                             let target = c
                                 .inhibits
                                 .and_then(|t| network.topics.get(t))
                                 .map_or(String::new(), |t| format!(" {}", t.name));
-                            format!(
-                                "{}  {topic}  {}{target} {} s  {rule}",
+                            let label = format!(
+                                "{}  {topic}  {}{target} for {} s  {rule}",
                                 c.name,
                                 c.kind.name(),
                                 c.tau
-                            )
+                            );
+                            let shows = Shows::Window {
+                                kind: c.kind.name().to_string(),
+                                delivers: c.kind.delivers(),
+                            };
+                            (label, shows)
                         } else {
-                            format!("{}  {topic}  σ {} τ {} s  {rule}", c.name, c.sigma, c.tau)
+                            let label =
+                                format!("{}  {topic}  σ {} τ {} s  {rule}", c.name, c.sigma, c.tau);
+                            (label, Shows::Stimulation)
                         };
                         ConnectionSeries {
                             name: c.name.clone(),
                             label,
+                            shows,
                             samples: self.samples.get(index).cloned().unwrap_or_default(),
                         }
                     })

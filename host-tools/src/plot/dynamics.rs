@@ -13,9 +13,9 @@ use plotters::style::text_anchor::HPos;
 use plotters::style::{Color, RGBColor};
 
 use super::{
-    Area, BORDER, Band, BehaviourSeries, DynamicsSample, GRID, LABEL_X1, MARGIN_X, MIN_FONT,
-    PLOT_X0, PLOT_X1, SOFT_TEXT, TEXT, TimeAxis, clean, draw_error, line, px, rectangle, text,
-    text_width, wrap,
+    Area, BORDER, Band, BehaviourSeries, Canvas, DynamicsSample, GRID, MIN_FONT, PLOT_X0, PLOT_X1,
+    SOFT_TEXT, THRESHOLD, TimeAxis, VALUE_SIZE, draw_error, draw_grid, draw_label, line, px,
+    rectangle, style, text, text_width, windows,
 };
 
 /// A behaviour lane is this many connection strips high (three lines share it).
@@ -25,11 +25,10 @@ pub(super) const LANE_STRIPS: f64 = 1.5;
 const LO: f64 = -1.2;
 const HI: f64 = 1.2;
 
-pub(super) const N: RGBColor = RGBColor(25, 80, 200);
-pub(super) const RHO: RGBColor = RGBColor(225, 110, 0);
-pub(super) const M: RGBColor = RGBColor(150, 50, 160);
-pub(super) const GATE: RGBColor = RGBColor(196, 232, 196);
-const ZERO: RGBColor = RGBColor(200, 200, 200);
+pub(super) const N: RGBColor = style::LINES[0];
+pub(super) const RHO: RGBColor = style::LINES[1];
+pub(super) const M: RGBColor = style::LINES[2];
+pub(super) const GATE: RGBColor = style::GATE;
 
 /// The row of value `v` in lane `b` (clamped to the lane).
 pub(super) fn value_y(v: f64, b: Band) -> f64 {
@@ -40,22 +39,7 @@ pub(super) fn value_y(v: f64, b: Band) -> f64 {
 /// The intervals (seconds) in which the gate is open: from the sample that opens it to the one
 /// that closes it, or to `until`. Every sample counts.
 pub(super) fn gate_intervals(samples: &[DynamicsSample], until: f64) -> Vec<(f64, f64)> {
-    let mut intervals = Vec::new();
-    let mut open: Option<f64> = None;
-    for s in samples.iter().filter(|s| s.t.is_finite()) {
-        match (open, s.gate) {
-            (None, true) => open = Some(s.t),
-            (Some(from), false) => {
-                intervals.push((from, s.t));
-                open = None;
-            }
-            _ => {}
-        }
-    }
-    if let Some(from) = open {
-        intervals.push((from, until.max(from)));
-    }
-    intervals
+    windows::intervals(samples.iter().map(|s| (s.t, s.gate)), until)
 }
 
 /// The pixels of a line through `points` (x, y in pixels, x non-decreasing): per pixel column at
@@ -99,7 +83,7 @@ pub(super) fn thinned(points: impl Iterator<Item = (f64, f64)>) -> Vec<(i32, i32
 }
 
 /// The legend of the lanes, right-aligned in the group's header row.
-pub(super) fn draw_legend(root: &Area, y: f64, size: f64) -> anyhow::Result<()> {
+pub(super) fn draw_legend<DB: Canvas>(root: &Area<DB>, y: f64, size: f64) -> anyhow::Result<()> {
     if size < MIN_FONT {
         return Ok(());
     }
@@ -130,8 +114,8 @@ pub(super) fn draw_legend(root: &Area, y: f64, size: f64) -> anyhow::Result<()> 
 type Value = fn(&DynamicsSample) -> f64;
 
 /// One behaviour's lane: gate bands, grid, box, value ticks, label, then ρ, m and n on top.
-pub(super) fn draw_lane(
-    root: &Area,
+pub(super) fn draw_lane<DB: Canvas>(
+    root: &Area<DB>,
     axis: &TimeAxis,
     behaviour: &BehaviourSeries,
     b: Band,
@@ -139,21 +123,9 @@ pub(super) fn draw_lane(
     if b.height() < 1.0 {
         return Ok(());
     }
-    for (from, to) in gate_intervals(&behaviour.samples, axis.until) {
-        if to < 0.0 || from > axis.until {
-            continue;
-        }
-        // Columns from the opening's to the one before the closing's (plotters fills up to,
-        // not including, the right edge), at least one: a gate open for a step shows.
-        let (x0, y0) = px(axis.x(from), b.y0);
-        let (x1, y1) = px(axis.x(to), b.y1);
-        let band = Rectangle::new([(x0, y0), (x1.max(x0 + 1), y1)], GATE.filled());
-        root.draw(&band).map_err(draw_error)?;
-    }
-    for &(t, _) in &axis.ticks {
-        let x = axis.x(t);
-        line(root, (x, b.y0), (x, b.y1), GRID)?;
-    }
+    let open = gate_intervals(&behaviour.samples, axis.until);
+    windows::draw_bands(root, axis, &open, GATE, "", b)?;
+    draw_grid(root, axis, b)?;
     for v in [-1.0, 1.0] {
         line(
             root,
@@ -166,32 +138,16 @@ pub(super) fn draw_lane(
         root,
         (PLOT_X0, value_y(0.0, b)),
         (PLOT_X1, value_y(0.0, b)),
-        ZERO,
+        THRESHOLD,
     )?;
     rectangle(root, b, BORDER.stroke_width(1))?;
     if b.height() >= 40.0 {
         for (v, name) in [(-1.0, "−1"), (0.0, "0"), (1.0, "1")] {
             let at = (PLOT_X0 - 6.0, value_y(v, b));
-            text(root, name, at, 10.0, false, SOFT_TEXT, HPos::Right)?;
+            text(root, name, at, VALUE_SIZE, false, SOFT_TEXT, HPos::Right)?;
         }
     }
-
-    let label = if behaviour.label.trim().is_empty() {
-        &behaviour.name
-    } else {
-        &behaviour.label
-    };
-    let size = 13f64.min(b.height() * 0.5);
-    if size >= MIN_FONT {
-        let line_h = size * 1.3;
-        let max_lines = ((b.height() / line_h).floor() as usize).clamp(1, 3);
-        let lines = wrap(root, &clean(label), LABEL_X1 - MARGIN_X, size, max_lines)?;
-        let first = b.middle() - (lines.len() as f64 - 1.0) * line_h / 2.0;
-        for (k, l) in lines.iter().enumerate() {
-            let at = (MARGIN_X, first + k as f64 * line_h);
-            text(root, l, at, size, false, TEXT, HPos::Left)?;
-        }
-    }
+    draw_label(root, &behaviour.label, &behaviour.name, b, 3)?;
 
     let usable: Vec<&DynamicsSample> = behaviour
         .samples
@@ -224,7 +180,7 @@ pub(super) fn draw_lane(
 
 #[cfg(test)]
 mod tests {
-    use super::super::{DynamicsSeries, Layout, PlotData, render_png};
+    use super::super::{DynamicsSeries, Layout, PlotData, render};
     use super::*;
 
     fn at(t: f64, gate: bool) -> DynamicsSample {
@@ -295,7 +251,7 @@ mod tests {
         assert_eq!(lanes.len(), 4);
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("lanes.png");
-        render_png(&data, &path).unwrap();
+        render(&data, &path).unwrap();
         let img = image::open(&path).unwrap().to_rgb8();
         assert_eq!(img.dimensions(), (1400, 526));
         let axis = TimeAxis::new(6.0);

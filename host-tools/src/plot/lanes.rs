@@ -8,8 +8,8 @@ use plotters::style::text_anchor::HPos;
 use plotters::style::{Color, RGBColor};
 
 use super::{
-    Area, BORDER, Band, GRID, LABEL_X1, MARGIN_X, MIN_FONT, PLOT_X0, SOFT_TEXT, TEXT, TimeAxis,
-    clean, draw_error, line, px, rectangle, text, text_width, wrap,
+    Area, BORDER, Band, Canvas, LEGEND_SIZE, MIN_FONT, PLOT_X0, SOFT_TEXT, TimeAxis, clean,
+    draw_error, draw_grid, draw_label, px, rectangle, style, text, text_width,
 };
 use pab_lang::series::Lane;
 
@@ -17,7 +17,7 @@ use pab_lang::series::Lane;
 pub(super) const LANE_STRIPS: f64 = 0.5;
 
 /// The fill of a lane's value.
-pub(super) const FILL: RGBColor = RGBColor(150, 185, 235);
+pub(super) const FILL: RGBColor = style::FILL;
 
 /// The intervals (seconds, clipped to [0, until]) and values of a lane's steps; non-finite
 /// steps are skipped, values clamped to [0, 1].
@@ -40,14 +40,16 @@ pub(super) fn intervals(lane: &Lane, until: f64) -> Vec<(f64, f64, f64)> {
 }
 
 /// One lane: grid, fill, box, label and the notes of its steps.
-pub(super) fn draw_lane(root: &Area, axis: &TimeAxis, lane: &Lane, b: Band) -> anyhow::Result<()> {
+pub(super) fn draw_lane<DB: Canvas>(
+    root: &Area<DB>,
+    axis: &TimeAxis,
+    lane: &Lane,
+    b: Band,
+) -> anyhow::Result<()> {
     if b.height() < 1.0 {
         return Ok(());
     }
-    for &(t, _) in &axis.ticks {
-        let x = axis.x(t);
-        line(root, (x, b.y0), (x, b.y1), GRID)?;
-    }
+    draw_grid(root, axis, b)?;
     for (from, to, value) in intervals(lane, axis.until) {
         let top = b.y1 - value * b.height();
         let (x0, y0) = px(axis.x(from), top);
@@ -56,25 +58,9 @@ pub(super) fn draw_lane(root: &Area, axis: &TimeAxis, lane: &Lane, b: Band) -> a
         root.draw(&fill).map_err(draw_error)?;
     }
     rectangle(root, b, BORDER.stroke_width(1))?;
+    draw_label(root, &lane.label, &lane.name, b, 2)?;
 
-    let label = if lane.label.trim().is_empty() {
-        &lane.name
-    } else {
-        &lane.label
-    };
-    let size = 12f64.min(b.height() * 0.7);
-    if size >= MIN_FONT {
-        let line_h = size * 1.3;
-        let max_lines = ((b.height() / line_h).floor() as usize).clamp(1, 2);
-        let lines = wrap(root, &clean(label), LABEL_X1 - MARGIN_X, size, max_lines)?;
-        let first = b.middle() - (lines.len() as f64 - 1.0) * line_h / 2.0;
-        for (k, l) in lines.iter().enumerate() {
-            let at = (MARGIN_X, first + k as f64 * line_h);
-            text(root, l, at, size, false, TEXT, HPos::Left)?;
-        }
-    }
-
-    let size = 10f64.min(b.height() * 0.6);
+    let size = LEGEND_SIZE.min(b.height() * 0.6);
     if size >= MIN_FONT {
         // A note only where the previous one ends: steps closer than a note's width share one.
         let mut free_from = PLOT_X0;
@@ -107,7 +93,7 @@ pub(super) fn draw_lane(root: &Area, axis: &TimeAxis, lane: &Lane, b: Band) -> a
 
 #[cfg(test)]
 mod tests {
-    use super::super::{Layout, PLOT_X1, PlotData, render_png};
+    use super::super::{Layout, PLOT_X1, PlotData, render};
     use super::*;
     use pab_lang::series::{LaneGroup, LaneStep};
 
@@ -171,7 +157,7 @@ mod tests {
         assert_eq!(layout.height, 196);
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("lanes.png");
-        render_png(&data, &path).unwrap();
+        render(&data, &path).unwrap();
         let img = image::open(&path).unwrap().to_rgb8();
         let axis = TimeAxis::new(10.0);
         let filled = |b: Band| -> Vec<(u32, u32)> {

@@ -153,6 +153,9 @@ impl Run<'_> {
         // not change adds nothing).
         if polled {
             self.note_all(now_us);
+            if self.options.samples {
+                self.sample_gate_changes(now_us);
+            }
         }
     }
 
