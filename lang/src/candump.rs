@@ -30,6 +30,14 @@ use crate::diagnostic::{Diagnostic, Diagnostics};
 /// so a limit keeps a runaway file from exhausting memory.
 pub const MAX_FRAMES: usize = 10_000_000;
 
+/// The longest line read: a candump -L line of a CAN FD frame with a long interface name is
+/// under 200 bytes, so a longer one is not a capture (a binary file, `/dev/zero` behind a
+/// symbolic link) and reading stops there rather than buffer it.
+pub const MAX_LINE: usize = 4096;
+/// The most lines that are not frames reported before reading stops: a file that is not a
+/// capture at all says so in its first lines.
+pub const MAX_ERRORS: usize = 1000;
+
 /// The CAN_ERR_FLAG of SocketCAN's ids: the line is an error frame.
 const ERROR_FLAG: u32 = 0x2000_0000;
 
@@ -96,10 +104,13 @@ impl Capture {
 /// Reads the capture at `path`. `progress` is called with the bytes read so far, every 64 KiB and
 /// at the end.
 ///
-/// Every line that is not a frame is reported (`path:line:column: error: cause`), all of them in
-/// one run; so is a file with no frame, and more than [`MAX_FRAMES`] frames. Frames out of time
-/// order are read and counted ([`Capture::out_of_order`]).
+/// Only a regular file of at most [`crate::input::MAX_CAPTURE_BYTES`] is read (a FIFO or a
+/// device is refused before it is opened). Every line that is not a frame is reported
+/// (`path:line:column: error: cause`), up to [`MAX_ERRORS`] in one run; so is a file with no
+/// frame, a line longer than [`MAX_LINE`] and more than [`MAX_FRAMES`] frames. Frames out of
+/// time order are read and counted ([`Capture::out_of_order`]).
 pub fn read(path: &Path, progress: &mut dyn FnMut(u64)) -> Result<Capture, Diagnostics> {
+    crate::input::regular_file(path, "capture", crate::input::MAX_CAPTURE_BYTES)?;
     let file = std::fs::File::open(path)
         .map_err(|error| Diagnostic::file(path, format!("cannot read: {error}")))?;
     parse(path, io::BufReader::new(file), progress)
@@ -119,10 +130,34 @@ pub fn parse(
     let mut latest: Option<u64> = None;
     for number in 1usize.. {
         bytes.clear();
-        let read = input
+        let read = io::Read::take(&mut input, MAX_LINE as u64 + 1)
             .read_until(b'\n', &mut bytes)
             .map_err(|error| Diagnostic::file(path, format!("cannot read: {error}")))?;
         if read == 0 {
+            break;
+        }
+        if bytes.len() > MAX_LINE {
+            errors.push(Diagnostic::at(
+                path,
+                number,
+                1,
+                format!(
+                    "a line longer than {MAX_LINE} bytes: not a candump -L log (reading stopped \
+                     here)"
+                ),
+            ));
+            break;
+        }
+        if errors.len() >= MAX_ERRORS {
+            errors.push(Diagnostic::at(
+                path,
+                number,
+                1,
+                format!(
+                    "reading stopped after {MAX_ERRORS} lines that are not frames: is this a \
+                     candump -L log?"
+                ),
+            ));
             break;
         }
         read_so_far += read as u64;
@@ -527,6 +562,39 @@ mod tests {
         assert!(shown[1].starts_with("c.log:4:18: error: a CAN FD frame"));
         let empty = parse(Path::new("e.log"), "\n\n".as_bytes(), &mut |_| {}).unwrap_err();
         assert!(empty.to_string().contains("no CAN frame"));
+    }
+
+    #[test]
+    fn a_file_that_is_not_a_capture_is_refused_with_bounded_work() {
+        // /dev/zero: a character device, refused before it is opened.
+        let device = read(Path::new("/dev/zero"), &mut |_| {}).unwrap_err();
+        assert!(
+            device.0[0]
+                .message
+                .starts_with("a character device is not a regular file"),
+            "{device}"
+        );
+        // Its bytes through a pipe: one line without end, cut at MAX_LINE.
+        let endless = std::io::BufReader::new(std::io::Read::take(std::io::repeat(0), 1 << 30));
+        let errors = parse(Path::new("zero"), endless, &mut |_| {}).unwrap_err();
+        assert_eq!(errors.0.len(), 1, "{errors}");
+        assert!(
+            errors.0[0]
+                .to_string()
+                .starts_with("zero:1:1: error: a line longer than 4096 bytes"),
+            "{errors}"
+        );
+        // Text that is no capture: MAX_ERRORS lines reported, then one that says reading stopped.
+        let prose = "not a frame\n".repeat(5000);
+        let errors = parse(Path::new("p.log"), prose.as_bytes(), &mut |_| {}).unwrap_err();
+        assert_eq!(errors.0.len(), MAX_ERRORS + 1);
+        assert!(
+            errors.0[MAX_ERRORS]
+                .to_string()
+                .starts_with("p.log:1001:1: error: reading stopped after 1000 lines"),
+            "{}",
+            errors.0[MAX_ERRORS]
+        );
     }
 
     #[test]

@@ -14,6 +14,7 @@ pub mod check;
 pub mod compile;
 pub mod dbc;
 pub mod diagnostic;
+pub mod input;
 pub mod kinds;
 pub mod network;
 pub mod replay;
