@@ -7,6 +7,9 @@
 //! simulated robot in front of its board ([`plant`]). Key files ([`keys`]) and the command
 //! line's numbers ([`args`]) are here too, and `pabctl solve`'s report of HBBA's intention
 //! solver ([`solve`]).
+//!
+//! The `pabctl` command itself is the binary's: `main.rs` and the modules it declares beside
+//! these (`cli.rs`, `commands/`, `failure.rs`, `output.rs`).
 
 pub mod args;
 pub mod bus;

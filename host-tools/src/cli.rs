@@ -1,0 +1,559 @@
+//! The command line: every command, its options and their help texts (clap's derive), as
+//! `pabctl --help` and `pabctl COMMAND --help` print them.
+
+use std::path::PathBuf;
+
+use clap::{Parser, Subcommand};
+use pabctl::args;
+
+const ABOUT: &str = "Check, compile and simulate port-arbitration networks for CAN controller boards, \
+     and describe their traffic as DBC";
+
+const LONG_ABOUT: &str = "\
+Check, compile and simulate port-arbitration networks for CAN controller boards.
+
+Behaviours publish CAN frames (topics). A node (an arm, hand or head controller board) receives \
+competing streams on one input (a port) and decides, frame by frame, which connection gets \
+through. Each connection has a stimulation level S in [0, 1]: every frame adds st (σ), and S \
+decays to 0 within tc (τ) seconds without frames. A connection is active from S reaching 1 until \
+it has decayed to 0. Its rule says when an active connection may deliver, as a Boolean formula \
+over the activity of the port's connections, e.g. \"C1 & !C2\" (C1 gets through unless C2 is \
+active). A rule of false makes a virtual connection: it never delivers but inhibits others.
+
+A network file (TOML) declares [nodes.NAME] (id), [topics.NAME] (can_id, extended, mask, rate_hz), \
+[ports.\"NODE.PORT\"], [connections.NAME] (topic, port, st, tc, tr, rule) and, for simulation, \
+[[events]] (topic with rate_hz/from/to or at = [...]) and [[phases]] (name, from, to), and for \
+HBBA's intention solver [hbba] (resources, bitrate), [hbba.strategies.NAME] (class, utility, \
+costs, filters, requires) and, for simulation, [[desires]] (class, intensity, from, to). See \
+docs/network-file.md for the full reference.
+
+Exit status: 0 success; 1 the rules are inconsistent; 2 the input cannot be read or is invalid; \
+3 an output cannot be written; 4 the bus cannot be used or a node refused or did not answer.";
+
+const AFTER_HELP: &str = "\
+Examples:
+  pabctl check examples/figure-1.toml
+  pabctl compile examples/take-and-return.toml -o out/tables
+  pabctl sim examples/take-and-return.toml --plot out/take-and-return.png --trace out/trace.csv
+  pabctl replay examples/take-and-return.toml yesterday.log --trace out/replay.csv
+  pabctl push examples/take-and-return.toml --iface vcan0
+  pabctl nodes --iface vcan0
+  pabctl monitor examples/take-and-return.toml --iface vcan0
+  pabctl dbc examples/take-and-return.toml -o out/take-and-return.dbc
+  pabctl solve examples/tour-guide.toml --desires \"face=2,nav=2,voice=3\"
+  pabctl schema > docs/network-file.schema.json";
+
+#[derive(Parser)]
+#[command(name = "pabctl", version, about = ABOUT, long_about = LONG_ABOUT, after_help = AFTER_HELP)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand)]
+pub enum Command {
+    /// Prove that on every port at most one connection can deliver, whatever is active.
+    #[command(long_about = "\
+Prove, port by port and with binary decision diagrams, that in every activity mask at most one \
+connection delivers (connection i delivers when it is active and its rule holds).
+
+Reports every pair of connections that can deliver together, with the smallest set of active \
+connections that shows it; every rule that can never deliver (unless it is written \"false\", a \
+virtual connection); and, as information, how many masks let nothing through.
+
+Exit status: 0 consistent, 1 inconsistent, 2 unreadable or invalid file.")]
+    Check {
+        /// The network file (TOML).
+        network: PathBuf,
+        /// Also print the verdict as one JSON object on standard output (docs/pabctl.md, "JSON
+        /// output"); the text goes to standard error.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Compile one table image per node into a directory (DIR/<node>.pab).
+    #[command(long_about = "\
+Check the network, then write one table image per node to DIR/<node>.pab and print each image's \
+size. An image holds the node's ports, their connections' CAN filters and parameters, and each \
+port's precompiled decision (activity mask -> the connection that delivers); it carries the node \
+id, the table version and a CRC-32. Nothing is written if the network is inconsistent.")]
+    Compile {
+        /// The network file (TOML).
+        network: PathBuf,
+        /// The directory to write the images to (created if missing).
+        #[arg(short, long, value_name = "DIR")]
+        output: PathBuf,
+        /// The table version written into the images, 1 to 4294967295 (default: `[network]
+        /// version`, else 1; 0 is reserved: heartbeats report it for "no table").
+        #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = args::table_version)]
+        table_version: Option<u32>,
+        /// Also print the images written as a JSON array on standard output (docs/pabctl.md,
+        /// "JSON output"); the text goes to standard error.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Run every node of the network on a simulated bus, with the events of the file.
+    #[command(long_about = "\
+Run every node of the network on a simulated bus in virtual time: each node loads its compiled \
+table with the same code the boards run, the frames come from the file's [[events]] (with their \
+data bytes), a node of the file's [[faults]] stops at its time (it receives nothing from then on \
+and its ports deliver nothing), and the run is deterministic. A node that runs a [dynamics.*] \
+group steps it at its `step` and puts its Gates on the bus; every node whose rules name a gate \
+(`door.search`) reads them. Prints, per port, a timeline of which connection gets through \
+whenever that changes, and per connection how many frames it received and delivered.
+
+--trace writes one CSV row per frame per connection it fed, after the update:
+  t,port,connection,stimulation,active,delivered
+--plot draws each connection's stimulation over time, green while it is the one that gets \
+through at its port and orange otherwise (like Fig. 5 of the port-arbitration paper); a \
+suppress, inhibit, write-inhibit or override connection as its windows (a band from each \
+activation to its expiry, named after its kind), a gate a rule names (`door.search`) as a band \
+while it is open; and under the ports a lane per [dynamics.*] behaviour: n, ρ and m, on green \
+where its gate is open. FILE.png draws a PNG, FILE.svg an SVG (its texts as text).
+With [hbba], the intention node's logic runs on the file's [[desires]] (the filter commands \
+answered at once by the simulated nodes): the report lists each change of the selected \
+strategies and the filter commands sent, reductions before increases, and --plot adds a lane \
+per strategy (filled while selected) and per filtered connection (its commanded pass rate 1/φ, \
+0 closed); the simulated nodes apply the commands, so the arbitration sees the filters.
+With a schema server ([schema.NODE], [plant], [client]), its board runs the client's program \
+in virtual time against the simulated robot, at the board's period: the report names the \
+schemas installed, the parts inserted and any safety event; --schema-trace writes one CSV row \
+per installed schema (t,node,schema,source,event; the event `safety:<name>` for the built-in \
+ones) and --schema-plot draws the height, lateral position, contact force and installed schema \
+over time, from --from to --until (--plot draws it too when the file has no port).
+--candump writes the simulated bus as a candump -L log (each frame with its event's data, by \
+default its topic's `length` of zeros; the intention's filter commands, the nodes' BLE claims and \
+Gates too; times from 0 s on interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a real bus.")]
+    Sim {
+        /// The network file (TOML).
+        network: PathBuf,
+        /// Stop at this time in seconds, up to 1000000 (default: once the last frame's effect has
+        /// decayed).
+        #[arg(long, value_name = "SECONDS", allow_hyphen_values = true, value_parser = args::seconds)]
+        until: Option<f64>,
+        /// Write the trace as CSV.
+        #[arg(long, value_name = "FILE.csv")]
+        trace: Option<PathBuf>,
+        /// Draw the stimulation plot: PNG or SVG, by the file name's extension (.png, .svg).
+        #[arg(long, value_name = "FILE.png|FILE.svg")]
+        plot: Option<PathBuf>,
+        /// Write the simulated bus's frames as a candump -L log.
+        #[arg(long, value_name = "FILE.log")]
+        candump: Option<PathBuf>,
+        /// Write the [dynamics.*] groups' states as CSV
+        /// (t,group,behaviour,context,n,rho,m,gate; one row per behaviour per step).
+        #[arg(long, value_name = "FILE.csv")]
+        dynamics_trace: Option<PathBuf>,
+        /// Write the schema server's installed schemas as CSV
+        /// (t,node,schema,source,event; one row per installed schema).
+        #[arg(long, value_name = "FILE.csv")]
+        schema_trace: Option<PathBuf>,
+        /// Draw the schema server's run: height, lateral position, contact force and the
+        /// installed schema over time (from --from to --until); PNG or SVG, by the file name's
+        /// extension (.png, .svg).
+        #[arg(long, value_name = "FILE.png|FILE.svg")]
+        schema_plot: Option<PathBuf>,
+        /// Write the schema server's client program as JSON: per call its name and its schema
+        /// (serde's form, the one `pab_client.Schema.from_json` reads), so that another client
+        /// sends exactly the file's schemas.
+        #[arg(long, value_name = "FILE.json")]
+        schema_program: Option<PathBuf>,
+        /// Start the schema plot's time axis here, seconds (default 0), to show one insertion.
+        #[arg(long, value_name = "SECONDS", value_parser = args::seconds)]
+        from: Option<f64>,
+        /// Also print the run's summary as one JSON object on standard output (docs/pabctl.md,
+        /// "JSON output"); the text goes to standard error.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Choose the HBBA strategies for a set of desires: which run, the objective, each resource's
+    /// use.
+    #[command(long_about = "\
+Run HBBA's intention solver on the network's [hbba] section for the desires of --desires, and \
+print the strategies it selects, the objective and each resource's use.
+
+Motivations issue desires: a class (\"face\", \"voice\") and an intensity. A strategy \
+([hbba.strategies.NAME]) fulfils one class with a utility, costs some of each resource (cpu, \
+...), sets filters on connections (φ: 0 closes, 1 passes every frame, N one frame in N) and may \
+require other classes (requires = { nav = 1 }: the strategy chosen for nav must have a utility of \
+at least 1). The solver chooses at most one strategy per class and maximises the sum of \
+intensity × utility over the classes with a desire, so that:
+  - every resource's capacity covers the chosen strategies' costs;
+  - two chosen strategies that set the same connection set the same φ;
+  - every requirement of a chosen strategy is met;
+  - a class without a desire gets a strategy only when a chosen strategy requires it \
+(directly or through others); it adds nothing to the objective.
+The bus is a resource like the others, in percent of [hbba] bitrate: a strategy's bus cost is \
+computed from the rates its filters let through (each filtered connection's topic's rate_hz / φ \
+frames a second of the longest stuffed frame, 135 bits with an 11-bit id, 160 with a 29-bit id), \
+rounded up.
+
+Ties between equally good selections are broken the same way every time: classes are compared \
+in order of first appearance among the strategies; at the first class where two selections \
+differ, the one that chose a strategy wins over none, then the strategy that comes first in the \
+file. The search is exact (branch and bound) and visits at most 100000 nodes; beyond that it \
+gives no answer rather than a possibly wrong one (exit status 2).
+
+--desires takes CLASS=INTENSITY pairs separated by commas, intensities 1 to 65535 (a class left \
+out has no desire; \"\" is no desire at all). --json prints one object instead:
+  {\"strategies\":[\"face_throttled\",\"nav_follow\"],\"objective\":17,\"use\":{\"cpu\":95,\"bus\":12}}
+with the strategies' names sorted and the resources in file order.
+
+Exit status: 0 solved; 2 the network cannot be read or is invalid, has no [hbba] section, the \
+desires are invalid, or the search exceeded its work bound.")]
+    #[command(after_help = "\
+Examples:
+  pabctl solve examples/tour-guide.toml --desires \"face=2,qr=1,nav=2\"
+  pabctl solve examples/tour-guide.toml --desires \"face=2,qr=1,nav=2,voice=3\"     # a loud noise
+  pabctl solve examples/tour-guide.toml --desires \"voice=3\" --json")]
+    Solve {
+        /// The network file (TOML), with an [hbba] section.
+        network: PathBuf,
+        /// The desires: CLASS=INTENSITY,... (intensity 1 to 65535; \"\" for none).
+        #[arg(long, value_name = "CLASS=INTENSITY,...", allow_hyphen_values = true)]
+        desires: String,
+        /// Print one JSON object: {"strategies": [names, sorted], "objective": N, "use":
+        /// {resource: N}}.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Run a recorded candump capture through the network's tables: what would they have let
+    /// through?
+    #[command(long_about = "\
+Run a recorded CAN capture through the network's tables, in virtual time: every node of the \
+network arbitrates the capture's frames with the same code the boards run, at the capture's own \
+timestamps (time 0 = the capture's earliest frame). What would this table have let through on \
+yesterday's traffic? Prints, per port, who gets through whenever that changes, and per \
+connection how many frames it received and delivered, like `pabctl sim`.
+
+The capture is a candump log: `candump -L can0 > yesterday.log`, `candump -l` (the same lines in \
+a file), or python-can's .log writer. One frame per line:
+  (1700000000.123456) can0 123#DEADBEEF
+  (1700000000.125000) can0 1ABCDEF0#0102 R
+  (1700000000.130000) can0 123#R
+Standard ids have 3 hex digits, extended ids 8. Error frames are counted and skipped; CAN FD \
+frames (ID##...) are refused. Every malformed line is reported as FILE:LINE:COLUMN: error: \
+cause, all in one run, and nothing is replayed then (exit status 2). Frames are replayed in the \
+order of their timestamps (a Linux recorder may write them a few milliseconds out of order; \
+the summary says how many were).
+
+The project's own frames (heartbeats, diagnostic stream, table transfers: 29-bit ids of the pab \
+protocol) are counted and not fed: the replay runs the tables of NET, and a push recorded in the \
+capture must not replace them halfway. Frames that no topic of NET matches are listed by id.
+
+--trace writes exactly the CSV of `pabctl sim --trace`:
+  t,port,connection,stimulation,active,delivered
+--plot draws the stimulation plot of `pabctl sim --plot` (without phases: those belong to the \
+simulation's scenario).
+--records writes every verdict exactly, one line per frame and port it fed (masks in hex, levels \
+as raw Q1.31 integers): the record that the cross-runner test compares between the simulator, \
+the Linux node and the board firmware (see docs/pabctl.md, \"Replay records\").
+--board-job writes the tables and the frames replayed for pab-an386-replay, the same replay on \
+the emulated Cortex-M4 (QEMU mps2-an386), which writes the same records:
+  pabctl replay NET.toml CAPTURE.log --records sim.txt --board-job job.bin
+  cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf \\
+      --bin pab-an386-replay -- -append \"job.bin board.txt\"
+  cmp sim.txt board.txt
+
+Exit status: 0 replayed; 1 the rules are inconsistent; 2 the network or the capture cannot be \
+read or is invalid; 3 an output cannot be written.")]
+    #[command(after_help = "\
+Examples:
+  candump -L can0 > yesterday.log                  # record a day of traffic
+  pabctl replay arm-v2.toml yesterday.log          # what would version 2 have let through?
+  pabctl replay arm-v2.toml yesterday.log --trace v2.csv --plot v2.png
+  pabctl sim examples/figure-1.toml --candump fig1.log     # a simulated bus, as a capture
+  pabctl replay examples/figure-1.toml fig1.log")]
+    Replay {
+        /// The network file (TOML).
+        network: PathBuf,
+        /// The capture: a candump -L log.
+        capture: PathBuf,
+        /// Write the trace as CSV (the format of `pabctl sim --trace`).
+        #[arg(long, value_name = "FILE.csv")]
+        trace: Option<PathBuf>,
+        /// Draw the stimulation plot: PNG or SVG, by the file name's extension (.png, .svg).
+        #[arg(long, value_name = "FILE.png|FILE.svg")]
+        plot: Option<PathBuf>,
+        /// Write every verdict in the replay record format.
+        #[arg(long, value_name = "FILE")]
+        records: Option<PathBuf>,
+        /// Write the tables and frames for the emulated board's replay binary
+        /// (pab-an386-replay), which writes the same records.
+        #[arg(long, value_name = "FILE")]
+        board_job: Option<PathBuf>,
+        /// Also print the replay's summary as one JSON object on standard output
+        /// (docs/pabctl.md, "JSON output"); the text goes to standard error.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Compile the network and push each node's table over CAN; wait until each node runs it.
+    #[command(long_about = "\
+Check and compile the network, then send each node its table image over ISO-TP (ISO 15765-2) on \
+--iface, one node after the other, with a progress bar. A node keeps running its old table until \
+the new one has arrived whole and passed its checks (node id, version, CRC, loader); then it \
+swaps atomically, stores the table and answers. The push of a node is done when its heartbeat \
+shows the new version and CRC.
+
+A node that refuses (older version, wrong node, corrupted image, too large...) or does not answer \
+is reported with the reason, and the command fails (exit status 4) after trying every node.")]
+    Push {
+        /// The network file (TOML).
+        network: PathBuf,
+        /// The CAN interface (vcan0, can0...).
+        #[arg(long)]
+        iface: String,
+        /// Push only to this node (by its name in the network file).
+        #[arg(long, value_name = "NAME")]
+        node: Option<String>,
+        /// The table version, 1 to 4294967295 (default: `[network] version`, else 1; 0 is
+        /// reserved). Nodes refuse versions older than the one they run.
+        #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = args::table_version)]
+        table_version: Option<u32>,
+        /// The nodes' key file (`pabctl keygen`): authenticated push (challenge, TransferOpen,
+        /// image MAC); a node counts as done only with a receipt that verifies. Required by nodes
+        /// with a key, refused by nodes without one.
+        #[arg(long, value_name = "FILE")]
+        key: Option<PathBuf>,
+        /// With --key: replace whatever version the node runs, even a newer one (the keyed
+        /// version reset; version 0 stays refused).
+        #[arg(long, requires = "key")]
+        replace: bool,
+    },
+    /// Run the simulated robot of a schema server's board on a live bus.
+    #[command(long_about = "\
+Run the file's [plant] (the simulator's robot: an impedance-controlled end-effector over a plate \
+with holes, parts, a wrist force sensor) on --iface in real time, in front of the board of its \
+[client]: every period it reads the board's set-point frames (the drive's frames of \
+[schema.NODE] `drive`: attractor, rotation, impedance, gripper), integrates the model for one \
+period and publishes the measured pose and wrench, and its range finder on the sensor that \
+[plant] `range_finder` names, if any (the frame `pabctl sim` feeds the board). Until \
+--duration, Ctrl-C or SIGTERM; then prints the parts inserted. --log writes one CSV row per \
+step: t,x,y,z,attractor_x,attractor_y,attractor_z,force_n,inserted (µm, N).")]
+    Plant {
+        /// The network file (TOML).
+        network: PathBuf,
+        /// The CAN interface (vcan0, can0...).
+        #[arg(long)]
+        iface: String,
+        /// Stop after this many seconds (default: until interrupted).
+        #[arg(long, value_name = "SECONDS", value_parser = args::seconds)]
+        duration: Option<f64>,
+        /// The step, ms (default: the board's period).
+        #[arg(long, value_name = "MS", value_parser = args::seconds)]
+        period_ms: Option<f64>,
+        /// Write every step as CSV.
+        #[arg(long, value_name = "FILE.csv")]
+        log: Option<PathBuf>,
+    },
+    /// Send the file's client program to a live schema server and follow it.
+    #[command(long_about = "\
+Send the calls of the file's [client] program to its board on --iface, over ISO-TP, each as the \
+queue takes it (8 deep), and follow the board's SchemaTransition frames until the last call has \
+ended or a safety event stops the board. Prints one line per installed schema; --trace writes \
+them as `pabctl sim --schema-trace` does (t,node,schema,source,event), so a live run and a \
+simulated one compare line by line. Exits 1 when a safety event stopped the board, 4 when the \
+board refused a call or did not answer. The timed [[client.commands]] are the simulator's: \
+not sent here.")]
+    Run {
+        /// The network file (TOML).
+        network: PathBuf,
+        /// The CAN interface (vcan0, can0...).
+        #[arg(long)]
+        iface: String,
+        /// Give up after this many seconds.
+        #[arg(long, value_name = "SECONDS", default_value = "600", value_parser = args::seconds)]
+        timeout: f64,
+        /// Write the installed schemas as CSV.
+        #[arg(long, value_name = "FILE.csv")]
+        trace: Option<PathBuf>,
+        /// The board's key file (`pabctl keygen`): every schema goes as the key holder's
+        /// (challenge, TransferOpen, the message and its MAC) and its answer counts only with a
+        /// Receipt that verifies. Needed by a board with a key, refused by one without.
+        #[arg(long, value_name = "FILE")]
+        key: Option<PathBuf>,
+    },
+    /// Tighten a live schema server's safety limits, or set them back to its table's.
+    #[command(long_about = "\
+Set the safety bounds a schema server's board runs with, at run time: the table's (from the \
+network file's [schema.NODE]) with the options given applied, each tighter than the table's or \
+back up to it, never looser. The board takes them from its next tick (a robot outside a \
+tightened workspace or joint range stops at once; a schema that brings it back is not stopped) \
+and keeps them until it restarts or gets a new table; `pabctl limits NET --iface can0` with no \
+option sets the table's back. Units are the network file's: N, N·m, mm, mm/s, rad/s, and a \
+joint's sensor's unit (--joint elbow=-45:90:30 is elbow's range -45..90 and 30 a second). \
+Every bound that would be looser is named before anything is sent. On a board with a key, \
+--key is needed (the limits are authenticated like a schema). Exits 2 for limits that cannot \
+be set, 4 when the board refused them or did not answer.\n\n\
+Examples:\n  pabctl limits arm.toml --iface can0 --force-limit-n 10 --speed-limit-mm-s 100\n  \
+pabctl limits arm.toml --iface can0 --workspace-max-mm 100,100,50 --key arm.key\n  \
+pabctl limits arm.toml --dry-run --joint elbow=-45:90")]
+    Limits {
+        /// The network file (TOML): its [schema.NODE] is the board's table.
+        network: PathBuf,
+        /// The CAN interface (vcan0, can0...); not needed with --dry-run.
+        #[arg(long, required_unless_present = "dry_run")]
+        iface: Option<String>,
+        /// The board's key file (`pabctl keygen`), for a board with a key.
+        #[arg(long, value_name = "FILE")]
+        key: Option<PathBuf>,
+        #[command(flatten)]
+        overrides: pabctl::limits::Overrides,
+        /// Print the limits and check them; send nothing.
+        #[arg(long)]
+        dry_run: bool,
+    },
+    /// Create a node key file (32 hexadecimal characters, mode 0600).
+    #[command(long_about = "\
+Write a new random 128-bit key (from /dev/urandom) to FILE as 32 hexadecimal characters and a \
+newline, readable by its owner only (mode 0600). Refuses to overwrite an existing file. Give the \
+file to the node (`pab-node --key FILE`, or a board's key page: `pabctl keypage`) and to the \
+configuring verbs (`pabctl push --key FILE`, `pabctl monitor --key FILE`). Whoever can read the \
+file can configure the node.")]
+    Keygen {
+        /// The key file to create.
+        #[arg(short, long, value_name = "FILE")]
+        output: PathBuf,
+    },
+    /// Write a starter network file: the tutorial's, or one of the examples.
+    #[command(long_about = "\
+Write a network file to start from, one that `pabctl check` accepts: the tutorial's (a grasp and \
+a release competing for a gripper, commented key by key), or with --example NAME one of the \
+project's examples, built into pabctl (an unknown NAME lists them). Refuses to overwrite an \
+existing file. Then: `pabctl check FILE`, `pabctl sim FILE --plot FILE.png`.")]
+    Init {
+        /// The file to create.
+        #[arg(default_value = "network.toml")]
+        file: PathBuf,
+        /// Start from this example instead of the tutorial's network (assembly, tour-guide,
+        /// take-and-return, ...).
+        #[arg(long, value_name = "NAME")]
+        example: Option<String>,
+    },
+    /// Write a board's key page image from a key file.
+    #[command(long_about = "\
+Write the 32-byte key page record of KEYFILE (magic PABK, format 1, the key, CRC-32) to \
+FILE.bin, to be written at the board's key page address (docs/keys.md: probe-rs download \
+--binary-format bin --base-address ...).")]
+    Keypage {
+        /// The key file (`pabctl keygen`).
+        key: PathBuf,
+        /// The page image to write.
+        #[arg(short, long, value_name = "FILE.bin")]
+        output: PathBuf,
+    },
+    /// List the nodes on the bus from their heartbeats.
+    #[command(long_about = "\
+Listen to --iface for --listen seconds and print one line per node heard: state (no table, \
+operational, fault), uptime, table version and CRC, whether the table is stored, the frame \
+counters (received, delivered, discarded, errors) and the last fault. With a network file, \
+nodes are named.")]
+    Nodes {
+        /// The CAN interface (vcan0, can0...).
+        #[arg(long)]
+        iface: String,
+        /// Name the nodes from this network file.
+        network: Option<PathBuf>,
+        /// How long to listen, in seconds, up to 3600 (heartbeats come every second).
+        #[arg(
+            long,
+            default_value = "2.5",
+            value_name = "SECONDS",
+            allow_hyphen_values = true,
+            value_parser = args::listen_seconds
+        )]
+        listen: f64,
+        /// Print the nodes as a JSON array on standard output instead of the table
+        /// (docs/pabctl.md, "JSON output").
+        #[arg(long)]
+        json: bool,
+    },
+    /// Live view of every port: connections' stimulation, activity and who delivers.
+    #[command(long_about = "\
+Switch on the diagnostic stream of every node of the network file and draw, several times per \
+second, one bar per connection: its stimulation S, ACTIVE when it is active, resting during its \
+rest time, and \"◀ delivering\" for the connection the port lets through. A node that runs a \
+competitive-dynamics group also shows its gates (OPEN or -) from its Gates frames, or that it fell \
+silent (its readers then take every gate as closed). Ctrl-C ends it and switches the stream off.")]
+    Monitor {
+        /// The network file (TOML): names of nodes, ports and connections.
+        network: PathBuf,
+        /// The CAN interface (vcan0, can0...).
+        #[arg(long)]
+        iface: String,
+        /// Diagnostic rounds per second asked of each node (1..=200).
+        #[arg(
+            long,
+            default_value = "10",
+            value_name = "HZ",
+            allow_hyphen_values = true,
+            value_parser = args::rate_hz
+        )]
+        rate: u16,
+        /// Stop after this many seconds, up to 1000000 (default: until Ctrl-C).
+        #[arg(long, value_name = "SECONDS", allow_hyphen_values = true, value_parser = args::seconds)]
+        duration: Option<f64>,
+        /// Print each screen one after the other instead of redrawing in place.
+        #[arg(long)]
+        plain: bool,
+        /// The nodes' key file: switch the stream with authenticated commands (nodes with a key
+        /// take no other).
+        #[arg(long, value_name = "FILE")]
+        key: Option<PathBuf>,
+    },
+    /// Write a DBC file describing the network's traffic (pab protocol frames and topics).
+    #[command(long_about = "\
+Write a DBC file (for cantools, SavvyCAN, Wireshark, CANdb++) that decodes a capture of the \
+network's bus:
+
+- the pab protocol's own frames (docs/can-protocol.md), one message per service and node: \
+PAB_<Service>_<node> for Heartbeat, TableStatus, Traffic, Errors, Fault, Diagnostic (node to all) \
+and TransferStatus (node to tool), and PAB_DiagnosticControl_<node> and PAB_DiagnosticControl_all \
+(tool to node, tool to all). Value tables name the node states, fault codes and transfer \
+statuses; the diagnostic level is scaled to 0..1. Table transfers (ISO-TP, service 0x11) are not \
+signals: their ids are in the node comments.
+- each topic of the network, named after it, on its can_id (a masked topic: its base id only), \
+its DLC the topic's `length` (default 8): the fields the network reads from its frames (value \
+ports, BLE eligibilities, dynamics contexts) as signals with their size, sign and byte order, the \
+other bytes as one-byte signals dataN.
+- each BLE group member's claim. A claim's identifier carries its eligibility, and tools such as \
+cantools match whole identifiers: the database lists each member's claim at eligibility 0, and \
+with --claims-from CAPTURE.log every claim of that capture too (each must decode as a claim of a \
+member; the others are errors at their line).
+
+With the frames of the topics' lengths, `python -m cantools decode NET.dbc < CAPTURE.log` decodes \
+every frame of the capture strictly (without --no-strict):
+
+    pabctl sim NET.toml --candump bus.log
+    pabctl dbc NET.toml --claims-from bus.log -o NET.dbc
+    python -m cantools decode NET.dbc < bus.log
+
+DBC node PABCTL is the workstation tool; node names are the network's (made C identifiers: other \
+characters become _, a leading digit gets node_). Extended ids are written with bit 31 set, as DBC \
+does. -o - writes to standard output.
+
+Exit status: 0 written; 2 unreadable or invalid file (a topic inside the protocol's id space, \
+extended with bits 25..24 = 0b10, is an error); 3 the output cannot be written.")]
+    Dbc {
+        /// The network file (TOML).
+        network: PathBuf,
+        /// The DBC file to write, or - for standard output.
+        #[arg(short, long, value_name = "FILE.dbc")]
+        output: PathBuf,
+        /// List the BLE claims of this candump -L capture too (each eligibility a claim
+        /// identifier of its own)
+        #[arg(long, value_name = "CAPTURE.log")]
+        claims_from: Option<PathBuf>,
+    },
+    /// Print the network file's JSON Schema, for editors (docs/network-file.schema.json).
+    #[command(long_about = "\
+Print the network file's JSON Schema (draft 7) on standard output: every table and key the \
+parser takes, with its type and a description, unknown keys refused. Editors that complete and \
+check TOML with a JSON Schema (taplo, VS Code's Even Better TOML) use it; the repository's copy \
+is docs/network-file.schema.json, which this regenerates:
+
+  pabctl schema > docs/network-file.schema.json
+
+The schema is derived from the parser's own tables, so it takes exactly what `pabctl check` \
+takes in shape; names, ranges and rules are still for `pabctl check` to judge.")]
+    Schema,
+}

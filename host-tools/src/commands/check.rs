@@ -1,0 +1,60 @@
+//! `pabctl check`: the verdict on a network's rules, with its warnings.
+
+use std::path::Path;
+
+use pab_lang::check;
+use pab_lang::diagnostic::Diagnostic;
+use pab_lang::network::Network;
+
+use crate::failure::Failure;
+use crate::output::{colour, eprintln_line, plural, println_line};
+
+pub fn run(path: &Path, json: bool) -> Result<(), Failure> {
+    let network = match Network::load(path) {
+        Ok(network) => network,
+        Err(errors) => {
+            if json {
+                println!("{}", pabctl::json::invalid(path, &errors.0));
+            }
+            return Err(errors.into());
+        }
+    };
+    let report = check::check(&network);
+    // Warnings (competitive dynamics that cannot behave as written) fail nothing.
+    let mut warnings = check::connections::warnings(&network);
+    warnings.extend(check::dynamics::warnings(&network));
+    warnings.sort_by_key(|warning| warning.0.position);
+    for warning in &warnings {
+        eprintln!("{}\n", warning.render(colour()));
+    }
+    if !warnings.is_empty() {
+        eprintln!("{} warning{}", warnings.len(), plural(warnings.len()));
+    }
+    // Found once, for the JSON and for the verdict.
+    let errors = report.errors(&network);
+    if json {
+        let shown: Vec<&Diagnostic> = warnings.iter().map(|w| &w.0).collect();
+        println!(
+            "{}",
+            pabctl::json::check(path, &network, &report, &errors, &shown)
+        );
+        // The text for a person, on standard error.
+        eprint!("{}", report.summary(&network));
+    } else {
+        print!("{}", report.summary(&network));
+    }
+    if report.is_consistent() {
+        let say = if json { eprintln_line } else { println_line };
+        say(format!(
+            "{}: consistent ({} port{}, {} connection{})",
+            path.display(),
+            network.ports.len(),
+            plural(network.ports.len()),
+            network.connections.len(),
+            plural(network.connections.len())
+        ));
+        Ok(())
+    } else {
+        Err(Failure::Inconsistent(errors))
+    }
+}

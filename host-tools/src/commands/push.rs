@@ -1,0 +1,117 @@
+//! `pabctl push`: each node's table over CAN, one node after the other, with a progress bar.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use indicatif::{ProgressBar, ProgressStyle};
+use pab_lang::compile::CompiledNode;
+use pab_lang::diagnostic::Diagnostic;
+use pab_lang::network::Network;
+use pabctl::push;
+
+use super::compile::compiled;
+use super::{bus_failure, open_bus, read_key};
+use crate::failure::Failure;
+use crate::output::plural;
+
+pub fn run(
+    path: &Path,
+    iface: &str,
+    only: Option<&str>,
+    table_version: Option<u32>,
+    key: Option<&Path>,
+    replace: bool,
+) -> Result<(), Failure> {
+    let network = Network::load(path)?;
+    let credentials = match key {
+        Some(key) => Some(push::Credentials {
+            authenticator: read_key(key)?,
+            replace,
+        }),
+        None => None,
+    };
+    let nodes = compiled(&network, table_version)?;
+    let selected: Vec<&CompiledNode> = match only {
+        Some(name) => {
+            let node = nodes.iter().find(|node| node.name == name).ok_or_else(|| {
+                let known: Vec<&str> = nodes.iter().map(|node| node.name.as_str()).collect();
+                Failure::Input(
+                    Diagnostic::file(
+                        path,
+                        format!("no node named {name:?} (nodes: {})", known.join(", ")),
+                    )
+                    .into(),
+                )
+            })?;
+            vec![node]
+        }
+        None => nodes.iter().collect(),
+    };
+    let mut bus = open_bus(iface)?;
+    let mut failures = 0;
+    for node in selected {
+        let header = pab_core::image::read_header(&node.image)
+            .map_err(|error| Failure::Output(format!("compiled image is invalid: {error}")))?;
+        let bar = ProgressBar::new(node.image.len() as u64).with_style(
+            ProgressStyle::with_template("{prefix:>10} [{bar:30}] {bytes}/{total_bytes} {msg}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> "),
+        );
+        bar.set_prefix(node.name.clone());
+        bar.set_message(format!(
+            "node {} <- version {}",
+            node.id, header.table_version
+        ));
+        // The transfer's time, first frame to last (what the node's time budget for a transfer
+        // counts: 1 s + 10 ms per consecutive frame), not the wait for its answer.
+        let mut first_frame: Option<Instant> = None;
+        let mut transferred: Option<Duration> = None;
+        let mut progress = |sent: usize, total: usize| {
+            let now = Instant::now();
+            let started = *first_frame.get_or_insert(now);
+            if sent >= total {
+                transferred = Some(now - started);
+            }
+            bar.set_position(sent as u64);
+        };
+        let outcome = match &credentials {
+            Some(credentials) => push::push_authenticated(
+                bus.as_mut(),
+                node.id,
+                &node.image,
+                &header,
+                credentials,
+                push::Timeouts::default(),
+                &mut progress,
+            ),
+            None => push::push(
+                bus.as_mut(),
+                node.id,
+                &node.image,
+                &header,
+                push::Timeouts::default(),
+                &mut progress,
+            ),
+        }
+        .map_err(bus_failure(iface))?;
+        bar.finish_and_clear();
+        let mark = if outcome.is_success() { "ok" } else { "FAILED" };
+        let took = transferred.map_or(String::new(), |d| format!(" in {} ms", d.as_millis()));
+        println!(
+            "{:>10}  node {:>3}  {} bytes{took}  {mark}: {outcome}",
+            node.name,
+            node.id,
+            node.image.len()
+        );
+        if !outcome.is_success() {
+            failures += 1;
+        }
+    }
+    if failures > 0 {
+        return Err(Failure::Bus(format!(
+            "{failures} node{} did not take the new table",
+            plural(failures)
+        )));
+    }
+    Ok(())
+}
