@@ -28,13 +28,13 @@ impl Failure {
     pub fn report(self) -> ExitCode {
         match self {
             Failure::Inconsistent(errors) => {
-                for error in &errors {
-                    eprintln!("{}\n", error.render(colour()));
-                }
+                // Capped like any list of errors: an inconsistent network of many nodes repeats
+                // one counterexample per port and connection.
+                let count = errors.len();
+                eprintln!("{}\n", Diagnostics(errors).render(colour()));
                 eprintln!(
-                    "the rules are inconsistent: {} error{}",
-                    errors.len(),
-                    if errors.len() == 1 { "" } else { "s" }
+                    "the rules are inconsistent: {count} error{}",
+                    if count == 1 { "" } else { "s" }
                 );
                 ExitCode::from(1)
             }
