@@ -26,6 +26,7 @@ from __future__ import annotations
 import collections
 import queue
 import struct
+import math
 import threading
 import time
 from dataclasses import dataclass
@@ -95,6 +96,30 @@ class Timeout(ClientError):
     """No answer in time (no flow control, no SchemaAck, no transition or state)."""
 
 
+class InvalidArgument(ClientError, ValueError):
+    """An argument the client refuses before it sends anything: a timeout that is not a
+    number of seconds in [0, MAX_SECONDS], a node or stop number out of range, ... (a
+    :class:`ValueError` too, so ``except ValueError`` still catches it)."""
+
+
+#: The longest timeout the client takes, in seconds (about 11.6 days, the network file's
+#: longest time): a longer one is a unit mistake (milliseconds given as seconds).
+MAX_SECONDS = 1_000_000.0
+
+
+def _seconds(name: str, value: Any, optional: bool = False) -> Optional[float]:
+    """`value` as a timeout in seconds, or :class:`InvalidArgument`. ``None`` passes where the
+    method waits without bound. NaN and infinities are refused: ``wait(nan)`` never returns in
+    ``threading.Condition``, and a deadline of ``inf`` is no deadline."""
+    if value is None and optional:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InvalidArgument(f"{name} = {value!r}: a number of seconds")
+    if not math.isfinite(value) or not 0 <= value <= MAX_SECONDS:
+        raise InvalidArgument(f"{name} = {value!r}: seconds, 0 to {MAX_SECONDS:g}")
+    return float(value)
+
+
 @dataclass(frozen=True)
 class Ended:
     """How a schema of the client's ended (:meth:`Client.wait_finished`)."""
@@ -153,14 +178,14 @@ class Client:
         first_id: int = FIRST_ID,
     ) -> None:
         if not 1 <= node <= 127:
-            raise ValueError(f"node {node}: nodes are 1..=127")
+            raise InvalidArgument(f"node {node}: nodes are 1..=127")
         if key is not None and (len(key) != 16 or source != TOOL):
-            raise ValueError("a key is 16 bytes (pab_client.auth.read_key), and a node with a key "
+            raise InvalidArgument("a key is 16 bytes (pab_client.auth.read_key), and a node with a key "
                              "takes schemas from the tool (source 0) only")
         if not 0 <= source <= 127:
-            raise ValueError(f"source {source}: 0 (the tool) or a node, 1..=127")
+            raise InvalidArgument(f"source {source}: 0 (the tool) or a node, 1..=127")
         if not FIRST_ID <= first_id <= LAST_ID:
-            raise ValueError(f"first_id {first_id}: ids are {FIRST_ID}..={LAST_ID:#06x}")
+            raise InvalidArgument(f"first_id {first_id}: ids are {FIRST_ID}..={LAST_ID:#06x}")
         self.bus = bus
         self.node = node
         self.source = source
@@ -345,6 +370,7 @@ class Client:
         stop (``StopNotAcknowledged``), so a schema sent before an operator's stop never undoes
         it. Without `stop`, the latest stop number the node reported, waiting up to `timeout` s
         for a SchemaState if none came yet (:class:`Timeout`). Returns the number."""
+        timeout = _seconds("timeout", timeout)
         if stop is None:
             with self._cond:
                 if self._stop_seen is None and not self._cond.wait_for(
@@ -353,7 +379,7 @@ class Client:
                     raise Timeout(f"node {self.node}: no SchemaState in {timeout} s")
                 stop = self._stop_seen
         if not 0 <= stop < STOP_NUMBERS:
-            raise ValueError(f"stop number {stop}: 0..{STOP_NUMBERS - 1}")
+            raise InvalidArgument(f"stop number {stop}: 0..{STOP_NUMBERS - 1}")
         with self._cond:
             self._stop_acknowledged = stop
         return stop
@@ -418,6 +444,7 @@ class Client:
         """Sends one SchemaTransfer message (with a key: after a challenge and its open, with
         its MAC) and waits for its SchemaAck, the one naming `sid` (or NO_ID), and with a key
         its Receipt. `before` runs under the reports' lock before anything is sent."""
+        timeout = _seconds("timeout", timeout)
         deadline = time.monotonic() + timeout
         with self._transfer_lock:
             with self._cond:
@@ -526,6 +553,9 @@ class Client:
         starts after `timeout` s. Raises :class:`Timeout` (its ``__cause__`` the last
         :class:`Refused`) when there was no room by then, :class:`Refused` for any other
         refusal."""
+        timeout = _seconds("timeout", timeout)
+        ack_timeout = _seconds("ack_timeout", ack_timeout)
+        retry_s = _seconds("retry_s", retry_s)
         deadline = time.monotonic() + timeout
         while True:
             with self._cond:
@@ -550,8 +580,16 @@ class Client:
                 ) from last
 
     def _build_and_install(
-        self, schema: s.Schema, high_priority: bool, timeout: float, wait_for_room: Optional[float]
+        self,
+        make: Callable[[int], s.Schema],
+        high_priority: bool,
+        timeout: float,
+        wait_for_room: Optional[float],
     ) -> SchemaAck:
+        # Checked before the schema takes an id: a refused argument leaves the ids as they were.
+        _seconds("timeout", timeout)
+        _seconds("wait_for_room", wait_for_room, optional=True)
+        schema = make(self.next_id())
         if wait_for_room is None:
             return self.install(schema, high_priority, timeout)
         return self.install_when_room(
@@ -574,8 +612,12 @@ class Client:
     ) -> SchemaAck:
         """The attractor to `goal` (µm, µrad) at `speed` µm/s:
         :func:`pab_client.schema.move_to`."""
-        sc = s.move_to(self.next_id(), goal, speed, watchdog_ms=watchdog_ms)
-        return self._build_and_install(sc, high_priority, timeout, wait_for_room)
+        return self._build_and_install(
+            lambda sid: s.move_to(sid, goal, speed, watchdog_ms=watchdog_ms),
+            high_priority,
+            timeout,
+            wait_for_room,
+        )
 
     def move_to_touch(
         self,
@@ -591,10 +633,14 @@ class Client:
     ) -> SchemaAck:
         """Along `direction` at `speed` µm/s until `contact` mN, at most `distance` µm:
         :func:`pab_client.schema.move_to_touch`."""
-        sc = s.move_to_touch(
-            self.next_id(), direction, speed, contact, distance, watchdog_ms=watchdog_ms
+        return self._build_and_install(
+            lambda sid: s.move_to_touch(
+                sid, direction, speed, contact, distance, watchdog_ms=watchdog_ms
+            ),
+            high_priority,
+            timeout,
+            wait_for_room,
         )
-        return self._build_and_install(sc, high_priority, timeout, wait_for_room)
 
     def grasp(
         self,
@@ -606,8 +652,12 @@ class Client:
         wait_for_room: Optional[float] = None,
     ) -> SchemaAck:
         """Close the gripper, `settle_ms` ms: :func:`pab_client.schema.grasp`."""
-        sc = s.grasp(self.next_id(), settle_ms, watchdog_ms=watchdog_ms)
-        return self._build_and_install(sc, high_priority, timeout, wait_for_room)
+        return self._build_and_install(
+            lambda sid: s.grasp(sid, settle_ms, watchdog_ms=watchdog_ms),
+            high_priority,
+            timeout,
+            wait_for_room,
+        )
 
     def release(
         self,
@@ -619,8 +669,12 @@ class Client:
         wait_for_room: Optional[float] = None,
     ) -> SchemaAck:
         """Open the gripper, `settle_ms` ms: :func:`pab_client.schema.release`."""
-        sc = s.release(self.next_id(), settle_ms, watchdog_ms=watchdog_ms)
-        return self._build_and_install(sc, high_priority, timeout, wait_for_room)
+        return self._build_and_install(
+            lambda sid: s.release(sid, settle_ms, watchdog_ms=watchdog_ms),
+            high_priority,
+            timeout,
+            wait_for_room,
+        )
 
     def blind_search(
         self,
@@ -639,18 +693,14 @@ class Client:
     ) -> SchemaAck:
         """The spiral search under preload until the part drops `depth` µm:
         :func:`pab_client.schema.blind_search` (µm, µm/s, µrad, ms)."""
-        sc = s.blind_search(
-            self.next_id(),
-            preload,
-            pitch,
-            speed,
-            radius,
-            wobble,
-            wobble_ms,
-            depth,
-            watchdog_ms=watchdog_ms,
+        return self._build_and_install(
+            lambda sid: s.blind_search(
+                sid, preload, pitch, speed, radius, wobble, wobble_ms, depth, watchdog_ms=watchdog_ms
+            ),
+            high_priority,
+            timeout,
+            wait_for_room,
         )
-        return self._build_and_install(sc, high_priority, timeout, wait_for_room)
 
     def idle(
         self,
@@ -663,8 +713,12 @@ class Client:
     ) -> SchemaAck:
         """Hold the command `ms` ms (0: until aborted or replaced):
         :func:`pab_client.schema.idle`."""
-        sc = s.idle(self.next_id(), ms, watchdog_ms=watchdog_ms)
-        return self._build_and_install(sc, high_priority, timeout, wait_for_room)
+        return self._build_and_install(
+            lambda sid: s.idle(sid, ms, watchdog_ms=watchdog_ms),
+            high_priority,
+            timeout,
+            wait_for_room,
+        )
 
     def open_gripper(self, **kwargs: Any) -> SchemaAck:
         """Open the gripper at once (the network file's ``open()``)."""
@@ -691,8 +745,12 @@ class Client:
         timeout: float = 1.0,
         wait_for_room: Optional[float] = None,
     ) -> SchemaAck:
-        sc = build(self.next_id(), *args, watchdog_ms=watchdog_ms)
-        return self._build_and_install(sc, high_priority, timeout, wait_for_room)
+        return self._build_and_install(
+            lambda sid: build(sid, *args, watchdog_ms=watchdog_ms),
+            high_priority,
+            timeout,
+            wait_for_room,
+        )
 
     # -- stopping -----------------------------------------------------------------------------
 
@@ -716,6 +774,7 @@ class Client:
     def status(self, timeout: Optional[float] = None) -> Optional[SchemaState]:
         """The node's latest SchemaState (None before the first). With a `timeout`, waits for
         the next one received after the call instead (:class:`Timeout` if none comes)."""
+        timeout = _seconds("timeout", timeout, optional=True)
         with self._cond:
             if timeout is None:
                 return self._state
@@ -734,6 +793,7 @@ class Client:
         """Waits until schema `sid` is installed (it appears as a transition's `installed`);
         returns that transition. Counts transitions since its install (or since the client
         started, for a schema it did not send)."""
+        timeout = _seconds("timeout", timeout, optional=True)
         with self._cond:
             if not self._cond.wait_for(lambda: sid in self._started, timeout):
                 raise Timeout(f"node {self.node}: schema {sid:#06x} not started in {timeout} s")
@@ -743,6 +803,7 @@ class Client:
         """Waits until schema `sid` ends (it appears as a transition's `ended`) and says how: its
         own reaction (which one, and its event), the high-priority channel, an abort or a safety
         event. A schema still in the queue when the server stops never ends: use a timeout."""
+        timeout = _seconds("timeout", timeout, optional=True)
         with self._cond:
             if not self._cond.wait_for(lambda: sid in self._ended, timeout):
                 raise Timeout(f"node {self.node}: schema {sid:#06x} not finished in {timeout} s")
@@ -759,6 +820,8 @@ __all__ = [
     "Client",
     "client_filters",
     "ClientError",
+    "InvalidArgument",
+    "MAX_SECONDS",
     "Refused",
     "Timeout",
     "Ended",

@@ -4,6 +4,7 @@ flow control every block, consecutive frames in sequence, padding), answers Sche
 firmware/app/src/schema.rs does, and sends the transitions and states a test asks for."""
 
 import itertools
+import math
 import threading
 import time
 from typing import Callable, List, Optional, Tuple
@@ -11,7 +12,17 @@ from typing import Callable, List, Optional, Tuple
 import can
 import pytest
 
-from pab_client import Client, ClientError, Refused, Timeout, auth, client_filters, schema as s
+from pab_client import (
+    MAX_SECONDS,
+    Client,
+    ClientError,
+    InvalidArgument,
+    Refused,
+    Timeout,
+    auth,
+    client_filters,
+    schema as s,
+)
 from pab_client import protocol as p
 from pab_client.protocol import (
     SchemaAck,
@@ -642,4 +653,40 @@ def test_a_key_is_sixteen_bytes_and_speaks_as_the_tool():
         with pytest.raises(ValueError):
             Client(bus, NODE, source=3, key=KEY)
     finally:
+        bus.shutdown()
+
+
+def test_timeouts_are_seconds_checked_before_anything_is_sent():
+    # A NaN timeout never returns from threading.Condition.wait: refused at once, like an
+    # infinite one, a negative one, a string and a bool; nothing reaches the bus and no id is
+    # used up.
+    bus = can.Bus(interface="virtual", channel="pab-client-timeouts")
+    listener = can.Bus(interface="virtual", channel="pab-client-timeouts")
+    try:
+        with Client(bus, NODE) as client:
+            first = client.next_id()
+            calls = {
+                "move_to": lambda t: client.move_to((0, 0, 100), timeout=t),
+                "install": lambda t: client.install(s.idle(first, 10), timeout=t),
+                "install_when_room": lambda t: client.install_when_room(s.idle(first, 10), retry_s=t),
+                "acknowledge_stop": lambda t: client.acknowledge_stop(timeout=t),
+                "status": lambda t: client.status(timeout=t),
+                "wait_started": lambda t: client.wait_started(first, timeout=t),
+                "wait_finished": lambda t: client.wait_finished(first, timeout=t),
+            }
+            for name, call in calls.items():
+                for bad in (math.nan, math.inf, -1.0, MAX_SECONDS * 2, "1", True):
+                    started = time.monotonic()
+                    with pytest.raises(InvalidArgument, match="seconds"):
+                        call(bad)
+                    assert time.monotonic() - started < 0.5, (name, bad)
+            # Still a ValueError and a ClientError for code that catches those.
+            with pytest.raises(ValueError):
+                client.status(timeout=math.nan)
+            with pytest.raises(ClientError):
+                client.status(timeout=math.nan)
+            assert listener.recv(timeout=0.1) is None
+            assert client.next_id() == first + 1
+    finally:
+        listener.shutdown()
         bus.shutdown()
