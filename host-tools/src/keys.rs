@@ -3,7 +3,9 @@
 //!
 //! A key file holds 32 hexadecimal characters (128 bits) and an optional trailing newline.
 //! Whoever can read it can configure the node: `keygen` creates it readable by its owner only
-//! (mode 0600) and never overwrites one.
+//! (mode 0600) and never overwrites one, and a key file that its group or other users may read
+//! is refused, as ssh refuses such a private key: a key that leaked is no key. So is a key of
+//! zeros, the value a forgotten placeholder has.
 
 use std::fs::OpenOptions;
 use std::io::{Read, Write};
@@ -12,11 +14,40 @@ use std::path::Path;
 
 use pab_core::auth::{KEY_LEN, Key, page};
 
-/// Reads a key file. The error names the file and the cause.
+/// The largest key file read: 32 characters and a line end, with room for a comment-less
+/// editor's habits; a larger file is not a key file.
+const MAX_KEY_FILE: u64 = 256;
+
+/// Reads a key file: a regular file of at most 256 bytes, readable by its owner only, holding a
+/// key that is not all zeros. The error says the cause and what to do, without the path (the
+/// caller's diagnostic names the file).
 pub fn read(path: &Path) -> Result<Key, String> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|error| format!("{}: cannot read the key file: {error}", path.display()))?;
-    Key::from_hex(&text).map_err(|error| format!("{}:1: {error}", path.display()))
+    use std::os::unix::fs::PermissionsExt;
+    pab_lang::input::regular_file(path, "key file", MAX_KEY_FILE)
+        .map_err(|diagnostic| diagnostic.message)?;
+    let mode = std::fs::metadata(path)
+        .map_err(|error| format!("cannot read the key file: {error}"))?
+        .permissions()
+        .mode();
+    if mode & 0o077 != 0 {
+        return Err(format!(
+            "mode {:04o} lets other users read the key: `chmod 600 {}` (and make a new key if \
+             someone may have read it)",
+            mode & 0o7777,
+            path.display()
+        ));
+    }
+    let text = pab_lang::input::read_text(path, "key file", MAX_KEY_FILE)
+        .map_err(|diagnostic| diagnostic.message)?;
+    let key = Key::from_hex(&text).map_err(|error| format!("line 1: {error}"))?;
+    if key == Key::from_bytes([0; KEY_LEN]) {
+        return Err(
+            "the key is all zeros, a placeholder rather than a secret: make one with `pabctl \
+             keygen -o FILE`"
+                .to_string(),
+        );
+    }
+    Ok(key)
 }
 
 /// A new random key, from the operating system's random source.
@@ -60,6 +91,12 @@ pub fn page_image(key: &Key) -> [u8; page::LEN] {
 mod tests {
     use super::*;
 
+    fn key_file(path: &Path, text: &[u8], mode: u32) {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::write(path, text).unwrap();
+        std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode)).unwrap();
+    }
+
     #[test]
     fn keygen_writes_a_private_file_once_and_it_reads_back() {
         use std::os::unix::fs::PermissionsExt;
@@ -77,8 +114,21 @@ mod tests {
         assert_eq!(read(&path).unwrap(), key, "the first key is kept");
         std::fs::write(&path, "xyz\n").unwrap();
         let error = read(&path).unwrap_err();
+        assert!(error.contains("line 1: a key is 32 hexadecimal"), "{error}");
+        // Readable by the group: refused, whatever the key.
+        key_file(&path, &key.to_hex(), 0o640);
+        let error = read(&path).unwrap_err();
         assert!(
-            error.contains("node.key:1: a key is 32 hexadecimal"),
+            error.starts_with("mode 0640 lets other users read the key: `chmod 600"),
+            "{error}"
+        );
+        key_file(&path, &[b'0'; 32], 0o600);
+        let error = read(&path).unwrap_err();
+        assert!(error.starts_with("the key is all zeros"), "{error}");
+        // Not a file: refused before it is opened.
+        let error = read(Path::new("/dev/zero")).unwrap_err();
+        assert!(
+            error.starts_with("a character device is not a regular file"),
             "{error}"
         );
         assert_ne!(generate().unwrap(), generate().unwrap());

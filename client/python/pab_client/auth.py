@@ -12,6 +12,7 @@ The CMAC is the `cryptography` package's (OpenSSL's).
 
 from __future__ import annotations
 
+import stat
 import struct
 from pathlib import Path
 
@@ -27,17 +28,38 @@ OPEN_SCHEMA = 0x02
 OPEN_TAG_LEN, IMAGE_MAC_LEN, RECEIPT_TAG_LEN = 5, 16, 8
 
 
+class KeyFileError(ValueError):
+    """A key file that is refused: not a regular file, readable by others, malformed, or a key
+    of zeros (a placeholder)."""
+
+
 def read_key(path: "str | Path") -> bytes:
-    """A key file's 16 bytes: 32 hexadecimal characters, optionally one newline after them."""
-    text = Path(path).read_text()
+    """A key file's 16 bytes: 32 hexadecimal characters, optionally one newline after them. As
+    pabctl's: a regular file of at most 256 bytes, readable by its owner only, not all zeros;
+    :class:`KeyFileError` otherwise."""
+    path = Path(path)
+    try:
+        info = path.stat()
+    except OSError as error:
+        raise KeyFileError(f"{path}: cannot read the key file: {error.strerror}") from None
+    if not stat.S_ISREG(info.st_mode) or info.st_size > 256:
+        raise KeyFileError(f"{path}: not a key file (a regular file of 32 hexadecimal characters)")
+    if info.st_mode & 0o077:
+        raise KeyFileError(
+            f"{path}: mode {info.st_mode & 0o7777:04o} lets other users read the key: chmod 600 {path}"
+        )
+    text = path.read_text()
     if text.endswith("\n"):
         text = text[:-1].removesuffix("\r")
     if len(text) != 32:
-        raise ValueError(f"{path}: a key is 32 hexadecimal characters (128 bits), this has {len(text)}")
+        raise KeyFileError(f"{path}: a key is 32 hexadecimal characters (128 bits), this has {len(text)}")
     try:
-        return bytes.fromhex(text)
+        key = bytes.fromhex(text)
     except ValueError:
-        raise ValueError(f"{path}: a key is 32 of 0-9, a-f") from None
+        raise KeyFileError(f"{path}: a key is 32 of 0-9, a-f") from None
+    if key == bytes(16):
+        raise KeyFileError(f"{path}: the key is all zeros, a placeholder rather than a secret")
+    return key
 
 
 def cmac(key: bytes, *parts: bytes) -> bytes:

@@ -33,10 +33,21 @@ def test_rfc_4493_example_2():
 def test_key_files(tmp_path):
     path = tmp_path / "node.key"
     path.write_text("00112233445566778899aabbccddeeff\n")
+    path.chmod(0o600)
     assert auth.read_key(path) == bytes.fromhex("00112233445566778899aabbccddeeff")
     path.write_text("0011\n")
-    with pytest.raises(ValueError, match="32 hexadecimal"):
+    with pytest.raises(auth.KeyFileError, match="32 hexadecimal"):
         auth.read_key(path)
     path.write_text("zz" * 16)
     with pytest.raises(ValueError):
         auth.read_key(path)
+    # A key of zeros is a placeholder; a key others may read is no key; a device is no file.
+    path.write_text("0" * 32 + "\n")
+    with pytest.raises(auth.KeyFileError, match="all zeros"):
+        auth.read_key(path)
+    path.write_text("00112233445566778899aabbccddeeff\n")
+    path.chmod(0o644)
+    with pytest.raises(auth.KeyFileError, match="mode 0644 lets other users read the key"):
+        auth.read_key(path)
+    with pytest.raises(auth.KeyFileError, match="not a key file"):
+        auth.read_key("/dev/zero")
