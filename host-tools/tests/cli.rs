@@ -1319,3 +1319,60 @@ fn sim_draws_the_schema_plot_as_svg() {
         assert!(texts.iter().any(|t| t == expected), "{expected}: {texts:?}");
     }
 }
+
+#[test]
+fn inputs_that_are_no_files_are_refused_at_once_and_repeated_errors_are_counted() {
+    let dir = tempfile::tempdir().unwrap();
+    // A FIFO without a writer: opening it would block forever; pabctl does not open it.
+    let fifo = dir.path().join("net.toml");
+    assert!(
+        Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success()
+    );
+    let output = pabctl(&["check", fifo.to_str().unwrap()]);
+    assert_eq!(output.status.code(), Some(2));
+    assert!(
+        text(&output.stderr).contains("error: a FIFO (named pipe) is not a regular file"),
+        "{}",
+        text(&output.stderr)
+    );
+    // /dev/zero as a capture: refused before a byte is read.
+    let output = pabctl(&["replay", &example("figure-1.toml"), "/dev/zero"]);
+    assert_eq!(output.status.code(), Some(2));
+    assert!(
+        text(&output.stderr)
+            .starts_with("/dev/zero: error: a character device is not a regular file"),
+        "{}",
+        text(&output.stderr)
+    );
+    // 10 000 connections of one topic on one port: 9 999 errors of one message, three shown.
+    let mut network =
+        String::from("[nodes.a]\nid = 1\n[topics.t]\ncan_id = 0x100\n[ports.\"a.p\"]\n");
+    for index in 0..10_000 {
+        network.push_str(&format!(
+            "[connections.C{index}]\ntopic = \"t\"\nport = \"a.p\"\nst = 1.0\ntc = 1.0\n"
+        ));
+    }
+    let path = dir.path().join("big.toml");
+    std::fs::write(&path, network).unwrap();
+    let output = pabctl(&["check", path.to_str().unwrap()]);
+    assert_eq!(output.status.code(), Some(2));
+    let stderr = text(&output.stderr);
+    assert_eq!(
+        stderr
+            .matches("error: topic `t` is already connected")
+            .count(),
+        3,
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains(
+            "… 9996 more errors not shown: 9996 × topic `t` is already connected to port `a.p` by `C0`"
+        ),
+        "{stderr}"
+    );
+    assert!(stderr.ends_with("9999 errors\n"), "{stderr}");
+}
