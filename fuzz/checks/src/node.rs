@@ -31,7 +31,7 @@
 
 use arbitrary::{Result, Unstructured};
 use embedded_can::{ExtendedId, Id, StandardId};
-use pab_app::{BusError, Config, Consumer, Node, Step};
+use pab_app::{BusError, Config, Node, Recipient, Step};
 use pab_core::image::{self, LoadError, Loaded};
 use pab_core::isotp::{Sender, TxConfig, TxEvent};
 use pab_core::protocol::{self, FrameId, Message, Service, TransferStatus, TransferStatusCode};
@@ -114,7 +114,7 @@ fn documented_status(bytes: &[u8], running: Option<(u32, u32)>) -> (TransferStat
 #[derive(Default)]
 struct Ports(Vec<u8>);
 
-impl Consumer for Ports {
+impl Recipient for Ports {
     fn deliver(&mut self, port: u8, _frame: &Frame, _now: Instant) {
         self.0.push(port);
     }
