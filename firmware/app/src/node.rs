@@ -16,9 +16,9 @@ use pab_core::hbba::filters::CommandError;
 use pab_core::image::{self, Header, LoadError};
 use pab_core::isotp::{self, Pci, RxError, RxEvent};
 use pab_core::protocol::{
-    self, AuthFailure, Errors, Exploitation, FaultCode, FilterStatus, FrameId, Heartbeat, Message,
-    NodeState, OPEN_REPLACE, STORE_UNREADABLE, Service, StoreFailure, TableStatus, Traffic,
-    TransferOpen, TransferStatus, TransferStatusCode,
+    self, AuthFailure, Errors, Exploitation, FaultCode, FilterStatus, FrameId, FrameKind,
+    Heartbeat, Message, NodeState, OPEN_REPLACE, STORE_UNREADABLE, Service, StoreFailure,
+    TableStatus, Traffic, TransferOpen, TransferStatus, TransferStatusCode,
 };
 use pab_core::{Arbiter, Combined, Frame, Instant, MAX_VALUE_PORTS, PortVerdict, Refused};
 use pab_storage::StoreError;
@@ -344,33 +344,37 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         recipient: &mut impl Recipient,
     ) -> Step {
         self.counters.received = self.counters.received.wrapping_add(1);
-        let step = if protocol::is_ours(&frame.id()) {
-            if is_claim(frame) {
+        let step = match protocol::classify(frame) {
+            FrameKind::Claim => {
                 self.on_claim_frame(frame, now);
                 Step::Continue
-            } else {
+            }
+            // An unknown service goes the same way: the decoder refuses it as not ours, and
+            // the node neither counts nor answers it.
+            FrameKind::Service(_) | FrameKind::UnknownService => {
                 // A new table runs (`Store`): its save now or when its turn comes.
                 match self.on_protocol_frame(frame, now) {
                     Step::Store => self.schedule_store(now),
                     Step::Continue => Step::Continue,
                 }
             }
-        } else {
-            // The drive's pose and wrench are topics too: read by the schema server, and
-            // arbitrated like any frame.
-            #[cfg(feature = "schema")]
-            if self.schema_on
-                && let Some(runtime) = self.schema.as_mut()
-            {
-                runtime.on_drive_frame(frame, now);
+            FrameKind::Topic => {
+                // The drive's pose and wrench are topics too: read by the schema server, and
+                // arbitrated like any frame.
+                #[cfg(feature = "schema")]
+                if self.schema_on
+                    && let Some(runtime) = self.schema.as_mut()
+                {
+                    runtime.on_drive_frame(frame, now);
+                }
+                self.arbitrate(frame, now, recipient);
+                if let Some(arbiter) = self.arbiter.as_mut()
+                    && arbiter.observes_frames()
+                {
+                    arbiter.observe(frame, now);
+                }
+                Step::Continue
             }
-            self.arbitrate(frame, now, recipient);
-            if let Some(arbiter) = self.arbiter.as_mut()
-                && arbiter.observes_frames()
-            {
-                arbiter.observe(frame, now);
-            }
-            Step::Continue
         };
         self.values_due(now, recipient);
         self.duties(now);
@@ -1808,10 +1812,4 @@ pub fn status_of<T>(error: &LoadError<T>) -> (TransferStatusCode, u8) {
         LoadError::Table(_) => (TransferStatusCode::InvalidTable, 3),
         LoadError::ExceedsCapacity { .. } => (TransferStatusCode::InvalidTable, 4),
     }
-}
-
-/// Whether `frame` is a BLE claim (an extended identifier of ours with the claim bit).
-#[inline]
-fn is_claim(frame: &Frame) -> bool {
-    matches!(frame.id(), embedded_can::Id::Extended(id) if ble::is_claim_id(id.as_raw()))
 }
