@@ -16,6 +16,7 @@ use crate::protocol::{
 /// Why a frame in our identifier space was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum DecodeError {
     /// Not one of our identifiers (standard, other marker or unknown service).
     NotOurs,
@@ -66,6 +67,8 @@ impl core::fmt::Display for DecodeError {
         }
     }
 }
+
+impl core::error::Error for DecodeError {}
 
 /// The little-endian `u32` at `at` of a padded payload (`at` + 4 <= 8 at every call).
 fn u32_at(data: &[u8; 8], at: usize) -> u32 {
