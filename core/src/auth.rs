@@ -57,6 +57,7 @@ impl core::fmt::Debug for Key {
 
 /// Why a key file's text was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum KeyTextError {
     /// Not 32 characters (after an optional trailing newline): the length found.
     Length(usize),
@@ -79,6 +80,8 @@ impl core::fmt::Display for KeyTextError {
         }
     }
 }
+
+impl core::error::Error for KeyTextError {}
 
 impl Key {
     /// A key from its bytes.
@@ -316,6 +319,7 @@ pub mod page {
     /// Why a key page was refused.
     #[derive(Clone, Copy, Debug, PartialEq, Eq)]
     #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+    #[non_exhaustive]
     pub enum PageError {
         /// Fewer than [`LEN`] bytes.
         Truncated,
@@ -328,6 +332,20 @@ pub mod page {
         /// The CRC does not match.
         Crc,
     }
+
+    impl core::fmt::Display for PageError {
+        fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+            match self {
+                PageError::Truncated => write!(f, "key page shorter than {LEN} bytes"),
+                PageError::BadMagic => f.write_str("key page neither erased nor with its magic"),
+                PageError::UnsupportedFormat => f.write_str("key page of an unknown format"),
+                PageError::Reserved => f.write_str("key page with a reserved byte set"),
+                PageError::Crc => f.write_str("key page whose CRC does not match"),
+            }
+        }
+    }
+
+    impl core::error::Error for PageError {}
 
     impl PageError {
         /// The number reported in the `KeyPageInvalid` fault's detail byte 0.

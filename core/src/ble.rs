@@ -70,6 +70,8 @@ pub struct Claim {
     pub eligibility: u16,
 }
 
+// Not `#[non_exhaustive]`: the fuzz check's reference decoder (fuzz/checks/src/ble.rs) names
+// every variant, so that a new check of the frame gets its reference and its coverage.
 /// Why a frame is not a valid claim.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -100,6 +102,8 @@ impl core::fmt::Display for ClaimError {
         })
     }
 }
+
+impl core::error::Error for ClaimError {}
 
 /// Whether a raw 29-bit extended identifier is a claim's (ours, with the claim bit set), whatever
 /// its other bits. Costs a mask and a compare.
@@ -170,6 +174,7 @@ impl Claim {
 /// Why a group's state was refused or a claim not kept.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum BleError {
     /// A period of 0 µs, or one whose freshness (two periods) overflows.
     BadPeriod,
@@ -192,6 +197,8 @@ impl core::fmt::Display for BleError {
         })
     }
 }
+
+impl core::error::Error for BleError {}
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -492,6 +499,7 @@ pub struct Group {
 /// Why a group of a table was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum GroupError {
     /// A period of 0 or above [`MAX_PERIOD_US`].
     Period,
@@ -556,6 +564,8 @@ impl core::fmt::Display for GroupError {
         }
     }
 }
+
+impl core::error::Error for GroupError {}
 
 impl Group {
     /// Checks what the group says by itself, for a table of `ports` ports and room for

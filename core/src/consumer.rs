@@ -45,6 +45,8 @@ pub struct OutputId {
     extended: bool,
 }
 
+// Not `#[non_exhaustive]`: an identifier is standard or extended: there is no third way to be too
+// wide.
 /// Why an [`OutputId`] was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -69,6 +71,8 @@ impl core::fmt::Display for OutputIdError {
         }
     }
 }
+
+impl core::error::Error for OutputIdError {}
 
 impl OutputId {
     /// The identifier `raw`, extended (29-bit) or standard (11-bit). Fails if `raw` does not fit.

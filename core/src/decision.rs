@@ -141,6 +141,7 @@ pub struct DecisionNode {
     pub high: NodeRef,
 }
 
+// Not `#[non_exhaustive]`: the compiler's diagnostics (lang/src/compile.rs) name each variant.
 /// Why a port's decision diagram was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -177,6 +178,8 @@ impl core::fmt::Display for DecisionError {
         }
     }
 }
+
+impl core::error::Error for DecisionError {}
 
 /// Checks a port's diagram: `nodes` are the port's nodes, `root` its entry and `connections` the
 /// number of connections on the port. Costs one pass over the nodes.

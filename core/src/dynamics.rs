@@ -167,6 +167,8 @@ pub enum Time {
     Memory(u8),
 }
 
+// Not `#[non_exhaustive]`: the compiler's diagnostics (lang/src/network/dynamics.rs) explain each
+// variant.
 /// Why a group's parameters are refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -268,6 +270,8 @@ impl core::fmt::Display for ParamsError {
         }
     }
 }
+
+impl core::error::Error for ParamsError {}
 
 impl Default for Params {
     fn default() -> Self {

@@ -123,6 +123,7 @@ pub(crate) fn key_of(frame: &Id) -> u32 {
 /// Why a filter was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum FilterError {
     /// The identifier does not fit 11 bits (standard) or 29 bits (extended).
     IdTooWide,
@@ -147,6 +148,8 @@ impl core::fmt::Display for FilterError {
         })
     }
 }
+
+impl core::error::Error for FilterError {}
 
 crate::wire::decode_struct!(Filter { id, mask, extended });
 

@@ -100,6 +100,8 @@ pub struct TableSize {
     pub nodes: usize,
 }
 
+// Not `#[non_exhaustive]`: a node maps each variant to its own TransferStatus detail (pab-app's
+// `status_of`).
 /// Why an image was refused; a table that breaks a rule is told by the verdict `T` (see
 /// [`Verdict`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -201,9 +203,12 @@ impl<T: core::fmt::Display> core::fmt::Display for LoadError<T> {
     }
 }
 
+impl<T: core::fmt::Debug + core::fmt::Display> core::error::Error for LoadError<T> {}
+
 /// Why an image could not be written.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum EncodeError {
     /// The output buffer is too small.
     BufferTooSmall,
@@ -222,6 +227,8 @@ impl core::fmt::Display for EncodeError {
         }
     }
 }
+
+impl core::error::Error for EncodeError {}
 
 /// Header bytes 0..16, the part before the CRC.
 fn covered_header(node_id: u8, table_version: u32, body_len: u32) -> [u8; 16] {

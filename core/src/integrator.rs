@@ -95,6 +95,8 @@ fn micros_from_seconds(seconds: f64) -> Option<u32> {
     }
 }
 
+// Not `#[non_exhaustive]`: the compiler's diagnostics (lang/src/network.rs) point at each variant's
+// own field.
 /// Why stimulation parameters were refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -120,6 +122,8 @@ impl core::fmt::Display for ParamError {
         }
     }
 }
+
+impl core::error::Error for ParamError {}
 
 /// What a frame did to a connection.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -101,6 +101,7 @@ impl Gain {
 /// Why a gain was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum GainError {
     /// Not a number in (0, 1].
     NotInRange,
@@ -118,6 +119,8 @@ impl core::fmt::Display for GainError {
         }
     }
 }
+
+impl core::error::Error for GainError {}
 
 impl crate::wire::Decode for Gain {
     fn decode(r: &mut crate::wire::Reader<'_>) -> Self {

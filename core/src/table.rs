@@ -115,6 +115,7 @@ pub struct Table<
 /// port.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum TableError {
     /// More ports than the table's capacity `PORTS`.
     TooManyPorts,
@@ -260,6 +261,8 @@ impl core::fmt::Display for TableError {
         }
     }
 }
+
+impl core::error::Error for TableError {}
 
 /// What the table's checks ([`Table::check`]) return for a table they refuse: [`TableError`],
 /// what is wrong and where, or [`Refused`], only that something is. One set of checks serves

@@ -91,6 +91,7 @@ pub struct Field {
 /// Why a [`Field`] was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum FieldError {
     /// Its size is not 1, 2 or 4.
     BadSize {
@@ -117,6 +118,8 @@ impl core::fmt::Display for FieldError {
         }
     }
 }
+
+impl core::error::Error for FieldError {}
 
 impl Field {
     /// Checks the size and that the field fits 8 bytes. One comparison or two.
@@ -264,6 +267,7 @@ pub struct ValueSpec {
 /// Why a value port was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum ValueError {
     /// The value field is invalid.
     Value(FieldError),
@@ -301,6 +305,8 @@ impl core::fmt::Display for ValueError {
         }
     }
 }
+
+impl core::error::Error for ValueError {}
 
 impl ValueSpec {
     /// Checks both fields and that the priority field is there exactly for a Priority port.

@@ -1219,8 +1219,7 @@ pub fn claims_in(
         .map(|(_, node)| node.id)
         .collect();
     for captured in &capture.frames {
-        let (raw, extended) = captured.frame.raw_id();
-        if !(extended && pab_core::ble::is_claim_id(raw)) {
+        if pab_core::protocol::classify(&captured.frame) != pab_core::protocol::FrameKind::Claim {
             continue;
         }
         let at =

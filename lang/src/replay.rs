@@ -13,7 +13,7 @@
 //!   same `pab_app::replay` code.
 //!
 //! **The project's own frames are not fed** (heartbeats, status, faults, the diagnostic stream,
-//! table transfers: every id with the protocol's marker, `pab_core::protocol::is_ours`). A node
+//! table transfers: every id with the protocol's marker, `pab_core::protocol::classify`). A node
 //! never arbitrates them (they are its protocol, not traffic), and a table transfer in the capture,
 //! a push during the recorded run, would switch a node's table in the middle of the replay: a
 //! replay evaluates the tables it is given on the application traffic. They are counted
@@ -75,7 +75,8 @@ impl Feed {
             // BLE claims, Gates and HBBA's filter commands are fed: they are how the nodes
             // coordinate (who holds a task, which behaviours' gates are open, which connections
             // the intention filters).
-            if protocol::is_ours(&captured.frame.id()) && !is_coordination(&captured.frame) {
+            let kind = protocol::classify(&captured.frame);
+            if kind.is_ours() && !is_coordination(kind) {
                 feed.protocol_frames += 1;
                 continue;
             }
@@ -223,22 +224,21 @@ pub fn job(
     Ok(out)
 }
 
-/// Whether `frame` is a BLE claim (`pab_core::ble`), a Gates frame (`pab_core::dynamics`), an
-/// HBBA filter command or a schema server's command: of our protocol, but traffic that a replay
-/// feeds.
-fn is_coordination(frame: &pab_core::Frame) -> bool {
-    let claim = matches!(frame.id(), embedded_can::Id::Extended(id) if pab_core::ble::is_claim_id(id.as_raw()));
-    claim
-        || matches!(
-            protocol::FrameId::decode(&frame.id()),
-            Some(id) if matches!(
-                id.service,
-                protocol::Service::Gates
-                    | protocol::Service::FilterSet
-                    | protocol::Service::FilterProfile
-                    | protocol::Service::EmergencyStop
-                    | protocol::Service::SchemaAbort
-                    | protocol::Service::SchemaTransfer
-            )
-        )
+/// Whether a frame of this kind is a BLE claim (`pab_core::ble`), a Gates frame
+/// (`pab_core::dynamics`), an HBBA filter command or a schema server's command: of our protocol,
+/// but traffic that a replay feeds.
+fn is_coordination(kind: protocol::FrameKind) -> bool {
+    match kind {
+        protocol::FrameKind::Claim => true,
+        protocol::FrameKind::Service(id) => matches!(
+            id.service,
+            protocol::Service::Gates
+                | protocol::Service::FilterSet
+                | protocol::Service::FilterProfile
+                | protocol::Service::EmergencyStop
+                | protocol::Service::SchemaAbort
+                | protocol::Service::SchemaTransfer
+        ),
+        protocol::FrameKind::Topic | protocol::FrameKind::UnknownService => false,
+    }
 }

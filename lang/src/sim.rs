@@ -40,7 +40,7 @@ use std::io::{self, Write};
 
 use embedded_can::{ExtendedId, Id, StandardId};
 use pab_app::replay::records;
-use pab_core::ble::{self, Claim};
+use pab_core::ble::Claim;
 use pab_core::image;
 use pab_core::{Arbiter, Frame, Instant};
 
@@ -747,6 +747,7 @@ impl Run<'_> {
     fn frame(&mut self, frame: &BusFrame) {
         let now = Instant::from_micros(frame.t_us);
         let id = frame.frame.id();
+        let kind = pab_core::protocol::classify(&frame.frame);
         for station in 0..self.stations.len() {
             if self
                 .stations
@@ -759,9 +760,7 @@ impl Run<'_> {
                 self.sample_ports_fed_by(station, &id, frame.t_us);
             }
             // A claim is a node's BLE traffic, never arbitrated: its group state keeps it.
-            if let embedded_can::Id::Extended(raw) = id
-                && ble::is_claim_id(raw.as_raw())
-            {
+            if kind == pab_core::protocol::FrameKind::Claim {
                 self.hear_claim(station, &frame.frame, frame.t_us);
                 self.ble_poll(station, frame.t_us);
                 continue;
@@ -776,7 +775,7 @@ impl Run<'_> {
             }
             // HBBA's filter commands: applied by the node they address, as a node does (a
             // refused one changes nothing); never arbitrated.
-            if pab_core::protocol::is_ours(&id) {
+            if kind.is_ours() {
                 self.filter_command(station, &frame.frame);
                 continue;
             }

@@ -277,10 +277,23 @@ pub struct SourceState {
 /// Why a gate frame was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum GateError {
     /// The group has another number of behaviours than the table says.
     Count,
 }
+
+impl core::fmt::Display for GateError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            GateError::Count => {
+                "gates of a group with another number of behaviours than the table's"
+            }
+        })
+    }
+}
+
+impl core::error::Error for GateError {}
 
 impl SourceState {
     /// A group never heard yet: gates closed, the silence counted from the first poll.

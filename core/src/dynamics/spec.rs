@@ -152,6 +152,7 @@ pub struct GateLink {
 /// Why the dynamics part of a table was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum DynamicsError {
     /// More groups than [`MAX_DYNAMICS_GROUPS`], sources than [`MAX_GATE_SOURCES`] or links
     /// than [`MAX_GATE_LINKS`].
@@ -258,6 +259,8 @@ impl core::fmt::Display for DynamicsError {
     }
 }
 
+impl core::error::Error for DynamicsError {}
+
 #[cfg(feature = "dynamics")]
 /// The dynamics part of a table, checked as a whole: `filter(port, connection)` is a
 /// connection's filter (`None` for a connection the table does not have). `node` is the image's
@@ -301,7 +304,7 @@ pub(crate) fn validate(
         // The group run under the source's number: at most one, the numbers were checked above.
         let run = groups.iter().find(|g| g.number == source.group);
         let owner_ok = if source.owner == OWN {
-            run.is_some_and(|g| g.params.behaviours.len() == source.behaviours.into())
+            run.is_some_and(|g| g.params.behaviours.len() == usize::from(source.behaviours))
         } else {
             source.owner <= crate::protocol::MAX_NODE_ID && source.owner != node
         };

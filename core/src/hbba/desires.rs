@@ -40,6 +40,8 @@ pub struct Desire {
     pub until: Instant,
 }
 
+// Not `#[non_exhaustive]`: the intention board (firmware/intent) logs each variant in its own
+// words.
 /// Why a desire frame changed nothing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -54,6 +56,23 @@ pub enum DesireError {
     /// A lease of 0 ms: the desire would lapse as it arrives.
     ZeroLease,
 }
+
+impl core::fmt::Display for DesireError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            DesireError::Full => write!(f, "the workspace holds {MAX_DESIRES} desires already"),
+            DesireError::UnknownClass { class } => {
+                write!(
+                    f,
+                    "desire for class {class}, which the network does not have"
+                )
+            }
+            DesireError::ZeroLease => f.write_str("desire with a lease of 0 ms"),
+        }
+    }
+}
+
+impl core::error::Error for DesireError {}
 
 /// The desires held, at most [`MAX_DESIRES`].
 #[derive(Clone, Debug, Default)]

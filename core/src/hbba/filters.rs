@@ -48,6 +48,7 @@ pub struct MessageFilters {
 /// Why a table's message filters were refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum FiltersError {
     /// A filtered connection beyond the table's connections, or listed out of order or twice.
     Connection {
@@ -83,6 +84,8 @@ impl core::fmt::Display for FiltersError {
         }
     }
 }
+
+impl core::error::Error for FiltersError {}
 
 impl MessageFilters {
     /// Whether the table gives no connection a filter.
@@ -201,6 +204,7 @@ impl Throttle {
 /// Why a filter command was refused (the `FilterRefused` fault's byte 0).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum CommandError {
     /// A profile the table does not have (1).
     NoSuchProfile,
@@ -209,6 +213,18 @@ pub enum CommandError {
     /// The table has no message filters at all (3).
     NoFilters,
 }
+
+impl core::fmt::Display for CommandError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            CommandError::NoSuchProfile => "filter profile the table does not have",
+            CommandError::NotFiltered => "connection the table gives no filter",
+            CommandError::NoFilters => "the table has no message filters",
+        })
+    }
+}
+
+impl core::error::Error for CommandError {}
 
 impl CommandError {
     /// The code of the `FilterRefused` fault's byte 0.

@@ -86,6 +86,7 @@ pub struct Instance {
 /// (strategies, resources, classes as numbered there).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum HbbaError {
     /// More classes than [`MAX_CLASSES`].
     TooManyClasses,
@@ -167,6 +168,8 @@ impl core::fmt::Display for HbbaError {
         }
     }
 }
+
+impl core::error::Error for HbbaError {}
 
 impl Instance {
     /// Checks every index and count: the classes within [`MAX_CLASSES`], every capacity

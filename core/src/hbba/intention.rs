@@ -94,6 +94,7 @@ pub struct Target {
 /// Why a workspace could not be built.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum IntentionError {
     /// The instance is invalid ([`Instance::validate`]).
     Instance(HbbaError),
@@ -152,6 +153,8 @@ impl core::fmt::Display for IntentionError {
         }
     }
 }
+
+impl core::error::Error for IntentionError {}
 
 /// A FilterSet to send to `node`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

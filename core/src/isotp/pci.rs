@@ -183,6 +183,7 @@ pub enum Pci {
     },
 }
 
+// Not `#[non_exhaustive]`: the PCI types and their checks are ISO 15765-2's, not ours to extend.
 /// Why a frame could not be decoded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -224,6 +225,35 @@ pub enum FrameError {
     },
 }
 
+impl core::fmt::Display for FrameError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            FrameError::Empty => f.write_str("ISO-TP frame without data"),
+            FrameError::TooLong { len } => write!(f, "{len} data bytes: not a classic CAN frame"),
+            FrameError::UnknownType { pci_type } => write!(f, "unknown ISO-TP PCI type {pci_type}"),
+            FrameError::SingleLength { len } => {
+                write!(f, "ISO-TP single frame announcing {len} bytes, not 1..=7")
+            }
+            FrameError::FirstLength { len } => write!(
+                f,
+                "ISO-TP first frame announcing {len} bytes, which a shorter encoding carries"
+            ),
+            FrameError::Truncated { needed, got } => {
+                write!(f, "ISO-TP frame of {got} bytes, its PCI needs {needed}")
+            }
+            FrameError::InvalidFlowStatus { status } => {
+                write!(
+                    f,
+                    "ISO-TP flow control with the reserved flow status {status}"
+                )
+            }
+        }
+    }
+}
+
+impl core::error::Error for FrameError {}
+
+// Not `#[non_exhaustive]`: the PCI types and their checks are ISO 15765-2's, not ours to extend.
 /// Why a frame could not be encoded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -251,6 +281,32 @@ pub enum EncodeError {
         sn: u8,
     },
 }
+
+impl core::fmt::Display for EncodeError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            EncodeError::PayloadLength { len } => {
+                write!(
+                    f,
+                    "{len} payload bytes for an ISO-TP frame that carries 1..=7"
+                )
+            }
+            EncodeError::MessageTooShort { len } => write!(
+                f,
+                "ISO-TP first frame for a message of {len} bytes, fewer than 8"
+            ),
+            EncodeError::NotEnoughData { needed, got } => write!(
+                f,
+                "{got} payload bytes for an ISO-TP first frame that carries {needed}"
+            ),
+            EncodeError::SequenceNumber { sn } => {
+                write!(f, "ISO-TP sequence number {sn}, above 15")
+            }
+        }
+    }
+}
+
+impl core::error::Error for EncodeError {}
 
 /// Reads one frame's data field: its PCI and the payload bytes it carries.
 ///

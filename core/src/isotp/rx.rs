@@ -31,6 +31,7 @@ impl Default for RxConfig {
     }
 }
 
+// Not `#[non_exhaustive]`: a node maps each variant to its TransferStatus (pab-app's `node.rs`).
 /// Why a reception in progress ended without a message.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -49,6 +50,21 @@ pub enum RxError {
     /// and starts the new one.
     Interrupted,
 }
+
+impl core::fmt::Display for RxError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            RxError::WrongSequenceNumber { expected, got } => write!(
+                f,
+                "ISO-TP consecutive frame with sequence number {got}, expected {expected}"
+            ),
+            RxError::Timeout => f.write_str("no ISO-TP consecutive frame within N_Cr"),
+            RxError::Interrupted => f.write_str("ISO-TP reception interrupted by a new message"),
+        }
+    }
+}
+
+impl core::error::Error for RxError {}
 
 /// Why a well-formed message was not accepted.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

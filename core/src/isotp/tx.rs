@@ -32,6 +32,7 @@ impl Default for TxConfig {
 /// Why a [`Sender`] cannot be built.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum TxSetupError {
     /// ISO-TP has no empty messages.
     Empty,
@@ -42,6 +43,21 @@ pub enum TxSetupError {
     },
 }
 
+impl core::fmt::Display for TxSetupError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            TxSetupError::Empty => f.write_str("ISO-TP has no empty messages"),
+            TxSetupError::TooLong { len } => write!(
+                f,
+                "{len} bytes: longer than an ISO-TP first frame can announce"
+            ),
+        }
+    }
+}
+
+impl core::error::Error for TxSetupError {}
+
+// Not `#[non_exhaustive]`: pabctl explains each variant to its user (host-tools/src/push.rs).
 /// Why a transfer failed. The sender then stays failed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -58,6 +74,28 @@ pub enum TxError {
         status: u8,
     },
 }
+
+impl core::fmt::Display for TxError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            TxError::Timeout => f.write_str("no ISO-TP flow control within N_Bs"),
+            TxError::Overflow => {
+                f.write_str("the receiver answered overflow: the message is too long for it")
+            }
+            TxError::TooManyWaits => {
+                f.write_str("more ISO-TP wait flow controls in a row than allowed")
+            }
+            TxError::InvalidFlowStatus { status } => {
+                write!(
+                    f,
+                    "ISO-TP flow control with the reserved flow status {status}"
+                )
+            }
+        }
+    }
+}
+
+impl core::error::Error for TxError {}
 
 /// What the caller must do next for a [`Sender`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

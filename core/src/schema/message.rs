@@ -30,6 +30,7 @@ pub struct Schema {
 /// Why a schema's bytes were refused.
 #[derive(Clone, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum SchemaError {
     /// Not postcard's encoding of a [`Schema`] (or more than [`MAX_REACTIONS`] reactions).
     Malformed(postcard::Error),
@@ -47,6 +48,29 @@ pub enum SchemaError {
     /// with period 0: actions that would never progress.
     Degenerate,
 }
+
+impl core::fmt::Display for SchemaError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            SchemaError::Malformed(error) => write!(f, "not a schema's encoding: {error}"),
+            SchemaError::TrailingBytes => f.write_str("bytes after the schema"),
+            SchemaError::ReservedId => write!(
+                f,
+                "schema id {BUILTIN_IDS} or above: reserved for the server's own schemas"
+            ),
+            SchemaError::BadAxis => f.write_str("axis index of 6 or more"),
+            SchemaError::BadSensor => write!(f, "sensor index of {MAX_SENSORS} or more"),
+            SchemaError::OutOfRange => {
+                write!(f, "coordinate, speed, distance or time beyond {MAX_COORD}")
+            }
+            SchemaError::Degenerate => f.write_str(
+                "an action that would never progress (a speed, direction, pitch or period of 0)",
+            ),
+        }
+    }
+}
+
+impl core::error::Error for SchemaError {}
 
 /// The most bytes a valid schema takes: the receive buffer's size.
 pub const MAX_ENCODED: usize = 256;

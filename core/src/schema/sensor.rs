@@ -27,6 +27,7 @@ pub struct Sensor {
 /// Why a [`Sensor`] was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum SensorError {
     /// Its identifier does not fit its format.
     Id(OutputIdError),
@@ -35,6 +36,20 @@ pub enum SensorError {
     /// Its identifier is one of the drive's frames.
     DriveOverlap,
 }
+
+impl core::fmt::Display for SensorError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            SensorError::Id(error) => write!(f, "sensor identifier: {error}"),
+            SensorError::Field(error) => write!(f, "sensor field: {error}"),
+            SensorError::DriveOverlap => {
+                f.write_str("sensor identifier is one of the drive's frames")
+            }
+        }
+    }
+}
+
+impl core::error::Error for SensorError {}
 
 impl Sensor {
     /// The value `frame` carries for this sensor: `None` for another identifier or a payload

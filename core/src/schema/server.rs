@@ -208,6 +208,7 @@ pub struct Config {
 /// Why a [`Config`] was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum ConfigError {
     /// A period of 0, or an overrun bound shorter than the period.
     Period,
@@ -218,6 +219,24 @@ pub enum ConfigError {
     /// An innate schema (its index) is invalid or names an innate schema beyond the table.
     Innate(u8),
 }
+
+impl core::fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            ConfigError::Period => {
+                f.write_str("loop period of 0, or an overrun bound shorter than the period")
+            }
+            ConfigError::Limits(error) => write!(f, "safety limits: {error}"),
+            ConfigError::DriveLimits => f.write_str("drive speed or rate of 0"),
+            ConfigError::Innate(index) => write!(
+                f,
+                "innate schema {index} is invalid or names an innate schema beyond the table"
+            ),
+        }
+    }
+}
+
+impl core::error::Error for ConfigError {}
 
 impl Config {
     /// A set-up at `period_us` with the defaults: overrun at two periods, [`Limits::new`] (a

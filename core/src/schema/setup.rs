@@ -38,6 +38,7 @@ pub struct Setup {
 /// Why a [`Setup`] was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum SetupError {
     /// The loop's set-up.
     Config(ConfigError),
@@ -171,6 +172,8 @@ impl core::fmt::Display for SetupError {
         }
     }
 }
+
+impl core::error::Error for SetupError {}
 
 decode_struct!(Config {
     period_us,

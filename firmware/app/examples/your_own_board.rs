@@ -9,7 +9,7 @@
 //!   node a SocketCAN socket).
 //! - [`TableStore`]: where the node keeps its table across resets. `pab_storage::FlashStore`
 //!   gives it to any `embedded-storage` NOR flash, power-cut safe; here an in-memory flash.
-//! - [`Consumer`]: what your application does with the frames a port delivers (drive the arm,
+//! - [`Recipient`]: what your application does with the frames a port delivers (drive the arm,
 //!   close the gripper). Here it counts and prints them.
 //! - [`Watchdog`]: your hardware watchdog, fed by the node loop at every turn. Here it counts.
 //!
@@ -20,13 +20,13 @@
 //! becomes active at the sixth: with q = e^(-0.01/3), the level after n frames is
 //! 0.2 (1 + q + ... + q^(n-1)), 0.993 after five and 1.19 after six (and still above 1 with
 //! frames up to 200 ms apart on a slow machine). From then on the arm's port delivers each frame
-//! to the consumer and re-publishes it on 0x200, as the table says: five of the ten. The example
+//! to the recipient and re-publishes it on 0x200, as the table says: five of the ten. The example
 //! checks that and exits 1 if not.
 
 use embassy_futures::select::{Either, select};
 use futures::StreamExt;
 use futures::channel::mpsc::{UnboundedReceiver, UnboundedSender, unbounded};
-use pab_app::{BusError, CanBus, Config, Consumer, TableStore, Watchdog};
+use pab_app::{BusError, CanBus, Config, Recipient, TableStore, Watchdog};
 use pab_core::{Frame, Instant};
 use pab_storage::FlashStore;
 use pab_storage::testing::MemFlash;
@@ -58,7 +58,7 @@ struct MyApplication {
     delivered: u32,
 }
 
-impl Consumer for MyApplication {
+impl Recipient for MyApplication {
     fn deliver(&mut self, port: u8, frame: &Frame, now: Instant) {
         self.delivered += 1;
         println!(

@@ -3,7 +3,7 @@
 //! What every node runs, on a board under embassy or as the Linux process `pab-node`:
 //!
 //! - arbitrates each frame from the bus with [`pab_core::Arbiter`] and hands the winner to the
-//!   port's [`Consumer`] (and re-publishes it where the table makes the port a gateway);
+//!   port's [`Recipient`] (and re-publishes it where the table makes the port a gateway);
 //! - sends a heartbeat group every second (state, uptime, table version and CRC, counters);
 //! - reports faults, at most once per code per 100 ms with an occurrence count;
 //! - streams diagnostic samples (stimulation, activity, deliverer) when the tool asks;
@@ -68,15 +68,16 @@ pub mod store {
 
 use pab_core::{Arbiter, Frame, Instant, PortVerdict};
 
-/// Where delivered frames go on this node: the application's own use of a port (a motor loop, a
-/// gripper driver). Re-publishing for gateway ports is done by the node itself.
+/// The recipient of what the node's ports deliver: the application's own use of a port (a motor
+/// loop, a gripper driver). Every port hands it its frames; a gateway port (the table's
+/// [`pab_core::Consumer::Republish`]) also has them re-published, by the node itself.
 ///
-/// A consumer may also observe every verdict of the node's arbiter ([`Consumer::verdict`]): a
+/// A recipient may also observe every verdict of the node's arbiter ([`Recipient::verdict`]): a
 /// replay records them to compare runners, a test asserts on them. Observation is opt-in through
-/// [`Consumer::OBSERVES_VERDICTS`], a constant, so that a consumer that does not observe (every
+/// [`Recipient::OBSERVES_VERDICTS`], a constant, so that a recipient that does not observe (every
 /// board's) pays nothing for it: the compiler removes the code.
-pub trait Consumer {
-    /// Whether the node calls [`Consumer::verdict`]. `false` (the default): the node keeps no
+pub trait Recipient {
+    /// Whether the node calls [`Recipient::verdict`]. `false` (the default): the node keeps no
     /// verdict and reads no level. `true`: the node keeps the frame's verdicts (one
     /// [`PortVerdict`] per port of its capacity, on the stack) and calls `verdict` for each.
     const OBSERVES_VERDICTS: bool = false;
@@ -85,8 +86,8 @@ pub trait Consumer {
     fn deliver(&mut self, port: u8, frame: &Frame, now: Instant);
 
     /// The arbiter's verdict on `frame` at one port it fed (only if
-    /// [`Consumer::OBSERVES_VERDICTS`]). Called once per fed port, in port order, after the whole
-    /// frame has been arbitrated and before any [`Consumer::deliver`] for it. `arbiter` is the
+    /// [`Recipient::OBSERVES_VERDICTS`]). Called once per fed port, in port order, after the whole
+    /// frame has been arbitrated and before any [`Recipient::deliver`] for it. `arbiter` is the
     /// node's, read-only: [`Arbiter::level`] at `now` gives each connection's level after the
     /// frame (a port's levels do not change when another port is arbitrated), without changing
     /// anything.
@@ -101,8 +102,8 @@ pub trait Consumer {
     }
 }
 
-/// No local consumer: the node only re-publishes (a pure gateway).
-impl Consumer for () {
+/// No local recipient: the node only re-publishes (a pure gateway).
+impl Recipient for () {
     fn deliver(&mut self, _port: u8, _frame: &Frame, _now: Instant) {}
 }
 

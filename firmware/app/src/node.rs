@@ -5,7 +5,7 @@
 //! and time arrive. Keeping every decision here makes the tests exercise exactly what the boards
 //! run, with virtual time and byte-exact frames.
 
-use pab_core::Consumer as PortConsumer;
+use pab_core::Consumer;
 #[cfg(feature = "dynamics")]
 use pab_core::GatesLost;
 use pab_core::auth::{IMAGE_MAC_LEN, Key};
@@ -16,9 +16,9 @@ use pab_core::hbba::filters::CommandError;
 use pab_core::image::{self, Header, LoadError};
 use pab_core::isotp::{self, Pci, RxError, RxEvent};
 use pab_core::protocol::{
-    self, AuthFailure, Errors, Exploitation, FaultCode, FilterStatus, FrameId, Heartbeat, Message,
-    NodeState, OPEN_REPLACE, STORE_UNREADABLE, Service, StoreFailure, TableStatus, Traffic,
-    TransferOpen, TransferStatus, TransferStatusCode,
+    self, AuthFailure, Errors, Exploitation, FaultCode, FilterStatus, FrameId, FrameKind,
+    Heartbeat, Message, NodeState, OPEN_REPLACE, STORE_UNREADABLE, Service, StoreFailure,
+    TableStatus, Traffic, TransferOpen, TransferStatus, TransferStatusCode,
 };
 use pab_core::{Arbiter, Combined, Frame, Instant, MAX_VALUE_PORTS, PortVerdict, Refused};
 use pab_storage::StoreError;
@@ -28,7 +28,7 @@ use crate::bus::BusError;
 use crate::diagnostic::DiagnosticStream;
 use crate::faults::FaultLimiter;
 use crate::fmt::int;
-use crate::{Config, Consumer};
+use crate::{Config, Recipient};
 
 /// Frames waiting to be sent. Heartbeat groups (4 frames), faults and transfer answers fit with
 /// room to spare; the diagnostic stream only fills what is left.
@@ -334,40 +334,49 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     }
 
     /// Handles one frame read from the bus at `now`: arbitrates it, or handles it as a frame of
-    /// our protocol. Delivered frames go to `consumer` (and are re-published where the table says
-    /// so); a consumer that observes verdicts ([`Consumer::OBSERVES_VERDICTS`]) sees each one
+    /// our protocol. Delivered frames go to `recipient` (and are re-published where the table says
+    /// so); a recipient that observes verdicts ([`Recipient::OBSERVES_VERDICTS`]) sees each one
     /// first. Protocol frames are never arbitrated.
-    pub fn on_frame(&mut self, frame: &Frame, now: Instant, consumer: &mut impl Consumer) -> Step {
+    pub fn on_frame(
+        &mut self,
+        frame: &Frame,
+        now: Instant,
+        recipient: &mut impl Recipient,
+    ) -> Step {
         self.counters.received = self.counters.received.wrapping_add(1);
-        let step = if protocol::is_ours(&frame.id()) {
-            if is_claim(frame) {
+        let step = match protocol::classify(frame) {
+            FrameKind::Claim => {
                 self.on_claim_frame(frame, now);
                 Step::Continue
-            } else {
+            }
+            // An unknown service goes the same way: the decoder refuses it as not ours, and
+            // the node neither counts nor answers it.
+            FrameKind::Service(_) | FrameKind::UnknownService => {
                 // A new table runs (`Store`): its save now or when its turn comes.
                 match self.on_protocol_frame(frame, now) {
                     Step::Store => self.schedule_store(now),
                     Step::Continue => Step::Continue,
                 }
             }
-        } else {
-            // The drive's pose and wrench are topics too: read by the schema server, and
-            // arbitrated like any frame.
-            #[cfg(feature = "schema")]
-            if self.schema_on
-                && let Some(runtime) = self.schema.as_mut()
-            {
-                runtime.on_drive_frame(frame, now);
+            FrameKind::Topic => {
+                // The drive's pose and wrench are topics too: read by the schema server, and
+                // arbitrated like any frame.
+                #[cfg(feature = "schema")]
+                if self.schema_on
+                    && let Some(runtime) = self.schema.as_mut()
+                {
+                    runtime.on_drive_frame(frame, now);
+                }
+                self.arbitrate(frame, now, recipient);
+                if let Some(arbiter) = self.arbiter.as_mut()
+                    && arbiter.observes_frames()
+                {
+                    arbiter.observe(frame, now);
+                }
+                Step::Continue
             }
-            self.arbitrate(frame, now, consumer);
-            if let Some(arbiter) = self.arbiter.as_mut()
-                && arbiter.observes_frames()
-            {
-                arbiter.observe(frame, now);
-            }
-            Step::Continue
         };
-        self.values_due(now, consumer);
+        self.values_due(now, recipient);
         self.duties(now);
         match step {
             Step::Store => Step::Store,
@@ -454,10 +463,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// after the start of the last save runs at once, and is stored (and its transfer answered)
     /// when the interval has passed, through this call.
     ///
-    /// Value ports whose output changes by then (a value aged out) hand it to `consumer`.
+    /// Value ports whose output changes by then (a value aged out) hand it to `recipient`.
     #[must_use = "a Step::Store asks the runner to store the running image and call Node::stored"]
-    pub fn poll(&mut self, now: Instant, consumer: &mut impl Consumer) -> Step {
-        self.values_due(now, consumer);
+    pub fn poll(&mut self, now: Instant, recipient: &mut impl Recipient) -> Step {
+        self.values_due(now, recipient);
         self.duties(now);
         self.store_step(now)
     }
@@ -465,18 +474,18 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// The value ports' outputs that changed by `now` without a frame, delivered. A comparison
     /// per value port (none on a table without value ports).
     #[inline]
-    fn values_due<K: Consumer>(&mut self, now: Instant, consumer: &mut K) {
+    fn values_due<K: Recipient>(&mut self, now: Instant, recipient: &mut K) {
         if self
             .arbiter
             .as_ref()
             .is_some_and(|arbiter| arbiter.is_due(now))
         {
-            self.deliver_values_due(now, consumer);
+            self.deliver_values_due(now, recipient);
         }
     }
 
     #[inline(never)]
-    fn deliver_values_due<K: Consumer>(&mut self, now: Instant, consumer: &mut K) {
+    fn deliver_values_due<K: Recipient>(&mut self, now: Instant, recipient: &mut K) {
         let Some(arbiter) = self.arbiter.as_mut() else {
             return;
         };
@@ -485,7 +494,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             let _ = outputs.push(*output);
         });
         for output in &outputs {
-            self.deliver(output.port, &output.frame, now, consumer);
+            self.deliver(output.port, &output.frame, now, recipient);
         }
     }
 
@@ -908,7 +917,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         &self.config
     }
 
-    fn arbitrate<K: Consumer>(&mut self, frame: &Frame, now: Instant, consumer: &mut K) {
+    fn arbitrate<K: Recipient>(&mut self, frame: &Frame, now: Instant, recipient: &mut K) {
         let Some(arbiter) = self.arbiter.as_mut() else {
             return;
         };
@@ -917,7 +926,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         let mut on_value = |output: &Combined| {
             let _ = outputs.push(*output);
         };
-        // Two calls, so that a consumer that does not observe (`OBSERVES_VERDICTS` is a
+        // Two calls, so that a recipient that does not observe (`OBSERVES_VERDICTS` is a
         // constant) runs exactly the plain arbitration: the other branch is compiled out.
         let reception = if K::OBSERVES_VERDICTS {
             // A frame feeds each port at most once: P entries always suffice.
@@ -931,7 +940,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 &mut on_value,
             );
             for verdict in &verdicts {
-                consumer.verdict(frame, now, verdict, arbiter);
+                recipient.verdict(frame, now, verdict, arbiter);
             }
             reception
         } else {
@@ -942,7 +951,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         }
         // A value port's output: the combination, not the frame as it came.
         for output in &outputs {
-            self.deliver(output.port, &output.frame, now, consumer);
+            self.deliver(output.port, &output.frame, now, recipient);
         }
         if reception.delivered.is_empty() {
             if outputs.is_empty() {
@@ -953,23 +962,23 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         // The ports it was delivered to, in increasing order (usually one).
         let mut ports = reception.delivered.bits();
         while ports != 0 {
-            self.deliver(ports.trailing_zeros() as u8, frame, now, consumer);
+            self.deliver(ports.trailing_zeros() as u8, frame, now, recipient);
             ports &= ports - 1;
         }
     }
 
-    /// Hands `frame`, delivered at `port`, to the consumer, and queues its re-publication if the
+    /// Hands `frame`, delivered at `port`, to the recipient, and queues its re-publication if the
     /// port is a gateway. Out of line: the loop over the delivered ports then keeps nothing of
     /// the node in registers across it.
     #[inline(never)]
-    fn deliver<K: Consumer>(&mut self, port: u8, frame: &Frame, now: Instant, consumer: &mut K) {
+    fn deliver<K: Recipient>(&mut self, port: u8, frame: &Frame, now: Instant, recipient: &mut K) {
         self.counters.delivered = self.counters.delivered.wrapping_add(1);
-        consumer.deliver(port, frame, now);
+        recipient.deliver(port, frame, now);
         let republish = self
             .arbiter
             .as_ref()
             .and_then(|arbiter| arbiter.table().consumer(usize::from(port)));
-        if let Some(PortConsumer::Republish(output)) = republish
+        if let Some(Consumer::Republish(output)) = republish
             && self
                 .enqueue_over_diagnostic(frame.republished(output.id()))
                 .is_err()
@@ -1803,10 +1812,4 @@ pub fn status_of<T>(error: &LoadError<T>) -> (TransferStatusCode, u8) {
         LoadError::Table(_) => (TransferStatusCode::InvalidTable, 3),
         LoadError::ExceedsCapacity { .. } => (TransferStatusCode::InvalidTable, 4),
     }
-}
-
-/// Whether `frame` is a BLE claim (an extended identifier of ours with the claim bit).
-#[inline]
-fn is_claim(frame: &Frame) -> bool {
-    matches!(frame.id(), embedded_can::Id::Extended(id) if ble::is_claim_id(id.as_raw()))
 }

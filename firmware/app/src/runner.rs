@@ -5,7 +5,7 @@ use embassy_futures::select::{Either, select};
 use embassy_time::Timer;
 use pab_core::Instant;
 
-use crate::Consumer;
+use crate::Recipient;
 use crate::bus::{BusError, CanBus};
 use crate::node::{Node, Step};
 use crate::store::{SaveProgress, TableStore};
@@ -71,14 +71,14 @@ pub async fn run<B, S, K, const P: usize, const C: usize, const N: usize, const 
     node: &mut Node<P, C, N, IMG>,
     bus: &mut B,
     store: &mut S,
-    consumer: &mut K,
+    recipient: &mut K,
 ) -> !
 where
     B: CanBus,
     S: TableStore,
-    K: Consumer,
+    K: Recipient,
 {
-    run_watched(node, bus, store, consumer, &mut ()).await
+    run_watched(node, bus, store, recipient, &mut ()).await
 }
 
 /// [`run`], feeding `watchdog` at every turn of the loop and waking at least every
@@ -96,13 +96,13 @@ pub async fn run_watched<
     node: &mut Node<P, C, N, IMG>,
     bus: &mut B,
     store: &mut S,
-    consumer: &mut K,
+    recipient: &mut K,
     watchdog: &mut W,
 ) -> !
 where
     B: CanBus,
     S: TableStore,
-    K: Consumer,
+    K: Recipient,
     W: Watchdog,
 {
     watchdog.feed();
@@ -137,7 +137,7 @@ where
         // `select` polls the bus first: a waiting frame always goes before a save's step.
         let step = match select(bus.receive(), Timer::at(wake)).await {
             Either::First(Ok(frame)) => {
-                let step = node.on_frame(&frame, now(), consumer);
+                let step = node.on_frame(&frame, now(), recipient);
                 // A save that has waited SAVE_STARVED_US for the bus to fall quiet steps anyway,
                 // then after every frame until it ends (`save_step` keeps its due time): a step
                 // is shorter than a frame, so a saturated bus neither starves the save nor
@@ -170,7 +170,7 @@ where
                 {
                     save_due = save_step(node, store, at, due);
                 }
-                node.poll(now(), consumer)
+                node.poll(now(), recipient)
             }
         };
         // A new table to store: at once, or when the store interval let its turn come.

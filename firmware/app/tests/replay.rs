@@ -5,12 +5,12 @@ mod common;
 
 use common::*;
 use pab_app::replay::{self, Recorder, job::TimedFrame};
-use pab_app::{Config, Consumer};
+use pab_app::{Config, Recipient};
 use pab_core::{
     Arbiter, Connection, DecisionNode, Filter, Frame, Instant, NodeRef, PortVerdict, Stimulation,
 };
 
-/// Everything the node showed its consumer, in order.
+/// Everything the node showed its recipient, in order.
 #[derive(Default)]
 struct Observer {
     /// (port, delivered connection, selected, fed bits, active bits, level of each fed
@@ -18,7 +18,7 @@ struct Observer {
     events: Vec<String>,
 }
 
-impl Consumer for Observer {
+impl Recipient for Observer {
     const OBSERVES_VERDICTS: bool = true;
 
     fn deliver(&mut self, port: u8, _frame: &Frame, _now: Instant) {
@@ -48,14 +48,14 @@ impl Consumer for Observer {
     }
 }
 
-/// A consumer that does not observe: its `verdict` must never be called.
+/// A recipient that does not observe: its `verdict` must never be called.
 #[derive(Default)]
 struct Blind {
     verdicts: usize,
     deliveries: usize,
 }
 
-impl Consumer for Blind {
+impl Recipient for Blind {
     fn deliver(&mut self, _port: u8, _frame: &Frame, _now: Instant) {
         self.deliveries += 1;
     }

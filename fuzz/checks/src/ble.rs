@@ -763,7 +763,7 @@ fn script(u: &mut Unstructured<'_>, world: &mut World) -> Result<()> {
                     Id::Extended(ExtendedId::new(u.int_in_range(0..=0x1FFF_FFFF)?).expect("29"))
                 };
                 let frame = Frame::data(id, &payload(u)?).expect("8 bytes");
-                if pab_core::protocol::is_ours(&frame.id()) {
+                if pab_core::protocol::classify(&frame).is_ours() {
                     world.ours(&frame);
                 } else {
                     world.frame(&frame);

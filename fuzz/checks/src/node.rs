@@ -31,10 +31,12 @@
 
 use arbitrary::{Result, Unstructured};
 use embedded_can::{ExtendedId, Id, StandardId};
-use pab_app::{BusError, Config, Consumer, Node, Step};
+use pab_app::{BusError, Config, Node, Recipient, Step};
 use pab_core::image::{self, LoadError, Loaded};
 use pab_core::isotp::{Sender, TxConfig, TxEvent};
-use pab_core::protocol::{self, FrameId, Message, Service, TransferStatus, TransferStatusCode};
+use pab_core::protocol::{
+    self, FrameId, FrameKind, Message, Service, TransferStatus, TransferStatusCode,
+};
 use pab_core::{Arbiter, BOARD_CONNECTIONS, BOARD_DECISION_NODES, BOARD_PORTS, Frame, Instant};
 
 use crate::examples::examples;
@@ -114,7 +116,7 @@ fn documented_status(bytes: &[u8], running: Option<(u32, u32)>) -> (TransferStat
 #[derive(Default)]
 struct Ports(Vec<u8>);
 
-impl Consumer for Ports {
+impl Recipient for Ports {
     fn deliver(&mut self, port: u8, _frame: &Frame, _now: Instant) {
         self.0.push(port);
     }
@@ -175,12 +177,11 @@ impl World {
     /// Collects what the node sent; every protocol frame must decode and come from the node.
     fn drain(&mut self) {
         while let Some(frame) = self.node.next_outgoing() {
-            if !protocol::is_ours(&frame.id()) {
+            let kind = protocol::classify(&frame);
+            if !kind.is_ours() {
                 continue; // a gateway port's re-publication
             }
-            if let embedded_can::Id::Extended(raw) = frame.id()
-                && pab_core::ble::is_claim_id(raw.as_raw())
-            {
+            if kind == FrameKind::Claim {
                 // A BLE claim of a table with groups: well formed, and this node's.
                 let claim = pab_core::ble::Claim::decode(&frame)
                     .unwrap_or_else(|error| panic!("the node sent {frame:?}: {error:?}"));
@@ -217,7 +218,8 @@ impl World {
         let before = running_key(&self.node);
         let mut ports = Ports::default();
         let step = self.node.on_frame(frame, self.at(), &mut ports);
-        if protocol::is_ours(&frame.id()) {
+        let kind = protocol::classify(frame);
+        if kind.is_ours() {
             // Never delivered itself; value outputs that aged out by now may be.
             // (After a swap the new arbiter has no values yet: nothing.)
             let mut expected = Vec::new();
@@ -226,8 +228,7 @@ impl World {
                 && let Some(shadow) = self.shadow.as_mut()
             {
                 // A peer's BLE claim goes to the group state, as on the node.
-                if let embedded_can::Id::Extended(raw) = frame.id()
-                    && pab_core::ble::is_claim_id(raw.as_raw())
+                if kind == FrameKind::Claim
                     && let Ok(claim) = pab_core::ble::Claim::decode(frame)
                 {
                     let _ = shadow.on_claim(claim, at);
@@ -288,9 +289,9 @@ impl World {
     /// The running table changed during `frame`: it must be a transfer's last frame, and the new
     /// table an image a transfer may apply.
     fn swapped(&mut self, frame: &Frame, before: Option<(u32, u32)>) {
-        let id = FrameId::decode(&frame.id());
         assert!(
-            id.is_some_and(|id| id.service == Service::TableTransfer && id.source == protocol::TOOL),
+            matches!(protocol::classify(frame), FrameKind::Service(id)
+                if id.service == Service::TableTransfer && id.source == protocol::TOOL),
             "the table changed on {frame:?}"
         );
         assert!(

@@ -7,12 +7,13 @@
 use arbitrary::{Result, Unstructured};
 use embedded_can::{ExtendedId, Frame as _, Id, StandardId};
 use pab_core::Frame;
+use pab_core::ble::{Claim, ClaimError};
 use pab_core::protocol::{
     self, DesireFrame, DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Exploitation,
-    Fault, FaultCode, FilterProfile, FilterSet, FilterStatus, FrameId, Gates, Heartbeat, Intention,
-    Message, NodeState, OPEN_REPLACE, SchemaAck, SchemaChannel, SchemaOrigin, SchemaOutcome,
-    SchemaSafety, SchemaState, SchemaTransition, SchemaTrigger, Service, TableStatus, Traffic,
-    TransferOpen, TransferStatus, TransferStatusCode,
+    Fault, FaultCode, FilterProfile, FilterSet, FilterStatus, FrameId, FrameKind, Gates, Heartbeat,
+    Intention, Message, NodeState, OPEN_REPLACE, SchemaAck, SchemaChannel, SchemaOrigin,
+    SchemaOutcome, SchemaSafety, SchemaState, SchemaTransition, SchemaTrigger, Service,
+    TableStatus, Traffic, TransferOpen, TransferStatus, TransferStatusCode,
 };
 
 /// The services a node acts on: the only ones `Message::decode_for_node` decodes.
@@ -40,6 +41,7 @@ pub fn decode(data: &[u8]) {
         return;
     };
     let full = Message::decode(&frame);
+    classified_as_decoded(&frame, &full);
     match (&full, Message::decode_for_node(&frame)) {
         (Ok((id, message)), Ok(Some((node_id, node_message)))) => {
             assert!(node_service(id.service));
@@ -54,7 +56,7 @@ pub fn decode(data: &[u8]) {
     }
     match full {
         Ok((id, message)) => {
-            assert!(protocol::is_ours(&frame.id()));
+            assert_eq!(protocol::classify(&frame), FrameKind::Service(id));
             assert!(!frame.is_remote());
             assert_eq!(FrameId::decode(&frame.id()), Some(id));
             assert_eq!(message.service(), id.service);
@@ -78,6 +80,47 @@ pub fn decode(data: &[u8]) {
             if FrameId::decode(&frame.id()).is_none() {
                 assert_eq!(error, protocol::DecodeError::NotOurs);
             }
+        }
+    }
+}
+
+/// `frame` is of exactly one kind, and the decoders agree with it: only a service frame may
+/// decode as a message, only a claim as a claim, and a decoder's "not mine" is the kind's.
+fn classified_as_decoded(
+    frame: &Frame,
+    decoded: &Result<(FrameId, Message), protocol::DecodeError>,
+) {
+    let kind = protocol::classify(frame);
+    let claim = Claim::decode(frame);
+    assert_eq!(kind.is_ours(), protocol::is_ours(&frame.id()));
+    match kind {
+        FrameKind::Service(id) => {
+            assert_eq!(FrameId::decode(&frame.id()), Some(id));
+            assert_eq!(claim, Err(ClaimError::NotAClaim));
+            assert_ne!(
+                decoded.as_ref().err(),
+                Some(&protocol::DecodeError::NotOurs)
+            );
+        }
+        FrameKind::Claim => {
+            assert_eq!(FrameId::decode(&frame.id()), None);
+            assert_eq!(
+                decoded.as_ref().err(),
+                Some(&protocol::DecodeError::NotOurs)
+            );
+            // A remote frame is classified by its identifier; the decoder refuses it.
+            assert!(
+                frame.is_remote() || claim != Err(ClaimError::NotAClaim),
+                "{claim:?}"
+            );
+        }
+        FrameKind::Topic | FrameKind::UnknownService => {
+            assert_eq!(FrameId::decode(&frame.id()), None);
+            assert_eq!(
+                decoded.as_ref().err(),
+                Some(&protocol::DecodeError::NotOurs)
+            );
+            assert_eq!(claim, Err(ClaimError::NotAClaim));
         }
     }
 }

@@ -589,10 +589,7 @@ impl Builder<'_> {
                 );
                 continue;
             }
-            if s.extended
-                && (id.raw() & pab_core::protocol::PROTOCOL_MASK)
-                    == pab_core::protocol::PROTOCOL_VALUE
-            {
+            if pab_core::protocol::classify_id(&id.id()).is_ours() {
                 self.error(
                     s.can_id.span(),
                     format!(
@@ -831,10 +828,9 @@ impl Builder<'_> {
             );
             return None;
         }
-        if d.extended
-            && [setpoint, pose, wrench].iter().any(|id| {
-                (id.raw() & pab_core::protocol::PROTOCOL_MASK) == pab_core::protocol::PROTOCOL_VALUE
-            })
+        if [setpoint, pose, wrench]
+            .iter()
+            .any(|id| pab_core::protocol::classify_id(&id.id()).is_ours())
         {
             self.error(
                 raw.span(),

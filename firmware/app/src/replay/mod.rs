@@ -3,7 +3,7 @@
 //! compared byte for byte.
 //!
 //! - [`records`]: the record format, one text line per verdict (raw Q1.31 levels, masks in hex),
-//!   written with `core::fmt` (no allocation), and [`Recorder`], a [`crate::Consumer`] that
+//!   written with `core::fmt` (no allocation), and [`Recorder`], a [`crate::Recipient`] that
 //!   writes them.
 //! - [`job`]: the binary file that brings a board runner its tables and frames (a replay on a
 //!   board reads it through semihosting).

@@ -43,7 +43,7 @@ use pab_core::image::Header;
 use pab_core::protocol::TransferStatusCode;
 use pab_core::{Arbiter, Frame, Instant, Level, PortVerdict};
 
-use crate::Consumer;
+use crate::Recipient;
 
 /// The format's first line.
 pub const PREAMBLE: &str = "# pab replay records 2\n";
@@ -153,7 +153,7 @@ fn write_index(out: &mut impl Write, index: Option<u8>) -> fmt::Result {
     }
 }
 
-/// A [`Consumer`] that writes every verdict of the node it is handed to as a record line.
+/// A [`Recipient`] that writes every verdict of the node it is handed to as a record line.
 ///
 /// One recorder serves all the nodes of a replay: set [`Recorder::node_id`] before each node's
 /// [`crate::Node::on_frame`]. Deliveries are not recorded (the `delivered` column says it). The
@@ -222,7 +222,7 @@ impl<W: Write> Recorder<W> {
     }
 }
 
-impl<W: Write> Consumer for Recorder<W> {
+impl<W: Write> Recipient for Recorder<W> {
     const OBSERVES_VERDICTS: bool = true;
 
     fn deliver(&mut self, _port: u8, _frame: &Frame, _now: Instant) {}

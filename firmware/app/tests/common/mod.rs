@@ -2,7 +2,7 @@
 //! by the node's own code. Tables are built with pab-core and pushed with pab-core's ISO-TP sender.
 #![allow(dead_code)]
 
-use pab_app::{Config, Consumer, Node, Step};
+use pab_app::{Config, Node, Recipient, Step};
 use pab_core::auth::{Authenticator, Key};
 use pab_core::isotp::{Sender, TxConfig, TxEvent};
 use pab_core::protocol::{
@@ -79,7 +79,7 @@ pub fn frame(id: u32, data: &[u8]) -> Frame {
 #[derive(Default)]
 pub struct Deliveries(pub Vec<(u8, Frame, u64)>);
 
-impl Consumer for Deliveries {
+impl Recipient for Deliveries {
     fn deliver(&mut self, port: u8, frame: &Frame, now: Instant) {
         self.0.push((port, *frame, now.as_micros()));
     }

@@ -38,8 +38,8 @@
 #![no_main]
 
 mod bank_flash;
-mod consumer;
 mod fdcan_bus;
+mod recipient;
 
 use core::num::{NonZeroU8, NonZeroU16};
 use core::ops::Range;
@@ -67,8 +67,8 @@ use pab_storage::{BootCounter, FlashStore};
 use pab_builtins as _;
 
 use bank_flash::BankFlash;
-use consumer::BoardConsumer;
 use fdcan_bus::FdcanBus;
+use recipient::BoardRecipient;
 
 /// This node's id (1..=127): `PAB_NODE_ID` at build time, 1 without it. Tables pushed to the
 /// node must be compiled for this id.
@@ -336,13 +336,13 @@ async fn main(_spawner: Spawner) {
     // The node loop runs in this task rather than in one of its own: spawning one (its pool, the
     // move of the loop's state into it, the check that the pool was free) took some 110 bytes of
     // flash, and this task would only have returned.
-    let mut consumer = BoardConsumer::new();
+    let mut recipient = BoardRecipient::new();
     let mut watchdog = NodeWatchdog { watchdog, led };
     pab_app::run_watched(
         &mut node,
         &mut bus,
         &mut store,
-        &mut consumer,
+        &mut recipient,
         &mut watchdog,
     )
     .await

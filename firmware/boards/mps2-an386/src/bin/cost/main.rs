@@ -20,7 +20,7 @@
 //! - the Take and Return nodes (`examples/take-and-return.toml`, loaded from the images
 //!   `pabctl compile` makes, in `tables/`) under the example's traffic, frame by frame:
 //!   `Arbiter::receive`, and for the arm node also `pab_app::BoardNode::on_frame`, the whole frame
-//!   path of the node application (verdict, consumer, re-publication queued, poll);
+//!   path of the node application (verdict, recipient, re-publication queued, poll);
 //! - `systick`: the same region also timed by SysTick, for the cross-check under
 //!   `-icount shift=0` (one instruction per ns; SysTick on the 25 MHz CPU clock ticks every 40).
 //!

@@ -8,7 +8,7 @@
 
 use embedded_can::StandardId;
 use heapless::Vec;
-use pab_app::{BoardNode, Config, Consumer};
+use pab_app::{BoardNode, Config, Recipient};
 use pab_core::image;
 use pab_core::{
     BOARD_CONNECTIONS, BOARD_DECISION_NODES, BOARD_PORTS, BoardArbiter, Frame, Id, Instant,
@@ -118,20 +118,20 @@ fn arbitrate(case: &str, name: &str, bytes: &[u8]) {
     }
 }
 
-/// Counts what the node application hands to the local consumer, so the call is not optimised
+/// Counts what the node application hands to the local recipient, so the call is not optimised
 /// away.
 struct Counting {
     delivered: u32,
 }
 
-impl Consumer for Counting {
+impl Recipient for Counting {
     fn deliver(&mut self, _port: u8, _frame: &Frame, _now: Instant) {
         self.delivered = self.delivered.wrapping_add(1);
     }
 }
 
 /// `BoardNode::on_frame` of the arm node (node id 1, booted with its image) for every frame of the
-/// example: the whole frame path of the node application. Classes: `delivered` (consumer called,
+/// example: the whole frame path of the node application. Classes: `delivered` (recipient called,
 /// re-publication queued), `discarded` (fed, delivered to no port), `none` (no connection), with
 /// `+heartbeat` when the node's poll also queued its heartbeat group.
 #[inline(never)]
@@ -150,14 +150,14 @@ fn node_path(case: &str) {
         fail(format_args!("the arm node refused its image"));
     }
     while node.next_outgoing().is_some() {}
-    let mut consumer = Counting { delivered: 0 };
+    let mut recipient = Counting { delivered: 0 };
     let mut outgoing: Vec<Frame, 16> = Vec::new();
     for (now, id) in Traffic::new() {
         let frame = Frame::data(id, &[1, 2, 3, 4, 5, 6, 7, 8])
             .unwrap_or_else(|| fail(format_args!("frame")));
         let before = node.counters();
         measure(|| {
-            on_frame(&mut node, &frame, now, &mut consumer);
+            on_frame(&mut node, &frame, now, &mut recipient);
         });
         let after = node.counters();
         outgoing.clear();
@@ -181,14 +181,14 @@ fn node_path(case: &str) {
             _ => crate::report(case, class),
         }
     }
-    if consumer.delivered == 0 {
+    if recipient.delivered == 0 {
         fail(format_args!("the arm node delivered nothing"));
     }
 }
 
 #[inline(never)]
-fn on_frame(node: &mut BoardNode, frame: &Frame, now: Instant, consumer: &mut Counting) {
-    node.on_frame(frame, now, consumer);
+fn on_frame(node: &mut BoardNode, frame: &Frame, now: Instant, recipient: &mut Counting) {
+    node.on_frame(frame, now, recipient);
 }
 
 pub fn run() {

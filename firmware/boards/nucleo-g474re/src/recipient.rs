@@ -1,23 +1,23 @@
 //! What this board does with delivered frames: logs and counts them. A real board puts its
-//! actuators here (see [`BoardConsumer::deliver`]).
+//! actuators here (see [`BoardRecipient::deliver`]).
 
 use pab_core::{Frame, Instant};
 
 /// Counts the frames delivered at each port and logs each one (defmt, debug level).
-pub struct BoardConsumer {
+pub struct BoardRecipient {
     delivered: [u32; pab_core::BOARD_PORTS],
 }
 
-impl BoardConsumer {
+impl BoardRecipient {
     /// Nothing delivered yet.
     pub const fn new() -> Self {
-        BoardConsumer {
+        BoardRecipient {
             delivered: [0; pab_core::BOARD_PORTS],
         }
     }
 }
 
-impl pab_app::Consumer for BoardConsumer {
+impl pab_app::Recipient for BoardRecipient {
     fn deliver(&mut self, port: u8, frame: &Frame, now: Instant) {
         let count = match self.delivered.get_mut(usize::from(port)) {
             Some(count) => {

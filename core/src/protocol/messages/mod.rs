@@ -1,0 +1,150 @@
+//! Payload codecs, one type per service. Every decoder checks the exact length and every enumerated
+//! or reserved field; a frame that fails is refused with a [`DecodeError`], never half-read.
+//!
+//! One file per family of services (`status`, `coordination`, `diagnostic`, `transfer`,
+//! `schema_server`) for the payload types and their documented layouts; one for the encoder
+//! and one for the decoder, each a single match over every message, so that a board links one
+//! copy of each and a new message is put in both.
+
+mod coordination;
+mod decode;
+mod diagnostic;
+mod encode;
+mod schema_server;
+mod status;
+#[cfg(test)]
+mod tests;
+mod transfer;
+
+pub use coordination::{
+    DesireFrame, Exploitation, FilterProfile, FilterSet, FilterStatus, Gates, Intention,
+};
+pub use decode::DecodeError;
+pub use diagnostic::{DiagnosticControl, DiagnosticFlags, DiagnosticSample};
+pub use schema_server::{SchemaAck, SchemaState, SchemaTransition};
+pub use status::{Errors, Fault, Heartbeat, TableStatus, Traffic};
+pub use transfer::{OPEN_REPLACE, OPEN_SCHEMA, TransferOpen, TransferStatus};
+
+use super::Service;
+
+/// Any frame of our protocol, decoded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Message {
+    /// See [`Fault`].
+    Fault(Fault),
+    /// See [`Heartbeat`].
+    Heartbeat(Heartbeat),
+    /// See [`TableStatus`].
+    TableStatus(TableStatus),
+    /// See [`Traffic`].
+    Traffic(Traffic),
+    /// See [`Errors`].
+    Errors(Errors),
+    /// See [`DiagnosticSample`].
+    Diagnostic(DiagnosticSample),
+    /// See [`Gates`].
+    Gates(Gates),
+    /// See [`DesireFrame`].
+    Desire(DesireFrame),
+    /// See [`Intention`].
+    Intention(Intention),
+    /// See [`FilterStatus`].
+    FilterStatus(FilterStatus),
+    /// See [`Exploitation`].
+    Exploitation(Exploitation),
+    /// See [`FilterProfile`].
+    FilterProfile(FilterProfile),
+    /// See [`FilterSet`].
+    FilterSet(FilterSet),
+    /// See [`DiagnosticControl`].
+    DiagnosticControl(DiagnosticControl),
+    /// One ISO-TP frame of a table transfer (or its flow control), passed to [`crate::isotp`].
+    TableTransfer {
+        /// The frame's bytes.
+        data: [u8; 8],
+        /// How many of them the frame carried.
+        len: u8,
+    },
+    /// See [`TransferStatus`].
+    TransferStatus(TransferStatus),
+    /// A [`DiagnosticControl`] followed by its tag (service 0x10, 8 bytes): the form a node with
+    /// a key takes.
+    AuthenticatedDiagnosticControl {
+        /// The command.
+        control: DiagnosticControl,
+        /// CMAC (domain 1, node, service, nonce, the 4 bytes of `control`), first 4 bytes.
+        tag: [u8; crate::auth::COMMAND_TAG_LEN],
+    },
+    /// Asks a node for a challenge (service 0x13, no payload).
+    ChallengeRequest,
+    /// A node's challenge (service 0x14): the nonce, u64 LE (boot salt in the high 32 bits).
+    Challenge {
+        /// The nonce.
+        nonce: u64,
+    },
+    /// See [`TransferOpen`].
+    TransferOpen(TransferOpen),
+    /// Authenticates the TransferStatus that ended an opened transfer (service 0x16): CMAC
+    /// (domain 4, node, nonce, that TransferStatus's 8 bytes, the running image's CRC, its stored
+    /// flag), first 8 bytes.
+    Receipt {
+        /// The tag.
+        tag: [u8; crate::auth::RECEIPT_TAG_LEN],
+    },
+    /// Stop (service 0x00, no payload): from anyone, to a node or to all; never refused.
+    EmergencyStop,
+    /// Abandon the client's program (service 0x19, no payload): from anyone, to a node or to
+    /// all; never refused.
+    SchemaAbort,
+    /// One ISO-TP frame of a schema message (or its flow control), passed to [`crate::isotp`]:
+    /// the message is a channel byte ([`SchemaChannel`](crate::protocol::SchemaChannel)) and the schema's postcard bytes, or on
+    /// the limits channel the postcard bytes of [`crate::schema::Limits`].
+    SchemaTransfer {
+        /// The frame's bytes.
+        data: [u8; 8],
+        /// How many of them the frame carried.
+        len: u8,
+    },
+    /// See [`SchemaAck`].
+    SchemaAck(SchemaAck),
+    /// See [`SchemaTransition`].
+    SchemaTransition(SchemaTransition),
+    /// See [`SchemaState`].
+    SchemaState(SchemaState),
+}
+
+impl Message {
+    /// The service this message belongs to.
+    pub const fn service(&self) -> Service {
+        match self {
+            Message::Fault(_) => Service::Fault,
+            Message::Heartbeat(_) => Service::Heartbeat,
+            Message::TableStatus(_) => Service::TableStatus,
+            Message::Traffic(_) => Service::Traffic,
+            Message::Errors(_) => Service::Errors,
+            Message::Diagnostic(_) => Service::Diagnostic,
+            Message::Gates(_) => Service::Gates,
+            Message::Desire(_) => Service::Desire,
+            Message::Intention(_) => Service::Intention,
+            Message::FilterStatus(_) => Service::FilterStatus,
+            Message::Exploitation(_) => Service::Exploitation,
+            Message::FilterProfile(_) => Service::FilterProfile,
+            Message::FilterSet(_) => Service::FilterSet,
+            Message::DiagnosticControl(_) => Service::DiagnosticControl,
+            Message::TableTransfer { .. } => Service::TableTransfer,
+            Message::TransferStatus(_) => Service::TransferStatus,
+            Message::AuthenticatedDiagnosticControl { .. } => Service::DiagnosticControl,
+            Message::ChallengeRequest => Service::ChallengeRequest,
+            Message::Challenge { .. } => Service::Challenge,
+            Message::TransferOpen(_) => Service::TransferOpen,
+            Message::Receipt { .. } => Service::Receipt,
+            Message::EmergencyStop => Service::EmergencyStop,
+            Message::SchemaAbort => Service::SchemaAbort,
+            Message::SchemaTransfer { .. } => Service::SchemaTransfer,
+            Message::SchemaAck(_) => Service::SchemaAck,
+            Message::SchemaTransition(_) => Service::SchemaTransition,
+            Message::SchemaState(_) => Service::SchemaState,
+        }
+    }
+}
