@@ -36,6 +36,7 @@ mod dynamics;
 mod fields;
 mod gates;
 mod hbba;
+mod plant;
 mod schema;
 mod spanned;
 mod structure;
@@ -48,6 +49,7 @@ pub use hbba::{
     BUS, Hbba, HbbaStrategy, MAX_BITRATE, Resource, ScriptedDesire, Solved, StrategyFilter,
     bus_cost,
 };
+pub use plant::{Obstacle, PlantConfig};
 pub use schema::{
     CALLS, Call, Client, Command, Defaults, INNATE_IDS, MAX_CALLS, SchemaBoard, SensorTopic, Timed,
 };
@@ -131,7 +133,7 @@ struct RawFile {
     #[serde(default)]
     schema: IndexMap<Spanned<String>, Spanned<schema::RawSchema>>,
     /// Simulation only: the robot a schema server drives; every key optional.
-    plant: Option<Spanned<schema::RawPlant>>,
+    plant: Option<Spanned<plant::RawPlant>>,
     /// The schema server's client: its program and commands.
     client: Option<Spanned<schema::RawClient>>,
 }
@@ -602,7 +604,7 @@ pub struct Network {
     /// The schema servers' boards (`[schema.NODE]`): at most one.
     pub schema_boards: Vec<SchemaBoard>,
     /// The robot a schema server drives in simulation (`[plant]`).
-    pub plant: Option<crate::sim::plant::PlantConfig>,
+    pub plant: Option<PlantConfig>,
     /// The schema server's client (`[client]`).
     pub client: Option<Client>,
 }
