@@ -51,7 +51,8 @@ use pab_core::schema::{
 use schemars::JsonSchema;
 use serde::Deserialize;
 
-use super::{Builder, Node, RawField, list_or_none};
+use super::ports::RawField;
+use super::{Builder, Node, list_or_none};
 
 /// The longest program a file may hold, and the most commands (a typo in a generated file should
 /// not run for ever; ids stay below the board's reserved ones).
