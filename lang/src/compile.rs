@@ -655,4 +655,48 @@ mod tests {
                 .contains("can both deliver when the active connections are {A, B}")
         );
     }
+
+    #[test]
+    fn a_schema_servers_image_carries_its_sensors_and_innate_schemas() {
+        let text = r#"
+[nodes.arm]
+id = 10
+
+[schema.arm]
+period_ms = 1
+force_limit_n = 30
+drive = { setpoint = 0x300, pose = 0x310, wrench = 0x320 }
+
+[schema.arm.sensors.gap]
+can_id = 0x330
+value = { offset = 0, size = 2 }
+scale = 0.1
+unit = "mm"
+
+[schema.arm.sensors.grip]
+can_id = 0x12345
+extended = true
+value = { offset = 1, size = 1, signed = true }
+unit = "N"
+
+[schema.arm.places]
+safe = [0, 0, 80]
+
+[schema.arm.innate]
+retreat = "move_to(safe, speed=20); done -> high_priority"
+hold = "idle(); below(gap, 0.3) -> retreat"
+"#;
+        let network =
+            Network::parse(Source::new("net.toml", text)).unwrap_or_else(|e| panic!("{e:?}"));
+        let board = &network.schema_boards[0];
+        let nodes = compile(&network).unwrap_or_else(|e| panic!("{e:?}"));
+        let loaded: pab_core::image::Loaded = pab_core::image::load(&nodes[0].image).unwrap();
+        let setup = loaded.table.schema().unwrap();
+        assert_eq!(setup.config.innate, board.config.innate);
+        assert_eq!(board.config.innate.len(), 2);
+        let sensors: Vec<pab_core::schema::Sensor> =
+            board.sensors.iter().map(|s| s.sensor).collect();
+        assert_eq!(setup.sensors.as_slice(), sensors.as_slice());
+        assert_eq!(sensors.len(), 2);
+    }
 }

@@ -33,13 +33,6 @@ impl Source {
         }
     }
 
-    /// Reads a network file: a regular file of at most [`crate::input::MAX_NETWORK_BYTES`]
-    /// ([`crate::input::read_text`]).
-    pub fn read(path: &Path) -> Result<Self, Diagnostic> {
-        crate::input::read_text(path, "network file", crate::input::MAX_NETWORK_BYTES)
-            .map(|text| Source::new(path, text))
-    }
-
     /// The file's path as given.
     pub fn path(&self) -> &Path {
         &self.path

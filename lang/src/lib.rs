@@ -8,6 +8,18 @@
 //! boards run ([`sim`]), replays recorded candump captures ([`candump`], [`replay`]) and
 //! describes the traffic as a DBC file ([`dbc`]). What a plot shows is data here ([`series`]);
 //! drawing it, and everything on a live bus, belongs to `pabctl`.
+//!
+//! # Layers
+//!
+//! A module imports only from modules listed before it here, never from one after it, so that
+//! the model can be read, tested and fuzzed without the simulator:
+//!
+//! 1. text and numbers: [`shown`], [`diagnostic`], [`input`] (files checked before they are
+//!    read), [`rule`], [`time`], [`series`], [`candump`];
+//! 2. the model: [`network`], the file parsed and its names, numbers and rules checked;
+//! 3. its meaning: [`kinds`] → [`check`] → [`compile`];
+//! 4. running the tables: [`sim`] → [`replay`];
+//! 5. describing the traffic: [`dbc`] (from the model, and the claims of a capture).
 
 pub mod candump;
 pub mod check;
@@ -22,3 +34,4 @@ pub mod rule;
 pub mod series;
 pub mod shown;
 pub mod sim;
+pub mod time;

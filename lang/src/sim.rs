@@ -55,6 +55,8 @@ pub mod schema;
 
 pub use dynamics::{DynamicsRow, write_csv as write_dynamics_csv};
 pub use intention::IntentionRun;
+// The conversions live with the model, which reads times too; kept here for the tools' paths.
+pub use crate::time::{micros, seconds_text};
 
 /// How to run a simulation.
 #[derive(Clone, Debug, Default)]
@@ -156,16 +158,6 @@ impl std::fmt::Display for SimError {
 }
 
 impl std::error::Error for SimError {}
-
-/// Seconds to µs, rounded to the nearest microsecond.
-pub fn micros(seconds: f64) -> u64 {
-    (seconds * 1e6).round().max(0.0) as u64
-}
-
-/// `t` µs as seconds with six decimals, exactly.
-pub fn seconds_text(t_us: u64) -> String {
-    format!("{}.{:06}", t_us / 1_000_000, t_us % 1_000_000)
-}
 
 struct Station {
     /// Node index in the network.

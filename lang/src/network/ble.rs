@@ -17,7 +17,9 @@ use pab_core::{Endian, MAX_CONNECTIONS_PER_PORT, Stimulation};
 use schemars::JsonSchema;
 use serde::Deserialize;
 
-use super::{Builder, Connection, Kind, Node, Port, RawConnection, RawField, Topic, list_or_none};
+use super::connections::RawConnection;
+use super::ports::RawField;
+use super::{Builder, Connection, Kind, Node, Port, Topic, list_or_none};
 use crate::rule::{self, Rule};
 use crate::shown;
 

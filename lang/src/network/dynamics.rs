@@ -18,7 +18,8 @@ use schemars::{JsonSchema, Schema, SchemaGenerator, json_schema};
 use serde::Deserialize;
 use serde::de::{self, Deserializer, MapAccess, Visitor};
 
-use super::{Builder, Connection, Node, Port, RawField, Topic, list_or_none};
+use super::ports::RawField;
+use super::{Builder, Connection, Node, Port, Topic, list_or_none};
 use crate::rule;
 use crate::shown;
 

@@ -15,7 +15,8 @@ use pab_core::MAX_CONNECTIONS_PER_PORT;
 use pab_core::Stimulation;
 use pab_core::dynamics::{MAX_GATE_LINKS, MAX_GATE_SOURCES};
 
-use super::{Builder, Connection, DynamicsGroup, Kind, NO_TOPIC, Port, RawConnection};
+use super::connections::RawConnection;
+use super::{Builder, Connection, DynamicsGroup, Kind, NO_TOPIC, Port};
 use crate::rule::{self, Rule};
 
 /// σ = 1 and τ = 0.1 s: never used (no frame feeds a gate), but a valid connection for the

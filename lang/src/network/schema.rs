@@ -1,5 +1,6 @@
-//! `[schema.NODE]`, `[plant]` and `[client]`: a schema server's board, the robot it drives in
-//! simulation, and the workstation client's program (docs/schema-server.md).
+//! `[schema.NODE]` and `[client]`: a schema server's board and the workstation client's program
+//! (docs/schema-server.md). The `[plant]` of the example, the robot the board drives in
+//! simulation, is read by `plant.rs`.
 //!
 //! ```toml
 //! [schema.arm]                 # node `arm` runs a schema server
@@ -50,8 +51,8 @@ use pab_core::schema::{
 use schemars::JsonSchema;
 use serde::Deserialize;
 
-use super::{Builder, Node, RawField, list_or_none};
-use crate::sim::plant::{Obstacle, PlantConfig};
+use super::ports::RawField;
+use super::{Builder, Node, list_or_none};
 
 /// The longest program a file may hold, and the most commands (a typo in a generated file should
 /// not run for ever; ids stay below the board's reserved ones).
@@ -171,55 +172,6 @@ struct RawBox {
     min: Spanned<Vec<f64>>,
     /// Required: the highest x, y, z, mm.
     max: Spanned<Vec<f64>>,
-}
-
-/// `[plant]`.
-#[derive(Deserialize, JsonSchema)]
-#[serde(deny_unknown_fields)]
-pub(super) struct RawPlant {
-    /// The tip at the start, [x, y, z] in mm, default [0, 0, 50].
-    start_mm: Option<Spanned<Vec<f64>>>,
-    /// The moving mass, kg, default 2.
-    mass_kg: Option<Spanned<f64>>,
-    /// Its contacts' stiffness, N/m, default 200000.
-    contact_stiffness_n_per_m: Option<Spanned<f64>>,
-    /// Its contacts' damping, N·s/m, default 400.
-    contact_damping_ns_per_m: Option<Spanned<f64>>,
-    /// The parts' height, mm, default 15.
-    part_height_mm: Option<Spanned<f64>>,
-    /// Half the parts' width, mm (default 10).
-    part_half_width_mm: Option<Spanned<f64>>,
-    /// The holes are as wide as a part plus this on each side, mm, default 0.05 (no
-    /// chamfer).
-    clearance_mm: Option<Spanned<f64>>,
-    /// The holes' depth, mm, default 15.
-    hole_depth_mm: Option<Spanned<f64>>,
-    /// A grasp takes the part whose centre is this near the tip, mm, default 2.
-    grasp_tolerance_mm: Option<Spanned<f64>>,
-    /// A part released this deep in a hole is inserted, mm, default 1.
-    insert_depth_mm: Option<Spanned<f64>>,
-    /// Where the parts stand, [x, y] in mm each.
-    #[serde(default)]
-    parts_mm: Vec<Spanned<Vec<f64>>>,
-    /// Where the holes really are, [x, y] in mm each.
-    #[serde(default)]
-    holes_mm: Vec<Spanned<Vec<f64>>>,
-    /// Boxes in the way.
-    #[serde(default)]
-    obstacles: Vec<Spanned<RawObstacle>>,
-    /// Optional: a sensor of `[schema.NODE]` (unit = "mm") on which the plant publishes its
-    /// range finder.
-    range_finder: Option<Spanned<String>>,
-}
-
-/// `{ min_mm = [-110, -10, 0], max_mm = [-90, 10, 60] }`: a box in the way.
-#[derive(Deserialize, JsonSchema)]
-#[serde(deny_unknown_fields)]
-struct RawObstacle {
-    /// Required: its lowest x, y, z, mm.
-    min_mm: Spanned<Vec<f64>>,
-    /// Required: its highest x, y, z, mm.
-    max_mm: Spanned<Vec<f64>>,
 }
 
 /// `[client]`.
@@ -1027,7 +979,12 @@ impl Builder<'_> {
     }
 
     /// A point in mm (three values; six with rotations in mrad) as a pose in µm and µrad.
-    fn point(&mut self, value: &Spanned<Vec<f64>>, what: &str, least: usize) -> Option<Pose> {
+    pub(super) fn point(
+        &mut self,
+        value: &Spanned<Vec<f64>>,
+        what: &str,
+        least: usize,
+    ) -> Option<Pose> {
         let v = value.get_ref();
         if v.len() != least && v.len() != AXES {
             self.error(
@@ -1057,141 +1014,6 @@ impl Builder<'_> {
             *o = um.round() as i32;
         }
         Some(p)
-    }
-
-    pub(super) fn plant(
-        &mut self,
-        raw: Option<&Spanned<RawPlant>>,
-        boards: &[SchemaBoard],
-    ) -> Option<PlantConfig> {
-        let raw = raw?.get_ref();
-        let errors = self.errors.len();
-        let mut plant = PlantConfig::default();
-        let positive =
-            |b: &mut Self, v: &Option<Spanned<f64>>, scale: f64, what: &str, out: &mut f64| {
-                if let Some(v) = v {
-                    let x = *v.get_ref() * scale;
-                    if x.is_finite() && x > 0.0 && x <= 1e12 {
-                        *out = x;
-                    } else {
-                        b.error(v.span(), format!("{what} must be a positive number"));
-                    }
-                }
-            };
-        positive(self, &raw.mass_kg, 1.0, "mass_kg", &mut plant.mass_kg);
-        positive(
-            self,
-            &raw.contact_stiffness_n_per_m,
-            1.0,
-            "contact_stiffness_n_per_m",
-            &mut plant.contact_stiffness,
-        );
-        positive(
-            self,
-            &raw.contact_damping_ns_per_m,
-            1.0,
-            "contact_damping_ns_per_m",
-            &mut plant.contact_damping,
-        );
-        positive(
-            self,
-            &raw.part_height_mm,
-            1000.0,
-            "part_height_mm",
-            &mut plant.part_height,
-        );
-        positive(
-            self,
-            &raw.part_half_width_mm,
-            1000.0,
-            "part_half_width_mm",
-            &mut plant.part_half_width,
-        );
-        positive(
-            self,
-            &raw.clearance_mm,
-            1000.0,
-            "clearance_mm",
-            &mut plant.clearance,
-        );
-        positive(
-            self,
-            &raw.hole_depth_mm,
-            1000.0,
-            "hole_depth_mm",
-            &mut plant.hole_depth,
-        );
-        positive(
-            self,
-            &raw.grasp_tolerance_mm,
-            1000.0,
-            "grasp_tolerance_mm",
-            &mut plant.grasp_tolerance,
-        );
-        positive(
-            self,
-            &raw.insert_depth_mm,
-            1000.0,
-            "insert_depth_mm",
-            &mut plant.insert_depth,
-        );
-        if let Some(start) = &raw.start_mm
-            && let Some(p) = self.point(start, "start_mm", 3)
-        {
-            plant.start = [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])];
-        }
-        for (list, out, what) in [
-            (&raw.parts_mm, &mut plant.parts, "parts_mm"),
-            (&raw.holes_mm, &mut plant.holes, "holes_mm"),
-        ] {
-            for xy in list {
-                match xy.get_ref().as_slice() {
-                    [x, y] if x.is_finite() && y.is_finite() => out.push([x * 1000.0, y * 1000.0]),
-                    _ => self.error(xy.span(), format!("{what}: each entry is [x, y] in mm")),
-                }
-            }
-        }
-        for o in &raw.obstacles {
-            let min = self.point(&o.get_ref().min_mm, "min_mm", 3);
-            let max = self.point(&o.get_ref().max_mm, "max_mm", 3);
-            if let (Some(min), Some(max)) = (min, max) {
-                if min.iter().zip(&max).take(3).any(|(lo, hi)| lo >= hi) {
-                    self.error(
-                        o.span(),
-                        "an obstacle's min_mm must be below its max_mm on every axis",
-                    );
-                }
-                plant.obstacles.push(Obstacle {
-                    min: [0, 1, 2].map(|i| f64::from(min[i])),
-                    max: [0, 1, 2].map(|i| f64::from(max[i])),
-                });
-            }
-        }
-        if let Some(name) = &raw.range_finder {
-            let sensors = boards.first().map_or(&[][..], |b| b.sensors.as_slice());
-            match sensors.iter().position(|s| &s.name == name.get_ref()) {
-                Some(i) if sensors[i].unit == "mm" => plant.range_finder = Some(i),
-                Some(_) => self.error(
-                    name.span(),
-                    format!(
-                        "range_finder: sensor `{}` must have unit = \"mm\": the plant publishes mm",
-                        name.get_ref()
-                    ),
-                ),
-                None => {
-                    let known: Vec<&str> = sensors.iter().map(|s| s.name.as_str()).collect();
-                    self.error(
-                        name.span(),
-                        format!(
-                            "range_finder: `{}` is not a sensor of the schema server (sensors: {})",
-                            name.get_ref(),
-                            list_or_none(&known)
-                        ),
-                    );
-                }
-            }
-        }
-        (self.errors.len() == errors).then_some(plant)
     }
 
     pub(super) fn client(
@@ -1383,7 +1205,7 @@ impl Builder<'_> {
                 None => continue,
             };
             commands.push(Timed {
-                t_us: crate::sim::micros(at),
+                t_us: crate::time::micros(at),
                 command,
             });
         }
@@ -2060,14 +1882,6 @@ hold = \"idle(); below(gap, 0.3) -> retreat\"
         let client = network.client.as_ref().unwrap();
         assert_eq!(client.program[0].schema, call);
         assert_eq!(client.program[0].name, "move_to(p)");
-
-        // What the board loads: the image carries the sensors and the innate schemas.
-        let nodes = crate::compile::compile(&network).unwrap_or_else(|e| panic!("{e:?}"));
-        let loaded: pab_core::image::Loaded = pab_core::image::load(&nodes[0].image).unwrap();
-        let setup = loaded.table.schema().unwrap();
-        assert_eq!(setup.config.innate, board.config.innate);
-        let sensors: Vec<Sensor> = board.sensors.iter().map(|s| s.sensor).collect();
-        assert_eq!(setup.sensors.as_slice(), sensors.as_slice());
     }
 
     #[test]

@@ -36,72 +36,11 @@
 
 use pab_core::schema::{AXES, Gripper, Pose, Setpoint, Wrench};
 
+// The configuration is the network file's `[plant]`, so the model owns it.
+pub use crate::network::{Obstacle, PlantConfig};
+
 /// Integration steps per board period.
 pub const SUBSTEPS: u32 = 10;
-
-/// A box the tip cannot enter (µm): an obstacle on the way.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Obstacle {
-    /// Lower corner (x, y, z), µm.
-    pub min: [f64; 3],
-    /// Upper corner, µm.
-    pub max: [f64; 3],
-}
-
-/// The plant's geometry and physics. Lengths µm, as the board's.
-#[derive(Clone, Debug, PartialEq)]
-pub struct PlantConfig {
-    /// The moving mass, kg.
-    pub mass_kg: f64,
-    /// N/m.
-    pub contact_stiffness: f64,
-    /// N·s/m.
-    pub contact_damping: f64,
-    /// µm.
-    pub part_height: f64,
-    /// µm.
-    pub part_half_width: f64,
-    /// µm: the hole is this much wider than the part on each side.
-    pub clearance: f64,
-    /// µm.
-    pub hole_depth: f64,
-    /// How far the part's centre may be from the tip for a grasp to take it, µm.
-    pub grasp_tolerance: f64,
-    /// How deep in its hole a released part counts as inserted, µm.
-    pub insert_depth: f64,
-    /// The parts' centres on the plate (x, y), µm.
-    pub parts: Vec<[f64; 2]>,
-    /// The holes' centres (x, y), µm: where they really are.
-    pub holes: Vec<[f64; 2]>,
-    /// Boxes in the way.
-    pub obstacles: Vec<Obstacle>,
-    /// The tip's position at the start, µm.
-    pub start: [f64; 3],
-    /// The board sensor (its index) the range finder's readings go to, if any.
-    pub range_finder: Option<usize>,
-}
-
-impl Default for PlantConfig {
-    /// The paper's assembly: 15 mm parts, ±0.05 mm clearance, a 2 kg arm; no parts or holes.
-    fn default() -> Self {
-        PlantConfig {
-            mass_kg: 2.0,
-            contact_stiffness: 200_000.0,
-            contact_damping: 400.0,
-            part_height: 15_000.0,
-            part_half_width: 10_000.0,
-            clearance: 50.0,
-            hole_depth: 15_000.0,
-            grasp_tolerance: 2_000.0,
-            insert_depth: 1_000.0,
-            parts: Vec::new(),
-            holes: Vec::new(),
-            obstacles: Vec::new(),
-            start: [0.0, 0.0, 50_000.0],
-            range_finder: None,
-        }
-    }
-}
 
 /// Where a part is.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -1,0 +1,306 @@
+//! `[topics.NAME]`: the streams of CAN frames, each matched by identifier and mask, with the rate
+//! its publisher sends at and the data length of its frames.
+
+use std::ops::Range;
+
+use indexmap::IndexMap;
+use pab_core::Filter;
+use pab_core::filter::{MAX_EXTENDED_ID, MAX_STANDARD_ID};
+use pab_core::frame::MAX_DATA_LEN;
+use schemars::JsonSchema;
+use serde::Deserialize;
+
+use super::spanned::Spanned;
+use super::{Builder, Network, PLAIN_NAME, is_plain_name, list_or_none, suggest};
+
+/// The highest `rate_hz` of a topic: more frames a second than a 1 Mbit/s bus carries.
+pub const MAX_RATE_HZ: f64 = 100_000.0;
+
+/// `[topics.NAME]`: a stream of CAN frames.
+#[derive(Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawTopic {
+    /// Required: the frames' identifier, 11-bit (0..=0x7FF), or 29-bit (0..=0x1FFFFFFF) with
+    /// `extended = true`.
+    can_id: Spanned<i64>,
+    /// Optional, default false: a 29-bit identifier.
+    #[serde(default)]
+    extended: bool,
+    /// Optional: a frame matches when (frame_id & mask) == can_id; default all bits (exact
+    /// match); can_id may not have bits outside mask.
+    mask: Option<Spanned<i64>>,
+    /// Optional: frames per second the publisher sends, (0, 100000], kept in whole µHz; what
+    /// HBBA's bus costs are computed from (required on a topic whose connection a strategy lets
+    /// through when `[hbba]` has a `bus` resource).
+    rate_hz: Option<Spanned<f64>>,
+    /// Optional, default 8: the data bytes of its frames, 0..=8; the DLC of its DBC message and
+    /// the length of its simulated frames (an event's `data` has exactly this many bytes); every
+    /// field read from its frames must lie within it.
+    length: Option<Spanned<i64>>,
+    /// Optional: what the frames carry; their message's comment in the DBC export.
+    description: Option<Spanned<String>>,
+}
+
+/// A stream of frames from one publisher, matched by CAN id and mask.
+#[derive(Clone, Debug)]
+pub struct Topic {
+    /// Its name in the file.
+    pub name: String,
+    /// The frames it designates.
+    pub filter: Filter,
+    /// How many frames a second it carries (`rate_hz`, optional), as written: what the HBBA
+    /// strategies' bus costs are computed from.
+    pub rate_hz: Option<f64>,
+    /// The same in whole µHz (rounded to nearest).
+    pub rate_uhz: Option<u64>,
+    /// How many data bytes its frames carry (`length`, 0 to 8; default 8): the DBC export's
+    /// DLC, the simulated frames' length, and the bytes a field of its frames may read.
+    pub length: u8,
+    /// What the file says it carries (`description`): the DBC export's comment on its message.
+    pub description: Option<String>,
+    /// Where it is defined.
+    pub span: Range<usize>,
+}
+
+impl Builder<'_> {
+    pub(super) fn topics(
+        &mut self,
+        raw: &IndexMap<Spanned<String>, Spanned<RawTopic>>,
+    ) -> Vec<Topic> {
+        let mut topics: Vec<Topic> = Vec::new();
+        for (name, topic) in raw {
+            if self.printable(name, "topic name") && !is_plain_name(name.get_ref()) {
+                self.error(
+                    name.span(),
+                    format!("topic name `{}`: {PLAIN_NAME}", name.get_ref()),
+                );
+            }
+            let raw_topic = topic.get_ref();
+            let extended = raw_topic.extended;
+            let widest = if extended {
+                MAX_EXTENDED_ID
+            } else {
+                MAX_STANDARD_ID
+            };
+            let format = if extended {
+                "extended (29-bit)"
+            } else {
+                "standard (11-bit)"
+            };
+            let id = *raw_topic.can_id.get_ref();
+            let Some(id) = u32::try_from(id).ok().filter(|&id| id <= widest) else {
+                let hint = if extended {
+                    ""
+                } else {
+                    "; write `extended = true` for a 29-bit id"
+                };
+                self.error(
+                    raw_topic.can_id.span(),
+                    format!(
+                        "can_id {id:#x} does not fit a {format} id (at most {widest:#x}){hint}"
+                    ),
+                );
+                continue;
+            };
+            let mask = match &raw_topic.mask {
+                None => widest,
+                Some(mask) => match u32::try_from(*mask.get_ref()).ok().filter(|&m| m <= widest) {
+                    Some(mask) => mask,
+                    None => {
+                        self.error(
+                            mask.span(),
+                            format!(
+                                "mask {:#x} does not fit a {format} id (at most {widest:#x})",
+                                mask.get_ref()
+                            ),
+                        );
+                        continue;
+                    }
+                },
+            };
+            let filter = match Filter::new(id, mask, extended) {
+                Ok(filter) => filter,
+                Err(error) => {
+                    self.error(
+                        raw_topic.can_id.span(),
+                        format!("can_id {id:#x} under mask {mask:#x}: {error}"),
+                    );
+                    continue;
+                }
+            };
+            if let Some(other) = topics.iter().find(|other| other.filter == filter) {
+                self.error(
+                    raw_topic.can_id.span(),
+                    format!(
+                        "topic `{}` matches the same frames as topic `{}`",
+                        name.get_ref(),
+                        other.name
+                    ),
+                );
+                continue;
+            }
+            let Some((rate_hz, rate_uhz)) = self.topic_rate(raw_topic) else {
+                continue;
+            };
+            let Some(length) = self.topic_length(raw_topic) else {
+                continue;
+            };
+            let description = self.description(raw_topic.description.as_ref());
+            topics.push(Topic {
+                name: name.get_ref().clone(),
+                filter,
+                rate_hz,
+                rate_uhz,
+                length,
+                description,
+                span: topic.span(),
+            });
+        }
+        topics
+    }
+
+    /// A topic's `rate_hz`, as written and in µHz: `Some((None, None))` without one, `None`
+    /// after reporting a bad one.
+    fn topic_rate(&mut self, raw: &RawTopic) -> Option<(Option<f64>, Option<u64>)> {
+        let Some(rate) = &raw.rate_hz else {
+            return Some((None, None));
+        };
+        let hz = *rate.get_ref();
+        let micro = (hz * 1e6).round();
+        if !(hz.is_finite() && hz > 0.0 && hz <= MAX_RATE_HZ && micro >= 1.0) {
+            self.error(
+                rate.span(),
+                format!(
+                    "rate_hz = {hz}: frames per second, positive, at most {MAX_RATE_HZ} (kept in whole µHz)"
+                ),
+            );
+            return None;
+        }
+        Some((Some(hz), Some(micro as u64)))
+    }
+
+    /// A topic's `length`: 8 without one, `None` after reporting a bad one.
+    fn topic_length(&mut self, raw: &RawTopic) -> Option<u8> {
+        let Some(length) = &raw.length else {
+            return Some(MAX_DATA_LEN as u8);
+        };
+        let value = *length.get_ref();
+        match u8::try_from(value)
+            .ok()
+            .filter(|&l| usize::from(l) <= MAX_DATA_LEN)
+        {
+            Some(length) => Some(length),
+            None => {
+                self.error(
+                    length.span(),
+                    format!(
+                        "length = {value}: the data bytes of the topic's frames, 0 to {MAX_DATA_LEN} (a classic CAN frame)"
+                    ),
+                );
+                None
+            }
+        }
+    }
+
+    /// Every field the network reads from a topic's frames (value ports, BLE eligibilities,
+    /// dynamics contexts) must lie within the topic's `length`: a field past it would never
+    /// read a byte. Reported at the `length` that cut it short.
+    pub(super) fn fields_within_lengths(
+        &mut self,
+        raw: &IndexMap<Spanned<String>, Spanned<RawTopic>>,
+        network: &Network,
+    ) {
+        for (index, topic) in network.topics.iter().enumerate() {
+            let Some(length) = raw
+                .iter()
+                .find(|(name, _)| name.get_ref() == &topic.name)
+                .and_then(|(_, raw)| raw.get_ref().length.as_ref())
+            else {
+                continue;
+            };
+            for field in network.topic_fields(index) {
+                let end = u16::from(field.offset) + u16::from(field.size);
+                if end > u16::from(topic.length) {
+                    self.error(
+                        length.span(),
+                        format!(
+                            "topic `{}` carries {} bytes (`length = {}`), but {} reads bytes {}..{} of its frames",
+                            topic.name, topic.length, topic.length, field.reader, field.offset, end
+                        ),
+                    );
+                }
+            }
+        }
+    }
+
+    /// The index of the topic `name` names, or `None` after reporting that it is not defined.
+    pub(super) fn topic_index(
+        &mut self,
+        name: &Spanned<String>,
+        topics: &[Topic],
+    ) -> Option<usize> {
+        let wanted = name.get_ref();
+        let found = topics.iter().position(|topic| &topic.name == wanted);
+        if found.is_none() && !self.declared.topics.contains(wanted.as_str()) {
+            let known: Vec<&str> = topics.iter().map(|topic| topic.name.as_str()).collect();
+            self.error(
+                name.span(),
+                format!(
+                    "topic `{wanted}` is not defined (topics: {}){}",
+                    list_or_none(&known),
+                    suggest(wanted, &known)
+                ),
+            );
+        }
+        found
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::network::tests::{FIGURE_1, errors, parse};
+
+    #[test]
+    fn a_topic_length_is_0_to_8_and_bounds_the_fields_read_from_it() {
+        for (length, message) in [
+            (
+                "9",
+                "length = 9: the data bytes of the topic's frames, 0 to 8",
+            ),
+            (
+                "-1",
+                "length = -1: the data bytes of the topic's frames, 0 to 8",
+            ),
+        ] {
+            let text = FIGURE_1.replace(
+                "can_id = 0x111\n",
+                &format!("can_id = 0x111\nlength = {length}\n"),
+            );
+            let errors = errors(&text);
+            assert_eq!(errors.len(), 1, "{errors:?}");
+            assert!(errors[0].contains(message), "{errors:?}");
+        }
+        let ports = |length: u8| {
+            format!(
+                "[nodes.base]\nid = 4\n[topics.range]\ncan_id = 0x1A0\nlength = {length}\n\
+                 [ports.\"base.nearest\"]\ncombine = \"min\"\nvalue = {{ offset = 1, size = 2 }}\n\
+                 [connections.R]\ntopic = \"range\"\nport = \"base.nearest\"\nst = 1.0\ntc = 0.3\n"
+            )
+        };
+        let network = parse(&ports(3)).unwrap();
+        let fields = network.topic_fields(0);
+        assert_eq!(fields.len(), 1, "{fields:?}");
+        assert_eq!(
+            (fields[0].name.as_str(), fields[0].offset, fields[0].size),
+            ("nearest", 1, 2)
+        );
+        let errors = errors(&ports(2));
+        assert_eq!(errors.len(), 1, "{errors:?}");
+        assert!(
+            errors[0].contains(
+                "topic `range` carries 2 bytes (`length = 2`), but port `base.nearest` (combine = \"min\") reads bytes 1..3 of its frames"
+            ),
+            "{errors:?}"
+        );
+    }
+}
