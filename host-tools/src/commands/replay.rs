@@ -12,6 +12,7 @@ use pab_lang::sim::{self, Options};
 use pabctl::plot;
 
 use super::compile::compiled;
+use super::sim::report_and_trace;
 use crate::failure::Failure;
 use crate::output::{
     eprintln_line, plural, println_line, progress_bar, refuse_unwritable, write_atomically,
@@ -155,22 +156,7 @@ pub fn run(
             }
         ));
     }
-    let report = outcome.report(&network);
-    if !report.is_empty() {
-        say(report.trim_end().to_string());
-    }
-    if let Some(trace) = trace {
-        let mut csv = Vec::new();
-        outcome
-            .write_csv(&network, &mut csv)
-            .map_err(|error| Failure::Output(format!("cannot write the trace: {error}")))?;
-        write_atomically(trace, &csv)?;
-        say(format!(
-            "trace: {} ({} rows)",
-            trace.display(),
-            outcome.rows.len()
-        ));
-    }
+    report_and_trace(&network, &outcome, trace, say)?;
     if let Some(records_path) = records_path {
         write_atomically(records_path, outcome.records.as_bytes())?;
         say(format!("records: {}", records_path.display()));

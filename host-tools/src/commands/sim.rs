@@ -61,22 +61,7 @@ pub fn run(
         plural(network.nodes.len()),
         sim::seconds_text(outcome.until_us)
     ));
-    let report = outcome.report(&network);
-    if !report.is_empty() {
-        say(report.trim_end().to_string());
-    }
-    if let Some(trace) = trace {
-        let mut csv = Vec::new();
-        outcome
-            .write_csv(&network, &mut csv)
-            .map_err(|error| Failure::Output(format!("cannot write the trace: {error}")))?;
-        write_atomically(trace, &csv)?;
-        say(format!(
-            "trace: {} ({} rows)",
-            trace.display(),
-            outcome.rows.len()
-        ));
-    }
+    report_and_trace(&network, &outcome, trace, say)?;
     if let Some(plot_path) = plot_path.filter(|_| !schema_only) {
         let title = path
             .file_name()
@@ -196,6 +181,33 @@ pub fn run_schema(
                 Failure::Output(format!("cannot draw {}: {error:#}", plot_path.display()))
             })?;
         say(format!("schema plot: {}", plot_path.display()));
+    }
+    Ok(())
+}
+
+/// The run's report, then its trace written to `trace` if asked: what sim and replay both print
+/// after a run, through `say` (standard error under `--json`).
+pub(super) fn report_and_trace(
+    network: &Network,
+    outcome: &sim::Outcome,
+    trace: Option<&Path>,
+    say: fn(String),
+) -> Result<(), Failure> {
+    let report = outcome.report(network);
+    if !report.is_empty() {
+        say(report.trim_end().to_string());
+    }
+    if let Some(trace) = trace {
+        let mut csv = Vec::new();
+        outcome
+            .write_csv(network, &mut csv)
+            .map_err(|error| Failure::Output(format!("cannot write the trace: {error}")))?;
+        write_atomically(trace, &csv)?;
+        say(format!(
+            "trace: {} ({} rows)",
+            trace.display(),
+            outcome.rows.len()
+        ));
     }
     Ok(())
 }
