@@ -93,10 +93,12 @@ id, the table version and a CRC-32. Nothing is written if the network is inconsi
     },
     /// Run every node of the network on a simulated bus, with the events of the file.
     #[command(long_about = "\
-Run every node of the network on a simulated bus in virtual time: each node loads its compiled \
-table with the same code the boards run, the frames come from the file's [[events]] (with their \
-data bytes), a node of the file's [[faults]] stops at its time (it receives nothing from then on \
-and its ports deliver nothing), and the run is deterministic. A node that runs a [dynamics.*] \
+Run every node of the network on a simulated bus in virtual time: each node is the node \
+application the boards run, booted from its compiled table, the frames come from the file's \
+[[events]] (with their data bytes), what the nodes send (heartbeats, BLE claims, Gates, \
+re-published frames) goes on the bus too, a node of the file's [[faults]] stops at its time (it \
+receives and sends nothing from then on and its ports deliver nothing), and the run is \
+deterministic. A node that runs a [dynamics.*] \
 group steps it at its `step` and puts its Gates on the bus; every node whose rules name a gate \
 (`door.search`) reads them. Prints, per port, a timeline of which connection gets through \
 whenever that changes, and per connection how many frames it received and delivered.
@@ -121,8 +123,8 @@ per installed schema (t,node,schema,source,event; the event `safety:<name>` for 
 ones) and --schema-plot draws the height, lateral position, contact force and installed schema \
 over time, from --from to --until (--plot draws it too when the file has no port).
 --candump writes the simulated bus as a candump -L log (each frame with its event's data, by \
-default its topic's `length` of zeros; the intention's filter commands, the nodes' BLE claims and \
-Gates too; times from 0 s on interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a real bus.")]
+default its topic's `length` of zeros; the intention's filter commands and everything the nodes \
+sent too; times from 0 s on interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a real bus.")]
     Sim {
         /// The network file (TOML).
         network: PathBuf,

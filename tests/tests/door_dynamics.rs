@@ -90,42 +90,44 @@ fn the_trace_has_its_header_and_rows_at_each_step() {
     let outcome = simulate(&network);
     let text = csv(&network, &outcome.dynamics);
     let lines: Vec<&str> = text.lines().take(7).collect();
-    // t_0: the initial state (n = 0, ρ = 0, m = −1), with the contexts at 0 (CORRIDOR and PATH
-    // have a frame at exactly 0). After one step ρ of a behaviour with context 1 is
-    // dt / τ_ρ2 = 0.005, n holds the first noise sample.
+    // t_0: the initial state (n = 0, ρ = 0, m = −1), with the contexts the node sampled when it
+    // booted at 0, before the frames of that instant: CORRIDOR and PATH's first frames, at
+    // exactly 0, count from the first step on. After one step n holds the first noise sample;
+    // ρ of a behaviour with context 1 is dt / τ_ρ2 = 0.005 a step later.
     assert_eq!(
         lines,
         [
             "t,group,behaviour,context,n,rho,m,gate",
-            "0.000000,door,search,1.000000,0.000000,0.000000,-1.000000,0",
+            "0.000000,door,search,0.000000,0.000000,0.000000,-1.000000,0",
             "0.000000,door,recognise,0.000000,0.000000,0.000000,-1.000000,0",
-            "0.000000,door,approach,1.000000,0.000000,0.000000,-1.000000,0",
-            "0.001000,door,search,1.000000,-0.000710,0.005000,-1.000000,0",
+            "0.000000,door,approach,0.000000,0.000000,0.000000,-1.000000,0",
+            "0.001000,door,search,1.000000,-0.000710,0.000000,-1.000000,0",
             "0.001000,door,recognise,0.000000,-0.000558,0.000000,-1.000000,0",
             "0.001000,door,approach,1.000000,0.000062,0.000000,-1.000000,0",
         ]
     );
-    // DOOR's first frame is at exactly 0.8 s: it counts for the context at 0.8, not before;
-    // recognise's ρ rises from the step after 0.8 s.
+    // DOOR's first frame at 0.8 s follows CORRIDOR's and PATH's of that microsecond on the bus:
+    // the node took the step of 0.8 s on the first of them, so DOOR counts for the context at
+    // 0.801, not before; recognise's ρ rises from the step after.
     let row = |t: &str| {
         text.lines()
-            .find(|l| l.starts_with(t) && l.contains(",recognise,"))
-            .unwrap_or_else(|| panic!("no row {t}"))
+            .find(|line| line.starts_with(t) && line.contains(",recognise,"))
+            .unwrap()
             .to_string()
     };
     assert!(
-        row("0.799000,").contains(",recognise,0.000000,"),
-        "{}",
-        row("0.799000,")
-    );
-    assert!(
-        row("0.800000,").contains(",recognise,1.000000,"),
+        row("0.800000,").contains(",recognise,0.000000,"),
         "{}",
         row("0.800000,")
     );
+    assert!(
+        row("0.801000,").contains(",recognise,1.000000,"),
+        "{}",
+        row("0.801000,")
+    );
     let rho = |t: &str| row(t).split(',').nth(5).unwrap().to_string();
-    assert_eq!(rho("0.800000,"), "0.000000");
-    assert_eq!(rho("0.801000,"), "0.005000");
+    assert_eq!(rho("0.801000,"), "0.000000");
+    assert_eq!(rho("0.802000,"), "0.005000");
 }
 
 #[test]

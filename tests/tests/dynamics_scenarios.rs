@@ -27,6 +27,17 @@ use pab_tests::{dynamics_example_text, network};
 /// One step, µs.
 const STEP_US: u64 = 1_000;
 
+/// When a context whose frames start at 0 s is first read: the simulated nodes boot at 0 and
+/// sample their contexts then (t_0), before the frames of that instant, as a board that starts
+/// with its behaviours does; those frames count from the first step on.
+///
+/// The same holds for any frame that shares its microsecond with a step and follows another
+/// frame of that microsecond on the bus: the node takes the step after the first frame it
+/// handles at that instant (as a board does that reads a burst with one timestamp), so the
+/// later frames count from the next step. Only the simulator's ideal bus puts two frames in
+/// one microsecond.
+const FIRST_READ_US: u64 = STEP_US;
+
 /// Steps per τ_ρ2 (20 units of 10 steps).
 const TAU_RHO_SLOW_STEPS: u32 = 200;
 
@@ -217,10 +228,13 @@ fn one_behaviour_opens_after_the_refractory_delay_and_closes_with_its_context() 
     let follow = run.lane("line.follow");
     // LINE is active from its first frame (0 s) through its last frame + tc (1.90 + 0.1 s, that
     // instant included): the context's first 0 is at 2.001 s.
-    assert_eq!(context_edges(&follow), (vec![0], vec![2_001_000]));
+    assert_eq!(
+        context_edges(&follow),
+        (vec![FIRST_READ_US], vec![2_001_000])
+    );
     let (opens, closes) = edges(&follow);
     assert_eq!((opens.len(), closes.len()), (1, 1), "{opens:?} {closes:?}");
-    assert_first_activation("follow", 0, opens[0]);
+    assert_first_activation("follow", FIRST_READ_US, opens[0]);
     assert_eq!(closes[0], 2_001_000 + closing_steps() * STEP_US);
     // Saturated just before the context ends: n² near 1, ρ = 1 − e^(−10) after 2 s (10 τ_ρ2),
     // m near 1 (it rises on τ_n = 10 ms while n² ≈ 1).
@@ -264,7 +278,7 @@ fn two_exclusive_behaviours_one_wins_and_either_can() {
         assert!(edges(won).1.is_empty(), "{all}");
         // While both are small the pushes γ n_j² are negligible: the winner opens as a lone
         // behaviour would (measured 0.30 to 0.38 s over seeds 1 to 24).
-        assert_first_activation(&all, 0, opened);
+        assert_first_activation(&all, FIRST_READ_US, opened);
         // The loser's growth rate is α − γ n_winner² = 1 − 3 = −2 once the winner is up: from
         // below 0.71 (it never reached the opening threshold n² = ½) it is down to about
         // e^(−20) of that 10 units later, and its noise spreads it over q / √(2·2) = 5e-4 only.
@@ -320,14 +334,15 @@ fn the_incumbent_keeps_its_place_while_its_context_holds() {
     let run = Run::example("incumbent");
     let wall = run.lane("go.wall");
     let photo = run.lane("go.phototaxis");
-    assert_eq!(context_edges(&wall), (vec![0], vec![3_001_000]));
-    assert_eq!(context_edges(&photo), (vec![600_000], vec![4_401_000]));
+    assert_eq!(context_edges(&wall), (vec![FIRST_READ_US], vec![3_001_000]));
+    // LIGHT's first frame (0x121) follows WALL's (0x120) at 0.6 s: it counts from the step after.
+    assert_eq!(context_edges(&photo), (vec![601_000], vec![4_401_000]));
     let (wall_on, wall_off) = edges(&wall);
     let (photo_on, _) = edges(&photo);
     let all = format!("wall {wall_on:?} {wall_off:?}, phototaxis {photo_on:?}");
     // The wall first, alone, before the light appears.
     assert_eq!((wall_on.len(), wall_off.len()), (1, 1), "{all}");
-    assert_first_activation("wall", 0, wall_on[0]);
+    assert_first_activation("wall", FIRST_READ_US, wall_on[0]);
     assert!(wall_on[0] < 600_000, "{all}");
     // It keeps its place while its context holds, and goes 3 steps after.
     assert_eq!(wall_off[0], 3_001_000 + closing_steps() * STEP_US, "{all}");
@@ -349,6 +364,7 @@ fn a_one_way_exclusion_lets_the_suppressor_displace() {
     let run = Run::example("one-way");
     let wander = run.lane("roam.wander");
     let avoid = run.lane("roam.avoid");
+    // A constant context is 1 from t_0.
     assert_eq!(context_edges(&wander), (vec![0], vec![]));
     assert_eq!(context_edges(&avoid), (vec![600_000], vec![2_001_000]));
     let (wander_on, wander_off) = edges(&wander);
@@ -357,7 +373,7 @@ fn a_one_way_exclusion_lets_the_suppressor_displace() {
     assert_eq!((wander_on.len(), wander_off.len()), (2, 1), "{all}");
     assert_eq!((avoid_on.len(), avoid_off.len()), (1, 1), "{all}");
     // Wander first, before the obstacle.
-    assert_first_activation("wander", 0, wander_on[0]);
+    assert_first_activation("wander", FIRST_READ_US, wander_on[0]);
     assert!(wander_on[0] < 600_000, "{all}");
     // Avoid as if alone: wander does not push it.
     assert_first_activation("avoid", 600_000, avoid_on[0]);
@@ -382,7 +398,7 @@ fn without_exclusion_both_are_active() {
     for lane in &lanes {
         let (opens, closes) = edges(lane);
         assert_eq!((opens.len(), closes.len()), (1, 0), "{opens:?} {closes:?}");
-        assert_first_activation("co-activation", 0, opens[0]);
+        assert_first_activation("co-activation", FIRST_READ_US, opens[0]);
         opened.push(opens[0]);
     }
     // Both open together from the later opening to the end (1.5 s), and 0.1 s (10 units) after
@@ -439,7 +455,7 @@ fn the_door_glimpsed_too_briefly_is_neither_recognised_nor_approached() {
             (1, 0),
             "{name}: {opens:?} {closes:?}"
         );
-        assert_first_activation(name, 0, opens[0]);
+        assert_first_activation(name, FIRST_READ_US, opens[0]);
     }
     assert_eq!(run.outcome.until_us, 2_500_000);
 }
@@ -450,13 +466,24 @@ fn the_door_glimpsed_too_briefly_is_neither_recognised_nor_approached() {
 fn a_short_context_dip_barely_delays_a_long_one_costs_the_refractory_delay() {
     let run = Run::example("context-dip");
     let [blink, short, long] = ["dips.blink", "dips.short", "dips.long"].map(|b| run.lane(b));
-    assert_eq!(context_edges(&blink), (vec![0, 1_002_000], vec![1_000_000]));
-    assert_eq!(context_edges(&short), (vec![0, 1_005_000], vec![1_000_000]));
-    assert_eq!(context_edges(&long), (vec![0, 1_100_000], vec![1_000_000]));
+    // The three frames of 0 share 1.0 s: blink's (0x120) is first on the bus, short's and
+    // long's count from the step after (dips of 2, 4 and 99 steps).
+    assert_eq!(
+        context_edges(&blink),
+        (vec![FIRST_READ_US, 1_002_000], vec![1_000_000])
+    );
+    assert_eq!(
+        context_edges(&short),
+        (vec![FIRST_READ_US, 1_005_000], vec![1_001_000])
+    );
+    assert_eq!(
+        context_edges(&long),
+        (vec![FIRST_READ_US, 1_100_000], vec![1_001_000])
+    );
     let [b, s, l] = [&blink, &short, &long].map(|lane| edges(lane));
     let all = format!("blink {b:?}, short {s:?}, long {l:?}");
     for opens in [&b.0, &s.0, &l.0] {
-        assert_first_activation(&all, 0, opens[0]);
+        assert_first_activation(&all, FIRST_READ_US, opens[0]);
         assert!(opens[0] < 1_000_000, "{all}");
     }
     // 2 steps (< τ_ρ1 = 10 steps): n 1 → 0.8 → 0.67, n² still above 0.4; the gate stays open.
@@ -467,15 +494,16 @@ fn a_short_context_dip_barely_delays_a_long_one_costs_the_refractory_delay() {
     // grows from 0.46 to 0.707 (ln(n / √(1 − n²)) from −0.66 to 0 at rate α) in 3.9 units at
     // most, less as ρ climbs back (measured 3.2).
     assert_eq!((s.0.len(), s.1.len()), (2, 1), "{all}");
-    assert_eq!(s.1[0], 1_000_000 + closing_steps() * STEP_US, "{all}");
+    assert_eq!(s.1[0], 1_001_000 + closing_steps() * STEP_US, "{all}");
+    // Four steps of 0 (its frame of 0 follows blink's at 1.0 s): ρ fell to 0.993 · 0.9^4 = 0.65.
     let back = at(&short, 1_005_000);
-    assert!(back.rho > 0.5 && back.rho < 0.6, "{back:?}");
+    assert!(back.rho > 0.6 && back.rho < 0.7, "{back:?}");
     let short_delay = s.0[1] - 1_005_000;
     assert!(short_delay <= 50_000, "{all}");
     // 100 steps (10 τ_ρ1): ρ falls to 0.9^100 ≈ 3e-5, and must pass ½ again: a first activation
     // from the context's return (at least 139 steps, within 0.45 s).
     assert_eq!((l.0.len(), l.1.len()), (2, 1), "{all}");
-    assert_eq!(l.1[0], 1_000_000 + closing_steps() * STEP_US, "{all}");
+    assert_eq!(l.1[0], 1_001_000 + closing_steps() * STEP_US, "{all}");
     assert!(at(&long, 1_100_000).rho < 1e-4);
     assert_first_activation(&all, 1_100_000, l.0[1]);
     // The short dip costs less than a third of what the long one costs at the least.
@@ -492,7 +520,13 @@ fn a_flickering_context_activates_once_with_the_refractory_filter_and_each_time_
     // On from 0, off at 0.6 s, then every 0.15 s: on at 0.75, 1.05, ..., 2.85 s, off at 0.9,
     // 1.2, ..., 2.7 s, to the end (3.0 s).
     let ons: Vec<u64> = (0..9)
-        .map(|i| if i == 0 { 0 } else { 450_000 + 300_000 * i })
+        .map(|i| {
+            if i == 0 {
+                FIRST_READ_US
+            } else {
+                450_000 + 300_000 * i
+            }
+        })
         .collect();
     let offs: Vec<u64> = (0..8).map(|i| 600_000 + 300_000 * i).collect();
     assert_eq!(context_edges(&filtered), (ons.clone(), offs.clone()));
@@ -501,7 +535,7 @@ fn a_flickering_context_activates_once_with_the_refractory_filter_and_each_time_
     // With the filter: once, in the first on period, closed 3 steps into the first off period.
     let (opens, closes) = edges(&filtered);
     assert_eq!((opens.len(), closes.len()), (1, 1), "{opens:?} {closes:?}");
-    assert_first_activation("filtered", 0, opens[0]);
+    assert_first_activation("filtered", FIRST_READ_US, opens[0]);
     assert!(opens[0] < offs[0]);
     assert_eq!(closes[0], offs[0] + closing_steps() * STEP_US);
     // Each off period (15 units at τ_ρ1 = 1 unit) takes ρ to 0.9^150 ≈ 1e-7 (from 0.95 after

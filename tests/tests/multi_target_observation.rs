@@ -59,38 +59,43 @@ fn expect_timeline(list: &[(u64, &str)]) -> Vec<(u64, String)> {
 #[test]
 fn each_target_is_held_by_the_most_eligible_robot_that_watches_it_and_a_dead_robot_is_replaced() {
     let scenario = Scenario::run("multi-target-observation");
+    // The robots boot at 0 and claim at once, before their first readings: every first claim
+    // offers 0, and the holders of the first period are those that heard no better offer, a
+    // start-up transient of a period (two for t2, whose order settles on the second claims).
     // t1: r1 (900) over r2 (600); r1 stops at 3.0, its last claim (2.9) is stale at 3.1.
     assert_eq!(
         holders(&scenario, "observe_t1"),
         expect(&[
             (0, &[]),
-            (0, &["r1"]),
+            (0, &["r1", "r2"]),
+            (100 * MS, &["r1"]),
             (3_000 * MS, &[]),
             (3_100 * MS, &["r2"]),
             // The observers' last frames at 5.95: readings two periods old at 6.15.
             (6_150 * MS, &[]),
         ])
     );
-    // t2: r2 (500) over r3 (400), but r2's first claim (at 0, before its first reading of
-    // target 2) offers 0: both hold until its claim of 0.1, a start-up transient of one period.
+    // t2: r2 (500) over r3 (400). At 0.1 r2 still takes r3's first claim (0) for its best
+    // rival and r3 r2's: both hold until their claims of 0.2.
     // From 3.1 r2 watches t1 and offers 0 for t2 (its t2 observer is subsumed by its own t1
     // layer): nobody holds t2 until r3's next claim turn (3.2), when r3 takes it.
     assert_eq!(
         holders(&scenario, "observe_t2"),
         expect(&[
             (0, &[]),
-            (0, &["r2", "r3"]),
-            (100 * MS, &["r2"]),
+            (0, &["r3"]),
+            (100 * MS, &["r2", "r3"]),
+            (200 * MS, &["r2"]),
             (3_100 * MS, &[]),
             (3_200 * MS, &["r3"]),
             (6_150 * MS, &[]),
         ])
     );
-    // t3: r3 alone sees it; it offers it from its claim of 0.1 (outranked on t2 by then), and
+    // t3: r3 alone sees it; it offers it from its claim of 0.2 (outranked on t2 by then), and
     // gives it up for t2 at 3.2: t3, lower in priority than t2, is left uncovered.
     assert_eq!(
         holders(&scenario, "observe_t3"),
-        expect(&[(0, &[]), (100 * MS, &["r3"]), (3_200 * MS, &[])])
+        expect(&[(0, &[]), (200 * MS, &["r3"]), (3_200 * MS, &[])])
     );
     // t4: nobody sees it.
     assert_eq!(holders(&scenario, "observe_t4"), expect(&[(0, &[])]));
@@ -104,7 +109,7 @@ fn each_target_is_held_by_the_most_eligible_robot_that_watches_it_and_a_dead_rob
         expect_timeline(&[
             (0, "nobody"),
             (0, "OBS21"),
-            (0, "OBS22"),
+            (100 * MS, "OBS22"),
             (3_100 * MS, "OBS21"),
             (6_150 * MS, "WANDER2"),
             // WANDER2's last frame at 5.8, τ 0.5 s.
@@ -116,7 +121,7 @@ fn each_target_is_held_by_the_most_eligible_robot_that_watches_it_and_a_dead_rob
         expect_timeline(&[
             (0, "nobody"),
             (0, "OBS32"),
-            (100 * MS, "OBS33"),
+            (200 * MS, "OBS33"),
             (3_200 * MS, "OBS32"),
             (6_150 * MS, "WANDER3"),
             (6_300 * MS + 1, "nobody"),
@@ -194,22 +199,12 @@ fn every_node_claims_every_group_once_a_period_and_offers_zero_for_a_target_it_d
 
 /// Two robots, one target, equal eligibilities: from the second claims on, exactly one holds it,
 /// the lower node id, and keeps it; the other's observer delivers nothing. In both orders of the
-/// robots' frames at each instant (the topics' ids decide the bus order). The first instant
-/// depends on that order: a node's first claim leaves after the first frame it hears, and if that
-/// is its peer's frame, it offers 0 (it has no reading yet) until its next claim, a period later.
+/// robots' frames at each instant (the topics' ids decide the bus order). Both boot at 0 and
+/// claim at once, before any reading (they offer 0), so both hold until their claims of 0.1 s.
 #[test]
 fn with_equal_eligibilities_exactly_one_robot_holds_the_task_the_lower_id() {
-    for (id_a, id_b, start) in [
-        // a's frame first: a claims 500, then b hears it and claims 500: a wins the tie.
-        (0x111, 0x121, vec![(0, vec![]), (0, vec![0])]),
-        // b's frame first: a's first claim (after b's frame) offers 0, so b holds too until a's
-        // claim of 0.1 s.
-        (
-            0x121,
-            0x111,
-            vec![(0, vec![]), (0, vec![0, 1]), (100 * MS, vec![0])],
-        ),
-    ] {
+    for (id_a, id_b) in [(0x111, 0x121), (0x121, 0x111)] {
+        let start = vec![(0, vec![]), (0, vec![0, 1]), (100 * MS, vec![0])];
         let text = format!(
             r#"
 [nodes.a]

@@ -7,7 +7,8 @@
 //! t_(k−1) to t_k with the contexts it sampled at t_(k−1), then samples the contexts at t_k for
 //! the next step; so the state at t_k is the state after k steps, a gate opens at the instant of
 //! the step that opened it, and a frame at exactly t_k counts for the context sampled at t_k (the
-//! node handles it before the poll). A poll that comes late takes every step due, up to
+//! node handles it before the poll; of several frames handled at t_k, the first: the node polls
+//! after each). A poll that comes late takes every step due, up to
 //! [`MAX_CATCH_UP`]; a longer backlog (the node stalled) is dropped, the group restarts its grid
 //! at the poll (the contexts sampled there feed its next step), and [`GroupRun::skipped`] counts
 //! the steps it lost.
@@ -112,6 +113,20 @@ impl GroupRun {
     /// The group's number in the network.
     pub fn number(&self) -> u8 {
         self.number
+    }
+
+    /// The last step taken, as the poll's `view` saw it (`position`: the group's position among
+    /// the node's groups): t_k, the contexts sampled at t_k and the state after k steps; t_0 and
+    /// the initial state after the first poll, `None` before it. After a backlog was dropped, the
+    /// poll's instant and the contexts sampled there.
+    ///
+    /// For an observer that reads the node between its polls (the simulator's traces) instead of
+    /// taking part in them: it sees every step when the node is polled at each step's instant,
+    /// as [`GroupRun::deadline`] asks.
+    pub fn last_step(&self, position: usize) -> Option<StepView<'_>> {
+        let next = self.next?;
+        let at = Instant::from_micros(next.as_micros().wrapping_sub(self.step_us));
+        Some(self.view(position, at))
     }
 
     /// Steps dropped because a poll came more than [`MAX_CATCH_UP`] steps late.

@@ -730,8 +730,13 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         let Some(arbiter) = self.arbiter.as_mut() else {
             return;
         };
+        // Work due by `now`, seen from the microsecond before: a claim going stale at exactly
+        // `now` is a deadline then, where `ble_deadline(now)` counts it as past (and the holding
+        // decision would wait for the next claim, a period late). Polling twice in one
+        // microsecond changes nothing the second time.
+        let before = Instant::from_micros(now.as_micros().wrapping_sub(1));
         if arbiter
-            .ble_deadline(now)
+            .ble_deadline(before)
             .is_some_and(|due| now.micros_since(due).is_none())
         {
             return;
