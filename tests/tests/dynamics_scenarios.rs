@@ -489,10 +489,10 @@ fn a_short_context_dip_barely_delays_a_long_one_costs_the_refractory_delay() {
     // 2 steps (< τ_ρ1 = 10 steps): n 1 → 0.8 → 0.67, n² still above 0.4; the gate stays open.
     assert_eq!((b.0.len(), b.1.len()), (1, 0), "{all}");
     assert!(2 < closing_steps());
-    // 5 steps (< τ_ρ1): the gate closes at the third, and opens again within 5 units of the
-    // context's return: ρ only fell to 0.993 · 0.9^5 = 0.59 > ½, so α ≈ 0.17 at once, and n
-    // grows from 0.46 to 0.707 (ln(n / √(1 − n²)) from −0.66 to 0 at rate α) in 3.9 units at
-    // most, less as ρ climbs back (measured 3.2).
+    // 4 steps (< τ_ρ1): the gate closes at the third, and opens again within 5 units of the
+    // context's return: ρ only fell to 0.993 · 0.9^4 = 0.65 > ½, so α ≈ 0.3 at once, and n
+    // grows back to 0.707 (ln(n / √(1 − n²)) to 0 at rate α) in 3.9 units at most, less as ρ
+    // climbs back (measured 1.7).
     assert_eq!((s.0.len(), s.1.len()), (2, 1), "{all}");
     assert_eq!(s.1[0], 1_001_000 + closing_steps() * STEP_US, "{all}");
     // Four steps of 0 (its frame of 0 follows blink's at 1.0 s): ρ fell to 0.993 · 0.9^4 = 0.65.
@@ -500,7 +500,7 @@ fn a_short_context_dip_barely_delays_a_long_one_costs_the_refractory_delay() {
     assert!(back.rho > 0.6 && back.rho < 0.7, "{back:?}");
     let short_delay = s.0[1] - 1_005_000;
     assert!(short_delay <= 50_000, "{all}");
-    // 100 steps (10 τ_ρ1): ρ falls to 0.9^100 ≈ 3e-5, and must pass ½ again: a first activation
+    // 99 steps (10 τ_ρ1): ρ falls to 0.9^99 ≈ 3e-5, and must pass ½ again: a first activation
     // from the context's return (at least 139 steps, within 0.45 s).
     assert_eq!((l.0.len(), l.1.len()), (2, 1), "{all}");
     assert_eq!(l.1[0], 1_001_000 + closing_steps() * STEP_US, "{all}");
