@@ -45,8 +45,9 @@ def binary(name: str) -> Path:
     path = directory / name
     if not path.is_file():
         raise MissingBinary(
-            f"{path} not found: build it with `cargo build --release -p pab-node -p pabctl -p pab-intent` "
-            "(or point PAB_BIN_DIR at the directory that holds pab-node and pabctl)"
+            f"{path} not found: build it with `cargo build --release -p pab-node -p pabctl` "
+            "(pab-node's package holds pab-intent too; or point PAB_BIN_DIR at the directory "
+            "that holds pab-node, pab-intent and pabctl)"
         )
     return path
 

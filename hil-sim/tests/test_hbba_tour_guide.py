@@ -190,9 +190,11 @@ def test_tour_guide_desires_set_the_boards_filters(iface, out_dir, figures, boun
     try:
         pushed = nodes.push(TOUR_GUIDE, iface)
         assert pushed.ok, pushed.output
+        # The intention node's setup, as `pabctl compile` writes it beside the nodes' tables.
+        nodes.compile_images(TOUR_GUIDE, out_dir / "tables")
         log = open(out_dir / "pab-intent.log", "wb")
         intent = subprocess.Popen([str(binary("pab-intent")), "--interface", iface,
-                                   "--network", str(TOUR_GUIDE)],
+                                   "--setup", str(out_dir / "tables" / "intention.json")],
                                   stdout=log, stderr=subprocess.STDOUT)
         make_realtime(intent.pid)
         log.close()

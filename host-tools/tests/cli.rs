@@ -157,6 +157,41 @@ fn compile_writes_one_image_per_node_and_prints_sizes() {
         );
     }
     assert!(!out.join("arm.pab.part").exists());
+    // No [hbba]: no intention node to set up.
+    assert!(!out.join("intention.json").exists());
+}
+
+#[test]
+fn compile_writes_the_intention_nodes_setup_for_a_network_with_hbba() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("tables");
+    let output = pabctl(&[
+        "compile",
+        &example("tour-guide.toml"),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let file = out.join("intention.json");
+    let setup = std::fs::read_to_string(&file).unwrap();
+    let network =
+        pab_lang::network::Network::load(std::path::Path::new(&example("tour-guide.toml")))
+            .unwrap();
+    // What pab-intent reads back is what the simulator runs the intention node on.
+    assert_eq!(
+        pab_intent::Setup::from_json(&setup).unwrap(),
+        pab_lang::compile::intention_setup(&network).unwrap()
+    );
+    let stdout = text(&output.stdout);
+    assert!(
+        stdout.contains(&format!(
+            "{}  {} bytes  (HBBA's intention node: 6 strategies, 5 filtered connections; pab-intent --setup {})",
+            file.display(),
+            setup.len(),
+            file.display()
+        )),
+        "{stdout}"
+    );
 }
 
 #[test]

@@ -468,6 +468,43 @@ fn groups_of<'n>(
     Ok(out)
 }
 
+/// What `pab-intent`, HBBA's intention node, loads for `network`: the solver's instance of its
+/// `[hbba]` section, where each filtered connection is, and the names it logs with. `pabctl
+/// compile` writes it as `DIR/intention.json` ([`pab_intent::Setup::to_json`]); the simulator
+/// runs the intention node on it. `Err` says why there is none: no `[hbba]` section, or more
+/// filtered connections than the intention workspace takes.
+pub fn intention_setup(network: &Network) -> Result<pab_intent::Setup, String> {
+    let Some(hbba) = &network.hbba else {
+        return Err(
+            "the network has no [hbba] section: the intention node needs its strategies".into(),
+        );
+    };
+    let targets = network.filter_targets()?;
+    let filters = targets
+        .iter()
+        .map(|t| {
+            let connection = network.connections.get(usize::from(t.connection));
+            let port = connection
+                .and_then(|c| network.ports.get(c.port))
+                .map_or("?", |p| p.name.as_str());
+            format!("{} ({port})", connection.map_or("?", |c| c.name.as_str()))
+        })
+        .collect();
+    pab_intent::Setup::new(
+        hbba.instance(),
+        targets,
+        network
+            .nodes
+            .iter()
+            .map(|n| (n.id, n.name.clone()))
+            .collect(),
+        filters,
+        hbba.strategies.iter().map(|s| s.name.clone()).collect(),
+        hbba.classes.clone(),
+    )
+    .map_err(|error| error.to_string())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -700,3 +737,4 @@ hold = "idle(); below(gap, 0.3) -> retreat"
         assert_eq!(sensors.len(), 2);
     }
 }
+

@@ -2,6 +2,7 @@
 //! checks that make an [`Instance`] solvable.
 
 use heapless::Vec;
+use serde::{Deserialize, Serialize};
 
 use super::{MAX_CLASSES, MAX_FILTERS, MAX_REQUIRES, MAX_RESOURCES, MAX_STRATEGIES};
 
@@ -12,7 +13,7 @@ pub type Intensities = [u16; MAX_CLASSES];
 
 /// A filter a strategy sets: connection `connection` passes one frame in `phi` (DESIGN.md, "HBBA:
 /// decisions": φ = 1 passes all, φ = N one in N, φ = 0 closes).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FilterSetting {
     /// The connection, as its user numbers connections (the network's connection index for
@@ -24,7 +25,7 @@ pub struct FilterSetting {
 
 /// A dependency of a strategy: the strategy chosen for class `class` must have a utility of at
 /// least `min_utility` (0: any strategy of that class).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Requirement {
     /// The class that must have a strategy.
@@ -35,7 +36,7 @@ pub struct Requirement {
 
 /// How one class of desire can be fulfilled: its utility, what it costs of each resource, the
 /// filters it sets and the classes it depends on.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Strategy {
     /// The class it fulfils, `0..Instance::classes`.
@@ -71,7 +72,7 @@ impl Strategy {
 /// the lower one).
 ///
 /// Memory: 104 bytes per strategy, 6.6 KiB at full capacity.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Instance {
     /// How many classes there are, at most [`MAX_CLASSES`].

@@ -78,7 +78,7 @@ pub const ACK_TIMEOUT_US: u64 = 250_000;
 pub const MAX_SENDS: u8 = 3;
 
 /// Where a filtered connection is: what a FilterSet addresses.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Target {
     /// The connection as the instance's filters name it ([`super::FilterSetting::connection`]).

@@ -9,8 +9,10 @@
 //!
 //! Structure, as the nodes': [`IntentNode`] is the whole behaviour without I/O (frames and time
 //! in, frames and [`Report`]s out); [`run`] drives it on any [`pab_app::CanBus`] with a
-//! [`Clock`]. The binary gives it the SocketCAN bus of `pab-node` and the system clock; the
-//! tests, an in-process bus with `pab-app` nodes in virtual time.
+//! [`Clock`]; [`Setup`] is what it knows of the network, the file `pabctl compile` writes. The
+//! Linux process `pab-intent` (a binary of `pab-node`, firmware/linux) gives it that crate's
+//! SocketCAN bus and the system clock; the simulator (`pabctl sim`) and the tests, their buses in
+//! virtual time.
 
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
@@ -24,7 +26,6 @@ use pab_core::hbba::Instance;
 use pab_core::hbba::intention::{Event, IntentionError, MAX_SENDS, Target, Workspace};
 use pab_core::protocol::{self, BROADCAST, FaultCode, Intention, Message, Service};
 use pab_core::{Frame, Instant};
-use pab_lang::network::Network;
 
 /// How often the intention is published when nothing changes, µs: 1 s.
 pub const PUBLISH_PERIOD_US: u64 = 1_000_000;
@@ -33,8 +34,16 @@ const MAX_REPORTS: usize = 256;
 
 /// What the intention node needs from a network file: the solver's instance, where each filtered
 /// connection is, and names to speak of it.
-#[derive(Clone, Debug)]
+///
+/// `pabctl compile` writes it for a network with an `[hbba]` section, as `DIR/intention.json`
+/// beside the nodes' table images ([`Setup::to_json`]); the node reads it back with
+/// [`Setup::from_json`], as a board loads its table image: the intention node needs neither the
+/// network file nor the language that parses it.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Setup {
+    /// The format, [`SETUP_FORMAT`]: a file of another format is refused by name.
+    format: String,
     /// The solver's instance (`[hbba]`).
     pub instance: Instance,
     /// Per filtered connection, its node, port and index.
@@ -49,39 +58,126 @@ pub struct Setup {
     classes: Vec<String>,
 }
 
+/// The format of [`Setup`]'s file: its `format` field. A change of the fields changes it.
+pub const SETUP_FORMAT: &str = "pab intention setup 1";
+
+/// Why a setup file was refused.
+#[derive(Debug)]
+#[non_exhaustive]
+pub enum SetupError {
+    /// Not JSON, or not a setup's fields: serde_json's message, with its line and column.
+    Json(serde_json::Error),
+    /// A setup of another format (the file's `format`).
+    Format(String),
+    /// The names do not match the instance: what differs.
+    Inconsistent(String),
+}
+
+impl fmt::Display for SetupError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            SetupError::Json(error) => write!(f, "not an intention setup: {error}"),
+            SetupError::Format(format) => write!(
+                f,
+                "an intention setup of format {format:?}, where this pab-intent reads \
+                 {SETUP_FORMAT:?}: compile the network again with this version's pabctl"
+            ),
+            SetupError::Inconsistent(why) => write!(f, "an inconsistent intention setup: {why}"),
+        }
+    }
+}
+
+impl std::error::Error for SetupError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            SetupError::Json(error) => Some(error),
+            _ => None,
+        }
+    }
+}
+
 impl Setup {
-    /// The setup of `network`; `Err` says why there is none: no `[hbba]` section, or a filtered
-    /// connection beyond the workspace's capacities.
-    pub fn from_network(network: &Network) -> Result<Setup, String> {
-        let Some(hbba) = &network.hbba else {
-            return Err(
-                "the network has no [hbba] section: the intention node needs its strategies"
-                    .to_string(),
-            );
-        };
-        let targets = network.filter_targets()?;
-        let filters = targets
-            .iter()
-            .map(|t| {
-                let connection = network.connections.get(usize::from(t.connection));
-                let port = connection
-                    .and_then(|c| network.ports.get(c.port))
-                    .map_or("?", |p| p.name.as_str());
-                format!("{} ({port})", connection.map_or("?", |c| c.name.as_str()))
-            })
-            .collect();
-        Ok(Setup {
-            instance: hbba.instance(),
+    /// A setup: `instance`, its filtered connections `targets` with a name each (`filters`, same
+    /// order: "CONNECTION (PORT)"), the nodes' names by id, the strategies' names (the
+    /// instance's order) and the classes' (the solver's numbering). `Err` says which list does
+    /// not match the instance.
+    pub fn new(
+        instance: Instance,
+        targets: Vec<Target>,
+        nodes: Vec<(u8, String)>,
+        filters: Vec<String>,
+        strategies: Vec<String>,
+        classes: Vec<String>,
+    ) -> Result<Setup, SetupError> {
+        let setup = Setup {
+            format: SETUP_FORMAT.to_string(),
+            instance,
             targets,
-            nodes: network
-                .nodes
-                .iter()
-                .map(|n| (n.id, n.name.clone()))
-                .collect(),
+            nodes,
             filters,
-            strategies: hbba.strategies.iter().map(|s| s.name.clone()).collect(),
-            classes: hbba.classes.clone(),
-        })
+            strategies,
+            classes,
+        };
+        setup.check()?;
+        Ok(setup)
+    }
+
+    /// The setup in a file's text (what [`Setup::to_json`] wrote), checked: its format, and
+    /// names for every filtered connection, strategy and class. The instance itself is judged
+    /// by [`IntentNode::new`], as the solver takes it.
+    pub fn from_json(text: &str) -> Result<Setup, SetupError> {
+        #[derive(serde::Deserialize)]
+        struct Format {
+            format: String,
+        }
+        // The format first, so that a file of another version is named as such rather than
+        // refused for a field it lacks.
+        let format: Format = serde_json::from_str(text).map_err(SetupError::Json)?;
+        if format.format != SETUP_FORMAT {
+            return Err(SetupError::Format(format.format));
+        }
+        let setup: Setup = serde_json::from_str(text).map_err(SetupError::Json)?;
+        setup.check()?;
+        Ok(setup)
+    }
+
+    /// The file's text: pretty-printed JSON, a final newline.
+    pub fn to_json(&self) -> String {
+        // A tree of plain numbers, strings and lists: serialising it cannot fail.
+        let mut text = serde_json::to_string_pretty(self).unwrap_or_default();
+        text.push('\n');
+        text
+    }
+
+    fn check(&self) -> Result<(), SetupError> {
+        let counts = [
+            (
+                "filtered connections",
+                self.targets.len(),
+                "filter names",
+                self.filters.len(),
+            ),
+            (
+                "strategies",
+                self.instance.strategies.len(),
+                "strategy names",
+                self.strategies.len(),
+            ),
+            (
+                "classes",
+                usize::from(self.instance.classes),
+                "class names",
+                self.classes.len(),
+            ),
+        ];
+        for (what, count, names, named) in counts {
+            if count != named {
+                return Err(SetupError::Inconsistent(format!(
+                    "{count} {what} and {named} {names}"
+                )));
+            }
+        }
+        Ok(())
     }
 
     fn node(&self, id: u8) -> String {
@@ -481,5 +577,76 @@ where
             }
             Either::Second(()) => {}
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use pab_core::hbba::{FilterSetting, Strategy};
+
+    fn setup() -> Setup {
+        let mut strategy = Strategy::new(0, 3);
+        strategy
+            .filters
+            .push(FilterSetting {
+                connection: 4,
+                phi: 2,
+            })
+            .unwrap();
+        let mut instance = Instance {
+            classes: 1,
+            ..Instance::default()
+        };
+        instance.capacities.push(100).unwrap();
+        instance.strategies.push(strategy).unwrap();
+        let target = Target {
+            connection: 4,
+            node: 2,
+            port: 0,
+            index: 1,
+        };
+        Setup::new(
+            instance,
+            vec![target],
+            vec![(2, "base".into())],
+            vec!["C4 (base.drive)".into()],
+            vec!["follow".into()],
+            vec!["goto".into()],
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn a_setup_reads_back_what_it_wrote() {
+        let setup = setup();
+        let text = setup.to_json();
+        assert!(text.contains(SETUP_FORMAT) && text.ends_with('\n'));
+        assert_eq!(Setup::from_json(&text).unwrap(), setup);
+        assert_eq!(setup.strategy_names(1), "follow");
+    }
+
+    #[test]
+    fn a_setup_of_another_format_or_with_names_missing_is_refused() {
+        let text = setup().to_json();
+        let other = text.replace(SETUP_FORMAT, "pab intention setup 0");
+        assert!(matches!(
+            Setup::from_json(&other),
+            Err(SetupError::Format(format)) if format == "pab intention setup 0"
+        ));
+        let unnamed = text.replace("\"follow\"", "");
+        let error = Setup::from_json(&unnamed).unwrap_err();
+        assert!(
+            error
+                .to_string()
+                .contains("1 strategies and 0 strategy names"),
+            "{error}"
+        );
+        let extra = text.replacen('{', "{\n  \"surplus\": 1,", 1);
+        assert!(matches!(Setup::from_json(&extra), Err(SetupError::Json(_))));
+        assert!(matches!(
+            Setup::from_json("not json"),
+            Err(SetupError::Json(_))
+        ));
     }
 }

@@ -1,5 +1,5 @@
-//! The Linux node's SocketCAN code, shared by its binaries: `pab-node` (a node) and, through this
-//! library, `pab-intent` (the intention node, `firmware/intent`). Both reach the bus through
+//! The Linux node's SocketCAN code, shared by its binaries: `pab-node` (a node) and `pab-intent`
+//! (HBBA's intention node, whose logic is the `pab-intent` library, `firmware/intent`). Both reach the bus through
 //! [`socket_bus::SocketBus`], the application's `CanBus` over a SocketCAN socket with a sized
 //! receive queue and the kernel's drop counter.
 

@@ -1,5 +1,5 @@
-//! `pabctl compile`: one table image per node; and the compilation that `push`, `sim` and
-//! `replay` share.
+//! `pabctl compile`: one table image per node, and the intention node's setup for a network with
+//! an `[hbba]` section; and the compilation that `push`, `sim` and `replay` share.
 
 use std::fs;
 use std::path::Path;
@@ -48,6 +48,29 @@ pub fn run(
             plural(node.connections),
             node.decision_nodes,
             plural(node.decision_nodes),
+        ));
+    }
+    // HBBA's intention node loads its setup as a board loads its table: pab-intent reads this
+    // file, not the network.
+    if let Some(hbba) = &network.hbba {
+        let setup = compile::intention_setup(&network)
+            .map_err(|why| Failure::Output(format!("{}: [hbba]: {why}", path.display())))?;
+        let file = output.join("intention.json");
+        let text = setup.to_json();
+        write_atomically(&file, text.as_bytes())?;
+        say(format!(
+            "{}  {} bytes  (HBBA's intention node: {} strateg{}, {} filtered connection{}; pab-intent --setup {})",
+            file.display(),
+            text.len(),
+            hbba.strategies.len(),
+            if hbba.strategies.len() == 1 {
+                "y"
+            } else {
+                "ies"
+            },
+            setup.targets.len(),
+            plural(setup.targets.len()),
+            file.display(),
         ));
     }
     if json {

@@ -1,4 +1,4 @@
-//! pab-intent on an in-process bus with the tour guide's nodes as `pab-app` nodes (their compiled
+//! pab-intent (HBBA's intention node, on the setup `pabctl compile` writes) on an in-process bus with the tour guide's nodes as `pab-app` nodes (their compiled
 //! tables, their own code), in virtual time: every frame any of them sends reaches all the others
 //! at once. The nodes apply the filter commands and acknowledge them (FilterStatus), and their
 //! arbiters then filter as commanded; a node whose table has no filters refuses them
@@ -17,10 +17,7 @@ use pab_lang::diagnostic::Source;
 use pab_lang::network::Network;
 
 fn tour_guide() -> Network {
-    let path = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../examples/tour-guide.toml"
-    );
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../examples/tour-guide.toml");
     let text = std::fs::read_to_string(path).unwrap();
     Network::parse(Source::new("tour-guide.toml", text)).unwrap_or_else(|e| panic!("{e}"))
 }
@@ -260,7 +257,7 @@ fn touring(bus: &mut Bus) {
 #[test]
 fn the_nodes_apply_the_commands_and_filter_as_commanded() {
     let network = tour_guide();
-    let setup = Setup::from_network(&network).unwrap();
+    let setup = compile::intention_setup(&network).unwrap();
     let mut bus = Bus::new(&network, &setup);
     // At boot every filtered connection is closed.
     let phi = |bus: &Bus, node: usize, port: u8, connection: u8| {
@@ -307,7 +304,7 @@ fn the_nodes_apply_the_commands_and_filter_as_commanded() {
 #[test]
 fn a_refusal_is_reported_clearly_and_the_intention_still_published() {
     let network = tour_guide();
-    let setup = Setup::from_network(&network).unwrap();
+    let setup = compile::intention_setup(&network).unwrap();
     // Nodes whose tables carry no message filters (say, pushed from a file without `[hbba]`).
     let mut bus = Bus::with_images(&network, &setup, without_filters);
     bus.advance_to(S / 2);
@@ -354,7 +351,7 @@ fn a_refusal_is_reported_clearly_and_the_intention_still_published() {
 #[test]
 fn a_desire_whose_lease_runs_out_is_dropped_and_the_intention_recomputed() {
     let network = tour_guide();
-    let setup = Setup::from_network(&network).unwrap();
+    let setup = compile::intention_setup(&network).unwrap();
     let mut bus = Bus::new(&network, &setup);
     bus.advance_to(S / 2);
     bus.desire(7, "voice", 3, 400);
@@ -383,7 +380,7 @@ fn a_desire_whose_lease_runs_out_is_dropped_and_the_intention_recomputed() {
 #[test]
 fn a_restarted_node_gets_its_filters_again() {
     let network = tour_guide();
-    let setup = Setup::from_network(&network).unwrap();
+    let setup = compile::intention_setup(&network).unwrap();
     let mut bus = Bus::new(&network, &setup);
     bus.advance_to(S / 2);
     touring(&mut bus);
@@ -469,7 +466,7 @@ mod async_loop {
     #[test]
     fn the_loop_sends_commands_publishes_and_reports_a_refusal() {
         let network = tour_guide();
-        let setup = Setup::from_network(&network).unwrap();
+        let setup = compile::intention_setup(&network).unwrap();
         let mut node = IntentNode::new(&setup, INTENTION).unwrap();
         let (to_intent, incoming) = unbounded();
         let (outgoing, mut from_intent) = unbounded();

@@ -1,11 +1,14 @@
 //! `pab-intent`: HBBA's intention node as a Linux process on a SocketCAN interface.
 
+// The doc comment of `Args` is clap's --help, verbatim: its [hbba] is the network file's section,
+// not a link.
+#![allow(rustdoc::broken_intra_doc_links)]
+
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
 use pab_intent::{IntentNode, Report, Setup, SystemClock};
-use pab_lang::network::Network;
 use pab_node::receive_queue;
 use pab_node::socket_bus::SocketBus;
 
@@ -29,7 +32,9 @@ use pab_node::socket_bus::SocketBus;
 ///
 ///   pab-node --iface vcan0 --node-id 1 &
 ///
-///   pab-intent --interface vcan0 --network examples/tour-guide.toml
+///   pabctl compile examples/tour-guide.toml -o tables
+///
+///   pab-intent --interface vcan0 --setup tables/intention.json
 ///
 ///   cansend vcan0 1208FF09#0200030010270100   # node 9: class 2 (voice), intensity 3, 10 s
 ///
@@ -40,9 +45,9 @@ struct Args {
     /// The SocketCAN interface (vcan0, can0...).
     #[arg(long, visible_alias = "iface")]
     interface: String,
-    /// The network file whose [hbba] section (strategies, resources) and nodes it serves.
-    #[arg(long, value_name = "NET.toml")]
-    network: PathBuf,
+    /// The intention setup `pabctl compile` wrote for the network (DIR/intention.json).
+    #[arg(long, value_name = "intention.json")]
+    setup: PathBuf,
 }
 
 fn main() -> ExitCode {
@@ -60,11 +65,13 @@ fn main() -> ExitCode {
 /// Everything that can fail before the loop runs; then runs it forever.
 fn start(args: Args) -> anyhow::Result<std::convert::Infallible> {
     use anyhow::Context as _;
-    let network = Network::load(&args.network).map_err(|errors| anyhow::anyhow!("{errors}"))?;
-    let setup = Setup::from_network(&network)
-        .map_err(|why| anyhow::anyhow!("{}: {why}", args.network.display()))?;
+    let path = args.setup.display();
+    let text = std::fs::read_to_string(&args.setup).with_context(|| {
+        format!("reading the intention setup {path} (`pabctl compile NET.toml -o DIR` writes DIR/intention.json for a network with an [hbba] section)")
+    })?;
+    let setup = Setup::from_json(&text).map_err(|error| anyhow::anyhow!("{path}: {error}"))?;
     let node = IntentNode::new(&setup, pab_core::protocol::INTENTION)
-        .map_err(|error| anyhow::anyhow!("{}: [hbba]: {error}", args.network.display()))?;
+        .map_err(|error| anyhow::anyhow!("{path}: [hbba]: {error}"))?;
     let (mut bus, sizing) = SocketBus::open(&args.interface, receive_queue::DEFAULT_BYTES)
         .with_context(|| {
             format!(
@@ -81,7 +88,7 @@ fn start(args: Args) -> anyhow::Result<std::convert::Infallible> {
         args.interface,
         setup.instance.strategies.len(),
         setup.targets.len(),
-        args.network.display()
+        path
     );
     let mut node = node;
     let mut clock = SystemClock::new();

@@ -1,5 +1,6 @@
 //! `pab-intent`'s command line: its help, and the start-up errors, each naming its cause (the
-//! file, and the line for a mistake in it) with exit status 2, before any bus traffic.
+//! setup file, and the line and column for a mistake in it) with exit status 2, before any bus
+//! traffic.
 
 use std::process::{Command, Output};
 
@@ -19,6 +20,19 @@ fn stderr(output: &Output) -> String {
     String::from_utf8_lossy(&output.stderr).into_owned()
 }
 
+/// The tour guide's setup as `pabctl compile` writes it.
+fn tour_guide_setup() -> String {
+    let text = std::fs::read_to_string(example("tour-guide")).unwrap();
+    let network = pab_lang::network::Network::parse(pab_lang::diagnostic::Source::new(
+        "tour-guide.toml",
+        text,
+    ))
+    .unwrap();
+    pab_lang::compile::intention_setup(&network)
+        .unwrap()
+        .to_json()
+}
+
 #[test]
 fn help_says_what_it_does_and_how_to_run_it() {
     let output = pab_intent(&["--help"]);
@@ -26,7 +40,9 @@ fn help_says_what_it_does_and_how_to_run_it() {
     let help = String::from_utf8_lossy(&output.stdout);
     for needle in [
         "--interface",
-        "--network",
+        "--setup",
+        "pabctl compile",
+        "intention.json",
         "Desire",
         "FilterSet",
         "every reduction first",
@@ -40,50 +56,67 @@ fn help_says_what_it_does_and_how_to_run_it() {
 
 #[test]
 fn start_up_errors_name_their_cause() {
-    let missing = pab_intent(&["--interface", "vcan0", "--network", "/nonexistent/net.toml"]);
+    let dir = tempfile::tempdir().unwrap();
+    let write = |name: &str, text: &str| {
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        path.to_str().unwrap().to_string()
+    };
+    let run = |setup: &str| pab_intent(&["--interface", "vcan0", "--setup", setup]);
+
+    let missing = run("/nonexistent/intention.json");
     assert_eq!(missing.status.code(), Some(2));
+    for needle in ["/nonexistent/intention.json", "pabctl compile"] {
+        assert!(stderr(&missing).contains(needle), "{}", stderr(&missing));
+    }
+
+    // A network file where the setup belongs: not JSON, said with the line and column.
+    let network = run(&example("tour-guide"));
+    assert_eq!(network.status.code(), Some(2));
     assert!(
-        stderr(&missing).contains("/nonexistent/net.toml"),
+        stderr(&network).contains("tour-guide.toml: not an intention setup")
+            && stderr(&network).contains("line 1"),
         "{}",
-        stderr(&missing)
+        stderr(&network)
     );
 
-    let figure = example("figure-1");
-    let no_hbba = pab_intent(&["--interface", "vcan0", "--network", &figure]);
-    assert_eq!(no_hbba.status.code(), Some(2));
+    let good = tour_guide_setup();
+    let other = write(
+        "other.json",
+        &good.replace("pab intention setup 1", "pab intention setup 9"),
+    );
+    let other = run(&other);
+    assert_eq!(other.status.code(), Some(2));
     assert!(
-        stderr(&no_hbba).contains("figure-1.toml: the network has no [hbba] section"),
+        stderr(&other).contains("\"pab intention setup 9\"")
+            && stderr(&other).contains("compile the network again"),
         "{}",
-        stderr(&no_hbba)
+        stderr(&other)
     );
 
-    let dir = std::env::temp_dir().join(format!("pab-intent-cli-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let bad = dir.join("bad.toml");
-    let text = std::fs::read_to_string(example("tour-guide"))
-        .unwrap()
-        .replace(
-            "utility = 3\ncosts = { cpu = 40 }",
-            "utility = -3\ncosts = { cpu = 40 }",
-        );
-    std::fs::write(&bad, text).unwrap();
-    let invalid = pab_intent(&["--interface", "vcan0", "--network", bad.to_str().unwrap()]);
-    assert_eq!(invalid.status.code(), Some(2));
+    // A resource of capacity 0: the solver refuses the instance.
+    let capacity = good.replacen(
+        "\"capacities\": [\n      100,",
+        "\"capacities\": [\n      0,",
+        1,
+    );
+    assert_ne!(capacity, good);
+    let capacity = run(&write("capacity.json", &capacity));
+    assert_eq!(capacity.status.code(), Some(2));
     assert!(
-        stderr(&invalid).contains("bad.toml:") && stderr(&invalid).contains("utility = -3"),
+        stderr(&capacity).contains("capacity.json: [hbba]:"),
         "{}",
-        stderr(&invalid)
+        stderr(&capacity)
     );
 
-    let tour = example("tour-guide");
-    let no_bus = pab_intent(&["--interface", "nosuchcan9", "--network", &tour]);
+    let tour = write("intention.json", &good);
+    let no_bus = pab_intent(&["--interface", "nosuchcan9", "--setup", &tour]);
     assert_eq!(no_bus.status.code(), Some(2));
     assert!(
         stderr(&no_bus).contains("opening CAN interface \"nosuchcan9\""),
         "{}",
         stderr(&no_bus)
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The desire the help's example sends with cansend is what it says: node 9, class 2 (the tour
