@@ -111,7 +111,7 @@ suppress, inhibit, write-inhibit or override connection as its windows (a band f
 activation to its expiry, named after its kind), a gate a rule names (`door.search`) as a band \
 while it is open; and under the ports a lane per [dynamics.*] behaviour: n, ρ and m, on green \
 where its gate is open. FILE.png draws a PNG, FILE.svg an SVG (its texts as text).
-With [hbba], the intention node's logic runs on the file's [[desires]] (the filter commands \
+With [hbba], the intention node itself runs on the file's [[desires]] (its filter commands \
 answered at once by the simulated nodes): the report lists each change of the selected \
 strategies and the filter commands sent, reductions before increases, and --plot adds a lane \
 per strategy (filled while selected) and per filtered connection (its commanded pass rate 1/φ, \

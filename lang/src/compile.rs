@@ -737,4 +737,3 @@ hold = "idle(); below(gap, 0.3) -> retreat"
         assert_eq!(sensors.len(), 2);
     }
 }
-

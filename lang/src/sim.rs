@@ -136,11 +136,13 @@ pub struct Outcome {
     /// Every frame the nodes sent (heartbeats, BLE claims, Gates, filter status, faults,
     /// re-published frames), in bus order (none in a replay, [`run`]: its bus is the capture).
     pub sent: Vec<BusFrame>,
-    /// HBBA's intention on the `[[desires]]` ([`intention`]), with `[hbba]` in [`simulate`]
-    /// only (a replay has no script).
+    /// HBBA's intention node on the `[[desires]]` ([`intention`]), with `[hbba]` in
+    /// [`simulate`] only (a replay has no script); its frames are in [`Outcome::sent`].
     pub intention: Option<IntentionRun>,
-    /// The intention node's filter commands on the bus (FilterSet frames), in the order sent.
-    pub commands: Vec<BusFrame>,
+    /// Every frame on the simulated bus in the order it carried them: the events' (with the
+    /// scripted desires to the intention node) and what the nodes sent (none in a replay,
+    /// [`run`]: its bus is the capture). `--candump` writes it.
+    pub bus: Vec<BusFrame>,
 }
 
 /// A change of the nodes that hold a BLE group's task.
@@ -186,34 +188,34 @@ pub fn simulate(
         .iter()
         .map(|fault| (micros(fault.at), fault.node))
         .collect();
-    // HBBA's intention first: its filter commands are frames on the simulated bus like any other
-    // (the nodes apply them at the instant they are sent, before the topics' frames of that
-    // instant), so the arbitration below sees the filters it commands.
-    let intention = intention::simulate(network, until_us)?;
-    let commands = intention
-        .as_ref()
-        .map(IntentionRun::command_frames)
-        .unwrap_or_default();
-    let mut all: Vec<(u64, u8, BusFrame)> = commands
+    // HBBA's intention node on the same bus: the scripted desires are Desire frames to it,
+    // before the topics' frames of their instant.
+    let setup = match &network.hbba {
+        Some(_) => Some(crate::compile::intention_setup(network).map_err(SimError)?),
+        None => None,
+    };
+    let desires = if setup.is_some() {
+        intention::desire_frames(network, until_us)
+    } else {
+        Vec::new()
+    };
+    let mut all: Vec<(u64, u8, BusFrame)> = desires
         .iter()
         .map(|f| (f.t_us, 0, *f))
         .chain(frames.iter().map(|f| (f.t_us, 1, *f)))
         .collect();
     all.sort_by_key(|(t, kind, _)| (*t, *kind));
     let frames: Vec<BusFrame> = all.into_iter().map(|(_, _, f)| f).collect();
-    let mut outcome = run_stopping(
+    run_stopping(
         network,
         compiled,
         &frames,
         until_us,
         options,
         &stops,
-        true,
+        Some(&setup),
         &mut |_| {},
-    )?;
-    outcome.commands = commands;
-    outcome.intention = intention;
-    Ok(outcome)
+    )
 }
 
 /// Runs `network` with the tables `compiled` on `frames` (in the order given, which must be time
@@ -235,14 +237,15 @@ pub fn run(
         until_us,
         options,
         &[],
-        false,
+        None,
         progress,
     )
 }
 
 /// [`run`], with nodes that stop: `(t_us, node)`, the node as an index into the network's nodes.
-/// With `broadcast`, what the nodes send goes on the bus; without (a replay: the bus is the
-/// frames given, claims and Gates included), it is dropped, as on a replayed node.
+/// With `intention` (a simulation), what the nodes send goes on the bus, and the intention node
+/// runs on that setup if there is one; without (a replay: the bus is the frames given, claims
+/// and Gates included), what the nodes send is dropped, as on a replayed node.
 #[allow(clippy::too_many_arguments)]
 fn run_stopping(
     network: &Network,
@@ -251,9 +254,14 @@ fn run_stopping(
     until_us: u64,
     options: &Options,
     stops: &[(u64, usize)],
-    broadcast: bool,
+    intention: Option<&Option<pab_intent::Setup>>,
     progress: &mut dyn FnMut(usize),
 ) -> Result<Outcome, SimError> {
+    let broadcast = intention.is_some();
+    let intent = match intention.and_then(Option::as_ref) {
+        Some(setup) => Some(station::IntentStation::new(setup)?),
+        None => None,
+    };
     if frames
         .windows(2)
         .any(|pair| matches!(pair, [a, b] if b.t_us < a.t_us))
@@ -317,6 +325,8 @@ fn run_stopping(
         wakes: BinaryHeap::new(),
         outgoing: Vec::new(),
         sent: Vec::new(),
+        bus: Vec::new(),
+        intent,
     };
     let fed = run.go(frames, until_us, progress)?;
     let records = run.finish_records(fed);
@@ -348,8 +358,8 @@ fn run_stopping(
         dynamics,
         gates,
         sent: run.sent,
-        intention: None,
-        commands: Vec::new(),
+        intention: run.intent.map(|intent| intent.run),
+        bus: run.bus,
     })
 }
 
@@ -557,23 +567,6 @@ impl Outcome {
             out.push_str(&run.report(network));
         }
         out
-    }
-
-    /// The frames on the simulated bus, in the order they were sent: the events' `frames`
-    /// (from [`event_frames`]) and what the nodes sent, each instant's events before the nodes'
-    /// frames.
-    pub fn bus_frames(&self, frames: &[BusFrame]) -> Vec<BusFrame> {
-        let mut all: Vec<(u64, u8, BusFrame)> = frames
-            .iter()
-            .filter(|f| f.t_us <= self.until_us)
-            .map(|f| (f.t_us, 1, *f))
-            // The intention's commands of an instant before its topics' frames, as simulated.
-            .chain(self.commands.iter().map(|f| (f.t_us, 0, *f)))
-            .chain(self.sent.iter().map(|f| (f.t_us, 2, *f)))
-            .collect();
-        // Stable: within an instant and a kind, the order they were sent in.
-        all.sort_by_key(|(t, kind, _)| (*t, *kind));
-        all.into_iter().map(|(_, _, f)| f).collect()
     }
 
     /// Per BLE group, a strip per node of the group: 1 (and selected) while it holds the task.

@@ -50,11 +50,13 @@ fn a_loud_noise_throttles_faces_closes_qr_then_opens_voice_and_back() {
         .iter()
         .map(|c| (c.t_us, c.strategies, c.objective))
         .collect();
-    // Touring at once (objective 2·3 + 1·2 + 2·2), the noise from 8 s to 12 s (3·3 + 2·2 +
-    // 2·2), touring again, nothing once the tour ends at 20 s.
+    // The intention node's first solve, as it starts (nothing desired yet); touring at once
+    // (objective 2·3 + 1·2 + 2·2), the noise from 8 s to 12 s (3·3 + 2·2 + 2·2), touring again,
+    // nothing once the tour ends at 20 s.
     assert_eq!(
         changes,
         [
+            (0, 0, 0),
             (0, touring, 12),
             (8 * S, noise, 17),
             (12 * S, touring, 12),

@@ -23,7 +23,7 @@ use std::fmt;
 use embassy_futures::select::{Either, select};
 use pab_app::CanBus;
 use pab_core::hbba::Instance;
-use pab_core::hbba::intention::{Event, IntentionError, MAX_SENDS, Target, Workspace};
+use pab_core::hbba::intention::{Command, Event, IntentionError, MAX_SENDS, Target, Workspace};
 use pab_core::protocol::{self, BROADCAST, FaultCode, Intention, Message, Service};
 use pab_core::{Frame, Instant};
 
@@ -234,6 +234,17 @@ impl fmt::Display for Report {
     }
 }
 
+/// What the node did, as data where a [`Report`] says it in words: for an observer that draws
+/// or checks it (the simulator). Kept only after [`IntentNode::observe`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Observed {
+    /// One of the workspace's events, in the order it had them.
+    Event(Event),
+    /// A FilterSet the node sent (a resend included: its `send` counts).
+    Command(Command),
+}
+
 /// The intention node as a state machine: frames and time in, frames and reports out.
 #[derive(Debug)]
 pub struct IntentNode<'a> {
@@ -244,6 +255,8 @@ pub struct IntentNode<'a> {
     reports: VecDeque<Report>,
     lost_reports: u64,
     next_publish: Option<Instant>,
+    /// What it did, once [`IntentNode::observe`] asked; drained by [`IntentNode::next_observed`].
+    observed: Option<VecDeque<Observed>>,
 }
 
 impl<'a> IntentNode<'a> {
@@ -258,7 +271,20 @@ impl<'a> IntentNode<'a> {
             reports: VecDeque::new(),
             lost_reports: 0,
             next_publish: None,
+            observed: None,
         })
+    }
+
+    /// From now on, keeps what the node does as data ([`Observed`]) until
+    /// [`IntentNode::next_observed`] takes it. The process never asks (its log is the
+    /// reports); an observer that does must drain it, or it grows with every event.
+    pub fn observe(&mut self) {
+        self.observed.get_or_insert_with(VecDeque::new);
+    }
+
+    /// The oldest thing done not taken yet (none without [`IntentNode::observe`]).
+    pub fn next_observed(&mut self) -> Option<Observed> {
+        self.observed.as_mut()?.pop_front()
     }
 
     /// The workspace (desires, selection, filters), read-only.
@@ -374,6 +400,9 @@ impl<'a> IntentNode<'a> {
     /// is said before the commands it causes).
     fn collect(&mut self, now: Instant) {
         while let Some(event) = self.workspace.next_event() {
+            if let Some(observed) = self.observed.as_mut() {
+                observed.push_back(Observed::Event(event));
+            }
             match event {
                 Event::Selected {
                     strategies,
@@ -438,6 +467,9 @@ impl<'a> IntentNode<'a> {
             }
         }
         while let Some(command) = self.workspace.next_command(now) {
+            if let Some(observed) = self.observed.as_mut() {
+                observed.push_back(Observed::Command(command));
+            }
             let set = command.set;
             let node = self.setup.node(command.node);
             let filter = self

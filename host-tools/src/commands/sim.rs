@@ -72,11 +72,9 @@ pub fn run(
         say(format!("plot: {}", plot_path.display()));
     }
     if let Some(candump_path) = candump_path {
-        let frames = sim::event_frames(&network)
-            .map_err(|error| Failure::Input(Diagnostic::file(path, error.to_string()).into()))?;
         let mut log = String::new();
         let mut written = 0usize;
-        for frame in outcome.bus_frames(&frames) {
+        for frame in &outcome.bus {
             log.push_str(&candump::line(frame.t_us, "vcan0", &frame.frame));
             log.push('\n');
             written += 1;

@@ -1,27 +1,21 @@
-//! HBBA's intention in virtual time: the network's `[[desires]]` fed to the intention workspace
-//! (`pab_core::hbba::intention::Workspace`, the code `pab-intent` runs), its filter commands
-//! answered by simulated nodes, the selected strategies and each filtered connection's commanded
-//! φ recorded.
+//! HBBA's intention in virtual time: the intention node itself (`pab_intent::IntentNode`, what
+//! the process `pab-intent` runs, on the setup `pabctl compile` writes) on the simulated bus,
+//! with the nodes; what it selects and commands, recorded.
 //!
-//! A scripted desire is issued at `from` by the tool (source 0, its position in the file as its
-//! number) with a lease of [`LEASE_MS`], refreshed every half lease while it lasts, and withdrawn
-//! (intensity 0) at `to`: the frames a motivation would send. The simulated bus is ideal, as for
-//! the arbitrated frames: a node applies a filter command and acknowledges it (FilterStatus) at
-//! the microsecond it is sent, so a plan's reductions and increases share an instant, in that
-//! order ([`IntentionRun::commands`]). Nodes boot with every filter closed. A node of the file's
-//! `[[faults]]` answers nothing from its time on: its commands are sent again and given up, as
-//! on the bus.
-//!
-//! The commands are frames on the simulated bus ([`IntentionRun::command_frames`]): the
-//! arbitration ([`super::simulate`]) applies each to the node it addresses at the instant it is
-//! sent, so the ports see the filters the intention commands (filtered connections start closed,
-//! as on the boards). The lanes record the pass rate each filter is commanded (1/φ, 0 closed).
+//! A scripted desire is a Desire frame on the bus, issued at `from` by the tool (source 0, its
+//! position in the file as its number) with a lease of [`LEASE_MS`], refreshed every half lease
+//! while it lasts, and withdrawn (intensity 0) at `to`: the frames a motivation would send. The
+//! intention node's FilterSet commands go to the simulated nodes, which apply and acknowledge
+//! them (FilterStatus) in the same microsecond (the bus is ideal), so a plan's reductions and
+//! increases share an instant, in that order ([`IntentionRun::commands`]); it hears the nodes'
+//! first heartbeats at 0 and commands their filters then, as it does on a bus. A node of the
+//! file's `[[faults]]` answers nothing from its time on: its commands are sent again and given
+//! up, as on the bus. The lanes record the pass rate each filter is commanded (1/φ, 0 closed).
 
-use pab_core::Instant;
-use pab_core::hbba::intention::{Event, Target, Workspace};
-use pab_core::protocol::{DesireFrame, FilterSet, FilterStatus, TOOL};
+use pab_core::hbba::intention::{Event, Target};
+use pab_core::protocol::{DesireFrame, FilterSet, INTENTION, Message, TOOL};
 
-use super::{SimError, micros};
+use super::micros;
 use crate::network::Network;
 use crate::series::{Lane, LaneGroup, LaneStep};
 
@@ -69,43 +63,30 @@ pub struct IntentionRun {
     pub notes: Vec<(u64, String)>,
 }
 
-/// Runs the intention on the network's `[[desires]]` until `until_us`; `None` without `[hbba]`.
-pub fn simulate(network: &Network, until_us: u64) -> Result<Option<IntentionRun>, SimError> {
-    let Some(hbba) = &network.hbba else {
-        return Ok(None);
-    };
-    let instance = hbba.instance();
-    let targets = network.filter_targets().map_err(SimError)?;
-    let mut workspace = Workspace::new(&instance, &targets)
-        .map_err(|error| SimError(format!("[hbba]: {error}")))?;
-    workspace.assume_filters(0);
-    let stops: Vec<(u8, u64)> = network
-        .faults
-        .iter()
-        .filter_map(|f| Some((network.nodes.get(f.node)?.id, micros(f.at))))
-        .collect();
-    let stopped = |node: u8, t_us: u64| stops.iter().any(|&(id, at)| id == node && at <= t_us);
-    let script = desire_frames(network, until_us);
-    let mut run = IntentionRun {
-        filtered: targets.iter().map(|t| usize::from(t.connection)).collect(),
-        ..IntentionRun::default()
-    };
-    let mut pending = script.iter().peekable();
-    let mut now_us = 0u64;
-    loop {
-        let at = Instant::from_micros(now_us);
-        while let Some((_, source, frame)) = pending.next_if(|(t, ..)| *t <= now_us) {
-            if let Err(error) = workspace.on_desire(*source, frame, at) {
-                run.notes
-                    .push((now_us, format!("desire {} refused: {error:?}", frame.id)));
-            }
+impl IntentionRun {
+    /// A run of the intention node on `setup`: nothing selected, nothing sent yet.
+    pub(super) fn new(setup: &pab_intent::Setup) -> IntentionRun {
+        IntentionRun {
+            filtered: setup
+                .targets
+                .iter()
+                .map(|t| usize::from(t.connection))
+                .collect(),
+            ..IntentionRun::default()
         }
-        workspace.poll(at);
-        // The ideal bus: a running node applies and acknowledges at once, which may let the
-        // increases go in the same instant.
-        while let Some(command) = workspace.next_command(at) {
-            run.commands.push(SentCommand {
-                t_us: now_us,
+    }
+
+    /// What the intention node did at `t_us` ([`pab_intent::Observed`]), recorded.
+    pub(super) fn observe(
+        &mut self,
+        network: &Network,
+        targets: &[Target],
+        t_us: u64,
+        observed: pab_intent::Observed,
+    ) {
+        match observed {
+            pab_intent::Observed::Command(command) => self.commands.push(SentCommand {
+                t_us,
                 connection: targets
                     .iter()
                     .find(|t| {
@@ -117,69 +98,44 @@ pub fn simulate(network: &Network, until_us: u64) -> Result<Option<IntentionRun>
                 node: command.node,
                 set: command.set,
                 reduction: command.reduction,
-            });
-            if !stopped(command.node, now_us) {
-                let status = FilterStatus {
-                    profile: FilterStatus::SET_ONE_BY_ONE,
-                    sequence: command.set.sequence,
-                    filtered: 0,
-                    closed: 0,
-                    throttled: 0,
-                };
-                workspace.on_filter_status(command.node, &status);
-            }
+            }),
+            pab_intent::Observed::Event(event) => self.event(network, t_us, event),
+            _ => {}
         }
-        while let Some(event) = workspace.next_event() {
-            match event {
-                Event::Selected {
-                    strategies,
-                    objective,
-                } => run.selections.push(SelectionChange {
-                    t_us: now_us,
-                    strategies,
-                    objective,
-                }),
-                Event::Acknowledged { .. } | Event::Settled { .. } | Event::Expired => {}
-                Event::SolveFailed(error) => run.notes.push((
-                    now_us,
-                    format!("solving failed, the previous selection stays: {error}"),
-                )),
-                Event::Refused { target, phi, why } => run.notes.push((
-                    now_us,
-                    format!(
-                        "node {} refused {} φ {phi} (FilterRefused, detail {why})",
-                        target.node,
-                        filter_name(network, &target)
-                    ),
-                )),
-                Event::GaveUp { target, phi } => run.notes.push((
-                    now_us,
-                    format!(
-                        "node {} did not answer {} φ {phi} after {} sends (stopped)",
-                        target.node,
-                        filter_name(network, &target),
-                        pab_core::hbba::intention::MAX_SENDS
-                    ),
-                )),
-                Event::Restarted { node } => run
-                    .notes
-                    .push((now_us, format!("node {node}: its filters commanded again"))),
-            }
-        }
-        let next_script = pending.peek().map(|(t, ..)| *t);
-        let next_workspace = workspace
-            .deadline(at)
-            .map(Instant::as_micros)
-            .map(|t| t.max(now_us + 1));
-        let Some(next) = [next_script, next_workspace].into_iter().flatten().min() else {
-            break;
-        };
-        if next > until_us {
-            break;
-        }
-        now_us = next;
     }
-    Ok(Some(run))
+
+    fn event(&mut self, network: &Network, t_us: u64, event: Event) {
+        let note = match event {
+            Event::Selected {
+                strategies,
+                objective,
+            } => {
+                self.selections.push(SelectionChange {
+                    t_us,
+                    strategies,
+                    objective,
+                });
+                return;
+            }
+            Event::SolveFailed(error) => {
+                format!("solving failed, the previous selection stays: {error}")
+            }
+            Event::Refused { target, phi, why } => format!(
+                "node {} refused {} φ {phi} (FilterRefused, detail {why})",
+                target.node,
+                filter_name(network, &target)
+            ),
+            Event::GaveUp { target, phi } => format!(
+                "node {} did not answer {} φ {phi} after {} sends (stopped)",
+                target.node,
+                filter_name(network, &target),
+                pab_core::hbba::intention::MAX_SENDS
+            ),
+            Event::Restarted { node } => format!("node {node}: its filters commanded again"),
+            _ => return,
+        };
+        self.notes.push((t_us, note));
+    }
 }
 
 /// "CONNECTION (PORT)" of a filter target.
@@ -193,7 +149,7 @@ fn filter_name(network: &Network, target: &Target) -> String {
 
 /// The Desire frames of the `[[desires]]`, in time order (file order within an instant): each
 /// issued at `from`, refreshed every half lease, withdrawn at `to`; none after `until_us`.
-fn desire_frames(network: &Network, until_us: u64) -> Vec<(u64, u8, DesireFrame)> {
+pub(super) fn desire_frames(network: &Network, until_us: u64) -> Vec<super::BusFrame> {
     let mut frames = Vec::new();
     let refresh = u64::from(LEASE_MS) * 1000 / 2;
     for (number, desire) in network.desires.iter().enumerate() {
@@ -227,24 +183,18 @@ fn desire_frames(network: &Network, until_us: u64) -> Vec<(u64, u8, DesireFrame)
             ));
         }
     }
+    // Stable: the file's order within an instant.
     frames.sort_by_key(|(t, ..)| *t);
     frames
+        .into_iter()
+        .map(|(t_us, source, desire)| super::BusFrame {
+            t_us,
+            frame: Message::Desire(desire).to_frame(source, INTENTION),
+        })
+        .collect()
 }
 
 impl IntentionRun {
-    /// The filter commands as the frames the intention node sends (from
-    /// [`pab_core::protocol::INTENTION`] to each command's node), in the order sent.
-    pub fn command_frames(&self) -> Vec<super::BusFrame> {
-        self.commands
-            .iter()
-            .map(|c| super::BusFrame {
-                t_us: c.t_us,
-                frame: pab_core::protocol::Message::FilterSet(c.set)
-                    .to_frame(pab_core::protocol::INTENTION, c.node),
-            })
-            .collect()
-    }
-
     /// The plot's lanes: one per strategy (full while it is selected), then one per filtered
     /// connection (its commanded pass rate, 1/φ, 0 while closed; boot: closed).
     pub fn lanes(&self, network: &Network) -> Vec<LaneGroup> {

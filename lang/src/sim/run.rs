@@ -22,7 +22,7 @@ use pab_app::replay::Recorder;
 use pab_core::protocol::{self, FrameKind, Message};
 use pab_core::{Arbiter, Frame, Instant};
 
-use super::station::{Observer, Station};
+use super::station::{IntentStation, Observer, Station};
 use super::{BusFrame, Change, DynamicsRow, Holding, Options, SimError, TraceRow};
 use crate::network::{Kind, Network};
 use crate::series::Sample;
@@ -31,6 +31,10 @@ use crate::series::Sample;
 /// frame sent in answer to the previous round's. Nodes that keep answering each other without
 /// time passing are a fault of the tables, reported rather than simulated for ever.
 const MAX_ROUNDS: usize = 1_000;
+
+/// The sender of the intention node's frames in [`Run::outgoing`] (the stations are numbered
+/// from 0).
+const INTENT: usize = usize::MAX;
 
 pub(super) struct Run<'a> {
     pub network: &'a Network,
@@ -50,6 +54,10 @@ pub(super) struct Run<'a> {
     pub outgoing: Vec<(usize, Frame)>,
     /// Every frame the nodes put on the bus, in bus order.
     pub sent: Vec<BusFrame>,
+    /// Every frame on the bus, the given ones included, in bus order (not in a replay).
+    pub bus: Vec<BusFrame>,
+    /// HBBA's intention node (with `[hbba]`, in a simulation; never in a replay).
+    pub intent: Option<IntentStation<'a>>,
 }
 
 impl Run<'_> {
@@ -73,12 +81,14 @@ impl Run<'_> {
             .collect();
         halts.sort_unstable();
         let mut halts = halts.into_iter().peekable();
-        // What the nodes sent as they booted (their first heartbeats) goes on the bus at 0.
+        // What the nodes sent as they booted (their first heartbeats) goes on the bus at 0, with
+        // the intention node's first Intention.
         let mut now = 0;
         for station in 0..self.stations.len() {
             self.collect(station, 0);
             self.note_dynamics(station);
         }
+        self.poll_intent(0);
         self.exchange(0)?;
         loop {
             let next_frame = pending.peek().map(|frame| frame.t_us);
@@ -86,7 +96,12 @@ impl Run<'_> {
             let next_sample = self.options.samples.then_some(next_grid);
             let next_halt = halts.peek().map(|(t, _)| *t);
             // A deadline already past (the node was busy then) is served now.
-            let next_poll = self.stations.iter().filter_map(Station::due).min();
+            let next_poll = self
+                .stations
+                .iter()
+                .filter_map(Station::due)
+                .chain(self.intent.as_ref().and_then(IntentStation::due))
+                .min();
             let Some(next) = [next_frame, next_wake, next_sample, next_halt]
                 .into_iter()
                 .flatten()
@@ -108,6 +123,10 @@ impl Run<'_> {
             while let Some(frame) = pending.next_if(|frame| frame.t_us == now) {
                 for station in 0..self.stations.len() {
                     self.feed(station, &frame.frame, now);
+                }
+                self.feed_intent(&frame.frame, now);
+                if self.broadcast {
+                    self.bus.push(*frame);
                 }
                 sent += 1;
                 if sent.is_multiple_of(65_536) {
@@ -141,9 +160,57 @@ impl Run<'_> {
         Ok(sent)
     }
 
+    /// The intention node, polled at `now` if its deadline has come, until it has no work left
+    /// then.
+    fn poll_intent(&mut self, now_us: u64) {
+        for _ in 0..MAX_ROUNDS {
+            let Some(intent) = self.intent.as_mut() else {
+                return;
+            };
+            let Some(due) = intent.due().filter(|&due| due <= now_us) else {
+                return;
+            };
+            intent.polled_for = Some(due);
+            intent.node.poll(Instant::from_micros(now_us));
+            intent.served_us = now_us;
+            self.collect_intent(now_us);
+        }
+    }
+
+    /// The intention node hears `frame` at `now`.
+    fn feed_intent(&mut self, frame: &Frame, now_us: u64) {
+        let Some(intent) = self.intent.as_mut() else {
+            return;
+        };
+        intent.node.on_frame(frame, Instant::from_micros(now_us));
+        intent.served_us = now_us;
+        // A frame may have made work due at once (a desire to solve for).
+        intent.polled_for = None;
+        self.collect_intent(now_us);
+    }
+
+    /// What the intention node sent (on the bus next) and did (recorded); its reports in
+    /// words are its log's, not the simulation's.
+    fn collect_intent(&mut self, now_us: u64) {
+        let network = self.network;
+        let Some(intent) = self.intent.as_mut() else {
+            return;
+        };
+        while let Some(frame) = intent.node.next_outgoing() {
+            self.outgoing.push((INTENT, frame));
+        }
+        while intent.node.next_report().is_some() {}
+        while let Some(observed) = intent.node.next_observed() {
+            intent
+                .run
+                .observe(network, intent.targets, now_us, observed);
+        }
+    }
+
     /// Every running node whose deadline has come by `now` is polled, until none has work left
     /// at `now`.
     fn poll_due(&mut self, now_us: u64) {
+        self.poll_intent(now_us);
         for station in 0..self.stations.len() {
             for _ in 0..MAX_ROUNDS {
                 let Some(entry) = self.stations.get_mut(station) else {
@@ -181,14 +248,19 @@ impl Run<'_> {
                 if !self.broadcast {
                     continue;
                 }
-                self.sent.push(BusFrame {
+                let carried = BusFrame {
                     t_us: now_us,
                     frame,
-                });
+                };
+                self.sent.push(carried);
+                self.bus.push(carried);
                 for station in 0..self.stations.len() {
                     if station != sender {
                         self.feed(station, &frame, now_us);
                     }
+                }
+                if sender != INTENT {
+                    self.feed_intent(&frame, now_us);
                 }
             }
             self.poll_due(now_us);
@@ -238,6 +310,9 @@ impl Run<'_> {
             entry.app.stored(true, now);
         }
         entry.served_us = now_us;
+        // What the frame made due is polled for anew, as `pab_app::replay::feed` does after
+        // each frame.
+        entry.polled_for = None;
         let Observer {
             verdicts,
             delivered,

@@ -146,3 +146,42 @@ impl pab_app::Recipient for Observer<'_> {
         self.verdicts.push((*verdict, levels));
     }
 }
+
+/// HBBA's intention node on the simulated bus: the intention node itself
+/// (`pab_intent::IntentNode`), and what the simulator records of it.
+pub(super) struct IntentStation<'a> {
+    pub node: pab_intent::IntentNode<'a>,
+    /// Where each filtered connection is (the setup's).
+    pub targets: &'a [pab_core::hbba::intention::Target],
+    /// The last instant it was handed a frame or polled, µs.
+    pub served_us: u64,
+    /// The deadline it was last polled for, µs (as [`Station::polled_for`]).
+    pub polled_for: Option<u64>,
+    /// What it selected and commanded.
+    pub run: super::IntentionRun,
+}
+
+impl<'a> IntentStation<'a> {
+    /// The intention node of `setup`, from address [`pab_core::protocol::INTENTION`], observed.
+    pub fn new(setup: &'a pab_intent::Setup) -> Result<IntentStation<'a>, SimError> {
+        let mut node = pab_intent::IntentNode::new(setup, pab_core::protocol::INTENTION)
+            .map_err(|error| SimError(format!("[hbba]: {error}")))?;
+        node.observe();
+        Ok(IntentStation {
+            node,
+            targets: &setup.targets,
+            served_us: 0,
+            polled_for: None,
+            run: super::IntentionRun::new(setup),
+        })
+    }
+
+    /// When it next asks to be polled, µs (as [`Station::due`]).
+    pub fn due(&self) -> Option<u64> {
+        let deadline = self
+            .node
+            .deadline(Instant::from_micros(self.served_us))
+            .as_micros();
+        Some(deadline).filter(|&d| self.polled_for != Some(d))
+    }
+}
