@@ -1,0 +1,8 @@
+//! The intention node's integration tests, one module per file of this directory, in one test
+//! binary: compiled and linked once instead of once per file. `cargo test -p pab-intent --test
+//! integration NAME::` runs the tests of NAME.rs. A file of this directory is built only once
+//! declared here (`autotests = false` in Cargo.toml); tests/tests/test_files.rs fails while one is
+//! not.
+
+mod bus;
+mod cli;
