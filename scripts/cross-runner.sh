@@ -30,5 +30,5 @@ target="${CARGO_TARGET_DIR:-target}"
 export PAB_AN386_REPLAY
 PAB_AN386_REPLAY=$(realpath "$target/thumbv7em-none-eabihf/firmware/pab-an386-replay")
 started=$(date +%s)
-cargo test --locked -p pabctl --test cross_runner -- --ignored --nocapture
+cargo test --locked -p pabctl --test integration cross_runner:: -- --ignored --nocapture
 echo "cross-runner: simulator, node application and board agree ($(( $(date +%s) - started )) s)"

@@ -16,4 +16,4 @@ cargo build -q --locked --profile firmware -p pab-fw-an386 --target thumbv7em-no
 target="${CARGO_TARGET_DIR:-target}"
 export PAB_AN386_ELF
 PAB_AN386_ELF=$(realpath "$target/thumbv7em-none-eabihf/firmware/pab-fw-an386")
-cargo test --locked -p pabctl --test keyed_board -- --ignored --nocapture
+cargo test --locked -p pabctl --test integration keyed_board:: -- --ignored --nocapture

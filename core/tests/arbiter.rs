@@ -1,7 +1,7 @@
 //! The arbiter end to end, on hand-built tables: the paper's Figure 1 scenario, fan-out,
 //! overlapping filters, rest times, frames that match nothing, and the read-only accessors.
 
-mod common;
+use crate::common;
 
 use common::{at, deliver, node, priority_chain};
 

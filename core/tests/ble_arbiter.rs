@@ -4,7 +4,7 @@
 //! two periods, equal eligibilities go to the lower node id, and a node whose gated connection
 //! could not deliver offers 0.
 
-mod common;
+use crate::common;
 
 use common::{at, deliver, node};
 use pab_core::ble::{CLAIM_SLOT_FILTER, Claim, EligibilityField, Group, GroupPort};

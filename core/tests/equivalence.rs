@@ -12,10 +12,7 @@
 //! out of order, repeated instants, long silences, and clocks that start anywhere, up to just
 //! before the 64-bit counter wraps.
 
-#[path = "common/random.rs"]
-mod random;
-#[path = "common/reference.rs"]
-mod reference;
+use crate::common::{random, reference};
 
 use pab_core::{Arbiter, Instant, Table};
 use proptest::prelude::*;

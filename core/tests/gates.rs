@@ -4,7 +4,7 @@
 //! deliver CMD exactly while it is open, the gates go on the bus on every change and at least
 //! every 100 ms, and a silent owner closes the reader's gates after 300 ms with one loss.
 
-mod common;
+use crate::common;
 
 use common::{at, deliver, node};
 use pab_core::dynamics::{

@@ -4,7 +4,7 @@
 //! ports, across a table swap, through the image format; and a property test against a model
 //! of the counters on random frames and commands.
 
-mod common;
+use crate::common;
 
 use common::{deliver, priority_chain};
 

@@ -3,7 +3,7 @@
 //! random bytes. Whatever the bytes, `load` answers with a typed error or a table that passes
 //! validation and that an `Arbiter` runs.
 
-mod common;
+use crate::common;
 
 use common::{at, deliver, node, priority_chain};
 

@@ -4,10 +4,7 @@
 //! swapped arbiter decides as the reference (`common/reference.rs`) on the new table whose
 //! unchanged connections took the old reference's state and whose changed ones started afresh.
 
-#[path = "common/random.rs"]
-mod random;
-#[path = "common/reference.rs"]
-mod reference;
+use crate::common::{random, reference};
 
 use pab_core::{Arbiter, Connection, Filter, Instant, Table};
 use proptest::prelude::*;

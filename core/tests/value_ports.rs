@@ -2,7 +2,7 @@
 //! frames, short frames, saturated sums, big endian, rules, capacities; and a property test
 //! against a plain i64 reference of the combination.
 
-mod common;
+use crate::common;
 
 use common::{deliver, node};
 

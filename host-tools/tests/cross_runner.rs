@@ -34,7 +34,7 @@ use pab_lang::network::Network;
 use pab_lang::replay::{self, Feed};
 use pab_lang::sim::{self, Options};
 
-mod common;
+use crate::common;
 
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")

@@ -10,8 +10,8 @@
 //! (`client/python/tests/test_protocol.py` holds `pab_client.protocol` to them).
 //!
 //! After a deliberate change of the builders, the defaults or the encoding, rewrite the file:
-//! `PAB_BLESS=1 cargo test -p pab-lang --test client_golden`, and commit it with the change
-//! (the Python client must then follow).
+//! `PAB_BLESS=1 cargo test -p pab-lang --test integration client_golden::`, and commit it with
+//! the change (the Python client must then follow).
 
 use std::path::PathBuf;
 
@@ -491,7 +491,8 @@ fn golden() -> Value {
                   `table` answers for them on the limits channel (`within`: null accepted, else \
                   the SchemaOutcome). \
                   Written and checked by lang/tests/client_golden.rs \
-                  (PAB_BLESS=1 cargo test -p pab-lang --test client_golden rewrites it); \
+                  (PAB_BLESS=1 cargo test -p pab-lang --test integration client_golden:: \
+                  rewrites it); \
                   client/python/tests/test_schema.py checks the Python builders against it.",
         "vectors": vectors().iter().map(entry).collect::<Vec<_>>(),
         "limits": {
@@ -518,7 +519,7 @@ fn the_python_clients_golden_vectors_are_what_the_rust_builders_make() {
             f, e,
             "vector {i} ({}) differs from what the Rust builders make: after a deliberate \
              change, rewrite the file with PAB_BLESS=1 cargo test -p pab-lang --test \
-             client_golden and update the Python client",
+             integration client_golden:: and update the Python client",
             e["call"]
         );
     }
@@ -618,7 +619,7 @@ fn golden_auth() -> Value {
                   and for two nodes and nonces a keyed schema transfer's TransferOpen tag, the \
                   message's MAC and the Receipt tag of its SchemaAck, as pab_core::auth makes \
                   them. Written and checked by lang/tests/client_golden.rs (PAB_BLESS=1 cargo \
-                  test -p pab-lang --test client_golden rewrites it); \
+                  test -p pab-lang --test integration client_golden:: rewrites it); \
                   client/python/tests/test_auth.py checks pab_client.auth against it.",
         "key": hex(&key_bytes),
         "vectors": vectors,
@@ -650,7 +651,7 @@ fn golden_codes() -> Value {
         "about": "The schema server's wire codes, names and descriptions (pab_core::protocol), \
                   which pab_client.protocol repeats. Written and checked by \
                   lang/tests/client_golden.rs (PAB_BLESS=1 cargo test -p pab-lang --test \
-                  client_golden rewrites it); client/python/tests/test_protocol.py checks \
+                  integration client_golden:: rewrites it); client/python/tests/test_protocol.py checks \
                   pab_client.protocol against it.",
         "SchemaOutcome": codes!(SchemaOutcome),
         "SchemaSafety": codes!(SchemaSafety),
@@ -682,7 +683,8 @@ fn blessed_or_read(path: &std::path::Path, expected: &Value) -> Option<Value> {
     }
     let text = std::fs::read_to_string(path).unwrap_or_else(|e| {
         panic!(
-            "{}: {e}; write it with PAB_BLESS=1 cargo test -p pab-lang --test client_golden",
+            "{}: {e}; write it with PAB_BLESS=1 cargo test -p pab-lang --test integration \
+             client_golden::",
             path.display()
         )
     });

@@ -2,7 +2,7 @@
 //! claims from the bus, gates its connection by the task it holds, and refuses claims it cannot
 //! keep with a fault. The peer is played by the test, frame by frame, in virtual time.
 
-mod common;
+use crate::common;
 
 use common::{Harness, frame, image};
 use pab_core::ble::{CLAIM_SLOT_FILTER, Claim, EligibilityField, Group, GroupPort};

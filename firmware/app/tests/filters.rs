@@ -5,7 +5,7 @@
 //! Exploitation frames mark each connection that starts or stops delivering. One for another
 //! node or for all is not this node's business.
 
-mod common;
+use crate::common;
 
 use common::*;
 use pab_core::Frame;

@@ -3,7 +3,7 @@
 //! boot count as salt, a new one every boot; an invalid page or a failing counter → locked, with
 //! the reason in the `KeyPageInvalid` fault.
 
-mod common;
+use crate::common;
 
 use common::*;
 use embedded_storage::nor_flash::NorFlash;

@@ -1,7 +1,7 @@
 //! The node application against an in-process bus with virtual time: arbitration, heartbeat,
 //! faults, diagnostic stream, gateway consumer.
 
-mod common;
+use crate::common;
 
 use common::*;
 use pab_core::protocol::{

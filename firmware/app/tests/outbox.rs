@@ -2,7 +2,7 @@
 //! or a fault never waits behind the diagnostic stream queued before it, and frames with the same
 //! identifier (a diagnostic round, ISO-TP flow control) keep their order.
 
-mod common;
+use crate::common;
 
 use common::*;
 use pab_app::Config;

@@ -1,7 +1,7 @@
 //! Every service has a fixed priority: a frame of ours with other priority bits is malformed,
 //! counted in Errors and reported as BadCommand, never acted on.
 
-mod common;
+use crate::common;
 
 use common::*;
 use pab_core::Frame;

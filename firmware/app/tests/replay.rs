@@ -1,7 +1,7 @@
 //! The verdict hook of the node application and the replay record it feeds: what a replay runner
 //! (the Linux node's, the emulated board's) writes for each frame.
 
-mod common;
+use crate::common;
 
 use common::*;
 use pab_app::replay::{self, Recorder, job::TimedFrame};

@@ -2,7 +2,7 @@
 //! attack the threat model in docs/can-protocol.md names, and what stops it. A rogue here is any
 //! station that can send and receive frames but does not hold the node's key.
 
-mod common;
+use crate::common;
 
 use common::*;
 use pab_core::auth::Key;

@@ -3,7 +3,7 @@
 //! embassy's std time driver. A table pushed while it runs is stored, and a node started again
 //! on the same flash boots with it.
 
-mod common;
+use crate::common;
 
 use common::*;
 use embassy_futures::select::{Either, select};

@@ -3,8 +3,8 @@
 //! set-point on the bus every tick, transitions and faults reported, the emergency stop halting
 //! within one period, abort, SchemaState every 100 ms, and the refusals.
 
-mod common;
-mod schema_rig;
+use crate::common;
+use crate::schema_rig;
 
 use common::*;
 use pab_core::Frame;

@@ -3,8 +3,8 @@
 //! is (a challenge, a TransferOpen for a schema, the message and its MAC) and confirmed by a
 //! Receipt; the emergency stop and the abort stay open to anyone.
 
-mod common;
-mod schema_rig;
+use crate::common;
+use crate::schema_rig;
 
 use common::*;
 use pab_core::auth::{Authenticator, Key};

@@ -2,8 +2,8 @@
 //! SchemaAbort ends everything that was about to run, and only a high-priority schema that
 //! acknowledges the stop leaves it. On the in-process bus, the node's own code.
 
-mod common;
-mod schema_rig;
+use crate::common;
+use crate::schema_rig;
 
 use common::*;
 use pab_core::Instant;

@@ -1,7 +1,7 @@
 //! Table swaps under repeated pushes: the connections a push leaves unchanged keep their state
 //! (no blackout of deliveries), and saves are rate-limited without losing the newest image.
 
-mod common;
+use crate::common;
 
 use common::*;
 use pab_app::DEFAULT_STORE_INTERVAL_US;

@@ -1,7 +1,7 @@
 //! Table transfer over ISO-TP against every fault the protocol names: the node keeps its table
 //! unless a new one arrived whole, for it, newer, with the right CRC, and loadable.
 
-mod common;
+use crate::common;
 
 use common::*;
 use pab_core::isotp::{TxError, TxEvent};

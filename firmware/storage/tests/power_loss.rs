@@ -3,7 +3,7 @@
 //! exactly the new one, the image passes `pab_core::image::load`, and the store goes on working,
 //! also when the power is cut again during the next save.
 
-mod common;
+use crate::common;
 
 use common::*;
 use pab_storage::testing::MemFlash;

@@ -3,7 +3,7 @@
 //! programmed), waits for no erase, and a save interrupted by anything (another save, a wrong
 //! image, a power loss between two steps) leaves `load` returning the previous image.
 
-mod common;
+use crate::common;
 
 use common::*;
 use pab_storage::{FlashStore, SAVE_CHUNK, SaveProgress, StoreError, TableStore};

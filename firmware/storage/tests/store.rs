@@ -1,7 +1,7 @@
 //! The store's contract outside power loss: round trips, sizes, layouts, a fresh or garbage
 //! flash, and flash corrupted behind the store's back.
 
-mod common;
+use crate::common;
 
 use common::*;
 use embedded_storage::nor_flash::NorFlash;

@@ -1,7 +1,7 @@
 //! Erase counts over many saves: each save erases the pages of one slot that its header and
 //! image need, and the slots take turns (each page erased once every K saves).
 
-mod common;
+use crate::common;
 
 use common::*;
 
