@@ -5,7 +5,8 @@
 //! runners, which all arbitrate with `pab-core` and write the same record
 //! ([`pab_app::replay::records`]):
 //!
-//! - the simulator's arbiters, one per node ([`crate::sim::run`]): what `pabctl replay` shows;
+//! - the simulator's bus ([`crate::sim::run`]), whose nodes are `pab_app::FullNode`s polled at
+//!   their deadlines: what `pabctl replay` shows;
 //! - the node application, one `pab_app::FullNode` per node (the Linux node's capacities),
 //!   booted from its compiled image and fed through `Node::on_frame` ([`node_records`]);
 //! - a board: [`job()`] writes the file that a board's replay binary reads
