@@ -13,7 +13,7 @@
 //! up, as on the bus. The lanes record the pass rate each filter is commanded (1/φ, 0 closed).
 
 use pab_core::hbba::intention::{Event, Target};
-use pab_core::protocol::{DesireFrame, FilterSet, INTENTION, Message, TOOL};
+use pab_core::protocol::{BROADCAST, DesireFrame, FilterSet, Message, TOOL};
 
 use super::micros;
 use crate::network::Network;
@@ -189,7 +189,9 @@ pub(super) fn desire_frames(network: &Network, until_us: u64) -> Vec<super::BusF
         .into_iter()
         .map(|(t_us, source, desire)| super::BusFrame {
             t_us,
-            frame: Message::Desire(desire).to_frame(source, INTENTION),
+            // To all, as a motivation sends it (the intention node takes a desire addressed to
+            // it or to all).
+            frame: Message::Desire(desire).to_frame(source, BROADCAST),
         })
         .collect()
 }
