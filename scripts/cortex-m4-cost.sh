@@ -44,47 +44,20 @@ case "${1:-}" in
         ;;
 esac
 
-scripts/need.sh qemu-system-arm gcc python3
-llvm_bin="$(rustc --print sysroot)/lib/rustlib/$(rustc -vV | sed -n 's/^host: //p')/bin"
-if [ ! -x "$llvm_bin/llvm-nm" ]; then
-    rustup component add llvm-tools
-fi
-
-target="${CARGO_TARGET_DIR:-target}"
-work="$target/cortex-m4"
-mkdir -p "$work"
-plugin="$work/insn-count.so"
-source=scripts/cortex-m4/insn-count.c
-if [ ! -f "$plugin" ] || [ "$source" -nt "$plugin" ]; then
-    gcc -shared -fPIC -O2 -Wall -Wextra -Werror -fvisibility=hidden -o "$plugin" "$source"
-fi
+# The plugin, the markers and the run under the plugin: shared with the other counts.
+. scripts/cortex-m4/measure.sh
+cortex_m4_setup
 
 # The boards' profile (root Cargo.toml): what is counted is what a board runs.
 cargo build -q --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf \
     --bin pab-an386-cost --locked
-elf="$target/thumbv7em-none-eabihf/firmware/pab-an386-cost"
+elf="${CARGO_TARGET_DIR:-target}/thumbv7em-none-eabihf/firmware/pab-an386-cost"
 
-address() {
-    "$llvm_bin/llvm-nm" "$elf" | awk -v name="$1" '$3 == name { print "0x" $1 }'
-}
-begin=$(address pab_cost_begin)
-end=$(address pab_cost_end)
-if [ -z "$begin" ] || [ -z "$end" ] || [ "$begin" = "$end" ]; then
-    echo "cortex-m4-cost: markers not found (or merged) in $elf: begin '$begin', end '$end'" >&2
-    exit 1
-fi
+cortex_m4_markers "$elf" cortex-m4-cost
 
-# Runs the program once under the plugin (extra plugin options in $1) into $2. QEMU's exit
-# status is the program's (semihosting); its console and the plugin's counts share stderr, in
-# the order the guest produced them.
+# Runs the program once under the plugin (extra plugin options in $1) into $2.
 run() {
-    if ! qemu-system-arm -M mps2-an386 -nographic -monitor none \
-        -semihosting-config enable=on,target=native -icount shift=0 \
-        -plugin "$plugin,begin=$begin,end=$end$1" -kernel "$elf" 2> "$2" > /dev/null; then
-        tail -5 "$2" >&2
-        echo "cortex-m4-cost: the measurement program failed (log: $2)" >&2
-        exit 1
-    fi
+    cortex_m4_run "$elf" "$2" cortex-m4-cost "$1"
 }
 
 log="$work/run.log"
