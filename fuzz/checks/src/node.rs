@@ -144,8 +144,11 @@ fn running_key(node: &TestNode) -> Option<(u32, u32)> {
 /// What a node does with its BLE groups after each frame and poll: its claims due, and the
 /// holding decisions brought up to `at` (what it sends is checked by [`World::drain`]).
 fn ble_duties(shadow: &mut Shadow, at: Instant) {
+    // As the node: the work due by `at`, seen from the microsecond before, so that a claim going
+    // stale at exactly `at` is due then.
+    let before = Instant::from_micros(at.as_micros().wrapping_sub(1));
     let due = shadow
-        .ble_deadline(at)
+        .ble_deadline(before)
         .is_some_and(|due| at.micros_since(due).is_some());
     if shadow.has_groups() && due {
         shadow.ble_poll(at, |_| {});
