@@ -51,10 +51,7 @@ mod topics;
 mod transfers;
 
 pub use claims::claims_in;
-pub use services::{
-    fault_codes, node_states, schema_outcomes, schema_safeties, service_signals,
-    transfer_status_codes,
-};
+pub use services::service_signals;
 
 /// The DBC node name of the workstation tool.
 pub const TOOL_NODE: &str = "PABCTL";

@@ -15,7 +15,10 @@
 
 use std::path::PathBuf;
 
-use pab_core::protocol::{SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety, SchemaTrigger};
+use pab_core::protocol::layout::{Framing, layout};
+use pab_core::protocol::{
+    SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety, SchemaTrigger, Service,
+};
 use pab_core::schema::{
     Action, Event, Gripper, Joint, Limits, MAX_ENCODED, MAX_JOINTS, Measure, Pose, Reaction,
     Refusal, Schema, Source, build,
@@ -666,6 +669,67 @@ fn the_python_clients_codes_are_the_wire_enums() {
     let expected = golden_codes();
     let Some(found) = blessed_or_read(
         &golden_path().with_file_name("golden_codes.json"),
+        &expected,
+    ) else {
+        return;
+    };
+    assert_eq!(found, expected, "the golden file (PAB_BLESS=1 rewrites it)");
+}
+
+/// Every service's payload layout (`pab_core::protocol::layout`, the one description of each
+/// frame): its code, priority, length and fields, which the Python client's and the HIL
+/// harness's codecs are checked against (client/python/tests/test_layouts.py,
+/// hil-sim/unit/test_layouts.py).
+fn golden_layouts() -> Value {
+    let services: Vec<Value> = Service::ALL
+        .into_iter()
+        .map(|service| {
+            let layout = layout(service);
+            let fields: Vec<Value> = layout
+                .fields
+                .iter()
+                .map(|f| {
+                    json!({
+                        "name": f.name,
+                        "bit": f.bit,
+                        "bits": f.bits,
+                        "signed": f.signed,
+                        "scale": format!("{:?}", f.scale),
+                        "max": f.max,
+                        "unit": f.unit,
+                        "reserved": f.is_reserved(),
+                        "values": f.values.iter().map(|(code, text)| json!([code, text])).collect::<Vec<_>>(),
+                    })
+                })
+                .collect();
+            json!({
+                "name": format!("{service:?}"),
+                "code": service.code(),
+                "priority": service.priority().value(),
+                "length": layout.len,
+                "framing": match layout.framing {
+                    Framing::IsoTp => "isotp",
+                    _ => "fixed",
+                },
+                "fields": fields,
+            })
+        })
+        .collect();
+    json!({
+        "about": "Every payload of the pab protocol, field by field (pab_core::protocol::layout). \
+                  Written and checked by lang/tests/client_golden.rs (PAB_BLESS=1 cargo test -p \
+                  pab-lang --test integration client_golden:: rewrites it); the Python client's \
+                  and the HIL harness's codecs and constants are tested against it. Bits: 8 x byte \
+                  + bit, little endian.",
+        "services": services,
+    })
+}
+
+#[test]
+fn the_python_layouts_are_the_cores() {
+    let expected = golden_layouts();
+    let Some(found) = blessed_or_read(
+        &golden_path().with_file_name("golden_layouts.json"),
         &expected,
     ) else {
         return;

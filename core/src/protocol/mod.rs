@@ -26,6 +26,7 @@
 
 mod classify;
 mod codes;
+pub mod layout;
 mod messages;
 #[cfg(feature = "schema")]
 mod schema;

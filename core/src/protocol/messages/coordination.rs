@@ -175,3 +175,182 @@ pub struct FilterSet {
     /// Echoed in [`FilterStatus::sequence`].
     pub sequence: u16,
 }
+
+use crate::protocol::Service;
+use crate::protocol::layout::{Field, Layout, Values};
+
+impl Gates {
+    /// The payload's layout.
+    pub const LAYOUT: Layout = Layout::fixed(
+        Service::Gates,
+        &[
+            Field::new(
+                "group",
+                0,
+                8,
+                "the group's number in the network (the order of [dynamics.*], from 0)",
+            ),
+            Field::new("behaviours", 8, 8, "the group's behaviours, 1..32").max(32),
+            Field::new(
+                "gates",
+                16,
+                32,
+                "bit i set while behaviour i's gate is open; bits at and above the count are 0",
+            ),
+            Field::new(
+                "changes",
+                48,
+                8,
+                "changes of the gates since the group started, mod 256",
+            ),
+            Field::reserved("reserved", 56, 8),
+        ],
+        "the gates of a competitive-dynamics group, from the node that runs it, whenever they \
+         change and every 100 ms otherwise; a group not heard for 300 ms reads as all gates \
+         closed.",
+    );
+}
+
+impl DesireFrame {
+    /// The payload's layout.
+    pub const LAYOUT: Layout = Layout::fixed(
+        Service::Desire,
+        &[
+            Field::new(
+                "class",
+                0,
+                8,
+                "the class desired: its number in the network (first appearance among \
+                 [hbba.strategies.*], from 0)",
+            ),
+            Field::reserved("reserved", 8, 8),
+            Field::new(
+                "intensity",
+                16,
+                16,
+                "how much the class is desired; 0 withdraws the desire",
+            ),
+            Field::new(
+                "lease",
+                32,
+                16,
+                "the desire lapses unless sent again within this many ms",
+            )
+            .unit("ms"),
+            Field::new(
+                "id",
+                48,
+                16,
+                "the sender's number for the desire: (source, id) names it",
+            ),
+        ],
+        "a motivation's desire for the intention workspace; it lapses unless sent again within \
+         its lease; intensity 0 withdraws it.",
+    );
+}
+
+impl Intention {
+    /// The payload's layout: the u64 of selected strategies as two halves, since not every
+    /// DBC tool reads a 64-bit signal.
+    pub const LAYOUT: Layout = Layout::fixed(
+        Service::Intention,
+        &[
+            Field::new(
+                "strategies_low",
+                0,
+                32,
+                "bit s set when strategy s (file order of [hbba.strategies.*]) is selected, s < 32",
+            ),
+            Field::new(
+                "strategies_high",
+                32,
+                32,
+                "bit s - 32 set when strategy s is selected, 32 <= s < 64",
+            ),
+        ],
+        "the strategies the intention node selected, after every solve that changed them and \
+         once a second.",
+    );
+}
+
+impl FilterStatus {
+    /// The payload's layout.
+    pub const LAYOUT: Layout = Layout::fixed(
+        Service::FilterStatus,
+        &[
+            Field::new(
+                "profile",
+                0,
+                8,
+                "the filter profile last switched to (0..15), or 255 once a FilterSet changed a \
+                 filter since",
+            ),
+            Field::reserved("reserved", 8, 8),
+            Field::new(
+                "sequence",
+                16,
+                16,
+                "the sequence number of the last filter command applied (0 since boot)",
+            ),
+            Field::new("filtered", 32, 8, "connections with a message filter"),
+            Field::new("closed", 40, 8, "of them closed (phi = 0)"),
+            Field::new("throttled", 48, 8, "of them passing one frame in phi >= 2"),
+            Field::reserved("reserved2", 56, 8),
+        ],
+        "a node's message filters, after every filter command it applied and after every \
+         heartbeat group.",
+    );
+}
+
+impl Exploitation {
+    /// The payload's layout.
+    pub const LAYOUT: Layout = Layout::fixed(
+        Service::Exploitation,
+        &[
+            Field::new("port", 0, 8, "the port, in the node's order"),
+            Field::new("connection", 8, 8, "the connection, in the port's order"),
+            Field::new("delivering", 16, 8, "the edge").values(Values::Edge),
+            Field::reserved("reserved", 24, 8),
+        ],
+        "a connection of the node started or stopped delivering (edges only).",
+    );
+}
+
+impl FilterProfile {
+    /// The payload's layout.
+    pub const LAYOUT: Layout = Layout::fixed(
+        Service::FilterProfile,
+        &[
+            Field::new(
+                "profile",
+                0,
+                8,
+                "the profile of the node's table to switch every filter to (0: all closed)",
+            ),
+            Field::reserved("reserved", 8, 8),
+            Field::new("sequence", 16, 16, "echoed in the node's FilterStatus"),
+        ],
+        "switches every message filter of a node to one of its table's profiles; answered by \
+         FilterStatus or a FilterRefused fault.",
+    );
+}
+
+impl FilterSet {
+    /// The payload's layout.
+    pub const LAYOUT: Layout = Layout::fixed(
+        Service::FilterSet,
+        &[
+            Field::new("port", 0, 8, "the port, in the node's order"),
+            Field::new("connection", 8, 8, "the connection, in the port's order"),
+            Field::new(
+                "phi",
+                16,
+                8,
+                "0 closes, 1 passes every frame, N passes one frame in N",
+            ),
+            Field::reserved("reserved", 24, 8),
+            Field::new("sequence", 32, 16, "echoed in the node's FilterStatus"),
+        ],
+        "sets one message filter of a node; answered by FilterStatus or a FilterRefused fault.",
+    );
+}

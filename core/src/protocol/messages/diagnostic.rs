@@ -87,3 +87,64 @@ impl DiagnosticControl {
     /// The highest rate a node accepts (a higher request is refused as malformed).
     pub const MAX_RATE_HZ: u16 = 200;
 }
+
+use crate::protocol::Service;
+use crate::protocol::layout::{Field, Layout, Scale};
+
+impl DiagnosticSample {
+    /// The payload's layout.
+    pub const LAYOUT: Layout = Layout::fixed(
+        Service::Diagnostic,
+        &[
+            Field::new("port", 0, 8, "port index in the node's table"),
+            Field::new("connection", 8, 8, "connection index within the port"),
+            Field::new("active", 16, 1, "1: the connection is active"),
+            Field::new("resting", 17, 1, "1: the connection is in its rest time"),
+            Field::new(
+                "delivering",
+                18,
+                1,
+                "1: the port's decision selects this connection",
+            ),
+            Field::new("end_of_round", 19, 1, "1: the last sample of the round"),
+            Field::new(
+                "sequence",
+                24,
+                8,
+                "round sequence number, shared by the round's samples, wrapping",
+            ),
+            Field::new(
+                "level",
+                32,
+                32,
+                "stimulation S in 0..1 (Q1.31 on the wire: raw 2^31 = 1.0)",
+            )
+            .scale(Scale::Q31)
+            .max(1)
+            .unit("S"),
+        ],
+        "one connection's stimulation; while the stream is on, one round (a sample per \
+         connection of the selected ports, one sequence number, the last flagged end_of_round) \
+         at the requested rate.",
+    );
+}
+
+impl DiagnosticControl {
+    /// The payload's layout (to a node with a key, 4 more bytes: the tag).
+    pub const LAYOUT: Layout = Layout::fixed(
+        Service::DiagnosticControl,
+        &[
+            Field::new(
+                "rate",
+                0,
+                16,
+                "rounds per second, 0 switches the stream off, at most 200",
+            )
+            .unit("Hz")
+            .max(DiagnosticControl::MAX_RATE_HZ as u32),
+            Field::new("ports", 16, 16, "ports to sample: bit i = port i"),
+        ],
+        "switches the diagnostic stream; the node refuses rates above 200. To a node with a \
+         key, the frame is 8 bytes: these 4 and a 4-byte tag over the node's challenge.",
+    );
+}

@@ -10,6 +10,8 @@ mod coordination;
 mod decode;
 mod diagnostic;
 mod encode;
+#[cfg(test)]
+mod layout_tests;
 mod schema_server;
 mod status;
 #[cfg(test)]
@@ -21,8 +23,14 @@ pub use coordination::{
 };
 pub use decode::DecodeError;
 pub use diagnostic::{DiagnosticControl, DiagnosticFlags, DiagnosticSample};
+pub(super) use schema_server::{
+    EMERGENCY_STOP_LAYOUT, SCHEMA_ABORT_LAYOUT, SCHEMA_TRANSFER_LAYOUT,
+};
 pub use schema_server::{SchemaAck, SchemaState, SchemaTransition};
 pub use status::{Errors, Fault, Heartbeat, TableStatus, Traffic};
+pub(super) use transfer::{
+    CHALLENGE_LAYOUT, CHALLENGE_REQUEST_LAYOUT, RECEIPT_LAYOUT, TABLE_TRANSFER_LAYOUT,
+};
 pub use transfer::{OPEN_REPLACE, OPEN_SCHEMA, TransferOpen, TransferStatus};
 
 use super::Service;

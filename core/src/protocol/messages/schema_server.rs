@@ -138,3 +138,136 @@ impl SchemaState {
         u16::try_from(ms).unwrap_or(u16::MAX)
     }
 }
+
+use crate::protocol::Service;
+use crate::protocol::layout::{Field, Layout, Values};
+
+impl SchemaAck {
+    /// The payload's layout.
+    pub const LAYOUT: Layout = Layout::fixed(
+        Service::SchemaAck,
+        &[
+            Field::new(
+                "outcome",
+                0,
+                8,
+                "0 accepted, else why the schema was refused (SchemaOutcome)",
+            )
+            .values(Values::SchemaOutcome),
+            Field::new(
+                "channel",
+                8,
+                8,
+                "channel of the message: 0 queue, 1 high-priority, 255 unreadable",
+            )
+            .values(Values::SchemaChannel),
+            Field::new(
+                "id",
+                16,
+                16,
+                "the schema's id (65535 when it could not be decoded)",
+            ),
+            Field::new("queued", 32, 8, "schemas in the queue after it"),
+            Field::new(
+                "stop",
+                40,
+                8,
+                "the server's stop number (stops modulo 64) when it answered",
+            )
+            .max(63),
+            Field::reserved("reserved", 48, 16),
+        ],
+        "the answer to one SchemaTransfer message (ISO-TP, service 0x1A), to its sender.",
+    );
+}
+
+impl SchemaTransition {
+    /// The payload's layout.
+    pub const LAYOUT: Layout = Layout::fixed(
+        Service::SchemaTransition,
+        &[
+            Field::new("ended", 0, 16, "the schema that ended"),
+            Field::new(
+                "installed",
+                16,
+                16,
+                "the schema installed (0xFF00 the wait for the queue, 0xFF01 the wait for the \
+                 high-priority channel, 0xFF10 + cause the recovery after a safety event)",
+            ),
+            Field::new("trigger", 32, 8, "what ended the schema").values(Values::SchemaTrigger),
+            Field::new(
+                "detail",
+                40,
+                8,
+                "trigger 2 (safety): the cause, 0 emergency stop, 1 sensor stale, 2 workspace \
+                 limit, 3 force limit, 4 watchdog, 5 loop overrun; trigger 3 (reaction): the \
+                 reaction's index in the ended schema's table; otherwise 0",
+            ),
+            Field::new("source", 48, 8, "where the installed schema came from")
+                .values(Values::SchemaOrigin),
+            Field::new("queued", 56, 8, "schemas in the queue after it"),
+        ],
+        "a schema change of the server, on every change (several in one tick: in order).",
+    );
+}
+
+impl SchemaState {
+    /// The payload's layout.
+    pub const LAYOUT: Layout = Layout::fixed(
+        Service::SchemaState,
+        &[
+            Field::new("current", 0, 16, "the installed schema"),
+            Field::new("source", 16, 8, "where the installed schema came from")
+                .values(Values::SchemaOrigin),
+            Field::new(
+                "fault",
+                24,
+                8,
+                "the safety event the server is stopped on, 255 when none",
+            )
+            .values(Values::SchemaSafety),
+            Field::new("queued", 32, 8, "schemas in the queue"),
+            Field::new("armed", 40, 1, "1: a pose has been received"),
+            Field::new("gripper_closed", 41, 1, "1: the gripper is closed"),
+            Field::new(
+                "stop",
+                42,
+                6,
+                "the stop number: the server's stops (emergency stops, aborts, safety events) \
+                 modulo 64, which a high-priority schema names to leave the latest one",
+            ),
+            Field::new(
+                "elapsed",
+                48,
+                16,
+                "ms since the schema was installed, saturating",
+            )
+            .unit("ms"),
+        ],
+        "the schema server's state, every 100 ms.",
+    );
+}
+
+/// The layout of an emergency stop (service 0x00): no payload.
+pub const EMERGENCY_STOP_LAYOUT: Layout = Layout::fixed(
+    Service::EmergencyStop,
+    &[],
+    "the lowest identifier of the protocol; a schema server halts within one loop period \
+     (attractor on the measured pose, SchemaSafety fault, waits on the high-priority channel). \
+     Accepted from any source.",
+);
+
+/// The layout of a schema abort (service 0x19): no payload.
+pub const SCHEMA_ABORT_LAYOUT: Layout = Layout::fixed(
+    Service::SchemaAbort,
+    &[],
+    "the client abandons its program; the schema server empties its queue and waits on the \
+     high-priority channel. Accepted from any source.",
+);
+
+/// The layout of a schema message's frames (service 0x1A): ISO-TP.
+pub const SCHEMA_TRANSFER_LAYOUT: Layout = Layout::isotp(
+    Service::SchemaTransfer,
+    "ISO 15765-2 frames of one schema message (a channel byte and the schema's postcard \
+     bytes), padded to 8 bytes; the node's flow control back on the same service.",
+);

@@ -1,7 +1,7 @@
 use crate::frame::Frame;
 use crate::protocol::*;
 
-fn samples() -> [Message; 26] {
+pub(super) fn samples() -> [Message; 26] {
     [
         Message::Fault(Fault {
             code: FaultCode::TableRefused,

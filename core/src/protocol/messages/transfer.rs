@@ -49,3 +49,112 @@ pub struct TransferStatus {
     /// The version running now.
     pub running_version: u32,
 }
+
+use crate::protocol::Service;
+use crate::protocol::layout::{Field, Layout, Values};
+
+impl TransferOpen {
+    /// The payload's layout.
+    pub const LAYOUT: Layout = Layout::fixed(
+        Service::TransferOpen,
+        &[
+            Field::new(
+                "length",
+                0,
+                16,
+                "ISO-TP message length the first frame must announce (image + 16-byte MAC)",
+            )
+            .unit("B"),
+            Field::new(
+                "replace",
+                16,
+                1,
+                "1: replace whatever version runs (the keyed version reset)",
+            ),
+            Field::new(
+                "schema",
+                17,
+                1,
+                "1: the transfer is a schema message (SchemaTransfer), not a table image",
+            ),
+            Field::new(
+                "tag",
+                24,
+                40,
+                "CMAC (domain 2, node, nonce, length, flags), first 5 bytes",
+            ),
+        ],
+        "opens an authenticated table transfer of this length.",
+    );
+}
+
+impl TransferStatus {
+    /// The payload's layout.
+    pub const LAYOUT: Layout = Layout::fixed(
+        Service::TransferStatus,
+        &[
+            Field::new("status", 0, 8, "the outcome of the transfer")
+                .values(Values::TransferStatusCode),
+            Field::new(
+                "detail",
+                8,
+                8,
+                "for InvalidTable, which check of the loader failed; otherwise 0",
+            ),
+            Field::new(
+                "running_version",
+                16,
+                32,
+                "version of the table running after this transfer",
+            ),
+            Field::reserved("reserved", 48, 16),
+        ],
+        "the outcome of a table transfer, to the tool.",
+    );
+}
+
+/// The layout of a table transfer's frames (service 0x11): ISO-TP.
+pub const TABLE_TRANSFER_LAYOUT: Layout = Layout::isotp(
+    Service::TableTransfer,
+    "ISO 15765-2 frames of a table image, padded to 8 bytes; the node's flow control back on \
+     the same service.",
+);
+
+/// The layout of a challenge request (service 0x13): no payload.
+pub const CHALLENGE_REQUEST_LAYOUT: Layout = Layout::fixed(
+    Service::ChallengeRequest,
+    &[],
+    "asks a node with a key for a challenge.",
+);
+
+/// The layout of a challenge (service 0x14): the nonce, u64 LE, as its two halves.
+pub const CHALLENGE_LAYOUT: Layout = Layout::fixed(
+    Service::Challenge,
+    &[
+        Field::new("counter", 0, 32, "the node's challenge counter since boot"),
+        Field::new(
+            "boot_salt",
+            32,
+            32,
+            "the boot salt: never repeats for one key (boot counter, or random)",
+        ),
+    ],
+    "the nonce the next configuration message must be tagged over; valid 1 s, re-sent \
+     unchanged while outstanding.",
+);
+
+/// The layout of a receipt (service 0x16): the 8-byte tag, as its two halves.
+pub const RECEIPT_LAYOUT: Layout = Layout::fixed(
+    Service::Receipt,
+    &[
+        Field::new(
+            "tag_low",
+            0,
+            32,
+            "CMAC (domain 4, node, nonce, the TransferStatus bytes, running CRC, stored flag): \
+             bytes 0-3",
+        ),
+        Field::new("tag_high", 32, 32, "the same CMAC: bytes 4-7"),
+    ],
+    "authenticates the TransferStatus that ended an opened transfer.",
+);
