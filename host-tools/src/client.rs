@@ -33,6 +33,7 @@ use crate::push;
 
 /// Why a call failed.
 #[derive(Debug)]
+#[non_exhaustive]
 pub enum ClientError {
     /// The bus failed.
     Io(io::Error),

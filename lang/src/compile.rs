@@ -42,12 +42,26 @@ enum Step {
 
 /// Why a port could not be compiled.
 #[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum DecisionError {
     /// Two connections deliver under one mask (the network was not checked).
     Inconsistent,
     /// The diagram needs more nodes than a node can hold.
     TooLarge,
 }
+
+impl std::fmt::Display for DecisionError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            DecisionError::Inconsistent => {
+                "two connections deliver under one mask (the network was not checked)"
+            }
+            DecisionError::TooLarge => "the decision diagram needs more nodes than a node holds",
+        })
+    }
+}
+
+impl std::error::Error for DecisionError {}
 
 /// How many distinct walk positions the builder may visit per node it may create.
 const WORK_PER_NODE: usize = 64;

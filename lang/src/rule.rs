@@ -137,6 +137,14 @@ pub struct RuleError {
     pub message: String,
 }
 
+impl fmt::Display for RuleError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "at byte {}: {}", self.offset, self.message)
+    }
+}
+
+impl std::error::Error for RuleError {}
+
 #[derive(Clone, Debug, PartialEq, Eq)]
 enum Token<'a> {
     Name(&'a str),

@@ -6,6 +6,7 @@ use pab_core::Frame;
 /// What a driver reports instead of a frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum BusError {
     /// Frames were lost before they were read (receive FIFO or socket buffer overflow), how many
     /// unknown.
@@ -24,6 +25,21 @@ pub enum BusError {
     /// Any other error the controller flagged (a driver-specific code: stuff, form, ack, CRC...).
     Other(u8),
 }
+
+impl core::fmt::Display for BusError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            BusError::Overrun => f.write_str("received frames were lost before they were read"),
+            BusError::Dropped(count) => write!(f, "{count} received frames were lost"),
+            BusError::ErrorPassive => f.write_str("the controller is error-passive"),
+            BusError::BusOff => f.write_str("the controller is bus-off"),
+            BusError::Recovered => f.write_str("the controller is back to error-active"),
+            BusError::Other(kind) => write!(f, "bus error (driver kind {kind})"),
+        }
+    }
+}
+
+impl core::error::Error for BusError {}
 
 /// A CAN interface as the application needs it.
 ///

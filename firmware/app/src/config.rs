@@ -29,6 +29,7 @@ pub struct Config {
 /// Why a configuration was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum ConfigError {
     /// The node id is 0 (the tool's) or above 127.
     NodeId(u8),

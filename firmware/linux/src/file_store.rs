@@ -33,6 +33,7 @@ pub struct FileStore {
 
 /// Why an image file was not read.
 #[derive(Debug)]
+#[non_exhaustive]
 pub enum ReadError {
     /// Nothing at the path.
     NotFound(PathBuf),

@@ -102,6 +102,7 @@ impl Bitrate {
 /// Why a line is not a command.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum ParseError {
     /// The first character is no Lawicel command (the character).
     UnknownCommand(u8),
@@ -117,6 +118,21 @@ pub enum ParseError {
     /// An argument out of range (`S9`, `Z2`, ...).
     Argument,
 }
+
+impl core::fmt::Display for ParseError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            ParseError::UnknownCommand(byte) => write!(f, "unknown SLCAN command 0x{byte:02X}"),
+            ParseError::Length => f.write_str("the line's length does not fit its command"),
+            ParseError::Hex => f.write_str("a character is not a hexadecimal digit"),
+            ParseError::Dlc => f.write_str("the data length is above 8"),
+            ParseError::Identifier => f.write_str("the identifier does not fit its format"),
+            ParseError::Argument => f.write_str("the command's argument is out of range"),
+        }
+    }
+}
+
+impl core::error::Error for ParseError {}
 
 /// Parses one line, without its CR.
 ///

@@ -6,6 +6,8 @@ use crate::{CR, MAX_LINE};
 /// Characters a line may hold before its CR.
 const MAX_CONTENT: usize = MAX_LINE - 1;
 
+// Not `#[non_exhaustive]`: the emulated board reports each variant as its own bus error code
+// (slcan_bus.rs), so that a new way to refuse a line gets a code of its own.
 /// Why a line was not taken.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -14,6 +16,24 @@ pub enum LineError {
     TooLong,
     /// The line is not a command.
     Malformed(ParseError),
+}
+
+impl core::fmt::Display for LineError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            LineError::TooLong => f.write_str("the line is longer than any SLCAN command"),
+            LineError::Malformed(error) => write!(f, "malformed SLCAN line: {error}"),
+        }
+    }
+}
+
+impl core::error::Error for LineError {
+    fn source(&self) -> Option<&(dyn core::error::Error + 'static)> {
+        match self {
+            LineError::Malformed(error) => Some(error),
+            LineError::TooLong => None,
+        }
+    }
 }
 
 /// Collects bytes until a line ends (CR or LF) and parses it.

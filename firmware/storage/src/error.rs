@@ -29,6 +29,7 @@ impl FlashErrorKind {
 /// Why a flash range cannot hold a store (from [`crate::FlashStore::new`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum LayoutError {
     /// The range's start or end is not on an erase-page boundary.
     RangeNotPageAligned,
@@ -45,6 +46,8 @@ pub enum LayoutError {
     UnsupportedGeometry,
 }
 
+// Not `#[non_exhaustive]`: a node maps each variant to its own StoreFailure code on the bus
+// (pab-app's `node/mod.rs`), so that a new variant gets a code rather than `Other`.
 /// Why a [`crate::TableStore`] operation failed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -84,6 +87,7 @@ pub enum StoreError {
 /// Why a [`crate::BootCounter`] operation failed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum CounterError {
     /// The flash driver failed (or the power went during the call: the next boot's
     /// `increment` still returns a value never returned before).
@@ -152,6 +156,8 @@ impl core::fmt::Display for LayoutError {
         })
     }
 }
+
+impl core::error::Error for LayoutError {}
 
 impl core::fmt::Display for StoreError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {

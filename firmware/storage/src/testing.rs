@@ -40,6 +40,7 @@ use crate::BackgroundErase;
 /// Why a [`MemFlash`] operation failed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum MemFlashError {
     /// Not aligned to the write or erase size.
     NotAligned,
@@ -74,6 +75,8 @@ impl core::fmt::Display for MemFlashError {
         }
     }
 }
+
+impl core::error::Error for MemFlashError {}
 
 /// An in-memory NOR flash of `PAGES` erase pages of `ERASE_SIZE` bytes, written in words of
 /// `WRITE_SIZE` bytes. Its capacity is `PAGES * ERASE_SIZE` bytes (the page count is the generic

@@ -42,6 +42,7 @@ const REMOTE: u8 = 2;
 /// Why a piece of a job file was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
 pub enum JobError {
     /// Not a job file (magic).
     BadMagic,
@@ -68,6 +69,8 @@ impl core::fmt::Display for JobError {
         }
     }
 }
+
+impl core::error::Error for JobError {}
 
 /// The file header.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -79,6 +79,7 @@ pub const WORD: usize = 8;
 
 /// Why an operation failed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum RamFlashError {
     /// Not aligned to the word (writes) or page (erases) size.
     NotAligned,
@@ -87,6 +88,18 @@ pub enum RamFlashError {
     /// A write touched a word that is neither erased nor written with zeros.
     NotErased,
 }
+
+impl core::fmt::Display for RamFlashError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            RamFlashError::NotAligned => "not aligned to the flash's write or erase size",
+            RamFlashError::OutOfBounds => "outside the flash",
+            RamFlashError::NotErased => "written where the flash was not erased",
+        })
+    }
+}
+
+impl core::error::Error for RamFlashError {}
 
 impl NorFlashError for RamFlashError {
     fn kind(&self) -> NorFlashErrorKind {
