@@ -1,6 +1,6 @@
-//! The simulated robot on a live bus (`pabctl plant`): the plant model of the simulator
-//! (`pab_lang::sim::plant`) stepped in real time, reading the board's set-point frames and
-//! publishing the drive's pose and the wrist's wrench (docs/can-protocol.md, "The drive's
+//! The simulated robot on a live bus (`pabctl plant`): the simulator's plant on the bus
+//! (`pab_lang::sim::plant::BusPlant`) stepped in real time, reading the board's set-point frames
+//! and publishing the drive's pose and the wrist's wrench (docs/can-protocol.md, "The drive's
 //! frames"), and its range finder on the board sensor `[plant] range_finder` names, if any (the
 //! frame the simulator makes, `pab_lang::sim::schema::range_frame`). What the HIL suite puts in
 //! front of a schema server's board.
@@ -13,11 +13,9 @@ use std::io;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use pab_core::Frame;
-use pab_core::schema::{Drive, Gripper, Setpoint, drive};
-use pab_lang::network::{SchemaBoard, SensorTopic};
+use pab_lang::network::SchemaBoard;
+pub use pab_lang::sim::plant::BusPlant;
 use pab_lang::sim::plant::{Plant, PlantConfig};
-use pab_lang::sim::schema::range_frame;
 
 use crate::bus::Bus;
 
@@ -36,101 +34,6 @@ pub struct Sample {
     pub inserted: usize,
     /// Set-point frames received so far.
     pub setpoints: u64,
-}
-
-/// The plant as the bus sees it, without I/O: it reads the board's set-point frames and makes
-/// the drive's pose and wrench frames, and its range finder's. [`run`] paces it in real time on
-/// a bus; a rig in virtual time (the schema server's replay test) drives it frame by frame.
-pub struct BusPlant {
-    plant: Plant,
-    ids: Drive,
-    range_finder: Option<SensorTopic>,
-    setpoint: Option<Setpoint>,
-    partial: (Option<[i32; 3]>, bool, Option<[i32; 3]>),
-    received: u64,
-}
-
-impl BusPlant {
-    /// `config`'s plant in front of `board`: its drive's identifiers, and the sensor
-    /// `config.range_finder` names (an index into `board.sensors`, as the simulator reads it).
-    pub fn new(board: &SchemaBoard, config: PlantConfig) -> BusPlant {
-        let range_finder = config
-            .range_finder
-            .and_then(|i| board.sensors.get(i))
-            .cloned();
-        BusPlant {
-            plant: Plant::new(config),
-            ids: board.drive,
-            range_finder,
-            setpoint: None,
-            partial: (None, false, None),
-            received: 0,
-        }
-    }
-
-    /// Reads `frame` if it is one of the board's set-point frames; returns whether it was.
-    pub fn on_frame(&mut self, frame: &Frame) -> bool {
-        let read = read_setpoint(frame, self.ids, &mut self.partial, &mut self.setpoint);
-        if read {
-            self.received += 1;
-        }
-        read
-    }
-
-    /// Integrates the model for `period_us` under the last set-point (still before the first).
-    pub fn step(&mut self, period_us: u32) {
-        if let Some(s) = &self.setpoint {
-            self.plant.step(s, period_us);
-        }
-    }
-
-    /// The drive's pose and the wrist's wrench now: four frames (translation, rotation of each),
-    /// then the range finder's frame when the plant has one.
-    pub fn frames(&self) -> Vec<Frame> {
-        let pose = self.plant.pose();
-        let wrench = self.plant.wrench();
-        let ids = self.ids;
-        [
-            (ids.pose, 0, [pose[0], pose[1], pose[2]]),
-            (ids.pose, 1, [pose[3], pose[4], pose[5]]),
-            (ids.wrench, 0, [wrench[0], wrench[1], wrench[2]]),
-            (ids.wrench, 1, [wrench[3], wrench[4], wrench[5]]),
-        ]
-        .into_iter()
-        .filter_map(|(base, offset, values)| {
-            Frame::with_raw_id(
-                base.raw().saturating_add(offset),
-                base.is_extended(),
-                &drive::pack(values, false),
-            )
-        })
-        .chain(
-            self.range_finder
-                .as_ref()
-                .and_then(|topic| range_frame(topic, self.plant.range())),
-        )
-        .collect()
-    }
-
-    /// The model.
-    pub fn plant(&self) -> &Plant {
-        &self.plant
-    }
-
-    /// The last set-point read.
-    pub fn setpoint(&self) -> Option<Setpoint> {
-        self.setpoint
-    }
-
-    /// Set-point frames read so far.
-    pub fn received(&self) -> u64 {
-        self.received
-    }
-
-    /// The model, at the end.
-    pub fn into_plant(self) -> Plant {
-        self.plant
-    }
 }
 
 /// Runs `config`'s plant in front of `board` ([`BusPlant::new`]) on `bus` at `period_us` until
@@ -196,60 +99,14 @@ pub fn run(
     Ok(robot.into_plant())
 }
 
-/// The board's set-point frames: the attractor (translation with the gripper flag, rotation)
-/// and the impedance. Returns whether `frame` was one.
-fn read_setpoint(
-    frame: &Frame,
-    ids: Drive,
-    partial: &mut (Option<[i32; 3]>, bool, Option<[i32; 3]>),
-    setpoint: &mut Option<Setpoint>,
-) -> bool {
-    let (raw, extended) = frame.raw_id();
-    let base = ids.setpoint;
-    if extended != base.is_extended() {
-        return false;
-    }
-    let Some(offset) = raw.checked_sub(base.raw()).filter(|o| *o < 3) else {
-        return false;
-    };
-    let current = setpoint.get_or_insert(Setpoint {
-        attractor: [0; 6],
-        stiffness: 2000,
-        damping: 100,
-        gripper: Gripper::Open,
-    });
-    match offset {
-        0 | 1 => {
-            let Some((values, flag)) = drive::unpack(frame.payload()) else {
-                return false;
-            };
-            if offset == 0 {
-                partial.0 = Some(values);
-                partial.1 = flag;
-                current.gripper = if flag { Gripper::Closed } else { Gripper::Open };
-            } else {
-                partial.2 = Some(values);
-            }
-            drive::place(&mut current.attractor, 3 * offset as usize, values);
-        }
-        _ => {
-            let data = frame.payload();
-            if data.len() == 8 {
-                let word =
-                    |i: usize| u32::from_le_bytes([data[i], data[i + 1], data[i + 2], data[i + 3]]);
-                current.stiffness = word(0);
-                current.damping = word(4);
-            }
-        }
-    }
-    true
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use pab_core::Frame;
+    use pab_core::schema::drive;
     use pab_lang::diagnostic::Source;
     use pab_lang::network::Network;
+    use pab_lang::sim::schema::range_frame;
 
     /// A board with a range finder `gap` (u16, 0.01 mm a count) on 0x330 and another sensor
     /// before it, so that the plant must pick the sensor `range_finder` names, not the first.

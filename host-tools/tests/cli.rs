@@ -905,13 +905,16 @@ fn sim_writes_the_schema_servers_trace_and_plot() {
     let trace = std::fs::read_to_string(&csv).unwrap();
     let lines: Vec<&str> = trace.lines().collect();
     assert_eq!(lines[0], "t,node,schema,source,event");
+    // The board is the node: its first tick runs as it boots, at 0, before the client's first
+    // SchemaTransfer reaches it, so the first call is installed at the next tick, 1 ms later,
+    // and everything after it follows 1 ms later too.
     assert_eq!(
         lines[1],
-        "0.000000,arm,move_to(above_part_1),queue,queue-ready"
+        "0.001000,arm,move_to(above_part_1),queue,queue-ready"
     );
     assert_eq!(
         lines[8],
-        "16.139000,arm,release(),queue,below:displacement.z"
+        "16.140000,arm,release(),queue,below:displacement.z"
     );
     assert_eq!(lines.len(), 11);
     let png = std::fs::read(&png).unwrap();

@@ -648,8 +648,9 @@ fn the_schema_servers_replay_sends_what_the_live_node_sent() {
             .collect::<Vec<_>>(),
         [Some(protocol::SchemaSafety::EmergencyStop)]
     );
-    // The same schemas, from the same sources, in the same order as the simulator's (the rig's
-    // times differ: its schemas arrive over ISO-TP, the simulator's between two ticks).
+    // The same schemas, from the same sources, in the same order as the simulator's (both run
+    // the node and send the schemas over ISO-TP; the rig's times may differ: its client sends
+    // on a 50 µs grid, and only as far as the rig runs).
     let simulated = pab_lang::sim::schema::simulate(
         &case.network,
         pab_lang::sim::schema::Limits {

@@ -1,8 +1,8 @@
 //! A schema server's board, its robot and its client in virtual time, with the bus captured: the
 //! node application (`FullNode`, the Linux node's code, its schema server included) driven frame
 //! by frame through `pab_app::replay::feed_with`, exactly as a replay wakes it; the plant of
-//! `pabctl plant` (`pabctl::plant::BusPlant`), stepped every period half a period after the
-//! board's ticks; and a client that sends the file's program over ISO-TP (pab-core's sender) as
+//! `pabctl plant` and of the simulator (`pab_lang::sim::plant::BusPlant`), stepped every period
+//! half a period after the board's ticks; and a client that sends the file's program over ISO-TP (pab-core's sender) as
 //! the queue takes it, and its timed commands (emergency stop, abort, high-priority schemas) at
 //! their times.
 //!

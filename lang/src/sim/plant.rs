@@ -34,7 +34,11 @@
 //!   part go: into the hole it is in (inserted once it is `insert_depth` below the surface, then
 //!   it drops to the bottom), or onto the plate.
 
-use pab_core::schema::{AXES, Gripper, Pose, Setpoint, Wrench};
+use pab_core::Frame;
+use pab_core::schema::{AXES, Drive, Gripper, Pose, Setpoint, Wrench, drive};
+
+use super::schema::range_frame;
+use crate::network::{SchemaBoard, SensorTopic};
 
 // The configuration is the network file's `[plant]`, so the model owns it.
 pub use crate::network::{Obstacle, PlantConfig};
@@ -303,4 +307,149 @@ impl Plant {
         }
         self.in_hole = None;
     }
+}
+
+/// The plant as the bus sees it, without I/O: it reads the board's set-point frames and makes
+/// the drive's pose and wrench frames, and its range finder's. `pabctl plant` paces it in real
+/// time on a bus; the simulator ([`super::schema`]) and the schema server's replay rig drive it
+/// frame by frame in virtual time.
+pub struct BusPlant {
+    plant: Plant,
+    ids: Drive,
+    range_finder: Option<SensorTopic>,
+    setpoint: Option<Setpoint>,
+    partial: (Option<[i32; 3]>, bool, Option<[i32; 3]>),
+    received: u64,
+}
+
+impl BusPlant {
+    /// `config`'s plant in front of `board`: its drive's identifiers, and the sensor
+    /// `config.range_finder` names (an index into `board.sensors`, as the simulator reads it).
+    pub fn new(board: &SchemaBoard, config: PlantConfig) -> BusPlant {
+        let range_finder = config
+            .range_finder
+            .and_then(|i| board.sensors.get(i))
+            .cloned();
+        BusPlant {
+            plant: Plant::new(config),
+            ids: board.drive,
+            range_finder,
+            setpoint: None,
+            partial: (None, false, None),
+            received: 0,
+        }
+    }
+
+    /// Reads `frame` if it is one of the board's set-point frames; returns whether it was.
+    pub fn on_frame(&mut self, frame: &Frame) -> bool {
+        let read = read_setpoint(frame, self.ids, &mut self.partial, &mut self.setpoint);
+        if read {
+            self.received += 1;
+        }
+        read
+    }
+
+    /// Integrates the model for `period_us` under the last set-point (still before the first).
+    pub fn step(&mut self, period_us: u32) {
+        if let Some(s) = &self.setpoint {
+            self.plant.step(s, period_us);
+        }
+    }
+
+    /// The drive's pose and the wrist's wrench now: four frames (translation, rotation of each),
+    /// then the range finder's frame when the plant has one.
+    pub fn frames(&self) -> Vec<Frame> {
+        let pose = self.plant.pose();
+        let wrench = self.plant.wrench();
+        let ids = self.ids;
+        [
+            (ids.pose, 0, [pose[0], pose[1], pose[2]]),
+            (ids.pose, 1, [pose[3], pose[4], pose[5]]),
+            (ids.wrench, 0, [wrench[0], wrench[1], wrench[2]]),
+            (ids.wrench, 1, [wrench[3], wrench[4], wrench[5]]),
+        ]
+        .into_iter()
+        .filter_map(|(base, offset, values)| {
+            Frame::with_raw_id(
+                base.raw().saturating_add(offset),
+                base.is_extended(),
+                &drive::pack(values, false),
+            )
+        })
+        .chain(
+            self.range_finder
+                .as_ref()
+                .and_then(|topic| range_frame(topic, self.plant.range())),
+        )
+        .collect()
+    }
+
+    /// The model.
+    pub fn plant(&self) -> &Plant {
+        &self.plant
+    }
+
+    /// The last set-point read.
+    pub fn setpoint(&self) -> Option<Setpoint> {
+        self.setpoint
+    }
+
+    /// Set-point frames read so far.
+    pub fn received(&self) -> u64 {
+        self.received
+    }
+
+    /// The model, at the end.
+    pub fn into_plant(self) -> Plant {
+        self.plant
+    }
+}
+
+/// The board's set-point frames: the attractor (translation with the gripper flag, rotation)
+/// and the impedance. Returns whether `frame` was one.
+fn read_setpoint(
+    frame: &Frame,
+    ids: Drive,
+    partial: &mut (Option<[i32; 3]>, bool, Option<[i32; 3]>),
+    setpoint: &mut Option<Setpoint>,
+) -> bool {
+    let (raw, extended) = frame.raw_id();
+    let base = ids.setpoint;
+    if extended != base.is_extended() {
+        return false;
+    }
+    let Some(offset) = raw.checked_sub(base.raw()).filter(|o| *o < 3) else {
+        return false;
+    };
+    let current = setpoint.get_or_insert(Setpoint {
+        attractor: [0; 6],
+        stiffness: 2000,
+        damping: 100,
+        gripper: Gripper::Open,
+    });
+    match offset {
+        0 | 1 => {
+            let Some((values, flag)) = drive::unpack(frame.payload()) else {
+                return false;
+            };
+            if offset == 0 {
+                partial.0 = Some(values);
+                partial.1 = flag;
+                current.gripper = if flag { Gripper::Closed } else { Gripper::Open };
+            } else {
+                partial.2 = Some(values);
+            }
+            drive::place(&mut current.attractor, 3 * offset as usize, values);
+        }
+        _ => {
+            let data = frame.payload();
+            if data.len() == 8 {
+                let word =
+                    |i: usize| u32::from_le_bytes([data[i], data[i + 1], data[i + 2], data[i + 3]]);
+                current.stiffness = word(0);
+                current.damping = word(4);
+            }
+        }
+    }
+    true
 }
