@@ -17,7 +17,6 @@ use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 
 use embedded_can::Id;
-use pab_app::Step;
 use pab_app::replay::Recorder;
 use pab_core::protocol::{self, FrameKind, Message};
 use pab_core::{Arbiter, Frame, Instant};
@@ -219,14 +218,8 @@ impl Run<'_> {
                 let Some(due) = entry.due().filter(|&due| due <= now_us) else {
                     break;
                 };
-                entry.polled_for = Some(due);
-                let now = Instant::from_micros(now_us);
                 let mut observer = Observer::new(self.recorder.as_mut(), entry.id);
-                if entry.app.poll(now, &mut observer) == Step::Store {
-                    // No table transfer is simulated; were one stored, it would be at once.
-                    entry.app.stored(true, now);
-                }
-                entry.served_us = now_us;
+                entry.poll(due, now_us, &mut observer);
                 self.collect(station, now_us);
                 self.note_dynamics(station);
                 self.note_station(station, now_us);
@@ -301,18 +294,11 @@ impl Run<'_> {
         if self.options.samples && topic {
             self.sample_ports_fed_by(station, &id, now_us);
         }
-        let now = Instant::from_micros(now_us);
         let Some(entry) = self.stations.get_mut(station) else {
             return;
         };
         let mut observer = Observer::new(self.recorder.as_mut(), entry.id);
-        if entry.app.on_frame(frame, now, &mut observer) == Step::Store {
-            entry.app.stored(true, now);
-        }
-        entry.served_us = now_us;
-        // What the frame made due is polled for anew, as `pab_app::replay::feed` does after
-        // each frame.
-        entry.polled_for = None;
+        entry.feed(frame, now_us, &mut observer);
         let Observer {
             verdicts,
             delivered,
@@ -427,18 +413,18 @@ impl Run<'_> {
     /// not sent yet stays unsent.
     fn halt(&mut self, station: usize, t_us: u64) {
         self.outgoing.retain(|(sender, _)| *sender != station);
-        let Some(node) = self.stations.get(station).map(|s| s.node) else {
-            return;
-        };
-        let ports = self
-            .network
-            .nodes
-            .get(node)
-            .map(|n| n.ports.clone())
-            .unwrap_or_default();
-        for port in ports {
+        for port in self.ports_of(station) {
             self.note(port, t_us, None);
         }
+    }
+
+    /// The network indices of station `station`'s ports.
+    fn ports_of(&self, station: usize) -> Vec<usize> {
+        self.stations
+            .get(station)
+            .and_then(|s| self.network.nodes.get(s.node))
+            .map(|n| n.ports.clone())
+            .unwrap_or_default()
     }
 
     /// Every port's selection and every group's holders at `now`.
@@ -477,16 +463,7 @@ impl Run<'_> {
 
     /// The ports of station `station`, noted at `now`.
     fn note_station(&mut self, station: usize, now_us: u64) {
-        let Some(node) = self.stations.get(station).map(|s| s.node) else {
-            return;
-        };
-        let ports = self
-            .network
-            .nodes
-            .get(node)
-            .map(|n| n.ports.clone())
-            .unwrap_or_default();
-        for port in ports {
+        for port in self.ports_of(station) {
             self.note_port(port, now_us);
         }
     }

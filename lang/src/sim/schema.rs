@@ -24,7 +24,6 @@
 use std::cell::OnceCell;
 use std::collections::VecDeque;
 
-use pab_app::Step;
 use pab_core::isotp::{FlowControlEffect, Sender, TxConfig, TxEvent};
 use pab_core::protocol::SchemaTrigger;
 use pab_core::protocol::{self, Message, SchemaChannel, SchemaOutcome, SchemaTransition};
@@ -412,17 +411,6 @@ impl Watch<'_> {
     }
 }
 
-/// Feeds `frame` to the node at `now_us`.
-fn feed(station: &mut Station, frame: &Frame, now_us: u64) {
-    let now = Instant::from_micros(now_us);
-    if station.app.on_frame(frame, now, &mut ()) == Step::Store {
-        station.app.stored(true, now);
-    }
-    station.served_us = now_us;
-    // What the frame made due is polled for anew.
-    station.polled_for = None;
-}
-
 /// The bus: the node, the plant, the client and the observer, in virtual time.
 struct Bus<'a, 'm> {
     station: Station,
@@ -444,7 +432,7 @@ impl Bus<'_, '_> {
 
     /// `frame` to the node, and what it sent in answer on.
     fn send(&mut self, frame: &Frame, now_us: u64) -> Result<(), SimError> {
-        feed(&mut self.station, frame, now_us);
+        self.station.feed(frame, now_us, &mut ());
         self.carry(now_us)
     }
 
@@ -453,13 +441,7 @@ impl Bus<'_, '_> {
     fn settle(&mut self, now_us: u64) -> Result<(), SimError> {
         loop {
             while let Some(due) = self.station.due().filter(|&due| due <= now_us) {
-                self.station.polled_for = Some(due);
-                let now = Instant::from_micros(now_us);
-                if self.station.app.poll(now, &mut ()) == Step::Store {
-                    // No table transfer is simulated; were one stored, it would be at once.
-                    self.station.app.stored(true, now);
-                }
-                self.station.served_us = now_us;
+                self.station.poll(due, now_us, &mut ());
                 self.carry(now_us)?;
             }
             let mut sent = false;

@@ -6,8 +6,8 @@
 //! Gates, filter commands, heartbeats, faults, re-publication), with the code a board runs. The
 //! simulator only tells it the time, hands it the bus's frames and reads it.
 
-use pab_app::FullNode;
 use pab_app::replay::{self, Recorder};
+use pab_app::{FullNode, Step};
 use pab_core::{Arbiter, Frame, Instant, PortVerdict};
 
 use super::SimError;
@@ -80,6 +80,29 @@ impl Station {
     /// Its arbiter (it always runs a table: [`Station::boot`] refuses an image it cannot run).
     pub fn arbiter(&self) -> Option<&Arbiter> {
         self.app.arbiter()
+    }
+
+    /// Hands it `frame` at `now_us`, its verdicts and deliveries to `recipient`. What the frame
+    /// made due is polled for anew, as `pab_app::replay::feed` does after each frame. No table
+    /// transfer is simulated: were one stored, it would be at once.
+    pub fn feed(&mut self, frame: &Frame, now_us: u64, recipient: &mut impl pab_app::Recipient) {
+        let now = Instant::from_micros(now_us);
+        if self.app.on_frame(frame, now, recipient) == Step::Store {
+            self.app.stored(true, now);
+        }
+        self.served_us = now_us;
+        self.polled_for = None;
+    }
+
+    /// Polls it at `now_us` for the deadline `due` ([`Station::due`]), which is then not polled
+    /// again unless polling moves it.
+    pub fn poll(&mut self, due: u64, now_us: u64, recipient: &mut impl pab_app::Recipient) {
+        self.polled_for = Some(due);
+        let now = Instant::from_micros(now_us);
+        if self.app.poll(now, recipient) == Step::Store {
+            self.app.stored(true, now);
+        }
+        self.served_us = now_us;
     }
 
     /// When it next asks to be polled, µs: its deadline, unless that is the one it was last
