@@ -483,11 +483,12 @@ pub struct ProgramOutcome {
 }
 
 /// Runs `program` (the calls of a network file's `[client]`, their schemas' ids as compiled) on
-/// the board: each call queued as the queue takes it, then waits until the last one has ended,
+/// `board` (whose sensors name the events): each call queued as the queue takes it, then waits until the last one has ended,
 /// or a safety event stops the board, or `timeout` passes. `progress` sees each row as it comes.
 pub fn run_program(
     client: &mut Client<'_>,
     program: &[pab_lang::network::Call],
+    board: &pab_lang::network::SchemaBoard,
     timeout: Duration,
     progress: &mut dyn FnMut(&TraceRow),
 ) -> Result<ProgramOutcome, ClientError> {
@@ -501,7 +502,7 @@ pub fn run_program(
                       rows: &mut Vec<TraceRow>,
                       safety: &mut Option<protocol::SchemaSafety>| {
         for (at, t) in client.transitions.iter().skip(seen) {
-            let row = trace_row(program, t, at.duration_since(start).as_secs_f64());
+            let row = trace_row(program, board, t, at.duration_since(start).as_secs_f64());
             if let Some(cause) = t.safety() {
                 safety.get_or_insert(cause);
             }
@@ -534,31 +535,19 @@ pub fn run_program(
 }
 
 /// Names a transition as the simulator's trace does.
-fn trace_row(program: &[pab_lang::network::Call], t: &SchemaTransition, at: f64) -> TraceRow {
-    use pab_lang::sim::schema::{builtin_name, event_name};
-    use protocol::{SchemaOrigin, SchemaTrigger};
+fn trace_row(
+    program: &[pab_lang::network::Call],
+    board: &pab_lang::network::SchemaBoard,
+    t: &SchemaTransition,
+    at: f64,
+) -> TraceRow {
+    use pab_lang::sim::schema::{builtin_name, transition_event};
+    use protocol::SchemaOrigin;
     let call = |id: u16| program.iter().find(|c| c.schema.id == id);
     let schema = builtin_name(t.installed)
         .or_else(|| call(t.installed).map(|c| c.name.clone()))
         .unwrap_or_else(|| format!("schema {}", t.installed));
-    let event = match t.trigger {
-        SchemaTrigger::HighPriority => "high-priority".to_string(),
-        SchemaTrigger::Abort => "abort".to_string(),
-        SchemaTrigger::Safety => t.safety().map_or("safety:?".to_string(), |s| {
-            format!("safety:{}", pab_core::schema::Safety::from(s).name())
-        }),
-        SchemaTrigger::Reaction => match call(t.ended) {
-            Some(c) => c
-                .schema
-                .reactions
-                .get(usize::from(t.detail))
-                .map_or("?".to_string(), |r| event_name(&r.event)),
-            // The server's own: the wait for the queue reacts to a ready queue, a recovery to
-            // one-shot.
-            None if t.ended == Schema::WAIT_QUEUE => "queue-ready".to_string(),
-            None => "one-shot".to_string(),
-        },
-    };
+    let event = transition_event(t, |id| call(id).map(|c| &c.schema), Some(board));
     let source = match t.source {
         SchemaOrigin::Innate => "innate",
         SchemaOrigin::Queue => "queue",

@@ -134,8 +134,15 @@ fn one_insertion_on_a_live_bus() {
     arm.pump(Duration::from_millis(300)).unwrap();
     assert!(arm.status().is_some_and(|s| s.armed), "{:?}", arm.status());
     let program = &rig.network.client.as_ref().unwrap().program;
-    let outcome =
-        client::run_program(&mut arm, program, Duration::from_secs(60), &mut |_| {}).unwrap();
+    let board = &rig.network.schema_boards[0];
+    let outcome = client::run_program(
+        &mut arm,
+        program,
+        board,
+        Duration::from_secs(60),
+        &mut |_| {},
+    )
+    .unwrap();
     assert_eq!(outcome.safety, None, "{:#?}", outcome.rows);
     assert_eq!(outcome.sent, 8);
     let events: Vec<(&str, &str)> = outcome

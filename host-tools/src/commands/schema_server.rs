@@ -125,6 +125,7 @@ pub fn run(
     let outcome = pabctl::client::run_program(
         &mut arm,
         &client.program,
+        board,
         std::time::Duration::from_secs_f64(timeout),
         &mut |row| {
             println!(

@@ -383,31 +383,47 @@ impl Watch<'_> {
         });
     }
 
-    /// The event that triggered `t`: for a reaction, the ended schema's reaction at the index
-    /// the board reported (the server's own waits react to a ready queue, a recovery once).
+    /// The event that triggered `t` ([`transition_event`]); a safety event is the run's fault.
     fn event(&mut self, t: &SchemaTransition) -> String {
-        match t.trigger {
-            SchemaTrigger::HighPriority => "high-priority".into(),
-            SchemaTrigger::Abort => "abort".into(),
-            SchemaTrigger::Safety => match t.safety().map(Safety::from) {
-                Some(cause) => {
-                    self.fault.get_or_insert(cause);
-                    format!("safety:{}", cause.name())
-                }
-                None => "safety:?".into(),
-            },
-            SchemaTrigger::Reaction => match self.known(t.ended) {
-                Some((_, schema)) => schema
-                    .reactions
-                    .get(usize::from(t.detail))
-                    .map_or("?".into(), |r| {
-                        sensor_named(event_name(&r.event), &r.event, self.board)
-                    }),
-                None if t.ended == Schema::WAIT_QUEUE => event_name(&Event::QueueReady),
-                None if t.ended >= Schema::SAFETY => event_name(&Event::OneShot),
-                None => "?".into(),
-            },
+        if let Some(cause) = t.safety().map(Safety::from) {
+            self.fault.get_or_insert(cause);
         }
+        transition_event(t, |id| self.known(id).map(|(_, s)| s), Some(self.board))
+    }
+}
+
+/// The event that triggered the schema change `t`, as traces name it: `high-priority`,
+/// `abort`, `safety:<cause>`, or for a reaction the ended schema's reaction at the index the
+/// board reported, its sensor named as `board` names it (the server's own wait for the queue
+/// reacts to a ready queue, a recovery once). `known` finds a schema the client knows by its
+/// id. The simulator's trace and `pabctl run`'s rows both name events with this.
+pub fn transition_event<'s>(
+    t: &SchemaTransition,
+    known: impl Fn(u16) -> Option<&'s Schema>,
+    board: Option<&SchemaBoard>,
+) -> String {
+    match t.trigger {
+        SchemaTrigger::HighPriority => "high-priority".into(),
+        SchemaTrigger::Abort => "abort".into(),
+        SchemaTrigger::Safety => match t.safety().map(Safety::from) {
+            Some(cause) => format!("safety:{}", cause.name()),
+            None => "safety:?".into(),
+        },
+        SchemaTrigger::Reaction => match known(t.ended) {
+            Some(schema) => schema
+                .reactions
+                .get(usize::from(t.detail))
+                .map_or("?".into(), |r| {
+                    let name = event_name(&r.event);
+                    match board {
+                        Some(board) => sensor_named(name, &r.event, board),
+                        None => name,
+                    }
+                }),
+            None if t.ended == Schema::WAIT_QUEUE => event_name(&Event::QueueReady),
+            None if t.ended >= Schema::SAFETY => event_name(&Event::OneShot),
+            None => "?".into(),
+        },
     }
 }
 
