@@ -1,7 +1,7 @@
 //! A schema server's board, its client and its plant in virtual time, on a bus of their own.
 //!
 //! The board is the node itself (`pab_app::FullNode`, booted from the compiled image of the
-//! client's node, as [`super::station::Station`] boots every node of a simulation): its schema
+//! client's node, as the simulator's `Station` boots every node of a simulation): its schema
 //! server (`pab_app::schema::SchemaRuntime`) ticks at its period, takes schemas over ISO-TP,
 //! drives the drive and reports, with the code a board runs. The simulator only carries the
 //! frames, tells the node the time and reads it:
