@@ -14,10 +14,13 @@
 
 use std::time::{Duration, Instant};
 
+use pab_core::Frame;
 use pab_core::auth::Authenticator;
 use pab_core::image::Header;
 use pab_core::isotp::{FlowControlEffect, Sender, TxConfig, TxError, TxEvent};
-use pab_core::protocol::{self, Message, OPEN_REPLACE, TransferOpen, TransferStatusCode};
+use pab_core::protocol::{
+    self, AuthFailure, FaultCode, Message, OPEN_REPLACE, TransferOpen, TransferStatusCode,
+};
 
 use crate::bus::Bus;
 
@@ -184,8 +187,97 @@ fn no_challenge(node: u8) -> Outcome {
     ))
 }
 
+/// The bus during a keyed push, counting on the way the node's refusals of tagged messages (its
+/// Unauthenticated faults: wrong tags, and tags beyond what it checks in a second), so that a
+/// push the node does not answer says why instead of blaming the bus. A participant that floods
+/// a keyed node with bad tags uses up its checks (`pab_app`'s 200 a second) and the tool's open
+/// is refused unchecked; the node says so in its faults, which this reads.
+struct Refusals<'b> {
+    bus: &'b mut dyn Bus,
+    node: u8,
+    /// Tagged messages the node refused meanwhile (the faults' occurrence counts).
+    refused: u32,
+    /// Some of them were refused because the node's checks for the second were used up.
+    rate_limited: bool,
+}
+
+impl Bus for Refusals<'_> {
+    fn send(&mut self, frame: &Frame) -> std::io::Result<()> {
+        self.bus.send(frame)
+    }
+
+    fn receive(&mut self, timeout: Duration) -> std::io::Result<Option<Frame>> {
+        let frame = self.bus.receive(timeout)?;
+        if let Some(Ok((id, Message::Fault(fault)))) = frame.as_ref().map(Message::decode)
+            && id.source == self.node
+            && fault.code == FaultCode::Unauthenticated
+        {
+            self.refused = self.refused.saturating_add(u32::from(fault.count));
+            self.rate_limited |= fault.detail[0] == AuthFailure::RateLimited.code();
+        }
+        Ok(frame)
+    }
+}
+
+impl Refusals<'_> {
+    /// `outcome`, with the node's refusals as the reason when it got no answer.
+    fn explain(&self, outcome: Outcome) -> Outcome {
+        if self.refused == 0 {
+            return outcome;
+        }
+        let n = self.refused;
+        let why = if self.rate_limited {
+            format!(
+                "the node refused {n} tags, more than it checks in a second: someone is flooding \
+                 it with bad tags (`candump` shows the source of the tagged frames)"
+            )
+        } else {
+            format!(
+                "the node refused {n} tags as wrong: a key that is not the node's, or someone \
+                 sending it bad tags"
+            )
+        };
+        match outcome {
+            Outcome::NoAnswer(detail) => Outcome::NoAnswer(format!("{why}; {detail}")),
+            Outcome::NotConfirmed(detail) => Outcome::NotConfirmed(format!("{why}; {detail}")),
+            other => other,
+        }
+    }
+}
+
 #[allow(clippy::too_many_arguments)]
 fn push_inner(
+    bus: &mut dyn Bus,
+    node: u8,
+    image: &[u8],
+    header: &Header,
+    timeouts: Timeouts,
+    progress: &mut dyn FnMut(usize, usize),
+    credentials: Option<&Credentials>,
+) -> std::io::Result<Outcome> {
+    if credentials.is_none() {
+        return push_steps(bus, node, image, header, timeouts, progress, None);
+    }
+    let mut watched = Refusals {
+        bus,
+        node,
+        refused: 0,
+        rate_limited: false,
+    };
+    let outcome = push_steps(
+        &mut watched,
+        node,
+        image,
+        header,
+        timeouts,
+        progress,
+        credentials,
+    )?;
+    Ok(watched.explain(outcome))
+}
+
+#[allow(clippy::too_many_arguments)]
+fn push_steps(
     bus: &mut dyn Bus,
     node: u8,
     image: &[u8],

@@ -623,3 +623,79 @@ fn a_forged_confirmation_does_not_count_with_a_key() {
         "{keyed:?}"
     );
 }
+
+/// A participant floods a keyed node with bad tags (it asks for the node's challenge, then
+/// tags commands over it with zeros, ten a millisecond): the node's checks for each second are
+/// used up, the tool's open is refused unchecked, and `pabctl push --key` says that the node
+/// refused that many tags because someone floods it, not "is it on the bus?".
+#[test]
+fn a_keyed_push_under_a_flood_of_bad_tags_says_the_node_refused_them() {
+    let hub = MemoryHub::new();
+    let key = pab_core::auth::Key::from_bytes([7; 16]);
+    let _node = LiveNode::spawn_with(&hub, 1, None, Some(key));
+    let stop = Arc::new(AtomicBool::new(false));
+    let mut rogue = hub.connect();
+    let flooding = stop.clone();
+    let flood = std::thread::spawn(move || {
+        let bad = Message::AuthenticatedDiagnosticControl {
+            control: protocol::DiagnosticControl {
+                rate_hz: 0,
+                ports: 0,
+            },
+            tag: [0; 4],
+        };
+        let mut sent = 0u32;
+        while !flooding.load(Ordering::SeqCst) {
+            if sent.is_multiple_of(1000) {
+                rogue
+                    .send(&Message::ChallengeRequest.to_frame(9, 1))
+                    .unwrap();
+            }
+            for _ in 0..10 {
+                rogue.send(&bad.to_frame(9, 1)).unwrap();
+                sent += 1;
+            }
+            while let Ok(Some(_)) = rogue.receive(Duration::ZERO) {}
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    });
+    std::thread::sleep(Duration::from_millis(200));
+    let image = arm_image(5);
+    let credentials = push::Credentials {
+        authenticator: pab_core::auth::Authenticator::new(&key),
+        replace: false,
+    };
+    let timeouts = Timeouts {
+        answer: Duration::from_millis(500),
+        confirm: Duration::from_millis(1_000),
+    };
+    let mut tool = hub.connect();
+    // The window after each second's reset lets a few checks through before the flood uses them
+    // up again: a push may land in it. Of five, one fails, and every failure says why.
+    let mut failures = Vec::new();
+    for _ in 0..5 {
+        let outcome = push::push_authenticated(
+            &mut tool,
+            1,
+            &image,
+            &header(&image),
+            &credentials,
+            timeouts,
+            &mut |_, _| {},
+        )
+        .unwrap();
+        if !outcome.is_success() {
+            failures.push(outcome.to_string());
+            break;
+        }
+    }
+    stop.store(true, Ordering::SeqCst);
+    flood.join().unwrap();
+    assert!(!failures.is_empty(), "every push got through the flood");
+    for failure in &failures {
+        assert!(
+            failure.contains("the node refused") && failure.contains("someone is flooding"),
+            "{failure}"
+        );
+    }
+}
