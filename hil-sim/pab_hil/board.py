@@ -128,12 +128,14 @@ def single_bank_firmware() -> Path:
 
 
 #: How much further ahead of the suite's other work (the micro-VM's QEMU, the nodes, run-hil's
-#: own niceness) the board's QEMU runs. The board is the device under test whose ticks the schema
-#: server's tests time to the millisecond; on a real rig it has a CPU of its own. Here it shares
-#: two cores with the micro-VM, whose TCG threads are busy (docs/testing.md): at the same niceness
-#: a waking board could wait a scheduler slice behind them, and its ticks came 25 ms late at
-#: random instants in some runs (an overrun the tests rightly count). Its own work is light (the
-#: firmware sleeps between frames), so running it first costs the VM little.
+#: own niceness) the board's QEMU runs when a test times the board itself (`ahead`). The schema
+#: server's tests time its ticks to the millisecond; on a real rig it has a CPU of its own. Here
+#: it shares two cores with the micro-VM, whose TCG threads are busy (docs/testing.md): at the
+#: same niceness a waking board could wait a scheduler slice behind them, and its ticks came 25 ms
+#: late at random instants in some runs (an overrun the tests rightly count). Not for every test:
+#: ahead, the board delays the VM in turn, and a test that times the nodes in the VM suffers (the
+#: multi-target test's r2 once read the board's last claim 41 ms late with the board ahead, on a
+#: quiet machine; none late at the same niceness).
 BOARD_NICENESS_STEP = 5
 
 
@@ -192,9 +194,10 @@ def monitor_command(monitor: Path, command: str, timeout: float = 5.0) -> str:
 class LocalQemu:
     """The board's QEMU on this machine; its UART0 is a pseudo-terminal here."""
 
-    def __init__(self, elf: Path, log: Path) -> None:
+    def __init__(self, elf: Path, log: Path, ahead: bool = False) -> None:
         self.elf = elf
         self.log = log
+        self.ahead = ahead
         self.dir = Path(tempfile.mkdtemp(prefix="pab-board-"))
         self.monitor = self.dir / "monitor.sock"
         self.process: subprocess.Popen | None = None
@@ -208,7 +211,7 @@ class LocalQemu:
             self.process = subprocess.Popen(
                 qemu_command(self.elf, "pty", self.monitor),
                 stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log,
-                preexec_fn=_board_first,
+                preexec_fn=_board_first if self.ahead else None,
             )
         # QEMU names the terminal on stdout: "char device redirected to /dev/pts/3 (label serial0)".
         assert self.process.stdout is not None
@@ -246,11 +249,13 @@ class LocalQemu:
 class RemoteQemu:
     """The board's QEMU on the micro-VM's host (see `HostBoards`). UART0 is this machine's serial
     port `uart` (/dev/ttyS1); requests go over the serial port `control` (/dev/ttyS2), one line
-    each way: `start ELF LOG` -> `ok PID`, `reset` -> `ok`, `stop` -> `ok`, or `error WHY`."""
+    each way: `start ELF LOG [ahead]` -> `ok PID`, `reset` -> `ok`, `stop` -> `ok`, or `error WHY`
+    (`ahead`: the board's QEMU runs BOARD_NICENESS_STEP ahead of the suite)."""
 
-    def __init__(self, elf: Path, log: Path, uart: str, control: str) -> None:
+    def __init__(self, elf: Path, log: Path, uart: str, control: str, ahead: bool = False) -> None:
         self.elf = elf
         self.log = log
+        self.ahead = ahead
         self.uart = uart
         self.control = control
         self._pid: int | None = None
@@ -279,7 +284,8 @@ class RemoteQemu:
 
     def start(self) -> str:
         self.log.parent.mkdir(parents=True, exist_ok=True)
-        self._pid = int(self._request(f"start {self.elf} {self.log}") or 0) or None
+        request = f"start {self.elf} {self.log}" + (" ahead" if self.ahead else "")
+        self._pid = int(self._request(request) or 0) or None
         return self.uart
 
     @property
@@ -298,12 +304,13 @@ class RemoteQemu:
             self._pid = None
 
 
-def qemu_here_or_on_host(elf: Path, log: Path) -> LocalQemu | RemoteQemu:
-    """RemoteQemu when the suite runs in the micro-VM with the host's board service, else local."""
+def qemu_here_or_on_host(elf: Path, log: Path, ahead: bool = False) -> LocalQemu | RemoteQemu:
+    """RemoteQemu when the suite runs in the micro-VM with the host's board service, else local.
+    `ahead`: the board's QEMU runs BOARD_NICENESS_STEP ahead of the suite's other work."""
     uart, control = os.environ.get(UART_ENV), os.environ.get(CONTROL_ENV)
     if uart and control:
-        return RemoteQemu(elf, log, uart, control)
-    return LocalQemu(elf, log)
+        return RemoteQemu(elf, log, uart, control, ahead)
+    return LocalQemu(elf, log, ahead)
 
 
 def _run(command: list[str]) -> None:
@@ -337,6 +344,9 @@ class BoardNode:
     # The firmware's ELF: default `firmware()`, the production build (e.g.
     # `single_bank_firmware()`, the flash model of the G474 in single-bank mode).
     elf: Path | None = None
+    # Whether the board's QEMU runs ahead of the suite's other work (BOARD_NICENESS_STEP): for
+    # the tests that time the board itself.
+    ahead: bool = False
 
     @property
     def can_iface(self) -> str:
@@ -363,7 +373,7 @@ class BoardNode:
             {"can_id": heartbeat, "can_mask": 0x1FFFFFFF, "extended": True}])
         try:
             started = time.monotonic()
-            self.qemu = qemu_here_or_on_host(self.elf or firmware(), log)
+            self.qemu = qemu_here_or_on_host(self.elf or firmware(), log, self.ahead)
             line = self.qemu.start()
             self._bridge(line)
             deadline = started + START_TIMEOUT_S
@@ -543,13 +553,13 @@ class HostBoards:
     def _handle(self, request: str) -> str:
         words = request.split()
         try:
-            if words[:1] == ["start"] and len(words) == 3:
+            if words[:1] == ["start"] and (len(words) == 3 or words[3:] == ["ahead"]):
                 self._stop_qemu()
                 with open(words[2], "ab") as log:
                     self.qemu = subprocess.Popen(
                         qemu_command(Path(words[1]), f"unix:{self.uart}", self.monitor),
                         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=log,
-                        preexec_fn=_board_first)
+                        preexec_fn=_board_first if words[3:] == ["ahead"] else None)
                 return f"ok {self.qemu.pid}"
             if words == ["reset"]:
                 if self.qemu is None or self.qemu.poll() is not None:

@@ -120,13 +120,15 @@ class Nodes:
     """The network's nodes, started together, each with its own table store: `pab-node`
     processes, and the emulated board (`pab_hil.board.BoardNode`) for the names in `boards`, with
     `board_routes` as the cangw filters of what reaches it (default: its acceptance filter,
-    `board.acceptance`) and `board_elf` as its firmware (default: the production build)."""
+    `board.acceptance`), `board_elf` as its firmware (default: the production build) and
+    `board_ahead` whether its QEMU runs ahead of the suite's other work (for a test that times the
+    board itself: `pab_hil.board.BOARD_NICENESS_STEP`)."""
 
     def __init__(self, iface: str, work_dir: Path, node_ids: dict[str, int] = NODE_IDS,
                  boards: tuple[str, ...] = (),
                  node_args: dict[str, tuple[str, ...]] | None = None,
                  board_routes: tuple[str, ...] | None = None,
-                 board_elf: Path | None = None) -> None:
+                 board_elf: Path | None = None, board_ahead: bool = False) -> None:
         from .board import UART_ENV, BoardNode
 
         unknown = set(boards) - set(node_ids)
@@ -140,7 +142,7 @@ class Nodes:
         self.store_root = Path(tempfile.mkdtemp(prefix="pab-hil-store-"))
         self.by_name: dict[str, NodeProcess | BoardNode] = {
             name: BoardNode(name, node_id, iface, work_dir / "logs",
-                            to_board=board_routes, elf=board_elf)
+                            to_board=board_routes, elf=board_elf, ahead=board_ahead)
             if name in boards
             else NodeProcess(name, node_id, iface, self.store_root / name, work_dir / "logs",
                              tuple((node_args or {}).get(name, ())))

@@ -171,7 +171,7 @@ class Rig:
         self.nodes = nodes.Nodes(iface, out, node_ids={"arm": node_id},
                                  boards=("arm",) if board else (),
                                  node_args={"arm": ("--key", str(key))} if key else None,
-                                 board_elf=board_elf)
+                                 board_elf=board_elf, board_ahead=True)
         stack.callback(self.nodes.stop)
         self.nodes.start()
         pushed = nodes.push(network, iface, node="arm", key=key)

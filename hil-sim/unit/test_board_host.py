@@ -94,6 +94,11 @@ def test_start_reset_stop_and_the_boards_command_line(boards, tmp_path):
                  "the board's QEMU still runs after stop")
         assert guest.ask("reset") == "error the board is not running"
         assert guest.ask("fly").startswith("error unknown request")
+        # `ahead` (a test that times the board) is the only word a start may end with.
+        assert guest.ask(f"start {elf} {log} sideways").startswith("error unknown request")
+        answer = guest.ask(f"start {elf} {log} ahead")
+        assert answer.startswith("ok "), answer
+        assert guest.ask("stop") == "ok"
     finally:
         guest.close()
 
