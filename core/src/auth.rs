@@ -1,10 +1,15 @@
 //! Authenticated configuration: AES-128-CMAC tags over what the tool sends and what the node
 //! answers, in the manner of AUTOSAR SecOC (payload + freshness + truncated MAC).
 //!
-//! Freshness is a challenge: the node hands out a 64-bit [nonce] (a boot salt that never
-//! repeats for one key, and a counter), and the next configuration message must carry a tag over
-//! it. Every MAC input starts with a [domain](Domain) byte and the node id, so that no tag can be
-//! moved from one use to another, nor from one node to another (even if two nodes share a key).
+//! Freshness comes from both ends of an exchange: the tool asks with a random 64-bit nonce of its
+//! own, the node answers with a 48-bit nonce nobody can predict (a CMAC under its key of a boot
+//! salt that never repeats for one key and a counter, [`Authenticator::node_nonce`]), and every
+//! tag of the exchange is over the **exchange nonce**, a CMAC of the two
+//! ([`Authenticator::exchange`]), whose other bytes bind the node's Challenge to the request it
+//! answers. A tag computed over a challenge a rogue made up is worthless (the node never issues
+//! that nonce), and a recorded exchange cannot be replayed (the tool's next nonce differs). Every
+//! MAC input starts with a [domain](Domain) byte and the node id, so that no tag can be moved
+//! from one use to another, nor from one node to another (even if two nodes share a key).
 //!
 //! Cost: a tag is one CMAC over at most 24 bytes (two AES blocks and the subkey step; the key
 //! schedule is computed once, in [`Authenticator::new`]); an image MAC is one AES block per 16
@@ -30,6 +35,12 @@ pub const OPEN_TAG_LEN: usize = 5;
 pub const IMAGE_MAC_LEN: usize = 16;
 /// Length of a Receipt tag.
 pub const RECEIPT_TAG_LEN: usize = 8;
+/// Length of a node's nonce on the wire: 48 bits.
+pub const NODE_NONCE_LEN: usize = 6;
+/// Length of a Challenge's binding to the request it answers.
+pub const BINDING_LEN: usize = 2;
+/// The largest node nonce (48 bits).
+pub const NODE_NONCE_MAX: u64 = (1 << (8 * NODE_NONCE_LEN)) - 1;
 
 /// What a MAC authenticates: the first byte of every MAC input.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -43,6 +54,23 @@ pub enum Domain {
     Image = 0x03,
     /// A node's Receipt.
     Receipt = 0x04,
+    /// An exchange: its nonce and the Challenge's binding, from both nonces.
+    Exchange = 0x05,
+    /// A node nonce, from the boot salt and the challenge counter.
+    NodeNonce = 0x06,
+}
+
+/// What the node's Challenge and both ends derive from the tool's nonce and the node's: the
+/// nonce every tag of the exchange is over, and the binding the Challenge carries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Exchange {
+    /// The exchange nonce: bytes 0-7 (LE) of CMAC(Exchange, node, tool nonce u64 LE, node nonce
+    /// 48 bits LE).
+    pub nonce: u64,
+    /// Bytes 8-9 of the same CMAC: the tool takes only a Challenge whose binding is this for its
+    /// own nonce.
+    pub binding: [u8; BINDING_LEN],
 }
 
 /// A 128-bit node key. `Debug` does not show it.
@@ -137,11 +165,6 @@ fn hex_value(digit: u8) -> Option<u8> {
     }
 }
 
-/// The nonce of a challenge: the boot salt in the high 32 bits, the challenge counter in the low.
-pub const fn nonce(boot_salt: u32, counter: u32) -> u64 {
-    (boot_salt as u64) << 32 | counter as u64
-}
-
 /// Computes and checks the tags of one node's key. Holds the key schedule (a few hundred bytes);
 /// build it once.
 #[derive(Clone)]
@@ -156,6 +179,12 @@ impl core::fmt::Debug for Authenticator {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.write_str("Authenticator(..)")
     }
+}
+
+/// The first 8 bytes of a CMAC as a little-endian word.
+fn word(full: &[u8; 16]) -> u64 {
+    let [b0, b1, b2, b3, b4, b5, b6, b7, ..] = *full;
+    u64::from_le_bytes([b0, b1, b2, b3, b4, b5, b6, b7])
 }
 
 /// Compares two byte strings in time independent of where they differ.
@@ -197,6 +226,39 @@ impl Authenticator {
             *slot = byte;
         }
         out
+    }
+
+    /// A node's nonce: the first 48 bits (LE) of CMAC(NodeNonce, node, boot salt u32 LE,
+    /// counter u32 LE). A pseudo-random function of a pair that never repeats for one key, so
+    /// nobody without the key can tell which nonce comes next (a counter could be predicted, and
+    /// tags harvested over a predicted nonce replayed once the node issued it).
+    pub fn node_nonce(&self, node: u8, boot_salt: u32, counter: u32) -> u64 {
+        let full = self.cmac(&[
+            &[Domain::NodeNonce as u8, node],
+            &boot_salt.to_le_bytes(),
+            &counter.to_le_bytes(),
+        ]);
+        word(&full) & NODE_NONCE_MAX
+    }
+
+    /// The exchange of a tool nonce and a node nonce ([`Exchange`]): one CMAC. Its nonce covers
+    /// both (a receipt recorded from an earlier push of the same image does not verify for the
+    /// next: the tool's nonce differs); its binding tells the tool that a Challenge answers its
+    /// own request: not one a rogue made up (but for one chance in 65 536, and then it only makes
+    /// the tool's tags worthless: the node never issues that nonce), nor one the node gave another
+    /// requester.
+    pub fn exchange(&self, node: u8, tool_nonce: u64, node_nonce: u64) -> Exchange {
+        let node_bytes = node_nonce.to_le_bytes();
+        let full = self.cmac(&[
+            &[Domain::Exchange as u8, node],
+            &tool_nonce.to_le_bytes(),
+            node_bytes.get(..NODE_NONCE_LEN).unwrap_or(&node_bytes),
+        ]);
+        let [.., b8, b9, _, _, _, _, _, _] = full;
+        Exchange {
+            nonce: word(&full),
+            binding: [b8, b9],
+        }
     }
 
     /// The tag of a command: over (Command, node, service code, nonce, plain payload).
@@ -502,7 +564,54 @@ mod tests {
     }
 
     #[test]
-    fn nonces_put_the_salt_high() {
-        assert_eq!(nonce(0x0102_0304, 5), 0x0102_0304_0000_0005);
+    fn node_nonces_are_48_bits_that_differ_with_salt_counter_node_and_key() {
+        let auth = Authenticator::new(&Key::from_bytes([7; 16]));
+        let nonce = auth.node_nonce(3, 0x0102_0304, 5);
+        assert!(nonce <= NODE_NONCE_MAX);
+        // The first 6 bytes of the CMAC, little-endian.
+        let full = auth.cmac(&[
+            &[Domain::NodeNonce as u8, 3],
+            &0x0102_0304u32.to_le_bytes(),
+            &5u32.to_le_bytes(),
+        ]);
+        assert_eq!(
+            nonce.to_le_bytes()[..NODE_NONCE_LEN],
+            full[..NODE_NONCE_LEN]
+        );
+        let mut seen = std::collections::BTreeSet::new();
+        for counter in 0..1000 {
+            assert!(seen.insert(auth.node_nonce(3, 0x0102_0304, counter)));
+        }
+        assert!(seen.insert(auth.node_nonce(3, 0x0102_0305, 5)));
+        assert!(seen.insert(auth.node_nonce(4, 0x0102_0304, 5)));
+        let other = Authenticator::new(&Key::from_bytes([8; 16]));
+        assert!(seen.insert(other.node_nonce(3, 0x0102_0304, 5)));
+    }
+
+    #[test]
+    fn an_exchange_covers_both_nonces_the_node_and_the_key() {
+        let auth = Authenticator::new(&Key::from_bytes([7; 16]));
+        let exchange = auth.exchange(3, 0x0102_0304_0506_0708, 42);
+        let full = auth.cmac(&[
+            &[Domain::Exchange as u8, 3],
+            &[8, 7, 6, 5, 4, 3, 2, 1],
+            &[42, 0, 0, 0, 0, 0],
+        ]);
+        assert_eq!(exchange.nonce.to_le_bytes(), full[..8]);
+        assert_eq!(exchange.binding, full[8..10]);
+        for other in [
+            auth.exchange(3, 0x0102_0304_0506_0709, 42),
+            auth.exchange(3, 0x0102_0304_0506_0708, 43),
+            auth.exchange(4, 0x0102_0304_0506_0708, 42),
+            Authenticator::new(&Key::from_bytes([8; 16])).exchange(3, 0x0102_0304_0506_0708, 42),
+        ] {
+            assert_ne!(other.nonce, exchange.nonce);
+            assert_ne!(other.binding, exchange.binding);
+        }
+        // The node nonce's bits above 48 are not on the wire, nor in the MAC input.
+        assert_eq!(
+            auth.exchange(3, 0x0102_0304_0506_0708, 42 | 1 << 50),
+            exchange
+        );
     }
 }

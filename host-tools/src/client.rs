@@ -165,9 +165,20 @@ impl<'b> Client<'b> {
         // With a key: the challenge, the open for a schema, and the MAC after the message.
         let mut opened = None;
         if let Some(key) = &self.key {
-            let nonce = push::challenge(self.bus, self.node, ACK_TIMEOUT)?.ok_or(
-                ClientError::Timeout("challenge (does the board have a key?)"),
-            )?;
+            let nonce = match push::challenge(self.bus, key, self.node, ACK_TIMEOUT)? {
+                push::Challenged::Bound(nonce) => nonce,
+                push::Challenged::Nothing { unbound: 0 } => {
+                    return Err(ClientError::Timeout(
+                        "challenge (does the board have a key?)",
+                    ));
+                }
+                push::Challenged::Nothing { .. } => {
+                    return Err(ClientError::Timeout(
+                        "challenge answering this request (others came: another tool, or a \
+                         participant making them up)",
+                    ));
+                }
+            };
             message.extend_from_slice(&key.image_mac(self.node, nonce, OPEN_SCHEMA, &message));
             let length = u16::try_from(message.len()).map_err(|_| ClientError::TooLarge)?;
             let open = TransferOpen {
@@ -253,7 +264,7 @@ impl<'b> Client<'b> {
     }
 
     /// With a key: the Receipt that follows the SchemaAck `ack_frame`, verified under the key for
-    /// the transfer's nonce (the running table's CRC and stored flag 0: a schema's receipt).
+    /// the transfer's exchange nonce (the running table's CRC and stored flag 0: a schema's receipt).
     /// `early`: a Receipt that came before the SchemaAck.
     fn confirm(
         &mut self,

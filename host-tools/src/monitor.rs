@@ -47,7 +47,9 @@ pub fn request_stream_keyed(
             rate_hz,
             ports: u16::MAX,
         };
-        let Some(nonce) = crate::push::challenge(bus, node.id, Duration::from_secs(1))? else {
+        let crate::push::Challenged::Bound(nonce) =
+            crate::push::challenge(bus, authenticator, node.id, Duration::from_secs(1))?
+        else {
             silent.push(node.id);
             continue;
         };

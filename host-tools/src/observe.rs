@@ -90,7 +90,7 @@ impl Observer {
             | Message::FilterSet(_)
             | Message::AuthenticatedDiagnosticControl { .. }
             | Message::TableTransfer { .. }
-            | Message::ChallengeRequest
+            | Message::ChallengeRequest { .. }
             | Message::Challenge { .. }
             | Message::TransferOpen(_)
             | Message::Receipt { .. } => {}

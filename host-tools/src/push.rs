@@ -162,29 +162,87 @@ pub fn push_authenticated(
     )
 }
 
-/// Asks `node` for a challenge: its nonce, or `None` within `timeout`.
-pub fn challenge(bus: &mut dyn Bus, node: u8, timeout: Duration) -> std::io::Result<Option<u64>> {
-    bus.send(&Message::ChallengeRequest.to_frame(protocol::TOOL, node))?;
+/// Frames read and dropped before a challenge request, at most: what was queued before the
+/// request answers nothing of this exchange. Bounded so that a flooded bus cannot hold the tool
+/// here; the binding check below is what refuses an old or forged challenge anyway.
+const DRAIN_LIMIT: usize = 4096;
+
+/// What came of a challenge request.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Challenged {
+    /// The node's challenge, bound to this request: the exchange nonce its tags are over
+    /// ([`pab_core::auth::Exchange::nonce`]).
+    Bound(u64),
+    /// No challenge answering this request within the time; `unbound` challenges from the node
+    /// did not answer it (made up by someone else, or answering another request).
+    Nothing {
+        /// Challenges whose binding did not verify for this request's nonce.
+        unbound: u32,
+    },
+}
+
+/// Asks `node` for a challenge with a new random tool nonce, and takes only a Challenge whose
+/// binding verifies for it (docs/can-protocol.md, "Authenticated configuration"): frames queued
+/// before the request are drained first, and a Challenge that does not answer this request,
+/// whoever sent it, is counted and ignored. Fails only on the bus, or when the operating system
+/// has no random number for the nonce.
+pub fn challenge(
+    bus: &mut dyn Bus,
+    auth: &Authenticator,
+    node: u8,
+    timeout: Duration,
+) -> std::io::Result<Challenged> {
+    for _ in 0..DRAIN_LIMIT {
+        if bus.receive(Duration::ZERO)?.is_none() {
+            break;
+        }
+    }
+    let tool = getrandom::u64().map_err(|error| {
+        std::io::Error::other(format!("no random number for the tool's nonce: {error}"))
+    })?;
+    bus.send(&Message::ChallengeRequest { tool_nonce: tool }.to_frame(protocol::TOOL, node))?;
+    let mut unbound = 0u32;
     let end = Instant::now() + timeout;
     while let Some(left) = end.checked_duration_since(Instant::now()) {
         let Some(frame) = bus.receive(left)? else {
             break;
         };
-        if let Ok((id, Message::Challenge { nonce })) = Message::decode(&frame)
+        if let Ok((
+            id,
+            Message::Challenge {
+                node_nonce,
+                binding,
+            },
+        )) = Message::decode(&frame)
             && id.source == node
             && id.destination == protocol::TOOL
         {
-            return Ok(Some(nonce));
+            let exchange = auth.exchange(node, tool, node_nonce);
+            if exchange.binding == binding {
+                return Ok(Challenged::Bound(exchange.nonce));
+            }
+            unbound = unbound.saturating_add(1);
         }
     }
-    Ok(None)
+    Ok(Challenged::Nothing { unbound })
 }
 
-fn no_challenge(node: u8) -> Outcome {
-    Outcome::NoAnswer(format!(
-        "node {node} sent no challenge within 1 s: is it on the bus, and does it have a key? \
-         (`pabctl nodes` shows which nodes have one; push without --key to a node without a key)"
-    ))
+/// Why a keyed exchange with `node` got no challenge (`unbound`: challenges that did not answer
+/// the request).
+pub fn no_challenge_reason(node: u8, unbound: u32) -> String {
+    if unbound > 0 {
+        format!(
+            "node {node} sent no challenge answering this request within 1 s, and {unbound} \
+             challenge(s) in its name that did not: another tool is configuring it, or a \
+             participant is making challenges up (docs/can-protocol.md, \"Threat model\")"
+        )
+    } else {
+        format!(
+            "node {node} sent no challenge within 1 s: is it on the bus, and does it have a key? \
+             (`pabctl nodes` shows which nodes have one; push without --key to a node without a \
+             key)"
+        )
+    }
 }
 
 /// The bus during a keyed push, counting on the way the node's refusals of tagged messages (its
@@ -290,11 +348,14 @@ fn push_steps(
     let mut message = image.to_vec();
     let mut receipt_nonce = None;
     if let Some(credentials) = credentials {
-        let Some(nonce) = challenge(bus, node, Duration::from_secs(1))? else {
-            return Ok(no_challenge(node));
+        let auth = &credentials.authenticator;
+        let nonce = match challenge(bus, auth, node, Duration::from_secs(1))? {
+            Challenged::Bound(nonce) => nonce,
+            Challenged::Nothing { unbound } => {
+                return Ok(Outcome::NoAnswer(no_challenge_reason(node, unbound)));
+            }
         };
         let flags = if credentials.replace { OPEN_REPLACE } else { 0 };
-        let auth = &credentials.authenticator;
         message.extend_from_slice(&auth.image_mac(node, nonce, flags, image));
         let Ok(length) = u16::try_from(message.len()) else {
             return Ok(Outcome::NoAnswer(format!(

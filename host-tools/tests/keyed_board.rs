@@ -301,20 +301,14 @@ fn a_keyed_emulated_board_takes_configuration_from_the_key_holder_only() {
     );
 
     // And switches the stream with a tagged command.
-    let salt_first = board_salt(&mut board, node);
+    let salt_first = boot_salt(&board.wait_log(KEYED, 1, Duration::from_secs(1)));
     assert_eq!(salt_first, 1, "a fresh QEMU counts its first boot");
-    let nonce = push::challenge(&mut board, node, Duration::from_secs(2))
-        .unwrap()
-        .expect("a challenge");
+    let auth = Authenticator::new(&key);
+    let nonce = board_challenge(&mut board, &auth, node);
     let mut payload = [0u8; 4];
     payload[..2].copy_from_slice(&control.rate_hz.to_le_bytes());
     payload[2..].copy_from_slice(&control.ports.to_le_bytes());
-    let tag = Authenticator::new(&key).command_tag(
-        node,
-        Service::DiagnosticControl.code(),
-        nonce,
-        &payload,
-    );
+    let tag = auth.command_tag(node, Service::DiagnosticControl.code(), nonce, &payload);
     board
         .send(
             &Message::AuthenticatedDiagnosticControl { control, tag }
@@ -331,11 +325,7 @@ fn a_keyed_emulated_board_takes_configuration_from_the_key_holder_only() {
 
     // A system reset: the next boot has the next salt, and the stored table.
     board.system_reset();
-    board.wait_log(
-        "keyed: only authenticated configuration",
-        2,
-        Duration::from_secs(30),
-    );
+    let second_boot = board.wait_log(KEYED, 2, Duration::from_secs(30));
     board.wait_log(
         "booted with stored table version",
         1,
@@ -343,15 +333,28 @@ fn a_keyed_emulated_board_takes_configuration_from_the_key_holder_only() {
     );
     // Frames of the first boot still in the pipe are not the second boot's answers.
     let _ = board.collect(Duration::from_millis(500));
-    let salt_second = board_salt(&mut board, node);
+    let salt_second = boot_salt(&second_boot);
     println!("boot salts: {salt_first} then {salt_second} after a system reset");
     assert_eq!(salt_second, salt_first + 1);
+    // The second boot's challenges answer too (its counter starts again, its salt does not).
+    let again = board_challenge(&mut board, &auth, node);
+    assert_ne!(again, nonce);
 }
 
-/// The boot salt in the board's challenge (the nonce's high 32 bits).
-fn board_salt(board: &mut Board, node: u8) -> u32 {
-    let nonce = push::challenge(board, node, Duration::from_secs(2))
-        .unwrap()
-        .expect("a keyed board answers a challenge request");
-    (nonce >> 32) as u32
+/// The line the board logs at boot with a key; it ends with "(boot N)", the boot salt.
+const KEYED: &str = "keyed: only authenticated configuration";
+
+fn boot_salt(line: &str) -> u32 {
+    line.rsplit_once("(boot ")
+        .and_then(|(_, rest)| rest.split(')').next())
+        .and_then(|number| number.parse().ok())
+        .unwrap_or_else(|| panic!("no boot number in {line:?}"))
+}
+
+/// A challenge of the board, bound to the tool's request: the exchange nonce.
+fn board_challenge(board: &mut Board, auth: &Authenticator, node: u8) -> u64 {
+    match push::challenge(board, auth, node, Duration::from_secs(2)).unwrap() {
+        push::Challenged::Bound(nonce) => nonce,
+        other => panic!("a keyed board answers a challenge request: {other:?}"),
+    }
 }

@@ -529,9 +529,14 @@ fn a_forged_confirmation_does_not_count_with_a_key() {
                     continue;
                 }
                 match message {
-                    Message::ChallengeRequest => {
-                        send(&mut bus, Message::Challenge { nonce: 77 }, protocol::TOOL)
-                    }
+                    Message::ChallengeRequest { .. } => send(
+                        &mut bus,
+                        Message::Challenge {
+                            node_nonce: 77,
+                            binding: [0, 0],
+                        },
+                        protocol::TOOL,
+                    ),
                     Message::TableTransfer { data, len } => {
                         let now = pab_core::Instant::from_micros(0);
                         match receiver.on_frame(&data[..usize::from(len)], now).event {
@@ -616,10 +621,12 @@ fn a_forged_confirmation_does_not_count_with_a_key() {
         fooled.is_success(),
         "without a key the impostor wins: {fooled}"
     );
+    // With a key the impostor is caught at once: its challenge does not answer the tool's
+    // request (it cannot bind it without the key), so the tool tags nothing.
     let keyed = run(true);
     assert!(!keyed.is_success(), "{keyed}");
     assert!(
-        matches!(&keyed, Outcome::NotConfirmed(why) if why.contains("receipt")),
+        matches!(&keyed, Outcome::NoAnswer(why) if why.contains("1 challenge(s) in its name that did not")),
         "{keyed:?}"
     );
 }
@@ -648,7 +655,7 @@ fn a_keyed_push_under_a_flood_of_bad_tags_says_the_node_refused_them() {
         while !flooding.load(Ordering::SeqCst) {
             if sent.is_multiple_of(1000) {
                 rogue
-                    .send(&Message::ChallengeRequest.to_frame(9, 1))
+                    .send(&Message::ChallengeRequest { tool_nonce: 0 }.to_frame(9, 1))
                     .unwrap();
             }
             for _ in 0..10 {
@@ -698,4 +705,190 @@ fn a_keyed_push_under_a_flood_of_bad_tags_says_the_node_refused_them() {
             "{failure}"
         );
     }
+}
+
+/// Attack (pre-play): a participant answers the tool's challenge requests first, with challenges
+/// it made up, to harvest the tool's tags over a nonce of its choosing and replay them later.
+/// The tool takes only the Challenge bound to its own request: it tags nothing over the forged
+/// ones, the push lands on the node's own challenge, and the node applies it once. (Before the
+/// tool had a nonce of its own, it took the first Challenge that came and tagged it.)
+#[test]
+fn a_keyed_push_tags_no_challenge_a_participant_made_up() {
+    let hub = MemoryHub::new();
+    let key = pab_core::auth::Key::from_bytes([7; 16]);
+    let node = LiveNode::spawn_with(&hub, 1, None, Some(key));
+    let stop = Arc::new(AtomicBool::new(false));
+    let mut rogue = hub.connect();
+    let answering = stop.clone();
+    let forger = std::thread::spawn(move || {
+        let (mut forged, mut opens, mut requests, mut genuine) = (0u32, vec![], vec![], vec![]);
+        while !answering.load(Ordering::SeqCst) {
+            let Ok(Some(frame)) = rogue.receive(Duration::from_millis(5)) else {
+                continue;
+            };
+            match Message::decode(&frame) {
+                Ok((id, Message::Challenge { node_nonce, .. })) if id.source == 1 => {
+                    genuine.push(node_nonce)
+                }
+                Ok((id, Message::ChallengeRequest { tool_nonce })) if id.destination == 1 => {
+                    requests.push(tool_nonce);
+                    // Ahead of the node (which answers within its own loop's turn).
+                    let made_up = Message::Challenge {
+                        node_nonce: 0x0000_1234_5678_9ABC,
+                        binding: [0xA5, 0x5A],
+                    };
+                    rogue.send(&made_up.to_frame(1, protocol::TOOL)).unwrap();
+                    forged += 1;
+                }
+                Ok((id, Message::TransferOpen(open))) if id.destination == 1 => opens.push(open),
+                _ => {}
+            }
+        }
+        (forged, opens, requests, genuine)
+    });
+    std::thread::sleep(Duration::from_millis(50));
+    let image = arm_image(4);
+    let credentials = push::Credentials {
+        authenticator: pab_core::auth::Authenticator::new(&key),
+        replace: false,
+    };
+    let mut tool = hub.connect();
+    let outcome = push::push_authenticated(
+        &mut tool,
+        1,
+        &image,
+        &header(&image),
+        &credentials,
+        Timeouts::default(),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    stop.store(true, Ordering::SeqCst);
+    let (forged, opens, requests, genuine) = forger.join().unwrap();
+    assert!(forged >= 1, "the participant answered no request");
+    assert!(outcome.is_success(), "{outcome}");
+    assert_eq!(
+        node.stored.lock().unwrap().len(),
+        1,
+        "applied and stored once"
+    );
+    // One request, one open, whose tag is over the exchange of the node's own challenge and not
+    // over the made-up one's.
+    let ([tool_nonce], [node_nonce], [open]) = (&requests[..], &genuine[..], &opens[..]) else {
+        panic!("one request, challenge and open: {requests:?} {genuine:?} {opens:?}");
+    };
+    let auth = pab_core::auth::Authenticator::new(&key);
+    let over = |node_nonce: u64| {
+        let nonce = auth.exchange(1, *tool_nonce, node_nonce).nonce;
+        auth.open_tag(1, nonce, open.length, open.flags)
+    };
+    assert_eq!(open.tag, over(*node_nonce));
+    assert_ne!(open.tag, over(0x0000_1234_5678_9ABC));
+}
+
+/// Attack (receipt replay): a participant records a keyed push (the node's Challenge, its
+/// TransferStatus and Receipt, its heartbeat), and when the same image is pushed again to a node
+/// that is no longer on the bus, replays them. The tool's nonce is new for every exchange and the
+/// receipt covers it: the old challenge does not answer the new request, and the push is not
+/// reported done. (Before, the replayed Challenge and Receipt made it report success.)
+#[test]
+fn a_replayed_challenge_and_receipt_do_not_confirm_a_push() {
+    let hub = MemoryHub::new();
+    let key = pab_core::auth::Key::from_bytes([7; 16]);
+    let image = arm_image(6);
+    let credentials = push::Credentials {
+        authenticator: pab_core::auth::Authenticator::new(&key),
+        replace: false,
+    };
+    let timeouts = Timeouts {
+        answer: Duration::from_millis(500),
+        confirm: Duration::from_millis(1_000),
+    };
+    // The genuine push, recorded by the participant.
+    let mut recorder = hub.connect();
+    let node = LiveNode::spawn_with(&hub, 1, None, Some(key));
+    let mut tool = hub.connect();
+    let first = push::push_authenticated(
+        &mut tool,
+        1,
+        &image,
+        &header(&image),
+        &credentials,
+        timeouts,
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert!(first.is_success(), "{first}");
+    drop(node);
+    let mut recorded = Vec::new();
+    while let Ok(Some(frame)) = recorder.receive(Duration::ZERO) {
+        if let Ok((id, message)) = Message::decode(&frame)
+            && id.source == 1
+            && matches!(
+                message,
+                Message::Challenge { .. }
+                    | Message::TransferStatus(_)
+                    | Message::Receipt { .. }
+                    | Message::Heartbeat(_)
+                    | Message::TableStatus(_)
+            )
+        {
+            recorded.push((message, frame));
+        }
+    }
+    assert!(
+        recorded
+            .iter()
+            .any(|(m, _)| matches!(m, Message::Receipt { .. })),
+        "the genuine push had a receipt to record"
+    );
+    // The node is gone; the participant replays the recording to the second push.
+    let stop = Arc::new(AtomicBool::new(false));
+    let replaying = stop.clone();
+    let mut rogue = hub.connect();
+    let replayer = std::thread::spawn(move || {
+        while !replaying.load(Ordering::SeqCst) {
+            let Ok(Some(frame)) = rogue.receive(Duration::from_millis(5)) else {
+                continue;
+            };
+            match Message::decode(&frame) {
+                Ok((_, Message::ChallengeRequest { .. })) => {
+                    for (message, frame) in &recorded {
+                        if matches!(message, Message::Challenge { .. }) {
+                            rogue.send(frame).unwrap();
+                        }
+                    }
+                }
+                // The transfer's end (its last frame, or any: the recording answers at once).
+                Ok((_, Message::TableTransfer { .. } | Message::TransferOpen(_))) => {
+                    for (message, frame) in &recorded {
+                        if !matches!(message, Message::Challenge { .. }) {
+                            rogue.send(frame).unwrap();
+                        }
+                    }
+                }
+                _ => {}
+            }
+        }
+    });
+    let second = push::push_authenticated(
+        &mut tool,
+        1,
+        &image,
+        &header(&image),
+        &credentials,
+        timeouts,
+        &mut |_, _| {},
+    )
+    .unwrap();
+    stop.store(true, Ordering::SeqCst);
+    replayer.join().unwrap();
+    assert!(
+        !second.is_success(),
+        "a node off the bus reported done: {second}"
+    );
+    assert!(
+        matches!(&second, Outcome::NoAnswer(why) if why.contains("that did not")),
+        "{second:?}"
+    );
 }

@@ -382,7 +382,7 @@ tc = 3.0
         let open = find("PAB_TransferOpen_arm");
         assert_eq!(open.dlc, 8);
         assert_eq!(open.transmitter, "PABCTL");
-        assert_eq!(find("PAB_ChallengeRequest_arm").dlc, 0);
+        assert_eq!(find("PAB_ChallengeRequest_arm").dlc, 8);
         assert_eq!(find("PAB_Receipt_arm").signals.len(), 2);
         let transfer = find("PAB_TableTransfer_arm");
         assert_eq!(

@@ -601,25 +601,34 @@ fn golden_auth() -> Value {
         stop: 5,
     })
     .to_frame(10, 0);
-    let vectors: Vec<Value> = [(10u8, 0x0000_0003_0000_0001u64), (127, u64::MAX)]
-        .into_iter()
-        .map(|(node, nonce)| {
-            let length = (message.len() + 16) as u16;
-            json!({
-                "node": node,
-                "nonce": nonce.to_string(),
-                "message": hex(&message),
-                "length": length,
-                "open_tag": hex(&auth.open_tag(node, nonce, length, OPEN_SCHEMA)),
-                "image_mac": hex(&auth.image_mac(node, nonce, OPEN_SCHEMA, &message)),
-                "ack": hex(ack.payload()),
-                "receipt_tag": hex(&auth.receipt_tag(node, nonce, ack.payload().try_into().expect("8 bytes"), 0, false)),
-            })
+    let vectors: Vec<Value> = [
+        (10u8, 0x0102_0304_0506_0708u64, 0x0000_0003_0000_0001u64),
+        (127, u64::MAX, pab_core::auth::NODE_NONCE_MAX),
+    ]
+    .into_iter()
+    .map(|(node, tool, node_nonce)| {
+        let exchange = auth.exchange(node, tool, node_nonce);
+        let nonce = exchange.nonce;
+        let length = (message.len() + 16) as u16;
+        json!({
+            "node": node,
+            "tool_nonce": tool.to_string(),
+            "node_nonce": node_nonce.to_string(),
+            "binding": hex(&exchange.binding),
+            "nonce": nonce.to_string(),
+            "message": hex(&message),
+            "length": length,
+            "open_tag": hex(&auth.open_tag(node, nonce, length, OPEN_SCHEMA)),
+            "image_mac": hex(&auth.image_mac(node, nonce, OPEN_SCHEMA, &message)),
+            "ack": hex(ack.payload()),
+            "receipt_tag": hex(&auth.receipt_tag(node, nonce, ack.payload().try_into().expect("8 bytes"), 0, false)),
         })
-        .collect();
+    })
+    .collect();
     json!({
         "about": "Golden vectors of the Python client's authentication (pab_client.auth): a key, \
-                  and for two nodes and nonces a keyed schema transfer's TransferOpen tag, the \
+                  and for two nodes and exchanges (tool nonce, node nonce) the exchange's nonce \
+                  and the Challenge's binding, a keyed schema transfer's TransferOpen tag, the \
                   message's MAC and the Receipt tag of its SchemaAck, as pab_core::auth makes \
                   them. Written and checked by lang/tests/client_golden.rs (PAB_BLESS=1 cargo \
                   test -p pab-lang --test integration client_golden:: rewrites it); \

@@ -3,6 +3,8 @@ configuration"): AES-128-CMAC tags as `pab_core::auth::Authenticator` makes them
 starting with its domain byte and the node id.
 
     key = read_key("arm.key")                     # pabctl keygen's file: 32 hex characters
+    tool_nonce = new_tool_nonce()                 # in the ChallengeRequest
+    nonce, binding = exchange(key, node, tool_nonce, node_nonce)   # from the node's Challenge
     open_tag(key, node, nonce, length, OPEN_SCHEMA)
     image_mac(key, node, nonce, OPEN_SCHEMA, message)
     receipt_tag(key, node, nonce, schema_ack_payload, 0, False)
@@ -12,6 +14,7 @@ The CMAC is the `cryptography` package's (OpenSSL's).
 
 from __future__ import annotations
 
+import os
 import stat
 import struct
 from pathlib import Path
@@ -20,12 +23,14 @@ from cryptography.hazmat.primitives.ciphers import algorithms
 from cryptography.hazmat.primitives.cmac import CMAC
 
 #: Domains (the first byte of every MAC input).
-COMMAND, OPEN, IMAGE, RECEIPT = 0x01, 0x02, 0x03, 0x04
+COMMAND, OPEN, IMAGE, RECEIPT, EXCHANGE, NODE_NONCE = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
 #: TransferOpen flags: a table version reset; a schema message (not a table image).
 OPEN_REPLACE = 0x01
 OPEN_SCHEMA = 0x02
 #: Lengths of the tags and MACs.
 OPEN_TAG_LEN, IMAGE_MAC_LEN, RECEIPT_TAG_LEN = 5, 16, 8
+#: A node nonce's bytes on the wire (48 bits), and a Challenge's binding.
+NODE_NONCE_LEN, BINDING_LEN = 6, 2
 
 
 class KeyFileError(ValueError):
@@ -70,6 +75,20 @@ def cmac(key: bytes, *parts: bytes) -> bytes:
     for part in parts:
         mac.update(part)
     return mac.finalize()
+
+
+def new_tool_nonce() -> int:
+    """A tool nonce: 64 random bits from the operating system, new for every exchange."""
+    return int.from_bytes(os.urandom(8), "little")
+
+
+def exchange(key: bytes, node: int, tool_nonce: int, node_nonce: int) -> "tuple[int, bytes]":
+    """The exchange of a ChallengeRequest's tool nonce and the Challenge's node nonce: the nonce
+    every tag of the exchange is over (CMAC(0x05, node, tool nonce, node nonce) bytes 0-7) and
+    the binding the Challenge must carry (bytes 8-9) to answer this request."""
+    full = cmac(key, bytes([EXCHANGE, node]), struct.pack("<Q", tool_nonce),
+                (node_nonce & (1 << 48) - 1).to_bytes(NODE_NONCE_LEN, "little"))
+    return int.from_bytes(full[:8], "little"), full[8:8 + BINDING_LEN]
 
 
 def open_tag(key: bytes, node: int, nonce: int, length: int, flags: int) -> bytes:

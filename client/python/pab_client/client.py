@@ -307,7 +307,9 @@ class Client:
                 and fid.priority == PRIORITY[fid.service]):
             with self._cond:
                 if fid.service == CHALLENGE:
-                    self._challenges.append(int.from_bytes(bytes(msg.data), "little"))
+                    data = bytes(msg.data)
+                    self._challenges.append((int.from_bytes(data[:auth.NODE_NONCE_LEN], "little"),
+                                             data[auth.NODE_NONCE_LEN:]))
                 else:
                     self._receipts.append(bytes(msg.data))
                 self._cond.notify_all()
@@ -484,16 +486,32 @@ class Client:
         return ack
 
     def _challenge(self, deadline: float) -> int:
-        """Asks the node for a challenge; its nonce (:class:`Timeout` without one)."""
+        """Asks the node for a challenge with a new tool nonce; the exchange nonce of the first
+        Challenge bound to this request (:class:`Timeout` without one). A Challenge that does not
+        answer this request (made up by someone else, or answering another tool's) is skipped
+        and counted in the timeout's message."""
+        tool_nonce = auth.new_tool_nonce()
         with self._cond:
             self._challenges.clear()
-        self._send_empty(frame_id(CHALLENGE_REQUEST, self.source, self.node))
+        self.bus.send(can.Message(arbitration_id=frame_id(CHALLENGE_REQUEST, self.source, self.node),
+                                  data=struct.pack("<Q", tool_nonce), is_extended_id=True))
+        unbound = 0
         with self._cond:
-            if not self._cond.wait_for(lambda: self._challenges,
-                                       max(0.0, deadline - time.monotonic())):
-                raise Timeout(f"node {self.node}: no Challenge: is it on the bus, and does it "
-                              "have a key? (a node without one sends none)")
-            return self._challenges[-1]
+            while True:
+                if not self._cond.wait_for(lambda: self._challenges,
+                                           max(0.0, deadline - time.monotonic())):
+                    if unbound:
+                        raise Timeout(
+                            f"node {self.node}: no Challenge answering this request, and "
+                            f"{unbound} that did not: another tool is configuring it, or a "
+                            "participant is making them up")
+                    raise Timeout(f"node {self.node}: no Challenge: is it on the bus, and does it "
+                                  "have a key? (a node without one sends none)")
+                node_nonce, binding = self._challenges.pop(0)
+                nonce, expected = auth.exchange(self.key, self.node, tool_nonce, node_nonce)
+                if binding == expected:
+                    return nonce
+                unbound += 1
 
     def _open(self, message: bytes, nonce: int) -> bytes:
         """The TransferOpen for `message`, sent before its first frame; returns the message

@@ -16,6 +16,8 @@ def test_the_tags_and_macs_are_the_cores():
     assert len(GOLDEN["vectors"]) == 2
     for v in GOLDEN["vectors"]:
         node, nonce, message = v["node"], int(v["nonce"]), bytes.fromhex(v["message"])
+        exchange = auth.exchange(key, node, int(v["tool_nonce"]), int(v["node_nonce"]))
+        assert exchange == (nonce, bytes.fromhex(v["binding"]))
         assert v["length"] == len(message) + auth.IMAGE_MAC_LEN
         assert auth.open_tag(key, node, nonce, v["length"], auth.OPEN_SCHEMA).hex() == v["open_tag"]
         assert auth.image_mac(key, node, nonce, auth.OPEN_SCHEMA, message).hex() == v["image_mac"]
@@ -51,3 +53,9 @@ def test_key_files(tmp_path):
         auth.read_key(path)
     with pytest.raises(auth.KeyFileError, match="not a key file"):
         auth.read_key("/dev/zero")
+
+
+def test_tool_nonces_are_64_random_bits():
+    nonces = {auth.new_tool_nonce() for _ in range(64)}
+    assert len(nonces) == 64
+    assert all(0 <= n < 1 << 64 for n in nonces)

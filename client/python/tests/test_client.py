@@ -65,7 +65,12 @@ class FakeNode(threading.Thread):
         #: A node with this key: challenges, opens and MACs as docs/can-protocol.md says, and a
         #: Receipt before each SchemaAck (its identifier ranks first, as on a real node).
         self.key: Optional[bytes] = None
-        self.nonce = 0x1234_5678_0000_0000
+        self.node_nonce = 0x1234_5678_0000
+        self.nonce = 0  # the exchange nonce of the last challenge
+        #: Challenges made up (not bound to the request) sent before each genuine one.
+        self.unbound_challenges = 0
+        #: Whether the node answers requests at all (False: only the made-up challenges).
+        self.genuine_challenges = True
         self.opened: Optional[int] = None  # the nonce of the open the next transfer consumes
         self.forge_receipt = False
         self.silent = False  # no flow control
@@ -136,10 +141,19 @@ class FakeNode(threading.Thread):
         self._send(self.rxid, bytes([0x30, self.block_size, 0]) + b"\xcc" * 5)
 
     def _keyed(self, fid, data: bytes) -> None:
-        if fid.service == p.CHALLENGE_REQUEST:
-            self.nonce += 1
-            self._send(p.frame_id(p.CHALLENGE, self.node, fid.source),
-                       self.nonce.to_bytes(8, "little"))
+        if fid.service == p.CHALLENGE_REQUEST and len(data) == 8:
+            # A new node nonce per request; tags are over the exchange of both nonces.
+            self.node_nonce += 1
+            self.nonce, binding = auth.exchange(self.key, self.node, int.from_bytes(data, "little"),
+                                                self.node_nonce)
+            if self.unbound_challenges:
+                # A made-up challenge first: the client must skip it.
+                self.unbound_challenges -= 1
+                self._send(p.frame_id(p.CHALLENGE, self.node, fid.source),
+                           (self.node_nonce + 1000).to_bytes(6, "little") + b"\x00\x00")
+            if self.genuine_challenges:
+                self._send(p.frame_id(p.CHALLENGE, self.node, fid.source),
+                           self.node_nonce.to_bytes(6, "little") + binding)
         elif fid.service == p.TRANSFER_OPEN and len(data) == 8:
             length, flags = data[0] | data[1] << 8, data[2]
             if data[3:] == auth.open_tag(self.key, self.node, self.nonce, length, flags):
@@ -578,6 +592,27 @@ def test_with_the_key_every_schema_is_opened_macd_and_confirmed(keyed_rig):
         assert node.messages == [b"\x00" + sc.encode()]
         assert client.install(s.idle(2, 10)).accepted
     assert node.errors == []
+
+
+def test_with_the_key_a_challenge_that_does_not_answer_the_request_is_skipped(keyed_rig):
+    # A participant answers each request first with a challenge it made up: the client takes
+    # only the node's, bound to its own tool nonce, and the schema goes through.
+    bus, node = keyed_rig
+    node.unbound_challenges = 2
+    with Client(bus, NODE, key=KEY) as client:
+        assert client.install(s.idle(3, 10)).accepted
+        assert client.install(s.idle(4, 10)).accepted
+    assert node.unbound_challenges == 0
+    assert node.errors == []
+
+
+def test_with_the_key_only_made_up_challenges_time_out_and_say_so(keyed_rig):
+    bus, node = keyed_rig
+    node.unbound_challenges = 1
+    node.genuine_challenges = False
+    with Client(bus, NODE, key=KEY) as client:
+        with pytest.raises(Timeout, match="1 that did not"):
+            client.install(s.idle(5, 10), timeout=0.3)
 
 
 def test_limits_go_on_channel_2_and_a_looser_one_is_refused(rig):

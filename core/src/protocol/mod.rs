@@ -136,9 +136,9 @@ pub enum Service {
     TableTransfer = 0x11,
     /// Node → tool: the outcome of a table transfer ([`TransferStatus`]).
     TransferStatus = 0x12,
-    /// Tool → node: asks a keyed node for a challenge (no payload).
+    /// Tool → node: asks a keyed node for a challenge, with the tool's nonce.
     ChallengeRequest = 0x13,
-    /// Node → tool: the nonce the next configuration message must be tagged over.
+    /// Node → tool: the node's nonce, bound to the request's; every tag of the exchange covers both.
     Challenge = 0x14,
     /// Tool → node: opens an authenticated table transfer ([`TransferOpen`]).
     TransferOpen = 0x15,
@@ -275,7 +275,7 @@ impl Service {
         match self {
             Service::DiagnosticControl | Service::Exploitation | Service::FilterProfile => 4,
             Service::FilterSet => 6,
-            Service::ChallengeRequest | Service::EmergencyStop | Service::SchemaAbort => 0,
+            Service::EmergencyStop | Service::SchemaAbort => 0,
             _ => 8,
         }
     }

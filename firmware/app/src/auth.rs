@@ -2,10 +2,13 @@
 //! challenge it has out, and its budget of tag checks.
 //!
 //! Rules (docs/can-protocol.md, "Authenticated configuration"): a challenge lives
-//! [`CHALLENGE_LIFETIME_US`]; a request while one is outstanding gets the same nonce again, so a
-//! rogue requester cannot invalidate the tool's; the challenge is consumed by the first message
-//! whose tag verifies, and only by such a message (a wrong tag leaves it to the tool). At most
-//! [`TAG_CHECKS_PER_SECOND`] tags are checked per second; beyond, messages are refused unchecked.
+//! [`CHALLENGE_LIFETIME_US`] and belongs to the request that made it (its tags are over the
+//! exchange of that request's tool nonce); the next request replaces it (a challenge kept for a
+//! nonce nobody else can use would let a rogue hold the node with one request a second); the
+//! challenge is consumed by the first message whose tag verifies, and only by such a message (a
+//! wrong tag leaves it to the tool). At most
+//! [`TAG_CHECKS_PER_SECOND`] tags are checked and new challenges made per second (each costs
+//! CMACs); beyond, requests and messages are refused unchecked.
 
 use pab_core::Instant;
 use pab_core::auth::{self, Authenticator, Key};
@@ -34,6 +37,7 @@ enum Keying {
 
 #[derive(Clone, Copy, Debug)]
 struct Challenge {
+    /// The exchange nonce: what the exchange's tags are over.
     nonce: u64,
     expires: Instant,
 }
@@ -105,20 +109,27 @@ impl Guard {
         }
     }
 
-    /// The challenge to send for a request at `now`: the outstanding one, or a new one.
-    pub(crate) fn challenge(&mut self, now: Instant) -> Result<u64, AuthFailure> {
+    /// The Challenge (node nonce, binding) node `node` answers a request with `tool_nonce` with
+    /// at `now`: a new one, which replaces the outstanding one (one check of the budget: two
+    /// CMACs).
+    pub(crate) fn challenge(
+        &mut self,
+        node: u8,
+        tool_nonce: u64,
+        now: Instant,
+    ) -> Result<(u64, [u8; auth::BINDING_LEN]), AuthFailure> {
         self.authenticator()?;
-        if let Some(challenge) = self.fresh(now) {
-            return Ok(challenge.nonce);
-        }
+        self.spend(now)?;
         let counter = self.counter.checked_add(1).ok_or(AuthFailure::Stale)?;
+        let authenticator = self.authenticator()?;
+        let node_nonce = authenticator.node_nonce(node, self.boot_salt, counter);
+        let exchange = authenticator.exchange(node, tool_nonce, node_nonce);
         self.counter = counter;
-        let nonce = auth::nonce(self.boot_salt, counter);
         self.challenge = Some(Challenge {
-            nonce,
+            nonce: exchange.nonce,
             expires: now.wrapping_add_micros(CHALLENGE_LIFETIME_US),
         });
-        Ok(nonce)
+        Ok((node_nonce, exchange.binding))
     }
 
     fn fresh(&self, now: Instant) -> Option<Challenge> {

@@ -8,7 +8,7 @@ use crate::common;
 use common::*;
 use embedded_storage::nor_flash::NorFlash;
 use pab_app::{BOOT_COUNTER_FAILED, Keying, key_from_page};
-use pab_core::auth::{Key, page};
+use pab_core::auth::{Authenticator, Key, page};
 use pab_core::protocol::{self, DiagnosticControl, FaultCode, Message};
 use pab_storage::testing::MemFlash;
 use pab_storage::{BootCounter, CounterError};
@@ -70,10 +70,17 @@ fn a_valid_page_keys_the_node_with_a_new_boot_salt_every_boot() {
         assert!(h.node.is_keyed());
         h.advance_to(2_000_000);
         assert!(key_page_faults(&h).is_empty());
-        let nonce = h
-            .challenge(protocol::TOOL)
+        let (node_nonce, _) = h
+            .challenge_answer(protocol::TOOL, 7)
             .expect("a keyed node answers a challenge");
-        salts.push((nonce >> 32) as u32);
+        // The boot salt is in the node nonce, through the key: its first challenge's nonce is
+        // the CMAC of this boot's salt and counter 1.
+        let salt = (1..=3)
+            .find(|&salt| {
+                Authenticator::new(&KEY).node_nonce(Harness::NODE_ID, salt, 1) == node_nonce
+            })
+            .expect("the nonce of a salt of the first three boots");
+        salts.push(salt);
         // The key holder's command is taken: the node has this key.
         let from = h.now;
         h.keyed_command(
@@ -115,7 +122,7 @@ fn an_invalid_page_locks_the_node_with_its_reason() {
             "{faults:?}"
         );
         assert!(
-            h.challenge(protocol::TOOL).is_none(),
+            h.challenge(protocol::TOOL, &KEY).is_none(),
             "a locked node issues no challenge"
         );
     }
@@ -133,7 +140,7 @@ fn a_failing_boot_counter_locks_the_node() {
     assert_eq!(keying, Keying::Locked { reason });
     h.advance_to(2_000_000);
     assert!(key_page_faults(&h).contains(&reason));
-    assert!(h.challenge(protocol::TOOL).is_none());
+    assert!(h.challenge(protocol::TOOL, &KEY).is_none());
     flash.reboot();
     let (_, keying) = boot(&key_page(&KEY), &mut flash);
     assert_eq!(keying, Keying::Keyed { boot_salt: 1 });

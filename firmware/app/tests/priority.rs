@@ -21,7 +21,8 @@ fn payload(service: Service) -> Vec<u8> {
         // A first frame announcing a 100-byte image.
         Service::TableTransfer => vec![0x10, 100, b'P', b'A', b'B', b'T', 1, 5],
         Service::TransferStatus => vec![0; 8],
-        Service::ChallengeRequest => vec![],
+        // The tool's nonce.
+        Service::ChallengeRequest => vec![1, 2, 3, 4, 5, 6, 7, 8],
         // Length 100, no flags, a (wrong) tag: well formed, not authentic.
         Service::TransferOpen => vec![100, 0, 0, 1, 2, 3, 4, 5],
         Service::Challenge | Service::Receipt => vec![0; 8],

@@ -246,7 +246,7 @@ fn switching_the_diagnostic_stream_needs_the_key() {
     assert!(!stream_on(&mut h));
     assert!(h.auth_failures_since(0).contains(&AuthFailure::Missing));
     // A tagged broadcast is refused too: a tag is over one node's challenge.
-    let nonce = h.challenge(protocol::TOOL).unwrap();
+    let nonce = h.challenge(protocol::TOOL, &KEY).unwrap();
     let tagged = Harness::tagged_control(&KEY, nonce, STREAM_ON);
     let broadcast = Message::decode(&tagged)
         .unwrap()
@@ -260,8 +260,9 @@ fn switching_the_diagnostic_stream_needs_the_key() {
     assert!(stream_on(&mut h));
 }
 
-/// Attack: replay a captured command or push (the same frames, later), also after the node
-/// rebooted (a new boot salt: no challenge of an earlier boot ever comes back).
+/// Attack: replay a captured command or push (the same frames, the tool's challenge request
+/// included, later), also after the node rebooted (a new boot salt: no challenge of an earlier
+/// boot ever comes back).
 #[test]
 fn replayed_commands_and_pushes_are_refused_also_after_a_reboot() {
     let mut h = keyed_v1();
@@ -275,15 +276,23 @@ fn replayed_commands_and_pushes_are_refused_also_after_a_reboot() {
     assert!(!stream_on(&mut h));
     // Replay, without and with a fresh challenge outstanding (the rogue can ask for one).
     h.feed(&captured_on);
-    h.challenge(42).unwrap();
+    h.challenge(42, &KEY).unwrap();
     h.feed(&captured_on);
     assert!(!stream_on(&mut h));
     let failures = h.auth_failures_since(0);
     assert!(failures.contains(&AuthFailure::Stale), "{failures:?}");
     // A captured push: record the tool's frames, then replay them all.
     let mut push = keyed_v1();
-    let mut captured = Vec::new();
-    let nonce = push.challenge(protocol::TOOL).unwrap();
+    const TOOL_NONCE: u64 = 0x70_0150;
+    let mut captured = vec![
+        Message::ChallengeRequest {
+            tool_nonce: TOOL_NONCE,
+        }
+        .to_frame(protocol::TOOL, Harness::NODE_ID),
+    ];
+    let nonce = push
+        .challenge_with(protocol::TOOL, TOOL_NONCE, &KEY)
+        .unwrap();
     let auth = pab_core::auth::Authenticator::new(&KEY);
     let bytes = v(2);
     let mut message = bytes.clone();
@@ -305,9 +314,10 @@ fn replayed_commands_and_pushes_are_refused_also_after_a_reboot() {
     });
     assert_eq!(push.running_version(), Some(2), "the original push works");
     // Replayed to the same node in the same boot (the rogue first asks for a fresh challenge):
-    // the open's tag is over a used nonce, so no transfer even starts.
+    // the replayed request gets a new node nonce, so the open's tag is over another exchange
+    // than the node's, and no transfer even starts.
     let statuses = push.statuses(protocol::TOOL).len();
-    push.challenge(42).unwrap();
+    push.challenge(42, &KEY).unwrap();
     for frame in &captured {
         push.feed(frame);
         push.advance_to(push.now + 100);
@@ -324,7 +334,6 @@ fn replayed_commands_and_pushes_are_refused_also_after_a_reboot() {
     // Replayed after a reboot to a node that runs version 1 (a new boot salt).
     let replay = |salt: u32| {
         let mut victim = Harness::boot_keyed(Some(&v1()), &KEY, salt);
-        victim.challenge(42);
         for frame in &captured {
             victim.feed(frame);
             victim.advance_to(victim.now + 100);
@@ -334,11 +343,12 @@ fn replayed_commands_and_pushes_are_refused_also_after_a_reboot() {
     };
     assert_eq!(replay(SALT.wrapping_add(1)), Some(1));
     // Why the salt must never repeat for one key (boards count boots in flash, pab-node draws
-    // it from the OS): with the same salt, the first challenge of a boot is the same nonce.
+    // it from the OS): with the same salt, the first challenge of a boot is the same node nonce,
+    // and the replayed request brings back the tool's: the same exchange.
     assert_eq!(replay(SALT), Some(2));
     // And the command after a reboot, with the rogue holding a fresh challenge.
     let mut rebooted = Harness::boot_keyed(Some(&v1()), &KEY, SALT.wrapping_add(1));
-    rebooted.challenge(42).unwrap();
+    rebooted.challenge(42, &KEY).unwrap();
     rebooted.feed(&captured_on);
     assert!(!stream_on(&mut rebooted));
 }
@@ -354,7 +364,7 @@ fn a_wrong_key_is_refused_for_commands_opens_and_images() {
     let failures = h.auth_failures_since(0);
     assert!(failures.contains(&AuthFailure::BadTag), "{failures:?}");
     // A wrong tag does not use up the tool's challenge.
-    let nonce = h.challenge(protocol::TOOL).unwrap();
+    let nonce = h.challenge(protocol::TOOL, &KEY).unwrap();
     h.feed(&Harness::tagged_control(&WRONG_KEY, nonce, STREAM_ON));
     h.feed(&Harness::tagged_control(&KEY, nonce, STREAM_ON));
     assert!(stream_on(&mut h));
@@ -381,27 +391,61 @@ fn an_image_changed_in_flight_is_refused_by_its_mac() {
 #[test]
 fn a_stale_challenge_is_refused() {
     let mut h = keyed_v1();
-    let nonce = h.challenge(protocol::TOOL).unwrap();
+    let nonce = h.challenge(protocol::TOOL, &KEY).unwrap();
     h.advance_to(h.now + 1_001 * MS);
     h.feed(&Harness::tagged_control(&KEY, nonce, STREAM_ON));
     assert!(!stream_on(&mut h));
     assert!(h.auth_failures_since(0).contains(&AuthFailure::Stale));
     // A new request gets a new nonce.
-    assert_ne!(h.challenge(protocol::TOOL), Some(nonce));
+    assert_ne!(h.challenge(protocol::TOOL, &KEY), Some(nonce));
 }
 
-/// A rogue asking for challenges gets the tool's outstanding one again: it cannot invalidate it.
+/// The node's nonce is a CMAC under its key of boot salt and counter: the key holder could
+/// compute it, nobody else can predict it (with salt ‖ counter as the nonce, a rogue queued a
+/// forged challenge of the next one, harvested the tool's tags and replayed them once the node
+/// issued it). The Challenge binds it to the request's tool nonce.
 #[test]
-fn a_rogue_challenge_request_does_not_invalidate_the_tools() {
+fn node_nonces_are_unpredictable_and_bound_to_the_request() {
     let mut h = keyed_v1();
-    let nonce = h.challenge(protocol::TOOL).unwrap();
-    assert_eq!(
-        nonce >> 32,
-        u64::from(SALT),
-        "the boot salt is the nonce's high half"
+    let auth = pab_core::auth::Authenticator::new(&KEY);
+    let (node_nonce, binding) = h.challenge_answer(protocol::TOOL, 7).unwrap();
+    assert_eq!(node_nonce, auth.node_nonce(Harness::NODE_ID, SALT, 1));
+    assert_ne!(
+        node_nonce,
+        (u64::from(SALT) << 32 | 1) & pab_core::auth::NODE_NONCE_MAX
     );
-    assert_eq!(h.challenge(42), Some(nonce));
+    let wrong = pab_core::auth::Authenticator::new(&WRONG_KEY);
+    assert_ne!(node_nonce, wrong.node_nonce(Harness::NODE_ID, SALT, 1));
+    let exchange = auth.exchange(Harness::NODE_ID, 7, node_nonce);
+    assert_eq!(binding, exchange.binding);
+    assert_ne!(
+        binding,
+        auth.exchange(Harness::NODE_ID, 8, node_nonce).binding
+    );
+    // Every request is a new challenge, the same tool nonce again too.
+    let (again, _) = h.challenge_answer(protocol::TOOL, 7).unwrap();
+    assert_eq!(again, auth.node_nonce(Harness::NODE_ID, SALT, 2));
+    // The tags of the exchange are over its nonce.
+    let nonce = h.challenge_with(protocol::TOOL, 9, &KEY).unwrap();
     h.feed(&Harness::tagged_control(&KEY, nonce, STREAM_ON));
+    assert!(stream_on(&mut h));
+}
+
+/// A request replaces the outstanding challenge: a challenge kept for a tool nonce nobody else
+/// can use would let a rogue hold the node with one request a second. The rogue can so deny an
+/// exchange it sees start (the tool asks again), never steer one: the tool's tag over the replaced
+/// challenge is refused, and the rogue has no tag over its own.
+#[test]
+fn a_rogue_request_replaces_the_challenge_and_gains_nothing() {
+    let mut h = keyed_v1();
+    let tools = h.challenge(protocol::TOOL, &KEY).unwrap();
+    let rogues = h.challenge(42, &KEY).unwrap();
+    assert_ne!(rogues, tools);
+    h.feed(&Harness::tagged_control(&KEY, tools, STREAM_ON));
+    assert!(!stream_on(&mut h));
+    assert!(h.auth_failures_since(0).contains(&AuthFailure::BadTag));
+    // The tool asks again and gets through.
+    h.keyed_command(&KEY, STREAM_ON);
     assert!(stream_on(&mut h));
 }
 
@@ -409,9 +453,10 @@ fn a_rogue_challenge_request_does_not_invalidate_the_tools() {
 #[test]
 fn tag_checks_are_rate_limited() {
     let mut h = keyed_v1();
-    let nonce = h.challenge(protocol::TOOL).unwrap();
+    let nonce = h.challenge(protocol::TOOL, &KEY).unwrap();
     let errors_before = h.node.counters().errors;
-    for guess in 0..u32::from(pab_app::TAG_CHECKS_PER_SECOND) {
+    // The challenge took one check of the second's budget (two CMACs).
+    for guess in 0..u32::from(pab_app::TAG_CHECKS_PER_SECOND) - 1 {
         let mut frame = Harness::tagged_control(&WRONG_KEY, nonce, STREAM_ON);
         let mut data = [0u8; 8];
         data.copy_from_slice(frame.payload());
@@ -425,7 +470,7 @@ fn tag_checks_are_rate_limited() {
     assert!(h.auth_failures_since(0).contains(&AuthFailure::RateLimited));
     assert_eq!(
         h.node.counters().errors - errors_before,
-        u32::from(pab_app::TAG_CHECKS_PER_SECOND) + 1,
+        u32::from(pab_app::TAG_CHECKS_PER_SECOND),
         "every failure is counted"
     );
     assert!(!stream_on(&mut h));
@@ -438,7 +483,7 @@ fn a_locked_node_takes_no_configuration() {
     let mut h = Harness::boot_with(Some(&v1()), |node| node.lock_configuration(5));
     h.push(&v(2));
     h.feed(&Message::DiagnosticControl(STREAM_ON).to_frame(protocol::TOOL, Harness::NODE_ID));
-    assert!(h.challenge(protocol::TOOL).is_none());
+    assert!(h.challenge(protocol::TOOL, &KEY).is_none());
     let open = protocol::TransferOpen {
         length: 300,
         flags: 0,

@@ -41,7 +41,7 @@ fn send_keyed_with(
     key: &Key,
     flags: u8,
 ) -> (Option<SchemaAck>, Option<[u8; 8]>, u64) {
-    let nonce = h.challenge(TOOL).expect("a challenge");
+    let nonce = h.challenge(TOOL, key).expect("a challenge");
     let auth = Authenticator::new(key);
     let mut bytes = body.to_vec();
     bytes.extend_from_slice(&auth.image_mac(Harness::NODE_ID, nonce, flags, body));
@@ -151,7 +151,7 @@ fn a_wrong_key_a_table_open_or_a_changed_message_gets_no_schema_in() {
     assert!(ack.is_none());
     h.advance_to(h.now + 1_200_000); // the unused open expires
     // The message changed after the MAC was made: refused Unauthenticated, with a Receipt.
-    let nonce = h.challenge(TOOL).unwrap();
+    let nonce = h.challenge(TOOL, &KEY).unwrap();
     let auth = Authenticator::new(&KEY);
     let mut bytes = body.clone();
     bytes.extend_from_slice(&auth.image_mac(Harness::NODE_ID, nonce, OPEN_SCHEMA, &body));

@@ -308,9 +308,12 @@ fn any_message(u: &mut Unstructured<'_>) -> Result<(Message, u8, u8)> {
             },
             tag: u.arbitrary()?,
         },
-        9 => Message::ChallengeRequest,
+        9 => Message::ChallengeRequest {
+            tool_nonce: u.arbitrary()?,
+        },
         10 => Message::Challenge {
-            nonce: u.arbitrary()?,
+            node_nonce: u.int_in_range(0..=pab_core::auth::NODE_NONCE_MAX)?,
+            binding: u.arbitrary()?,
         },
         11 => Message::TransferOpen(TransferOpen {
             length: u.arbitrary()?,

@@ -202,7 +202,9 @@ impl Message {
             // The bytes past the frame's length are zero, as the padding made them.
             Service::TableTransfer => Message::TableTransfer { data: padded, len },
             Service::SchemaTransfer => Message::SchemaTransfer { data: padded, len },
-            Service::ChallengeRequest => Message::ChallengeRequest,
+            Service::ChallengeRequest => Message::ChallengeRequest {
+                tool_nonce: u64::from_le_bytes(padded),
+            },
             Service::EmergencyStop => Message::EmergencyStop,
             Service::SchemaAbort => Message::SchemaAbort,
             Service::TransferOpen => {
@@ -299,7 +301,8 @@ impl Message {
                 })
             }
             Service::Challenge => Message::Challenge {
-                nonce: u64::from_le_bytes(padded),
+                node_nonce: u64::from_le_bytes(padded) & crate::auth::NODE_NONCE_MAX,
+                binding: bytes_at(data, crate::auth::NODE_NONCE_LEN),
             },
             Service::Receipt => Message::Receipt { tag: padded },
             Service::Desire => {

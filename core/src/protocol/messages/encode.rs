@@ -124,7 +124,14 @@ impl Message {
                     | u32::from(state.elapsed_ms) << 16;
                 (words(low, high), 8)
             }
-            Message::Challenge { nonce } => (*nonce, 8),
+            Message::Challenge {
+                node_nonce,
+                binding: [b0, b1],
+            } => (
+                *node_nonce & crate::auth::NODE_NONCE_MAX
+                    | u64::from(u16::from_le_bytes([*b0, *b1])) << 48,
+                8,
+            ),
             Message::Receipt { tag } => (le_word(*tag), 8),
             Message::Gates(gates) => {
                 let [m0, m1, m2, m3] = gates.mask.to_le_bytes();
@@ -174,7 +181,7 @@ impl Message {
             // Named one by one, so that a new message is put on one side or the other.
             Message::DiagnosticControl(_)
             | Message::AuthenticatedDiagnosticControl { .. }
-            | Message::ChallengeRequest
+            | Message::ChallengeRequest { .. }
             | Message::TransferOpen(_)
             | Message::Desire(_)
             | Message::Intention(_)
@@ -193,7 +200,8 @@ impl Message {
             Message::AuthenticatedDiagnosticControl { control, tag } => {
                 (le_word(control_bytes(control, *tag)), 8)
             }
-            Message::ChallengeRequest | Message::EmergencyStop | Message::SchemaAbort => (0, 0),
+            Message::ChallengeRequest { tool_nonce } => (*tool_nonce, 8),
+            Message::EmergencyStop | Message::SchemaAbort => (0, 0),
             Message::TransferOpen(open) => {
                 let [l0, l1] = open.length.to_le_bytes();
                 let [t0, t1, t2, t3, t4] = open.tag;

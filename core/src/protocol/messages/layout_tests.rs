@@ -120,10 +120,19 @@ fn view(message: &Message) -> Option<Vec<(&'static str, u64)>> {
             ("running_version", t.running_version.into()),
             ("reserved", 0),
         ],
-        Message::ChallengeRequest | Message::EmergencyStop | Message::SchemaAbort => Vec::new(),
-        Message::Challenge { nonce } => {
-            vec![("counter", nonce & 0xFFFF_FFFF), ("boot_salt", nonce >> 32)]
-        }
+        Message::EmergencyStop | Message::SchemaAbort => Vec::new(),
+        Message::ChallengeRequest { tool_nonce } => vec![
+            ("tool_nonce_low", tool_nonce & 0xFFFF_FFFF),
+            ("tool_nonce_high", tool_nonce >> 32),
+        ],
+        Message::Challenge {
+            node_nonce,
+            binding,
+        } => vec![
+            ("node_nonce_low", node_nonce & 0xFFFF_FFFF),
+            ("node_nonce_high", node_nonce >> 32),
+            ("binding", u16::from_le_bytes(binding).into()),
+        ],
         Message::TransferOpen(o) => vec![
             ("length", o.length.into()),
             ("replace", u64::from(o.flags & OPEN_REPLACE != 0)),

@@ -81,20 +81,27 @@ pub enum Message {
     AuthenticatedDiagnosticControl {
         /// The command.
         control: DiagnosticControl,
-        /// CMAC (domain 1, node, service, nonce, the 4 bytes of `control`), first 4 bytes.
+        /// CMAC (domain 1, node, service, both nonces, the 4 bytes of `control`), first 4 bytes.
         tag: [u8; crate::auth::COMMAND_TAG_LEN],
     },
-    /// Asks a node for a challenge (service 0x13, no payload).
-    ChallengeRequest,
-    /// A node's challenge (service 0x14): the nonce, u64 LE (boot salt in the high 32 bits).
+    /// Asks a node for a challenge (service 0x13): the tool's nonce, u64 LE.
+    ChallengeRequest {
+        /// The tool's nonce: random, one per exchange ([`crate::auth::Freshness::tool`]).
+        tool_nonce: u64,
+    },
+    /// A node's challenge (service 0x14): its nonce (48 bits LE) and the binding to the request
+    /// it answers.
     Challenge {
-        /// The nonce.
-        nonce: u64,
+        /// The node's nonce, at most [`crate::auth::NODE_NONCE_MAX`]: the bits above are not
+        /// sent.
+        node_nonce: u64,
+        /// [`crate::auth::Authenticator::binding`] of the node and both nonces.
+        binding: [u8; crate::auth::BINDING_LEN],
     },
     /// See [`TransferOpen`].
     TransferOpen(TransferOpen),
     /// Authenticates the TransferStatus that ended an opened transfer (service 0x16): CMAC
-    /// (domain 4, node, nonce, that TransferStatus's 8 bytes, the running image's CRC, its stored
+    /// (domain 4, node, both nonces, that TransferStatus's 8 bytes, the running image's CRC, its stored
     /// flag), first 8 bytes.
     Receipt {
         /// The tag.
@@ -143,7 +150,7 @@ impl Message {
             Message::TableTransfer { .. } => Service::TableTransfer,
             Message::TransferStatus(_) => Service::TransferStatus,
             Message::AuthenticatedDiagnosticControl { .. } => Service::DiagnosticControl,
-            Message::ChallengeRequest => Service::ChallengeRequest,
+            Message::ChallengeRequest { .. } => Service::ChallengeRequest,
             Message::Challenge { .. } => Service::Challenge,
             Message::TransferOpen(_) => Service::TransferOpen,
             Message::Receipt { .. } => Service::Receipt,

@@ -61,9 +61,12 @@ pub(super) fn samples() -> [Message; 26] {
             },
             tag: [1, 2, 3, 4],
         },
-        Message::ChallengeRequest,
+        Message::ChallengeRequest {
+            tool_nonce: 0x0102_0304_0506_0708,
+        },
         Message::Challenge {
-            nonce: 0x0102_0304_0506_0708,
+            node_nonce: 0x0000_0304_0506_0708,
+            binding: [0xA1, 0xB2],
         },
         Message::TransferOpen(TransferOpen {
             length: 300,

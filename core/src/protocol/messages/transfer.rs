@@ -18,7 +18,7 @@ pub const OPEN_SCHEMA: u8 = 0x02;
 /// bytes 0-1  ISO-TP message length (the image or schema message and its 16-byte MAC), u16 LE
 /// byte 2     flags: bit 0 replace whatever version runs (OPEN_REPLACE), bit 1 a schema
 ///            (OPEN_SCHEMA), not both; bits 2-7 reserved, 0
-/// bytes 3-7  tag: CMAC (domain 2, node, nonce, length, flags), first 5 bytes
+/// bytes 3-7  tag: CMAC (domain 2, node, both nonces, length, flags), first 5 bytes
 /// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -81,7 +81,7 @@ impl TransferOpen {
                 "tag",
                 24,
                 40,
-                "CMAC (domain 2, node, nonce, length, flags), first 5 bytes",
+                "CMAC (domain 2, node, both nonces, length, flags), first 5 bytes",
             ),
         ],
         "opens an authenticated table transfer of this length.",
@@ -120,27 +120,34 @@ pub const TABLE_TRANSFER_LAYOUT: Layout = Layout::isotp(
      the same service.",
 );
 
-/// The layout of a challenge request (service 0x13): no payload.
+/// The layout of a challenge request (service 0x13): the tool's nonce, u64 LE, as its two halves.
 pub const CHALLENGE_REQUEST_LAYOUT: Layout = Layout::fixed(
     Service::ChallengeRequest,
-    &[],
-    "asks a node with a key for a challenge.",
+    &[
+        Field::new("tool_nonce_low", 0, 32, "the tool's nonce: bits 0-31"),
+        Field::new("tool_nonce_high", 32, 32, "the tool's nonce: bits 32-63"),
+    ],
+    "asks a node with a key for a challenge, with the tool's nonce: 64 random bits, new for \
+     every exchange.",
 );
 
-/// The layout of a challenge (service 0x14): the nonce, u64 LE, as its two halves.
+/// The layout of a challenge (service 0x14): the node's nonce (48 bits LE, as a low word and a
+/// high half-word) and the binding.
 pub const CHALLENGE_LAYOUT: Layout = Layout::fixed(
     Service::Challenge,
     &[
-        Field::new("counter", 0, 32, "the node's challenge counter since boot"),
+        Field::new("node_nonce_low", 0, 32, "the node's nonce: bits 0-31"),
+        Field::new("node_nonce_high", 32, 16, "the node's nonce: bits 32-47"),
         Field::new(
-            "boot_salt",
-            32,
-            32,
-            "the boot salt: never repeats for one key (boot counter, or random)",
+            "binding",
+            48,
+            16,
+            "CMAC (domain 5, node, tool nonce, node nonce): bytes 0-1",
         ),
     ],
-    "the nonce the next configuration message must be tagged over; valid 1 s, re-sent \
-     unchanged while outstanding.",
+    "the node's nonce (a CMAC under its key of boot salt and counter: unpredictable), bound to \
+     the request's tool nonce; every tag of the exchange covers both nonces. Valid 1 s; re-sent \
+     unchanged to a request with the same tool nonce.",
 );
 
 /// The layout of a receipt (service 0x16): the 8-byte tag, as its two halves.
@@ -151,7 +158,7 @@ pub const RECEIPT_LAYOUT: Layout = Layout::fixed(
             "tag_low",
             0,
             32,
-            "CMAC (domain 4, node, nonce, the TransferStatus bytes, running CRC, stored flag): \
+            "CMAC (domain 4, node, both nonces, the TransferStatus bytes, running CRC, stored flag): \
              bytes 0-3",
         ),
         Field::new("tag_high", 32, 32, "the same CMAC: bytes 4-7"),

@@ -786,11 +786,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 }
                 Step::Continue
             }
-            Message::ChallengeRequest if id.destination == node_id => {
-                match self.guard.challenge(now) {
-                    Ok(nonce) => self.send(Message::Challenge { nonce }, id.source),
-                    Err(failure) => self.unauthenticated(failure, id),
-                }
+            Message::ChallengeRequest { tool_nonce } if id.destination == node_id => {
+                self.on_challenge_request(id, tool_nonce, now);
                 Step::Continue
             }
             Message::TransferOpen(open) if id.destination == node_id => {

@@ -287,14 +287,40 @@ impl Harness {
             .map(|running| running.header.table_version)
     }
 
-    /// Asks the node for a challenge from `source`: the nonce it answered, if any.
-    pub fn challenge(&mut self, source: u8) -> Option<u64> {
+    /// Asks the node for a challenge from `source` with a tool nonce of its own (a new one at
+    /// every call): the exchange nonce under `key` (what tags are over, for the holder of
+    /// `key`), if the node answered.
+    pub fn challenge(&mut self, source: u8, key: &Key) -> Option<u64> {
+        static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0x5EED_0000);
+        let tool = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        self.challenge_with(source, tool, key)
+    }
+
+    /// [`Harness::challenge`] with this tool nonce.
+    pub fn challenge_with(&mut self, source: u8, tool: u64, key: &Key) -> Option<u64> {
+        let (node_nonce, _) = self.challenge_answer(source, tool)?;
+        Some(
+            Authenticator::new(key)
+                .exchange(Self::NODE_ID, tool, node_nonce)
+                .nonce,
+        )
+    }
+
+    /// Asks the node for a challenge from `source` with this tool nonce: the Challenge's node
+    /// nonce and binding, if the node answered.
+    pub fn challenge_answer(&mut self, source: u8, tool: u64) -> Option<(u64, [u8; 2])> {
         let from = self.sent.len();
-        self.feed(&Message::ChallengeRequest.to_frame(source, Self::NODE_ID));
+        self.feed(&Message::ChallengeRequest { tool_nonce: tool }.to_frame(source, Self::NODE_ID));
         self.sent[from..]
             .iter()
             .find_map(|(_, frame)| match Message::decode(frame) {
-                Ok((id, Message::Challenge { nonce })) if id.destination == source => Some(nonce),
+                Ok((
+                    id,
+                    Message::Challenge {
+                        node_nonce,
+                        binding,
+                    },
+                )) if id.destination == source => Some((node_nonce, binding)),
                 _ => None,
             })
     }
@@ -312,7 +338,7 @@ impl Harness {
     /// What the key holder does to send a command: a challenge, then the tagged command. Returns
     /// the frame sent (for replays).
     pub fn keyed_command(&mut self, key: &Key, control: DiagnosticControl) -> Frame {
-        let nonce = self.challenge(protocol::TOOL).expect("a challenge");
+        let nonce = self.challenge(protocol::TOOL, key).expect("a challenge");
         let frame = Self::tagged_control(key, nonce, control);
         self.feed(&frame);
         frame
@@ -332,7 +358,7 @@ impl Harness {
         flags: u8,
         tamper: impl FnMut(&mut Harness, usize, [u8; 8]) -> Option<[u8; 8]>,
     ) -> (TxEvent, u64) {
-        let nonce = self.challenge(protocol::TOOL).expect("a challenge");
+        let nonce = self.challenge(protocol::TOOL, key).expect("a challenge");
         let auth = Authenticator::new(key);
         let mut message = bytes.to_vec();
         message.extend_from_slice(&auth.image_mac(Self::NODE_ID, nonce, flags, bytes));

@@ -22,6 +22,15 @@ pub fn run() {
     }
     let authenticator = Authenticator::new(&key);
     let nonce = black_box(0x0000_0001_0000_0002_u64);
+    // A new challenge: the node nonce from salt and counter, and the exchange (its nonce and the
+    // binding) from both nonces.
+    for _ in 0..TIMES {
+        black_box(measure(|| {
+            let node = authenticator.node_nonce(5, black_box(7), black_box(1));
+            authenticator.exchange(5, black_box(0x0102_0304_0506_0708), node)
+        }));
+        report("auth", "challenge");
+    }
     // A DiagnosticControl's 4 bytes and a (wrong) tag: the check costs the same either way.
     let payload = black_box([10u8, 0, 0xFF, 0xFF]);
     let tag = black_box([0u8; 4]);
