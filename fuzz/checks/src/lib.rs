@@ -11,6 +11,7 @@
 //! returns an error for bad input: bad input is what it feeds the code under test; only a broken
 //! property panics.
 
+pub mod aes_cmac;
 pub mod ble;
 pub mod gates;
 pub mod image;
@@ -84,6 +85,10 @@ pub const TARGETS: &[Target] = &[
     Target {
         name: "schema",
         check: schema::check,
+    },
+    Target {
+        name: "aes_cmac",
+        check: aes_cmac::check,
     },
 ];
 

@@ -70,7 +70,8 @@ fn every_target_has_a_replay_test() {
             "ble",
             "gates",
             "intention",
-            "schema"
+            "schema",
+            "aes_cmac"
         ]
     );
 }
@@ -133,4 +134,9 @@ fn intention() {
 #[test]
 fn schema() {
     replay("schema");
+}
+
+#[test]
+fn aes_cmac() {
+    replay("aes_cmac");
 }
