@@ -20,6 +20,7 @@ pub mod isotp_rx;
 pub mod isotp_tx;
 pub mod network;
 pub mod node;
+pub mod node_keyed;
 pub mod protocol;
 pub mod schema;
 
@@ -89,6 +90,10 @@ pub const TARGETS: &[Target] = &[
     Target {
         name: "aes_cmac",
         check: aes_cmac::check,
+    },
+    Target {
+        name: "node_keyed",
+        check: node_keyed::check,
     },
 ];
 

@@ -71,7 +71,8 @@ fn every_target_has_a_replay_test() {
             "gates",
             "intention",
             "schema",
-            "aes_cmac"
+            "aes_cmac",
+            "node_keyed"
         ]
     );
 }
@@ -139,4 +140,9 @@ fn schema() {
 #[test]
 fn aes_cmac() {
     replay("aes_cmac");
+}
+
+#[test]
+fn node_keyed() {
+    replay("node_keyed");
 }
