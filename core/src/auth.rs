@@ -21,9 +21,19 @@ use cmac::{Mac, digest::KeyInit};
 use crate::crc32::crc32;
 
 // The boards' AES-128-CMAC (2 KB less flash than RustCrypto's); hosts keep RustCrypto's, which
-// is constant-time on cached memory (the module says why). Compiled for the host's tests too.
-#[cfg(any(target_os = "none", test))]
+// is constant-time on cached memory (the module says why). Compiled for the host's tests too,
+// and for the fuzz target that holds it to RustCrypto's (feature `board-cmac`).
+#[cfg(any(target_os = "none", test, feature = "board-cmac"))]
 mod aes_cmac;
+
+/// The boards' AES-128-CMAC (not the one [`Authenticator`] uses on hosts) of the concatenation of
+/// `parts` under `key`: for the differential fuzz target `aes_cmac` (fuzz/checks), which holds it
+/// to RustCrypto's. Not an API: only with the feature `board-cmac`.
+#[cfg(feature = "board-cmac")]
+#[doc(hidden)]
+pub fn board_cmac(key: &[u8; KEY_LEN], parts: &[&[u8]]) -> [u8; 16] {
+    aes_cmac::Cmac::new(key).mac(parts)
+}
 
 /// Length of a key in bytes (AES-128).
 pub const KEY_LEN: usize = 16;

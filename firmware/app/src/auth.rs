@@ -79,6 +79,18 @@ impl Guard {
         self.challenge = None;
     }
 
+    /// The outstanding challenge (its exchange nonce and expiry) and the budget's window: what
+    /// [`crate::AuthProbe`] shows. Inline: compiled only where a test or fuzz target calls it.
+    #[inline]
+    pub(crate) fn probe(&self) -> (Option<(u64, Instant)>, Instant, u16) {
+        (
+            self.challenge
+                .map(|challenge| (challenge.nonce, challenge.expires)),
+            self.window_start,
+            self.checks_in_window,
+        )
+    }
+
     /// Whether configuration needs a key (keyed or locked): the heartbeat's flag.
     pub(crate) fn is_keyed(&self) -> bool {
         !matches!(self.keying, Keying::Unkeyed)

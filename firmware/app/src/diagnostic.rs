@@ -34,6 +34,13 @@ impl DiagnosticStream {
         self.next_round = now;
     }
 
+    /// The stream's setting (round period in µs, ports) if it is on: for
+    /// [`crate::AuthProbe`]. Inline: compiled only where a test or fuzz target calls it.
+    #[inline]
+    pub(crate) fn setting(&self) -> Option<(u64, u16)> {
+        self.period_us.map(|period| (period, self.ports))
+    }
+
     /// Whether the stream is on.
     pub fn is_on(&self) -> bool {
         self.period_us.is_some()

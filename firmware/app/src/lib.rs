@@ -61,6 +61,22 @@ pub use node::{Counters, Node, Running, Step};
 pub use pab_storage::{SaveProgress, StoreError, TableStore};
 pub use runner::{SAVE_POLL_US, SAVE_STARVED_US, SENDS_PER_TURN, Watchdog, now, run, run_watched};
 
+/// What the fuzz target `node_keyed` (fuzz/checks) reads of a node's authentication state and
+/// configuration, to hold them to what it saw on the bus ([`Node::auth_probe`]). Not an API.
+#[doc(hidden)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct AuthProbe {
+    /// The outstanding challenge: its exchange nonce and when it expires (kept after it expires,
+    /// until replaced or consumed).
+    pub challenge: Option<(u64, Instant)>,
+    /// The start of the tag-check budget's current window.
+    pub window_start: Instant,
+    /// Tag checks (and challenges) spent in that window.
+    pub checks_in_window: u16,
+    /// The diagnostic stream's setting: round period in µs and ports, if it is on.
+    pub diagnostic: Option<(u64, u16)>,
+}
+
 /// Re-exported so runners name one store trait.
 pub mod store {
     pub use pab_storage::{SaveProgress, StoreError, TableStore};

@@ -12,7 +12,9 @@
 //! something no kept one reached (`pab_fuzz_checks::ble::features`: a reading, a claim held, a
 //! grid restart, a refused claim, the counter's wrap, ...; `pab_fuzz_checks::gates::features`: a
 //! step, a change sent, a backlog dropped, a loss, a refused count, ...), then the ones reaching
-//! the most up to 20.
+//! the most up to 20. The `node_keyed` target's the same way, up to 6
+//! (`pab_fuzz_checks::node_keyed::features`: a challenge, a command or an open taken, a table
+//! swapped in, a receipt, the budget used up).
 
 use std::collections::BTreeSet;
 use std::path::Path;
@@ -89,6 +91,7 @@ fn main() {
             "ble",
             0xB1E5_EED5_0000_0001,
             pab_fuzz_checks::ble::features,
+            20,
         );
     }
     if wanted("gates") {
@@ -97,10 +100,20 @@ fn main() {
             "gates",
             0x6A7E_5EED_0000_0001,
             pab_fuzz_checks::gates::features,
+            20,
         );
     }
     if wanted("schema") {
         schema_seeds(&write);
+    }
+    if wanted("node_keyed") {
+        script_seeds(
+            &write,
+            "node_keyed",
+            0x4E7E_5EED_0000_0001,
+            pab_fuzz_checks::node_keyed::features,
+            6,
+        );
     }
 }
 
@@ -365,6 +378,7 @@ fn script_seeds(
     target: &str,
     mut state: u64,
     features: fn(&[u8]) -> BTreeSet<&'static str>,
+    most: usize,
 ) {
     let mut next = || {
         state ^= state << 13;
@@ -387,7 +401,7 @@ fn script_seeds(
         }
     }
     others.sort_by_key(|(count, _)| std::cmp::Reverse(*count));
-    let room = 20usize.saturating_sub(kept.len());
+    let room = most.saturating_sub(kept.len());
     kept.extend(others.into_iter().take(room).map(|(_, bytes)| bytes));
     for (i, bytes) in kept.iter().enumerate() {
         write(target, &format!("script-{i:02}"), bytes);

@@ -11,6 +11,7 @@
 //! returns an error for bad input: bad input is what it feeds the code under test; only a broken
 //! property panics.
 
+pub mod aes_cmac;
 pub mod ble;
 pub mod gates;
 pub mod image;
@@ -19,6 +20,7 @@ pub mod isotp_rx;
 pub mod isotp_tx;
 pub mod network;
 pub mod node;
+pub mod node_keyed;
 pub mod protocol;
 pub mod schema;
 
@@ -84,6 +86,14 @@ pub const TARGETS: &[Target] = &[
     Target {
         name: "schema",
         check: schema::check,
+    },
+    Target {
+        name: "aes_cmac",
+        check: aes_cmac::check,
+    },
+    Target {
+        name: "node_keyed",
+        check: node_keyed::check,
     },
 ];
 

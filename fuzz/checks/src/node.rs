@@ -506,7 +506,7 @@ impl World {
 /// An image made from an example's: a version near the running one, sometimes another node id,
 /// a few byte changes, insertions, deletions or a cut, and (mostly) the length and CRC made right
 /// again so that the changes reach the loader.
-fn mutated_image(u: &mut Unstructured<'_>, running_version: u32) -> Result<Vec<u8>> {
+pub(crate) fn mutated_image(u: &mut Unstructured<'_>, running_version: u32) -> Result<Vec<u8>> {
     let mut bytes = u.choose(base_images())?.clone();
     let version = match u.int_in_range(0u8..=7)? {
         0..=3 => running_version.wrapping_add(1),
@@ -539,7 +539,7 @@ fn mutated_image(u: &mut Unstructured<'_>, running_version: u32) -> Result<Vec<u
     Ok(bytes)
 }
 
-fn any_id(u: &mut Unstructured<'_>) -> Result<Id> {
+pub(crate) fn any_id(u: &mut Unstructured<'_>) -> Result<Id> {
     let topics = &examples().topics;
     Ok(match u.int_in_range(0u8..=7)? {
         0..=5 if !topics.is_empty() => {
@@ -557,13 +557,13 @@ fn any_id(u: &mut Unstructured<'_>) -> Result<Id> {
     })
 }
 
-fn payload(u: &mut Unstructured<'_>) -> Result<Vec<u8>> {
+pub(crate) fn payload(u: &mut Unstructured<'_>) -> Result<Vec<u8>> {
     let len = u.int_in_range(0..=8)?;
     (0..len).map(|_| u.arbitrary()).collect()
 }
 
 /// A frame of our protocol: any service, mostly to this node or everyone, any priority.
-fn protocol_frame(u: &mut Unstructured<'_>) -> Result<Frame> {
+pub(crate) fn protocol_frame(u: &mut Unstructured<'_>) -> Result<Frame> {
     let service = *u.choose(&Service::ALL)?;
     let destination = match u.int_in_range(0u8..=3)? {
         0 | 1 => NODE_ID,

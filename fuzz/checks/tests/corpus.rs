@@ -70,7 +70,9 @@ fn every_target_has_a_replay_test() {
             "ble",
             "gates",
             "intention",
-            "schema"
+            "schema",
+            "aes_cmac",
+            "node_keyed"
         ]
     );
 }
@@ -133,4 +135,14 @@ fn intention() {
 #[test]
 fn schema() {
     replay("schema");
+}
+
+#[test]
+fn aes_cmac() {
+    replay("aes_cmac");
+}
+
+#[test]
+fn node_keyed() {
+    replay("node_keyed");
 }

@@ -652,6 +652,20 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         self.arbiter.as_ref()
     }
 
+    /// The authentication state and the diagnostic setting, for the fuzz target `node_keyed`
+    /// ([`crate::AuthProbe`]). Not an API.
+    #[doc(hidden)]
+    #[inline]
+    pub fn auth_probe(&self) -> crate::AuthProbe {
+        let (challenge, window_start, checks_in_window) = self.guard.probe();
+        crate::AuthProbe {
+            challenge,
+            window_start,
+            checks_in_window,
+            diagnostic: self.diagnostic.setting(),
+        }
+    }
+
     /// The counters.
     pub fn counters(&self) -> Counters {
         self.counters
