@@ -86,7 +86,7 @@ pub enum Message {
     },
     /// Asks a node for a challenge (service 0x13): the tool's nonce, u64 LE.
     ChallengeRequest {
-        /// The tool's nonce: random, one per exchange ([`crate::auth::Freshness::tool`]).
+        /// The tool's nonce: random, one per exchange ([`crate::auth::Authenticator::exchange`]).
         tool_nonce: u64,
     },
     /// A node's challenge (service 0x14): its nonce (48 bits LE) and the binding to the request
@@ -95,7 +95,7 @@ pub enum Message {
         /// The node's nonce, at most [`crate::auth::NODE_NONCE_MAX`]: the bits above are not
         /// sent.
         node_nonce: u64,
-        /// [`crate::auth::Authenticator::binding`] of the node and both nonces.
+        /// [`crate::auth::Exchange::binding`] of the node and both nonces.
         binding: [u8; crate::auth::BINDING_LEN],
     },
     /// See [`TransferOpen`].
