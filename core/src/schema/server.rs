@@ -445,7 +445,9 @@ impl Server {
         self.fault
     }
 
-    /// Schemas in the queue.
+    /// Schemas in the queue. Out of line: three callers inlined its length (48 bytes of the
+    /// NUCLEO-G474RE's flash).
+    #[inline(never)]
     pub fn queued(&self) -> usize {
         self.queue.len()
     }
