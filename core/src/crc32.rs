@@ -70,7 +70,9 @@ impl Default for Crc32 {
     }
 }
 
-/// The CRC-32 of `bytes`.
+/// The CRC-32 of `bytes`. Out of line: eight callers (the store's, the loader's) inlined it,
+/// 32 bytes of the NUCLEO-G474RE's flash.
+#[inline(never)]
 pub fn crc32(bytes: &[u8]) -> u32 {
     Crc32::new().update(bytes).finish()
 }

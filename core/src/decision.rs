@@ -43,7 +43,10 @@ impl ConnectionSet {
         self.0
     }
 
-    /// Whether connection `index` is in the set; false for indices ≥ 32.
+    /// Whether connection `index` is in the set; false for indices ≥ 32. Out of line: four
+    /// callers inlined it (36 bytes of the NUCLEO-G474RE's flash; 3 instructions more for a
+    /// generic-16 frame on the emulated board, 371 -> 374, none for the arm's frames).
+    #[inline(never)]
     pub const fn contains(self, index: u8) -> bool {
         match 1u32.checked_shl(index as u32) {
             Some(bit) => self.0 & bit != 0,

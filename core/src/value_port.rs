@@ -419,8 +419,10 @@ impl Earliest {
     }
 
     /// Keeps `candidate` if it is strictly earlier than the one kept (an instant already passed
-    /// counts as `now`).
-    #[inline]
+    /// counts as `now`). Out of line: three callers inlined it (184 bytes of the NUCLEO-G474RE's
+    /// flash; on the emulated board a value port's frame costs fewer instructions out of line,
+    /// value-min-3 950 -> 921, value-sum-8 1704 -> 1635).
+    #[inline(never)]
     pub(crate) fn offer(&mut self, candidate: Instant) {
         let distance = candidate.micros_since(self.now).unwrap_or(0);
         if distance < self.distance {

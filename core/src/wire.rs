@@ -75,7 +75,8 @@ impl<'a> Reader<'a> {
     }
 
     /// Keeps `error` unless one came first, and goes on reading ([`Reader::fill_within`]).
-    #[inline(never)]
+    /// Cold, but left to the inliner: out of line it took 64 bytes more of the NUCLEO-G474RE's
+    /// flash.
     #[cold]
     fn overflow(&mut self, error: Error) {
         if self.error.is_none() {

@@ -115,6 +115,12 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         changed
     }
 
+    /// Whether the table has value ports (whose outputs [`Arbiter::is_due`] and
+    /// [`Arbiter::poll`] look after).
+    pub fn has_values(&self) -> bool {
+        !self.values.is_empty()
+    }
+
     /// Whether a value port's deadline has passed at `now`: [`Arbiter::poll`] would re-evaluate
     /// it. Costs a test on a table without value ports, a comparison per value port otherwise.
     #[inline]

@@ -265,8 +265,9 @@ impl core::error::Error for DynamicsError {}
 /// The dynamics part of a table, checked as a whole: `filter(port, connection)` is a
 /// connection's filter (`None` for a connection the table does not have). `node` is the image's
 /// node id when an image is loaded (0 when a table is built). One copy for every table type (it
-/// takes slices and a `dyn` look-up), out of line: the loader runs it once per table.
-#[inline(never)]
+/// takes slices and a `dyn` look-up); the loader runs it once per table. Left to the inliner: a
+/// board has one table type, so one caller, into which it inlines (52 bytes of the
+/// NUCLEO-G474RE's flash less than out of line).
 pub(crate) fn validate(
     groups: &[GroupSpec],
     sources: &[GateSource],

@@ -14,8 +14,8 @@ pub const FIELD_MAX: i32 = (1 << 20) - 1;
 pub const FIELD_MIN: i32 = -(1 << 20);
 
 /// Packs three values (saturated to 21 bits) and a flag.
-// Out of line: the attractor's two frames each inlined a copy.
-#[inline(never)]
+// Left to the inliner: out of line (one copy for the attractor's two frames) it took 28 bytes
+// more of the NUCLEO-G474RE's flash than its two inlined copies.
 pub fn pack(values: [i32; 3], flag: bool) -> [u8; 8] {
     let field = |v: i32| u64::from(v.clamp(FIELD_MIN, FIELD_MAX) as u32 & 0x1F_FFFF);
     let [x, y, z] = values;

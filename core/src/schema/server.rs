@@ -445,7 +445,9 @@ impl Server {
         self.fault
     }
 
-    /// Schemas in the queue.
+    /// Schemas in the queue. Out of line: three callers inlined its length (48 bytes of the
+    /// NUCLEO-G474RE's flash).
+    #[inline(never)]
     pub fn queued(&self) -> usize {
         self.queue.len()
     }
@@ -879,8 +881,8 @@ impl Server {
     }
 
     /// Whether `p` is farther outside the workspace than `then`, on some axis.
-    // Out of line: the limit's test and the tick's step 6 each inlined a copy.
-    #[inline(never)]
+    // Left to the inliner: out of line (one copy for the limit's test and the tick's step 6) it
+    // took 28 bytes more of the NUCLEO-G474RE's flash than its two inlined copies.
     fn excess_grew(&self, p: &Pose, then: &[u32; AXES]) -> bool {
         let l = self.limits();
         // Axis by axis, without an array of the excesses.

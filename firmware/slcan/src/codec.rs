@@ -287,7 +287,9 @@ impl Line {
         self.bytes.get(..usize::from(self.len)).unwrap_or(&[])
     }
 
-    /// Appends a byte; a full line ignores it (no caller writes more than [`MAX_LINE`]).
+    /// Appends a byte; a full line ignores it (no caller writes more than [`MAX_LINE`]). Out of
+    /// line: seven callers inlined it (128 bytes of the emulated board's flash).
+    #[inline(never)]
     fn push(&mut self, byte: u8) {
         if let Some(slot) = self.bytes.get_mut(usize::from(self.len)) {
             *slot = byte;
@@ -295,6 +297,9 @@ impl Line {
         }
     }
 
+    /// Appends `value`'s low `digits` nibbles in hexadecimal, the highest first. Out of line:
+    /// three callers inlined it (100 bytes of the emulated board's flash).
+    #[inline(never)]
     fn push_hex(&mut self, value: u32, digits: u32) {
         for shift in (0..digits).rev() {
             let nibble = (value >> (4 * shift)) & 0xF;

@@ -107,7 +107,7 @@ pub(super) fn enqueue_cold(
     outbox: &mut heapless::Vec<Frame, OUTBOX_LEN>,
     frame: Frame,
 ) -> Result<(), Frame> {
-    let rank = frame.arbitration_rank();
+    let ranked = rank(&frame);
     if outbox.push(Frame::empty()).is_err() {
         return Err(frame);
     }
@@ -117,13 +117,20 @@ pub(super) fn enqueue_cold(
     };
     *new = frame;
     for before in slots {
-        if before.arbitration_rank() > rank {
+        if rank(before) > ranked {
             break;
         }
         core::mem::swap(before, new);
         new = before;
     }
     Ok(())
+}
+
+/// [`Frame::arbitration_rank`] out of line, for [`enqueue_cold`]: inlined, its two copies there
+/// took 24 bytes of the NUCLEO-G474RE's flash. ([`enqueue`], the frame path, keeps its own.)
+#[inline(never)]
+fn rank(frame: &Frame) -> u32 {
+    frame.arbitration_rank()
 }
 
 /// Removes the frame at `position` from `outbox`, keeping the others in order.
