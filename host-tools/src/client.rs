@@ -46,6 +46,9 @@ pub enum ClientError {
     BadReceipt(SchemaAck),
     /// The schema could not be encoded (more than the board takes).
     TooLarge,
+    /// With a key: no challenge, and the board said why: it refused tags meanwhile (a flood of
+    /// bad tags uses up its checks for the second). The reason, as `pabctl push` gives it.
+    Denied(String),
 }
 
 impl std::fmt::Display for ClientError {
@@ -67,6 +70,7 @@ impl std::fmt::Display for ClientError {
                 ack.id
             ),
             ClientError::TooLarge => write!(f, "the schema is longer than {MAX_ENCODED} bytes"),
+            ClientError::Denied(why) => write!(f, "no challenge: {why}"),
         }
     }
 }
@@ -165,17 +169,24 @@ impl<'b> Client<'b> {
         // With a key: the challenge, the open for a schema, and the MAC after the message.
         let mut opened = None;
         if let Some(key) = &self.key {
-            let nonce = match push::challenge(self.bus, key, self.node, ACK_TIMEOUT)? {
-                push::Challenged::Bound(nonce) => nonce,
-                push::Challenged::Nothing { unbound: 0 } => {
+            // The node's refusals are read on the way: a flood of bad tags is said as such.
+            let mut watched = push::Refusals::new(&mut *self.bus, self.node);
+            let answer = push::challenge(&mut watched, key, self.node, ACK_TIMEOUT)?;
+            let nonce = match (answer, watched.reason()) {
+                (push::Challenged::Bound(nonce), _) => nonce,
+                (push::Challenged::Nothing { .. }, Some(why)) => {
+                    return Err(ClientError::Denied(why));
+                }
+                (push::Challenged::Nothing { unbound: 0 }, None) => {
                     return Err(ClientError::Timeout(
                         "challenge (does the board have a key?)",
                     ));
                 }
-                push::Challenged::Nothing { .. } => {
+                (push::Challenged::Nothing { .. }, None) => {
                     return Err(ClientError::Timeout(
-                        "challenge answering this request (others came: another tool, or a \
-                         participant making them up)",
+                        "challenge answering this request (others came that did not verify: \
+                         a key that is not the board's, another tool, or a participant making \
+                         them up)",
                     ));
                 }
             };

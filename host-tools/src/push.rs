@@ -233,8 +233,9 @@ pub fn no_challenge_reason(node: u8, unbound: u32) -> String {
     if unbound > 0 {
         format!(
             "node {node} sent no challenge answering this request within 1 s, and {unbound} \
-             challenge(s) in its name that did not: another tool is configuring it, or a \
-             participant is making challenges up (docs/can-protocol.md, \"Threat model\")"
+             challenge(s) in its name that did not verify for it: the key is not the node's, \
+             another tool is configuring it, or a participant is making challenges up \
+             (docs/can-protocol.md, \"Threat model\")"
         )
     } else {
         format!(
@@ -250,7 +251,7 @@ pub fn no_challenge_reason(node: u8, unbound: u32) -> String {
 /// push the node does not answer says why instead of blaming the bus. A participant that floods
 /// a keyed node with bad tags uses up its checks (`pab_app`'s 200 a second) and the tool's open
 /// is refused unchecked; the node says so in its faults, which this reads.
-struct Refusals<'b> {
+pub(crate) struct Refusals<'b> {
     bus: &'b mut dyn Bus,
     node: u8,
     /// Tagged messages the node refused meanwhile (the faults' occurrence counts).
@@ -277,23 +278,39 @@ impl Bus for Refusals<'_> {
     }
 }
 
-impl Refusals<'_> {
-    /// `outcome`, with the node's refusals as the reason when it got no answer.
-    fn explain(&self, outcome: Outcome) -> Outcome {
-        if self.refused == 0 {
-            return outcome;
+impl<'b> Refusals<'b> {
+    /// Watches `node`'s refusals on `bus`.
+    pub(crate) fn new(bus: &'b mut dyn Bus, node: u8) -> Refusals<'b> {
+        Refusals {
+            bus,
+            node,
+            refused: 0,
+            rate_limited: false,
         }
+    }
+
+    /// Why the node refused tagged messages meanwhile, if it did.
+    pub(crate) fn reason(&self) -> Option<String> {
         let n = self.refused;
-        let why = if self.rate_limited {
-            format!(
+        if n == 0 {
+            None
+        } else if self.rate_limited {
+            Some(format!(
                 "the node refused {n} tags, more than it checks in a second: someone is flooding \
                  it with bad tags (`candump` shows the source of the tagged frames)"
-            )
+            ))
         } else {
-            format!(
+            Some(format!(
                 "the node refused {n} tags as wrong: a key that is not the node's, or someone \
                  sending it bad tags"
-            )
+            ))
+        }
+    }
+
+    /// `outcome`, with the node's refusals as the reason when it got no answer.
+    fn explain(&self, outcome: Outcome) -> Outcome {
+        let Some(why) = self.reason() else {
+            return outcome;
         };
         match outcome {
             Outcome::NoAnswer(detail) => Outcome::NoAnswer(format!("{why}; {detail}")),
@@ -316,12 +333,7 @@ fn push_inner(
     if credentials.is_none() {
         return push_steps(bus, node, image, header, timeouts, progress, None);
     }
-    let mut watched = Refusals {
-        bus,
-        node,
-        refused: 0,
-        rate_limited: false,
-    };
+    let mut watched = Refusals::new(bus, node);
     let outcome = push_steps(
         &mut watched,
         node,

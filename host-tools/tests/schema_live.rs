@@ -13,12 +13,13 @@ use std::sync::mpsc;
 use std::time::Duration;
 
 use pab_core::auth::{Authenticator, Key};
-use pab_core::protocol::{SchemaOutcome, SchemaSafety};
+use pab_core::protocol::{Message, SchemaOutcome, SchemaSafety};
 use pab_core::schema::{Channel, build};
 use pab_lang::compile;
 use pab_lang::diagnostic::Source;
 use pab_lang::network::Network;
 use pab_lang::sim::plant::PartState;
+use pabctl::bus::Bus;
 use pabctl::bus::memory::MemoryHub;
 use pabctl::client::{self, Client};
 use pabctl::plant;
@@ -275,4 +276,59 @@ fn limits_tightened_on_a_live_board_stop_a_push_the_table_allowed() {
     let ended = arm.wait_finished(id, Duration::from_secs(5)).unwrap();
     assert_eq!(ended.safety(), Some(SchemaSafety::Force), "{ended:?}");
     rig.finish();
+}
+
+/// A participant floods a keyed board with bad tags (and asks for challenges now and then): the
+/// board's checks for each second are used up, and the key holder's client says so, as `pabctl
+/// push --key` does, instead of asking whether the board has a key.
+#[test]
+fn a_keyed_client_under_a_flood_of_bad_tags_says_the_board_refused_them() {
+    let key = Key::from_bytes([0x3C; 16]);
+    let rig = Rig::start_with(Some(key));
+    let stop = Arc::new(AtomicBool::new(false));
+    let mut rogue = rig.hub.connect();
+    let flooding = stop.clone();
+    let flood = std::thread::spawn(move || {
+        let bad = Message::AuthenticatedDiagnosticControl {
+            control: pab_core::protocol::DiagnosticControl {
+                rate_hz: 0,
+                ports: 0,
+            },
+            tag: [0; 4],
+        };
+        let mut sent = 0u32;
+        while !flooding.load(Ordering::SeqCst) {
+            if sent.is_multiple_of(1000) {
+                let request = Message::ChallengeRequest { tool_nonce: 0 };
+                rogue.send(&request.to_frame(9, 10)).unwrap();
+            }
+            for _ in 0..10 {
+                rogue.send(&bad.to_frame(9, 10)).unwrap();
+                sent += 1;
+            }
+            while let Ok(Some(_)) = rogue.receive(Duration::ZERO) {}
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    });
+    std::thread::sleep(Duration::from_millis(200));
+    let mut tool = rig.hub.connect();
+    let mut arm = Client::with_key(&mut tool, 10, Authenticator::new(&key));
+    // The window after each second's reset lets a few checks through before the flood uses them
+    // up again: a schema may land in it. Of five, one fails, and says why.
+    let mut failure = None;
+    for id in 1..=5 {
+        if let Err(error) = arm.install(&build::idle(id, 0), Channel::Queue) {
+            failure = Some(error);
+            break;
+        }
+    }
+    stop.store(true, Ordering::SeqCst);
+    flood.join().unwrap();
+    rig.finish();
+    match failure {
+        Some(client::ClientError::Denied(why)) => {
+            assert!(why.contains("someone is flooding"), "{why}")
+        }
+        other => panic!("every schema got through the flood, or failed otherwise: {other:?}"),
+    }
 }

@@ -503,8 +503,8 @@ class Client:
                     if unbound:
                         raise Timeout(
                             f"node {self.node}: no Challenge answering this request, and "
-                            f"{unbound} that did not: another tool is configuring it, or a "
-                            "participant is making them up")
+                            f"{unbound} that did not verify for it: a key that is not the "
+                            "node's, another tool configuring it, or a participant making them up")
                     raise Timeout(f"node {self.node}: no Challenge: is it on the bus, and does it "
                                   "have a key? (a node without one sends none)")
                 node_nonce, binding = self._challenges.pop(0)
