@@ -640,32 +640,7 @@ fn a_keyed_push_under_a_flood_of_bad_tags_says_the_node_refused_them() {
     let hub = MemoryHub::new();
     let key = pab_core::auth::Key::from_bytes([7; 16]);
     let _node = LiveNode::spawn_with(&hub, 1, None, Some(key));
-    let stop = Arc::new(AtomicBool::new(false));
-    let mut rogue = hub.connect();
-    let flooding = stop.clone();
-    let flood = std::thread::spawn(move || {
-        let bad = Message::AuthenticatedDiagnosticControl {
-            control: protocol::DiagnosticControl {
-                rate_hz: 0,
-                ports: 0,
-            },
-            tag: [0; 4],
-        };
-        let mut sent = 0u32;
-        while !flooding.load(Ordering::SeqCst) {
-            if sent.is_multiple_of(1000) {
-                rogue
-                    .send(&Message::ChallengeRequest { tool_nonce: 0 }.to_frame(9, 1))
-                    .unwrap();
-            }
-            for _ in 0..10 {
-                rogue.send(&bad.to_frame(9, 1)).unwrap();
-                sent += 1;
-            }
-            while let Ok(Some(_)) = rogue.receive(Duration::ZERO) {}
-            std::thread::sleep(Duration::from_millis(1));
-        }
-    });
+    let flood = common::TagFlood::start(&hub, 1);
     std::thread::sleep(Duration::from_millis(200));
     let image = arm_image(5);
     let credentials = push::Credentials {
@@ -696,8 +671,7 @@ fn a_keyed_push_under_a_flood_of_bad_tags_says_the_node_refused_them() {
             break;
         }
     }
-    stop.store(true, Ordering::SeqCst);
-    flood.join().unwrap();
+    drop(flood);
     assert!(!failures.is_empty(), "every push got through the flood");
     for failure in &failures {
         assert!(

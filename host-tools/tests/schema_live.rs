@@ -13,13 +13,12 @@ use std::sync::mpsc;
 use std::time::Duration;
 
 use pab_core::auth::{Authenticator, Key};
-use pab_core::protocol::{Message, SchemaOutcome, SchemaSafety};
+use pab_core::protocol::{SchemaOutcome, SchemaSafety};
 use pab_core::schema::{Channel, build};
 use pab_lang::compile;
 use pab_lang::diagnostic::Source;
 use pab_lang::network::Network;
 use pab_lang::sim::plant::PartState;
-use pabctl::bus::Bus;
 use pabctl::bus::memory::MemoryHub;
 use pabctl::client::{self, Client};
 use pabctl::plant;
@@ -285,31 +284,7 @@ fn limits_tightened_on_a_live_board_stop_a_push_the_table_allowed() {
 fn a_keyed_client_under_a_flood_of_bad_tags_says_the_board_refused_them() {
     let key = Key::from_bytes([0x3C; 16]);
     let rig = Rig::start_with(Some(key));
-    let stop = Arc::new(AtomicBool::new(false));
-    let mut rogue = rig.hub.connect();
-    let flooding = stop.clone();
-    let flood = std::thread::spawn(move || {
-        let bad = Message::AuthenticatedDiagnosticControl {
-            control: pab_core::protocol::DiagnosticControl {
-                rate_hz: 0,
-                ports: 0,
-            },
-            tag: [0; 4],
-        };
-        let mut sent = 0u32;
-        while !flooding.load(Ordering::SeqCst) {
-            if sent.is_multiple_of(1000) {
-                let request = Message::ChallengeRequest { tool_nonce: 0 };
-                rogue.send(&request.to_frame(9, 10)).unwrap();
-            }
-            for _ in 0..10 {
-                rogue.send(&bad.to_frame(9, 10)).unwrap();
-                sent += 1;
-            }
-            while let Ok(Some(_)) = rogue.receive(Duration::ZERO) {}
-            std::thread::sleep(Duration::from_millis(1));
-        }
-    });
+    let flood = common::TagFlood::start(&rig.hub, 10);
     std::thread::sleep(Duration::from_millis(200));
     let mut tool = rig.hub.connect();
     let mut arm = Client::with_key(&mut tool, 10, Authenticator::new(&key));
@@ -322,8 +297,7 @@ fn a_keyed_client_under_a_flood_of_bad_tags_says_the_board_refused_them() {
             break;
         }
     }
-    stop.store(true, Ordering::SeqCst);
-    flood.join().unwrap();
+    drop(flood);
     rig.finish();
     match failure {
         Some(client::ClientError::Denied(why)) => {

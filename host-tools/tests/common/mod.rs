@@ -97,3 +97,56 @@ fn run_node(
         }
     }
 }
+
+/// A participant flooding node `node` with bad tags on its own thread until dropped: ten
+/// DiagnosticControl frames a millisecond tagged with zeros, from source 9, and a challenge
+/// request every thousand of them (so that some are checked against a challenge). The node's
+/// checks for each second are used up; it raises Unauthenticated faults saying so.
+pub struct TagFlood {
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl TagFlood {
+    pub fn start(hub: &MemoryHub, node: u8) -> TagFlood {
+        use pab_core::protocol::{DiagnosticControl, Message};
+        let stop = Arc::new(AtomicBool::new(false));
+        let mut rogue = hub.connect();
+        let flooding = stop.clone();
+        let thread = std::thread::spawn(move || {
+            let bad = Message::AuthenticatedDiagnosticControl {
+                control: DiagnosticControl {
+                    rate_hz: 0,
+                    ports: 0,
+                },
+                tag: [0; 4],
+            };
+            let request = Message::ChallengeRequest { tool_nonce: 0 };
+            let mut sent = 0u32;
+            while !flooding.load(Ordering::SeqCst) {
+                if sent.is_multiple_of(1000) {
+                    rogue.send(&request.to_frame(9, node)).unwrap();
+                }
+                for _ in 0..10 {
+                    rogue.send(&bad.to_frame(9, node)).unwrap();
+                    sent += 1;
+                }
+                while let Ok(Some(_)) = rogue.receive(Duration::ZERO) {}
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        });
+        TagFlood {
+            stop,
+            thread: Some(thread),
+        }
+    }
+}
+
+impl Drop for TagFlood {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
