@@ -17,7 +17,8 @@ use std::path::PathBuf;
 
 use pab_core::protocol::layout::{Framing, layout};
 use pab_core::protocol::{
-    SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety, SchemaTrigger, Service,
+    AuthFailure, FaultCode, SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety,
+    SchemaTrigger, Service,
 };
 use pab_core::schema::{
     Action, Event, Gripper, Joint, Limits, MAX_ENCODED, MAX_JOINTS, Measure, Pose, Reaction,
@@ -648,8 +649,10 @@ fn the_python_clients_authentication_vectors_are_what_the_core_makes() {
     assert_eq!(found, expected, "the golden file (PAB_BLESS=1 rewrites it)");
 }
 
-/// The schema server's wire codes (`pab_core::protocol`'s `wire_enum!`s): each enumeration's
-/// values with their code, name and description, which `pab_client.protocol` must repeat.
+/// The wire codes a client reads (`pab_core::protocol`'s `wire_enum!`s): the schema server's,
+/// and the faults with the authentication refusals (a keyed client tells a flood of bad tags
+/// from a silent node by them): each enumeration's values with their code, name and
+/// description, which `pab_client.protocol` must repeat.
 fn golden_codes() -> Value {
     macro_rules! codes {
         ($enum:ty) => {
@@ -660,7 +663,8 @@ fn golden_codes() -> Value {
         };
     }
     json!({
-        "about": "The schema server's wire codes, names and descriptions (pab_core::protocol), \
+        "about": "The wire codes, names and descriptions a client reads (pab_core::protocol): the \
+                  schema server's, the faults' and the authentication refusals', \
                   which pab_client.protocol repeats. Written and checked by \
                   lang/tests/client_golden.rs (PAB_BLESS=1 cargo test -p pab-lang --test \
                   integration client_golden:: rewrites it); client/python/tests/test_protocol.py checks \
@@ -670,6 +674,8 @@ fn golden_codes() -> Value {
         "SchemaChannel": codes!(SchemaChannel),
         "SchemaTrigger": codes!(SchemaTrigger),
         "SchemaOrigin": codes!(SchemaOrigin),
+        "FaultCode": codes!(FaultCode),
+        "AuthFailure": codes!(AuthFailure),
     })
 }
 

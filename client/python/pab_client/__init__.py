@@ -18,6 +18,7 @@ from .client import (
     MAX_SECONDS,
     Client,
     ClientError,
+    Denied,
     Ended,
     InvalidArgument,
     Refused,
@@ -25,6 +26,9 @@ from .client import (
     client_filters,
 )
 from .protocol import (
+    AuthFailure,
+    Fault,
+    FaultCode,
     SchemaAck,
     SchemaChannel,
     SchemaOrigin,
@@ -65,6 +69,10 @@ __all__ = [
     "Client",
     "client_filters",
     "ClientError",
+    "Denied",
+    "AuthFailure",
+    "Fault",
+    "FaultCode",
     "InvalidArgument",
     "MAX_SECONDS",
     "Refused",

@@ -41,12 +41,15 @@ from .protocol import (
     BROADCAST,
     CHALLENGE,
     CHALLENGE_REQUEST,
+    FAULT,
     NO_ID,
     PRIORITY,
     RECEIPT,
     STOP_NUMBERS,
     TOOL,
     TRANSFER_OPEN,
+    AuthFailure,
+    FaultCode,
     FrameId,
     MalformedFrame,
     SchemaAck,
@@ -58,6 +61,7 @@ from .protocol import (
     SchemaTrigger,
     abort_id,
     client_filters,
+    decode_fault,
     decode_report,
     emergency_stop_id,
     frame_id,
@@ -94,6 +98,25 @@ class Refused(ClientError):
 
 class Timeout(ClientError):
     """No answer in time (no flow control, no SchemaAck, no transition or state)."""
+
+
+class Denied(ClientError):
+    """A keyed node did not answer because it refused tagged messages meanwhile (its
+    Unauthenticated faults): `refused` of them, and `flooded` when some were beyond the checks it
+    makes in a second (200), which a participant sending bad tags causes. Retrying helps only
+    once the flood stops; `candump` shows the source of the tagged frames."""
+
+    def __init__(self, node: int, refused: int, flooded: bool, what: str):
+        self.node = node
+        self.refused = refused
+        self.flooded = flooded
+        if flooded:
+            why = (f"the node refused {refused} tags, more than it checks in a second: someone "
+                   "is flooding it with bad tags (`candump` shows the source of the tagged frames)")
+        else:
+            why = (f"the node refused {refused} tags as wrong: a key that is not the node's, or "
+                   "someone sending it bad tags")
+        super().__init__(f"node {node}: {what}: {why}")
 
 
 class InvalidArgument(ClientError, ValueError):
@@ -199,6 +222,10 @@ class Client:
         self.txid, self.rxid = transfer_ids(node, source)
         #: Report frames of the node that broke their layout (ignored).
         self.malformed = 0
+        # The node's refusals of tagged messages since the current transfer began (its
+        # Unauthenticated faults' counts), and whether its checks for a second ran out.
+        self._refused = 0
+        self._flooded = False
         self._next_id = first_id
         self._id_lock = threading.Lock()
         self._transfer_lock = threading.Lock()
@@ -302,6 +329,19 @@ class Client:
             )
             return
         fid = FrameId.decode(msg.arbitration_id, True)
+        if fid is not None and fid.service == FAULT and fid.source == self.node:
+            try:
+                decoded_fault = decode_fault(msg.arbitration_id, True, bytes(msg.data))
+            except MalformedFrame:
+                self.malformed += 1
+                return
+            fault = decoded_fault[1] if decoded_fault is not None else None
+            if fault is not None and fault.code == FaultCode.Unauthenticated:
+                with self._cond:
+                    self._refused += fault.count
+                    self._flooded |= fault.auth_failure == AuthFailure.RateLimited
+                    self._cond.notify_all()
+            return
         if (fid is not None and fid.service in (CHALLENGE, RECEIPT) and fid.source == self.node
                 and fid.destination == self.source and len(msg.data) == 8
                 and fid.priority == PRIORITY[fid.service]):
@@ -452,6 +492,7 @@ class Client:
             with self._cond:
                 self._acks.clear()
                 self._receipts.clear()
+                self._refused, self._flooded = 0, False
                 if before is not None:
                     before()
             while not self._flow_control.empty():
@@ -474,6 +515,8 @@ class Client:
             ack = self._wait_ack(sid, ack_deadline)
             if ack is not None and nonce is not None:
                 self._confirm(ack, nonce, ack_deadline, what)
+        if ack is None and self._refused:
+            raise Denied(self.node, self._refused, self._flooded, f"{what}: no SchemaAck")
         what = f"node {self.node}: {what}"
         if ack is None:
             if failure is not None:
@@ -500,6 +543,8 @@ class Client:
             while True:
                 if not self._cond.wait_for(lambda: self._challenges,
                                            max(0.0, deadline - time.monotonic())):
+                    if self._refused:
+                        raise Denied(self.node, self._refused, self._flooded, "no Challenge")
                     if unbound:
                         raise Timeout(
                             f"node {self.node}: no Challenge answering this request, and "

@@ -1,6 +1,6 @@
 """The schema server's frames (docs/can-protocol.md, "Schema server"): identifiers, the reports a
-node sends (SchemaAck, SchemaTransition, SchemaState) decoded and checked as the nodes' own
-decoder (`pab_core::protocol`) checks them, and the frames a client sends (EmergencyStop,
+node sends (SchemaAck, SchemaTransition, SchemaState, and its Fault frames) decoded and checked
+as the nodes' own decoder (`pab_core::protocol`) checks them, and the frames a client sends (EmergencyStop,
 SchemaAbort, the SchemaTransfer message: a schema, or on the limits channel the safety bounds).
 
 Every frame of ours has a 29-bit identifier::
@@ -29,6 +29,7 @@ TOOL = 0
 BROADCAST = 0xFF
 
 EMERGENCY_STOP = 0x00
+FAULT = 0x01
 CHALLENGE_REQUEST = 0x13
 CHALLENGE = 0x14
 TRANSFER_OPEN = 0x15
@@ -42,6 +43,7 @@ SCHEMA_STATE = 0x1D
 #: Each service's fixed priority (bits 28..26).
 PRIORITY = {
     EMERGENCY_STOP: 0,
+    FAULT: 0,
     CHALLENGE_REQUEST: 3,
     CHALLENGE: 2,
     TRANSFER_OPEN: 3,
@@ -253,6 +255,87 @@ _SAFETY_TEXT = {
 }
 
 
+class FaultCode(enum.IntEnum):
+    """What a node's Fault frame reports (bytes 0-1). A client reads :attr:`Unauthenticated`
+    (with :class:`AuthFailure` in detail byte 0) to tell a flood of bad tags from a silent node;
+    the others are listed so that every fault of the bus decodes."""
+
+    BadStoredTable = 0x0001
+    TableRefused = 0x0002
+    StoreFailed = 0x0003
+    BusError = 0x0010
+    RxOverrun = 0x0011
+    TxOverrun = 0x0012
+    BusOff = 0x0013
+    BadCommand = 0x0020
+    Unauthenticated = 0x0030
+    KeyPageInvalid = 0x0031
+    ClaimRefused = 0x0040
+    GatesLost = 0x0050
+    GatesRefused = 0x0051
+    DynamicsLate = 0x0052
+    FilterRefused = 0x0060
+    SchemaSafety = 0x0070
+
+    @property
+    def description(self) -> str:
+        return _FAULT_TEXT[self]
+
+
+_FAULT_TEXT = {
+    FaultCode.BadStoredTable: "stored table refused at boot",
+    FaultCode.TableRefused: "pushed table refused",
+    FaultCode.StoreFailed: "table could not be stored",
+    FaultCode.BusError: "bus error",
+    FaultCode.RxOverrun: "receive overrun",
+    FaultCode.TxOverrun: "transmit overrun",
+    FaultCode.BusOff: "bus-off or error-passive",
+    FaultCode.BadCommand: "malformed command",
+    FaultCode.Unauthenticated: "configuration refused: not authenticated",
+    FaultCode.KeyPageInvalid: "key page invalid: configuration locked",
+    FaultCode.ClaimRefused: "BLE claim refused",
+    FaultCode.GatesLost: "dynamics gates lost",
+    FaultCode.GatesRefused: "dynamics gates refused",
+    FaultCode.DynamicsLate: "dynamics steps dropped",
+    FaultCode.FilterRefused: "filter command refused",
+    FaultCode.SchemaSafety: "schema server stopped by a safety event",
+}
+
+
+class AuthFailure(enum.IntEnum):
+    """Why a keyed node refused a tagged message: detail byte 0 of an
+    :attr:`FaultCode.Unauthenticated` fault."""
+
+    Missing = 0x01
+    BadTag = 0x02
+    Stale = 0x03
+    Broadcast = 0x04
+    RateLimited = 0x05
+    Unopened = 0x06
+    NotTool = 0x07
+    Locked = 0x08
+    NoKey = 0x09
+    Sequence = 0x0A
+
+    @property
+    def description(self) -> str:
+        return _AUTH_TEXT[self]
+
+
+_AUTH_TEXT = {
+    AuthFailure.Missing: "no tag, and the node has a key",
+    AuthFailure.BadTag: "wrong tag",
+    AuthFailure.Stale: "no fresh challenge",
+    AuthFailure.Broadcast: "broadcast configuration refused",
+    AuthFailure.RateLimited: "too many tag checks",
+    AuthFailure.Unopened: "transfer not opened",
+    AuthFailure.NotTool: "transfer from a source other than the tool",
+    AuthFailure.Locked: "configuration locked: key page invalid",
+    AuthFailure.NoKey: "tagged message to a node without a key",
+    AuthFailure.Sequence: "consecutive frame out of sequence ignored",
+}
+
+
 def _code(enum_type, code: int, what: str):
     try:
         return enum_type(code)
@@ -413,6 +496,56 @@ class SchemaState:
         )
 
 
+@dataclass(frozen=True)
+class Fault:
+    """A node's fault (service 0x01, node → all, priority 0), at most one per code per 100 ms:
+    `count` says how many times it happened since the last frame with this code."""
+
+    code: FaultCode
+    #: Occurrences since the last frame with this code, 1..255 (saturating).
+    count: int
+    #: Code-specific detail (docs/can-protocol.md, FaultCode); 0 where unused.
+    detail: bytes
+
+    @staticmethod
+    def decode(data: bytes) -> "Fault":
+        data = _length(data, 8, "Fault")
+        return Fault(
+            code=_code(FaultCode, data[0] | data[1] << 8, "Fault code"),
+            count=data[2],
+            detail=data[3:8],
+        )
+
+    def encode(self) -> bytes:
+        if len(self.detail) != 5:
+            raise ValueError(f"a fault's detail is 5 bytes, not {len(self.detail)}")
+        return struct.pack("<HB", int(self.code), self.count) + bytes(self.detail)
+
+    @property
+    def auth_failure(self) -> Optional[AuthFailure]:
+        """Why a tagged message was refused, for an Unauthenticated fault (None for another
+        code, or a reason this client does not know)."""
+        if self.code != FaultCode.Unauthenticated:
+            return None
+        try:
+            return AuthFailure(self.detail[0])
+        except ValueError:
+            return None
+
+
+def decode_fault(
+    arbitration_id: int, is_extended: bool, data: bytes
+) -> Optional["tuple[FrameId, Fault]"]:
+    """A node's Fault frame with its identifier's fields; None for any other frame. Raises
+    :class:`MalformedFrame` for a Fault at another priority or with a broken payload."""
+    fid = FrameId.decode(arbitration_id, is_extended)
+    if fid is None or fid.service != FAULT:
+        return None
+    if fid.priority != PRIORITY[FAULT]:
+        raise MalformedFrame(f"Fault: priority {fid.priority}, not {PRIORITY[FAULT]}")
+    return fid, Fault.decode(data)
+
+
 Report = Union[SchemaAck, SchemaTransition, SchemaState]
 
 _REPORTS = {
@@ -459,8 +592,8 @@ def transfer_ids(node: int, source: int = TOOL) -> "tuple[int, int]":
 def client_filters(node: int) -> "list[dict]":
     """python-can ``can_filters`` that pass what a client of `node` reads, and nothing else:
     the node's flow control for the client's transfers, its reports (SchemaAck,
-    SchemaTransition, SchemaState), and on a node with a key its Challenge and Receipt, whatever
-    their destination.
+    SchemaTransition, SchemaState), its faults (a keyed node says there that it refused tags),
+    and on a node with a key its Challenge and Receipt, whatever their destination.
 
     On SocketCAN the kernel applies them, so a client's process never sees the rest of the bus:
     a plant publishing pose and wrench at 1 kHz would otherwise reach the client's notifier
@@ -474,7 +607,7 @@ def client_filters(node: int) -> "list[dict]":
             "can_mask": PROTOCOL_MASK | 0xFF << 16 | 0xFF,
             "extended": True,
         }
-        for service in (SCHEMA_TRANSFER, CHALLENGE, RECEIPT, *_REPORTS)
+        for service in (SCHEMA_TRANSFER, CHALLENGE, RECEIPT, FAULT, *_REPORTS)
     ]
 
 

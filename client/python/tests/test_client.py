@@ -16,6 +16,7 @@ from pab_client import (
     MAX_SECONDS,
     Client,
     ClientError,
+    Denied,
     InvalidArgument,
     Refused,
     Timeout,
@@ -71,6 +72,8 @@ class FakeNode(threading.Thread):
         self.unbound_challenges = 0
         #: Whether the node answers requests at all (False: only the made-up challenges).
         self.genuine_challenges = True
+        #: A flood of bad tags from someone else: (refused, why) faults instead of challenges.
+        self.refusing: Optional[Tuple[int, p.AuthFailure]] = None
         self.opened: Optional[int] = None  # the nonce of the open the next transfer consumes
         self.forge_receipt = False
         self.silent = False  # no flow control
@@ -141,7 +144,14 @@ class FakeNode(threading.Thread):
         self._send(self.rxid, bytes([0x30, self.block_size, 0]) + b"\xcc" * 5)
 
     def _keyed(self, fid, data: bytes) -> None:
-        if fid.service == p.CHALLENGE_REQUEST and len(data) == 8:
+        if fid.service == p.CHALLENGE_REQUEST and len(data) == 8 and self.refusing:
+            # Its checks for the second used up by someone else's bad tags: refused unchecked,
+            # and said in one fault for them all (a real node folds a 100 ms window's).
+            count, why = self.refusing
+            detail = bytes([why, p.CHALLENGE_REQUEST, fid.source, 0, 0])
+            self._send(p.frame_id(p.FAULT, self.node, p.BROADCAST),
+                       p.Fault(p.FaultCode.Unauthenticated, count, detail).encode())
+        elif fid.service == p.CHALLENGE_REQUEST and len(data) == 8:
             # A new node nonce per request; tags are over the exchange of both nonces.
             self.node_nonce += 1
             self.nonce, binding = auth.exchange(self.key, self.node, int.from_bytes(data, "little"),
@@ -613,6 +623,33 @@ def test_with_the_key_only_made_up_challenges_time_out_and_say_so(keyed_rig):
     with Client(bus, NODE, key=KEY) as client:
         with pytest.raises(Timeout, match="1 that did not"):
             client.install(s.idle(5, 10), timeout=0.3)
+
+
+def test_with_the_key_a_node_refusing_tags_under_a_flood_says_so(keyed_rig):
+    # Someone floods the node with bad tags: it refuses this client's request unchecked, and its
+    # fault says so. The client says the node is flooded, not that it is missing from the bus.
+    bus, node = keyed_rig
+    node.refusing = (37, p.AuthFailure.RateLimited)
+    with Client(bus, NODE, key=KEY) as client:
+        with pytest.raises(Denied, match="refused 37 tags, more than it checks in a second: "
+                                         "someone is flooding") as e:
+            client.install(s.idle(6, 10), timeout=0.3)
+    assert (e.value.refused, e.value.flooded) == (37, True)
+    assert not isinstance(e.value, Timeout)
+
+
+def test_with_the_key_tags_refused_as_wrong_are_named_so(keyed_rig):
+    bus, node = keyed_rig
+    node.refusing = (2, p.AuthFailure.BadTag)
+    with Client(bus, NODE, key=KEY) as client:
+        with pytest.raises(Denied, match="refused 2 tags as wrong") as e:
+            client.install(s.idle(7, 10), timeout=0.3)
+    assert (e.value.refused, e.value.flooded) == (2, False)
+    # The flood over, the next install goes through (refusals count per transfer).
+    node.refusing = None
+    with Client(bus, NODE, key=KEY) as client:
+        assert client.install(s.idle(8, 10)).accepted
+    assert node.errors == []
 
 
 def test_limits_go_on_channel_2_and_a_looser_one_is_refused(rig):

@@ -38,12 +38,20 @@ def test_the_services_the_client_names_have_the_cores_codes_and_priorities():
         code = getattr(p, constant)
         assert code == service["code"], name
         assert p.PRIORITY[code] == service["priority"], name
-    assert named == len(p.PRIORITY) == 10
+    assert named == len(p.PRIORITY) == 11
 
 
 # Each report, a value with every field distinct, and how its attributes read as the layout's
 # raw fields (an optional code is 0xFF when None).
 REPORTS = {
+    "Fault": (
+        p.Fault(p.FaultCode.Unauthenticated, 200, bytes([5, 0x13, 0x7E, 0x11, 0x22])),
+        lambda r: {
+            "code": int(r.code),
+            "count": r.count,
+            **{f"detail{i}": r.detail[i] for i in range(5)},
+        },
+    ),
     "SchemaAck": (
         SchemaAck(SchemaOutcome.QueueFull, SchemaChannel.HighPriority, 0x1234, 7, 45),
         lambda r: {

@@ -42,7 +42,9 @@ CODES = json.loads((pathlib.Path(__file__).parent / "golden_codes.json").read_te
 
 
 @pytest.mark.parametrize(
-    "enum_type", [SchemaOutcome, SchemaSafety, SchemaChannel, SchemaTrigger, SchemaOrigin]
+    "enum_type",
+    [SchemaOutcome, SchemaSafety, SchemaChannel, SchemaTrigger, SchemaOrigin, p.FaultCode,
+     p.AuthFailure],
 )
 def test_codes_names_and_descriptions_are_the_rust_wire_enums(enum_type):
     # golden_codes.json: pab_core::protocol's wire_enum!s, written by lang/tests/client_golden.rs.
@@ -70,6 +72,24 @@ def test_codes_are_the_documents():
     assert SchemaSafety.JointLimit == 7 and SchemaSafety.Speed == 8
     assert [c.name for c in SchemaChannel] == ["Queue", "HighPriority", "Limits"]
     assert SchemaOutcome.QueueFull.description.startswith("queue full")
+
+
+def test_faults_decode_at_priority_0_and_refuse_an_unknown_code():
+    # An Unauthenticated fault of node 10: 3 refusals, rate-limited, of ChallengeRequests.
+    data = bytes([0x30, 0x00, 3, 0x05, 0x13, 0x00, 0, 0])
+    fid, fault = p.decode_fault(p.frame_id(p.FAULT, 10, p.BROADCAST), True, data)
+    assert (fid.source, fid.destination, fid.priority) == (10, 0xFF, 0)
+    assert fault == p.Fault(p.FaultCode.Unauthenticated, 3, bytes([5, 0x13, 0, 0, 0]))
+    assert fault.auth_failure == p.AuthFailure.RateLimited and fault.encode() == data
+    assert p.Fault(p.FaultCode.GatesLost, 1, bytes(5)).auth_failure is None
+    assert p.frame_id(p.FAULT, 3, p.BROADCAST) == 0x0201FF03  # the document's example
+    with pytest.raises(p.MalformedFrame, match="unknown code 0x99"):
+        p.Fault.decode(bytes([0x99, 0, 1, 0, 0, 0, 0, 0]))
+    with pytest.raises(p.MalformedFrame, match="7 bytes"):
+        p.Fault.decode(data[:7])
+    with pytest.raises(p.MalformedFrame, match="priority 2"):
+        p.decode_fault(p.frame_id(p.FAULT, 10, p.BROADCAST) | 2 << 26, True, data)
+    assert p.decode_fault(p.frame_id(p.SCHEMA_ACK, 10, 0), True, data) is None
 
 
 def test_acks_round_trip():
