@@ -34,24 +34,50 @@ pub fn request_stream(bus: &mut dyn Bus, network: &Network, rate_hz: u16) -> std
 }
 
 /// As [`request_stream`], authenticated for nodes with a key: per node a challenge, then the
-/// tagged command. Returns the nodes that sent no challenge (without a key, or off the bus).
+/// tagged command. Returns, for each node that was not asked, why: it sent no challenge (a node
+/// without a key, or off the bus), only challenges that did not verify, or it refused tags
+/// meanwhile (its Unauthenticated faults: someone flooding it with bad tags, as `pabctl push`
+/// says it). Each node's challenge waits up to a second.
 pub fn request_stream_keyed(
     bus: &mut dyn Bus,
     network: &Network,
     rate_hz: u16,
     authenticator: &pab_core::auth::Authenticator,
-) -> std::io::Result<Vec<u8>> {
-    let mut silent = Vec::new();
+) -> std::io::Result<BTreeMap<u8, String>> {
+    use crate::push::{Challenged, Refusals};
+    let mut unasked = BTreeMap::new();
     for node in &network.nodes {
         let control = DiagnosticControl {
             rate_hz,
             ports: u16::MAX,
         };
-        let crate::push::Challenged::Bound(nonce) =
-            crate::push::challenge(bus, authenticator, node.id, Duration::from_secs(1))?
-        else {
-            silent.push(node.id);
-            continue;
+        // The node's refusals are read on the way: a flood of bad tags is said as such.
+        let mut watched = Refusals::new(&mut *bus, node.id);
+        let answer =
+            crate::push::challenge(&mut watched, authenticator, node.id, Duration::from_secs(1))?;
+        let nonce = match (answer, watched.reason()) {
+            (Challenged::Bound(nonce), _) => nonce,
+            (Challenged::Nothing { .. }, Some(why)) => {
+                unasked.insert(node.id, why);
+                continue;
+            }
+            (Challenged::Nothing { unbound: 0 }, None) => {
+                unasked.insert(
+                    node.id,
+                    "no challenge: a node without a key, or off the bus".to_string(),
+                );
+                continue;
+            }
+            (Challenged::Nothing { unbound }, None) => {
+                unasked.insert(
+                    node.id,
+                    format!(
+                        "{unbound} challenge(s) in its name that did not verify: a key that is \
+                         not the node's, another tool, or a participant making them up"
+                    ),
+                );
+                continue;
+            }
         };
         let mut payload = [0u8; 4];
         payload[..2].copy_from_slice(&control.rate_hz.to_le_bytes());
@@ -65,7 +91,7 @@ pub fn request_stream_keyed(
         let message = Message::AuthenticatedDiagnosticControl { control, tag };
         bus.send(&message.to_frame(protocol::TOOL, node.id))?;
     }
-    Ok(silent)
+    Ok(unasked)
 }
 
 /// When each sample arrived, to tell live samples from stale ones.
@@ -100,6 +126,7 @@ pub fn render(
     network: &Network,
     observer: &Observer,
     freshness: &Freshness,
+    unasked: &BTreeMap<u8, String>,
     now: Instant,
 ) -> String {
     let mut out = String::new();
@@ -114,6 +141,9 @@ pub fn render(
             None => "not heard from".to_string(),
         };
         let _ = writeln!(out, "{} (id {})  {}", node.name, node.id, header);
+        if let Some(why) = unasked.get(&node.id) {
+            let _ = writeln!(out, "  ! stream not asked for: {why}");
+        }
         for (number, group) in network.dynamics.iter().enumerate() {
             if network.nodes.get(group.node).map(|n| n.id) != Some(node.id) {
                 continue;
@@ -215,15 +245,16 @@ pub fn run(
     draw: &mut dyn FnMut(&str),
     key: Option<&pab_core::auth::Authenticator>,
 ) -> std::io::Result<Observer> {
-    // Nodes with a key take only the authenticated command (one challenge per node).
+    // Nodes with a key take only the authenticated command (one challenge per node); the screen
+    // says why a node was not asked.
     let request = |bus: &mut dyn Bus, rate_hz: u16| match key {
-        Some(key) => request_stream_keyed(bus, network, rate_hz, key).map(|_| ()),
-        None => request_stream(bus, network, rate_hz),
+        Some(key) => request_stream_keyed(bus, network, rate_hz, key),
+        None => request_stream(bus, network, rate_hz).map(|()| BTreeMap::new()),
     };
     let started = Instant::now();
     let mut observer = Observer::new();
     let mut freshness = Freshness::default();
-    request(bus, rate_hz)?;
+    let mut unasked = request(bus, rate_hz)?;
     let mut last_request = Instant::now();
     let mut next_draw = Instant::now() + redraw;
     loop {
@@ -233,7 +264,7 @@ pub fn run(
         }
         // Nodes that restart come back with the stream off: ask again now and then.
         if now.duration_since(last_request) >= Duration::from_secs(3) {
-            request(bus, rate_hz)?;
+            unasked = request(bus, rate_hz)?;
             last_request = now;
         }
         let wait = next_draw.saturating_duration_since(now);
@@ -244,7 +275,13 @@ pub fn run(
             }
         }
         if Instant::now() >= next_draw {
-            draw(&render(network, &observer, &freshness, Instant::now()));
+            draw(&render(
+                network,
+                &observer,
+                &freshness,
+                &unasked,
+                Instant::now(),
+            ));
             next_draw += redraw;
         }
     }
@@ -278,17 +315,39 @@ mod tests {
     }
 
     #[test]
+    fn a_node_not_asked_for_its_stream_says_why_under_its_name() {
+        let network = door();
+        let node = &network.nodes[0];
+        let why =
+            "the node refused 37 tags, more than it checks in a second: someone is flooding it";
+        let unasked = BTreeMap::from([(node.id, why.to_string())]);
+        let screen = render(
+            &network,
+            &Observer::new(),
+            &Freshness::default(),
+            &unasked,
+            Instant::now(),
+        );
+        let header = format!("{} (id {})  not heard from\n", node.name, node.id);
+        assert!(
+            screen.contains(&format!("{header}  ! stream not asked for: {why}\n")),
+            "{screen}"
+        );
+        assert_eq!(screen.matches("not asked").count(), 1, "{screen}");
+    }
+
+    #[test]
     fn the_owner_of_a_group_shows_its_gates_until_it_falls_silent() {
         let network = door();
         let base = &network.nodes[network.dynamics[0].node];
         let mut observer = Observer::new();
         let freshness = Freshness::default();
         let start = Instant::now();
-        let screen = render(&network, &observer, &freshness, start);
+        let screen = render(&network, &observer, &freshness, &BTreeMap::new(), start);
         assert!(screen.contains("  gates door  (not heard)\n"), "{screen}");
 
         observer.observe(&gates_frame(base.id, 0b010, 2), start);
-        let screen = render(&network, &observer, &freshness, start);
+        let screen = render(&network, &observer, &freshness, &BTreeMap::new(), start);
         assert!(
             screen.contains("  gates door  search -  recognise OPEN  approach -  (2 changes)\n"),
             "{screen}"
@@ -297,7 +356,7 @@ mod tests {
         assert_eq!(screen.matches("gates door").count(), 1, "{screen}");
 
         let later = start + Duration::from_micros(Gates::SILENCE_US);
-        let screen = render(&network, &observer, &freshness, later);
+        let screen = render(&network, &observer, &freshness, &BTreeMap::new(), later);
         assert!(
             screen.contains("  gates door  (silent: read as all closed)\n"),
             "{screen}"

@@ -681,6 +681,45 @@ fn a_keyed_push_under_a_flood_of_bad_tags_says_the_node_refused_them() {
     }
 }
 
+/// The same flood against `pabctl monitor --key`: the node refuses the monitor's challenge
+/// request unchecked, and the monitor says under the node's name that it refused that many tags
+/// because someone floods it, instead of showing connections without samples. Once the flood
+/// stops, the request goes through.
+#[test]
+fn a_keyed_monitor_under_a_flood_of_bad_tags_says_the_node_refused_them() {
+    let (mut network, _) = take_and_return();
+    network.nodes.retain(|node| node.id == 1);
+    let hub = MemoryHub::new();
+    let key = pab_core::auth::Key::from_bytes([7; 16]);
+    let _node = LiveNode::spawn_with(&hub, 1, None, Some(key));
+    let authenticator = pab_core::auth::Authenticator::new(&key);
+    let mut tool = hub.connect();
+    let flood = common::TagFlood::start(&hub, 1);
+    std::thread::sleep(Duration::from_millis(200));
+    // As for the push: a request may land in the window after the node's second resets.
+    let mut notes = Vec::new();
+    for _ in 0..5 {
+        let unasked =
+            monitor::request_stream_keyed(&mut tool, &network, 10, &authenticator).unwrap();
+        if let Some(why) = unasked.get(&1) {
+            notes.push(why.clone());
+            break;
+        }
+    }
+    drop(flood);
+    assert!(!notes.is_empty(), "every request got through the flood");
+    for why in &notes {
+        assert!(
+            why.contains("the node refused") && why.contains("someone is flooding"),
+            "{why}"
+        );
+    }
+    // The node's checks come back with the next second.
+    std::thread::sleep(Duration::from_millis(1_100));
+    let unasked = monitor::request_stream_keyed(&mut tool, &network, 10, &authenticator).unwrap();
+    assert!(unasked.is_empty(), "{unasked:?}");
+}
+
 /// Attack (pre-play): a participant answers the tool's challenge requests first, with challenges
 /// it made up, to harvest the tool's tags over a nonce of its choosing and replay them later.
 /// The tool takes only the Challenge bound to its own request: it tags nothing over the forged
