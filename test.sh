@@ -21,7 +21,9 @@
 # (scripts/keyed-board-test.sh), and the
 # hardware-in-the-loop suite (hil-sim/run-hil: on vcan0, or in a micro-VM; PAB_HIL_ACCEL=
 # auto|kvm|tcg picks its accelerator), whose fresh Take and Return log then goes through the
-# cross-runner test too.
+# cross-runner test too. The lints, the documentation build, the core without dynamics and the
+# benchmarks run in the background from the start (at nice 19, in target/background: they take
+# the time the other steps leave idle); the run waits for them at its end.
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -45,22 +47,49 @@ fi
 step "formatting"
 cargo fmt --all -- --check
 
-step "lints (host and board)"
-# Host crates: the workspace's default members (every crate but the boards; `--workspace` would
-# pull the Cortex-M firmware into a host build).
-cargo clippy --all-targets --locked -- -D warnings
-cargo clippy -p pab-core --target thumbv7em-none-eabihf --locked -- -D warnings
-cargo clippy -p pab-core --features defmt --target thumbv7em-none-eabihf --locked -- -D warnings
-cargo clippy -p pab-storage --target thumbv7em-none-eabihf --locked -- -D warnings
-cargo clippy -p pab-app --target thumbv7em-none-eabihf --locked -- -D warnings
-cargo clippy -p pab-fw-g474 --target thumbv7em-none-eabihf --release --locked -- -D warnings
-cargo clippy -p pab-slcan --target thumbv7em-none-eabihf --locked -- -D warnings
-cargo clippy -p pab-builtins --target thumbv7em-none-eabihf --locked -- -D warnings
-cargo clippy -p pab-fw-an386 --target thumbv7em-none-eabihf --release --locked -- -D warnings
-
-step "documentation (every public item's links resolve)"
-# The host crates' documentation, warnings denied: a broken or ambiguous intra-doc link fails.
-RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --locked --quiet
+step "lints, documentation and the core's other builds: started in the background (nice 19)"
+# They need nothing the other steps make, and the machine idles in places: the micro-VM of the
+# HIL suite keeps about one of the two cores busy, test binaries run one after another. So they
+# run beside the other steps, at the lowest priority (they take only what those leave) and in a
+# target directory of their own (no build lock shared with the steps); the run waits for them at
+# its end and prints their log if one failed. What they are:
+# - scripts/lint.sh: clippy on the host crates (every target) and on the boards' crates for
+#   thumbv7em-none-eabihf, warnings denied; rustdoc with warnings denied (a broken or ambiguous
+#   intra-doc link fails);
+# - the core without competitive dynamics (`--no-default-features`), as a board built without
+#   the runtime would have it: it refuses tables with dynamics instead of running them without
+#   gates;
+# - each benchmark once, in test mode;
+# - the fuzz targets' build (nightly, with the sanitizer): the fuzzing step runs them after the
+#   HIL suite, from this build.
+target="${CARGO_TARGET_DIR:-target}"
+mkdir -p "$target"
+background_log="$target/background-checks.log"
+background_checks() {
+    set -euo pipefail
+    # setsid below made a new session, which the kernel's autogroup scheduling (on by default)
+    # weighs equal to the foreground's whatever the niceness inside it: give the group itself
+    # nice 19 (where there is no autogroup, the process's niceness is what counts).
+    echo 19 > /proc/self/autogroup 2> /dev/null || true
+    local own="$target/background"
+    echo "== scripts/lint.sh"
+    CARGO_TARGET_DIR="$own" scripts/lint.sh
+    echo "== the core without competitive dynamics"
+    CARGO_TARGET_DIR="$own" cargo test -p pab-core --no-default-features --lib --locked
+    echo "== benchmarks, once each in test mode"
+    CARGO_TARGET_DIR="$own" cargo test -p pab-core --benches --locked
+    # The fuzz workspace (fuzz/) has a target directory of its own, which no step shares.
+    echo "== the fuzz targets' build (scripts/fuzz.sh --build-only)"
+    scripts/fuzz.sh --build-only
+}
+# setsid: a process group of its own, so that a failing step stops it too (the EXIT trap).
+export -f background_checks
+export target
+setsid nice -n 19 bash -c background_checks > "$background_log" 2>&1 &
+background=$!
+trap 'kill -- -"$background" 2> /dev/null || true' EXIT
+echo "in the background: scripts/lint.sh, the core without dynamics, the benchmarks, the fuzz" \
+    "targets' build ($background_log)"
 
 step "the book (docs/: mdBook, its links and anchors, the README's)"
 # mdBook, the Rust ecosystem's book tool, built once without its server and file watcher (about
@@ -104,25 +133,12 @@ scripts/cortex-m4-cost.sh --check
 
 step "tests"
 cargo test --locked
-# The core without competitive dynamics (`--no-default-features`), as a board built without the
-# runtime would have it: it refuses tables with dynamics instead of running them without gates.
-cargo test -p pab-core --no-default-features --lib --locked
 # The book's "Your own board" example: the node over stand-ins for a CAN driver, a flash and a
 # watchdog; it checks what the table says happens and exits 1 otherwise.
 cargo run -q -p pab-app --example your_own_board --locked
 
-step "benchmarks, once each in test mode"
-cargo test -p pab-core --benches --locked
-
-step "fuzzing: every target for 15 s (scripts/fuzz.sh, nightly + cargo-fuzz)"
-# `cargo test` above replayed the committed corpus (fuzz/corpus) and any reproducers
-# (fuzz/artifacts) on stable; this runs libFuzzer itself from that corpus, briefly: a crash, a hang
-# (20 s) or running out of memory fails the run. Long campaigns: docs/fuzzing.md.
-scripts/fuzz.sh 15
-
 step "examples"
 cargo build -p pabctl --release --locked
-target="${CARGO_TARGET_DIR:-target}"
 pabctl="$target/release/pabctl"
 out="$target/examples"
 mkdir -p "$out"
@@ -224,6 +240,22 @@ step "hardware-in-the-loop: hil-sim/run-hil"
 # Where the kernel has no vcan (this CI's), the suite runs in a QEMU micro-VM that has one; run-hil
 # says which way it took, and fails the run when a HIL test fails.
 hil-sim/run-hil
+
+step "the background's lints, documentation, core builds and fuzz build (started at the beginning)"
+if ! wait "$background"; then
+    cat "$background_log"
+    echo "the background checks failed (above; log: $background_log)" >&2
+    exit 1
+fi
+trap - EXIT
+grep -E "^== |^lint:|^test result|Finished" "$background_log"
+
+step "fuzzing: every target for 15 s (scripts/fuzz.sh, nightly + cargo-fuzz)"
+# `cargo test` above replayed the committed corpus (fuzz/corpus) and any reproducers
+# (fuzz/artifacts) on stable; this runs libFuzzer itself from that corpus, briefly: a crash, a hang
+# (20 s) or running out of memory fails the run. Long campaigns: docs/fuzzing.md.
+# From the background's build: its build step has nothing left to do.
+scripts/fuzz.sh 15
 
 step "the fresh HIL log of Take and Return through the three runners"
 scripts/cross-runner.sh "${CARGO_TARGET_DIR:-target}/hil/test_phases_a_to_f_end_with_the_object_handed_to_the_person/bus.log"

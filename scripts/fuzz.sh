@@ -3,6 +3,7 @@
 # on the first crash, timeout or out-of-memory:
 #   scripts/fuzz.sh [SECONDS_PER_TARGET] [TARGET...]      (default: 15 s, every target)
 #   FUZZ_JOBS=1 scripts/fuzz.sh ...                       (one target at a time; default 2)
+#   scripts/fuzz.sh --build-only                          (the tools and the build, no run)
 # Installs what it needs: the nightly toolchain (rustup, minimal profile) and cargo-fuzz (`cargo
 # install --locked`, once). Each target starts from its committed corpus (fuzz/corpus/<target>),
 # which it only reads: new inputs go to a scratch copy in target/fuzz-corpus/<target>, so a short
@@ -12,6 +13,11 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+build_only=false
+if [ "${1:-}" = "--build-only" ]; then
+    build_only=true
+    shift
+fi
 seconds="${1:-15}"
 shift || true
 
@@ -21,8 +27,12 @@ if ! cargo +nightly fuzz --version > /dev/null 2>&1; then
 fi
 cargo +nightly fuzz --version
 
-# One build of every target (the sanitizer's instrumented dependencies are shared).
+# One build of every target (the sanitizer's instrumented dependencies are shared). After a
+# --build-only run with the same CARGO_TARGET_DIR, it has nothing left to do.
 cargo +nightly fuzz build
+if "$build_only"; then
+    exit 0
+fi
 
 targets=("$@")
 if [ ${#targets[@]} -eq 0 ]; then
