@@ -23,7 +23,8 @@
 # auto|kvm|tcg picks its accelerator), whose fresh Take and Return log then goes through the
 # cross-runner test too. The lints, the documentation build, the core without dynamics and the
 # benchmarks run in the background from the start (at nice 19, in target/background: they take
-# the time the other steps leave idle); the run waits for them at its end.
+# the time the other steps leave idle), the DBC export and the cross-runner test beside the HIL
+# suite; the run waits for them after the suite.
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -137,8 +138,10 @@ cargo test --locked
 # watchdog; it checks what the table says happens and exits 1 otherwise.
 cargo run -q -p pab-app --example your_own_board --locked
 
-step "examples"
-cargo build -p pabctl --release --locked
+step "examples (and the release builds the HIL suite runs: hil-sim/run-hil --build-only)"
+# pabctl and pab-node in release, the emulated board's firmware and its single-bank test build:
+# built here, where the build has the machine, so that the HIL step below builds nothing.
+hil-sim/run-hil --build-only
 pabctl="$target/release/pabctl"
 out="$target/examples"
 mkdir -p "$out"
@@ -169,33 +172,10 @@ for name in door-dynamics subsumption; do
     echo "examples/$name.toml: drawn as SVG ($out/$name.svg)"
 done
 
-step "DBC export, decoded by cantools"
-# The venv holds the pinned requirements-dev.txt (cantools); creating it needs PyPI once.
-# A missing python3, venv or cantools fails the run: this step is never skipped.
-venv=$(scripts/python-env.sh)
-# Every example's simulated bus (the examples step's --candump), decoded strictly by the command
-# a user types (`python -m cantools decode NET.dbc < bus.log`, no --no-strict), with the claims of
-# the capture listed (--claims-from); a schema server's examples put no frame on the simulated
-# bus, and their databases still load strictly. Then the committed capture of the HIL suite's
-# real bus (heartbeats, table transfers, re-published frames) with Take and Return's database.
-pairs=()
-for network in examples/*.toml; do
-    name=$(basename "$network" .toml)
-    claims=()
-    if [ -s "$out/$name.log" ]; then claims=(--claims-from "$out/$name.log"); fi
-    "$pabctl" dbc "$network" "${claims[@]}" -o "$out/$name.dbc"
-    pairs+=("$out/$name.dbc" "$out/$name.log")
-done
-"$pabctl" dbc examples/take-and-return.toml -o "$out/take-and-return-hil.dbc"
-pairs+=("$out/take-and-return-hil.dbc" host-tools/tests/fixtures/take-and-return-hil.log)
-"$venv/bin/python" host-tools/tests/dbc_strict.py "${pairs[@]}"
-# A schema server's sensor topics, one of each kind of field (the fixture's comment).
-"$pabctl" dbc host-tools/tests/fixtures/sensors.toml -o "$out/sensors.dbc"
-"$venv/bin/python" host-tools/tests/dbc_cantools.py "$out/take-and-return.dbc" \
-    "$out/multi-target-observation.dbc" "$out/door-dynamics.dbc" "$out/tour-guide.dbc" \
-    "$out/assembly.dbc" "$out/sensors.dbc" "$out/value-ports.dbc"
-
 step "hardware-in-the-loop harness, host-side unit tests (hil-sim/unit)"
+# The venv holds the pinned requirements-dev.txt (pytest, python-can, cantools); creating it needs
+# PyPI once. A missing python3, venv or package fails the run: these steps are never skipped.
+venv=$(scripts/python-env.sh)
 # The micro-VM's accelerator decision against stand-ins for QEMU, and the guest kernel's module
 # resolution: no QEMU, no bus.
 "$venv/bin/python" -m pytest hil-sim/unit -q
@@ -205,13 +185,6 @@ step "the schema server's Python client (client/python/tests)"
 # (lang/tests/client_golden.rs checks that file in `cargo test`), its frames, and the client on
 # python-can's virtual bus against a scripted node: no kernel CAN, no QEMU.
 "$venv/bin/python" -m pytest client/python/tests -q
-
-step "identical decisions on every runner: scripts/cross-runner.sh"
-# The same frames (every example's bus, the committed HIL log) through the simulator, the Linux
-# node's application and pab-an386-replay on QEMU's mps2-an386 (Cortex-M4): byte-identical
-# records of every verdict. (The first two also run in `cargo test`.) Installs qemu-system-arm
-# with apt-get if it is missing; never skipped.
-scripts/cross-runner.sh
 
 step "emulated Cortex-M4: the time driver across TIMER0's wraps (pab-an386-timecheck, QEMU)"
 # 400 s of virtual time (-icount) with the clock read without pause around each 100 s wrap.
@@ -235,11 +208,64 @@ step "emulated Cortex-M4 with a key: scripts/keyed-board-test.sh (QEMU)"
 # heartbeat, plain configuration refused, pabctl's keyed push taken, a new boot salt after reset.
 scripts/keyed-board-test.sh
 
-step "hardware-in-the-loop: hil-sim/run-hil"
+step "the DBC export and the cross-runner test: started beside the HIL suite (nice 19)"
+# Both are exact comparisons of outputs (no timing), and the HIL suite's micro-VM leaves about
+# one core idle: they run beside it, at the lowest priority. The HIL suite builds nothing (its
+# builds were made in the examples step), so nothing waits for cargo's build lock. Their log
+# is printed if they fail; the run waits for them after the suite.
+beside_log="$target/beside-hil.log"
+beside_hil() {
+    set -euo pipefail
+    echo 19 > /proc/self/autogroup 2> /dev/null || true
+    echo "== DBC export, decoded by cantools"
+    # Every example's simulated bus (the examples step's --candump), decoded strictly by the command
+    # a user types (`python -m cantools decode NET.dbc < bus.log`, no --no-strict), with the claims of
+    # the capture listed (--claims-from); a schema server's examples put no frame on the simulated
+    # bus, and their databases still load strictly. Then the committed capture of the HIL suite's
+    # real bus (heartbeats, table transfers, re-published frames) with Take and Return's database.
+    pairs=()
+    for network in examples/*.toml; do
+        name=$(basename "$network" .toml)
+        claims=()
+        if [ -s "$out/$name.log" ]; then claims=(--claims-from "$out/$name.log"); fi
+        "$pabctl" dbc "$network" "${claims[@]}" -o "$out/$name.dbc"
+        pairs+=("$out/$name.dbc" "$out/$name.log")
+    done
+    "$pabctl" dbc examples/take-and-return.toml -o "$out/take-and-return-hil.dbc"
+    pairs+=("$out/take-and-return-hil.dbc" host-tools/tests/fixtures/take-and-return-hil.log)
+    "$venv/bin/python" host-tools/tests/dbc_strict.py "${pairs[@]}"
+    # A schema server's sensor topics, one of each kind of field (the fixture's comment).
+    "$pabctl" dbc host-tools/tests/fixtures/sensors.toml -o "$out/sensors.dbc"
+    "$venv/bin/python" host-tools/tests/dbc_cantools.py "$out/take-and-return.dbc" \
+        "$out/multi-target-observation.dbc" "$out/door-dynamics.dbc" "$out/tour-guide.dbc" \
+        "$out/assembly.dbc" "$out/sensors.dbc" "$out/value-ports.dbc"
+    echo "== identical decisions on every runner: scripts/cross-runner.sh"
+    # The same frames (every example's bus, the committed HIL log) through the simulator, the Linux
+    # node's application and pab-an386-replay on QEMU's mps2-an386 (Cortex-M4): byte-identical
+    # records of every verdict. (The first two also run in `cargo test`.) Installs qemu-system-arm
+    # with apt-get if it is missing; never skipped.
+    scripts/cross-runner.sh
+}
+export -f beside_hil
+export venv pabctl out
+setsid nice -n 19 bash -c beside_hil > "$beside_log" 2>&1 &
+beside=$!
+trap 'kill -- -"$background" -"$beside" 2> /dev/null || true' EXIT
+echo "beside the HIL suite: the DBC export decoded by cantools, scripts/cross-runner.sh ($beside_log)"
+
+step "hardware-in-the-loop: hil-sim/run-hil --no-build"
 # pab-node processes on a SocketCAN vcan0, the Take and Return behaviours and world in python-can.
 # Where the kernel has no vcan (this CI's), the suite runs in a QEMU micro-VM that has one; run-hil
 # says which way it took, and fails the run when a HIL test fails.
-hil-sim/run-hil
+hil-sim/run-hil --no-build
+
+step "the DBC export and the cross-runner test (started beside the HIL suite)"
+if ! wait "$beside"; then
+    cat "$beside_log"
+    echo "the DBC export or the cross-runner test failed (above; log: $beside_log)" >&2
+    exit 1
+fi
+cat "$beside_log"
 
 step "the background's lints, documentation, core builds and fuzz build (started at the beginning)"
 if ! wait "$background"; then
