@@ -106,11 +106,14 @@ struct Stats {
     timed_out: usize,
     liveness: usize,
     stop_in_transfer: usize,
+    /// Attractor frames checked against the pose held while stopped.
+    held: usize,
 }
 
 /// What the script of `data` reached: a schema accepted, a receipt, an emergency stop handled,
 /// a stop left through the high-priority channel, limits set, a message refused as
-/// unauthenticated, too long or timed out, a liveness check, a stop in the middle of a transfer.
+/// unauthenticated, too long or timed out, a liveness check, a stop in the middle of a transfer,
+/// an attractor held while stopped.
 pub fn features(data: &[u8]) -> std::collections::BTreeSet<&'static str> {
     let stats = run(&mut Unstructured::new(data)).unwrap_or_default();
     [
@@ -124,6 +127,7 @@ pub fn features(data: &[u8]) -> std::collections::BTreeSet<&'static str> {
         ("timed out", stats.timed_out),
         ("liveness", stats.liveness),
         ("stop in transfer", stats.stop_in_transfer),
+        ("attractor held", stats.held),
     ]
     .into_iter()
     .filter(|&(_, count)| count > 0)
@@ -667,6 +671,7 @@ impl World {
                     expected,
                     "the attractor moved while stopped (held {hold:?})"
                 );
+                self.stats.held += 1;
             }
         }
         for &(half, values) in &attractors {
@@ -1264,6 +1269,7 @@ mod tests {
             "too long",
             "liveness",
             "stop in transfer",
+            "attractor held",
         ] {
             assert!(
                 reached.contains(feature),
