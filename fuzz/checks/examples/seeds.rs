@@ -14,7 +14,9 @@
 //! step, a change sent, a backlog dropped, a loss, a refused count, ...), then the ones reaching
 //! the most up to 20. The `node_keyed` target's the same way, up to 6
 //! (`pab_fuzz_checks::node_keyed::features`: a challenge, a command or an open taken, a table
-//! swapped in, a receipt, the budget used up).
+//! swapped in, a receipt, the budget used up), and the `node_schema` target's, up to 8
+//! (`pab_fuzz_checks::node_schema::features`: a schema accepted, a receipt, a stop handled and
+//! left, limits set, refusals, a liveness check, a stop in the middle of a transfer).
 
 use std::collections::BTreeSet;
 use std::path::Path;
@@ -113,6 +115,15 @@ fn main() {
             0x4E7E_5EED_0000_0001,
             pab_fuzz_checks::node_keyed::features,
             6,
+        );
+    }
+    if wanted("node_schema") {
+        script_seeds(
+            &write,
+            "node_schema",
+            0x5C4E_5EED_0000_0001,
+            pab_fuzz_checks::node_schema::features,
+            8,
         );
     }
 }

@@ -75,7 +75,7 @@ pub fn examples() -> &'static Examples {
 
 /// Node `index` of `network`'s image, compiled with node id `id` (a node that had `id` takes
 /// its old one).
-fn image_as(network: &Network, index: usize, id: u8) -> Vec<u8> {
+pub(crate) fn image_as(network: &Network, index: usize, id: u8) -> Vec<u8> {
     let mut network = network.clone();
     let old = network.nodes[index].id;
     for node in network.nodes.iter_mut() {

@@ -21,6 +21,7 @@ pub mod isotp_tx;
 pub mod network;
 pub mod node;
 pub mod node_keyed;
+pub mod node_schema;
 pub mod protocol;
 pub mod schema;
 
@@ -94,6 +95,10 @@ pub const TARGETS: &[Target] = &[
     Target {
         name: "node_keyed",
         check: node_keyed::check,
+    },
+    Target {
+        name: "node_schema",
+        check: node_schema::check,
     },
 ];
 

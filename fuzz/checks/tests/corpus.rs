@@ -72,7 +72,8 @@ fn every_target_has_a_replay_test() {
             "intention",
             "schema",
             "aes_cmac",
-            "node_keyed"
+            "node_keyed",
+            "node_schema"
         ]
     );
 }
@@ -145,4 +146,9 @@ fn aes_cmac() {
 #[test]
 fn node_keyed() {
     replay("node_keyed");
+}
+
+#[test]
+fn node_schema() {
+    replay("node_schema");
 }
