@@ -30,5 +30,8 @@ target="${CARGO_TARGET_DIR:-target}"
 export PAB_AN386_REPLAY
 PAB_AN386_REPLAY=$(realpath "$target/thumbv7em-none-eabihf/firmware/pab-an386-replay")
 started=$(date +%s)
-cargo test --locked -p pabctl --test integration cross_runner:: -- --ignored --nocapture
+# The workspace's integration binaries (only pabctl's has the test): built with the workspace's
+# features, as `cargo test` builds them; `-p pabctl` alone resolves other features and rebuilds
+# some thirty crates first.
+cargo test --locked --test integration cross_runner:: -- --ignored --nocapture
 echo "cross-runner: simulator, node application and board agree ($(( $(date +%s) - started )) s)"

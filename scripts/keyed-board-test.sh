@@ -16,4 +16,7 @@ cargo build -q --locked --profile firmware -p pab-fw-an386 --target thumbv7em-no
 target="${CARGO_TARGET_DIR:-target}"
 export PAB_AN386_ELF
 PAB_AN386_ELF=$(realpath "$target/thumbv7em-none-eabihf/firmware/pab-fw-an386")
-cargo test --locked -p pabctl --test integration keyed_board:: -- --ignored --nocapture
+# The workspace's integration binaries (only pabctl's has the test): built with the workspace's
+# features, as `cargo test` builds them; `-p pabctl` alone resolves other features and rebuilds
+# some thirty crates first.
+cargo test --locked --test integration keyed_board:: -- --ignored --nocapture
