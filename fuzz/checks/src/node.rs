@@ -172,6 +172,34 @@ fn shadow_of(bytes: &[u8]) -> Shadow {
     Arbiter::new(loaded.table).expect("a loaded table builds an arbiter")
 }
 
+/// The names of the counts that are not zero: what a script reached, for choosing seeds
+/// (`examples/seeds.rs`).
+pub(crate) fn reached<const N: usize>(
+    counts: [(&'static str, usize); N],
+) -> std::collections::BTreeSet<&'static str> {
+    counts
+        .into_iter()
+        .filter(|&(_, count)| count > 0)
+        .map(|(name, _)| name)
+        .collect()
+}
+
+/// A frame of ours that a node under check sent (`kind` is its `protocol::classify`), held to what
+/// every node target asks of them: a BLE claim well formed and under [`NODE_ID`] (`None`), any
+/// other frame decoded and from [`NODE_ID`]. Panics, the fuzzer's failure, otherwise.
+pub(crate) fn sent_by_node(frame: &Frame, kind: FrameKind) -> Option<(FrameId, Message)> {
+    if kind == FrameKind::Claim {
+        let claim = pab_core::ble::Claim::decode(frame)
+            .unwrap_or_else(|error| panic!("the node sent {frame:?}: {error:?}"));
+        assert_eq!(claim.node, NODE_ID, "a claim under another node's id");
+        return None;
+    }
+    let (id, message) =
+        Message::decode(frame).unwrap_or_else(|error| panic!("the node sent {frame:?}: {error}"));
+    assert_eq!(id.source, NODE_ID, "the node sent {frame:?}");
+    Some((id, message))
+}
+
 impl World {
     fn at(&self) -> Instant {
         Instant::from_micros(self.now)
@@ -184,16 +212,10 @@ impl World {
             if !kind.is_ours() {
                 continue; // a gateway port's re-publication
             }
-            if kind == FrameKind::Claim {
-                // A BLE claim of a table with groups: well formed, and this node's.
-                let claim = pab_core::ble::Claim::decode(&frame)
-                    .unwrap_or_else(|error| panic!("the node sent {frame:?}: {error:?}"));
-                assert_eq!(claim.node, NODE_ID, "a claim under another node's id");
+            // A BLE claim of a table with groups: well formed, and this node's.
+            let Some((id, message)) = sent_by_node(&frame, kind) else {
                 continue;
-            }
-            let (id, message) = Message::decode(&frame)
-                .unwrap_or_else(|error| panic!("the node sent {frame:?}: {error}"));
-            assert_eq!(id.source, NODE_ID);
+            };
             match message {
                 Message::TransferStatus(status) => self.statuses.push((id.destination, status)),
                 Message::TableTransfer { data, len } => {

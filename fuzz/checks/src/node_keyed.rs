@@ -46,10 +46,10 @@ use arbitrary::{Result, Unstructured};
 use pab_app::{AuthProbe, Config, Node, Recipient, Step, TAG_CHECKS_PER_SECOND};
 use pab_core::auth::{Authenticator, Key, NODE_NONCE_MAX};
 use pab_core::isotp::{Sender, TxConfig, TxEvent};
-use pab_core::protocol::{self, DiagnosticControl, FrameKind, Message, OPEN_REPLACE, TransferOpen};
+use pab_core::protocol::{self, DiagnosticControl, Message, OPEN_REPLACE, TransferOpen};
 use pab_core::{BOARD_CONNECTIONS, BOARD_DECISION_NODES, BOARD_PORTS, Frame, Instant};
 
-use crate::node::{NODE_ID, any_id, mutated_image, payload, protocol_frame};
+use crate::node::{NODE_ID, any_id, mutated_image, payload, protocol_frame, reached, sent_by_node};
 
 const IMG: usize = 8192;
 type TestNode = Node<BOARD_PORTS, BOARD_CONNECTIONS, BOARD_DECISION_NODES, IMG>;
@@ -79,18 +79,14 @@ struct Stats {
 /// table swapped in, a receipt, the budget used up (for choosing seeds: `examples/seeds.rs`).
 pub fn features(data: &[u8]) -> std::collections::BTreeSet<&'static str> {
     let stats = run(&mut Unstructured::new(data)).unwrap_or_default();
-    [
+    reached([
         ("challenge", stats.challenges),
         ("command taken", stats.commands_taken),
         ("open taken", stats.opens_taken),
         ("table swapped", stats.swaps),
         ("receipt", stats.receipts),
         ("budget full", stats.budget_full),
-    ]
-    .into_iter()
-    .filter(|&(_, count)| count > 0)
-    .map(|(name, _)| name)
-    .collect()
+    ])
 }
 
 fn run(u: &mut Unstructured<'_>) -> Result<Stats> {
@@ -247,15 +243,9 @@ impl World {
             if !kind.is_ours() {
                 continue; // a gateway port's re-publication
             }
-            if kind == FrameKind::Claim {
-                let claim = pab_core::ble::Claim::decode(&frame)
-                    .unwrap_or_else(|error| panic!("the node sent {frame:?}: {error:?}"));
-                assert_eq!(claim.node, NODE_ID, "a claim under another node's id");
+            let Some((id, message)) = sent_by_node(&frame, kind) else {
                 continue;
-            }
-            let (id, message) = Message::decode(&frame)
-                .unwrap_or_else(|error| panic!("the node sent {frame:?}: {error}"));
-            assert_eq!(id.source, NODE_ID, "the node sent {frame:?}");
+            };
             match message {
                 Message::Challenge {
                     node_nonce,

@@ -60,7 +60,7 @@ use pab_core::auth::{Authenticator, Key};
 use pab_core::isotp::pci::{self, Pci};
 use pab_core::isotp::{Sender, TxConfig, TxEvent};
 use pab_core::protocol::{
-    self, FrameKind, Message, OPEN_SCHEMA, SchemaAck, SchemaChannel, SchemaOutcome, SchemaSafety,
+    self, Message, OPEN_SCHEMA, SchemaAck, SchemaChannel, SchemaOutcome, SchemaSafety,
     SchemaTrigger, TransferOpen,
 };
 use pab_core::schema::{
@@ -71,7 +71,7 @@ use pab_core::{BOARD_CONNECTIONS, BOARD_DECISION_NODES, BOARD_PORTS, Frame, Inst
 use pab_lang::diagnostic::Source;
 use pab_lang::network::Network;
 
-use crate::node::{NODE_ID, any_id, payload, protocol_frame};
+use crate::node::{NODE_ID, any_id, payload, protocol_frame, reached, sent_by_node};
 
 const IMG: usize = 8192;
 type TestNode = Node<BOARD_PORTS, BOARD_CONNECTIONS, BOARD_DECISION_NODES, IMG>;
@@ -116,7 +116,7 @@ struct Stats {
 /// an attractor held while stopped.
 pub fn features(data: &[u8]) -> std::collections::BTreeSet<&'static str> {
     let stats = run(&mut Unstructured::new(data)).unwrap_or_default();
-    [
+    reached([
         ("accepted", stats.accepted),
         ("receipt", stats.receipts),
         ("stop", stats.stops),
@@ -128,11 +128,7 @@ pub fn features(data: &[u8]) -> std::collections::BTreeSet<&'static str> {
         ("liveness", stats.liveness),
         ("stop in transfer", stats.stop_in_transfer),
         ("attractor held", stats.held),
-    ]
-    .into_iter()
-    .filter(|&(_, count)| count > 0)
-    .map(|(name, _)| name)
-    .collect()
+    ])
 }
 
 fn run(u: &mut Unstructured<'_>) -> Result<Stats> {
@@ -408,15 +404,9 @@ impl World {
                 }
                 continue;
             }
-            if kind == FrameKind::Claim {
-                let claim = pab_core::ble::Claim::decode(&sent)
-                    .unwrap_or_else(|error| panic!("the node sent {sent:?}: {error:?}"));
-                assert_eq!(claim.node, NODE_ID, "a claim under another node's id");
+            let Some((id, message)) = sent_by_node(&sent, kind) else {
                 continue;
-            }
-            let (id, message) = Message::decode(&sent)
-                .unwrap_or_else(|error| panic!("the node sent {sent:?}: {error}"));
-            assert_eq!(id.source, NODE_ID, "the node sent {sent:?}");
+            };
             match message {
                 Message::SchemaAck(ack) => {
                     let mut bytes = [0u8; 8];
