@@ -3,7 +3,8 @@
 # `firmware` profile's ELFs, pab-fw-g474 and pab-fw-an386; built here if needed) and fails when a
 # panic entry point is called or branched to from code of pab_core, pab_app, pab_storage or
 # pab_slcan.
-#   scripts/panic-check.sh            # build both firmwares (cargo skips them when up to date), check
+#   scripts/panic-check.sh            # build both firmwares with their panic locations, in
+#                                     # target/panic-check (cargo skips them when up to date), check
 #   scripts/panic-check.sh ELF...     # check these ELFs
 #
 # How call sites are attributed (scripts/panic_check.py does it, and its header has the details):
@@ -41,9 +42,19 @@ fi
 scripts/need.sh python3 arm-none-eabi-addr2line=binutils-arm-none-eabi
 
 if [ $# -eq 0 ]; then
-    target="${CARGO_TARGET_DIR:-target}"
-    cargo build -q --locked -p pab-fw-g474 --profile firmware --target thumbv7em-none-eabihf
-    cargo build -q --locked -p pab-fw-an386 --profile firmware --target thumbv7em-none-eabihf --bin pab-fw-an386
+    # The firmware built with its panic locations (PAB_PANIC_LOCATION=1, the boards' build.rs),
+    # in a target directory of its own so that the flashed build (without them) is not rebuilt.
+    # Without locations, every call of one panic entry point passes the same arguments, and
+    # LLVM merges the calls of several sites into one block whose debug information names one of
+    # them or none: a site of a board crate then reads as the node loop's, and a site of ours
+    # could read as a library's. With them, each site keeps its own call; the panic paths are
+    # otherwise the same code.
+    target="${CARGO_TARGET_DIR:-target}/panic-check"
+    export PAB_PANIC_LOCATION=1
+    CARGO_TARGET_DIR="$target" cargo build -q --locked -p pab-fw-g474 --profile firmware \
+        --target thumbv7em-none-eabihf
+    CARGO_TARGET_DIR="$target" cargo build -q --locked -p pab-fw-an386 --profile firmware \
+        --target thumbv7em-none-eabihf --bin pab-fw-an386
     set -- "$target/thumbv7em-none-eabihf/firmware/pab-fw-g474" \
         "$target/thumbv7em-none-eabihf/firmware/pab-fw-an386"
 fi

@@ -49,6 +49,8 @@ pub const RECEIPT_TAG_LEN: usize = 8;
 pub const NODE_NONCE_LEN: usize = 6;
 /// Length of a Challenge's binding to the request it answers.
 pub const BINDING_LEN: usize = 2;
+/// Length of a seal's tag ([`crate::seal`]).
+pub const SEAL_TAG_LEN: usize = 4;
 /// The largest node nonce (48 bits).
 pub const NODE_NONCE_MAX: u64 = (1 << (8 * NODE_NONCE_LEN)) - 1;
 
@@ -68,6 +70,8 @@ pub enum Domain {
     Exchange = 0x05,
     /// A node nonce, from the boot salt and the challenge counter.
     NodeNonce = 0x06,
+    /// A coordination frame's seal ([`crate::seal`]).
+    Seal = 0x07,
 }
 
 /// What the node's Challenge and both ends derive from the tool's nonce and the node's: the
@@ -346,6 +350,40 @@ impl Authenticator {
             &running_crc.to_le_bytes(),
             &[u8::from(stored)],
         ])
+    }
+
+    /// The tag of a seal ([`crate::seal`]): the first 4 bytes of CMAC(Seal, sender, the sealed
+    /// frame's identifier u32 LE, its length, its payload, freshness u64 LE). The freshness is
+    /// the sender's (epoch << 32 | counter) for a coordination frame, the requester's nonce for
+    /// a Freshness answer. One CMAC of two AES blocks (a payload of up to 8 bytes).
+    pub fn seal_tag(
+        &self,
+        sender: u8,
+        raw_id: u32,
+        payload: &[u8],
+        freshness: u64,
+    ) -> [u8; SEAL_TAG_LEN] {
+        // At most 8 bytes: the length always fits.
+        let len = u8::try_from(payload.len()).unwrap_or(u8::MAX);
+        self.truncated(&[
+            &[Domain::Seal as u8, sender],
+            &raw_id.to_le_bytes(),
+            &[len],
+            payload,
+            &freshness.to_le_bytes(),
+        ])
+    }
+
+    /// Whether `tag` is [`Authenticator::seal_tag`] of these fields.
+    pub fn verify_seal(
+        &self,
+        sender: u8,
+        raw_id: u32,
+        payload: &[u8],
+        freshness: u64,
+        tag: &[u8],
+    ) -> bool {
+        same(&self.seal_tag(sender, raw_id, payload, freshness), tag)
     }
 
     /// Whether `tag` is [`Authenticator::receipt_tag`] of these fields.

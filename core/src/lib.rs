@@ -61,6 +61,7 @@ pub mod level;
 pub mod protocol;
 #[cfg(feature = "schema")]
 pub mod schema;
+pub mod seal;
 pub mod table;
 pub mod time;
 pub mod value_port;

@@ -19,6 +19,7 @@ mod image_corruption;
 mod integrator_reference;
 mod isotp;
 mod schema_server;
+mod seal;
 mod swap;
 mod value_ports;
 mod wire;

@@ -93,7 +93,10 @@ impl Observer {
             | Message::ChallengeRequest { .. }
             | Message::Challenge { .. }
             | Message::TransferOpen(_)
-            | Message::Receipt { .. } => {}
+            | Message::Receipt { .. }
+            | Message::Seal(_)
+            | Message::FreshnessRequest { .. }
+            | Message::Freshness { .. } => {}
         }
         Some((id, message))
     }

@@ -29,8 +29,8 @@
 //! [`build`] adds the messages in a fixed order, each kind from its own file in `dbc/`: the
 //! protocol's frames of every node (`protocol.rs`, with the services' layouts in
 //! `services.rs`), a schema server's drive, sensors and stops (`schema.rs`), BLE claims
-//! (`claims.rs`), ISO-TP transfers (`transfers.rs`) and the topics and re-published ports
-//! (`topics.rs`); `render.rs` writes the text.
+//! (`claims.rs`), ISO-TP transfers (`transfers.rs`), sealed coordination (`sealing.rs`) and the
+//! topics and re-published ports (`topics.rs`); `render.rs` writes the text.
 
 use std::collections::HashSet;
 use std::fmt::Write as _;
@@ -46,6 +46,7 @@ mod claims;
 mod protocol;
 mod render;
 mod schema;
+mod sealing;
 mod services;
 mod topics;
 mod transfers;
@@ -277,6 +278,7 @@ pub fn build(network: &Network, claims: &[Claim]) -> Result<Dbc, Diagnostics> {
         &mut names,
     );
     protocol::authentication(network, &nodes, &mut messages, &mut names);
+    sealing::sealing(network, &nodes, &mut messages, &mut names);
     let errors = topics::topic_messages(network, &nodes, sensor_ids, &mut messages, &mut names);
     if !errors.is_empty() {
         return Err(Diagnostics(errors));

@@ -83,9 +83,10 @@ wire_enum! {
         BusOff = 0x0013, "bus-off or error-passive";
         /// A frame of our protocol addressed to this node was malformed. Detail byte 0: its service.
         BadCommand = 0x0020, "malformed command";
-        /// A configuration message was refused by the authentication rules (the running table
-        /// and settings are unchanged). Detail byte 0: the [`AuthFailure`]; byte 1: the service
-        /// code of the refused frame; byte 2: its source.
+        /// A configuration message or, on a keyed node, a coordination frame was refused by the
+        /// authentication rules (the running table and settings are unchanged). Detail byte 0:
+        /// the [`AuthFailure`]; byte 1: the service code of the refused frame (0x80: a BLE
+        /// claim); byte 2: its source.
         Unauthenticated = 0x0030, "configuration refused: not authenticated";
         /// The board's key page holds something that is neither erased nor a valid key record:
         /// the node fails closed and accepts no configuration. Detail byte 0: why (1 truncated,
@@ -203,6 +204,16 @@ wire_enum! {
         NoKey = 0x09, "tagged message to a node without a key";
         /// A consecutive frame out of sequence during an opened transfer: ignored.
         Sequence = 0x0A, "consecutive frame out of sequence ignored";
+        /// A coordination frame (Gates, BLE claim, filter command) whose seal does not verify
+        /// on a keyed node: forged, replayed (its freshness not above the last accepted from
+        /// that sender), or sealed under another key. Not applied.
+        BadSeal = 0x0B, "coordination frame whose seal does not verify";
+        /// A coordination frame on a keyed node that no seal followed (within 1 s, or before
+        /// room was needed for others): not applied.
+        Unsealed = 0x0C, "coordination frame without its seal";
+        /// A seal from a sender whose freshness the keyed node does not know yet (its first, or
+        /// the first after the sender restarted): not applied; the node asked the sender.
+        Unsynced = 0x0D, "seal from a sender not synchronised yet";
     }
 }
 

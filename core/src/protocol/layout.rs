@@ -57,6 +57,8 @@ pub enum Values {
     SchemaOrigin,
     /// An edge: 0 stopped delivering, 1 started delivering.
     Edge,
+    /// What a [`Seal`](super::Seal) seals: a service code, or 0x80 for a BLE claim.
+    SealKind,
 }
 
 impl Values {
@@ -138,6 +140,15 @@ impl Values {
             Values::Edge => [(0, "stopped delivering"), (1, "started delivering")]
                 .get(index)
                 .copied(),
+            Values::SealKind => [
+                (0x07, "Gates"),
+                (0x17, "FilterProfile"),
+                (0x18, "FilterSet"),
+                (0x20, "Freshness"),
+                (0x80, "BLE claim"),
+            ]
+            .get(index)
+            .copied(),
         }
     }
 
@@ -357,6 +368,9 @@ pub const fn layout(service: Service) -> &'static Layout {
         Service::SchemaAck => &m::SchemaAck::LAYOUT,
         Service::SchemaTransition => &m::SchemaTransition::LAYOUT,
         Service::SchemaState => &m::SchemaState::LAYOUT,
+        Service::Seal => &m::Seal::LAYOUT,
+        Service::FreshnessRequest => &m::FRESHNESS_REQUEST_LAYOUT,
+        Service::Freshness => &m::FRESHNESS_LAYOUT,
     }
 }
 

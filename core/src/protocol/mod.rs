@@ -40,8 +40,8 @@ pub use messages::DecodeError;
 pub use messages::{
     DesireFrame, DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Exploitation, Fault,
     FilterProfile, FilterSet, FilterStatus, Gates, Heartbeat, Intention, Message, OPEN_REPLACE,
-    OPEN_SCHEMA, SchemaAck, SchemaState, SchemaTransition, TableStatus, Traffic, TransferOpen,
-    TransferStatus,
+    OPEN_SCHEMA, SchemaAck, SchemaState, SchemaTransition, Seal, TableStatus, Traffic,
+    TransferOpen, TransferStatus,
 };
 
 use embedded_can::{ExtendedId, Id};
@@ -160,11 +160,18 @@ pub enum Service {
     SchemaTransition = 0x1C,
     /// Node → all: the schema server's state, every 100 ms ([`SchemaState`]).
     SchemaState = 0x1D,
+    /// Keyed node → the sealed frame's destination: authenticates the coordination frame it
+    /// sent just before ([`Seal`], [`crate::seal`]).
+    Seal = 0x1E,
+    /// Keyed node → a sender: asks where the sender's freshness stands, with a nonce.
+    FreshnessRequest = 0x1F,
+    /// Keyed node → the requester: its epoch and counter, sealed over the request's nonce.
+    Freshness = 0x20,
 }
 
 impl Service {
     /// Every service, for tables (DBC export, documentation tests).
-    pub const ALL: [Service; 26] = [
+    pub const ALL: [Service; 29] = [
         Service::EmergencyStop,
         Service::Fault,
         Service::Heartbeat,
@@ -191,6 +198,9 @@ impl Service {
         Service::SchemaAck,
         Service::SchemaTransition,
         Service::SchemaState,
+        Service::Seal,
+        Service::FreshnessRequest,
+        Service::Freshness,
     ];
 
     /// The service with this code. A match, not a search of [`Service::ALL`]: the codes are two
@@ -224,6 +234,9 @@ impl Service {
             0x1B => Service::SchemaAck,
             0x1C => Service::SchemaTransition,
             0x1D => Service::SchemaState,
+            0x1E => Service::Seal,
+            0x1F => Service::FreshnessRequest,
+            0x20 => Service::Freshness,
             _ => return None,
         })
     }
@@ -260,10 +273,14 @@ impl Service {
             | Service::TableStatus
             | Service::Desire
             | Service::Intention
-            | Service::FilterStatus => Priority::NOMINAL,
-            Service::Traffic | Service::Errors | Service::Exploitation | Service::SchemaState => {
-                Priority::LOW
-            }
+            | Service::FilterStatus
+            | Service::FreshnessRequest
+            | Service::Freshness => Priority::NOMINAL,
+            Service::Traffic
+            | Service::Errors
+            | Service::Exploitation
+            | Service::SchemaState
+            | Service::Seal => Priority::LOW,
             Service::TableTransfer => Priority::BULK,
             Service::Diagnostic => Priority::OPTIONAL,
         }

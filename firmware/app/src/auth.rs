@@ -10,9 +10,10 @@
 //! [`TAG_CHECKS_PER_SECOND`] tags are checked and new challenges made per second (each costs
 //! CMACs); beyond, requests and messages are refused unchecked.
 
-use pab_core::Instant;
 use pab_core::auth::{self, Authenticator, Key};
-use pab_core::protocol::{AuthFailure, TransferOpen};
+use pab_core::protocol::{AuthFailure, Seal, TransferOpen};
+use pab_core::seal::{Refusal, Sealer, Verdict, Verifier};
+use pab_core::{Frame, Instant};
 
 /// How long a challenge stays valid.
 pub const CHALLENGE_LIFETIME_US: u64 = 1_000_000;
@@ -53,6 +54,10 @@ pub(crate) struct Guard {
     challenge: Option<Challenge>,
     window_start: Instant,
     checks_in_window: u16,
+    /// Sealed coordination ([`pab_core::seal`]), on a keyed node: its own seals' counter (its
+    /// epoch is the boot salt) and what it knows of the senders it hears.
+    sealer: Sealer,
+    verifier: Verifier,
 }
 
 impl Guard {
@@ -64,6 +69,8 @@ impl Guard {
             challenge: None,
             window_start: now,
             checks_in_window: 0,
+            sealer: Sealer::new(0),
+            verifier: Verifier::new(),
         }
     }
 
@@ -72,6 +79,8 @@ impl Guard {
         self.boot_salt = boot_salt;
         self.counter = 0;
         self.challenge = None;
+        self.sealer = Sealer::new(boot_salt);
+        self.verifier = Verifier::new();
     }
 
     pub(crate) fn lock(&mut self, reason: u8) {
@@ -245,6 +254,74 @@ impl Guard {
                 authenticator.receipt_tag(node, nonce, status, running_crc, stored)
             }
             _ => [0; auth::RECEIPT_TAG_LEN],
+        }
+    }
+
+    /// The seal to send after `frame` (a Gates frame, a claim: `kind`, to all) on a keyed node;
+    /// `None` on another, or once its counter is exhausted. One CMAC.
+    pub(crate) fn seal(&mut self, node: u8, frame: &Frame, kind: u8) -> Option<Frame> {
+        match &self.keying {
+            Keying::Keyed(authenticator) => self.sealer.seal_as(
+                authenticator,
+                node,
+                frame,
+                kind,
+                pab_core::protocol::BROADCAST,
+            ),
+            _ => None,
+        }
+    }
+
+    /// The answer to a freshness request with `nonce` from `requester`: the Freshness frame
+    /// and its seal. One check of the budget (a CMAC).
+    pub(crate) fn answer_freshness(
+        &mut self,
+        node: u8,
+        requester: u8,
+        nonce: u64,
+        now: Instant,
+    ) -> Result<[Frame; 2], AuthFailure> {
+        self.authenticator()?;
+        self.spend(now)?;
+        self.sealer
+            .answer(self.authenticator()?, node, requester, nonce)
+            .ok_or(AuthFailure::Stale)
+    }
+
+    /// Holds a coordination frame from `source` for its seal: how many frames left the hold
+    /// unsealed, and the last of them.
+    pub(crate) fn hold(
+        &mut self,
+        source: u8,
+        kind: u8,
+        frame: &Frame,
+        now: Instant,
+    ) -> (usize, Option<Refusal>) {
+        self.verifier.hold(source, kind, frame, now)
+    }
+
+    /// A seal from `source`: what it does, and a freshness request to send, if any. A locked
+    /// node refuses every seal it could match.
+    pub(crate) fn on_seal(
+        &mut self,
+        node: u8,
+        source: u8,
+        seal: &Seal,
+        now: Instant,
+    ) -> (Verdict, Option<Frame>) {
+        match &self.keying {
+            Keying::Keyed(authenticator) => {
+                self.verifier
+                    .on_seal(authenticator, &mut self.sealer, node, source, seal, now)
+            }
+            _ => (
+                Verdict::Refused(Refusal {
+                    reason: AuthFailure::Locked,
+                    kind: seal.kind,
+                    source,
+                }),
+                None,
+            ),
         }
     }
 }

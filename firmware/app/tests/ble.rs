@@ -10,12 +10,12 @@ use pab_core::protocol::{FaultCode, Message};
 use pab_core::{Connection, DecisionNode, Filter, Frame, Gain, NodeRef, Stimulation, Table};
 
 const MS: u64 = 1_000;
-const OBS: u32 = 0x180;
-const ELIGIBILITY: u32 = 0x195;
+pub(crate) const OBS: u32 = 0x180;
+pub(crate) const ELIGIBILITY: u32 = 0x195;
 
 /// Port 0: OBS (σ = 1, τ = 0.5 s) delivers iff OBS & the task of group 0 (period 100 ms,
 /// eligibility in bytes 0-1 of 0x195).
-fn image_with_group() -> Vec<u8> {
+pub(crate) fn image_with_group() -> Vec<u8> {
     let obs = Connection {
         filter: Filter::exact(OBS, false).unwrap(),
         stimulation: Stimulation::new(Gain::ONE, 500_000, 0).unwrap(),
@@ -72,7 +72,7 @@ fn claims_sent(h: &Harness, from: u64) -> Vec<(u64, u16)> {
         .collect()
 }
 
-fn delivered_at(h: &Harness, t: u64) -> bool {
+pub(crate) fn delivered_at(h: &Harness, t: u64) -> bool {
     h.deliveries
         .0
         .iter()
@@ -80,13 +80,13 @@ fn delivered_at(h: &Harness, t: u64) -> bool {
 }
 
 /// The robot sees its target: its observer's frame, then its eligibility.
-fn sees(h: &mut Harness, t: u64, eligibility: u16) {
+pub(crate) fn sees(h: &mut Harness, t: u64, eligibility: u16) {
     h.advance_to(t);
     h.feed(&frame(OBS, &[1; 8]));
     h.feed(&frame(ELIGIBILITY, &eligibility.to_le_bytes()));
 }
 
-fn peer(node: u8, eligibility: u16) -> Frame {
+pub(crate) fn peer(node: u8, eligibility: u16) -> Frame {
     Claim {
         group: 0,
         node,

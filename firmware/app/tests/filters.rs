@@ -81,16 +81,21 @@ fn a_filter_command_for_another_node_or_for_all_is_not_answered() {
 /// Two connections (TOPIC_A wins over TOPIC_B), TOPIC_B's filtered; profile 1 opens it, profile 2
 /// passes one frame in 3.
 fn filtered() -> Harness {
+    Harness::boot(Some(&filtered_image()))
+}
+
+/// [`filtered`]'s image.
+pub(crate) fn filtered_image() -> Vec<u8> {
     let mut table = priority_table(&[TOPIC_A, TOPIC_B], None);
     let mut filters = MessageFilters::default();
     filters.connections.push(1).unwrap();
     filters.push_profile(&[1]).unwrap();
     filters.push_profile(&[3]).unwrap();
     table.set_filters(filters).unwrap();
-    Harness::boot(Some(&image(&table, Harness::NODE_ID, 1)))
+    image(&table, Harness::NODE_ID, 1)
 }
 
-fn statuses(h: &Harness, since: u64) -> Vec<FilterStatus> {
+pub(crate) fn statuses(h: &Harness, since: u64) -> Vec<FilterStatus> {
     h.messages_since(since)
         .into_iter()
         .filter_map(|(_, _, message)| match message {

@@ -15,6 +15,7 @@ mod priority;
 mod replay;
 mod rogue;
 mod runner;
+mod sealed;
 mod swap;
 mod transfer;
 

@@ -41,6 +41,9 @@ fn payload(service: Service) -> Vec<u8> {
         Service::SchemaAck => vec![0, 0, 1, 0, 1, 0, 0, 0],
         Service::SchemaTransition => vec![1, 0, 0x00, 0xFF, 3, 0, 1, 0],
         Service::SchemaState => vec![0x00, 0xFF, 1, 0xFF, 0, 1, 0, 0],
+        // A seal of a Gates frame (a wrong tag), a freshness request's nonce, an answer.
+        Service::Seal => vec![0x07, 0, 1, 0, 1, 2, 3, 4],
+        Service::FreshnessRequest | Service::Freshness => vec![1, 2, 3, 4, 5, 6, 7, 8],
     }
 }
 
@@ -87,7 +90,10 @@ fn a_frame_with_its_services_priority_is_well_formed() {
         // error-free path (it answers them with faults): decoding is what this test checks.
         if !matches!(
             service,
-            Service::TableTransfer | Service::ChallengeRequest | Service::TransferOpen
+            Service::TableTransfer
+                | Service::ChallengeRequest
+                | Service::TransferOpen
+                | Service::FreshnessRequest
         ) {
             h.feed(&frame);
         }

@@ -22,15 +22,21 @@ use std::fmt;
 
 use embassy_futures::select::{Either, select};
 use pab_app::CanBus;
+use pab_core::auth::{Authenticator, Key};
 use pab_core::hbba::Instance;
 use pab_core::hbba::intention::{Command, Event, IntentionError, MAX_SENDS, Target, Workspace};
-use pab_core::protocol::{self, BROADCAST, FaultCode, Intention, Message, Service};
+use pab_core::protocol::{self, AuthFailure, BROADCAST, FaultCode, Intention, Message, Service};
+use pab_core::seal::Sealer;
 use pab_core::{Frame, Instant};
 
 /// How often the intention is published when nothing changes, µs: 1 s.
 pub const PUBLISH_PERIOD_US: u64 = 1_000_000;
 /// Reports held until read; older ones are dropped (and counted in a report).
 const MAX_REPORTS: usize = 256;
+/// Freshness requests answered per second, at most (each answer is a CMAC and two frames): as
+/// the nodes' budget of tag checks, so that a participant cannot make the intention node
+/// amplify a flood.
+pub const ANSWERS_PER_SECOND: u16 = 200;
 
 /// What the intention node needs from a network file: the solver's instance, where each filtered
 /// connection is, and names to speak of it.
@@ -257,6 +263,17 @@ pub struct IntentNode<'a> {
     next_publish: Option<Instant>,
     /// What it did, once [`IntentNode::observe`] asked; drained by [`IntentNode::next_observed`].
     observed: Option<VecDeque<Observed>>,
+    /// On a keyed network: the key, the seals' counter, and the answers' budget (the start of
+    /// the current second, answers in it).
+    keyed: Option<Keyed>,
+}
+
+/// The intention node's side of sealed coordination ([`pab_core::seal`]).
+#[derive(Clone, Debug)]
+struct Keyed {
+    authenticator: Authenticator,
+    sealer: Sealer,
+    window: (Instant, u16),
 }
 
 impl<'a> IntentNode<'a> {
@@ -272,7 +289,61 @@ impl<'a> IntentNode<'a> {
             lost_reports: 0,
             next_publish: None,
             observed: None,
+            keyed: None,
         })
+    }
+
+    /// Gives the node the network's key: from now on every filter command it sends is followed
+    /// by its seal, and it answers the nodes' freshness requests, so that keyed nodes apply its
+    /// commands ([`pab_core::seal`]). `epoch` must never repeat for one key (random bits from the
+    /// operating system at each start).
+    pub fn set_key(&mut self, key: &Key, epoch: u32, now: Instant) {
+        self.keyed = Some(Keyed {
+            authenticator: Authenticator::new(key),
+            sealer: Sealer::new(epoch),
+            window: (now, 0),
+        });
+    }
+
+    /// Queues `frame`, followed by its seal on a keyed network.
+    fn send_sealed(&mut self, frame: Frame) {
+        self.outbox.push_back(frame);
+        if let Some(keyed) = self.keyed.as_mut() {
+            match keyed.sealer.seal(&keyed.authenticator, self.address, &frame) {
+                Some(seal) => self.outbox.push_back(seal),
+                None => self.report(
+                    true,
+                    "the seals' counter is exhausted: restart pab-intent (keyed nodes refuse its commands)"
+                        .to_string(),
+                ),
+            }
+        }
+    }
+
+    /// A freshness request from `requester`: the answer and its seal, within the budget.
+    fn answer_freshness(&mut self, requester: u8, nonce: u64, now: Instant) {
+        let Some(keyed) = self.keyed.as_mut() else {
+            return;
+        };
+        let (start, count) = &mut keyed.window;
+        if now
+            .micros_since(*start)
+            .is_none_or(|elapsed| elapsed >= 1_000_000)
+        {
+            *start = now;
+            *count = 0;
+        }
+        if *count >= ANSWERS_PER_SECOND {
+            return;
+        }
+        *count += 1;
+        if let Some(frames) =
+            keyed
+                .sealer
+                .answer(&keyed.authenticator, self.address, requester, nonce)
+        {
+            self.outbox.extend(frames);
+        }
     }
 
     /// From now on, keeps what the node does as data ([`Observed`]) until
@@ -349,6 +420,37 @@ impl<'a> IntentNode<'a> {
             }
             Message::Heartbeat(heartbeat) => {
                 self.workspace.on_heartbeat(id.source, &heartbeat);
+            }
+            Message::FreshnessRequest { nonce } if id.destination == self.address => {
+                self.answer_freshness(id.source, nonce, now);
+            }
+            // A node that refused one of our filter commands (or our freshness answer) as not
+            // sealed: said once per fault frame, with what to check.
+            Message::Fault(fault)
+                if fault.code == FaultCode::Unauthenticated && fault.detail[2] == self.address =>
+            {
+                let node = self.setup.node(id.source);
+                let failure = AuthFailure::from_code(fault.detail[0]);
+                if failure == Some(AuthFailure::Unsynced) {
+                    self.report(
+                        false,
+                        format!(
+                            "{node} asked where our seals stand (its first from us): the command goes again"
+                        ),
+                    );
+                } else {
+                    let why = failure
+                        .map_or_else(|| format!("reason {}", fault.detail[0]), |f| f.to_string());
+                    let hint = if self.keyed.is_some() {
+                        "is pab-intent's key the node's?"
+                    } else {
+                        "the node has a key: start pab-intent with --key"
+                    };
+                    self.report(
+                        true,
+                        format!("{node} refused a frame of ours: {why} ({hint})"),
+                    );
+                }
             }
             _ => {}
         }
@@ -498,8 +600,7 @@ impl<'a> IntentNode<'a> {
                     set.phi, set.port, set.connection, set.sequence
                 ),
             );
-            self.outbox
-                .push_back(Message::FilterSet(set).to_frame(self.address, command.node));
+            self.send_sealed(Message::FilterSet(set).to_frame(self.address, command.node));
         }
         let lost = self.workspace.lost_events();
         if u64::from(lost) > self.lost_reports {

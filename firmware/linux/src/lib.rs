@@ -3,5 +3,6 @@
 //! [`socket_bus::SocketBus`], the application's `CanBus` over a SocketCAN socket with a sized
 //! receive queue and the kernel's drop counter.
 
+pub mod key_file;
 pub mod receive_queue;
 pub mod socket_bus;

@@ -74,56 +74,6 @@ struct Args {
     rcvbuf: u64,
 }
 
-/// The key of `--key FILE`; the error names the file and the cause. As pabctl's key files
-/// (host-tools/src/keys.rs): a regular file of at most 256 bytes, readable by its owner only
-/// (a key others could read is no key), holding a key that is not all zeros (a placeholder).
-fn read_key(path: &std::path::Path) -> anyhow::Result<pab_core::auth::Key> {
-    use std::io::Read as _;
-    use std::os::unix::fs::PermissionsExt as _;
-    let fail = |cause: String| anyhow::anyhow!("{}: {cause}", path.display());
-    let metadata = std::fs::metadata(path)
-        .map_err(|error| fail(format!("cannot read the key file: {error}")))?;
-    if !metadata.is_file() || metadata.len() > 256 {
-        return Err(fail(
-            "not a key file (a regular file of 32 hexadecimal characters)".to_string(),
-        ));
-    }
-    let mode = metadata.permissions().mode();
-    if mode & 0o077 != 0 {
-        return Err(fail(format!(
-            "mode {:04o} lets other users read the key: `chmod 600 {}`",
-            mode & 0o7777,
-            path.display()
-        )));
-    }
-    let mut text = String::new();
-    std::fs::File::open(path)
-        .and_then(|file| file.take(256).read_to_string(&mut text))
-        .map_err(|error| fail(format!("cannot read the key file: {error}")))?;
-    let key =
-        pab_core::auth::Key::from_hex(&text).map_err(|error| fail(format!("line 1: {error}")))?;
-    if key == pab_core::auth::Key::from_bytes([0; pab_core::auth::KEY_LEN]) {
-        return Err(fail(
-            "the key is all zeros, a placeholder rather than a secret: make one with `pabctl keygen -o FILE`"
-                .to_string(),
-        ));
-    }
-    Ok(key)
-}
-
-/// 32 bits from the operating system's random source: the boot salt of the node's challenges,
-/// which must not repeat for one key. Random salts repeat by the birthday bound: some pair of
-/// boots shares one with probability about n^2 / 2^33 after n restarts (1 % after 9 300), so a
-/// node restarted that often should get a new key; boards count boots in flash instead.
-fn boot_salt() -> anyhow::Result<u32> {
-    use std::io::Read as _;
-    let mut bytes = [0u8; 4];
-    std::fs::File::open("/dev/urandom")
-        .and_then(|mut random| random.read_exact(&mut bytes))
-        .map_err(|error| anyhow::anyhow!("/dev/urandom: {error}"))?;
-    Ok(u32::from_le_bytes(bytes))
-}
-
 /// A whole number in `min..=max`, or what is wrong with `text` (a negative number is "not
 /// positive", not clap's "unexpected argument").
 fn whole(text: &str, min: u64, max: u64) -> Result<u64, String> {
@@ -169,7 +119,11 @@ fn main() -> ExitCode {
 fn start(args: Args) -> anyhow::Result<std::convert::Infallible> {
     use anyhow::Context as _;
     let mut config = pab_app::Config::new(args.node_id)?;
-    let key = args.key.as_deref().map(read_key).transpose()?;
+    let key = args
+        .key
+        .as_deref()
+        .map(pab_node::key_file::read_key)
+        .transpose()?;
     config.heartbeat_period_us = args.heartbeat_ms * 1000;
     let store = FileStore::new(args.store.clone(), args.table.clone())
         .with_context(|| "preparing the table store")?;
@@ -201,7 +155,7 @@ fn start(args: Args) -> anyhow::Result<std::convert::Infallible> {
     let node = Box::leak(Box::new(pab_app::FullNode::new(config, pab_app::now())));
     match &key {
         Some(key) => {
-            node.set_key(key, boot_salt()?);
+            node.set_key(key, pab_node::key_file::boot_salt()?);
             log::info!("keyed: only authenticated configuration is accepted");
         }
         None => log::warn!(

@@ -12,7 +12,7 @@ use pab_core::protocol::{
     self, DesireFrame, DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Exploitation,
     Fault, FaultCode, FilterProfile, FilterSet, FilterStatus, FrameId, FrameKind, Gates, Heartbeat,
     Intention, Message, NodeState, OPEN_REPLACE, SchemaAck, SchemaChannel, SchemaOrigin,
-    SchemaOutcome, SchemaSafety, SchemaState, SchemaTransition, SchemaTrigger, Service,
+    SchemaOutcome, SchemaSafety, SchemaState, SchemaTransition, SchemaTrigger, Seal, Service,
     TableStatus, Traffic, TransferOpen, TransferStatus, TransferStatusCode,
 };
 
@@ -30,6 +30,9 @@ fn node_service(service: Service) -> bool {
             | Service::EmergencyStop
             | Service::SchemaAbort
             | Service::SchemaTransfer
+            | Service::Seal
+            | Service::FreshnessRequest
+            | Service::Freshness
     )
 }
 
@@ -250,7 +253,7 @@ fn pick<T: Copy>(u: &mut Unstructured<'_>, all: &[T]) -> Result<T> {
 }
 
 fn any_message(u: &mut Unstructured<'_>) -> Result<(Message, u8, u8)> {
-    let message = match u.int_in_range(0u8..=26)? {
+    let message = match u.int_in_range(0u8..=29)? {
         0 => Message::Fault(Fault {
             code: pick(u, FaultCode::ALL)?,
             count: u.arbitrary()?,
@@ -420,6 +423,24 @@ fn any_message(u: &mut Unstructured<'_>) -> Result<(Message, u8, u8)> {
             stop: u.int_in_range(0..=63)?,
             elapsed_ms: u.arbitrary()?,
         }),
+        // Any kind byte: one nothing seals must be refused.
+        27 => Message::Seal(Seal {
+            kind: if u.ratio(1u8, 4)? {
+                u.arbitrary()?
+            } else {
+                pick(u, &[0x07, 0x17, 0x18, 0x20, Seal::CLAIM])?
+            },
+            digest: u.arbitrary()?,
+            counter: u.arbitrary()?,
+            tag: u.arbitrary()?,
+        }),
+        28 => Message::FreshnessRequest {
+            nonce: u.arbitrary()?,
+        },
+        29 => Message::Freshness {
+            epoch: u.arbitrary()?,
+            counter: u.arbitrary()?,
+        },
         _ => Message::TransferStatus(TransferStatus {
             status: pick(u, TransferStatusCode::ALL)?,
             detail: u.arbitrary()?,
@@ -439,8 +460,8 @@ pub fn service_seeds() -> Vec<(Service, Vec<u8>, Vec<u8>)> {
         .map(|i| i.wrapping_mul(37).wrapping_add(11))
         .collect();
     let mut seeds: Vec<(Service, Vec<u8>, Vec<u8>)> = Vec::new();
-    // `any_message`'s first byte picks the variant (byte % 27).
-    for pick in 0u8..=26 {
+    // `any_message`'s first byte picks the variant (byte % 30).
+    for pick in 0u8..=29 {
         let mut encode = vec![pick];
         encode.extend_from_slice(&filler);
         let Ok((message, source, destination)) = any_message(&mut Unstructured::new(&encode))

@@ -10,7 +10,7 @@ use crate::network::Network;
 
 /// Whether node `index` has message filters: a connection of one of its ports that an HBBA
 /// strategy filters.
-fn has_filters(network: &Network, index: usize) -> bool {
+pub(super) fn has_filters(network: &Network, index: usize) -> bool {
     network.hbba.as_ref().is_some_and(|hbba| {
         hbba.strategies
             .iter()
@@ -52,7 +52,11 @@ pub(super) fn from_nodes(
                 | Service::FilterSet
                 | Service::EmergencyStop
                 | Service::SchemaAbort
-                | Service::SchemaTransfer => continue,
+                | Service::SchemaTransfer
+                // Sealed coordination's frames: `sealing.rs`.
+                | Service::Seal
+                | Service::FreshnessRequest
+                | Service::Freshness => continue,
                 Service::Gates if !runs_dynamics => continue,
                 Service::FilterStatus | Service::Exploitation if !filtered => continue,
                 Service::SchemaAck | Service::SchemaTransition | Service::SchemaState

@@ -4,8 +4,8 @@
 use super::{
     DesireFrame, DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Exploitation, Fault,
     FilterProfile, FilterSet, FilterStatus, Gates, Heartbeat, Intention, Message, OPEN_REPLACE,
-    OPEN_SCHEMA, SchemaAck, SchemaState, SchemaTransition, TableStatus, Traffic, TransferOpen,
-    TransferStatus,
+    OPEN_SCHEMA, SchemaAck, SchemaState, SchemaTransition, Seal, TableStatus, Traffic,
+    TransferOpen, TransferStatus,
 };
 use crate::frame::Frame;
 use crate::protocol::{
@@ -109,7 +109,8 @@ impl Message {
     /// [`Message::decode`] for a node: the same checks of every frame's identifier, priority
     /// and length, but the payload decoded (and its values checked) only for the services a node
     /// acts on (Gates, DiagnosticControl, TableTransfer, ChallengeRequest, TransferOpen,
-    /// FilterProfile, FilterSet, EmergencyStop, SchemaAbort, SchemaTransfer); `Ok(None)` for a
+    /// FilterProfile, FilterSet, EmergencyStop, SchemaAbort, SchemaTransfer, Seal,
+    /// FreshnessRequest, Freshness); `Ok(None)` for a
     /// well-framed frame of another service (a report, a desire, another node's status or schema
     /// answers), which a node does not read. The boards link
     /// only this: the other services' decoders took 596 bytes of the NUCLEO-G474RE's flash.
@@ -240,7 +241,25 @@ impl Message {
                     sequence: u16_at(data, 4),
                 })
             }
-
+            Service::Seal => {
+                let kind = byte(data, 0);
+                if !Seal::is_sealable(kind) {
+                    return Err(bad);
+                }
+                Message::Seal(Seal {
+                    kind,
+                    digest: byte(data, 1),
+                    counter: u16_at(data, 2),
+                    tag: bytes_at(data, 4),
+                })
+            }
+            Service::FreshnessRequest => Message::FreshnessRequest {
+                nonce: u64::from_le_bytes(padded),
+            },
+            Service::Freshness => Message::Freshness {
+                epoch: u32_at(data, 0),
+                counter: u32_at(data, 4),
+            },
             _ => return Ok(None),
         };
         Ok(Some(message))

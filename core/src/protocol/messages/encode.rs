@@ -133,6 +133,13 @@ impl Message {
                 8,
             ),
             Message::Receipt { tag } => (le_word(*tag), 8),
+            Message::Seal(seal) => {
+                let [c0, c1] = seal.counter.to_le_bytes();
+                let [t0, t1, t2, t3] = seal.tag;
+                (le_word([seal.kind, seal.digest, c0, c1, t0, t1, t2, t3]), 8)
+            }
+            Message::FreshnessRequest { nonce } => (*nonce, 8),
+            Message::Freshness { epoch, counter } => (words(*epoch, *counter), 8),
             Message::Gates(gates) => {
                 let [m0, m1, m2, m3] = gates.mask.to_le_bytes();
                 (

@@ -140,6 +140,19 @@ fn view(message: &Message) -> Option<Vec<(&'static str, u64)>> {
             ("tag", le(&o.tag)),
         ],
         Message::Receipt { tag } => vec![("tag_low", le(&tag[..4])), ("tag_high", le(&tag[4..]))],
+        Message::Seal(s) => vec![
+            ("kind", s.kind.into()),
+            ("digest", s.digest.into()),
+            ("counter", s.counter.into()),
+            ("tag", le(&s.tag)),
+        ],
+        Message::FreshnessRequest { nonce } => vec![
+            ("nonce_low", nonce & 0xFFFF_FFFF),
+            ("nonce_high", nonce >> 32),
+        ],
+        Message::Freshness { epoch, counter } => {
+            vec![("epoch", epoch.into()), ("counter", counter.into())]
+        }
         Message::SchemaAck(a) => vec![
             ("outcome", a.outcome.code().into()),
             (

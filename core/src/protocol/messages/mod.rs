@@ -13,6 +13,7 @@ mod encode;
 #[cfg(test)]
 mod layout_tests;
 mod schema_server;
+mod seal;
 mod status;
 #[cfg(test)]
 mod tests;
@@ -27,6 +28,8 @@ pub(super) use schema_server::{
     EMERGENCY_STOP_LAYOUT, SCHEMA_ABORT_LAYOUT, SCHEMA_TRANSFER_LAYOUT,
 };
 pub use schema_server::{SchemaAck, SchemaState, SchemaTransition};
+pub use seal::Seal;
+pub(super) use seal::{FRESHNESS_LAYOUT, FRESHNESS_REQUEST_LAYOUT};
 pub use status::{Errors, Fault, Heartbeat, TableStatus, Traffic};
 pub(super) use transfer::{
     CHALLENGE_LAYOUT, CHALLENGE_REQUEST_LAYOUT, RECEIPT_LAYOUT, TABLE_TRANSFER_LAYOUT,
@@ -127,6 +130,22 @@ pub enum Message {
     SchemaTransition(SchemaTransition),
     /// See [`SchemaState`].
     SchemaState(SchemaState),
+    /// See [`Seal`].
+    Seal(Seal),
+    /// A keyed receiver asks a sender for its freshness (service 0x1F): the receiver's nonce,
+    /// u64 LE ([`crate::seal`]).
+    FreshnessRequest {
+        /// Unpredictable without the key, new for every request.
+        nonce: u64,
+    },
+    /// A sender's answer to a freshness request (service 0x20), followed by its seal over the
+    /// request's nonce ([`crate::seal`]).
+    Freshness {
+        /// The sender's epoch: its boot salt.
+        epoch: u32,
+        /// The last counter it used in that epoch.
+        counter: u32,
+    },
 }
 
 impl Message {
@@ -160,6 +179,9 @@ impl Message {
             Message::SchemaAck(_) => Service::SchemaAck,
             Message::SchemaTransition(_) => Service::SchemaTransition,
             Message::SchemaState(_) => Service::SchemaState,
+            Message::Seal(_) => Service::Seal,
+            Message::FreshnessRequest { .. } => Service::FreshnessRequest,
+            Message::Freshness { .. } => Service::Freshness,
         }
     }
 }

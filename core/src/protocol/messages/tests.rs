@@ -1,7 +1,7 @@
 use crate::frame::Frame;
 use crate::protocol::*;
 
-pub(super) fn samples() -> [Message; 26] {
+pub(super) fn samples() -> [Message; 29] {
     [
         Message::Fault(Fault {
             code: FaultCode::TableRefused,
@@ -75,6 +75,19 @@ pub(super) fn samples() -> [Message; 26] {
         }),
         Message::Receipt {
             tag: [1, 2, 3, 4, 5, 6, 7, 8],
+        },
+        Message::Seal(Seal {
+            kind: Seal::CLAIM,
+            digest: 0x5C,
+            counter: 0x1234,
+            tag: [0xDE, 0xAD, 0xBE, 0xEF],
+        }),
+        Message::FreshnessRequest {
+            nonce: 0x1122_3344_5566_7788,
+        },
+        Message::Freshness {
+            epoch: 0x0A0B_0C0D,
+            counter: 0x0102_0304,
         },
         Message::Desire(DesireFrame {
             class: 2,
@@ -287,6 +300,9 @@ fn a_node_reads_the_stop_the_abort_and_schema_transfers_only() {
                 | Service::EmergencyStop
                 | Service::SchemaAbort
                 | Service::SchemaTransfer
+                | Service::Seal
+                | Service::FreshnessRequest
+                | Service::Freshness
         );
         assert_eq!(for_node.is_some(), acts, "{message:?}");
         if let Some((_, decoded)) = for_node {

@@ -2,6 +2,7 @@
 //! answers, the dynamics' steps and Gates, BLE claims.
 
 use super::*;
+use pab_core::seal::{Refusal, Verdict};
 
 impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C, N, IMG> {
     /// HBBA's exploitation edges: for each port whose delivering connection (the one its
@@ -126,8 +127,11 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             .dynamics_runs()
             .iter()
             .position(|run| run.skipped() != 0);
+        let node_id = self.config.node_id;
         for g in gates.iter() {
-            self.send(Message::Gates(*g), protocol::BROADCAST);
+            if let Some(frame) = Message::Gates(*g).report_frame(node_id, protocol::BROADCAST) {
+                self.queue_sealed(frame, protocol::Service::Gates.code());
+            }
         }
         if after != before {
             let [a, b, c, d] = after.to_le_bytes();
@@ -177,8 +181,20 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         // By reference: the vector's by-value iterator slices, with a bounds check.
         for claim in claims.iter() {
             if let Some(frame) = claim.frame() {
-                self.queue(frame);
+                self.queue_sealed(frame, protocol::Seal::CLAIM);
             }
+        }
+    }
+
+    /// A peer's BLE claim: held for its seal on a keyed node, else applied.
+    pub(super) fn on_claim_frame(&mut self, frame: &Frame, now: Instant) {
+        if self.guard.is_keyed() {
+            // The source is in the identifier's low 7 bits; a malformed claim is refused when
+            // its seal applies it.
+            let (raw, _) = frame.raw_id();
+            self.hold((raw & 0x7F) as u8, protocol::Seal::CLAIM, frame, now);
+        } else {
+            self.apply_claim(frame, now);
         }
     }
 
@@ -186,7 +202,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// (ClaimRefused: malformed, this node's own id, no room). Without a table there is no
     /// group to keep it for.
     #[inline(never)]
-    pub(super) fn on_claim_frame(&mut self, frame: &Frame, now: Instant) {
+    pub(super) fn apply_claim(&mut self, frame: &Frame, now: Instant) {
         let Some(arbiter) = self.arbiter.as_mut() else {
             return;
         };
@@ -202,5 +218,57 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             },
         };
         self.error(FaultCode::ClaimRefused, [reason, node, group, 0, 0]);
+    }
+
+    /// Queues a coordination frame this node sends (Gates, a claim: `kind`), followed by its
+    /// seal on a keyed node ([`pab_core::seal`]).
+    #[inline(never)]
+    pub(super) fn queue_sealed(&mut self, frame: Frame, kind: u8) {
+        self.queue(frame);
+        if let Some(seal) = self.guard.seal(self.config.node_id, &frame, kind) {
+            self.queue(seal);
+        }
+    }
+
+    /// Holds a coordination frame from `source` for its seal, refusing the one it pushes out.
+    #[inline(never)]
+    pub(super) fn hold(&mut self, source: u8, kind: u8, frame: &Frame, now: Instant) {
+        let (count, last) = self.guard.hold(source, kind, frame, now);
+        if let Some(refusal) = last {
+            self.refuse_unsealed(refusal);
+            // The fault names the last; the errors count them all.
+            let more = u32::try_from(count.saturating_sub(1)).unwrap_or(u32::MAX);
+            self.counters.errors = self.counters.errors.wrapping_add(more);
+        }
+    }
+
+    /// A seal from `source`: the frame it seals applied, or refused with a fault; the
+    /// freshness request it calls for sent.
+    #[inline(never)]
+    pub(super) fn on_seal(&mut self, source: u8, seal: &protocol::Seal, now: Instant) {
+        let (verdict, request) = self.guard.on_seal(self.config.node_id, source, seal, now);
+        if let Some(request) = request {
+            self.queue(request);
+        }
+        match verdict {
+            // A sealed frame applies nothing the runner must store.
+            Verdict::Accepted(frame) => match protocol::classify(&frame) {
+                FrameKind::Claim => self.apply_claim(&frame, now),
+                _ => {
+                    let _ = self.on_protocol_frame(&frame, now, true);
+                }
+            },
+            Verdict::Refused(refusal) => self.refuse_unsealed(refusal),
+            Verdict::Nothing | Verdict::Synchronised => {}
+        }
+    }
+
+    /// A coordination frame refused by sealing's rules: counted, and an `Unauthenticated` fault
+    /// naming why, what and from whom.
+    fn refuse_unsealed(&mut self, refusal: Refusal) {
+        self.error(
+            FaultCode::Unauthenticated,
+            [refusal.reason.code(), refusal.kind, refusal.source, 0, 0],
+        );
     }
 }

@@ -284,12 +284,16 @@ unsafe fn NonMaskableInt() {
     watchdog::on_nmi();
 }
 
-/// Says where and why on QEMU's stderr, and fails the emulation: the text of `{info}`
-/// (`panicked at FILE:LINE:COLUMN:` and the message on the next line), written out here so that
-/// the file's name goes through `write_str`, not through `&str`'s `Display` (which pads), and the
-/// line and column through `Decimal`, not through `u32`'s `Display` (see [`pab_core::decimal`]).
+/// Says so on QEMU's stderr, and fails the emulation. With `PAB_PANIC_LOCATION=1` at build time
+/// (build.rs), where and why: the text of `{info}` (`panicked at FILE:LINE:COLUMN:` and the
+/// message on the next line), written out here so that the file's name goes through
+/// `write_str`, not through `&str`'s `Display` (which pads), and the line and column through
+/// `Decimal`, not through `u32`'s `Display` (see [`pab_core::decimal`]). Without it, every panic
+/// site's location and message leave the flash (1 296 bytes, which sealed coordination needed):
+/// a panic seen in a test run is found again in a build with the variable.
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
+    #[cfg(panic_location)]
     match info.location() {
         Some(at) => fail(format_args!(
             "panic: panicked at {}:{}:{}:\n{}",
@@ -300,11 +304,20 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
         )),
         None => fail(format_args!("panic: panicked:\n{}", info.message())),
     }
+    #[cfg(not(panic_location))]
+    {
+        let _ = info;
+        fail(format_args!(
+            "panic: panicked (build with PAB_PANIC_LOCATION=1 to see where)"
+        ))
+    }
 }
 
 /// A string written as it is (`write_str`): no width, no padding to look for.
+#[cfg(panic_location)]
 struct Verbatim<'a>(&'a str);
 
+#[cfg(panic_location)]
 impl core::fmt::Display for Verbatim<'_> {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.write_str(self.0)

@@ -406,26 +406,38 @@ unsafe fn NonMaskableInt() {
     );
 }
 
-/// A panic says where over defmt and stops on a permanently undefined instruction (a debugger
+/// A panic says so over defmt and stops on a permanently undefined instruction (a debugger
 /// shows the backtrace there; without one, the HardFault spins until the watchdog resets the
 /// board). Only embassy's own checks can get here: `scripts/panic-check.sh` finds no panic site
 /// in the project's crates. Not panic-probe: its message goes through `core::fmt`, about 2 KiB
-/// of flash that the mechanisms need more (the message is the location: `{=str}:{=u32}`).
+/// of flash that the mechanisms need more.
+///
+/// Where it happened (file and line) only in a build with `PAB_PANIC_LOCATION=1` (build.rs),
+/// such as the bring-up build (docs/bring-up-g474.md): each of embassy's panic sites passes a
+/// `Location`, and their locations and file names took 1 732 bytes of flash, which sealed
+/// coordination needed (`scripts/firmware-size.sh`). A debugger shows the place anyway.
 ///
 /// `inline(always)`: rustc warns that the attribute is ignored on an exported function, but under
 /// the firmware profile's fat LTO LLVM honours it and inlines the handler into core's
-/// `panic_fmt`. Only then can it see that the message is never read and drop the formatting
-/// every panic site prepares (`usize`'s `Display`, `Formatter::pad`): 1 932 bytes of flash on
-/// the BLE build, measured with `scripts/firmware-size.sh`, which fails if they come back and
-/// push the firmware past 64 KiB. The messages themselves leave the flash only because LLVM's
-/// dead-argument elimination runs again after the inlining (`.cargo/config.toml`).
+/// `panic_fmt`. Only then can it see that the message (and, without `panic_location`, the
+/// location) is never read and drop what every panic site prepares (`usize`'s `Display`,
+/// `Formatter::pad`): 1 932 bytes of flash on the BLE build, measured with
+/// `scripts/firmware-size.sh`, which fails if they come back and push the firmware past 64 KiB.
+/// They leave the flash only because LLVM's dead-argument elimination runs again after the
+/// inlining (`.cargo/config.toml`).
 #[panic_handler]
 #[allow(unused_attributes)]
 #[inline(always)]
 fn panic(info: &core::panic::PanicInfo) -> ! {
+    #[cfg(panic_location)]
     match info.location() {
         Some(at) => defmt::error!("panic at {=str}:{=u32}", at.file(), at.line()),
         None => defmt::error!("panic"),
+    }
+    #[cfg(not(panic_location))]
+    {
+        let _ = info;
+        defmt::error!("panic (PAB_PANIC_LOCATION=1 builds say where)");
     }
     cortex_m::asm::udf()
 }

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
-use pab_intent::{IntentNode, Report, Setup, SystemClock};
+use pab_intent::{Clock as _, IntentNode, Report, Setup, SystemClock};
 use pab_node::receive_queue;
 use pab_node::socket_bus::SocketBus;
 
@@ -38,6 +38,10 @@ use pab_node::socket_bus::SocketBus;
 ///
 ///   cansend vcan0 1208FF09#0200030010270100   # node 9: class 2 (voice), intensity 3, 10 s
 ///
+/// On a keyed network (nodes started with a key), give pab-intent the nodes' key with --key:
+/// every FilterSet is then followed by its seal, and a keyed node applies only sealed commands
+/// (a participant without the key cannot steer its filters).
+///
 /// Logging: RUST_LOG=debug for more detail (default: info).
 #[derive(Parser, Debug)]
 #[command(version, verbatim_doc_comment)]
@@ -48,6 +52,11 @@ struct Args {
     /// The intention setup `pabctl compile` wrote for the network (DIR/intention.json).
     #[arg(long, value_name = "intention.json")]
     setup: PathBuf,
+    /// The network's key file (`pabctl keygen -o FILE`), the one its keyed nodes have: seals
+    /// every filter command and answers the nodes' freshness requests. Without it, keyed nodes
+    /// refuse every command (and pab-intent logs their refusals).
+    #[arg(long, value_name = "FILE")]
+    key: Option<PathBuf>,
 }
 
 fn main() -> ExitCode {
@@ -70,8 +79,17 @@ fn start(args: Args) -> anyhow::Result<std::convert::Infallible> {
         format!("reading the intention setup {path} (`pabctl compile NET.toml -o DIR` writes DIR/intention.json for a network with an [hbba] section)")
     })?;
     let setup = Setup::from_json(&text).map_err(|error| anyhow::anyhow!("{path}: {error}"))?;
-    let node = IntentNode::new(&setup, pab_core::protocol::INTENTION)
+    let key = args
+        .key
+        .as_deref()
+        .map(pab_node::key_file::read_key)
+        .transpose()?;
+    let mut node = IntentNode::new(&setup, pab_core::protocol::INTENTION)
         .map_err(|error| anyhow::anyhow!("{path}: [hbba]: {error}"))?;
+    let mut clock = SystemClock::new();
+    if let Some(key) = &key {
+        node.set_key(key, pab_node::key_file::boot_salt()?, clock.now());
+    }
     let (mut bus, sizing) = SocketBus::open(&args.interface, receive_queue::DEFAULT_BYTES)
         .with_context(|| {
             format!(
@@ -83,15 +101,18 @@ fn start(args: Args) -> anyhow::Result<std::convert::Infallible> {
         log::warn!("{why}");
     }
     log::info!(
-        "intention node {} on {}: {} strategies, {} filtered connections, from {}",
+        "intention node {} on {}: {} strategies, {} filtered connections, from {}{}",
         pab_core::protocol::INTENTION,
         args.interface,
         setup.instance.strategies.len(),
         setup.targets.len(),
-        path
+        path,
+        if key.is_some() {
+            ", sealing its commands"
+        } else {
+            ""
+        }
     );
-    let mut node = node;
-    let mut clock = SystemClock::new();
     let mut log = |report: Report| {
         if report.warning {
             log::warn!("{report}");

@@ -5,7 +5,10 @@
 
 use core::hint::black_box;
 
+use pab_core::Instant;
 use pab_core::auth::{Authenticator, Key};
+use pab_core::protocol::{BROADCAST, Gates, Message};
+use pab_core::seal::{Sealer, Verdict, Verifier};
 
 use crate::{measure, report};
 
@@ -54,5 +57,72 @@ pub fn run() {
             authenticator.receipt_tag(5, nonce, &status, 0x1234_5678, true)
         }));
         report("auth", "receipt");
+    }
+    seal(&authenticator);
+}
+
+/// Sealed coordination (`pab_core::seal`): a Gates frame's seal made by its sender, and the
+/// receiver's whole path for it (held, then its seal matched, its counter taken and its tag
+/// checked) from a sender it is synchronised with.
+fn seal(authenticator: &Authenticator) {
+    let (owner, reader) = (1u8, 5u8);
+    let gates = Message::Gates(Gates {
+        group: 0,
+        behaviours: 2,
+        mask: 1,
+        changes: 1,
+    })
+    .to_frame(owner, BROADCAST);
+    let mut sender = Sealer::new(black_box(3));
+    for _ in 0..TIMES {
+        black_box(measure(|| sender.seal(authenticator, owner, &gates)));
+        report("auth", "seal-make");
+    }
+    // Synchronise the reader with the owner, as on the bus: a first seal refused, the request,
+    // the answer and its seal.
+    let mut verifier = Verifier::new();
+    let mut own = Sealer::new(9);
+    let now = Instant::from_micros(1_000);
+    let seal_of = |sender: &mut Sealer| {
+        let frame = sender.seal(authenticator, owner, &gates);
+        match frame.map(|frame| Message::decode(&frame)) {
+            Some(Ok((_, Message::Seal(seal)))) => seal,
+            _ => panic!("no seal"),
+        }
+    };
+    verifier.hold(owner, 0x07, &gates, now);
+    let first = seal_of(&mut sender);
+    let (_, request) = verifier.on_seal(authenticator, &mut own, reader, owner, &first, now);
+    let Some(Ok((_, Message::FreshnessRequest { nonce }))) = request.map(|r| Message::decode(&r))
+    else {
+        panic!("no request");
+    };
+    let Some([answer, answer_seal]) = sender.answer(authenticator, owner, reader, nonce) else {
+        panic!("no answer");
+    };
+    verifier.hold(owner, 0x20, &answer, now);
+    let Ok((_, Message::Seal(answer_seal))) = Message::decode(&answer_seal) else {
+        panic!("no answer seal");
+    };
+    let (synchronised, _) =
+        verifier.on_seal(authenticator, &mut own, reader, owner, &answer_seal, now);
+    assert!(synchronised == Verdict::Synchronised);
+    for _ in 0..TIMES {
+        let seal = seal_of(&mut sender);
+        let verdict = measure(|| {
+            verifier.hold(owner, 0x07, black_box(&gates), now);
+            verifier
+                .on_seal(
+                    authenticator,
+                    &mut own,
+                    reader,
+                    owner,
+                    black_box(&seal),
+                    now,
+                )
+                .0
+        });
+        assert!(matches!(verdict, Verdict::Accepted(_)));
+        report("auth", "seal-check");
     }
 }
