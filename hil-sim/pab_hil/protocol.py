@@ -46,6 +46,11 @@ SCHEMA_TRANSFER = 0x1A
 SCHEMA_ACK = 0x1B
 SCHEMA_TRANSITION = 0x1C
 SCHEMA_STATE = 0x1D
+# Sealed coordination on keyed networks (docs/can-protocol.md, "Sealed coordination"): the
+# harness names them; its nodes run without keys.
+SEAL = 0x1E
+FRESHNESS_REQUEST = 0x1F
+FRESHNESS = 0x20
 INTENTION_NODE = 126  # the intention node's address unless told otherwise
 
 PRIORITY = {
@@ -75,6 +80,9 @@ PRIORITY = {
     SCHEMA_ACK: 2,
     SCHEMA_TRANSITION: 2,
     SCHEMA_STATE: 5,
+    SEAL: 5,
+    FRESHNESS_REQUEST: 4,
+    FRESHNESS: 4,
 }
 
 NODE_STATES = {0: "no table", 1: "operational", 2: "fault"}

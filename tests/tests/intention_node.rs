@@ -4,9 +4,12 @@
 //! arbiters then filter as commanded; a node whose table has no filters refuses them
 //! (FilterRefused, detail 3), which pab-intent reports, publishing the intention all the same; a
 //! desire whose lease runs out is dropped and the intention recomputed; a node that restarts gets
-//! its filters again. Last, the async loop (`pab_intent::run`) on a channel bus in real time.
+//! its filters again. On a keyed network, the nodes apply only the commands pab-intent seals with
+//! their key, and pab-intent without it is refused and says what to do. Last, the async loop
+//! (`pab_intent::run`) on a channel bus in real time.
 
 use pab_app::{BoardNode, Config, Step};
+use pab_core::auth::Key;
 use pab_core::protocol::{
     self, BROADCAST, DesireFrame, Fault, FaultCode, FrameId, INTENTION, Message,
 };
@@ -45,8 +48,16 @@ struct Bus<'a> {
 }
 
 fn boot(id: u8, image: &[u8], now: u64) -> Box<BoardNode> {
+    boot_keyed(id, image, now, None)
+}
+
+/// [`boot`], with `key` (and a boot salt of the node's own) when given.
+fn boot_keyed(id: u8, image: &[u8], now: u64, key: Option<&Key>) -> Box<BoardNode> {
     let at = Instant::from_micros(now);
     let mut node = Box::new(BoardNode::new(Config::new(id).unwrap(), at));
+    if let Some(key) = key {
+        node.set_key(key, 0x0100 + u32::from(id));
+    }
     node.boot_buffer()[..image.len()].copy_from_slice(image);
     node.boot(Some(image.len()), at);
     node
@@ -80,18 +91,33 @@ impl<'a> Bus<'a> {
         setup: &'a Setup,
         image: impl Fn(&[u8]) -> Vec<u8>,
     ) -> Bus<'a> {
+        Bus::keyed(network, setup, image, None, None)
+    }
+
+    /// [`Bus::with_images`], the nodes with `nodes_key`, pab-intent with `intent_key`.
+    fn keyed(
+        network: &Network,
+        setup: &'a Setup,
+        image: impl Fn(&[u8]) -> Vec<u8>,
+        nodes_key: Option<&Key>,
+        intent_key: Option<&Key>,
+    ) -> Bus<'a> {
         let compiled = compile::compile(network).unwrap_or_else(|e| panic!("{e:?}"));
         let nodes = compiled
             .iter()
             .map(|c| {
                 let image = image(&c.image);
-                let node = boot(c.id, &image, 0);
+                let node = boot_keyed(c.id, &image, 0, nodes_key);
                 (c.id, image, node)
             })
             .collect();
+        let mut intent = IntentNode::new(setup, INTENTION).unwrap();
+        if let Some(key) = intent_key {
+            intent.set_key(key, 0xABCD, Instant::from_micros(0));
+        }
         let mut bus = Bus {
             now: 0,
-            intent: IntentNode::new(setup, INTENTION).unwrap(),
+            intent,
             nodes,
             frames: Vec::new(),
             reports: Vec::new(),
@@ -299,6 +325,104 @@ fn the_nodes_apply_the_commands_and_filter_as_commanded() {
         (phi(&bus, 0, 0, 0), phi(&bus, 0, 0, 1), phi(&bus, 0, 1, 0)),
         (Some(3), Some(1), Some(0))
     );
+}
+
+const NETWORK_KEY: Key = Key::from_bytes(*b"tour-guide-key16");
+
+/// Every filter of the tour guide's nodes as (head port 0 connection 0, connection 1, head port 1
+/// connection 0, base port 0 connection 0, connection 1).
+fn filters(bus: &Bus) -> [Option<u8>; 5] {
+    let phi = |node: usize, port: u8, connection: u8| {
+        bus.nodes[node]
+            .2
+            .arbiter()
+            .unwrap()
+            .filter_phi(port, connection)
+    };
+    [
+        phi(0, 0, 0),
+        phi(0, 0, 1),
+        phi(0, 1, 0),
+        phi(1, 0, 0),
+        phi(1, 0, 1),
+    ]
+}
+
+#[test]
+fn keyed_nodes_apply_the_commands_pab_intent_seals_with_their_key() {
+    let network = tour_guide();
+    let setup = compile::intention_setup(&network).unwrap();
+    let mut bus = Bus::keyed(
+        &network,
+        &setup,
+        |image| image.to_vec(),
+        Some(&NETWORK_KEY),
+        Some(&NETWORK_KEY),
+    );
+    bus.advance_to(S / 2);
+    touring(&mut bus);
+    bus.advance_to(2 * S);
+    // Each node's first command was refused unsynchronised (it asked, pab-intent answered) and
+    // the command sent again 250 ms later applied: touring's filters, as without keys.
+    assert_eq!(filters(&bus), [Some(1), Some(0), Some(1), Some(1), Some(1)]);
+    let sealed = bus
+        .messages(S / 2)
+        .into_iter()
+        .filter(|(_, id, m)| matches!(m, Message::Seal(_)) && id.source == INTENTION)
+        .count();
+    assert!(
+        sealed >= bus.filter_sets(S / 2).len(),
+        "every command sealed"
+    );
+    let warnings: Vec<String> = bus
+        .reports_since(0)
+        .into_iter()
+        .filter(|r| r.warning)
+        .map(|r| r.text.clone())
+        .collect();
+    assert!(
+        warnings.iter().all(|w| w.contains("again (send")),
+        "{warnings:#?}"
+    );
+    assert!(
+        bus.reports_since(0)
+            .iter()
+            .any(|r| r.text.contains("asked where our seals stand")),
+        "the synchronisation said"
+    );
+}
+
+#[test]
+fn keyed_nodes_refuse_a_pab_intent_without_their_key_and_it_says_so() {
+    let network = tour_guide();
+    let setup = compile::intention_setup(&network).unwrap();
+    let other = Key::from_bytes(*b"not-the-nodes-k!");
+    for intent_key in [None, Some(&other)] {
+        let mut bus = Bus::keyed(
+            &network,
+            &setup,
+            |image| image.to_vec(),
+            Some(&NETWORK_KEY),
+            intent_key,
+        );
+        bus.advance_to(S / 2);
+        touring(&mut bus);
+        bus.advance_to(3 * S);
+        // Nothing applied: every filtered connection stays closed, as at boot.
+        assert_eq!(filters(&bus), [Some(0); 5], "with {intent_key:?}");
+        let hint = if intent_key.is_some() {
+            "is pab-intent's key the node's?"
+        } else {
+            "start pab-intent with --key"
+        };
+        assert!(
+            bus.reports_since(0).iter().any(|r| r.warning
+                && r.text.contains("refused a frame of ours")
+                && r.text.contains(hint)),
+            "{:#?}",
+            bus.reports_since(0)
+        );
+    }
 }
 
 #[test]

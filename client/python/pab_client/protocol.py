@@ -316,6 +316,9 @@ class AuthFailure(enum.IntEnum):
     Locked = 0x08
     NoKey = 0x09
     Sequence = 0x0A
+    BadSeal = 0x0B
+    Unsealed = 0x0C
+    Unsynced = 0x0D
 
     @property
     def description(self) -> str:
@@ -333,6 +336,9 @@ _AUTH_TEXT = {
     AuthFailure.Locked: "configuration locked: key page invalid",
     AuthFailure.NoKey: "tagged message to a node without a key",
     AuthFailure.Sequence: "consecutive frame out of sequence ignored",
+    AuthFailure.BadSeal: "coordination frame whose seal does not verify",
+    AuthFailure.Unsealed: "coordination frame without its seal",
+    AuthFailure.Unsynced: "seal from a sender not synchronised yet",
 }
 
 

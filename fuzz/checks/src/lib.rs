@@ -24,6 +24,7 @@ pub mod node_keyed;
 pub mod node_schema;
 pub mod protocol;
 pub mod schema;
+pub mod seal;
 
 mod crc;
 mod examples;
@@ -99,6 +100,10 @@ pub const TARGETS: &[Target] = &[
     Target {
         name: "node_schema",
         check: node_schema::check,
+    },
+    Target {
+        name: "seal",
+        check: seal::check,
     },
 ];
 

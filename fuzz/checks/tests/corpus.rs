@@ -73,7 +73,8 @@ fn every_target_has_a_replay_test() {
             "schema",
             "aes_cmac",
             "node_keyed",
-            "node_schema"
+            "node_schema",
+            "seal"
         ]
     );
 }
@@ -151,4 +152,9 @@ fn node_keyed() {
 #[test]
 fn node_schema() {
     replay("node_schema");
+}
+
+#[test]
+fn seal() {
+    replay("seal");
 }
