@@ -208,7 +208,7 @@ wire_enum! {
         /// on a keyed node: forged, replayed (its freshness not above the last accepted from
         /// that sender), or sealed under another key. Not applied.
         BadSeal = 0x0B, "coordination frame whose seal does not verify";
-        /// A coordination frame on a keyed node that no seal followed (within 1 s, or before
+        /// A coordination frame on a keyed node that no seal followed (within 0.5 s, or before
         /// room was needed for others): not applied.
         Unsealed = 0x0C, "coordination frame without its seal";
         /// A seal from a sender whose freshness the keyed node does not know yet (its first, or
