@@ -275,10 +275,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// Call it on a freshly built arbiter (its own state is replaced). Costs one comparison of
     /// a connection (filter and parameters) per connection of this table, and a port reset per
     /// port; no allocation.
-    // Out of line: inlined into the node's table swap, where both arbiters are far down its
-    // frame, it took 68 bytes more of the NUCLEO-G474RE's flash with competitive dynamics, 76
-    // without. Run once per table swap.
-    #[inline(never)]
+    // Left to the inliner again (it was out of line: inlined into the node's table swap it
+    // then took 68 bytes more): out of line it now took 16 bytes more of both boards' flash.
+    // Run once per table swap.
     pub fn carry_over(&mut self, previous: &Self) -> usize {
         for port in self.ports.iter_mut() {
             port.idle();
@@ -435,7 +434,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// `Arbiter::feed_one` takes the others) cost about what they did (on the emulated board, a
     /// frame for two ports 642 -> 618 instructions, for three 877 either way, for one masked
     /// filter 378 -> 392, for two overlapping connections of a port 693 -> 610).
-    #[inline(never)]
+    // Left to the inliner now that its one call is in `Arbiter::feed`'s loop: out of line it
+    // took 60 bytes more of the NUCLEO-G474RE's flash, 64 of the emulated board's, and the
+    // counted frames (scripts/cortex-m4-cost.sh) cost the same either way.
     fn feed_port(
         &mut self,
         connection: usize,

@@ -6,7 +6,9 @@ use super::*;
 
 impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C, N, IMG> {
     /// The heartbeat group, and the next one's instant.
-    #[inline(never)]
+    // Left to the inliner: out of line it took 40 bytes more of the NUCLEO-G474RE's flash, 36
+    // of the emulated board's (a heartbeat group 9 instructions more); the frame path's counts
+    // are the same either way.
     pub(super) fn heartbeat_due(&mut self, now: Instant) {
         self.heartbeat(now);
         let next = self
