@@ -28,7 +28,7 @@
 //! # Cost
 //!
 //! One CMAC of two AES blocks (a 23-byte input) per seal made and per seal checked: about
-//! 11 000 Cortex-M4 instructions on the boards (`scripts/cortex-m4-cost.sh`, case `auth`,
+//! 12 000 Cortex-M4 instructions on the boards (`scripts/cortex-m4-cost.sh`, case `auth`,
 //! classes `seal-make` and `seal-check`). A held frame or a seal matches by a walk of at most
 //! [`HELD`] entries, a sender by one of [`PEERS`]. Memory: a [`Verifier`] is about 500 bytes.
 
@@ -307,10 +307,9 @@ impl Verifier {
     ) -> (usize, Option<Refusal>) {
         let mut unsealed = (0, None);
         // Oldest first: the frames that waited too long are at the front.
-        while let Some(oldest) = self.held.first().copied()
+        while let Some(oldest) = self.held.first()
             && (self.held.is_full() || !within(now, oldest.at, HOLD_US))
         {
-            take(&mut self.held, 0);
             if !oldest.refused {
                 unsealed.0 += 1;
                 unsealed.1 = Some(Refusal {
@@ -319,6 +318,7 @@ impl Verifier {
                     source: oldest.source,
                 });
             }
+            self.held.remove(0);
         }
         // Room was made above if the hold was full.
         let _ = self.held.push(Held {
@@ -405,12 +405,16 @@ impl Verifier {
         };
         let verdict = match (slot.and_then(|slot| take(&mut self.held, slot)), freshness) {
             (Some(held), Ok(_)) if answer => {
-                let word = |at: usize| {
-                    u32::from_le_bytes(core::array::from_fn(|i| {
-                        held.frame.payload().get(at + i).copied().unwrap_or(0)
-                    }))
-                };
-                peer.known = Some((word(0), word(4)));
+                // A Freshness: epoch and counter, u32 LE each (its length checked when decoded).
+                let mut bytes = [0u8; 8];
+                for (byte, of) in bytes.iter_mut().zip(held.frame.payload()) {
+                    *byte = *of;
+                }
+                let [e0, e1, e2, e3, c0, c1, c2, c3] = bytes;
+                peer.known = Some((
+                    u32::from_le_bytes([e0, e1, e2, e3]),
+                    u32::from_le_bytes([c0, c1, c2, c3]),
+                ));
                 peer.answered = true;
                 return (Verdict::Synchronised, None);
             }

@@ -53,9 +53,12 @@ MEDIAN_GOALS = [
 # register moves), tables without filters included; then down to 158 / 528 when the decision walk
 # went out of line (its inlined copies had kept the callers' registers busy); and up to 159 / 529
 # when the decay's ceiling came to be read from the loss table (one address computation more per
-# connection fed, for 260 bytes of flash that the schema server needed on the NUCLEO-G474RE).
+# connection fed, for 260 bytes of flash that the schema server needed on the NUCLEO-G474RE);
+# and up to 169 / 536 with LLVM's machine outliner (.cargo/config.toml), 568 bytes of the
+# NUCLEO-G474RE's flash and 532 of the emulated board's that sealed coordination needed: a branch
+# and a return where a shared sequence was.
 NOT_MET = [
-    ("tr-arm", "fed", 200, 159, 529),
+    ("tr-arm", "fed", 200, 169, 536),
 ]
 
 # One SysTick tick of the 25 MHz CPU clock under -icount shift=0 (1 instruction per ns).

@@ -336,9 +336,9 @@ _AUTH_TEXT = {
     AuthFailure.Locked: "configuration locked: key page invalid",
     AuthFailure.NoKey: "tagged message to a node without a key",
     AuthFailure.Sequence: "consecutive frame out of sequence ignored",
-    AuthFailure.BadSeal: "coordination frame whose seal does not verify",
-    AuthFailure.Unsealed: "coordination frame without its seal",
-    AuthFailure.Unsynced: "seal from a sender not synchronised yet",
+    AuthFailure.BadSeal: "seal does not verify",
+    AuthFailure.Unsealed: "no seal",
+    AuthFailure.Unsynced: "sender not synchronised yet",
 }
 
 

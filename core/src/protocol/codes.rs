@@ -207,13 +207,13 @@ wire_enum! {
         /// A coordination frame (Gates, BLE claim, filter command) whose seal does not verify
         /// on a keyed node: forged, replayed (its freshness not above the last accepted from
         /// that sender), or sealed under another key. Not applied.
-        BadSeal = 0x0B, "coordination frame whose seal does not verify";
+        BadSeal = 0x0B, "seal does not verify";
         /// A coordination frame on a keyed node that no seal followed (within 0.5 s, or before
         /// room was needed for others): not applied.
-        Unsealed = 0x0C, "coordination frame without its seal";
+        Unsealed = 0x0C, "no seal";
         /// A seal from a sender whose freshness the keyed node does not know yet (its first, or
         /// the first after the sender restarted): not applied; the node asked the sender.
-        Unsynced = 0x0D, "seal from a sender not synchronised yet";
+        Unsynced = 0x0D, "sender not synchronised yet";
     }
 }
 

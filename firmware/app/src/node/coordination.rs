@@ -236,8 +236,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         let (count, last) = self.guard.hold(source, kind, frame, now);
         if let Some(refusal) = last {
             self.refuse_unsealed(refusal);
-            // The fault names the last; the errors count them all.
-            let more = u32::try_from(count.saturating_sub(1)).unwrap_or(u32::MAX);
+            // The fault names the last; the errors count them all (at most `seal::HELD`).
+            let more = (count as u32).saturating_sub(1);
             self.counters.errors = self.counters.errors.wrapping_add(more);
         }
     }
@@ -252,12 +252,13 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         }
         match verdict {
             // A sealed frame applies nothing the runner must store.
-            Verdict::Accepted(frame) => match protocol::classify(&frame) {
-                FrameKind::Claim => self.apply_claim(&frame, now),
-                _ => {
+            Verdict::Accepted(frame) => {
+                if seal.kind == protocol::Seal::CLAIM {
+                    self.apply_claim(&frame, now);
+                } else {
                     let _ = self.on_protocol_frame(&frame, now, true);
                 }
-            },
+            }
             Verdict::Refused(refusal) => self.refuse_unsealed(refusal),
             Verdict::Nothing | Verdict::Synchronised => {}
         }

@@ -308,7 +308,7 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     {
         let _ = info;
         fail(format_args!(
-            "panic: panicked (build with PAB_PANIC_LOCATION=1 to see where)"
+            "panic: panicked (PAB_PANIC_LOCATION=1 builds say where)"
         ))
     }
 }
