@@ -182,6 +182,18 @@ pub fn encode(data: &[u8]) {
         );
         return;
     }
+    if let Message::Seal(seal) = message
+        && !Seal::is_sealable(seal.kind)
+    {
+        // A seal of nothing a seal may follow: the decoder must refuse it.
+        assert_eq!(
+            decoded,
+            Err(protocol::DecodeError::Value {
+                service: Service::Seal
+            })
+        );
+        return;
+    }
     let (id, back) = decoded.unwrap_or_else(|error| panic!("{message:?}: {error}"));
     assert_eq!(id, FrameId::new(message.service(), source, destination));
     assert_eq!(back, normalized(message));
