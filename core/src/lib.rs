@@ -52,6 +52,7 @@ pub mod dynamics;
 pub mod filter;
 pub mod frame;
 pub mod hbba;
+pub mod identity;
 pub mod image;
 mod index;
 pub mod integrator;

@@ -7,10 +7,11 @@ use std::fmt::Write as _;
 use std::time::{Duration, Instant};
 
 use pab_core::Frame;
+use pab_core::identity::{Identity, IdentityPart, IdentityParts};
 use pab_core::protocol::{
-    DiagnosticSample, Errors, Fault, FaultCode, FilterStatus, FrameId, Gates, Heartbeat, Message,
-    STORE_UNREADABLE, SchemaAck, SchemaState, SchemaTransition, StoreFailure, TableStatus, Traffic,
-    TransferStatus, TransferStatusCode,
+    ConfigStatus, DiagnosticSample, Errors, Fault, FaultCode, FilterStatus, FrameId, Gates,
+    Heartbeat, Message, STORE_UNREADABLE, SchemaAck, SchemaState, SchemaTransition, StoreFailure,
+    TableStatus, Traffic, TransferStatus, TransferStatusCode,
 };
 
 /// The latest of everything a node said.
@@ -40,6 +41,12 @@ pub struct NodeView {
     pub schema_transition: Option<(SchemaTransition, Instant)>,
     /// Its latest answer to a schema, and when it arrived.
     pub schema_ack: Option<(SchemaAck, Instant)>,
+    /// Its identity, once all six frames of one answer arrived, and when the last did.
+    pub identity: Option<(Identity, Instant)>,
+    /// The identity frames of the answer in progress.
+    pub identity_parts: IdentityParts,
+    /// Its latest answer to an Assign or a Configure, and when it arrived.
+    pub config_status: Option<(ConfigStatus, Instant)>,
 }
 
 /// Every node heard from, by id.
@@ -79,6 +86,19 @@ impl Observer {
             Message::SchemaState(state) => view.schema_state = Some((state, at)),
             Message::SchemaTransition(change) => view.schema_transition = Some((change, at)),
             Message::SchemaAck(ack) => view.schema_ack = Some((ack, at)),
+            Message::Identity { part, payload } => {
+                // An answer starts with its uid frame: parts of an earlier, cut answer (or of
+                // another unassigned node behind the same address) are not mixed in.
+                if part == IdentityPart::Uid {
+                    view.identity_parts = IdentityParts::new();
+                }
+                view.identity_parts.add(part, payload);
+                if let Some(identity) = view.identity_parts.complete() {
+                    view.identity = Some((identity, at));
+                }
+            }
+            Message::ConfigStatus(status) => view.config_status = Some((status, at)),
+            Message::IdentityRequest | Message::Assign(_) | Message::Configure(_) => {}
             Message::EmergencyStop
             | Message::SchemaAbort
             | Message::SchemaTransfer { .. }

@@ -120,6 +120,37 @@ wire_enum! {
         /// pose and the server waits on the high-priority channel. Detail byte 0: the
         /// [`SchemaSafety`]; bytes 1-2: the schema it ended, u16 LE.
         SchemaSafety = 0x0070, "schema server stopped by a safety event";
+        /// The bit rate set over the bus heard nothing (no frame received, no transmission
+        /// acknowledged) within 5 s of the start: the node stored its previous rate again and
+        /// restarted on it. Detail bytes 0-1: the rate that failed, kbit/s, u16 LE; bytes 2-3:
+        /// the rate it went back to.
+        BitrateFallback = 0x0080, "bit rate set over the bus heard nothing: back on the previous one";
+        /// The node's configuration page could not be read at start (a flash error, or a record
+        /// of another format): it runs on its compiled defaults. Detail byte 0: why (1 flash
+        /// error, 2 layout, 3 records exhausted, 4 a record does not read back, 5 a record of
+        /// another format).
+        SettingsUnreadable = 0x0081, "configuration page unreadable: compiled defaults in use";
+    }
+}
+
+wire_enum! {
+    /// The outcome of an [`Assign`](super::Assign) or a [`Configure`](super::Configure).
+    ConfigStatusCode: u8 {
+        /// Stored; a node id is in force at once, a bit rate from the next start.
+        Stored = 0x00, "stored";
+        /// The value is not one the node takes (a node id outside 1..=127, a bit rate it cannot
+        /// run).
+        BadValue = 0x01, "value refused";
+        /// The configuration page could not be written: nothing changed.
+        StoreFailed = 0x02, "could not be stored";
+        /// The node has nowhere to keep its configuration (a `pab-node` without --store keeps
+        /// it until it exits): in force, not stored.
+        NotStored = 0x03, "in force until restart: the node has no store";
+        /// A table transfer or a save is in progress: try again when it ends.
+        Busy = 0x04, "busy: a transfer or save is in progress";
+        /// The node does not set this itself: a Linux node's bit rate is its interface's
+        /// (`ip link set can0 type can bitrate R`).
+        Unsupported = 0x05, "not this node's to set (a Linux node's bit rate is its interface's)";
     }
 }
 

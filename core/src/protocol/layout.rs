@@ -17,8 +17,8 @@
 //! not says so in the one place readers look.
 
 use super::{
-    FaultCode, NodeState, SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety, SchemaTrigger,
-    Service, TransferStatusCode,
+    ConfigStatusCode, FaultCode, NodeState, SchemaChannel, SchemaOrigin, SchemaOutcome,
+    SchemaSafety, SchemaTrigger, Service, TransferStatusCode,
 };
 
 /// How a field's raw value reads as a quantity.
@@ -59,6 +59,11 @@ pub enum Values {
     Edge,
     /// What a [`Seal`](super::Seal) seals: a service code, or 0x80 for a BLE claim.
     SealKind,
+    /// [`ConfigStatusCode`].
+    ConfigStatusCode,
+    /// The command a [`ConfigStatus`](super::ConfigStatus) answers: Assign's or Configure's
+    /// service code.
+    ConfigCommand,
 }
 
 impl Values {
@@ -149,6 +154,14 @@ impl Values {
             ]
             .get(index)
             .copied(),
+            Values::ConfigCommand => [(0x28, "Assign"), (0x29, "Configure")].get(index).copied(),
+            Values::ConfigStatusCode => entry(
+                ConfigStatusCode::ALL,
+                index,
+                |v| v.code().into(),
+                ConfigStatusCode::description,
+                None,
+            ),
         }
     }
 
@@ -371,6 +384,16 @@ pub const fn layout(service: Service) -> &'static Layout {
         Service::Seal => &m::Seal::LAYOUT,
         Service::FreshnessRequest => &m::FRESHNESS_REQUEST_LAYOUT,
         Service::Freshness => &m::FRESHNESS_LAYOUT,
+        Service::IdentityRequest => &m::IDENTITY_REQUEST_LAYOUT,
+        Service::Identity => &m::IDENTITY_LAYOUT,
+        Service::IdentityVersion => &m::IDENTITY_VERSION_LAYOUT,
+        Service::IdentityBuild => &m::IDENTITY_BUILD_LAYOUT,
+        Service::IdentityCapacity => &m::IDENTITY_CAPACITY_LAYOUT,
+        Service::IdentityFeatures => &m::IDENTITY_FEATURES_LAYOUT,
+        Service::IdentityName => &m::IDENTITY_NAME_LAYOUT,
+        Service::Assign => &m::Assign::LAYOUT,
+        Service::Configure => &m::Configure::LAYOUT,
+        Service::ConfigStatus => &m::ConfigStatus::LAYOUT,
     }
 }
 

@@ -33,16 +33,17 @@ mod schema;
 
 pub use classify::{FrameKind, classify, classify_id};
 pub use codes::{
-    AuthFailure, FaultCode, NodeState, STORE_UNREADABLE, SchemaChannel, SchemaOrigin,
-    SchemaOutcome, SchemaSafety, SchemaTrigger, StoreFailure, TransferStatusCode,
+    AuthFailure, ConfigStatusCode, FaultCode, NodeState, STORE_UNREADABLE, SchemaChannel,
+    SchemaOrigin, SchemaOutcome, SchemaSafety, SchemaTrigger, StoreFailure, TransferStatusCode,
 };
 pub use messages::DecodeError;
 pub use messages::{
-    DesireFrame, DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Exploitation, Fault,
-    FilterProfile, FilterSet, FilterStatus, Gates, Heartbeat, Intention, Message, OPEN_REPLACE,
-    OPEN_SCHEMA, SchemaAck, SchemaState, SchemaTransition, Seal, TableStatus, Traffic,
-    TransferOpen, TransferStatus,
+    Assign, ConfigStatus, Configure, DesireFrame, DiagnosticControl, DiagnosticFlags,
+    DiagnosticSample, Errors, Exploitation, Fault, FilterProfile, FilterSet, FilterStatus, Gates,
+    Heartbeat, Intention, Message, OPEN_REPLACE, OPEN_SCHEMA, SchemaAck, SchemaState,
+    SchemaTransition, Seal, TableStatus, Traffic, TransferOpen, TransferStatus,
 };
+pub use messages::{identity_part, identity_service};
 
 use embedded_can::{ExtendedId, Id};
 
@@ -167,11 +168,31 @@ pub enum Service {
     FreshnessRequest = 0x1F,
     /// Keyed node → the requester: its epoch and counter, sealed over the request's nonce.
     Freshness = 0x20,
+    /// Tool → node(s): asks for the node's identity (no payload; [`crate::identity`]).
+    IdentityRequest = 0x21,
+    /// Node → the requester, or all at start-up: identity part 0, uid bytes 0-7.
+    Identity = 0x22,
+    /// Node → the requester: identity part 1, uid bytes 8-11, firmware and protocol versions.
+    IdentityVersion = 0x23,
+    /// Node → the requester: identity part 2, the build id.
+    IdentityBuild = 0x24,
+    /// Node → the requester: identity part 3, capacities.
+    IdentityCapacity = 0x25,
+    /// Node → the requester: identity part 4, table formats, features, flags, bit rate.
+    IdentityFeatures = 0x26,
+    /// Node → the requester: identity part 5, the firmware's name.
+    IdentityName = 0x27,
+    /// Tool → node: gives the node (named by a check of its uid) its node id ([`Assign`]).
+    Assign = 0x28,
+    /// Tool → node: sets the bit rate from the next start ([`Configure`]).
+    Configure = 0x29,
+    /// Node → tool: answers an Assign or a Configure ([`ConfigStatus`]).
+    ConfigStatus = 0x2A,
 }
 
 impl Service {
     /// Every service, for tables (DBC export, documentation tests).
-    pub const ALL: [Service; 29] = [
+    pub const ALL: [Service; 39] = [
         Service::EmergencyStop,
         Service::Fault,
         Service::Heartbeat,
@@ -201,10 +222,20 @@ impl Service {
         Service::Seal,
         Service::FreshnessRequest,
         Service::Freshness,
+        Service::IdentityRequest,
+        Service::Identity,
+        Service::IdentityVersion,
+        Service::IdentityBuild,
+        Service::IdentityCapacity,
+        Service::IdentityFeatures,
+        Service::IdentityName,
+        Service::Assign,
+        Service::Configure,
+        Service::ConfigStatus,
     ];
 
     /// The service with this code. A match, not a search of [`Service::ALL`]: the codes are two
-    /// runs (0x00..=0x0B, 0x10..=0x1D), which the compiler turns into two range checks, and a
+    /// runs (0x00..=0x0B, 0x10..=0x2A), which the compiler turns into two range checks, and a
     /// node parses the service of every frame of ours it reads.
     pub const fn from_code(code: u8) -> Option<Service> {
         Some(match code {
@@ -237,6 +268,16 @@ impl Service {
             0x1E => Service::Seal,
             0x1F => Service::FreshnessRequest,
             0x20 => Service::Freshness,
+            0x21 => Service::IdentityRequest,
+            0x22 => Service::Identity,
+            0x23 => Service::IdentityVersion,
+            0x24 => Service::IdentityBuild,
+            0x25 => Service::IdentityCapacity,
+            0x26 => Service::IdentityFeatures,
+            0x27 => Service::IdentityName,
+            0x28 => Service::Assign,
+            0x29 => Service::Configure,
+            0x2A => Service::ConfigStatus,
             _ => return None,
         })
     }
@@ -259,7 +300,8 @@ impl Service {
             | Service::Receipt
             | Service::SchemaTransfer
             | Service::SchemaAck
-            | Service::SchemaTransition => Priority::HIGH,
+            | Service::SchemaTransition
+            | Service::ConfigStatus => Priority::HIGH,
             // Gates are decisions other nodes' rules read: they wait for faults and the tool's
             // answers only, never behind heartbeats, claims or counters.
             // Filter commands likewise: a disable must not queue behind a board's counters.
@@ -268,14 +310,23 @@ impl Service {
             | Service::ChallengeRequest
             | Service::TransferOpen
             | Service::FilterProfile
-            | Service::FilterSet => Priority::COMMAND,
+            | Service::FilterSet
+            | Service::IdentityRequest
+            | Service::Assign
+            | Service::Configure => Priority::COMMAND,
             Service::Heartbeat
             | Service::TableStatus
             | Service::Desire
             | Service::Intention
             | Service::FilterStatus
             | Service::FreshnessRequest
-            | Service::Freshness => Priority::NOMINAL,
+            | Service::Freshness
+            | Service::Identity
+            | Service::IdentityVersion
+            | Service::IdentityBuild
+            | Service::IdentityCapacity
+            | Service::IdentityFeatures
+            | Service::IdentityName => Priority::NOMINAL,
             Service::Traffic
             | Service::Errors
             | Service::Exploitation
@@ -294,9 +345,13 @@ impl Service {
     #[inline(never)]
     pub const fn payload_len(self) -> usize {
         match self {
-            Service::DiagnosticControl | Service::Exploitation | Service::FilterProfile => 4,
+            Service::DiagnosticControl
+            | Service::Exploitation
+            | Service::FilterProfile
+            | Service::Assign
+            | Service::Configure => 4,
             Service::FilterSet => 6,
-            Service::EmergencyStop | Service::SchemaAbort => 0,
+            Service::EmergencyStop | Service::SchemaAbort | Service::IdentityRequest => 0,
             _ => 8,
         }
     }

@@ -58,7 +58,28 @@ impl core::error::Error for ConfigError {}
 impl Config {
     /// The defaults for node `node_id`.
     pub fn new(node_id: u8) -> Result<Config, ConfigError> {
-        let config = Config {
+        let config = Config::defaults(node_id);
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// The defaults for a node without a node id: it sends from its provisional address and
+    /// takes only identity requests and assignments until `pabctl assign` gives it one
+    /// ([`crate::Node::set_identity`]). `node_id` reads 0 until then.
+    pub fn unassigned() -> Config {
+        Config::defaults(0)
+    }
+
+    /// The defaults for `node_id` (0: unassigned), or [`Config::unassigned`]'s for `None`.
+    pub fn for_node(node_id: Option<u8>) -> Result<Config, ConfigError> {
+        match node_id {
+            Some(id) => Config::new(id),
+            None => Ok(Config::unassigned()),
+        }
+    }
+
+    fn defaults(node_id: u8) -> Config {
+        Config {
             node_id,
             heartbeat_period_us: 1_000_000,
             fault_interval_us: crate::faults::DEFAULT_INTERVAL_US,
@@ -69,9 +90,7 @@ impl Config {
                 block_size: 8,
                 ..RxConfig::default()
             },
-        };
-        config.validate()?;
-        Ok(config)
+        }
     }
 
     /// Checks the settings.
@@ -91,13 +110,17 @@ impl Config {
 
 /// A node id given as text at compile time, for the boards' `PAB_NODE_ID`:
 /// `parse_node_id(option_env!("PAB_NODE_ID"))` in a `const` gives 1 without it, the number for
-/// a decimal number in 1..=127, and a compile error naming `PAB_NODE_ID` for anything else.
+/// a decimal number in 1..=127, 0 for `unassigned` (no compiled id: [`Config::unassigned`]), and
+/// a compile error naming `PAB_NODE_ID` for anything else.
 /// (Called at run time with bad text, it panics: use it in `const` items only.)
 pub const fn parse_node_id(text: Option<&str>) -> u8 {
     let Some(text) = text else {
         return 1;
     };
     let digits = text.as_bytes();
+    if let b"unassigned" = digits {
+        return 0;
+    }
     assert!(
         !digits.is_empty() && digits.len() <= 3,
         "PAB_NODE_ID must be a decimal number in 1..=127"

@@ -48,6 +48,7 @@ pub mod replay;
 mod runner;
 #[cfg(feature = "schema")]
 pub mod schema;
+mod settings;
 
 pub use auth::{CHALLENGE_LIFETIME_US, TAG_CHECKS_PER_SECOND};
 pub use bus::{BusError, CanBus};
@@ -58,8 +59,23 @@ pub use config::{
 pub use fmt::log;
 pub use keying::{BOOT_COUNTER_FAILED, Keying, key_from_page};
 pub use node::{Counters, Node, Running, Step};
+pub use pab_core::identity::{Firmware, Identity};
 pub use pab_storage::{SaveProgress, StoreError, TableStore};
 pub use runner::{SAVE_POLL_US, SAVE_STARVED_US, SENDS_PER_TURN, Watchdog, now, run, run_watched};
+pub use settings::{BITRATE_TRIAL_US, Settings};
+
+/// The git commit this build comes from, as hex (`PAB_BUILD_ID` at build time overrides it;
+/// empty when unknown): what a node states as its build ([`Firmware::new`]).
+pub const BUILD_ID: &str = env!("PAB_BUILD_ID");
+
+/// This firmware's [`Firmware`]: `name` (at most 8 ASCII bytes), the calling crate's version and
+/// [`BUILD_ID`]. `pab_app::firmware!("fw-g474")` in a `const`.
+#[macro_export]
+macro_rules! firmware {
+    ($name:expr) => {
+        $crate::Firmware::new($name, env!("CARGO_PKG_VERSION"), $crate::BUILD_ID)
+    };
+}
 
 /// What the fuzz target `node_keyed` (fuzz/checks) reads of a node's authentication state and
 /// configuration, to hold them to what it saw on the bus ([`Node::auth_probe`]). Not an API.

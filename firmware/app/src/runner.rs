@@ -31,6 +31,11 @@ pub trait Watchdog {
     const FEED_INTERVAL_US: u64;
     /// Restarts the watchdog's countdown. Costs one register write on the boards.
     fn feed(&mut self);
+
+    /// Restarts the node now (a board: a system reset), for a setting that takes effect at
+    /// start, such as a bit rate that went back to the previous one. The default does nothing:
+    /// a host process keeps running, the setting applies at its next start.
+    fn restart(&mut self) {}
 }
 
 /// No watchdog (the Linux node, tests): never feeds, never wakes the loop for it.
@@ -173,6 +178,14 @@ where
                 node.poll(now(), recipient)
             }
         };
+        // A configuration record to store: blocking (a record's program, once in a while an
+        // erase); configuration is rare, and the node refuses it while a table's save runs.
+        if step == Step::SaveSettings {
+            let result = store.save_settings(node.settings_to_store());
+            if node.settings_stored(result, now()) {
+                watchdog.restart();
+            }
+        }
         // A new table to store: at once, or when the store interval let its turn come.
         if step == Step::Store {
             // A save that cannot start (the image does not fit, the flash fails) is reported by

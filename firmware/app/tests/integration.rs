@@ -8,6 +8,7 @@ mod common;
 
 mod ble;
 mod filters;
+mod identity;
 mod keying;
 mod node;
 mod outbox;

@@ -44,6 +44,18 @@ fn payload(service: Service) -> Vec<u8> {
         // A seal of a Gates frame (a wrong tag), a freshness request's nonce, an answer.
         Service::Seal => vec![0x07, 0, 1, 0, 1, 2, 3, 4],
         Service::FreshnessRequest | Service::Freshness => vec![1, 2, 3, 4, 5, 6, 7, 8],
+        Service::IdentityRequest => vec![],
+        Service::Identity
+        | Service::IdentityVersion
+        | Service::IdentityBuild
+        | Service::IdentityCapacity
+        | Service::IdentityName => vec![0; 8],
+        Service::IdentityFeatures => vec![10, 10, 0, 0, 0, 0, 0, 0],
+        // Node 5 by a uid check no node has: well formed, taken by nobody.
+        Service::Assign => vec![1, 2, 3, 6],
+        // 500 kbit/s.
+        Service::Configure => vec![0xF4, 1, 0, 0],
+        Service::ConfigStatus => vec![0x28, 0, 5, 0, 0xF4, 1, 0, 0],
     }
 }
 
@@ -57,7 +69,10 @@ fn frame_with(service: Service, priority: u8) -> Frame {
         | Service::TransferOpen
         | Service::EmergencyStop
         | Service::SchemaAbort
-        | Service::SchemaTransfer => protocol::TOOL,
+        | Service::SchemaTransfer
+        | Service::IdentityRequest
+        | Service::Assign
+        | Service::Configure => protocol::TOOL,
         _ => 9,
     };
     let mut id = FrameId::new(service, source, Harness::NODE_ID);

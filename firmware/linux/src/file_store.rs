@@ -20,6 +20,12 @@ use pab_storage::FlashErrorKind;
 
 /// The file name inside the store directory.
 pub const FILE_NAME: &str = "table.pab";
+/// The node's configuration record (`pab_app::Settings`: node id, set over the bus), 2 bytes
+/// little endian, replaced atomically like the table.
+pub const SETTINGS_FILE: &str = "settings.bin";
+/// The node's unique id: 16 hexadecimal digits and a newline, made once from the OS's random
+/// source (what `pabctl nodes` lists and `pabctl assign --uid` names).
+pub const UID_FILE: &str = "uid";
 
 /// Reads the boot table from `--table` (if given) or the store directory; writes pushed tables to
 /// the store directory (if given).
@@ -29,6 +35,56 @@ pub struct FileStore {
     boot_image: Option<Vec<u8>>,
     /// A save written by `start_save` whose `continue_save` has not reported it yet.
     written: bool,
+}
+
+/// The node's unique id: read from `DIR/uid`, or made from the OS's random source (and written
+/// there, once) when the file does not exist; without a directory, new at every start. 64 random
+/// bits in the first 8 bytes of the 12 an identity carries.
+pub fn node_uid(dir: Option<&Path>) -> io::Result<[u8; pab_core::identity::UID_LEN]> {
+    let mut uid = [0u8; pab_core::identity::UID_LEN];
+    let path = dir.map(|dir| dir.join(UID_FILE));
+    if let Some(path) = &path {
+        match fs::read_to_string(path) {
+            Ok(text) => {
+                let text = text.trim();
+                let parsed = (text.len() == 16)
+                    .then(|| u64::from_str_radix(text, 16).ok())
+                    .flatten();
+                return match parsed {
+                    Some(value) => {
+                        uid[..8].copy_from_slice(&value.to_be_bytes());
+                        Ok(uid)
+                    }
+                    None => Err(io::Error::other(format!(
+                        "{}: not a uid (16 hexadecimal digits); remove it to make a new one",
+                        path.display()
+                    ))),
+                };
+            }
+            Err(error) if error.kind() == io::ErrorKind::NotFound => {}
+            Err(error) => {
+                return Err(io::Error::new(
+                    error.kind(),
+                    format!("{}: {error}", path.display()),
+                ));
+            }
+        }
+    }
+    let mut random = [0u8; 8];
+    fs::File::open("/dev/urandom").and_then(|mut source| source.read_exact(&mut random))?;
+    uid[..8].copy_from_slice(&random);
+    if let Some(path) = &path {
+        let text = format!("{:016x}\n", u64::from_be_bytes(random));
+        write_atomically(path, text.as_bytes()).map_err(|error| {
+            io::Error::new(error.kind(), format!("{}: {error}", path.display()))
+        })?;
+        log::info!(
+            "new uid {:016x} in {}",
+            u64::from_be_bytes(random),
+            path.display()
+        );
+    }
+    Ok(uid)
 }
 
 /// Why an image file was not read.
@@ -197,6 +253,10 @@ impl FileStore {
     fn stored_path(&self) -> Option<PathBuf> {
         self.dir.as_ref().map(|dir| dir.join(FILE_NAME))
     }
+
+    fn settings_path(&self) -> Option<PathBuf> {
+        self.dir.as_ref().map(|dir| dir.join(SETTINGS_FILE))
+    }
 }
 
 fn io_failure(what: &str, path: &Path, error: &io::Error) -> StoreError {
@@ -205,6 +265,33 @@ fn io_failure(what: &str, path: &Path, error: &io::Error) -> StoreError {
 }
 
 impl TableStore for FileStore {
+    fn load_settings(&mut self) -> Result<Option<u16>, StoreError> {
+        let Some(path) = self.settings_path() else {
+            return Ok(None);
+        };
+        match fs::read(&path) {
+            Ok(bytes) => match <[u8; 2]>::try_from(bytes.as_slice()) {
+                Ok(record) => Ok(Some(u16::from_le_bytes(record))),
+                Err(_) => {
+                    log::error!("{}: not a settings record (2 bytes)", path.display());
+                    Err(StoreError::Corrupt)
+                }
+            },
+            Err(error) if error.kind() == io::ErrorKind::NotFound => Ok(None),
+            Err(error) => Err(io_failure("cannot read", &path, &error)),
+        }
+    }
+
+    fn save_settings(&mut self, record: u16) -> Result<bool, StoreError> {
+        let Some(path) = self.settings_path() else {
+            log::warn!("no --store directory: the new setting is lost when the node stops");
+            return Ok(false);
+        };
+        write_atomically(&path, &record.to_le_bytes())
+            .map_err(|error| io_failure("cannot write", &path, &error))?;
+        Ok(true)
+    }
+
     fn load<'b>(&mut self, buf: &'b mut [u8]) -> Result<Option<&'b [u8]>, StoreError> {
         // --table wins once, at boot; later loads (none today) would read the store.
         if let Some(image) = self.boot_image.take() {

@@ -13,6 +13,7 @@ use embassy_executor::Executor;
 mod file_store;
 
 use file_store::FileStore;
+use pab_app::store::TableStore as _;
 use pab_node::receive_queue;
 use pab_node::socket_bus::SocketBus;
 
@@ -38,9 +39,11 @@ struct Args {
     /// The SocketCAN interface (vcan0, can0...).
     #[arg(long)]
     iface: String,
-    /// This node's id, 1..=127; pushed tables must be compiled for it.
+    /// This node's id, 1..=127; pushed tables must be compiled for it. An id given over the bus
+    /// (`pabctl assign`) and kept in --store wins over it. Without either, the node starts
+    /// unassigned: it answers only `pabctl nodes` (with its uid) and `pabctl assign`.
     #[arg(long, allow_hyphen_values = true, value_parser = node_id)]
-    node_id: u8,
+    node_id: Option<u8>,
     /// Boot with this table image (from `pabctl compile`) instead of the stored one. It must be
     /// a regular file of at most 32768 bytes (anything else stops the start, exit status 2). An
     /// image for another node id is refused at boot, as a push of it would be: the node starts
@@ -118,15 +121,26 @@ fn main() -> ExitCode {
 /// Everything that can fail before the node runs; then runs it forever.
 fn start(args: Args) -> anyhow::Result<std::convert::Infallible> {
     use anyhow::Context as _;
-    let mut config = pab_app::Config::new(args.node_id)?;
+    let mut store = FileStore::new(args.store.clone(), args.table.clone())
+        .with_context(|| "preparing the table store")?;
+    let uid = file_store::node_uid(args.store.as_deref()).with_context(|| "the node's uid")?;
+    let loaded = store.load_settings();
+    let settings = pab_app::Settings::from_loaded(&loaded);
+    let node_id = settings.node_id.or(args.node_id);
+    if let (Some(kept), Some(given)) = (settings.node_id, args.node_id)
+        && kept != given
+    {
+        log::warn!(
+            "node id {kept}, given over the bus and kept in --store, wins over --node-id {given}"
+        );
+    }
+    let mut config = pab_app::Config::for_node(node_id)?;
     let key = args
         .key
         .as_deref()
         .map(pab_node::key_file::read_key)
         .transpose()?;
     config.heartbeat_period_us = args.heartbeat_ms * 1000;
-    let store = FileStore::new(args.store.clone(), args.table.clone())
-        .with_context(|| "preparing the table store")?;
     let (bus, sizing) = SocketBus::open(&args.iface, args.rcvbuf).with_context(|| {
         format!(
             "opening CAN interface {:?} (does it exist and is it up? `ip link show {}`)",
@@ -142,9 +156,10 @@ fn start(args: Args) -> anyhow::Result<std::convert::Infallible> {
         ),
         Some(why) => log::warn!("{why}"),
     }
+    let uid_text: String = uid.iter().take(8).map(|b| format!("{b:02x}")).collect();
     log::info!(
-        "node {} on {} (heartbeat every {} ms, store {})",
-        args.node_id,
+        "node {} (uid {uid_text}) on {} (heartbeat every {} ms, store {})",
+        node_id.map_or("unassigned".to_string(), |id| id.to_string()),
         args.iface,
         args.heartbeat_ms,
         args.store
@@ -153,6 +168,10 @@ fn start(args: Args) -> anyhow::Result<std::convert::Infallible> {
     );
     // The node holds the arbiter and a 32 KiB transfer buffer: on the heap, not in the task.
     let node = Box::leak(Box::new(pab_app::FullNode::new(config, pab_app::now())));
+    const FIRMWARE: pab_app::Firmware = pab_app::firmware!("pab-node");
+    node.set_identity(FIRMWARE, uid);
+    // The interface's bit rate is the operating system's (`ip link`), not the node's: 0.
+    node.set_settings(loaded, 0, pab_app::now());
     match &key {
         Some(key) => {
             node.set_key(key, pab_node::key_file::boot_salt()?);

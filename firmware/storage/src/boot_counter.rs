@@ -182,18 +182,29 @@ impl<F: NorFlash> BootCounter<F> {
     /// boot's call still returns a new value), [`CounterError::VerifyFailed`] (the record does
     /// not read back) or [`CounterError::Exhausted`] (the count is `u32::MAX`).
     pub fn increment(&mut self) -> Result<u32, CounterError> {
+        self.advance(|count| count.checked_add(1))
+    }
+
+    /// Records the count `next(current)` returns (the configuration page's way: a sequence in
+    /// the high bits, a value in the low ones), with `increment`'s guarantee: it must be larger
+    /// than the current count ([`CounterError::Exhausted`] otherwise, or when `next` returns
+    /// `None`), and it is returned only once it reads back.
+    pub fn advance(&mut self, next: impl FnOnce(u32) -> Option<u32>) -> Result<u32, CounterError> {
         let newest = self.newest()?;
+        let current = newest.map_or(0, |newest| newest.count);
+        let count = next(current)
+            .filter(|&count| count > current)
+            .ok_or(CounterError::Exhausted)?;
         let records = self.page_size / self.record;
-        let (count, page, index) = match newest {
-            None => (1, 0, 0),
+        let (page, index) = match newest {
+            None => (0, 0),
             Some(newest) => {
-                let count = newest.count.checked_add(1).ok_or(CounterError::Exhausted)?;
                 match newest.last_used.checked_add(1) {
-                    Some(next) if next < records => (count, newest.page, next),
+                    Some(next) if next < records => (newest.page, next),
                     // Full: the next page in ring order, by comparison rather than `%`.
                     _ => match newest.page.saturating_add(1) {
-                        next if next < self.pages => (count, next, 0),
-                        _ => (count, 0, 0),
+                        next if next < self.pages => (next, 0),
+                        _ => (0, 0),
                     },
                 }
             }

@@ -210,3 +210,15 @@ impl core::fmt::Display for Bytes {
         }
     }
 }
+
+impl From<CounterError> for StoreError {
+    /// A configuration page's failure as the store's ([`crate::SettingsPage`] is a boot counter).
+    fn from(error: CounterError) -> StoreError {
+        match error {
+            CounterError::Flash(kind) => StoreError::Flash(kind),
+            CounterError::Layout(layout) => StoreError::Layout(layout),
+            CounterError::Exhausted => StoreError::SequenceExhausted,
+            CounterError::VerifyFailed => StoreError::VerifyFailed,
+        }
+    }
+}

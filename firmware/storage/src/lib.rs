@@ -179,12 +179,14 @@
 mod background;
 pub mod boot_counter;
 mod error;
+pub mod settings;
 #[cfg(feature = "mem-flash")]
 pub mod testing;
 
 pub use background::{BackgroundErase, Blocking};
 pub use boot_counter::BootCounter;
 pub use error::{CounterError, FlashErrorKind, LayoutError, StoreError};
+pub use settings::SettingsPage;
 
 use core::ops::Range;
 
@@ -217,6 +219,22 @@ pub trait TableStore {
         self.start_save(image)?;
         while self.continue_save(image)? != SaveProgress::Done {}
         Ok(())
+    }
+
+    /// The node's configuration record (`pab_app::Settings`) from its configuration page;
+    /// `Ok(None)` when none was written (the compiled defaults apply). The default: a store
+    /// without a configuration page, always `Ok(None)`.
+    fn load_settings(&mut self) -> Result<Option<u16>, StoreError> {
+        Ok(None)
+    }
+
+    /// Stores a configuration record, power-fail safe: `Ok(true)` once it is in force after any
+    /// restart, `Ok(false)` when the store has no configuration page (the default: the caller
+    /// keeps the setting until it exits). Blocking: a record's program, and once in a while a
+    /// page erase (up to 40 ms on the G474); configuration is rare.
+    fn save_settings(&mut self, record: u16) -> Result<bool, StoreError> {
+        let _ = record;
+        Ok(false)
     }
 }
 
@@ -314,6 +332,8 @@ pub struct FlashStore<F: NorFlash> {
     header_area: u32,
     /// The save in progress, if any.
     saving: Option<Saving>,
+    /// The configuration page's range, if the store has one ([`FlashStore::with_settings`]).
+    settings: Option<Range<u32>>,
 }
 
 /// A save in progress: the slot it writes, the header it will commit, and how far it got.
@@ -386,7 +406,23 @@ impl<F: NorFlash> FlashStore<F> {
             slot_size,
             header_area,
             saving: None,
+            settings: None,
         })
+    }
+
+    /// The store with a configuration page in `range` of the same flash (outside the store's
+    /// range; at least two erase pages: [`SettingsPage`]'s rules, checked here), which
+    /// [`TableStore::load_settings`] and [`TableStore::save_settings`] then use.
+    pub fn with_settings(mut self, range: Range<u32>) -> Result<Self, StoreError> {
+        let end = self
+            .start
+            .saturating_add(self.slots.saturating_mul(self.slot_size));
+        if range.start < end && self.start < range.end {
+            return Err(StoreError::Layout(LayoutError::RangeOutOfBounds));
+        }
+        SettingsPage::new(&mut self.flash, range.clone())?;
+        self.settings = Some(range);
+        Ok(self)
     }
 
     /// The size of a slot, in bytes (as given to [`Self::new`]).
@@ -553,6 +589,23 @@ impl<F: NorFlash> FlashStore<F> {
 }
 
 impl<F: BackgroundErase> TableStore for FlashStore<F> {
+    fn load_settings(&mut self) -> Result<Option<u16>, StoreError> {
+        match self.settings.clone() {
+            Some(range) => Ok(SettingsPage::new(&mut self.flash, range)?.read()?),
+            None => Ok(None),
+        }
+    }
+
+    fn save_settings(&mut self, record: u16) -> Result<bool, StoreError> {
+        match self.settings.clone() {
+            Some(range) => {
+                SettingsPage::new(&mut self.flash, range)?.write(record)?;
+                Ok(true)
+            }
+            None => Ok(false),
+        }
+    }
+
     fn load<'b>(&mut self, buf: &'b mut [u8]) -> Result<Option<&'b [u8]>, StoreError> {
         let mut bound = None;
         let mut committed = false;

@@ -2,15 +2,15 @@
 //! length), then the payload of a service a node acts on, or of one it only reports.
 
 use super::{
-    DesireFrame, DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Exploitation, Fault,
-    FilterProfile, FilterSet, FilterStatus, Gates, Heartbeat, Intention, Message, OPEN_REPLACE,
-    OPEN_SCHEMA, SchemaAck, SchemaState, SchemaTransition, Seal, TableStatus, Traffic,
-    TransferOpen, TransferStatus,
+    Assign, ConfigStatus, Configure, DesireFrame, DiagnosticControl, DiagnosticFlags,
+    DiagnosticSample, Errors, Exploitation, Fault, FilterProfile, FilterSet, FilterStatus, Gates,
+    Heartbeat, Intention, Message, OPEN_REPLACE, OPEN_SCHEMA, SchemaAck, SchemaState,
+    SchemaTransition, Seal, TableStatus, Traffic, TransferOpen, TransferStatus,
 };
 use crate::frame::Frame;
 use crate::protocol::{
-    FaultCode, FrameId, NodeState, SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety,
-    SchemaTrigger, Service, TransferStatusCode,
+    ConfigStatusCode, FaultCode, FrameId, NodeState, SchemaChannel, SchemaOrigin, SchemaOutcome,
+    SchemaSafety, SchemaTrigger, Service, TransferStatusCode,
 };
 
 /// Why a frame in our identifier space was refused.
@@ -110,7 +110,7 @@ impl Message {
     /// and length, but the payload decoded (and its values checked) only for the services a node
     /// acts on (Gates, DiagnosticControl, TableTransfer, ChallengeRequest, TransferOpen,
     /// FilterProfile, FilterSet, EmergencyStop, SchemaAbort, SchemaTransfer, Seal,
-    /// FreshnessRequest, Freshness); `Ok(None)` for a
+    /// FreshnessRequest, Freshness, IdentityRequest, Assign, Configure); `Ok(None)` for a
     /// well-framed frame of another service (a report, a desire, another node's status or schema
     /// answers), which a node does not read. The boards link
     /// only this: the other services' decoders took 596 bytes of the NUCLEO-G474RE's flash.
@@ -141,7 +141,7 @@ impl Message {
             // ISO-TP frames may be unpadded: the transport checks their length.
             Service::TableTransfer | Service::SchemaTransfer => !data.is_empty(),
             // The plain form, or the plain form and its tag.
-            Service::DiagnosticControl => {
+            Service::DiagnosticControl | Service::Assign | Service::Configure => {
                 data.len() == expected || data.len() == expected + crate::auth::COMMAND_TAG_LEN
             }
             _ => data.len() == expected,
@@ -260,6 +260,27 @@ impl Message {
                 epoch: u32_at(data, 0),
                 counter: u32_at(data, 4),
             },
+            Service::IdentityRequest => Message::IdentityRequest,
+            Service::Assign => {
+                let node_id = byte(data, 3);
+                if node_id == 0 || node_id > crate::protocol::MAX_NODE_ID {
+                    return Err(bad);
+                }
+                Message::Assign(Assign {
+                    uid_check: u32_at(data, 0) & 0x00FF_FFFF,
+                    node_id,
+                    tag: (usize::from(len) > expected).then(|| bytes_at(data, 4)),
+                })
+            }
+            Service::Configure => {
+                if u16_at(data, 2) != 0 {
+                    return Err(bad);
+                }
+                Message::Configure(Configure {
+                    bitrate_kbps: u16_at(data, 0),
+                    tag: (usize::from(len) > expected).then(|| bytes_at(data, 4)),
+                })
+            }
             _ => return Ok(None),
         };
         Ok(Some(message))
@@ -415,6 +436,35 @@ impl Message {
                     gripper_closed: flags & 2 != 0,
                     stop: flags >> 2,
                     elapsed_ms: u16_at(data, 6),
+                })
+            }
+            Service::Identity
+            | Service::IdentityVersion
+            | Service::IdentityBuild
+            | Service::IdentityCapacity
+            | Service::IdentityFeatures
+            | Service::IdentityName => {
+                let part = super::identity_part(service).ok_or(bad)?;
+                if !crate::identity::Identity::part_is_valid(part, &padded) {
+                    return Err(bad);
+                }
+                Message::Identity {
+                    part,
+                    payload: padded,
+                }
+            }
+            Service::ConfigStatus => {
+                let command = byte(data, 0);
+                let known =
+                    command == Service::Assign.code() || command == Service::Configure.code();
+                if !known || byte(data, 3) != 0 || u16_at(data, 6) != 0 || byte(data, 2) > 127 {
+                    return Err(bad);
+                }
+                Message::ConfigStatus(ConfigStatus {
+                    command: byte(data, 0),
+                    status: ConfigStatusCode::from_code(byte(data, 1)).ok_or(bad)?,
+                    node_id: byte(data, 2),
+                    bitrate_kbps: u16_at(data, 4),
                 })
             }
             // Decoded by `node_message`.

@@ -140,6 +140,23 @@ impl Message {
             }
             Message::FreshnessRequest { nonce } => (*nonce, 8),
             Message::Freshness { epoch, counter } => (words(*epoch, *counter), 8),
+            Message::Identity { payload, .. } => (le_word(*payload), 8),
+            Message::ConfigStatus(status) => {
+                let [b0, b1] = status.bitrate_kbps.to_le_bytes();
+                (
+                    le_word([
+                        status.command,
+                        status.status.code(),
+                        status.node_id,
+                        0,
+                        b0,
+                        b1,
+                        0,
+                        0,
+                    ]),
+                    8,
+                )
+            }
             Message::Gates(gates) => {
                 let [m0, m1, m2, m3] = gates.mask.to_le_bytes();
                 (
@@ -195,7 +212,10 @@ impl Message {
             | Message::FilterProfile(_)
             | Message::FilterSet(_)
             | Message::EmergencyStop
-            | Message::SchemaAbort => return None,
+            | Message::SchemaAbort
+            | Message::IdentityRequest
+            | Message::Assign(_)
+            | Message::Configure(_) => return None,
         })
     }
 
@@ -208,7 +228,9 @@ impl Message {
                 (le_word(control_bytes(control, *tag)), 8)
             }
             Message::ChallengeRequest { tool_nonce } => (*tool_nonce, 8),
-            Message::EmergencyStop | Message::SchemaAbort => (0, 0),
+            Message::EmergencyStop | Message::SchemaAbort | Message::IdentityRequest => (0, 0),
+            Message::Assign(assign) => tagged(assign.payload(), assign.tag),
+            Message::Configure(configure) => tagged(configure.payload(), configure.tag),
             Message::TransferOpen(open) => {
                 let [l0, l1] = open.length.to_le_bytes();
                 let [t0, t1, t2, t3, t4] = open.tag;
@@ -255,6 +277,15 @@ fn words(first: u32, second: u32) -> u64 {
 /// Eight payload bytes as one little-endian word.
 fn le_word(bytes: [u8; 8]) -> u64 {
     u64::from_le_bytes(bytes)
+}
+
+/// A 4-byte command and, in its keyed form, its tag (8 bytes then).
+fn tagged(payload: [u8; 4], tag: Option<[u8; 4]>) -> (u64, u8) {
+    let [p0, p1, p2, p3] = payload;
+    match tag {
+        Some([t0, t1, t2, t3]) => (le_word([p0, p1, p2, p3, t0, t1, t2, t3]), 8),
+        None => (le_word([p0, p1, p2, p3, 0, 0, 0, 0]), 4),
+    }
 }
 
 /// A DiagnosticControl's payload: rate and ports, then `tag` (zeros in the plain form, whose

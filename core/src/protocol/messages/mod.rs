@@ -10,6 +10,7 @@ mod coordination;
 mod decode;
 mod diagnostic;
 mod encode;
+mod identity;
 #[cfg(test)]
 mod layout_tests;
 mod schema_server;
@@ -24,6 +25,11 @@ pub use coordination::{
 };
 pub use decode::DecodeError;
 pub use diagnostic::{DiagnosticControl, DiagnosticFlags, DiagnosticSample};
+pub use identity::{Assign, ConfigStatus, Configure, identity_part, identity_service};
+pub(super) use identity::{
+    IDENTITY_BUILD_LAYOUT, IDENTITY_CAPACITY_LAYOUT, IDENTITY_FEATURES_LAYOUT, IDENTITY_LAYOUT,
+    IDENTITY_NAME_LAYOUT, IDENTITY_REQUEST_LAYOUT, IDENTITY_VERSION_LAYOUT,
+};
 pub(super) use schema_server::{
     EMERGENCY_STOP_LAYOUT, SCHEMA_ABORT_LAYOUT, SCHEMA_TRANSFER_LAYOUT,
 };
@@ -146,6 +152,21 @@ pub enum Message {
         /// The last counter it used in that epoch.
         counter: u32,
     },
+    /// Asks for a node's identity (service 0x21, no payload).
+    IdentityRequest,
+    /// One of a node's six identity frames (services 0x22-0x27, [`crate::identity`]).
+    Identity {
+        /// Which.
+        part: crate::identity::IdentityPart,
+        /// Its 8 bytes ([`crate::identity::Identity::payload`]).
+        payload: [u8; 8],
+    },
+    /// See [`Assign`].
+    Assign(Assign),
+    /// See [`Configure`].
+    Configure(Configure),
+    /// See [`ConfigStatus`].
+    ConfigStatus(ConfigStatus),
 }
 
 impl Message {
@@ -182,6 +203,11 @@ impl Message {
             Message::Seal(_) => Service::Seal,
             Message::FreshnessRequest { .. } => Service::FreshnessRequest,
             Message::Freshness { .. } => Service::Freshness,
+            Message::IdentityRequest => Service::IdentityRequest,
+            Message::Identity { part, .. } => identity_service(*part),
+            Message::Assign(_) => Service::Assign,
+            Message::Configure(_) => Service::Configure,
+            Message::ConfigStatus(_) => Service::ConfigStatus,
         }
     }
 }

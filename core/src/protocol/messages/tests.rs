@@ -1,7 +1,8 @@
 use crate::frame::Frame;
+use crate::identity::{Capacity, Firmware, Identity, IdentityPart};
 use crate::protocol::*;
 
-pub(super) fn samples() -> [Message; 29] {
+pub(super) fn samples() -> [Message; 42] {
     [
         Message::Fault(Fault {
             code: FaultCode::TableRefused,
@@ -89,6 +90,37 @@ pub(super) fn samples() -> [Message; 29] {
             epoch: 0x0A0B_0C0D,
             counter: 0x0102_0304,
         },
+        Message::IdentityRequest,
+        Message::Assign(Assign {
+            uid_check: 0x00AB_CDEF,
+            node_id: 127,
+            tag: None,
+        }),
+        Message::Assign(Assign {
+            uid_check: 0x0012_3456,
+            node_id: 1,
+            tag: Some([1, 2, 3, 4]),
+        }),
+        Message::Configure(Configure {
+            bitrate_kbps: 1000,
+            tag: None,
+        }),
+        Message::Configure(Configure {
+            bitrate_kbps: 250,
+            tag: Some([0xFF, 0, 0xFF, 0]),
+        }),
+        Message::ConfigStatus(ConfigStatus {
+            command: Service::Assign.code(),
+            status: ConfigStatusCode::Stored,
+            node_id: 9,
+            bitrate_kbps: 500,
+        }),
+        Message::ConfigStatus(ConfigStatus {
+            command: Service::Configure.code(),
+            status: ConfigStatusCode::BadValue,
+            node_id: 0,
+            bitrate_kbps: 0xFFFF,
+        }),
         Message::Desire(DesireFrame {
             class: 2,
             intensity: 65_535,
@@ -120,6 +152,12 @@ pub(super) fn samples() -> [Message; 29] {
             phi: 3,
             sequence: 0xFFFF,
         }),
+        identity_sample(IdentityPart::Uid),
+        identity_sample(IdentityPart::Version),
+        identity_sample(IdentityPart::Build),
+        identity_sample(IdentityPart::Capacity),
+        identity_sample(IdentityPart::Features),
+        identity_sample(IdentityPart::Name),
         Message::EmergencyStop,
         Message::SchemaAbort,
         Message::SchemaTransfer {
@@ -303,6 +341,9 @@ fn a_node_reads_the_stop_the_abort_and_schema_transfers_only() {
                 | Service::Seal
                 | Service::FreshnessRequest
                 | Service::Freshness
+                | Service::IdentityRequest
+                | Service::Assign
+                | Service::Configure
         );
         assert_eq!(for_node.is_some(), acts, "{message:?}");
         if let Some((_, decoded)) = for_node {
@@ -328,7 +369,12 @@ fn every_message_round_trips() {
         assert_eq!(id.source, 3);
         assert_eq!(id.destination, BROADCAST);
         assert_eq!(id.service, message.service());
-        if matches!(message, Message::AuthenticatedDiagnosticControl { .. }) {
+        if matches!(
+            message,
+            Message::AuthenticatedDiagnosticControl { .. }
+                | Message::Assign(Assign { tag: Some(_), .. })
+                | Message::Configure(Configure { tag: Some(_), .. })
+        ) {
             assert_eq!(frame.payload().len(), 8);
         } else if let Message::SchemaTransfer { len, .. } = message {
             assert_eq!(frame.payload().len(), usize::from(len));
@@ -352,6 +398,9 @@ fn a_nodes_encoder_is_to_frame_without_the_commands() {
                 | Service::FilterSet
                 | Service::EmergencyStop
                 | Service::SchemaAbort
+                | Service::IdentityRequest
+                | Service::Assign
+                | Service::Configure
         );
         let expected = (!command).then(|| message.to_frame(3, 9));
         assert_eq!(message.report_frame(3, 9), expected, "{message:?}");
@@ -447,8 +496,10 @@ fn wrong_lengths_and_values_are_refused() {
         }
         for len in 0..=8 {
             // DiagnosticControl has two valid lengths: its plain and its tagged form.
-            let other_form =
-                message.service() == Service::DiagnosticControl && (len == 4 || len == 8);
+            let other_form = matches!(
+                message.service(),
+                Service::DiagnosticControl | Service::Assign | Service::Configure
+            ) && (len == 4 || len == 8);
             if len == payload.len() || other_form {
                 continue;
             }
@@ -523,4 +574,71 @@ fn arbitrary_frames_never_panic() {
         let frame = Frame::with_raw_id(raw, true, &bytes[..len.min(8)]).unwrap();
         let _ = Message::decode(&frame);
     }
+}
+
+/// One part of a sample identity (every field non-zero, every flag set).
+pub(super) fn identity_sample(part: IdentityPart) -> Message {
+    let identity = Identity {
+        uid: [
+            0x10, 0x21, 0x32, 0x43, 0x54, 0x65, 0x76, 0x87, 0x98, 0xA9, 0xBA, 0xCB,
+        ],
+        firmware: Firmware::new("fw-g474", "1.2.3", "89abcdef01234567"),
+        protocol: crate::identity::PROTOCOL_VERSION,
+        formats: [9, 10],
+        capacity: Capacity {
+            ports: 16,
+            connections: 512,
+            decision_nodes: 2048,
+            image_len: 32768,
+        },
+        features: 0b1111,
+        flags: 0x1F,
+        bitrate_kbps: 1000,
+    };
+    Message::Identity {
+        part,
+        payload: identity.payload(part),
+    }
+}
+
+#[test]
+fn identity_frames_with_reserved_bits_or_unknown_codes_are_refused() {
+    let refused = |service: Service, payload: &[u8]| {
+        let frame = Frame::data(FrameId::new(service, 3, TOOL).id(), payload).unwrap();
+        matches!(Message::decode(&frame), Err(DecodeError::Value { .. }))
+    };
+    assert!(refused(
+        Service::IdentityCapacity,
+        &[1, 0, 0, 0, 0, 0, 0, 1]
+    ));
+    assert!(refused(
+        Service::IdentityFeatures,
+        &[10, 10, 0, 0, 0x20, 0, 0, 0]
+    ));
+    assert!(refused(
+        Service::IdentityFeatures,
+        &[10, 10, 0, 0, 0, 1, 0, 0]
+    ));
+    assert!(refused(
+        Service::IdentityFeatures,
+        &[11, 10, 0, 0, 0, 0, 0, 0]
+    ));
+    assert!(refused(Service::IdentityName, b"pab\0x\0\0\0"));
+    // Assign: node id 0 or above 127; Configure: its reserved half.
+    let to_node = |service: Service, payload: &[u8]| {
+        let frame = Frame::data(FrameId::new(service, TOOL, 5).id(), payload).unwrap();
+        Message::decode_for_node(&frame)
+    };
+    assert!(to_node(Service::Assign, &[1, 2, 3, 0]).is_err());
+    assert!(to_node(Service::Assign, &[1, 2, 3, 128]).is_err());
+    assert!(to_node(Service::Configure, &[0xF4, 1, 0, 1]).is_err());
+    // A 5- to 7-byte command is neither form.
+    assert!(to_node(Service::Assign, &[1, 2, 3, 4, 5]).is_err());
+    // ConfigStatus: an unknown command or status, a reserved byte.
+    assert!(refused(Service::ConfigStatus, &[0x27, 0, 1, 0, 0, 0, 0, 0]));
+    assert!(refused(
+        Service::ConfigStatus,
+        &[0x28, 0x09, 1, 0, 0, 0, 0, 0]
+    ));
+    assert!(refused(Service::ConfigStatus, &[0x28, 0, 1, 1, 0, 0, 0, 0]));
 }

@@ -33,6 +33,7 @@ use crate::{Config, Recipient};
 // The node's parts, each an `impl Node` of its own: what it says and hears to coordinate with
 // the other nodes, what it says of itself, table transfers, and the outbox they all send through.
 mod coordination;
+mod identity;
 mod outbox;
 mod status;
 mod transfer;
@@ -62,6 +63,9 @@ pub enum Step {
     Continue,
     /// A new table is running: store [`Node::image_to_store`], then call [`Node::stored`].
     Store,
+    /// A configuration record to store: [`Node::settings_to_store`] with
+    /// [`pab_storage::TableStore::save_settings`], then call [`Node::settings_stored`].
+    SaveSettings,
 }
 
 /// The running table's identity.
@@ -190,6 +194,7 @@ pub struct Node<const P: usize, const C: usize, const N: usize, const IMG: usize
     filter_sequence: u16,
     exploited: [Option<u8>; pab_core::MAX_PORTS],
     guard: Guard,
+    me: identity::Me,
     arbiter: Option<Arbiter<P, C, N>>,
     receiver: isotp::Receiver<IMG>,
     /// The schema server of the running table, if it has one.
@@ -220,8 +225,15 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// Out of line: a board builds its node once, at boot, in a `static`; inlined into the
     /// start-up task it took 12 bytes more of the NUCLEO-G474RE's flash.
     #[inline(never)]
-    pub fn new(config: Config, now: Instant) -> Self {
+    pub fn new(mut config: Config, now: Instant) -> Self {
+        // Unassigned (no node id): its provisional address until it knows its uid
+        // (`set_identity`).
+        let unassigned = config.node_id == 0;
+        if unassigned {
+            config.node_id = pab_core::identity::provisional_address(&[0; 12]);
+        }
         Node {
+            me: identity::Me::new(unassigned, now),
             receiver: isotp::Receiver::new(config.isotp),
             config,
             booted: now,
@@ -285,6 +297,12 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// status and detail a transfer of it would get (an image for another node: `WrongNode`,
     /// detail the image's node id), repeated after every heartbeat group until a table runs.
     pub fn boot(&mut self, stored_len: Option<usize>, now: Instant) {
+        // Who it is, to all, once: how `pabctl nodes` hears an unassigned node.
+        self.send_identity(protocol::BROADCAST);
+        if self.me.unassigned {
+            info!("unassigned: no node id, waiting for one (pabctl assign)");
+            return;
+        }
         let Some(len) = stored_len else {
             info!("no stored table");
             return;
@@ -342,6 +360,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             | StoreError::NoSave => StoreFailure::Other,
         };
         self.boot_fault = Some([STORE_UNREADABLE, failure.code(), 0, 0, 0]);
+        self.send_identity(protocol::BROADCAST);
         self.duties(now);
     }
 
@@ -367,7 +386,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 // A new table runs (`Store`): its save now or when its turn comes.
                 match self.on_protocol_frame(frame, now, false) {
                     Step::Store => self.schedule_store(now),
-                    Step::Continue => Step::Continue,
+                    step => step,
                 }
             }
             FrameKind::Topic => {
@@ -391,8 +410,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         self.values_due(now, recipient);
         self.duties(now);
         match step {
-            Step::Store => Step::Store,
             Step::Continue => self.store_step(now),
+            step => step,
         }
     }
 
@@ -483,7 +502,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     pub fn poll(&mut self, now: Instant, recipient: &mut impl Recipient) -> Step {
         self.values_due(now, recipient);
         self.duties(now);
-        self.store_step(now)
+        match self.trial_due(now) {
+            Step::Continue => self.store_step(now),
+            step => step,
+        }
     }
 
     /// The value ports' outputs that changed by `now` without a frame, delivered. A comparison
@@ -608,6 +630,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         );
         earlier(&mut deadline, self.faults.deadline());
         earlier(&mut deadline, self.store_due);
+        earlier(&mut deadline, self.me.deadline());
         #[cfg(feature = "schema")]
         earlier(&mut deadline, self.schema.as_ref().map(|s| s.deadline()));
         if let Some(arbiter) = self.arbiter.as_ref() {
@@ -782,6 +805,16 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         if !id.is_for(node_id) || id.source == node_id {
             return Step::Continue;
         }
+        // An unassigned node takes only what gives it an id (and, keyed, the challenge that
+        // authenticates it) and says who it is.
+        if self.me.unassigned
+            && !matches!(
+                message,
+                Message::IdentityRequest | Message::Assign(_) | Message::ChallengeRequest { .. }
+            )
+        {
+            return Step::Continue;
+        }
         // On a keyed node, what other nodes coordinate with waits for its seal
         // (pab_core::seal): applied by `on_seal` once the seal verifies, never before. Filter
         // commands and freshness answers are point to point, as below.
@@ -881,6 +914,17 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                     Err(failure) => self.unauthenticated(failure, id),
                 }
                 Step::Continue
+            }
+            Message::IdentityRequest => {
+                self.on_identity_request(id.source, now);
+                Step::Continue
+            }
+            // Point to point: each names one node (its uid check, its challenge).
+            Message::Assign(assign) if id.destination == node_id => {
+                self.on_assign(id, &assign, now)
+            }
+            Message::Configure(configure) if id.destination == node_id => {
+                self.on_configure(id, &configure, now)
             }
             // The schema server's: stopping is accepted from anyone (docs/can-protocol.md,
             // "Schema server"); a node without one ignores it.

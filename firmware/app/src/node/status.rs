@@ -54,6 +54,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     }
 
     pub(super) fn heartbeat(&mut self, now: Instant) {
+        // An unassigned node says only who it is (when asked).
+        if self.me.unassigned {
+            return;
+        }
         let uptime_s = now.micros_since(self.booted).map_or(0, |micros| {
             u32::try_from(micros / 1_000_000).unwrap_or(u32::MAX)
         });

@@ -96,6 +96,12 @@ pub struct Harness {
     pub stored: Vec<Vec<u8>>,
     /// Whether storing succeeds.
     pub store_ok: bool,
+    /// Configuration records the node asked to store.
+    pub settings_saved: Vec<u16>,
+    /// What storing a configuration record answers (`Ok(true)`: stored).
+    pub settings_result: Result<bool, pab_app::StoreError>,
+    /// Restarts the node asked for after a record was stored.
+    pub restarts: u32,
 }
 
 impl Harness {
@@ -113,7 +119,15 @@ impl Harness {
 
     /// A node booted at t = 0 after `setup` (a key, a lock).
     pub fn boot_with(stored: Option<&[u8]>, setup: impl FnOnce(&mut TestNode)) -> Harness {
-        let config = Config::new(Self::NODE_ID).unwrap();
+        Self::boot_config(Config::new(Self::NODE_ID).unwrap(), stored, setup)
+    }
+
+    /// A node of `config` booted at t = 0 after `setup`.
+    pub fn boot_config(
+        config: Config,
+        stored: Option<&[u8]>,
+        setup: impl FnOnce(&mut TestNode),
+    ) -> Harness {
         let mut node = TestNode::new(config, Instant::from_micros(0));
         setup(&mut node);
         let len = stored.map(|bytes| {
@@ -128,6 +142,9 @@ impl Harness {
             deliveries: Deliveries::default(),
             stored: Vec::new(),
             store_ok: true,
+            settings_saved: Vec::new(),
+            settings_result: Ok(true),
+            restarts: 0,
         };
         harness.drain();
         harness
@@ -172,6 +189,15 @@ impl Harness {
 
     /// Stores the running image if the node asked for it (`Step::Store`), as a runner does.
     fn store_if(&mut self, step: Step) {
+        if step == Step::SaveSettings {
+            self.settings_saved.push(self.node.settings_to_store());
+            if self
+                .node
+                .settings_stored(self.settings_result.clone(), Instant::from_micros(self.now))
+            {
+                self.restarts += 1;
+            }
+        }
         if step == Step::Store {
             self.stored.push(self.node.image_to_store().to_vec());
             self.node
