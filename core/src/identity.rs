@@ -471,6 +471,28 @@ mod tests {
     }
 
     #[test]
+    fn the_documented_assignment_example_holds() {
+        // docs/can-protocol.md, "Assign (0x28)".
+        let uid = [0xAB, 1, 2, 3, 4, 5, 6, 0xCD, 0, 0, 0, 0];
+        assert_eq!(crc32(&uid), 0x9FE9_0B6B);
+        assert_eq!(provisional_address(&uid), 0xA0);
+        assert_eq!(uid_check(&uid), 0x00E9_0B6B);
+        let frame = crate::protocol::Message::Assign(crate::protocol::Assign {
+            uid_check: uid_check(&uid),
+            node_id: 4,
+            tag: None,
+        })
+        .to_frame(crate::protocol::TOOL, 0xA0);
+        assert_eq!(
+            frame.id(),
+            crate::protocol::FrameId::from_raw(0x0E28_A000)
+                .unwrap()
+                .id()
+        );
+        assert_eq!(frame.payload(), [0x6B, 0x0B, 0xE9, 4]);
+    }
+
+    #[test]
     fn provisional_addresses_are_never_a_node_tool_or_broadcast() {
         for seed in 0u32..20_000 {
             let mut uid = [0u8; UID_LEN];

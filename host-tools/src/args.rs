@@ -78,9 +78,45 @@ pub fn rate_hz(text: &str) -> Result<u16, String> {
     u16::try_from(value).map_err(|_| format!("must be at most {max}"))
 }
 
+/// A node id: 1..=127.
+pub fn node_id(text: &str) -> Result<u8, String> {
+    let value = whole(text, 1, 127, "a node id, 1 to 127")?;
+    u8::try_from(value).map_err(|_| "must be at most 127".into())
+}
+
+/// A bit rate a node can be set to, kbit/s: 125, 250, 500 or 1000.
+pub fn bitrate_kbps(text: &str) -> Result<u16, String> {
+    let rates = pab_core::protocol::Configure::BITRATES_KBPS;
+    let value = whole(text, 1, 1_000_000, "kbit/s: 125, 250, 500 or 1000")?;
+    match u16::try_from(value) {
+        Ok(rate) if rates.contains(&rate) => Ok(rate),
+        _ if rates.iter().any(|&r| u64::from(r) * 1000 == value) => Err(format!(
+            "the bit rate is in kbit/s: did you mean {}?",
+            value / 1000
+        )),
+        _ => Err(format!(
+            "{value} kbit/s is not a bit rate nodes take: 125, 250, 500 or 1000"
+        )),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn node_ids_and_bit_rates_say_what_is_wrong() {
+        assert_eq!(node_id("127"), Ok(127));
+        assert!(node_id("0").unwrap_err().contains("positive"));
+        assert!(node_id("128").unwrap_err().contains("at most 127"));
+        assert_eq!(bitrate_kbps("250"), Ok(250));
+        assert!(
+            bitrate_kbps("500000")
+                .unwrap_err()
+                .contains("did you mean 500")
+        );
+        assert!(bitrate_kbps("800").unwrap_err().contains("not a bit rate"));
+    }
 
     #[test]
     fn seconds_must_be_finite_positive_and_bounded() {

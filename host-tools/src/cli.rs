@@ -38,6 +38,7 @@ Examples:
   pabctl replay examples/take-and-return.toml yesterday.log --trace out/replay.csv
   pabctl push examples/take-and-return.toml --iface vcan0
   pabctl nodes --iface vcan0
+  pabctl assign --iface vcan0 --uid 3f2a9c0d11e04b77 --node-id 4
   pabctl monitor examples/take-and-return.toml --iface vcan0
   pabctl dbc examples/take-and-return.toml -o out/take-and-return.dbc
   pabctl solve examples/tour-guide.toml --desires \"face=2,nav=2,voice=3\"
@@ -443,12 +444,15 @@ FILE.bin, to be written at the board's key page address (docs/keys.md: probe-rs 
         #[arg(short, long, value_name = "FILE.bin")]
         output: PathBuf,
     },
-    /// List the nodes on the bus from their heartbeats.
+    /// List the nodes on the bus: who they are and how they are doing.
     #[command(long_about = "\
-Listen to --iface for --listen seconds and print one line per node heard: state (no table, \
-operational, fault), uptime, table version and CRC, whether the table is stored, the frame \
-counters (received, delivered, discarded, errors) and the last fault. With a network file, \
-nodes are named.")]
+Ask every node on --iface who it is (an identity request, broadcast), listen for --listen \
+seconds and print one line per node heard: its node id (\"-\" for an unassigned node, which \
+answers from its provisional address 128-254), state (no table, operational, fault), uptime, \
+table version and CRC, whether the table is stored, the frame counters (received, delivered, \
+discarded, errors), the last fault, its firmware (name, version) and its uid (what `pabctl \
+assign --uid` takes). With a network file, nodes are named. --json prints every field of the \
+identity too: build, protocol, table formats, capacities, features, keyed, bit rate.")]
     Nodes {
         /// The CAN interface (vcan0, can0...).
         #[arg(long)]
@@ -468,6 +472,54 @@ nodes are named.")]
         /// (docs/pabctl.md, "JSON output").
         #[arg(long)]
         json: bool,
+    },
+    /// Give a node (named by its uid) its node id, stored in its configuration page.
+    #[command(long_about = "\
+Find the node whose uid is --uid (`pabctl nodes` lists uids; an unassigned node answers from its \
+provisional address) and give it node id --node-id, which it stores power-fail safe and takes at \
+once: it then announces itself, sends heartbeats and takes tables compiled for that id. Refused \
+before anything is sent when another node answers to --node-id, or when the node is keyed and \
+--key is missing. A table that ran on the node under its old id stops (tables are compiled for \
+one node id): push the network again.
+
+Example: pabctl assign --iface can0 --uid 0123456789abcdef01234567 --node-id 3")]
+    Assign {
+        /// The CAN interface (vcan0, can0...).
+        #[arg(long)]
+        iface: String,
+        /// The node's uid, as `pabctl nodes` prints it (24 hexadecimal digits, 16 for a
+        /// pab-node).
+        #[arg(long, value_parser = pabctl::identity::parse_uid)]
+        uid: [u8; 12],
+        /// The node id to give it, 1..=127.
+        #[arg(long, allow_hyphen_values = true, value_parser = args::node_id)]
+        node_id: u8,
+        /// The node's key file (`pabctl keygen`): needed when the node is keyed.
+        #[arg(long, value_name = "FILE")]
+        key: Option<PathBuf>,
+    },
+    /// Set a node's bit rate, from its next start.
+    #[command(long_about = "\
+Set the bit rate node --node runs at from its next start (125, 250, 500 or 1000 kbit/s), stored \
+in its configuration page. At that start the node must hear a frame within 5 s, or it stores its \
+previous rate again, restarts on it and raises a BitrateFallback fault: a wrong rate never \
+strands a board. Change every node of a bus, then restart them together. A Linux node \
+(pab-node) answers that its bit rate is its interface's (`ip link set can0 type can bitrate R`).
+
+Example: pabctl config --iface can0 --node 3 --bitrate 1000")]
+    Config {
+        /// The CAN interface (vcan0, can0...).
+        #[arg(long)]
+        iface: String,
+        /// The node's id.
+        #[arg(long, allow_hyphen_values = true, value_parser = args::node_id)]
+        node: u8,
+        /// The bit rate from the next start, kbit/s: 125, 250, 500 or 1000.
+        #[arg(long, value_parser = args::bitrate_kbps)]
+        bitrate: u16,
+        /// The node's key file (`pabctl keygen`): needed when the node is keyed.
+        #[arg(long, value_name = "FILE")]
+        key: Option<PathBuf>,
     },
     /// Live view of every port: connections' stimulation, activity and who delivers.
     #[command(long_about = "\

@@ -109,7 +109,12 @@ pub fn compiled(output: &Path, nodes: &[CompiledNode], table_version: u32) -> Va
     )
 }
 
-/// `pabctl nodes --json`: per node heard, by id: `id`, `name` (from the network file, `null`
+/// `pabctl nodes --json`: per node heard, by address: `id` (the address: a node id, or an
+/// unassigned node's provisional address 128-254), `node_id` (`null` when unassigned), from its
+/// identity `uid` (hex), `firmware` (`name`, `version`, `build`), `protocol`, `table_formats`
+/// (lowest, highest), `capacity` (`ports`, `connections`, `decision_nodes`, `image_bytes`),
+/// `features` (names), `bitrate_kbps` (`null` when its host sets it), `bitrate_trial` (all
+/// `null` until its identity arrived), `name` (from the network file, `null`
 /// without one), `state`, `uptime_s` and `table_version` (from its heartbeat; `null` before
 /// one), `crc` (the running table's, 8 hex digits; `null` without a table or a status),
 /// `stored`, `keyed`, `received`, `delivered`, `discarded`, `errors` (`null` until its frames
@@ -126,15 +131,35 @@ pub fn nodes(
             .map(|(id, view)| {
                 let heartbeat = view.heartbeat.map(|(heartbeat, _)| heartbeat);
                 let table = view.table.filter(|table| table.crc != 0);
+                let identity = view.identity.map(|(identity, _)| identity);
+                let unassigned = pab_core::identity::is_provisional(*id);
                 json!({
                     "id": id,
+                    "node_id": (!unassigned).then_some(*id),
+                    "uid": identity.map(|i| crate::identity::uid_text(&i.uid)),
+                    "firmware": identity.map(|i| json!({
+                        "name": i.firmware.name_str(),
+                        "version": crate::observe::version_text(&i),
+                        "build": i.firmware.build.iter().map(|b| format!("{b:02x}")).collect::<String>(),
+                    })),
+                    "protocol": identity.map(|i| i.protocol),
+                    "table_formats": identity.map(|i| i.formats),
+                    "capacity": identity.map(|i| json!({
+                        "ports": i.capacity.ports,
+                        "connections": i.capacity.connections,
+                        "decision_nodes": i.capacity.decision_nodes,
+                        "image_bytes": i.capacity.image_len,
+                    })),
+                    "features": identity.map(|i| i.feature_names().collect::<Vec<_>>()),
+                    "bitrate_kbps": identity.map(|i| i.bitrate_kbps).filter(|rate| *rate != 0),
+                    "bitrate_trial": identity.map(|i| i.flags & pab_core::identity::Identity::FLAG_BITRATE_TRIAL != 0),
                     "name": names.get(id),
                     "state": heartbeat.map(|h| h.state.description()),
                     "uptime_s": heartbeat.map(|h| h.uptime_s),
                     "table_version": heartbeat.map(|h| h.table_version),
                     "crc": table.map(|t| format!("{:08x}", t.crc)),
                     "stored": table.map(|t| t.stored),
-                    "keyed": view.table.map(|t| t.keyed),
+                    "keyed": identity.map(|i| i.keyed()).or(view.table.map(|t| t.keyed)),
                     "received": view.traffic.map(|t| t.received),
                     "delivered": view.traffic.map(|t| t.delivered),
                     "discarded": view.errors.map(|e| e.discarded),
@@ -239,8 +264,53 @@ mod tests {
                 "id": 2, "name": "hand", "state": "operational", "uptime_s": 42,
                 "table_version": 3, "crc": null, "stored": null, "keyed": null,
                 "received": null, "delivered": null, "discarded": null, "errors": null,
-                "last_fault": null,
+                "last_fault": null, "node_id": 2, "uid": null, "firmware": null,
+                "protocol": null, "table_formats": null, "capacity": null, "features": null,
+                "bitrate_kbps": null, "bitrate_trial": null,
             }])
         );
+    }
+
+    #[test]
+    fn an_unassigned_node_is_listed_by_its_identity_with_a_null_node_id() {
+        use pab_core::identity::{Capacity, Firmware, Identity, IdentityPart};
+        let identity = Identity {
+            uid: [0xAB, 1, 2, 3, 4, 5, 6, 0xCD, 0, 0, 0, 0],
+            firmware: Firmware::new("pab-node", "0.1.0", "0123abcd"),
+            protocol: 1,
+            formats: [10, 10],
+            capacity: Capacity {
+                ports: 16,
+                connections: 512,
+                decision_nodes: 2048,
+                image_len: 32768,
+            },
+            features: Identity::FEATURE_BLE | Identity::FEATURE_SCHEMA,
+            flags: Identity::FLAG_UNASSIGNED,
+            bitrate_kbps: 0,
+        };
+        let address = pab_core::identity::provisional_address(&identity.uid);
+        let mut observer = Observer::new();
+        let at = Instant::now();
+        for part in IdentityPart::ALL {
+            let message = Message::Identity {
+                part,
+                payload: identity.payload(part),
+            };
+            observer.observe(&message.to_frame(address, BROADCAST), at);
+        }
+        let found = nodes(&observer, &BTreeMap::new(), at);
+        let node = &found[0];
+        assert_eq!(node["id"], json!(address));
+        assert_eq!(node["node_id"], Value::Null);
+        assert_eq!(node["uid"], json!("ab010203040506cd"));
+        assert_eq!(
+            node["firmware"],
+            json!({"name": "pab-node", "version": "0.1.0", "build": "0123abcd00000000"})
+        );
+        assert_eq!(node["protocol"], json!(1));
+        assert_eq!(node["features"], json!(["ble", "schema"]));
+        assert_eq!(node["keyed"], json!(false));
+        assert_eq!(node["bitrate_kbps"], Value::Null);
     }
 }

@@ -14,6 +14,7 @@
 pub mod args;
 pub mod bus;
 pub mod client;
+pub mod identity;
 pub mod json;
 pub mod keys;
 pub mod limits;

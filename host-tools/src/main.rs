@@ -144,6 +144,18 @@ fn main() -> ExitCode {
             listen,
             json,
         } => commands::nodes::run(&iface, network.as_deref(), listen, json),
+        Command::Assign {
+            iface,
+            uid,
+            node_id,
+            key,
+        } => commands::nodes::assign(&iface, &uid, node_id, key.as_deref()),
+        Command::Config {
+            iface,
+            node,
+            bitrate,
+            key,
+        } => commands::nodes::configure(&iface, node, bitrate, key.as_deref()),
         Command::Monitor {
             network,
             iface,

@@ -158,7 +158,7 @@ pub fn nodes_table(observer: &Observer, names: &BTreeMap<u8, String>, now: Insta
     let mut out = String::new();
     let _ = writeln!(
         out,
-        "{:>4}  {:<10} {:<12} {:>9} {:>8}  {:<10} {:<7} {:>10} {:>10} {:>9} {:>7}  last fault",
+        "{:>4}  {:<10} {:<12} {:>9} {:>8}  {:<10} {:<7} {:>10} {:>10} {:>9} {:>7}  {:<16} {:<24}  last fault",
         "id",
         "name",
         "state",
@@ -169,16 +169,39 @@ pub fn nodes_table(observer: &Observer, names: &BTreeMap<u8, String>, now: Insta
         "received",
         "delivered",
         "discarded",
-        "errors"
+        "errors",
+        "firmware",
+        "uid"
     );
     for (id, view) in observer.nodes() {
-        let name = names.get(id).map_or("?", String::as_str);
+        let unassigned = pab_core::identity::is_provisional(*id);
+        let name = names
+            .get(id)
+            .filter(|_| !unassigned)
+            .map_or("?", String::as_str);
+        let shown_id = if unassigned {
+            "-".to_string()
+        } else {
+            id.to_string()
+        };
+        let (firmware, uid) = match view.identity {
+            Some((identity, _)) => (
+                format!(
+                    "{} {}",
+                    identity.firmware.name_str().unwrap_or("?"),
+                    version_text(&identity)
+                ),
+                crate::identity::uid_text(&identity.uid),
+            ),
+            None => ("?".to_string(), "?".to_string()),
+        };
         let (state, uptime, version) = match view.heartbeat {
             Some((heartbeat, _)) => (
                 heartbeat.state.description().to_string(),
                 format!("{} s", heartbeat.uptime_s),
                 heartbeat.table_version.to_string(),
             ),
+            None if unassigned => ("unassigned".into(), "-".into(), "-".into()),
             None => ("(no heartbeat)".into(), "-".into(), "-".into()),
         };
         let (crc, stored) = match view.table {
@@ -200,7 +223,7 @@ pub fn nodes_table(observer: &Observer, names: &BTreeMap<u8, String>, now: Insta
         });
         let _ = writeln!(
             out,
-            "{id:>4}  {name:<10} {state:<12} {uptime:>9} {version:>8}  {crc:<10} {stored:<7} {:>10} {:>10} {:>9} {:>7}  {fault}",
+            "{shown_id:>4}  {name:<10} {state:<12} {uptime:>9} {version:>8}  {crc:<10} {stored:<7} {:>10} {:>10} {:>9} {:>7}  {firmware:<16} {uid:<24}  {fault}",
             count(view.traffic.map(|t| t.received)),
             count(view.traffic.map(|t| t.delivered)),
             count(view.errors.map(|e| e.discarded)),
@@ -220,6 +243,12 @@ pub fn nodes_table(observer: &Observer, names: &BTreeMap<u8, String>, now: Insta
         }
     }
     out
+}
+
+/// A firmware's semantic version, `1.2.3`.
+pub fn version_text(identity: &Identity) -> String {
+    let [major, minor, patch] = identity.firmware.version;
+    format!("{major}.{minor}.{patch}")
 }
 
 /// A fault in words, with what its detail bytes say where the protocol defines them: why a stored

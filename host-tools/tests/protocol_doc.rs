@@ -135,6 +135,15 @@ fn store_failures_match_the_code() {
 }
 
 #[test]
+fn config_status_codes_match_the_code() {
+    let expected: Vec<_> = pab_core::protocol::ConfigStatusCode::ALL
+        .iter()
+        .map(|c| (u32::from(c.code()), format!("{c:?}"), c.description()))
+        .collect();
+    compare_enum("enum: ConfigStatusCode", &expected, 2);
+}
+
+#[test]
 fn auth_failures_match_the_code() {
     let expected: Vec<_> = AuthFailure::ALL
         .iter()

@@ -377,10 +377,14 @@ tc = 3.0
             all.id,
             FrameId::new(Service::DiagnosticControl, TOOL, BROADCAST).raw() | EXTENDED_FLAG
         );
-        // 9 services per node (7 + Challenge, Receipt), a table transfer's two directions per
-        // node, diagnostic control per node and broadcast, ChallengeRequest and TransferOpen
-        // per node, 2 topics.
-        assert_eq!(dbc.messages.len(), 2 * 9 + 2 * 2 + 3 + 2 * 2 + 2);
+        // 16 services per node (7 + Challenge, Receipt, six identity frames, ConfigStatus), a
+        // table transfer's two directions per node, diagnostic control and identity request per
+        // node and broadcast, ChallengeRequest, TransferOpen, Assign and Configure per node, 2
+        // topics.
+        assert_eq!(dbc.messages.len(), 2 * 16 + 2 * 2 + 2 * 3 + 2 * 4 + 2);
+        assert_eq!(find("PAB_IdentityName_arm").transmitter, "arm");
+        assert_eq!(find("PAB_IdentityRequest_all").dlc, 0);
+        assert_eq!(find("PAB_Assign_arm").receivers, ["arm"]);
         let open = find("PAB_TransferOpen_arm");
         assert_eq!(open.dlc, 8);
         assert_eq!(open.transmitter, "PABCTL");

@@ -276,6 +276,8 @@ class FaultCode(enum.IntEnum):
     DynamicsLate = 0x0052
     FilterRefused = 0x0060
     SchemaSafety = 0x0070
+    BitrateFallback = 0x0080
+    SettingsUnreadable = 0x0081
 
     @property
     def description(self) -> str:
@@ -299,6 +301,8 @@ _FAULT_TEXT = {
     FaultCode.DynamicsLate: "dynamics steps dropped",
     FaultCode.FilterRefused: "filter command refused",
     FaultCode.SchemaSafety: "schema server stopped by a safety event",
+    FaultCode.BitrateFallback: "bit rate set over the bus heard nothing: back on the previous one",
+    FaultCode.SettingsUnreadable: "configuration page unreadable: compiled defaults in use",
 }
 
 

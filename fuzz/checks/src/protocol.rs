@@ -8,12 +8,14 @@ use arbitrary::{Result, Unstructured};
 use embedded_can::{ExtendedId, Frame as _, Id, StandardId};
 use pab_core::Frame;
 use pab_core::ble::{Claim, ClaimError};
+use pab_core::identity::{Capacity, Firmware, Identity, IdentityPart};
 use pab_core::protocol::{
-    self, DesireFrame, DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Exploitation,
-    Fault, FaultCode, FilterProfile, FilterSet, FilterStatus, FrameId, FrameKind, Gates, Heartbeat,
-    Intention, Message, NodeState, OPEN_REPLACE, SchemaAck, SchemaChannel, SchemaOrigin,
-    SchemaOutcome, SchemaSafety, SchemaState, SchemaTransition, SchemaTrigger, Seal, Service,
-    TableStatus, Traffic, TransferOpen, TransferStatus, TransferStatusCode,
+    self, Assign, ConfigStatus, ConfigStatusCode, Configure, DesireFrame, DiagnosticControl,
+    DiagnosticFlags, DiagnosticSample, Errors, Exploitation, Fault, FaultCode, FilterProfile,
+    FilterSet, FilterStatus, FrameId, FrameKind, Gates, Heartbeat, Intention, Message, NodeState,
+    OPEN_REPLACE, SchemaAck, SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety, SchemaState,
+    SchemaTransition, SchemaTrigger, Seal, Service, TableStatus, Traffic, TransferOpen,
+    TransferStatus, TransferStatusCode,
 };
 
 /// The services a node acts on: the only ones `Message::decode_for_node` decodes.
@@ -33,6 +35,9 @@ fn node_service(service: Service) -> bool {
             | Service::Seal
             | Service::FreshnessRequest
             | Service::Freshness
+            | Service::IdentityRequest
+            | Service::Assign
+            | Service::Configure
     )
 }
 
@@ -201,8 +206,10 @@ pub fn encode(data: &[u8]) {
         Message::TableTransfer { len, .. } | Message::SchemaTransfer { len, .. } => {
             usize::from(len)
         }
-        // DiagnosticControl's keyed form: the 4 bytes and the tag.
-        Message::AuthenticatedDiagnosticControl { .. } => 8,
+        // The keyed forms: the 4 bytes and the tag.
+        Message::AuthenticatedDiagnosticControl { .. }
+        | Message::Assign(Assign { tag: Some(_), .. })
+        | Message::Configure(Configure { tag: Some(_), .. }) => 8,
         _ => message.service().payload_len(),
     };
     assert_eq!(frame.payload().len(), len, "{message:?}");
@@ -265,7 +272,7 @@ fn pick<T: Copy>(u: &mut Unstructured<'_>, all: &[T]) -> Result<T> {
 }
 
 fn any_message(u: &mut Unstructured<'_>) -> Result<(Message, u8, u8)> {
-    let message = match u.int_in_range(0u8..=29)? {
+    let message = match u.int_in_range(0u8..=39)? {
         0 => Message::Fault(Fault {
             code: pick(u, FaultCode::ALL)?,
             count: u.arbitrary()?,
@@ -453,6 +460,53 @@ fn any_message(u: &mut Unstructured<'_>) -> Result<(Message, u8, u8)> {
             epoch: u.arbitrary()?,
             counter: u.arbitrary()?,
         },
+        30 => Message::IdentityRequest,
+        part @ 31..=36 => {
+            // A valid identity part (one variant per part, so that a seed reaches each): reserved bytes zero, known flags and features, an
+            // ordered format range, a printable name.
+            let identity = Identity {
+                uid: u.arbitrary()?,
+                firmware: Firmware {
+                    name: pick(u, &[*b"pab-node", *b"fw-g474\0", *b"\0\0\0\0\0\0\0\0"])?,
+                    version: u.arbitrary()?,
+                    build: u.arbitrary()?,
+                },
+                protocol: u.arbitrary()?,
+                formats: {
+                    let (a, b): (u8, u8) = (u.arbitrary()?, u.arbitrary()?);
+                    [a.min(b), a.max(b)]
+                },
+                capacity: Capacity {
+                    ports: u.arbitrary()?,
+                    connections: u.arbitrary()?,
+                    decision_nodes: u.arbitrary()?,
+                    image_len: u.arbitrary()?,
+                },
+                features: u.int_in_range(0..=0x0F)?,
+                flags: u.int_in_range(0..=0x1F)?,
+                bitrate_kbps: u.arbitrary()?,
+            };
+            let part = IdentityPart::from_index(part - 31).unwrap_or(IdentityPart::Uid);
+            Message::Identity {
+                part,
+                payload: identity.payload(part),
+            }
+        }
+        37 => Message::Assign(Assign {
+            uid_check: u.int_in_range(0..=0x00FF_FFFF)?,
+            node_id: u.int_in_range(1..=127)?,
+            tag: u.arbitrary()?,
+        }),
+        38 => Message::Configure(Configure {
+            bitrate_kbps: u.arbitrary()?,
+            tag: u.arbitrary()?,
+        }),
+        39 => Message::ConfigStatus(ConfigStatus {
+            command: pick(u, &[Service::Assign.code(), Service::Configure.code()])?,
+            status: pick(u, ConfigStatusCode::ALL)?,
+            node_id: u.int_in_range(0..=127)?,
+            bitrate_kbps: u.arbitrary()?,
+        }),
         _ => Message::TransferStatus(TransferStatus {
             status: pick(u, TransferStatusCode::ALL)?,
             detail: u.arbitrary()?,
@@ -472,8 +526,8 @@ pub fn service_seeds() -> Vec<(Service, Vec<u8>, Vec<u8>)> {
         .map(|i| i.wrapping_mul(37).wrapping_add(11))
         .collect();
     let mut seeds: Vec<(Service, Vec<u8>, Vec<u8>)> = Vec::new();
-    // `any_message`'s first byte picks the variant (byte % 30).
-    for pick in 0u8..=29 {
+    // `any_message`'s first byte picks the variant (byte % 40).
+    for pick in 0u8..=39 {
         let mut encode = vec![pick];
         encode.extend_from_slice(&filler);
         let Ok((message, source, destination)) = any_message(&mut Unstructured::new(&encode))

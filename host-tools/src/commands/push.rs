@@ -52,6 +52,18 @@ pub fn run(
     for node in selected {
         let header = pab_core::image::read_header(&node.image)
             .map_err(|error| Failure::Output(format!("compiled image is invalid: {error}")))?;
+        // Who the node is, before anything is sent: a table it cannot load is refused here,
+        // in one line, rather than by the node after the whole transfer.
+        if let Some(why) = loadable(bus.as_mut(), node).map_err(bus_failure(iface))? {
+            println!(
+                "{:>10}  node {:>3}  {} bytes  FAILED: not sent: {why}",
+                node.name,
+                node.id,
+                node.image.len()
+            );
+            failures += 1;
+            continue;
+        }
         let bar = ProgressBar::new(node.image.len() as u64).with_style(
             ProgressStyle::with_template("{prefix:>10} [{bar:30}] {bytes}/{total_bytes} {msg}")
                 .unwrap_or_else(|_| ProgressStyle::default_bar())
@@ -114,4 +126,32 @@ pub fn run(
         )));
     }
     Ok(())
+}
+
+/// Why `node`'s table cannot go to the node that answers to its id (`None`: it can): no
+/// identity within half a second, or a table beyond what its identity says it loads.
+fn loadable(
+    bus: &mut dyn pabctl::bus::Bus,
+    node: &CompiledNode,
+) -> std::io::Result<Option<String>> {
+    let Some(identity) =
+        pabctl::identity::request(bus, node.id, pabctl::identity::ANSWER_TIMEOUT)?.remove(&node.id)
+    else {
+        return Ok(Some(format!(
+            "node {} did not say who it is (no identity within 500 ms): is it on the bus, with \
+             this id? (`pabctl nodes`)",
+            node.id
+        )));
+    };
+    Ok(match pabctl::identity::Needs::of_image(&node.image) {
+        Ok(needs) => needs.refusal(&identity).map(|why| {
+            format!(
+                "{why} (node {}: {} {})",
+                node.id,
+                identity.firmware.name_str().unwrap_or("?"),
+                pabctl::observe::version_text(&identity)
+            )
+        }),
+        Err(why) => Some(why),
+    })
 }

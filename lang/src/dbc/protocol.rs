@@ -53,6 +53,9 @@ pub(super) fn from_nodes(
                 | Service::EmergencyStop
                 | Service::SchemaAbort
                 | Service::SchemaTransfer
+                | Service::IdentityRequest
+                | Service::Assign
+                | Service::Configure
                 // Sealed coordination's frames: `sealing.rs`.
                 | Service::Seal
                 | Service::FreshnessRequest
@@ -64,11 +67,20 @@ pub(super) fn from_nodes(
                 {
                     continue;
                 }
-                // The answer goes to the schema's sender: described from the tool.
+                // The answer goes to the schema's sender: described from the tool. The
+                // identity answers the tool's request (the announcement at start-up is the same
+                // six frames to all, 0xFF).
                 Service::TransferStatus
                 | Service::Challenge
                 | Service::Receipt
-                | Service::SchemaAck => TOOL,
+                | Service::SchemaAck
+                | Service::Identity
+                | Service::IdentityVersion
+                | Service::IdentityBuild
+                | Service::IdentityCapacity
+                | Service::IdentityFeatures
+                | Service::IdentityName
+                | Service::ConfigStatus => TOOL,
                 _ => BROADCAST,
             };
             let Some(signals) = service_signals(service) else {
@@ -104,14 +116,25 @@ pub(super) fn from_nodes(
     }
 }
 
-/// The diagnostic control the tool sends to each node and to all.
+/// The diagnostic control and the identity request the tool sends to each node and to all.
 pub(super) fn diagnostic_control(
     network: &Network,
     nodes: &[String],
     messages: &mut Vec<DbcMessage>,
     names: &mut Names,
 ) {
-    let control = Service::DiagnosticControl;
+    for control in [Service::DiagnosticControl, Service::IdentityRequest] {
+        to_each_and_all(network, nodes, messages, names, control);
+    }
+}
+
+fn to_each_and_all(
+    network: &Network,
+    nodes: &[String],
+    messages: &mut Vec<DbcMessage>,
+    names: &mut Names,
+    control: Service,
+) {
     let targets = network
         .nodes
         .iter()
@@ -210,7 +233,9 @@ pub(super) fn intention(
     }
 }
 
-/// The tool's authentication frames go to one node each (a tag is over one node's challenge).
+/// The tool's authentication frames go to one node each (a tag is over one node's challenge), and
+/// so do its configuration commands (Assign: to the node at its node id; an unassigned node's
+/// provisional address is not in the network file).
 pub(super) fn authentication(
     network: &Network,
     nodes: &[String],
@@ -218,7 +243,12 @@ pub(super) fn authentication(
     names: &mut Names,
 ) {
     for (node, dbc_node) in network.nodes.iter().zip(nodes.iter().skip(1)) {
-        for service in [Service::ChallengeRequest, Service::TransferOpen] {
+        for service in [
+            Service::ChallengeRequest,
+            Service::TransferOpen,
+            Service::Assign,
+            Service::Configure,
+        ] {
             messages.push(DbcMessage {
                 id: extended(FrameId::new(service, TOOL, node.id)),
                 name: names.unique(format!("PAB_{service:?}_{dbc_node}")),
