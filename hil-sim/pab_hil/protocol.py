@@ -51,6 +51,18 @@ SCHEMA_STATE = 0x1D
 SEAL = 0x1E
 FRESHNESS_REQUEST = 0x1F
 FRESHNESS = 0x20
+# Identity and configuration (docs/can-protocol.md, "Identity and configuration"): the harness
+# names them; the tests drive them through `pabctl nodes`, `assign` and `config`.
+IDENTITY_REQUEST = 0x21
+IDENTITY = 0x22
+IDENTITY_VERSION = 0x23
+IDENTITY_BUILD = 0x24
+IDENTITY_CAPACITY = 0x25
+IDENTITY_FEATURES = 0x26
+IDENTITY_NAME = 0x27
+ASSIGN = 0x28
+CONFIGURE = 0x29
+CONFIG_STATUS = 0x2A
 INTENTION_NODE = 126  # the intention node's address unless told otherwise
 
 PRIORITY = {
@@ -83,6 +95,16 @@ PRIORITY = {
     SEAL: 5,
     FRESHNESS_REQUEST: 4,
     FRESHNESS: 4,
+    IDENTITY_REQUEST: 3,
+    IDENTITY: 4,
+    IDENTITY_VERSION: 4,
+    IDENTITY_BUILD: 4,
+    IDENTITY_CAPACITY: 4,
+    IDENTITY_FEATURES: 4,
+    IDENTITY_NAME: 4,
+    ASSIGN: 3,
+    CONFIGURE: 3,
+    CONFIG_STATUS: 2,
 }
 
 NODE_STATES = {0: "no table", 1: "operational", 2: "fault"}
