@@ -57,7 +57,7 @@ class NodeProcess:
     """One `pab-node` process; its log goes to `<log_dir>/<name>.log`."""
 
     name: str
-    node_id: int
+    node_id: int | None  # None: started without --node-id (unassigned, unless its store says)
     iface: str
     store: Path
     log_dir: Path
@@ -72,7 +72,7 @@ class NodeProcess:
             [
                 str(binary("pab-node")),
                 "--iface", self.iface,
-                "--node-id", str(self.node_id),
+                *(("--node-id", str(self.node_id)) if self.node_id is not None else ()),
                 "--store", str(self.store),
                 "--heartbeat-ms", str(HEARTBEAT_MS),
                 *self.extra_args,

@@ -75,6 +75,19 @@ struct Args {
     #[arg(long, value_name = "BYTES", default_value_t = receive_queue::DEFAULT_BYTES,
           allow_hyphen_values = true, value_parser = rcvbuf)]
     rcvbuf: u64,
+    /// The table capacities to run with: `full` (16 ports, 512 connections, 2048 decision
+    /// nodes, 32 KiB images) or `board` (the boards' firmware: 4 ports, 64 connections, 256
+    /// decision nodes, 8 KiB images), to try on vcan0 whether a network fits a board before
+    /// flashing one. The node's identity says which (`pabctl nodes --json`, `capacity`).
+    #[arg(long, value_enum, default_value = "full")]
+    capacity: Capacity,
+}
+
+/// [`Args::capacity`].
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum Capacity {
+    Full,
+    Board,
 }
 
 /// A whole number in `min..=max`, or what is wrong with `text` (a negative number is "not
@@ -166,31 +179,66 @@ fn start(args: Args) -> anyhow::Result<std::convert::Infallible> {
             .as_ref()
             .map_or("none".to_string(), |dir| dir.display().to_string())
     );
-    // The node holds the arbiter and a 32 KiB transfer buffer: on the heap, not in the task.
-    let node = Box::leak(Box::new(pab_app::FullNode::new(config, pab_app::now())));
-    const FIRMWARE: pab_app::Firmware = pab_app::firmware!("pab-node");
-    node.set_identity(FIRMWARE, uid);
-    // The interface's bit rate is the operating system's (`ip link`), not the node's: 0.
-    node.set_settings(loaded, 0, pab_app::now());
+    let boot_salt = key
+        .as_ref()
+        .map(|_| pab_node::key_file::boot_salt())
+        .transpose()?;
     match &key {
-        Some(key) => {
-            node.set_key(key, pab_node::key_file::boot_salt()?);
-            log::info!("keyed: only authenticated configuration is accepted");
-        }
+        Some(_) => log::info!("keyed: only authenticated configuration is accepted"),
         None => log::warn!(
             "no --key: this node accepts configuration from anyone on the bus (pabctl keygen)"
         ),
     }
     let parts = Box::leak(Box::new((bus, store)));
     let executor = Box::leak(Box::new(Executor::new()));
-    executor.run(move |spawner| {
-        spawner.spawn(node_task(node, &mut parts.0, &mut parts.1).expect("one task"));
-    })
+    // The node holds the arbiter and its transfer buffer (32 KiB at full capacity): on the heap,
+    // not in the task.
+    match args.capacity {
+        Capacity::Full => {
+            let node = Box::leak(Box::new(pab_app::FullNode::new(config, pab_app::now())));
+            prepare(node, uid, loaded, key.as_ref().zip(boot_salt));
+            executor.run(move |spawner| {
+                spawner.spawn(full_task(node, &mut parts.0, &mut parts.1).expect("one task"));
+            })
+        }
+        Capacity::Board => {
+            let node = Box::leak(Box::new(pab_app::BoardNode::new(config, pab_app::now())));
+            prepare(node, uid, loaded, key.as_ref().zip(boot_salt));
+            executor.run(move |spawner| {
+                spawner.spawn(board_task(node, &mut parts.0, &mut parts.1).expect("one task"));
+            })
+        }
+    }
+}
+
+/// What the node must know before it runs: who it is, its settings, its key.
+fn prepare<const P: usize, const C: usize, const N: usize, const IMG: usize>(
+    node: &mut pab_app::Node<P, C, N, IMG>,
+    uid: [u8; pab_core::identity::UID_LEN],
+    loaded: Result<Option<u16>, pab_app::StoreError>,
+    key: Option<(&pab_core::auth::Key, u32)>,
+) {
+    const FIRMWARE: pab_app::Firmware = pab_app::firmware!("pab-node");
+    node.set_identity(FIRMWARE, uid);
+    // The interface's bit rate is the operating system's (`ip link`), not the node's: 0.
+    node.set_settings(loaded, 0, pab_app::now());
+    if let Some((key, boot_salt)) = key {
+        node.set_key(key, boot_salt);
+    }
 }
 
 #[embassy_executor::task]
-async fn node_task(
+async fn full_task(
     node: &'static mut pab_app::FullNode,
+    bus: &'static mut SocketBus,
+    store: &'static mut FileStore,
+) {
+    pab_app::run(node, bus, store, &mut ()).await
+}
+
+#[embassy_executor::task]
+async fn board_task(
+    node: &'static mut pab_app::BoardNode,
     bus: &'static mut SocketBus,
     store: &'static mut FileStore,
 ) {
