@@ -181,10 +181,7 @@ where
         // A configuration record to store: blocking (a record's program, once in a while an
         // erase); configuration is rare, and the node refuses it while a table's save runs.
         if step == Step::SaveSettings {
-            let result = store.save_settings(node.settings_to_store());
-            if node.settings_stored(result, now()) {
-                watchdog.restart();
-            }
+            save_settings(node, store, watchdog);
         }
         // A new table to store: at once, or when the store interval let its turn come.
         if step == Step::Store {
@@ -193,6 +190,24 @@ where
             let _ = store.start_save(node.image_to_store());
             save_due = Some(now().as_micros());
         }
+    }
+}
+
+/// Stores the node's configuration record and tells it how that went; restarts the node when it
+/// asks (a bit rate's trial that heard nothing). Out of line: configuration is rare, and the
+/// loop's future need not hold its code.
+#[inline(never)]
+fn save_settings<S, W, const P: usize, const C: usize, const N: usize, const IMG: usize>(
+    node: &mut Node<P, C, N, IMG>,
+    store: &mut S,
+    watchdog: &mut W,
+) where
+    S: TableStore,
+    W: Watchdog,
+{
+    let result = store.save_settings(node.settings_to_store());
+    if node.settings_stored(result, now()) {
+        watchdog.restart();
     }
 }
 

@@ -23,6 +23,12 @@ pub struct SettingsPage<F: NorFlash> {
     log: BootCounter<F>,
 }
 
+/// The count after `count` that carries `record`: the next sequence in the high half.
+fn next_record(count: u32, record: u32) -> Option<u32> {
+    let sequence = (count >> 16).checked_add(1)?;
+    (sequence <= 0xFFFF).then_some(sequence << 16 | record & 0xFFFF)
+}
+
 impl<F: NorFlash> SettingsPage<F> {
     /// The page in `range` of `flash`: the boot counter's layout rules
     /// ([`BootCounter::new`]). Touches no flash.
@@ -41,12 +47,7 @@ impl<F: NorFlash> SettingsPage<F> {
 
     /// Writes `record`: in force once this returns `Ok` (and after any power loss from then on).
     pub fn write(&mut self, record: u16) -> Result<(), CounterError> {
-        self.log
-            .advance(|count| {
-                let sequence = (count >> 16).checked_add(1)?;
-                (sequence <= 0xFFFF).then_some(sequence << 16 | u32::from(record))
-            })
-            .map(|_| ())
+        self.log.advance(next_record, u32::from(record)).map(|_| ())
     }
 
     /// Erases the pages: the compiled defaults apply again.

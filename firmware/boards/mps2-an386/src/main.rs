@@ -19,7 +19,13 @@
 //!   boot counter lives as long as the QEMU process: a new QEMU counts from 1 again, so its boot
 //!   salts repeat across QEMU processes with one key. The emulated board is for tests: never
 //!   give it a key that a real node uses.
-//! - **Node id**: [`NODE_ID`], from `PAB_NODE_ID` at build time (default 1), as on the G474.
+//! - **Node id and bit rate**: from the configuration page ([`pab_fw_an386::ram_flash::SETTINGS_RANGE`],
+//!   set over the bus: `pabctl assign`, `pabctl config`); an erased page gives [`NODE_ID`], from
+//!   `PAB_NODE_ID` at build time (default 1; `unassigned` for none), and [`BITRATE_KBPS`]. The
+//!   emulated link has no bit timing (SLCAN's rate is the host's `slcand -s6`): the board keeps
+//!   and reports the rate, and its trial passes once it hears a frame.
+//! - **Unique id**: the 12 bytes at [`pab_fw_an386::ram_flash::UID_PAGE`], planted by a test
+//!   (QEMU's loader, `PAB_UID_PAGE=uid.bin`); zeros when nothing was planted.
 //! - **Log**: `log` on QEMU's standard error through semihosting (run QEMU with
 //!   `-semihosting-config enable=on,target=native`).
 //! - **Watchdog**: the CMSDK APB watchdog, started first at boot and fed by the node loop; a boot
@@ -42,17 +48,25 @@ use embassy_executor::InterruptExecutor;
 use embedded_storage::nor_flash::ReadNorFlash;
 use pab_core::decimal::Decimal;
 use pab_fw_an386::interrupts::{self, Interrupt};
-use pab_fw_an386::ram_flash::{BOOT_COUNTER_RANGE, KEY_PAGE, RamFlash, STORE_RANGE};
+use pab_fw_an386::ram_flash::{
+    BOOT_COUNTER_RANGE, KEY_PAGE, RamFlash, SETTINGS_RANGE, STORE_RANGE, UID_PAGE,
+};
 use pab_fw_an386::slcan_bus::SlcanBus;
 use pab_fw_an386::time_driver::TimeDriver;
 use pab_fw_an386::watchdog::{self, BoardWatchdog};
 use pab_fw_an386::{logger, semihosting, uart};
-use pab_storage::{BootCounter, FlashStore};
+use pab_storage::{BootCounter, FlashStore, TableStore};
 use static_cell::StaticCell;
 
 /// This node's id (1..=127): `PAB_NODE_ID` at build time, 1 without it. Tables pushed to the
 /// node must be compiled for this id.
 pub const NODE_ID: u8 = pab_app::parse_node_id(option_env!("PAB_NODE_ID"));
+
+/// The bit rate of an erased configuration page, kbit/s: the G474's.
+pub const BITRATE_KBPS: u16 = 500;
+
+/// What this firmware says it is in its identity.
+const FIRMWARE: pab_app::Firmware = pab_app::firmware!("fw-an386");
 
 /// A ring of four slots of 12 KiB (three pages) each, the G474's layout: every slot holds its
 /// 24-byte header and any image the node's 8 KiB transfer buffer can receive.
@@ -100,13 +114,29 @@ fn main() -> ! {
     );
 
     // SAFETY: called once; memory.x keeps the program below the RAM-backed flash.
-    let mut flash = unsafe { RamFlash::take() };
-    let config = match pab_app::Config::new(NODE_ID) {
-        Ok(config) => config,
-        Err(error) => fail(format_args!("configuration: {error}")),
+    let flash = unsafe { RamFlash::take() };
+    let mut store = match FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE)
+        .and_then(|store| store.with_settings(SETTINGS_RANGE))
+    {
+        Ok(store) => store,
+        Err(error) => fail(format_args!("table store: {error}")),
     };
-    let bus = bus(SlcanBus::new(hex4(NODE_ID)));
+    // The node id and bit rate set over the bus, else the compiled ones.
+    let loaded = store.load_settings();
+    let settings = pab_app::Settings::from_loaded(&loaded);
+    let node_id = settings.node_id.or((NODE_ID != 0).then_some(NODE_ID));
+    // Cannot fail: the record's id is 1..=127 and NODE_ID is checked at compile time. Not
+    // displayed: the error's formatting took 590 bytes of flash (core::fmt's integers).
+    let config =
+        pab_app::Config::for_node(node_id).unwrap_or_else(|_| pab_app::Config::unassigned());
+    let mut uid = [0u8; pab_core::identity::UID_LEN];
+    let flash = store.flash_mut();
+    let _ = flash.read(UID_PAGE, &mut uid);
     let node = NODE.init_with(|| pab_app::BoardNode::new(config, pab_app::now()));
+    node.set_identity(FIRMWARE, uid);
+    node.set_settings(loaded, settings.start_bitrate(BITRATE_KBPS), pab_app::now());
+    // The SLCAN device's serial number: the node's address.
+    let bus = bus(SlcanBus::new(hex4(node.config().node_id)));
     let mut page = [0u8; pab_core::auth::page::LEN];
     let page: &[u8] = match flash.read(KEY_PAGE, &mut page) {
         // QEMU's fresh RAM, nothing planted: the emulation's erased page.
@@ -115,12 +145,8 @@ fn main() -> ! {
         Err(_) => &[],
     };
     pab_app::key_from_page(node, page, || {
-        BootCounter::new(&mut flash, BOOT_COUNTER_RANGE)?.increment()
+        BootCounter::new(&mut *flash, BOOT_COUNTER_RANGE)?.increment()
     });
-    let store = match FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE) {
-        Ok(store) => store,
-        Err(error) => fail(format_args!("table store: {error}")),
-    };
 
     interrupts::set_priority(Interrupt::SOFTWARE, EXECUTOR_PRIORITY);
     let spawner = EXECUTOR.start(Interrupt::SOFTWARE);

@@ -10,7 +10,10 @@
 //! Layout (offsets from [`FLASH_BASE`]): the table store [`STORE_RANGE`] (0x0004_0000, 48 KiB),
 //! the boot counter [`BOOT_COUNTER_RANGE`] (0x0004_C000, two pages), the key page [`KEY_PAGE`]
 //! (0x0004_E000, one page; QEMU's `-device loader,file=PAGE.bin,addr=0x4e000,force-raw=on`
-//! plants it, and re-plants it at every system reset, which a key page does not mind).
+//! plants it, and re-plants it at every system reset, which a key page does not mind), the
+//! configuration page [`SETTINGS_RANGE`] (0x0004_F000, two pages: node id and bit rate set over
+//! the bus) and the uid page [`UID_PAGE`] (0x0005_1000: the board's 12-byte unique id, planted by
+//! a test as the key page is; all zeros when nothing was planted).
 //!
 //! Semantics as strict as the STM32G474's flash (and `pab-storage`'s test flash): 4 KiB erase
 //! pages set to 0xFF; programming in aligned 8-byte words, each of which must be erased (all
@@ -59,18 +62,25 @@ pub const LAYOUT: Layout = if cfg!(feature = "single-bank") {
 
 /// Where the region starts (memory.x ends the program region here).
 pub const FLASH_BASE: usize = 0x0004_0000;
-/// Its length: 60 KiB, fifteen pages.
-pub const FLASH_LEN: usize = 0xF000;
+/// Its length: 72 KiB, eighteen pages.
+pub const FLASH_LEN: usize = 0x12000;
 /// The table store: 48 KiB, twelve pages (four 12 KiB slots).
 pub const STORE_RANGE: core::ops::Range<u32> = 0..0xC000;
 /// The boot counter: two pages.
 pub const BOOT_COUNTER_RANGE: core::ops::Range<u32> = 0xC000..0xE000;
 /// The key page (its address is `FLASH_BASE + KEY_PAGE` = 0x0004_E000).
 pub const KEY_PAGE: u32 = 0xE000;
+/// The configuration page: two pages (`pab_storage::SettingsPage`).
+pub const SETTINGS_RANGE: core::ops::Range<u32> = 0xF000..0x11000;
+/// The uid page (its address is `FLASH_BASE + UID_PAGE` = 0x0005_1000): the first 12 bytes are
+/// the board's unique id, what the G474's factory UID is to a NUCLEO.
+pub const UID_PAGE: u32 = 0x11000;
 const _: () = assert!(
     STORE_RANGE.end == BOOT_COUNTER_RANGE.start
         && BOOT_COUNTER_RANGE.end == KEY_PAGE
-        && KEY_PAGE as usize + PAGE == FLASH_LEN
+        && KEY_PAGE + PAGE as u32 == SETTINGS_RANGE.start
+        && SETTINGS_RANGE.end == UID_PAGE
+        && UID_PAGE as usize + PAGE == FLASH_LEN
 );
 /// Erase page, as on the G474 in single-bank mode.
 pub const PAGE: usize = 4096;

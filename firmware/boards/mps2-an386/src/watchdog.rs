@@ -47,6 +47,11 @@ impl pab_app::Watchdog for BoardWatchdog {
         dog.clear();
         dog.unlock(false);
     }
+
+    /// A system reset (SYSRESETREQ; QEMU's `system_reset`): the RAM-backed flash is kept.
+    fn restart(&mut self) {
+        cortex_m::peripheral::SCB::sys_reset()
+    }
 }
 
 /// The watchdog's first expiry (its interrupt is the NMI): say it once on QEMU's stderr. The

@@ -60,7 +60,7 @@ use embassy_stm32::peripherals::IWDG;
 use embassy_stm32::time::Hertz;
 use embassy_stm32::{bind_interrupts, rcc};
 use embedded_storage::nor_flash::ReadNorFlash;
-use pab_storage::{BootCounter, FlashStore};
+use pab_storage::{BootCounter, FlashStore, TableStore};
 
 // The boards' memcpy, memset, memcmp and 64-bit division (firmware/builtins): 2.5 KB less flash
 // than compiler_builtins'.
@@ -70,12 +70,17 @@ use bank_flash::BankFlash;
 use fdcan_bus::FdcanBus;
 use recipient::BoardRecipient;
 
-/// This node's id (1..=127): `PAB_NODE_ID` at build time, 1 without it. Tables pushed to the
-/// node must be compiled for this id.
+/// This node's id of an erased configuration page (1..=127): `PAB_NODE_ID` at build time, 1
+/// without it, `unassigned` for none (then `pabctl assign` gives it one). An id set over the bus
+/// wins. Tables pushed to the node must be compiled for its id.
 pub const NODE_ID: u8 = pab_app::parse_node_id(option_env!("PAB_NODE_ID"));
 
-/// The nominal bit rate of the bus, bit/s.
+/// The nominal bit rate of an erased configuration page, bit/s (`pabctl config --bitrate` sets
+/// another from the next start: 125, 250, 500 or 1000 kbit/s, [`bit_timing`]).
 pub const BITRATE: u32 = 500_000;
+
+/// What this firmware says it is in its identity.
+const FIRMWARE: pab_app::Firmware = pab_app::firmware!("fw-g474");
 
 /// The NUCLEO-G474RE's crystal (X3, 24 MHz): the HSE, and the FDCAN kernel clock.
 const HSE_HZ: u32 = 24_000_000;
@@ -115,6 +120,10 @@ const _: () = assert!(
     "a slot must hold the largest image plus its header, and the range whole slots"
 );
 
+/// The configuration page: two 2 KiB pages (0x0807_3800..0x0807_4800) below the key page: the node
+/// id and bit rate set over the bus (`pab_storage::SettingsPage`), one 16-byte record per change.
+pub const SETTINGS_RANGE: Range<u32> = 0x7_3800..0x7_4800;
+
 /// The key page: one 2 KiB page (0x0807_4800..0x0807_5000) that holds nothing but the key record
 /// (`pabctl keypage`), so that writing it (probe-rs erases the whole page) touches nothing else.
 pub const KEY_PAGE: u32 = 0x7_4800;
@@ -122,14 +131,34 @@ pub const KEY_PAGE: u32 = 0x7_4800;
 /// table store. One 16-byte record per keyed boot, each page erased once per 256 boots.
 pub const BOOT_COUNTER_RANGE: Range<u32> = 0x7_5000..0x7_6000;
 const _: () = assert!(
-    KEY_PAGE >= BANK2
+    SETTINGS_RANGE.start >= BANK2
+        && SETTINGS_RANGE.end == KEY_PAGE
+        && SETTINGS_RANGE.end - SETTINGS_RANGE.start == 2 * PAGE
         && KEY_PAGE.is_multiple_of(PAGE)
         && KEY_PAGE + PAGE == BOOT_COUNTER_RANGE.start
         && BOOT_COUNTER_RANGE.end - BOOT_COUNTER_RANGE.start == 2 * PAGE
         && BOOT_COUNTER_RANGE.end == STORE_RANGE.start
         && STORE_RANGE.end == 2 * BANK2,
-    "key page, boot counter and table store follow each other, page-aligned, at the top of bank 2"
+    "configuration page, key page, boot counter and table store follow each other, \
+     page-aligned, at the top of bank 2"
 );
+
+/// The FDCAN's nominal bit timing for `kbps`: 16 time quanta at 24 MHz / (rate * 16) for 125,
+/// 250 and 500 kbit/s (87.5 % sample point); 1 Mbit/s has 12 quanta of 2 cycles (1 + 9 + 2,
+/// 83.3 %: 24 MHz has no whole prescaler for 16). Derived here, not run on hardware
+/// (docs/nucleo-g474re.md).
+fn bit_timing(kbps: u16) -> NominalBitTiming {
+    let (prescaler, seg1) = match kbps {
+        1000 => (2, 9),
+        kbps => (HSE_HZ / (u32::from(kbps) * 1000 * TQ_PER_BIT), SEG1),
+    };
+    NominalBitTiming {
+        prescaler: NonZeroU16::new(prescaler as u16).unwrap_or(NonZeroU16::MIN),
+        seg1: NonZeroU8::new(seg1).unwrap_or(NonZeroU8::MIN),
+        seg2: NonZeroU8::new(SEG2).unwrap_or(NonZeroU8::MIN),
+        sync_jump_width: NonZeroU8::new(SJW).unwrap_or(NonZeroU8::MIN),
+    }
+}
 
 /// The IWDG's timeout, µs: a node loop that has not turned for this long resets the chip. Well
 /// above the loop's longest step (a step of a table save: a 128-byte program, about a
@@ -231,6 +260,11 @@ impl pab_app::Watchdog for NodeWatchdog {
         let level = pab_app::now().as_micros() & (1 << 19) != 0;
         self.led.set_level(level.into());
     }
+
+    /// A system reset: a bit rate's trial heard nothing, the previous rate is stored.
+    fn restart(&mut self) {
+        cortex_m::peripheral::SCB::sys_reset()
+    }
 }
 
 // IT0 carries every FDCAN interrupt: `fdcan_bus::Interrupt` does what the driver's handler does
@@ -278,27 +312,26 @@ async fn main(_spawner: Spawner) {
     report_watchdog_reset();
     let p = embassy_stm32::init(clocks());
     enable_flash_prefetch_and_caches();
-    info!(
-        "pab node {} on NUCLEO-G474RE, CAN {} kbit/s",
-        NODE_ID,
-        BITRATE / 1000
-    );
 
     let led = Output::new(p.PA5, Level::Low, Speed::Low);
     // Before the CAN controller joins the bus: embassy stops here if the chip's banks are not
     // what the build expects (DBANK cleared by someone), and a board that stops must not be
     // acknowledging others' frames meanwhile.
-    let mut flash = BankFlash::new(Flash::new_blocking(p.FLASH));
+    let flash = BankFlash::new(Flash::new_blocking(p.FLASH));
+    let mut store = unwrap!(
+        FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE)
+            .and_then(|store| store.with_settings(SETTINGS_RANGE))
+    );
+    // The node id and bit rate set over the bus, else the compiled ones.
+    let loaded = store.load_settings();
+    let settings = pab_app::Settings::from_loaded(&loaded);
+    let kbps = settings.start_bitrate((BITRATE / 1000) as u16);
+    info!("pab node on NUCLEO-G474RE, CAN {} kbit/s", kbps);
 
     let mut can = CanConfigurator::new(p.FDCAN1, p.PA11, p.PA12, Irqs);
     let config = can
         .config()
-        .set_nominal_bit_timing(NominalBitTiming {
-            prescaler: unwrap!(NonZeroU16::new(PRESCALER as u16)),
-            seg1: unwrap!(NonZeroU8::new(SEG1)),
-            seg2: unwrap!(NonZeroU8::new(SEG2)),
-            sync_jump_width: unwrap!(NonZeroU8::new(SJW)),
-        })
+        .set_nominal_bit_timing(bit_timing(kbps))
         .set_frame_transmit(FrameTransmissionConfig::ClassicCanOnly)
         // FIFO mode, fed one frame at a time from a queue ordered by priority (`fdcan_bus`):
         // frames of equal identifier leave in the order they were queued (ISO-TP), none is ever
@@ -316,21 +349,27 @@ async fn main(_spawner: Spawner) {
     can.set_config(config);
     let mut bus = FdcanBus::new(can.start(OperatingMode::NormalOperationMode));
 
-    let config = unwrap!(pab_app::Config::new(NODE_ID));
+    let node_id = settings.node_id.or((NODE_ID != 0).then_some(NODE_ID));
+    // Cannot fail: the record's id is 1..=127 and NODE_ID is checked at compile time.
+    let config =
+        pab_app::Config::for_node(node_id).unwrap_or_else(|_| pab_app::Config::unassigned());
     // Built in place in the task's future (40 KiB with the schema server; this task's stack
     // frame is some 400 bytes). It must stay so: the node loop runs in this frame, so a node
     // built in a temporary on the stack would keep that room under the loop's deepest calls.
     let mut node = pab_app::BoardNode::new(config, pab_app::now());
+    // Who it is: the chip's 96-bit factory UID.
+    node.set_identity(FIRMWARE, embassy_stm32::uid::uid());
+    node.set_settings(loaded, kbps, pab_app::now());
     // The key before anything else: a page that cannot be read counts as truncated (locked).
+    let flash = store.flash_mut();
     let mut page = [0u8; pab_core::auth::page::LEN];
     let page: &[u8] = match flash.read(KEY_PAGE, &mut page) {
         Ok(()) => &page,
         Err(_) => &[],
     };
     pab_app::key_from_page(&mut node, page, || {
-        BootCounter::new(&mut flash, BOOT_COUNTER_RANGE)?.increment()
+        BootCounter::new(&mut *flash, BOOT_COUNTER_RANGE)?.increment()
     });
-    let mut store = unwrap!(FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE));
     // Only the node loop feeds it from here on (once before the node's boot, then every turn).
     let watchdog = Iwdg::claim(started, p.IWDG);
     // The node loop runs in this task rather than in one of its own: spawning one (its pool, the
