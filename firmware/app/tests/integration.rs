@@ -7,10 +7,12 @@
 mod common;
 
 mod ble;
+mod can_adapter;
 mod filters;
 mod keying;
 mod node;
 mod outbox;
+mod poll_loop;
 mod priority;
 mod replay;
 mod rogue;
