@@ -1,6 +1,6 @@
 //! Any CAN driver that implements `embedded-can`'s non-blocking trait, [`embedded_can::nb::Can`],
-//! as the node's bus: [`EmbeddedCan`]. Most HALs' drivers do (bxCAN's through the `bxcan` crate,
-//! which stm32f1xx-hal and stm32f4xx-hal use; socketcan on Linux; MCP2515 crates over SPI).
+//! as the node's bus: [`EmbeddedCan`]. HALs' CAN drivers commonly do (the `bxcan` crate, which
+//! stm32f4xx-hal's CAN is, among them; `socketcan`'s sockets on Linux too).
 //!
 //! One adapter serves both loops: [`crate::PollLoop`] calls its non-blocking
 //! [`EmbeddedCan::try_receive`] and [`EmbeddedCan::try_transmit`] from a loop of yours (no

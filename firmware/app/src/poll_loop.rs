@@ -11,8 +11,8 @@ use crate::runner::{SAVE_STARVED_US, SENDS_PER_TURN, Watchdog, save_step};
 use crate::store::TableStore;
 
 /// The most frames a turn of [`PollLoop`] reads: a bus that delivers frames faster than the node
-/// handles them must not keep one turn from sending, saving and feeding the watchdog. A
-/// controller's receive FIFOs (bxCAN: two of three frames) hold what the turn leaves.
+/// handles them must not keep one turn from sending, saving and feeding the watchdog. The
+/// controller's receive FIFOs hold what the turn leaves.
 pub const RECEIVES_PER_TURN: usize = 16;
 
 /// The node loop of `run_watched` as a state machine that a loop of yours turns: for a firmware
@@ -41,8 +41,9 @@ pub const RECEIVES_PER_TURN: usize = 16;
 /// frame is stamped when it is read). A frame is stamped when the turn reads it, not when it
 /// arrived: a loop that turns late delays the node's view of its frames by as much, so turn
 /// often (a superloop turns continuously). The controller's receive FIFO must hold what arrives
-/// between two turns (bxCAN's hold three frames each: 0.7 ms of a saturated 500 kbit/s bus);
-/// frames it drops are reported by the driver as an overrun, and the node raises `RxOverrun`.
+/// between two turns (a bxCAN FIFO holds three frames, under a millisecond of a busy 500 kbit/s
+/// bus); frames it drops are reported by the driver as an overrun, and the node raises
+/// `RxOverrun`.
 ///
 /// **Sending.** A frame that finds the driver's transmit buffer full waits in the loop (one frame)
 /// and is offered again each turn; after [`TRANSMIT_TIMEOUT_US`] it is dropped and reported
