@@ -112,21 +112,21 @@ impl PollLoop {
         for _ in 0..RECEIVES_PER_TURN {
             let frame = match bus.try_receive() {
                 Ok(frame) => frame,
-                Err(nb::Error::WouldBlock) => {
-                    // The bus is quiet: the save's step, if one is due.
+                Err(error) => {
+                    // The next turn reads again; a driver that fails at once, again and again,
+                    // makes a busy loop of a superloop, but the node's fault frames are rate
+                    // limited.
+                    if let nb::Error::Other(error) = error {
+                        node.on_bus_error(error, bus.now());
+                    }
+                    // No frame to read (the bus is quiet, or the driver failed: a driver that
+                    // keeps failing must not starve the save either): the save's step, if due.
                     let now = bus.now();
                     if let Some(due) = self.save_due
                         && now.as_micros() >= due
                     {
                         self.save_due = save_step(node, store, now, due);
                     }
-                    break;
-                }
-                Err(nb::Error::Other(error)) => {
-                    // The next turn reads again; a driver that fails at once, again and again,
-                    // makes a busy loop of a superloop, but the node's fault frames are rate
-                    // limited.
-                    node.on_bus_error(error, bus.now());
                     break;
                 }
             };

@@ -53,7 +53,38 @@ impl Watchdog for Feeds {
     }
 }
 
-type NodeBus<'a> = EmbeddedCan<Endpoint<'a, 3, 2048>, Box<dyn FnMut() -> Instant>>;
+/// The node's driver: its endpoint, whose reads the test can make fail (a controller gone
+/// bus-off, say).
+struct Flaky<'a> {
+    endpoint: Endpoint<'a, 3, 2048>,
+    failing: bool,
+}
+
+#[derive(Debug)]
+struct Failed;
+
+impl embedded_can::Error for Failed {
+    fn kind(&self) -> embedded_can::ErrorKind {
+        embedded_can::ErrorKind::Bit
+    }
+}
+
+impl embedded_can::nb::Can for Flaky<'_> {
+    type Frame = Frame;
+    type Error = Failed;
+    fn transmit(&mut self, frame: &Frame) -> nb::Result<Option<Frame>, Failed> {
+        self.endpoint.send(frame);
+        Ok(None)
+    }
+    fn receive(&mut self) -> nb::Result<Frame, Failed> {
+        if self.failing {
+            return Err(nb::Error::Other(Failed));
+        }
+        embedded_can::nb::Can::receive(&mut self.endpoint).map_err(|error| error.map(|_| Failed))
+    }
+}
+
+type NodeBus<'a> = EmbeddedCan<Flaky<'a>, Box<dyn FnMut() -> Instant>>;
 
 /// A node on endpoint NODE, turned by the test.
 struct Rig<'a> {
@@ -75,7 +106,13 @@ impl<'a> Rig<'a> {
                 Config::new(Harness::NODE_ID).unwrap(),
                 Instant::from_micros(0),
             )),
-            can: EmbeddedCan::new(bus.endpoint(NODE).unwrap(), clock),
+            can: EmbeddedCan::new(
+                Flaky {
+                    endpoint: bus.endpoint(NODE).unwrap(),
+                    failing: false,
+                },
+                clock,
+            ),
             store: FlashStore::new(flash, 0..16 * 4096, 8192).unwrap(),
             node_loop: PollLoop::new(),
             deliveries: Deliveries::default(),
@@ -122,6 +159,17 @@ fn messages(endpoint: &Endpoint<'_, 3, 2048>) -> Vec<(protocol::FrameId, Message
 /// Pushes `image` from the tool endpoint with pab-core's ISO-TP sender, turning the node every
 /// 100 µs; returns the TransferStatus the node answered.
 fn push(rig: &mut Rig<'_>, tool: &Endpoint<'_, 3, 2048>, image: &[u8]) -> protocol::TransferStatus {
+    push_with(rig, tool, image, |_, _, _| {})
+}
+
+/// [`push`], with `before_turn(rig, tool, sent)` called before each turn of the node (`sent`:
+/// the image's last frame is on the bus).
+fn push_with(
+    rig: &mut Rig<'_>,
+    tool: &Endpoint<'_, 3, 2048>,
+    image: &[u8],
+    mut before_turn: impl FnMut(&mut Rig<'_>, &Endpoint<'_, 3, 2048>, bool),
+) -> protocol::TransferStatus {
     let mut sender = Sender::new(image, TxConfig::default()).unwrap();
     let give_up = rig.time.now() + 5_000_000;
     let mut done = false;
@@ -137,6 +185,7 @@ fn push(rig: &mut Rig<'_>, tool: &Endpoint<'_, 3, 2048>, image: &[u8]) -> protoc
                 TxEvent::Failed(error) => panic!("the transfer failed: {error:?}"),
             }
         }
+        before_turn(rig, tool, done);
         rig.turn();
         for (id, message) in messages(tool) {
             match message {
@@ -233,11 +282,12 @@ fn the_instant_a_turn_returns_is_the_next_heartbeat_or_feed_on_a_quiet_bus() {
     assert_eq!(rig.turn(), wake + Feeds::FEED_INTERVAL_US);
 }
 
-#[test]
-fn a_save_under_a_stream_of_frames_still_ends() {
-    // Each page erase runs in the background for 30 checks of the flash; a frame arrives before
-    // every turn, so the bus is never quiet: the save must step after frames once it has waited
-    // SAVE_STARVED_US.
+/// Pushes a table to a node whose flash erases in the background for 30 checks a page, with
+/// `interference` before each turn (as [`push_with`]'s `before_turn`); checks that the save ended
+/// (the transfer answered `Applied`, the image in the flash). The node's counters at the end.
+fn assert_the_save_ends(
+    interference: impl FnMut(&mut Rig<'_>, &Endpoint<'_, 3, 2048>, bool),
+) -> pab_app::Counters {
     let bus = Box::new(Bus::new());
     let tool = bus.endpoint(TOOL).unwrap();
     let mut flash = Flash::new();
@@ -245,40 +295,39 @@ fn a_save_under_a_stream_of_frames_still_ends() {
     let mut rig = Rig::boot(&bus, flash);
     rig.turn();
     let v1 = image(&priority_table(&[TOPIC_A], None), Harness::NODE_ID, 1);
-    let mut sender = Sender::new(&v1, TxConfig::default()).unwrap();
-    let mut status = None;
-    for _ in 0..200_000 {
-        match sender.poll(Instant::from_micros(rig.time.now())) {
-            TxEvent::Send(data) => tool.send(
-                &Message::TableTransfer { data, len: 8 }.to_frame(protocol::TOOL, Harness::NODE_ID),
-            ),
-            TxEvent::Done | TxEvent::WaitUntil(_) => {}
-            TxEvent::Failed(error) => panic!("the transfer failed: {error:?}"),
-        }
-        // The stream: a frame of another topic before each turn.
-        tool.send(&frame(TOPIC_B, &[1]));
-        rig.turn();
-        for (id, message) in messages(&tool) {
-            match message {
-                Message::TableTransfer { data, len } if id.destination == protocol::TOOL => {
-                    sender.on_flow_control(
-                        &data[..len as usize],
-                        Instant::from_micros(rig.time.now()),
-                    );
-                }
-                Message::TransferStatus(s) if id.destination == protocol::TOOL => status = Some(s),
-                _ => {}
-            }
-        }
-        if status.is_some() {
-            break;
-        }
-        rig.time.set(rig.time.now() + 200);
-    }
-    let status = status.expect("the node answered the transfer");
+    let status = push_with(&mut rig, &tool, &v1, interference);
     assert_eq!(status.status, TransferStatusCode::Applied, "{status:?}");
     let mut buf = vec![0u8; 8192];
     assert_eq!(rig.store.load(&mut buf).unwrap(), Some(&v1[..]));
+    rig.node.counters()
+}
+
+#[test]
+fn a_save_under_a_stream_of_frames_still_ends() {
+    // As many frames of another topic before every turn as a turn reads: no read finds the bus
+    // quiet, so the save must step after frames once it has waited SAVE_STARVED_US.
+    assert_the_save_ends(|_, tool, _| {
+        for _ in 0..pab_app::RECEIVES_PER_TURN {
+            tool.send(&frame(TOPIC_B, &[1]));
+        }
+    });
+}
+
+#[test]
+fn a_driver_that_fails_every_read_does_not_starve_a_save() {
+    // Once the whole image is in, every read of the driver fails. The save must still step:
+    // a loop that stepped only when a read found no frame would never store it.
+    let mut errors_before = None;
+    let counters = assert_the_save_ends(|rig, _, sent| {
+        if sent && errors_before.is_none() {
+            // The last frame is on the bus: the node reads it, then its driver fails.
+            rig.turn();
+            rig.can.driver().failing = true;
+            errors_before = Some(rig.node.counters().errors);
+        }
+    });
+    // The reads did fail meanwhile, and the node counted them.
+    assert!(counters.errors > errors_before.expect("the image was sent") + 10);
 }
 
 /// A driver whose transmit buffer is always full (a bus where nobody acknowledges) and that
