@@ -31,8 +31,8 @@ pub const RECEIVES_PER_TURN: usize = 16;
 /// A turn does what one pass of `run_watched` does, without waiting anywhere: feeds the
 /// watchdog; hands the driver up to [`SENDS_PER_TURN`] frames of the node's outbox; reads up to
 /// [`RECEIVES_PER_TURN`] frames and hands each to the node; polls the node (heartbeats, faults,
-/// timeouts, the diagnostic stream); takes a step of a table save when no frame is waiting (or,
-/// once the save has waited [`SAVE_STARVED_US`], after every frame). It returns the instant by
+/// timeouts, the diagnostic stream); takes a step of a table save when no frame is waiting or the
+/// driver failed its read (or, once the save has waited [`SAVE_STARVED_US`], after every frame). It returns the instant by
 /// which the next turn is due: the node's deadline, the next feed of the watchdog
 /// ([`Watchdog::FEED_INTERVAL_US`]) or the save's next step; now, when a frame waits for room in
 /// the driver.
