@@ -4,7 +4,8 @@
 # It installs what it needs (the Cortex-M target, rustfmt, clippy, llvm-tools) with rustup, then
 # checks formatting, lints and the documentation's links, builds the book (mdBook) and checks
 # its links, builds the core, the NUCLEO-G474RE firmware and the emulated
-# board's (and prints their flash and RAM sizes), counts the Cortex-M4 instructions per frame on
+# board's (and prints their flash and RAM sizes), the example firmware on a driver that is not
+# embassy's (pab-own-driver, checked free of embassy), counts the Cortex-M4 instructions per frame on
 # the emulated board and checks them against their goals (scripts/cortex-m4-cost.sh --check),
 # runs all tests (unit, property, end-to-end, command line, the node application on an
 # in-process bus, the replay of the fuzz corpus through the fuzz targets' checks), runs each
@@ -121,6 +122,18 @@ step "firmware for the NUCLEO-G474RE (pab-fw-g474) and the emulated Cortex-M4 (p
 cargo build -p pab-fw-g474 --profile firmware --target thumbv7em-none-eabihf --locked
 cargo build -p pab-fw-an386 --profile firmware --target thumbv7em-none-eabihf --locked
 scripts/firmware-size.sh
+
+step "a node on a driver that is not embassy's: pab-own-driver for an STM32F405 (bxCAN, no embassy)"
+# The example of docs/your-own-driver.md: stm32f4xx-hal's bxCAN driver through pab_app::EmbeddedCan,
+# pab_app::PollLoop in a superloop. Its node code is tested on the host in `cargo test` (over
+# pab-app's test bus); here its firmware is built, and its dependency tree must hold no embassy
+# crate (the point of the example).
+cargo build -p pab-own-driver --features board --profile firmware --target thumbv7em-none-eabihf --locked
+if cargo tree -p pab-own-driver --features board -e normal --target thumbv7em-none-eabihf --locked \
+    --prefix none | grep '^embassy'; then
+    echo "pab-own-driver's firmware depends on embassy (above)" >&2
+    exit 1
+fi
 
 step "no panic call site of pab_core, pab_app, pab_storage or pab_slcan in the board firmware"
 # Both board firmwares built with their panic locations (in target/panic-check: the check needs

@@ -542,41 +542,26 @@ mod async_loop {
     use std::cell::RefCell;
 
     use embassy_futures::select::{Either, select};
-    use futures::StreamExt;
-    use futures::channel::mpsc::{UnboundedReceiver, UnboundedSender, unbounded};
-    use pab_app::{BusError, CanBus};
+    use pab_app::CanBus;
+    use pab_app::testing::{Endpoint, TestBus};
     use pab_intent::{SystemClock, run};
 
     use super::*;
 
-    struct ChannelBus {
-        incoming: UnboundedReceiver<Frame>,
-        outgoing: UnboundedSender<Frame>,
-    }
-
-    impl CanBus for ChannelBus {
-        async fn receive(&mut self) -> Result<Frame, BusError> {
-            self.incoming.next().await.ok_or(BusError::Other(0))
-        }
-
-        async fn transmit(&mut self, frame: &Frame) -> Result<(), BusError> {
-            self.outgoing
-                .unbounded_send(*frame)
-                .map_err(|_| BusError::Other(1))
-        }
-    }
+    /// The intention node's end and the boards' (the test's).
+    type Bus = TestBus<2, 256>;
 
     /// The next message from the intention node within 2 s that `wanted` picks.
     async fn next<T>(
-        from: &mut UnboundedReceiver<Frame>,
+        from: &mut Endpoint<'_, 2, 256>,
         mut wanted: impl FnMut(FrameId, Message) -> Option<T>,
     ) -> T {
         let deadline = std::time::Instant::now() + std::time::Duration::from_secs(2);
         loop {
             let timer = async_io::Timer::at(deadline);
-            let frame = match select(from.next(), timer).await {
-                Either::First(Some(frame)) => frame,
-                Either::First(None) => panic!("the intention node hung up"),
+            let frame = match select(from.receive(), timer).await {
+                Either::First(Ok(frame)) => frame,
+                Either::First(Err(error)) => panic!("the boards' end of the bus: {error:?}"),
                 Either::Second(_) => panic!("nothing wanted from the intention node in 2 s"),
             };
             if let Ok((id, message)) = Message::decode(&frame)
@@ -592,15 +577,15 @@ mod async_loop {
         let network = tour_guide();
         let setup = compile::intention_setup(&network).unwrap();
         let mut node = IntentNode::new(&setup, INTENTION).unwrap();
-        let (to_intent, incoming) = unbounded();
-        let (outgoing, mut from_intent) = unbounded();
-        let mut bus = ChannelBus { incoming, outgoing };
+        let test_bus = Bus::new();
+        let mut bus = test_bus.endpoint(0).unwrap();
+        let mut boards = test_bus.endpoint(1).unwrap();
         let reports: RefCell<Vec<Report>> = RefCell::new(Vec::new());
         let mut clock = SystemClock::new();
         let mut report = |r: Report| reports.borrow_mut().push(r);
         let script = async {
             // The first plan closes every filter (nothing desired).
-            let first = next(&mut from_intent, |_, m| match m {
+            let first = next(&mut boards, |_, m| match m {
                 Message::FilterSet(set) => Some(set),
                 _ => None,
             })
@@ -612,10 +597,8 @@ mod async_loop {
                 lease_ms: 5000,
                 id: 1,
             });
-            to_intent
-                .unbounded_send(voice.to_frame(MOTIVATION, BROADCAST))
-                .unwrap();
-            let published = next(&mut from_intent, |id, m| match m {
+            boards.send(&voice.to_frame(MOTIVATION, BROADCAST));
+            let published = next(&mut boards, |id, m| match m {
                 Message::Intention(i) if id.source == INTENTION && i.strategies != 0 => {
                     Some(i.strategies)
                 }
@@ -623,7 +606,7 @@ mod async_loop {
             })
             .await;
             assert_eq!(published, VOICE_LOCALISE);
-            let (node, set) = next(&mut from_intent, |id, m| match m {
+            let (node, set) = next(&mut boards, |id, m| match m {
                 Message::FilterSet(set) if set.phi == 1 => Some((id.destination, set)),
                 _ => None,
             })
@@ -636,11 +619,9 @@ mod async_loop {
                 count: 1,
                 detail: [3, set.port, set.connection, s0, s1],
             });
-            to_intent
-                .unbounded_send(refusal.to_frame(1, protocol::BROADCAST))
-                .unwrap();
+            boards.send(&refusal.to_frame(1, protocol::BROADCAST));
             // Published again within the second, all the same.
-            let again = next(&mut from_intent, |id, m| match m {
+            let again = next(&mut boards, |id, m| match m {
                 Message::Intention(i) if id.source == INTENTION => Some(i.strategies),
                 _ => None,
             })

@@ -15,8 +15,9 @@
 //! The frames are those of [`pab_core::protocol`]; `docs/can-protocol.md` describes them.
 //!
 //! Structure: [`Node`] is the whole behaviour as a state machine without I/O (frames and time in,
-//! frames out); [`run`] drives it on a [`CanBus`] with a [`TableStore`]. Boards and the Linux node
-//! provide those two traits and nothing else.
+//! frames out); `run` (feature `embassy`) drives it on a [`CanBus`] with a [`TableStore`]. Boards
+//! and the Linux node provide those two traits and nothing else. Without embassy, [`PollLoop`]
+//! drives it over any `embedded-can` driver ([`EmbeddedCan`]) on a clock of the integrator's.
 
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
@@ -39,19 +40,24 @@ mod fmt;
 
 mod auth;
 pub mod bus;
+pub mod can;
 mod config;
 mod diagnostic;
 mod faults;
 pub mod keying;
 pub mod node;
+mod poll_loop;
 pub mod replay;
 mod runner;
 #[cfg(feature = "schema")]
 pub mod schema;
 mod settings;
+#[cfg(feature = "test-bus")]
+pub mod testing;
 
 pub use auth::{CHALLENGE_LIFETIME_US, TAG_CHECKS_PER_SECOND};
 pub use bus::{BusError, CanBus};
+pub use can::{Clock, EmbeddedCan};
 pub use config::{
     Config, ConfigError, DEFAULT_STORE_INTERVAL_US, MAX_STORE_INTERVAL_US, parse_node_id,
 };
@@ -61,7 +67,10 @@ pub use keying::{BOOT_COUNTER_FAILED, Keying, key_from_page};
 pub use node::{Counters, Node, Running, Step};
 pub use pab_core::identity::{Firmware, Identity};
 pub use pab_storage::{SaveProgress, StoreError, TableStore};
-pub use runner::{SAVE_POLL_US, SAVE_STARVED_US, SENDS_PER_TURN, Watchdog, now, run, run_watched};
+pub use poll_loop::{PollLoop, RECEIVES_PER_TURN};
+pub use runner::{SAVE_POLL_US, SAVE_STARVED_US, SENDS_PER_TURN, Watchdog};
+#[cfg(feature = "embassy")]
+pub use runner::{now, run, run_watched};
 pub use settings::{BITRATE_TRIAL_US, Settings};
 
 /// The git commit this build comes from, as hex (`PAB_BUILD_ID` at build time overrides it;

@@ -1,13 +1,20 @@
 //! The async loop that runs a [`Node`] on a bus with a store, under embassy (on a board, or on
-//! embassy's std executor on Linux).
+//! embassy's std executor on Linux); the loop itself and the clock need the `embassy` feature,
+//! the watchdog seam, the loop's bounds and the save's step serve [`crate::PollLoop`] too.
 
+#[cfg(feature = "embassy")]
 use embassy_futures::select::{Either, select};
+#[cfg(feature = "embassy")]
 use embassy_time::Timer;
 use pab_core::Instant;
 
+#[cfg(feature = "embassy")]
 use crate::Recipient;
+#[cfg(feature = "embassy")]
 use crate::bus::{BusError, CanBus};
-use crate::node::{Node, Step};
+use crate::node::Node;
+#[cfg(feature = "embassy")]
+use crate::node::Step;
 use crate::store::{SaveProgress, TableStore};
 
 /// Now, on embassy's clock, as a core [`Instant`].
@@ -16,13 +23,14 @@ use crate::store::{SaveProgress, TableStore};
 /// time driver (a critical section around the timer's count and period) took 196 bytes more of
 /// the NUCLEO-G474RE's flash than one out-of-line copy. A read costs a call more (the node's
 /// methods take `now` from their caller, so the measured frame path does not change).
+#[cfg(feature = "embassy")]
 #[inline(never)]
 pub fn now() -> Instant {
     Instant::from_micros(embassy_time::Instant::now().as_micros())
 }
 
-/// A hardware watchdog that the node loop feeds: once per turn of [`run_watched`]'s loop, and the
-/// loop turns at least every [`Watchdog::FEED_INTERVAL_US`], so the watchdog fires only when the
+/// A hardware watchdog that the node loop feeds: once per turn of `run_watched`'s loop (or of a
+/// [`crate::PollLoop`]), and the loop turns at least every [`Watchdog::FEED_INTERVAL_US`], so the watchdog fires only when the
 /// loop itself stops (a hang in the node, the driver or the store), not when the bus is quiet.
 pub trait Watchdog {
     /// The longest the loop waits between two feeds, µs. The watchdog's timeout must be well
@@ -72,6 +80,7 @@ pub const SENDS_PER_TURN: usize = 16;
 /// what arrives during a step. The node refuses transfers until the save is done (its image
 /// stays in the transfer buffer) and rate-limits saves ([`crate::Config::store_interval_us`]): a
 /// save that waits for its turn comes out of [`Node::poll`] at its deadline.
+#[cfg(feature = "embassy")]
 pub async fn run<B, S, K, const P: usize, const C: usize, const N: usize, const IMG: usize>(
     node: &mut Node<P, C, N, IMG>,
     bus: &mut B,
@@ -88,6 +97,7 @@ where
 
 /// [`run`], feeding `watchdog` at every turn of the loop and waking at least every
 /// [`Watchdog::FEED_INTERVAL_US`] to do so: a loop that hangs stops feeding it.
+#[cfg(feature = "embassy")]
 pub async fn run_watched<
     B,
     S,
@@ -181,7 +191,7 @@ where
         // A configuration record to store: blocking (a record's program, once in a while an
         // erase); configuration is rare, and the node refuses it while a table's save runs.
         if step == Step::SaveSettings {
-            save_settings(node, store, watchdog);
+            save_settings(node, store, watchdog, now());
         }
         // A new table to store: at once, or when the store interval let its turn come.
         if step == Step::Store {
@@ -197,16 +207,24 @@ where
 /// asks (a bit rate's trial that heard nothing). Out of line: configuration is rare, and the
 /// loop's future need not hold its code.
 #[inline(never)]
-fn save_settings<S, W, const P: usize, const C: usize, const N: usize, const IMG: usize>(
+pub(crate) fn save_settings<
+    S,
+    W,
+    const P: usize,
+    const C: usize,
+    const N: usize,
+    const IMG: usize,
+>(
     node: &mut Node<P, C, N, IMG>,
     store: &mut S,
     watchdog: &mut W,
+    now: Instant,
 ) where
     S: TableStore,
     W: Watchdog,
 {
     let result = store.save_settings(node.settings_to_store());
-    if node.settings_stored(result, now()) {
+    if node.settings_stored(result, now) {
         watchdog.restart();
     }
 }
@@ -218,7 +236,13 @@ fn save_settings<S, W, const P: usize, const C: usize, const N: usize, const IMG
 // Out of line: two callers, and one call site in the loop's future (the step's flag computed in
 // both branches, the call after them) took 36 bytes more of the emulated board's flash.
 #[inline(never)]
-fn save_step<S: TableStore, const P: usize, const C: usize, const N: usize, const IMG: usize>(
+pub(crate) fn save_step<
+    S: TableStore,
+    const P: usize,
+    const C: usize,
+    const N: usize,
+    const IMG: usize,
+>(
     node: &mut Node<P, C, N, IMG>,
     store: &mut S,
     now: Instant,

@@ -7,11 +7,13 @@
 mod common;
 
 mod ble;
+mod can_adapter;
 mod filters;
 mod identity;
 mod keying;
 mod node;
 mod outbox;
+mod poll_loop;
 mod priority;
 mod replay;
 mod rogue;

@@ -1,14 +1,14 @@
-//! The async runner, as the boards and the Linux node run it: `pab_app::run` on a bus, with the
-//! real flash store (`pab-storage`'s `FlashStore`) over an in-memory NOR flash, in real time on
-//! embassy's std time driver. A table pushed while it runs is stored, and a node started again
-//! on the same flash boots with it.
+//! The async runner, as the boards and the Linux node run it: `pab_app::run` on a bus (an
+//! endpoint of `testing::TestBus`, the tool on another), with the real flash store
+//! (`pab-storage`'s `FlashStore`) over an in-memory NOR flash, in real time on embassy's std time
+//! driver. A table pushed while it runs is stored, and a node started again on the same flash
+//! boots with it.
 
 use crate::common;
 
 use common::*;
 use embassy_futures::select::{Either, select};
-use futures::StreamExt;
-use futures::channel::mpsc::{UnboundedReceiver, UnboundedSender, unbounded};
+use pab_app::testing::{Endpoint, TestBus};
 use pab_app::{BusError, CanBus, Config, SaveProgress, StoreError, TableStore};
 use pab_core::isotp::{Sender, TxConfig, TxEvent};
 use pab_core::protocol::{self, Message, TransferStatusCode};
@@ -19,21 +19,14 @@ use pab_storage::{FlashErrorKind, FlashStore};
 /// The G474's geometry: 4 KiB pages, 8-byte writes; 64 KiB.
 type Flash = MemFlash<16, 4096, 8>;
 
-struct ChannelBus {
-    incoming: UnboundedReceiver<Frame>,
-    outgoing: UnboundedSender<Frame>,
-}
+/// The node and the tool, each with room for a whole pushed image.
+type Bus = TestBus<2, 4096>;
+/// The tool's end of the bus (a script's).
+type Tool = Endpoint<'static, 2, 4096>;
 
-impl CanBus for ChannelBus {
-    async fn receive(&mut self) -> Result<Frame, BusError> {
-        self.incoming.next().await.ok_or(BusError::Other(0))
-    }
-
-    async fn transmit(&mut self, frame: &Frame) -> Result<(), BusError> {
-        self.outgoing
-            .unbounded_send(*frame)
-            .map_err(|_| BusError::Other(1))
-    }
+/// A bus for one test (leaked: a test's lifetime, and the scripts' futures borrow it).
+fn bus() -> &'static Bus {
+    Box::leak(Box::new(Bus::new()))
 }
 
 fn store(flash: Flash) -> FlashStore<Flash> {
@@ -45,12 +38,12 @@ fn now() -> Instant {
 }
 
 /// The next of our messages from the node, skipping others, within 3 s.
-async fn next_message(from_node: &mut UnboundedReceiver<Frame>) -> (protocol::FrameId, Message) {
+async fn next_message(tool: &mut Tool) -> (protocol::FrameId, Message) {
     let deadline = embassy_time::Instant::now() + embassy_time::Duration::from_secs(3);
     loop {
-        let frame = match select(from_node.next(), embassy_time::Timer::at(deadline)).await {
-            Either::First(Some(frame)) => frame,
-            Either::First(None) => panic!("the node hung up"),
+        let frame = match select(tool.receive(), embassy_time::Timer::at(deadline)).await {
+            Either::First(Ok(frame)) => frame,
+            Either::First(Err(error)) => panic!("the tool's end of the bus: {error:?}"),
             Either::Second(()) => panic!("the node said nothing for 3 s"),
         };
         match Message::decode(&frame) {
@@ -63,32 +56,23 @@ async fn next_message(from_node: &mut UnboundedReceiver<Frame>) -> (protocol::Fr
 }
 
 /// Pushes `image` over ISO-TP from the tool; returns the node's transfer status.
-async fn push(
-    image: &[u8],
-    to_node: &UnboundedSender<Frame>,
-    from_node: &mut UnboundedReceiver<Frame>,
-) -> protocol::TransferStatus {
-    push_then(image, to_node, from_node, None).await
+async fn push(image: &[u8], tool: &mut Tool) -> protocol::TransferStatus {
+    push_then(image, tool, None).await
 }
 
 /// [`push`], sending `then` right after the image's last frame (before the node's answer).
-async fn push_then(
-    image: &[u8],
-    to_node: &UnboundedSender<Frame>,
-    from_node: &mut UnboundedReceiver<Frame>,
-    then: Option<Frame>,
-) -> protocol::TransferStatus {
+async fn push_then(image: &[u8], tool: &mut Tool, then: Option<Frame>) -> protocol::TransferStatus {
     let mut sender = Sender::new(image, TxConfig::default()).unwrap();
     loop {
         match sender.poll(now()) {
             TxEvent::Send(data) => {
                 let frame = Message::TableTransfer { data, len: 8 }
                     .to_frame(protocol::TOOL, Harness::NODE_ID);
-                to_node.unbounded_send(frame).unwrap();
+                tool.send(&frame);
             }
             TxEvent::WaitUntil(_) => {
                 // Wait for the flow control (or an early answer).
-                match next_message(from_node).await {
+                match next_message(tool).await {
                     (id, Message::TableTransfer { data, len })
                         if id.destination == protocol::TOOL =>
                     {
@@ -100,7 +84,7 @@ async fn push_then(
             }
             TxEvent::Done => {
                 if let Some(frame) = then {
-                    to_node.unbounded_send(frame).unwrap();
+                    tool.send(&frame);
                 }
                 break;
             }
@@ -108,7 +92,7 @@ async fn push_then(
         }
     }
     loop {
-        if let (id, Message::TransferStatus(status)) = next_message(from_node).await {
+        if let (id, Message::TransferStatus(status)) = next_message(tool).await {
             assert_eq!(id.destination, protocol::TOOL);
             return status;
         }
@@ -118,18 +102,18 @@ async fn push_then(
 /// Runs a node on `flash` while `script` talks to it; returns the flash.
 fn with_running_node<F, Fut>(flash: Flash, script: F) -> Flash
 where
-    F: FnOnce(UnboundedSender<Frame>, UnboundedReceiver<Frame>) -> Fut,
+    F: FnOnce(Tool) -> Fut,
     Fut: std::future::Future<Output = ()>,
 {
-    let (to_node, incoming) = unbounded();
-    let (outgoing, from_node) = unbounded();
-    let mut bus = ChannelBus { incoming, outgoing };
+    let bus = bus();
+    let mut node_end = bus.endpoint(0).unwrap();
+    let tool = bus.endpoint(1).unwrap();
     let mut store = store(flash);
     let mut node = Box::new(TestNode::new(Config::new(Harness::NODE_ID).unwrap(), now()));
     futures::executor::block_on(async {
         match select(
-            pab_app::run(&mut node, &mut bus, &mut store, &mut ()),
-            script(to_node, from_node),
+            pab_app::run(&mut node, &mut node_end, &mut store, &mut ()),
+            script(tool),
         )
         .await
         {
@@ -154,20 +138,20 @@ fn a_pushed_table_is_stored_in_flash_and_the_node_boots_with_it() {
 
     // First life: boots with v1, takes v2.
     let (v1_crc, v2_bytes) = (pab_core::image::read_header(&v1).unwrap().crc, v2.clone());
-    let flash = with_running_node(flash, |to_node, mut from_node| async move {
-        let (id, first) = next_message(&mut from_node).await;
+    let flash = with_running_node(flash, |mut tool| async move {
+        let (id, first) = next_message(&mut tool).await;
         assert_eq!(id.source, Harness::NODE_ID);
         assert!(
             matches!(first, Message::Heartbeat(hb) if hb.table_version == 1),
             "{first:?}"
         );
-        assert!(matches!(next_message(&mut from_node).await.1,
+        assert!(matches!(next_message(&mut tool).await.1,
             Message::TableStatus(s) if s.crc == v1_crc && s.stored));
-        let status = push(&v2_bytes, &to_node, &mut from_node).await;
+        let status = push(&v2_bytes, &mut tool).await;
         assert_eq!(status.status, TransferStatusCode::Applied);
         assert_eq!(status.running_version, 2);
         // The new table arbitrates at once: B is delivered... and re-published nowhere (local).
-        to_node.unbounded_send(frame(TOPIC_B, &[1])).unwrap();
+        tool.send(&frame(TOPIC_B, &[1]));
         embassy_time::Timer::after(embassy_time::Duration::from_millis(20)).await;
     });
 
@@ -180,14 +164,13 @@ fn a_pushed_table_is_stored_in_flash_and_the_node_boots_with_it() {
 
     // Second life: boots with v2.
     let v2_crc = pab_core::image::read_header(&v2).unwrap().crc;
-    with_running_node(flash, |to_node, mut from_node| async move {
-        let _bus_open = to_node;
-        let (_, first) = next_message(&mut from_node).await;
+    with_running_node(flash, |mut tool| async move {
+        let (_, first) = next_message(&mut tool).await;
         assert!(
             matches!(first, Message::Heartbeat(hb) if hb.table_version == 2),
             "{first:?}"
         );
-        assert!(matches!(next_message(&mut from_node).await.1,
+        assert!(matches!(next_message(&mut tool).await.1,
             Message::TableStatus(s) if s.crc == v2_crc && s.stored));
     });
 }
@@ -208,13 +191,13 @@ fn the_node_reads_and_answers_frames_while_a_table_is_saved() {
     };
     let second = Message::TableTransfer { data, len: 8 }.to_frame(protocol::TOOL, Harness::NODE_ID);
     let pushed = v1.clone();
-    let flash = with_running_node(flash, |to_node, mut from_node| async move {
-        let (_, first) = next_message(&mut from_node).await;
+    let flash = with_running_node(flash, |mut tool| async move {
+        let (_, first) = next_message(&mut tool).await;
         assert!(matches!(first, Message::Heartbeat(_)), "{first:?}");
-        let during = push_then(&pushed, &to_node, &mut from_node, Some(second)).await;
+        let during = push_then(&pushed, &mut tool, Some(second)).await;
         assert_eq!(during.status, TransferStatusCode::Busy, "{during:?}");
         let stored = loop {
-            if let (_, Message::TransferStatus(status)) = next_message(&mut from_node).await {
+            if let (_, Message::TransferStatus(status)) = next_message(&mut tool).await {
                 break status;
             }
         };
@@ -228,10 +211,8 @@ fn the_node_reads_and_answers_frames_while_a_table_is_saved() {
 
 #[test]
 fn an_empty_flash_boots_without_a_table() {
-    with_running_node(Flash::new(), |to_node, mut from_node| async move {
-        // Keep the bus open while the node runs.
-        let _bus_open = to_node;
-        let (_, first) = next_message(&mut from_node).await;
+    with_running_node(Flash::new(), |mut tool| async move {
+        let (_, first) = next_message(&mut tool).await;
         assert!(matches!(first,
             Message::Heartbeat(hb) if hb.state == protocol::NodeState::NoTable && hb.table_version == 0));
     });
@@ -299,18 +280,17 @@ impl TableStore for UnreadableStore {
 
 #[test]
 fn a_store_that_cannot_be_read_raises_the_stored_table_fault() {
-    let (to_node, incoming) = unbounded();
-    let (outgoing, mut from_node) = unbounded();
-    let mut bus = ChannelBus { incoming, outgoing };
+    let bus = bus();
+    let mut node_end = bus.endpoint(0).unwrap();
+    let mut tool = bus.endpoint(1).unwrap();
     let mut node = Box::new(TestNode::new(Config::new(Harness::NODE_ID).unwrap(), now()));
     futures::executor::block_on(async {
         let script = async {
-            let _bus_open = to_node;
             // The fault that says why, first (it outranks the heartbeat group queued with it),
             // then the heartbeat that says "no table".
             let mut fault_seen = false;
             loop {
-                match next_message(&mut from_node).await {
+                match next_message(&mut tool).await {
                     (_, Message::Heartbeat(hb)) if fault_seen => {
                         assert_eq!(hb.state, protocol::NodeState::NoTable);
                         break;
@@ -335,7 +315,7 @@ fn a_store_that_cannot_be_read_raises_the_stored_table_fault() {
             }
         };
         match select(
-            pab_app::run(&mut node, &mut bus, &mut UnreadableStore, &mut ()),
+            pab_app::run(&mut node, &mut node_end, &mut UnreadableStore, &mut ()),
             script,
         )
         .await

@@ -1,5 +1,5 @@
 //! The node, as a state machine without I/O: frames and the time go in, frames to send and the
-//! image to store come out. The async runner ([`crate::run`]) and the tests drive the same code.
+//! image to store come out. The async runner (`crate::run`, with the feature `embassy`) or the poll loop ([`crate::PollLoop`]) and the tests drive the same code.
 //!
 //! Why sans-I/O: the board, the Linux process and the in-process tests differ only in how frames
 //! and time arrive. Keeping every decision here makes the tests exercise exactly what the boards
