@@ -3,7 +3,7 @@
 #   scripts/lint.sh
 # clippy on the host crates (every target: libraries, binaries, tests, benches, examples) and on
 # the boards' crates for thumbv7em-none-eabihf (the core with and without defmt, the storage, the
-# node application, both firmwares in release as they are flashed, the SLCAN codec and the
+# node application, the three firmwares in release as they are flashed, the SLCAN codec and the
 # builtins); then rustdoc on the host crates, where a broken or ambiguous intra-doc link fails.
 # ./test.sh runs it in the background while the other steps run; alone it takes about two
 # minutes from an empty target directory on two cores.
@@ -18,6 +18,7 @@ cargo clippy -p pab-core --features defmt --target thumbv7em-none-eabihf --locke
 cargo clippy -p pab-storage --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-app --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-fw-g474 --target thumbv7em-none-eabihf --release --locked -- -D warnings
+cargo clippy -p pab-fw-f446 --target thumbv7em-none-eabihf --release --locked -- -D warnings
 cargo clippy -p pab-slcan --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-builtins --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-fw-an386 --target thumbv7em-none-eabihf --release --locked -- -D warnings
