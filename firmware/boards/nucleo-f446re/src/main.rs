@@ -491,7 +491,7 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
 }
 
 /// What follows a `defmt::panic!` (embassy's checks, `unwrap!`) once it has logged its message:
-/// stop as [`panic`] does.
+/// stop as [`panic()`] does.
 #[defmt::panic_handler]
 fn defmt_panic() -> ! {
     cortex_m::asm::udf()

@@ -1,5 +1,5 @@
 //! What this board does with delivered frames: logs and counts them. A real board puts its
-//! actuators here (see [`BoardRecipient::deliver`]).
+//! actuators here, in its [`pab_app::Recipient::deliver`] (below).
 
 use pab_core::{Frame, Instant};
 
