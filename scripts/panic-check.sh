@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # No reachable panic in the project's crates on the boards: disassembles each board firmware (the
-# `firmware` profile's ELFs, pab-fw-g474, pab-fw-f446 and pab-fw-an386; built here if needed) and fails when a
-# panic entry point is called or branched to from code of pab_core, pab_app, pab_storage or
-# pab_slcan.
+# `firmware` profile's ELFs, pab-fw-g474, pab-fw-f446 and pab-fw-an386; built here if needed) and
+# fails when a panic entry point is called or branched to from code of pab_core, pab_app,
+# pab_storage or pab_slcan.
 #   scripts/panic-check.sh            # build the firmwares with their panic locations, in
 #                                     # target/panic-check (cargo skips them when up to date), check
 #   scripts/panic-check.sh ELF...     # check these ELFs
