@@ -3,7 +3,7 @@
 #   ./test.sh
 # It installs what it needs (the Cortex-M target, rustfmt, clippy, llvm-tools) with rustup, then
 # checks formatting, lints and the documentation's links, builds the book (mdBook) and checks
-# its links, builds the core, the NUCLEO-G474RE firmware and the emulated
+# its links, builds the core, the NUCLEO-G474RE and NUCLEO-F446RE firmware and the emulated
 # board's (and prints their flash and RAM sizes), the example firmware on a driver that is not
 # embassy's (pab-own-driver, checked free of embassy), counts the Cortex-M4 instructions per frame on
 # the emulated board and checks them against their goals (scripts/cortex-m4-cost.sh --check),
@@ -117,9 +117,11 @@ step "pab-core for the boards (thumbv7em-none-eabihf)"
 cargo build -p pab-core --release --target thumbv7em-none-eabihf --locked
 cargo build -p pab-storage --release --target thumbv7em-none-eabihf --locked
 
-step "firmware for the NUCLEO-G474RE (pab-fw-g474) and the emulated Cortex-M4 (pab-fw-an386)"
-# The `firmware` profile: what is flashed (see the root Cargo.toml).
+step "firmware for the NUCLEO-G474RE (pab-fw-g474), the NUCLEO-F446RE (pab-fw-f446) and the emulated Cortex-M4 (pab-fw-an386)"
+# The `firmware` profile: what is flashed (see the root Cargo.toml). One board a command: their
+# features would unify in one build.
 cargo build -p pab-fw-g474 --profile firmware --target thumbv7em-none-eabihf --locked
+cargo build -p pab-fw-f446 --profile firmware --target thumbv7em-none-eabihf --locked
 cargo build -p pab-fw-an386 --profile firmware --target thumbv7em-none-eabihf --locked
 scripts/firmware-size.sh
 
@@ -136,7 +138,7 @@ if cargo tree -p pab-own-driver --features board -e normal --target thumbv7em-no
 fi
 
 step "no panic call site of pab_core, pab_app, pab_storage or pab_slcan in the board firmware"
-# Both board firmwares built with their panic locations (in target/panic-check: the check needs
+# The board firmwares built with their panic locations (in target/panic-check: the check needs
 # each site's own call; scripts/panic-check.sh says why), disassembled, and every branch to a
 # panic entry point attributed through its inline chain: fails on any such site. In the
 # foreground: the one run with it in the background, whose builds then overlapped the HIL suite,

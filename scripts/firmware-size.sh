@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Flash and static RAM of the board firmware, from its build with the `firmware` profile (the one
 # that is flashed; see the root Cargo.toml):
-#   scripts/firmware-size.sh            (builds pab-fw-g474 and pab-fw-an386; cargo skips them
-#                                        when up to date)
+#   scripts/firmware-size.sh            (builds pab-fw-g474, pab-fw-f446 and pab-fw-an386, one
+#                                        at a time; cargo skips them when up to date)
 # Needs llvm-size from rustup's llvm-tools component (installed here if missing). The firmware
 # must stay within 64 KiB of flash (text + data), and its deepest chain of calls must leave 8 KiB
 # of its stack (scripts/stack-depth.py says how it is measured).
@@ -39,6 +39,8 @@ report() {
 
 echo "flash = text+data, RAM = data+bss (static)"
 report pab-fw-g474 "NUCLEO-G474RE" "the 256 KiB program region (bank 1), 512 KiB chip" \
+    "128 KiB; the rest is the stack"
+report pab-fw-f446 "NUCLEO-F446RE" "the 128 KiB program region (sector 5), 512 KiB chip" \
     "128 KiB; the rest is the stack"
 report pab-fw-an386 "emulated Cortex-M4, QEMU mps2-an386" "the 256 KiB program region" \
     "4 MiB; the rest is the stack"

@@ -3,9 +3,9 @@
 #   scripts/lint.sh
 # clippy on the host crates (every target: libraries, binaries, tests, benches, examples) and on
 # the boards' crates for thumbv7em-none-eabihf (the core with and without defmt, the storage, the
-# node application with and without embassy, both firmwares in release as they are flashed, the
-# SLCAN codec, the builtins and the example firmware on bxCAN); then rustdoc on the host crates,
-# where a broken or ambiguous intra-doc link fails.
+# node application with and without embassy, the three firmwares in release as they are flashed,
+# the SLCAN codec, the builtins and the example firmware on bxCAN); then rustdoc on the host
+# crates, where a broken or ambiguous intra-doc link fails.
 # ./test.sh runs it in the background while the other steps run; alone it takes about two
 # minutes from an empty target directory on two cores.
 set -euo pipefail
@@ -21,6 +21,7 @@ cargo clippy -p pab-app --target thumbv7em-none-eabihf --locked -- -D warnings
 # The node application without embassy (PollLoop, EmbeddedCan) and with its test bus.
 cargo clippy -p pab-app --no-default-features --features test-bus --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-fw-g474 --target thumbv7em-none-eabihf --release --locked -- -D warnings
+cargo clippy -p pab-fw-f446 --target thumbv7em-none-eabihf --release --locked -- -D warnings
 cargo clippy -p pab-slcan --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-builtins --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-fw-an386 --target thumbv7em-none-eabihf --release --locked -- -D warnings

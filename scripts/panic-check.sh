@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # No reachable panic in the project's crates on the boards: disassembles each board firmware (the
-# `firmware` profile's ELFs, pab-fw-g474 and pab-fw-an386; built here if needed) and fails when a
-# panic entry point is called or branched to from code of pab_core, pab_app, pab_storage or
-# pab_slcan.
-#   scripts/panic-check.sh            # build both firmwares with their panic locations, in
+# `firmware` profile's ELFs, pab-fw-g474, pab-fw-f446 and pab-fw-an386; built here if needed) and
+# fails when a panic entry point is called or branched to from code of pab_core, pab_app,
+# pab_storage or pab_slcan.
+#   scripts/panic-check.sh            # build the firmwares with their panic locations, in
 #                                     # target/panic-check (cargo skips them when up to date), check
 #   scripts/panic-check.sh ELF...     # check these ELFs
 #
@@ -53,9 +53,13 @@ if [ $# -eq 0 ]; then
     export PAB_PANIC_LOCATION=1
     CARGO_TARGET_DIR="$target" cargo build -q --locked -p pab-fw-g474 --profile firmware \
         --target thumbv7em-none-eabihf
+    # One board a command: their features would unify in one build.
+    CARGO_TARGET_DIR="$target" cargo build -q --locked -p pab-fw-f446 --profile firmware \
+        --target thumbv7em-none-eabihf
     CARGO_TARGET_DIR="$target" cargo build -q --locked -p pab-fw-an386 --profile firmware \
         --target thumbv7em-none-eabihf --bin pab-fw-an386
     set -- "$target/thumbv7em-none-eabihf/firmware/pab-fw-g474" \
+        "$target/thumbv7em-none-eabihf/firmware/pab-fw-f446" \
         "$target/thumbv7em-none-eabihf/firmware/pab-fw-an386"
 fi
 
@@ -63,5 +67,6 @@ exec python3 scripts/panic_check.py --repo . \
     --objdump "$bin/llvm-objdump" --nm "$bin/llvm-nm" --addr2line arm-none-eabi-addr2line \
     --crate pab_core=core --crate pab_app=firmware/app --crate pab_storage=firmware/storage \
     --crate pab_slcan=firmware/slcan \
-    --report pab-fw-g474=firmware/boards/nucleo-g474re --report pab-fw-an386=firmware/boards/mps2-an386 \
+    --report pab-fw-g474=firmware/boards/nucleo-g474re --report pab-fw-f446=firmware/boards/nucleo-f446re \
+    --report pab-fw-an386=firmware/boards/mps2-an386 \
     "$@"

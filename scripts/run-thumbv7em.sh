@@ -5,6 +5,8 @@
 #     semihosting (their console and exit status) on this terminal; extra arguments go to QEMU;
 #     PAB_KEY_PAGE=FILE plants FILE (`pabctl keypage KEY -o FILE`) at the emulated board's key
 #     page, 0x0004_E000 (QEMU's loader, again at every system reset);
+#   - pab-fw-f446 is flashed to a NUCLEO-F446RE with probe-rs (chip STM32F446RETx), which prints
+#     its defmt log;
 #   - anything else is flashed to a NUCLEO-G474RE with probe-rs, which prints its defmt log.
 set -euo pipefail
 elf="$1"
@@ -25,6 +27,9 @@ case "$(basename "$elf")" in
         fi
         exec qemu-system-arm -M mps2-an386 -nographic -monitor none \
             -semihosting-config enable=on,target=native -kernel "$elf" "${key_page[@]}" "$@"
+        ;;
+    pab-fw-f446*)
+        exec probe-rs run --chip STM32F446RETx "$elf" "$@"
         ;;
     *)
         exec probe-rs run --chip STM32G474RETx "$elf" "$@"
