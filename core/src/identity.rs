@@ -471,6 +471,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "identity")]
     fn the_documented_assignment_example_holds() {
         // docs/can-protocol.md, "Assign (0x28)".
         let uid = [0xAB, 1, 2, 3, 4, 5, 6, 0xCD, 0, 0, 0, 0];

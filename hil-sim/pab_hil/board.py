@@ -127,6 +127,22 @@ def single_bank_firmware() -> Path:
     return SINGLE_BANK_FIRMWARE
 
 
+# The test build with identity and configuration over the bus (feature `identity`: identity
+# answers, the node id and bit rate kept in the configuration page), which hil-sim/run-hil builds
+# and keeps here. Not the production build: it does not fit the 64 KiB of flash yet.
+IDENTITY_FIRMWARE = REPO / "target" / "hil-board" / f"{FIRMWARE}-identity"
+
+
+def identity_firmware() -> Path:
+    """The identity test build's ELF, or a MissingBinary saying how to build it."""
+    if not IDENTITY_FIRMWARE.is_file():
+        raise MissingBinary(
+            f"{IDENTITY_FIRMWARE} is missing: hil-sim/run-hil builds it (cargo build --profile "
+            f"firmware -p {FIRMWARE} --target {TARGET} --bin {FIRMWARE} --features identity, "
+            f"then a copy of the ELF there)")
+    return IDENTITY_FIRMWARE
+
+
 #: How much further ahead of the suite's other work (the micro-VM's QEMU, the nodes, run-hil's
 #: own niceness) the board's QEMU runs when a test times the board itself (`ahead`). The schema
 #: server's tests time its ticks to the millisecond; on a real rig it has a CPU of its own. Here

@@ -106,3 +106,50 @@ def test_a_table_a_node_cannot_load_is_refused_before_any_transfer_frame(iface, 
         recorder.join()
         node.stop()
     assert transfers == [], f"{len(transfers)} TableTransfer frames on the bus"
+
+
+def test_the_emulated_board_keeps_an_assigned_id_and_a_new_bit_rate_across_a_reset(iface,
+                                                                                    out_dir):
+    """The emulated Cortex-M4 (pab-fw-an386's identity build, compiled as node 1) given id 7 and 250 kbit/s over
+    the bus: both stored in its configuration page, in force after QEMU's system_reset (a board
+    reset: the RAM-backed flash is kept). Its bridge carries frames to node 1 and to node 7."""
+    from pab_hil.board import BoardNode, acceptance, identity_firmware
+
+    routes = (*acceptance(1), "82000700:8380FF00")  # and our frames to node 7
+    # The log in the results directory: the board's QEMU may run on the micro-VM's host, which
+    # sees that directory and not the VM's temporary ones. The identity test build: the
+    # production firmware has no identity yet (it does not fit 64 KiB with it).
+    board = BoardNode("board", 1, iface, out_dir, to_board=routes, elf=identity_firmware())
+    board.start()
+    try:
+        found = listed(iface)
+        assert [n["node_id"] for n in found] == [1], found
+        identity = found[0]
+        assert identity["firmware"]["name"] == "fw-an386", identity
+        assert identity["bitrate_kbps"] == 500 and identity["capacity"]["ports"] == 4, identity
+        uid = identity["uid"]
+
+        config = pabctl("config", "--iface", iface, "--node", "1", "--bitrate", "250")
+        assert config.returncode == 0, config.stderr
+        assert "250 kbit/s stored" in config.stdout, config.stdout
+        assigned = pabctl("assign", "--iface", iface, "--uid", uid, "--node-id", "7")
+        assert assigned.returncode == 0, assigned.stderr
+        assert "node id 7 stored and in force" in assigned.stdout, assigned.stdout
+        found = listed(iface)
+        assert [(n["node_id"], n["bitrate_kbps"]) for n in found] == [(7, 500)], found
+
+        board.reset()
+        deadline = time.monotonic() + 30
+        while True:
+            found = listed(iface)
+            if found or time.monotonic() > deadline:
+                break
+        assert [(n["node_id"], n["uid"], n["bitrate_kbps"]) for n in found] == [(7, uid, 250)], \
+            found
+        # The new rate runs on trial until the board hears a frame (these requests), then stays.
+        time.sleep(5.5)
+        found = listed(iface)
+        assert [(n["node_id"], n["bitrate_kbps"], n["bitrate_trial"]) for n in found] == \
+            [(7, 250, False)], found
+    finally:
+        board.stop()

@@ -7,7 +7,9 @@ use pab_core::{Frame, Instant};
 use crate::Recipient;
 use crate::can::{Clock, EmbeddedCan, TRANSMIT_TIMEOUT_US};
 use crate::node::{Node, Step};
-use crate::runner::{SAVE_STARVED_US, SENDS_PER_TURN, Watchdog, save_settings, save_step};
+#[cfg(feature = "identity")]
+use crate::runner::save_settings;
+use crate::runner::{SAVE_STARVED_US, SENDS_PER_TURN, Watchdog, save_step};
 use crate::store::TableStore;
 
 /// The most frames a turn of [`PollLoop`] reads: a bus that delivers frames faster than the node
@@ -210,9 +212,12 @@ impl PollLoop {
         S: TableStore,
         W: Watchdog,
     {
+        #[cfg(feature = "identity")]
         if step == Step::SaveSettings {
             save_settings(node, store, watchdog, now);
         }
+        #[cfg(not(feature = "identity"))]
+        let _ = watchdog;
         if step == Step::Store {
             // A save that cannot start (the image does not fit, the flash fails) is reported by
             // its first step, which then finds no save in progress: one place tells the node.

@@ -190,6 +190,7 @@ where
         };
         // A configuration record to store: blocking (a record's program, once in a while an
         // erase); configuration is rare, and the node refuses it while a table's save runs.
+        #[cfg(feature = "identity")]
         if step == Step::SaveSettings {
             save_settings(node, store, watchdog, now());
         }
@@ -206,6 +207,7 @@ where
 /// Stores the node's configuration record and tells it how that went; restarts the node when it
 /// asks (a bit rate's trial that heard nothing). Out of line: configuration is rare, and the
 /// loop's future need not hold its code.
+#[cfg(feature = "identity")]
 #[inline(never)]
 pub(crate) fn save_settings<
     S,

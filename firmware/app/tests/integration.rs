@@ -9,6 +9,7 @@ mod common;
 mod ble;
 mod can_adapter;
 mod filters;
+#[cfg(feature = "identity")]
 mod identity;
 mod keying;
 mod node;

@@ -128,8 +128,8 @@ pub fn run(
     Ok(())
 }
 
-/// Why `node`'s table cannot go to the node that answers to its id (`None`: it can): no
-/// identity within half a second, or a table beyond what its identity says it loads.
+/// Why `node`'s table cannot go to the node that answers to its id (`None`: it can, or it did
+/// not say who it is): a table beyond what its identity says it loads.
 fn loadable(
     bus: &mut dyn pabctl::bus::Bus,
     node: &CompiledNode,

@@ -1,16 +1,20 @@
 //! Decoding: the framing every frame gets (ours, not remote, its service's priority and
 //! length), then the payload of a service a node acts on, or of one it only reports.
 
+#[cfg(feature = "identity")]
+use super::{Assign, ConfigStatus, Configure};
 use super::{
-    Assign, ConfigStatus, Configure, DesireFrame, DiagnosticControl, DiagnosticFlags,
-    DiagnosticSample, Errors, Exploitation, Fault, FilterProfile, FilterSet, FilterStatus, Gates,
-    Heartbeat, Intention, Message, OPEN_REPLACE, OPEN_SCHEMA, SchemaAck, SchemaState,
-    SchemaTransition, Seal, TableStatus, Traffic, TransferOpen, TransferStatus,
+    DesireFrame, DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Exploitation, Fault,
+    FilterProfile, FilterSet, FilterStatus, Gates, Heartbeat, Intention, Message, OPEN_REPLACE,
+    OPEN_SCHEMA, SchemaAck, SchemaState, SchemaTransition, Seal, TableStatus, Traffic,
+    TransferOpen, TransferStatus,
 };
 use crate::frame::Frame;
+#[cfg(feature = "identity")]
+use crate::protocol::ConfigStatusCode;
 use crate::protocol::{
-    ConfigStatusCode, FaultCode, FrameId, NodeState, SchemaChannel, SchemaOrigin, SchemaOutcome,
-    SchemaSafety, SchemaTrigger, Service, TransferStatusCode,
+    FaultCode, FrameId, NodeState, SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety,
+    SchemaTrigger, Service, TransferStatusCode,
 };
 
 /// Why a frame in our identifier space was refused.
@@ -260,7 +264,9 @@ impl Message {
                 epoch: u32_at(data, 0),
                 counter: u32_at(data, 4),
             },
+            #[cfg(feature = "identity")]
             Service::IdentityRequest => Message::IdentityRequest,
+            #[cfg(feature = "identity")]
             Service::Assign => {
                 let node_id = byte(data, 3);
                 if node_id == 0 || node_id > crate::protocol::MAX_NODE_ID {
@@ -272,6 +278,7 @@ impl Message {
                     tag: (usize::from(len) > expected).then(|| bytes_at(data, 4)),
                 })
             }
+            #[cfg(feature = "identity")]
             Service::Configure => {
                 if u16_at(data, 2) != 0 {
                     return Err(bad);
@@ -438,6 +445,7 @@ impl Message {
                     elapsed_ms: u16_at(data, 6),
                 })
             }
+            #[cfg(feature = "identity")]
             Service::Identity
             | Service::IdentityVersion
             | Service::IdentityBuild
@@ -453,6 +461,7 @@ impl Message {
                     payload: padded,
                 }
             }
+            #[cfg(feature = "identity")]
             Service::ConfigStatus => {
                 let command = byte(data, 0);
                 let known =

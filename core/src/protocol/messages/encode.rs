@@ -140,7 +140,9 @@ impl Message {
             }
             Message::FreshnessRequest { nonce } => (*nonce, 8),
             Message::Freshness { epoch, counter } => (words(*epoch, *counter), 8),
+            #[cfg(feature = "identity")]
             Message::Identity { payload, .. } => (le_word(*payload), 8),
+            #[cfg(feature = "identity")]
             Message::ConfigStatus(status) => {
                 let [b0, b1] = status.bitrate_kbps.to_le_bytes();
                 (
@@ -212,10 +214,9 @@ impl Message {
             | Message::FilterProfile(_)
             | Message::FilterSet(_)
             | Message::EmergencyStop
-            | Message::SchemaAbort
-            | Message::IdentityRequest
-            | Message::Assign(_)
-            | Message::Configure(_) => return None,
+            | Message::SchemaAbort => return None,
+            #[cfg(feature = "identity")]
+            Message::IdentityRequest | Message::Assign(_) | Message::Configure(_) => return None,
         })
     }
 
@@ -228,8 +229,12 @@ impl Message {
                 (le_word(control_bytes(control, *tag)), 8)
             }
             Message::ChallengeRequest { tool_nonce } => (*tool_nonce, 8),
-            Message::EmergencyStop | Message::SchemaAbort | Message::IdentityRequest => (0, 0),
+            Message::EmergencyStop | Message::SchemaAbort => (0, 0),
+            #[cfg(feature = "identity")]
+            Message::IdentityRequest => (0, 0),
+            #[cfg(feature = "identity")]
             Message::Assign(assign) => tagged(assign.payload(), assign.tag),
+            #[cfg(feature = "identity")]
             Message::Configure(configure) => tagged(configure.payload(), configure.tag),
             Message::TransferOpen(open) => {
                 let [l0, l1] = open.length.to_le_bytes();
@@ -280,6 +285,7 @@ fn le_word(bytes: [u8; 8]) -> u64 {
 }
 
 /// A 4-byte command and, in its keyed form, its tag (8 bytes then).
+#[cfg(feature = "identity")]
 fn tagged(payload: [u8; 4], tag: Option<[u8; 4]>) -> (u64, u8) {
     let [p0, p1, p2, p3] = payload;
     match tag {

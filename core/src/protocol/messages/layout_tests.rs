@@ -153,12 +153,16 @@ fn view(message: &Message) -> Option<Vec<(&'static str, u64)>> {
         Message::Freshness { epoch, counter } => {
             vec![("epoch", epoch.into()), ("counter", counter.into())]
         }
+        #[cfg(feature = "identity")]
         Message::IdentityRequest => vec![],
+        #[cfg(feature = "identity")]
         Message::Assign(a) => vec![
             ("uid_check", a.uid_check.into()),
             ("node_id", a.node_id.into()),
         ],
+        #[cfg(feature = "identity")]
         Message::Configure(c) => vec![("bitrate", c.bitrate_kbps.into()), ("reserved", 0)],
+        #[cfg(feature = "identity")]
         Message::ConfigStatus(c) => vec![
             ("command", c.command.into()),
             ("status", c.status.code().into()),
@@ -167,6 +171,7 @@ fn view(message: &Message) -> Option<Vec<(&'static str, u64)>> {
             ("bitrate", c.bitrate_kbps.into()),
             ("reserved_2", 0),
         ],
+        #[cfg(feature = "identity")]
         Message::Identity { part, payload } => {
             let identity = {
                 let mut parts = crate::identity::IdentityParts::new();
@@ -267,13 +272,16 @@ fn view(message: &Message) -> Option<Vec<(&'static str, u64)>> {
 }
 
 /// A command in its keyed form: its tag follows the layout's fields.
-fn is_tagged(message: &Message) -> bool {
-    matches!(
+pub(super) fn is_tagged(message: &Message) -> bool {
+    #[cfg(feature = "identity")]
+    if matches!(
         message,
-        Message::AuthenticatedDiagnosticControl { .. }
-            | Message::Assign(Assign { tag: Some(_), .. })
+        Message::Assign(Assign { tag: Some(_), .. })
             | Message::Configure(Configure { tag: Some(_), .. })
-    )
+    ) {
+        return true;
+    }
+    matches!(message, Message::AuthenticatedDiagnosticControl { .. })
 }
 
 /// The view names exactly the layout's fields, in its order.

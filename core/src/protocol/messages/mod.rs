@@ -152,8 +152,10 @@ pub enum Message {
         /// The last counter it used in that epoch.
         counter: u32,
     },
+    #[cfg(feature = "identity")]
     /// Asks for a node's identity (service 0x21, no payload).
     IdentityRequest,
+    #[cfg(feature = "identity")]
     /// One of a node's six identity frames (services 0x22-0x27, [`crate::identity`]).
     Identity {
         /// Which.
@@ -161,10 +163,13 @@ pub enum Message {
         /// Its 8 bytes ([`crate::identity::Identity::payload`]).
         payload: [u8; 8],
     },
+    #[cfg(feature = "identity")]
     /// See [`Assign`].
     Assign(Assign),
+    #[cfg(feature = "identity")]
     /// See [`Configure`].
     Configure(Configure),
+    #[cfg(feature = "identity")]
     /// See [`ConfigStatus`].
     ConfigStatus(ConfigStatus),
 }
@@ -203,10 +208,15 @@ impl Message {
             Message::Seal(_) => Service::Seal,
             Message::FreshnessRequest { .. } => Service::FreshnessRequest,
             Message::Freshness { .. } => Service::Freshness,
+            #[cfg(feature = "identity")]
             Message::IdentityRequest => Service::IdentityRequest,
+            #[cfg(feature = "identity")]
             Message::Identity { part, .. } => identity_service(*part),
+            #[cfg(feature = "identity")]
             Message::Assign(_) => Service::Assign,
+            #[cfg(feature = "identity")]
             Message::Configure(_) => Service::Configure,
+            #[cfg(feature = "identity")]
             Message::ConfigStatus(_) => Service::ConfigStatus,
         }
     }

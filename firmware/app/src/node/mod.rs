@@ -33,6 +33,7 @@ use crate::{Config, Recipient};
 // The node's parts, each an `impl Node` of its own: what it says and hears to coordinate with
 // the other nodes, what it says of itself, table transfers, and the outbox they all send through.
 mod coordination;
+#[cfg(feature = "identity")]
 mod identity;
 mod outbox;
 mod status;
@@ -194,6 +195,7 @@ pub struct Node<const P: usize, const C: usize, const N: usize, const IMG: usize
     filter_sequence: u16,
     exploited: [Option<u8>; pab_core::MAX_PORTS],
     guard: Guard,
+    #[cfg(feature = "identity")]
     me: identity::Me,
     arbiter: Option<Arbiter<P, C, N>>,
     receiver: isotp::Receiver<IMG>,
@@ -225,14 +227,18 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// Out of line: a board builds its node once, at boot, in a `static`; inlined into the
     /// start-up task it took 12 bytes more of the NUCLEO-G474RE's flash.
     #[inline(never)]
+    #[cfg_attr(not(feature = "identity"), allow(unused_mut))]
     pub fn new(mut config: Config, now: Instant) -> Self {
         // Unassigned (no node id): its provisional address until it knows its uid
         // (`set_identity`).
+        #[cfg(feature = "identity")]
         let unassigned = config.node_id == 0;
+        #[cfg(feature = "identity")]
         if unassigned {
             config.node_id = pab_core::identity::provisional_address(&[0; 12]);
         }
         Node {
+            #[cfg(feature = "identity")]
             me: identity::Me::new(unassigned, now),
             receiver: isotp::Receiver::new(config.isotp),
             config,
@@ -298,10 +304,13 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// detail the image's node id), repeated after every heartbeat group until a table runs.
     pub fn boot(&mut self, stored_len: Option<usize>, now: Instant) {
         // Who it is, to all, once: how `pabctl nodes` hears an unassigned node.
-        self.send_identity(protocol::BROADCAST);
-        if self.me.unassigned {
-            info!("unassigned: no node id, waiting for one (pabctl assign)");
-            return;
+        #[cfg(feature = "identity")]
+        {
+            self.send_identity(protocol::BROADCAST);
+            if self.me.unassigned {
+                info!("unassigned: no node id, waiting for one (pabctl assign)");
+                return;
+            }
         }
         let Some(len) = stored_len else {
             info!("no stored table");
@@ -360,6 +369,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             | StoreError::NoSave => StoreFailure::Other,
         };
         self.boot_fault = Some([STORE_UNREADABLE, failure.code(), 0, 0, 0]);
+        #[cfg(feature = "identity")]
         self.send_identity(protocol::BROADCAST);
         self.duties(now);
     }
@@ -502,10 +512,11 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     pub fn poll(&mut self, now: Instant, recipient: &mut impl Recipient) -> Step {
         self.values_due(now, recipient);
         self.duties(now);
-        match self.trial_due(now) {
-            Step::Continue => self.store_step(now),
-            step => step,
+        #[cfg(feature = "identity")]
+        if let step @ Step::SaveSettings = self.trial_due(now) {
+            return step;
         }
+        self.store_step(now)
     }
 
     /// The value ports' outputs that changed by `now` without a frame, delivered. A comparison
@@ -630,6 +641,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         );
         earlier(&mut deadline, self.faults.deadline());
         earlier(&mut deadline, self.store_due);
+        #[cfg(feature = "identity")]
         earlier(&mut deadline, self.me.deadline());
         #[cfg(feature = "schema")]
         earlier(&mut deadline, self.schema.as_ref().map(|s| s.deadline()));
@@ -807,6 +819,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         }
         // An unassigned node takes only what gives it an id (and, keyed, the challenge that
         // authenticates it) and says who it is.
+        #[cfg(feature = "identity")]
         if self.me.unassigned
             && !matches!(
                 message,
@@ -915,14 +928,17 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 }
                 Step::Continue
             }
+            #[cfg(feature = "identity")]
             Message::IdentityRequest => {
                 self.on_identity_request(id.source, now);
                 Step::Continue
             }
             // Point to point: each names one node (its uid check, its challenge).
+            #[cfg(feature = "identity")]
             Message::Assign(assign) if id.destination == node_id => {
                 self.on_assign(id, &assign, now)
             }
+            #[cfg(feature = "identity")]
             Message::Configure(configure) if id.destination == node_id => {
                 self.on_configure(id, &configure, now)
             }

@@ -55,6 +55,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
 
     pub(super) fn heartbeat(&mut self, now: Instant) {
         // An unassigned node says only who it is (when asked).
+        #[cfg(feature = "identity")]
         if self.me.unassigned {
             return;
         }

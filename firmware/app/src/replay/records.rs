@@ -191,9 +191,13 @@ impl<W: Write> Recorder<W> {
         self.sent
     }
 
-    /// Records `frame`, sent by [`Recorder::node_id`] at `now` (a `>` line).
+    /// Records `frame`, sent by [`Recorder::node_id`] at `now` (a `>` line). Identity frames are
+    /// not recorded: they say what the build is (its name, its features), not what the node
+    /// decided, and a replay compares runners built differently.
     pub fn sent(&mut self, frame: &Frame, now: Instant) {
-        if self.failed {
+        let identity = pab_core::protocol::FrameId::decode(&frame.id())
+            .is_some_and(|id| pab_core::protocol::identity_part(id.service).is_some());
+        if self.failed || identity {
             return;
         }
         match write_sent(&mut self.out, now.as_micros(), frame, self.node_id) {

@@ -189,6 +189,7 @@ impl Harness {
 
     /// Stores the running image if the node asked for it (`Step::Store`), as a runner does.
     fn store_if(&mut self, step: Step) {
+        #[cfg(feature = "identity")]
         if step == Step::SaveSettings {
             self.settings_saved.push(self.node.settings_to_store());
             if self

@@ -48,14 +48,16 @@ use embassy_executor::InterruptExecutor;
 use embedded_storage::nor_flash::ReadNorFlash;
 use pab_core::decimal::Decimal;
 use pab_fw_an386::interrupts::{self, Interrupt};
-use pab_fw_an386::ram_flash::{
-    BOOT_COUNTER_RANGE, KEY_PAGE, RamFlash, SETTINGS_RANGE, STORE_RANGE, UID_PAGE,
-};
+use pab_fw_an386::ram_flash::{BOOT_COUNTER_RANGE, KEY_PAGE, RamFlash, STORE_RANGE};
+#[cfg(feature = "identity")]
+use pab_fw_an386::ram_flash::{SETTINGS_RANGE, UID_PAGE};
 use pab_fw_an386::slcan_bus::SlcanBus;
 use pab_fw_an386::time_driver::TimeDriver;
 use pab_fw_an386::watchdog::{self, BoardWatchdog};
 use pab_fw_an386::{logger, semihosting, uart};
-use pab_storage::{BootCounter, FlashStore, TableStore};
+#[cfg(feature = "identity")]
+use pab_storage::TableStore;
+use pab_storage::{BootCounter, FlashStore};
 use static_cell::StaticCell;
 
 /// This node's id (1..=127): `PAB_NODE_ID` at build time, 1 without it. Tables pushed to the
@@ -66,6 +68,7 @@ pub const NODE_ID: u8 = pab_app::parse_node_id(option_env!("PAB_NODE_ID"));
 pub const BITRATE_KBPS: u16 = 500;
 
 /// What this firmware says it is in its identity.
+#[cfg(feature = "identity")]
 const FIRMWARE: pab_app::Firmware = pab_app::firmware!("fw-an386");
 
 /// A ring of four slots of 12 KiB (three pages) each, the G474's layout: every slot holds its
@@ -115,26 +118,39 @@ fn main() -> ! {
 
     // SAFETY: called once; memory.x keeps the program below the RAM-backed flash.
     let flash = unsafe { RamFlash::take() };
-    let mut store = match FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE)
-        .and_then(|store| store.with_settings(SETTINGS_RANGE))
-    {
+    let store = match FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE) {
         Ok(store) => store,
         Err(error) => fail(format_args!("table store: {error}")),
     };
-    // The node id and bit rate set over the bus, else the compiled ones.
+    // The node id and bit rate set over the bus, else the compiled ones (feature `identity`).
+    #[cfg(feature = "identity")]
+    let mut store = match store.with_settings(SETTINGS_RANGE) {
+        Ok(store) => store,
+        Err(error) => fail(format_args!("configuration page: {error}")),
+    };
+    #[cfg(not(feature = "identity"))]
+    let mut store = store;
+    #[cfg(feature = "identity")]
     let loaded = store.load_settings();
+    #[cfg(feature = "identity")]
     let settings = pab_app::Settings::from_loaded(&loaded);
+    #[cfg(feature = "identity")]
     let node_id = settings.node_id.or((NODE_ID != 0).then_some(NODE_ID));
+    #[cfg(not(feature = "identity"))]
+    let node_id = Some(NODE_ID);
     // Cannot fail: the record's id is 1..=127 and NODE_ID is checked at compile time. Not
     // displayed: the error's formatting took 590 bytes of flash (core::fmt's integers).
     let config =
         pab_app::Config::for_node(node_id).unwrap_or_else(|_| pab_app::Config::unassigned());
-    let mut uid = [0u8; pab_core::identity::UID_LEN];
     let flash = store.flash_mut();
-    let _ = flash.read(UID_PAGE, &mut uid);
     let node = NODE.init_with(|| pab_app::BoardNode::new(config, pab_app::now()));
-    node.set_identity(FIRMWARE, uid);
-    node.set_settings(loaded, settings.start_bitrate(BITRATE_KBPS), pab_app::now());
+    #[cfg(feature = "identity")]
+    {
+        let mut uid = [0u8; pab_core::identity::UID_LEN];
+        let _ = flash.read(UID_PAGE, &mut uid);
+        node.set_identity(FIRMWARE, uid);
+        node.set_settings(loaded, settings.start_bitrate(BITRATE_KBPS), pab_app::now());
+    }
     // The SLCAN device's serial number: the node's address.
     let bus = bus(SlcanBus::new(hex4(node.config().node_id)));
     let mut page = [0u8; pab_core::auth::page::LEN];

@@ -84,6 +84,7 @@ pub const NODE_ID: u8 = pab_app::parse_node_id(option_env!("PAB_NODE_ID"));
 pub const BITRATE: u32 = 500_000;
 
 /// What this firmware says it is in its identity.
+#[cfg(feature = "identity")]
 const FIRMWARE: pab_app::Firmware = pab_app::firmware!("fw-f446");
 
 /// The HSE: the 8 MHz clock the NUCLEO's ST-LINK puts out on its MCO pin, wired to the MCU's
@@ -410,8 +411,11 @@ async fn main(_spawner: Spawner) {
     // Who it is: the chip's 96-bit factory UID. No configuration page yet (its flash has no
     // free pair of sectors of one size: docs/nucleo-f446re.md): the compiled node id, and a bit
     // rate the node does not set over the bus (0: Configure is answered Unsupported).
-    node.set_identity(FIRMWARE, embassy_stm32::uid::uid());
-    node.set_settings(Ok(None), 0, pab_app::now());
+    #[cfg(feature = "identity")]
+    {
+        node.set_identity(FIRMWARE, embassy_stm32::uid::uid());
+        node.set_settings(Ok(None), 0, pab_app::now());
+    }
     // The key before anything else: a page that cannot be read counts as truncated (locked).
     let mut page = [0u8; pab_core::auth::page::LEN];
     let page: &[u8] = match Flash::new_blocking(flash.reborrow()).read(KEY_PAGE, &mut page) {

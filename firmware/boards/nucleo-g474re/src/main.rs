@@ -60,7 +60,9 @@ use embassy_stm32::peripherals::IWDG;
 use embassy_stm32::time::Hertz;
 use embassy_stm32::{bind_interrupts, rcc};
 use embedded_storage::nor_flash::ReadNorFlash;
-use pab_storage::{BootCounter, FlashStore, TableStore};
+#[cfg(feature = "identity")]
+use pab_storage::TableStore;
+use pab_storage::{BootCounter, FlashStore};
 
 // The boards' memcpy, memset, memcmp and 64-bit division (firmware/builtins): 2.5 KB less flash
 // than compiler_builtins'.
@@ -80,6 +82,7 @@ pub const NODE_ID: u8 = pab_app::parse_node_id(option_env!("PAB_NODE_ID"));
 pub const BITRATE: u32 = 500_000;
 
 /// What this firmware says it is in its identity.
+#[cfg(feature = "identity")]
 const FIRMWARE: pab_app::Firmware = pab_app::firmware!("fw-g474");
 
 /// The NUCLEO-G474RE's crystal (X3, 24 MHz): the HSE, and the FDCAN kernel clock.
@@ -318,14 +321,23 @@ async fn main(_spawner: Spawner) {
     // what the build expects (DBANK cleared by someone), and a board that stops must not be
     // acknowledging others' frames meanwhile.
     let flash = BankFlash::new(Flash::new_blocking(p.FLASH));
-    let mut store = unwrap!(
-        FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE)
-            .and_then(|store| store.with_settings(SETTINGS_RANGE))
-    );
-    // The node id and bit rate set over the bus, else the compiled ones.
+    let store = unwrap!(FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE));
+    // The node id and bit rate set over the bus, else the compiled ones (feature `identity`).
+    #[cfg(feature = "identity")]
+    let mut store = unwrap!(store.with_settings(SETTINGS_RANGE));
+    #[cfg(not(feature = "identity"))]
+    let mut store = store;
+    #[cfg(feature = "identity")]
     let loaded = store.load_settings();
+    #[cfg(feature = "identity")]
     let settings = pab_app::Settings::from_loaded(&loaded);
-    let kbps = settings.start_bitrate((BITRATE / 1000) as u16);
+    #[cfg(feature = "identity")]
+    let (kbps, node_id) = (
+        settings.start_bitrate((BITRATE / 1000) as u16),
+        settings.node_id.or((NODE_ID != 0).then_some(NODE_ID)),
+    );
+    #[cfg(not(feature = "identity"))]
+    let (kbps, node_id) = ((BITRATE / 1000) as u16, Some(NODE_ID));
     info!("pab node on NUCLEO-G474RE, CAN {} kbit/s", kbps);
 
     let mut can = CanConfigurator::new(p.FDCAN1, p.PA11, p.PA12, Irqs);
@@ -349,7 +361,6 @@ async fn main(_spawner: Spawner) {
     can.set_config(config);
     let mut bus = FdcanBus::new(can.start(OperatingMode::NormalOperationMode));
 
-    let node_id = settings.node_id.or((NODE_ID != 0).then_some(NODE_ID));
     // Cannot fail: the record's id is 1..=127 and NODE_ID is checked at compile time.
     let config =
         pab_app::Config::for_node(node_id).unwrap_or_else(|_| pab_app::Config::unassigned());
@@ -358,8 +369,11 @@ async fn main(_spawner: Spawner) {
     // built in a temporary on the stack would keep that room under the loop's deepest calls.
     let mut node = pab_app::BoardNode::new(config, pab_app::now());
     // Who it is: the chip's 96-bit factory UID.
-    node.set_identity(FIRMWARE, embassy_stm32::uid::uid());
-    node.set_settings(loaded, kbps, pab_app::now());
+    #[cfg(feature = "identity")]
+    {
+        node.set_identity(FIRMWARE, embassy_stm32::uid::uid());
+        node.set_settings(loaded, kbps, pab_app::now());
+    }
     // The key before anything else: a page that cannot be read counts as truncated (locked).
     let flash = store.flash_mut();
     let mut page = [0u8; pab_core::auth::page::LEN];
