@@ -301,8 +301,8 @@ _FAULT_TEXT = {
     FaultCode.DynamicsLate: "dynamics steps dropped",
     FaultCode.FilterRefused: "filter command refused",
     FaultCode.SchemaSafety: "schema server stopped by a safety event",
-    FaultCode.BitrateFallback: "bit rate set over the bus heard nothing: back on the previous one",
-    FaultCode.SettingsUnreadable: "configuration page unreadable: compiled defaults in use",
+    FaultCode.BitrateFallback: "bit rate fell back",
+    FaultCode.SettingsUnreadable: "configuration page unreadable",
 }
 
 

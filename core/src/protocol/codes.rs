@@ -124,12 +124,12 @@ wire_enum! {
         /// acknowledged) within 5 s of the start: the node stored its previous rate again and
         /// restarted on it. Detail bytes 0-1: the rate that failed, kbit/s, u16 LE; bytes 2-3:
         /// the rate it went back to.
-        BitrateFallback = 0x0080, "bit rate set over the bus heard nothing: back on the previous one";
+        BitrateFallback = 0x0080, "bit rate fell back";
         /// The node's configuration page could not be read at start (a flash error, or a record
         /// of another format): it runs on its compiled defaults. Detail byte 0: why (1 flash
         /// error, 2 layout, 3 records exhausted, 4 a record does not read back, 5 a record of
         /// another format).
-        SettingsUnreadable = 0x0081, "configuration page unreadable: compiled defaults in use";
+        SettingsUnreadable = 0x0081, "configuration page unreadable";
     }
 }
 

@@ -194,9 +194,8 @@ impl<F: NorFlash> BootCounter<F> {
     /// sequence in the high bits, a value in the low ones), with `increment`'s guarantee: it must
     /// be larger than the current count ([`CounterError::Exhausted`] otherwise, or when `next`
     /// returns `None`), and it is returned only once it reads back.
-    // Out of line, with a function pointer: the boot count and the configuration page share one
-    // copy (inlined into each, 400 bytes more of the boards' flash).
-    #[inline(never)]
+    // A function pointer rather than a closure: the boot count and the configuration page share
+    // one copy of this where both are linked.
     pub fn advance(
         &mut self,
         next: fn(u32, u32) -> Option<u32>,

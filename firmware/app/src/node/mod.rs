@@ -65,7 +65,9 @@ pub enum Step {
     /// A new table is running: store [`Node::image_to_store`], then call [`Node::stored`].
     Store,
     /// A configuration record to store: [`Node::settings_to_store`] with
-    /// [`pab_storage::TableStore::save_settings`], then call [`Node::settings_stored`].
+    /// [`pab_storage::TableStore::save_settings`], then call [`Node::settings_stored`] (feature
+    /// `identity`).
+    #[cfg(feature = "identity")]
     SaveSettings,
 }
 
@@ -396,7 +398,9 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 // A new table runs (`Store`): its save now or when its turn comes.
                 match self.on_protocol_frame(frame, now, false) {
                     Step::Store => self.schedule_store(now),
-                    step => step,
+                    Step::Continue => Step::Continue,
+                    #[cfg(feature = "identity")]
+                    Step::SaveSettings => Step::SaveSettings,
                 }
             }
             FrameKind::Topic => {
@@ -420,8 +424,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         self.values_due(now, recipient);
         self.duties(now);
         match step {
+            Step::Store => Step::Store,
             Step::Continue => self.store_step(now),
-            step => step,
+            #[cfg(feature = "identity")]
+            Step::SaveSettings => Step::SaveSettings,
         }
     }
 

@@ -118,51 +118,10 @@ fn main() -> ! {
 
     // SAFETY: called once; memory.x keeps the program below the RAM-backed flash.
     let flash = unsafe { RamFlash::take() };
-    let store = match FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE) {
-        Ok(store) => store,
-        Err(error) => fail(format_args!("table store: {error}")),
-    };
-    // The node id and bit rate set over the bus, else the compiled ones (feature `identity`).
     #[cfg(feature = "identity")]
-    let mut store = match store.with_settings(SETTINGS_RANGE) {
-        Ok(store) => store,
-        Err(error) => fail(format_args!("configuration page: {error}")),
-    };
+    let (node, bus, store) = start_with_identity(flash);
     #[cfg(not(feature = "identity"))]
-    let mut store = store;
-    #[cfg(feature = "identity")]
-    let loaded = store.load_settings();
-    #[cfg(feature = "identity")]
-    let settings = pab_app::Settings::from_loaded(&loaded);
-    #[cfg(feature = "identity")]
-    let node_id = settings.node_id.or((NODE_ID != 0).then_some(NODE_ID));
-    #[cfg(not(feature = "identity"))]
-    let node_id = Some(NODE_ID);
-    // Cannot fail: the record's id is 1..=127 and NODE_ID is checked at compile time. Not
-    // displayed: the error's formatting took 590 bytes of flash (core::fmt's integers).
-    let config =
-        pab_app::Config::for_node(node_id).unwrap_or_else(|_| pab_app::Config::unassigned());
-    let flash = store.flash_mut();
-    let node = NODE.init_with(|| pab_app::BoardNode::new(config, pab_app::now()));
-    #[cfg(feature = "identity")]
-    {
-        let mut uid = [0u8; pab_core::identity::UID_LEN];
-        let _ = flash.read(UID_PAGE, &mut uid);
-        node.set_identity(FIRMWARE, uid);
-        node.set_settings(loaded, settings.start_bitrate(BITRATE_KBPS), pab_app::now());
-    }
-    // The SLCAN device's serial number: the node's address.
-    let bus = bus(SlcanBus::new(hex4(node.config().node_id)));
-    let mut page = [0u8; pab_core::auth::page::LEN];
-    let page: &[u8] = match flash.read(KEY_PAGE, &mut page) {
-        // QEMU's fresh RAM, nothing planted: the emulation's erased page.
-        Ok(()) if page.iter().all(|&byte| byte == 0) => &[0xFF; pab_core::auth::page::LEN],
-        Ok(()) => &page,
-        Err(_) => &[],
-    };
-    pab_app::key_from_page(node, page, || {
-        BootCounter::new(&mut *flash, BOOT_COUNTER_RANGE)?.increment()
-    });
+    let (node, bus, store) = start(flash);
 
     interrupts::set_priority(Interrupt::SOFTWARE, EXECUTOR_PRIORITY);
     let spawner = EXECUTOR.start(Interrupt::SOFTWARE);
@@ -173,6 +132,67 @@ fn main() -> ! {
     loop {
         cortex_m::asm::wfi();
     }
+}
+
+/// The node, its bus and its store from the compiled node id (without the feature `identity`).
+#[cfg(not(feature = "identity"))]
+fn start(mut flash: RamFlash) -> (&'static mut pab_app::BoardNode, Bus, Store) {
+    let config = match pab_app::Config::new(NODE_ID) {
+        Ok(config) => config,
+        Err(error) => fail(format_args!("configuration: {error}")),
+    };
+    let bus = bus(SlcanBus::new(hex4(NODE_ID)));
+    let node = NODE.init_with(|| pab_app::BoardNode::new(config, pab_app::now()));
+    key(node, &mut flash);
+    let store = match FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE) {
+        Ok(store) => store,
+        Err(error) => fail(format_args!("table store: {error}")),
+    };
+    (node, bus, store)
+}
+
+/// The node, its bus and its store with identity and configuration over the bus: the node id
+/// and bit rate from the configuration page (else the compiled ones), the uid from its page.
+#[cfg(feature = "identity")]
+fn start_with_identity(flash: RamFlash) -> (&'static mut pab_app::BoardNode, Bus, Store) {
+    let store = match FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE)
+        .and_then(|store| store.with_settings(SETTINGS_RANGE))
+    {
+        Ok(store) => store,
+        Err(error) => fail(format_args!("table store: {error}")),
+    };
+    let mut store = store;
+    let loaded = store.load_settings();
+    let settings = pab_app::Settings::from_loaded(&loaded);
+    let node_id = settings.node_id.or((NODE_ID != 0).then_some(NODE_ID));
+    // Cannot fail: the record's id is 1..=127 and NODE_ID is checked at compile time. Not
+    // displayed: the error's formatting took 590 bytes of flash (core::fmt's integers).
+    let config =
+        pab_app::Config::for_node(node_id).unwrap_or_else(|_| pab_app::Config::unassigned());
+    let node = NODE.init_with(|| pab_app::BoardNode::new(config, pab_app::now()));
+    let flash = store.flash_mut();
+    let mut uid = [0u8; pab_core::identity::UID_LEN];
+    let _ = flash.read(UID_PAGE, &mut uid);
+    node.set_identity(FIRMWARE, uid);
+    node.set_settings(loaded, settings.start_bitrate(BITRATE_KBPS), pab_app::now());
+    // The SLCAN device's serial number: the node's address.
+    let bus = bus(SlcanBus::new(hex4(node.config().node_id)));
+    key(node, flash);
+    (node, bus, store)
+}
+
+/// Keys the node from its key page, counting the boot (`pab_app::key_from_page`).
+fn key(node: &mut pab_app::BoardNode, flash: &mut RamFlash) {
+    let mut page = [0u8; pab_core::auth::page::LEN];
+    let page: &[u8] = match flash.read(KEY_PAGE, &mut page) {
+        // QEMU's fresh RAM, nothing planted: the emulation's erased page.
+        Ok(()) if page.iter().all(|&byte| byte == 0) => &[0xFF; pab_core::auth::page::LEN],
+        Ok(()) => &page,
+        Err(_) => &[],
+    };
+    pab_app::key_from_page(node, page, || {
+        BootCounter::new(&mut *flash, BOOT_COUNTER_RANGE)?.increment()
+    });
 }
 
 /// Runs the node forever, feeding the watchdog.

@@ -337,7 +337,7 @@ async fn main(_spawner: Spawner) {
         settings.node_id.or((NODE_ID != 0).then_some(NODE_ID)),
     );
     #[cfg(not(feature = "identity"))]
-    let (kbps, node_id) = ((BITRATE / 1000) as u16, Some(NODE_ID));
+    let kbps = (BITRATE / 1000) as u16;
     info!("pab node on NUCLEO-G474RE, CAN {} kbit/s", kbps);
 
     let mut can = CanConfigurator::new(p.FDCAN1, p.PA11, p.PA12, Irqs);
@@ -362,8 +362,11 @@ async fn main(_spawner: Spawner) {
     let mut bus = FdcanBus::new(can.start(OperatingMode::NormalOperationMode));
 
     // Cannot fail: the record's id is 1..=127 and NODE_ID is checked at compile time.
+    #[cfg(feature = "identity")]
     let config =
         pab_app::Config::for_node(node_id).unwrap_or_else(|_| pab_app::Config::unassigned());
+    #[cfg(not(feature = "identity"))]
+    let config = unwrap!(pab_app::Config::new(NODE_ID));
     // Built in place in the task's future (40 KiB with the schema server; this task's stack
     // frame is some 400 bytes). It must stay so: the node loop runs in this frame, so a node
     // built in a temporary on the stack would keep that room under the loop's deepest calls.
