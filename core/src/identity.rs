@@ -115,6 +115,10 @@ impl Firmware {
     /// is cut), `version` as Cargo writes it (`"0.1.0"`; a pre-release or build suffix is
     /// ignored, a part above 255 reads 255) and `build` as hex digits (the first 16 are read; a
     /// non-hex digit ends it, the rest zero).
+    // Indexing, in a `const fn` (where `get` is not available): every index is bounded by its
+    // loop's condition, and the boards call it in `const` items (`pab_app::firmware!`), where a
+    // panic would be a compile error, never a run-time one.
+    #[allow(clippy::indexing_slicing)]
     pub const fn new(name: &str, version: &str, build: &str) -> Firmware {
         let mut out = Firmware {
             name: [0; 8],

@@ -194,7 +194,7 @@ impl Harness {
             self.settings_saved.push(self.node.settings_to_store());
             if self
                 .node
-                .settings_stored(self.settings_result.clone(), Instant::from_micros(self.now))
+                .settings_stored(self.settings_result, Instant::from_micros(self.now))
             {
                 self.restarts += 1;
             }
