@@ -137,11 +137,14 @@ fn loadable(
     let Some(identity) =
         pabctl::identity::request(bus, node.id, pabctl::identity::ANSWER_TIMEOUT)?.remove(&node.id)
     else {
-        return Ok(Some(format!(
-            "node {} did not say who it is (no identity within 500 ms): is it on the bus, with \
-             this id? (`pabctl nodes`)",
-            node.id
-        )));
+        // A firmware built without identity (the boards' flashed firmware today) answers
+        // nothing: the push goes on, and the node's own checks refuse what it cannot load.
+        eprintln!(
+            "{:>10}  node {:>3}  said nothing of itself within 500 ms (a firmware without \
+             identity, or off the bus): pushing without the capacity check",
+            node.name, node.id
+        );
+        return Ok(None);
     };
     Ok(match pabctl::identity::Needs::of_image(&node.image) {
         Ok(needs) => needs.refusal(&identity).map(|why| {
