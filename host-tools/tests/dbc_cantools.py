@@ -44,6 +44,16 @@ SERVICES = {  # name: (code, priority)
     "SchemaAck": (0x1B, 2),
     "SchemaTransition": (0x1C, 2),
     "SchemaState": (0x1D, 5),
+    "IdentityRequest": (0x21, 3),
+    "Identity": (0x22, 4),
+    "IdentityVersion": (0x23, 4),
+    "IdentityBuild": (0x24, 4),
+    "IdentityCapacity": (0x25, 4),
+    "IdentityFeatures": (0x26, 4),
+    "IdentityName": (0x27, 4),
+    "Assign": (0x28, 3),
+    "Configure": (0x29, 3),
+    "ConfigStatus": (0x2A, 2),
 }
 NODES = {"arm": 1, "hand": 2, "gaze": 3}  # examples/take-and-return.toml
 OUTPUTS = {"arm_target_out": 0x200, "gaze_target_out": 0x201, "hand_command_out": 0x202}
@@ -59,6 +69,10 @@ TOPICS = {
 }
 
 failures = []
+
+# The six identity frames (docs/can-protocol.md, "Identity and configuration").
+IDENTITY = ("Identity", "IdentityVersion", "IdentityBuild", "IdentityCapacity", "IdentityFeatures",
+            "IdentityName")
 
 
 def check(condition, message):
@@ -82,13 +96,19 @@ def main(path):
             expected[f"PAB_{service}_{node}"] = (frame_id(service, node_id, BROADCAST), True)
         for service in ("TransferStatus", "Challenge", "Receipt"):
             expected[f"PAB_{service}_{node}"] = (frame_id(service, node_id, TOOL), True)
-        for service in ("ChallengeRequest", "TransferOpen"):
+        for service in ("ChallengeRequest", "TransferOpen", "Assign", "Configure", "IdentityRequest"):
             expected[f"PAB_{service}_{node}"] = (frame_id(service, TOOL, node_id), True)
+        # The identity: answers to the tool, and the announcement to all at start-up.
+        for service in IDENTITY:
+            expected[f"PAB_{service}_{node}"] = (frame_id(service, node_id, TOOL), True)
+            expected[f"PAB_{service}_{node}_all"] = (frame_id(service, node_id, BROADCAST), True)
+        expected[f"PAB_ConfigStatus_{node}"] = (frame_id("ConfigStatus", node_id, TOOL), True)
         expected[f"PAB_DiagnosticControl_{node}"] = (
             frame_id("DiagnosticControl", TOOL, node_id),
             True,
         )
     expected["PAB_DiagnosticControl_all"] = (frame_id("DiagnosticControl", TOOL, BROADCAST), True)
+    expected["PAB_IdentityRequest_all"] = (frame_id("IdentityRequest", TOOL, BROADCAST), True)
     for topic, can_id in TOPICS.items():
         expected[topic] = (can_id, False)
     # ISO-TP table transfers: the tool's frames to each node and its flow control back.

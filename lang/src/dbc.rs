@@ -377,11 +377,15 @@ tc = 3.0
             all.id,
             FrameId::new(Service::DiagnosticControl, TOOL, BROADCAST).raw() | EXTENDED_FLAG
         );
-        // 16 services per node (7 + Challenge, Receipt, six identity frames, ConfigStatus), a
-        // table transfer's two directions per node, diagnostic control and identity request per
-        // node and broadcast, ChallengeRequest, TransferOpen, Assign and Configure per node, 2
-        // topics.
-        assert_eq!(dbc.messages.len(), 2 * 16 + 2 * 2 + 2 * 3 + 2 * 4 + 2);
+        // 16 services per node (7 + Challenge, Receipt, six identity frames, ConfigStatus) and
+        // the identity's six to all at start-up, a table transfer's two directions per node,
+        // diagnostic control and identity request per node and broadcast, ChallengeRequest,
+        // TransferOpen, Assign and Configure per node, 2 topics.
+        assert_eq!(dbc.messages.len(), 2 * 22 + 2 * 2 + 2 * 3 + 2 * 4 + 2);
+        assert_eq!(
+            find("PAB_Identity_arm_all").id,
+            FrameId::new(Service::Identity, 1, BROADCAST).raw() | EXTENDED_FLAG
+        );
         assert_eq!(find("PAB_IdentityName_arm").transmitter, "arm");
         assert_eq!(find("PAB_IdentityRequest_all").dlc, 0);
         assert_eq!(find("PAB_Assign_arm").receivers, ["arm"]);

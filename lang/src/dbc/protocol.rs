@@ -86,6 +86,27 @@ pub(super) fn from_nodes(
             let Some(signals) = service_signals(service) else {
                 continue;
             };
+            // The identity goes to the tool that asked, and once at start-up to all (0xFF): a
+            // capture holds both.
+            let announced = pab_core::protocol::identity_part(service).is_some();
+            if announced {
+                let frame = FrameId::new(service, node.id, BROADCAST);
+                messages.push(DbcMessage {
+                    id: extended(frame),
+                    name: names.unique(format!("PAB_{service:?}_{dbc_node}_all")),
+                    dlc: service.payload_len() as u8,
+                    transmitter: dbc_node.clone(),
+                    receivers: vec![TOOL_NODE.to_string()],
+                    signals: signals.clone(),
+                    comment: format!(
+                        "{} From node `{}` (id {}) to all (0xFF), at start-up.",
+                        service_comment(service),
+                        node.name,
+                        node.id
+                    ),
+                    cycle_ms: None,
+                });
+            }
             let frame = FrameId::new(service, node.id, destination);
             messages.push(DbcMessage {
                 id: extended(frame),
