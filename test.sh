@@ -59,9 +59,9 @@ step "lints, documentation and the core's other builds: started in the backgroun
 # - scripts/lint.sh: clippy on the host crates (every target) and on the boards' crates for
 #   thumbv7em-none-eabihf, warnings denied; rustdoc with warnings denied (a broken or ambiguous
 #   intra-doc link fails);
-# - the core without competitive dynamics (`--no-default-features`), as a board built without
-#   the runtime would have it: it refuses tables with dynamics instead of running them without
-#   gates;
+# - the core without its mechanisms (`--no-default-features`: no BLE, dynamics, filters or schema
+#   server), as the minimal board build has it: it refuses tables that use them instead of
+#   running them without;
 # - each benchmark once, in test mode;
 # - the fuzz targets' build (nightly, with the sanitizer): the fuzzing step runs them after the
 #   HIL suite, from this build.
@@ -77,7 +77,7 @@ background_checks() {
     local own="$target/background"
     echo "== scripts/lint.sh"
     CARGO_TARGET_DIR="$own" scripts/lint.sh
-    echo "== the core without competitive dynamics"
+    echo "== the core without its mechanisms"
     CARGO_TARGET_DIR="$own" cargo test -p pab-core --no-default-features --lib --locked
     echo "== benchmarks, once each in test mode"
     CARGO_TARGET_DIR="$own" cargo test -p pab-core --benches --locked

@@ -21,6 +21,8 @@ cargo clippy -p pab-app --target thumbv7em-none-eabihf --locked -- -D warnings
 # The node application without embassy (PollLoop, EmbeddedCan) and with its test bus.
 cargo clippy -p pab-app --no-default-features --features test-bus --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-fw-g474 --target thumbv7em-none-eabihf --release --locked -- -D warnings
+# The minimal node: every mechanism left out (docs/footprint.md).
+cargo clippy -p pab-fw-g474 --no-default-features --target thumbv7em-none-eabihf --release --locked -- -D warnings
 cargo clippy -p pab-fw-f446 --target thumbv7em-none-eabihf --release --locked -- -D warnings
 cargo clippy -p pab-slcan --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-builtins --target thumbv7em-none-eabihf --locked -- -D warnings

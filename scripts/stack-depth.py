@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """The deepest stack a board firmware's direct calls can reach, against the stack it has.
 
-    scripts/stack-depth.py ELF [--margin BYTES]
+    scripts/stack-depth.py ELF [--margin BYTES] [--json]
 
 Reads the ELF's disassembly (llvm-objdump from rustup's llvm-tools) and, per function, the
 bytes its prologue takes (`push`, `vpush`, `sub sp`); follows every direct call and tail call
@@ -24,6 +24,7 @@ the schema server's set-up once did.
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import subprocess
 import sys
@@ -127,6 +128,9 @@ def main() -> int:
     parser.add_argument("elf")
     parser.add_argument("--margin", type=int, default=8192,
                         help="bytes that must be left below the deepest chain (default 8192)")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON object: stack, stack_peak (the deepest chain), left, "
+                             "chain ([bytes, function] from the outermost)")
     args = parser.parse_args()
     frame, calls, indirect = parse(args.elf)
     total, chain, cycles = deepest(frame, calls)
@@ -137,17 +141,26 @@ def main() -> int:
               f"flip-link`)", file=sys.stderr)
         return 1
     left = stack - total
-    print(f"stack: {stack} bytes; the deepest direct call chain takes {total} "
-          f"({left} left; {len(indirect)} functions also call through pointers):")
-    for name in chain:
-        print(f"  {frame[name]:6}  {name}")
-    for name in sorted(cycles):
-        print(f"  (a call back into its own chain, not followed: {name})")
+    if args.json:
+        print(json.dumps({"stack": stack, "stack_peak": total, "left": left,
+                          "chain": [[frame[name], name] for name in chain]}))
+    else:
+        report(stack, total, left, len(indirect), chain, frame, cycles)
     if left < args.margin:
         print(f"stack-depth: less than {args.margin} bytes of stack left below the deepest chain "
               f"({left}): the node could overflow it", file=sys.stderr)
         return 1
     return 0
+
+
+def report(stack: int, total: int, left: int, indirect: int, chain: list[str],
+           frame: dict[str, int], cycles: set[str]) -> None:
+    print(f"stack: {stack} bytes; the deepest direct call chain takes {total} "
+          f"({left} left; {indirect} functions also call through pointers):")
+    for name in chain:
+        print(f"  {frame[name]:6}  {name}")
+    for name in sorted(cycles):
+        print(f"  (a call back into its own chain, not followed: {name})")
 
 
 if __name__ == "__main__":

@@ -55,7 +55,7 @@ mod values;
 
 use port::{Port, Slot, decide};
 
-use crate::ble::{Eligibility, MAX_GROUPS, MAX_PEERS};
+use crate::ble::{Eligibility, MAX_PEERS};
 use crate::decision::{ConnectionSet, Step};
 #[cfg(feature = "dynamics")]
 use crate::dynamics::{GroupRun, MAX_DYNAMICS_GROUPS, MAX_GATE_SOURCES, SourceState};
@@ -177,7 +177,7 @@ pub struct Arbiter<
     values: Vec<ValueState, MAX_VALUE_PORTS>,
     value_slots: Vec<ValueSlot, MAX_VALUE_CONNECTIONS>,
     /// The state of each BLE group of the table, in the table's order.
-    groups: Vec<Eligibility<MAX_PEERS>, MAX_GROUPS>,
+    groups: Vec<Eligibility<MAX_PEERS>, { crate::ble::TABLE_GROUPS }>,
     /// The competitive-dynamics groups the node runs, in the table's order.
     #[cfg(feature = "dynamics")]
     runs: Vec<GroupRun, MAX_DYNAMICS_GROUPS>,
@@ -364,8 +364,12 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         let Some(slot) = self.slots.get_mut(connection) else {
             return Reception::default();
         };
-        // A frame its HBBA filter drops never came, for this connection.
-        if slot.filter != UNFILTERED && !self.throttles.pass(slot.filter) {
+        // A frame its HBBA filter drops never came, for this connection. (Without the feature
+        // no connection has a filter.)
+        if cfg!(feature = "filters")
+            && slot.filter != UNFILTERED
+            && !self.throttles.pass(slot.filter)
+        {
             return Reception::default();
         }
         let number = slot.port;
@@ -502,6 +506,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// does not get through never see it). One byte compared for a connection without a filter.
     #[inline(always)]
     fn passes(&mut self, connection: usize) -> bool {
+        if !cfg!(feature = "filters") {
+            return true;
+        }
         let filter = self.slots.get(connection).map_or(UNFILTERED, |s| s.filter);
         filter == UNFILTERED || self.throttles.pass(filter)
     }

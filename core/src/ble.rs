@@ -408,6 +408,10 @@ pub const MAX_GROUPS: usize = 4;
 /// Peers a node keeps the claims of, per group: a group has at most 8 nodes.
 pub const MAX_PEERS: usize = 7;
 
+// A table's and an arbiter's room for groups: none without the `ble` feature (a table's list must
+// then be empty, and a board keeps no RAM for the groups' claims).
+pub(crate) const TABLE_GROUPS: usize = if cfg!(feature = "ble") { MAX_GROUPS } else { 0 };
+
 /// The filter of a group's claim connection (the rule variable whose activity is `holds`): every
 /// claim identifier. Nodes never arbitrate frames of ours, so no frame ever feeds it; the loader
 /// requires it on every claim connection, so that no topic can.

@@ -521,7 +521,10 @@ mod one_pass {
         let connections = r.count::<Connection>();
         let nodes = r.count::<DecisionNode>();
         let roots = r.count::<NodeRef>();
+        #[cfg(feature = "ble")]
         r.count::<crate::ble::Group>();
+        #[cfg(not(feature = "ble"))]
+        r.empty::<u8, 0>();
         #[cfg(feature = "dynamics")]
         {
             r.count::<crate::dynamics::GroupSpec>();
@@ -532,7 +535,12 @@ mod one_pass {
         for _ in 0..3 {
             r.empty::<u8, 0>();
         }
+        #[cfg(feature = "filters")]
         r.decode::<crate::hbba::filters::MessageFilters>();
+        #[cfg(not(feature = "filters"))]
+        for _ in 0..2 {
+            r.empty::<u8, 0>();
+        }
         #[cfg(feature = "schema")]
         r.option::<crate::schema::Setup>();
         #[cfg(not(feature = "schema"))]
@@ -711,8 +719,14 @@ mod one_pass {
     }
 }
 
-#[cfg(all(test, not(feature = "dynamics"), not(feature = "schema")))]
-mod without_dynamics {
+#[cfg(all(
+    test,
+    not(feature = "ble"),
+    not(feature = "dynamics"),
+    not(feature = "filters"),
+    not(feature = "schema")
+))]
+mod without_mechanisms {
     use super::*;
 
     /// A build without the features writes images it (and every loader) reads back: the schema
@@ -732,17 +746,20 @@ mod without_dynamics {
         assert_eq!(loaded.table.port_count(), 0);
     }
 
-    /// A board built without competitive dynamics (or the schema server) reads the three lists
-    /// only when empty (the option only when absent): a table that has a group (a schema
-    /// server) is refused as a body it cannot read (InvalidTable on the bus), never half-loaded.
+    /// A board built without the mechanisms (the minimal node) reads their lists only when
+    /// empty (the schema server's option only when absent): a table that has a BLE group, a
+    /// dynamics group, a message filter or profile, or a schema server is refused as a body it
+    /// cannot read (InvalidTable on the bus), never half-loaded.
     #[test]
-    fn a_table_with_dynamics_or_a_schema_server_is_refused_by_a_node_without_them() {
+    fn a_table_with_a_mechanism_is_refused_by_a_node_without_it() {
         // An empty table: no port, connection, node, root or BLE group, the three dynamics
         // lists, no message filter and no profile, no schema server.
         let empty = [0u8; 11];
         let (table, rest) = decode_body::<4, 8, 16>(&empty).unwrap();
         assert!(rest.is_empty() && table.port_count() == 0);
-        for part in [5, 6, 7, 10] {
+        // The BLE groups (4), the dynamics lists (5 to 7), the filters and profiles (8, 9), the
+        // schema server (10).
+        for part in 4..=10 {
             let mut body = empty;
             body[part] = 1;
             assert_eq!(

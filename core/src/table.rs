@@ -101,7 +101,7 @@ pub struct Table<
     connections: Vec<Connection, CONNECTIONS>,
     nodes: Vec<DecisionNode, NODES>,
     roots: Vec<NodeRef, CONNECTIONS>,
-    groups: Vec<Group, MAX_GROUPS>,
+    groups: Vec<Group, { ble::TABLE_GROUPS }>,
     dynamics: Vec<GroupSpec, TABLE_GROUPS>,
     gate_sources: Vec<GateSource, TABLE_SOURCES>,
     gate_links: Vec<GateLink, TABLE_LINKS>,
@@ -983,7 +983,12 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             nodes: r.fill_within(&mut self.nodes),
         };
         let roots = r.fill_within(&mut self.roots);
+        // Without BLE the list must be empty: a table with groups is refused, its body unreadable
+        // here (a node needs the feature to run it), as with dynamics and filters below.
+        #[cfg(feature = "ble")]
         r.fill_within(&mut self.groups);
+        #[cfg(not(feature = "ble"))]
+        r.empty::<u8, 0>();
         #[cfg(feature = "dynamics")]
         {
             r.fill_within(&mut self.dynamics);
@@ -997,8 +1002,15 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
             r.empty::<u8, 0>();
         }
         // Format 6: after the dynamics part, the HBBA message filters.
-        r.fill(&mut self.filters.connections);
-        r.fill(&mut self.filters.profiles);
+        #[cfg(feature = "filters")]
+        {
+            r.fill(&mut self.filters.connections);
+            r.fill(&mut self.filters.profiles);
+        }
+        #[cfg(not(feature = "filters"))]
+        for _ in 0..2 {
+            r.empty::<u8, 0>();
+        }
         // Format 7: the schema server. Without the feature it must be absent: a node needs the
         // feature to run it.
         #[cfg(feature = "schema")]

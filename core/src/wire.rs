@@ -272,7 +272,11 @@ impl<'a> Reader<'a> {
 
     /// A list that must be empty (of a kind this build does not decode): the empty `Vec`, or
     /// the custom error, as for a list longer than its capacity.
-    #[cfg(not(feature = "dynamics"))]
+    #[cfg(any(
+        not(feature = "ble"),
+        not(feature = "dynamics"),
+        not(feature = "filters")
+    ))]
     pub(crate) fn empty<T, const N: usize>(&mut self) -> Vec<T, N> {
         if self.varint(64) != 0 {
             self.fail(Error::SerdeDeCustom);

@@ -11,10 +11,12 @@ use crate::time::Instant;
 impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     Arbiter<PORTS, CONNECTIONS, NODES>
 {
-    /// Whether the table has BLE groups.
+    /// Whether the table has BLE groups. Always false without the feature `ble` (whose loader
+    /// refuses a table with groups): the node's claims, behind this test, are then left out of
+    /// the build.
     #[inline]
     pub fn has_groups(&self) -> bool {
-        !self.groups.is_empty()
+        cfg!(feature = "ble") && !self.groups.is_empty()
     }
 
     /// Whether [`Arbiter::observe`] has anything to do: the table has BLE groups (local
@@ -26,7 +28,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         let runs = !self.runs.is_empty();
         #[cfg(not(feature = "dynamics"))]
         let runs = false;
-        !self.groups.is_empty() || runs
+        self.has_groups() || runs
     }
 
     /// A frame (not one of ours) after it was arbitrated at `now`, for what reads frames besides
@@ -49,7 +51,7 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// gated connection that becomes active is seen at the next of those. Costs a filter test per
     /// group.
     pub fn ble_frame(&mut self, frame: &Frame, now: Instant) {
-        if self.groups.is_empty() {
+        if !self.has_groups() {
             return;
         }
         let mut changed = false;

@@ -11,6 +11,10 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// [`Arbiter::new`]). Fails, changing nothing, with [`CommandError::NoFilters`] on a table
     /// without filters and [`CommandError::NoSuchProfile`]. Costs one pass over the filters.
     pub fn set_filter_profile(&mut self, profile: u8) -> Result<(), CommandError> {
+        // Without the feature no table has filters: the rest is left out of the build.
+        if !cfg!(feature = "filters") {
+            return Err(CommandError::NoFilters);
+        }
         self.throttles.set_profile(self.table.filters(), profile)
     }
 
@@ -19,6 +23,9 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
     /// nothing, with [`CommandError::NoFilters`] on a table without filters and
     /// [`CommandError::NotFiltered`] for a connection without a filter.
     pub fn set_filter(&mut self, port: u8, connection: u8, phi: u8) -> Result<(), CommandError> {
+        if !cfg!(feature = "filters") {
+            return Err(CommandError::NoFilters);
+        }
         let position = self
             .slot_of(port, connection)
             .map(|slot| slot.filter)
@@ -45,8 +52,11 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         self.throttles.counts()
     }
 
-    /// Whether the table gives some connection an HBBA filter.
+    /// Whether the table gives some connection an HBBA filter. Always false without the feature
+    /// `filters` (whose loader refuses a table with filters): the node's filter commands and
+    /// reports, behind this test, are then left out of the build.
+    #[inline]
     pub fn has_filters(&self) -> bool {
-        !self.table.filters().is_empty()
+        cfg!(feature = "filters") && !self.table.filters().is_empty()
     }
 }

@@ -4,6 +4,8 @@ use crate::identity::{Capacity, Firmware, Identity, IdentityPart};
 use crate::protocol::*;
 
 pub(super) fn samples() -> Vec<Message> {
+    // `mut` for the identity messages' extension below.
+    #[cfg_attr(not(feature = "identity"), allow(unused_mut))]
     let mut all = vec![
         Message::Fault(Fault {
             code: FaultCode::TableRefused,

@@ -155,18 +155,23 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             } else {
                 0
             };
-        let features = Identity::FEATURE_BLE
-            | Identity::FEATURE_FILTERS
-            | if cfg!(feature = "dynamics") {
-                Identity::FEATURE_DYNAMICS
-            } else {
-                0
-            }
-            | if cfg!(feature = "schema") {
-                Identity::FEATURE_SCHEMA
-            } else {
-                0
-            };
+        let features = if cfg!(feature = "ble") {
+            Identity::FEATURE_BLE
+        } else {
+            0
+        } | if cfg!(feature = "filters") {
+            Identity::FEATURE_FILTERS
+        } else {
+            0
+        } | if cfg!(feature = "dynamics") {
+            Identity::FEATURE_DYNAMICS
+        } else {
+            0
+        } | if cfg!(feature = "schema") {
+            Identity::FEATURE_SCHEMA
+        } else {
+            0
+        };
         let format = u8::try_from(image::FORMAT_VERSION).unwrap_or(u8::MAX);
         let clamp = |n: usize| u16::try_from(n).unwrap_or(u16::MAX);
         Identity {
