@@ -386,4 +386,71 @@ mod tests {
         assert!(parse_uid("ab00").unwrap_err().contains("not a uid"));
         assert!(parse_uid("zz000000000000cd").is_err());
     }
+
+    /// The image of node `node` of example `example`, compiled as `pabctl compile` does.
+    fn image_of(example: &str, node: &str) -> Vec<u8> {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../examples")
+            .join(example);
+        let network = pab_lang::network::Network::load(&path).expect("the example parses");
+        let nodes = pab_lang::compile::compile(&network).expect("the example compiles");
+        nodes
+            .into_iter()
+            .find(|n| n.name == node)
+            .unwrap_or_else(|| panic!("{example} has no node {node}"))
+            .image
+    }
+
+    /// A node with the boards' capacities and the features `features`.
+    fn board(features: u16) -> Identity {
+        let format = u8::try_from(pab_core::image::FORMAT_VERSION).unwrap();
+        Identity {
+            uid: [0; pab_core::identity::UID_LEN],
+            firmware: pab_core::identity::Firmware::new("fw-g474", "0.1.0", "0123456789abcdef"),
+            protocol: pab_core::identity::PROTOCOL_VERSION,
+            formats: [format, format],
+            capacity: pab_core::identity::Capacity {
+                ports: pab_core::BOARD_PORTS as u8,
+                connections: pab_core::BOARD_CONNECTIONS as u16,
+                decision_nodes: pab_core::BOARD_DECISION_NODES as u16,
+                image_len: 8192,
+            },
+            features,
+            flags: 0,
+            bitrate_kbps: 500,
+        }
+    }
+
+    /// What a table uses is read from its image, and a node built without one of those
+    /// mechanisms (a board's minimal build, docs/footprint.md) is refused it by name, before
+    /// any transfer frame; a node with them takes it.
+    #[test]
+    fn a_table_is_refused_to_a_node_built_without_a_mechanism_it_uses() {
+        let claims = Needs::of_image(&image_of("multi-target-observation.toml", "r1")).unwrap();
+        assert_eq!(claims.features, Identity::FEATURE_BLE, "{claims:?}");
+        let all = Identity::FEATURE_BLE
+            | Identity::FEATURE_DYNAMICS
+            | Identity::FEATURE_FILTERS
+            | Identity::FEATURE_SCHEMA;
+        assert_eq!(claims.refusal(&board(all)), None);
+        assert_eq!(
+            claims
+                .refusal(&board(all & !Identity::FEATURE_BLE))
+                .as_deref(),
+            Some("the table uses ble, which the node's firmware was built without")
+        );
+
+        let gates = Needs::of_image(&image_of("take-and-return-dynamics.toml", "arm")).unwrap();
+        assert_ne!(gates.features & Identity::FEATURE_DYNAMICS, 0, "{gates:?}");
+        assert_eq!(gates.refusal(&board(all)), None);
+        let why = gates
+            .refusal(&board(0))
+            .expect("refused to the minimal node");
+        assert!(why.contains("dynamics"), "{why}");
+
+        // A plain table needs no mechanism: the minimal node takes it.
+        let plain = Needs::of_image(&image_of("take-and-return.toml", "hand")).unwrap();
+        assert_eq!(plain.features, 0, "{plain:?}");
+        assert_eq!(plain.refusal(&board(0)), None);
+    }
 }
