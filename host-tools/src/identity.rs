@@ -105,6 +105,18 @@ pub struct Needs {
     pub features: u16,
 }
 
+/// The mechanisms (feature names: `ble`, `dynamics`, `filters`, `schema`) the table in `image`
+/// uses: a node built without one of them refuses it (docs/footprint.md). Fails, saying why,
+/// when the image does not load.
+pub fn mechanisms(image: &[u8]) -> Result<Vec<&'static str>, String> {
+    let needs = Needs::of_image(image)?;
+    Ok(pab_core::identity::FEATURES
+        .iter()
+        .filter(|(bit, _)| needs.features & bit != 0)
+        .map(|(_, name)| *name)
+        .collect())
+}
+
 impl Needs {
     /// What the table in `image` needs: its sizes and the mechanisms its sections use (read by
     /// loading it at the largest capacities).

@@ -88,7 +88,7 @@ pub fn check(
 }
 
 /// `pabctl compile --json`: per image written, its node, node id, file, size, table version,
-/// ports, connections and decision nodes.
+/// ports, connections, decision nodes and the mechanisms it needs (`needs`, feature names).
 pub fn compiled(output: &Path, nodes: &[CompiledNode], table_version: u32) -> Value {
     Value::Array(
         nodes
@@ -103,6 +103,7 @@ pub fn compiled(output: &Path, nodes: &[CompiledNode], table_version: u32) -> Va
                     "ports": node.ports,
                     "connections": node.connections,
                     "decision_nodes": node.decision_nodes,
+                    "needs": crate::identity::mechanisms(&node.image).unwrap_or_default(),
                 })
             })
             .collect(),

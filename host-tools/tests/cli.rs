@@ -156,6 +156,14 @@ fn compile_writes_one_image_per_node_and_prints_sizes() {
             "{stdout}"
         );
     }
+    // Take and Return uses no mechanism: any board build loads its tables (docs/footprint.md).
+    assert_eq!(
+        stdout
+            .matches("decision nodes; needs no mechanism: any build)")
+            .count(),
+        3,
+        "{stdout}"
+    );
     assert!(!out.join("arm.pab.part").exists());
     // No [hbba]: no intention node to set up.
     assert!(!out.join("intention.json").exists());
@@ -192,6 +200,8 @@ fn compile_writes_the_intention_nodes_setup_for_a_network_with_hbba() {
         )),
         "{stdout}"
     );
+    // The boards' tables have filters: a board built without `filters` refuses them.
+    assert_eq!(stdout.matches("; needs filters)").count(), 2, "{stdout}");
 }
 
 #[test]

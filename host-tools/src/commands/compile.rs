@@ -36,8 +36,12 @@ pub fn run(
     for node in &nodes {
         let file = output.join(format!("{}.pab", node.name));
         write_atomically(&file, &node.image)?;
+        // What a board must be built with to load it (docs/footprint.md): a board without one
+        // of these refuses the table.
+        let needs = pabctl::identity::mechanisms(&node.image)
+            .map_err(|why| Failure::Output(format!("{}: {why}", file.display())))?;
         say(format!(
-            "{}  {} bytes  (node id {}, table version {}, {} port{}, {} connection{}, {} decision node{})",
+            "{}  {} bytes  (node id {}, table version {}, {} port{}, {} connection{}, {} decision node{}; needs {})",
             file.display(),
             node.image.len(),
             node.id,
@@ -48,6 +52,11 @@ pub fn run(
             plural(node.connections),
             node.decision_nodes,
             plural(node.decision_nodes),
+            if needs.is_empty() {
+                "no mechanism: any build".to_string()
+            } else {
+                needs.join(", ")
+            },
         ));
     }
     // HBBA's intention node loads its setup as a board loads its table: pab-intent reads this
