@@ -47,12 +47,14 @@ use heapless::Vec;
 
 mod ble;
 mod build;
+mod carry;
 #[cfg(feature = "dynamics")]
 pub(crate) mod dynamics;
 mod filters;
 mod port;
 mod values;
 
+pub use carry::Carried;
 use port::{Port, Slot, decide};
 
 use crate::ble::{Eligibility, MAX_PEERS};
@@ -257,73 +259,6 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         for source in self.sources.iter_mut() {
             *source = SourceState::new();
         }
-    }
-
-    /// Takes over, from `previous` (the arbiter this one replaces), the state of every
-    /// connection that is **unchanged**: connection `k` of port `p` here, connection `k` of port
-    /// `p` there (positions in the table, the network file's order), with the same filter (id,
-    /// mask, standard or extended) and the same ⟨σ, τ, τr⟩. Its integrator (S0, t0, active flag:
-    /// hence its level, activity and rest time) goes on as if no swap had happened; every other
-    /// connection starts at S = 0, inactive, as after [`Arbiter::new`]. The ports' decisions are
-    /// this table's, taken again from the carried activity at the next frame or reading: a port
-    /// whose connections are all unchanged, and whose decision is too, decides exactly as
-    /// `previous` would have. The port's consumer plays no part. Value ports start without
-    /// values or output (their connections' activity is carried like any other's). An unchanged
-    /// connection with an HBBA filter in both tables keeps its filter; the others start closed.
-    /// Returns how many connections were carried over.
-    ///
-    /// Call it on a freshly built arbiter (its own state is replaced). Costs one comparison of
-    /// a connection (filter and parameters) per connection of this table, and a port reset per
-    /// port; no allocation.
-    // Left to the inliner again (it was out of line: inlined into the node's table swap it
-    // then took 68 bytes more): out of line it now took 16 bytes more of both boards' flash.
-    // Run once per table swap.
-    pub fn carry_over(&mut self, previous: &Self) -> usize {
-        for port in self.ports.iter_mut() {
-            port.idle();
-        }
-        let mut carried = 0;
-        let connections = self.table.connections();
-        for (slot, connection) in self.slots.iter_mut().zip(connections) {
-            slot.integrator = Integrator::new();
-            let Some(old_port) = previous.ports.get(usize::from(slot.port)) else {
-                continue;
-            };
-            if slot.index >= old_port.connections {
-                continue;
-            }
-            let old =
-                usize::from(old_port.first_connection).saturating_add(usize::from(slot.index));
-            if let (Some(old_slot), Some(old_connection)) = (
-                previous.slots.get(old),
-                previous.table.connections().get(old),
-            ) && old_connection == connection
-            {
-                slot.integrator = old_slot.integrator;
-                // An unchanged connection filtered in both keeps its filter (φ and count): a
-                // push that changes other rules does not close what the intention opened.
-                if let Some(&throttle) = previous.throttles.get(usize::from(old_slot.filter)) {
-                    self.throttles.carry(slot.filter, throttle);
-                }
-                carried += 1;
-                // A carried connection that is flagged flags its port (marked here rather than
-                // in a second pass over each port's slots), with both intervals empty: the next
-                // frame or reading evaluates every flagged connection ([`Port::recompute`]), as
-                // after a frame out of order. (A port's connections are fewer than 32.)
-                if slot.integrator.active_flag()
-                    && let Some(port) = self.ports.get_mut(usize::from(slot.port))
-                {
-                    port.flagged |= bit(slot.index);
-                    (port.from, port.until) = (1, 0);
-                    (port.lapsed_from, port.lapsed_until) = (1, 0);
-                }
-            }
-        }
-        self.throttles.settle(
-            previous.throttles.profile(),
-            self.table.filters() == previous.table.filters(),
-        );
-        carried
     }
 
     /// Arbitrates a frame with identifier `id` that arrived at `now`. Calls `on_verdict` once per

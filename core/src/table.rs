@@ -472,6 +472,18 @@ impl<const PORTS: usize, const CONNECTIONS: usize, const NODES: usize>
         &self.filters
     }
 
+    /// The connections, moved out (the table is left without any): for
+    /// [`crate::Arbiter::take_carried`].
+    pub(crate) fn take_connections(&mut self) -> Vec<Connection, CONNECTIONS> {
+        core::mem::take(&mut self.connections)
+    }
+
+    /// The HBBA message filters, moved out (the table is left without any): for
+    /// [`crate::Arbiter::take_carried`].
+    pub(crate) fn take_filters(&mut self) -> MessageFilters {
+        core::mem::take(&mut self.filters)
+    }
+
     /// The dynamics part, as [`Table::validate`] checks it (the loader adds the node id's check).
     #[cfg(feature = "dynamics")]
     fn validate_dynamics<R: Verdict>(&self, node: u8) -> Result<(), R> {

@@ -27,7 +27,7 @@ use crate::auth::{CHALLENGE_LIFETIME_US, Guard};
 use crate::bus::BusError;
 use crate::diagnostic::DiagnosticStream;
 use crate::faults::FaultLimiter;
-use crate::fmt::int;
+use crate::fmt::{code, int};
 use crate::{Config, Recipient};
 
 // The node's parts, each an `impl Node` of its own: what it says and hears to coordinate with
@@ -339,7 +339,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 } else {
                     warn!(
                         "stored table refused: {} (detail {}); starting without a table",
-                        status,
+                        code(status, status.code()),
                         int(u32::from(detail))
                     );
                 }
@@ -355,10 +355,6 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// [`FaultCode::BadStoredTable`] with detail [`STORE_UNREADABLE`] and the [`StoreFailure`],
     /// repeated after every heartbeat group until a table runs.
     pub fn boot_unreadable(&mut self, error: StoreError, now: Instant) {
-        warn!(
-            "the stored table could not be read ({}); starting without a table",
-            error
-        );
         let failure = match error {
             StoreError::Flash(_) => StoreFailure::Read,
             StoreError::BufferTooSmall { .. } | StoreError::ImageTooLarge { .. } => {
@@ -370,6 +366,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             | StoreError::VerifyFailed
             | StoreError::NoSave => StoreFailure::Other,
         };
+        warn!(
+            "the stored table could not be read ({}); starting without a table",
+            code(error, failure.code())
+        );
         self.boot_fault = Some([STORE_UNREADABLE, failure.code(), 0, 0, 0]);
         #[cfg(feature = "identity")]
         self.send_identity(protocol::BROADCAST);
@@ -977,7 +977,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
 
     /// Starts the schema server of the table that runs from `now`, or stops the previous
     /// table's (a new table restarts it: its queue is the old table's business).
+    // Out of line: the server's runtime is built in its frame (8.5 KB on the boards) and moved
+    // into place; inlined into the loader, that frame sat on top of the table's check.
     #[cfg(feature = "schema")]
+    #[inline(never)]
     fn start_schema(&mut self, now: Instant) {
         let setup = self.arbiter.as_mut().and_then(Arbiter::take_schema);
         // Not checked again: the set-up comes from the arbiter just built, and `Arbiter::new`

@@ -38,7 +38,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// caller first stored it on its stack.
     #[inline(never)]
     pub(super) fn unauthenticated(&mut self, failure: AuthFailure, id: FrameId) {
-        warn!("configuration refused: {}", failure);
+        warn!("configuration refused: {}", code(failure, failure.code()));
         self.error(
             FaultCode::Unauthenticated,
             [failure.code(), id.service.code(), id.source, 0, 0],
@@ -298,6 +298,13 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// as the running table, not yet stored; its header. Shared by [`Node::boot`] and
     /// [`Node::apply`]: their own copies of the checks and of the arbiter's swap took 966 bytes
     /// more of the NUCLEO-G474RE's flash with the schema server.
+    ///
+    /// So that the node holds one arbiter, not two ([`replace`]): the image is checked whole
+    /// first, its table decoded and validated aside, so a refused image leaves the running
+    /// arbiter as it was; then what the new table may carry over is moved out of the running
+    /// arbiter and the new one is built in its place, around the decoded table. Built beside
+    /// the running one, the new arbiter was the deepest stack the boards had (32 KB of the
+    /// NUCLEO-G474RE's full build, docs/footprint.md).
     pub(super) fn take_image(
         &mut self,
         len: usize,
@@ -305,23 +312,20 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         now: Instant,
     ) -> Result<Header, (TransferStatusCode, u8)> {
         let bytes = self.receiver.buffer().get(..len).unwrap_or(&[]);
-        // The new arbiter is built here, beside the running one: a refused image leaves
-        // `self.arbiter` as it was.
-        let mut fresh = None;
-        let (header, arbiter) = check_target(bytes, self.config.node_id)
-            .and_then(|()| load::<P, C, N>(&mut fresh, bytes))?;
-        check_version(&header, running.as_ref())?;
-        // The connections the new table leaves unchanged go on where they are (a re-push of the
-        // same rules is no blackout); the others start at S = 0. At boot there is none.
-        if let Some(previous) = self.arbiter.as_ref() {
-            arbiter.carry_over(previous);
-        }
-        // The swap: one assignment of the `Some` already built, one 25 KB copy. The old
-        // arbiter ran every frame until here.
-        self.arbiter = fresh;
+        check_target(bytes, self.config.node_id)?;
+        let header = match replace(&mut self.arbiter, bytes, running.as_ref()) {
+            Ok(header) => header,
+            Err(refused) => {
+                // Refused once the build had started (it cannot be: see `swap_in`), the
+                // running arbiter is gone, and so is the running table.
+                if self.arbiter.is_none() {
+                    self.running = None;
+                }
+                return Err(refused);
+            }
+        };
         // The schema server's set-up leaves the table only now, from its place in the node:
-        // taken out before, it was one more large value in this function's frame, which with
-        // the arbiter being built is the deepest stack the board ever has.
+        // taken out before, it was one more large value in the loader's frame.
         self.start_schema(now);
         self.running = Some(Running {
             header,
@@ -338,7 +342,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         detail: u8,
         nonce: Option<u64>,
     ) {
-        warn!("table transfer refused: {}", status);
+        warn!("table transfer refused: {}", code(status, status.code()));
         self.answer(source, status, detail, nonce);
         self.raise(FaultCode::TableRefused, [status.code(), detail, 0, 0, 0]);
     }
@@ -416,18 +420,53 @@ pub(super) fn check_version(
     Ok(())
 }
 
-/// Loads and validates an image for this node's capacities, and builds its arbiter in `slot`
-/// (the table decoded in its place there).
-pub(super) fn load<'a, const P: usize, const C: usize, const N: usize>(
-    slot: &'a mut Option<Arbiter<P, C, N>>,
+/// The image `bytes` checked (header, CRC, the table decoded and validated by the loader, then
+/// the version rule against `running`) and, if it passes, its arbiter built in `place`
+/// ([`swap_in`]); its header. Out of line: its frame holds the decoded table (a table of the
+/// node's capacities, 11 KB on the boards' full build), which the schema server's start after
+/// it ([`Node::take_image`]) need not stand on.
+#[inline(never)]
+pub(super) fn replace<const P: usize, const C: usize, const N: usize>(
+    place: &mut Option<Arbiter<P, C, N>>,
     bytes: &[u8],
-) -> Result<(Header, &'a mut Arbiter<P, C, N>), (TransferStatusCode, u8)> {
-    // `Refused`: the status says only that the table is invalid, so the details are not built.
-    match Arbiter::load_in::<Refused>(slot, bytes) {
-        Ok(Ok(built)) => Ok(built),
-        Ok(Err(Refused)) => Err((TransferStatusCode::InvalidTable, 0)),
-        Err(error) => Err(status_of(&error)),
+    running: Option<&Running>,
+) -> Result<Header, (TransferStatusCode, u8)> {
+    let mut table = pab_core::Table::<P, C, N>::new();
+    let header = pab_core::image::load_into_as::<P, C, N, Refused>(bytes, &mut table)
+        .map_err(|error| status_of(&error))?;
+    check_version(&header, running)?;
+    swap_in(place, &mut table)?;
+    Ok(header)
+}
+
+/// The arbiter of `table` (decoded and validated by the loader), built in `place` where the
+/// running one was, with what it carries over from that one ([`Arbiter::carry_over_from`]); the
+/// table is moved into it (`table` is left empty). The running arbiter is gone once the build
+/// starts: a validated table cannot be refused here (were it, the node would be left without a
+/// table, and say why). Out of line: its frame holds what is carried over (5.2 KB on the boards).
+#[inline(never)]
+pub(super) fn swap_in<const P: usize, const C: usize, const N: usize>(
+    place: &mut Option<Arbiter<P, C, N>>,
+    table: &mut pab_core::Table<P, C, N>,
+) -> Result<(), (TransferStatusCode, u8)> {
+    let mut carried = pab_core::arbiter::Carried::default();
+    let replaces = place.is_some();
+    if let Some(running) = place.as_mut() {
+        running.take_carried(&mut carried);
     }
+    let built = Arbiter::new_in::<Refused, (), core::convert::Infallible>(place, |blank| {
+        core::mem::swap(blank, table);
+        Ok(())
+    });
+    let Ok(Ok(((), arbiter))) = built else {
+        return Err((TransferStatusCode::InvalidTable, 0));
+    };
+    // The connections the new table leaves unchanged go on where they are (a re-push of the
+    // same rules is no blackout); the others start at S = 0. At boot there is none.
+    if replaces {
+        arbiter.carry_over_from(&carried);
+    }
+    Ok(())
 }
 
 /// The transfer status (and detail byte) a loader error maps to.
