@@ -111,36 +111,30 @@ def firmware() -> Path:
     return path
 
 
-# The test build of the board's firmware with the flash model of the G474 in single-bank mode
-# (feature `single-bank`: erases and programs stall the CPU, the modelled CAN controller keeps
-# three frames meanwhile), which hil-sim/run-hil builds and keeps here.
-SINGLE_BANK_FIRMWARE = REPO / "target" / "hil-board" / f"{FIRMWARE}-single-bank"
+def test_build(feature: str) -> Path:
+    """The board's firmware built with the test feature `feature`, which hil-sim/run-hil builds
+    and keeps in target/hil-board; or a MissingBinary saying how to build it."""
+    elf = REPO / "target" / "hil-board" / f"{FIRMWARE}-{feature}"
+    if not elf.is_file():
+        raise MissingBinary(
+            f"{elf} is missing: hil-sim/run-hil builds it (cargo build --profile firmware -p "
+            f"{FIRMWARE} --target {TARGET} --bin {FIRMWARE} --features {feature}, then a copy of "
+            f"the ELF there)")
+    return elf
 
 
 def single_bank_firmware() -> Path:
-    """The single-bank test build's ELF, or a MissingBinary saying how to build it."""
-    if not SINGLE_BANK_FIRMWARE.is_file():
-        raise MissingBinary(
-            f"{SINGLE_BANK_FIRMWARE} is missing: hil-sim/run-hil builds it (cargo build --profile "
-            f"firmware -p {FIRMWARE} --target {TARGET} --bin {FIRMWARE} --features single-bank, "
-            f"then a copy of the ELF there)")
-    return SINGLE_BANK_FIRMWARE
-
-
-# The test build with identity and configuration over the bus (feature `identity`: identity
-# answers, the node id and bit rate kept in the configuration page), which hil-sim/run-hil builds
-# and keeps here. Not the production build: it does not fit the 64 KiB of flash yet.
-IDENTITY_FIRMWARE = REPO / "target" / "hil-board" / f"{FIRMWARE}-identity"
+    """The test build with the flash model of the G474 in single-bank mode (feature
+    `single-bank`: erases and programs stall the CPU, the modelled CAN controller keeps three
+    frames meanwhile)."""
+    return test_build("single-bank")
 
 
 def identity_firmware() -> Path:
-    """The identity test build's ELF, or a MissingBinary saying how to build it."""
-    if not IDENTITY_FIRMWARE.is_file():
-        raise MissingBinary(
-            f"{IDENTITY_FIRMWARE} is missing: hil-sim/run-hil builds it (cargo build --profile "
-            f"firmware -p {FIRMWARE} --target {TARGET} --bin {FIRMWARE} --features identity, "
-            f"then a copy of the ELF there)")
-    return IDENTITY_FIRMWARE
+    """The test build with identity and configuration over the bus (feature `identity`:
+    identity answers, the node id and bit rate kept in the configuration page). Not the flashed
+    build: with every mechanism it does not fit the 64 KiB of flash (docs/footprint.md)."""
+    return test_build("identity")
 
 
 #: How much further ahead of the suite's other work (the micro-VM's QEMU, the nodes, run-hil's
