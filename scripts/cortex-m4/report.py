@@ -57,8 +57,14 @@ MEDIAN_GOALS = [
 # and up to 169 / 536 with LLVM's machine outliner (.cargo/config.toml), 568 bytes of the
 # NUCLEO-G474RE's flash and 532 of the emulated board's that sealed coordination needed: a branch
 # and a return where a shared sequence was.
+# Down to 169 / 493 when a lapse's refresh went to two passes (the lapsed interval's words
+# no longer held across the loop over the port's connections). The node application's whole
+# path of a delivered frame (goal 250, issue 36) was 381 / 685; 355 / 650 since a frame skips
+# the node's duties while none waits (Node::is_idle; 337 / 632 with the test in on_frame, which
+# the NUCLEO-G474RE's flash had no room for).
 NOT_MET = [
-    ("tr-arm", "fed", 200, 169, 536),
+    ("tr-arm", "fed", 200, 169, 493),
+    ("tr-arm-node", "delivered", 250, 355, 650),
 ]
 
 # One SysTick tick of the 25 MHz CPU clock under -icount shift=0 (1 instruction per ns).
@@ -198,8 +204,10 @@ def check_goals(rows):
             failed = True
             continue
         median, largest = counts[len(counts) // 2], counts[-1]
+        over = sum(1 for count in counts if count > goal)
         print(
-            f"goal NOT met on every frame: {case} {kind}: median {median}, max {largest} > {goal} "
+            f"goal NOT met on every frame: {case} {kind}: median {median}, max {largest}; "
+            f"{over} of {len(counts)} frames ({100 * over / len(counts):.1f} %) over {goal} "
             f"(checked not to exceed {median_ceiling} / {max_ceiling})"
         )
         if median > median_ceiling or largest > max_ceiling:

@@ -4,6 +4,7 @@
 use crate::common;
 
 use common::*;
+use pab_app::Step;
 use pab_core::protocol::{
     self, DiagnosticControl, FaultCode, Message, NodeState, Service, TransferStatusCode,
 };
@@ -425,5 +426,97 @@ fn the_stored_table_fault_is_repeated_with_each_heartbeat_until_a_table_runs() {
             .all(|(t, f)| *t <= pushed_at || f.code != FaultCode::BadStoredTable),
         "{:?}",
         faults(&h)
+    );
+}
+
+/// A topic frame skips the node's duties while none waits (`Node::on_frame`, before the next
+/// heartbeat, with no transfer, fault, diagnostic stream or per-frame mechanism): the shortcut
+/// must never hold back what the duties would have sent. Two nodes take the same frames and no
+/// poll between them; one also runs its duties after every frame (`Node::poll`). Heartbeats fall
+/// due between frames, faults are raised by malformed commands and by a full outbox (gateway
+/// re-publications not drained), the diagnostic stream goes on and off: both send the same
+/// frames at the same instants.
+#[test]
+fn a_topic_frame_that_skips_the_duties_holds_back_nothing_they_would_send() {
+    let table = priority_table(&[TOPIC_A, TOPIC_B], Some(GATEWAY_OUT));
+    let bytes = image(&table, Harness::NODE_ID, 1);
+    let mut shortcut = Harness::boot(Some(&bytes));
+    let mut polled = Harness::boot(Some(&bytes));
+    assert_eq!(shortcut.sent, polled.sent);
+    let command = |rate_hz| {
+        Message::DiagnosticControl(DiagnosticControl { rate_hz, ports: 1 })
+            .to_frame(protocol::TOOL, Harness::NODE_ID)
+    };
+    let malformed = Frame::data(
+        protocol::FrameId::new(Service::DiagnosticControl, protocol::TOOL, Harness::NODE_ID).id(),
+        &[1],
+    )
+    .unwrap();
+    let mut seed = 0x2545_f491_u32;
+    let mut next = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 17;
+        seed ^= seed << 5;
+        seed % 100
+    };
+    let (mut sent_a, mut sent_b) = (Vec::new(), Vec::new());
+    let (mut skipped_polls, mut faults_raised) = (0, 0);
+    let mut t = 0;
+    while t < 4 * S {
+        t += MS + u64::from(next()) * 100;
+        let now = Instant::from_micros(t);
+        // 300 ms of every second, as on a congested bus, topic frames only and nothing drained:
+        // the outbox fills, and the frames' re-publications raise TxOverrun faults between two
+        // heartbeats, which go out at the first frame after.
+        let congested = (8..14).contains(&((t / (50 * MS)) % 20));
+        let frame = match next() % if congested { 70 } else { 100 } {
+            0..=44 => frame(TOPIC_A, &[t as u8]),
+            45..=69 => frame(TOPIC_B, &[t as u8]),
+            70..=84 => frame(0x555, &[]),
+            85..=89 => {
+                faults_raised += 1;
+                malformed
+            }
+            90..=92 => command(10),
+            _ => command(0),
+        };
+        for (h, also_poll) in [(&mut shortcut, false), (&mut polled, true)] {
+            let step = h.node.on_frame(&frame, now, &mut h.deliveries);
+            assert_eq!(step, Step::Continue);
+            if also_poll {
+                assert_eq!(h.node.poll(now, &mut h.deliveries), Step::Continue);
+            }
+        }
+        if !congested {
+            while let Some(f) = shortcut.node.next_outgoing() {
+                sent_a.push((t, f));
+            }
+            while let Some(f) = polled.node.next_outgoing() {
+                sent_b.push((t, f));
+            }
+            assert_eq!(sent_a, sent_b, "at {t} µs");
+        } else {
+            skipped_polls += 1;
+        }
+    }
+    let kinds = |sent: &[(u64, Frame)]| {
+        sent.iter()
+            .filter_map(|(_, f)| protocol::FrameId::decode(&f.id()).map(|id| id.service))
+            .collect::<Vec<_>>()
+    };
+    // What the comparison covered: heartbeats, faults (malformed commands and the outbox's
+    // overruns), the diagnostic stream.
+    let services = kinds(&sent_a);
+    for service in [Service::Heartbeat, Service::Fault, Service::Diagnostic] {
+        assert!(
+            services.contains(&service),
+            "{service:?} never sent: {services:?}"
+        );
+    }
+    assert!(skipped_polls > 0 && faults_raised > 0);
+    assert!(
+        shortcut.node.counters().errors > faults_raised,
+        "no outbox overrun: {:?}",
+        shortcut.node.counters()
     );
 }
