@@ -58,7 +58,6 @@ use pab_fw_an386::{logger, semihosting, uart};
 #[cfg(feature = "identity")]
 use pab_storage::TableStore;
 use pab_storage::{BootCounter, FlashStore};
-use static_cell::StaticCell;
 
 /// This node's id (1..=127): `PAB_NODE_ID` at build time, 1 without it. Tables pushed to the
 /// node must be compiled for this id.
@@ -84,9 +83,6 @@ const _: () = assert!(
 type Store = FlashStore<RamFlash>;
 
 embassy_time_driver::time_driver_impl!(static TIME: TimeDriver = TimeDriver::new());
-
-/// The node (arbiter, tables, an 8 KiB transfer buffer): in a `static`, not in a task's future.
-static NODE: StaticCell<pab_app::BoardNode> = StaticCell::new();
 
 /// The executor: embassy's interrupt executor on [`Interrupt::SOFTWARE`], below the devices'
 /// interrupts (priority 0), which preempt the tasks. Why not the thread executor: it idles in
@@ -118,14 +114,9 @@ fn main() -> ! {
 
     // SAFETY: called once; memory.x keeps the program below the RAM-backed flash.
     let flash = unsafe { RamFlash::take() };
-    #[cfg(feature = "identity")]
-    let (node, bus, store) = start_with_identity(flash);
-    #[cfg(not(feature = "identity"))]
-    let (node, bus, store) = start(flash);
-
     interrupts::set_priority(Interrupt::SOFTWARE, EXECUTOR_PRIORITY);
     let spawner = EXECUTOR.start(Interrupt::SOFTWARE);
-    match node_task(node, bus, store, watchdog) {
+    match node_task(flash, watchdog) {
         Ok(task) => spawner.spawn(task),
         Err(_) => fail(format_args!("cannot spawn the node task")),
     }
@@ -134,34 +125,59 @@ fn main() -> ! {
     }
 }
 
-/// The node, its bus and its store from the compiled node id (without the feature `identity`).
+/// Builds the node and runs it forever, feeding the watchdog. The node is built here, in place
+/// in the task's future (a `static`), as on the NUCLEO boards: built in `main` and moved into a
+/// `static`, it sat in `main`'s frame first, 42 KB of stack under everything after.
+#[embassy_executor::task]
+async fn node_task(flash: RamFlash, mut watchdog: BoardWatchdog) {
+    #[cfg(feature = "identity")]
+    let (config, loaded, bitrate, mut store) = configured(flash);
+    #[cfg(not(feature = "identity"))]
+    let (config, mut store) = configured(flash);
+    let mut node = pab_app::BoardNode::new(config, pab_app::now());
+    #[cfg(feature = "identity")]
+    {
+        let mut uid = [0u8; pab_core::identity::UID_LEN];
+        let _ = store.flash_mut().read(UID_PAGE, &mut uid);
+        node.set_identity(FIRMWARE, uid);
+        node.set_settings(loaded, bitrate, pab_app::now());
+    }
+    // The SLCAN device's serial number: the node's address (an unassigned node's comes from its
+    // uid).
+    let mut bus = bus(SlcanBus::new(hex4(node.config().node_id)));
+    key(&mut node, store.flash_mut());
+    pab_app::run_watched(&mut node, &mut bus, &mut store, &mut (), &mut watchdog).await
+}
+
+/// The node's configuration and its store, from the compiled node id (without the feature
+/// `identity`).
 #[cfg(not(feature = "identity"))]
-fn start(mut flash: RamFlash) -> (&'static mut pab_app::BoardNode, Bus, Store) {
+fn configured(flash: RamFlash) -> (pab_app::Config, Store) {
     let config = match pab_app::Config::new(NODE_ID) {
         Ok(config) => config,
         Err(error) => fail(format_args!("configuration: {error}")),
     };
-    let bus = bus(SlcanBus::new(hex4(NODE_ID)));
-    let node = NODE.init_with(|| pab_app::BoardNode::new(config, pab_app::now()));
-    key(node, &mut flash);
-    let store = match FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE) {
-        Ok(store) => store,
-        Err(error) => fail(format_args!("table store: {error}")),
-    };
-    (node, bus, store)
+    match FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE) {
+        Ok(store) => (config, store),
+        Err(error) => store_failed(error),
+    }
 }
 
-/// The node, its bus and its store with identity and configuration over the bus: the node id
-/// and bit rate from the configuration page (else the compiled ones), the uid from its page.
+/// What the configuration page held: the settings record, if any (`TableStore::load_settings`).
 #[cfg(feature = "identity")]
-fn start_with_identity(flash: RamFlash) -> (&'static mut pab_app::BoardNode, Bus, Store) {
-    let store = match FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE)
+type Loaded = Result<Option<u16>, pab_storage::StoreError>;
+
+/// The node's configuration, its stored settings, the bit rate to start at and its store, with
+/// identity and configuration over the bus: the node id and bit rate from the configuration
+/// page (else the compiled ones).
+#[cfg(feature = "identity")]
+fn configured(flash: RamFlash) -> (pab_app::Config, Loaded, u16, Store) {
+    let mut store = match FlashStore::new(flash, STORE_RANGE, STORE_SLOT_SIZE)
         .and_then(|store| store.with_settings(SETTINGS_RANGE))
     {
         Ok(store) => store,
-        Err(error) => fail(format_args!("table store: {error}")),
+        Err(error) => store_failed(error),
     };
-    let mut store = store;
     let loaded = store.load_settings();
     let settings = pab_app::Settings::from_loaded(&loaded);
     let node_id = settings.node_id.or((NODE_ID != 0).then_some(NODE_ID));
@@ -169,16 +185,17 @@ fn start_with_identity(flash: RamFlash) -> (&'static mut pab_app::BoardNode, Bus
     // displayed: the error's formatting took 590 bytes of flash (core::fmt's integers).
     let config =
         pab_app::Config::for_node(node_id).unwrap_or_else(|_| pab_app::Config::unassigned());
-    let node = NODE.init_with(|| pab_app::BoardNode::new(config, pab_app::now()));
-    let flash = store.flash_mut();
-    let mut uid = [0u8; pab_core::identity::UID_LEN];
-    let _ = flash.read(UID_PAGE, &mut uid);
-    node.set_identity(FIRMWARE, uid);
-    node.set_settings(loaded, settings.start_bitrate(BITRATE_KBPS), pab_app::now());
-    // The SLCAN device's serial number: the node's address.
-    let bus = bus(SlcanBus::new(hex4(node.config().node_id)));
-    key(node, flash);
-    (node, bus, store)
+    let bitrate = settings.start_bitrate(BITRATE_KBPS);
+    (config, loaded, bitrate, store)
+}
+
+/// Stops on a store that cannot be opened: its layout's constants do not fit the RAM-backed
+/// flash (a build's mistake; opening reads nothing but the configuration page). Not displayed:
+/// `StoreError`'s words took 550 bytes of flash once the node was built in its task.
+fn store_failed(_: pab_storage::StoreError) -> ! {
+    fail(format_args!(
+        "table store: STORE_RANGE, STORE_SLOT_SIZE or SETTINGS_RANGE do not fit the flash"
+    ))
 }
 
 /// Keys the node from its key page, counting the boot (`pab_app::key_from_page`).
@@ -193,17 +210,6 @@ fn key(node: &mut pab_app::BoardNode, flash: &mut RamFlash) {
     pab_app::key_from_page(node, page, || {
         BootCounter::new(&mut *flash, BOOT_COUNTER_RANGE)?.increment()
     });
-}
-
-/// Runs the node forever, feeding the watchdog.
-#[embassy_executor::task]
-async fn node_task(
-    node: &'static mut pab_app::BoardNode,
-    mut bus: Bus,
-    mut store: Store,
-    mut watchdog: BoardWatchdog,
-) {
-    pab_app::run_watched(node, &mut bus, &mut store, &mut (), &mut watchdog).await
 }
 
 /// The node's bus: SLCAN on UART0.
