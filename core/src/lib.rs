@@ -65,6 +65,7 @@ pub mod schema;
 pub mod seal;
 pub mod table;
 pub mod time;
+pub mod update;
 pub mod value_port;
 mod wire;
 

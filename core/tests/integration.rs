@@ -30,3 +30,6 @@ mod wire;
 mod gates;
 #[cfg(feature = "dynamics")]
 mod gates_properties;
+// The signed firmware image's check needs its signature.
+#[cfg(feature = "signature")]
+mod update;

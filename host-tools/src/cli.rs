@@ -405,17 +405,62 @@ pabctl limits arm.toml --dry-run --joint elbow=-45:90")]
         #[arg(long)]
         dry_run: bool,
     },
-    /// Create a node key file (32 hexadecimal characters, mode 0600).
+    /// Create a node key file (32 hexadecimal characters, mode 0600), or with --signing a
+    /// firmware signing key.
     #[command(long_about = "\
 Write a new random 128-bit key (from /dev/urandom) to FILE as 32 hexadecimal characters and a \
 newline, readable by its owner only (mode 0600). Refuses to overwrite an existing file. Give the \
 file to the node (`pab-node --key FILE`, or a board's key page: `pabctl keypage`) and to the \
 configuring verbs (`pabctl push --key FILE`, `pabctl monitor --key FILE`). Whoever can read the \
-file can configure the node.")]
+file can configure the node.
+
+With --signing: a new Ed25519 signing key for firmware images (its 32-byte secret as 64 \
+hexadecimal characters, mode 0600, never overwritten), and its public key printed, the one the \
+boards check images against (docs/firmware-update.md). Sign with `pabctl sign --key FILE`. \
+Whoever can read the file can sign firmware that the boards will run: keep it off the robot.")]
     Keygen {
         /// The key file to create.
         #[arg(short, long, value_name = "FILE")]
         output: PathBuf,
+        /// A firmware signing key (Ed25519) instead of a node key.
+        #[arg(long)]
+        signing: bool,
+    },
+    /// Sign a firmware image for the boards of one kind (Ed25519, docs/firmware-update.md).
+    #[command(long_about = "\
+Append to FIRMWARE.bin (the application's binary, as `objcopy -O binary` writes it) a trailer \
+that says what it is (board kind, version, build id, length, whether it may replace a higher \
+version) and the Ed25519 signature of the SHA-512 digest of both, and write the result to \
+--output. A board takes an image only if it is signed by the key whose public key it holds, \
+for its own board kind (the firmware's name in its identity: fw-g474, fw-f446, fw-an386), of a \
+version not lower than the one it runs unless signed with --downgrade. Prints the signed \
+image's trailer and size. Refuses to overwrite the input, and writes --output whole or not at \
+all.
+
+Example: pabctl sign --key release.sign --board fw-g474 --version 1.2.0 --build $(git \
+rev-parse HEAD) target/fw.bin -o fw-1.2.0.signed")]
+    Sign {
+        /// The signing key file (`pabctl keygen --signing`).
+        #[arg(long, value_name = "FILE")]
+        key: PathBuf,
+        /// The firmware binary to sign.
+        firmware: PathBuf,
+        /// The signed image to write.
+        #[arg(short, long, value_name = "FILE")]
+        output: PathBuf,
+        /// The board kind: the firmware's name as its identity states it (at most 8 ASCII
+        /// characters: fw-g474, fw-f446, fw-an386).
+        #[arg(long, value_name = "NAME", value_parser = pabctl::signing::board_kind)]
+        board: [u8; 8],
+        /// The firmware's semantic version (MAJOR.MINOR.PATCH, each 0 to 255).
+        #[arg(long, value_name = "X.Y.Z", value_parser = pabctl::signing::version)]
+        version: [u8; 3],
+        /// The build id: hexadecimal digits of the commit (the first 16 are kept).
+        #[arg(long, value_name = "HEX", value_parser = pabctl::signing::build_id)]
+        build: [u8; 8],
+        /// Allow the image to replace a higher version (signed with it).
+        #[arg(long)]
+        downgrade: bool,
     },
     /// Write a starter network file: the tutorial's, or one of the examples.
     #[command(long_about = "\

@@ -5,8 +5,8 @@
 //! ([`bus`]) pushes tables to the nodes ([`push`]), lists them ([`observe`]) and shows their
 //! arbitration as it happens ([`monitor`]); a schema server's client ([`client`]) and the
 //! simulated robot in front of its board ([`plant`]). Key files ([`keys`]) and the command
-//! line's numbers ([`args`]) are here too, and `pabctl solve`'s report of HBBA's intention
-//! solver ([`solve`]).
+//! line's numbers ([`args`]) are here too, `pabctl solve`'s report of HBBA's intention solver
+//! ([`solve`]), and firmware signing keys and signed images ([`signing`]).
 //!
 //! The `pabctl` command itself is the binary's: `main.rs` and the modules it declares beside
 //! these (`cli.rs`, `commands/`, `failure.rs`, `output.rs`).
@@ -23,5 +23,6 @@ pub mod observe;
 pub mod plant;
 pub mod plot;
 pub mod push;
+pub mod signing;
 pub mod solve;
 pub mod starter;

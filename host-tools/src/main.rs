@@ -136,7 +136,34 @@ fn main() -> ExitCode {
             commands::schema_server::limits(&network, iface.as_deref(), key.as_deref(), &overrides)
         }
         Command::Init { file, example } => commands::init::run(&file, example.as_deref()),
-        Command::Keygen { output } => commands::keys::keygen(&output),
+        Command::Keygen { output, signing } => {
+            if signing {
+                commands::keys::keygen_signing(&output)
+            } else {
+                commands::keys::keygen(&output)
+            }
+        }
+        Command::Sign {
+            key,
+            firmware,
+            output,
+            board,
+            version,
+            build,
+            downgrade,
+        } => commands::sign::run(
+            &key,
+            &firmware,
+            &output,
+            pabctl::signing::Signed {
+                firmware: pab_core::identity::Firmware {
+                    name: board,
+                    version,
+                    build,
+                },
+                downgrade,
+            },
+        ),
         Command::Keypage { key, output } => commands::keys::keypage(&key, &output),
         Command::Nodes {
             iface,

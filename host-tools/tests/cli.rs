@@ -1424,3 +1424,89 @@ fn inputs_that_are_no_files_are_refused_at_once_and_repeated_errors_are_counted(
     );
     assert!(stderr.ends_with("9999 errors\n"), "{stderr}");
 }
+
+/// `keygen --signing` and `sign` as a user runs them: the key file private, its public key
+/// printed; the signed image what pab-core admits under that public key, and refuses under
+/// another; bad arguments refused before anything is written.
+#[test]
+fn a_firmware_signed_with_a_new_signing_key_is_admitted_under_its_public_key_only() {
+    use pab_core::identity::Firmware;
+    use pab_core::update::{SignedImage, UpdateRefusal};
+    use std::os::unix::fs::PermissionsExt;
+
+    let dir = tempfile::tempdir().unwrap();
+    let key = dir.path().join("release.sign");
+    let key_arg = key.display().to_string();
+    let made = pabctl(&["keygen", "--signing", "-o", &key_arg]);
+    assert!(made.status.success(), "{}", text(&made.stderr));
+    let printed = text(&made.stdout);
+    let public = printed
+        .lines()
+        .find_map(|line| line.strip_prefix("public key: "))
+        .expect("the public key is printed");
+    let public: Vec<u8> = (0..32)
+        .map(|i| u8::from_str_radix(&public[2 * i..2 * i + 2], 16).unwrap())
+        .collect();
+    let public: [u8; 32] = public.try_into().unwrap();
+    let mode = std::fs::metadata(&key).unwrap().permissions().mode();
+    assert_eq!(mode & 0o777, 0o600);
+    let again = pabctl(&["keygen", "--signing", "-o", &key_arg]);
+    assert_eq!(again.status.code(), Some(3));
+    assert!(text(&again.stderr).contains("never overwrites"));
+
+    let firmware = dir.path().join("fw.bin");
+    let image: Vec<u8> = (0..3000u32).map(|i| (i % 251) as u8).collect();
+    std::fs::write(&firmware, &image).unwrap();
+    let signed = dir.path().join("fw.signed");
+    let args = |board: &'static str, version: &'static str, build: &'static str| {
+        vec![
+            "sign".to_string(),
+            firmware.display().to_string(),
+            "--key".into(),
+            key_arg.clone(),
+            "--board".into(),
+            board.into(),
+            "--version".into(),
+            version.into(),
+            "--build".into(),
+            build.into(),
+            "-o".into(),
+            signed.display().to_string(),
+        ]
+    };
+    let run = |args: Vec<String>| {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        pabctl(&args)
+    };
+    // Every bad argument: exit 2, nothing written.
+    for (board, version, build) in [
+        ("nucleo-g474re", "1.0.0", "ab"),
+        ("fw-g474", "1.0", "ab"),
+        ("fw-g474", "1.0.256", "ab"),
+        ("fw-g474", "1.0.0", "xyz"),
+    ] {
+        let refused = run(args(board, version, build));
+        assert_eq!(refused.status.code(), Some(2), "{board} {version} {build}");
+        assert!(!signed.exists());
+    }
+    let ok = run(args("fw-g474", "1.3.0", "0123456789abcdef0123"));
+    assert!(ok.status.success(), "{}", text(&ok.stderr));
+    assert!(text(&ok.stdout).contains("signed as fw-g474 1.3.0, build 0123456789abcdef"));
+    let bytes = std::fs::read(&signed).unwrap();
+    let parsed = SignedImage::parse(&bytes).unwrap();
+    assert_eq!(parsed.image(), image.as_slice());
+    let running = Firmware::new("fw-g474", "1.2.9", "0");
+    let trailer = parsed.check(&running, 64 * 1024, &public).unwrap();
+    assert_eq!(
+        trailer.firmware,
+        Firmware::new("fw-g474", "1.3.0", "0123456789abcdef")
+    );
+    assert!(!trailer.downgrade);
+    let other = [0x42u8; 32];
+    assert!(parsed.check(&running, 64 * 1024, &other).is_err());
+    let newer = Firmware::new("fw-g474", "2.0.0", "0");
+    assert_eq!(
+        parsed.check(&newer, 64 * 1024, &public),
+        Err(UpdateRefusal::Downgrade)
+    );
+}

@@ -82,6 +82,12 @@ fn main() {
             write(target.name, &format!("random-{i}"), &bytes);
         }
     }
+    // Signed firmware images, one per board kind and metadata case.
+    if wanted("update") {
+        for (name, bytes) in pab_fuzz_checks::update::seeds() {
+            write("update", &name, &bytes);
+        }
+    }
     // One frame and one message per protocol service.
     for (service, decode, encode) in pab_fuzz_checks::protocol::service_seeds() {
         write("protocol_decode", &format!("service-{service:?}"), &decode);

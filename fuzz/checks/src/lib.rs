@@ -25,6 +25,7 @@ pub mod node_schema;
 pub mod protocol;
 pub mod schema;
 pub mod seal;
+pub mod update;
 
 mod crc;
 mod examples;
@@ -104,6 +105,10 @@ pub const TARGETS: &[Target] = &[
     Target {
         name: "seal",
         check: seal::check,
+    },
+    Target {
+        name: "update",
+        check: update::check,
     },
 ];
 

@@ -74,7 +74,8 @@ fn every_target_has_a_replay_test() {
             "aes_cmac",
             "node_keyed",
             "node_schema",
-            "seal"
+            "seal",
+            "update"
         ]
     );
 }
@@ -157,4 +158,9 @@ fn node_schema() {
 #[test]
 fn seal() {
     replay("seal");
+}
+
+#[test]
+fn update() {
+    replay("update");
 }

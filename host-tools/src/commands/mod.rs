@@ -13,6 +13,7 @@ pub mod push;
 pub mod replay;
 pub mod schema;
 pub mod schema_server;
+pub mod sign;
 pub mod sim;
 pub mod solve;
 
