@@ -49,8 +49,10 @@ esac
 cortex_m4_setup
 
 # The boards' profile (root Cargo.toml): what is counted is what a board runs.
+# `update-cost`: the firmware-update case (a signed image's check), which the node's own
+# firmware does not link.
 cargo build -q --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf \
-    --bin pab-an386-cost --locked
+    --bin pab-an386-cost --features update-cost --locked
 elf="${CARGO_TARGET_DIR:-target}/thumbv7em-none-eabihf/firmware/pab-an386-cost"
 
 cortex_m4_markers "$elf" cortex-m4-cost

@@ -61,10 +61,12 @@ MEDIAN_GOALS = [
 # no longer held across the loop over the port's connections). The node application's whole
 # path of a delivered frame (goal 250, issue 36) was 381 / 685; 355 / 650 since a frame skips
 # the node's duties while none waits (Node::is_idle; 337 / 632 with the test in on_frame, which
-# the NUCLEO-G474RE's flash had no room for).
+# the NUCLEO-G474RE's flash had no room for); 356 / 651 when the cost binary gained the
+# firmware-update case (src/bin/cost/update.rs): the same node code, which the machine outliner
+# shares differently in a binary with more code.
 NOT_MET = [
     ("tr-arm", "fed", 200, 169, 493),
-    ("tr-arm-node", "delivered", 250, 355, 650),
+    ("tr-arm-node", "delivered", 250, 356, 651),
 ]
 
 # One SysTick tick of the 25 MHz CPU clock under -icount shift=0 (1 instruction per ns).

@@ -34,6 +34,8 @@ mod ble;
 mod cases;
 mod hbba;
 mod take_and_return;
+#[cfg(feature = "update-cost")]
+mod update;
 mod value_port;
 
 use core::hint::black_box;
@@ -123,6 +125,8 @@ fn main() -> ! {
     ble::run();
     value_port::run();
     hbba::run();
+    #[cfg(feature = "update-cost")]
+    update::run();
     semihosting::eprint(format_args!("pab-an386-cost: done\n"));
     semihosting::exit(true)
 }
