@@ -38,8 +38,12 @@ use crate::frame::Frame;
 use crate::protocol::{self, AuthFailure, FrameKind, Message, Seal, Service};
 
 /// Senders a receiver keeps the freshness of: a node reads the Gates of a few groups, the
-/// claims of its BLE peers and the intention node's commands. Beyond, the sender used least
-/// recently is forgotten (and asked again at its next seal).
+/// claims of its BLE peers and the intention node's commands. Beyond, the first kept is
+/// forgotten (and asked again at its next seal), unless it was asked within [`REQUEST_US`]: then
+/// a new sender's seal is refused without a request, until that request ages out. Forgetting
+/// a sender asked a moment ago would let it be asked again at once: a participant that filled the
+/// list with forged senders could make a genuine one answer at will (found by the fuzz target
+/// `seal`).
 pub const PEERS: usize = 8;
 /// Coordination frames held for their seal at once (every sender together); beyond, the oldest
 /// is refused `Unsealed`.
@@ -392,16 +396,23 @@ impl Verifier {
         if tries == 0 {
             return (Verdict::Nothing, None);
         }
-        let at = self.peer_at(source);
-        let Some(peer) = self.peers.get_mut(at) else {
-            return (Verdict::Nothing, None);
-        };
         let refusal = |reason| {
             Verdict::Refused(Refusal {
                 reason,
                 kind: seal.kind,
                 source,
             })
+        };
+        let Some(peer) = self
+            .peer_at(source, now)
+            .and_then(|at| self.peers.get_mut(at))
+        else {
+            // No room for a new sender (the first kept was asked within REQUEST_US): its seal
+            // could only have failed (no freshness is known for it), and no request goes out.
+            return (
+                refusal(freshness.err().unwrap_or(AuthFailure::Unsynced)),
+                None,
+            );
         };
         let verdict = match (slot.and_then(|slot| take(&mut self.held, slot)), freshness) {
             (Some(held), Ok(_)) if answer => {
@@ -445,23 +456,33 @@ impl Verifier {
         (verdict, request)
     }
 
-    /// Where the state kept for `source` is, made if need be (forgetting the sender kept
-    /// longest when all [`PEERS`] are taken).
-    fn peer_at(&mut self, source: u8) -> usize {
+    /// Where the state kept for `source` is, made if need be: when all [`PEERS`] are taken, in
+    /// place of the first kept, unless it was asked within [`REQUEST_US`] of `now` (then `None`:
+    /// see [`PEERS`]).
+    fn peer_at(&mut self, source: u8, now: Instant) -> Option<usize> {
         if let Some(at) = self.peers.iter().position(|peer| peer.node == source) {
-            return at;
+            return Some(at);
         }
         if self.peers.is_full() {
+            let first = self.peers.first()?;
+            if first
+                .asked
+                .is_some_and(|(_, at)| within(now, at, REQUEST_US))
+            {
+                return None;
+            }
             take(&mut self.peers, 0);
         }
         // Room was made above if need be.
-        let _ = self.peers.push(Peer {
-            node: source,
-            answered: false,
-            known: None,
-            asked: None,
-        });
-        self.peers.len().saturating_sub(1)
+        self.peers
+            .push(Peer {
+                node: source,
+                answered: false,
+                known: None,
+                asked: None,
+            })
+            .ok()?;
+        Some(self.peers.len().saturating_sub(1))
     }
 
     /// What it knows of `source`: its epoch and the last counter accepted. For tests and

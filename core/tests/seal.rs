@@ -288,3 +288,54 @@ fn a_receiver_asks_again_once_a_second_at_most() {
         Some(pab_core::protocol::AuthFailure::Unsealed)
     );
 }
+
+/// A participant that fills the receiver's list of senders with forged ones cannot make it ask
+/// the genuine sender again within `REQUEST_US`: a sender asked that recently is never the one
+/// forgotten, and while every sender kept was, a new one's seal is refused without a request.
+/// (The fuzz target `seal` found the first version forgetting the oldest kept, asked a moment
+/// before.)
+#[test]
+fn forged_senders_cannot_make_the_receiver_ask_the_genuine_one_again_too_soon() {
+    use pab_core::seal::PEERS;
+    let key = Authenticator::new(&Key::from_bytes(*b"property-test-k!"));
+    let mut receiver = Verifier::new();
+    let mut receiver_sealer = Sealer::new(9);
+    // A Gates frame of `source`, held, then a seal that fails (a made-up tag): the request the
+    // receiver makes, if any.
+    let mut forge = |receiver: &mut Verifier, source: u8, at: u64| {
+        let frame = Message::Gates(Gates {
+            group: 0,
+            behaviours: 32,
+            mask: 1,
+            changes: 1,
+        })
+        .to_frame(source, BROADCAST);
+        let now = Instant::from_micros(at);
+        let _ = receiver.hold(source, 0x07, &frame, now);
+        let seal = Seal {
+            kind: 0x07,
+            digest: Seal::digest_of(frame.payload()),
+            counter: 1,
+            tag: [0; 4],
+        };
+        receiver
+            .on_seal(&key, &mut receiver_sealer, RECEIVER, source, &seal, now)
+            .1
+    };
+    assert!(
+        forge(&mut receiver, SENDER, 0).is_some(),
+        "the first seal asks"
+    );
+    // PEERS - 1 forged senders fill the list; each is asked once.
+    for (k, source) in (2..).take(PEERS - 1).enumerate() {
+        assert!(forge(&mut receiver, source, 1_000 * k as u64).is_some());
+    }
+    // One more: nobody kept may be forgotten yet, so no request, and the genuine sender is kept.
+    assert!(forge(&mut receiver, 100, 20_000).is_none());
+    assert!(
+        forge(&mut receiver, SENDER, 30_000).is_none(),
+        "asked again too soon"
+    );
+    // A second later the oldest requests have aged out: a new sender takes a place and is asked.
+    assert!(forge(&mut receiver, 101, REQUEST_US + 10_000).is_some());
+}
