@@ -22,23 +22,7 @@ const MAX_KEY_FILE: u64 = 256;
 /// key that is not all zeros. The error says the cause and what to do, without the path (the
 /// caller's diagnostic names the file).
 pub fn read(path: &Path) -> Result<Key, String> {
-    use std::os::unix::fs::PermissionsExt;
-    pab_lang::input::regular_file(path, "key file", MAX_KEY_FILE)
-        .map_err(|diagnostic| diagnostic.message)?;
-    let mode = std::fs::metadata(path)
-        .map_err(|error| format!("cannot read the key file: {error}"))?
-        .permissions()
-        .mode();
-    if mode & 0o077 != 0 {
-        return Err(format!(
-            "mode {:04o} lets other users read the key: `chmod 600 {}` (and make a new key if \
-             someone may have read it)",
-            mode & 0o7777,
-            path.display()
-        ));
-    }
-    let text = pab_lang::input::read_text(path, "key file", MAX_KEY_FILE)
-        .map_err(|diagnostic| diagnostic.message)?;
+    let text = read_private(path, "key", "make a new key if someone may have read it")?;
     let key = Key::from_hex(&text).map_err(|error| format!("line 1: {error}"))?;
     if key == Key::from_bytes([0; KEY_LEN]) {
         return Err(
@@ -50,17 +34,56 @@ pub fn read(path: &Path) -> Result<Key, String> {
     Ok(key)
 }
 
-/// A new random key, from the operating system's random source.
-pub fn generate() -> Result<Key, String> {
-    let mut bytes = [0u8; KEY_LEN];
+/// The text of a private file holding a `what` (a node key, a signing key): a regular file of
+/// at most 256 bytes that only its owner may read, else an error that says so and then
+/// `advice`. Shared by node keys and signing keys ([`crate::signing`]).
+pub fn read_private(path: &Path, what: &str, advice: &str) -> Result<String, String> {
+    use std::os::unix::fs::PermissionsExt;
+    let file = format!("{what} file");
+    pab_lang::input::regular_file(path, &file, MAX_KEY_FILE)
+        .map_err(|diagnostic| diagnostic.message)?;
+    let mode = std::fs::metadata(path)
+        .map_err(|error| format!("cannot read the {file}: {error}"))?
+        .permissions()
+        .mode();
+    if mode & 0o077 != 0 {
+        return Err(format!(
+            "mode {:04o} lets other users read the {what}: `chmod 600 {}` ({advice})",
+            mode & 0o7777,
+            path.display()
+        ));
+    }
+    pab_lang::input::read_text(path, &file, MAX_KEY_FILE).map_err(|diagnostic| diagnostic.message)
+}
+
+/// `N` random bytes from the operating system's random source.
+pub fn random<const N: usize>() -> Result<[u8; N], String> {
+    let mut bytes = [0u8; N];
     std::fs::File::open("/dev/urandom")
         .and_then(|mut random| random.read_exact(&mut bytes))
         .map_err(|error| format!("/dev/urandom: {error}"))?;
-    Ok(Key::from_bytes(bytes))
+    Ok(bytes)
+}
+
+/// A new random key, from the operating system's random source.
+pub fn generate() -> Result<Key, String> {
+    random().map(Key::from_bytes)
 }
 
 /// Writes `key` to a new file at `path`, mode 0600; refuses to overwrite anything.
 pub fn write_new(path: &Path, key: &Key) -> Result<(), String> {
+    let mut text = key.to_hex().to_vec();
+    text.push(b'\n');
+    write_private(
+        path,
+        &text,
+        "the nodes keyed with it would be locked out of configuration",
+    )
+}
+
+/// Writes `text` to a new file at `path`, mode 0600, synced; refuses to overwrite anything, and
+/// says why with `why` (what a new key in its place would break).
+pub fn write_private(path: &Path, text: &[u8], why: &str) -> Result<(), String> {
     let mut file = OpenOptions::new()
         .write(true)
         .create_new(true)
@@ -68,15 +91,13 @@ pub fn write_new(path: &Path, key: &Key) -> Result<(), String> {
         .open(path)
         .map_err(|error| match error.kind() {
             std::io::ErrorKind::AlreadyExists => format!(
-                "{}: exists; keygen never overwrites a key (the nodes keyed with it would be \
-                 locked out of configuration): choose another name or remove it first",
+                "{}: exists; keygen never overwrites a key ({why}): choose another name or \
+                 remove it first",
                 path.display()
             ),
             _ => format!("{}: {error}", path.display()),
         })?;
-    let mut text = key.to_hex().to_vec();
-    text.push(b'\n');
-    file.write_all(&text)
+    file.write_all(text)
         .and_then(|()| file.sync_all())
         .map_err(|error| format!("{}: {error}", path.display()))
 }

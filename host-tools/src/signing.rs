@@ -8,17 +8,11 @@
 //! ([`crate::keys`]), for the same reasons, and more so: whoever holds it can make every board
 //! of a kind run their code.
 
-use std::fs::OpenOptions;
-use std::io::{Read, Write};
-use std::os::unix::fs::OpenOptionsExt;
 use std::path::Path;
 
 use ed25519_dalek::{Signer, SigningKey};
 use pab_core::identity::Firmware;
 use pab_core::update::{self, Trailer};
-
-/// The largest signing key file read.
-const MAX_KEY_FILE: u64 = 256;
 
 /// What `sign` writes into the trailer besides the length: the board kind (the firmware's
 /// name), the version, the build id and the downgrade flag, checked.
@@ -71,23 +65,11 @@ pub fn build_id(text: &str) -> Result<[u8; 8], String> {
 
 /// Reads a signing key file (see the module).
 pub fn read_key(path: &Path) -> Result<SigningKey, String> {
-    use std::os::unix::fs::PermissionsExt;
-    pab_lang::input::regular_file(path, "signing key file", MAX_KEY_FILE)
-        .map_err(|diagnostic| diagnostic.message)?;
-    let mode = std::fs::metadata(path)
-        .map_err(|error| format!("cannot read the signing key file: {error}"))?
-        .permissions()
-        .mode();
-    if mode & 0o077 != 0 {
-        return Err(format!(
-            "mode {:04o} lets other users read the signing key: `chmod 600 {}` (and make a new \
-             key, and give the boards its public key, if someone may have read it)",
-            mode & 0o7777,
-            path.display()
-        ));
-    }
-    let text = pab_lang::input::read_text(path, "signing key file", MAX_KEY_FILE)
-        .map_err(|diagnostic| diagnostic.message)?;
+    let text = crate::keys::read_private(
+        path,
+        "signing key",
+        "and make a new key, and give the boards its public key, if someone may have read it",
+    )?;
     let hex = text.strip_suffix('\n').unwrap_or(&text);
     if hex.len() != 64 || !hex.bytes().all(|b| b.is_ascii_hexdigit()) {
         return Err(format!(
@@ -117,33 +99,18 @@ pub fn read_key(path: &Path) -> Result<SigningKey, String> {
 
 /// A new signing key from the operating system's random source.
 pub fn generate() -> Result<SigningKey, String> {
-    let mut secret = [0u8; 32];
-    std::fs::File::open("/dev/urandom")
-        .and_then(|mut random| random.read_exact(&mut secret))
-        .map_err(|error| format!("/dev/urandom: {error}"))?;
-    Ok(SigningKey::from_bytes(&secret))
+    crate::keys::random().map(|secret| SigningKey::from_bytes(&secret))
 }
 
 /// Writes `key` to a new file at `path`, mode 0600; refuses to overwrite anything.
 pub fn write_new(path: &Path, key: &SigningKey) -> Result<(), String> {
-    let mut file = OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .mode(0o600)
-        .open(path)
-        .map_err(|error| match error.kind() {
-            std::io::ErrorKind::AlreadyExists => format!(
-                "{}: exists; keygen never overwrites a key (the boards that hold its public key \
-                 would take no image signed by a new one): choose another name or remove it first",
-                path.display()
-            ),
-            _ => format!("{}: {error}", path.display()),
-        })?;
     let mut text = hex(&key.to_bytes());
     text.push('\n');
-    file.write_all(text.as_bytes())
-        .and_then(|()| file.sync_all())
-        .map_err(|error| format!("{}: {error}", path.display()))
+    crate::keys::write_private(
+        path,
+        text.as_bytes(),
+        "the boards that hold its public key would take no image signed by a new one",
+    )
 }
 
 /// Lower-case hexadecimal.
