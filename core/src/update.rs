@@ -52,6 +52,11 @@ pub const SIGNATURE_LEN: usize = 64;
 pub const PUBLIC_KEY_LEN: usize = 32;
 /// What a signed image adds to its image: the trailer and the signature.
 pub const OVERHEAD: usize = TRAILER_LEN + SIGNATURE_LEN;
+/// A manifest's length: the trailer and the signature, as a node stores them for its bootloader
+/// ([`stored`]).
+pub const MANIFEST_LEN: usize = OVERHEAD;
+
+pub mod stored;
 
 /// Flag bit 0: the image may replace a firmware of a higher version.
 const DOWNGRADE: u8 = 1;
@@ -79,11 +84,13 @@ pub enum UpdateRefusal {
     Downgrade,
     /// The signature does not verify under the node's public key (another key, or bytes changed).
     BadSignature,
+    /// The bootloader could not read the update partition.
+    Unreadable,
 }
 
 impl UpdateRefusal {
     /// A number for this refusal, for the wire: 1 truncated, 2 bad trailer, 3 too large, 4 other
-    /// board, 5 downgrade, 6 bad signature.
+    /// board, 5 downgrade, 6 bad signature, 7 unreadable.
     pub const fn code(self) -> u8 {
         match self {
             UpdateRefusal::Truncated => 1,
@@ -92,6 +99,7 @@ impl UpdateRefusal {
             UpdateRefusal::OtherBoard => 4,
             UpdateRefusal::Downgrade => 5,
             UpdateRefusal::BadSignature => 6,
+            UpdateRefusal::Unreadable => 7,
         }
     }
 }
@@ -112,6 +120,7 @@ impl fmt::Display for UpdateRefusal {
             UpdateRefusal::BadSignature => {
                 f.write_str("the signature does not verify under the node's public key")
             }
+            UpdateRefusal::Unreadable => f.write_str("the update partition could not be read"),
         }
     }
 }

@@ -4,7 +4,9 @@
 
 use ed25519_dalek::{Signer, SigningKey};
 use pab_core::identity::Firmware;
-use pab_core::update::{self, SIGNATURE_LEN, SignedImage, TRAILER_LEN, Trailer, UpdateRefusal};
+use pab_core::update::{
+    self, SIGNATURE_LEN, SignedImage, TRAILER_LEN, Trailer, UpdateRefusal, stored,
+};
 use proptest::prelude::*;
 
 const CAPACITY: u32 = 4096;
@@ -124,4 +126,114 @@ proptest! {
         let cut = cut.index(signed.len());
         prop_assert!(check(&signed[..cut], &key(4)).is_err());
     }
+}
+
+/// A slot of `slot_len` bytes as a node leaves it: `signed`'s image at offset 0, its trailer and
+/// signature at the slot's end, erased (0xFF) between.
+fn stored(signed: &[u8], slot_len: u32) -> Vec<u8> {
+    let parsed = SignedImage::parse(signed).unwrap();
+    let mut slot = vec![0xFFu8; slot_len as usize];
+    slot[..parsed.image().len()].copy_from_slice(parsed.image());
+    let manifest = stored::Manifest {
+        trailer: parsed.trailer,
+        signature: *parsed.signature,
+    };
+    let at = stored::manifest_offset(slot_len).unwrap() as usize;
+    slot[at..].copy_from_slice(&manifest.encode());
+    slot
+}
+
+fn check_slot(slot: &[u8], board: &str, public: &SigningKey) -> Result<Trailer, UpdateRefusal> {
+    let board = Firmware::new(board, "0.0.0", "0").name;
+    stored::check(
+        slot.len() as u32,
+        &board,
+        &public.verifying_key().to_bytes(),
+        |offset, buf: &mut [u8]| {
+            let offset = offset as usize;
+            buf.copy_from_slice(slot.get(offset..offset + buf.len()).ok_or(())?);
+            Ok::<(), ()>(())
+        },
+    )
+}
+
+#[test]
+fn the_bootloader_admits_a_stored_image_signed_for_its_board_and_nothing_else() {
+    let image: Vec<u8> = (0..3000u32).map(|i| (i * 13 + 5) as u8).collect();
+    let firmware = Firmware::new("fw-g474", "2.0.0", "1122334455667788");
+    let slot = stored(&sign(&key(1), &image, firmware, false), 4096);
+    assert_eq!(
+        check_slot(&slot, "fw-g474", &key(1)).unwrap().firmware,
+        firmware
+    );
+    assert_eq!(
+        check_slot(&slot, "fw-g474", &key(2)),
+        Err(UpdateRefusal::BadSignature)
+    );
+    assert_eq!(
+        check_slot(&slot, "fw-f446", &key(1)),
+        Err(UpdateRefusal::OtherBoard)
+    );
+    // A byte of the image, of the padding the hash does not cover, of the manifest.
+    let mut changed = slot.clone();
+    changed[2999] ^= 1;
+    assert_eq!(
+        check_slot(&changed, "fw-g474", &key(1)),
+        Err(UpdateRefusal::BadSignature)
+    );
+    let mut padding = slot.clone();
+    padding[3500] = 0;
+    assert!(check_slot(&padding, "fw-g474", &key(1)).is_ok());
+    let mut build = slot.clone();
+    build[4096 - 96 + 20] ^= 1;
+    assert_eq!(
+        check_slot(&build, "fw-g474", &key(1)),
+        Err(UpdateRefusal::BadSignature)
+    );
+    // An erased slot has no manifest; a manifest whose image overruns it is refused unread.
+    assert_eq!(
+        check_slot(&[0xFF; 4096], "fw-g474", &key(1)),
+        Err(UpdateRefusal::BadTrailer)
+    );
+    let mut long = slot.clone();
+    long[4096 - 96 + 28..4096 - 96 + 32].copy_from_slice(&4001u32.to_le_bytes());
+    assert_eq!(
+        check_slot(&long, "fw-g474", &key(1)),
+        Err(UpdateRefusal::TooLarge {
+            len: 4001,
+            capacity: 4000
+        })
+    );
+    // A slot that cannot be read is refused, not admitted.
+    let board = Firmware::new("fw-g474", "0.0.0", "0").name;
+    let unreadable = stored::check(4096, &board, &key(1).verifying_key().to_bytes(), |_, _| {
+        Err::<(), ()>(())
+    });
+    assert_eq!(unreadable, Err(UpdateRefusal::Unreadable));
+}
+
+#[test]
+fn the_request_page_reads_as_each_step_leaves_it() {
+    let mut page = [0xFFu8; 16];
+    assert_eq!(stored::Request::read(&page), stored::Request::None);
+    page[..8].copy_from_slice(&stored::REQUEST);
+    assert_eq!(stored::Request::read(&page), stored::Request::Pending);
+    page[8..].copy_from_slice(&stored::verdict(Ok(())));
+    assert_eq!(
+        stored::Request::read(&page),
+        stored::Request::Decided(Ok(()))
+    );
+    page[8..].copy_from_slice(&stored::verdict(Err(UpdateRefusal::BadSignature)));
+    assert_eq!(
+        stored::Request::read(&page),
+        stored::Request::Decided(Err(6))
+    );
+    // A verdict half written, or with a code no refusal has, is decided again.
+    page[15] = 0xFF;
+    assert_eq!(stored::Request::read(&page), stored::Request::Pending);
+    page[12] = 0;
+    page[15] = 0;
+    assert_eq!(stored::Request::read(&page), stored::Request::Pending);
+    // A page of zeros (the emulated board's flash before its first erase) holds no request.
+    assert_eq!(stored::Request::read(&[0; 16]), stored::Request::None);
 }
