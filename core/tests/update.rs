@@ -237,3 +237,18 @@ fn the_request_page_reads_as_each_step_leaves_it() {
     // A page of zeros (the emulated board's flash before its first erase) holds no request.
     assert_eq!(stored::Request::read(&[0; 16]), stored::Request::None);
 }
+
+#[test]
+fn the_update_key_record_reads_back_and_nothing_else_reads_as_a_key() {
+    let public = key(3).verifying_key().to_bytes();
+    let record = stored::encode_key(&public);
+    assert_eq!(&record[..8], b"PABS\x01\0\0\0");
+    assert_eq!(stored::decode_key(&record), Some(public));
+    for at in 0..stored::KEY_RECORD_LEN {
+        let mut changed = record;
+        changed[at] ^= 0x10;
+        assert_eq!(stored::decode_key(&changed), None, "byte {at} changed");
+    }
+    assert_eq!(stored::decode_key(&[0xFF; stored::KEY_RECORD_LEN]), None);
+    assert_eq!(stored::decode_key(&record[..47]), None);
+}

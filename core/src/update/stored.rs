@@ -29,7 +29,8 @@
 //! then marks the swap (a reset between the two loses the update, and the old firmware runs);
 //! the application reads the verdict at start, reports it and erases the page.
 
-use super::{MANIFEST_LEN, SIGNATURE_LEN, TRAILER_LEN, Trailer, UpdateRefusal};
+use super::{MANIFEST_LEN, PUBLIC_KEY_LEN, SIGNATURE_LEN, TRAILER_LEN, Trailer, UpdateRefusal};
+use crate::crc32::crc32;
 
 /// The request record: the slot holds an image to check and swap in.
 pub const REQUEST: [u8; 8] = *b"PABUREQ1";
@@ -86,6 +87,48 @@ impl Request {
             }
             _ => Request::Pending,
         }
+    }
+}
+
+/// Where the update key's record lies in the key page: after the node key's record
+/// (`auth::page`, 32 bytes), at a double word's boundary.
+pub const KEY_RECORD_OFFSET: usize = 64;
+/// The update key record's length: magic "PABS", format 1, three zeros, the Ed25519 public key
+/// (32 bytes), the CRC-32 of the 40 bytes before it (little endian), four zeros.
+pub const KEY_RECORD_LEN: usize = 48;
+const KEY_MAGIC: [u8; 4] = *b"PABS";
+
+/// The update key's record in the key page, for `public_key` (`pabctl keypage --update-key`
+/// writes it). The bootloader reads it; it cannot be changed over the bus.
+pub fn encode_key(public_key: &[u8; PUBLIC_KEY_LEN]) -> [u8; KEY_RECORD_LEN] {
+    let mut out = [0u8; KEY_RECORD_LEN];
+    let (head, tail) = out.split_at_mut(40);
+    let (magic, rest) = head.split_at_mut(4);
+    magic.copy_from_slice(&KEY_MAGIC);
+    let (format, key) = rest.split_at_mut(4);
+    format.copy_from_slice(&[1, 0, 0, 0]);
+    key.copy_from_slice(public_key);
+    let crc = crc32(head).to_le_bytes();
+    let (crc_field, _) = tail.split_at_mut(4);
+    crc_field.copy_from_slice(&crc);
+    out
+}
+
+/// Reads the update key's record from the key page's bytes at [`KEY_RECORD_OFFSET`]: `None`
+/// when there is none or it does not verify (erased, another magic or format, a reserved byte
+/// set, a CRC that does not match). A board without an update key takes no update.
+pub fn decode_key(record: &[u8]) -> Option<[u8; PUBLIC_KEY_LEN]> {
+    let record = <&[u8; KEY_RECORD_LEN]>::try_from(record.get(..KEY_RECORD_LEN)?).ok()?;
+    let (head, tail) = record.split_at(40);
+    let (prefix, key) = head.split_at(8);
+    let (crc_field, reserved) = tail.split_at(4);
+    let valid = prefix == [b'P', b'A', b'B', b'S', 1, 0, 0, 0]
+        && crc32(head).to_le_bytes() == crc_field
+        && reserved == [0; 4];
+    if valid {
+        <[u8; PUBLIC_KEY_LEN]>::try_from(key).ok()
+    } else {
+        None
     }
 }
 
