@@ -56,7 +56,12 @@ pub const OVERHEAD: usize = TRAILER_LEN + SIGNATURE_LEN;
 /// ([`stored`]).
 pub const MANIFEST_LEN: usize = OVERHEAD;
 
+pub mod session;
 pub mod stored;
+
+/// The shortest image a node takes: a vector table's first two words (the initial stack pointer
+/// and the reset handler), without which a bootloader would jump into nothing.
+pub const MIN_IMAGE_LEN: u32 = 8;
 
 /// Flag bit 0: the image may replace a firmware of a higher version.
 const DOWNGRADE: u8 = 1;
@@ -67,7 +72,8 @@ const DOWNGRADE: u8 = 1;
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[non_exhaustive]
 pub enum UpdateRefusal {
-    /// Shorter than a trailer and a signature, or not as long as its trailer says.
+    /// Shorter than a trailer and a signature, not as long as its trailer says, or an image too
+    /// short to hold a vector table ([`MIN_IMAGE_LEN`]).
     Truncated,
     /// The trailer is not one: its magic, its format or a reserved field.
     BadTrailer,
@@ -183,10 +189,14 @@ impl Trailer {
     }
 
     /// Whether a node running `running`, whose update partition takes images of up to
-    /// `capacity` bytes, may take this image (its signature aside: [`verify`]). The board kind
+    /// `capacity` bytes, may take this image (its signature aside: [`verify`]). An image shorter
+    /// than [`MIN_IMAGE_LEN`] is [`UpdateRefusal::Truncated`]. The board kind
     /// is the firmware's name; a version equal to the running one is admitted (the same
     /// release built again, or re-flashed).
     pub fn admits(&self, running: &Firmware, capacity: u32) -> Result<(), UpdateRefusal> {
+        if self.image_len < MIN_IMAGE_LEN {
+            return Err(UpdateRefusal::Truncated);
+        }
         if self.image_len > capacity {
             return Err(UpdateRefusal::TooLarge {
                 len: self.image_len,

@@ -21,6 +21,7 @@ mod isotp;
 mod schema_server;
 mod seal;
 mod swap;
+mod update_session;
 mod value_ports;
 mod wire;
 

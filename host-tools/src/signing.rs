@@ -119,10 +119,17 @@ pub fn hex(bytes: &[u8]) -> String {
 }
 
 /// `image` signed by `key` as `signed` says: the image, its trailer, the signature of the
-/// SHA-512 digest of both (pab-core's `update` module). Fails for an image longer than 4 GiB.
+/// SHA-512 digest of both (pab-core's `update` module). Fails for an image longer than 4 GiB, or
+/// shorter than a vector table's first two words (no board would take it).
 pub fn sign(key: &SigningKey, image: &[u8], signed: Signed) -> Result<Vec<u8>, String> {
     let image_len = u32::try_from(image.len())
         .map_err(|_| format!("the image is {} bytes: at most 4 GiB", image.len()))?;
+    if image_len < update::MIN_IMAGE_LEN {
+        return Err(format!(
+            "the image is {image_len} bytes: a firmware starts with its vector table, at least {} bytes",
+            update::MIN_IMAGE_LEN
+        ));
+    }
     let trailer = Trailer {
         firmware: signed.firmware,
         downgrade: signed.downgrade,
@@ -147,7 +154,7 @@ mod tests {
         let firmware = Firmware::new("fw-an386", "0.2.0", "abcdef");
         let bytes = sign(
             &key,
-            &[1, 2, 3],
+            &[1, 2, 3, 4, 5, 6, 7, 8],
             Signed {
                 firmware,
                 downgrade: false,
@@ -155,7 +162,18 @@ mod tests {
         )
         .unwrap();
         let parsed = SignedImage::parse(&bytes).unwrap();
-        assert_eq!(parsed.image(), &[1, 2, 3]);
+        assert_eq!(parsed.image(), &[1, 2, 3, 4, 5, 6, 7, 8]);
+        assert!(
+            sign(
+                &key,
+                &[0; 7],
+                Signed {
+                    firmware,
+                    downgrade: false
+                }
+            )
+            .is_err()
+        );
         let running = Firmware::new("fw-an386", "0.1.0", "0");
         let public = key.verifying_key().to_bytes();
         assert_eq!(

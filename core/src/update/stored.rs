@@ -191,6 +191,9 @@ pub fn check<E>(
             capacity: capacity(slot_len),
         });
     }
+    if len < super::MIN_IMAGE_LEN {
+        return Err(UpdateRefusal::Truncated);
+    }
     if manifest.trailer.firmware.name != *board {
         return Err(UpdateRefusal::OtherBoard);
     }

@@ -26,6 +26,7 @@ pub mod protocol;
 pub mod schema;
 pub mod seal;
 pub mod update;
+pub mod update_session;
 
 mod crc;
 mod examples;
@@ -109,6 +110,10 @@ pub const TARGETS: &[Target] = &[
     Target {
         name: "update",
         check: update::check,
+    },
+    Target {
+        name: "update_session",
+        check: update_session::check,
     },
 ];
 

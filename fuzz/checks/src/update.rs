@@ -85,12 +85,15 @@ fn edited(u: &mut Unstructured<'_>) -> Result<()> {
     let original = signed.clone();
     let public = key().verifying_key().to_bytes();
     // The rules, modelled apart from `Trailer::admits`: its board kind, a version not lower
-    // (compared part by part) unless signed as a downgrade, an image that fits.
+    // (compared part by part) unless signed as a downgrade, an image that fits and holds a
+    // vector table's first two words.
     let now = running();
     let not_lower =
         (version[0], version[1], version[2]) >= (now.version[0], now.version[1], now.version[2]);
-    let admissible =
-        firmware.name == now.name && (not_lower || downgrade) && image.len() as u32 <= CAPACITY;
+    let admissible = firmware.name == now.name
+        && (not_lower || downgrade)
+        && image.len() as u32 <= CAPACITY
+        && image.len() >= 8;
     let outcome = |bytes: &[u8]| {
         SignedImage::parse(bytes).and_then(|parsed| parsed.check(&running(), CAPACITY, &public))
     };

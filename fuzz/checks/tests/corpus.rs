@@ -75,7 +75,8 @@ fn every_target_has_a_replay_test() {
             "node_keyed",
             "node_schema",
             "seal",
-            "update"
+            "update",
+            "update_session"
         ]
     );
 }
@@ -163,4 +164,9 @@ fn seal() {
 #[test]
 fn update() {
     replay("update");
+}
+
+#[test]
+fn update_session() {
+    replay("update_session");
 }
