@@ -26,6 +26,7 @@
 //! new one starts with them zeroed).
 
 #![no_std]
+#![warn(missing_docs)]
 
 use embedded_storage::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,

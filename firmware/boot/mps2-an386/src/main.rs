@@ -33,6 +33,9 @@
 
 use core::cell::RefCell;
 
+// The boards' memcpy and memset: smaller than compiler_builtins' (the crate's Cargo.toml).
+use pab_builtins as _;
+
 use embassy_boot::{BlockingFirmwareState, BootLoader, BootLoaderConfig, State as BootState};
 use embedded_storage::nor_flash::{NorFlash, ReadNorFlash};
 use pab_boot_an386::{Active, Dfu, RequestPage, State, layout};
