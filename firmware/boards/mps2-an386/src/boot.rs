@@ -13,7 +13,7 @@
 //!    passed; the firmware that runs next reads the verdict with [`take_verdict`] (and reports
 //!    it).
 //! 4. A swapped-in firmware calls [`mark_booted`] once it has shown that it works (heartbeat
-//!    sent, bus heard, table loaded: docs DESIGN, "Firmware update: decisions"); until then
+//!    sent, bus heard, table loaded: the design's "Firmware update: decisions"); until then
 //!    [`state`] says `Swap`, and a reset (its own, or its watchdog's when it hangs) makes the
 //!    bootloader revert to the firmware before it.
 //!
@@ -86,7 +86,8 @@ pub fn request_update() -> Result<(), BootError> {
 }
 
 /// The bootloader's verdict on the last request, once: `Some(Ok(()))` swapped in (the running
-/// firmware is the update, unless it was since reverted: compare its version), `Some(Err(code))`
+/// firmware is the update, unless it was since reverted or a reset came between the verdict and
+/// the swap's mark: compare its version with the one asked for), `Some(Err(code))`
 /// refused (`UpdateRefusal::code`: 4 another board, 6 a bad signature or no update key, ...),
 /// and the request page erased; `None` when there is no decided request (none, or one the
 /// bootloader has not seen yet).

@@ -12,9 +12,10 @@
 //!    DFU slot (`update::stored::check`: manifest, capacity, board name, the Ed25519 signature
 //!    under the key page's update key; no key, no update: `BadSignature`), write the verdict,
 //!    and only then, if it passed, mark the swap in the state partition (embassy-boot's
-//!    `mark_updated`). A reset between the two leaves a verdict without a swap: the update is
-//!    lost, the old firmware runs and reads "swapped" it must not believe without its version
-//!    (docs/mps2-an386.md); the other order could swap an image whose verdict says nothing.
+//!    `mark_updated`). A reset between the two leaves a verdict of `Ok` without a swap: the
+//!    update is lost and the old firmware runs, so an application must check its own version
+//!    against the one it asked for before it believes an `Ok`; the other order could swap in
+//!    an image with no verdict written for it (update::stored's documentation).
 //! 3. **embassy-boot's `prepare_boot`**: swaps when the state says Swap and the swap has not
 //!    been done (its progress records say so, so a reset mid-swap resumes it); **reverts** when
 //!    the state still says Swap after a completed swap, that is, when the swapped-in application
