@@ -19,7 +19,8 @@
 # identical verdicts), the emulated board's time check across its timer's wraps and its builtins
 # check, the panic check of the board firmware (scripts/panic-check.sh, built with its panic
 # locations), the emulated board's watchdog and stack-guard
-# test (scripts/watchdog-test.sh: a hung loop, an overflowed stack), the keyed emulated board
+# test (scripts/watchdog-test.sh: a hung loop, an overflowed stack), the emulated board's
+# bootloader (scripts/boot-test.sh: updates swapped, reverted, refused), the keyed emulated board
 # (scripts/keyed-board-test.sh), and the
 # hardware-in-the-loop suite (hil-sim/run-hil: on vcan0, or in a micro-VM; PAB_HIL_ACCEL=
 # auto|kvm|tcg picks its accelerator), whose fresh Take and Return log then goes through the
@@ -221,6 +222,13 @@ step "emulated Cortex-M4: the watchdog restarts a hung node loop, an overflowed 
 # A hang-test build spins in its node loop on a trigger frame; the CMSDK APB watchdog must reset
 # the machine and the node boot again with its stored table. The production build has no trigger.
 scripts/watchdog-test.sh
+
+step "emulated Cortex-M4: the bootloader installs, checks, swaps, reverts and refuses updates (scripts/boot-test.sh, QEMU)"
+# pab-boot-an386 (embassy-boot) with a test application behind it: a signed update swapped in and
+# confirmed; one unconfirmed (a reset, a watchdog's reset) reverted; another key's, another
+# board's, a changed one refused with the verdict's code and never swapped; the node firmware
+# booted from the active partition. Fails if the bootloader outgrows its 32 KiB.
+scripts/boot-test.sh
 
 step "emulated Cortex-M4 with a key: scripts/keyed-board-test.sh (QEMU)"
 # A key page from `pabctl keygen`/`pabctl keypage` planted at the board's key page: keyed in its

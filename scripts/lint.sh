@@ -4,8 +4,9 @@
 # clippy on the host crates (every target: libraries, binaries, tests, benches, examples) and on
 # the boards' crates for thumbv7em-none-eabihf (the core with and without defmt, the storage, the
 # node application with and without embassy, the three firmwares in release as they are flashed,
-# the SLCAN codec, the builtins and the example firmware on bxCAN); then rustdoc on the host
-# crates, where a broken or ambiguous intra-doc link fails.
+# the emulated board's bootloader and the board behind it, the SLCAN codec, the builtins and the
+# example firmware on bxCAN); then rustdoc on the host crates, where a broken or ambiguous
+# intra-doc link fails.
 # ./test.sh runs it in the background while the other steps run; alone it takes about two
 # minutes from an empty target directory on two cores.
 set -euo pipefail
@@ -28,6 +29,10 @@ cargo clippy -p pab-slcan --target thumbv7em-none-eabihf --locked -- -D warnings
 cargo clippy -p pab-builtins --target thumbv7em-none-eabihf --locked -- -D warnings
 # With the cost binary's firmware-update case (`update-cost`), as scripts/cortex-m4-cost.sh builds it.
 cargo clippy -p pab-fw-an386 --features update-cost --target thumbv7em-none-eabihf --release --locked -- -D warnings
+# The emulated board's bootloader, and the board behind it (feature `boot`: src/boot.rs and the
+# bootloader's test application).
+cargo clippy -p pab-boot-an386 --target thumbv7em-none-eabihf --release --locked -- -D warnings
+cargo clippy -p pab-fw-an386 --features boot --target thumbv7em-none-eabihf --release --locked -- -D warnings
 cargo clippy -p pab-own-driver --features board --target thumbv7em-none-eabihf --release --locked -- -D warnings
 
 # The host crates' documentation: a broken or ambiguous intra-doc link fails.

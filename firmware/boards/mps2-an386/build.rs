@@ -1,5 +1,6 @@
 //! Linker scripts for the binaries only: cortex-m-rt's `link.x`, which includes this crate's
-//! `memory.x` and (cortex-m-rt's `device` feature) `device.x`, the interrupt handlers' default
+//! `memory.x` (`memory-boot.x` with the feature `boot`: the program behind the bootloader) and
+//! (cortex-m-rt's `device` feature) `device.x`, the interrupt handlers' default
 //! names. Doing it here rather than in a `.cargo/config.toml` keeps them off the libraries built
 //! for the same target.
 
@@ -9,10 +10,17 @@ use std::path::PathBuf;
 
 fn main() {
     let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
-    fs::write(out.join("memory.x"), include_bytes!("memory.x")).expect("writing memory.x");
+    // With the bootloader (feature `boot`) the program starts at the active partition.
+    let memory: &[u8] = if env::var_os("CARGO_FEATURE_BOOT").is_some() {
+        include_bytes!("memory-boot.x")
+    } else {
+        include_bytes!("memory.x")
+    };
+    fs::write(out.join("memory.x"), memory).expect("writing memory.x");
     fs::write(out.join("device.x"), include_bytes!("device.x")).expect("writing device.x");
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rerun-if-changed=memory.x");
+    println!("cargo:rerun-if-changed=memory-boot.x");
     println!("cargo:rerun-if-changed=device.x");
     println!("cargo:rerun-if-changed=build.rs");
     println!("cargo:rerun-if-env-changed=PAB_NODE_ID");

@@ -14,6 +14,7 @@
 //! - [`ram_flash`]: the table store's flash;
 //! - [`logger`], [`semihosting`]: text on QEMU's standard error, and the exit status.
 //! - [`watchdog`]: the node loop's watchdog (the CMSDK APB watchdog at 0x4000_8000).
+//! - `boot` (feature `boot`): the application's side of the bootloader (firmware/boot/mps2-an386).
 //!
 //! Memory map (QEMU's model of AN386, `memory.x`): code RAM (SSRAM1) at 0x0000_0000 (program
 //! below 0x0004_0000, table store 0x0004_0000..0x0004_C000), data RAM (SSRAM2/3) at 0x2000_0000,
@@ -26,6 +27,8 @@
 // than compiler_builtins'.
 use pab_builtins as _;
 
+#[cfg(feature = "boot")]
+pub mod boot;
 pub mod cmsdk;
 pub mod interrupts;
 pub mod logger;
