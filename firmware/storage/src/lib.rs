@@ -182,11 +182,13 @@ mod error;
 pub mod settings;
 #[cfg(feature = "mem-flash")]
 pub mod testing;
+pub mod update;
 
 pub use background::{BackgroundErase, Blocking};
 pub use boot_counter::BootCounter;
 pub use error::{CounterError, FlashErrorKind, LayoutError, StoreError};
 pub use settings::SettingsPage;
+pub use update::{UpdateSlot, WithUpdate};
 
 use core::ops::Range;
 
@@ -235,6 +237,42 @@ pub trait TableStore {
     fn save_settings(&mut self, record: u16) -> Result<bool, StoreError> {
         let _ = record;
         Ok(false)
+    }
+
+    /// The firmware update's slot length in bytes (the active partition's:
+    /// `pab_core::update::stored`); 0, the default, for a store without an update partition,
+    /// which takes no update. [`WithUpdate`] gives a store one.
+    fn update_slot_len(&self) -> u32 {
+        0
+    }
+
+    /// Writes an update's chunk at `offset` of the slot, erasing the pages it starts
+    /// ([`UpdateSlot::write`]). Blocking. The default: out of bounds (there is no slot).
+    fn write_update(&mut self, offset: u32, data: &[u8]) -> Result<(), StoreError> {
+        let _ = (offset, data);
+        Err(StoreError::Flash(FlashErrorKind::OutOfBounds))
+    }
+
+    /// Stores the update's manifest and asks the bootloader to check and swap it in at the next
+    /// reset ([`UpdateSlot::request`]). The default: out of bounds.
+    fn request_update(
+        &mut self,
+        manifest: &[u8; pab_core::update::MANIFEST_LEN],
+    ) -> Result<(), StoreError> {
+        let _ = manifest;
+        Err(StoreError::Flash(FlashErrorKind::OutOfBounds))
+    }
+
+    /// The bootloader's verdict on the last request, taken once ([`UpdateSlot::take_verdict`]).
+    /// The default: none.
+    fn take_update_verdict(&mut self) -> Result<Option<Result<(), u8>>, StoreError> {
+        Ok(None)
+    }
+
+    /// Confirms the running firmware to the bootloader, which then never reverts it; whether it
+    /// could. The default (no bootloader): nothing to confirm, `true`.
+    fn confirm_firmware(&mut self) -> bool {
+        true
     }
 }
 

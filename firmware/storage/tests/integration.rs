@@ -9,4 +9,5 @@ mod boot_counter;
 mod power_loss;
 mod steps;
 mod store;
+mod update_slot;
 mod wear;
