@@ -107,7 +107,7 @@ fn the_verdict_is_taken_once_and_a_slot_that_is_not_whole_pages_is_refused() {
         Ok(None),
         "pending: the bootloader has not decided"
     );
-    drop(slot);
+    let _ = slot;
     use embedded_storage::nor_flash::NorFlash;
     page.write(stored::VERDICT_OFFSET, &stored::verdict(Ok(())))
         .unwrap();
