@@ -11,7 +11,7 @@ use pab_core::identity::{Identity, IdentityPart, IdentityParts};
 use pab_core::protocol::{
     ConfigStatus, DiagnosticSample, Errors, Fault, FaultCode, FilterStatus, FrameId, Gates,
     Heartbeat, Message, STORE_UNREADABLE, SchemaAck, SchemaState, SchemaTransition, StoreFailure,
-    TableStatus, Traffic, TransferStatus, TransferStatusCode,
+    TableStatus, Traffic, TransferStatus, TransferStatusCode, UpdateStatus,
 };
 
 /// The latest of everything a node said.
@@ -47,6 +47,9 @@ pub struct NodeView {
     pub identity_parts: IdentityParts,
     /// Its latest answer to an Assign or a Configure, and when it arrived.
     pub config_status: Option<(ConfigStatus, Instant)>,
+    /// Its latest firmware-update status (an answer to an UpdateTransfer message, or its report
+    /// at start), and when it arrived.
+    pub update_status: Option<(UpdateStatus, Instant)>,
 }
 
 /// Every node heard from, by id.
@@ -98,6 +101,7 @@ impl Observer {
                 }
             }
             Message::ConfigStatus(status) => view.config_status = Some((status, at)),
+            Message::UpdateStatus(status) => view.update_status = Some((status, at)),
             Message::IdentityRequest | Message::Assign(_) | Message::Configure(_) => {}
             Message::EmergencyStop
             | Message::SchemaAbort
@@ -110,6 +114,7 @@ impl Observer {
             | Message::FilterSet(_)
             | Message::AuthenticatedDiagnosticControl { .. }
             | Message::TableTransfer { .. }
+            | Message::UpdateTransfer { .. }
             | Message::ChallengeRequest { .. }
             | Message::Challenge { .. }
             | Message::TransferOpen(_)

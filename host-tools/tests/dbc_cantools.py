@@ -54,6 +54,8 @@ SERVICES = {  # name: (code, priority)
     "Assign": (0x28, 3),
     "Configure": (0x29, 3),
     "ConfigStatus": (0x2A, 2),
+    "UpdateTransfer": (0x2B, 6),
+    "UpdateStatus": (0x2C, 2),
 }
 NODES = {"arm": 1, "hand": 2, "gaze": 3}  # examples/take-and-return.toml
 OUTPUTS = {"arm_target_out": 0x200, "gaze_target_out": 0x201, "hand_command_out": 0x202}
@@ -103,6 +105,7 @@ def main(path):
             expected[f"PAB_{service}_{node}"] = (frame_id(service, node_id, TOOL), True)
             expected[f"PAB_{service}_{node}_all"] = (frame_id(service, node_id, BROADCAST), True)
         expected[f"PAB_ConfigStatus_{node}"] = (frame_id("ConfigStatus", node_id, TOOL), True)
+        expected[f"PAB_UpdateStatus_{node}"] = (frame_id("UpdateStatus", node_id, TOOL), True)
         expected[f"PAB_DiagnosticControl_{node}"] = (
             frame_id("DiagnosticControl", TOOL, node_id),
             True,
@@ -115,6 +118,9 @@ def main(path):
     for node, node_id in NODES.items():
         expected[f"PAB_TableTransfer_{node}"] = (frame_id("TableTransfer", TOOL, node_id), True)
         expected[f"PAB_TableTransferFlow_{node}"] = (frame_id("TableTransfer", node_id, TOOL), True)
+        # Firmware updates: ISO-TP the same way, on service 0x2B.
+        expected[f"PAB_UpdateTransfer_{node}"] = (frame_id("UpdateTransfer", TOOL, node_id), True)
+        expected[f"PAB_UpdateTransferFlow_{node}"] = (frame_id("UpdateTransfer", node_id, TOOL), True)
     # The ports that re-publish what they deliver (`republish` in the example).
     for port, can_id in OUTPUTS.items():
         expected[port] = (can_id, False)
@@ -208,6 +214,16 @@ def main(path):
     _, values = decode("PAB_TransferStatus_arm", [0x00, 0, 1, 2, 0, 0, 0, 0])
     check(str(values["status"]) == "applied and stored", f"transfer status 0: {values['status']!r}")
     check(values["running_version"] == 0x0201, f"transfer status version: {values}")
+
+    # Update status from node 1 (docs/can-protocol.md, UpdateStatus): Ack, next byte 0x012345,
+    # running CRC 0xDEADBEEF.
+    message, values = decode("PAB_UpdateStatus_arm", [2, 0x45, 0x23, 0x01, 0xEF, 0xBE, 0xAD, 0xDE])
+    check(message.frame_id == 0x0A2C0001, f"update status id: {message.frame_id:#x}")
+    check(str(values["status"]) == "chunk written", f"update status: {values['status']!r}")
+    check((values["offset"], values["value"]) == (0x012345, 0xDEADBEEF), f"update status: {values}")
+    # The first frame of a Chunk to node 1 (1 + 4 + 1024 bytes): PCI first frame.
+    _, values = decode("PAB_UpdateTransfer_arm", [0x14, 0x05, 2, 0, 0x04, 0, 0, 0xAA])
+    check((str(values["pci_type"]), values["data2"]) == ("first frame", 2), f"update transfer: {values}")
 
     # A topic: raw bytes; a shorter frame decodes with allow_truncated.
     message, values = decode("object_pos", [1, 2, 3, 4, 5, 6, 7, 8])

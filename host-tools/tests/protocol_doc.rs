@@ -8,7 +8,7 @@ use std::path::Path;
 use pab_core::protocol::layout::{Framing, layout};
 use pab_core::protocol::{
     AuthFailure, BROADCAST, FaultCode, FrameId, NodeState, SchemaOutcome, SchemaSafety, Service,
-    StoreFailure, TransferStatusCode,
+    StoreFailure, TransferStatusCode, UpdateStatusCode,
 };
 
 fn document() -> String {
@@ -141,6 +141,15 @@ fn config_status_codes_match_the_code() {
         .map(|c| (u32::from(c.code()), format!("{c:?}"), c.description()))
         .collect();
     compare_enum("enum: ConfigStatusCode", &expected, 2);
+}
+
+#[test]
+fn update_status_codes_match_the_code() {
+    let expected: Vec<_> = UpdateStatusCode::ALL
+        .iter()
+        .map(|c| (u32::from(c.code()), format!("{c:?}"), c.description()))
+        .collect();
+    compare_enum("enum: UpdateStatusCode", &expected, 1);
 }
 
 #[test]
@@ -419,6 +428,7 @@ fn payload_types_documentation_matches_the_layouts() {
         ("SchemaAck", Service::SchemaAck),
         ("SchemaTransition", Service::SchemaTransition),
         ("SchemaState", Service::SchemaState),
+        ("UpdateStatus", Service::UpdateStatus),
     ];
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../core/src/protocol/messages");
     let mut problems = Vec::new();

@@ -238,7 +238,7 @@ pub fn build(network: &Network, claims: &[Claim]) -> Result<Dbc, Diagnostics> {
         let mut comment = format!(
             "Node `{}`, id {} ({} port{}). Table images reach it by ISO-TP (ISO 15765-2) on \
              service 0x11, not described here: data 0x{transfer:08X} (tool to node), flow control \
-             0x{flow:08X} (node to tool).",
+             0x{flow:08X} (node to tool). Firmware updates likewise on service 0x2B.",
             node.name,
             node.id,
             node.ports.len(),
@@ -377,11 +377,11 @@ tc = 3.0
             all.id,
             FrameId::new(Service::DiagnosticControl, TOOL, BROADCAST).raw() | EXTENDED_FLAG
         );
-        // 16 services per node (7 + Challenge, Receipt, six identity frames, ConfigStatus) and
-        // the identity's six to all at start-up, a table transfer's two directions per node,
-        // diagnostic control and identity request per node and broadcast, ChallengeRequest,
-        // TransferOpen, Assign and Configure per node, 2 topics.
-        assert_eq!(dbc.messages.len(), 2 * 22 + 2 * 2 + 2 * 3 + 2 * 4 + 2);
+        // 17 services per node (7 + Challenge, Receipt, six identity frames, ConfigStatus,
+        // UpdateStatus) and the identity's six to all at start-up, a table transfer's and an
+        // update's two directions per node, diagnostic control and identity request per node
+        // and broadcast, ChallengeRequest, TransferOpen, Assign and Configure per node, 2 topics.
+        assert_eq!(dbc.messages.len(), 2 * 23 + 2 * 4 + 2 * 3 + 2 * 4 + 2);
         assert_eq!(
             find("PAB_Identity_arm_all").id,
             FrameId::new(Service::Identity, 1, BROADCAST).raw() | EXTENDED_FLAG
@@ -404,6 +404,19 @@ tc = 3.0
             )
         );
         assert_eq!(transfer.signals[0].name, "pci_type");
+        let update = find("PAB_UpdateTransferFlow_arm");
+        assert_eq!(
+            (update.id, update.dlc, update.transmitter.as_str()),
+            (
+                FrameId::new(Service::UpdateTransfer, 1, TOOL).raw() | EXTENDED_FLAG,
+                8,
+                "arm"
+            )
+        );
+        assert_eq!(
+            find("PAB_UpdateStatus_arm").id,
+            FrameId::new(Service::UpdateStatus, 1, TOOL).raw() | EXTENDED_FLAG
+        );
         assert_eq!(transfer.signals[0].values.len(), 4);
         let topic = find("object_pos");
         assert_eq!(topic.id, 0x110);

@@ -155,6 +155,41 @@ wire_enum! {
 }
 
 wire_enum! {
+    /// What an [`UpdateStatus`](super::UpdateStatus) says of a firmware update (its byte 0):
+    /// an answer to an UpdateTransfer message, or a report at start.
+    UpdateStatusCode: u8 {
+        /// A Begin was admitted: send chunks from offset 0. Value: the largest chunk the node
+        /// takes, bytes.
+        Ready = 1, "ready: send chunks from offset 0";
+        /// A chunk was written. Offset: the next byte expected; value: the running CRC-32.
+        Ack = 2, "chunk written";
+        /// The image is complete, its CRC matched, and the bootloader was asked to check and
+        /// swap it: the node restarts now.
+        Committed = 3, "committed: the node restarts to swap the image in";
+        /// The image was refused (value: the refusal's code,
+        /// [`crate::update::UpdateRefusal::code`], 1-7): after a Begin whose trailer is refused,
+        /// or at start when the bootloader refused the image.
+        Refused = 4, "image refused";
+        /// A chunk not at the offset expected. Offset: the one expected; value: the running
+        /// CRC-32.
+        OutOfOrder = 5, "chunk out of order";
+        /// A Commit whose CRC or length differs from what was received. Offset and value: the
+        /// node's.
+        Mismatch = 6, "CRC or length mismatch";
+        /// The update partition could not be written. Offset: where.
+        FlashError = 7, "update partition could not be written";
+        /// A Chunk or Commit without a Begin (or after the session timed out or was aborted).
+        NoSession = 8, "no update session";
+        /// At start: the bootloader checked and swapped in a new image, which now runs (value 0).
+        Swapped = 9, "new image swapped in and running";
+        /// The node cannot take updates (it has no update partition).
+        Unsupported = 10, "this node takes no updates";
+        /// Another transfer holds the node: a table transfer, or an update from another sender.
+        Busy = 11, "busy: another transfer holds the node";
+    }
+}
+
+wire_enum! {
     /// The outcome of a table transfer, sent to the tool.
     TransferStatusCode: u8 {
         /// The new table is running and stored.
@@ -414,6 +449,11 @@ mod tests {
         for channel in SchemaChannel::ALL {
             assert_eq!(SchemaChannel::from_code(channel.code()), Some(*channel));
         }
+        for status in UpdateStatusCode::ALL {
+            assert_eq!(UpdateStatusCode::from_code(status.code()), Some(*status));
+        }
+        assert_eq!(UpdateStatusCode::from_code(0), None);
+        assert_eq!(UpdateStatusCode::from_code(12), None);
         assert_eq!(SchemaOutcome::from_code(0x12), None);
         assert_eq!(SchemaSafety::from_code(9), None);
         assert_eq!(SchemaSafety::from_code(0xFF), None);

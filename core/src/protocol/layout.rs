@@ -18,7 +18,7 @@
 
 use super::{
     ConfigStatusCode, FaultCode, NodeState, SchemaChannel, SchemaOrigin, SchemaOutcome,
-    SchemaSafety, SchemaTrigger, Service, TransferStatusCode,
+    SchemaSafety, SchemaTrigger, Service, TransferStatusCode, UpdateStatusCode,
 };
 
 /// How a field's raw value reads as a quantity.
@@ -64,6 +64,8 @@ pub enum Values {
     /// The command a [`ConfigStatus`](super::ConfigStatus) answers: Assign's or Configure's
     /// service code.
     ConfigCommand,
+    /// [`UpdateStatusCode`].
+    UpdateStatusCode,
 }
 
 impl Values {
@@ -160,6 +162,13 @@ impl Values {
                 index,
                 |v| v.code().into(),
                 ConfigStatusCode::description,
+                None,
+            ),
+            Values::UpdateStatusCode => entry(
+                UpdateStatusCode::ALL,
+                index,
+                |v| v.code().into(),
+                UpdateStatusCode::description,
                 None,
             ),
         }
@@ -394,6 +403,8 @@ pub const fn layout(service: Service) -> &'static Layout {
         Service::Assign => &m::Assign::LAYOUT,
         Service::Configure => &m::Configure::LAYOUT,
         Service::ConfigStatus => &m::ConfigStatus::LAYOUT,
+        Service::UpdateTransfer => &m::UPDATE_TRANSFER_LAYOUT,
+        Service::UpdateStatus => &m::UpdateStatus::LAYOUT,
     }
 }
 

@@ -1,5 +1,5 @@
 //! The project's own frames: node heartbeat and status, faults, the diagnostic stream, its control,
-//! table transfer, and the schema server's (emergency stop, abort, schema transfer and reports). `docs/can-protocol.md` is the user-facing description of the same thing;
+//! table transfer, firmware update, and the schema server's (emergency stop, abort, schema transfer and reports). `docs/can-protocol.md` is the user-facing description of the same thing;
 //! this module is its only implementation (nodes and `pabctl` both use it).
 //!
 //! # Identifier layout (29-bit extended)
@@ -35,13 +35,14 @@ pub use classify::{FrameKind, classify, classify_id};
 pub use codes::{
     AuthFailure, ConfigStatusCode, FaultCode, NodeState, STORE_UNREADABLE, SchemaChannel,
     SchemaOrigin, SchemaOutcome, SchemaSafety, SchemaTrigger, StoreFailure, TransferStatusCode,
+    UpdateStatusCode,
 };
 pub use messages::DecodeError;
 pub use messages::{
     Assign, ConfigStatus, Configure, DesireFrame, DiagnosticControl, DiagnosticFlags,
     DiagnosticSample, Errors, Exploitation, Fault, FilterProfile, FilterSet, FilterStatus, Gates,
-    Heartbeat, Intention, Message, OPEN_REPLACE, OPEN_SCHEMA, SchemaAck, SchemaState,
-    SchemaTransition, Seal, TableStatus, Traffic, TransferOpen, TransferStatus,
+    Heartbeat, Intention, Message, OPEN_REPLACE, OPEN_SCHEMA, OPEN_UPDATE, SchemaAck, SchemaState,
+    SchemaTransition, Seal, TableStatus, Traffic, TransferOpen, TransferStatus, UpdateStatus,
 };
 pub use messages::{identity_part, identity_service};
 
@@ -81,7 +82,7 @@ impl Priority {
     pub const NOMINAL: Priority = Priority(4);
     /// Counters.
     pub const LOW: Priority = Priority(5);
-    /// Bulk transfer (table images).
+    /// Bulk transfer (table and firmware images).
     pub const BULK: Priority = Priority(6);
     /// Diagnostic stream.
     pub const OPTIONAL: Priority = Priority(7);
@@ -188,11 +189,29 @@ pub enum Service {
     Configure = 0x29,
     /// Node → tool: answers an Assign or a Configure ([`ConfigStatus`]).
     ConfigStatus = 0x2A,
+    /// Tool ↔ node: ISO-TP frames of a firmware-update message (tool → node) and flow control
+    /// (node → tool), as [`Service::TableTransfer`]'s. The messages (little endian; their codec
+    /// is `crate::update`'s session, not this module's):
+    ///
+    /// ```text
+    /// Begin   byte 0 = 1, bytes 1-96: the signed image's manifest (its 32-byte trailer, then
+    ///         its 64-byte Ed25519 signature: crate::update, crate::update::stored): 97 bytes
+    /// Chunk   byte 0 = 2, bytes 1-4: offset in the image (u32), then 1 to 1024 bytes of the
+    ///         image at that offset
+    /// Commit  byte 0 = 3, bytes 1-4: CRC-32 of the whole image (u32): 5 bytes
+    /// Abort   byte 0 = 4: 1 byte
+    /// ```
+    ///
+    /// On a keyed node the Begin is authorised by a [`TransferOpen`] with [`OPEN_UPDATE`].
+    /// The node answers each message with an [`UpdateStatus`].
+    UpdateTransfer = 0x2B,
+    /// Node → tool: the state of a firmware update ([`UpdateStatus`]).
+    UpdateStatus = 0x2C,
 }
 
 impl Service {
     /// Every service, for tables (DBC export, documentation tests).
-    pub const ALL: [Service; 39] = [
+    pub const ALL: [Service; 41] = [
         Service::EmergencyStop,
         Service::Fault,
         Service::Heartbeat,
@@ -232,10 +251,12 @@ impl Service {
         Service::Assign,
         Service::Configure,
         Service::ConfigStatus,
+        Service::UpdateTransfer,
+        Service::UpdateStatus,
     ];
 
     /// The service with this code. A match, not a search of [`Service::ALL`]: the codes are two
-    /// runs (0x00..=0x0B, 0x10..=0x2A), which the compiler turns into two range checks, and a
+    /// runs (0x00..=0x0B, 0x10..=0x2C), which the compiler turns into two range checks, and a
     /// node parses the service of every frame of ours it reads.
     pub const fn from_code(code: u8) -> Option<Service> {
         Some(match code {
@@ -278,6 +299,8 @@ impl Service {
             0x28 => Service::Assign,
             0x29 => Service::Configure,
             0x2A => Service::ConfigStatus,
+            0x2B => Service::UpdateTransfer,
+            0x2C => Service::UpdateStatus,
             _ => return None,
         })
     }
@@ -301,7 +324,8 @@ impl Service {
             | Service::SchemaTransfer
             | Service::SchemaAck
             | Service::SchemaTransition
-            | Service::ConfigStatus => Priority::HIGH,
+            | Service::ConfigStatus
+            | Service::UpdateStatus => Priority::HIGH,
             // Gates are decisions other nodes' rules read: they wait for faults and the tool's
             // answers only, never behind heartbeats, claims or counters.
             // Filter commands likewise: a disable must not queue behind a board's counters.
@@ -332,7 +356,7 @@ impl Service {
             | Service::Exploitation
             | Service::SchemaState
             | Service::Seal => Priority::LOW,
-            Service::TableTransfer => Priority::BULK,
+            Service::TableTransfer | Service::UpdateTransfer => Priority::BULK,
             Service::Diagnostic => Priority::OPTIONAL,
         }
     }

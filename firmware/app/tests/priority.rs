@@ -56,6 +56,9 @@ fn payload(service: Service) -> Vec<u8> {
         // 500 kbit/s.
         Service::Configure => vec![0xF4, 1, 0, 0],
         Service::ConfigStatus => vec![0x28, 0, 5, 0, 0xF4, 1, 0, 0],
+        // A firmware update's Abort, as a single frame; a chunk acknowledged at offset 0.
+        Service::UpdateTransfer => vec![0x01, 4, 0xCC, 0xCC, 0xCC, 0xCC, 0xCC, 0xCC],
+        Service::UpdateStatus => vec![2, 0, 0, 0, 0, 0, 0, 0],
     }
 }
 
@@ -72,7 +75,8 @@ fn frame_with(service: Service, priority: u8) -> Frame {
         | Service::SchemaTransfer
         | Service::IdentityRequest
         | Service::Assign
-        | Service::Configure => protocol::TOOL,
+        | Service::Configure
+        | Service::UpdateTransfer => protocol::TOOL,
         _ => 9,
     };
     let mut id = FrameId::new(service, source, Harness::NODE_ID);

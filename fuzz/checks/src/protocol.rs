@@ -13,9 +13,9 @@ use pab_core::protocol::{
     self, Assign, ConfigStatus, ConfigStatusCode, Configure, DesireFrame, DiagnosticControl,
     DiagnosticFlags, DiagnosticSample, Errors, Exploitation, Fault, FaultCode, FilterProfile,
     FilterSet, FilterStatus, FrameId, FrameKind, Gates, Heartbeat, Intention, Message, NodeState,
-    OPEN_REPLACE, SchemaAck, SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety, SchemaState,
-    SchemaTransition, SchemaTrigger, Seal, Service, TableStatus, Traffic, TransferOpen,
-    TransferStatus, TransferStatusCode,
+    OPEN_REPLACE, OPEN_SCHEMA, OPEN_UPDATE, SchemaAck, SchemaChannel, SchemaOrigin, SchemaOutcome,
+    SchemaSafety, SchemaState, SchemaTransition, SchemaTrigger, Seal, Service, TableStatus,
+    Traffic, TransferOpen, TransferStatus, TransferStatusCode, UpdateStatus, UpdateStatusCode,
 };
 
 /// The services a node acts on: the only ones `Message::decode_for_node` decodes.
@@ -38,6 +38,7 @@ fn node_service(service: Service) -> bool {
             | Service::IdentityRequest
             | Service::Assign
             | Service::Configure
+            | Service::UpdateTransfer
     )
 }
 
@@ -203,9 +204,9 @@ pub fn encode(data: &[u8]) {
     assert_eq!(id, FrameId::new(message.service(), source, destination));
     assert_eq!(back, normalized(message));
     let len = match message {
-        Message::TableTransfer { len, .. } | Message::SchemaTransfer { len, .. } => {
-            usize::from(len)
-        }
+        Message::TableTransfer { len, .. }
+        | Message::SchemaTransfer { len, .. }
+        | Message::UpdateTransfer { len, .. } => usize::from(len),
         // The keyed forms: the 4 bytes and the tag.
         Message::AuthenticatedDiagnosticControl { .. }
         | Message::Assign(Assign { tag: Some(_), .. })
@@ -215,8 +216,8 @@ pub fn encode(data: &[u8]) {
     assert_eq!(frame.payload().len(), len, "{message:?}");
 }
 
-/// What the wire can carry of a message: the uptime saturates at 24 bits; a transfer frame's bytes
-/// beyond its length are not sent.
+/// What the wire can carry of a message: the uptime and an update's offset saturate at 24 bits; a
+/// transfer frame's bytes beyond its length are not sent.
 fn normalized(message: Message) -> Message {
     match message {
         Message::Heartbeat(heartbeat) => Message::Heartbeat(Heartbeat {
@@ -231,6 +232,14 @@ fn normalized(message: Message) -> Message {
             data[usize::from(len)..].fill(0);
             Message::SchemaTransfer { data, len }
         }
+        Message::UpdateTransfer { mut data, len } => {
+            data[usize::from(len)..].fill(0);
+            Message::UpdateTransfer { data, len }
+        }
+        Message::UpdateStatus(status) => Message::UpdateStatus(UpdateStatus {
+            offset: status.offset.min(UpdateStatus::MAX_OFFSET),
+            ..status
+        }),
         other => other,
     }
 }
@@ -272,7 +281,7 @@ fn pick<T: Copy>(u: &mut Unstructured<'_>, all: &[T]) -> Result<T> {
 }
 
 fn any_message(u: &mut Unstructured<'_>) -> Result<(Message, u8, u8)> {
-    let message = match u.int_in_range(0u8..=39)? {
+    let message = match u.int_in_range(0u8..=41)? {
         0 => Message::Fault(Fault {
             code: pick(u, FaultCode::ALL)?,
             count: u.arbitrary()?,
@@ -339,7 +348,7 @@ fn any_message(u: &mut Unstructured<'_>) -> Result<(Message, u8, u8)> {
         },
         11 => Message::TransferOpen(TransferOpen {
             length: u.arbitrary()?,
-            flags: if u.arbitrary()? { OPEN_REPLACE } else { 0 },
+            flags: pick(u, &[0, OPEN_REPLACE, OPEN_SCHEMA, OPEN_UPDATE])?,
             tag: u.arbitrary()?,
         }),
         12 => Message::Receipt {
@@ -507,6 +516,16 @@ fn any_message(u: &mut Unstructured<'_>) -> Result<(Message, u8, u8)> {
             node_id: u.int_in_range(0..=127)?,
             bitrate_kbps: u.arbitrary()?,
         }),
+        40 => Message::UpdateTransfer {
+            data: u.arbitrary()?,
+            len: u.int_in_range(1..=8)?,
+        },
+        // Any offset: one beyond 24 bits is sent saturated (`normalized`).
+        41 => Message::UpdateStatus(UpdateStatus {
+            status: pick(u, UpdateStatusCode::ALL)?,
+            offset: u.arbitrary()?,
+            value: u.arbitrary()?,
+        }),
         _ => Message::TransferStatus(TransferStatus {
             status: pick(u, TransferStatusCode::ALL)?,
             detail: u.arbitrary()?,
@@ -526,8 +545,8 @@ pub fn service_seeds() -> Vec<(Service, Vec<u8>, Vec<u8>)> {
         .map(|i| i.wrapping_mul(37).wrapping_add(11))
         .collect();
     let mut seeds: Vec<(Service, Vec<u8>, Vec<u8>)> = Vec::new();
-    // `any_message`'s first byte picks the variant (byte % 40).
-    for pick in 0u8..=39 {
+    // `any_message`'s first byte picks the variant (byte % 42).
+    for pick in 0u8..=41 {
         let mut encode = vec![pick];
         encode.extend_from_slice(&filler);
         let Ok((message, source, destination)) = any_message(&mut Unstructured::new(&encode))

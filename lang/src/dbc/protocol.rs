@@ -53,6 +53,7 @@ pub(super) fn from_nodes(
                 | Service::EmergencyStop
                 | Service::SchemaAbort
                 | Service::SchemaTransfer
+                | Service::UpdateTransfer
                 | Service::IdentityRequest
                 | Service::Assign
                 | Service::Configure
@@ -80,7 +81,8 @@ pub(super) fn from_nodes(
                 | Service::IdentityCapacity
                 | Service::IdentityFeatures
                 | Service::IdentityName
-                | Service::ConfigStatus => TOOL,
+                | Service::ConfigStatus
+                | Service::UpdateStatus => TOOL,
                 _ => BROADCAST,
             };
             let Some(signals) = service_signals(service) else {

@@ -1,12 +1,12 @@
-//! Table and schema transfers: the ISO-TP frames between the tool and each node, described frame
-//! by frame.
+//! Table, firmware-update and schema transfers: the ISO-TP frames between the tool and each node,
+//! described frame by frame.
 
 use pab_core::protocol::{FrameId, Service, TOOL};
 
 use super::{DbcMessage, DbcSignal, Names, TOOL_NODE, extended, serves, signal};
 use crate::network::Network;
 
-/// The two messages of one node's ISO-TP transfer on `service` (table or schema): the tool's
+/// The two messages of one node's ISO-TP transfer on `service` (table, update or schema): the tool's
 /// data frames to the node and the node's flow control back. Both 8 bytes (our ISO-TP pads
 /// every frame): the PCI type and low nibble as signals, bytes 1..7 raw.
 fn transfer_messages(
@@ -16,10 +16,10 @@ fn transfer_messages(
     node: &crate::network::Node,
     dbc_node: &str,
 ) {
-    let what = if service == Service::TableTransfer {
-        "a table image"
-    } else {
-        "a schema (a channel byte, then the schema)"
+    let what = match service {
+        Service::TableTransfer => "a table image",
+        Service::UpdateTransfer => "a firmware-update message (Begin, Chunk, Commit or Abort)",
+        _ => "a schema (a channel byte, then the schema)",
     };
     let signals = |direction: &str| {
         let mut signals = vec![
@@ -91,9 +91,11 @@ fn transfer_messages(
     });
 }
 
-/// Table and schema transfers: ISO-TP frames (docs/can-protocol.md), always padded to 8
-/// bytes, so a capture of a transfer decodes byte by byte; the PCI's type and low nibble are
-/// signals, the reassembled message is not (a DBC describes single frames).
+/// Table, firmware-update and schema transfers: ISO-TP frames (docs/can-protocol.md), always
+/// padded to 8 bytes, so a capture of a transfer decodes byte by byte; the PCI's type and low
+/// nibble are signals, the reassembled message is not (a DBC describes single frames). Every
+/// node gets the update's two messages: the network file does not say which nodes take updates
+/// (one that cannot answers UpdateStatus Unsupported).
 pub(super) fn transfers(
     network: &Network,
     nodes: &[String],
@@ -102,6 +104,7 @@ pub(super) fn transfers(
 ) {
     for (index, (node, dbc_node)) in network.nodes.iter().zip(nodes.iter().skip(1)).enumerate() {
         transfer_messages(messages, names, Service::TableTransfer, node, dbc_node);
+        transfer_messages(messages, names, Service::UpdateTransfer, node, dbc_node);
         if serves(network, index) {
             transfer_messages(messages, names, Service::SchemaTransfer, node, dbc_node);
         }

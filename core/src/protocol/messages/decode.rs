@@ -1,17 +1,21 @@
 //! Decoding: the framing every frame gets (ours, not remote, its service's priority and
 //! length), then the payload of a service a node acts on, or of one it only reports.
 
+#[cfg(feature = "update")]
+use super::UpdateStatus;
 #[cfg(feature = "identity")]
 use super::{Assign, ConfigStatus, Configure};
 use super::{
     DesireFrame, DiagnosticControl, DiagnosticFlags, DiagnosticSample, Errors, Exploitation, Fault,
     FilterProfile, FilterSet, FilterStatus, Gates, Heartbeat, Intention, Message, OPEN_REPLACE,
-    OPEN_SCHEMA, SchemaAck, SchemaState, SchemaTransition, Seal, TableStatus, Traffic,
+    OPEN_SCHEMA, OPEN_UPDATE, SchemaAck, SchemaState, SchemaTransition, Seal, TableStatus, Traffic,
     TransferOpen, TransferStatus,
 };
 use crate::frame::Frame;
 #[cfg(feature = "identity")]
 use crate::protocol::ConfigStatusCode;
+#[cfg(feature = "update")]
+use crate::protocol::UpdateStatusCode;
 use crate::protocol::{
     FaultCode, FrameId, NodeState, SchemaChannel, SchemaOrigin, SchemaOutcome, SchemaSafety,
     SchemaTrigger, Service, TransferStatusCode,
@@ -114,10 +118,9 @@ impl Message {
     /// and length, but the payload decoded (and its values checked) only for the services a node
     /// acts on (Gates, DiagnosticControl, TableTransfer, ChallengeRequest, TransferOpen,
     /// FilterProfile, FilterSet, EmergencyStop, SchemaAbort, SchemaTransfer, Seal,
-    /// FreshnessRequest, Freshness, IdentityRequest, Assign, Configure); `Ok(None)` for a
-    /// well-framed frame of another service (a report, a desire, another node's status or schema
-    /// answers), which a node does not read. The boards link
-    /// only this: the other services' decoders took 596 bytes of the NUCLEO-G474RE's flash.
+    /// FreshnessRequest, Freshness, IdentityRequest, Assign, Configure, UpdateTransfer);
+    /// `Ok(None)` for a well-framed frame of another service (a report, a desire, another node's
+    /// status or schema answers), which a node does not read. The boards link only this: the other services' decoders took 596 bytes of the NUCLEO-G474RE's flash.
     pub fn decode_for_node(frame: &Frame) -> Result<Option<(FrameId, Message)>, DecodeError> {
         let (id, padded, len) = Self::framing(frame)?;
         Ok(Self::node_message(id.service, padded, len)?.map(|message| (id, message)))
@@ -143,7 +146,9 @@ impl Message {
         let expected = service.payload_len();
         let length_ok = match service {
             // ISO-TP frames may be unpadded: the transport checks their length.
-            Service::TableTransfer | Service::SchemaTransfer => !data.is_empty(),
+            Service::TableTransfer | Service::SchemaTransfer | Service::UpdateTransfer => {
+                !data.is_empty()
+            }
             // The plain form, or the plain form and its tag.
             Service::DiagnosticControl | Service::Assign | Service::Configure => {
                 data.len() == expected || data.len() == expected + crate::auth::COMMAND_TAG_LEN
@@ -207,6 +212,8 @@ impl Message {
             // The bytes past the frame's length are zero, as the padding made them.
             Service::TableTransfer => Message::TableTransfer { data: padded, len },
             Service::SchemaTransfer => Message::SchemaTransfer { data: padded, len },
+            #[cfg(feature = "update")]
+            Service::UpdateTransfer => Message::UpdateTransfer { data: padded, len },
             Service::ChallengeRequest => Message::ChallengeRequest {
                 tool_nonce: u64::from_le_bytes(padded),
             },
@@ -214,9 +221,13 @@ impl Message {
             Service::SchemaAbort => Message::SchemaAbort,
             Service::TransferOpen => {
                 let flags = byte(data, 2);
-                // Replacing a version means nothing to a schema.
-                if flags & !(OPEN_REPLACE | OPEN_SCHEMA) != 0 || flags == OPEN_REPLACE | OPEN_SCHEMA
-                {
+                // One kind of transfer: a table image (replacing the running version or not), a
+                // schema, or a firmware update's Begin. Replacing a version means nothing to a
+                // schema nor to an update (whose image says itself whether it may downgrade).
+                let known = flags & !(OPEN_REPLACE | OPEN_SCHEMA | OPEN_UPDATE) == 0;
+                let one_kind = flags & OPEN_SCHEMA == 0 || flags == OPEN_SCHEMA;
+                let update_alone = flags & OPEN_UPDATE == 0 || flags == OPEN_UPDATE;
+                if !known || !one_kind || !update_alone {
                     return Err(bad);
                 }
                 Message::TransferOpen(TransferOpen {
@@ -476,6 +487,12 @@ impl Message {
                     bitrate_kbps: u16_at(data, 4),
                 })
             }
+            #[cfg(feature = "update")]
+            Service::UpdateStatus => Message::UpdateStatus(UpdateStatus {
+                status: UpdateStatusCode::from_code(byte(data, 0)).ok_or(bad)?,
+                offset: u32_at(data, 0) >> 8,
+                value: u32_at(data, 4),
+            }),
             // Decoded by `node_message`.
             _ => return Err(bad),
         })

@@ -159,6 +159,27 @@ impl Message {
                     8,
                 )
             }
+            #[cfg(feature = "update")]
+            Message::UpdateTransfer { data, len } => {
+                // As a table transfer's frame.
+                let len = (*len).min(8);
+                let mut bytes = *data;
+                for (at, byte) in bytes.iter_mut().enumerate() {
+                    if at >= usize::from(len) {
+                        *byte = 0;
+                    }
+                }
+                (le_word(bytes), len)
+            }
+            #[cfg(feature = "update")]
+            Message::UpdateStatus(status) => {
+                // Saturated to 24 bits: `UpdateStatus::MAX_OFFSET` says why not modulo 2^24.
+                let offset = status.offset.min(super::UpdateStatus::MAX_OFFSET);
+                (
+                    words(u32::from(status.status.code()) | offset << 8, status.value),
+                    8,
+                )
+            }
             Message::Gates(gates) => {
                 let [m0, m1, m2, m3] = gates.mask.to_le_bytes();
                 (

@@ -114,6 +114,8 @@ fn view(message: &Message) -> Option<Vec<(&'static str, u64)>> {
             vec![("rate", c.rate_hz.into()), ("ports", c.ports.into())]
         }
         Message::TableTransfer { .. } | Message::SchemaTransfer { .. } => return None,
+        #[cfg(feature = "update")]
+        Message::UpdateTransfer { .. } => return None,
         Message::TransferStatus(t) => vec![
             ("status", t.status.code().into()),
             ("detail", t.detail.into()),
@@ -137,6 +139,7 @@ fn view(message: &Message) -> Option<Vec<(&'static str, u64)>> {
             ("length", o.length.into()),
             ("replace", u64::from(o.flags & OPEN_REPLACE != 0)),
             ("schema", u64::from(o.flags & OPEN_SCHEMA != 0)),
+            ("update", u64::from(o.flags & OPEN_UPDATE != 0)),
             ("tag", le(&o.tag)),
         ],
         Message::Receipt { tag } => vec![("tag_low", le(&tag[..4])), ("tag_high", le(&tag[4..]))],
@@ -231,6 +234,12 @@ fn view(message: &Message) -> Option<Vec<(&'static str, u64)>> {
                 }
             }
         }
+        #[cfg(feature = "update")]
+        Message::UpdateStatus(u) => vec![
+            ("status", u.status.code().into()),
+            ("offset", u.offset.min(UpdateStatus::MAX_OFFSET).into()),
+            ("value", u.value.into()),
+        ],
         Message::SchemaAck(a) => vec![
             ("outcome", a.outcome.code().into()),
             (

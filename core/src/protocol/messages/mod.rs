@@ -2,7 +2,7 @@
 //! or reserved field; a frame that fails is refused with a [`DecodeError`], never half-read.
 //!
 //! One file per family of services (`status`, `coordination`, `diagnostic`, `transfer`,
-//! `schema_server`) for the payload types and their documented layouts; one for the encoder
+//! `schema_server`, `identity`, `seal`, `update`) for the payload types and their documented layouts; one for the encoder
 //! and one for the decoder, each a single match over every message, so that a board links one
 //! copy of each and a new message is put in both.
 
@@ -19,6 +19,7 @@ mod status;
 #[cfg(test)]
 mod tests;
 mod transfer;
+mod update;
 
 pub use coordination::{
     DesireFrame, Exploitation, FilterProfile, FilterSet, FilterStatus, Gates, Intention,
@@ -40,7 +41,9 @@ pub use status::{Errors, Fault, Heartbeat, TableStatus, Traffic};
 pub(super) use transfer::{
     CHALLENGE_LAYOUT, CHALLENGE_REQUEST_LAYOUT, RECEIPT_LAYOUT, TABLE_TRANSFER_LAYOUT,
 };
-pub use transfer::{OPEN_REPLACE, OPEN_SCHEMA, TransferOpen, TransferStatus};
+pub use transfer::{OPEN_REPLACE, OPEN_SCHEMA, OPEN_UPDATE, TransferOpen, TransferStatus};
+pub(super) use update::UPDATE_TRANSFER_LAYOUT;
+pub use update::UpdateStatus;
 
 use super::Service;
 
@@ -172,6 +175,19 @@ pub enum Message {
     #[cfg(feature = "identity")]
     /// See [`ConfigStatus`].
     ConfigStatus(ConfigStatus),
+    #[cfg(feature = "update")]
+    /// One ISO-TP frame of a firmware-update message (or its flow control), passed to
+    /// [`crate::isotp`]: the message is a Begin, a Chunk, a Commit or an Abort
+    /// ([`Service::UpdateTransfer`]).
+    UpdateTransfer {
+        /// The frame's bytes.
+        data: [u8; 8],
+        /// How many of them the frame carried.
+        len: u8,
+    },
+    #[cfg(feature = "update")]
+    /// See [`UpdateStatus`].
+    UpdateStatus(UpdateStatus),
 }
 
 impl Message {
@@ -218,6 +234,10 @@ impl Message {
             Message::Configure(_) => Service::Configure,
             #[cfg(feature = "identity")]
             Message::ConfigStatus(_) => Service::ConfigStatus,
+            #[cfg(feature = "update")]
+            Message::UpdateTransfer { .. } => Service::UpdateTransfer,
+            #[cfg(feature = "update")]
+            Message::UpdateStatus(_) => Service::UpdateStatus,
         }
     }
 }

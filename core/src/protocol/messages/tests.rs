@@ -4,8 +4,8 @@ use crate::identity::{Capacity, Firmware, Identity, IdentityPart};
 use crate::protocol::*;
 
 pub(super) fn samples() -> Vec<Message> {
-    // `mut` for the identity messages' extension below.
-    #[cfg_attr(not(feature = "identity"), allow(unused_mut))]
+    // `mut` for the identity and update messages' extensions below.
+    #[cfg_attr(not(any(feature = "identity", feature = "update")), allow(unused_mut))]
     let mut all = vec![
         Message::Fault(Fault {
             code: FaultCode::TableRefused,
@@ -156,6 +156,39 @@ pub(super) fn samples() -> Vec<Message> {
             elapsed_ms: u16::MAX,
         }),
     ];
+    #[cfg(feature = "update")]
+    all.extend([
+        Message::TransferOpen(TransferOpen {
+            length: 97,
+            flags: OPEN_UPDATE,
+            tag: [1, 2, 3, 4, 5],
+        }),
+        // A Chunk's first frame: 1 + 4 + 1024 bytes (0x405).
+        Message::UpdateTransfer {
+            data: [0x14, 0x05, 2, 0, 0x04, 0, 0, 0xAA],
+            len: 8,
+        },
+        // An Abort as a single frame, unpadded.
+        Message::UpdateTransfer {
+            data: [0x01, 4, 0, 0, 0, 0, 0, 0],
+            len: 2,
+        },
+        Message::UpdateStatus(UpdateStatus {
+            status: UpdateStatusCode::Ack,
+            offset: 0x01_2345,
+            value: 0xDEAD_BEEF,
+        }),
+        Message::UpdateStatus(UpdateStatus {
+            status: UpdateStatusCode::Ready,
+            offset: 0,
+            value: 1024,
+        }),
+        Message::UpdateStatus(UpdateStatus {
+            status: UpdateStatusCode::Busy,
+            offset: UpdateStatus::MAX_OFFSET,
+            value: 0,
+        }),
+    ]);
     #[cfg(feature = "identity")]
     all.extend([
         Message::IdentityRequest,
@@ -351,6 +384,7 @@ fn a_node_reads_the_stop_the_abort_and_schema_transfers_only() {
                 | Service::IdentityRequest
                 | Service::Assign
                 | Service::Configure
+                | Service::UpdateTransfer
         );
         assert_eq!(for_node.is_some(), acts, "{message:?}");
         if let Some((_, decoded)) = for_node {
@@ -380,6 +414,8 @@ fn every_message_round_trips() {
             assert_eq!(frame.payload().len(), 8);
         } else if let Message::SchemaTransfer { len, .. } = message {
             assert_eq!(frame.payload().len(), usize::from(len));
+        } else if message.service() == Service::UpdateTransfer {
+            assert!(!frame.payload().is_empty());
         } else if message.service() != Service::TableTransfer {
             assert_eq!(frame.payload().len(), message.service().payload_len());
         }
@@ -487,7 +523,7 @@ fn wrong_lengths_and_values_are_refused() {
         let payload = frame.payload();
         if matches!(
             message.service(),
-            Service::TableTransfer | Service::SchemaTransfer
+            Service::TableTransfer | Service::SchemaTransfer | Service::UpdateTransfer
         ) {
             let empty = Frame::data(frame.id(), &[]).unwrap();
             assert!(matches!(
@@ -535,16 +571,24 @@ fn wrong_lengths_and_values_are_refused() {
         Message::decode(&reserved),
         Err(DecodeError::Value { .. })
     ));
-    // TransferOpen: a reserved flag bit, and replace and schema together, are refused.
+    // TransferOpen: a reserved flag bit, and two kinds together (replace and schema, update
+    // with either), are refused.
     let id = FrameId::new(Service::TransferOpen, 0, 1).id();
-    for flags in [4, 0x80, OPEN_REPLACE | OPEN_SCHEMA] {
+    for flags in [
+        8,
+        0x80,
+        OPEN_REPLACE | OPEN_SCHEMA,
+        OPEN_UPDATE | OPEN_REPLACE,
+        OPEN_UPDATE | OPEN_SCHEMA,
+        OPEN_UPDATE | OPEN_SCHEMA | OPEN_REPLACE,
+    ] {
         let refused = Frame::data(id, &[0, 1, flags, 0, 0, 0, 0, 0]).unwrap();
         assert!(
             matches!(Message::decode(&refused), Err(DecodeError::Value { .. })),
             "flags {flags:#04x}"
         );
     }
-    for flags in [0, OPEN_REPLACE, OPEN_SCHEMA] {
+    for flags in [0, OPEN_REPLACE, OPEN_SCHEMA, OPEN_UPDATE] {
         let taken = Frame::data(id, &[0, 1, flags, 0, 0, 0, 0, 0]).unwrap();
         assert!(Message::decode(&taken).is_ok(), "flags {flags:#04x}");
     }
@@ -645,4 +689,70 @@ fn identity_frames_with_reserved_bits_or_unknown_codes_are_refused() {
         &[0x28, 0x09, 1, 0, 0, 0, 0, 0]
     ));
     assert!(refused(Service::ConfigStatus, &[0x28, 0, 1, 1, 0, 0, 0, 0]));
+}
+
+/// UpdateStatus's bytes as docs/can-protocol.md lays them out, and what its decoder refuses.
+#[test]
+#[cfg(feature = "update")]
+fn update_status_is_byte_exact_and_refuses_other_lengths_and_codes() {
+    let ack = Message::UpdateStatus(UpdateStatus {
+        status: UpdateStatusCode::Ack,
+        offset: 0x01_2345,
+        value: 0xDEAD_BEEF,
+    });
+    let frame = ack.to_frame(3, TOOL);
+    assert_eq!(
+        frame.payload(),
+        &[2, 0x45, 0x23, 0x01, 0xEF, 0xBE, 0xAD, 0xDE]
+    );
+    assert_eq!(Message::decode(&frame).map(|(_, m)| m), Ok(ack));
+    assert_eq!(
+        FrameId::decode(&frame.id()).map(|id| id.raw()),
+        Some(0x0A2C_0003)
+    );
+    // An offset beyond 24 bits is sent saturated (`UpdateStatus::MAX_OFFSET`).
+    let beyond = Message::UpdateStatus(UpdateStatus {
+        status: UpdateStatusCode::FlashError,
+        offset: 0x0100_0000,
+        value: 0,
+    });
+    assert_eq!(
+        beyond.to_frame(3, TOOL).payload(),
+        &[7, 0xFF, 0xFF, 0xFF, 0, 0, 0, 0]
+    );
+    let id = FrameId::new(Service::UpdateStatus, 3, TOOL).id();
+    let decode = |payload: &[u8]| Message::decode(&Frame::data(id, payload).unwrap());
+    assert_eq!(
+        decode(&[2, 0x45, 0x23, 0x01, 0xEF, 0xBE, 0xAD]),
+        Err(DecodeError::Length {
+            service: Service::UpdateStatus,
+            len: 7
+        })
+    );
+    for status in [0, 12, 0xFF] {
+        assert_eq!(
+            decode(&[status, 0, 0, 0, 0, 0, 0, 0]),
+            Err(DecodeError::Value {
+                service: Service::UpdateStatus
+            }),
+            "status {status}"
+        );
+    }
+    // A node reads none: it sends them.
+    let well_formed = Frame::data(id, &[1, 0, 0, 0, 0, 4, 0, 0]).unwrap();
+    assert_eq!(Message::decode_for_node(&well_formed), Ok(None));
+    // UpdateTransfer: ISO-TP frames at the table transfer's priority, for a node.
+    let transfer = Message::UpdateTransfer {
+        data: [0x05, 3, 0x78, 0x56, 0x34, 0x12, 0, 0],
+        len: 6,
+    }
+    .to_frame(TOOL, 3);
+    assert_eq!(
+        FrameId::decode(&transfer.id()).map(|id| id.raw()),
+        Some(0x1A2B_0300)
+    );
+    assert!(matches!(
+        Message::decode_for_node(&transfer),
+        Ok(Some((_, Message::UpdateTransfer { len: 6, .. })))
+    ));
 }

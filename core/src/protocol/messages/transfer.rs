@@ -10,14 +10,22 @@ pub const OPEN_REPLACE: u8 = 0x01;
 /// Flag bit of [`TransferOpen::flags`]: the open is for a schema message (SchemaTransfer), not a
 /// table image. Its MAC is the image MAC with this flag, so neither can stand for the other.
 pub const OPEN_SCHEMA: u8 = 0x02;
+/// Flag bit of [`TransferOpen::flags`]: the open authorises a firmware update's Begin message
+/// (UpdateTransfer; its `length` is then the Begin's, 97 bytes), not a table image. Alone: not
+/// with [`OPEN_REPLACE`] (an image's trailer says whether it may downgrade) nor [`OPEN_SCHEMA`].
+/// Covered by the tag like the other flags, so no open can stand for another kind's.
+pub const OPEN_UPDATE: u8 = 0x04;
 
 /// Opens an authenticated transfer (service 0x15), tool → node, on a node with a key: a table
-/// image (TableTransfer) or, with [`OPEN_SCHEMA`], a schema message (SchemaTransfer).
+/// image (TableTransfer), with [`OPEN_SCHEMA`] a schema message (SchemaTransfer), or with
+/// [`OPEN_UPDATE`] a firmware update's Begin message (UpdateTransfer).
 ///
 /// ```text
-/// bytes 0-1  ISO-TP message length (the image or schema message and its 16-byte MAC), u16 LE
+/// bytes 0-1  ISO-TP message length (the image or schema message and its 16-byte MAC; an
+///            update's Begin: 97), u16 LE
 /// byte 2     flags: bit 0 replace whatever version runs (OPEN_REPLACE), bit 1 a schema
-///            (OPEN_SCHEMA), not both; bits 2-7 reserved, 0
+///            (OPEN_SCHEMA), bit 2 an update's Begin (OPEN_UPDATE); bit 1 and bit 2 each
+///            alone; bits 3-7 reserved, 0
 /// bytes 3-7  tag: CMAC (domain 2, node, both nonces, length, flags), first 5 bytes
 /// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -25,7 +33,7 @@ pub const OPEN_SCHEMA: u8 = 0x02;
 pub struct TransferOpen {
     /// The ISO-TP message length that the first frame must announce.
     pub length: u16,
-    /// [`OPEN_REPLACE`], [`OPEN_SCHEMA`] or 0.
+    /// [`OPEN_REPLACE`], [`OPEN_SCHEMA`], [`OPEN_UPDATE`] or 0.
     pub flags: u8,
     /// The tag over the challenge.
     pub tag: [u8; crate::auth::OPEN_TAG_LEN],
@@ -62,7 +70,8 @@ impl TransferOpen {
                 "length",
                 0,
                 16,
-                "ISO-TP message length the first frame must announce (image + 16-byte MAC)",
+                "ISO-TP message length the first frame must announce (image + 16-byte MAC; an \
+                 update's Begin: 97)",
             )
             .unit("B"),
             Field::new(
@@ -78,13 +87,20 @@ impl TransferOpen {
                 "1: the transfer is a schema message (SchemaTransfer), not a table image",
             ),
             Field::new(
+                "update",
+                18,
+                1,
+                "1: the transfer is a firmware update's Begin (UpdateTransfer, length 97), alone",
+            ),
+            Field::new(
                 "tag",
                 24,
                 40,
                 "CMAC (domain 2, node, both nonces, length, flags), first 5 bytes",
             ),
         ],
-        "opens an authenticated table transfer of this length.",
+        "opens an authenticated transfer of this length: a table image, a schema message \
+         (schema) or a firmware update's Begin (update).",
     );
 }
 
