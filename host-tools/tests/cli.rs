@@ -384,7 +384,7 @@ fn dbc_writes_the_protocol_and_topic_messages() {
     ]);
     assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
     assert!(
-        text(&output.stdout).contains("103 messages"),
+        text(&output.stdout).contains("112 messages"),
         "{}",
         text(&output.stdout)
     );

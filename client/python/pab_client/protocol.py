@@ -278,6 +278,7 @@ class FaultCode(enum.IntEnum):
     SchemaSafety = 0x0070
     BitrateFallback = 0x0080
     SettingsUnreadable = 0x0081
+    UpdateFailed = 0x0090
 
     @property
     def description(self) -> str:
@@ -303,6 +304,7 @@ _FAULT_TEXT = {
     FaultCode.SchemaSafety: "schema server stopped by a safety event",
     FaultCode.BitrateFallback: "bit rate fell back",
     FaultCode.SettingsUnreadable: "configuration page unreadable",
+    FaultCode.UpdateFailed: "firmware update failed",
 }
 
 

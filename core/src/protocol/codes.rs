@@ -130,6 +130,14 @@ wire_enum! {
         /// error, 2 layout, 3 records exhausted, 4 a record does not read back, 5 a record of
         /// another format).
         SettingsUnreadable = 0x0081, "configuration page unreadable";
+        /// A firmware update failed: an image refused (after an update's Begin whose trailer
+        /// the node refuses, or at start when the bootloader refused the image it was asked to
+        /// swap in), or the update partition could not be written (the session ended). The
+        /// running firmware is untouched either way. Detail byte 0: the refusal's code
+        /// (`update::UpdateRefusal::code`: 1 truncated, 2 bad trailer, 3 too large, 4 another
+        /// board, 5 downgrade, 6 bad signature, 7 unreadable), or 8: the partition could not be
+        /// written. One code for both: a fault code is a slot of every node's fault limiter.
+        UpdateFailed = 0x0090, "firmware update failed";
     }
 }
 

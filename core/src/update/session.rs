@@ -34,6 +34,10 @@ use crate::time::Instant;
 
 /// The most image bytes a Chunk carries.
 pub const CHUNK: usize = 1024;
+/// The longest message: a Chunk's kind, offset and [`CHUNK`] bytes (a node's receive buffer).
+pub const MESSAGE_MAX: usize = 1 + 4 + CHUNK;
+/// A Begin's length: what a TransferOpen for an update announces on a keyed node.
+pub const BEGIN_LEN: usize = 1 + MANIFEST_LEN;
 /// A session ends when no message came for this long, µs (the tool's chunks come every few
 /// milliseconds; a tool that went away must not hold the node's update partition).
 pub const SESSION_TIMEOUT_US: u64 = 5_000_000;

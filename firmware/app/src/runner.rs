@@ -129,6 +129,12 @@ where
         Ok(stored) => node.boot(stored, now()),
         Err(error) => node.boot_unreadable(error, now()),
     }
+    #[cfg(feature = "update")]
+    start_update(node, store);
+    // The firmware confirms itself to its bootloader once it has sent a frame and heard one,
+    // with its table loaded (above): until then a reset reverts an update.
+    #[cfg(feature = "update")]
+    let (mut sent, mut heard, mut confirmed) = (false, false, false);
     // The save in progress, if any: when its next step is due (µs on the node's clock).
     let mut save_due: Option<u64> = None;
     loop {
@@ -139,7 +145,17 @@ where
             };
             if bus.transmit(&frame).await.is_err() {
                 node.on_transmit_error(now());
+            } else {
+                #[cfg(feature = "update")]
+                {
+                    sent = true;
+                }
             }
+        }
+        #[cfg(feature = "update")]
+        if sent && heard && !confirmed {
+            confirmed = true;
+            confirm_firmware(store);
         }
         // One reading of the clock for all: the node's deadline, the next feed, the save's step.
         let now_at = now();
@@ -152,6 +168,10 @@ where
         // `select` polls the bus first: a waiting frame always goes before a save's step.
         let step = match select(bus.receive(), Timer::at(wake)).await {
             Either::First(Ok(frame)) => {
+                #[cfg(feature = "update")]
+                {
+                    heard = true;
+                }
                 let step = node.on_frame(&frame, now(), recipient);
                 // A save that has waited SAVE_STARVED_US for the bus to fall quiet steps anyway,
                 // then after every frame until it ends (`save_step` keeps its due time): a step
@@ -201,7 +221,89 @@ where
             let _ = store.start_save(node.image_to_store());
             save_due = Some(now().as_micros());
         }
+        // An update's chunk: written at once (blocking: a page's erase and a chunk's program,
+        // some 30 ms on the G474), then answered.
+        #[cfg(feature = "update")]
+        if step == Step::WriteUpdate {
+            write_update(node, store);
+        }
+        // The update complete: the manifest and the request stored, the answer sent, then the
+        // bootloader.
+        #[cfg(feature = "update")]
+        if step == Step::RequestUpdate && request_update(node, store) {
+            while let Some(frame) = node.next_outgoing() {
+                if bus.transmit(&frame).await.is_err() {
+                    break;
+                }
+            }
+            watchdog.restart();
+        }
     }
+}
+
+/// At start, before the loop: the store's update slot to the node, and the bootloader's
+/// verdict on the last request, if it made one since.
+#[cfg(feature = "update")]
+#[inline(never)]
+pub(crate) fn start_update<S, const P: usize, const C: usize, const N: usize, const IMG: usize>(
+    node: &mut Node<P, C, N, IMG>,
+    store: &mut S,
+) where
+    S: TableStore,
+{
+    node.set_update_slot(store.update_slot_len());
+    match store.take_update_verdict() {
+        Ok(Some(verdict)) => node.update_verdict(verdict),
+        Ok(None) => {}
+        Err(_) => warn!("firmware update: the request page could not be read"),
+    }
+}
+
+/// Confirms the running firmware to the bootloader (which then never reverts it).
+#[cfg(feature = "update")]
+#[inline(never)]
+pub(crate) fn confirm_firmware<S: TableStore>(store: &mut S) {
+    if store.confirm_firmware() {
+        info!("firmware confirmed to the bootloader");
+    } else {
+        warn!("firmware update: the firmware could not be confirmed; a reset reverts it");
+    }
+}
+
+/// Writes the update chunk the node owes and tells it how that went.
+#[cfg(feature = "update")]
+#[inline(never)]
+pub(crate) fn write_update<S, const P: usize, const C: usize, const N: usize, const IMG: usize>(
+    node: &mut Node<P, C, N, IMG>,
+    store: &mut S,
+) where
+    S: TableStore,
+{
+    let ok = match node.update_chunk() {
+        Some((offset, data)) => store.write_update(offset, data).is_ok(),
+        None => false,
+    };
+    node.update_written(ok);
+}
+
+/// Stores the update's manifest and request and tells the node; whether to restart now.
+#[cfg(feature = "update")]
+#[inline(never)]
+pub(crate) fn request_update<S, const P: usize, const C: usize, const N: usize, const IMG: usize>(
+    node: &mut Node<P, C, N, IMG>,
+    store: &mut S,
+) -> bool
+where
+    S: TableStore,
+{
+    let ok = match node.update_manifest() {
+        Some(manifest) => {
+            let manifest = *manifest;
+            store.request_update(&manifest).is_ok()
+        }
+        None => false,
+    };
+    node.update_requested(ok)
 }
 
 /// Stores the node's configuration record and tells it how that went; restarts the node when it

@@ -22,6 +22,8 @@ mod runner;
 mod sealed;
 mod swap;
 mod transfer;
+#[cfg(feature = "update")]
+mod update;
 
 // The schema server on the node: only with its feature (the Linux node enables it, so the
 // workspace's `cargo test` runs these).

@@ -224,10 +224,9 @@ impl Message {
                 // One kind of transfer: a table image (replacing the running version or not), a
                 // schema, or a firmware update's Begin. Replacing a version means nothing to a
                 // schema nor to an update (whose image says itself whether it may downgrade).
-                let known = flags & !(OPEN_REPLACE | OPEN_SCHEMA | OPEN_UPDATE) == 0;
-                let one_kind = flags & OPEN_SCHEMA == 0 || flags == OPEN_SCHEMA;
-                let update_alone = flags & OPEN_UPDATE == 0 || flags == OPEN_UPDATE;
-                if !known || !one_kind || !update_alone {
+                // So each flag alone, or none: one comparison of the byte (three tests of its
+                // bits took 20 bytes more of the NUCLEO-G474RE's flash).
+                if !matches!(flags, 0 | OPEN_REPLACE | OPEN_SCHEMA | OPEN_UPDATE) {
                     return Err(bad);
                 }
                 Message::TransferOpen(TransferOpen {

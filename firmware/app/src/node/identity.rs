@@ -21,7 +21,7 @@ const IDENTITY_INTERVAL_US: u64 = 20_000;
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Me {
     uid: [u8; UID_LEN],
-    firmware: Firmware,
+    pub(super) firmware: Firmware,
     /// The bit rate it runs at, kbit/s (0: its host's, as on a Linux socket).
     bitrate_kbps: u16,
     /// What its configuration page holds (or will, once a pending save is done).

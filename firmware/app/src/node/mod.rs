@@ -38,6 +38,8 @@ mod identity;
 mod outbox;
 mod status;
 mod transfer;
+#[cfg(feature = "update")]
+mod update;
 
 pub use transfer::status_of;
 
@@ -69,6 +71,16 @@ pub enum Step {
     /// `identity`).
     #[cfg(feature = "identity")]
     SaveSettings,
+    /// An update's chunk to write: [`Node::update_chunk`] with
+    /// [`pab_storage::TableStore::write_update`], then call [`Node::update_written`] (feature
+    /// `update`).
+    #[cfg(feature = "update")]
+    WriteUpdate,
+    /// An update's manifest and request to store: [`Node::update_manifest`] with
+    /// [`pab_storage::TableStore::request_update`], then call [`Node::update_requested`], and
+    /// restart if it says so (feature `update`).
+    #[cfg(feature = "update")]
+    RequestUpdate,
 }
 
 /// The running table's identity.
@@ -213,6 +225,9 @@ pub struct Node<const P: usize, const C: usize, const N: usize, const IMG: usize
     /// The schema server of the running table, if it has one.
     #[cfg(feature = "schema")]
     schema: Option<crate::schema::SchemaRuntime>,
+    /// Firmware update over the bus: its receiver and session.
+    #[cfg(feature = "update")]
+    update: update::Update,
 }
 
 /// What one call into the schema server sends: at most a tick's set-point (3 frames), its
@@ -278,6 +293,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             outbox: heapless::Vec::new(),
             #[cfg(feature = "schema")]
             schema: None,
+            #[cfg(feature = "update")]
+            update: update::Update::new(config.isotp),
         }
     }
 
@@ -412,6 +429,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                     Step::Continue => Step::Continue,
                     #[cfg(feature = "identity")]
                     Step::SaveSettings => Step::SaveSettings,
+                    #[cfg(feature = "update")]
+                    step @ (Step::WriteUpdate | Step::RequestUpdate) => step,
                 }
             }
             FrameKind::Topic => {
@@ -439,6 +458,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             Step::Continue => self.store_step(now),
             #[cfg(feature = "identity")]
             Step::SaveSettings => Step::SaveSettings,
+            #[cfg(feature = "update")]
+            step @ (Step::WriteUpdate | Step::RequestUpdate) => step,
         }
     }
 
@@ -657,6 +678,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         if self.schema_on {
             self.schema_due(now);
         }
+        #[cfg(feature = "update")]
+        if self.update.is_busy() {
+            self.update_due(now);
+        }
         self.idle = self.nothing_waits();
         self.idle_until = self.next_heartbeat;
     }
@@ -683,6 +708,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         });
         #[cfg(feature = "schema")]
         let every_frame = every_frame || self.schema_on;
+        #[cfg(feature = "update")]
+        let every_frame = every_frame || self.update.is_busy();
         !every_frame
             && self.receiver.deadline().is_none()
             && self.incoming.is_none()
@@ -698,6 +725,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             self.incoming.map(|incoming| incoming.deadline),
         );
         earlier(&mut deadline, self.faults.deadline());
+        #[cfg(feature = "update")]
+        earlier(&mut deadline, self.update.deadline());
         earlier(&mut deadline, self.store_due);
         #[cfg(feature = "identity")]
         earlier(&mut deadline, self.me.deadline());
@@ -949,6 +978,11 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             Message::TableTransfer { data, len } if id.destination == node_id => {
                 let data = data.get(..usize::from(len)).unwrap_or(&data);
                 self.on_transfer_frame(id, data, now)
+            }
+            #[cfg(feature = "update")]
+            Message::UpdateTransfer { data, len } if id.destination == node_id => {
+                let data = data.get(..usize::from(len)).unwrap_or(&data);
+                self.on_update_frame(id, data, now)
             }
             // HBBA's filter commands: applied and answered with FilterStatus, or refused aloud
             // (never dropped unseen), so that the intention node learns whether its intention is

@@ -100,8 +100,43 @@ pub struct Harness {
     pub settings_saved: Vec<u16>,
     /// What storing a configuration record answers (`Ok(true)`: stored).
     pub settings_result: Result<bool, pab_app::StoreError>,
-    /// Restarts the node asked for after a record was stored.
+    /// Restarts the node asked for after a record was stored (or an update committed).
     pub restarts: u32,
+    /// The ISO-TP service `push_with` sends on: TableTransfer, or UpdateTransfer.
+    pub channel: Channel,
+    /// The update slot as the runner writes it (`Step::WriteUpdate`), 0xFF where unwritten.
+    pub update_slot: Vec<u8>,
+    /// Whether writing the update slot succeeds.
+    pub update_write_ok: bool,
+    /// The manifests the node asked to store with a request (`Step::RequestUpdate`).
+    pub update_requests: Vec<Vec<u8>>,
+}
+
+/// Which ISO-TP service a push goes over.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Channel {
+    Table,
+    #[cfg(feature = "update")]
+    Update,
+}
+
+impl Channel {
+    fn message(self, data: [u8; 8]) -> Message {
+        match self {
+            Channel::Table => Message::TableTransfer { data, len: 8 },
+            #[cfg(feature = "update")]
+            Channel::Update => Message::UpdateTransfer { data, len: 8 },
+        }
+    }
+
+    fn flow_control(self, message: &Message) -> Option<([u8; 8], u8)> {
+        match (self, message) {
+            (Channel::Table, Message::TableTransfer { data, len }) => Some((*data, *len)),
+            #[cfg(feature = "update")]
+            (Channel::Update, Message::UpdateTransfer { data, len }) => Some((*data, *len)),
+            _ => None,
+        }
+    }
 }
 
 impl Harness {
@@ -145,6 +180,10 @@ impl Harness {
             settings_saved: Vec::new(),
             settings_result: Ok(true),
             restarts: 0,
+            channel: Channel::Table,
+            update_slot: vec![0xFF; 16 * 1024],
+            update_write_ok: true,
+            update_requests: Vec::new(),
         };
         harness.drain();
         harness
@@ -203,6 +242,28 @@ impl Harness {
             self.stored.push(self.node.image_to_store().to_vec());
             self.node
                 .stored(self.store_ok, Instant::from_micros(self.now));
+        }
+        #[cfg(feature = "update")]
+        if step == Step::WriteUpdate {
+            let (offset, data) = self.node.update_chunk().expect("a chunk owed");
+            let at = offset as usize;
+            let ok = self.update_write_ok && at + data.len() <= self.update_slot.len();
+            if ok {
+                self.update_slot[at..at + data.len()].copy_from_slice(data);
+            }
+            self.node.update_written(ok);
+        }
+        #[cfg(feature = "update")]
+        if step == Step::RequestUpdate {
+            let manifest = self
+                .node
+                .update_manifest()
+                .expect("a manifest owed")
+                .to_vec();
+            self.update_requests.push(manifest);
+            if self.node.update_requested(self.update_write_ok) {
+                self.restarts += 1;
+            }
         }
     }
 
@@ -269,8 +330,7 @@ impl Harness {
             match event {
                 TxEvent::Send(data) => {
                     if let Some(data) = tamper(self, index, data) {
-                        let frame =
-                            Message::TableTransfer { data, len: 8 }.to_frame(source, Self::NODE_ID);
+                        let frame = self.channel.message(data).to_frame(source, Self::NODE_ID);
                         self.feed(&frame);
                     }
                     index += 1;
@@ -282,8 +342,8 @@ impl Harness {
                     while seen < self.sent.len() {
                         let (_, frame) = self.sent[seen];
                         seen += 1;
-                        if let Ok((id, Message::TableTransfer { data, len })) =
-                            Message::decode(&frame)
+                        if let Ok((id, message)) = Message::decode(&frame)
+                            && let Some((data, len)) = self.channel.flow_control(&message)
                             && id.destination == source
                         {
                             {
