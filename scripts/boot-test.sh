@@ -6,7 +6,8 @@
 # code and never swapped (scripts/boot_test.py says how).
 #   scripts/boot-test.sh
 # Builds pab-boot-an386, pab-fw-an386's test application pab-an386-boottest and the node firmware
-# pab-fw-an386 with the feature `boot` (linked at the active partition; the `firmware` profile;
+# pab-fw-an386 with the feature `update` (behind the bootloader, linked at the active partition;
+# the `firmware` profile;
 # then the node firmware again without it, as the other tests take it) and pabctl (signing), prints
 # the bootloader's flash size (text + data, llvm-size), and fails if it is over its region
 # (32 KiB). Needs qemu-system-arm (installed with apt-get if missing) and python3.
@@ -20,8 +21,11 @@ tools="$(rustc --print sysroot)/lib/rustlib/x86_64-unknown-linux-gnu/bin"
 cargo build -q --locked --profile firmware -p pab-boot-an386 --target thumbv7em-none-eabihf
 cargo build -q --locked --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf \
     --features boot --bin pab-an386-boottest
+# The node firmware that takes updates over the bus (`update`: behind the bootloader, with
+# identity), without the schema server: the full set with identity and the update does not fit
+# the active partition yet (docs/firmware-update.md).
 cargo build -q --locked --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf \
-    --features boot --bin pab-fw-an386
+    --no-default-features --features ble,dynamics,filters,update --bin pab-fw-an386
 cargo build -q --locked -p pabctl
 mkdir -p "$target/boot-test"
 "$tools/llvm-objcopy" -O binary "$out/pab-an386-boottest" "$target/boot-test/boottest-v1.bin"

@@ -24,7 +24,7 @@ update and ask for it, B mark booted, N don't, H hang under the watchdog, E end.
 the application prints `boottest: version V step N state S verdict R action A`; a run passes
 when those lines and the bootloader's own (`boot: ...`) are the expected ones and QEMU exits 0.
 
-Last, NODE_BIN (the node firmware pab-fw-an386 built with `boot`, raw) as the factory image:
+Last, NODE_BIN (the node firmware pab-fw-an386 built with `update`, raw) as the factory image:
 installed, booted once, and running for a few seconds without a reset.
 """
 
@@ -136,7 +136,7 @@ def scenario(name, work, boot_elf, factory, page, update, script, want_app, want
 
 
 def node_behind_bootloader(boot_elf, node_bin):
-    """The node firmware (pab-fw-an386 with `boot`) as the factory image: installed, booted
+    """The node firmware (pab-fw-an386 with `update`) as the factory image: installed, booted
     once, and running NODE_RUN_S without a reset (its timers, UART and executor interrupts
     through the vector table at 0x8000; a reset would print the boot line again)."""
     command = ["qemu-system-arm", "-M", "mps2-an386", "-display", "none", "-monitor", "none",

@@ -33,6 +33,8 @@ cargo clippy -p pab-fw-an386 --features update-cost --target thumbv7em-none-eabi
 # bootloader's test application).
 cargo clippy -p pab-boot-an386 --target thumbv7em-none-eabihf --release --locked -- -D warnings
 cargo clippy -p pab-fw-an386 --features boot --target thumbv7em-none-eabihf --release --locked -- -D warnings
+# The node that takes updates over the bus (`update`), as scripts/boot-test.sh builds it.
+cargo clippy -p pab-fw-an386 --no-default-features --features ble,dynamics,filters,update --target thumbv7em-none-eabihf --release --locked -- -D warnings
 cargo clippy -p pab-own-driver --features board --target thumbv7em-none-eabihf --release --locked -- -D warnings
 
 # The host crates' documentation: a broken or ambiguous intra-doc link fails.

@@ -82,7 +82,15 @@ pub const BUILD_ID: &str = env!("PAB_BUILD_ID");
 #[macro_export]
 macro_rules! firmware {
     ($name:expr) => {
-        $crate::Firmware::new($name, env!("CARGO_PKG_VERSION"), $crate::BUILD_ID)
+        $crate::Firmware::new(
+            $name,
+            // A test build may say another version (the update tests' v1 and v2).
+            match option_env!("PAB_FIRMWARE_VERSION") {
+                Some(version) => version,
+                None => env!("CARGO_PKG_VERSION"),
+            },
+            $crate::BUILD_ID,
+        )
     };
 }
 

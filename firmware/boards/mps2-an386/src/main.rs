@@ -82,6 +82,13 @@ const _: () = assert!(
 /// The store over the RAM-backed flash.
 type Store = FlashStore<RamFlash>;
 
+/// The node's store: with the feature `update`, the table store and the bootloader's update
+/// slot (the DFU partition and the request page: pab_boot_an386's layout).
+#[cfg(not(feature = "update"))]
+type NodeStore = Store;
+#[cfg(feature = "update")]
+type NodeStore = pab_storage::WithUpdate<Store, pab_boot_an386::Dfu, pab_boot_an386::RequestPage>;
+
 embassy_time_driver::time_driver_impl!(static TIME: TimeDriver = TimeDriver::new());
 
 /// The executor: embassy's interrupt executor on [`Interrupt::SOFTWARE`], below the devices'
@@ -131,22 +138,54 @@ fn main() -> ! {
 #[embassy_executor::task]
 async fn node_task(flash: RamFlash, mut watchdog: BoardWatchdog) {
     #[cfg(feature = "identity")]
+    #[cfg_attr(feature = "update", allow(unused_mut))]
     let (config, loaded, bitrate, mut store) = configured(flash);
     #[cfg(not(feature = "identity"))]
     let (config, mut store) = configured(flash);
+    #[cfg(feature = "update")]
+    let mut store = with_update(store);
     let mut node = pab_app::BoardNode::new(config, pab_app::now());
     #[cfg(feature = "identity")]
     {
         let mut uid = [0u8; pab_core::identity::UID_LEN];
-        let _ = store.flash_mut().read(UID_PAGE, &mut uid);
+        let _ = flash_of(&mut store).read(UID_PAGE, &mut uid);
         node.set_identity(FIRMWARE, uid);
         node.set_settings(loaded, bitrate, pab_app::now());
     }
     // The SLCAN device's serial number: the node's address (an unassigned node's comes from its
     // uid).
     let mut bus = bus(SlcanBus::new(hex4(node.config().node_id)));
-    key(&mut node, store.flash_mut());
+    key(&mut node, flash_of(&mut store));
     pab_app::run_watched(&mut node, &mut bus, &mut store, &mut (), &mut watchdog).await
+}
+
+/// The RAM-backed flash under the node's store.
+fn flash_of(store: &mut NodeStore) -> &mut RamFlash {
+    #[cfg(feature = "update")]
+    let store = &mut store.store;
+    store.flash_mut()
+}
+
+/// The table store with the bootloader's update slot: the DFU partition's first
+/// `ACTIVE_LEN` bytes and the request page.
+#[cfg(feature = "update")]
+fn with_update(store: Store) -> NodeStore {
+    use pab_boot_an386::{Dfu, RequestPage, layout};
+    // SAFETY: one handle each for the firmware's life: the bootloader does not run while the
+    // application does, and nothing else here takes them.
+    let (dfu, request) = unsafe { (Dfu::take(), RequestPage::take()) };
+    match pab_storage::UpdateSlot::new(dfu, request, layout::ACTIVE_LEN as u32) {
+        Ok(slot) => pab_storage::WithUpdate::new(store, slot, confirm),
+        Err(_) => fail(format_args!(
+            "update slot: the bootloader's layout does not fit"
+        )),
+    }
+}
+
+/// Confirms the running firmware to the bootloader (embassy-boot's `mark_booted`).
+#[cfg(feature = "update")]
+fn confirm() -> bool {
+    pab_fw_an386::boot::mark_booted().is_ok()
 }
 
 /// The node's configuration and its store, from the compiled node id (without the feature
