@@ -477,14 +477,25 @@ existing file. Then: `pabctl check FILE`, `pabctl sim FILE --plot FILE.png`.")]
         #[arg(long, value_name = "NAME")]
         example: Option<String>,
     },
-    /// Write a board's key page image from a key file.
+    /// Write a board's key page image from a key file and an update key.
     #[command(long_about = "\
-Write the 32-byte key page record of KEYFILE (magic PABK, format 1, the key, CRC-32) to \
-FILE.bin, to be written at the board's key page address (docs/keys.md: probe-rs download \
---binary-format bin --base-address ...).")]
+Write the key page image to FILE.bin, to be written at the board's key page address \
+(docs/keys.md: probe-rs download --binary-format bin --base-address ...): the 32-byte record of \
+KEYFILE (magic PABK, format 1, the key, CRC-32), which keys the node, and with --update-key the \
+48-byte record of the public key the board's bootloader checks firmware images against, at \
+offset 64 (magic PABS: docs/firmware-update.md). Without KEYFILE the node key's record is left \
+erased (0xFF): the node stays unkeyed. Neither can be changed over the bus. The update public \
+key is the one `pabctl keygen` printed when it made the signing key.
+
+Example: pabctl keypage node3.key --update-key 3b6a...e1 -o node3.keypage.bin")]
     Keypage {
-        /// The key file (`pabctl keygen`).
-        key: PathBuf,
+        /// The node's key file (`pabctl keygen`); without it the node stays unkeyed.
+        #[arg(required_unless_present = "update_key")]
+        key: Option<PathBuf>,
+        /// The update public key: its 64 hexadecimal digits (as `pabctl keygen` printed them
+        /// for the signing key) or a file that holds them.
+        #[arg(long, value_name = "HEX|FILE", value_parser = pabctl::signing::public_key)]
+        update_key: Option<[u8; 32]>,
         /// The page image to write.
         #[arg(short, long, value_name = "FILE.bin")]
         output: PathBuf,

@@ -164,7 +164,11 @@ fn main() -> ExitCode {
                 downgrade,
             },
         ),
-        Command::Keypage { key, output } => commands::keys::keypage(&key, &output),
+        Command::Keypage {
+            key,
+            update_key,
+            output,
+        } => commands::keys::keypage(key.as_deref(), update_key, &output),
         Command::Nodes {
             iface,
             network,

@@ -113,6 +113,40 @@ pub fn write_new(path: &Path, key: &SigningKey) -> Result<(), String> {
     )
 }
 
+/// An update public key (what `pabctl keygen --signing` prints): 64 hexadecimal digits, given
+/// as they are or in a file whose first line they are. Refuses a key that is not a point of the
+/// curve (no board could check an image with it).
+pub fn public_key(text_or_file: &str) -> Result<[u8; update::PUBLIC_KEY_LEN], String> {
+    let text = if text_or_file.len() == 2 * update::PUBLIC_KEY_LEN
+        && text_or_file.bytes().all(|b| b.is_ascii_hexdigit())
+    {
+        text_or_file.to_string()
+    } else {
+        let read = std::fs::read_to_string(text_or_file).map_err(|error| {
+            format!(
+                "{text_or_file}: neither 64 hexadecimal digits (the public key `pabctl keygen \
+                 --signing` prints) nor a file that holds them: {error}"
+            )
+        })?;
+        read.lines().next().unwrap_or("").trim().to_string()
+    };
+    let mut key = [0u8; update::PUBLIC_KEY_LEN];
+    if text.len() != 2 * key.len() {
+        return Err(format!(
+            "{text_or_file}: a public key is 64 hexadecimal digits, not {} characters",
+            text.len()
+        ));
+    }
+    for (byte, pair) in key.iter_mut().zip(text.as_bytes().chunks(2)) {
+        let pair = std::str::from_utf8(pair).map_err(|_| "not ASCII".to_string())?;
+        *byte = u8::from_str_radix(pair, 16)
+            .map_err(|_| format!("{text_or_file}: {pair:?} is not hexadecimal"))?;
+    }
+    ed25519_dalek::VerifyingKey::from_bytes(&key)
+        .map_err(|_| format!("{text_or_file}: not an Ed25519 public key"))?;
+    Ok(key)
+}
+
 /// Lower-case hexadecimal.
 pub fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|byte| format!("{byte:02x}")).collect()

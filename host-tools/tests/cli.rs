@@ -1510,3 +1510,62 @@ fn a_firmware_signed_with_a_new_signing_key_is_admitted_under_its_public_key_onl
         Err(UpdateRefusal::Downgrade)
     );
 }
+
+/// `keypage --update-key`: the update key's record at offset 64, as the bootloader reads it,
+/// with or without the node key's record before it; a key that is not one refused.
+#[test]
+fn a_key_page_carries_the_update_key_for_the_bootloader() {
+    use pab_core::update::stored;
+
+    let dir = tempfile::tempdir().unwrap();
+    let signing = dir.path().join("release.sign");
+    let made = pabctl(&["keygen", "--signing", "-o", &signing.display().to_string()]);
+    let printed = text(&made.stdout);
+    let public = printed
+        .lines()
+        .find_map(|line| line.strip_prefix("public key: "))
+        .unwrap()
+        .to_string();
+    let node_key = dir.path().join("node.key");
+    assert!(pabctl(&["keygen", "-o", &node_key.display().to_string()]).status.success());
+    let public_file = dir.path().join("release.pub");
+    std::fs::write(&public_file, format!("{public}\n")).unwrap();
+
+    for (node, update) in [(false, public.clone()), (true, public_file.display().to_string())] {
+        let page = dir.path().join(format!("page-{node}.bin"));
+        let mut args = vec!["keypage".to_string()];
+        if node {
+            args.push(node_key.display().to_string());
+        }
+        args.extend(["--update-key".into(), update, "-o".into(), page.display().to_string()]);
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let written = pabctl(&args);
+        assert!(written.status.success(), "{}", text(&written.stderr));
+        let bytes = std::fs::read(&page).unwrap();
+        assert_eq!(bytes.len(), stored::KEY_RECORD_OFFSET + stored::KEY_RECORD_LEN);
+        let key = stored::decode_key(&bytes[stored::KEY_RECORD_OFFSET..]).unwrap();
+        assert_eq!(pabctl::signing::hex(&key), public);
+        assert_eq!(
+            pab_core::auth::page::decode(&bytes).unwrap().is_some(),
+            node,
+            "the node key's record"
+        );
+    }
+    // 64 hexadecimal digits that are not a point of the curve, and nothing at all.
+    let not_a_point = (2u8..)
+        .map(|y| {
+            let mut bytes = [0u8; 32];
+            bytes[0] = y;
+            bytes
+        })
+        .find(|bytes| ed25519_dalek::VerifyingKey::from_bytes(bytes).is_err())
+        .unwrap();
+    let not_a_point = pabctl::signing::hex(&not_a_point);
+    let out = dir.path().join("refused.bin");
+    let out = out.display().to_string();
+    let bad = pabctl(&["keypage", "--update-key", &not_a_point, "-o", &out]);
+    assert_eq!(bad.status.code(), Some(2), "{}", text(&bad.stderr));
+    assert!(text(&bad.stderr).contains("not an Ed25519 public key"), "{}", text(&bad.stderr));
+    assert_eq!(pabctl(&["keypage", "-o", &out]).status.code(), Some(2));
+    assert!(!Path::new(&out).exists());
+}

@@ -136,7 +136,17 @@ fn main() -> ! {
 /// in the task's future (a `static`), as on the NUCLEO boards: built in `main` and moved into a
 /// `static`, it sat in `main`'s frame first, 42 KB of stack under everything after.
 #[embassy_executor::task]
+#[cfg_attr(
+    feature = "hang-at-start",
+    allow(unreachable_code, unused_variables, unused_mut)
+)]
 async fn node_task(flash: RamFlash, mut watchdog: BoardWatchdog) {
+    // Tests only: a firmware that never comes up (the HIL update test's v2 that hangs at start):
+    // the watchdog resets the board, and the bootloader reverts the update it never confirmed.
+    #[cfg(feature = "hang-at-start")]
+    loop {
+        cortex_m::asm::nop();
+    }
     #[cfg(feature = "identity")]
     #[cfg_attr(feature = "update", allow(unused_mut))]
     let (config, loaded, bitrate, mut store) = configured(flash);
