@@ -156,17 +156,43 @@ def _board_first() -> None:
         pass
 
 
-def qemu_command(elf: Path, serial: str, monitor: Path) -> list[str]:
+@dataclass(frozen=True)
+class BehindBootloader:
+    """A board behind its bootloader (firmware/boot/mps2-an386): QEMU runs the bootloader's ELF,
+    which installs `factory` (the application's raw binary, planted at FACTORY_ADDRESS) into its
+    active partition at the first boot, as a probe would flash it; `key_page` (`pabctl keypage
+    --update-key`) holds the update key the bootloader checks images against."""
+    factory: Path
+    key_page: Path
+
+
+#: Where the bootloader finds the factory image (pab_boot_an386::layout::FACTORY).
+FACTORY_ADDRESS = 0x0010_0000
+
+
+def qemu_command(elf: Path, serial: str, monitor: Path,
+                 boot: BehindBootloader | None = None) -> list[str]:
     """QEMU's command line for the board: UART0 on `serial` (a QEMU -serial value), the human
     monitor on the unix socket `monitor` (for system_reset), semihosting (the log, on stderr),
-    and the key page of $PAB_KEY_PAGE if set."""
-    return [
+    and the key page of $PAB_KEY_PAGE if set. With `boot`, `elf` is the bootloader, and the
+    factory image and the key page are planted for it (QEMU's loader, again at every system
+    reset: the bootloader installs the factory image only into an empty active partition)."""
+    command = [
         QEMU, "-M", "mps2-an386", "-display", "none", "-no-user-config", "-nodefaults",
         "-semihosting-config", "enable=on,target=native",
         "-serial", serial,
         "-monitor", f"unix:{monitor},server=on,wait=off", "-nic", "none",
         "-kernel", str(elf),
-    ] + key_page_arguments()
+    ]
+    if boot is None:
+        return command + key_page_arguments()
+    for path in (boot.factory, boot.key_page):
+        if not path.is_file():
+            raise BoardError(f"{path}: no such file")
+    return command + [
+        "-device", f"loader,file={boot.factory},addr={FACTORY_ADDRESS:#x},force-raw=on",
+        "-device", f"loader,file={boot.key_page},addr={KEY_PAGE_ADDRESS:#x},force-raw=on",
+    ]
 
 
 def key_page_arguments() -> list[str]:
@@ -202,10 +228,12 @@ def monitor_command(monitor: Path, command: str, timeout: float = 5.0) -> str:
 class LocalQemu:
     """The board's QEMU on this machine; its UART0 is a pseudo-terminal here."""
 
-    def __init__(self, elf: Path, log: Path, ahead: bool = False) -> None:
+    def __init__(self, elf: Path, log: Path, ahead: bool = False,
+                 boot: BehindBootloader | None = None) -> None:
         self.elf = elf
         self.log = log
         self.ahead = ahead
+        self.boot = boot
         self.dir = Path(tempfile.mkdtemp(prefix="pab-board-"))
         self.monitor = self.dir / "monitor.sock"
         self.process: subprocess.Popen | None = None
@@ -217,7 +245,7 @@ class LocalQemu:
         self.log.parent.mkdir(parents=True, exist_ok=True)
         with open(self.log, "ab") as log:
             self.process = subprocess.Popen(
-                qemu_command(self.elf, "pty", self.monitor),
+                qemu_command(self.elf, "pty", self.monitor, self.boot),
                 stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log,
                 preexec_fn=_board_first if self.ahead else None,
             )
@@ -257,13 +285,17 @@ class LocalQemu:
 class RemoteQemu:
     """The board's QEMU on the micro-VM's host (see `HostBoards`). UART0 is this machine's serial
     port `uart` (/dev/ttyS1); requests go over the serial port `control` (/dev/ttyS2), one line
-    each way: `start ELF LOG [ahead]` -> `ok PID`, `reset` -> `ok`, `stop` -> `ok`, or `error WHY`
-    (`ahead`: the board's QEMU runs BOARD_NICENESS_STEP ahead of the suite)."""
+    each way: `start ELF LOG [ahead] [boot FACTORY KEYPAGE]` -> `ok PID`, `reset` -> `ok`, `stop`
+    -> `ok`, or `error WHY` (`ahead`: the board's QEMU runs BOARD_NICENESS_STEP ahead of the
+    suite; `boot`: ELF is the bootloader, with the factory image and key page of
+    `BehindBootloader`)."""
 
-    def __init__(self, elf: Path, log: Path, uart: str, control: str, ahead: bool = False) -> None:
+    def __init__(self, elf: Path, log: Path, uart: str, control: str, ahead: bool = False,
+                 boot: BehindBootloader | None = None) -> None:
         self.elf = elf
         self.log = log
         self.ahead = ahead
+        self.boot = boot
         self.uart = uart
         self.control = control
         self._pid: int | None = None
@@ -293,6 +325,8 @@ class RemoteQemu:
     def start(self) -> str:
         self.log.parent.mkdir(parents=True, exist_ok=True)
         request = f"start {self.elf} {self.log}" + (" ahead" if self.ahead else "")
+        if self.boot is not None:
+            request += f" boot {self.boot.factory} {self.boot.key_page}"
         self._pid = int(self._request(request) or 0) or None
         return self.uart
 
@@ -312,13 +346,15 @@ class RemoteQemu:
             self._pid = None
 
 
-def qemu_here_or_on_host(elf: Path, log: Path, ahead: bool = False) -> LocalQemu | RemoteQemu:
+def qemu_here_or_on_host(elf: Path, log: Path, ahead: bool = False,
+                         boot: BehindBootloader | None = None) -> LocalQemu | RemoteQemu:
     """RemoteQemu when the suite runs in the micro-VM with the host's board service, else local.
-    `ahead`: the board's QEMU runs BOARD_NICENESS_STEP ahead of the suite's other work."""
+    `ahead`: the board's QEMU runs BOARD_NICENESS_STEP ahead of the suite's other work; `boot`:
+    `elf` is the bootloader (`BehindBootloader`)."""
     uart, control = os.environ.get(UART_ENV), os.environ.get(CONTROL_ENV)
     if uart and control:
-        return RemoteQemu(elf, log, uart, control, ahead)
-    return LocalQemu(elf, log, ahead)
+        return RemoteQemu(elf, log, uart, control, ahead, boot)
+    return LocalQemu(elf, log, ahead, boot)
 
 
 def _run(command: list[str]) -> None:
@@ -355,6 +391,8 @@ class BoardNode:
     # Whether the board's QEMU runs ahead of the suite's other work (BOARD_NICENESS_STEP): for
     # the tests that time the board itself.
     ahead: bool = False
+    # Behind the bootloader: `elf` is then the bootloader's (`BehindBootloader`).
+    boot: BehindBootloader | None = None
 
     @property
     def can_iface(self) -> str:
@@ -381,7 +419,7 @@ class BoardNode:
             {"can_id": heartbeat, "can_mask": 0x1FFFFFFF, "extended": True}])
         try:
             started = time.monotonic()
-            self.qemu = qemu_here_or_on_host(self.elf or firmware(), log, self.ahead)
+            self.qemu = qemu_here_or_on_host(self.elf or firmware(), log, self.ahead, self.boot)
             line = self.qemu.start()
             self._bridge(line)
             deadline = started + START_TIMEOUT_S
@@ -568,13 +606,18 @@ class HostBoards:
     def _handle(self, request: str) -> str:
         words = request.split()
         try:
-            if words[:1] == ["start"] and (len(words) == 3 or words[3:] == ["ahead"]):
+            options = words[3:]
+            ahead = options[:1] == ["ahead"]
+            options = options[1:] if ahead else options
+            boot = (BehindBootloader(Path(options[1]), Path(options[2]))
+                    if len(options) == 3 and options[0] == "boot" else None)
+            if words[:1] == ["start"] and len(words) >= 3 and (not options or boot):
                 self._stop_qemu()
                 with open(words[2], "ab") as log:
                     self.qemu = subprocess.Popen(
-                        qemu_command(Path(words[1]), f"unix:{self.uart}", self.monitor),
+                        qemu_command(Path(words[1]), f"unix:{self.uart}", self.monitor, boot),
                         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=log,
-                        preexec_fn=_board_first if words[3:] == ["ahead"] else None)
+                        preexec_fn=_board_first if ahead else None)
                 return f"ok {self.qemu.pid}"
             if words == ["reset"]:
                 if self.qemu is None or self.qemu.poll() is not None:

@@ -63,6 +63,9 @@ IDENTITY_NAME = 0x27
 ASSIGN = 0x28
 CONFIGURE = 0x29
 CONFIG_STATUS = 0x2A
+# Firmware update over the bus (docs/firmware-update.md): the tests drive it through `pabctl flash`.
+UPDATE_TRANSFER = 0x2B
+UPDATE_STATUS = 0x2C
 INTENTION_NODE = 126  # the intention node's address unless told otherwise
 
 PRIORITY = {
@@ -105,6 +108,8 @@ PRIORITY = {
     ASSIGN: 3,
     CONFIGURE: 3,
     CONFIG_STATUS: 2,
+    UPDATE_TRANSFER: 6,
+    UPDATE_STATUS: 2,
 }
 
 NODE_STATES = {0: "no table", 1: "operational", 2: "fault"}

@@ -99,6 +99,19 @@ def test_start_reset_stop_and_the_boards_command_line(boards, tmp_path):
         answer = guest.ask(f"start {elf} {log} ahead")
         assert answer.startswith("ok "), answer
         assert guest.ask("stop") == "ok"
+        # Behind the bootloader: the factory image and the key page planted; a `boot` without
+        # both is refused.
+        factory, page = tmp_path / "v1.bin", tmp_path / "page.bin"
+        factory.write_bytes(bytes(8))
+        page.write_bytes(bytes(8))
+        invocations.unlink()
+        answer = guest.ask(f"start {elf} {log} ahead boot {factory} {page}")
+        assert answer.startswith("ok "), answer
+        wait_for(invocations.exists, "the stand-in never ran")
+        arguments = invocations.read_text().split()
+        assert f"loader,file={factory},addr=0x100000,force-raw=on" in arguments, arguments
+        assert guest.ask("stop") == "ok"
+        assert guest.ask(f"start {elf} {log} boot {factory}").startswith("error unknown request")
     finally:
         guest.close()
 

@@ -28,3 +28,19 @@ def test_a_missing_key_page_is_an_error_naming_it(monkeypatch, tmp_path):
     monkeypatch.setenv("PAB_KEY_PAGE", str(tmp_path / "missing.bin"))
     with pytest.raises(BoardError, match="missing.bin: no such file"):
         qemu_command(Path("fw"), "pty", Path("monitor.sock"))
+
+
+def test_behind_the_bootloader_the_factory_image_and_key_page_are_planted(tmp_path):
+    from pab_hil.board import BehindBootloader
+    factory, page = tmp_path / "v1.bin", tmp_path / "page.bin"
+    factory.write_bytes(bytes(64))
+    page.write_bytes(bytes(112))
+    command = qemu_command(Path("boot.elf"), "pty", Path("monitor.sock"),
+                           BehindBootloader(factory, page))
+    assert command[command.index("-kernel") + 1] == "boot.elf"
+    devices = [command[i + 1] for i, word in enumerate(command) if word == "-device"]
+    assert devices == [f"loader,file={factory},addr=0x100000,force-raw=on",
+                       f"loader,file={page},addr=0x4e000,force-raw=on"]
+    with pytest.raises(BoardError, match="missing.bin: no such file"):
+        qemu_command(Path("boot.elf"), "pty", Path("monitor.sock"),
+                     BehindBootloader(tmp_path / "missing.bin", page))

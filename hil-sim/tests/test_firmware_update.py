@@ -1,0 +1,105 @@
+"""Firmware update over the bus, on the emulated Cortex-M4 behind its bootloader
+(firmware/boot/mps2-an386): `pabctl flash` sends a signed image over the bus (SLCAN, the kernel's
+slcan driver, cangw: the board's usual bridge) into the board's update partition; the board asks
+its bootloader, which checks the signature and swaps the image in; the new firmware confirms
+itself once it has joined the bus. Images for another board, lower versions, changed bytes and a
+new firmware that never comes up are refused or rolled back, and the board keeps running its
+previous firmware.
+
+The images (target/hil-board/update-*: hil-sim/run-hil builds and signs them): the node that takes
+updates as v1 (0.1.0) and v2 (0.2.0), a v2 that hangs at start, and v2 and v1 signed for another
+board and as a downgrade, under a test signing key whose public key goes into the board's key
+page (`pabctl keypage --update-key`)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import time
+from pathlib import Path
+
+from pab_hil.board import BehindBootloader, BoardNode
+from pab_hil.nodes import REPO, MissingBinary, binary
+
+IMAGES = REPO / "target" / "hil-board"
+
+
+def image(name: str) -> Path:
+    path = IMAGES / name
+    if not path.is_file():
+        raise MissingBinary(f"{path} is missing: hil-sim/run-hil builds it")
+    return path
+
+
+def pabctl(*args: str, timeout: float = 300.0) -> subprocess.CompletedProcess:
+    return subprocess.run([str(binary("pabctl")), *args], stdout=subprocess.PIPE,
+                          stderr=subprocess.PIPE, text=True, timeout=timeout)
+
+
+def version(iface: str) -> str | None:
+    """The firmware version node 1 states (`pabctl nodes --json`), or None if it is not heard."""
+    listed = pabctl("nodes", "--iface", iface, "--listen", "1.5", "--json")
+    assert listed.returncode == 0, listed.stderr
+    nodes = [n for n in json.loads(listed.stdout) if n["node_id"] == 1]
+    return nodes[0]["firmware"]["version"] if nodes else None
+
+
+def flash(iface: str, signed: Path) -> subprocess.CompletedProcess:
+    result = pabctl("flash", "--iface", iface, "--node", "1", str(signed))
+    print(f"$ pabctl flash {signed.name}: exit {result.returncode}\n{result.stdout}{result.stderr}")
+    return result
+
+
+def test_the_board_is_updated_over_the_bus_and_keeps_its_firmware_when_an_update_fails(
+        iface, out_dir):
+    bootloader = image("pab-boot-an386")
+    v1 = image("update-v1.bin")
+    page = out_dir / "update.keypage.bin"
+    made = pabctl("keypage", "--update-key", str(image("update.pub")), "-o", str(page))
+    assert made.returncode == 0, made.stderr
+    # A copy of v2 with one byte of its image changed after signing: only the bootloader, which
+    # checks the signature, can tell.
+    tampered = out_dir / "update-tampered.signed"
+    signed = bytearray(image("update-v2.signed").read_bytes())
+    signed[len(signed) // 2] ^= 0x01
+    tampered.write_bytes(bytes(signed))
+
+    board = BoardNode("arm", 1, iface, out_dir, elf=bootloader,
+                      boot=BehindBootloader(factory=v1, key_page=page))
+    board.start()
+    try:
+        assert version(iface) == "0.1.0"
+
+        # Refused at the Begin, from the trailer alone: nothing is written, nothing restarts.
+        other = flash(iface, image("update-other-board.signed"))
+        assert other.returncode != 0 and "board" in (other.stdout + other.stderr), other
+        older = flash(iface, image("update-downgrade.signed"))
+        assert older.returncode != 0 and "version" in (older.stdout + older.stderr), older
+        assert version(iface) == "0.1.0"
+
+        # Sent whole; the bootloader refuses it (bad signature) and the board runs v1 again.
+        changed = flash(iface, tampered)
+        assert changed.returncode != 0 and "signature" in (changed.stdout + changed.stderr), \
+            changed
+        assert version(iface) == "0.1.0"
+
+        # A v2 that never comes up: swapped in, never confirmed; the watchdog resets it and the
+        # bootloader reverts to v1.
+        hangs = flash(iface, image("update-v2-hang.signed"))
+        assert hangs.returncode != 0 and "0.1.0" in (hangs.stdout + hangs.stderr), hangs
+        deadline = time.monotonic() + 30
+        while version(iface) != "0.1.0":
+            assert time.monotonic() < deadline, "v1 did not come back after the hanging v2"
+
+        # And v2: swapped in, confirmed, running.
+        updated = flash(iface, image("update-v2.signed"))
+        assert updated.returncode == 0, updated
+        assert version(iface) == "0.2.0"
+        # Confirmed: a reset keeps it (an unconfirmed one would be reverted).
+        board.reset()
+        deadline = time.monotonic() + 30
+        while (found := version(iface)) is None:
+            assert time.monotonic() < deadline, "the board did not come back after its reset"
+        assert found == "0.2.0"
+    finally:
+        board.stop()
