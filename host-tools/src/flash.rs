@@ -340,7 +340,9 @@ impl Flash<'_> {
                     Err(Outcome::NoAnswer(why)) => {
                         lost += 1;
                         if lost > self.timeouts.retries {
-                            return Ok(Outcome::NoAnswer(format!("{why}, {lost} times in all")));
+                            return Ok(Outcome::NoAnswer(format!(
+                                "{why} ({lost} time(s), the chunk sent again each time)"
+                            )));
                         }
                     }
                     Err(outcome) => return Ok(outcome),

@@ -17,6 +17,7 @@ use ed25519_dalek::SigningKey;
 use embedded_storage::nor_flash::NorFlash;
 use pab_core::auth::{Authenticator, Key};
 use pab_core::identity::Firmware;
+use pab_core::protocol::{Message, UpdateStatusCode};
 use pab_core::update::stored::{self, VERDICT_OFFSET};
 use pab_core::update::{MANIFEST_LEN, SignedImage, UpdateRefusal};
 use pabctl::bus::memory::MemoryHub;
@@ -323,6 +324,72 @@ fn a_keyed_node_takes_an_update_only_with_its_key() {
     // With it: the whole update.
     let (outcome, _, left, _) = flash_and_restart(&bytes, Some(key()), Ok(()), new());
     assert_eq!(outcome, Outcome::Running { firmware: new() }, "{outcome}");
+    assert_requested(&left, &bytes);
+}
+
+/// The tool's bus, losing the first Ack that names offset `lose`: the answer to a chunk lost.
+struct LosesAnAck {
+    bus: pabctl::bus::memory::MemoryBus,
+    lose: u32,
+    lost: u32,
+}
+
+impl pabctl::bus::Bus for LosesAnAck {
+    fn send(&mut self, frame: &pab_core::Frame) -> std::io::Result<()> {
+        self.bus.send(frame)
+    }
+
+    fn receive(&mut self, timeout: Duration) -> std::io::Result<Option<pab_core::Frame>> {
+        let frame = self.bus.receive(timeout)?;
+        if let Some(Ok((_, Message::UpdateStatus(status)))) = frame.as_ref().map(Message::decode)
+            && status.status == UpdateStatusCode::Ack
+            && status.offset == self.lose
+            && self.lost == 0
+        {
+            self.lost += 1;
+            // Nothing more within the time, as when the frame never came.
+            return self.bus.receive(timeout);
+        }
+        Ok(frame)
+    }
+}
+
+#[test]
+fn a_chunk_whose_ack_is_lost_is_sent_again_and_acknowledged_without_being_written_twice() {
+    let hub = MemoryHub::new();
+    let (dfu, request) = flashes();
+    let update = Update {
+        firmware: old(),
+        dfu: dfu.clone(),
+        request,
+    };
+    let node = LiveNode::spawn_updatable(&hub, NODE, None, None, Some(update.clone()));
+    let done = Arc::new(AtomicBool::new(false));
+    let board = bootloader(&hub, node, update, None, Ok(()), new(), done.clone());
+    let bytes = signed(&image(4_000), new());
+    let mut tool = LosesAnAck {
+        bus: hub.connect(),
+        lose: 2048,
+        lost: 0,
+    };
+    let mut progress = Vec::new();
+    let outcome = flash::flash(
+        &mut tool,
+        NODE,
+        &SignedImage::parse(&bytes).unwrap(),
+        None,
+        Timeouts {
+            answer: Duration::from_millis(300),
+            ..timeouts()
+        },
+        &mut |sent, _| progress.push(sent),
+    )
+    .unwrap();
+    done.store(true, Ordering::SeqCst);
+    assert_eq!(tool.lost, 1, "an Ack was lost");
+    assert_eq!(outcome, Outcome::Running { firmware: new() }, "{outcome}");
+    assert_eq!(progress, [0, 1024, 2048, 3072, 4000]);
+    let (left, _again) = board.join().unwrap().expect("the node restarted");
     assert_requested(&left, &bytes);
 }
 
