@@ -37,6 +37,7 @@ Examples:
   pabctl sim examples/take-and-return.toml --plot out/take-and-return.png --trace out/trace.csv
   pabctl replay examples/take-and-return.toml yesterday.log --trace out/replay.csv
   pabctl push examples/take-and-return.toml --iface vcan0
+  pabctl flash --iface vcan0 --node 3 fw-1.2.0.signed
   pabctl nodes --iface vcan0
   pabctl assign --iface vcan0 --uid 3f2a9c0d11e04b77 --node-id 4
   pabctl monitor examples/take-and-return.toml --iface vcan0
@@ -461,6 +462,64 @@ rev-parse HEAD) target/fw.bin -o fw-1.2.0.signed")]
         /// Allow the image to replace a higher version (signed with it).
         #[arg(long)]
         downgrade: bool,
+    },
+    /// Update nodes' firmware over the bus with a signed image; check that each runs it.
+    #[command(long_about = "\
+Send FIRMWARE.signed (an image `pabctl sign` made) to each node of --node over --iface, one node \
+after the other, and check that the node runs it. Per node: the Begin (the image's trailer and \
+signature), which the node checks (board kind, version not lower than the one it runs unless \
+signed as a downgrade, size) and answers Ready or Refused; the image in chunks of 1 024 bytes, \
+each acknowledged with the next offset and the CRC-32 so far, checked against the tool's (a lost \
+answer sends the chunk again, a node that expects another offset is resumed from it); the \
+Commit with the image's CRC-32, after which the node stores the request and restarts into its \
+bootloader. The bootloader checks the Ed25519 signature against the public key in the node's key \
+page, swaps the image in or refuses it, and the node says which when it is back (within \
+--restart-timeout). The update of a node is done only when its identity then states the signed \
+board kind, version and build. A progress bar per node shows bytes sent and throughput (on a \
+terminal); one line per node says how it ended.
+
+What the node needs: a firmware built with the `update` feature (the Linux node, the emulated \
+board's `boot` build: not yet the NUCLEO boards' flashed firmware), an update partition and a \
+bootloader, and the update key (Ed25519 public key) in its key page: only images signed with the \
+matching key run, whatever the bus carries. A keyed node takes the update only with --key (a \
+challenge and a TransferOpen authorise the Begin).
+
+Nodes are taken one after the other. A node that refuses the image, does not answer or fails \
+before its restart is reported and the next node is tried; a node that restarted with the image \
+and does not come back running it (the bootloader refused or reverted it) stops the command \
+there: the image or the bootloader is suspect, and the other nodes keep their firmware. Exit \
+status 2 for a file that is not a signed image (nothing is sent), 4 when a node did not take the \
+update.
+
+Examples:
+  pabctl flash --iface can0 --node 3 fw-1.2.0.signed
+  pabctl flash --iface can0 --node arm,hand --network robot.toml --key robot.key fw-1.2.0.signed")]
+    Flash {
+        /// The signed firmware image (`pabctl sign`).
+        #[arg(value_name = "FIRMWARE.signed")]
+        firmware: PathBuf,
+        /// The CAN interface (vcan0, can0...).
+        #[arg(long)]
+        iface: String,
+        /// The nodes to update, in order: node ids (1..=127), or names from --network,
+        /// separated by commas.
+        #[arg(
+            long,
+            value_name = "NAME_OR_ID,...",
+            value_delimiter = ',',
+            required = true
+        )]
+        node: Vec<String>,
+        /// The network file (TOML) whose [nodes] name the nodes of --node.
+        #[arg(long, value_name = "FILE")]
+        network: Option<PathBuf>,
+        /// The nodes' key file (`pabctl keygen`): needed by nodes with a key (challenge and
+        /// TransferOpen before the Begin), refused by nodes without one.
+        #[arg(long, value_name = "FILE")]
+        key: Option<PathBuf>,
+        /// How long to wait for a node to come back after its restart into the bootloader.
+        #[arg(long, value_name = "SECONDS", default_value = "30", value_parser = args::seconds)]
+        restart_timeout: f64,
     },
     /// Write a starter network file: the tutorial's, or one of the examples.
     #[command(long_about = "\

@@ -6,7 +6,8 @@
 //! arbitration as it happens ([`monitor`]); a schema server's client ([`client`]) and the
 //! simulated robot in front of its board ([`plant`]). Key files ([`keys`]) and the command
 //! line's numbers ([`args`]) are here too, `pabctl solve`'s report of HBBA's intention solver
-//! ([`solve`]), and firmware signing keys and signed images ([`signing`]).
+//! ([`solve`]), firmware signing keys and signed images ([`signing`]), and a signed image's way to a node
+//! over the bus ([`flash`]).
 //!
 //! The `pabctl` command itself is the binary's: `main.rs` and the modules it declares beside
 //! these (`cli.rs`, `commands/`, `failure.rs`, `output.rs`).
@@ -14,6 +15,7 @@
 pub mod args;
 pub mod bus;
 pub mod client;
+pub mod flash;
 pub mod identity;
 pub mod json;
 pub mod keys;

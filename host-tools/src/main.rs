@@ -164,6 +164,21 @@ fn main() -> ExitCode {
                 downgrade,
             },
         ),
+        Command::Flash {
+            firmware,
+            iface,
+            node,
+            network,
+            key,
+            restart_timeout,
+        } => commands::flash::run(
+            &firmware,
+            &iface,
+            &node,
+            network.as_deref(),
+            key.as_deref(),
+            restart_timeout,
+        ),
         Command::Keypage {
             key,
             update_key,

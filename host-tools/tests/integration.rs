@@ -9,6 +9,7 @@ mod common;
 
 mod cli;
 mod cross_runner;
+mod flash;
 mod hbba;
 mod keyed_board;
 mod pabctl_reference;

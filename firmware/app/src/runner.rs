@@ -244,6 +244,8 @@ where
 /// At start, before the loop: the store's update slot to the node, and the bootloader's
 /// verdict on the last request, if it made one since.
 #[cfg(feature = "update")]
+// The async loop's (`run_watched`, feature `embassy`); a build without it has no caller.
+#[cfg_attr(not(feature = "embassy"), allow(dead_code))]
 #[inline(never)]
 pub(crate) fn start_update<S, const P: usize, const C: usize, const N: usize, const IMG: usize>(
     node: &mut Node<P, C, N, IMG>,
@@ -261,6 +263,8 @@ pub(crate) fn start_update<S, const P: usize, const C: usize, const N: usize, co
 
 /// Confirms the running firmware to the bootloader (which then never reverts it).
 #[cfg(feature = "update")]
+// The async loop's (`run_watched`, feature `embassy`); a build without it has no caller.
+#[cfg_attr(not(feature = "embassy"), allow(dead_code))]
 #[inline(never)]
 pub(crate) fn confirm_firmware<S: TableStore>(store: &mut S) {
     if store.confirm_firmware() {
@@ -272,6 +276,8 @@ pub(crate) fn confirm_firmware<S: TableStore>(store: &mut S) {
 
 /// Writes the update chunk the node owes and tells it how that went.
 #[cfg(feature = "update")]
+// The async loop's (`run_watched`, feature `embassy`); a build without it has no caller.
+#[cfg_attr(not(feature = "embassy"), allow(dead_code))]
 #[inline(never)]
 pub(crate) fn write_update<S, const P: usize, const C: usize, const N: usize, const IMG: usize>(
     node: &mut Node<P, C, N, IMG>,
@@ -288,6 +294,8 @@ pub(crate) fn write_update<S, const P: usize, const C: usize, const N: usize, co
 
 /// Stores the update's manifest and request and tells the node; whether to restart now.
 #[cfg(feature = "update")]
+// The async loop's (`run_watched`, feature `embassy`); a build without it has no caller.
+#[cfg_attr(not(feature = "embassy"), allow(dead_code))]
 #[inline(never)]
 pub(crate) fn request_update<S, const P: usize, const C: usize, const N: usize, const IMG: usize>(
     node: &mut Node<P, C, N, IMG>,

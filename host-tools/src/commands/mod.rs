@@ -5,6 +5,7 @@
 pub mod check;
 pub mod compile;
 pub mod dbc;
+pub mod flash;
 pub mod init;
 pub mod keys;
 pub mod monitor;
