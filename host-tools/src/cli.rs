@@ -478,9 +478,10 @@ page, swaps the image in or refuses it, and the node says which when it is back 
 board kind, version and build. A progress bar per node shows bytes sent and throughput (on a \
 terminal); one line per node says how it ended.
 
-What the node needs: a firmware built with the `update` feature (the Linux node, the emulated \
-board's `boot` build: not yet the NUCLEO boards' flashed firmware), an update partition and a \
-bootloader, and the update key (Ed25519 public key) in its key page: only images signed with the \
+What the node needs: a firmware built with the `update` feature, an update partition and a \
+bootloader (today the emulated board's `update` build, behind its bootloader; not yet the NUCLEO \
+boards' flashed firmware, and not pab-node, which has no update partition and answers \
+Unsupported), and the update key (Ed25519 public key) in its key page: only images signed with the \
 matching key run, whatever the bus carries. A keyed node takes the update only with --key (a \
 challenge and a TransferOpen authorise the Begin).
 
