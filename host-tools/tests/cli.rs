@@ -1527,22 +1527,37 @@ fn a_key_page_carries_the_update_key_for_the_bootloader() {
         .unwrap()
         .to_string();
     let node_key = dir.path().join("node.key");
-    assert!(pabctl(&["keygen", "-o", &node_key.display().to_string()]).status.success());
+    assert!(
+        pabctl(&["keygen", "-o", &node_key.display().to_string()])
+            .status
+            .success()
+    );
     let public_file = dir.path().join("release.pub");
     std::fs::write(&public_file, format!("{public}\n")).unwrap();
 
-    for (node, update) in [(false, public.clone()), (true, public_file.display().to_string())] {
+    for (node, update) in [
+        (false, public.clone()),
+        (true, public_file.display().to_string()),
+    ] {
         let page = dir.path().join(format!("page-{node}.bin"));
         let mut args = vec!["keypage".to_string()];
         if node {
             args.push(node_key.display().to_string());
         }
-        args.extend(["--update-key".into(), update, "-o".into(), page.display().to_string()]);
+        args.extend([
+            "--update-key".into(),
+            update,
+            "-o".into(),
+            page.display().to_string(),
+        ]);
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
         let written = pabctl(&args);
         assert!(written.status.success(), "{}", text(&written.stderr));
         let bytes = std::fs::read(&page).unwrap();
-        assert_eq!(bytes.len(), stored::KEY_RECORD_OFFSET + stored::KEY_RECORD_LEN);
+        assert_eq!(
+            bytes.len(),
+            stored::KEY_RECORD_OFFSET + stored::KEY_RECORD_LEN
+        );
         let key = stored::decode_key(&bytes[stored::KEY_RECORD_OFFSET..]).unwrap();
         assert_eq!(pabctl::signing::hex(&key), public);
         assert_eq!(
@@ -1565,7 +1580,11 @@ fn a_key_page_carries_the_update_key_for_the_bootloader() {
     let out = out.display().to_string();
     let bad = pabctl(&["keypage", "--update-key", &not_a_point, "-o", &out]);
     assert_eq!(bad.status.code(), Some(2), "{}", text(&bad.stderr));
-    assert!(text(&bad.stderr).contains("not an Ed25519 public key"), "{}", text(&bad.stderr));
+    assert!(
+        text(&bad.stderr).contains("not an Ed25519 public key"),
+        "{}",
+        text(&bad.stderr)
+    );
     assert_eq!(pabctl(&["keypage", "-o", &out]).status.code(), Some(2));
     assert!(!Path::new(&out).exists());
 }
