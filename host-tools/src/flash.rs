@@ -11,7 +11,8 @@
 //!    its own; a lost answer sends the same chunk again (the node acknowledges it again without
 //!    writing it twice), an OutOfOrder resumes from the offset the node names, both bounded;
 //! 4. Commit with the image's CRC-32; Committed, and the node restarts into its bootloader;
-//! 5. the node back: its UpdateStatus Swapped (or Refused with the bootloader's reason), then its
+//! 5. the node back: its UpdateStatus Swapped (NotRunning if it was reverted, Refused with the
+//!    bootloader's reason), then its
 //!    identity, which must state the signed board kind, version and build. Only then is the
 //!    update reported done: the bootloader checks the signature and may refuse or revert, and
 //!    only the running firmware's identity says what runs.
@@ -441,7 +442,9 @@ impl Flash<'_> {
                 && id.destination == protocol::TOOL
             {
                 match status.status {
-                    UpdateStatusCode::Swapped => {
+                    // Swapped, or accepted but reverted (NotRunning): the identity says which
+                    // firmware runs, and the outcome comes from it.
+                    UpdateStatusCode::Swapped | UpdateStatusCode::NotRunning => {
                         verdict = Some(status);
                         break;
                     }

@@ -194,6 +194,10 @@ wire_enum! {
         Unsupported = 10, "this node takes no updates";
         /// Another transfer holds the node: a table transfer, or an update from another sender.
         Busy = 11, "busy: another transfer holds the node";
+        /// At start: the bootloader accepted the image it was asked to swap in, but the firmware
+        /// that runs is another (the image did not confirm itself and was reverted, or a reset
+        /// came between the bootloader's verdict and its swap).
+        NotRunning = 12, "the image was accepted but does not run (reverted)";
     }
 }
 
@@ -461,7 +465,7 @@ mod tests {
             assert_eq!(UpdateStatusCode::from_code(status.code()), Some(*status));
         }
         assert_eq!(UpdateStatusCode::from_code(0), None);
-        assert_eq!(UpdateStatusCode::from_code(12), None);
+        assert_eq!(UpdateStatusCode::from_code(13), None);
         assert_eq!(SchemaOutcome::from_code(0x12), None);
         assert_eq!(SchemaSafety::from_code(9), None);
         assert_eq!(SchemaSafety::from_code(0xFF), None);

@@ -21,13 +21,16 @@
 //! survives a reset:
 //!
 //! ```text
-//! offset 0: REQUEST       the application: the slot holds an image and its manifest; swap it
-//! offset 8: the verdict   the bootloader: "PABUOUT" and 0 (swapped) or a refusal's code
+//! offset 0:  REQUEST       the application: the slot holds an image and its manifest; swap it
+//! offset 8:  the verdict   the bootloader: "PABUOUT" and 0 (swapped) or a refusal's code
+//! offset 16: the trailer   the application, before the request: what it asked for (32 bytes)
 //! ```
 //!
 //! The bootloader acts on a request without a verdict: it checks, writes the verdict, and only
 //! then marks the swap (a reset between the two loses the update, and the old firmware runs);
-//! the application reads the verdict at start, reports it and erases the page.
+//! the application reads the verdict at start, reports it and erases the page. The trailer tells
+//! the application whether what it runs is what was asked for: an accepted image that did not
+//! confirm itself is reverted before anyone reads the verdict.
 
 use super::{MANIFEST_LEN, PUBLIC_KEY_LEN, SIGNATURE_LEN, TRAILER_LEN, Trailer, UpdateRefusal};
 use crate::crc32::crc32;
@@ -38,6 +41,19 @@ pub const REQUEST: [u8; 8] = *b"PABUREQ1";
 pub const VERDICT: [u8; 7] = *b"PABUOUT";
 /// Where the verdict record lies in the request page.
 pub const VERDICT_OFFSET: u32 = 8;
+/// Where the requested image's trailer lies in the request page.
+pub const TRAILER_OFFSET: u32 = 16;
+
+/// The bootloader's verdict on the last request, as the application finds it at start.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Verdict {
+    /// `Ok`: the bootloader accepted the image and marked the swap; `Err`: the refusal's code.
+    pub outcome: Result<(), u8>,
+    /// What was asked for: the trailer the application stored with the request, if it reads as
+    /// one.
+    pub requested: Option<Trailer>,
+}
 
 /// Where the manifest lies in a slot of `slot_len` bytes (`None` if the slot cannot hold one).
 pub const fn manifest_offset(slot_len: u32) -> Option<u32> {

@@ -14,7 +14,7 @@ use pab_core::protocol::{
     self, FaultCode, Message, OPEN_UPDATE, TransferOpen, UpdateStatus, UpdateStatusCode,
 };
 use pab_core::update::session::{self, BEGIN_LEN, CHUNK};
-use pab_core::update::stored::Manifest;
+use pab_core::update::stored::{Manifest, Verdict};
 use pab_core::update::{MANIFEST_LEN, Trailer};
 
 const SLOT: u32 = 16 * 1024;
@@ -247,7 +247,18 @@ fn a_keyed_node_starts_an_update_only_after_an_open_for_one() {
 
 #[test]
 fn the_bootloaders_verdict_is_reported_at_start() {
-    let mut h = harness(|node| node.update_verdict(Err(6)));
+    let requested = |version: &str| {
+        Some(Trailer {
+            firmware: Firmware::new("fw-test", version, "0011223344556677"),
+            downgrade: false,
+            image_len: 100,
+        })
+    };
+    let refused = Verdict {
+        outcome: Err(6),
+        requested: requested("1.3.0"),
+    };
+    let mut h = harness(|node| node.update_verdict(refused));
     h.advance_to(1_000_000);
     assert_eq!(answers(&h, 0), [status(UpdateStatusCode::Refused, 0, 6)]);
     assert_eq!(
@@ -255,6 +266,27 @@ fn the_bootloaders_verdict_is_reported_at_start() {
         Some(&[6, 0, 0, 0, 0])
     );
 
-    let h = harness(|node| node.update_verdict(Ok(())));
+    // Accepted, and what runs is what was asked for (the harness's firmware is 1.2.0).
+    let swapped = Verdict {
+        outcome: Ok(()),
+        requested: requested("1.2.0"),
+    };
+    let h = harness(|node| node.update_verdict(swapped));
     assert_eq!(answers(&h, 0), [status(UpdateStatusCode::Swapped, 0, 0)]);
+
+    // Accepted, but another firmware runs: the update did not confirm itself and was reverted
+    // before anyone read the verdict (or no trailer was stored with the request).
+    for requested in [requested("1.3.0"), None] {
+        let reverted = Verdict {
+            outcome: Ok(()),
+            requested,
+        };
+        let mut h = harness(|node| node.update_verdict(reverted));
+        h.advance_to(1_000_000);
+        assert_eq!(answers(&h, 0), [status(UpdateStatusCode::NotRunning, 0, 0)]);
+        assert_eq!(
+            faults(&h, FaultCode::UpdateFailed).first(),
+            Some(&[9, 0, 0, 0, 0])
+        );
+    }
 }

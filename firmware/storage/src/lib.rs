@@ -265,7 +265,9 @@ pub trait TableStore {
 
     /// The bootloader's verdict on the last request, taken once ([`UpdateSlot::take_verdict`]).
     /// The default: none.
-    fn take_update_verdict(&mut self) -> Result<Option<Result<(), u8>>, StoreError> {
+    fn take_update_verdict(
+        &mut self,
+    ) -> Result<Option<pab_core::update::stored::Verdict>, StoreError> {
         Ok(None)
     }
 

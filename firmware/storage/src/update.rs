@@ -14,8 +14,8 @@
 //! on as it was.
 
 use embedded_storage::nor_flash::NorFlash;
-use pab_core::update::MANIFEST_LEN;
-use pab_core::update::stored::{self, Request};
+use pab_core::update::stored::{self, Request, Verdict};
+use pab_core::update::{MANIFEST_LEN, TRAILER_LEN, Trailer};
 
 use crate::{FlashErrorKind, LayoutError, SaveProgress, StoreError, TableStore};
 
@@ -124,21 +124,34 @@ impl<D: NorFlash, R: NorFlash> UpdateSlot<D, R> {
         }
         self.dfu.write(at, manifest).map_err(flash)?;
         self.request.erase(0, R::ERASE_SIZE as u32).map_err(flash)?;
+        let trailer = manifest
+            .get(..TRAILER_LEN)
+            .ok_or(StoreError::Flash(FlashErrorKind::OutOfBounds))?;
+        self.request
+            .write(stored::TRAILER_OFFSET, trailer)
+            .map_err(flash)?;
         self.request.write(0, &stored::REQUEST).map_err(flash)
     }
 
-    /// The bootloader's verdict on the last request, once: `Some(Ok(()))` it accepted and
-    /// swapped the image in, `Some(Err(code))` it refused it (`UpdateRefusal::code`); the
-    /// request page is then erased. `None`: no request decided. An `Ok` does not prove that the
-    /// update runs (a reset between the verdict and the swap's mark, or a revert before the
-    /// verdict was taken, leave the old firmware): the firmware's identity does.
-    pub fn take_verdict(&mut self) -> Result<Option<Result<(), u8>>, StoreError> {
+    /// The bootloader's verdict on the last request, once, with the trailer of what was asked
+    /// for; the request page is then erased. `None`: no request decided. An accepted image need
+    /// not be what runs (a reset between the verdict and the swap's mark, or a revert before the
+    /// verdict was taken, leave the old firmware): compare the requested trailer with the
+    /// running firmware.
+    pub fn take_verdict(&mut self) -> Result<Option<Verdict>, StoreError> {
         let mut head = [0u8; 16];
         self.request.read(0, &mut head).map_err(flash)?;
         match Request::read(&head) {
-            Request::Decided(verdict) => {
+            Request::Decided(outcome) => {
+                let mut trailer = [0u8; TRAILER_LEN];
+                self.request
+                    .read(stored::TRAILER_OFFSET, &mut trailer)
+                    .map_err(flash)?;
                 self.request.erase(0, R::ERASE_SIZE as u32).map_err(flash)?;
-                Ok(Some(verdict))
+                Ok(Some(Verdict {
+                    outcome,
+                    requested: Trailer::decode(&trailer).ok(),
+                }))
             }
             Request::None | Request::Pending => Ok(None),
         }
@@ -200,7 +213,7 @@ impl<S: TableStore, D: NorFlash, R: NorFlash> TableStore for WithUpdate<S, D, R>
         self.slot.request(manifest)
     }
 
-    fn take_update_verdict(&mut self) -> Result<Option<Result<(), u8>>, StoreError> {
+    fn take_update_verdict(&mut self) -> Result<Option<Verdict>, StoreError> {
         self.slot.take_verdict()
     }
 

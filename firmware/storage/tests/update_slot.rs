@@ -3,8 +3,9 @@
 //! a whole update: after any cut, the request page holds no request, or the slot holds exactly
 //! the image and its manifest.
 
-use pab_core::update::MANIFEST_LEN;
-use pab_core::update::stored::{self, Request};
+use pab_core::identity::Firmware;
+use pab_core::update::stored::{self, Request, Verdict};
+use pab_core::update::{MANIFEST_LEN, Trailer};
 use pab_storage::testing::MemFlash;
 use pab_storage::{StoreError, UpdateSlot};
 
@@ -18,8 +19,20 @@ fn image(len: usize) -> Vec<u8> {
     (0..len).map(|i| (i * 7 + 3) as u8).collect()
 }
 
+fn trailer() -> Trailer {
+    Trailer {
+        firmware: Firmware::new("fw-g474", "2.1.0", "0123456789abcdef"),
+        downgrade: false,
+        image_len: 5000,
+    }
+}
+
 fn manifest() -> [u8; MANIFEST_LEN] {
-    core::array::from_fn(|i| (i as u8) ^ 0xA7)
+    stored::Manifest {
+        trailer: trailer(),
+        signature: core::array::from_fn(|i| (i as u8) ^ 0xA7),
+    }
+    .encode()
 }
 
 /// Writes `image` in 1 KiB chunks and asks for it.
@@ -112,7 +125,13 @@ fn the_verdict_is_taken_once_and_a_slot_that_is_not_whole_pages_is_refused() {
     page.write(stored::VERDICT_OFFSET, &stored::verdict(Ok(())))
         .unwrap();
     let mut slot = UpdateSlot::new(&mut dfu, &mut page, SLOT).unwrap();
-    assert_eq!(slot.take_verdict(), Ok(Some(Ok(()))));
+    assert_eq!(
+        slot.take_verdict(),
+        Ok(Some(Verdict {
+            outcome: Ok(()),
+            requested: Some(trailer()),
+        }))
+    );
     assert_eq!(slot.take_verdict(), Ok(None), "taken once");
 
     let mut dfu = Dfu::new();

@@ -729,7 +729,7 @@ fn update_status_is_byte_exact_and_refuses_other_lengths_and_codes() {
             len: 7
         })
     );
-    for status in [0, 12, 0xFF] {
+    for status in [0, 13, 0xFF] {
         assert_eq!(
             decode(&[status, 0, 0, 0, 0, 0, 0, 0]),
             Err(DecodeError::Value {

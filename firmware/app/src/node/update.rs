@@ -15,6 +15,7 @@
 
 use pab_core::update::MANIFEST_LEN;
 use pab_core::update::session::{self, Outcome, Updater};
+use pab_core::update::stored::Verdict;
 
 use super::*;
 use protocol::{OPEN_UPDATE, UpdateStatus, UpdateStatusCode};
@@ -22,6 +23,8 @@ use protocol::{OPEN_UPDATE, UpdateStatus, UpdateStatusCode};
 /// The UpdateFailed fault's detail byte 0 when the update partition could not be written (1 to
 /// 7 are the refusals' codes).
 const PARTITION_FAILED: u8 = 8;
+/// The UpdateFailed fault's detail byte 0 when an accepted image does not run (reverted).
+const NOT_RUNNING: u8 = 9;
 
 /// The update receiver's buffer: the longest message.
 const UPDATE_MESSAGE_LEN: usize = session::MESSAGE_MAX;
@@ -80,12 +83,19 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     }
 
     /// The bootloader's verdict on the last request (`TableStore::take_update_verdict`), at
-    /// start: to the tool, Swapped or Refused with the refusal's code, and a refusal's fault.
-    pub fn update_verdict(&mut self, verdict: Result<(), u8>) {
-        match verdict {
-            Ok(()) => {
+    /// start: to the tool, Swapped if the firmware that runs is the one asked for, NotRunning if
+    /// the bootloader accepted it but another runs (it was reverted), Refused with the refusal's
+    /// code; a fault for the last two.
+    pub fn update_verdict(&mut self, verdict: Verdict) {
+        match verdict.outcome {
+            Ok(()) if verdict.requested.map(|t| t.firmware) == Some(self.me.firmware) => {
                 info!("firmware update: the bootloader swapped the image in");
                 self.update_status(protocol::TOOL, UpdateStatusCode::Swapped, 0, 0);
+            }
+            Ok(()) => {
+                warn!("firmware update: accepted by the bootloader, but not what runs (reverted)");
+                self.update_status(protocol::TOOL, UpdateStatusCode::NotRunning, 0, 0);
+                self.raise(FaultCode::UpdateFailed, [NOT_RUNNING, 0, 0, 0, 0]);
             }
             Err(refusal) => {
                 warn!(
