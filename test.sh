@@ -20,7 +20,8 @@
 # check, the panic check of the board firmware (scripts/panic-check.sh, built with its panic
 # locations), the emulated board's watchdog and stack-guard
 # test (scripts/watchdog-test.sh: a hung loop, an overflowed stack), the emulated board's
-# bootloader (scripts/boot-test.sh: updates swapped, reverted, refused), the keyed emulated board
+# bootloader (scripts/boot-test.sh: updates swapped, reverted, refused) and a reset at each of its
+# flash operations (scripts/boot-reset-test.sh: the swap's and the revert's), the keyed emulated board
 # (scripts/keyed-board-test.sh), and the
 # hardware-in-the-loop suite (hil-sim/run-hil: on vcan0, or in a micro-VM; PAB_HIL_ACCEL=
 # auto|kvm|tcg picks its accelerator), whose fresh Take and Return log then goes through the
@@ -229,6 +230,13 @@ step "emulated Cortex-M4: the bootloader installs, checks, swaps, reverts and re
 # board's, a changed one refused with the verdict's code and never swapped; the node firmware
 # booted from the active partition. Fails if the bootloader outgrows its 32 KiB.
 scripts/boot-test.sh
+
+step "emulated Cortex-M4: a reset at every flash operation of the bootloader's swap and revert (scripts/boot-reset-test.sh, QEMU)"
+# The bootloader's test build (`reset-test`) resets the board in place of its N-th partition
+# operation, one QEMU run per N: the factory install, the verdict, the swap's mark, every page
+# copy, progress record and erase of the swap, then of the revert. Each run must end on v1 or v2
+# as the step implies, with the expected messages. About 20 s.
+scripts/boot-reset-test.sh
 
 step "emulated Cortex-M4 with a key: scripts/keyed-board-test.sh (QEMU)"
 # A key page from `pabctl keygen`/`pabctl keypage` planted at the board's key page: keyed in its

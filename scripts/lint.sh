@@ -32,6 +32,9 @@ cargo clippy -p pab-fw-an386 --features update-cost --target thumbv7em-none-eabi
 # The emulated board's bootloader, and the board behind it (feature `boot`: src/boot.rs and the
 # bootloader's test application).
 cargo clippy -p pab-boot-an386 --target thumbv7em-none-eabihf --release --locked -- -D warnings
+# Its test build (`reset-test`: a reset in place of one partition operation), as
+# scripts/boot-reset-test.sh builds it.
+cargo clippy -p pab-boot-an386 --features reset-test --target thumbv7em-none-eabihf --release --locked -- -D warnings
 cargo clippy -p pab-fw-an386 --features boot --target thumbv7em-none-eabihf --release --locked -- -D warnings
 # The node that takes updates over the bus (`update`), as scripts/boot-test.sh builds it.
 cargo clippy -p pab-fw-an386 --no-default-features --features ble,dynamics,filters,update --target thumbv7em-none-eabihf --release --locked -- -D warnings

@@ -16,6 +16,7 @@
 //! 0x0001_9000..0x0002_B000  DFU: the update's slot (ACTIVE's length), one page more for the swap
 //! 0x0002_B000..0x0002_C000  STATE: embassy-boot's state (magic, swap and revert progress)
 //! 0x0002_C000..0x0002_D000  REQUEST: update::stored's request and verdict records
+//! 0x0003_0000..0x0003_0008  the reset test's two words (feature `reset-test` only: [`reset_test`])
 //! 0x0004_0000..0x0005_2000  the board's RAM-backed flash (table store, key page, ...), unchanged
 //! 0x0010_0000..0x0011_1000  FACTORY: the application's binary, planted by QEMU's loader
 //! ```
@@ -53,6 +54,9 @@ pub mod layout {
     pub const REQUEST: usize = 0x0002_C000;
     /// The request page's length.
     pub const REQUEST_LEN: usize = PAGE;
+    /// The reset test's page (feature `reset-test`: [`crate::reset_test`]): two words, outside
+    /// every partition, image and ELF; a release bootloader never reads it.
+    pub const RESET_TEST: usize = 0x0003_0000;
     /// The board's key page (the application's `ram_flash::FLASH_BASE + KEY_PAGE`); the update
     /// key's record lies at `stored::KEY_RECORD_OFFSET` in it.
     pub const KEY_PAGE: usize = 0x0004_E000;
@@ -79,7 +83,8 @@ pub mod layout {
             && ACTIVE + ACTIVE_LEN == DFU
             && DFU + DFU_LEN == STATE
             && STATE + STATE_LEN == REQUEST
-            && REQUEST + REQUEST_LEN <= 0x0004_0000
+            && REQUEST + REQUEST_LEN <= RESET_TEST
+            && RESET_TEST + PAGE <= 0x0004_0000
             && FACTORY >= 0x0005_2000
             && ACTIVE_LEN.is_multiple_of(PAGE)
             // embassy-boot's state: magic, progress validity, then swap and revert progress.
@@ -189,6 +194,8 @@ impl<const BASE: usize, const LEN: usize> NorFlash for Nor<BASE, LEN> {
         if !(from as usize).is_multiple_of(layout::PAGE) || !len.is_multiple_of(layout::PAGE) {
             return Err(NorError::NotAligned);
         }
+        #[cfg(feature = "reset-test")]
+        reset_test::operation();
         // SAFETY: as in `read`.
         unsafe { core::ptr::write_bytes(at, 0xFF, len) };
         Ok(())
@@ -210,7 +217,80 @@ impl<const BASE: usize, const LEN: usize> NorFlash for Nor<BASE, LEN> {
         if !programmable {
             return Err(NorError::NotErased);
         }
+        #[cfg(feature = "reset-test")]
+        reset_test::operation();
         target.copy_from_slice(bytes);
         Ok(())
+    }
+}
+
+/// The reset test (feature `reset-test`: a test build of the bootloader, never a release one):
+/// a system reset in place of one partition operation, to show that a reset at any step of the
+/// bootloader (the verdict, the swap's mark, every page copy, progress record and erase of
+/// embassy-boot's swap and revert) leaves the old or the new firmware running.
+///
+/// Every erase and write of a [`Nor`] partition that passed its checks is an **operation**;
+/// they are numbered from 1 across all partitions and all resets of one QEMU process, in
+/// [`COUNT`]. Before operation `N` is made, where `N` is the word at [`CUT_AT`], the bootloader
+/// says `boot: reset-test: reset at operation N` and resets the system
+/// (`SCB::sys_reset`): the operation is lost whole (a torn erase or write, half made, is not
+/// modelled), and the next boot finds the partitions as the operations before it left them.
+///
+/// Both words lie in [`layout::RESET_TEST`]'s page, outside every partition, image and ELF, so
+/// a system reset keeps them and a fresh QEMU starts with zeros. The test plants `N` with
+/// QEMU's loader (`-device loader,data=N,data-len=4,addr=0x30000`), which re-plants it at every
+/// reset; the count goes on across the cut (the lost operation, made again, is `N + 1`), so it
+/// never meets `N` again and the cut happens once per QEMU process, with no flag of its own. A
+/// zero `N` (nothing planted) never cuts. The words are plain RAM, written outside the flash
+/// model.
+#[cfg(feature = "reset-test")]
+pub mod reset_test {
+    use super::layout;
+
+    /// The operation to cut (`u32`, little endian), planted by the test: 0 for none.
+    pub const CUT_AT: usize = layout::RESET_TEST;
+    /// The operations made so far in this QEMU process (`u32`), the cut one included.
+    pub const COUNT: usize = layout::RESET_TEST + 4;
+
+    /// The operations made so far in this QEMU process.
+    pub fn count() -> u32 {
+        // SAFETY: a word of RAM of this machine outside every partition and program (the
+        // module's documentation), word aligned.
+        unsafe { core::ptr::read_volatile(COUNT as *const u32) }
+    }
+
+    /// Counts one operation, and resets the system in its place if it is the one to cut.
+    pub(crate) fn operation() {
+        let count = count().wrapping_add(1);
+        // SAFETY: as in `count`; nothing else writes the word.
+        unsafe { core::ptr::write_volatile(COUNT as *mut u32, count) };
+        // SAFETY: as in `count`.
+        let cut_at = unsafe { core::ptr::read_volatile(CUT_AT as *const u32) };
+        if count == cut_at {
+            say_number(b"boot: reset-test: reset at operation ", count);
+            cortex_m::peripheral::SCB::sys_reset();
+        }
+    }
+
+    /// Writes `text`, `number` in decimal and a newline to QEMU's standard error
+    /// (semihosting); errors are ignored.
+    pub fn say_number(text: &[u8], number: u32) {
+        let mut digits = [0u8; 10];
+        let mut at = digits.len();
+        let mut rest = number;
+        loop {
+            at -= 1;
+            // A digit: below 10.
+            digits[at] = b'0' + (rest % 10) as u8;
+            rest /= 10;
+            if rest == 0 {
+                break;
+            }
+        }
+        if let Ok(mut stderr) = cortex_m_semihosting::hio::hstderr() {
+            let _ = stderr.write_all(text);
+            let _ = stderr.write_all(&digits[at..]);
+            let _ = stderr.write_all(b"\n");
+        }
     }
 }

@@ -28,6 +28,10 @@
 //! own watchdog (the CMSDK watchdog's reset is a system reset in QEMU), and this runs again.
 //!
 //! Messages (`boot: ...`) go to QEMU's standard error through semihosting.
+//!
+//! The feature `reset-test` makes a test build (never a release one) that replaces one
+//! partition operation, chosen per QEMU run, with a system reset and says how many operations
+//! each boot made (`pab_boot_an386::reset_test`; scripts/boot-reset-test.sh).
 
 #![no_std]
 #![no_main]
@@ -92,6 +96,13 @@ fn boot() -> Result<(), Halt> {
     }
 
     decide(&mut dfu, &mut state, &mut request, swapping);
+    // The test build's count (src/lib.rs, `reset_test`): where the factory install and the
+    // request's handling end and embassy-boot's swap or revert begins.
+    #[cfg(feature = "reset-test")]
+    pab_boot_an386::reset_test::say_number(
+        b"boot: reset-test: operations before prepare_boot ",
+        pab_boot_an386::reset_test::count(),
+    );
 
     let mut buffer = [0u8; 1024];
     let flashes = (RefCell::new(active), RefCell::new(dfu), RefCell::new(state));
@@ -112,6 +123,11 @@ fn boot() -> Result<(), Halt> {
         // resume.
         (Err(_), _) => say(b"boot: prepare_boot failed\n"),
     }
+    #[cfg(feature = "reset-test")]
+    pab_boot_an386::reset_test::say_number(
+        b"boot: reset-test: operations after prepare_boot ",
+        pab_boot_an386::reset_test::count(),
+    );
     if layout::is_application(vector_table(layout::ACTIVE)) {
         Ok(())
     } else {
