@@ -22,6 +22,7 @@ pub mod network;
 pub mod node;
 pub mod node_keyed;
 pub mod node_schema;
+pub mod node_update;
 pub mod protocol;
 pub mod schema;
 pub mod seal;
@@ -114,6 +115,10 @@ pub const TARGETS: &[Target] = &[
     Target {
         name: "update_session",
         check: update_session::check,
+    },
+    Target {
+        name: "node_update",
+        check: node_update::check,
     },
 ];
 

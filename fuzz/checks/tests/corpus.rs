@@ -76,7 +76,8 @@ fn every_target_has_a_replay_test() {
             "node_schema",
             "seal",
             "update",
-            "update_session"
+            "update_session",
+            "node_update"
         ]
     );
 }
@@ -169,4 +170,9 @@ fn update() {
 #[test]
 fn update_session() {
     replay("update_session");
+}
+
+#[test]
+fn node_update() {
+    replay("node_update");
 }
