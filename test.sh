@@ -119,7 +119,7 @@ step "pab-core for the boards (thumbv7em-none-eabihf)"
 cargo build -p pab-core --release --target thumbv7em-none-eabihf --locked
 cargo build -p pab-storage --release --target thumbv7em-none-eabihf --locked
 
-step "firmware for the NUCLEO-G474RE (pab-fw-g474), the NUCLEO-F446RE (pab-fw-f446) and the emulated Cortex-M4 (pab-fw-an386)"
+step "firmware for the NUCLEO-G474RE (pab-fw-g474), the NUCLEO-F446RE (pab-fw-f446) and the emulated Cortex-M4 (pab-fw-an386); the NUCLEO boards' bootloaders (sized by scripts/firmware-size.sh)"
 # The `firmware` profile: what is flashed (see the root Cargo.toml). One board a command: their
 # features would unify in one build.
 cargo build -p pab-fw-g474 --profile firmware --target thumbv7em-none-eabihf --locked

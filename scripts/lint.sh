@@ -38,6 +38,13 @@ cargo clippy -p pab-boot-an386 --features reset-test --target thumbv7em-none-eab
 cargo clippy -p pab-fw-an386 --features boot --target thumbv7em-none-eabihf --release --locked -- -D warnings
 # The node that takes updates over the bus (`update`), as scripts/boot-test.sh builds it.
 cargo clippy -p pab-fw-an386 --no-default-features --features ble,dynamics,filters,update --target thumbv7em-none-eabihf --release --locked -- -D warnings
+# The NUCLEO boards' bootloaders (with pab-boot-common, the flow they share), and the boards
+# behind them (feature `boot`: linked at the active partition; the F446's without store and boot
+# counter).
+cargo clippy -p pab-boot-g474 --target thumbv7em-none-eabihf --release --locked -- -D warnings
+cargo clippy -p pab-boot-f446 --target thumbv7em-none-eabihf --release --locked -- -D warnings
+cargo clippy -p pab-fw-g474 --features boot --target thumbv7em-none-eabihf --release --locked -- -D warnings
+cargo clippy -p pab-fw-f446 --features boot --target thumbv7em-none-eabihf --release --locked -- -D warnings
 cargo clippy -p pab-own-driver --features board --target thumbv7em-none-eabihf --release --locked -- -D warnings
 
 # The host crates' documentation: a broken or ambiguous intra-doc link fails.

@@ -5,8 +5,8 @@
 #     semihosting (their console and exit status) on this terminal; extra arguments go to QEMU;
 #     PAB_KEY_PAGE=FILE plants FILE (`pabctl keypage KEY -o FILE`) at the emulated board's key
 #     page, 0x0004_E000 (QEMU's loader, again at every system reset);
-#   - pab-fw-f446 is flashed to a NUCLEO-F446RE with probe-rs (chip STM32F446RETx), which prints
-#     its defmt log;
+#   - pab-fw-f446 and its bootloader pab-boot-f446 are flashed to a NUCLEO-F446RE with probe-rs
+#     (chip STM32F446RETx), which prints the firmware's defmt log;
 #   - anything else is flashed to a NUCLEO-G474RE with probe-rs, which prints its defmt log.
 set -euo pipefail
 elf="$1"
@@ -28,7 +28,7 @@ case "$(basename "$elf")" in
         exec qemu-system-arm -M mps2-an386 -nographic -monitor none \
             -semihosting-config enable=on,target=native -kernel "$elf" "${key_page[@]}" "$@"
         ;;
-    pab-fw-f446*)
+    pab-fw-f446* | pab-boot-f446*)
         exec probe-rs run --chip STM32F446RETx "$elf" "$@"
         ;;
     *)

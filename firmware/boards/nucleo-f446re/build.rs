@@ -7,11 +7,18 @@ use std::fs;
 use std::path::PathBuf;
 
 fn main() {
-    // Put memory.x where the linker finds it, and rebuild when it changes.
+    // Put memory.x where the linker finds it (memory-boot.x with the feature `boot`: the program
+    // behind the bootloader, at its active partition), and rebuild when either changes.
     let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
-    fs::write(out.join("memory.x"), include_bytes!("memory.x")).expect("writing memory.x");
+    let memory: &[u8] = if env::var_os("CARGO_FEATURE_BOOT").is_some() {
+        include_bytes!("memory-boot.x")
+    } else {
+        include_bytes!("memory.x")
+    };
+    fs::write(out.join("memory.x"), memory).expect("writing memory.x");
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rerun-if-changed=memory.x");
+    println!("cargo:rerun-if-changed=memory-boot.x");
     println!("cargo:rerun-if-changed=build.rs");
     // The node id is compiled in (see src/main.rs): rebuild when it changes.
     println!("cargo:rerun-if-env-changed=PAB_NODE_ID");

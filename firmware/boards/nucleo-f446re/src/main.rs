@@ -41,12 +41,22 @@
 //! root `Cargo.toml` says why). Build and flash: `cargo run --profile firmware -p pab-fw-f446
 //! --target thumbv7em-none-eabihf` (the root `.cargo/config.toml` sets probe-rs as the runner).
 //! Built, sized and panic-checked; not run on hardware yet.
+//!
+//! **Behind the bootloader** (feature `boot`; firmware/boot/nucleo-f446re): the program is
+//! linked at the bootloader's ACTIVE partition, sector 5 (`memory-boot.x`), and the bootloader
+//! takes sectors 0 to 3 and 6 to 7 (its own code, embassy-boot's state, the request sector, the
+//! DFU partition). The key page stays in sector 4; the table store and the boot counter have no
+//! sector left, so that build runs without either ([`NoStore`]: nothing loaded, every save
+//! refused; a keyed node locked, refusing configuration, since it cannot count its boots):
+//! docs/nucleo-f446re.md, "Bootloader". Not a firmware to deploy yet.
 
 #![no_std]
 #![no_main]
 
 mod bxcan_bus;
 mod recipient;
+// Behind the bootloader (`boot`) nothing erases: no store, no boot counter.
+#[cfg(not(feature = "boot"))]
 mod sector_flash;
 mod time_driver;
 
@@ -67,13 +77,17 @@ use embassy_stm32::peripherals::{CAN1, IWDG};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::{bind_interrupts, rcc};
 use embedded_storage::nor_flash::ReadNorFlash;
+#[cfg(not(feature = "boot"))]
 use pab_storage::{Blocking, BootCounter, FlashStore};
+#[cfg(feature = "boot")]
+use pab_storage::{CounterError, FlashErrorKind, SaveProgress, StoreError, TableStore};
 
 // The boards' memcpy, memset, memcmp and 64-bit division (firmware/builtins).
 use pab_builtins as _;
 
 use bxcan_bus::BxcanBus;
 use recipient::BoardRecipient;
+#[cfg(not(feature = "boot"))]
 use sector_flash::SectorFlash;
 
 /// This node's id (1..=127): `PAB_NODE_ID` at build time, 1 without it. Tables pushed to the
@@ -200,6 +214,7 @@ const IWDG_TICK_US: u32 = 1_000_000 * 32 / embassy_stm32::rcc::LSI_FREQ.0;
 const IWDG_PRESCALER: Pr = Pr::DIVIDE_BY32;
 /// The counter runs from the reload value down to 0: reload + 1 counts make the timeout.
 const IWDG_RELOAD: u16 = reload(WATCHDOG_TIMEOUT_US);
+#[cfg(not(feature = "boot"))]
 const IWDG_ERASE_RELOAD: u16 = reload(ERASE_WATCHDOG_TIMEOUT_US);
 const fn reload(timeout_us: u32) -> u16 {
     let counts = timeout_us / IWDG_TICK_US;
@@ -258,6 +273,7 @@ struct Started(());
 /// Sets the IWDG's reload value and reloads the counter with it: a feed with another timeout.
 /// The new value reaches the IWDG's own clock domain within five LSI cycles (SR.RVU clears);
 /// a reload before then would still use the old one, and a write while RVU is set is lost.
+#[cfg(not(feature = "boot"))]
 fn reload_watchdog(reload: u16) {
     let regs = embassy_stm32::pac::IWDG;
     while regs.sr().read().rvu() {}
@@ -271,11 +287,13 @@ fn reload_watchdog(reload: u16) {
 /// it starts a sector erase, during which the stalled CPU cannot feed it (the longest erase, a
 /// 128 KiB sector of the boot counter, takes up to 2 s). A hang in the erase still resets the
 /// chip, 4 s later.
+#[cfg(not(feature = "boot"))]
 pub(crate) fn watchdog_for_erase() {
     reload_watchdog(IWDG_ERASE_RELOAD);
 }
 
 /// Back to [`WATCHDOG_TIMEOUT_US`], from now: called by [`sector_flash`] once the erase is over.
+#[cfg(not(feature = "boot"))]
 pub(crate) fn watchdog_after_erase() {
     reload_watchdog(IWDG_RELOAD);
 }
@@ -422,6 +440,7 @@ async fn main(_spawner: Spawner) {
         Ok(()) => &page,
         Err(_) => &[],
     };
+    #[cfg(not(feature = "boot"))]
     pab_app::key_from_page(&mut node, page, || {
         let counter = SectorFlash::<LARGE_SECTOR>::new(
             Flash::new_blocking(flash.reborrow()),
@@ -429,12 +448,21 @@ async fn main(_spawner: Spawner) {
         );
         BootCounter::new(counter, BOOT_COUNTER_RANGE)?.increment()
     });
+    #[cfg(not(feature = "boot"))]
     let store_flash = SectorFlash::<SMALL_SECTOR>::new(Flash::new_blocking(flash), STORE_RANGE);
+    #[cfg(not(feature = "boot"))]
     let mut store = unwrap!(FlashStore::new(
         Blocking(store_flash),
         STORE_RANGE,
         STORE_SLOT_SIZE
     ));
+    // Behind the bootloader: no boot counter (a keyed node locks) and no table store.
+    #[cfg(feature = "boot")]
+    pab_app::key_from_page(&mut node, page, || {
+        Err(CounterError::Flash(FlashErrorKind::OutOfBounds))
+    });
+    #[cfg(feature = "boot")]
+    let mut store = NoStore;
     // Only the node loop feeds it from here on (once before the node's boot, then every turn).
     let watchdog = Iwdg::claim(started, p.IWDG);
     let mut recipient = BoardRecipient::new();
@@ -447,6 +475,29 @@ async fn main(_spawner: Spawner) {
         &mut watchdog,
     )
     .await
+}
+
+/// The table store behind the bootloader: none. embassy-boot's swap takes the 128 KiB sectors
+/// 5 to 7 and the bootloader sectors 0 to 3 (its code, its state, the request), so the ring of
+/// 16 KiB slots has no sector left (docs/nucleo-f446re.md, "Bootloader"). Nothing is ever loaded
+/// and every save is refused (out of bounds), which the node reports as a failed store; a table
+/// pushed still runs until the next reset.
+#[cfg(feature = "boot")]
+struct NoStore;
+
+#[cfg(feature = "boot")]
+impl TableStore for NoStore {
+    fn load<'b>(&mut self, _: &'b mut [u8]) -> Result<Option<&'b [u8]>, StoreError> {
+        Ok(None)
+    }
+
+    fn start_save(&mut self, _: &[u8]) -> Result<(), StoreError> {
+        Err(StoreError::Flash(FlashErrorKind::OutOfBounds))
+    }
+
+    fn continue_save(&mut self, _: &[u8]) -> Result<SaveProgress, StoreError> {
+        Err(StoreError::NoSave)
+    }
 }
 
 /// HSE 8 MHz in bypass (the ST-LINK's MCO); SYSCLK 160 MHz from the PLL (8 / 4 * 160 / 2); APB1

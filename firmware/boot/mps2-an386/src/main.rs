@@ -8,7 +8,8 @@
 //!    ([`layout::FACTORY`], planted by QEMU's loader) into it and erase the DFU, state and
 //!    request pages. This stands in for flashing the board with a probe: QEMU would re-plant a
 //!    blob loaded into the active partition itself at every reset, undoing every swap.
-//! 2. **A pending request** (`update::stored::Request::Pending` in the request page): check the
+//! 2. **A pending request** (`update::stored::Request::Pending` in the request page;
+//!    `pab_boot_common::decide`, shared with the NUCLEO boards' bootloaders): check the
 //!    DFU slot (`update::stored::check`: manifest, capacity, board name, the Ed25519 signature
 //!    under the key page's update key; no key, no update: `BadSignature`), write the verdict,
 //!    and only then, if it passed, mark the swap in the state partition (embassy-boot's
@@ -41,11 +42,11 @@ use core::cell::RefCell;
 // The boards' memcpy and memset: smaller than compiler_builtins' (the crate's Cargo.toml).
 use pab_builtins as _;
 
-use embassy_boot::{BlockingFirmwareState, BootLoader, BootLoaderConfig, State as BootState};
+use embassy_boot::{BootLoader, BootLoaderConfig, State as BootState};
 use embedded_storage::nor_flash::{NorFlash, ReadNorFlash};
 use pab_boot_an386::{Active, Dfu, RequestPage, State, layout};
-use pab_core::update::UpdateRefusal;
-use pab_core::update::stored::{self, Request};
+use pab_boot_common::{Decision, Slot};
+use pab_core::update::stored;
 
 /// The interrupt table: one entry, never enabled (cortex-m-rt needs the table longer than the
 /// exceptions'; its own default has 240 entries).
@@ -138,10 +139,7 @@ fn boot() -> Result<(), Halt> {
 /// embassy-boot's state, as `prepare_boot` reads it (a zeroed page, a fresh QEMU's, reads as
 /// Boot: neither magic).
 fn state_of(state: &mut State, word: &mut [u8; layout::WORD]) -> BootState {
-    match state.read(0, word) {
-        Ok(()) => BootState::from(&word[..]),
-        Err(_) => BootState::Boot,
-    }
+    pab_boot_common::state_of(state, word)
 }
 
 /// Step 1: the factory image into the active partition, and the other partitions erased (what a
@@ -171,54 +169,55 @@ fn factory_install(
 }
 
 /// Step 2: decides on a pending request, writes the verdict, then marks the swap of an image
-/// that passed. `swapping`: the state says Swap (an update swapped in that has not confirmed
-/// itself, or one marked whose swap has not run), in which case a new request is dropped: the
-/// revert (or the swap) comes first, and the DFU partition is its working space.
+/// that passed (`pab_boot_common::decide`), and says what it did. `swapping`: the state says
+/// Swap (an update swapped in that has not confirmed itself, or one marked whose swap has not
+/// run), in which case a new request is dropped: the revert (or the swap) comes first, and the
+/// DFU partition is its working space.
 fn decide(dfu: &mut Dfu, state: &mut State, request: &mut RequestPage, swapping: bool) {
-    let mut head = [0u8; 16];
-    if request.read(0, &mut head).is_err() || Request::read(&head) != Request::Pending {
-        return;
-    }
-    if swapping {
-        say(b"boot: request dropped: the last update is not confirmed\n");
-        let _ = request.erase(0, layout::REQUEST_LEN as u32);
-        return;
-    }
-    let outcome = check(dfu);
-    let verdict = stored::verdict(outcome.map(|_| ()));
-    say(b"boot: request: verdict ");
-    say(&[b'0' + verdict[7], b'\n']);
-    if request.write(stored::VERDICT_OFFSET, &verdict).is_err() {
-        // A verdict that cannot be written (the word was not erased: the application broke the
-        // page's protocol): no swap without one.
-        say(b"boot: cannot write the verdict: no swap\n");
-        return;
-    }
-    if outcome.is_ok() {
-        let mut word = [0u8; layout::WORD];
-        let mut firmware_state = BlockingFirmwareState::new(&mut *state, &mut word);
-        if firmware_state.mark_updated().is_err() {
-            say(b"boot: cannot mark the swap\n");
+    // SAFETY: the key page is RAM of this machine outside this program, read only here.
+    let key_record = unsafe {
+        pab_boot_common::mapped(
+            (layout::KEY_PAGE + stored::KEY_RECORD_OFFSET) as u32,
+            stored::KEY_RECORD_LEN,
+        )
+    };
+    let slot = Slot {
+        len: layout::ACTIVE_LEN as u32,
+        board: &layout::BOARD_NAME,
+        key_record,
+    };
+    let mut word = [0u8; layout::WORD];
+    let decision = pab_boot_common::decide(
+        dfu,
+        state,
+        request,
+        layout::REQUEST_LEN as u32,
+        slot,
+        swapping,
+        &mut word,
+    );
+    match decision {
+        Decision::Nothing | Decision::Unreadable => {}
+        Decision::Dropped => say(b"boot: request dropped: the last update is not confirmed\n"),
+        Decision::Decided { code, marked } => {
+            say_verdict(code);
+            if code == 0 && !marked {
+                say(b"boot: cannot mark the swap\n");
+            }
+        }
+        Decision::VerdictUnwritable { code } => {
+            say_verdict(code);
+            // A verdict that cannot be written (the word was not erased: the application broke
+            // the page's protocol): no swap without one.
+            say(b"boot: cannot write the verdict: no swap\n");
         }
     }
 }
 
-/// The DFU slot's check (`update::stored::check`) under the key page's update key.
-fn check(dfu: &mut Dfu) -> Result<pab_core::update::Trailer, UpdateRefusal> {
-    // SAFETY: the key page is RAM of this machine outside this program, read only here.
-    let record = unsafe {
-        core::slice::from_raw_parts(
-            (layout::KEY_PAGE + stored::KEY_RECORD_OFFSET) as *const u8,
-            stored::KEY_RECORD_LEN,
-        )
-    };
-    let key = stored::decode_key(record).ok_or(UpdateRefusal::BadSignature)?;
-    stored::check(
-        layout::ACTIVE_LEN as u32,
-        &layout::BOARD_NAME,
-        &key,
-        |offset, bytes| dfu.read(offset, bytes),
-    )
+/// `boot: request: verdict N`, the line scripts/boot_test.py reads.
+fn say_verdict(code: u8) {
+    say(b"boot: request: verdict ");
+    say(&[b'0' + code, b'\n']);
 }
 
 /// One of the partitions, shared between the boot loader's three roles by a `RefCell` (each is
@@ -259,14 +258,8 @@ impl<F: NorFlash> NorFlash for Shared<'_, F> {
 /// The first two words at `address`: an initial stack pointer and a reset vector, if a vector
 /// table lies there.
 fn vector_table(address: usize) -> [u32; 2] {
-    let table = address as *const u32;
     // SAFETY: `address` is one of the layout's regions, RAM of this machine, word aligned.
-    unsafe {
-        [
-            core::ptr::read_volatile(table),
-            core::ptr::read_volatile(table.wrapping_add(1)),
-        ]
-    }
+    unsafe { pab_boot_common::vector_table(address as u32) }
 }
 
 /// Step 4: into the application at [`layout::ACTIVE`].
@@ -275,25 +268,9 @@ fn vector_table(address: usize) -> [u32; 2] {
 ///
 /// The active partition starts with an application's vector table (`layout::is_application`).
 unsafe fn jump() -> ! {
-    // SAFETY: this program owns the core's peripherals; nothing else runs.
-    let peripherals = unsafe { cortex_m::Peripherals::steal() };
-    // No interrupt of this program may reach the application's handlers: it enables none, but
-    // a debugger or a warm reset might have; clear every line's enable and pending bits.
-    for index in 0..8 {
-        // SAFETY: writes of ones to the clear registers only disable and unpend.
-        unsafe {
-            peripherals.NVIC.icer[index].write(u32::MAX);
-            peripherals.NVIC.icpr[index].write(u32::MAX);
-        }
-    }
-    // SAFETY: the application's vector table is 128-byte aligned at ACTIVE (its linker script);
-    // then the MSP and the reset vector from it (the caller's contract).
-    unsafe {
-        peripherals.SCB.vtor.write(layout::ACTIVE as u32);
-        cortex_m::asm::dsb();
-        cortex_m::asm::isb();
-        cortex_m::asm::bootload(layout::ACTIVE as *const u32)
-    }
+    // SAFETY: the caller's contract; the application's vector table is 128-byte aligned at
+    // ACTIVE (its linker script).
+    unsafe { pab_boot_common::jump(layout::ACTIVE as u32) }
 }
 
 /// Writes `text` to QEMU's standard error (semihosting); errors are ignored: nobody to tell.
