@@ -122,13 +122,15 @@ class Nodes:
     `board_routes` as the cangw filters of what reaches it (default: its acceptance filter,
     `board.acceptance`), `board_elf` as its firmware (default: the production build) and
     `board_ahead` whether its QEMU runs ahead of the suite's other work (for a test that times the
-    board itself: `pab_hil.board.BOARD_NICENESS_STEP`)."""
+    board itself: `pab_hil.board.BOARD_NICENESS_STEP`) and `board_boot` whether `board_elf` is
+    its bootloader (`pab_hil.board.BehindBootloader`: the factory image and the key page)."""
 
     def __init__(self, iface: str, work_dir: Path, node_ids: dict[str, int] = NODE_IDS,
                  boards: tuple[str, ...] = (),
                  node_args: dict[str, tuple[str, ...]] | None = None,
                  board_routes: tuple[str, ...] | None = None,
-                 board_elf: Path | None = None, board_ahead: bool = False) -> None:
+                 board_elf: Path | None = None, board_ahead: bool = False,
+                 board_boot=None) -> None:
         from .board import UART_ENV, BoardNode
 
         unknown = set(boards) - set(node_ids)
@@ -142,7 +144,8 @@ class Nodes:
         self.store_root = Path(tempfile.mkdtemp(prefix="pab-hil-store-"))
         self.by_name: dict[str, NodeProcess | BoardNode] = {
             name: BoardNode(name, node_id, iface, work_dir / "logs",
-                            to_board=board_routes, elf=board_elf, ahead=board_ahead)
+                            to_board=board_routes, elf=board_elf, ahead=board_ahead,
+                            boot=board_boot)
             if name in boards
             else NodeProcess(name, node_id, iface, self.store_root / name, work_dir / "logs",
                              tuple((node_args or {}).get(name, ())))

@@ -44,6 +44,8 @@ class Session:
         boards: tuple[str, ...] = (),
         node_args: dict[str, tuple[str, ...]] | None = None,
         loss: Loss | None = None,
+        board_elf: Path | None = None,
+        board_boot: "BehindBootloader | None" = None,
     ) -> None:
         self.iface = iface
         self.out_dir = out_dir
@@ -53,7 +55,8 @@ class Session:
         self.log_path = out_dir / "bus.log"
         self.world = World()
         self.phases = PhaseLog()
-        self.nodes = Nodes(iface, out_dir, boards=boards, node_args=node_args)
+        self.nodes = Nodes(iface, out_dir, boards=boards, node_args=node_args,
+                           board_elf=board_elf, board_boot=board_boot)
         self.behaviour_names = behaviours  # None: all seven
         self.loss = loss  # behaviour frames dropped at random, if any
         self.behaviours: BehaviourProcesses | None = None

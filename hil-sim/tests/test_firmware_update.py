@@ -168,3 +168,41 @@ def test_the_board_is_updated_over_the_bus_and_keeps_its_firmware_when_an_update
         assert found == "0.2.0"
     finally:
         board.stop()
+
+
+def test_the_arm_board_is_updated_while_take_and_return_runs_on_the_other_nodes(
+        session_for, out_dir):
+    """The Take and Return network with its arm node on the emulated board behind its bootloader
+    (v1), the hand and gaze nodes `pab-node`: the arm is updated to v2 with `pabctl flash` while
+    the others run phase A (looking around, the arm at rest), which stays A throughout; the board
+    comes back on v2 with its stored table, and the scenario then runs A to F as without the
+    update."""
+    from test_take_and_return import ARM, run_a_to_f
+
+    from pab_hil.person import TakeAndReturn
+
+    page = out_dir / "update.keypage.bin"
+    made = pabctl("keypage", "--update-key", str(image("update.pub")), "-o", str(page))
+    assert made.returncode == 0, made.stderr
+    # The person shows the object only once the update is done (show_at set below).
+    person = TakeAndReturn(show_at=float("inf"))
+    session = session_for(person, boards=("arm",), board_elf=image("pab-boot-an386"),
+                          board_boot=BehindBootloader(factory=image("update-v1.bin"),
+                                                      key_page=page))
+    session.wait_for(lambda: session.observer.node(ARM).table is not None, 10,
+                     "the board's table status")
+    crc = session.observer.node(ARM).table.crc
+    assert version(session.iface) == "0.1.0"
+
+    updated = flash(session.iface, image("update-v2.signed"))
+    assert updated.returncode == 0, updated
+    assert version(session.iface) == "0.2.0"
+    # The others kept phase A through the update, and the board runs its stored table again.
+    assert session.phases.sequence() == ["A"], session.phase_report()
+    session.wait_for(lambda: (v := session.observer.node(ARM)).table is not None
+                     and v.table.crc == crc and v.heartbeat.state == "operational", 10,
+                     "the board's stored table after the update")
+
+    person.show_at = session.world.snapshot().t + 1.0
+    run_a_to_f(session, person)
+    session.close()
