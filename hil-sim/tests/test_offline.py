@@ -41,9 +41,10 @@ def test_identifiers_match_the_protocol_document():
                 "Challenge": p.CHALLENGE, "TransferOpen": p.TRANSFER_OPEN, "Receipt": p.RECEIPT,
                 "EmergencyStop": p.EMERGENCY_STOP, "SchemaAbort": p.SCHEMA_ABORT,
                 "SchemaTransfer": p.SCHEMA_TRANSFER, "SchemaAck": p.SCHEMA_ACK,
-                "SchemaTransition": p.SCHEMA_TRANSITION, "SchemaState": p.SCHEMA_STATE}
+                "SchemaTransition": p.SCHEMA_TRANSITION, "SchemaState": p.SCHEMA_STATE,
+                "UpdateTransfer": p.UPDATE_TRANSFER, "UpdateStatus": p.UPDATE_STATUS}
     (rows,) = doc_tables("| frame | service | source | destination | identifier |")
-    assert len(rows) == 30
+    assert len(rows) == 33
     for frame, service, source, destination, identifier in rows:
         ident = p.frame_id(services[service], int(source, 0), int(destination, 0))
         assert ident == int(identifier, 16), frame
@@ -53,7 +54,10 @@ def test_identifiers_match_the_protocol_document():
 
 
 def test_transfer_status_codes_match_the_protocol_document():
-    node_states, transfer_statuses = doc_tables("| code | name | description | meaning |")
+    # The node states, the transfer statuses, then the firmware update's statuses (not the
+    # harness's business: pabctl flash reads them).
+    node_states, transfer_statuses, _update_statuses = doc_tables(
+        "| code | name | description | meaning |")
     assert {int(code): description for code, _, description, _ in node_states} == p.NODE_STATES
     documented = {int(code, 16): name for code, name, *_ in transfer_statuses}
     assert documented == p.TRANSFER_STATUS_CODES
