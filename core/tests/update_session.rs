@@ -80,16 +80,7 @@ impl Node {
                 self.slot[at..].copy_from_slice(&manifest);
                 self.updater.requested(!self.fail_writes)
             }
-            Outcome::Ready { chunk } => Outcome::Ready { chunk },
-            Outcome::Ack { offset, crc } => Outcome::Ack { offset, crc },
-            Outcome::Committed { offset, crc } => Outcome::Committed { offset, crc },
-            Outcome::Refused(refusal) => Outcome::Refused(refusal),
-            Outcome::OutOfOrder { offset, crc } => Outcome::OutOfOrder { offset, crc },
-            Outcome::Mismatch { offset, crc } => Outcome::Mismatch { offset, crc },
-            Outcome::FlashError { offset } => Outcome::FlashError { offset },
-            Outcome::NoSession => Outcome::NoSession,
-            Outcome::Malformed => Outcome::Malformed,
-            Outcome::Aborted => Outcome::Aborted,
+            other => other.detached().expect("only a Write borrows the message"),
         }
     }
 }

@@ -113,6 +113,28 @@ pub enum Outcome<'a> {
     Aborted,
 }
 
+impl Outcome<'_> {
+    /// The outcome without the message it borrowed from, to answer after the message's buffer
+    /// is in use again: `None` for a [`Outcome::Write`], whose bytes are the message's; every
+    /// other outcome owns what it carries and comes back as it is. A copy of at most 97 bytes.
+    pub fn detached(self) -> Option<Outcome<'static>> {
+        Some(match self {
+            Outcome::Write { .. } => return None,
+            Outcome::Ready { chunk } => Outcome::Ready { chunk },
+            Outcome::Ack { offset, crc } => Outcome::Ack { offset, crc },
+            Outcome::Request { manifest } => Outcome::Request { manifest },
+            Outcome::Committed { offset, crc } => Outcome::Committed { offset, crc },
+            Outcome::Refused(refusal) => Outcome::Refused(refusal),
+            Outcome::OutOfOrder { offset, crc } => Outcome::OutOfOrder { offset, crc },
+            Outcome::Mismatch { offset, crc } => Outcome::Mismatch { offset, crc },
+            Outcome::FlashError { offset } => Outcome::FlashError { offset },
+            Outcome::NoSession => Outcome::NoSession,
+            Outcome::Malformed => Outcome::Malformed,
+            Outcome::Aborted => Outcome::Aborted,
+        })
+    }
+}
+
 /// A write the node was asked for and has not reported yet.
 #[derive(Clone, Copy, Debug)]
 enum Pending {

@@ -131,18 +131,7 @@ fn run(u: &mut Unstructured<'_>) -> Result<()> {
                 assert_eq!(stored_manifest, manifest);
                 updater.requested(!fail)
             }
-            other => match other {
-                Outcome::Ready { .. } => Outcome::Ready {
-                    chunk: CHUNK as u32,
-                },
-                Outcome::Refused(r) => Outcome::Refused(r),
-                Outcome::OutOfOrder { offset, crc } => Outcome::OutOfOrder { offset, crc },
-                Outcome::Mismatch { offset, crc } => Outcome::Mismatch { offset, crc },
-                Outcome::Ack { offset, crc } => Outcome::Ack { offset, crc },
-                Outcome::NoSession => Outcome::NoSession,
-                Outcome::Aborted => Outcome::Aborted,
-                _ => Outcome::Malformed,
-            },
+            other => other.detached().expect("only a Write borrows the message"),
         };
         match outcome {
             Outcome::Ready { chunk } => {

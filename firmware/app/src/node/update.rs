@@ -221,7 +221,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                 Step::RequestUpdate
             }
             other => {
-                let answer = detached(other);
+                // A Write is matched above: the fallback is never taken.
+                let answer = other.detached().unwrap_or(Outcome::Malformed);
                 self.answer_update(source, answer);
                 Step::Continue
             }
@@ -338,23 +339,5 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             }),
             destination,
         );
-    }
-}
-
-/// An outcome without the message it borrowed from (a Write's bytes): every outcome that is
-/// answered at once, as it is; a Write and a Request, which the runner handles, as Malformed
-/// (never passed here).
-fn detached(outcome: Outcome<'_>) -> Outcome<'static> {
-    match outcome {
-        Outcome::Ready { chunk } => Outcome::Ready { chunk },
-        Outcome::Ack { offset, crc } => Outcome::Ack { offset, crc },
-        Outcome::Committed { offset, crc } => Outcome::Committed { offset, crc },
-        Outcome::Refused(refusal) => Outcome::Refused(refusal),
-        Outcome::OutOfOrder { offset, crc } => Outcome::OutOfOrder { offset, crc },
-        Outcome::Mismatch { offset, crc } => Outcome::Mismatch { offset, crc },
-        Outcome::FlashError { offset } => Outcome::FlashError { offset },
-        Outcome::NoSession => Outcome::NoSession,
-        Outcome::Aborted => Outcome::Aborted,
-        Outcome::Malformed | Outcome::Write { .. } | Outcome::Request { .. } => Outcome::Malformed,
     }
 }
