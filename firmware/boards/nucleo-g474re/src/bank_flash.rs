@@ -2,7 +2,9 @@
 //! 256 KiB in 2 KiB pages. The program runs from bank 1; the key page, the boot counter and the
 //! table store live in bank 2 ([`crate::BANK2`]), so that erasing or programming them never
 //! stalls the CPU's instruction fetches (RM0440, "Read-while-write": a bank can be read while the
-//! other is written).
+//! other is written). With the feature `update`, the bootloader's DFU, STATE and REQUEST
+//! partitions too, at the bottom of bank 2, each through a driver of its own over this one
+//! (src/boot.rs, which says how its operations meet a store's erase running in the background).
 //!
 //! [`BankFlash`] is embassy's blocking driver for reads and programs, and a page erase of its own
 //! that runs in the background ([`BackgroundErase`]): it starts the erase and returns, and the

@@ -28,6 +28,13 @@
 //!   but a reset stops it.
 //! - **Flash accelerator**: prefetch buffer and instruction/data caches on
 //!   ([`enable_flash_prefetch_and_caches`]).
+//! - **Firmware update** (feature `update`, behind the bootloader: `boot`): the store with the
+//!   bootloader's update slot, the DFU partition and the request page in bank 2
+//!   (`pab_storage::WithUpdate`, src/boot.rs); the firmware confirmed to the bootloader once it has
+//!   joined the bus (embassy-boot's `mark_booted`), the board restarted into the bootloader
+//!   once an update is committed ([`NodeWatchdog`]'s `restart`). Built without the schema
+//!   server (`--no-default-features --features ble,dynamics,filters,update`: the three do not
+//!   fit 64 KiB together).
 //!
 //! Built with the workspace's `firmware` profile (fat LTO, one codegen unit, opt-level "s": the
 //! root `Cargo.toml` says why). Build and flash: `cargo run --profile firmware -p pab-fw-g474
@@ -38,6 +45,8 @@
 #![no_main]
 
 mod bank_flash;
+#[cfg(feature = "update")]
+mod boot;
 mod fdcan_bus;
 mod recipient;
 
@@ -145,6 +154,22 @@ const _: () = assert!(
     "configuration page, key page, boot counter and table store follow each other, \
      page-aligned, at the top of bank 2"
 );
+
+/// Behind the bootloader (feature `boot`): its flash map (`pab_boot_g474::layout`) keeps clear of
+/// what the board keeps at the top of bank 2, and memory-boot.x links the program at its active
+/// partition, in all of it but the manifest's last 96 bytes (a linker script cannot read the
+/// layout: its two numbers are checked here).
+#[cfg(feature = "boot")]
+const _: () = {
+    use pab_boot_g474::layout;
+    assert!(
+        layout::APPLICATION_DATA == layout::FLASH_BASE + SETTINGS_RANGE.start
+            && layout::KEY_PAGE == layout::FLASH_BASE + KEY_PAGE
+            && layout::ACTIVE == 0x0800_8000
+            && layout::ACTIVE_LEN - pab_core::update::MANIFEST_LEN as u32 == 0x107A0,
+        "the bootloader's layout, this board's pages and memory-boot.x disagree"
+    );
+};
 
 /// The FDCAN's nominal bit timing for `kbps`: 16 time quanta at 24 MHz / (rate * 16) for 125,
 /// 250 and 500 kbit/s (87.5 % sample point); 1 Mbit/s has 12 quanta of 2 cycles (1 + 9 + 2,
@@ -394,6 +419,11 @@ async fn main(_spawner: Spawner) {
     // flash, and this task would only have returned.
     let mut recipient = BoardRecipient::new();
     let mut watchdog = NodeWatchdog { watchdog, led };
+    // With the bootloader's update slot (feature `update`): the DFU partition and the request
+    // page; the firmware confirmed once it has joined the bus, and the board restarted into the
+    // bootloader (`NodeWatchdog::restart`) once an update is committed.
+    #[cfg(feature = "update")]
+    let mut store = with_update(store);
     pab_app::run_watched(
         &mut node,
         &mut bus,
@@ -402,6 +432,24 @@ async fn main(_spawner: Spawner) {
         &mut watchdog,
     )
     .await
+}
+
+/// The table store with the bootloader's update slot: the DFU partition's first `ACTIVE_LEN`
+/// bytes and the request page (`pab_boot_g474::layout`), and embassy-boot's `mark_booted` as
+/// the firmware's confirmation.
+#[cfg(feature = "update")]
+fn with_update<S: pab_storage::TableStore>(
+    store: S,
+) -> pab_storage::WithUpdate<S, boot::Dfu, boot::RequestPage> {
+    // SAFETY: one handle each for the firmware's life, used by the node loop alone, which makes
+    // one flash operation at a time (src/boot.rs).
+    let (dfu, request) = unsafe { (boot::Partition::dfu(), boot::Partition::request_page()) };
+    let slot = unwrap!(pab_storage::UpdateSlot::new(
+        dfu,
+        request,
+        pab_boot_g474::layout::ACTIVE_LEN
+    ));
+    pab_storage::WithUpdate::new(store, slot, boot::mark_booted)
 }
 
 /// HSE 24 MHz; SYSCLK 170 MHz from the PLL (24 / 6 * 85 / 2), boost mode; FDCAN on the HSE; LSI
@@ -434,12 +482,41 @@ fn clocks() -> embassy_stm32::Config {
     config
 }
 
+/// The lowest of the board's pages in bank 2 whose double-ECC errors the NMI handler clears:
+/// the key page; with identity, the configuration page below it, which the firmware then reads
+/// and writes (a record's program cut by a power loss).
+#[cfg(not(feature = "identity"))]
+const ECC_TOLERATED_START: u32 = KEY_PAGE;
+#[cfg(feature = "identity")]
+const ECC_TOLERATED_START: u32 = SETTINGS_RANGE.start;
+
+/// Whether a double-ECC error at `at` (an offset within bank 2) is one the NMI handler clears.
+#[inline(always)]
+fn ecc_tolerated(at: u32) -> bool {
+    #[cfg(feature = "update")]
+    if boot::ECC_TOLERATED.contains(&at) {
+        return true;
+    }
+    (ECC_TOLERATED_START - BANK2..STORE_RANGE.end - BANK2).contains(&at)
+}
+
 /// The flash's double-ECC error (a double word whose programming a power loss cut) raises an NMI.
 /// Inside the table store, the boot counter and the key page (bank 2) that is expected after a power loss
 /// during a save, a boot count or the page's writing: clear the flag and return, so the read
 /// completes with bad bytes that the store's CRC, the counter's record check or the key page's
 /// CRC rejects (the store falls back to the other slot, the counter skips the record, the key
 /// page locks the node). Anywhere else (the program) it is a real fault: halt.
+///
+/// With identity, the configuration page too (its records are checked as the boot counter's).
+/// With `update`, the application also reads the bootloader's DFU, STATE and REQUEST partitions
+/// (`boot::ECC_TOLERATED`, bank 2): the manifest's page before it writes a manifest, embassy-boot's
+/// state when it confirms itself, the verdict at start; an update's program, the bootloader's
+/// verdict or a swap's progress record cut by a power loss can leave a double word there that
+/// reads with an ECC error. Cleared as well: the bad bytes fail the check that reads them (a
+/// manifest's page that is not erased is erased before the manifest is written, a state that
+/// is no magic reads as Boot and is written again by the confirmation, a request or verdict
+/// that is no record is not taken: `update::stored::Request::read`). The bootloader, which
+/// reads the same partitions, has no such handler (docs/nucleo-g474re.md, "Bootloader").
 #[cortex_m_rt::exception]
 unsafe fn NonMaskableInt() {
     let flash = embassy_stm32::pac::FLASH;
@@ -447,10 +524,7 @@ unsafe fn NonMaskableInt() {
     // Dual-bank mode: ADDR_ECC is the byte offset of the failing double word within its bank,
     // BK_ECC the bank (set: bank 2). (ECCD2, a second word of a 128-bit line, exists only in
     // single-bank mode.)
-    if eccr.eccd()
-        && eccr.bk_ecc()
-        && (KEY_PAGE - BANK2..STORE_RANGE.end - BANK2).contains(&eccr.addr_ecc())
-    {
+    if eccr.eccd() && eccr.bk_ecc() && ecc_tolerated(eccr.addr_ecc()) {
         // ECCD is write-1-to-clear; writing 0 to the other bits leaves ECCC alone and keeps the
         // ECC-correction interrupt disabled (its reset state, which embassy does not change).
         flash.eccr().write(|w| w.set_eccd(true));
