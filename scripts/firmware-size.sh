@@ -10,20 +10,24 @@
 # arbitration, the protocol, the table store and keys), with --increments "ble", "dynamics",
 # "filters", "schema" (minimal plus that one), and the NUCLEO-G474RE's "full+identity"
 # (identity and configuration over the bus, not flashed: it does not fit yet, and the line says
-# by how much); the emulated board's "ble+dynamics+filters+update" (the node that takes firmware
-# updates over the bus, behind its bootloader) beside the same set with identity alone, the
-# update's cost being the difference. Each entry: flash, ram_static, stack_peak, ram_peak (static + deepest stack).
+# by how much); "ble+dynamics+filters+update", the node that takes firmware updates over the bus
+# behind its bootloader (the emulated board's and the NUCLEO-G474RE's: every mechanism but the
+# schema server, with identity), the emulated board's beside the same set with identity alone,
+# the update's cost being the difference. Each entry: flash, ram_static, stack_peak, ram_peak
+# (static + deepest stack).
 #
 # Then the NUCLEO boards' bootloaders (pab-boot-g474, pab-boot-f446: firmware/boot/), each a
 # line of its flash (text + data) against its goal, 24 KiB, and its region, 32 KiB (memory.x;
 # on stderr with --json).
 #
-# Fails when a full build takes more than 64 KiB of flash, when a bootloader does not fit its
-# 32 KiB region, or when any build's deepest chain of
-# calls leaves less than 8 KiB of its stack. The other goals (docs/footprint.md) are printed, not
-# enforced. Each build's ELF is kept in target/footprint/<package>-<set>; the flashed (full) build
-# is put back where the other scripts and the HIL suite read it. Cargo keeps each feature set's
-# artifacts apart, so a second run rebuilds nothing.
+# Fails when a full build or a build that takes updates takes more than 64 KiB of flash (the
+# latter must also fit its bootloader's active partition, less the manifest: its memory-boot.x,
+# which the linker enforces), when a bootloader does not fit its 32 KiB region, or when any
+# build's deepest chain of calls leaves less than 8 KiB of its stack. The other goals
+# (docs/footprint.md) are printed, not enforced. Each build's ELF is kept in
+# target/footprint/<package>-<set>; the flashed (full) build is put back where the other scripts
+# and the HIL suite read it. Cargo keeps each feature set's artifacts apart, so a second run
+# rebuilds nothing.
 # Needs llvm-size from rustup's llvm-tools component (installed here if missing).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -34,7 +38,7 @@ for arg in "$@"; do
     case "$arg" in
         --json) json=true ;;
         --increments) increments=true ;;
-        -h|--help) sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+        -h|--help) sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
         *) echo "firmware-size: unknown argument '$arg' (--json, --increments, --help)" >&2; exit 2 ;;
     esac
 done
@@ -76,6 +80,11 @@ for package in "${boards[@]}"; do
     fi
     if [ "$package" = pab-fw-g474 ]; then
         measure "$package" full+identity --features identity
+        # The node that takes updates over the bus, behind the bootloader: the emulated board's
+        # set (below), without the schema server, which with identity and the update does not
+        # fit 64 KiB.
+        measure "$package" ble+dynamics+filters+update --no-default-features \
+            --features ble,dynamics,filters,update
     fi
     # The node that takes updates over the bus (behind the bootloader, with identity: what
     # scripts/boot-test.sh runs), without the schema server: with it, it does not fit the
@@ -136,7 +145,9 @@ for line in open(rows):
 order = ["minimal", "ble", "dynamics", "filters", "schema", "full", "full+identity",
          "ble+dynamics+filters+identity", "ble+dynamics+filters+update"]
 entries.sort(key=lambda e: (list(BOARDS).index(e["board"]), order.index(e["set"])))
-over = [e for e in entries if e["set"] == "full" and e["flash"] > FLASH]
+# The flashed builds, and those that take updates over the bus (flashed behind a bootloader).
+LIMITED = ("full", "ble+dynamics+filters+update")
+over = [e for e in entries if e["set"] in LIMITED and e["flash"] > FLASH]
 if as_json:
     print(json.dumps(entries, indent=1))
 else:
@@ -147,8 +158,10 @@ else:
         print(f"{e['board']:13} {e['set']:29} flash {flash:6} ({room}), RAM static {e['ram_static']:6}"
               f" + stack {e['stack_peak']:6} = {e['ram_peak']:6}; largest frame {e['largest_frame'][0]}"
               f" ({e['largest_frame'][1].rsplit('::', 1)[-1]})")
-    # The goals of docs/footprint.md, each said met or not (only the first is enforced).
-    goals = [("full", "flash", FLASH), ("full", "ram_peak", FLASH),
+    # The goals of docs/footprint.md, each said met or not (only the flash of the full builds
+    # and of those that take updates is enforced).
+    goals = [("full", "flash", FLASH), ("ble+dynamics+filters+update", "flash", FLASH),
+             ("full", "ram_peak", FLASH),
              ("minimal", "flash", 40 * 1024), ("minimal", "ram_peak", 32 * 1024)]
     for feature_set, key, limit in goals:
         missed = [f"{e['board']} {e[key]}" for e in entries
@@ -156,8 +169,8 @@ else:
         verdict = "met" if not missed else "not met: " + ", ".join(missed)
         print(f"goal: {feature_set} {key} <= {limit}: {verdict}")
 for e in over:
-    print(f"firmware-size: {e['board']} takes {e['flash']} bytes of flash, more than 64 KiB",
-          file=sys.stderr)
+    print(f"firmware-size: {e['board']} {e['set']} takes {e['flash']} bytes of flash, more than"
+          " 64 KiB", file=sys.stderr)
 sys.exit(1 if over else 0)
 EOF
 # The bootloaders' lines after the boards' table (on stderr with --json, whose stdout is JSON).
