@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # No reachable panic in the project's crates on the boards: disassembles each board firmware (the
-# `firmware` profile's ELFs, pab-fw-g474, pab-fw-f446 and pab-fw-an386; built here if needed) and
+# `firmware` profile's ELFs, pab-fw-g474, pab-fw-f446 and pab-fw-an386, and the NUCLEO-G474RE's
+# build that takes updates; built here if needed) and
 # fails when a panic entry point is called or branched to from code of pab_core, pab_app,
 # pab_storage or pab_slcan.
 #   scripts/panic-check.sh            # build the firmwares with their panic locations, in
@@ -51,6 +52,11 @@ if [ $# -eq 0 ]; then
     # otherwise the same code.
     target="${CARGO_TARGET_DIR:-target}/panic-check"
     export PAB_PANIC_LOCATION=1
+    # The NUCLEO-G474RE that takes updates over the bus (identity and the update's code, which
+    # the full build has not), kept under its own name; then the full build in its place.
+    CARGO_TARGET_DIR="$target" cargo build -q --locked -p pab-fw-g474 --profile firmware \
+        --target thumbv7em-none-eabihf --no-default-features --features ble,dynamics,filters,update
+    cp "$target/thumbv7em-none-eabihf/firmware/pab-fw-g474" "$target/pab-fw-g474-update"
     CARGO_TARGET_DIR="$target" cargo build -q --locked -p pab-fw-g474 --profile firmware \
         --target thumbv7em-none-eabihf
     # One board a command: their features would unify in one build.
@@ -60,7 +66,7 @@ if [ $# -eq 0 ]; then
         --target thumbv7em-none-eabihf --bin pab-fw-an386
     set -- "$target/thumbv7em-none-eabihf/firmware/pab-fw-g474" \
         "$target/thumbv7em-none-eabihf/firmware/pab-fw-f446" \
-        "$target/thumbv7em-none-eabihf/firmware/pab-fw-an386"
+        "$target/thumbv7em-none-eabihf/firmware/pab-fw-an386" "$target/pab-fw-g474-update"
 fi
 
 exec python3 scripts/panic_check.py --repo . \

@@ -206,7 +206,7 @@ impl<F: NorFlash> BootCounter<F> {
         let count = next(current, argument)
             .filter(|&count| count > current)
             .ok_or(CounterError::Exhausted)?;
-        let records = self.page_size / self.record;
+        let records = self.page_size.checked_div(self.record).ok_or(geometry())?;
         let (page, index) = match newest {
             None => (0, 0),
             Some(newest) => {
@@ -273,7 +273,7 @@ impl<F: NorFlash> BootCounter<F> {
     /// The largest count of a record that verifies, with its page and that page's last
     /// non-erased record.
     fn newest(&mut self) -> Result<Option<Newest>, CounterError> {
-        let records = self.page_size / self.record;
+        let records = self.page_size.checked_div(self.record).ok_or(geometry())?;
         let mut newest: Option<Newest> = None;
         let mut area = [0u8; MAX_RECORD_AREA];
         let area = area.get_mut(..self.record as usize).ok_or(geometry())?;
