@@ -17,18 +17,116 @@
 //! 3. [`is_application`] (or the board's own check) on the active partition's first two words,
 //!    then [`jump`].
 //!
-//! What stays in each bootloader: its partitions' flash, the emulated board's factory install
-//! and messages, the layout.
+//! [`boot`] runs the three steps in a row, as the NUCLEO boards' bootloaders do; the emulated
+//! board's runs them one by one, with its factory install and its messages between them. What
+//! stays in each bootloader: its partitions' flash, the layout.
 
 #![no_std]
 #![warn(missing_docs)]
 
 use core::ops::Range;
 
-use embassy_boot::{BlockingFirmwareState, State as BootState};
+use embassy_boot::{
+    AlignedBuffer, BlockingFirmwareState, BootLoader, BootLoaderConfig, State as BootState,
+};
 use embedded_storage::nor_flash::{NorFlash, ReadNorFlash};
 use pab_core::update::UpdateRefusal;
 use pab_core::update::stored::{self, Request};
+
+/// A board's flash map, as [`boot`] reads it.
+#[derive(Clone, Debug)]
+pub struct Map {
+    /// The key page's address: the update key's record lies at `stored::KEY_RECORD_OFFSET` in it.
+    pub key_page: u32,
+    /// The active partition's address: the application's vector table.
+    pub active: u32,
+    /// The active partition's length, and the DFU slot's.
+    pub active_len: u32,
+    /// The request page's length (erased whole when a request is dropped).
+    pub request_len: u32,
+    /// Data RAM: an application's initial stack pointer lies in it (its end included).
+    pub ram: Range<u32>,
+    /// The firmware name of the board's application: an update's trailer must name it.
+    pub board: &'static [u8; 8],
+}
+
+/// Steps 1 to 3 (the crate's documentation) at a reset, over the board's partitions: a pending
+/// request decided ([`decide`]), embassy-boot's `prepare_boot` (swap, revert, or nothing), the
+/// jump to the active partition if it starts with a vector table ([`is_application`]); else,
+/// nothing to run, it waits for a reset or a debugger. A flash error in the second step leaves
+/// embassy-boot's progress records as they are, for the next reset to resume; meanwhile it boots
+/// what is there.
+///
+/// `BUFFER`: the swap's buffer on the stack (embassy-boot copies a page through it in chunks of
+/// this size: a divisor of the page). `WORD`: the state partition's write unit (its flash's
+/// `WRITE_SIZE`).
+///
+/// # Safety
+///
+/// The key page and the active partition are the chip's memory-mapped flash at the map's
+/// addresses, which nothing else writes while this runs; `map.active` is aligned as VTOR needs
+/// (the application's linker script puts its vector table there).
+#[inline(always)]
+pub unsafe fn boot<A, D, S, R, const BUFFER: usize, const WORD: usize>(
+    map: &Map,
+    active: A,
+    mut dfu: D,
+    mut state: S,
+    mut request: R,
+) -> !
+where
+    A: NorFlash,
+    D: NorFlash,
+    S: NorFlash,
+    R: NorFlash,
+{
+    let mut word = [0u8; WORD];
+    let swapping = state_of(&mut state, &mut word) == BootState::Swap;
+    // SAFETY: the caller's contract (the key page is readable flash nothing writes).
+    let key_record = unsafe {
+        mapped(
+            map.key_page + stored::KEY_RECORD_OFFSET as u32,
+            stored::KEY_RECORD_LEN,
+        )
+    };
+    let slot = Slot {
+        len: map.active_len,
+        board: map.board,
+        key_record,
+    };
+    let _ = decide(
+        &mut dfu,
+        &mut state,
+        &mut request,
+        map.request_len,
+        slot,
+        swapping,
+        &mut word,
+    );
+
+    let mut buffer = AlignedBuffer([0u8; BUFFER]);
+    let _ = BootLoader::new(BootLoaderConfig { active, dfu, state }).prepare_boot(buffer.as_mut());
+
+    // SAFETY: the caller's contract (the active partition is readable flash, word aligned).
+    let table = unsafe { vector_table(map.active) };
+    if is_application(
+        table,
+        map.ram.clone(),
+        map.active..map.active.saturating_add(map.active_len),
+    ) {
+        // SAFETY: a vector table at the active partition (checked), aligned (the caller's
+        // contract); nothing of this program is used afterwards.
+        unsafe { jump(map.active) }
+    }
+    halt()
+}
+
+/// Nothing to run (an erased active partition), or a panic: wait for a debugger or a reset.
+pub fn halt() -> ! {
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
 
 /// What [`decide`] did.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

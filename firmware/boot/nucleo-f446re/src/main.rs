@@ -2,15 +2,15 @@
 //!
 //! The emulated board's bootloader (`firmware/boot/mps2-an386`) is the model, and the
 //! NUCLEO-G474RE's (`firmware/boot/nucleo-g474re`) the same steps on an STM32; this one runs them
-//! over the STM32F446RE's flash (one bank of sectors of 16, 64 and 128 KiB), at every reset:
+//! over the STM32F446RE's flash (one bank of sectors of 16, 64 and 128 KiB), at every reset
+//! (`pab_boot_common::boot` over this board's partitions):
 //!
 //! 1. **A pending request** in the request sector: `pab_boot_common::decide` (the DFU slot
 //!    checked by `pab_core::update::stored::check` for the board name `fw-f446` under the key
 //!    page's update key record, the verdict written, and only then, if it passed, embassy-boot's
 //!    `mark_updated`; a request while the state says Swap is dropped).
-//! 2. **embassy-boot's `prepare_boot`** (through embassy-boot-stm32's `try_prepare`): swaps,
-//!    resumes a cut swap, or reverts an update that did not mark itself booted before this
-//!    reset.
+//! 2. **embassy-boot's `prepare_boot`**: swaps, resumes a cut swap, or reverts an update that
+//!    did not mark itself booted before this reset.
 //! 3. **Jump** to ACTIVE if it starts with a vector table; else wait.
 //!
 //! **The sectors.** embassy-boot swaps in pages of one size, the larger of the active and DFU
@@ -43,11 +43,9 @@ use core::cell::RefCell;
 // The boards' memcpy and memset: smaller than compiler_builtins' (the crate's Cargo.toml).
 use pab_builtins as _;
 
-use embassy_boot_stm32::{BootLoader, BootLoaderConfig, State as BootState};
 use embassy_stm32::flash::{Blocking, Error, Flash, WRITE_SIZE};
 use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
-use pab_boot_common::Slot;
-use pab_core::update::stored;
+use pab_boot_common::Map;
 
 /// The memory map (addresses; the flash driver counts offsets from [`layout::FLASH_BASE`]).
 ///
@@ -193,59 +191,27 @@ fn main() -> ! {
     let flash = RefCell::new(Flash::new_blocking(unsafe {
         embassy_stm32::peripherals::FLASH::steal()
     }));
-    let mut dfu = Sectors::<{ layout::LARGE_SECTOR }>::new(&flash, layout::DFU, layout::DFU_LEN);
-    let mut state =
-        Sectors::<{ layout::SMALL_SECTOR }>::new(&flash, layout::STATE, layout::STATE_LEN);
-    let mut request =
+    let dfu = Sectors::<{ layout::LARGE_SECTOR }>::new(&flash, layout::DFU, layout::DFU_LEN);
+    let state = Sectors::<{ layout::SMALL_SECTOR }>::new(&flash, layout::STATE, layout::STATE_LEN);
+    let request =
         Sectors::<{ layout::SMALL_SECTOR }>::new(&flash, layout::REQUEST, layout::REQUEST_LEN);
-    let mut word = [0u8; layout::WORD];
-    let swapping = pab_boot_common::state_of(&mut state, &mut word) == BootState::Swap;
-    // SAFETY: the key page is the chip's flash, which nothing writes while this runs.
-    let key_record = unsafe {
-        pab_boot_common::mapped(
-            layout::KEY_PAGE + stored::KEY_RECORD_OFFSET as u32,
-            stored::KEY_RECORD_LEN,
-        )
-    };
-    let slot = Slot {
-        len: layout::ACTIVE_LEN,
+    let map = Map {
+        key_page: layout::KEY_PAGE,
+        active: layout::ACTIVE,
+        active_len: layout::ACTIVE_LEN,
+        request_len: layout::REQUEST_LEN,
+        ram: layout::RAM,
         board: &layout::BOARD_NAME,
-        key_record,
     };
-    let _ = pab_boot_common::decide(
-        &mut dfu,
-        &mut state,
-        &mut request,
-        layout::REQUEST_LEN,
-        slot,
-        swapping,
-        &mut word,
-    );
-
-    // A flash error leaves the progress records as they are: the next reset resumes; meanwhile
-    // boot what is there. The swap's buffer: 4 KiB of the stack, a 32nd of a page.
+    // The swap's buffer: 4 KiB of the stack, a 32nd of a page.
     let active =
         Sectors::<{ layout::LARGE_SECTOR }>::new(&flash, layout::ACTIVE, layout::ACTIVE_LEN);
-    let _ = BootLoader::try_prepare::<_, _, _, 4096>(BootLoaderConfig { active, dfu, state });
-
-    // SAFETY: ACTIVE is the chip's flash, word aligned.
-    let table = unsafe { pab_boot_common::vector_table(layout::ACTIVE) };
-    if pab_boot_common::is_application(
-        table,
-        layout::RAM,
-        layout::ACTIVE..layout::ACTIVE + layout::ACTIVE_LEN,
-    ) {
-        // SAFETY: a vector table at ACTIVE (checked), 128 KiB aligned; nothing of this program
-        // is used afterwards.
-        unsafe { pab_boot_common::jump(layout::ACTIVE) }
-    }
-    halt()
-}
-
-/// Nothing to run (an erased ACTIVE), or a panic: wait for a debugger or a reset.
-fn halt() -> ! {
-    loop {
-        cortex_m::asm::wfi();
+    // SAFETY: the key page and ACTIVE are the chip's flash, which nothing else writes while
+    // this runs; ACTIVE is 128 KiB aligned.
+    unsafe {
+        pab_boot_common::boot::<_, _, _, _, 4096, { layout::WORD }>(
+            &map, active, dfu, state, request,
+        )
     }
 }
 
@@ -253,5 +219,5 @@ fn halt() -> ! {
 /// halts; no message is formatted (flash).
 #[panic_handler]
 fn panic(_: &core::panic::PanicInfo) -> ! {
-    halt()
+    pab_boot_common::halt()
 }

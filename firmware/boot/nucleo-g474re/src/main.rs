@@ -1,15 +1,15 @@
 //! # pab-boot-g474: the NUCLEO-G474RE's bootloader, on embassy-boot
 //!
 //! The emulated board's bootloader (`firmware/boot/mps2-an386`) is the model; this one runs the
-//! same steps over the STM32G474RE's flash (dual-bank, DBANK = 1, 2 KiB pages), at every reset:
+//! same steps over the STM32G474RE's flash (dual-bank, DBANK = 1, 2 KiB pages), at every reset
+//! (`pab_boot_common::boot` over this board's partitions):
 //!
 //! 1. **A pending request** in the request page: `pab_boot_common::decide` (the DFU slot checked
 //!    by `pab_core::update::stored::check` for the board name `fw-g474` under the key page's
 //!    update key record, the verdict written, and only then, if it passed, embassy-boot's
 //!    `mark_updated`; a request while the state says Swap is dropped).
-//! 2. **embassy-boot's `prepare_boot`** (through embassy-boot-stm32's `try_prepare`): swaps,
-//!    resumes a cut swap, or reverts an update that did not mark itself booted before this
-//!    reset. A flash error leaves the progress records for the next reset and boots what is
+//! 2. **embassy-boot's `prepare_boot`**: swaps, resumes a cut swap, or reverts an update that
+//!    did not mark itself booted before this reset. A flash error leaves the progress records for the next reset and boots what is
 //!    there.
 //! 3. **Jump** to ACTIVE (`pab_boot_common::jump`) if it starts with a vector table; else wait
 //!    (nothing to run: flash an application with a probe).
@@ -33,15 +33,13 @@ use core::cell::RefCell;
 // The boards' memcpy and memset: smaller than compiler_builtins' (the crate's Cargo.toml).
 use pab_builtins as _;
 
-use embassy_boot_stm32::{BootLoader, BootLoaderConfig, State as BootState};
 use embassy_embedded_hal::flash::partition::BlockingPartition;
 use embassy_stm32::flash::{Blocking, Flash, WRITE_SIZE};
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
-use pab_boot_common::Slot;
+use pab_boot_common::Map;
 // The memory map, shared with the application's `update` build (src/lib.rs).
 use pab_boot_g474::layout;
-use pab_core::update::stored;
 
 // The state partition's write unit, as the layout says it, is the flash driver's.
 const _: () = assert!(layout::WORD == WRITE_SIZE);
@@ -84,59 +82,24 @@ fn main() -> ! {
     let flash: Shared = Mutex::new(RefCell::new(Flash::new_blocking(unsafe {
         embassy_stm32::peripherals::FLASH::steal()
     })));
-    let mut dfu = partition(&flash, layout::DFU, layout::DFU_LEN);
-    let mut state = partition(&flash, layout::STATE, layout::STATE_LEN);
-    let mut request = partition(&flash, layout::REQUEST, layout::REQUEST_LEN);
-    let mut word = [0u8; layout::WORD];
-    let swapping = pab_boot_common::state_of(&mut state, &mut word) == BootState::Swap;
-    // SAFETY: the key page is the chip's flash, which nothing writes while this runs.
-    let key_record = unsafe {
-        pab_boot_common::mapped(
-            layout::KEY_PAGE + stored::KEY_RECORD_OFFSET as u32,
-            stored::KEY_RECORD_LEN,
-        )
-    };
-    let slot = Slot {
-        len: layout::ACTIVE_LEN,
+    let dfu = partition(&flash, layout::DFU, layout::DFU_LEN);
+    let state = partition(&flash, layout::STATE, layout::STATE_LEN);
+    let request = partition(&flash, layout::REQUEST, layout::REQUEST_LEN);
+    let map = Map {
+        key_page: layout::KEY_PAGE,
+        active: layout::ACTIVE,
+        active_len: layout::ACTIVE_LEN,
+        request_len: layout::REQUEST_LEN,
+        ram: layout::RAM,
         board: &layout::BOARD_NAME,
-        key_record,
     };
-    let _ = pab_boot_common::decide(
-        &mut dfu,
-        &mut state,
-        &mut request,
-        layout::REQUEST_LEN,
-        slot,
-        swapping,
-        &mut word,
-    );
-
-    // A flash error leaves the progress records as they are: the next reset resumes; meanwhile
-    // boot what is there.
-    let _ = BootLoader::try_prepare::<_, _, _, { layout::PAGE as usize }>(BootLoaderConfig {
-        active: partition(&flash, layout::ACTIVE, layout::ACTIVE_LEN),
-        dfu,
-        state,
-    });
-
-    // SAFETY: ACTIVE is the chip's flash, word aligned.
-    let table = unsafe { pab_boot_common::vector_table(layout::ACTIVE) };
-    if pab_boot_common::is_application(
-        table,
-        layout::RAM,
-        layout::ACTIVE..layout::ACTIVE + layout::ACTIVE_LEN,
-    ) {
-        // SAFETY: a vector table at ACTIVE (checked), 2 KiB aligned; nothing of this program
-        // is used afterwards.
-        unsafe { pab_boot_common::jump(layout::ACTIVE) }
-    }
-    halt()
-}
-
-/// Nothing to run (an erased ACTIVE), or a panic: wait for a debugger or a reset.
-fn halt() -> ! {
-    loop {
-        cortex_m::asm::wfi();
+    let active = partition(&flash, layout::ACTIVE, layout::ACTIVE_LEN);
+    // SAFETY: the key page and ACTIVE are the chip's flash, which nothing else writes while
+    // this runs; ACTIVE is 2 KiB aligned.
+    unsafe {
+        pab_boot_common::boot::<_, _, _, _, { layout::PAGE as usize }, { layout::WORD }>(
+            &map, active, dfu, state, request,
+        )
     }
 }
 
@@ -145,5 +108,5 @@ fn halt() -> ! {
 /// (flash).
 #[panic_handler]
 fn panic(_: &core::panic::PanicInfo) -> ! {
-    halt()
+    pab_boot_common::halt()
 }
