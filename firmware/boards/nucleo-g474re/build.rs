@@ -1,37 +1,13 @@
-//! Linker scripts for the binary only: cortex-m-rt's `link.x` (which includes this crate's
-//! `memory.x`) and defmt's `defmt.x`. Doing it here rather than in a `.cargo/config.toml` keeps
-//! them off the libraries built for the same target.
-
-use std::env;
-use std::fs;
-use std::path::PathBuf;
+//! Linker scripts for the binary only (pab-link): cortex-m-rt's `link.x` (which includes this
+//! crate's `memory.x`, or `memory-boot.x` with the feature `boot`: the program behind the
+//! bootloader, at its active partition) and defmt's `defmt.x`; the `panic_location` build.
 
 fn main() {
-    // Put memory.x where the linker finds it (memory-boot.x with the feature `boot`: the program
-    // behind the bootloader, at its active partition), and rebuild when either changes.
-    let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
-    let memory: &[u8] = if env::var_os("CARGO_FEATURE_BOOT").is_some() {
-        include_bytes!("memory-boot.x")
-    } else {
-        include_bytes!("memory.x")
-    };
-    fs::write(out.join("memory.x"), memory).expect("writing memory.x");
-    println!("cargo:rustc-link-search={}", out.display());
-    println!("cargo:rerun-if-changed=memory.x");
-    println!("cargo:rerun-if-changed=memory-boot.x");
-    println!("cargo:rerun-if-changed=build.rs");
+    pab_link::Scripts::from_env()
+        .memory()
+        .search()
+        .link(&["link.x", "defmt.x"]);
     // The node id is compiled in (see src/main.rs): rebuild when it changes.
     println!("cargo:rerun-if-env-changed=PAB_NODE_ID");
-    // A panic's location (file and line) only in a build that asks for it: every panic site
-    // passes a `Location` (12 bytes) and its file name lives in flash, 1.7 KB of the NUCLEO-G474RE
-    // and 1.2 KB of the emulated board (src/main.rs, the panic handler, says more).
-    println!("cargo:rerun-if-env-changed=PAB_PANIC_LOCATION");
-    println!("cargo::rustc-check-cfg=cfg(panic_location)");
-    if env::var_os("PAB_PANIC_LOCATION").is_some_and(|value| value == "1") {
-        println!("cargo:rustc-cfg=panic_location");
-    }
-
-    println!("cargo:rustc-link-arg-bins=--nmagic");
-    println!("cargo:rustc-link-arg-bins=-Tlink.x");
-    println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
+    pab_link::panic_location();
 }

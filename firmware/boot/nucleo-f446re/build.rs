@@ -1,20 +1,12 @@
 //! The bootloader's linker scripts, for its binary only: cortex-m-rt's `link.x`, which includes
-//! this crate's `memory.x` and `device.x` (as firmware/boot/mps2-an386's build.rs does).
-use std::env;
-use std::fs;
-use std::path::PathBuf;
+//! this crate's `memory.x` and `device.x` (pab-link). On the binaries' search path only, not the
+//! library's: the board's application depends on this crate's library (its flash map), and a
+//! search path would carry this `memory.x` into its link, beside its own.
 
 fn main() {
-    let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
-    fs::write(out.join("memory.x"), include_bytes!("memory.x")).expect("writing memory.x");
-    fs::write(out.join("device.x"), include_bytes!("device.x")).expect("writing device.x");
-    println!("cargo:rerun-if-changed=memory.x");
-    println!("cargo:rerun-if-changed=device.x");
-    println!("cargo:rerun-if-changed=build.rs");
-    // Two arguments: flip-link (the linker, .cargo/config.toml) finds memory.x through a
-    // separate `-L DIR` only.
-    println!("cargo:rustc-link-arg-bins=-L");
-    println!("cargo:rustc-link-arg-bins={}", out.display());
-    println!("cargo:rustc-link-arg-bins=--nmagic");
-    println!("cargo:rustc-link-arg-bins=-Tlink.x");
+    pab_link::Scripts::from_env()
+        .place("memory.x")
+        .place("device.x")
+        .search_for_binaries()
+        .link(&["link.x"]);
 }
