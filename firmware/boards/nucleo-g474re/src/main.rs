@@ -516,7 +516,7 @@ fn ecc_tolerated(at: u32) -> bool {
 /// manifest's page that is not erased is erased before the manifest is written, a state that
 /// is no magic reads as Boot and is written again by the confirmation, a request or verdict
 /// that is no record is not taken: `update::stored::Request::read`). The bootloader, which
-/// reads the same partitions, has no such handler (docs/nucleo-g474re.md, "Bootloader").
+/// reads the same partitions, clears them too (pab-boot-g474's src/main.rs).
 #[cortex_m_rt::exception]
 unsafe fn NonMaskableInt() {
     let flash = embassy_stm32::pac::FLASH;

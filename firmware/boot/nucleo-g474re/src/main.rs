@@ -103,6 +103,37 @@ fn main() -> ! {
     }
 }
 
+/// The flash's double-ECC error raises an NMI: a double word whose programming a power loss cut
+/// reads so until its page is erased. This program reads DFU, STATE and REQUEST (bank 2) at
+/// every reset, where the application's update, its confirmation or this program's own verdict
+/// and swap records may have been cut: halting there would halt every boot, a board that only a
+/// probe brings back. So such an error is cleared and the read completes with bad bytes, which
+/// what reads them rejects: a state word that is no magic reads as Boot (no swap), a request or
+/// verdict that is no record is not taken (`update::stored::Request::read`), a slot's bytes fail
+/// the signature's check, and a swap's progress record that reads as written counts its step as
+/// done, which it was (embassy-boot writes the record after the step). Anywhere else (this
+/// program, the active partition, the key page) it halts, as cortex-m-rt's default handler did.
+/// The application's handler does the same for what it reads (pab-fw-g474's src/main.rs).
+/// Not run on a board.
+#[cortex_m_rt::exception]
+unsafe fn NonMaskableInt() {
+    let flash = embassy_stm32::pac::FLASH;
+    let eccr = flash.eccr().read();
+    // Dual-bank mode: ADDR_ECC is the byte offset of the failing double word within its bank,
+    // BK_ECC the bank (set: bank 2).
+    let at = layout::BANK2.saturating_add(eccr.addr_ecc());
+    if eccr.eccd()
+        && eccr.bk_ecc()
+        && (layout::DFU..layout::REQUEST + layout::REQUEST_LEN).contains(&at)
+    {
+        // ECCD is write-1-to-clear; the other bits written 0 leave ECCC alone and the
+        // correction interrupt disabled (its reset state).
+        flash.eccr().write(|w| w.set_eccd(true));
+        return;
+    }
+    pab_boot_common::halt()
+}
+
 /// A panic (embassy-boot's assertions on the partitions, which the layout's constants satisfy;
 /// the flash driver's refusal of a chip whose DBANK is cleared) halts; no message is formatted
 /// (flash).
