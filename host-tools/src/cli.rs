@@ -20,14 +20,16 @@ it has decayed to 0. Its rule says when an active connection may deliver, as a B
 over the activity of the port's connections, e.g. \"C1 & !C2\" (C1 gets through unless C2 is \
 active). A rule of false makes a virtual connection: it never delivers but inhibits others.
 
-A network file (TOML) declares [nodes.NAME] (id), [topics.NAME] (can_id, extended, mask, rate_hz), \
+A network file (TOML) declares [bus] (bitrate), [nodes.NAME] (id), [topics.NAME] (can_id, \
+extended, mask, rate_hz or period, length, jitter, deadline), \
 [ports.\"NODE.PORT\"], [connections.NAME] (topic, port, st, tc, tr, rule) and, for simulation, \
 [[events]] (topic with rate_hz/from/to or at = [...]) and [[phases]] (name, from, to), and for \
 HBBA's intention solver [hbba] (resources, bitrate), [hbba.strategies.NAME] (class, utility, \
 costs, filters, requires) and, for simulation, [[desires]] (class, intensity, from, to). See \
 docs/network-file.md for the full reference.
 
-Exit status: 0 success; 1 the rules are inconsistent; 2 the input cannot be read or is invalid; \
+Exit status: 0 success; 1 the rules are inconsistent (or, for check, a frame can miss its \
+deadline on the bus); 2 the input cannot be read or is invalid; \
 3 an output cannot be written; 4 the bus cannot be used or a node refused or did not answer.";
 
 const AFTER_HELP: &str = "\
@@ -63,7 +65,16 @@ Reports every pair of connections that can deliver together, with the smallest s
 connections that shows it; every rule that can never deliver (unless it is written \"false\", a \
 virtual connection); and, as information, how many masks let nothing through.
 
-Exit status: 0 consistent, 1 inconsistent, 2 unreadable or invalid file.")]
+With a bus bit rate ([bus] bitrate), also the worst-case response time of every frame stream on \
+the bus (Davis, Burns, Bril and Lukkien 2007; worst-case bit stuffing): the topics with a period \
+(or rate_hz), the gateways' re-published frames and the protocol's own periodic frames, one \
+table transfer at a time in the background. Prints the table (stream, id, bytes, period, \
+deadline, C, R, slack), the bus load and the lowest standard bit rate (125k, 250k, 500k, 800k, \
+1M) at which every deadline holds; fails when a deadline can be missed or the load exceeds \
+100 %, at the line of the stream (docs/response-times.md).
+
+Exit status: 0 consistent (and every deadline holds), 1 inconsistent or a deadline can be \
+missed, 2 unreadable or invalid file.")]
     Check {
         /// The network file (TOML).
         network: PathBuf,

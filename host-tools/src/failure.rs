@@ -10,6 +10,9 @@ use crate::output::colour;
 /// How a command failed, and the exit status that says so.
 pub enum Failure {
     Inconsistent(Vec<Diagnostic>),
+    /// A frame stream can miss its deadline on the bus, or the bus is overloaded (exit status 1,
+    /// like a verdict).
+    Deadlines(Vec<Diagnostic>),
     Input(Diagnostics),
     Output(String),
     Bus(String),
@@ -34,6 +37,15 @@ impl Failure {
                 eprintln!("{}\n", Diagnostics(errors).render(colour()));
                 eprintln!(
                     "the rules are inconsistent: {count} error{}",
+                    if count == 1 { "" } else { "s" }
+                );
+                ExitCode::from(1)
+            }
+            Failure::Deadlines(errors) => {
+                let count = errors.len();
+                eprintln!("{}\n", Diagnostics(errors).render(colour()));
+                eprintln!(
+                    "frames can miss their deadlines on the bus: {count} error{}",
                     if count == 1 { "" } else { "s" }
                 );
                 ExitCode::from(1)

@@ -29,6 +29,7 @@ pub fn invalid(path: &Path, errors: &[Diagnostic]) -> Value {
         "errors": errors.iter().map(diagnostic).collect::<Vec<_>>(),
         "warnings": [],
         "ports": [],
+        "bus": null,
     })
 }
 
@@ -84,6 +85,63 @@ pub fn check(
         "errors": errors.iter().map(diagnostic).collect::<Vec<_>>(),
         "warnings": warnings.iter().map(|d| diagnostic(d)).collect::<Vec<_>>(),
         "ports": ports,
+    })
+}
+
+/// `pabctl check --json`'s `bus`: `null` without a bit rate; else `bitrate` (bit/s),
+/// `load_percent`, `holds` (every deadline met, load at most 100 %), `lowest_bitrate` (the lowest
+/// standard bit rate at which everything holds, or null), `streams` in order of rank (each
+/// `name`, `kind` ("topic", "gateway", "protocol"), `id`, `extended`, `bytes`, `period_s`,
+/// `jitter_s`, `deadline_s`, `c_s`, `r_s` (null when unbounded), `slack_s` (D − R, negative when
+/// missed; null when unbounded), `meets`), `background` (`name`, `id`), `not_analysed` (`name`,
+/// `reason`) and `errors` (the missed deadlines and the overload, as diagnostics).
+pub fn bus(timing: &pab_lang::check::bus::Timing, errors: &[Diagnostic]) -> Value {
+    use pab_lang::check::bus::Kind;
+    let Some(analysis) = &timing.analysis else {
+        return Value::Null;
+    };
+    let seconds = |ns: u64| ns as f64 / 1e9;
+    let streams: Vec<Value> = timing
+        .streams
+        .streams
+        .iter()
+        .zip(&analysis.rows)
+        .map(|(stream, row)| {
+            json!({
+                "name": stream.name,
+                "kind": match stream.kind {
+                    Kind::Topic(_) => "topic",
+                    Kind::Gateway(_) => "gateway",
+                    Kind::Protocol => "protocol",
+                },
+                "id": stream.id,
+                "extended": stream.extended,
+                "bytes": stream.length,
+                "period_s": seconds(stream.period_ns),
+                "jitter_s": seconds(row.jitter_ns),
+                "deadline_s": seconds(row.deadline_ns),
+                "c_s": seconds(row.c_ns),
+                "r_s": row.r_ns.map(seconds),
+                "slack_s": row.r_ns.map(|r| (row.deadline_ns as f64 - r as f64) / 1e9),
+                "meets": row.meets,
+            })
+        })
+        .collect();
+    json!({
+        "bitrate": analysis.bitrate,
+        "load_percent": analysis.load_ppb as f64 / 1e7,
+        "holds": analysis.holds(),
+        "lowest_bitrate": timing.lowest,
+        "streams": streams,
+        "background": timing.streams.background.iter().map(|b| json!({
+            "name": b.name,
+            "id": b.id,
+        })).collect::<Vec<_>>(),
+        "not_analysed": timing.streams.unanalysed.iter().map(|u| json!({
+            "name": u.name,
+            "reason": u.reason,
+        })).collect::<Vec<_>>(),
+        "errors": errors.iter().map(diagnostic).collect::<Vec<_>>(),
     })
 }
 

@@ -48,6 +48,93 @@ fn check_exits_0_on_a_consistent_network() {
 }
 
 #[test]
+fn check_prints_every_streams_response_time_and_the_lowest_bit_rate() {
+    let output = pabctl(&["check", &example("take-and-return.toml")]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let stdout = text(&output.stdout);
+    for expected in [
+        "bus at 500 kbit/s: 23 streams analysed",
+        "stream                      id          bytes       period     deadline          C            R        slack",
+        "  object_pos                  0x110           8       100 ms       100 ms   0.270 ms     0.590 ms    99.410 ms",
+        "  gaze: Heartbeat             0x1202FF03      8          1 s          1 s   0.320 ms",
+        "bus load: 2.8 % of 500 kbit/s",
+        "lowest standard bit rate at which every deadline holds: 125 kbit/s",
+    ] {
+        assert!(stdout.contains(expected), "{expected}\n{stdout}");
+    }
+    let json = pabctl(&["check", &example("take-and-return.toml"), "--json"]);
+    assert_eq!(json.status.code(), Some(0));
+    let value: serde_json::Value = serde_json::from_slice(&json.stdout).unwrap();
+    let bus = &value["bus"];
+    assert_eq!(bus["bitrate"], 500_000);
+    assert_eq!(bus["holds"], true);
+    assert_eq!(bus["lowest_bitrate"], 125_000);
+    let first = &bus["streams"][0];
+    assert_eq!(first["name"], "object_pos");
+    assert_eq!(first["kind"], "topic");
+    assert_eq!(first["id"], 0x110);
+    assert_eq!(first["r_s"], 0.00059);
+    assert_eq!(bus["streams"].as_array().unwrap().len(), 23);
+    // A network without a bit rate: no table, `bus` null.
+    let json = pabctl(&["check", &example("figure-1.toml"), "--json"]);
+    let value: serde_json::Value = serde_json::from_slice(&json.stdout).unwrap();
+    assert_eq!(value["bus"], serde_json::Value::Null);
+}
+
+#[test]
+fn check_exits_1_when_a_frame_can_miss_its_deadline() {
+    let dir = tempfile::tempdir().unwrap();
+    let text_of = std::fs::read_to_string(examples().join("take-and-return.toml")).unwrap();
+    // grasped ten times a millisecond: the bus is overloaded.
+    let variant = text_of.replace(
+        "can_id = 0x130\nperiod = 0.1\n",
+        "can_id = 0x130\nperiod = 0.0001\n",
+    );
+    assert_ne!(text_of, variant);
+    let path = dir.path().join("overloaded.toml");
+    std::fs::write(&path, &variant).unwrap();
+    let output = pabctl(&["check", &path.display().to_string()]);
+    assert_eq!(output.status.code(), Some(1));
+    let stderr = text(&output.stderr);
+    let line = |needle: &str| variant.lines().position(|l| l == needle).unwrap() + 1;
+    let file = path.display().to_string();
+    assert!(
+        stderr.contains(&format!(
+            "{file}:{}:11: error: the bus is loaded",
+            line("bitrate = 500000")
+        )),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains(&format!(
+            "{file}:{}:10: error: `grasped` (0x130) can miss its deadline at 500 kbit/s",
+            line("period = 0.0001")
+        )),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("frames can miss their deadlines on the bus:"),
+        "{stderr}"
+    );
+    // The rules are still consistent: said, and the table shows the misses.
+    let stdout = text(&output.stdout);
+    assert!(
+        stdout.contains("consistent (3 ports, 16 connections)"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("MISSED"), "{stdout}");
+    assert!(
+        stdout.contains("no standard bit rate up to 1 Mbit/s meets every deadline"),
+        "{stdout}"
+    );
+    let json = pabctl(&["check", &path.display().to_string(), "--json"]);
+    assert_eq!(json.status.code(), Some(1));
+    let value: serde_json::Value = serde_json::from_slice(&json.stdout).unwrap();
+    assert_eq!(value["bus"]["holds"], false);
+    assert_eq!(value["bus"]["errors"][0]["line"], line("bitrate = 500000"));
+}
+
+#[test]
 fn check_exits_1_with_the_counterexample_and_its_line() {
     let dir = tempfile::tempdir().unwrap();
     let path = inconsistent_variant(dir.path());

@@ -20,10 +20,14 @@
 
 use std::fmt::Write as _;
 
+/// The bus's frame streams and their response times at the network's bit rate.
+pub mod bus;
 /// Warnings about connections and the network as a whole (`pabctl check` prints them).
 pub mod connections;
 /// Warnings about `[dynamics.*]` groups (`pabctl check` prints them; they fail nothing).
 pub mod dynamics;
+/// Worst-case response times of CAN frame streams (Davis et al. 2007), in bit times.
+pub mod response;
 
 use biodivine_lib_bdd::{Bdd, BddValuation, BddVariable, BddVariableSet};
 

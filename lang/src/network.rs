@@ -24,6 +24,7 @@ use crate::diagnostic::{Diagnostic, Diagnostics, Source};
 use crate::shown;
 
 mod ble;
+mod bus;
 mod connections;
 mod dynamics;
 mod fields;
@@ -41,6 +42,7 @@ mod structure;
 mod topics;
 
 pub use ble::{BleGroup, BleMember};
+pub use bus::Bus;
 pub use connections::{Connection, Kind, NO_TOPIC};
 pub use dynamics::{Context, DynamicsBehaviour, DynamicsGroup, WrittenBehaviour, WrittenExclusion};
 pub use fields::TopicField;
@@ -58,7 +60,7 @@ pub use scenario::{Event, Fault, MAX_EVENT_FRAMES, MAX_TIME_S, Phase, Schedule};
 pub use schema::{
     CALLS, Call, Client, Command, Defaults, INNATE_IDS, MAX_CALLS, SchemaBoard, SensorTopic, Timed,
 };
-pub use topics::{MAX_RATE_HZ, Topic};
+pub use topics::{MAX_RATE_HZ, MAX_TOPIC_SECONDS, Topic, TopicTiming};
 
 /// A network file (docs/network-file.md): nodes, topics, ports, connections, BLE groups,
 /// competitive dynamics, HBBA, a schema server, and a simulation's scenario. Unknown keys are
@@ -68,6 +70,8 @@ pub use topics::{MAX_RATE_HZ, Topic};
 struct RawFile {
     /// Optional: the network's version and description.
     network: Option<RawMeta>,
+    /// Optional: the CAN bus, its bit rate.
+    bus: Option<Spanned<bus::RawBus>>,
     /// The nodes (controller boards or their Linux stand-ins), by name.
     #[serde(default)]
     nodes: IndexMap<Spanned<String>, Spanned<nodes::RawNode>>,
@@ -131,6 +135,8 @@ pub struct Network {
     /// What the file says the network is (`[network] description`): the DBC export's comment on
     /// the whole database.
     pub description: Option<String>,
+    /// The bus's bit rate (`[bus] bitrate`, or `[hbba] bitrate` in a file without `[bus]`).
+    pub bus: Option<Bus>,
     /// Nodes in file order.
     pub nodes: Vec<Node>,
     /// Topics in file order.
@@ -271,6 +277,7 @@ impl Builder<'_> {
 
     fn build(mut self, raw: RawFile) -> Network {
         let version = self.version(raw.network.as_ref());
+        let bus = self.bus(raw.bus.as_ref());
         let nodes = self.nodes(&raw.nodes);
         let topics = self.topics(&raw.topics);
         let mut ports = self.ports(&raw.ports, &nodes);
@@ -296,7 +303,7 @@ impl Builder<'_> {
         let events = self.events(&raw.events, &topics);
         let phases = self.phases(&raw.phases);
         let faults = self.faults(&raw.faults, &nodes);
-        let hbba = self.hbba(raw.hbba.as_ref(), &topics, &connections, &names);
+        let (hbba, bus) = self.hbba(raw.hbba.as_ref(), bus, &topics, &connections, &names);
         let desires = self.desires(&raw.desires, hbba.as_ref(), raw.hbba.is_some());
         if hbba.is_some() {
             // The intention node sends its commands from this address (the DBC names it there).
@@ -331,6 +338,7 @@ impl Builder<'_> {
             source: self.source.clone(),
             version,
             description,
+            bus,
             nodes,
             topics,
             ports,

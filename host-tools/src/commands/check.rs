@@ -32,16 +32,20 @@ pub fn run(path: &Path, json: bool) -> Result<(), Failure> {
     }
     // Found once, for the JSON and for the verdict.
     let errors = report.errors(&network);
+    // The bus: every stream's worst-case response time at the network's bit rate.
+    let timing = check::bus::timing(&network);
+    let late = timing.errors(&network);
     if json {
         let shown: Vec<&Diagnostic> = warnings.iter().map(|w| &w.0).collect();
-        println!(
-            "{}",
-            pabctl::json::check(path, &network, &report, &errors, &shown)
-        );
+        let mut value = pabctl::json::check(path, &network, &report, &errors, &shown);
+        value["bus"] = pabctl::json::bus(&timing, &late);
+        println!("{value}");
         // The text for a person, on standard error.
         eprint!("{}", report.summary(&network));
+        eprint!("{}", timing.table());
     } else {
         print!("{}", report.summary(&network));
+        print!("{}", timing.table());
     }
     if report.is_consistent() {
         let say = if json { eprintln_line } else { println_line };
@@ -53,8 +57,18 @@ pub fn run(path: &Path, json: bool) -> Result<(), Failure> {
             network.connections.len(),
             plural(network.connections.len())
         ));
-        Ok(())
+        if late.is_empty() {
+            Ok(())
+        } else {
+            Err(Failure::Deadlines(late))
+        }
     } else {
+        if !late.is_empty() {
+            eprintln!(
+                "{}\n",
+                pab_lang::diagnostic::Diagnostics(late).render(colour())
+            );
+        }
         Err(Failure::Inconsistent(errors))
     }
 }

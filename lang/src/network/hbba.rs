@@ -35,7 +35,9 @@ use serde::Deserialize;
 
 use pab_core::hbba::intention::{MAX_FILTERED, Target};
 
-use super::{Builder, Connection, Kind, Network, PLAIN_NAME, Topic, is_plain_name, list_or_none};
+use super::{
+    Builder, Bus, Connection, Kind, Network, PLAIN_NAME, Topic, is_plain_name, list_or_none,
+};
 use crate::shown;
 
 /// The resource whose capacity is a percentage of the bus's bit rate and whose costs are
@@ -53,7 +55,8 @@ pub(super) struct RawHbba {
     /// Optional: named capacities, 1 to 8 resources, each a whole number 1..=4294967295; `bus`
     /// is a percentage (1 to 100) of bitrate, and its costs are computed, never written.
     resources: Option<RawMap>,
-    /// Bit/s, 1 to 1000000: required with a `bus` resource, refused without.
+    /// Bit/s, 1 to 1000000: the older place of `[bus] bitrate`, read in a file without
+    /// `[bus]` and with a `bus` resource only (refused with `[bus]`, and without that resource).
     bitrate: Option<Spanned<i64>>,
     /// The strategies (1 to 64, file order), by name: letters, digits, _ -.
     #[serde(default)]
@@ -281,18 +284,34 @@ impl Hbba {
 
 impl Builder<'_> {
     /// The `[hbba]` section, if any; `None` also after reporting its mistakes (every one).
+    /// With the bus `[bus]` gave: the bus, from `[hbba] bitrate` in a file without `[bus]`.
     pub(super) fn hbba(
         &mut self,
         raw: Option<&Spanned<RawHbba>>,
+        bus: Option<Bus>,
+        topics: &[Topic],
+        connections: &[Connection],
+        connection_names: &[&str],
+    ) -> (Option<Hbba>, Option<Bus>) {
+        let Some(raw) = raw else {
+            return (None, bus);
+        };
+        let (bitrate, bus) = self.hbba_bitrate(raw.get_ref(), raw.span(), bus);
+        let hbba = self.hbba_section(raw, bitrate, topics, connections, connection_names);
+        (hbba, bus)
+    }
+
+    fn hbba_section(
+        &mut self,
+        raw: &Spanned<RawHbba>,
+        bitrate: Option<u32>,
         topics: &[Topic],
         connections: &[Connection],
         connection_names: &[&str],
     ) -> Option<Hbba> {
-        let raw = raw?;
         let errors = self.errors.len();
         let section = raw.get_ref();
         let resources = self.hbba_resources(section);
-        let bitrate = self.hbba_bitrate(section, raw.span());
         // Classes first: a requirement may name a class that appears further down.
         let mut classes: Vec<String> = Vec::new();
         let mut refused: Vec<&str> = Vec::new();
@@ -511,41 +530,48 @@ impl Builder<'_> {
         resources
     }
 
-    fn hbba_bitrate(&mut self, raw: &RawHbba, span: Range<usize>) -> Option<u32> {
+    /// The bit rate the `bus` resource is a percentage of (`None` without one), and the bus:
+    /// `[bus]`'s, or `[hbba] bitrate` (the older place of the same number) in a file without
+    /// `[bus]`.
+    fn hbba_bitrate(
+        &mut self,
+        raw: &RawHbba,
+        span: Range<usize>,
+        bus: Option<Bus>,
+    ) -> (Option<u32>, Option<Bus>) {
         let has_bus = raw
             .resources
             .as_ref()
             .is_some_and(|map| map.get_ref().keys().any(|name| name.get_ref() == BUS));
-        match (&raw.bitrate, has_bus) {
-            (None, true) => {
+        match (&raw.bitrate, bus, has_bus) {
+            (Some(bitrate), Some(bus), _) => {
+                self.error(
+                    bitrate.span(),
+                    "the bus's bit rate is `[bus] bitrate` (one number for one bus): remove `bitrate` from [hbba]",
+                );
+                (None, Some(bus))
+            }
+            (Some(bitrate), None, false) => {
+                self.error(
+                    bitrate.span(),
+                    "`bitrate` goes with a `bus` resource (its capacity in percent of it): add `bus = PERCENT` to `resources`, or write the bus's bit rate as `[bus] bitrate`",
+                );
+                (None, None)
+            }
+            (Some(bitrate), None, true) => {
+                let bus = self.bitrate(bitrate);
+                (bus.as_ref().map(|bus| bus.bitrate), bus)
+            }
+            (None, Some(bus), has_bus) => (has_bus.then_some(bus.bitrate), Some(bus)),
+            (None, None, true) => {
                 let at = raw.resources.as_ref().map_or(span, Spanned::span);
                 self.error(
                     at,
-                    "the `bus` resource is a percentage of the bus's bit rate: add `bitrate = 500000` (bit/s) to [hbba]",
+                    "the `bus` resource is a percentage of the bus's bit rate: add `bitrate = 500000` (bit/s) to [bus]",
                 );
-                None
+                (None, None)
             }
-            (Some(bitrate), false) => {
-                self.error(
-                    bitrate.span(),
-                    "`bitrate` goes with a `bus` resource (its capacity in percent of it): add `bus = PERCENT` to `resources`, or remove `bitrate`",
-                );
-                None
-            }
-            (None, false) => None,
-            (Some(bitrate), true) => {
-                let value = *bitrate.get_ref();
-                match u32::try_from(value) {
-                    Ok(rate) if rate >= 1 && i64::from(rate) <= MAX_BITRATE => Some(rate),
-                    _ => {
-                        self.error(
-                            bitrate.span(),
-                            format!("bitrate = {value}: bit/s, 1 to {MAX_BITRATE} (classic CAN)"),
-                        );
-                        None
-                    }
-                }
-            }
+            (None, None, false) => (None, None),
         }
     }
 
@@ -698,7 +724,7 @@ impl Builder<'_> {
                             None => self.error(
                                 connection.span(),
                                 format!(
-                                    "strategy `{text}` lets frames of `{wanted}` through, but its topic `{}` has no `rate_hz`: the bus cost is computed from it (add rate_hz = FRAMES_PER_SECOND to [topics.{}])",
+                                    "strategy `{text}` lets frames of `{wanted}` through, but its topic `{}` has no `rate_hz`: the bus cost is computed from it (add rate_hz = FRAMES_PER_SECOND, or period = SECONDS, to [topics.{}])",
                                     topic.name, topic.name
                                 ),
                             ),

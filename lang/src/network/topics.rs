@@ -31,8 +31,19 @@ pub(super) struct RawTopic {
     mask: Option<Spanned<i64>>,
     /// Optional: frames per second the publisher sends, (0, 100000], kept in whole µHz; what
     /// HBBA's bus costs are computed from (required on a topic whose connection a strategy lets
-    /// through when `[hbba]` has a `bus` resource).
+    /// through when `[hbba]` has a `bus` resource, unless the topic has a `period`). The same
+    /// thing as `period` (1/period): write one or the other.
     rate_hz: Option<Spanned<f64>>,
+    /// Optional: seconds, the shortest time between two of its frames, 0.00001 to 3600, kept in
+    /// whole nanoseconds; its rate is 1/period. A topic with a period (or a `rate_hz`) is a stream of
+    /// `pabctl check`'s response times when the network has `[bus] bitrate`.
+    period: Option<Spanned<f64>>,
+    /// Optional, default 0: seconds, how late after its period's start a frame may be queued
+    /// (its queuing jitter), [0, 3600]; with `period` or `rate_hz` only.
+    jitter: Option<Spanned<f64>>,
+    /// Optional, default the period: seconds from a period's start by which its frame must
+    /// have left the bus, (0, 3600] (may exceed the period); with `period` or `rate_hz` only.
+    deadline: Option<Spanned<f64>>,
     /// Optional, default 8: the data bytes of its frames, 0..=8; the DLC of its DBC message and
     /// the length of its simulated frames (an event's `data` has exactly this many bytes); every
     /// field read from its frames must lie within it.
@@ -51,14 +62,33 @@ pub struct Topic {
     /// How many frames a second it carries (`rate_hz`, optional), as written: what the HBBA
     /// strategies' bus costs are computed from.
     pub rate_hz: Option<f64>,
-    /// The same in whole µHz (rounded to nearest).
+    /// The same in whole µHz (rounded to nearest); from `period` when the file gives that.
     pub rate_uhz: Option<u64>,
+    /// Its timing on the bus (`period`, or 1/`rate_hz`, with `jitter` and `deadline`): `None`
+    /// without either.
+    pub timing: Option<TopicTiming>,
     /// How many data bytes its frames carry (`length`, 0 to 8; default 8): the DBC export's
     /// DLC, the simulated frames' length, and the bytes a field of its frames may read.
     pub length: u8,
     /// What the file says it carries (`description`): the DBC export's comment on its message.
     pub description: Option<String>,
     /// Where it is defined.
+    pub span: Range<usize>,
+}
+
+/// The longest `period`, `jitter` or `deadline` of a topic, seconds: an hour.
+pub const MAX_TOPIC_SECONDS: f64 = 3600.0;
+
+/// A topic's timing on the bus, in nanoseconds: what `pabctl check`'s response times take.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct TopicTiming {
+    /// The shortest time between two frames: `period`, or 1/`rate_hz` rounded down.
+    pub period_ns: u64,
+    /// The queuing jitter (`jitter`, default 0).
+    pub jitter_ns: u64,
+    /// The deadline (`deadline`, default the period).
+    pub deadline_ns: u64,
+    /// Where the file says it: the `deadline` if written, else the `period` or `rate_hz`.
     pub span: Range<usize>,
 }
 
@@ -142,6 +172,9 @@ impl Builder<'_> {
             let Some((rate_hz, rate_uhz)) = self.topic_rate(raw_topic) else {
                 continue;
             };
+            let Some((timing, rate_uhz)) = self.topic_timing(raw_topic, rate_uhz) else {
+                continue;
+            };
             let Some(length) = self.topic_length(raw_topic) else {
                 continue;
             };
@@ -151,6 +184,7 @@ impl Builder<'_> {
                 filter,
                 rate_hz,
                 rate_uhz,
+                timing,
                 length,
                 description,
                 span: topic.span(),
@@ -177,6 +211,121 @@ impl Builder<'_> {
             return None;
         }
         Some((Some(hz), Some(micro as u64)))
+    }
+
+    /// A number of seconds of a topic's timing, in whole nanoseconds, at least `least` (given
+    /// as it reads in the message): `None` after reporting one out of range.
+    fn topic_seconds(
+        &mut self,
+        value: &Spanned<f64>,
+        key: &str,
+        least: (u64, &str),
+    ) -> Option<u64> {
+        let seconds = *value.get_ref();
+        let ns = (seconds * 1e9).round();
+        if seconds.is_finite()
+            && seconds >= 0.0
+            && ns >= least.0 as f64
+            && seconds <= MAX_TOPIC_SECONDS
+        {
+            return Some(ns as u64);
+        }
+        self.error(
+            value.span(),
+            format!(
+                "{key} = {seconds}: seconds, {} to {MAX_TOPIC_SECONDS} (kept in whole nanoseconds)",
+                least.1
+            ),
+        );
+        None
+    }
+
+    /// A topic's `period`, `jitter` and `deadline`, and its rate in µHz (from `period` when the
+    /// file gives that instead of `rate_hz`): `Some((None, rate))` without a period or rate,
+    /// `None` after reporting a mistake.
+    fn topic_timing(
+        &mut self,
+        raw: &RawTopic,
+        rate_uhz: Option<u64>,
+    ) -> Option<(Option<TopicTiming>, Option<u64>)> {
+        let mut ok = true;
+        if let (Some(period), Some(_)) = (&raw.period, &raw.rate_hz) {
+            self.error(
+                period.span(),
+                "a topic's rate is `period` or `rate_hz` (1/period), not both: remove one",
+            );
+            ok = false;
+        }
+        let period = match &raw.period {
+            Some(period) => match self.topic_seconds(
+                period,
+                "period",
+                (10_000, "0.00001 (100 000 frames a second)"),
+            ) {
+                Some(ns) => Some((ns, period.span())),
+                None => {
+                    ok = false;
+                    None
+                }
+            },
+            // 1/rate rounded down: a period never longer than the rate says.
+            None => rate_uhz.zip(raw.rate_hz.as_ref()).map(|(uhz, rate)| {
+                (
+                    (1_000_000_000_000_000 / u128::from(uhz.max(1))) as u64,
+                    rate.span(),
+                )
+            }),
+        };
+        let jitter = match &raw.jitter {
+            Some(value) => self.topic_seconds(value, "jitter", (0, "0")).or_else(|| {
+                ok = false;
+                None
+            }),
+            None => Some(0),
+        };
+        let deadline = match &raw.deadline {
+            Some(value) => match self.topic_seconds(value, "deadline", (1, "above 0")) {
+                Some(ns) => Some(Some((ns, value.span()))),
+                None => {
+                    ok = false;
+                    None
+                }
+            },
+            None => Some(None),
+        };
+        if period.is_none() {
+            for (key, value) in [("jitter", &raw.jitter), ("deadline", &raw.deadline)] {
+                if let Some(value) = value {
+                    self.error(
+                        value.span(),
+                        format!(
+                            "`{key}` goes with the topic's `period` (or `rate_hz`): add `period = SECONDS`, the shortest time between two of its frames"
+                        ),
+                    );
+                    ok = false;
+                }
+            }
+        }
+        if !ok {
+            return None;
+        }
+        let Some((period_ns, period_span)) = period else {
+            return Some((None, rate_uhz));
+        };
+        let (jitter_ns, deadline) = (jitter.unwrap_or(0), deadline.flatten());
+        let rate_uhz = rate_uhz.or_else(|| {
+            Some(
+                ((1_000_000_000_000_000u128 + u128::from(period_ns) / 2) / u128::from(period_ns))
+                    as u64,
+            )
+        });
+        let timing = TopicTiming {
+            period_ns,
+            jitter_ns,
+            deadline_ns: deadline.as_ref().map_or(period_ns, |(ns, _)| *ns),
+            span: deadline.map_or(period_span, |(_, span)| span),
+        };
+        Some((Some(timing), rate_uhz))
     }
 
     /// A topic's `length`: 8 without one, `None` after reporting a bad one.
@@ -302,5 +451,106 @@ mod tests {
             ),
             "{errors:?}"
         );
+    }
+
+    #[test]
+    fn a_topic_has_a_period_or_a_rate_with_its_jitter_and_deadline() {
+        let with =
+            |keys: &str| FIGURE_1.replace("can_id = 0x111\n", &format!("can_id = 0x111\n{keys}\n"));
+        let network = parse(&with("period = 0.1\njitter = 0.002\ndeadline = 0.05")).unwrap();
+        let topic = &network.topics[1];
+        let timing = topic.timing.as_ref().unwrap();
+        assert_eq!(
+            (timing.period_ns, timing.jitter_ns, timing.deadline_ns),
+            (100_000_000, 2_000_000, 50_000_000)
+        );
+        // Its rate for HBBA: 1/period, 10 Hz.
+        assert_eq!(topic.rate_uhz, Some(10_000_000));
+        assert!(network.topics[0].timing.is_none());
+        // rate_hz alone: the period is its inverse (rounded down), the deadline the period.
+        let network = parse(&with("rate_hz = 3.0")).unwrap();
+        let timing = network.topics[1].timing.clone().unwrap();
+        assert_eq!(
+            (timing.period_ns, timing.deadline_ns),
+            (333_333_333, 333_333_333)
+        );
+        // A deadline beyond the period is allowed (the busy period covers it).
+        assert!(parse(&with("period = 0.1\ndeadline = 0.3")).is_ok());
+        for (keys, message) in [
+            (
+                "period = 0.1\nrate_hz = 10.0",
+                "net.toml:10:10: error: a topic's rate is `period` or `rate_hz` (1/period), not both",
+            ),
+            (
+                "period = 0.0",
+                "net.toml:10:10: error: period = 0: seconds, 0.00001 (100 000 frames a second) to 3600",
+            ),
+            (
+                "period = -1.0",
+                "net.toml:10:10: error: period = -1: seconds",
+            ),
+            (
+                "period = inf",
+                "net.toml:10:10: error: period = inf: seconds",
+            ),
+            (
+                "period = 0.1\njitter = -0.1",
+                "net.toml:11:10: error: jitter = -0.1: seconds, 0 to 3600",
+            ),
+            (
+                "period = 0.1\ndeadline = 0.0",
+                "net.toml:11:12: error: deadline = 0: seconds, above 0 to 3600",
+            ),
+            (
+                "deadline = 0.1",
+                "net.toml:10:12: error: `deadline` goes with the topic's `period` (or `rate_hz`)",
+            ),
+            (
+                "jitter = 0.1",
+                "net.toml:10:10: error: `jitter` goes with the topic's `period` (or `rate_hz`)",
+            ),
+        ] {
+            let errors = errors(&with(keys));
+            assert_eq!(errors.len(), 1, "{keys}: {errors:?}");
+            assert!(errors[0].starts_with(message), "{keys}: {errors:?}");
+        }
+        // A slip of a key: did you mean.
+        let errors = errors(&with("perod = 0.1"));
+        assert!(
+            errors[0].contains("unknown key `perod`; did you mean `period`?"),
+            "{errors:?}"
+        );
+    }
+
+    #[test]
+    fn the_bus_has_one_bit_rate() {
+        let network = parse(&format!("[bus]\nbitrate = 250000\n{FIGURE_1}")).unwrap();
+        assert_eq!(network.bus.as_ref().map(|bus| bus.bitrate), Some(250_000));
+        assert!(parse(FIGURE_1).unwrap().bus.is_none());
+        let found = errors(&format!("[bus]\nbitrate = 2000000\n{FIGURE_1}"));
+        assert!(
+            found[0].starts_with("net.toml:2:11: error: bitrate = 2000000: bit/s, 1 to 1000000"),
+            "{found:?}"
+        );
+        let found = errors(&format!("[bus]\nbitrat = 2000\n{FIGURE_1}"));
+        assert!(found[0].contains("did you mean `bitrate`?"), "{found:?}");
+        // [hbba] bitrate, the older place, with [bus]: two numbers for one bus.
+        let hbba = "[hbba]\nresources = { bus = 50 }\nbitrate = 500000\n";
+        let found = errors(&format!("[bus]\nbitrate = 500000\n{FIGURE_1}{hbba}"));
+        assert_eq!(found.len(), 1, "{found:?}");
+        assert!(
+            found[0].contains("the bus's bit rate is `[bus] bitrate` (one number for one bus)"),
+            "{found:?}"
+        );
+        // Without [bus], it is the bus's bit rate.
+        let network = parse(&format!("{FIGURE_1}{hbba}")).unwrap();
+        assert_eq!(network.bus.as_ref().map(|bus| bus.bitrate), Some(500_000));
+        assert_eq!(network.hbba.as_ref().unwrap().bitrate, Some(500_000));
+        // [bus] bitrate gives the `bus` resource its bit rate.
+        let network = parse(&format!(
+            "[bus]\nbitrate = 125000\n{FIGURE_1}[hbba]\nresources = {{ bus = 50 }}\n"
+        ))
+        .unwrap();
+        assert_eq!(network.hbba.as_ref().unwrap().bitrate, Some(125_000));
     }
 }

@@ -1,0 +1,944 @@
+//! The frame streams of a network's bus and their worst-case response times at its bit rate
+//! (`pabctl check`; the analysis is [`crate::check::response`]'s, docs/response-times.md the model).
+//!
+//! The streams:
+//!
+//! - every **topic** with a `period` (or a `rate_hz`, its inverse): its identifier, `length`,
+//!   `jitter` and `deadline` (default the period); a topic with neither is listed, not analysed;
+//! - every **gateway** (a port with `republish`): the frames it re-publishes, at most as often as
+//!   the fastest topic feeding the port delivers (T = the shortest period among them), as long as
+//!   the longest of them; queued when the winning frame has arrived, at most its topic's
+//!   deadline after that frame's period started (J = the longest deadline among the feeding
+//!   topics), and due one period after being queued (D = J + T). A topic declared on the
+//!   gateway's own identifier with a period describes it instead;
+//! - the **protocol's own frames** whose rate the network and docs/can-protocol.md determine, at
+//!   the most their nodes send: each node's heartbeat group (Heartbeat, TableStatus, Traffic,
+//!   Errors) at the nodes' default heartbeat period; each dynamics group's Gates, one per step
+//!   at most (a change at every step), at least every 100 ms; each BLE group member's claim once
+//!   per group period; a schema server's SchemaState every 100 ms, and its drive's attractor,
+//!   attractor rotation and impedance frames every loop period (the impedance, "on change and
+//!   every 100 ms", at most once a tick);
+//! - **one table transfer at a time**, a background stream: the node's flow control (block size
+//!   8, STmin 0) lets the tool send its consecutive frames back to back, so while a table is
+//!   pushed every frame ranked below the transfer waits for its end.
+//!
+//! Everything else the protocol sends on events whose rate the network does not say (faults,
+//! schema transfers and answers, HBBA's traffic, the diagnostic stream, identity, configuration,
+//! firmware updates, seals) is listed as not analysed, with the reason.
+
+use std::ops::Range;
+
+use pab_core::consumer::Consumer;
+use pab_core::protocol::{BROADCAST, FrameId, Service, TOOL};
+
+use super::response::{self, Background, Response, Stream, Unbounded};
+use crate::diagnostic::Diagnostic;
+use crate::network::{NO_TOPIC, Network};
+
+/// The standard bit rates `pabctl check` tries for the lowest at which every deadline holds.
+pub const STANDARD_BITRATES: [u32; 5] = [125_000, 250_000, 500_000, 800_000, 1_000_000];
+
+/// SchemaState's period and the Gates' repeat, ns (docs/can-protocol.md).
+const HUNDRED_MS: u64 = 100_000_000;
+
+/// What a stream is.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Kind {
+    /// A topic of the file, by index.
+    Topic(usize),
+    /// A gateway's re-published frames, by port index.
+    Gateway(usize),
+    /// A frame of the protocol's own.
+    Protocol,
+}
+
+/// A frame stream of the bus, in nanoseconds.
+#[derive(Clone, Debug)]
+pub struct BusStream {
+    /// What it is called in the table: a topic's name, `PORT (republished)`, `NODE: Service`.
+    pub name: String,
+    /// What it is.
+    pub kind: Kind,
+    /// Its identifier (a BLE claim's at eligibility 0, the lowest it sends).
+    pub id: u32,
+    /// A 29-bit identifier.
+    pub extended: bool,
+    /// Its rank on the bus ([`response::arbitration_key`]); the BLE claims share one.
+    pub key: u32,
+    /// Data bytes.
+    pub length: u8,
+    /// T.
+    pub period_ns: u64,
+    /// J.
+    pub jitter_ns: u64,
+    /// D.
+    pub deadline_ns: u64,
+    /// Where the file says it (a topic's deadline or period, a port, a node, a group).
+    pub span: Range<usize>,
+    /// A gateway's feeding topics (indices into the network's topics): its jitter is theirs
+    /// to arrive, found by the analysis.
+    pub feeders: Vec<usize>,
+}
+
+/// A stream with no period: it takes the bus whenever nothing above it wants it.
+#[derive(Clone, Debug)]
+pub struct BackgroundStream {
+    /// What it is called.
+    pub name: String,
+    /// Its identifier (the one of highest rank among its frames).
+    pub id: u32,
+    /// Its rank.
+    pub key: u32,
+    /// Data bytes of its frames.
+    pub length: u8,
+}
+
+/// A stream that is not analysed, and why.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Unanalysed {
+    /// What it is called.
+    pub name: String,
+    /// Why it is not in the analysis.
+    pub reason: String,
+}
+
+/// The streams of a network's bus.
+#[derive(Clone, Debug, Default)]
+pub struct Streams {
+    /// The periodic streams, in order of rank (highest first).
+    pub streams: Vec<BusStream>,
+    /// The background streams.
+    pub background: Vec<BackgroundStream>,
+    /// What is not analysed.
+    pub unanalysed: Vec<Unanalysed>,
+}
+
+/// The key every BLE claim shares: a claim ranks above every priority-4 frame of a service
+/// (bit 23 set) and below every priority-5 frame, and among claims by an eligibility known only
+/// at run time.
+const CLAIM_BASE: u32 = 4 << 26 | 0b10 << 24 | 1 << 23;
+
+fn protocol_id(service: Service, source: u8, destination: u8) -> u32 {
+    FrameId::new(service, source, destination).raw()
+}
+
+/// The streams of `network`'s bus.
+pub fn streams(network: &Network) -> Streams {
+    let mut out = Streams::default();
+    let push = |out: &mut Streams, stream: BusStream| out.streams.push(stream);
+    for (index, topic) in network.topics.iter().enumerate() {
+        let Some(timing) = &topic.timing else {
+            out.unanalysed.push(Unanalysed {
+                name: topic.name.clone(),
+                reason: "topic without `period` (or `rate_hz`)".into(),
+            });
+            continue;
+        };
+        let (id, extended) = (topic.filter.id(), topic.filter.is_extended());
+        push(
+            &mut out,
+            BusStream {
+                name: topic.name.clone(),
+                kind: Kind::Topic(index),
+                id,
+                extended,
+                key: response::arbitration_key(id, extended),
+                length: topic.length,
+                period_ns: timing.period_ns,
+                jitter_ns: timing.jitter_ns,
+                deadline_ns: timing.deadline_ns,
+                span: timing.span.clone(),
+                feeders: Vec::new(),
+            },
+        );
+    }
+    for (index, port) in network.ports.iter().enumerate() {
+        let Consumer::Republish(output) = port.consumer else {
+            continue;
+        };
+        let (id, extended) = (output.raw(), output.is_extended());
+        let exact = pab_core::Filter::exact(id, extended).ok();
+        let described = network
+            .topics
+            .iter()
+            .any(|t| t.timing.is_some() && Some(t.filter) == exact);
+        if described {
+            continue;
+        }
+        let name = format!("{} (republished)", port.name);
+        let feeding: Vec<&crate::network::Topic> = network
+            .port_connections(index)
+            .filter(|c| c.topic != NO_TOPIC)
+            .filter_map(|c| network.topics.get(c.topic))
+            .collect();
+        let timed: Vec<_> = feeding
+            .iter()
+            .filter_map(|t| t.timing.as_ref().map(|timing| (t, timing)))
+            .collect();
+        if timed.is_empty() || timed.len() < feeding.len() {
+            out.unanalysed.push(Unanalysed {
+                name,
+                reason: "a topic feeding the port has no `period`".into(),
+            });
+            continue;
+        }
+        let period_ns = timed.iter().map(|(_, t)| t.period_ns).min().unwrap_or(1);
+        let feeders: Vec<usize> = network
+            .port_connections(index)
+            .filter(|c| c.topic != NO_TOPIC)
+            .map(|c| c.topic)
+            .collect();
+        push(
+            &mut out,
+            BusStream {
+                name,
+                kind: Kind::Gateway(index),
+                id,
+                extended,
+                key: response::arbitration_key(id, extended),
+                length: timed.iter().map(|(t, _)| t.length).max().unwrap_or(8),
+                period_ns,
+                jitter_ns: 0,
+                deadline_ns: period_ns,
+                span: port.span.clone(),
+                feeders,
+            },
+        );
+    }
+    for node in &network.nodes {
+        let config =
+            pab_app::Config::new(node.id).unwrap_or_else(|_| pab_app::Config::unassigned());
+        let period_ns = config.heartbeat_period_us * 1000;
+        for service in [
+            Service::Heartbeat,
+            Service::TableStatus,
+            Service::Traffic,
+            Service::Errors,
+        ] {
+            let id = protocol_id(service, node.id, BROADCAST);
+            push(
+                &mut out,
+                BusStream {
+                    name: format!("{}: {service:?}", node.name),
+                    kind: Kind::Protocol,
+                    id,
+                    extended: true,
+                    key: response::arbitration_key(id, true),
+                    length: service.payload_len() as u8,
+                    period_ns,
+                    jitter_ns: 0,
+                    deadline_ns: period_ns,
+                    span: node.span.clone(),
+                    feeders: Vec::new(),
+                },
+            );
+        }
+    }
+    for group in &network.dynamics {
+        let Some(node) = network.nodes.get(group.node) else {
+            continue;
+        };
+        let id = protocol_id(Service::Gates, node.id, BROADCAST);
+        let period_ns = (u64::from(group.params.step_us) * 1000).clamp(1, HUNDRED_MS);
+        push(
+            &mut out,
+            BusStream {
+                name: format!("{}: Gates of {}", node.name, group.name),
+                kind: Kind::Protocol,
+                id,
+                extended: true,
+                key: response::arbitration_key(id, true),
+                length: Service::Gates.payload_len() as u8,
+                period_ns,
+                jitter_ns: 0,
+                deadline_ns: period_ns,
+                span: group.span.clone(),
+                feeders: Vec::new(),
+            },
+        );
+    }
+    for group in &network.groups {
+        for member in &group.members {
+            let Some(node) = network.nodes.get(member.node) else {
+                continue;
+            };
+            let id = CLAIM_BASE | 0xFFFF << 7 | u32::from(node.id);
+            let period_ns = u64::from(group.period_us) * 1000;
+            push(
+                &mut out,
+                BusStream {
+                    name: format!("{}: claim of {}", node.name, group.name),
+                    kind: Kind::Protocol,
+                    id,
+                    extended: true,
+                    key: response::arbitration_key(CLAIM_BASE, true),
+                    length: pab_core::ble::PAYLOAD_LEN as u8,
+                    period_ns,
+                    jitter_ns: 0,
+                    deadline_ns: period_ns,
+                    span: group.span.clone(),
+                    feeders: Vec::new(),
+                },
+            );
+        }
+    }
+    for board in &network.schema_boards {
+        let Some(node) = network.nodes.get(board.node) else {
+            continue;
+        };
+        let id = protocol_id(Service::SchemaState, node.id, BROADCAST);
+        push(
+            &mut out,
+            BusStream {
+                name: format!("{}: SchemaState", node.name),
+                kind: Kind::Protocol,
+                id,
+                extended: true,
+                key: response::arbitration_key(id, true),
+                length: Service::SchemaState.payload_len() as u8,
+                period_ns: HUNDRED_MS,
+                jitter_ns: 0,
+                deadline_ns: HUNDRED_MS,
+                span: board.span.clone(),
+                feeders: Vec::new(),
+            },
+        );
+        let tick_ns = u64::from(board.config.period_us).max(1) * 1000;
+        let setpoint = board.drive.setpoint;
+        for (offset, what) in ["attractor", "attractor rotation", "impedance"]
+            .iter()
+            .enumerate()
+        {
+            let id = setpoint.raw() + offset as u32;
+            let extended = setpoint.is_extended();
+            push(
+                &mut out,
+                BusStream {
+                    name: format!("{}: drive {what}", node.name),
+                    kind: Kind::Protocol,
+                    id,
+                    extended,
+                    key: response::arbitration_key(id, extended),
+                    length: 8,
+                    period_ns: tick_ns,
+                    jitter_ns: 0,
+                    deadline_ns: tick_ns,
+                    span: board.span.clone(),
+                    feeders: Vec::new(),
+                },
+            );
+        }
+        out.unanalysed.push(Unanalysed {
+            name: format!(
+                "{}: SchemaTransition, SchemaAck, the drive's pose and wrench",
+                node.name
+            ),
+            reason: "sent on schema changes, per message, or at the drive's own rate".into(),
+        });
+    }
+    if let Some(first) = network.nodes.iter().map(|n| n.id).min() {
+        let id = protocol_id(Service::TableTransfer, TOOL, first);
+        out.background.push(BackgroundStream {
+            name: "table transfer (one at a time)".into(),
+            id,
+            key: response::arbitration_key(id, true),
+            length: 8,
+        });
+        out.unanalysed.push(Unanalysed {
+            name: "Fault".into(),
+            reason: "on events: at most one per code per 100 ms and node, but how many codes at once is not determinable".into(),
+        });
+        out.unanalysed.push(Unanalysed {
+            name: "Diagnostic stream, identity, configuration, firmware update".into(),
+            reason: "switched on or sent at an operator's request".into(),
+        });
+    }
+    if !network.schema_boards.is_empty() || network.client.is_some() {
+        out.unanalysed.push(Unanalysed {
+            name: "EmergencyStop, SchemaAbort, SchemaTransfer".into(),
+            reason: "sent by the client or an operator when they choose (a schema message is up to 40 frames at priority 2, back to back)".into(),
+        });
+    }
+    if network.hbba.is_some() {
+        out.unanalysed.push(Unanalysed {
+            name: "Desire, Intention, FilterProfile, FilterSet, FilterStatus, Exploitation".into(),
+            reason:
+                "HBBA's traffic follows desires and solves, whose rate the network does not say"
+                    .into(),
+        });
+    }
+    out.streams.sort_by_key(|s| s.key);
+    out
+}
+
+/// One stream's result at a bit rate.
+#[derive(Clone, Debug)]
+pub struct Row {
+    /// C, ns (rounded up).
+    pub c_ns: u64,
+    /// J as analysed, ns (a gateway's: found by the analysis).
+    pub jitter_ns: u64,
+    /// D as analysed, ns (a gateway's: its period after its jitter).
+    pub deadline_ns: u64,
+    /// The analysis's answer, in bit times.
+    pub response: Response,
+    /// R, ns (rounded up), if bounded.
+    pub r_ns: Option<u64>,
+    /// Whether R ≤ D (in bit times).
+    pub meets: bool,
+    /// A gateway one of whose feeding topics has no bound: neither has it.
+    pub fed_unbounded: bool,
+}
+
+/// The analysis at one bit rate.
+#[derive(Clone, Debug)]
+pub struct Analysis {
+    /// Bit/s.
+    pub bitrate: u32,
+    /// One row per stream of [`Streams::streams`], in order.
+    pub rows: Vec<Row>,
+    /// The periodic streams' load, parts per billion of the bit rate (C/T rounded up).
+    pub load_ppb: u128,
+}
+
+impl Analysis {
+    /// Every deadline met and the load at most 100 %.
+    pub fn holds(&self) -> bool {
+        self.load_ppb <= 1_000_000_000 && self.rows.iter().all(|row| row.meets)
+    }
+}
+
+/// `ns` in bit times at `bitrate`, rounded down or up.
+fn bits(ns: u64, bitrate: u32, up: bool) -> u64 {
+    let product = u128::from(ns) * u128::from(bitrate);
+    let bits = if up {
+        product.div_ceil(1_000_000_000)
+    } else {
+        product / 1_000_000_000
+    };
+    u64::try_from(bits).unwrap_or(u64::MAX)
+}
+
+/// `bits` bit times at `bitrate` in ns, rounded up.
+fn nanoseconds(bits: u64, bitrate: u32) -> u64 {
+    let ns = (u128::from(bits) * 1_000_000_000).div_ceil(u128::from(bitrate.max(1)));
+    u64::try_from(ns).unwrap_or(u64::MAX)
+}
+
+/// The response times of `streams` at `bitrate`: periods and deadlines rounded down to whole
+/// bit times, jitter up.
+///
+/// A gateway's frame is queued when the frame it re-publishes has arrived: its period starts
+/// with that frame's, so its jitter is how late that frame can arrive after its earliest,
+/// R − C of the feeding topic (the worst among them), and its deadline is one period after its
+/// jitter. The feeding topics' responses depend on the gateways' jitter in turn (a gateway
+/// above a topic interferes with it): the analysis is repeated until the jitters settle (the
+/// holistic iteration; they only grow), at most 32 times, and a gateway whose feeding topic has
+/// no bound has none either.
+pub fn analyse(streams: &Streams, bitrate: u32) -> Analysis {
+    let mut model: Vec<Stream> = streams
+        .streams
+        .iter()
+        .map(|s| Stream {
+            key: s.key,
+            bits: response::frame_bits(s.length, s.extended),
+            period: bits(s.period_ns, bitrate, false).max(1),
+            jitter: bits(s.jitter_ns, bitrate, true),
+            deadline: bits(s.deadline_ns, bitrate, false),
+        })
+        .collect();
+    let background: Vec<Background> = streams
+        .background
+        .iter()
+        .map(|b| Background {
+            key: b.key,
+            bits: response::frame_bits(b.length, true),
+        })
+        .collect();
+    // Each gateway's feeding streams, by position in `model`.
+    let feeders: Vec<Vec<usize>> = streams
+        .streams
+        .iter()
+        .map(|s| {
+            s.feeders
+                .iter()
+                .filter_map(|&topic| {
+                    streams
+                        .streams
+                        .iter()
+                        .position(|other| other.kind == Kind::Topic(topic))
+                })
+                .collect()
+        })
+        .collect();
+    let mut responses = response::responses(&model, &background);
+    let mut starved = vec![false; model.len()];
+    for _ in 0..32 {
+        let mut changed = false;
+        for (g, sources) in feeders.iter().enumerate() {
+            if sources.is_empty() {
+                continue;
+            }
+            let mut jitter = 0;
+            for &f in sources {
+                match responses[f].bound() {
+                    Some(r) => jitter = jitter.max(r.saturating_sub(model[f].bits)),
+                    None => starved[g] = true,
+                }
+            }
+            if jitter > model[g].jitter {
+                model[g].jitter = jitter;
+                model[g].deadline = bits(streams.streams[g].period_ns, bitrate, false) + jitter;
+                changed = true;
+            }
+        }
+        if !changed {
+            break;
+        }
+        responses = response::responses(&model, &background);
+    }
+    let rows = responses
+        .into_iter()
+        .zip(&model)
+        .zip(&starved)
+        .map(|((response, stream), &starved)| {
+            let response = if starved {
+                Response::Unbounded(Unbounded::Overload)
+            } else {
+                response
+            };
+            Row {
+                c_ns: nanoseconds(stream.bits, bitrate),
+                jitter_ns: nanoseconds(stream.jitter, bitrate),
+                deadline_ns: nanoseconds(stream.deadline, bitrate),
+                r_ns: response.bound().map(|r| nanoseconds(r, bitrate)),
+                meets: response.meets(stream.deadline),
+                response,
+                fed_unbounded: starved,
+            }
+        })
+        .collect();
+    Analysis {
+        bitrate,
+        rows,
+        load_ppb: response::load_ppb(&model),
+    }
+}
+
+/// The bus's timing: its streams, the analysis at the network's bit rate, and the lowest
+/// standard bit rate at which every deadline holds.
+#[derive(Clone, Debug)]
+pub struct Timing {
+    /// The streams.
+    pub streams: Streams,
+    /// At the network's bit rate (`[bus] bitrate`), if it has one.
+    pub analysis: Option<Analysis>,
+    /// The lowest of [`STANDARD_BITRATES`] at which everything holds, if any.
+    pub lowest: Option<u32>,
+}
+
+/// The timing of `network`'s bus.
+pub fn timing(network: &Network) -> Timing {
+    let streams = streams(network);
+    let analysis = network
+        .bus
+        .as_ref()
+        .map(|bus| analyse(&streams, bus.bitrate));
+    let lowest = STANDARD_BITRATES
+        .into_iter()
+        .find(|&rate| analyse(&streams, rate).holds());
+    Timing {
+        streams,
+        analysis,
+        lowest,
+    }
+}
+
+/// Seconds as a person reads them: `1 s`, `100 ms`, `0.270 ms`.
+pub fn duration(ns: u64) -> String {
+    if ns >= 1_000_000_000 && ns.is_multiple_of(1_000_000) {
+        let ms = ns / 1_000_000;
+        return if ms.is_multiple_of(1000) {
+            format!("{} s", ms / 1000)
+        } else {
+            format!("{:.3} s", ns as f64 / 1e9)
+        };
+    }
+    if ns.is_multiple_of(1_000_000) {
+        return format!("{} ms", ns / 1_000_000);
+    }
+    format!("{:.3} ms", ns as f64 / 1e6)
+}
+
+/// A bit rate as `500 kbit/s` or `1 Mbit/s`.
+pub fn rate(bitrate: u32) -> String {
+    if bitrate.is_multiple_of(1_000_000) {
+        format!("{} Mbit/s", bitrate / 1_000_000)
+    } else if bitrate.is_multiple_of(1000) {
+        format!("{} kbit/s", bitrate / 1000)
+    } else {
+        format!("{bitrate} bit/s")
+    }
+}
+
+/// An identifier as the table prints it.
+pub fn id_text(id: u32, extended: bool) -> String {
+    if extended {
+        format!("0x{id:08X}")
+    } else {
+        format!("0x{id:03X}")
+    }
+}
+
+impl Timing {
+    /// Why `pabctl check` fails on the bus: each stream that can miss its deadline, at its
+    /// line, and the load above 100 %, at the bit rate's.
+    pub fn errors(&self, network: &Network) -> Vec<Diagnostic> {
+        let (Some(analysis), Some(bus)) = (&self.analysis, &network.bus) else {
+            return Vec::new();
+        };
+        let mut errors = Vec::new();
+        let at = rate(analysis.bitrate);
+        if analysis.load_ppb > 1_000_000_000 {
+            errors.push(network.error(
+                bus.span.clone(),
+                format!(
+                    "the bus is loaded {:.1} % at {at}: its periodic streams need more bits a second than it carries{}",
+                    analysis.load_ppb as f64 / 1e7,
+                    self.lowest_hint()
+                ),
+            ));
+        }
+        for (stream, row) in self.streams.streams.iter().zip(&analysis.rows) {
+            if row.meets {
+                continue;
+            }
+            let id = id_text(stream.id, stream.extended);
+            let deadline = duration(row.deadline_ns);
+            let message = match (row.response, row.r_ns) {
+                _ if row.fed_unbounded => format!(
+                    "`{}` ({id}) can miss its deadline at {at}: a topic it re-publishes has no bound on its response time, so neither has it (deadline {deadline})",
+                    stream.name
+                ),
+                (Response::Bounded { .. }, Some(r)) => format!(
+                    "`{}` ({id}) can miss its deadline at {at}: worst-case response time {} > deadline {deadline}{}",
+                    stream.name,
+                    duration(r),
+                    self.lowest_hint()
+                ),
+                (Response::Unbounded(Unbounded::Background(index)), _) => format!(
+                    "`{}` ({id}) can miss its deadline at {at}: while a table is pushed it waits for the whole transfer ({} ranks above it), so its response time has no bound (deadline {deadline}); give it an identifier that ranks above {}",
+                    stream.name,
+                    self.streams.background.get(index).map_or(
+                        "the transfer".to_string(),
+                        |b| format!("{} {}", b.name, id_text(b.id, true))
+                    ),
+                    self.streams
+                        .background
+                        .get(index)
+                        .map_or(String::new(), |b| id_text(b.id, true)),
+                ),
+                _ => format!(
+                    "`{}` ({id}) can miss its deadline at {at}: the streams at and above its priority load the bus to 100 % or more, so its response time has no bound (deadline {deadline}){}",
+                    stream.name,
+                    self.lowest_hint()
+                ),
+            };
+            errors.push(network.error(stream.span.clone(), message));
+        }
+        errors
+    }
+
+    fn lowest_hint(&self) -> String {
+        match self.lowest {
+            Some(rate) => format!(" (every deadline holds from {})", self::rate(rate)),
+            None => " (no standard bit rate up to 1 Mbit/s meets every deadline)".into(),
+        }
+    }
+
+    /// The table `pabctl check` prints: one line per stream, in order of rank, then the
+    /// background, what is not analysed, the load and the lowest standard bit rate. Empty for
+    /// a network without a bit rate and without streams.
+    pub fn table(&self) -> String {
+        use std::fmt::Write as _;
+        let mut out = String::new();
+        let Some(analysis) = &self.analysis else {
+            return out;
+        };
+        let _ = writeln!(
+            out,
+            "bus at {}: {} stream{} analysed (Davis et al. 2007, worst-case stuffing)",
+            rate(analysis.bitrate),
+            self.streams.streams.len(),
+            if self.streams.streams.len() == 1 {
+                ""
+            } else {
+                "s"
+            }
+        );
+        let name_width = self
+            .streams
+            .streams
+            .iter()
+            .map(|s| s.name.chars().count())
+            .max()
+            .unwrap_or(6)
+            .max(6);
+        let _ = writeln!(
+            out,
+            "  {:name_width$}  {:10}  {:>5}  {:>11}  {:>11}  {:>9}  {:>11}  {:>11}",
+            "stream", "id", "bytes", "period", "deadline", "C", "R", "slack"
+        );
+        for (stream, row) in self.streams.streams.iter().zip(&analysis.rows) {
+            let (r, slack) = match row.r_ns {
+                Some(r) if row.meets => (
+                    duration(r),
+                    duration(row.deadline_ns - r.min(row.deadline_ns)),
+                ),
+                Some(r) => (duration(r), "MISSED".to_string()),
+                None => ("unbounded".to_string(), "MISSED".to_string()),
+            };
+            let _ = writeln!(
+                out,
+                "  {:name_width$}  {:10}  {:>5}  {:>11}  {:>11}  {:>9}  {:>11}  {:>11}",
+                stream.name,
+                id_text(stream.id, stream.extended),
+                stream.length,
+                duration(stream.period_ns),
+                duration(row.deadline_ns),
+                duration(row.c_ns),
+                r,
+                slack
+            );
+        }
+        for background in &self.streams.background {
+            let _ = writeln!(
+                out,
+                "  background: {} ({}): takes the bus whenever nothing above it wants it",
+                background.name,
+                id_text(background.id, true)
+            );
+        }
+        for unanalysed in &self.streams.unanalysed {
+            let _ = writeln!(
+                out,
+                "  not analysed: {}: {}",
+                unanalysed.name, unanalysed.reason
+            );
+        }
+        let _ = writeln!(
+            out,
+            "bus load: {:.1} % of {} (the periodic streams)",
+            analysis.load_ppb as f64 / 1e7,
+            rate(analysis.bitrate)
+        );
+        match self.lowest {
+            Some(lowest) => {
+                let _ = writeln!(
+                    out,
+                    "lowest standard bit rate at which every deadline holds: {}",
+                    rate(lowest)
+                );
+            }
+            None => {
+                let _ = writeln!(
+                    out,
+                    "no standard bit rate up to 1 Mbit/s meets every deadline"
+                );
+            }
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnostic::Source;
+
+    const TAKE_AND_RETURN: &str = include_str!("../../../examples/take-and-return.toml");
+
+    fn parse(text: &str) -> Network {
+        Network::parse(Source::new("net.toml", text)).unwrap()
+    }
+
+    fn row<'a>(timing: &'a Timing, name: &str) -> (&'a BusStream, &'a Row) {
+        let analysis = timing.analysis.as_ref().unwrap();
+        timing
+            .streams
+            .streams
+            .iter()
+            .zip(&analysis.rows)
+            .find(|(s, _)| s.name == name)
+            .unwrap_or_else(|| panic!("no stream {name}"))
+    }
+
+    #[test]
+    fn take_and_return_holds_from_125_kbit_s() {
+        let network = parse(TAKE_AND_RETURN);
+        let timing = timing(&network);
+        let analysis = timing.analysis.as_ref().unwrap();
+        assert_eq!(analysis.bitrate, 500_000);
+        assert!(analysis.holds());
+        assert!(timing.errors(&network).is_empty());
+        assert_eq!(timing.lowest, Some(125_000));
+        // 8 topics, 3 gateways, 3 nodes × 4 heartbeat frames.
+        assert_eq!(timing.streams.streams.len(), 8 + 3 + 12);
+        // The highest: blocked by one 8-byte extended frame (160 bits), then its own 135:
+        // 295 bits at 500 kbit/s = 590 µs.
+        let (stream, object) = row(&timing, "object_pos");
+        assert_eq!((stream.id, stream.extended), (0x110, false));
+        assert_eq!((object.c_ns, object.r_ns), (270_000, Some(590_000)));
+        // A heartbeat: extended, 160 bits = 320 µs.
+        let (stream, heartbeat) = row(&timing, "gaze: Heartbeat");
+        assert_eq!(stream.id, 0x1202_FF03);
+        assert_eq!(heartbeat.c_ns, 320_000);
+        // A gateway: its period its fastest topic's, its jitter the feeding topic's R − C.
+        let (stream, gateway) = row(&timing, "hand.command (republished)");
+        assert_eq!((stream.id, stream.period_ns), (0x202, 100_000_000));
+        let worst_feeder = ["grasp_cmd", "release_cmd", "rest_open", "grasped"]
+            .iter()
+            .map(|name| {
+                let (_, r) = row(&timing, name);
+                r.r_ns.unwrap() - r.c_ns
+            })
+            .max()
+            .unwrap();
+        assert!(gateway.jitter_ns >= worst_feeder, "{gateway:?}");
+        assert_eq!(gateway.deadline_ns, 100_000_000 + gateway.jitter_ns);
+        // The load: 8 + 3 frames of 135 bits at their rates, 12 of 160 bits a second.
+        let bits_per_second = 135.0 * (10.0 * 5.0 + 1.0 + 2.0 * 5.0 + 3.0 * 10.0) + 12.0 * 160.0;
+        let load = analysis.load_ppb as f64 / 1e9;
+        assert!((load - bits_per_second / 500_000.0).abs() < 1e-6, "{load}");
+        // At 125 kbit/s it still holds; the table says so.
+        assert!(analyse(&timing.streams, 125_000).holds());
+        let table = timing.table();
+        assert!(
+            table.contains("lowest standard bit rate at which every deadline holds: 125 kbit/s")
+        );
+        assert!(table.contains("  object_pos "), "{table}");
+    }
+
+    #[test]
+    fn an_overloaded_bus_fails_at_the_lines_that_say_it() {
+        // object_pos every 0.2 ms: 135 bits per 100 bit times at 500 kbit/s.
+        let text = TAKE_AND_RETURN.replace(
+            "can_id = 0x110\nperiod = 0.1\n",
+            "can_id = 0x110\nperiod = 0.0002\n",
+        );
+        let network = parse(&text);
+        let timing = timing(&network);
+        assert!(!timing.analysis.as_ref().unwrap().holds());
+        assert_eq!(timing.lowest, None);
+        let errors: Vec<String> = timing
+            .errors(&network)
+            .iter()
+            .map(ToString::to_string)
+            .collect();
+        let line = |needle: &str| {
+            text.lines()
+                .position(|line| line.starts_with(needle))
+                .map(|n| n + 1)
+                .unwrap()
+        };
+        // object_pos feeds two gateways, which re-publish it as often: 3 × 135 %, and more.
+        assert!(
+            errors[0].starts_with(&format!(
+                "net.toml:{}:11: error: the bus is loaded 407.0 % at 500 kbit/s",
+                line("bitrate = 500000")
+            )),
+            "{errors:#?}"
+        );
+        assert!(
+            errors[1].starts_with(&format!(
+                "net.toml:{}:10: error: `object_pos` (0x110) can miss its deadline at 500 kbit/s: the streams at and above its priority load the bus to 100 % or more",
+                line("period = 0.0002")
+            )),
+            "{errors:#?}"
+        );
+        // Every stream below it starves with it.
+        assert_eq!(errors.len(), 1 + 23, "{errors:#?}");
+    }
+
+    #[test]
+    fn a_tight_deadline_is_missed_with_its_response_time() {
+        let text = TAKE_AND_RETURN.replace(
+            "can_id = 0x130\nperiod = 0.1\n",
+            "can_id = 0x130\nperiod = 0.1\ndeadline = 0.002\n",
+        );
+        let network = parse(&text);
+        let timing = timing(&network);
+        let errors: Vec<String> = timing
+            .errors(&network)
+            .iter()
+            .map(ToString::to_string)
+            .collect();
+        // grasped: R = 160 + 8 × 135 = 1240 bits = 2.48 ms > 2 ms at 500 kbit/s; at 1 Mbit/s
+        // 1.24 ms.
+        assert_eq!(errors.len(), 1, "{errors:#?}");
+        assert!(
+            errors[0].contains(
+                "error: `grasped` (0x130) can miss its deadline at 500 kbit/s: worst-case response time 2.480 ms > deadline 2 ms (every deadline holds from 800 kbit/s)"
+            ),
+            "{errors:#?}"
+        );
+        assert_eq!(timing.lowest, Some(800_000));
+    }
+
+    #[test]
+    fn a_stream_below_the_table_transfer_has_no_bound() {
+        let text =
+            TAKE_AND_RETURN.replace("can_id = 0x130\n", "can_id = 0x1A110200\nextended = true\n");
+        let network = parse(&text);
+        let timing = timing(&network);
+        let errors: Vec<String> = timing
+            .errors(&network)
+            .iter()
+            .map(ToString::to_string)
+            .collect();
+        // grasped, and the three gateways it feeds.
+        assert_eq!(errors.len(), 4, "{errors:#?}");
+        assert!(
+            errors[3].contains("`grasped` (0x1A110200) can miss its deadline at 500 kbit/s: while a table is pushed it waits for the whole transfer"),
+            "{errors:#?}"
+        );
+        assert!(
+            errors[0].contains("`arm.target (republished)` (0x200) can miss its deadline at 500 kbit/s: a topic it re-publishes has no bound"),
+            "{errors:#?}"
+        );
+    }
+
+    #[test]
+    fn claims_rank_between_nominal_and_low_frames_and_topics_without_period_are_listed() {
+        let network = parse(include_str!(
+            "../../../examples/multi-target-observation.toml"
+        ));
+        let streams = streams(&network);
+        let claims: Vec<&BusStream> = streams
+            .streams
+            .iter()
+            .filter(|s| s.name.contains(": claim of "))
+            .collect();
+        assert!(!claims.is_empty());
+        let key = response::arbitration_key(CLAIM_BASE, true);
+        for claim in &claims {
+            assert_eq!(claim.key, key);
+            assert_eq!(claim.length, 4);
+            assert_eq!(claim.id & !0x7F, CLAIM_BASE | 0xFFFF << 7);
+            assert_eq!(claim.period_ns, 100_000_000);
+        }
+        let heartbeat = response::arbitration_key(0x1202_FF01, true);
+        let traffic = response::arbitration_key(0x1604_FF01, true);
+        assert!(heartbeat < key && key < traffic);
+        assert!(
+            streams
+                .unanalysed
+                .iter()
+                .any(|u| u.reason.starts_with("topic without `period`"))
+        );
+        // Without [bus], no analysis and nothing fails.
+        let timing = timing(&network);
+        assert!(timing.analysis.is_none() && timing.errors(&network).is_empty());
+        assert!(timing.table().is_empty());
+    }
+}
