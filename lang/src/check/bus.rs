@@ -7,10 +7,11 @@
 //!   `jitter` and `deadline` (default the period); a topic with neither is listed, not analysed;
 //! - every **gateway** (a port with `republish`): the frames it re-publishes, at most as often as
 //!   the fastest topic feeding the port delivers (T = the shortest period among them), as long as
-//!   the longest of them; queued when the winning frame has arrived, at most its topic's
-//!   deadline after that frame's period started (J = the longest deadline among the feeding
-//!   topics), and due one period after being queued (D = J + T). A topic declared on the
-//!   gateway's own identifier with a period describes it instead;
+//!   the longest of them; queued when the winning frame has arrived, so its jitter is the
+//!   feeding topics' R − C, found by [`analyse`](crate::check::bus::analyse), and its deadline one period after that. A value
+//!   port's output changes on every contributor's frame and when one ages out: one stream per
+//!   feeding topic, at half its period. A topic declared on the gateway's own identifier with a
+//!   period describes it instead;
 //! - the **protocol's own frames** whose rate the network and docs/can-protocol.md determine, at
 //!   the most their nodes send: each node's heartbeat group (Heartbeat, TableStatus, Traffic,
 //!   Errors) at the nodes' default heartbeat period; each dynamics group's Gates, one per step
@@ -182,28 +183,48 @@ pub fn streams(network: &Network) -> Streams {
             });
             continue;
         }
-        let period_ns = timed.iter().map(|(_, t)| t.period_ns).min().unwrap_or(1);
-        let feeders: Vec<usize> = network
+        let mut feeders: Vec<usize> = network
             .port_connections(index)
             .filter(|c| c.topic != NO_TOPIC)
             .map(|c| c.topic)
             .collect();
-        push(
-            &mut out,
-            BusStream {
-                name,
-                kind: Kind::Gateway(index),
-                id,
-                extended,
-                key: response::arbitration_key(id, extended),
-                length: timed.iter().map(|(t, _)| t.length).max().unwrap_or(8),
-                period_ns,
-                jitter_ns: 0,
-                deadline_ns: period_ns,
-                span: port.span.clone(),
-                feeders,
-            },
-        );
+        feeders.sort_unstable();
+        feeders.dedup();
+        let length = timed.iter().map(|(t, _)| t.length).max().unwrap_or(8);
+        let gateway = |name: String, period_ns: u64, feeders: Vec<usize>| BusStream {
+            name,
+            kind: Kind::Gateway(index),
+            id,
+            extended,
+            key: response::arbitration_key(id, extended),
+            length,
+            period_ns,
+            jitter_ns: 0,
+            deadline_ns: period_ns,
+            span: port.span.clone(),
+            feeders,
+        };
+        if port.value.is_some() {
+            // A value port's output changes on every frame of a contributor and when one ages
+            // out: per feeding topic, at most twice a period.
+            for &topic in &feeders {
+                let Some(timing) = network.topics.get(topic).and_then(|t| t.timing.as_ref()) else {
+                    continue;
+                };
+                let from = network.topics.get(topic).map_or("?", |t| t.name.as_str());
+                push(
+                    &mut out,
+                    gateway(
+                        format!("{} (republished, {from})", port.name),
+                        (timing.period_ns / 2).max(1),
+                        vec![topic],
+                    ),
+                );
+            }
+        } else {
+            let period_ns = timed.iter().map(|(_, t)| t.period_ns).min().unwrap_or(1);
+            push(&mut out, gateway(name, period_ns, feeders));
+        }
     }
     for node in &network.nodes {
         let config =
@@ -501,7 +522,8 @@ pub fn analyse(streams: &Streams, bitrate: u32) -> Analysis {
         .into_iter()
         .zip(&model)
         .zip(&starved)
-        .map(|((response, stream), &starved)| {
+        .zip(&streams.streams)
+        .map(|(((response, stream), &starved), written)| {
             let response = if starved {
                 Response::Unbounded(Unbounded::Overload)
             } else {
@@ -509,8 +531,17 @@ pub fn analyse(streams: &Streams, bitrate: u32) -> Analysis {
             };
             Row {
                 c_ns: nanoseconds(stream.bits, bitrate),
-                jitter_ns: nanoseconds(stream.jitter, bitrate),
-                deadline_ns: nanoseconds(stream.deadline, bitrate),
+                // As written, but a gateway's, which the analysis found.
+                jitter_ns: if written.feeders.is_empty() {
+                    written.jitter_ns
+                } else {
+                    nanoseconds(stream.jitter, bitrate)
+                },
+                deadline_ns: if written.feeders.is_empty() {
+                    written.deadline_ns
+                } else {
+                    nanoseconds(stream.deadline, bitrate)
+                },
                 r_ns: response.bound().map(|r| nanoseconds(r, bitrate)),
                 meets: response.meets(stream.deadline),
                 response,
@@ -570,6 +601,11 @@ pub fn duration(ns: u64) -> String {
     format!("{:.3} ms", ns as f64 / 1e6)
 }
 
+/// A response time, a transmission time or a slack: ms with three decimals (`0.270 ms`).
+pub fn milliseconds(ns: u64) -> String {
+    format!("{:.3} ms", ns as f64 / 1e6)
+}
+
 /// A bit rate as `500 kbit/s` or `1 Mbit/s`.
 pub fn rate(bitrate: u32) -> String {
     if bitrate.is_multiple_of(1_000_000) {
@@ -623,7 +659,7 @@ impl Timing {
                 (Response::Bounded { .. }, Some(r)) => format!(
                     "`{}` ({id}) can miss its deadline at {at}: worst-case response time {} > deadline {deadline}{}",
                     stream.name,
-                    duration(r),
+                    milliseconds(r),
                     self.lowest_hint()
                 ),
                 (Response::Unbounded(Unbounded::Background(index)), _) => format!(
@@ -692,10 +728,10 @@ impl Timing {
         for (stream, row) in self.streams.streams.iter().zip(&analysis.rows) {
             let (r, slack) = match row.r_ns {
                 Some(r) if row.meets => (
-                    duration(r),
-                    duration(row.deadline_ns - r.min(row.deadline_ns)),
+                    milliseconds(r),
+                    milliseconds(row.deadline_ns - r.min(row.deadline_ns)),
                 ),
-                Some(r) => (duration(r), "MISSED".to_string()),
+                Some(r) => (milliseconds(r), "MISSED".to_string()),
                 None => ("unbounded".to_string(), "MISSED".to_string()),
             };
             let _ = writeln!(
@@ -706,7 +742,7 @@ impl Timing {
                 stream.length,
                 duration(stream.period_ns),
                 duration(row.deadline_ns),
-                duration(row.c_ns),
+                milliseconds(row.c_ns),
                 r,
                 slack
             );
@@ -940,5 +976,31 @@ mod tests {
         let timing = timing(&network);
         assert!(timing.analysis.is_none() && timing.errors(&network).is_empty());
         assert!(timing.table().is_empty());
+    }
+
+    #[test]
+    fn a_value_port_republishes_at_most_twice_a_period_per_contributor() {
+        let text = include_str!("../../../examples/value-ports.toml")
+            .replace("can_id = 0x1A0\n", "can_id = 0x1A0\nperiod = 0.05\n")
+            .replace("can_id = 0x1A1\n", "can_id = 0x1A1\nperiod = 0.1\n")
+            .replace("can_id = 0x1A2\n", "can_id = 0x1A2\nperiod = 0.1\n");
+        let network = parse(&format!("[bus]\nbitrate = 500000\n{text}"));
+        let timing = timing(&network);
+        let gateways: Vec<(&str, u64)> = timing
+            .streams
+            .streams
+            .iter()
+            .filter(|s| matches!(s.kind, Kind::Gateway(_)))
+            .map(|s| (s.name.as_str(), s.period_ns))
+            .collect();
+        assert_eq!(
+            gateways,
+            [
+                ("base.nearest (republished, range_left)", 25_000_000),
+                ("base.nearest (republished, range_front)", 50_000_000),
+                ("base.nearest (republished, range_right)", 50_000_000),
+            ]
+        );
+        assert!(timing.analysis.as_ref().unwrap().holds());
     }
 }
