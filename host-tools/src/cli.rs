@@ -82,6 +82,11 @@ missed, 2 unreadable or invalid file.")]
         /// output"); the text goes to standard error.
         #[arg(long)]
         json: bool,
+        /// Analyse the bus at this bit rate (bit/s, 1 to 1000000) instead of the file's `[bus]
+        /// bitrate`, also for a file without one: e.g. `--bitrate 125000` shows what a slower
+        /// bus would miss, without editing the file.
+        #[arg(long, value_name = "BIT/S", value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
+        bitrate: Option<u32>,
     },
     /// Compile one table image per node into a directory (DIR/<node>.pab).
     #[command(long_about = "\

@@ -32,7 +32,11 @@ fn main() -> ExitCode {
     restore_sigpipe();
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Check { network, json } => commands::check::run(&network, json),
+        Command::Check {
+            network,
+            json,
+            bitrate,
+        } => commands::check::run(&network, json, bitrate),
         Command::Compile {
             network,
             output,

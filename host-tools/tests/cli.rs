@@ -135,6 +135,38 @@ fn check_exits_1_when_a_frame_can_miss_its_deadline() {
 }
 
 #[test]
+fn check_analyses_the_bus_at_the_bit_rate_given_on_the_command_line() {
+    let network = examples()
+        .join("take-and-return.toml")
+        .display()
+        .to_string();
+    // Take and Return holds from 125 kbit/s: at 1 Mbit/s too, each frame's C an eighth of it.
+    let fast = pabctl(&["check", &network, "--bitrate", "1000000"]);
+    assert_eq!(fast.status.code(), Some(0), "{}", text(&fast.stderr));
+    let stdout = text(&fast.stdout);
+    assert!(stdout.contains("bus at 1 Mbit/s: 23 streams"), "{stdout}");
+    assert!(
+        stdout.contains("lowest standard bit rate at which every deadline holds: 125 kbit/s"),
+        "{stdout}"
+    );
+    // At 10 kbit/s the periodic streams need 142 % of the bus: the streams that cannot keep
+    // up fail the check at their lines, at the rate given (not at the file's [bus] line, which
+    // says 500 kbit/s).
+    let slow = pabctl(&["check", &network, "--bitrate", "10000"]);
+    assert_eq!(slow.status.code(), Some(1));
+    let stderr = text(&slow.stderr);
+    assert!(
+        stderr.contains("error: `grasped` (0x130) can miss its deadline at 10 kbit/s"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("the bus is loaded"), "{stderr}");
+    assert!(text(&slow.stdout).contains("bus load: 142.1 % of 10 kbit/s"));
+    // Out of range: refused by the command line, before the file is read.
+    let refused = pabctl(&["check", &network, "--bitrate", "2000000"]);
+    assert_eq!(refused.status.code(), Some(2));
+}
+
+#[test]
 fn check_exits_1_with_the_counterexample_and_its_line() {
     let dir = tempfile::tempdir().unwrap();
     let path = inconsistent_variant(dir.path());

@@ -9,7 +9,7 @@ use pab_lang::network::Network;
 use crate::failure::Failure;
 use crate::output::{colour, eprintln_line, plural, println_line};
 
-pub fn run(path: &Path, json: bool) -> Result<(), Failure> {
+pub fn run(path: &Path, json: bool, bitrate: Option<u32>) -> Result<(), Failure> {
     let network = match Network::load(path) {
         Ok(network) => network,
         Err(errors) => {
@@ -32,8 +32,9 @@ pub fn run(path: &Path, json: bool) -> Result<(), Failure> {
     }
     // Found once, for the JSON and for the verdict.
     let errors = report.errors(&network);
-    // The bus: every stream's worst-case response time at the network's bit rate.
-    let timing = check::bus::timing(&network);
+    // The bus: every stream's worst-case response time at the network's bit rate, or the
+    // command line's.
+    let timing = check::bus::timing_at(&network, bitrate);
     let late = timing.errors(&network);
     if json {
         let shown: Vec<&Diagnostic> = warnings.iter().map(|w| &w.0).collect();

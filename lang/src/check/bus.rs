@@ -568,13 +568,18 @@ pub struct Timing {
     pub lowest: Option<u32>,
 }
 
-/// The timing of `network`'s bus.
+/// The timing of `network`'s bus, at its bit rate (`[bus] bitrate`).
 pub fn timing(network: &Network) -> Timing {
+    timing_at(network, None)
+}
+
+/// The timing of `network`'s bus at `bitrate` (bit/s) if given, else at the network's
+/// (`pabctl check --bitrate`: what another bus would miss, without editing the file).
+pub fn timing_at(network: &Network, bitrate: Option<u32>) -> Timing {
     let streams = streams(network);
-    let analysis = network
-        .bus
-        .as_ref()
-        .map(|bus| analyse(&streams, bus.bitrate));
+    let analysis = bitrate
+        .or(network.bus.as_ref().map(|bus| bus.bitrate))
+        .map(|bitrate| analyse(&streams, bitrate));
     let lowest = STANDARD_BITRATES
         .into_iter()
         .find(|&rate| analyse(&streams, rate).holds());
@@ -628,14 +633,18 @@ pub fn id_text(id: u32, extended: bool) -> String {
 
 impl Timing {
     /// Why `pabctl check` fails on the bus: each stream that can miss its deadline, at its
-    /// line, and the load above 100 %, at the bit rate's.
+    /// line, and the load above 100 %, at the file's bit rate (analysed at another one, given
+    /// on the command line, the streams that cannot keep up say it).
     pub fn errors(&self, network: &Network) -> Vec<Diagnostic> {
-        let (Some(analysis), Some(bus)) = (&self.analysis, &network.bus) else {
+        let Some(analysis) = &self.analysis else {
             return Vec::new();
         };
         let mut errors = Vec::new();
         let at = rate(analysis.bitrate);
-        if analysis.load_ppb > 1_000_000_000 {
+        let overloaded = analysis.load_ppb > 1_000_000_000;
+        if let Some(bus) =
+            (network.bus.as_ref()).filter(|bus| overloaded && bus.bitrate == analysis.bitrate)
+        {
             errors.push(network.error(
                 bus.span.clone(),
                 format!(
