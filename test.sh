@@ -14,7 +14,8 @@
 # `pabctl check` and `pabctl sim` (plots and traces land in target/examples/), checks the DBC export
 # with cantools (in a venv made by scripts/python-env.sh from requirements-dev.txt), runs the HIL
 # harness's own unit tests (hil-sim/unit) and the schema server's Python client's tests
-# (client/python/tests), the cross-runner test with the board firmware in QEMU
+# (client/python/tests), the ISO-TP CAN FD golden frames written again by python can-isotp
+# (scripts/isotp_fd_golden.py), the cross-runner test with the board firmware in QEMU
 # (scripts/cross-runner.sh: simulator, node application and emulated Cortex-M4 must record
 # identical verdicts), the emulated board's time check across its timer's wraps and its builtins
 # check, the panic check of the board firmware (scripts/panic-check.sh, built with its panic
@@ -206,6 +207,12 @@ step "the schema server's Python client (client/python/tests)"
 # (lang/tests/client_golden.rs checks that file in `cargo test`), its frames, and the client on
 # python-can's virtual bus against a scripted node: no kernel CAN, no QEMU.
 "$venv/bin/python" -m pytest client/python/tests -q
+
+step "ISO-TP on CAN FD: the golden frames are python can-isotp's (scripts/isotp_fd_golden.py)"
+# core/tests/isotp_fd.rs checks pab-core's CAN FD encoders and decoder against the frames
+# can-isotp sends (core/tests/fixtures/isotp_fd_can_isotp.txt); here can-isotp writes them again,
+# and they must be the committed ones.
+"$venv/bin/python" scripts/isotp_fd_golden.py | diff -u core/tests/fixtures/isotp_fd_can_isotp.txt -
 
 step "emulated Cortex-M4: the time driver across TIMER0's wraps (pab-an386-timecheck, QEMU)"
 # 400 s of virtual time (-icount) with the clock read without pause around each 100 s wrap.

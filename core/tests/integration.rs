@@ -18,6 +18,7 @@ mod hbba_solver;
 mod image_corruption;
 mod integrator_reference;
 mod isotp;
+mod isotp_fd;
 mod schema_server;
 mod seal;
 mod swap;

@@ -1,4 +1,5 @@
-//! ISO 15765-2 (ISO-TP) transport for classic CAN: messages of any length over 8-byte frames.
+//! ISO 15765-2 (ISO-TP) transport for classic CAN: messages of any length over 8-byte frames;
+//! [`fd`], the frame codec's CAN FD forms (frames of up to 64 bytes), which no transfer uses yet.
 //!
 //! Table images (up to 32 KiB) travel from the workstation to the nodes with ISO-TP, because
 //! python `can-isotp`, Linux's `can-isotp` sockets and Wireshark already speak it. This module is
@@ -23,6 +24,7 @@
 //!
 //! [`Instant`]: crate::time::Instant
 
+pub mod fd;
 pub mod pci;
 mod rx;
 mod tx;

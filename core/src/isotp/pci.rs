@@ -156,9 +156,9 @@ impl StMin {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Pci {
-    /// A whole message of `len` (1..=7) bytes.
+    /// A whole message of `len` (1..=7) bytes (on CAN FD up to 62: [`fd`](super::fd)).
     Single {
-        /// Payload bytes, 1..=7.
+        /// Payload bytes, 1..=7 (on CAN FD up to 62).
         len: u8,
     },
     /// The start of a segmented message of `len` bytes (8..=4095 with the 12-bit length,
@@ -200,7 +200,8 @@ pub enum FrameError {
         /// The high nibble.
         pci_type: u8,
     },
-    /// A Single Frame announcing 0 bytes, or more than 7.
+    /// A Single Frame announcing 0 bytes, or more than 7 (on CAN FD: a short form in a frame
+    /// longer than 8 bytes, an escaped length of 7 or less, or longer than the frame).
     SingleLength {
         /// The announced length (low nibble of byte 0).
         len: u8,
@@ -223,6 +224,12 @@ pub enum FrameError {
         /// The low nibble of byte 0.
         status: u8,
     },
+    /// A length that is not a CAN FD one (0..=8, 12, 16, 20, 24, 32, 48, 64): [`fd::decode`](super::fd::decode)
+    /// only.
+    FdLength {
+        /// The frame's length.
+        len: usize,
+    },
 }
 
 impl core::fmt::Display for FrameError {
@@ -230,6 +237,7 @@ impl core::fmt::Display for FrameError {
         match self {
             FrameError::Empty => f.write_str("ISO-TP frame without data"),
             FrameError::TooLong { len } => write!(f, "{len} data bytes: not a classic CAN frame"),
+            FrameError::FdLength { len } => write!(f, "{len} data bytes: not a CAN FD frame"),
             FrameError::UnknownType { pci_type } => write!(f, "unknown ISO-TP PCI type {pci_type}"),
             FrameError::SingleLength { len } => {
                 write!(f, "ISO-TP single frame announcing {len} bytes, not 1..=7")

@@ -88,6 +88,12 @@ fn main() {
             write("update", &name, &bytes);
         }
     }
+    // ISO-TP frames on CAN FD, one of each kind at each TX_DL.
+    if wanted("isotp_fd") {
+        for (name, bytes) in pab_fuzz_checks::isotp_fd::seeds() {
+            write("isotp_fd", &name, &bytes);
+        }
+    }
     // One frame and one message per protocol service.
     for (service, decode, encode) in pab_fuzz_checks::protocol::service_seeds() {
         write("protocol_decode", &format!("service-{service:?}"), &decode);

@@ -16,6 +16,7 @@ pub mod ble;
 pub mod gates;
 pub mod image;
 pub mod intention;
+pub mod isotp_fd;
 pub mod isotp_rx;
 pub mod isotp_tx;
 pub mod network;
@@ -119,6 +120,10 @@ pub const TARGETS: &[Target] = &[
     Target {
         name: "node_update",
         check: node_update::check,
+    },
+    Target {
+        name: "isotp_fd",
+        check: isotp_fd::check,
     },
 ];
 

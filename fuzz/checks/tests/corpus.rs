@@ -77,7 +77,8 @@ fn every_target_has_a_replay_test() {
             "seal",
             "update",
             "update_session",
-            "node_update"
+            "node_update",
+            "isotp_fd"
         ]
     );
 }
@@ -175,4 +176,9 @@ fn update_session() {
 #[test]
 fn node_update() {
     replay("node_update");
+}
+
+#[test]
+fn isotp_fd() {
+    replay("isotp_fd");
 }
