@@ -69,8 +69,8 @@ With a bus bit rate ([bus] bitrate), also the worst-case response time of every 
 the bus (Davis, Burns, Bril and Lukkien 2007; worst-case bit stuffing): the topics with a period \
 (or rate_hz), the gateways' re-published frames and the protocol's own periodic frames, one \
 table transfer at a time in the background. Prints the table (stream, id, bytes, period, \
-deadline, C, R, slack), the bus load and the lowest standard bit rate (125k, 250k, 500k, 800k, \
-1M) at which every deadline holds; fails when a deadline can be missed or the load exceeds \
+deadline, C, R, slack), the bus load and the lowest standard bit rate (CiA 301's: 10k, 20k, \
+50k, 125k, 250k, 500k, 800k, 1M) at which every deadline holds; fails when a deadline can be missed or the load exceeds \
 100 %, at the line of the stream (docs/response-times.md).
 
 Exit status: 0 consistent (and every deadline holds), 1 inconsistent or a deadline can be \

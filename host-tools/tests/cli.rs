@@ -58,7 +58,7 @@ fn check_prints_every_streams_response_time_and_the_lowest_bit_rate() {
         "  object_pos                  0x110           8       100 ms       100 ms   0.270 ms     0.590 ms    99.410 ms",
         "  gaze: Heartbeat             0x1202FF03      8          1 s          1 s   0.320 ms",
         "bus load: 2.8 % of 500 kbit/s",
-        "lowest standard bit rate at which every deadline holds: 125 kbit/s",
+        "lowest standard bit rate at which every deadline holds: 20 kbit/s",
     ] {
         assert!(stdout.contains(expected), "{expected}\n{stdout}");
     }
@@ -68,7 +68,7 @@ fn check_prints_every_streams_response_time_and_the_lowest_bit_rate() {
     let bus = &value["bus"];
     assert_eq!(bus["bitrate"], 500_000);
     assert_eq!(bus["holds"], true);
-    assert_eq!(bus["lowest_bitrate"], 125_000);
+    assert_eq!(bus["lowest_bitrate"], 20_000);
     let first = &bus["streams"][0];
     assert_eq!(first["name"], "object_pos");
     assert_eq!(first["kind"], "topic");
@@ -140,13 +140,13 @@ fn check_analyses_the_bus_at_the_bit_rate_given_on_the_command_line() {
         .join("take-and-return.toml")
         .display()
         .to_string();
-    // Take and Return holds from 125 kbit/s: at 1 Mbit/s too, each frame's C an eighth of it.
+    // Take and Return holds from 20 kbit/s: at 1 Mbit/s too, each frame's C an eighth of it.
     let fast = pabctl(&["check", &network, "--bitrate", "1000000"]);
     assert_eq!(fast.status.code(), Some(0), "{}", text(&fast.stderr));
     let stdout = text(&fast.stdout);
     assert!(stdout.contains("bus at 1 Mbit/s: 23 streams"), "{stdout}");
     assert!(
-        stdout.contains("lowest standard bit rate at which every deadline holds: 125 kbit/s"),
+        stdout.contains("lowest standard bit rate at which every deadline holds: 20 kbit/s"),
         "{stdout}"
     );
     // At 10 kbit/s the periodic streams need 142 % of the bus: the streams that cannot keep

@@ -36,8 +36,11 @@ use super::response::{self, Background, Response, Stream, Unbounded};
 use crate::diagnostic::Diagnostic;
 use crate::network::{NO_TOPIC, Network};
 
-/// The standard bit rates `pabctl check` tries for the lowest at which every deadline holds.
-pub const STANDARD_BITRATES: [u32; 5] = [125_000, 250_000, 500_000, 800_000, 1_000_000];
+/// The standard bit rates `pabctl check` tries for the lowest at which every deadline holds:
+/// CiA 301's (CANopen's) classic CAN rates, which bus hardware and tools offer.
+pub const STANDARD_BITRATES: [u32; 8] = [
+    10_000, 20_000, 50_000, 125_000, 250_000, 500_000, 800_000, 1_000_000,
+];
 
 /// SchemaState's period and the Gates' repeat, ns (docs/can-protocol.md).
 const HUNDRED_MS: u64 = 100_000_000;
@@ -819,14 +822,14 @@ mod tests {
     }
 
     #[test]
-    fn take_and_return_holds_from_125_kbit_s() {
+    fn take_and_return_holds_from_20_kbit_s() {
         let network = parse(TAKE_AND_RETURN);
         let timing = timing(&network);
         let analysis = timing.analysis.as_ref().unwrap();
         assert_eq!(analysis.bitrate, 500_000);
         assert!(analysis.holds());
         assert!(timing.errors(&network).is_empty());
-        assert_eq!(timing.lowest, Some(125_000));
+        assert_eq!(timing.lowest, Some(20_000));
         // 8 topics, 3 gateways, 3 nodes × 4 heartbeat frames.
         assert_eq!(timing.streams.streams.len(), 8 + 3 + 12);
         // The highest: blocked by one 8-byte extended frame (160 bits), then its own 135:
@@ -855,11 +858,12 @@ mod tests {
         let bits_per_second = 135.0 * (10.0 * 5.0 + 1.0 + 2.0 * 5.0 + 3.0 * 10.0) + 12.0 * 160.0;
         let load = analysis.load_ppb as f64 / 1e9;
         assert!((load - bits_per_second / 500_000.0).abs() < 1e-6, "{load}");
-        // At 125 kbit/s it still holds; the table says so.
-        assert!(analyse(&timing.streams, 125_000).holds());
+        // At 20 kbit/s it still holds (the load 71 %), at 10 kbit/s not (142 %); the table says so.
+        assert!(analyse(&timing.streams, 20_000).holds());
+        assert!(!analyse(&timing.streams, 10_000).holds());
         let table = timing.table();
         assert!(
-            table.contains("lowest standard bit rate at which every deadline holds: 125 kbit/s")
+            table.contains("lowest standard bit rate at which every deadline holds: 20 kbit/s")
         );
         assert!(table.contains("  object_pos "), "{table}");
     }
