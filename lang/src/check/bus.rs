@@ -84,6 +84,34 @@ pub struct BusStream {
     pub feeders: Vec<usize>,
 }
 
+impl BusStream {
+    /// A periodic frame of the protocol's own (or a schema server's drive): its deadline its
+    /// period, no jitter, ranked by `id` (`rank_id` instead for the BLE claims, which share the
+    /// rank of their base identifier).
+    fn protocol(
+        name: String,
+        (id, extended): (u32, bool),
+        rank_id: u32,
+        length: usize,
+        period_ns: u64,
+        span: Range<usize>,
+    ) -> BusStream {
+        BusStream {
+            name,
+            kind: Kind::Protocol,
+            id,
+            extended,
+            key: response::arbitration_key(rank_id, extended),
+            length: u8::try_from(length).unwrap_or(u8::MAX),
+            period_ns,
+            jitter_ns: 0,
+            deadline_ns: period_ns,
+            span,
+            feeders: Vec::new(),
+        }
+    }
+}
+
 /// A stream with no period: it takes the bus whenever nothing above it wants it.
 #[derive(Clone, Debug)]
 pub struct BackgroundStream {
@@ -242,19 +270,14 @@ pub fn streams(network: &Network) -> Streams {
             let id = protocol_id(service, node.id, BROADCAST);
             push(
                 &mut out,
-                BusStream {
-                    name: format!("{}: {service:?}", node.name),
-                    kind: Kind::Protocol,
+                BusStream::protocol(
+                    format!("{}: {service:?}", node.name),
+                    (id, true),
                     id,
-                    extended: true,
-                    key: response::arbitration_key(id, true),
-                    length: service.payload_len() as u8,
+                    service.payload_len(),
                     period_ns,
-                    jitter_ns: 0,
-                    deadline_ns: period_ns,
-                    span: node.span.clone(),
-                    feeders: Vec::new(),
-                },
+                    node.span.clone(),
+                ),
             );
         }
     }
@@ -266,19 +289,14 @@ pub fn streams(network: &Network) -> Streams {
         let period_ns = (u64::from(group.params.step_us) * 1000).clamp(1, HUNDRED_MS);
         push(
             &mut out,
-            BusStream {
-                name: format!("{}: Gates of {}", node.name, group.name),
-                kind: Kind::Protocol,
+            BusStream::protocol(
+                format!("{}: Gates of {}", node.name, group.name),
+                (id, true),
                 id,
-                extended: true,
-                key: response::arbitration_key(id, true),
-                length: Service::Gates.payload_len() as u8,
+                Service::Gates.payload_len(),
                 period_ns,
-                jitter_ns: 0,
-                deadline_ns: period_ns,
-                span: group.span.clone(),
-                feeders: Vec::new(),
-            },
+                group.span.clone(),
+            ),
         );
     }
     for group in &network.groups {
@@ -290,19 +308,14 @@ pub fn streams(network: &Network) -> Streams {
             let period_ns = u64::from(group.period_us) * 1000;
             push(
                 &mut out,
-                BusStream {
-                    name: format!("{}: claim of {}", node.name, group.name),
-                    kind: Kind::Protocol,
-                    id,
-                    extended: true,
-                    key: response::arbitration_key(CLAIM_BASE, true),
-                    length: pab_core::ble::PAYLOAD_LEN as u8,
+                BusStream::protocol(
+                    format!("{}: claim of {}", node.name, group.name),
+                    (id, true),
+                    CLAIM_BASE,
+                    pab_core::ble::PAYLOAD_LEN,
                     period_ns,
-                    jitter_ns: 0,
-                    deadline_ns: period_ns,
-                    span: group.span.clone(),
-                    feeders: Vec::new(),
-                },
+                    group.span.clone(),
+                ),
             );
         }
     }
@@ -313,19 +326,14 @@ pub fn streams(network: &Network) -> Streams {
         let id = protocol_id(Service::SchemaState, node.id, BROADCAST);
         push(
             &mut out,
-            BusStream {
-                name: format!("{}: SchemaState", node.name),
-                kind: Kind::Protocol,
+            BusStream::protocol(
+                format!("{}: SchemaState", node.name),
+                (id, true),
                 id,
-                extended: true,
-                key: response::arbitration_key(id, true),
-                length: Service::SchemaState.payload_len() as u8,
-                period_ns: HUNDRED_MS,
-                jitter_ns: 0,
-                deadline_ns: HUNDRED_MS,
-                span: board.span.clone(),
-                feeders: Vec::new(),
-            },
+                Service::SchemaState.payload_len(),
+                HUNDRED_MS,
+                board.span.clone(),
+            ),
         );
         let tick_ns = u64::from(board.config.period_us).max(1) * 1000;
         let setpoint = board.drive.setpoint;
@@ -337,19 +345,14 @@ pub fn streams(network: &Network) -> Streams {
             let extended = setpoint.is_extended();
             push(
                 &mut out,
-                BusStream {
-                    name: format!("{}: drive {what}", node.name),
-                    kind: Kind::Protocol,
+                BusStream::protocol(
+                    format!("{}: drive {what}", node.name),
+                    (id, extended),
                     id,
-                    extended,
-                    key: response::arbitration_key(id, extended),
-                    length: 8,
-                    period_ns: tick_ns,
-                    jitter_ns: 0,
-                    deadline_ns: tick_ns,
-                    span: board.span.clone(),
-                    feeders: Vec::new(),
-                },
+                    8,
+                    tick_ns,
+                    board.span.clone(),
+                ),
             );
         }
         out.unanalysed.push(Unanalysed {
