@@ -67,6 +67,9 @@ fn run(u: &mut Unstructured<'_>) -> Result<()> {
     // Where the session stands as the model sees it: `None` without a session.
     let mut next: Option<usize> = None;
     let mut fail = false;
+    // The CRC the last Commit carried: the image's, or any (the fuzzer's CMP-guided search finds
+    // the CRC of a slot that a flipped chunk changed).
+    let mut commit_crc = None;
     while !u.is_empty() {
         let message: Vec<u8> = match u.int_in_range(0u8..=8)? {
             0 => session::begin(&manifest).to_vec(),
@@ -88,12 +91,15 @@ fn run(u: &mut Unstructured<'_>) -> Result<()> {
                 message.extend(std::iter::repeat_n(u.arbitrary::<u8>()?, n));
                 message
             }
-            4 => session::commit(if u.arbitrary()? {
-                crc32(&image)
-            } else {
-                u.arbitrary()?
-            })
-            .to_vec(),
+            4 => {
+                let crc = if u.arbitrary()? {
+                    crc32(&image)
+                } else {
+                    u.arbitrary()?
+                };
+                commit_crc = Some(crc);
+                session::commit(crc).to_vec()
+            }
             5 => session::abort().to_vec(),
             6 => {
                 let n = usize::from(u.int_in_range(0u8..=16)?);
@@ -152,9 +158,22 @@ fn run(u: &mut Unstructured<'_>) -> Result<()> {
                 next = Some(offset as usize);
             }
             Outcome::Committed { offset, crc } => {
+                // The session commits exactly what the tool's CRC names: the slot's bytes, of the
+                // Begin's length; a commit naming the image's CRC, exactly the image.
                 assert_eq!(offset as usize, len);
-                assert_eq!(&slot[..len], &image[..], "a commit of another image");
-                assert_eq!(crc, crc32(&image));
+                assert_eq!(
+                    Some(crc),
+                    commit_crc,
+                    "a commit with another CRC than the tool's"
+                );
+                assert_eq!(
+                    crc,
+                    crc32(&slot[..len]),
+                    "a commit of bytes the CRC does not name"
+                );
+                if crc == crc32(&image) {
+                    assert_eq!(&slot[..len], &image[..], "a commit of another image");
+                }
                 next = None;
             }
             Outcome::FlashError { .. } | Outcome::Aborted => next = None,
