@@ -4,7 +4,7 @@
 
 use std::ops::Range;
 
-use pab_core::frame::MAX_DATA_LEN;
+use pab_core::frame::CLASSIC_DATA_LEN as MAX_DATA_LEN;
 use schemars::JsonSchema;
 use serde::Deserialize;
 

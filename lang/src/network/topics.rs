@@ -6,7 +6,7 @@ use std::ops::Range;
 use indexmap::IndexMap;
 use pab_core::Filter;
 use pab_core::filter::{MAX_EXTENDED_ID, MAX_STANDARD_ID};
-use pab_core::frame::MAX_DATA_LEN;
+use pab_core::frame::CLASSIC_DATA_LEN as MAX_DATA_LEN;
 use schemars::JsonSchema;
 use serde::Deserialize;
 
