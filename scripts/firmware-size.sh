@@ -13,14 +13,17 @@
 # by how much); "ble+dynamics+filters+update", the node that takes firmware updates over the bus
 # behind its bootloader (the emulated board's and the NUCLEO-G474RE's: every mechanism but the
 # schema server, with identity), the emulated board's beside the same set with identity alone,
-# the update's cost being the difference. Each entry: flash, ram_static, stack_peak, ram_peak
+# the update's cost being the difference; the NUCLEO-G474RE's "ble+dynamics+filters+fd" (CAN FD,
+# src/can_fd.rs) beside the same set classic, "ble+dynamics+filters", CAN FD's cost being the
+# difference. Each entry: flash, ram_static, stack_peak, ram_peak
 # (static + deepest stack).
 #
 # Then the NUCLEO boards' bootloaders (pab-boot-g474, pab-boot-f446: firmware/boot/), each a
 # line of its flash (text + data) against its goal, 24 KiB, and its region, 32 KiB (memory.x;
 # on stderr with --json).
 #
-# Fails when a full build or a build that takes updates takes more than 64 KiB of flash (the
+# Fails when a full build, a build that takes updates or the CAN FD build takes more than 64 KiB
+# of flash (the
 # latter must also fit its bootloader's active partition, less the manifest: its memory-boot.x,
 # which the linker enforces), when a bootloader does not fit its 32 KiB region, or when any
 # build's deepest chain of calls leaves less than 8 KiB of its stack. The other goals
@@ -38,7 +41,7 @@ for arg in "$@"; do
     case "$arg" in
         --json) json=true ;;
         --increments) increments=true ;;
-        -h|--help) sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+        -h|--help) sed -n '2,25p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
         *) echo "firmware-size: unknown argument '$arg' (--json, --increments, --help)" >&2; exit 2 ;;
     esac
 done
@@ -85,6 +88,12 @@ for package in "${boards[@]}"; do
         # fit 64 KiB.
         measure "$package" ble+dynamics+filters+update --no-default-features \
             --features ble,dynamics,filters,update
+        # CAN FD (FDCAN in FD mode, frames of 64 bytes through the node), beside the same set
+        # classic: the full build has no flash to spare for it.
+        measure "$package" ble+dynamics+filters --no-default-features \
+            --features ble,dynamics,filters
+        measure "$package" ble+dynamics+filters+fd --no-default-features \
+            --features ble,dynamics,filters,fd
     fi
     # The node that takes updates over the bus (behind the bootloader, with identity: what
     # scripts/boot-test.sh runs), without the schema server: with it, it does not fit the
@@ -143,10 +152,12 @@ for line in open(rows):
         "largest_frame": max(stack["chain"], default=[0, ""]),
     })
 order = ["minimal", "ble", "dynamics", "filters", "schema", "full", "full+identity",
-         "ble+dynamics+filters+identity", "ble+dynamics+filters+update"]
+         "ble+dynamics+filters+identity", "ble+dynamics+filters+update", "ble+dynamics+filters",
+         "ble+dynamics+filters+fd"]
 entries.sort(key=lambda e: (list(BOARDS).index(e["board"]), order.index(e["set"])))
-# The flashed builds, and those that take updates over the bus (flashed behind a bootloader).
-LIMITED = ("full", "ble+dynamics+filters+update")
+# The flashed builds, those that take updates over the bus (flashed behind a bootloader) and the
+# CAN FD build.
+LIMITED = ("full", "ble+dynamics+filters+update", "ble+dynamics+filters+fd")
 over = [e for e in entries if e["set"] in LIMITED and e["flash"] > FLASH]
 if as_json:
     print(json.dumps(entries, indent=1))
@@ -161,6 +172,7 @@ else:
     # The goals of docs/footprint.md, each said met or not (only the flash of the full builds
     # and of those that take updates is enforced).
     goals = [("full", "flash", FLASH), ("ble+dynamics+filters+update", "flash", FLASH),
+             ("ble+dynamics+filters+fd", "flash", FLASH),
              ("full", "ram_peak", FLASH),
              ("minimal", "flash", 40 * 1024), ("minimal", "ram_peak", 32 * 1024)]
     for feature_set, key, limit in goals:

@@ -48,6 +48,8 @@ cargo clippy -p pab-fw-g474 --features boot --target thumbv7em-none-eabihf --rel
 # The NUCLEO-G474RE that takes updates over the bus (`update`: the emulated board's set), as
 # scripts/firmware-size.sh builds it.
 cargo clippy -p pab-fw-g474 --no-default-features --features ble,dynamics,filters,update --target thumbv7em-none-eabihf --release --locked -- -D warnings
+# The NUCLEO-G474RE on CAN FD (`fd`), as scripts/firmware-size.sh builds it.
+cargo clippy -p pab-fw-g474 --no-default-features --features ble,dynamics,filters,fd --target thumbv7em-none-eabihf --release --locked -- -D warnings
 cargo clippy -p pab-fw-f446 --features boot --target thumbv7em-none-eabihf --release --locked -- -D warnings
 cargo clippy -p pab-own-driver --features board --target thumbv7em-none-eabihf --release --locked -- -D warnings
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # No reachable panic in the project's crates on the boards: disassembles each board firmware (the
 # `firmware` profile's ELFs, pab-fw-g474, pab-fw-f446 and pab-fw-an386, and the NUCLEO-G474RE's
-# build that takes updates; built here if needed) and
+# builds that take updates and that run CAN FD; built here if needed) and
 # fails when a panic entry point is called or branched to from code of pab_core, pab_app,
 # pab_storage or pab_slcan.
 #   scripts/panic-check.sh            # build the firmwares with their panic locations, in
@@ -57,6 +57,10 @@ if [ $# -eq 0 ]; then
     CARGO_TARGET_DIR="$target" cargo build -q --locked -p pab-fw-g474 --profile firmware \
         --target thumbv7em-none-eabihf --no-default-features --features ble,dynamics,filters,update
     cp "$target/thumbv7em-none-eabihf/firmware/pab-fw-g474" "$target/pab-fw-g474-update"
+    # The NUCLEO-G474RE on CAN FD (its FD frame path, and the node's with 64-byte frames).
+    CARGO_TARGET_DIR="$target" cargo build -q --locked -p pab-fw-g474 --profile firmware \
+        --target thumbv7em-none-eabihf --no-default-features --features ble,dynamics,filters,fd
+    cp "$target/thumbv7em-none-eabihf/firmware/pab-fw-g474" "$target/pab-fw-g474-fd"
     CARGO_TARGET_DIR="$target" cargo build -q --locked -p pab-fw-g474 --profile firmware \
         --target thumbv7em-none-eabihf
     # One board a command: their features would unify in one build.
@@ -66,7 +70,8 @@ if [ $# -eq 0 ]; then
         --target thumbv7em-none-eabihf --bin pab-fw-an386
     set -- "$target/thumbv7em-none-eabihf/firmware/pab-fw-g474" \
         "$target/thumbv7em-none-eabihf/firmware/pab-fw-f446" \
-        "$target/thumbv7em-none-eabihf/firmware/pab-fw-an386" "$target/pab-fw-g474-update"
+        "$target/thumbv7em-none-eabihf/firmware/pab-fw-an386" "$target/pab-fw-g474-update" \
+        "$target/pab-fw-g474-fd"
 fi
 
 exec python3 scripts/panic_check.py --repo . \

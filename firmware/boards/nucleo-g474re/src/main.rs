@@ -6,7 +6,8 @@
 //! - **CAN**: FDCAN1 on PA11 (RX) / PA12 (TX), classic CAN at [`BITRATE`] (500 kbit/s), every
 //!   standard and extended frame (data and remote) accepted into RX FIFO 0, through
 //!   [`fdcan_bus::FdcanBus`]. The FDCAN kernel clock is the 24 MHz crystal (HSE), so the bit
-//!   timing is exact and independent of the system clock (170 MHz from the PLL).
+//!   timing is exact and independent of the system clock (170 MHz from the PLL). With the
+//!   feature `fd`, CAN FD with bit-rate switching, the data phase at 2 Mbit/s ([`can_fd`]).
 //! - **Flash**: in dual-bank mode, the chip's factory setting (no option byte to change): the
 //!   program in bank 1, everything the firmware writes in bank 2, whose page erases run in the
 //!   background while the node reads frames ([`bank_flash`]).
@@ -47,6 +48,8 @@
 mod bank_flash;
 #[cfg(feature = "update")]
 mod boot;
+#[cfg(feature = "fd")]
+mod can_fd;
 mod fdcan_bus;
 mod recipient;
 
@@ -60,6 +63,13 @@ use embassy_stm32::Peri;
 use embassy_stm32::can::config::{
     FrameTransmissionConfig, GlobalFilter, NominalBitTiming, NonMatchingFilter, TxBufferMode,
 };
+#[cfg(not(feature = "fd"))]
+/// Classic CAN only: the controller neither sends nor takes CAN FD frames.
+const FRAME_TRANSMIT: FrameTransmissionConfig = FrameTransmissionConfig::ClassicCanOnly;
+#[cfg(feature = "fd")]
+/// CAN FD with bit-rate switching: classic and FD frames received, FD frames sent with BRS at
+/// [`can_fd::DATA_BITRATE`] when the node's frame asks for it (`can_fd`).
+const FRAME_TRANSMIT: FrameTransmissionConfig = FrameTransmissionConfig::AllowFdCanAndBRS;
 use embassy_stm32::can::{self, CanConfigurator, OperatingMode};
 use embassy_stm32::flash::Flash;
 use embassy_stm32::gpio::{Level, Output, Speed};
@@ -369,7 +379,7 @@ async fn main(_spawner: Spawner) {
     let config = can
         .config()
         .set_nominal_bit_timing(bit_timing(kbps))
-        .set_frame_transmit(FrameTransmissionConfig::ClassicCanOnly)
+        .set_frame_transmit(FRAME_TRANSMIT)
         // FIFO mode, fed one frame at a time from a queue ordered by priority (`fdcan_bus`):
         // frames of equal identifier leave in the order they were queued (ISO-TP), none is ever
         // aborted.
@@ -383,8 +393,17 @@ async fn main(_spawner: Spawner) {
         )
         .set_automatic_retransmit(true)
         .set_automatic_bus_off_recovery(true);
+    #[cfg(feature = "fd")]
+    let config = config.set_data_bit_timing(can_fd::data_bit_timing());
     can.set_config(config);
+    #[cfg(not(feature = "fd"))]
     let mut bus = FdcanBus::new(can.start(OperatingMode::NormalOperationMode));
+    #[cfg(feature = "fd")]
+    let mut bus = {
+        let can = can.start(OperatingMode::NormalOperationMode);
+        can_fd::compensate_transceiver_delay();
+        FdcanBus::new(can)
+    };
 
     // Cannot fail: the record's id is 1..=127 and NODE_ID is checked at compile time.
     #[cfg(feature = "identity")]
