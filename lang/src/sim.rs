@@ -388,8 +388,10 @@ pub fn event_frames(network: &Network) -> Result<Vec<BusFrame>, SimError> {
         };
         let frame = pab_core::Frame::data(id, &event.data).ok_or_else(|| {
             SimError(format!(
-                "an event of topic `{}` has more than 8 bytes of data",
-                topic.name
+                "an event of topic `{}` has {} bytes of data: the simulator carries frames of at most {} bytes (the core's frames are classic CAN's; a CAN FD topic's longer frames cannot be simulated yet)",
+                topic.name,
+                event.data.len(),
+                pab_core::frame::MAX_DATA_LEN
             ))
         })?;
         for t in event.schedule.times() {
