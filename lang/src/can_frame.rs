@@ -82,8 +82,7 @@ pub const CLASSIC_DATA_LEN: usize = 8;
 pub const FD_DATA_LEN: usize = pab_core::isotp::fd::MAX_FD_FRAME_LEN;
 
 /// The highest data bit rate of a CAN FD bus (`[bus] data_bitrate`): 8 Mbit/s, the fastest
-/// CAN FD transceivers' (ISO 11898-2:2016's "SIC" and CiA 601-4 transceivers are specified up
-/// to 8 Mbit/s) and the G474's FDCAN kernel's at 80 MHz with its minimum data bit timing.
+/// data phase CAN FD controllers and transceivers commonly offer.
 pub const MAX_DATA_BITRATE: u32 = 8_000_000;
 
 /// The smallest CAN FD data length that holds `len` bytes (`len` itself up to 8, then 12, 16,

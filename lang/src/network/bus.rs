@@ -74,7 +74,7 @@ impl Builder<'_> {
                 }
                 _ => {
                     let why = if value > i64::from(MAX_DATA_BITRATE) {
-                        " (the fastest CAN FD data phase transceivers and controllers are specified for)"
+                        " (the fastest data phase CAN FD controllers and transceivers commonly offer)"
                     } else {
                         " (the data phase is never slower than the arbitration; equal to it: CAN FD without bit-rate switching)"
                     };

@@ -640,7 +640,7 @@ mod tests {
             ),
             (
                 "10000000",
-                "net.toml:3:16: error: data_bitrate = 10000000: bit/s of the CAN FD data phase, from `bitrate` (500000) to 8000000 (the fastest CAN FD data phase transceivers and controllers are specified for)",
+                "net.toml:3:16: error: data_bitrate = 10000000: bit/s of the CAN FD data phase, from `bitrate` (500000) to 8000000 (the fastest data phase CAN FD controllers and transceivers commonly offer)",
             ),
             (
                 "-1",
