@@ -1,37 +1,84 @@
-//! A classic CAN frame (up to 8 data bytes), owned and `Copy`.
+//! A CAN frame, owned and `Copy`: classic (up to 8 data bytes) and, with the feature `fd`, CAN FD
+//! (up to 64).
 //!
 //! Every runner converts its driver's frame type to this one at the edge (the embassy FDCAN frame on
 //! a board, `socketcan::CanFrame` on Linux, the simulator's own), through the
 //! [`embedded_can::Frame`] trait that all of them implement, so the node application and the tools
 //! share one frame type.
+//!
+//! Why CAN FD is a feature: every queued frame carries the whole data buffer, so a 64-byte
+//! capacity costs a board 56 bytes of RAM per queue slot and the frame path its 8-byte word
+//! (a classic payload is masked and copied as one `u64`). A board whose controller or bridge is
+//! classic (the emulated board's SLCAN) builds without it and keeps both; the host tools, the
+//! Linux node and an FD board build with it. The semantics are the same: an FD frame is filtered,
+//! integrated, arbitrated and re-published as a classic one is; only its payload may be longer,
+//! and a gateway re-publishes it as an FD frame with its bit-rate switch.
 
 use embedded_can::{ExtendedId, Id, StandardId};
 
 use crate::filter::{MAX_EXTENDED_ID, MAX_STANDARD_ID};
 
 /// Data bytes of a classic CAN frame.
-pub const MAX_DATA_LEN: usize = 8;
+pub const CLASSIC_DATA_LEN: usize = 8;
+
+/// Data bytes of a CAN FD frame.
+pub const FD_DATA_LEN: usize = 64;
+
+/// The data bytes a [`Frame`] holds: [`FD_DATA_LEN`] with the feature `fd`, else
+/// [`CLASSIC_DATA_LEN`].
+#[cfg(feature = "fd")]
+pub const MAX_DATA_LEN: usize = FD_DATA_LEN;
+/// The data bytes a [`Frame`] holds: [`FD_DATA_LEN`] with the feature `fd`, else
+/// [`CLASSIC_DATA_LEN`].
+#[cfg(not(feature = "fd"))]
+pub const MAX_DATA_LEN: usize = CLASSIC_DATA_LEN;
+
+/// The data lengths a CAN FD frame can have (ISO 11898-1:2015: DLC 9 to 15 stand for 12, 16, 20,
+/// 24, 32, 48 and 64 bytes). A controller pads a payload of any other length to the next one.
+pub const FD_LENGTHS: [u8; 16] = [0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64];
+
+/// The shortest CAN FD data length that holds `len` bytes; `None` above 64.
+pub const fn fd_length(len: usize) -> Option<u8> {
+    match len {
+        0..=8 => Some(len as u8),
+        9..=12 => Some(12),
+        13..=16 => Some(16),
+        17..=20 => Some(20),
+        21..=24 => Some(24),
+        25..=32 => Some(32),
+        33..=48 => Some(48),
+        49..=64 => Some(64),
+        _ => None,
+    }
+}
 
 /// `KEEP[n]`: the low 8·n bits set, n = 0..=8 (a table, as 64-bit shifts by a variable cost a
 /// dozen instructions on a 32-bit core).
 // Evaluated at compile time: an index out of bounds would fail the build, not panic.
 #[allow(clippy::indexing_slicing)]
-const KEEP: [u64; MAX_DATA_LEN + 1] = {
-    let mut table = [0; MAX_DATA_LEN + 1];
+const KEEP: [u64; CLASSIC_DATA_LEN + 1] = {
+    let mut table = [0; CLASSIC_DATA_LEN + 1];
     let mut n = 1;
-    while n <= MAX_DATA_LEN {
+    while n <= CLASSIC_DATA_LEN {
         table[n] = (table[n - 1] << 8) | 0xFF;
         n += 1;
     }
     table
 };
 
-/// A classic CAN data or remote frame. 16 bytes; no allocation.
+/// A CAN data or remote frame: classic, or with the feature `fd` CAN FD too. 16 bytes (72 with
+/// `fd`); no allocation.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Frame {
     id: Id,
     remote: bool,
     len: u8,
+    /// A CAN FD frame (FDF set): its data up to 64 bytes, never remote.
+    #[cfg(feature = "fd")]
+    fd: bool,
+    /// Its data phase at the data bit rate (BRS set); only on an FD frame.
+    #[cfg(feature = "fd")]
+    brs: bool,
     data: [u8; MAX_DATA_LEN],
 }
 
@@ -39,36 +86,91 @@ impl Frame {
     /// A data frame on standard identifier 0 without data: a placeholder for storage that is
     /// filled before it is read.
     pub const fn empty() -> Frame {
+        // A literal, not `Frame::classic`: through the call, the node's outbox zeroed the
+        // placeholder it writes over at once (14 bytes of the boards' flash).
         Frame {
             id: Id::Standard(StandardId::ZERO),
             remote: false,
             len: 0,
+            #[cfg(feature = "fd")]
+            fd: false,
+            #[cfg(feature = "fd")]
+            brs: false,
             data: [0; MAX_DATA_LEN],
         }
     }
 
-    /// A data frame; `None` when `data` is longer than 8 bytes.
+    /// A classic frame of these parts (`len` at most 8: the callers' to see to).
+    const fn classic(id: Id, remote: bool, len: u8, data: [u8; MAX_DATA_LEN]) -> Frame {
+        Frame {
+            id,
+            remote,
+            len,
+            #[cfg(feature = "fd")]
+            fd: false,
+            #[cfg(feature = "fd")]
+            brs: false,
+            data,
+        }
+    }
+
+    /// A classic data frame; `None` when `data` is longer than 8 bytes.
     pub fn data(id: impl Into<Id>, data: &[u8]) -> Option<Frame> {
-        let len = u8::try_from(data.len()).ok().filter(|&len| len <= 8)?;
+        let len = u8::try_from(data.len())
+            .ok()
+            .filter(|&len| usize::from(len) <= CLASSIC_DATA_LEN)?;
+        let mut bytes = [0; MAX_DATA_LEN];
+        bytes.get_mut(..data.len())?.copy_from_slice(data);
+        Some(Frame::classic(id.into(), false, len, bytes))
+    }
+
+    /// A CAN FD data frame, with its data phase at the data bit rate when `brs`. `data` is padded
+    /// with zeros to the next CAN FD length (12, 16, 20, 24, 32, 48 or 64 bytes above 8), as a
+    /// controller sends it; `None` when it is longer than 64 bytes.
+    #[cfg(feature = "fd")]
+    pub fn fd(id: impl Into<Id>, data: &[u8], brs: bool) -> Option<Frame> {
+        let len = fd_length(data.len())?;
         let mut bytes = [0; MAX_DATA_LEN];
         bytes.get_mut(..data.len())?.copy_from_slice(data);
         Some(Frame {
             id: id.into(),
             remote: false,
             len,
+            fd: true,
+            brs,
             data: bytes,
         })
     }
 
-    /// A data frame from a full 8-byte buffer of which the first `len` bytes are sent (`len` is
-    /// clamped to 8). Infallible, for encoders that fill a fixed buffer.
-    pub fn from_buffer(id: impl Into<Id>, data: [u8; MAX_DATA_LEN], len: u8) -> Frame {
-        Frame {
-            id: id.into(),
-            remote: false,
-            len: len.min(8),
-            data,
-        }
+    /// A classic data frame from a full 8-byte buffer of which the first `len` bytes are sent
+    /// (`len` is clamped to 8). Infallible, for encoders that fill a fixed buffer.
+    pub fn from_buffer(id: impl Into<Id>, data: [u8; CLASSIC_DATA_LEN], len: u8) -> Frame {
+        #[cfg(feature = "fd")]
+        let data = {
+            let mut bytes = [0; MAX_DATA_LEN];
+            if let Some(head) = bytes.first_chunk_mut::<CLASSIC_DATA_LEN>() {
+                *head = data;
+            }
+            bytes
+        };
+        Frame::classic(id.into(), false, len.min(8), data)
+    }
+
+    /// Whether this is a CAN FD frame (always `false` without the feature `fd`).
+    pub const fn is_fd(&self) -> bool {
+        #[cfg(feature = "fd")]
+        return self.fd;
+        #[cfg(not(feature = "fd"))]
+        false
+    }
+
+    /// Whether this CAN FD frame's data phase runs at the data bit rate (BRS; always `false` for
+    /// a classic frame).
+    pub const fn is_brs(&self) -> bool {
+        #[cfg(feature = "fd")]
+        return self.brs;
+        #[cfg(not(feature = "fd"))]
+        false
     }
 
     /// A data frame with an identifier given as a raw number; `None` when the number does not fit
@@ -90,7 +192,7 @@ impl Frame {
         }
     }
 
-    /// The whole 8-byte data buffer, the bytes after the payload included: for an encoder that
+    /// The whole data buffer, the bytes after the payload included: for an encoder that
     /// rewrites a field in place.
     pub(crate) fn buffer_mut(&mut self) -> &mut [u8; MAX_DATA_LEN] {
         &mut self.data
@@ -105,26 +207,42 @@ impl Frame {
     }
 
     /// The frame a gateway re-publishes for this one: a data frame on `id` with this frame's
-    /// payload (none for a remote frame), the bytes after it zero. The same frame as
-    /// `Frame::from_buffer(id, payload padded with zeros, payload length)`, without the copy
-    /// byte by byte.
+    /// payload (none for a remote frame), the bytes after it zero, classic or FD (with its bit-rate
+    /// switch) as this one. The same frame as `Frame::from_buffer(id, payload padded with zeros,
+    /// payload length)` for a classic frame, without the copy byte by byte.
     pub fn republished(&self, id: impl Into<Id>) -> Frame {
-        // As `payload()`: nothing for a remote frame (or a length beyond 8, which no
+        // As `payload()`: nothing for a remote frame (or a length beyond the buffer, which no
         // constructor makes).
-        let len = if self.remote || self.len > 8 {
+        let len = if self.remote || usize::from(self.len) > MAX_DATA_LEN {
             0
         } else {
             self.len
         };
-        // The first `len` bytes kept: read little endian, the low 8·len bits.
-        let keep = KEEP.get(usize::from(len)).copied().unwrap_or(0);
-        let data = (u64::from_le_bytes(self.data) & keep).to_le_bytes();
-        Frame {
-            id: id.into(),
-            remote: false,
-            len,
-            data,
+        #[cfg(feature = "fd")]
+        if self.fd || usize::from(len) > CLASSIC_DATA_LEN {
+            let mut data = [0; MAX_DATA_LEN];
+            let keep = usize::from(len);
+            if let (Some(to), Some(from)) = (data.get_mut(..keep), self.data.get(..keep)) {
+                to.copy_from_slice(from);
+            }
+            return Frame {
+                id: id.into(),
+                remote: false,
+                len,
+                fd: self.fd,
+                brs: self.brs,
+                data,
+            };
         }
+        // A classic payload: read little endian, the low 8·len bits.
+        let keep = KEEP.get(usize::from(len)).copied().unwrap_or(0);
+        let head = self
+            .data
+            .first_chunk::<CLASSIC_DATA_LEN>()
+            .copied()
+            .unwrap_or([0; CLASSIC_DATA_LEN]);
+        let head = (u64::from_le_bytes(head) & keep).to_le_bytes();
+        Frame::from_buffer(id, head, len)
     }
 
     /// Whether this is a remote (RTR) frame.
@@ -171,12 +289,7 @@ impl embedded_can::Frame for Frame {
 
     fn new_remote(id: impl Into<Id>, dlc: usize) -> Option<Self> {
         let len = u8::try_from(dlc).ok().filter(|&len| len <= 8)?;
-        Some(Frame {
-            id: id.into(),
-            remote: true,
-            len,
-            data: [0; MAX_DATA_LEN],
-        })
+        Some(Frame::classic(id.into(), true, len, [0; MAX_DATA_LEN]))
     }
 
     fn is_extended(&self) -> bool {
@@ -200,25 +313,24 @@ impl embedded_can::Frame for Frame {
     }
 }
 
-/// Converts any [`embedded_can::Frame`] (a driver's frame) to a [`Frame`].
+/// Converts any [`embedded_can::Frame`] (a driver's frame) to a [`Frame`]. A data frame longer
+/// than 8 bytes becomes, with the feature `fd`, a CAN FD frame without bit-rate switch (the trait
+/// does not tell it: a driver with FD frames uses [`Frame::fd`]); without it, its first 8 bytes.
 pub fn from_frame(frame: &impl embedded_can::Frame) -> Frame {
     if frame.is_remote_frame() {
-        Frame {
-            id: frame.id(),
-            remote: true,
-            len: u8::try_from(frame.dlc().min(8)).unwrap_or(8),
-            data: [0; MAX_DATA_LEN],
-        }
-    } else {
-        let data = frame.data();
-        let data = data.get(..data.len().min(MAX_DATA_LEN)).unwrap_or(&[]);
-        Frame::data(frame.id(), data).unwrap_or(Frame {
-            id: frame.id(),
-            remote: false,
-            len: 0,
-            data: [0; MAX_DATA_LEN],
-        })
+        let len = u8::try_from(frame.dlc().min(CLASSIC_DATA_LEN)).unwrap_or(8);
+        return Frame::classic(frame.id(), true, len, [0; MAX_DATA_LEN]);
     }
+    let data = frame.data();
+    #[cfg(feature = "fd")]
+    if data.len() > CLASSIC_DATA_LEN {
+        let data = data.get(..data.len().min(FD_DATA_LEN)).unwrap_or(&[]);
+        if let Some(fd) = Frame::fd(frame.id(), data, false) {
+            return fd;
+        }
+    }
+    let data = data.get(..data.len().min(CLASSIC_DATA_LEN)).unwrap_or(&[]);
+    Frame::data(frame.id(), data).unwrap_or(Frame::classic(frame.id(), false, 0, [0; MAX_DATA_LEN]))
 }
 
 #[cfg(test)]
@@ -231,7 +343,7 @@ mod tests {
         // What the node application built before `republished`: the payload copied into a
         // zeroed buffer, the payload's length.
         let padded = |frame: &Frame, id: Id| {
-            let mut data = [0; MAX_DATA_LEN];
+            let mut data = [0; CLASSIC_DATA_LEN];
             for (to, from) in data.iter_mut().zip(frame.payload()) {
                 *to = *from;
             }
@@ -251,6 +363,44 @@ mod tests {
                 assert_eq!(frame.republished(id), padded(&frame, id), "{frame:?}");
             }
         }
+    }
+
+    #[test]
+    fn fd_lengths_are_the_dlc_table() {
+        for len in 0..=FD_DATA_LEN {
+            let fd = fd_length(len).unwrap();
+            assert!(FD_LENGTHS.contains(&fd) && usize::from(fd) >= len, "{len}");
+            // The shortest: no valid length between.
+            assert!(
+                FD_LENGTHS.iter().all(|&l| usize::from(l) < len || l >= fd),
+                "{len}"
+            );
+        }
+        assert_eq!(fd_length(FD_DATA_LEN + 1), None);
+    }
+
+    #[cfg(feature = "fd")]
+    #[test]
+    fn fd_frames_are_padded_to_their_length_and_republished_as_fd() {
+        let id = raw_id(0x123, false).unwrap();
+        let data: Vec<u8> = (1..=13).collect();
+        let frame = Frame::fd(id, &data, true).unwrap();
+        assert!(frame.is_fd() && frame.is_brs());
+        assert_eq!(frame.payload().len(), 16);
+        assert_eq!(&frame.payload()[..13], &data[..]);
+        assert_eq!(&frame.payload()[13..], &[0, 0, 0]);
+        let out = raw_id(0x1234_5678, true).unwrap();
+        let again = frame.republished(out);
+        assert!(again.is_fd() && again.is_brs());
+        assert_eq!((again.id(), again.payload()), (out, frame.payload()));
+        // Short FD frames stay FD; classic ones stay classic.
+        let short = Frame::fd(id, &[7], false).unwrap();
+        assert!(short.republished(out).is_fd() && !short.republished(out).is_brs());
+        assert!(!Frame::data(id, &[7]).unwrap().republished(out).is_fd());
+        assert!(Frame::fd(id, &[0; 65], true).is_none());
+        // A driver's frame of 20 bytes: FD.
+        let driver = from_frame(&Frame::fd(id, &[9; 20], true).unwrap());
+        assert!(driver.is_fd() && driver.payload() == [9; 20]);
     }
 
     #[test]

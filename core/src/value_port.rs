@@ -98,7 +98,7 @@ pub enum FieldError {
         /// The size found.
         size: u8,
     },
-    /// It does not fit a classic CAN frame: offset + size > 8.
+    /// It does not fit the frames this node takes: offset + size > 8 (64 with the feature `fd`).
     OutOfFrame {
         /// Its offset.
         offset: u8,
@@ -111,9 +111,16 @@ impl core::fmt::Display for FieldError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             FieldError::BadSize { size } => write!(f, "size {size} is not 1, 2 or 4"),
+            // The length written out, not formatted: a third argument cost the boards' flash.
+            #[cfg(not(feature = "fd"))]
             FieldError::OutOfFrame { offset, size } => write!(
                 f,
                 "offset {offset} + size {size} is beyond the 8 bytes of a frame"
+            ),
+            #[cfg(feature = "fd")]
+            FieldError::OutOfFrame { offset, size } => write!(
+                f,
+                "offset {offset} + size {size} is beyond the 64 bytes of a frame"
             ),
         }
     }
@@ -122,7 +129,8 @@ impl core::fmt::Display for FieldError {
 impl core::error::Error for FieldError {}
 
 impl Field {
-    /// Checks the size and that the field fits 8 bytes. One comparison or two.
+    /// Checks the size and that the field fits a frame's [`MAX_DATA_LEN`] bytes. One comparison
+    /// or two.
     // Out of line: a value port's two fields are checked with it, and the two inlined copies
     // took 44 bytes more of the NUCLEO-G474RE's flash with competitive dynamics, 16 without.
     #[inline(never)]
@@ -774,11 +782,11 @@ mod tests {
         );
         assert_eq!(field(6, 4, false, Endian::Little).read(&data), None);
         assert_eq!(field(6, 2, false, Endian::Little).read(&data[..7]), None);
-        let mut out = [0u8; 8];
+        let mut out = [0u8; MAX_DATA_LEN];
         field(1, 2, true, Endian::Big).write(&mut out, -2);
-        assert_eq!(out, [0, 0xFF, 0xFE, 0, 0, 0, 0, 0]);
+        assert_eq!(out[..8], [0, 0xFF, 0xFE, 0, 0, 0, 0, 0]);
         field(4, 4, false, Endian::Little).write(&mut out, 1 << 40);
-        assert_eq!(out, [0, 0xFF, 0xFE, 0, 0xFF, 0xFF, 0xFF, 0xFF]);
+        assert_eq!(out[..8], [0, 0xFF, 0xFE, 0, 0xFF, 0xFF, 0xFF, 0xFF]);
     }
 
     #[test]
@@ -802,6 +810,12 @@ mod tests {
             priority,
         };
         assert_eq!(spec(Combine::Max, None).validate(), Ok(()));
+        // The last byte of a frame: 7, or 63 with CAN FD.
+        const LAST: u8 = MAX_DATA_LEN as u8 - 1;
+        assert_eq!(
+            spec(Combine::Priority, Some(field(LAST, 1, false, Endian::Big))).validate(),
+            Ok(())
+        );
         assert_eq!(
             spec(Combine::Priority, None).validate(),
             Err(ValueError::PriorityMissing)
@@ -811,9 +825,9 @@ mod tests {
             Err(ValueError::PriorityNotAllowed)
         );
         assert_eq!(
-            spec(Combine::Priority, Some(field(7, 2, false, Endian::Big))).validate(),
+            spec(Combine::Priority, Some(field(LAST, 2, false, Endian::Big))).validate(),
             Err(ValueError::Priority(FieldError::OutOfFrame {
-                offset: 7,
+                offset: LAST,
                 size: 2
             }))
         );

@@ -1153,12 +1153,16 @@ fn bad_value_ports() -> Vec<(RawTable, TableError)> {
             value_port(
                 vec![GOOD],
                 vec![],
-                spec(Combine::Min, field(5, 4), None),
+                spec(
+                    Combine::Min,
+                    field(pab_core::frame::MAX_DATA_LEN as u8 - 3, 4),
+                    None,
+                ),
                 NodeRef::NOBODY,
                 vec![deliver(0)],
             ),
             value(ValueError::Value(FieldError::OutOfFrame {
-                offset: 5,
+                offset: pab_core::frame::MAX_DATA_LEN as u8 - 3,
                 size: 4,
             })),
         ),

@@ -998,10 +998,16 @@ fn the_loader_refuses_bad_sensor_topics_with_a_typed_error() {
         ))
     );
     assert_eq!(
-        refused(with(0, sensor(id, 6, 4))),
+        refused(with(
+            0,
+            sensor(id, pab_core::frame::MAX_DATA_LEN as u8 - 2, 4)
+        )),
         schema_error(SetupError::Sensor(
             0,
-            SensorError::Field(FieldError::OutOfFrame { offset: 6, size: 4 })
+            SensorError::Field(FieldError::OutOfFrame {
+                offset: pab_core::frame::MAX_DATA_LEN as u8 - 2,
+                size: 4
+            })
         ))
     );
     // The pose's rotation frame (0x311) is the drive's.

@@ -369,11 +369,23 @@ fn value_capacities_and_bad_specs_are_refused_by_the_table() {
     let one = [sensor(0x100, TAU)];
     let cases = [
         (
-            spec(Combine::Max, field(7, 2, false, Endian::Little), None),
+            spec(
+                Combine::Max,
+                field(
+                    pab_core::frame::MAX_DATA_LEN as u8 - 1,
+                    2,
+                    false,
+                    Endian::Little,
+                ),
+                None,
+            ),
             vec![deliver(0)],
             TableError::Value {
                 port: 0,
-                error: ValueError::Value(FieldError::OutOfFrame { offset: 7, size: 2 }),
+                error: ValueError::Value(FieldError::OutOfFrame {
+                    offset: pab_core::frame::MAX_DATA_LEN as u8 - 1,
+                    size: 2,
+                }),
             },
         ),
         (
@@ -547,8 +559,8 @@ impl Reference {
     }
 }
 
-fn encode_field(field: &Field, value: i64) -> [u8; 8] {
-    let mut data = [0u8; 8];
+fn encode_field(field: &Field, value: i64) -> [u8; pab_core::frame::MAX_DATA_LEN] {
+    let mut data = [0u8; pab_core::frame::MAX_DATA_LEN];
     field.write(&mut data, value);
     data
 }

@@ -259,8 +259,11 @@ a file), or python-can's .log writer. One frame per line:
   (1700000000.123456) can0 123#DEADBEEF
   (1700000000.125000) can0 1ABCDEF0#0102 R
   (1700000000.130000) can0 123#R
-Standard ids have 3 hex digits, extended ids 8. Error frames are counted and skipped; CAN FD \
-frames (ID##...) are refused. Every malformed line is reported as FILE:LINE:COLUMN: error: \
+  (1700000000.131000) can0 124##1000102030405060708090A0B
+Standard ids have 3 hex digits, extended ids 8. Error frames are counted and skipped. CAN FD \
+frames are ID##F DATA, F one hex digit of flags (1: bit-rate switching), up to 64 data bytes; \
+they are replayed like classic ones (a length between CAN FD lengths is padded with zeros to \
+the next, as a controller sends it). Every malformed line is reported as FILE:LINE:COLUMN: error: \
 cause, all in one run, and nothing is replayed then (exit status 2). Frames are replayed in the \
 order of their timestamps (a Linux recorder may write them a few milliseconds out of order; \
 the summary says how many were).
@@ -277,7 +280,8 @@ simulation's scenario).
 as raw Q1.31 integers): the record that the cross-runner test compares between the simulator, \
 the Linux node and the board firmware (see docs/pabctl.md, \"Replay records\").
 --board-job writes the tables and the frames replayed for pab-an386-replay, the same replay on \
-the emulated Cortex-M4 (QEMU mps2-an386), which writes the same records:
+the emulated Cortex-M4 (QEMU mps2-an386), which writes the same records (classic frames only: \
+that board is a classic CAN node, so a capture with CAN FD frames is refused there):
   pabctl replay NET.toml CAPTURE.log --records sim.txt --board-job job.bin
   cargo run --profile firmware -p pab-fw-an386 --target thumbv7em-none-eabihf \\
       --bin pab-an386-replay -- -append \"job.bin board.txt\"

@@ -161,8 +161,11 @@ impl Drop for Board {
 
 impl Bus for Board {
     fn send(&mut self, frame: &Frame) -> std::io::Result<()> {
-        self.uart
-            .write_all(pab_slcan::format_frame(frame).as_bytes())?;
+        self.uart.write_all(
+            pab_slcan::format_frame(frame)
+                .ok_or_else(|| std::io::Error::other("SLCAN carries classic frames only"))?
+                .as_bytes(),
+        )?;
         self.uart.flush()
     }
 

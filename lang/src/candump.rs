@@ -7,13 +7,16 @@
 //!   cut to whole microseconds);
 //! - `FRAME`: `ID#DATA` with ID 3 hex digits (standard) or 8 (extended), DATA 0 to 8 bytes in hex
 //!   (dots between bytes allowed, as `cansend` accepts them), optionally `_L` after 8 bytes (a
-//!   classic DLC of 9..15); `ID#R` or `ID#R<dlc>` is a remote frame;
+//!   classic DLC of 9..15); `ID#R` or `ID#R<dlc>` is a remote frame; `ID##F DATA` is a CAN FD
+//!   frame: F one hex digit of flags (1 = BRS, the data phase at the data bit rate; 2 = ESI and
+//!   4 = FDF, which newer kernels set on every FD frame, are read and not kept), DATA 0 to 64
+//!   bytes (a length between the CAN FD lengths is padded with zeros to the next one, as a
+//!   controller sends it: 12, 16, 20, 24, 32, 48, 64);
 //! - `R`/`T`: the direction python-can's writer adds (received or transmitted by the logger);
 //!   both were on the bus and both are read.
 //!
 //! An 8-digit ID with bit 29 set (`CAN_ERR_FLAG`) is an error frame: it carries no CAN frame and is
-//! counted, not read. CAN FD (`ID##...`) is refused: the project's buses are classic CAN.
-//! `candump -l` writes the same lines to a file, so both are read alike.
+//! counted, not read. `candump -l` writes the same lines to a file, so both are read alike.
 
 use std::fmt::Write as _;
 use std::io::{self, BufRead};
@@ -21,7 +24,7 @@ use std::path::Path;
 
 use embedded_can::Frame as _;
 use pab_core::Frame;
-use pab_core::frame::raw_id;
+use pab_core::frame::{FD_DATA_LEN, raw_id};
 
 use crate::diagnostic::{Diagnostic, Diagnostics};
 
@@ -336,13 +339,26 @@ fn parse_frame(field: &str) -> Result<Option<Frame>, (usize, String)> {
             format!("`{field}` is not a frame: expected ID#DATA, like 123#DEADBEEF"),
         ));
     };
-    let data_at = id_text.len() + 1;
-    if data.starts_with('#') {
-        return Err((
-            data_at,
-            "a CAN FD frame (ID##FLAGS DATA): only classic CAN can be replayed".into(),
-        ));
-    }
+    // `##F`: a CAN FD frame, F its flags.
+    let (fd, data, data_at) = match data.strip_prefix('#') {
+        None => (None, data, id_text.len() + 1),
+        Some(rest) => {
+            let flags_at = id_text.len() + 2;
+            let Some(flags) = rest.chars().next().and_then(|c| c.to_digit(16)) else {
+                return Err((
+                    flags_at,
+                    "a CAN FD frame needs one hex digit of flags after `##` (0, or 1 = BRS), \
+                     like 123##1DEADBEEF"
+                        .into(),
+                ));
+            };
+            (
+                Some(flags & FD_BRS != 0),
+                rest.get(1..).unwrap_or(""),
+                flags_at + 1,
+            )
+        }
+    };
     if id_text.is_empty() || !id_text.bytes().all(|b| b.is_ascii_hexdigit()) {
         return Err((0, format!("`{id_text}` is not a CAN id in hex")));
     }
@@ -373,7 +389,7 @@ fn parse_frame(field: &str) -> Result<Option<Frame>, (usize, String)> {
             },
         )
     })?;
-    if let Some(dlc) = data.strip_prefix(['R', 'r']) {
+    if let Some(dlc) = data.strip_prefix(['R', 'r']).filter(|_| fd.is_none()) {
         let len = match dlc {
             "" => 0,
             digit if digit.len() == 1 && digit.as_bytes()[0].is_ascii_digit() => {
@@ -392,7 +408,8 @@ fn parse_frame(field: &str) -> Result<Option<Frame>, (usize, String)> {
         Some((bytes, suffix)) => (bytes, Some(suffix)),
         None => (data, None),
     };
-    let mut payload = Vec::with_capacity(8);
+    let most = if fd.is_some() { FD_DATA_LEN } else { 8 };
+    let mut payload = Vec::with_capacity(most);
     let mut pending: Option<(usize, u8)> = None;
     for (offset, character) in bytes_text.char_indices() {
         let at = data_at + offset;
@@ -405,10 +422,16 @@ fn parse_frame(field: &str) -> Result<Option<Frame>, (usize, String)> {
         match pending.take() {
             None => pending = Some((at, value as u8)),
             Some((_, high)) => {
-                if payload.len() == 8 {
+                if payload.len() == most {
                     return Err((
                         at - 1,
-                        "more than 8 data bytes: not a classic CAN frame".into(),
+                        if fd.is_some() {
+                            "more than 64 data bytes: not a CAN FD frame".into()
+                        } else {
+                            "more than 8 data bytes: not a classic CAN frame (a CAN FD frame is \
+                             written ID##FLAGS DATA)"
+                                .into()
+                        },
                     ));
                 }
                 payload.push(high << 4 | value as u8);
@@ -419,7 +442,8 @@ fn parse_frame(field: &str) -> Result<Option<Frame>, (usize, String)> {
         return Err((at, "odd number of hex digits in the data".into()));
     }
     if let Some(suffix) = dlc_suffix {
-        let valid = suffix.len() == 1
+        let valid = fd.is_none()
+            && suffix.len() == 1
             && suffix.as_bytes()[0].is_ascii_hexdigit()
             && u8::from_str_radix(suffix, 16).is_ok_and(|dlc| dlc > 8)
             && payload.len() == 8;
@@ -430,13 +454,20 @@ fn parse_frame(field: &str) -> Result<Option<Frame>, (usize, String)> {
             ));
         }
     }
-    Frame::data(id, &payload)
-        .map(Some)
-        .ok_or_else(|| (data_at, "more than 8 data bytes".into()))
+    match fd {
+        Some(brs) => Frame::fd(id, &payload, brs),
+        None => Frame::data(id, &payload),
+    }
+    .map(Some)
+    .ok_or_else(|| (data_at, format!("more than {most} data bytes")))
 }
 
+/// The flag of a CAN FD line (`ID##F`) for bit-rate switching (SocketCAN's `CANFD_BRS`).
+const FD_BRS: u32 = 0x1;
+
 /// The candump -L line of `frame` at `t_us` µs on `interface`, without its newline:
-/// `(0000000012.345678) vcan0 110#0102`, seconds padded to 10 digits as candump writes them.
+/// `(0000000012.345678) vcan0 110#0102`, seconds padded to 10 digits as candump writes them; a
+/// CAN FD frame `110##10102...` (flags 1 with bit-rate switching, else 0).
 pub fn line(t_us: u64, interface: &str, frame: &Frame) -> String {
     let mut out = format!(
         "({:010}.{:06}) {interface} ",
@@ -448,6 +479,9 @@ pub fn line(t_us: u64, interface: &str, frame: &Frame) -> String {
         let _ = write!(out, "{id:08X}#");
     } else {
         let _ = write!(out, "{id:03X}#");
+    }
+    if frame.is_fd() {
+        let _ = write!(out, "#{}", u8::from(frame.is_brs()));
     }
     if frame.is_remote() {
         out.push('R');
@@ -512,6 +546,18 @@ mod tests {
         assert_eq!(frame.payload(), &[0x11, 0x22, 0x33]);
         let (_, frame) = frame_of("(1.0) vcan0 010#1122334455667788_C");
         assert_eq!(frame.payload().len(), 8);
+        // CAN FD: flags 1 (BRS), 5 (BRS and FDF, as newer kernels log it), 0; lengths padded.
+        let (_, frame) = frame_of("(1.0) vcan0 123##1DEADBEEF");
+        assert!(frame.is_fd() && frame.is_brs());
+        assert_eq!(frame.payload(), &[0xDE, 0xAD, 0xBE, 0xEF]);
+        let (_, frame) = frame_of("(1.0) vcan0 1ABCDEF0##5112233445566778899AA");
+        assert!(frame.is_fd() && frame.is_brs() && frame.raw_id() == (0x1ABC_DEF0, true));
+        assert_eq!(frame.payload().len(), 12);
+        assert_eq!(&frame.payload()[9..], &[0xAA, 0, 0]);
+        let (_, frame) = frame_of(&format!("(1.0) vcan0 123##0{} T", "AB".repeat(64)));
+        assert!(frame.is_fd() && !frame.is_brs() && frame.payload() == [0xAB; 64]);
+        let (_, frame) = frame_of("(1.0) vcan0 123##0");
+        assert!(frame.is_fd() && frame.payload().is_empty());
         assert_eq!(
             one("(1.0) vcan0 20000080#0000000000000000"),
             Ok(Line::ErrorFrame)
@@ -524,9 +570,15 @@ mod tests {
     #[test]
     fn malformed_lines_say_where_and_why() {
         let error = |text| one(text).unwrap_err();
-        let (column, message) = error("(1.0) vcan0 123##1DEADBEEF");
-        assert_eq!(column, 17);
-        assert!(message.contains("CAN FD"), "{message}");
+        let (column, message) = error("(1.0) vcan0 123##XDEADBEEF");
+        assert_eq!(column, 18);
+        assert!(message.contains("CAN FD frame needs"), "{message}");
+        let (column, message) = error("(1.0) vcan0 123##");
+        assert_eq!((column, message.contains("flags")), (18, true), "{message}");
+        let long = format!("(1.0) vcan0 123##1{}", "00".repeat(65));
+        assert!(error(&long).1.contains("more than 64"));
+        assert!(error("(1.0) vcan0 123##0R").1.contains("`R`"));
+        assert!(error("(1.0) vcan0 123##11122_9").1.contains("DLC of 9..F"));
         assert_eq!(error("(1.0) vcan0 12#00").0, 13);
         assert!(error("(1.0) vcan0 12#00").1.contains("3 for a standard id"));
         assert!(error("(1.0) vcan0 800#00").1.contains("above 0x7FF"));
@@ -554,12 +606,12 @@ mod tests {
 
     #[test]
     fn every_error_of_a_file_is_reported() {
-        let text = "(10.0) vcan0 110#01\nbad line\n(9.5) vcan0 110#\n(11.0) vcan0 110##0\n";
+        let text = "(10.0) vcan0 110#01\nbad line\n(9.5) vcan0 110#\n(11.0) vcan0 110##X0\n";
         let errors = parse(Path::new("c.log"), text.as_bytes(), &mut |_| {}).unwrap_err();
         let shown: Vec<String> = errors.0.iter().map(ToString::to_string).collect();
         assert_eq!(shown.len(), 2, "{shown:?}");
         assert!(shown[0].starts_with("c.log:2:1: error: not a candump -L line"));
-        assert!(shown[1].starts_with("c.log:4:18: error: a CAN FD frame"));
+        assert!(shown[1].starts_with("c.log:4:19: error: a CAN FD frame needs"));
         let empty = parse(Path::new("e.log"), "\n\n".as_bytes(), &mut |_| {}).unwrap_err();
         assert!(empty.to_string().contains("no CAN frame"));
     }
@@ -616,6 +668,8 @@ mod tests {
             Frame::with_raw_id(0x110, false, &[]).unwrap(),
             Frame::with_raw_id(0x1ABC_DEF0, true, &[0, 0xFF]).unwrap(),
             Frame::new_remote(raw_id(0x42, false).unwrap(), 3).unwrap(),
+            Frame::fd(raw_id(0x43, false).unwrap(), &[7; 48], true).unwrap(),
+            Frame::fd(raw_id(0x1ABC_DEF0, true).unwrap(), &[1, 2], false).unwrap(),
         ];
         for (index, frame) in frames.into_iter().enumerate() {
             let t = 12_345_678 * index as u64;
@@ -625,6 +679,10 @@ mod tests {
         assert_eq!(
             line(12_345_678, "vcan0", &frames[0]),
             "(0000000012.345678) vcan0 110#"
+        );
+        assert_eq!(
+            line(1, "vcan0", &frames[4]),
+            "(0000000000.000001) vcan0 1ABCDEF0##00102"
         );
     }
 }

@@ -190,6 +190,16 @@ pub fn job(
     compiled: &[CompiledNode],
     frames: &[BusFrame],
 ) -> Result<Vec<u8>, ReplayError> {
+    // A job's frame records hold 8 data bytes: the board that reads them (the emulated board,
+    // behind SLCAN) is a classic CAN node.
+    if let Some(fd) = frames.iter().find(|frame| frame.frame.is_fd()) {
+        return Err(ReplayError(format!(
+            "the capture's frame at {} µs (after its first) is a CAN FD frame: a board job holds \
+             classic frames only (the emulated board is a classic CAN node); replay CAN FD \
+             captures without --board-job",
+            fd.t_us
+        )));
+    }
     let images = images(network, compiled)?;
     let header = job::JobHeader {
         nodes: u8::try_from(images.len())

@@ -2,7 +2,7 @@
 
 use embedded_can::Frame as _;
 use pab_core::Frame;
-use pab_core::frame::{MAX_DATA_LEN, raw_id};
+use pab_core::frame::{CLASSIC_DATA_LEN, raw_id};
 
 use crate::{BEL, CR, MAX_LINE};
 
@@ -216,7 +216,7 @@ fn parse_frame(
     if data.len() != 2 * dlc {
         return Err(ParseError::Length);
     }
-    let mut bytes = [0u8; MAX_DATA_LEN];
+    let mut bytes = [0u8; CLASSIC_DATA_LEN];
     for (byte, pair) in bytes.iter_mut().zip(data.chunks_exact(2)) {
         if let [high, low] = pair {
             *byte = hex_byte(*high, *low)?;
@@ -319,8 +319,14 @@ impl core::fmt::Debug for Line {
 }
 
 /// The line an adapter sends for `frame`: `tIIIL..`, `TIIIIIIIIL..`, `rIIIL` or `RIIIIIIIIL`,
-/// upper-case hex, CR-terminated. Infallible: every [`Frame`] fits in [`MAX_LINE`] bytes.
-pub fn format_frame(frame: &Frame) -> Line {
+/// upper-case hex, CR-terminated; every classic frame fits in [`MAX_LINE`] bytes. `None` for a
+/// CAN FD frame (pab-core's feature `fd`): SLCAN has no FD lines, and the kernel's `slcan`
+/// driver none either, so a board behind it is a classic node (built without `fd`, where this
+/// never happens).
+pub fn format_frame(frame: &Frame) -> Option<Line> {
+    if frame.is_fd() {
+        return None;
+    }
     let (raw, extended) = frame.raw_id();
     let mut line = Line::empty();
     line.push(match (extended, frame.is_remote()) {
@@ -331,11 +337,11 @@ pub fn format_frame(frame: &Frame) -> Line {
     });
     line.push_hex(raw, if extended { 8 } else { 3 });
     // A remote frame's DLC is its length field; a data frame's, its payload's length (≤ 8).
-    let dlc = frame.dlc().min(MAX_DATA_LEN) as u32;
+    let dlc = frame.dlc().min(CLASSIC_DATA_LEN) as u32;
     line.push_hex(dlc, 1);
     for &byte in frame.payload() {
         line.push_hex(u32::from(byte), 2);
     }
     line.push(CR);
-    line
+    Some(line)
 }

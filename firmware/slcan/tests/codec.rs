@@ -32,7 +32,7 @@ fn read_line(line: &[u8]) -> Vec<Result<Command, LineError>> {
 }
 
 fn round_trip(frame: &Frame) {
-    let line = format_frame(frame);
+    let line = format_frame(frame).unwrap();
     let bytes = line.as_bytes();
     assert!(bytes.len() <= MAX_LINE);
     assert_eq!(bytes.last(), Some(&CR));
@@ -102,11 +102,14 @@ fn lines_are_the_ones_the_kernel_driver_writes() {
         (remote(ext_id(0x1FFF_FFFF), 8), b"R1FFFFFFF8\r"),
     ];
     for (frame, line) in cases {
-        assert_eq!(format_frame(&frame).as_bytes(), line);
+        assert_eq!(format_frame(&frame).unwrap().as_bytes(), line);
         assert_eq!(read_line(line), vec![Ok(Command::Frame(frame))]);
     }
     // The longest line there is.
-    assert_eq!(format_frame(&cases[2].0).as_bytes().len(), MAX_LINE);
+    assert_eq!(
+        format_frame(&cases[2].0).unwrap().as_bytes().len(),
+        MAX_LINE
+    );
 }
 
 #[test]
@@ -233,7 +236,7 @@ fn a_line_too_long_is_dropped_whole_and_the_next_one_is_read() {
         ]
     );
     // MAX_LINE - 1 characters fit; one more does not.
-    let longest = format_frame(&data(ext_id(0x1FFF_FFFF), &[0; 8]));
+    let longest = format_frame(&data(ext_id(0x1FFF_FFFF), &[0; 8])).unwrap();
     assert_eq!(read_line(longest.as_bytes()).len(), 1);
     assert!(read_line(longest.as_bytes())[0].is_ok());
     let mut one_more = longest.as_bytes()[..MAX_LINE - 1].to_vec();
@@ -353,7 +356,7 @@ fn status_reports_an_overrun_once() {
 fn replies_show_readably_in_debug_output() {
     assert_eq!(format!("{:?}", Line::refused()), "Line(\"\\x07\")");
     assert_eq!(
-        format!("{:?}", format_frame(&data(std_id(1), &[]))),
+        format!("{:?}", format_frame(&data(std_id(1), &[])).unwrap()),
         "Line(\"t0010\\r\")"
     );
 }
@@ -401,7 +404,7 @@ proptest! {
                 prop_assert!(outcome.reply.as_bytes().len() <= MAX_LINE);
                 if let Some(frame) = outcome.frame {
                     // Whatever got through is a frame its own line would have produced.
-                    let line = format_frame(&frame);
+                    let line = format_frame(&frame).unwrap();
                     prop_assert_eq!(parse(&line.as_bytes()[..line.as_bytes().len() - 1]),
                         Ok(Command::Frame(frame)));
                 }
@@ -409,7 +412,7 @@ proptest! {
         }
         // Make sure the channel is open, then a clean line.
         let mut tail = b"\rO\r".to_vec();
-        tail.extend_from_slice(format_frame(&frame).as_bytes());
+        tail.extend_from_slice(format_frame(&frame).unwrap().as_bytes());
         let mut got = None;
         for &b in &tail {
             if let Some(result) = reader.push(b) {

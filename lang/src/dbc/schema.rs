@@ -537,10 +537,15 @@ mod tests {
             let (low, high) = field.range();
             // The bounds, and a value whose bytes all differ (a byte-order mistake shows).
             for value in [low, high, 0x0102_0304 % (high + 1)] {
-                let mut payload = [0u8; 8];
+                let mut payload = [0u8; pab_core::frame::MAX_DATA_LEN];
                 field.write(&mut payload, value);
                 assert_eq!(field.read(&payload), Some(value));
-                assert_eq!(dbc_raw(signal, &payload), value, "{}", topic.name);
+                assert_eq!(
+                    dbc_raw(signal, payload.first_chunk().unwrap()),
+                    value,
+                    "{}",
+                    topic.name
+                );
             }
         }
     }

@@ -156,12 +156,17 @@ pub fn builtin_name(id: u16) -> Option<String> {
 /// network file refuses those).
 pub fn range_frame(topic: &SensorTopic, range_um: f64) -> Option<Frame> {
     let counts = (range_um / 1000.0 / topic.scale).round();
-    let mut data = [0u8; 8];
+    let mut data = [0u8; pab_core::frame::MAX_DATA_LEN];
     topic.sensor.field.write(
         &mut data,
         counts.clamp(i64::MIN as f64, i64::MAX as f64) as i64,
     );
-    Frame::with_raw_id(topic.sensor.id.raw(), topic.sensor.id.is_extended(), &data)
+    let classic = data.get(..pab_core::frame::CLASSIC_DATA_LEN)?;
+    Frame::with_raw_id(
+        topic.sensor.id.raw(),
+        topic.sensor.id.is_extended(),
+        classic,
+    )
 }
 
 /// A transfer of the client: a call of the program, or the high-priority schema of a timed

@@ -40,6 +40,9 @@ pub const LINE_TOO_LONG: u8 = 0x21;
 /// What `transmit` returns, as [`BusError::Other`], for a frame the node sent while the host had
 /// closed the channel.
 pub const CHANNEL_CLOSED: u8 = 0x22;
+/// What `transmit` would return, as [`BusError::Other`], for a CAN FD frame, which SLCAN cannot
+/// carry: never, as this board is built without CAN FD (pab-core's `fd`).
+pub const NOT_CLASSIC: u8 = 0x23;
 /// How long `transmit` waits for room in the UART's transmit ring before it drops the frame.
 pub const TX_TIMEOUT: Duration = Duration::from_millis(10);
 
@@ -114,7 +117,8 @@ impl CanBus for SlcanBus {
         if !self.device.is_open() {
             return Err(BusError::Other(CHANNEL_CLOSED));
         }
-        let line = format_frame(frame);
+        // Never `None` here: this board is built without CAN FD.
+        let line = format_frame(frame).ok_or(BusError::Other(NOT_CLASSIC))?;
         with_timeout(TX_TIMEOUT, uart::send(line.as_bytes()))
             .await
             .map_err(|_| BusError::Overrun)
