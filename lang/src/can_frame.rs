@@ -6,10 +6,10 @@
 //!
 //! A classic frame carries 0 to [`CLASSIC_DATA_LEN`] bytes; a CAN FD frame 0 to 8, 12, 16, 20,
 //! 24, 32, 48 or 64 ([`FD_DATA_LEN`]): its DLC codes 9 to 15 stand for the seven lengths above 8
-//! (ISO 11898-1:2015, 10.4.2.4). The table of them is `pab_core::isotp::fd`'s ([`fd_length`]).
-//! These constants are the network language's own, not `pab_core::frame::MAX_DATA_LEN`, which is
-//! the length of the core's frame buffer (8 today; 64 once the core carries CAN FD frames): a
-//! topic's length is a property of the bus, whatever the core's buffer.
+//! (ISO 11898-1:2015, 10.4.2.4). Both constants and the table of lengths are `pab_core::frame`'s
+//! ([`fd_length`]); not `pab_core::frame::MAX_DATA_LEN`, which is the length of the core's frame
+//! buffer (64 with its feature `fd`, 8 without): a topic's length is a property of the bus,
+//! whatever the buffer of the build.
 //!
 //! # A CAN FD frame's bits (ISO 11898-1:2015, clause 10.4, the FD base and extended formats)
 //!
@@ -75,11 +75,7 @@
 //! switching every bit is nominal. A classic frame is [`frame_bits`]' (Davis et al. 2007,
 //! eq. 2).
 
-/// The most data bytes of a classic CAN frame.
-pub const CLASSIC_DATA_LEN: usize = 8;
-
-/// The most data bytes of a CAN FD frame.
-pub const FD_DATA_LEN: usize = pab_core::isotp::fd::MAX_FD_FRAME_LEN;
+pub use pab_core::frame::{CLASSIC_DATA_LEN, FD_DATA_LEN};
 
 /// The highest data bit rate of a CAN FD bus (`[bus] data_bitrate`): 8 Mbit/s, the fastest
 /// data phase CAN FD controllers and transceivers commonly offer.
@@ -88,12 +84,12 @@ pub const MAX_DATA_BITRATE: u32 = 8_000_000;
 /// The smallest CAN FD data length that holds `len` bytes (`len` itself up to 8, then 12, 16,
 /// 20, 24, 32, 48, 64), `None` above 64.
 pub fn fd_length(len: usize) -> Option<usize> {
-    pab_core::isotp::fd::fd_length(len)
+    pab_core::frame::fd_length(len).map(usize::from)
 }
 
 /// Whether `len` is a CAN FD data length: 0 to 8, 12, 16, 20, 24, 32, 48 or 64.
 pub fn is_fd_length(len: usize) -> bool {
-    pab_core::isotp::fd::is_fd_length(len)
+    fd_length(len) == Some(len)
 }
 
 /// The bits of a classic CAN data frame of `length` data bytes (0..=8), with the worst-case bit

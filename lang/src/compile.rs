@@ -271,42 +271,12 @@ pub fn compile(network: &Network) -> Result<Vec<CompiledNode>, Vec<Diagnostic>> 
     if !report.is_consistent() {
         return Err(report.errors(network));
     }
-    let beyond = fields_beyond_the_core(network);
-    if !beyond.is_empty() {
-        return Err(beyond);
-    }
     network
         .nodes
         .iter()
         .map(|node| compile_node(network, node))
         .collect::<Result<Vec<_>, Diagnostic>>()
         .map_err(|error| vec![error])
-}
-
-/// The fields the network reads past the data the boards' frames hold: a CAN FD topic's field
-/// past byte 8 is valid on a CAN FD bus (`pabctl check` takes it), but pab-core's frames carry
-/// [`pab_core::frame::MAX_DATA_LEN`] bytes (8 while they are classic CAN's), and its tables
-/// refuse such a field. Said plainly here, at the topic, rather than as the table's refusal.
-fn fields_beyond_the_core(network: &Network) -> Vec<Diagnostic> {
-    let mut errors = Vec::new();
-    for (index, topic) in network.topics.iter().enumerate() {
-        for field in network.topic_fields(index) {
-            let end = usize::from(field.offset) + usize::from(field.size);
-            if end > pab_core::frame::MAX_DATA_LEN {
-                errors.push(network.error(
-                    topic.span.clone(),
-                    format!(
-                        "topic `{}`: {} reads bytes {}..{end} of its CAN FD frames, past the {} bytes the boards' frames carry today (pab-core's frames are classic CAN's): the network is valid on its CAN FD bus, but no table can hold this field yet",
-                        topic.name,
-                        field.reader,
-                        field.offset,
-                        pab_core::frame::MAX_DATA_LEN
-                    ),
-                ));
-            }
-        }
-    }
-    errors
 }
 
 fn compile_node(
@@ -779,34 +749,5 @@ hold = "idle(); below(gap, 0.3) -> retreat"
             board.sensors.iter().map(|s| s.sensor).collect();
         assert_eq!(setup.sensors.as_slice(), sensors.as_slice());
         assert_eq!(sensors.len(), 2);
-    }
-
-    /// A CAN FD topic's field past byte 8: valid on its CAN FD bus, but no table of today's
-    /// classic-frame core can hold it; within the first 8 bytes it compiles.
-    #[test]
-    fn a_field_past_the_cores_frame_is_refused_at_its_topic() {
-        let text = |offset: u8| {
-            format!(
-                "[bus]\nbitrate = 500000\ndata_bitrate = 2000000\n[nodes.base]\nid = 4\n\
-                 [topics.range]\ncan_id = 0x1A0\nfd = true\nlength = 12\n\
-                 [ports.\"base.nearest\"]\ncombine = \"min\"\nvalue = {{ offset = {offset}, size = 2 }}\n\
-                 [connections.R]\ntopic = \"range\"\nport = \"base.nearest\"\nst = 1.0\ntc = 0.3\n"
-            )
-        };
-        let network = Network::parse(Source::new("net.toml", text(6))).unwrap();
-        assert!(compile(&network).is_ok());
-        let network = Network::parse(Source::new("net.toml", text(10))).unwrap();
-        if pab_core::frame::MAX_DATA_LEN < 12 {
-            let errors = compile(&network).unwrap_err();
-            assert_eq!(errors.len(), 1, "{errors:?}");
-            assert!(
-                errors[0].to_string().starts_with(
-                    "net.toml:6:1: error: topic `range`: port `base.nearest` (combine = \"min\") reads bytes 10..12 of its CAN FD frames, past the 8 bytes the boards' frames carry today"
-                ),
-                "{errors:?}"
-            );
-        } else {
-            assert!(compile(&network).is_ok());
-        }
     }
 }
