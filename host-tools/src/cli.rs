@@ -71,7 +71,10 @@ the bus (Davis, Burns, Bril and Lukkien 2007; worst-case bit stuffing): the topi
 table transfer at a time in the background. Prints the table (stream, id, bytes, period, \
 deadline, C, R, slack), the bus load and the lowest standard bit rate (CiA 301's: 10k, 20k, \
 50k, 125k, 250k, 500k, 800k, 1M) at which every deadline holds; fails when a deadline can be missed or the load exceeds \
-100 %, at the line of the stream (docs/response-times.md).
+100 %, at the line of the stream (docs/response-times.md). On a CAN FD bus ([bus] \
+data_bitrate), CAN FD frames (topics with fd = true, the table transfers) send their data \
+phase at the data rate; the table says each stream's frame format, and the lowest bit rate is \
+the lowest nominal one with the data phase as analysed.
 
 Exit status: 0 consistent (and every deadline holds), 1 inconsistent or a deadline can be \
 missed, 2 unreadable or invalid file.")]
@@ -87,6 +90,12 @@ missed, 2 unreadable or invalid file.")]
         /// bus would miss, without editing the file.
         #[arg(long, value_name = "BIT/S", value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
         bitrate: Option<u32>,
+        /// Analyse a CAN FD bus's data phase at this bit rate (bit/s, 1 to 8000000, at least
+        /// the nominal rate) instead of the file's `[bus] data_bitrate`. The file must say the bus
+        /// is CAN FD: a classic network is refused (exit status 2), since `data_bitrate` changes
+        /// what the file may hold (CAN FD topics, classic-only nodes).
+        #[arg(long, value_name = "BIT/S", value_parser = clap::value_parser!(u32).range(1..=8_000_000))]
+        data_bitrate: Option<u32>,
     },
     /// Compile one table image per node into a directory (DIR/<node>.pab).
     #[command(long_about = "\

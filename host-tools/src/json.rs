@@ -88,13 +88,16 @@ pub fn check(
     })
 }
 
-/// `pabctl check --json`'s `bus`: `null` without a bit rate; else `bitrate` (bit/s),
+/// `pabctl check --json`'s `bus`: `null` without a bit rate; else `bitrate` (bit/s, the nominal
+/// rate), `data_bitrate` (a CAN FD bus's data rate, bit/s, or null on a classic bus),
 /// `load_percent`, `holds` (every deadline met, load at most 100 %), `lowest_bitrate` (the lowest
-/// standard bit rate at which everything holds, or null), `streams` in order of rank (each
-/// `name`, `kind` ("topic", "gateway", "protocol"), `id`, `extended`, `bytes`, `period_s`,
-/// `jitter_s`, `deadline_s`, `c_s`, `r_s` (null when unbounded), `slack_s` (D − R, negative when
-/// missed; null when unbounded), `meets`), `background` (`name`, `id`), `not_analysed` (`name`,
-/// `reason`) and `errors` (the missed deadlines and the overload, as diagnostics).
+/// standard bit rate at which everything holds, or null; on a CAN FD bus the nominal one, with
+/// the data phase at `data_bitrate`), `streams` in order of rank (each `name`, `kind` ("topic",
+/// "gateway", "protocol"), `id`, `extended`, `bytes`, `fd` (CAN FD frames; a gateway's when a
+/// topic feeding it sends them), `period_s`, `jitter_s`, `deadline_s`, `c_s`, `r_s` (null when
+/// unbounded), `slack_s` (D − R, negative when missed; null when unbounded), `meets`),
+/// `background` (`name`, `id`, `bytes`, `fd`), `not_analysed` (`name`, `reason`) and `errors`
+/// (the missed deadlines and the overload, as diagnostics).
 pub fn bus(timing: &pab_lang::check::bus::Timing, errors: &[Diagnostic]) -> Value {
     use pab_lang::check::bus::Kind;
     let Some(analysis) = &timing.analysis else {
@@ -117,6 +120,7 @@ pub fn bus(timing: &pab_lang::check::bus::Timing, errors: &[Diagnostic]) -> Valu
                 "id": stream.id,
                 "extended": stream.extended,
                 "bytes": stream.length,
+                "fd": stream.fd,
                 "period_s": seconds(stream.period_ns),
                 "jitter_s": seconds(row.jitter_ns),
                 "deadline_s": seconds(row.deadline_ns),
@@ -129,6 +133,7 @@ pub fn bus(timing: &pab_lang::check::bus::Timing, errors: &[Diagnostic]) -> Valu
         .collect();
     json!({
         "bitrate": analysis.bitrate,
+        "data_bitrate": analysis.data_bitrate,
         "load_percent": analysis.load_ppb as f64 / 1e7,
         "holds": analysis.holds(),
         "lowest_bitrate": timing.lowest,
@@ -136,6 +141,8 @@ pub fn bus(timing: &pab_lang::check::bus::Timing, errors: &[Diagnostic]) -> Valu
         "background": timing.streams.background.iter().map(|b| json!({
             "name": b.name,
             "id": b.id,
+            "bytes": b.length,
+            "fd": b.fd,
         })).collect::<Vec<_>>(),
         "not_analysed": timing.streams.unanalysed.iter().map(|u| json!({
             "name": u.name,

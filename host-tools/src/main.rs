@@ -36,7 +36,8 @@ fn main() -> ExitCode {
             network,
             json,
             bitrate,
-        } => commands::check::run(&network, json, bitrate),
+            data_bitrate,
+        } => commands::check::run(&network, json, bitrate, data_bitrate),
         Command::Compile {
             network,
             output,

@@ -43,6 +43,10 @@ pub const STARTERS: &[(&str, &str)] = &[
         include_str!("../../examples/take-and-return-dynamics.toml"),
     ),
     (
+        "take-and-return-fd",
+        include_str!("../../examples/take-and-return-fd.toml"),
+    ),
+    (
         "take-and-return",
         include_str!("../../examples/take-and-return.toml"),
     ),

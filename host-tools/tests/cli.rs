@@ -167,6 +167,125 @@ fn check_analyses_the_bus_at_the_bit_rate_given_on_the_command_line() {
 }
 
 #[test]
+fn check_analyses_a_can_fd_bus_with_its_data_phase() {
+    let network = example("take-and-return-fd.toml");
+    let output = pabctl(&["check", &network]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let stdout = text(&output.stdout);
+    for expected in [
+        "bus at 500 kbit/s, data phase 2 Mbit/s (CAN FD with bit-rate switching): 25 streams analysed",
+        "  stream                      id          bytes  frame         period     deadline          C            R        slack",
+        "  hand_skin                   0x141          48  FD BRS         20 ms         5 ms   0.324 ms     3.180 ms     1.820 ms",
+        "  object_pos                  0x110           8  classic       100 ms       100 ms   0.270 ms     0.722 ms",
+        "  background: table transfer (one at a time, ISO-TP on CAN FD: 64-byte frames) (0x1A110100)",
+        "lowest standard bit rate at which every deadline holds: 500 kbit/s (data phase at 2 Mbit/s)",
+    ] {
+        assert!(stdout.contains(expected), "{expected}\n{stdout}");
+    }
+    let json = pabctl(&["check", &network, "--json"]);
+    assert_eq!(json.status.code(), Some(0));
+    let value: serde_json::Value = serde_json::from_slice(&json.stdout).unwrap();
+    let bus = &value["bus"];
+    assert_eq!(
+        (&bus["bitrate"], &bus["data_bitrate"]),
+        (&500_000.into(), &2_000_000.into())
+    );
+    let skin = bus["streams"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["name"] == "hand_skin")
+        .unwrap();
+    assert_eq!(
+        (&skin["fd"], &skin["bytes"], &skin["c_s"]),
+        (&true.into(), &48.into(), &0.000324.into())
+    );
+    assert_eq!(bus["streams"][0]["fd"], false);
+    assert_eq!(bus["background"][0]["fd"], true);
+    assert_eq!(bus["background"][0]["bytes"], 64);
+    // A classic bus: `data_bitrate` null, every stream classic.
+    let classic = pabctl(&["check", &example("take-and-return.toml"), "--json"]);
+    let value: serde_json::Value = serde_json::from_slice(&classic.stdout).unwrap();
+    assert_eq!(value["bus"]["data_bitrate"], serde_json::Value::Null);
+    assert_eq!(value["bus"]["streams"][0]["fd"], false);
+    // --data-bitrate: the data phase at another rate, which only the CAN FD frames' C follows
+    // (64 µs nominal, 104 µs of data at 5 Mbit/s).
+    let fast = pabctl(&["check", &network, "--data-bitrate", "5000000"]);
+    assert_eq!(fast.status.code(), Some(0), "{}", text(&fast.stderr));
+    let stdout = text(&fast.stdout);
+    assert!(
+        stdout.contains("bus at 500 kbit/s, data phase 5 Mbit/s"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("  hand_skin                   0x141          48  FD BRS         20 ms         5 ms   0.168 ms"), "{stdout}");
+    // Refused: a classic network (the file says whether its bus is CAN FD), a data phase below
+    // the nominal rate, above 8 Mbit/s.
+    let classic = pabctl(&[
+        "check",
+        &example("take-and-return.toml"),
+        "--data-bitrate",
+        "2000000",
+    ]);
+    assert_eq!(classic.status.code(), Some(2));
+    assert!(
+        text(&classic.stderr).contains(
+            "--data-bitrate 2000000: the network's bus is classic CAN (no `data_bitrate` in [bus])"
+        ),
+        "{}",
+        text(&classic.stderr)
+    );
+    let slow = pabctl(&[
+        "check",
+        &network,
+        "--bitrate",
+        "1000000",
+        "--data-bitrate",
+        "800000",
+    ]);
+    assert_eq!(slow.status.code(), Some(2));
+    assert!(
+        text(&slow.stderr).contains("--data-bitrate 800000: below the nominal bit rate 1000000")
+    );
+    let refused = pabctl(&["check", &network, "--data-bitrate", "10000000"]);
+    assert_eq!(refused.status.code(), Some(2));
+}
+
+#[test]
+fn check_exits_1_when_a_can_fd_frame_can_miss_its_deadline() {
+    let dir = tempfile::tempdir().unwrap();
+    let original = std::fs::read_to_string(examples().join("take-and-return-fd.toml")).unwrap();
+    // The tactile array wanted within 2 ms: its frames wait for the eight classic topics above it.
+    let variant = original.replace("deadline = 0.005", "deadline = 0.002");
+    assert_ne!(original, variant);
+    let path = dir.path().join("late.toml");
+    std::fs::write(&path, &variant).unwrap();
+    let output = pabctl(&["check", &path.display().to_string()]);
+    assert_eq!(output.status.code(), Some(1));
+    let line = variant
+        .lines()
+        .position(|l| l.starts_with("deadline = 0.002"))
+        .unwrap()
+        + 1;
+    let stderr = text(&output.stderr);
+    assert!(
+        stderr.contains(&format!(
+            "{}:{line}:12: error: `hand_skin` (0x141) can miss its deadline at 500 kbit/s (data phase 2 Mbit/s): worst-case response time 3.180 ms > deadline 2 ms (every deadline holds from 1 Mbit/s with the data phase at 2 Mbit/s)",
+            path.display()
+        )),
+        "{stderr}"
+    );
+    assert!(text(&output.stdout).contains("MISSED"));
+    // With the data phase at 8 Mbit/s it still misses: the classic frames above it are the cost.
+    let fast = pabctl(&[
+        "check",
+        &path.display().to_string(),
+        "--data-bitrate",
+        "8000000",
+    ]);
+    assert_eq!(fast.status.code(), Some(1));
+}
+
+#[test]
 fn check_exits_1_with_the_counterexample_and_its_line() {
     let dir = tempfile::tempdir().unwrap();
     let path = inconsistent_variant(dir.path());

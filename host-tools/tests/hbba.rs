@@ -6,7 +6,7 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 use pab_lang::diagnostic::Source;
-use pab_lang::network::{Network, bus_cost};
+use pab_lang::network::{Network, bus_cost, bus_cost_at};
 
 fn parse(text: &str) -> Result<Network, String> {
     Network::parse(Source::new("net.toml", text.to_string())).map_err(|errors| errors.to_string())
@@ -133,6 +133,55 @@ fn the_bus_cost_is_rounded_up_per_strategy_and_closed_filters_cost_nothing() {
         ),
         2
     );
+}
+
+/// On a CAN FD bus the bus cost is the share of the bus's time: a CAN FD topic's frames take
+/// their CAN FD time (the data phase at the data rate), classic ones as on a classic bus.
+#[test]
+fn on_a_can_fd_bus_the_cost_is_the_share_of_the_bus_time() {
+    // Classic frames: bus_cost's, whatever the data rate.
+    for frames in [
+        &[(30_000_000u64, 1u16, false, 8u8)][..],
+        &[(100_000_000, 3, true, 8), (30_000_000, 1, false, 2)],
+    ] {
+        let classic: Vec<_> = frames
+            .iter()
+            .map(|&(r, p, e, l)| (r, p, e, l, false))
+            .collect();
+        assert_eq!(
+            bus_cost_at(&classic, 500_000, Some(2_000_000)),
+            bus_cost(frames, 500_000)
+        );
+        assert_eq!(
+            bus_cost_at(&classic, 125_000, None),
+            bus_cost(frames, 125_000)
+        );
+    }
+    // 100 Hz of 64-byte CAN FD frames, 11-bit id, at 500 kbit/s and 2 Mbit/s: 32 nominal bits
+    // (64 µs) and 680 data bits (340 µs), 404 µs each: 4.04 % -> 5. Without switching (the data
+    // rate 500 kbit/s): 712 bits, 1.424 ms each: 14.24 % -> 15.
+    assert_eq!(
+        bus_cost_at(
+            &[(100_000_000, 1, false, 64, true)],
+            500_000,
+            Some(2_000_000)
+        ),
+        5
+    );
+    assert_eq!(
+        bus_cost_at(&[(100_000_000, 1, false, 64, true)], 500_000, Some(500_000)),
+        15
+    );
+    // In a file: the topic `t` as a CAN FD topic of 64 bytes on a CAN FD bus. c_full: 30 Hz
+    // × 404 µs = 1.212 % of the time -> 2 (classic 8-byte frames at 125 kbit/s: 4).
+    let fd = with(&STRATEGIES.replace("bitrate = 125000\n", ""))
+        .replace("can_id = 0x10\n", "can_id = 0x10\nfd = true\nlength = 64\n");
+    let network = parse(&format!(
+        "[bus]\nbitrate = 500000\ndata_bitrate = 2000000\n{fd}"
+    ))
+    .unwrap();
+    let hbba = network.hbba.as_ref().unwrap();
+    assert_eq!(hbba.strategies[0].costs, [60, 2]);
 }
 
 #[test]

@@ -15,12 +15,14 @@
 //! the model can be read, tested and fuzzed without the simulator:
 //!
 //! 1. text and numbers: [`shown`], [`diagnostic`], [`input`] (files checked before they are
-//!    read), [`rule`], [`time`], [`series`], [`candump`];
+//!    read), [`rule`], [`time`], [`series`], [`can_frame`] (frame lengths and transmission
+//!    times), [`candump`];
 //! 2. the model: [`network`], the file parsed and its names, numbers and rules checked;
 //! 3. its meaning: [`kinds`] → [`check`] → [`compile`];
 //! 4. running the tables: [`sim`] → [`replay`];
 //! 5. describing the traffic: [`dbc`] (from the model, and the claims of a capture).
 
+pub mod can_frame;
 pub mod candump;
 pub mod check;
 pub mod compile;

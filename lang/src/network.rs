@@ -49,7 +49,7 @@ pub use fields::TopicField;
 pub use gates::lookup as gate;
 pub use hbba::{
     BUS, Hbba, HbbaStrategy, MAX_BITRATE, Resource, ScriptedDesire, Solved, StrategyFilter,
-    bus_cost,
+    bus_cost, bus_cost_at,
 };
 pub use json_schema::json_schema;
 pub use nodes::Node;
@@ -70,7 +70,7 @@ pub use topics::{MAX_RATE_HZ, MAX_TOPIC_SECONDS, Topic, TopicTiming};
 struct RawFile {
     /// Optional: the network's version and description.
     network: Option<RawMeta>,
-    /// Optional: the CAN bus, its bit rate.
+    /// Optional: the CAN bus, its bit rate (and a CAN FD bus's data rate).
     bus: Option<Spanned<bus::RawBus>>,
     /// The nodes (controller boards or their Linux stand-ins), by name.
     #[serde(default)]
@@ -135,7 +135,8 @@ pub struct Network {
     /// What the file says the network is (`[network] description`): the DBC export's comment on
     /// the whole database.
     pub description: Option<String>,
-    /// The bus's bit rate (`[bus] bitrate`, or `[hbba] bitrate` in a file without `[bus]`).
+    /// The bus's bit rate (`[bus] bitrate`, or `[hbba] bitrate` in a file without `[bus]`), and a
+    /// CAN FD bus's data rate (`[bus] data_bitrate`).
     pub bus: Option<Bus>,
     /// Nodes in file order.
     pub nodes: Vec<Node>,
@@ -204,6 +205,7 @@ impl Network {
             source: &source,
             errors: &mut errors,
             declared,
+            data_bitrate: None,
         }
         .build(raw);
         if errors.is_empty() {
@@ -240,6 +242,10 @@ struct Builder<'a> {
     source: &'a Source,
     errors: &'a mut Vec<Diagnostic>,
     declared: Declared,
+    /// A CAN FD bus's data rate (`[bus] data_bitrate`): a field of a topic's frames may then lie
+    /// past byte 8 (within its topic's `length`), and HBBA's bus costs count CAN FD topics'
+    /// frames with their data phase at this rate.
+    data_bitrate: Option<u32>,
 }
 
 /// The names the file declares, whether or not their declaration was accepted. A reference to a
@@ -278,8 +284,9 @@ impl Builder<'_> {
     fn build(mut self, raw: RawFile) -> Network {
         let version = self.version(raw.network.as_ref());
         let bus = self.bus(raw.bus.as_ref());
-        let nodes = self.nodes(&raw.nodes);
-        let topics = self.topics(&raw.topics);
+        self.data_bitrate = bus.as_ref().and_then(|bus| bus.data_bitrate);
+        let nodes = self.nodes(&raw.nodes, bus.as_ref());
+        let topics = self.topics(&raw.topics, bus.as_ref(), raw.bus.is_some());
         let mut ports = self.ports(&raw.ports, &nodes);
         let mut connections = self.connections(&raw.connections, &topics, &mut ports);
         let names: Vec<&str> = raw

@@ -386,10 +386,23 @@ pub fn event_frames(network: &Network) -> Result<Vec<BusFrame>, SimError> {
         } else {
             filter.id()
         };
-        let frame = pab_core::Frame::data(id, &event.data).ok_or_else(|| {
+        // A CAN FD topic's events are CAN FD frames, switching their bit rate when the bus's
+        // data phase is faster (the simulator's bus has no timing: the flag is carried as sent).
+        let brs = network
+            .bus
+            .as_ref()
+            .and_then(|bus| bus.data_bitrate.map(|data| data > bus.bitrate))
+            .unwrap_or(false);
+        let frame = if topic.fd {
+            pab_core::Frame::fd(id, &event.data, brs)
+        } else {
+            pab_core::Frame::data(id, &event.data)
+        }
+        .ok_or_else(|| {
             SimError(format!(
-                "an event of topic `{}` has more than 8 bytes of data",
-                topic.name
+                "an event of topic `{}` has {} bytes of data, more than its frames carry",
+                topic.name,
+                event.data.len()
             ))
         })?;
         for t in event.schedule.times() {
@@ -439,4 +452,48 @@ pub fn settled_until(network: &Network, frames: &[BusFrame]) -> u64 {
         frame.t_us.saturating_add(longest_decay).saturating_add(1)
     });
     after_frames.div_ceil(100_000).saturating_mul(100_000)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnostic::Source;
+    use embedded_can::Frame as _;
+
+    /// A CAN FD topic's events are CAN FD frames (with BRS on a bus whose data phase is faster),
+    /// and a value port reads its field past byte 8 and re-publishes the value as a CAN FD frame.
+    #[test]
+    fn an_fd_topic_is_simulated_with_can_fd_frames() {
+        let text = "[bus]\nbitrate = 500000\ndata_bitrate = 2000000\n[nodes.base]\nid = 4\n\
+                    [topics.range]\ncan_id = 0x1A0\nfd = true\nlength = 12\n\
+                    [ports.\"base.nearest\"]\ncombine = \"max\"\nvalue = { offset = 10, size = 2 }\n\
+                    republish = { can_id = 0x300 }\n\
+                    [connections.R]\ntopic = \"range\"\nport = \"base.nearest\"\nst = 1.0\ntc = 0.3\n\
+                    [[events]]\ntopic = \"range\"\nat = [0.1]\n\
+                    data = [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0x34, 0x12]\n";
+        let network = Network::parse(Source::new("net.toml", text)).unwrap();
+        let frames = event_frames(&network).unwrap();
+        assert_eq!(frames.len(), 1);
+        let frame = frames[0].frame;
+        assert!(frame.is_fd() && frame.is_brs());
+        assert_eq!(frame.data().len(), 12);
+        let compiled = crate::compile::compile(&network).unwrap();
+        let outcome = simulate(&network, &compiled, &Options::default()).unwrap();
+        let republished: Vec<&pab_core::Frame> = outcome
+            .sent
+            .iter()
+            .map(|f| &f.frame)
+            .filter(|f| {
+                f.id() == embedded_can::Id::Standard(embedded_can::StandardId::new(0x300).unwrap())
+            })
+            .collect();
+        assert!(!republished.is_empty(), "{:?}", outcome.sent);
+        let first = republished[0];
+        assert!(first.is_fd(), "{first:?}");
+        assert_eq!(
+            first.data().get(10..12),
+            Some(&[0x34, 0x12][..]),
+            "{first:?}"
+        );
+    }
 }

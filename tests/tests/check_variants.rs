@@ -11,6 +11,7 @@ fn every_example_is_consistent() {
         "take-an-object",
         "return-an-object",
         "take-and-return",
+        "take-and-return-fd",
         "subsumption",
     ] {
         let network = network(name, &example_text(name));

@@ -66,6 +66,16 @@ fn take_and_return_goes_through_a_to_f_in_order() {
     assert!(scenario.delivered("C10", 30.0, 32.0) >= 10);
 }
 
+/// The same network on a CAN FD bus (examples/take-and-return-fd.toml: its behaviours' topics
+/// classic, two sensor topics CAN FD that no connection reads) goes through the same phases.
+#[test]
+fn take_and_return_on_can_fd_goes_through_the_same_phases() {
+    let scenario = Scenario::run("take-and-return-fd");
+    scenario.expect_phases(&CYCLE);
+    scenario.expect_phases(&TAKE_BACK);
+    assert!(scenario.delivered("C10", 30.0, 32.0) >= 10);
+}
+
 #[test]
 fn taking_the_object_back_during_the_approach_returns_to_a() {
     let scenario = Scenario::run("take-and-return");

@@ -9,7 +9,12 @@ use pab_lang::network::Network;
 use crate::failure::Failure;
 use crate::output::{colour, eprintln_line, plural, println_line};
 
-pub fn run(path: &Path, json: bool, bitrate: Option<u32>) -> Result<(), Failure> {
+pub fn run(
+    path: &Path,
+    json: bool,
+    bitrate: Option<u32>,
+    data_bitrate: Option<u32>,
+) -> Result<(), Failure> {
     let network = match Network::load(path) {
         Ok(network) => network,
         Err(errors) => {
@@ -19,6 +24,16 @@ pub fn run(path: &Path, json: bool, bitrate: Option<u32>) -> Result<(), Failure>
             return Err(errors.into());
         }
     };
+    if let Some(data) = data_bitrate {
+        let refused = data_bitrate_refused(&network, bitrate, data);
+        if let Some(message) = refused {
+            let errors = vec![Diagnostic::file(path, message)];
+            if json {
+                println!("{}", pabctl::json::invalid(path, &errors));
+            }
+            return Err(Failure::Input(pab_lang::diagnostic::Diagnostics(errors)));
+        }
+    }
     let report = check::check(&network);
     // Warnings (competitive dynamics that cannot behave as written) fail nothing.
     let mut warnings = check::connections::warnings(&network);
@@ -34,7 +49,7 @@ pub fn run(path: &Path, json: bool, bitrate: Option<u32>) -> Result<(), Failure>
     let errors = report.errors(&network);
     // The bus: every stream's worst-case response time at the network's bit rate, or the
     // command line's.
-    let timing = check::bus::timing_at(&network, bitrate);
+    let timing = check::bus::timing_with(&network, bitrate, data_bitrate);
     let late = timing.errors(&network);
     if json {
         let shown: Vec<&Diagnostic> = warnings.iter().map(|w| &w.0).collect();
@@ -72,4 +87,21 @@ pub fn run(path: &Path, json: bool, bitrate: Option<u32>) -> Result<(), Failure>
         }
         Err(Failure::Inconsistent(errors))
     }
+}
+
+/// Why `--data-bitrate DATA` cannot be analysed on `network` (with `--bitrate`, if given): a
+/// classic bus (the file says whether the bus is CAN FD, as that changes what it may hold), or a
+/// data phase slower than the nominal rate.
+fn data_bitrate_refused(network: &Network, bitrate: Option<u32>, data: u32) -> Option<String> {
+    let Some(bus) = network.bus.as_ref().filter(|bus| bus.is_fd()) else {
+        return Some(format!(
+            "--data-bitrate {data}: the network's bus is classic CAN (no `data_bitrate` in [bus]); write `data_bitrate` in its [bus] to make it a CAN FD bus"
+        ));
+    };
+    let nominal = bitrate.unwrap_or(bus.bitrate);
+    (data < nominal).then(|| {
+        format!(
+            "--data-bitrate {data}: below the nominal bit rate {nominal} (the data phase is never slower than the arbitration)"
+        )
+    })
 }

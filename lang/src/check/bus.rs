@@ -1,13 +1,20 @@
 //! The frame streams of a network's bus and their worst-case response times at its bit rate
 //! (`pabctl check`; the analysis is [`crate::check::response`]'s, docs/response-times.md the model).
 //!
+//! On a CAN FD bus (`[bus] data_bitrate`) the analysis counts time in the units of
+//! [`TimeBase`], in which both the nominal and the data-phase bit are whole: each frame's C is
+//! exact, classic frames' bits at the nominal rate and CAN FD frames' data phase at the data rate
+//! ([`crate::can_frame`]). On a classic bus the unit is the bit time, as it always was.
+//!
 //! The streams:
 //!
 //! - every **topic** with a `period` (or a `rate_hz`, its inverse): its identifier, `length`,
-//!   `jitter` and `deadline` (default the period); a topic with neither is listed, not analysed;
+//!   `fd`, `jitter` and `deadline` (default the period); a topic with neither is listed, not
+//!   analysed;
 //! - every **gateway** (a port with `republish`): the frames it re-publishes, at most as often as
 //!   the fastest topic feeding the port delivers (T = the shortest period among them), as long as
-//!   the longest of them; queued when the winning frame has arrived, so its jitter is the
+//!   the longest of them (CAN FD frames when a feeding topic's are: a port fed by both kinds
+//!   re-publishes both, and its C is the longer of its longest frame of each kind); queued when the winning frame has arrived, so its jitter is the
 //!   feeding topics' R − C, found by [`analyse`](crate::check::bus::analyse), and its deadline one period after that. A value
 //!   port's output changes on every contributor's frame and when one ages out: one stream per
 //!   feeding topic, at half its period. A topic declared on the gateway's own identifier with a
@@ -21,7 +28,10 @@
 //!   every 100 ms", at most once a tick);
 //! - **one table transfer at a time**, a background stream: the node's flow control (block size
 //!   8, STmin 0) lets the tool send its consecutive frames back to back, so while a table is
-//!   pushed every frame ranked below the transfer waits for its end.
+//!   pushed every frame ranked below the transfer waits for its end. On a CAN FD bus the
+//!   transfer is ISO-TP on CAN FD (ISO 15765-2:2016) with 64-byte frames (TX_DL 64, with
+//!   bit-rate switching when the data rate is above the nominal one); the protocol's other
+//!   frames stay classic 8-byte frames.
 //!
 //! Everything else the protocol sends on events whose rate the network does not say (faults,
 //! schema transfers and answers, HBBA's traffic, the diagnostic stream, identity, configuration,
@@ -33,11 +43,13 @@ use pab_core::consumer::Consumer;
 use pab_core::protocol::{BROADCAST, FrameId, Service, TOOL};
 
 use super::response::{self, Background, Response, Stream, Unbounded};
+use crate::can_frame::{FD_DATA_LEN, TimeBase};
 use crate::diagnostic::Diagnostic;
 use crate::network::{NO_TOPIC, Network};
 
 /// The standard bit rates `pabctl check` tries for the lowest at which every deadline holds:
-/// CiA 301's (CANopen's) classic CAN rates, which bus hardware and tools offer.
+/// CiA 301's (CANopen's) classic CAN rates, which bus hardware and tools offer. On a CAN FD bus
+/// they are the nominal rates tried, the data rate kept as analysed (those above it skipped).
 pub const STANDARD_BITRATES: [u32; 8] = [
     10_000, 20_000, 50_000, 125_000, 250_000, 500_000, 800_000, 1_000_000,
 ];
@@ -69,8 +81,13 @@ pub struct BusStream {
     pub extended: bool,
     /// Its rank on the bus ([`response::arbitration_key`]); the BLE claims share one.
     pub key: u32,
-    /// Data bytes.
+    /// Data bytes (a gateway's: its longest frame's).
     pub length: u8,
+    /// CAN FD frames (a gateway's: when a topic feeding it sends them).
+    pub fd: bool,
+    /// A gateway fed by both classic and CAN FD topics re-publishes both kinds: the longest of
+    /// its classic frames, whose C counts when it is the longer.
+    pub also_classic: Option<u8>,
     /// T.
     pub period_ns: u64,
     /// J.
@@ -103,6 +120,8 @@ impl BusStream {
             extended,
             key: response::arbitration_key(rank_id, extended),
             length: u8::try_from(length).unwrap_or(u8::MAX),
+            fd: false,
+            also_classic: None,
             period_ns,
             jitter_ns: 0,
             deadline_ns: period_ns,
@@ -123,6 +142,8 @@ pub struct BackgroundStream {
     pub key: u32,
     /// Data bytes of its frames.
     pub length: u8,
+    /// CAN FD frames (ISO-TP on CAN FD, on a CAN FD bus).
+    pub fd: bool,
 }
 
 /// A stream that is not analysed, and why.
@@ -176,6 +197,8 @@ pub fn streams(network: &Network) -> Streams {
                 extended,
                 key: response::arbitration_key(id, extended),
                 length: topic.length,
+                fd: topic.fd,
+                also_classic: None,
                 period_ns: timing.period_ns,
                 jitter_ns: timing.jitter_ns,
                 deadline_ns: timing.deadline_ns,
@@ -222,6 +245,13 @@ pub fn streams(network: &Network) -> Streams {
         feeders.sort_unstable();
         feeders.dedup();
         let length = timed.iter().map(|(t, _)| t.length).max().unwrap_or(8);
+        let fd = timed.iter().any(|(t, _)| t.fd);
+        let also_classic = timed
+            .iter()
+            .filter(|(t, _)| !t.fd)
+            .map(|(t, _)| t.length)
+            .max()
+            .filter(|_| fd);
         let gateway = |name: String, period_ns: u64, feeders: Vec<usize>| BusStream {
             name,
             kind: Kind::Gateway(index),
@@ -229,6 +259,8 @@ pub fn streams(network: &Network) -> Streams {
             extended,
             key: response::arbitration_key(id, extended),
             length,
+            fd,
+            also_classic,
             period_ns,
             jitter_ns: 0,
             deadline_ns: period_ns,
@@ -365,11 +397,17 @@ pub fn streams(network: &Network) -> Streams {
     }
     if let Some(first) = network.nodes.iter().map(|n| n.id).min() {
         let id = protocol_id(Service::TableTransfer, TOOL, first);
+        let fd = network.bus.as_ref().is_some_and(crate::network::Bus::is_fd);
         out.background.push(BackgroundStream {
-            name: "table transfer (one at a time)".into(),
+            name: if fd {
+                "table transfer (one at a time, ISO-TP on CAN FD: 64-byte frames)".into()
+            } else {
+                "table transfer (one at a time)".into()
+            },
             id,
             key: response::arbitration_key(id, true),
-            length: 8,
+            length: if fd { FD_DATA_LEN as u8 } else { 8 },
+            fd,
         });
         out.unanalysed.push(Unanalysed {
             name: "Fault".into(),
@@ -403,15 +441,17 @@ pub fn streams(network: &Network) -> Streams {
 pub struct Row {
     /// C, ns (rounded up).
     pub c_ns: u64,
+    /// C in the analysis's time units.
+    pub c: u64,
     /// J as analysed, ns (a gateway's: found by the analysis).
     pub jitter_ns: u64,
     /// D as analysed, ns (a gateway's: its period after its jitter).
     pub deadline_ns: u64,
-    /// The analysis's answer, in bit times.
+    /// The analysis's answer, in the analysis's time units ([`Analysis::base`]).
     pub response: Response,
     /// R, ns (rounded up), if bounded.
     pub r_ns: Option<u64>,
-    /// Whether R ≤ D (in bit times).
+    /// Whether R ≤ D (in time units).
     pub meets: bool,
     /// A gateway one of whose feeding topics has no bound: neither has it.
     pub fed_unbounded: bool,
@@ -420,11 +460,15 @@ pub struct Row {
 /// The analysis at one bit rate.
 #[derive(Clone, Debug)]
 pub struct Analysis {
-    /// Bit/s.
+    /// Bit/s: the nominal rate.
     pub bitrate: u32,
+    /// A CAN FD bus's data rate, bit/s (at least `bitrate`); `None` on a classic bus.
+    pub data_bitrate: Option<u32>,
+    /// The unit of time of the analysis: a bit time on a classic bus.
+    pub base: TimeBase,
     /// One row per stream of [`Streams::streams`], in order.
     pub rows: Vec<Row>,
-    /// The periodic streams' load, parts per billion of the bit rate (C/T rounded up).
+    /// The periodic streams' load, parts per billion of the bus's time (C/T rounded up).
     pub load_ppb: u128,
 }
 
@@ -433,11 +477,34 @@ impl Analysis {
     pub fn holds(&self) -> bool {
         self.load_ppb <= 1_000_000_000 && self.rows.iter().all(|row| row.meets)
     }
+
+    /// The rates as the messages say them: `500 kbit/s`, on a CAN FD bus `500 kbit/s (data
+    /// phase 2 Mbit/s)`.
+    pub fn rates(&self) -> String {
+        match self.data_bitrate {
+            Some(data) => format!("{} (data phase {})", rate(self.bitrate), rate(data)),
+            None => rate(self.bitrate),
+        }
+    }
+
+    /// The rates as the table's first line says them: `500 kbit/s`, on a CAN FD bus `500
+    /// kbit/s, data phase 2 Mbit/s (CAN FD with bit-rate switching)`.
+    fn rates_long(&self) -> String {
+        match self.data_bitrate {
+            Some(data) if data > self.bitrate => format!(
+                "{}, data phase {} (CAN FD with bit-rate switching)",
+                rate(self.bitrate),
+                rate(data)
+            ),
+            Some(_) => format!("{} (CAN FD without bit-rate switching)", rate(self.bitrate)),
+            None => rate(self.bitrate),
+        }
+    }
 }
 
-/// `ns` in bit times at `bitrate`, rounded down or up.
-fn bits(ns: u64, bitrate: u32, up: bool) -> u64 {
-    let product = u128::from(ns) * u128::from(bitrate);
+/// `ns` in time units of `per_second` a second, rounded down or up.
+fn bits(ns: u64, per_second: u64, up: bool) -> u64 {
+    let product = u128::from(ns) * u128::from(per_second);
     let bits = if up {
         product.div_ceil(1_000_000_000)
     } else {
@@ -446,14 +513,33 @@ fn bits(ns: u64, bitrate: u32, up: bool) -> u64 {
     u64::try_from(bits).unwrap_or(u64::MAX)
 }
 
-/// `bits` bit times at `bitrate` in ns, rounded up.
-fn nanoseconds(bits: u64, bitrate: u32) -> u64 {
-    let ns = (u128::from(bits) * 1_000_000_000).div_ceil(u128::from(bitrate.max(1)));
+/// `bits` time units of `per_second` a second in ns, rounded up.
+fn nanoseconds(bits: u64, per_second: u64) -> u64 {
+    let ns = (u128::from(bits) * 1_000_000_000).div_ceil(u128::from(per_second.max(1)));
     u64::try_from(ns).unwrap_or(u64::MAX)
 }
 
-/// The response times of `streams` at `bitrate`: periods and deadlines rounded down to whole
-/// bit times, jitter up.
+impl BusStream {
+    /// C, in the units of `base`: its frame's transmission time, or for a gateway that
+    /// re-publishes both kinds, the longer of its longest CAN FD and its longest classic frame.
+    pub fn frame_time(&self, base: &TimeBase) -> u64 {
+        let own = base.frame(self.fd, self.length, self.extended);
+        self.also_classic.map_or(own, |classic| {
+            own.max(base.frame(false, classic, self.extended))
+        })
+    }
+}
+
+/// The response times of `streams` on a classic bus at `bitrate` ([`analyse_at`] with no data
+/// rate: CAN FD frames, if any, at the nominal rate throughout).
+pub fn analyse(streams: &Streams, bitrate: u32) -> Analysis {
+    analyse_at(streams, bitrate, None)
+}
+
+/// The response times of `streams` at `bitrate` and, on a CAN FD bus, `data_bitrate` (raised to
+/// `bitrate` if below: the data phase is never slower than the arbitration): periods and
+/// deadlines rounded down to whole time units ([`TimeBase`]: bit times on a classic bus), jitter
+/// up.
 ///
 /// A gateway's frame is queued when the frame it re-publishes has arrived: its period starts
 /// with that frame's, so its jitter is how late that frame can arrive after its earliest,
@@ -462,16 +548,19 @@ fn nanoseconds(bits: u64, bitrate: u32) -> u64 {
 /// above a topic interferes with it): the analysis is repeated until the jitters settle (the
 /// holistic iteration; they only grow), at most 32 times, and a gateway whose feeding topic has
 /// no bound has none either.
-pub fn analyse(streams: &Streams, bitrate: u32) -> Analysis {
+pub fn analyse_at(streams: &Streams, bitrate: u32, data_bitrate: Option<u32>) -> Analysis {
+    let data_bitrate = data_bitrate.map(|rate| rate.max(bitrate));
+    let base = TimeBase::new(bitrate, data_bitrate);
+    let per_second = base.per_second;
     let mut model: Vec<Stream> = streams
         .streams
         .iter()
         .map(|s| Stream {
             key: s.key,
-            bits: response::frame_bits(s.length, s.extended),
-            period: bits(s.period_ns, bitrate, false).max(1),
-            jitter: bits(s.jitter_ns, bitrate, true),
-            deadline: bits(s.deadline_ns, bitrate, false),
+            bits: s.frame_time(&base),
+            period: bits(s.period_ns, per_second, false).max(1),
+            jitter: bits(s.jitter_ns, per_second, true),
+            deadline: bits(s.deadline_ns, per_second, false),
         })
         .collect();
     let background: Vec<Background> = streams
@@ -479,7 +568,7 @@ pub fn analyse(streams: &Streams, bitrate: u32) -> Analysis {
         .iter()
         .map(|b| Background {
             key: b.key,
-            bits: response::frame_bits(b.length, true),
+            bits: base.frame(b.fd, b.length, true),
         })
         .collect();
     // Each gateway's feeding streams, by position in `model`.
@@ -498,7 +587,7 @@ pub fn analyse(streams: &Streams, bitrate: u32) -> Analysis {
                 .collect()
         })
         .collect();
-    let mut responses = response::responses(&model, &background);
+    let mut responses = response::responses_at(&model, &background, base.nominal);
     let mut starved = vec![false; model.len()];
     for _ in 0..32 {
         let mut changed = false;
@@ -515,14 +604,14 @@ pub fn analyse(streams: &Streams, bitrate: u32) -> Analysis {
             }
             if jitter > model[g].jitter {
                 model[g].jitter = jitter;
-                model[g].deadline = bits(streams.streams[g].period_ns, bitrate, false) + jitter;
+                model[g].deadline = bits(streams.streams[g].period_ns, per_second, false) + jitter;
                 changed = true;
             }
         }
         if !changed {
             break;
         }
-        responses = response::responses(&model, &background);
+        responses = response::responses_at(&model, &background, base.nominal);
     }
     let rows = responses
         .into_iter()
@@ -536,19 +625,20 @@ pub fn analyse(streams: &Streams, bitrate: u32) -> Analysis {
                 response
             };
             Row {
-                c_ns: nanoseconds(stream.bits, bitrate),
+                c_ns: nanoseconds(stream.bits, per_second),
+                c: stream.bits,
                 // As written, but a gateway's, which the analysis found.
                 jitter_ns: if written.feeders.is_empty() {
                     written.jitter_ns
                 } else {
-                    nanoseconds(stream.jitter, bitrate)
+                    nanoseconds(stream.jitter, per_second)
                 },
                 deadline_ns: if written.feeders.is_empty() {
                     written.deadline_ns
                 } else {
-                    nanoseconds(stream.deadline, bitrate)
+                    nanoseconds(stream.deadline, per_second)
                 },
-                r_ns: response.bound().map(|r| nanoseconds(r, bitrate)),
+                r_ns: response.bound().map(|r| nanoseconds(r, per_second)),
                 meets: response.meets(stream.deadline),
                 response,
                 fed_unbounded: starved,
@@ -557,6 +647,8 @@ pub fn analyse(streams: &Streams, bitrate: u32) -> Analysis {
         .collect();
     Analysis {
         bitrate,
+        data_bitrate,
+        base,
         rows,
         load_ppb: response::load_ppb(&model),
     }
@@ -570,8 +662,11 @@ pub struct Timing {
     pub streams: Streams,
     /// At the network's bit rate (`[bus] bitrate`), if it has one.
     pub analysis: Option<Analysis>,
-    /// The lowest of [`STANDARD_BITRATES`] at which everything holds, if any.
+    /// The lowest of [`STANDARD_BITRATES`] at which everything holds, if any; on a CAN FD bus
+    /// the lowest nominal rate with the data phase at [`Timing::lowest_data_bitrate`].
     pub lowest: Option<u32>,
+    /// On a CAN FD bus, the data rate the lowest nominal rate was searched at (the analysis's).
+    pub lowest_data_bitrate: Option<u32>,
 }
 
 /// The timing of `network`'s bus, at its bit rate (`[bus] bitrate`).
@@ -582,17 +677,37 @@ pub fn timing(network: &Network) -> Timing {
 /// The timing of `network`'s bus at `bitrate` (bit/s) if given, else at the network's
 /// (`pabctl check --bitrate`: what another bus would miss, without editing the file).
 pub fn timing_at(network: &Network, bitrate: Option<u32>) -> Timing {
+    timing_with(network, bitrate, None)
+}
+
+/// The timing of `network`'s bus at `bitrate` and, on a CAN FD bus, `data_bitrate` (bit/s) if
+/// given, else at the network's (`pabctl check --bitrate --data-bitrate`). The data rate is
+/// never below the nominal one: a nominal rate above the file's data rate analyses CAN FD
+/// without bit-rate switching. On a classic bus `data_bitrate` is not used (the caller refuses
+/// it: whether the bus is CAN FD is the file's to say, with what it makes valid).
+///
+/// The lowest standard bit rate is searched among [`STANDARD_BITRATES`] at the data rate
+/// analysed on a CAN FD bus, the nominal rates above it skipped: how slow the arbitration phase
+/// may be (a longer bus) with the data phase as it is.
+pub fn timing_with(network: &Network, bitrate: Option<u32>, data_bitrate: Option<u32>) -> Timing {
     let streams = streams(network);
+    let bus = network.bus.as_ref();
+    let data = bus
+        .and_then(|bus| bus.data_bitrate)
+        .map(|written| data_bitrate.unwrap_or(written));
     let analysis = bitrate
-        .or(network.bus.as_ref().map(|bus| bus.bitrate))
-        .map(|bitrate| analyse(&streams, bitrate));
+        .or(bus.map(|bus| bus.bitrate))
+        .map(|bitrate| analyse_at(&streams, bitrate, data));
+    let lowest_data_bitrate = analysis.as_ref().and_then(|a| a.data_bitrate).or(data);
     let lowest = STANDARD_BITRATES
         .into_iter()
-        .find(|&rate| analyse(&streams, rate).holds());
+        .filter(|&rate| lowest_data_bitrate.is_none_or(|data| rate <= data))
+        .find(|&rate| analyse_at(&streams, rate, lowest_data_bitrate).holds());
     Timing {
         streams,
         analysis,
         lowest,
+        lowest_data_bitrate,
     }
 }
 
@@ -646,11 +761,13 @@ impl Timing {
             return Vec::new();
         };
         let mut errors = Vec::new();
-        let at = rate(analysis.bitrate);
+        let at = analysis.rates();
         let overloaded = analysis.load_ppb > 1_000_000_000;
-        if let Some(bus) =
-            (network.bus.as_ref()).filter(|bus| overloaded && bus.bitrate == analysis.bitrate)
-        {
+        if let Some(bus) = (network.bus.as_ref()).filter(|bus| {
+            overloaded
+                && bus.bitrate == analysis.bitrate
+                && bus.data_bitrate == analysis.data_bitrate
+        }) {
             errors.push(network.error(
                 bus.span.clone(),
                 format!(
@@ -701,9 +818,12 @@ impl Timing {
     }
 
     fn lowest_hint(&self) -> String {
+        let data = self.lowest_data_bitrate.map_or(String::new(), |data| {
+            format!(" with the data phase at {}", self::rate(data))
+        });
         match self.lowest {
-            Some(rate) => format!(" (every deadline holds from {})", self::rate(rate)),
-            None => " (no standard bit rate up to 1 Mbit/s meets every deadline)".into(),
+            Some(rate) => format!(" (every deadline holds from {}{data})", self::rate(rate)),
+            None => format!(" (no standard bit rate up to 1 Mbit/s meets every deadline{data})"),
         }
     }
 
@@ -719,7 +839,7 @@ impl Timing {
         let _ = writeln!(
             out,
             "bus at {}: {} stream{} analysed (Davis et al. 2007, worst-case stuffing)",
-            rate(analysis.bitrate),
+            analysis.rates_long(),
             self.streams.streams.len(),
             if self.streams.streams.len() == 1 {
                 ""
@@ -735,10 +855,37 @@ impl Timing {
             .max()
             .unwrap_or(6)
             .max(6);
+        // On a CAN FD bus, a column says each stream's frames: classic, FD (with BRS when
+        // the data phase is faster), or both (a gateway fed by both kinds).
+        let fd_bus = analysis.data_bitrate.is_some();
+        let brs = analysis
+            .data_bitrate
+            .is_some_and(|data| data > analysis.bitrate);
+        let format_of = |stream: &BusStream| match (stream.fd, stream.also_classic, brs) {
+            (false, _, _) => "classic",
+            (true, Some(_), _) => "both",
+            (true, None, true) => "FD BRS",
+            (true, None, false) => "FD",
+        };
+        let column = |text: &str| {
+            if fd_bus {
+                format!("  {text:7}")
+            } else {
+                String::new()
+            }
+        };
         let _ = writeln!(
             out,
-            "  {:name_width$}  {:10}  {:>5}  {:>11}  {:>11}  {:>9}  {:>11}  {:>11}",
-            "stream", "id", "bytes", "period", "deadline", "C", "R", "slack"
+            "  {:name_width$}  {:10}  {:>5}{}  {:>11}  {:>11}  {:>9}  {:>11}  {:>11}",
+            "stream",
+            "id",
+            "bytes",
+            column("frame"),
+            "period",
+            "deadline",
+            "C",
+            "R",
+            "slack"
         );
         for (stream, row) in self.streams.streams.iter().zip(&analysis.rows) {
             let (r, slack) = match row.r_ns {
@@ -751,10 +898,11 @@ impl Timing {
             };
             let _ = writeln!(
                 out,
-                "  {:name_width$}  {:10}  {:>5}  {:>11}  {:>11}  {:>9}  {:>11}  {:>11}",
+                "  {:name_width$}  {:10}  {:>5}{}  {:>11}  {:>11}  {:>9}  {:>11}  {:>11}",
                 stream.name,
                 id_text(stream.id, stream.extended),
                 stream.length,
+                column(format_of(stream)),
                 duration(stream.period_ns),
                 duration(row.deadline_ns),
                 milliseconds(row.c_ns),
@@ -781,20 +929,30 @@ impl Timing {
             out,
             "bus load: {:.1} % of {} (the periodic streams)",
             analysis.load_ppb as f64 / 1e7,
-            rate(analysis.bitrate)
+            match analysis.data_bitrate {
+                Some(data) => format!(
+                    "the time at {}, data phase {}",
+                    rate(analysis.bitrate),
+                    rate(data)
+                ),
+                None => rate(analysis.bitrate),
+            }
         );
+        let data = self.lowest_data_bitrate.map_or(String::new(), |data| {
+            format!(" (data phase at {})", rate(data))
+        });
         match self.lowest {
             Some(lowest) => {
                 let _ = writeln!(
                     out,
-                    "lowest standard bit rate at which every deadline holds: {}",
+                    "lowest standard bit rate at which every deadline holds: {}{data}",
                     rate(lowest)
                 );
             }
             None => {
                 let _ = writeln!(
                     out,
-                    "no standard bit rate up to 1 Mbit/s meets every deadline"
+                    "no standard bit rate up to 1 Mbit/s meets every deadline{data}"
                 );
             }
         }
@@ -1018,5 +1176,141 @@ mod tests {
             ]
         );
         assert!(timing.analysis.as_ref().unwrap().holds());
+    }
+
+    const TAKE_AND_RETURN_FD: &str = include_str!("../../../examples/take-and-return-fd.toml");
+
+    #[test]
+    fn take_and_return_on_can_fd_counts_each_phase_at_its_rate() {
+        let network = parse(TAKE_AND_RETURN_FD);
+        let timing = timing(&network);
+        let analysis = timing.analysis.as_ref().unwrap();
+        assert_eq!(
+            (analysis.bitrate, analysis.data_bitrate),
+            (500_000, Some(2_000_000))
+        );
+        // Units of 0.5 µs: a nominal bit 4 units, a data bit 1.
+        assert_eq!(
+            (analysis.base.per_second, analysis.base.nominal),
+            (2_000_000, 4)
+        );
+        assert!(analysis.holds() && timing.errors(&network).is_empty());
+        // Take and Return's 23 streams and the two CAN FD topics.
+        assert_eq!(timing.streams.streams.len(), 25);
+        // hand_skin, 48 bytes with BRS: 32 nominal bits (64 µs) and 520 data bits (260 µs).
+        let (stream, skin) = row(&timing, "hand_skin");
+        assert!(stream.fd && stream.length == 48);
+        assert_eq!((skin.c, skin.c_ns), (32 * 4 + 520, 324_000));
+        let (_, state) = row(&timing, "arm_state");
+        assert_eq!(state.c_ns, 64_000 + 180_000);
+        // The classic frames: their bits at the nominal rate, as on a classic bus.
+        let (stream, object) = row(&timing, "object_pos");
+        assert!(!stream.fd);
+        assert_eq!(object.c_ns, 270_000);
+        // The highest stream is blocked by one frame of the table transfer, now ISO-TP on CAN
+        // FD: 64 bytes, extended, 56 nominal and 680 data bits (452 µs), then its own 270 µs.
+        let transfer = &timing.streams.background[0];
+        assert!(transfer.fd && transfer.length == 64);
+        assert_eq!(object.r_ns, Some(452_000 + 270_000));
+        // hand_skin's deadline (5 ms) holds from 500 kbit/s with the data phase at 2 Mbit/s,
+        // not at 250 kbit/s.
+        assert_eq!(
+            (timing.lowest, timing.lowest_data_bitrate),
+            (Some(500_000), Some(2_000_000))
+        );
+        assert!(!analyse_at(&timing.streams, 250_000, Some(2_000_000)).holds());
+        let table = timing.table();
+        for line in [
+            "bus at 500 kbit/s, data phase 2 Mbit/s (CAN FD with bit-rate switching): 25 streams analysed",
+            "  stream                      id          bytes  frame         period     deadline          C            R        slack",
+            "  hand_skin                   0x141          48  FD BRS         20 ms         5 ms   0.324 ms",
+            "  object_pos                  0x110           8  classic       100 ms       100 ms   0.270 ms     0.722 ms",
+            "  background: table transfer (one at a time, ISO-TP on CAN FD: 64-byte frames) (0x1A110100)",
+            "bus load: 6.9 % of the time at 500 kbit/s, data phase 2 Mbit/s (the periodic streams)",
+            "lowest standard bit rate at which every deadline holds: 500 kbit/s (data phase at 2 Mbit/s)",
+        ] {
+            assert!(table.contains(line), "{line}\n{table}");
+        }
+        // Another data rate, as `--data-bitrate` gives it: only the FD frames change.
+        let fast = timing_with(&network, None, Some(5_000_000));
+        let (_, skin) = row(&fast, "hand_skin");
+        assert_eq!(skin.c_ns, 64_000 + 104_000);
+        assert_eq!(row(&fast, "object_pos").1.c_ns, 270_000);
+        // A nominal rate above the data rate: the data phase is never slower, so CAN FD without
+        // switching: 48 bytes, base format, 10 × 48 + 72 = 552 bits at 1 µs.
+        let slow_data = timing_with(&network, Some(1_000_000), Some(500_000));
+        let analysis = slow_data.analysis.as_ref().unwrap();
+        assert_eq!(analysis.data_bitrate, Some(1_000_000));
+        assert_eq!(row(&slow_data, "hand_skin").1.c_ns, 552_000);
+    }
+
+    #[test]
+    fn can_fd_without_bit_rate_switching_counts_every_bit_at_the_nominal_rate() {
+        let text = TAKE_AND_RETURN_FD.replace("data_bitrate = 2000000", "data_bitrate = 500000");
+        let network = parse(&text);
+        let timing = timing(&network);
+        let analysis = timing.analysis.as_ref().unwrap();
+        assert_eq!(
+            (analysis.base.per_second, analysis.base.nominal),
+            (500_000, 1)
+        );
+        // 48 bytes, base format: 10 × 48 + 72 = 552 bits at 2 µs.
+        assert_eq!(row(&timing, "hand_skin").1.c_ns, 552 * 2000);
+        assert!(
+            timing
+                .table()
+                .contains("  hand_skin                   0x141          48  FD      ")
+        );
+        assert!(
+            timing
+                .table()
+                .contains("(CAN FD without bit-rate switching)")
+        );
+    }
+
+    #[test]
+    fn a_missed_deadline_on_can_fd_says_both_rates() {
+        let text = TAKE_AND_RETURN_FD.replace("deadline = 0.005", "deadline = 0.002");
+        let network = parse(&text);
+        let timing = timing(&network);
+        let errors: Vec<String> = timing
+            .errors(&network)
+            .iter()
+            .map(ToString::to_string)
+            .collect();
+        assert_eq!(errors.len(), 1, "{errors:#?}");
+        let line = text
+            .lines()
+            .position(|l| l.starts_with("deadline = 0.002"))
+            .unwrap()
+            + 1;
+        assert!(
+            errors[0].starts_with(&format!(
+                "net.toml:{line}:12: error: `hand_skin` (0x141) can miss its deadline at 500 kbit/s (data phase 2 Mbit/s): worst-case response time 3.180 ms > deadline 2 ms (every deadline holds from 1 Mbit/s with the data phase at 2 Mbit/s)"
+            )),
+            "{errors:#?}"
+        );
+    }
+
+    #[test]
+    fn a_gateway_fed_by_classic_and_fd_topics_is_as_long_as_its_longest_frame() {
+        let text = TAKE_AND_RETURN_FD.replace(
+            "[topics.grasped]            # Grasped: status, 10 Hz while the hand holds the object\ncan_id = 0x130\n",
+            "[topics.grasped]\ncan_id = 0x130\nfd = true\nlength = 12\n",
+        );
+        let network = parse(&text);
+        let timing = timing(&network);
+        let (stream, hand) = row(&timing, "hand.command (republished)");
+        assert!(stream.fd);
+        assert_eq!((stream.length, stream.also_classic), (12, Some(8)));
+        // A classic 8-byte frame (135 bits at 2 µs) is longer than a 12-byte FD frame with BRS
+        // (32 nominal bits, 155 data bits: 141.5 µs).
+        assert_eq!(row(&timing, "grasped").1.c_ns, 141_500);
+        assert_eq!(hand.c_ns, 270_000);
+        assert!(
+            timing
+                .table()
+                .contains("  hand.command (republished)  0x202          12  both")
+        );
     }
 }

@@ -1,10 +1,13 @@
 //! Worst-case response times of CAN frame streams: Davis, Burns, Bril and Lukkien, "Controller
 //! Area Network (CAN) schedulability analysis: refuted, revisited and revised", Real-Time
-//! Systems 35(3), 2007 (the revised analysis of its section 5), for classic CAN.
+//! Systems 35(3), 2007 (the revised analysis of its section 5), for classic CAN and CAN FD.
 //!
-//! A pure function of the streams: no network, no file. Every quantity is a whole number of bit
-//! times (τ_bit = 1), so the arithmetic is exact; the caller converts its seconds to bit times at
-//! the bus's bit rate, rounding each the safe way (periods and deadlines down, jitter up).
+//! A pure function of the streams: no network, no file. Every quantity is a whole number of
+//! time units, so the arithmetic is exact: on a classic bus the bit time (τ_bit = 1), on a CAN FD
+//! bus a unit in which both the nominal and the data-phase bit are whole
+//! ([`TimeBase`](crate::can_frame::TimeBase)), τ_bit the nominal bit's units (arbitration is at
+//! the nominal rate). The caller converts its seconds to units, rounding each the safe way
+//! (periods and deadlines down, jitter up).
 //!
 //! For a stream m with transmission time C_m, period (shortest time between two frames) T_m,
 //! queuing jitter J_m and deadline D_m:
@@ -27,10 +30,15 @@
 //!
 //! C with worst-case bit stuffing (Davis et al. eq. 2, the DESIGN's): a classic data frame of s
 //! bytes takes g + 8s + 13 + ⌊(g + 8s − 1)/4⌋ bits, g = 34 for an 11-bit identifier and 54 for a
-//! 29-bit one: 55 + 10s and 80 + 10s bits for s = 0..=8 (135 and 160 for 8 bytes).
+//! 29-bit one: 55 + 10s and 80 + 10s bits for s = 0..=8 (135 and 160 for 8 bytes). A CAN FD
+//! frame's C is its nominal bits at the nominal rate and its data phase at the data rate
+//! ([`crate::can_frame`] derives both from ISO 11898-1:2015's frame format).
 
-/// The longest level-m busy period examined, in bit times (2^40: 12.7 days at 1 Mbit/s); a
-/// longer one is reported unbounded (a load at or near 100 %).
+pub use crate::can_frame::frame_bits;
+
+/// The longest level-m busy period examined, in time units (2^40: 12.7 days of bit times at 1
+/// Mbit/s on a classic bus, at least 18 minutes whatever the rates of a CAN FD bus); a longer one
+/// is reported unbounded (a load at or near 100 %).
 pub const MAX_BUSY_BITS: u64 = 1 << 40;
 
 /// The most instances of one stream examined in its busy period; more are reported unbounded.
@@ -39,14 +47,6 @@ pub const MAX_INSTANCES: u64 = 100_000;
 /// The most steps of one fixed-point iteration; more are reported unbounded (a load so near
 /// 100 % that the busy period grows by a few bits a step).
 pub const MAX_STEPS: u32 = 1_000_000;
-
-/// The bits of a classic CAN data frame of `length` data bytes (0..=8), with the worst-case bit
-/// stuffing, including the 3-bit interframe space.
-pub const fn frame_bits(length: u8, extended: bool) -> u64 {
-    let g: u64 = if extended { 54 } else { 34 };
-    let s = length as u64;
-    g + 8 * s + 13 + (g + 8 * s - 1) / 4
-}
 
 /// The order in which the bus arbitrates an identifier: the lower wins. Arbitration compares the
 /// bits as sent: an extended identifier's top 11 bits (its base) against a standard one's, then
@@ -63,12 +63,13 @@ pub const fn arbitration_key(id: u32, extended: bool) -> u32 {
     }
 }
 
-/// A periodic (sporadic) stream of frames, in bit times.
+/// A periodic (sporadic) stream of frames, in time units (bit times on a classic bus).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Stream {
     /// Its rank on the bus ([`arbitration_key`]): lower wins.
     pub key: u32,
-    /// C: one frame's transmission time with worst-case stuffing ([`frame_bits`]).
+    /// C: one frame's transmission time with worst-case stuffing ([`frame_bits`], or
+    /// [`TimeBase::frame`](crate::can_frame::TimeBase::frame)).
     pub bits: u64,
     /// T: the shortest time between two of its frames, at least 1.
     pub period: u64,
@@ -78,7 +79,7 @@ pub struct Stream {
     pub deadline: u64,
 }
 
-/// A stream that takes every bit nothing above it wants (back-to-back frames), in bit times.
+/// A stream that takes every bit nothing above it wants (back-to-back frames), in time units.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Background {
     /// Its rank on the bus.
@@ -90,7 +91,7 @@ pub struct Background {
 /// A stream's worst-case response time.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Response {
-    /// R, in bit times, and the instance q of the busy period that reached it.
+    /// R, in time units, and the instance q of the busy period that reached it.
     Bounded {
         /// The worst-case response time.
         r: u64,
@@ -116,7 +117,7 @@ pub enum Unbounded {
 }
 
 impl Response {
-    /// R in bit times, if bounded.
+    /// R in time units, if bounded.
     pub fn bound(&self) -> Option<u64> {
         match *self {
             Response::Bounded { r, .. } => Some(r),
@@ -151,8 +152,16 @@ fn fixed_point(base: u64, start: u64, interferers: &[(u64, u64, u64)]) -> Option
     None
 }
 
-/// The worst-case response time of `streams[m]` among `streams` and `background`.
+/// The worst-case response time of `streams[m]` among `streams` and `background`, in bit times
+/// (τ_bit = 1: a classic bus).
 pub fn response(streams: &[Stream], background: &[Background], m: usize) -> Response {
+    response_at(streams, background, m, 1)
+}
+
+/// The worst-case response time of `streams[m]` among `streams` and `background`, in time units
+/// of which a nominal bit is `bit` (τ_bit: a frame queued within one bit after another started
+/// its arbitration still takes part in it).
+pub fn response_at(streams: &[Stream], background: &[Background], m: usize, bit: u64) -> Response {
     let Some(own) = streams.get(m) else {
         return Response::Unbounded(Unbounded::Overload);
     };
@@ -169,10 +178,10 @@ pub fn response(streams: &[Stream], background: &[Background], m: usize) -> Resp
         .unwrap_or(0);
     let higher: Vec<(u64, u64, u64)> = others()
         .filter(|(_, s)| s.key <= own.key)
-        .map(|(_, s)| (s.bits, s.period.max(1), s.jitter + 1))
+        .map(|(_, s)| (s.bits, s.period.max(1), s.jitter + bit))
         .collect();
     // The busy period: hep(m), m included, without the τ_bit.
-    let mut hep: Vec<(u64, u64, u64)> = higher.iter().map(|&(c, t, j)| (c, t, j - 1)).collect();
+    let mut hep: Vec<(u64, u64, u64)> = higher.iter().map(|&(c, t, j)| (c, t, j - bit)).collect();
     hep.push((own.bits, own.period.max(1), own.jitter));
     let hep_streams: Vec<Stream> = streams
         .iter()
@@ -209,10 +218,15 @@ pub fn response(streams: &[Stream], background: &[Background], m: usize) -> Resp
     }
 }
 
-/// Every stream's response, in order.
+/// Every stream's response, in order, in bit times.
 pub fn responses(streams: &[Stream], background: &[Background]) -> Vec<Response> {
+    responses_at(streams, background, 1)
+}
+
+/// Every stream's response, in order, in time units of which a nominal bit is `bit`.
+pub fn responses_at(streams: &[Stream], background: &[Background], bit: u64) -> Vec<Response> {
     (0..streams.len())
-        .map(|m| response(streams, background, m))
+        .map(|m| response_at(streams, background, m, bit))
         .collect()
 }
 
@@ -352,13 +366,13 @@ mod tests {
         assert_eq!(r[1].bound(), Some(360));
     }
 
-    /// Non-preemptive fixed-priority scheduling of `streams` simulated bit by bit from a critical
-    /// instant for stream `m`: the longest lower-priority frame starts at 0, every other stream
-    /// queues its first frame at 1 (at its largest jitter: its event at 1 − J) and then at its
-    /// events 1 − J + n·T; the bus, when free, sends the queued frame of lowest key (ties: the
-    /// earlier queued, then the lower index). Returns the largest response of m (end − event)
-    /// among its frames queued before `horizon`.
-    fn simulate(streams: &[Stream], m: usize, horizon: i64) -> i64 {
+    /// Non-preemptive fixed-priority scheduling of `streams` simulated unit by unit from a
+    /// critical instant for stream `m`: the longest lower-priority frame starts at 0, every other
+    /// stream queues its first frame at `bit` (one nominal bit later, at its largest jitter: its
+    /// event at `bit` − J) and then at its events `bit` − J + n·T; the bus, when free, sends the
+    /// queued frame of lowest key (ties: the earlier queued, then the lower index). Returns the
+    /// largest response of m (end − event) among its frames queued before `horizon`.
+    fn simulate(streams: &[Stream], m: usize, horizon: i64, bit: i64) -> i64 {
         let own = streams[m];
         let blocker = streams
             .iter()
@@ -371,7 +385,7 @@ mod tests {
         let mut releases: Vec<(i64, i64, usize)> = Vec::new();
         for (k, s) in streams.iter().enumerate() {
             let (t, j) = (s.period as i64, s.jitter as i64);
-            let first = if Some(k) == blocker { 0 } else { 1 };
+            let first = if Some(k) == blocker { 0 } else { bit };
             let mut n = 0;
             loop {
                 let event = first - j + n * t;
@@ -428,8 +442,76 @@ mod tests {
         )
     }
 
+    /// Streams of classic and CAN FD frames on a 500 kbit/s bus with a 2 Mbit/s data phase, in
+    /// its units (a nominal bit 4 units).
+    fn arb_fd_stream() -> impl Strategy<Value = Stream> {
+        let base = crate::can_frame::TimeBase::new(500_000, Some(2_000_000));
+        (
+            0u32..6,
+            prop::sample::select(vec![0u8, 8, 12, 32, 64]),
+            any::<bool>(),
+            any::<bool>(),
+            1u64..12,
+            0u64..400,
+        )
+            .prop_map(move |(key, length, extended, fd, periods, jitter)| {
+                let bits = base.frame(fd || length > 8, length, extended);
+                let period = bits * periods + 7 * u64::from(key);
+                Stream {
+                    key,
+                    bits,
+                    period,
+                    jitter: jitter.min(period / 2),
+                    deadline: period,
+                }
+            })
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(300))]
+
+        /// On a CAN FD bus too (units of a data bit, τ_bit 4 units), the analysis is never below
+        /// the simulated worst case.
+        #[test]
+        fn the_fd_bound_is_never_below_the_simulated_worst_case(
+            streams in proptest::collection::vec(arb_fd_stream(), 1..6)
+        ) {
+            let horizon = 8 * streams.iter().map(|s| s.period).max().unwrap_or(1) as i64;
+            for m in 0..streams.len() {
+                if let Response::Bounded { r, .. } = response_at(&streams, &[], m, 4) {
+                    let simulated = simulate(&streams, m, horizon, 4);
+                    prop_assert!(
+                        r as i64 >= simulated,
+                        "stream {m}: analysis {r} < simulated {simulated} in {streams:?}"
+                    );
+                }
+            }
+        }
+
+        /// Counting in units of a quarter bit changes nothing but the unit: every quantity times
+        /// 4 (τ_bit 4 units) gives every response times 4, exactly.
+        #[test]
+        fn a_finer_unit_scales_every_response(
+            streams in proptest::collection::vec(arb_stream(), 1..6)
+        ) {
+            let scaled: Vec<Stream> = streams
+                .iter()
+                .map(|s| Stream {
+                    key: s.key,
+                    bits: 4 * s.bits,
+                    period: 4 * s.period,
+                    jitter: 4 * s.jitter,
+                    deadline: 4 * s.deadline,
+                })
+                .collect();
+            let background = [Background { key: 3, bits: 160 }];
+            let scaled_background = [Background { key: 3, bits: 640 }];
+            let bits = responses(&streams, &background);
+            let units = responses_at(&scaled, &scaled_background, 4);
+            for (b, u) in bits.iter().zip(&units) {
+                prop_assert_eq!(b.bound().map(|r| 4 * r), u.bound());
+            }
+        }
 
         /// The analysis is never below what a simulation of the bus from a critical instant
         /// shows, for every stream of small random sets.
@@ -440,7 +522,7 @@ mod tests {
             let horizon = 8 * streams.iter().map(|s| s.period).max().unwrap_or(1) as i64;
             for m in 0..streams.len() {
                 if let Response::Bounded { r, .. } = response(&streams, &[], m) {
-                    let simulated = simulate(&streams, m, horizon);
+                    let simulated = simulate(&streams, m, horizon, 1);
                     prop_assert!(
                         r as i64 >= simulated,
                         "stream {m}: analysis {r} < simulated {simulated} in {streams:?}"

@@ -9,6 +9,7 @@ use pab_core::value_port::{Endian, Field};
 use super::{
     DbcMessage, DbcSignal, EXTENDED_FLAG, Names, UNKNOWN_NODE, field_signal, identifier, signal,
 };
+use crate::can_frame::FD_DATA_LEN;
 use crate::diagnostic::Diagnostic;
 use crate::network::Network;
 
@@ -17,7 +18,7 @@ use crate::network::Network;
 /// signal `dataN` for each byte of its `length` that no field covers. A field that overlaps one
 /// listed before it is named in the comment instead (cantools refuses overlapping signals).
 fn topic_signals(network: &Network, topic: usize, length: u8) -> (Vec<DbcSignal>, String) {
-    let mut covered = [false; 8];
+    let mut covered = [false; FD_DATA_LEN];
     let mut signals = Vec::new();
     let mut also = String::new();
     for field in network.topic_fields(topic) {
@@ -64,7 +65,7 @@ fn topic_signals(network: &Network, topic: usize, length: u8) -> (Vec<DbcSignal>
         }
         signals.push(field_signal(&name, core, &comment));
     }
-    for byte in 0..length.min(8) {
+    for byte in 0..length.min(FD_DATA_LEN as u8) {
         if !covered[usize::from(byte)] {
             let name = format!("data{byte}");
             signals.push(signal(
@@ -123,7 +124,7 @@ pub(super) fn republished(
                     .contains(&byte)
             })
         };
-        for byte in (0..length.min(8)).filter(|&b| !covered(b)) {
+        for byte in (0..length.min(FD_DATA_LEN as u8)).filter(|&b| !covered(b)) {
             signals.push(signal(
                 &format!("data{byte}"),
                 8 * u32::from(byte),

@@ -19,8 +19,11 @@
 //! frames its filters let through: for each connection it sets to φ ≥ 1, its topic's `rate_hz`
 //! / φ frames a second of the worst-case length with bit stuffing, 55 + 10·n bits for an 11-bit
 //! identifier and 80 + 10·n for a 29-bit one, n the topic's data `length` (8 by default);
-//! the sum as a percentage of `bitrate`, rounded up ([`bus_cost`]). A strategy whose cost of a
-//! resource exceeds that resource's capacity can never be selected, and is refused.
+//! the sum as a percentage of `bitrate`, rounded up ([`bus_cost`]). On a CAN FD bus (`[bus]
+//! data_bitrate`) it is the percentage of the bus's time ([`bus_cost_at`]): a CAN FD topic's
+//! frames take their CAN FD time, the data phase at the data rate, classic ones their bits at
+//! `bitrate` as above. A strategy whose cost of a resource exceeds that resource's capacity can
+//! never be selected, and is refused.
 
 use std::ops::Range;
 
@@ -173,17 +176,38 @@ pub struct Hbba {
 /// frame's length with worst-case bit stuffing: 47 + 8n + ⌊(34 + 8n − 1)/4⌋ and
 /// 67 + 8n + ⌊(54 + 8n − 1)/4⌋ bits, which are exactly those. Each connection's bit rate is
 /// rounded up to a whole µbit/s, then the sum to a whole percent, so the cost is never below the
-/// exact one. φ = 0 (closed) costs nothing.
+/// exact one. φ = 0 (closed) costs nothing. A classic bus's frames: [`bus_cost_at`] for CAN FD.
 pub fn bus_cost(frames: &[(u64, u16, bool, u8)], bitrate: u32) -> u64 {
-    let micro_bits: u128 = frames
+    let classic: Vec<(u64, u16, bool, u8, bool)> = frames
         .iter()
-        .filter(|&&(_, phi, _, _)| phi != 0)
-        .map(|&(rate_uhz, phi, extended, length)| {
-            let bits = if extended { 80 } else { 55 } + 10 * u64::from(length);
-            (u128::from(rate_uhz) * u128::from(bits)).div_ceil(u128::from(phi))
+        .map(|&(rate, phi, extended, length)| (rate, phi, extended, length, false))
+        .collect();
+    bus_cost_at(&classic, bitrate, None)
+}
+
+/// A strategy's bus cost on a bus at `bitrate` and, for CAN FD, `data_bitrate`, in percent of
+/// the bus's time (> 0), rounded up: its filtered frames are `(rate in µHz, φ, extended, data
+/// length, CAN FD)` per connection, each φ ≥ 1 letting through rate / φ frames a second, each
+/// frame taking its transmission time with worst-case stuffing
+/// ([`TimeBase::frame`](crate::can_frame::TimeBase::frame): a CAN FD frame's data phase at the
+/// data rate). On a classic bus that is [`bus_cost`]'s percentage of the bit rate, exactly.
+/// Each connection's share is rounded up to a whole µunit of time a second, then the sum to a
+/// whole percent: never below the exact cost.
+pub fn bus_cost_at(
+    frames: &[(u64, u16, bool, u8, bool)],
+    bitrate: u32,
+    data_bitrate: Option<u32>,
+) -> u64 {
+    let base = crate::can_frame::TimeBase::new(bitrate, data_bitrate);
+    let micro_units: u128 = frames
+        .iter()
+        .filter(|&&(_, phi, _, _, _)| phi != 0)
+        .map(|&(rate_uhz, phi, extended, length, fd)| {
+            let units = base.frame(fd, length, extended);
+            (u128::from(rate_uhz) * u128::from(units)).div_ceil(u128::from(phi))
         })
         .sum();
-    let percent = (micro_bits * 100).div_ceil(u128::from(bitrate.max(1)) * 1_000_000);
+    let percent = (micro_units * 100).div_ceil(u128::from(base.per_second.max(1)) * 1_000_000);
     u64::try_from(percent).unwrap_or(u64::MAX)
 }
 
@@ -669,7 +693,7 @@ impl Builder<'_> {
             }
         }
         let mut filters: Vec<StrategyFilter> = Vec::new();
-        let mut frames: Vec<(u64, u16, bool, u8)> = Vec::new();
+        let mut frames: Vec<(u64, u16, bool, u8, bool)> = Vec::new();
         if let Some(map) = &raw.filters {
             if map.get_ref().len() > MAX_FILTERS {
                 self.error(
@@ -720,6 +744,7 @@ impl Builder<'_> {
                                 phi_value,
                                 topic.filter.is_extended(),
                                 topic.length,
+                                topic.fd,
                             )),
                             None => self.error(
                                 connection.span(),
@@ -788,7 +813,7 @@ impl Builder<'_> {
         }
         if let (Some(bus), Some(bitrate)) = (resources.iter().position(|r| r.name == BUS), bitrate)
         {
-            let cost = bus_cost(&frames, bitrate);
+            let cost = bus_cost_at(&frames, bitrate, self.data_bitrate);
             if let Some(slot) = costs.get_mut(bus) {
                 *slot = u32::try_from(cost).unwrap_or(u32::MAX);
             }
@@ -796,8 +821,11 @@ impl Builder<'_> {
         for (resource, &cost) in resources.iter().zip(&costs) {
             if cost > resource.capacity {
                 let how = if resource.name == BUS {
+                    let data = self
+                        .data_bitrate
+                        .map_or(String::new(), |rate| format!(" (data phase {rate} bit/s)"));
                     format!(
-                        "its filters let through {cost} % of {} bit/s on the bus, above the bus's capacity of {} %",
+                        "its filters let through {cost} % of {} bit/s{data} on the bus, above the bus's capacity of {} %",
                         bitrate.unwrap_or(0),
                         resource.capacity
                     )

@@ -8,7 +8,7 @@ use schemars::JsonSchema;
 use serde::Deserialize;
 
 use super::spanned::Spanned;
-use super::{Builder, PLAIN_NAME, is_plain_name};
+use super::{Builder, Bus, PLAIN_NAME, is_plain_name};
 
 /// `[nodes.NAME]`: a node; its name is used in port names and image file names.
 #[derive(Deserialize, JsonSchema)]
@@ -18,6 +18,11 @@ pub(super) struct RawNode {
     id: Spanned<i64>,
     /// Optional: what the board is; its node comment in the DBC export.
     description: Option<Spanned<String>>,
+    /// Optional, default true: the node's CAN controller handles CAN FD frames. `false` for a
+    /// classic-only controller (or a bridge that carries classic frames only, as the emulated
+    /// board's SLCAN): refused on a CAN FD bus (`[bus] data_bitrate`), where a classic
+    /// controller destroys every FD frame with an error frame.
+    fd: Option<Spanned<bool>>,
 }
 
 /// A node: a controller board or its Linux stand-in.
@@ -31,12 +36,18 @@ pub struct Node {
     pub ports: Vec<usize>,
     /// What the file says it is (`description`): the DBC export's comment on it.
     pub description: Option<String>,
+    /// Its controller handles CAN FD frames (`fd`, default true).
+    pub fd: bool,
     /// Where it is defined.
     pub span: Range<usize>,
 }
 
 impl Builder<'_> {
-    pub(super) fn nodes(&mut self, raw: &IndexMap<Spanned<String>, Spanned<RawNode>>) -> Vec<Node> {
+    pub(super) fn nodes(
+        &mut self,
+        raw: &IndexMap<Spanned<String>, Spanned<RawNode>>,
+        bus: Option<&Bus>,
+    ) -> Vec<Node> {
         let mut nodes: Vec<Node> = Vec::new();
         let mut ids: HashMap<u8, String> = HashMap::new();
         for (name, node) in raw {
@@ -63,11 +74,25 @@ impl Builder<'_> {
             }
             ids.insert(id, name.get_ref().clone());
             let description = self.description(node.get_ref().description.as_ref());
+            let fd = node.get_ref().fd.as_ref();
+            if let (Some(written), Some(rate)) = (
+                fd.filter(|fd| !*fd.get_ref()),
+                bus.and_then(|bus| bus.data_bitrate),
+            ) {
+                self.error(
+                    written.span(),
+                    format!(
+                        "node `{}` has a classic CAN controller (`fd = false`), but the bus is CAN FD (`data_bitrate = {rate}` in [bus]): a classic controller that is not FD-tolerant destroys every CAN FD frame with an error frame; put the node on a classic bus (no `data_bitrate`), or give it a CAN FD controller and remove `fd = false`",
+                        name.get_ref()
+                    ),
+                );
+            }
             nodes.push(Node {
                 name: name.get_ref().clone(),
                 id,
                 ports: Vec::new(),
                 description,
+                fd: fd.is_none_or(|fd| *fd.get_ref()),
                 span: node.span(),
             });
         }

@@ -13,6 +13,7 @@ use serde::Deserialize;
 
 use super::spanned::Spanned;
 use super::{Builder, Node, PLAIN_NAME, is_plain_name, list_or_none, suggest};
+use crate::can_frame::{CLASSIC_DATA_LEN, FD_DATA_LEN};
 use crate::shown;
 
 /// The network file's word for a combination (`combine = "min"`).
@@ -60,7 +61,8 @@ pub(super) struct RawPort {
 #[derive(Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub(super) struct RawField {
-    /// Required: the field's first byte, offset + size <= 8.
+    /// Required: the field's first byte, offset + size <= 8 (on a CAN FD bus <= 64); within
+    /// the `length` of every topic it is read from.
     pub(super) offset: Spanned<i64>,
     /// Required: its size in bytes, 1, 2 or 4 (1 or 2 for a BLE group's eligibility).
     pub(super) size: Spanned<i64>,
@@ -250,17 +252,27 @@ impl Builder<'_> {
             ok = false;
         }
         let offset = *field.offset.get_ref();
-        if !(0..8).contains(&offset) {
+        // A classic bus's frames carry 8 bytes at most; a CAN FD bus's up to 64, and each
+        // field is then checked against its topic's `length` (fields_within_lengths).
+        let (frame, bytes) = if self.data_bitrate.is_some() {
+            ("a CAN FD frame", FD_DATA_LEN as i64)
+        } else {
+            ("a frame", CLASSIC_DATA_LEN as i64)
+        };
+        if !(0..bytes).contains(&offset) {
             self.error(
                 field.offset.span(),
-                format!("{key}: offset = {offset} is not a byte of a frame (0 to 7)"),
+                format!(
+                    "{key}: offset = {offset} is not a byte of {frame} (0 to {})",
+                    bytes - 1
+                ),
             );
             ok = false;
-        } else if ok && offset + size > 8 {
+        } else if ok && offset + size > bytes {
             self.error(
                 raw.span(),
                 format!(
-                    "{key}: offset {offset} + size {size} = {} is beyond the 8 bytes of a frame",
+                    "{key}: offset {offset} + size {size} = {} is beyond the {bytes} bytes of {frame}",
                     offset + size
                 ),
             );

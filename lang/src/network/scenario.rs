@@ -4,12 +4,12 @@
 
 use std::ops::Range;
 
-use pab_core::frame::CLASSIC_DATA_LEN as MAX_DATA_LEN;
 use schemars::JsonSchema;
 use serde::Deserialize;
 
 use super::spanned::Spanned;
 use super::{Builder, Node, Topic, list_or_none, suggest};
+use crate::can_frame::{CLASSIC_DATA_LEN, FD_DATA_LEN};
 use crate::shown;
 
 /// The most frames the `[[events]]` of one file may generate, so that a typo in a rate cannot
@@ -39,7 +39,8 @@ pub(super) struct RawFault {
 pub(super) struct RawEvent {
     /// Required: the topic the frames are published on.
     topic: Spanned<String>,
-    /// Optional: the frames' payload, at most 8 bytes 0..=255; default none.
+    /// Optional: the frames' payload, as many bytes 0..=255 as its topic's `length` (at most 8,
+    /// or 64 on a CAN FD topic); default that many zeros.
     data: Option<Spanned<Vec<Spanned<i64>>>>,
     /// Frames per second: at from, from + 1/rate_hz, ... while t < to.
     rate_hz: Option<Spanned<f64>>,
@@ -117,7 +118,8 @@ impl Schedule {
 pub struct Event {
     /// The topic, as an index into [`Network::topics`](super::Network::topics).
     pub topic: usize,
-    /// The frames' payload (`data = [...]`, at most 8 bytes; default none).
+    /// The frames' payload (`data = [...]`, its topic's `length` bytes; default that many
+    /// zeros).
     pub data: Vec<u8>,
     /// When.
     pub schedule: Schedule,
@@ -284,11 +286,17 @@ impl Builder<'_> {
         let Some(raw) = raw else {
             return Some(vec![0; usize::from(topic.length)]);
         };
-        if raw.get_ref().len() > MAX_DATA_LEN {
+        let most = if topic.fd {
+            FD_DATA_LEN
+        } else {
+            CLASSIC_DATA_LEN
+        };
+        if raw.get_ref().len() > most {
+            let frame = if topic.fd { "a CAN FD" } else { "a CAN" };
             self.error(
                 raw.span(),
                 format!(
-                    "data has {} bytes; a CAN frame carries at most {MAX_DATA_LEN}",
+                    "data has {} bytes; {frame} frame carries at most {most}",
                     raw.get_ref().len()
                 ),
             );
@@ -308,8 +316,8 @@ impl Builder<'_> {
             }
         }
         if bytes.len() != usize::from(topic.length) {
-            let length = if topic.length as usize == MAX_DATA_LEN {
-                format!("{MAX_DATA_LEN} (its `length`, {MAX_DATA_LEN} by default)")
+            let length = if topic.length as usize == CLASSIC_DATA_LEN {
+                format!("{CLASSIC_DATA_LEN} (its `length`, {CLASSIC_DATA_LEN} by default)")
             } else {
                 format!("{} (its `length`)", topic.length)
             };

@@ -6,12 +6,12 @@ use std::ops::Range;
 use indexmap::IndexMap;
 use pab_core::Filter;
 use pab_core::filter::{MAX_EXTENDED_ID, MAX_STANDARD_ID};
-use pab_core::frame::CLASSIC_DATA_LEN as MAX_DATA_LEN;
 use schemars::JsonSchema;
 use serde::Deserialize;
 
 use super::spanned::Spanned;
-use super::{Builder, Network, PLAIN_NAME, is_plain_name, list_or_none, suggest};
+use super::{Builder, Bus, Network, PLAIN_NAME, is_plain_name, list_or_none, suggest};
+use crate::can_frame::{CLASSIC_DATA_LEN, FD_DATA_LEN, fd_length};
 
 /// The highest `rate_hz` of a topic: more frames a second than a 1 Mbit/s bus carries.
 pub const MAX_RATE_HZ: f64 = 100_000.0;
@@ -44,10 +44,15 @@ pub(super) struct RawTopic {
     /// Optional, default the period: seconds from a period's start by which its frame must
     /// have left the bus, (0, 3600] (may exceed the period); with `period` or `rate_hz` only.
     deadline: Option<Spanned<f64>>,
-    /// Optional, default 8: the data bytes of its frames, 0..=8; the DLC of its DBC message and
-    /// the length of its simulated frames (an event's `data` has exactly this many bytes); every
-    /// field read from its frames must lie within it.
+    /// Optional, default 8: the data bytes of its frames, 0..=8, or with `fd = true` a CAN FD
+    /// length (0..=8, 12, 16, 20, 24, 32, 48 or 64); the DLC of its DBC message and the length of
+    /// its simulated frames (an event's `data` has exactly this many bytes); every field read
+    /// from its frames must lie within it.
     length: Option<Spanned<i64>>,
+    /// Optional, default false: its frames are CAN FD frames (with bit-rate switching when
+    /// `[bus] data_bitrate` is above `bitrate`), whose `length` may be up to 64; on a CAN FD bus
+    /// only (`[bus] data_bitrate`).
+    fd: Option<Spanned<bool>>,
     /// Optional: what the frames carry; their message's comment in the DBC export.
     description: Option<Spanned<String>>,
 }
@@ -67,9 +72,12 @@ pub struct Topic {
     /// Its timing on the bus (`period`, or 1/`rate_hz`, with `jitter` and `deadline`): `None`
     /// without either.
     pub timing: Option<TopicTiming>,
-    /// How many data bytes its frames carry (`length`, 0 to 8; default 8): the DBC export's
-    /// DLC, the simulated frames' length, and the bytes a field of its frames may read.
+    /// How many data bytes its frames carry (`length`, 0 to 8, or a CAN FD length up to 64 with
+    /// `fd`; default 8): the DBC export's DLC, the simulated frames' length, and the bytes a
+    /// field of its frames may read.
     pub length: u8,
+    /// Its frames are CAN FD frames (`fd = true`; on a CAN FD bus only).
+    pub fd: bool,
     /// What the file says it carries (`description`): the DBC export's comment on its message.
     pub description: Option<String>,
     /// Where it is defined.
@@ -93,9 +101,13 @@ pub struct TopicTiming {
 }
 
 impl Builder<'_> {
+    /// The topics; `bus` the network's `[bus]` (`written`: the file has one, maybe mistaken),
+    /// which an `fd = true` topic needs to be CAN FD.
     pub(super) fn topics(
         &mut self,
         raw: &IndexMap<Spanned<String>, Spanned<RawTopic>>,
+        bus: Option<&Bus>,
+        written: bool,
     ) -> Vec<Topic> {
         let mut topics: Vec<Topic> = Vec::new();
         for (name, topic) in raw {
@@ -175,7 +187,25 @@ impl Builder<'_> {
             let Some((timing, rate_uhz)) = self.topic_timing(raw_topic, rate_uhz) else {
                 continue;
             };
-            let Some(length) = self.topic_length(raw_topic) else {
+            let fd = raw_topic.fd.as_ref().is_some_and(|fd| *fd.get_ref());
+            if let Some(written_fd) = raw_topic.fd.as_ref().filter(|_| fd)
+                && !bus.is_some_and(Bus::is_fd)
+            {
+                let add = if written || bus.is_some() {
+                    "add `data_bitrate = 2000000` (bit/s, the data phase's) to [bus]"
+                } else {
+                    "add [bus] with its `bitrate` and a `data_bitrate` (e.g. bitrate = 500000, data_bitrate = 2000000)"
+                };
+                self.error(
+                    written_fd.span(),
+                    format!(
+                        "topic `{}` sends CAN FD frames (`fd = true`), but the bus is classic: {add} to make it a CAN FD bus",
+                        name.get_ref()
+                    ),
+                );
+                continue;
+            }
+            let Some(length) = self.topic_length(raw_topic, fd) else {
                 continue;
             };
             let description = self.description(raw_topic.description.as_ref());
@@ -186,6 +216,7 @@ impl Builder<'_> {
                 rate_uhz,
                 timing,
                 length,
+                fd,
                 description,
                 span: topic.span(),
             });
@@ -328,56 +359,81 @@ impl Builder<'_> {
         Some((Some(timing), rate_uhz))
     }
 
-    /// A topic's `length`: 8 without one, `None` after reporting a bad one.
-    fn topic_length(&mut self, raw: &RawTopic) -> Option<u8> {
+    /// A topic's `length`: 8 without one, `None` after reporting a bad one. A classic topic's
+    /// is 0 to 8; a CAN FD topic's (`fd`) a CAN FD length, 0 to 8, 12, 16, 20, 24, 32, 48 or 64.
+    fn topic_length(&mut self, raw: &RawTopic, fd: bool) -> Option<u8> {
         let Some(length) = &raw.length else {
-            return Some(MAX_DATA_LEN as u8);
+            return Some(CLASSIC_DATA_LEN as u8);
         };
         let value = *length.get_ref();
-        match u8::try_from(value)
-            .ok()
-            .filter(|&l| usize::from(l) <= MAX_DATA_LEN)
-        {
-            Some(length) => Some(length),
-            None => {
-                self.error(
-                    length.span(),
-                    format!(
-                        "length = {value}: the data bytes of the topic's frames, 0 to {MAX_DATA_LEN} (a classic CAN frame)"
-                    ),
-                );
-                None
+        let valid = usize::try_from(value).ok().filter(|&l| {
+            if fd {
+                fd_length(l) == Some(l)
+            } else {
+                l <= CLASSIC_DATA_LEN
             }
+        });
+        if let Some(valid) = valid {
+            return u8::try_from(valid).ok();
         }
+        let next = usize::try_from(value).ok().and_then(fd_length);
+        let message = match (fd, next) {
+            (true, Some(next)) => format!(
+                "length = {value} is not a CAN FD data length (0-8, 12, 16, 20, 24, 32, 48, 64): did you mean {next}?"
+            ),
+            (false, Some(_)) => format!(
+                "length = {value}: a classic CAN frame carries 0 to {CLASSIC_DATA_LEN} bytes; for a CAN FD frame (up to {FD_DATA_LEN} bytes) add `fd = true` to the topic"
+            ),
+            (true, None) => format!(
+                "length = {value}: the data bytes of the topic's frames, 0 to {FD_DATA_LEN} (a CAN FD frame: 0-8, 12, 16, 20, 24, 32, 48, 64)"
+            ),
+            (false, None) => format!(
+                "length = {value}: the data bytes of the topic's frames, 0 to {CLASSIC_DATA_LEN} (a classic CAN frame; up to {FD_DATA_LEN} with `fd = true`)"
+            ),
+        };
+        self.error(length.span(), message);
+        None
     }
 
     /// Every field the network reads from a topic's frames (value ports, BLE eligibilities,
     /// dynamics contexts) must lie within the topic's `length`: a field past it would never
-    /// read a byte. Reported at the `length` that cut it short.
+    /// read a byte. Reported at the `length` that cut it short, or, when the topic has none (8
+    /// bytes: only on a CAN FD bus may a field lie past byte 8), at its name.
     pub(super) fn fields_within_lengths(
         &mut self,
         raw: &IndexMap<Spanned<String>, Spanned<RawTopic>>,
         network: &Network,
     ) {
         for (index, topic) in network.topics.iter().enumerate() {
-            let Some(length) = raw
-                .iter()
-                .find(|(name, _)| name.get_ref() == &topic.name)
-                .and_then(|(_, raw)| raw.get_ref().length.as_ref())
+            let Some((name, raw_topic)) =
+                raw.iter().find(|(name, _)| name.get_ref() == &topic.name)
             else {
                 continue;
             };
+            let written = raw_topic.get_ref().length.as_ref();
             for field in network.topic_fields(index) {
                 let end = u16::from(field.offset) + u16::from(field.size);
-                if end > u16::from(topic.length) {
-                    self.error(
-                        length.span(),
-                        format!(
-                            "topic `{}` carries {} bytes (`length = {}`), but {} reads bytes {}..{} of its frames",
-                            topic.name, topic.length, topic.length, field.reader, field.offset, end
-                        ),
-                    );
+                if end <= u16::from(topic.length) {
+                    continue;
                 }
+                let (span, said) = match written {
+                    Some(length) => (length.span(), format!("`length = {}`", topic.length)),
+                    None => (name.span(), "its default `length`".to_string()),
+                };
+                let hint = match (topic.fd, fd_length(usize::from(end))) {
+                    (true, Some(next)) => format!(": set `length = {next}`"),
+                    (false, Some(next)) if usize::from(end) > CLASSIC_DATA_LEN => format!(
+                        ": beyond the {CLASSIC_DATA_LEN} bytes of a classic CAN frame (a CAN FD topic, `fd = true`, may carry `length = {next}`)"
+                    ),
+                    _ => String::new(),
+                };
+                self.error(
+                    span,
+                    format!(
+                        "topic `{}` carries {} bytes ({said}), but {} reads bytes {}..{} of its frames{hint}",
+                        topic.name, topic.length, field.reader, field.offset, end
+                    ),
+                );
             }
         }
     }
@@ -414,11 +470,15 @@ mod tests {
         for (length, message) in [
             (
                 "9",
-                "length = 9: the data bytes of the topic's frames, 0 to 8",
+                "length = 9: a classic CAN frame carries 0 to 8 bytes; for a CAN FD frame (up to 64 bytes) add `fd = true` to the topic",
             ),
             (
                 "-1",
-                "length = -1: the data bytes of the topic's frames, 0 to 8",
+                "length = -1: the data bytes of the topic's frames, 0 to 8 (a classic CAN frame; up to 64 with `fd = true`)",
+            ),
+            (
+                "65",
+                "length = 65: the data bytes of the topic's frames, 0 to 8",
             ),
         ] {
             let text = FIGURE_1.replace(
@@ -552,5 +612,238 @@ mod tests {
         ))
         .unwrap();
         assert_eq!(network.hbba.as_ref().unwrap().bitrate, Some(125_000));
+    }
+
+    /// FIGURE_1 on a bus: `[bus]` (line 1), `bitrate` (line 2) and, with `data`, `data_bitrate`
+    /// (line 3).
+    fn on_bus(data: Option<&str>, text: &str) -> String {
+        match data {
+            Some(data) => format!("[bus]\nbitrate = 500000\ndata_bitrate = {data}\n{text}"),
+            None => format!("[bus]\nbitrate = 500000\n{text}"),
+        }
+    }
+
+    #[test]
+    fn a_can_fd_bus_has_a_data_bit_rate_from_its_bit_rate_to_8_mbit_s() {
+        let network = parse(&on_bus(Some("2000000"), FIGURE_1)).unwrap();
+        let bus = network.bus.as_ref().unwrap();
+        assert_eq!((bus.bitrate, bus.data_bitrate), (500_000, Some(2_000_000)));
+        assert!(bus.is_fd());
+        // Equal to the bit rate: CAN FD without bit-rate switching.
+        let network = parse(&on_bus(Some("500000"), FIGURE_1)).unwrap();
+        assert_eq!(network.bus.unwrap().data_bitrate, Some(500_000));
+        assert!(!parse(&on_bus(None, FIGURE_1)).unwrap().bus.unwrap().is_fd());
+        for (data, message) in [
+            (
+                "250000",
+                "net.toml:3:16: error: data_bitrate = 250000: bit/s of the CAN FD data phase, from `bitrate` (500000) to 8000000 (the data phase is never slower than the arbitration; equal to it: CAN FD without bit-rate switching)",
+            ),
+            (
+                "10000000",
+                "net.toml:3:16: error: data_bitrate = 10000000: bit/s of the CAN FD data phase, from `bitrate` (500000) to 8000000 (the fastest data phase CAN FD controllers and transceivers commonly offer)",
+            ),
+            (
+                "-1",
+                "net.toml:3:16: error: data_bitrate = -1: bit/s of the CAN FD data phase, from `bitrate` (500000) to 8000000",
+            ),
+        ] {
+            let found = errors(&on_bus(Some(data), FIGURE_1));
+            assert_eq!(found.len(), 1, "{found:?}");
+            assert!(found[0].starts_with(message), "{found:?}");
+        }
+        // A data rate written as the bit rate: what it is for.
+        let found = errors(&format!("[bus]\nbitrate = 2000000\n{FIGURE_1}"));
+        assert!(
+            found[0].ends_with(
+                "bitrate = 2000000: bit/s, 1 to 1000000 (the nominal rate, CAN's arbitration phase); a CAN FD bus's faster data phase is `data_bitrate` in [bus]"
+            ),
+            "{found:?}"
+        );
+        let found = errors(&format!(
+            "[bus]\nbitrate = 500000\ndata_bitrat = 2000000\n{FIGURE_1}"
+        ));
+        assert!(
+            found[0].contains("did you mean `data_bitrate`?"),
+            "{found:?}"
+        );
+    }
+
+    #[test]
+    fn an_fd_topic_has_a_can_fd_length_on_a_can_fd_bus() {
+        // object_pos: its `can_id` on line 9 of FIGURE_1, 11 on a bus, 12 on a CAN FD bus.
+        let fd_topic = |keys: &str| {
+            FIGURE_1.replace(
+                "can_id = 0x111\n",
+                &format!("can_id = 0x111\nfd = true\n{keys}"),
+            )
+        };
+        let network = parse(&on_bus(Some("2000000"), &fd_topic("length = 64\n"))).unwrap();
+        assert!(network.topics[1].fd && !network.topics[0].fd);
+        assert_eq!(network.topics[1].length, 64);
+        for length in [0, 5, 8, 12, 16, 20, 24, 32, 48, 64] {
+            let text = on_bus(Some("2000000"), &fd_topic(&format!("length = {length}\n")));
+            assert_eq!(parse(&text).unwrap().topics[1].length, length);
+        }
+        // Without `length`, 8 as on a classic topic.
+        let network = parse(&on_bus(Some("2000000"), &fd_topic(""))).unwrap();
+        assert_eq!(network.topics[1].length, 8);
+        for (length, message) in [
+            (
+                "10",
+                "net.toml:14:10: error: length = 10 is not a CAN FD data length (0-8, 12, 16, 20, 24, 32, 48, 64): did you mean 12?",
+            ),
+            (
+                "33",
+                "net.toml:14:10: error: length = 33 is not a CAN FD data length (0-8, 12, 16, 20, 24, 32, 48, 64): did you mean 48?",
+            ),
+            (
+                "65",
+                "net.toml:14:10: error: length = 65: the data bytes of the topic's frames, 0 to 64 (a CAN FD frame: 0-8, 12, 16, 20, 24, 32, 48, 64)",
+            ),
+        ] {
+            let found = errors(&on_bus(
+                Some("2000000"),
+                &fd_topic(&format!("length = {length}\n")),
+            ));
+            assert_eq!(found.len(), 1, "{found:?}");
+            assert!(found[0].starts_with(message), "{found:?}");
+        }
+        // Longer than 8 without `fd = true`: said how.
+        let found = errors(&on_bus(
+            Some("2000000"),
+            &FIGURE_1.replace("can_id = 0x111\n", "can_id = 0x111\nlength = 12\n"),
+        ));
+        assert_eq!(found.len(), 1, "{found:?}");
+        assert!(
+            found[0].starts_with(
+                "net.toml:13:10: error: length = 12: a classic CAN frame carries 0 to 8 bytes; for a CAN FD frame (up to 64 bytes) add `fd = true` to the topic"
+            ),
+            "{found:?}"
+        );
+        // `fd = true` on a classic bus, or without [bus]: at `fd`, saying what to add.
+        let found = errors(&on_bus(None, &fd_topic("length = 12\n")));
+        assert_eq!(found.len(), 1, "{found:?}");
+        assert!(
+            found[0].starts_with(
+                "net.toml:12:6: error: topic `object_pos` sends CAN FD frames (`fd = true`), but the bus is classic: add `data_bitrate = 2000000` (bit/s, the data phase's) to [bus] to make it a CAN FD bus"
+            ),
+            "{found:?}"
+        );
+        let found = errors(&fd_topic(""));
+        assert_eq!(found.len(), 1, "{found:?}");
+        assert!(
+            found[0].starts_with(
+                "net.toml:10:6: error: topic `object_pos` sends CAN FD frames (`fd = true`), but the bus is classic: add [bus] with its `bitrate` and a `data_bitrate` (e.g. bitrate = 500000, data_bitrate = 2000000) to make it a CAN FD bus"
+            ),
+            "{found:?}"
+        );
+        // `fd = false` is a classic topic, on any bus.
+        let text = FIGURE_1.replace("can_id = 0x111\n", "can_id = 0x111\nfd = false\n");
+        assert!(!parse(&text).unwrap().topics[1].fd);
+    }
+
+    #[test]
+    fn a_classic_node_is_refused_on_a_can_fd_bus() {
+        let classic = FIGURE_1.replace("id = 3\n", "id = 3\nfd = false\n");
+        // On a classic bus, or without [bus]: a classic node is what every node is.
+        let network = parse(&on_bus(None, &classic)).unwrap();
+        assert!(!network.nodes[0].fd);
+        assert!(parse(&classic).is_ok());
+        assert!(parse(FIGURE_1).unwrap().nodes[0].fd);
+        // On a CAN FD bus: refused at its `fd`.
+        let found = errors(&on_bus(Some("2000000"), &classic));
+        assert_eq!(found.len(), 1, "{found:?}");
+        assert!(
+            found[0].starts_with(
+                "net.toml:7:6: error: node `gaze` has a classic CAN controller (`fd = false`), but the bus is CAN FD (`data_bitrate = 2000000` in [bus]): a classic controller that is not FD-tolerant destroys every CAN FD frame with an error frame"
+            ),
+            "{found:?}"
+        );
+        let fd = FIGURE_1.replace("id = 3\n", "id = 3\nfd = true\n");
+        assert!(parse(&on_bus(Some("2000000"), &fd)).unwrap().nodes[0].fd);
+    }
+
+    #[test]
+    fn fields_past_byte_8_are_read_from_fd_topics_long_enough() {
+        let ports = |bus: Option<&str>, topic: &str, offset: u8| {
+            on_bus(
+                bus,
+                &format!(
+                    "[nodes.base]\nid = 4\n[topics.range]\ncan_id = 0x1A0\n{topic}\
+                     [ports.\"base.nearest\"]\ncombine = \"min\"\nvalue = {{ offset = {offset}, size = 2 }}\n\
+                     [connections.R]\ntopic = \"range\"\nport = \"base.nearest\"\nst = 1.0\ntc = 0.3\n"
+                ),
+            )
+        };
+        let fd = Some("2000000");
+        let network = parse(&ports(fd, "fd = true\nlength = 12\n", 10)).unwrap();
+        let fields = network.topic_fields(0);
+        assert_eq!((fields[0].offset, fields[0].size), (10, 2));
+        // Past the topic's length: at its `length`, with the length that holds it.
+        let found = errors(&ports(fd, "fd = true\nlength = 12\n", 11));
+        assert_eq!(found.len(), 1, "{found:?}");
+        assert!(
+            found[0].starts_with(
+                "net.toml:9:10: error: topic `range` carries 12 bytes (`length = 12`), but port `base.nearest` (combine = \"min\") reads bytes 11..13 of its frames: set `length = 16`"
+            ),
+            "{found:?}"
+        );
+        // A topic without `length` (8 bytes) on a CAN FD bus: at its name.
+        let found = errors(&ports(fd, "", 8));
+        assert_eq!(found.len(), 1, "{found:?}");
+        assert!(
+            found[0].starts_with(
+                "net.toml:6:9: error: topic `range` carries 8 bytes (its default `length`), but port `base.nearest` (combine = \"min\") reads bytes 8..10 of its frames: beyond the 8 bytes of a classic CAN frame (a CAN FD topic, `fd = true`, may carry `length = 12`)"
+            ),
+            "{found:?}"
+        );
+        // Past 64 even on a CAN FD bus; past 8 on a classic one, as always.
+        let found = errors(&ports(fd, "fd = true\nlength = 64\n", 63));
+        assert!(
+            found[0].contains(
+                "value: offset 63 + size 2 = 65 is beyond the 64 bytes of a CAN FD frame"
+            ),
+            "{found:?}"
+        );
+        let found = errors(&ports(fd, "fd = true\nlength = 64\n", 64));
+        assert!(
+            found[0].contains("value: offset = 64 is not a byte of a CAN FD frame (0 to 63)"),
+            "{found:?}"
+        );
+        let found = errors(&ports(None, "", 7));
+        assert!(
+            found[0].contains("value: offset 7 + size 2 = 9 is beyond the 8 bytes of a frame"),
+            "{found:?}"
+        );
+        let found = errors(&ports(None, "", 8));
+        assert!(
+            found[0].contains("value: offset = 8 is not a byte of a frame (0 to 7)"),
+            "{found:?}"
+        );
+    }
+
+    #[test]
+    fn an_fd_topics_events_carry_its_length() {
+        let text = on_bus(
+            Some("2000000"),
+            &FIGURE_1
+                .replace(
+                    "can_id = 0x111\n",
+                    "can_id = 0x111\nfd = true\nlength = 12\n",
+                )
+                .replace(
+                    "at = [4.0, 4.5, 5.0, 5.5, 6.0, 6.5]",
+                    "at = [4.0]\ndata = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12]",
+                ),
+        );
+        let network = parse(&text).unwrap();
+        assert_eq!(network.events[1].data.len(), 12);
+        // More than 64: a CAN FD frame's most.
+        let long = text.replace("10, 11, 12]", &format!("10, 11, 12{}]", ", 0".repeat(60)));
+        let found = errors(&long);
+        assert!(
+            found[0].contains("data has 72 bytes; a CAN FD frame carries at most 64"),
+            "{found:?}"
+        );
     }
 }
