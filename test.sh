@@ -280,7 +280,7 @@ beside_hil() {
     "$pabctl" dbc host-tools/tests/fixtures/sensors.toml -o "$out/sensors.dbc"
     "$venv/bin/python" host-tools/tests/dbc_cantools.py "$out/take-and-return.dbc" \
         "$out/multi-target-observation.dbc" "$out/door-dynamics.dbc" "$out/tour-guide.dbc" \
-        "$out/assembly.dbc" "$out/sensors.dbc" "$out/value-ports.dbc"
+        "$out/assembly.dbc" "$out/sensors.dbc" "$out/value-ports.dbc" "$out/take-and-return-fd.dbc"
     echo "== identical decisions on every runner: scripts/cross-runner.sh"
     # The same frames (every example's bus, the committed HIL log) through the simulator, the Linux
     # node's application and pab-an386-replay on QEMU's mps2-an386 (Cortex-M4): byte-identical

@@ -4,7 +4,8 @@
     python host-tools/tests/dbc_cantools.py target/examples/take-and-return.dbc \
         [target/examples/multi-target-observation.dbc [target/examples/door-dynamics.dbc \
         [target/examples/tour-guide.dbc [target/examples/assembly.dbc \
-        [target/examples/sensors.dbc [target/examples/value-ports.dbc]]]]]]
+        [target/examples/sensors.dbc [target/examples/value-ports.dbc \
+        [target/examples/take-and-return-fd.dbc]]]]]]]
 
 (sensors.dbc from host-tools/tests/fixtures/sensors.toml).
 
@@ -473,8 +474,26 @@ def value_ports(path):
     check(db.decode_message(0x320, bytes([0x58, 0x02])) == {"nearest": 600}, "base_nearest_out decodes 600 mm")
 
 
+def can_fd(path):
+    """examples/take-and-return-fd.toml: a CAN FD bus (500 kbit/s, data phase 2 Mbit/s); its
+    topics arm_state (0x140, 32 bytes) and hand_skin (0x141, 48 bytes) are CAN FD frames with
+    bit-rate switching, the other topics and the protocol's frames classic."""
+    db = cantools.database.load_file(path, strict=True)
+    check(db.dbc.attributes["BusType"].value == "CAN FD", "BusType is CAN FD")
+    for topic, can_id, length in (("arm_state", 0x140, 32), ("hand_skin", 0x141, 48)):
+        message = db.get_message_by_name(topic)
+        check((message.frame_id, message.length, message.is_fd) == (can_id, length, True),
+              f"{topic}: {message.frame_id:#x} {message.length} fd={message.is_fd}")
+        payload = bytes(range(length))
+        values = db.decode_message(can_id, payload)
+        check(values.get(f"data{length - 1}") == length - 1, f"{topic}'s last byte: {values}")
+    check(not db.get_message_by_name("object_pos").is_fd, "object_pos is classic")
+    heartbeat = db.get_message_by_name("PAB_Heartbeat_arm")
+    check(not heartbeat.is_fd and heartbeat.is_extended_frame, "PAB_Heartbeat_arm is classic, extended")
+
+
 if __name__ == "__main__":
-    if len(sys.argv) not in (2, 3, 4, 5, 6, 7, 8):
+    if len(sys.argv) not in (2, 3, 4, 5, 6, 7, 8, 9):
         print(__doc__, file=sys.stderr)
         sys.exit(2)
     try:
@@ -489,8 +508,10 @@ if __name__ == "__main__":
             schema(sys.argv[5])
         if len(sys.argv) >= 7:
             sensors(sys.argv[6])
-        if len(sys.argv) == 8:
+        if len(sys.argv) >= 8:
             value_ports(sys.argv[7])
+        if len(sys.argv) == 9:
+            can_fd(sys.argv[8])
     except Exception as error:  # a missing message, an undecodable frame: report, with what came before
         failures.append(f"{type(error).__name__}: {error}")
     for failure in failures:

@@ -150,6 +150,7 @@ pub(super) fn claim_messages(
                 "BLE claim of node `{}` (id {}), once per period per group. The identifier ranks the claim (bits 22..7: 0xFFFF - eligibility; bits 6..0: the node id), so it changes with the eligibility: this message is the claim at eligibility {eligibility}; every claim of the node has this payload layout (pabctl dbc --claims-from CAPTURE lists the eligibilities of a capture). See docs/can-protocol.md, Broadcast of Local Eligibility.",
                 node.name, node.id
             ),
+            fd: false,
             cycle_ms: Some(period.div_ceil(1000)),
         });
         }

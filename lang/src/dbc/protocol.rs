@@ -106,6 +106,7 @@ pub(super) fn from_nodes(
                         node.name,
                         node.id
                     ),
+                    fd: false,
                     cycle_ms: None,
                 });
             }
@@ -128,6 +129,7 @@ pub(super) fn from_nodes(
                         "all (0xFF)"
                     }
                 ),
+                fd: false,
                 cycle_ms: if matches!(service, Service::Gates | Service::SchemaState) {
                     Some(100)
                 } else {
@@ -182,6 +184,7 @@ fn to_each_and_all(
             },
             signals: service_signals(control).unwrap_or_default(),
             comment: format!("{} From the tool to {whom}.", service_comment(control)),
+            fd: false,
             cycle_ms: None,
         });
     }
@@ -215,6 +218,7 @@ pub(super) fn intention(
                  its own address.",
                 service_comment(desire)
             ),
+            fd: false,
             cycle_ms: None,
         });
         let intention = Service::Intention;
@@ -229,6 +233,7 @@ pub(super) fn intention(
                 "{} From the intention node to all (0xFF).",
                 service_comment(intention)
             ),
+            fd: false,
             cycle_ms: Some(1000),
         });
         for (index, (node, dbc_node)) in network.nodes.iter().zip(nodes.iter().skip(1)).enumerate()
@@ -249,6 +254,7 @@ pub(super) fn intention(
                         service_comment(service),
                         node.name
                     ),
+                    fd: false,
                     cycle_ms: None,
                 });
             }
@@ -284,6 +290,7 @@ pub(super) fn authentication(
                     service_comment(service),
                     node.name
                 ),
+                fd: false,
                 cycle_ms: None,
             });
         }

@@ -7,6 +7,26 @@ use pab_core::value_port::Endian;
 
 use super::Dbc;
 
+/// `VFrameFormat`'s values, in Vector's order (the attribute's value is an index into them).
+const VFRAME_FORMATS: [&str; 16] = [
+    "StandardCAN",
+    "ExtendedCAN",
+    "reserved",
+    "J1939PG",
+    "reserved",
+    "reserved",
+    "reserved",
+    "reserved",
+    "reserved",
+    "reserved",
+    "reserved",
+    "reserved",
+    "reserved",
+    "reserved",
+    "StandardCAN_FD",
+    "ExtendedCAN_FD",
+];
+
 /// Strips what a DBC string cannot hold.
 fn text(s: &str) -> String {
     s.replace('"', "'").replace(['\n', '\r'], " ")
@@ -95,10 +115,38 @@ impl Dbc {
             }
         }
         writeln!(out, "BA_DEF_ BO_ \"GenMsgCycleTime\" INT 0 65535;")?;
-        writeln!(out, "BA_DEF_DEF_ \"GenMsgCycleTime\" 0;")?;
+        if let Some(brs) = self.fd_brs {
+            // Vector's CAN FD attributes, as cantools and CANdb++ read them: the bus type, each
+            // message's frame format (an index into the enum: 0 standard, 1 extended, 14 and 15
+            // their CAN FD forms) and its bit-rate switch.
+            writeln!(out, "BA_DEF_ \"BusType\" STRING ;")?;
+            write!(out, "BA_DEF_ BO_ \"VFrameFormat\" ENUM ")?;
+            let formats: Vec<String> = VFRAME_FORMATS.iter().map(|f| format!("\"{f}\"")).collect();
+            writeln!(out, "{};", formats.join(","))?;
+            writeln!(out, "BA_DEF_ BO_ \"CANFD_BRS\" ENUM \"0\",\"1\";")?;
+            writeln!(out, "BA_DEF_DEF_ \"BusType\" \"CAN\";")?;
+            writeln!(out, "BA_DEF_DEF_ \"VFrameFormat\" \"StandardCAN\";")?;
+            writeln!(out, "BA_DEF_DEF_ \"CANFD_BRS\" \"{}\";", u8::from(brs))?;
+            writeln!(out, "BA_DEF_DEF_ \"GenMsgCycleTime\" 0;")?;
+            writeln!(out, "BA_ \"BusType\" \"CAN FD\";")?;
+        } else {
+            writeln!(out, "BA_DEF_DEF_ \"GenMsgCycleTime\" 0;")?;
+        }
         for message in &self.messages {
             if let Some(cycle) = message.cycle_ms {
                 writeln!(out, "BA_ \"GenMsgCycleTime\" BO_ {} {cycle};", message.id)?;
+            }
+        }
+        if self.fd_brs.is_some() {
+            for message in &self.messages {
+                let extended = message.id & super::EXTENDED_FLAG != 0;
+                let format = match (message.fd, extended) {
+                    (false, false) => continue,
+                    (false, true) => 1,
+                    (true, false) => 14,
+                    (true, true) => 15,
+                };
+                writeln!(out, "BA_ \"VFrameFormat\" BO_ {} {format};", message.id)?;
             }
         }
         for message in &self.messages {
@@ -136,5 +184,25 @@ mod tests {
         );
         assert!(text.contains("BA_ \"GenMsgCycleTime\" BO_ 2449669889 1000;\n"));
         assert!(text.contains("BO_ 272 object_pos: 8 Vector__XXX\n"));
+        // A classic bus declares no CAN FD attribute.
+        assert!(!text.contains("VFrameFormat") && !text.contains("BusType"));
+    }
+
+    #[test]
+    fn a_can_fd_bus_declares_its_frame_formats() {
+        let fd = NET.replace(
+            "[topics.object_pos]",
+            "[bus]\nbitrate = 500000\ndata_bitrate = 2000000\n\n[topics.skin]\ncan_id = 0x141\n\
+             fd = true\nlength = 48\n\n[topics.object_pos]",
+        );
+        let text = build(&network(&fd), &[]).unwrap().render();
+        assert!(text.contains("BO_ 321 skin: 48 Vector__XXX\n"), "{text}");
+        assert!(text.contains("BA_ \"BusType\" \"CAN FD\";\n"));
+        assert!(text.contains("BA_DEF_DEF_ \"CANFD_BRS\" \"1\";\n"));
+        // The FD topic, standard id: StandardCAN_FD; a classic topic keeps the default; the
+        // protocol's extended frames say ExtendedCAN.
+        assert!(text.contains("BA_ \"VFrameFormat\" BO_ 321 14;\n"));
+        assert!(!text.contains("BA_ \"VFrameFormat\" BO_ 272 "));
+        assert!(text.contains("BA_ \"VFrameFormat\" BO_ 2449669889 1;\n"));
     }
 }

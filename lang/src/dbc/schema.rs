@@ -61,6 +61,7 @@ fn drive_messages(
         receivers: vec![UNKNOWN_NODE.to_string()],
         signals,
         comment: format!("{comment} Sent by node `{node_name}`'s schema server to its drive."),
+        fd: false,
         cycle_ms: Some(cycle),
     };
     let inward = |name: &str, base, offset, signals, comment: &str| DbcMessage {
@@ -71,6 +72,7 @@ fn drive_messages(
         receivers: vec![dbc_node.to_string()],
         signals,
         comment: format!("{comment} Read by node `{node_name}`'s schema server."),
+        fd: false,
         cycle_ms: None,
     };
     let attractor = triple(
@@ -258,6 +260,7 @@ fn sensor_messages(
                 },
                 id.raw()
             ),
+            fd: false,
             cycle_ms: None,
         });
     }
@@ -337,6 +340,7 @@ pub(super) fn stops(
                          address.",
                         service_comment(service)
                     ),
+                    fd: false,
                     cycle_ms: None,
                 });
             }

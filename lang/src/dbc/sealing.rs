@@ -91,6 +91,7 @@ pub(super) fn sealing(
                 "{} {what} On a keyed network only.",
                 service_comment(service)
             ),
+            fd: false,
             cycle_ms: None,
         });
     };

@@ -147,6 +147,19 @@ pub(super) fn republished(
         } else {
             ""
         };
+        // A gateway re-publishes an FD frame as FD and a classic one as classic; a DBC message
+        // has one format, so a port fed by both is declared FD (its longer frames).
+        let fd_topics = topics
+            .iter()
+            .filter_map(|&t| network.topics.get(t))
+            .filter(|t| t.fd)
+            .count();
+        let fd = fd_topics > 0;
+        let mixed = if fd && fd_topics < topics.len() {
+            " Its frames are CAN FD from its CAN FD topics, classic from the others."
+        } else {
+            ""
+        };
         messages.push(DbcMessage {
             id,
             name: names.unique(format!("{}_out", identifier(&port.name, "port_"))),
@@ -156,13 +169,14 @@ pub(super) fn republished(
             signals,
             comment: format!(
                 "Port `{}` re-publishes every frame it delivers (`republish`): the delivered \
-                 frame's payload, from node `{}`.{uneven}",
+                 frame's payload, from node `{}`.{uneven}{mixed}",
                 port.name,
                 network
                     .nodes
                     .get(port.node)
                     .map_or("?", |n| n.name.as_str())
             ),
+            fd,
             cycle_ms: None,
         });
     }
@@ -301,6 +315,7 @@ pub(super) fn topic_messages(
             receivers,
             signals,
             comment,
+            fd: topic.fd,
             cycle_ms: None,
         });
     }

@@ -73,6 +73,7 @@ fn transfer_messages(
              docs/can-protocol.md.",
             node.name, node.id
         ),
+        fd: false,
         cycle_ms: None,
     });
     messages.push(DbcMessage {
@@ -87,6 +88,7 @@ fn transfer_messages(
              tool during a transfer to it, padded to 8 bytes.",
             node.name
         ),
+        fd: false,
         cycle_ms: None,
     });
 }
