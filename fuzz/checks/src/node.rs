@@ -708,8 +708,17 @@ fn run(u: &mut Unstructured<'_>) -> Result<()> {
         match u.int_in_range(0u8..=15)? {
             0..=6 => {
                 let id = any_id(u)?;
-                let data = payload(u)?;
-                let frame = Frame::data(id, &data).unwrap_or_else(|| unreachable!("8 bytes"));
+                // A CAN FD frame one time in four (the checks build pab-core with `fd`): the
+                // node arbitrates it as a classic one, its fields read up to byte 64.
+                let frame = if u.ratio(1u8, 4)? {
+                    let len = u.int_in_range(0..=pab_core::frame::FD_DATA_LEN)?;
+                    let data: Vec<u8> = (0..len).map(|_| u.arbitrary()).collect::<Result<_>>()?;
+                    Frame::fd(id, &data, u.arbitrary()?)
+                        .unwrap_or_else(|| unreachable!("at most 64 bytes"))
+                } else {
+                    let data = payload(u)?;
+                    Frame::data(id, &data).unwrap_or_else(|| unreachable!("8 bytes"))
+                };
                 world.feed(u, &frame)?;
             }
             7..=8 => {
