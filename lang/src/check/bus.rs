@@ -99,6 +99,18 @@ pub struct BusStream {
     /// A gateway's feeding topics (indices into the network's topics): its jitter is theirs
     /// to arrive, found by the analysis.
     pub feeders: Vec<usize>,
+    /// A BLE claim's stream: the claims of this node in this group, whatever the eligibility
+    /// their identifiers carry (every other stream's frames are those on [`BusStream::id`]).
+    pub claim: Option<ClaimOf>,
+}
+
+/// Whose claims a BLE claim stream is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ClaimOf {
+    /// The node, by index into the network's nodes.
+    pub node: usize,
+    /// The group, by index into the network's groups.
+    pub group: usize,
 }
 
 impl BusStream {
@@ -127,6 +139,7 @@ impl BusStream {
             deadline_ns: period_ns,
             span,
             feeders: Vec::new(),
+            claim: None,
         }
     }
 }
@@ -204,6 +217,7 @@ pub fn streams(network: &Network) -> Streams {
                 deadline_ns: timing.deadline_ns,
                 span: timing.span.clone(),
                 feeders: Vec::new(),
+                claim: None,
             },
         );
     }
@@ -266,6 +280,7 @@ pub fn streams(network: &Network) -> Streams {
             deadline_ns: period_ns,
             span: port.span.clone(),
             feeders,
+            claim: None,
         };
         if port.value.is_some() {
             // A value port's output changes on every frame of a contributor and when one ages
@@ -331,24 +346,26 @@ pub fn streams(network: &Network) -> Streams {
             ),
         );
     }
-    for group in &network.groups {
+    for (group_index, group) in network.groups.iter().enumerate() {
         for member in &group.members {
             let Some(node) = network.nodes.get(member.node) else {
                 continue;
             };
             let id = CLAIM_BASE | 0xFFFF << 7 | u32::from(node.id);
             let period_ns = u64::from(group.period_us) * 1000;
-            push(
-                &mut out,
-                BusStream::protocol(
-                    format!("{}: claim of {}", node.name, group.name),
-                    (id, true),
-                    CLAIM_BASE,
-                    pab_core::ble::PAYLOAD_LEN,
-                    period_ns,
-                    group.span.clone(),
-                ),
+            let mut stream = BusStream::protocol(
+                format!("{}: claim of {}", node.name, group.name),
+                (id, true),
+                CLAIM_BASE,
+                pab_core::ble::PAYLOAD_LEN,
+                period_ns,
+                group.span.clone(),
             );
+            stream.claim = Some(ClaimOf {
+                node: member.node,
+                group: group_index,
+            });
+            push(&mut out, stream);
         }
     }
     for board in &network.schema_boards {
@@ -439,6 +456,11 @@ pub fn streams(network: &Network) -> Streams {
 /// One stream's result at a bit rate.
 #[derive(Clone, Debug)]
 pub struct Row {
+    /// T as analysed, in the analysis's time units (rounded down).
+    pub period: u64,
+    /// J as analysed, in the analysis's time units (rounded up; a gateway's: found by the
+    /// analysis).
+    pub jitter: u64,
     /// C, ns (rounded up).
     pub c_ns: u64,
     /// C in the analysis's time units.
@@ -625,6 +647,8 @@ pub fn analyse_at(streams: &Streams, bitrate: u32, data_bitrate: Option<u32>) ->
                 response
             };
             Row {
+                period: stream.period,
+                jitter: stream.jitter,
                 c_ns: nanoseconds(stream.bits, per_second),
                 c: stream.bits,
                 // As written, but a gateway's, which the analysis found.
