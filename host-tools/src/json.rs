@@ -311,8 +311,10 @@ pub fn sim(path: &Path, network: &Network, outcome: &pab_lang::sim::Outcome) -> 
 /// `worst_latency_s` and `worst_wait_s` (of the compared frames, null without one),
 /// `worst_queued_s` (when the frame of the worst latency was queued), `bound_s` (R, null when
 /// unbounded), `verdict` ("within", "above", "no frames", "unbounded" or "not compared"), `why`
-/// (why not compared, else null), `behind` (null, or the frames not compared for what they
-/// waited behind: `frames`, `first_queued_s`, `ahead`, the names)) and `unmatched` (the frames of
+/// (why not compared, else null), `beyond_period` (null, or its frames closer to the earlier
+/// ones than its period and jitter allow, not compared: `frames`, `first_queued_s`, `detail`),
+/// `behind` (null, or the frames not compared for what they waited behind: `frames`,
+/// `first_queued_s`, `ahead`, the names)) and `unmatched` (the frames of
 /// no analysed stream: `name`, `id`, `extended`, `frames`, `first_queued_s`, `worst_latency_s`).
 /// Times in seconds, from the bus's exact clock.
 pub fn timed_bus(
@@ -349,6 +351,11 @@ pub fn timed_bus(
                     Verdict::Outside(why) => Some(why.as_str()),
                     _ => None,
                 },
+                "beyond_period": row.faster.as_ref().map(|f| json!({
+                    "frames": f.frames,
+                    "first_queued_s": f.first_us as f64 / 1e6,
+                    "detail": f.detail,
+                })),
                 "behind": row.behind.as_ref().map(|b| json!({
                     "frames": b.frames,
                     "first_queued_s": b.first_us as f64 / 1e6,

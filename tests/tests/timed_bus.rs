@@ -43,7 +43,7 @@ fn assert_within(name: &str, timing: &Timing, outcome: &Outcome, comparison: &Co
         let stream = &timing.streams.streams[row.stream];
         match &row.verdict {
             Verdict::Within | Verdict::NoFrames => {}
-            Verdict::Outside(why) if why.starts_with("every frame of it waited behind") => {}
+            Verdict::Outside(why) if why.starts_with("every frame of it was beyond") => {}
             other => panic!("{name}: {}: {other:?}\n{table}", stream.name),
         }
         if row.behind.is_some() {

@@ -21,7 +21,8 @@
 //!   period describes it instead;
 //! - the **protocol's own frames** whose rate the network and docs/can-protocol.md determine, at
 //!   the most their nodes send: each node's heartbeat group (Heartbeat, TableStatus, Traffic,
-//!   Errors) at the nodes' default heartbeat period; each dynamics group's Gates, one per step
+//!   Errors, and FilterStatus on a node with HBBA filters) at the nodes' default heartbeat
+//!   period; each dynamics group's Gates, one per step
 //!   at most (a change at every step), at least every 100 ms; each BLE group member's claim once
 //!   per group period; a schema server's SchemaState every 100 ms, and its drive's attractor,
 //!   attractor rotation and impedance frames every loop period (the impedance, "on change and
@@ -35,7 +36,9 @@
 //!
 //! Everything else the protocol sends on events whose rate the network does not say (faults,
 //! schema transfers and answers, HBBA's traffic, the diagnostic stream, identity, configuration,
-//! firmware updates, seals) is listed as not analysed, with the reason.
+//! firmware updates, seals) is listed as not analysed, with the reason; so is the identity each
+//! node announces once at start-up, which is not periodic. The simulator's timed bus
+//! (`pabctl sim --timed-bus`) shows what those frames do to the others.
 
 use std::ops::Range;
 
@@ -304,16 +307,30 @@ pub fn streams(network: &Network) -> Streams {
             push(&mut out, gateway(name, period_ns, feeders));
         }
     }
-    for node in &network.nodes {
+    for (node_index, node) in network.nodes.iter().enumerate() {
         let config =
             pab_app::Config::new(node.id).unwrap_or_else(|_| pab_app::Config::unassigned());
         let period_ns = config.heartbeat_period_us * 1000;
-        for service in [
+        // A node whose table has HBBA filters (a strategy filters one of its connections) ends
+        // its heartbeat group with FilterStatus.
+        let filters = network.hbba.as_ref().is_some_and(|hbba| {
+            hbba.strategies.iter().flat_map(|s| &s.filters).any(|f| {
+                network
+                    .connections
+                    .get(f.connection)
+                    .and_then(|c| network.ports.get(c.port))
+                    .is_some_and(|p| p.node == node_index)
+            })
+        });
+        let group = [
             Service::Heartbeat,
             Service::TableStatus,
             Service::Traffic,
             Service::Errors,
-        ] {
+        ]
+        .into_iter()
+        .chain(filters.then_some(Service::FilterStatus));
+        for service in group {
             let id = protocol_id(service, node.id, BROADCAST);
             push(
                 &mut out,
@@ -431,7 +448,12 @@ pub fn streams(network: &Network) -> Streams {
             reason: "on events: at most one per code per 100 ms and node, but how many codes at once is not determinable".into(),
         });
         out.unanalysed.push(Unanalysed {
-            name: "Diagnostic stream, identity, configuration, firmware update".into(),
+            name: "Identity".into(),
+            reason: "announced once at start-up (6 frames a node at priority 4), not periodic"
+                .into(),
+        });
+        out.unanalysed.push(Unanalysed {
+            name: "Diagnostic stream, identity on request, configuration, firmware update".into(),
             reason: "switched on or sent at an operator's request".into(),
         });
     }
@@ -443,7 +465,7 @@ pub fn streams(network: &Network) -> Streams {
     }
     if network.hbba.is_some() {
         out.unanalysed.push(Unanalysed {
-            name: "Desire, Intention, FilterProfile, FilterSet, FilterStatus, Exploitation".into(),
+            name: "Desire, Intention, FilterProfile, FilterSet, FilterStatus answering them, Exploitation".into(),
             reason:
                 "HBBA's traffic follows desires and solves, whose rate the network does not say"
                     .into(),
