@@ -314,7 +314,7 @@ pub fn sim(path: &Path, network: &Network, outcome: &pab_lang::sim::Outcome) -> 
 /// (why not compared, else null), `beyond_period` (null, or its frames closer to the earlier
 /// ones than its period and jitter allow, not compared: `frames`, `first_queued_s`, `detail`),
 /// `behind` (null, or the frames not compared for what they waited behind: `frames`,
-/// `first_queued_s`, `ahead`, the names)) and `unmatched` (the frames of
+/// `first_queued_s`, `worst_latency_s`, `ahead`, the names)) and `unmatched` (the frames of
 /// no analysed stream: `name`, `id`, `extended`, `frames`, `first_queued_s`, `worst_latency_s`).
 /// Times in seconds, from the bus's exact clock.
 pub fn timed_bus(
@@ -359,6 +359,7 @@ pub fn timed_bus(
                 "behind": row.behind.as_ref().map(|b| json!({
                     "frames": b.frames,
                     "first_queued_s": b.first_us as f64 / 1e6,
+                    "worst_latency_s": seconds(b.worst_latency),
                     "ahead": b.ahead,
                 })),
             }))

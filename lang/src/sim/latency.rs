@@ -65,6 +65,9 @@ pub struct Behind {
     pub frames: usize,
     /// When the first of them was queued, µs.
     pub first_us: u64,
+    /// Their largest latency, in [`Clock`] units: what the frames ahead cost them (it may
+    /// exceed R, which does not count those).
+    pub worst_latency: u128,
     /// What they waited behind (names, in order of first appearance).
     pub ahead: Vec<String>,
 }
@@ -427,9 +430,11 @@ pub fn compare(network: &Network, timing: &Timing, run: &TimedRun) -> Result<Com
                 let behind = row.behind.get_or_insert(Behind {
                     frames: 0,
                     first_us: t.queued_us,
+                    worst_latency: 0,
                     ahead: Vec::new(),
                 });
                 behind.frames += 1;
+                behind.worst_latency = behind.worst_latency.max(t.latency(&clock));
                 for l in ahead {
                     let name = name_of(l);
                     if !behind.ahead.contains(&name) {
@@ -641,11 +646,12 @@ impl Comparison {
             if let Some(behind) = &row.behind {
                 let _ = writeln!(
                     out,
-                    "  {}: {} frame{} not compared (the first queued at {} s): {} waited behind frames the analysis does not count: {}",
+                    "  {}: {} frame{} not compared (the first queued at {} s, the longest latency {}): {} waited behind frames the analysis does not count: {}",
                     stream.name,
                     behind.frames,
                     if behind.frames == 1 { "" } else { "s" },
                     super::seconds_text(behind.first_us),
+                    ms_up(&self.clock, behind.worst_latency),
                     if behind.frames == 1 { "it" } else { "they" },
                     first_few(&behind.ahead)
                 );
@@ -787,7 +793,7 @@ mod tests {
             ),
             "{table}"
         );
-        assert!(table.contains("gaze: Errors: 1 frame not compared (the first queued at 0.000000 s): it waited behind frames the analysis does not count: arm: Identity, hand: Identity, gaze: Identity and 15 more"), "{table}");
+        assert!(table.contains("gaze: Errors: 1 frame not compared (the first queued at 0.000000 s, the longest latency 9.484 ms): it waited behind frames the analysis does not count: arm: Identity, hand: Identity, gaze: Identity and 15 more"), "{table}");
     }
 
     /// A bound made smaller than a measured latency is reported, at the stream's line: the
