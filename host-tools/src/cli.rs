@@ -29,7 +29,8 @@ costs, filters, requires) and, for simulation, [[desires]] (class, intensity, fr
 docs/network-file.md for the full reference.
 
 Exit status: 0 success; 1 the rules are inconsistent (or, for check, a frame can miss its \
-deadline on the bus); 2 the input cannot be read or is invalid; \
+deadline on the bus; for sim --timed-bus, a measured latency exceeds its bound); 2 the input \
+cannot be read or is invalid; \
 3 an output cannot be written; 4 the bus cannot be used or a node refused or did not answer.";
 
 const AFTER_HELP: &str = "\
@@ -151,7 +152,19 @@ ones) and --schema-plot draws the height, lateral position, contact force and in
 over time, from --from to --until (--plot draws it too when the file has no port).
 --candump writes the simulated bus as a candump -L log (each frame with its event's data, by \
 default its topic's `length` of zeros; the intention's filter commands and everything the nodes \
-sent too; times from 0 s on interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a real bus.")]
+sent too; times from 0 s on interface vcan0): `pabctl replay` reads it back, `canplayer -I` puts it on a real bus.
+--timed-bus carries the frames on a bus that takes time, at the file's [bus] bitrate (and \
+data_bitrate for CAN FD frames), instead of the ideal bus (no transmission time): each frame \
+takes the bus for its actual bits (their stuff bits counted from the frame's own bits) and the \
+3-bit intermission, one frame at a time; when the bus is free the waiting frame with the lowest \
+identifier goes next; the other nodes receive a frame when its EOF ends (at that microsecond, \
+rounded up) and answer from then. Then it prints, per stream of `pabctl check`'s table, its \
+frames, the worst wait for the bus and the worst latency (queued to the end of its EOF) beside \
+the bound R: a latency above R fails the command (exit status 1). A stream whose own frames \
+come faster than its period (and jitter) allow is outside the analysis: shown, not compared; \
+so is a frame that waited behind frames the analysis does not count, which are listed. The \
+nodes still answer in zero time. Refused without [bus] (exit status 2). For example:
+  pabctl sim examples/take-and-return.toml --timed-bus")]
     Sim {
         /// The network file (TOML).
         network: PathBuf,
@@ -168,6 +181,10 @@ sent too; times from 0 s on interface vcan0): `pabctl replay` reads it back, `ca
         /// Write the simulated bus's frames as a candump -L log.
         #[arg(long, value_name = "FILE.log")]
         candump: Option<PathBuf>,
+        /// Carry the frames on a bus that takes time at the file's [bus] rates, and compare each
+        /// stream's worst latency with its bound from `pabctl check` (exit status 1 above it).
+        #[arg(long)]
+        timed_bus: bool,
         /// Write the [dynamics.*] groups' states as CSV
         /// (t,group,behaviour,context,n,rho,m,gate; one row per behaviour per step).
         #[arg(long, value_name = "FILE.csv")]

@@ -18,6 +18,9 @@ pub enum Failure {
     Bus(String),
     /// A live schema server stopped on a safety event (exit status 1, like a verdict).
     Stopped(String),
+    /// A latency measured on the simulator's timed bus exceeds its stream's worst-case response
+    /// time (exit status 1, like a verdict: the analysis or the simulator is wrong).
+    Latencies(Vec<Diagnostic>),
 }
 
 impl From<Diagnostics> for Failure {
@@ -67,6 +70,15 @@ impl Failure {
             }
             Failure::Stopped(message) => {
                 eprintln!("{message}");
+                ExitCode::from(1)
+            }
+            Failure::Latencies(errors) => {
+                let count = errors.len();
+                eprintln!("{}\n", Diagnostics(errors).render(colour()));
+                eprintln!(
+                    "latencies on the timed bus above their bounds: {count} error{}",
+                    if count == 1 { "" } else { "s" }
+                );
                 ExitCode::from(1)
             }
         }

@@ -304,6 +304,93 @@ pub fn sim(path: &Path, network: &Network, outcome: &pab_lang::sim::Outcome) -> 
     })
 }
 
+/// `pabctl sim --timed-bus --json`'s `timed_bus` (absent without the option, so that the ideal
+/// bus's JSON stays as it was): `bitrate`, `data_bitrate` (or null), `carried` (frames the bus
+/// carried), `unsent` (still waiting at the end), `holds` (no compared latency above its bound),
+/// `streams` in order of rank (each `name`, `id`, `extended`, `frames`, `compared`,
+/// `worst_latency_s` and `worst_wait_s` (of the compared frames, null without one),
+/// `worst_queued_s` (when the frame of the worst latency was queued), `bound_s` (R, null when
+/// unbounded), `verdict` ("within", "above", "no frames", "unbounded" or "not compared"), `why`
+/// (why not compared, else null), `beyond_period` (null, or its frames closer to the earlier
+/// ones than its period and jitter allow, not compared: `frames`, `first_queued_s`, `detail`),
+/// `behind` (null, or the frames not compared for what they waited behind: `frames`,
+/// `first_queued_s`, `worst_latency_s`, `ahead`, the names)) and `unmatched` (the frames of
+/// no analysed stream: `name`, `id`, `extended`, `frames`, `first_queued_s`, `worst_latency_s`).
+/// Times in seconds, from the bus's exact clock.
+pub fn timed_bus(
+    comparison: &pab_lang::sim::latency::Comparison,
+    timing: &pab_lang::check::bus::Timing,
+) -> Value {
+    use pab_lang::sim::latency::Verdict;
+    let clock = &comparison.clock;
+    let seconds = |units: u128| clock.ns(units) as f64 / 1e9;
+    let streams: Vec<Value> = comparison
+        .streams
+        .iter()
+        .filter_map(|row| {
+            let stream = timing.streams.streams.get(row.stream)?;
+            let compared = row.compared > 0;
+            Some(json!({
+                "name": stream.name,
+                "id": stream.id,
+                "extended": stream.extended,
+                "frames": row.frames,
+                "compared": row.compared,
+                "worst_latency_s": compared.then(|| seconds(row.worst_latency)),
+                "worst_wait_s": compared.then(|| seconds(row.worst_wait)),
+                "worst_queued_s": row.worst.map(|t| t.queued_us as f64 / 1e6),
+                "bound_s": row.bound.map(seconds),
+                "verdict": match &row.verdict {
+                    Verdict::Within => "within",
+                    Verdict::Above => "above",
+                    Verdict::NoFrames => "no frames",
+                    Verdict::Unbounded => "unbounded",
+                    Verdict::Outside(_) => "not compared",
+                },
+                "why": match &row.verdict {
+                    Verdict::Outside(why) => Some(why.as_str()),
+                    _ => None,
+                },
+                "beyond_period": row.faster.as_ref().map(|f| json!({
+                    "frames": f.frames,
+                    "first_queued_s": f.first_us as f64 / 1e6,
+                    "detail": f.detail,
+                })),
+                "behind": row.behind.as_ref().map(|b| json!({
+                    "frames": b.frames,
+                    "first_queued_s": b.first_us as f64 / 1e6,
+                    "worst_latency_s": seconds(b.worst_latency),
+                    "ahead": b.ahead,
+                })),
+            }))
+        })
+        .collect();
+    let unmatched: Vec<Value> = comparison
+        .unmatched
+        .iter()
+        .map(|u| {
+            json!({
+                "name": u.name,
+                "id": u.id,
+                "extended": u.extended,
+                "frames": u.frames,
+                "first_queued_s": u.first_us as f64 / 1e6,
+                "worst_latency_s": seconds(u.worst_latency),
+            })
+        })
+        .collect();
+    let analysis = timing.analysis.as_ref();
+    json!({
+        "bitrate": analysis.map(|a| a.bitrate),
+        "data_bitrate": analysis.and_then(|a| a.data_bitrate),
+        "carried": comparison.carried,
+        "unsent": comparison.unsent,
+        "holds": comparison.holds(),
+        "streams": streams,
+        "unmatched": unmatched,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -50,6 +50,7 @@ fn main() -> ExitCode {
             trace,
             plot,
             candump,
+            timed_bus,
             dynamics_trace,
             schema_trace,
             schema_plot,
@@ -63,6 +64,7 @@ fn main() -> ExitCode {
             plot.as_deref(),
             candump.as_deref(),
             dynamics_trace.as_deref(),
+            timed_bus,
             json,
         )
         .and_then(|schema_only| {

@@ -1526,6 +1526,78 @@ fn sim_json_gives_who_gets_through_when_and_each_connections_counts() {
     assert_eq!(json(&schema)["ports"], serde_json::json!([]));
 }
 
+/// The book's tables of `pabctl sim --timed-bus` (docs/response-times.md, "The simulator's timed
+/// bus") are what the command prints today: each ```text block after the command that names it
+/// is in its output, as it is.
+#[test]
+fn sim_timed_bus_prints_the_books_tables() {
+    let book_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/response-times.md");
+    let book = std::fs::read_to_string(&book_path).unwrap();
+    for name in ["take-and-return.toml", "take-and-return-fd.toml"] {
+        let command = format!("`pabctl sim examples/{name} --timed-bus");
+        let at = book
+            .find(&command)
+            .unwrap_or_else(|| panic!("docs/response-times.md names no {command}"));
+        let rest = &book[at..];
+        let start = rest.find("```text\n").expect("a text block") + "```text\n".len();
+        let block = &rest[start..start + rest[start..].find("```").expect("its end")];
+        let output = pabctl(&["sim", &example(name), "--timed-bus"]);
+        assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+        let stdout = text(&output.stdout);
+        assert!(
+            stdout.contains(block),
+            "docs/response-times.md's table for {name} is not what `pabctl sim --timed-bus` prints:\n{block}\n---\n{stdout}"
+        );
+    }
+}
+
+#[test]
+fn sim_timed_bus_needs_a_bus_and_adds_its_json_only_when_asked() {
+    let refused = pabctl(&["sim", &example("first-network.toml"), "--timed-bus"]);
+    assert_eq!(refused.status.code(), Some(2));
+    assert!(
+        text(&refused.stderr).contains("first-network.toml: error: --timed-bus: the network has no [bus], so no bit rate to time its frames at"),
+        "{}",
+        text(&refused.stderr)
+    );
+    let timed = pabctl(&[
+        "sim",
+        &example("take-and-return-fd.toml"),
+        "--timed-bus",
+        "--json",
+    ]);
+    assert_eq!(timed.status.code(), Some(0), "{}", text(&timed.stderr));
+    let found = json(&timed);
+    let bus = &found["timed_bus"];
+    assert_eq!(
+        (&bus["bitrate"], &bus["data_bitrate"], &bus["holds"]),
+        (&500_000.into(), &2_000_000.into(), &true.into())
+    );
+    let streams = bus["streams"].as_array().unwrap();
+    assert_eq!(streams.len(), 25);
+    assert_eq!(streams[0]["name"], "object_pos");
+    assert_eq!(streams[0]["verdict"], "within");
+    assert_eq!(streams[0]["bound_s"], 0.000722);
+    assert_eq!(streams[0]["worst_latency_s"], 0.000248);
+    let skin = streams.iter().find(|s| s["name"] == "hand_skin").unwrap();
+    assert_eq!(
+        (&skin["verdict"], &skin["worst_latency_s"]),
+        (&"no frames".into(), &serde_json::Value::Null)
+    );
+    let errors = streams
+        .iter()
+        .find(|s| s["name"] == "gaze: Errors")
+        .unwrap();
+    assert_eq!(errors["behind"]["frames"], 1);
+    assert_eq!(errors["behind"]["worst_latency_s"], 0.009484);
+    assert_eq!(bus["unmatched"].as_array().unwrap().len(), 18);
+    // The table went to standard error with the rest of the text.
+    assert!(text(&timed.stderr).contains("every compared latency within its bound: 23 streams"));
+    // Without the option the object is the ideal bus's, as it was.
+    let ideal = pabctl(&["sim", &example("take-and-return-fd.toml"), "--json"]);
+    assert!(json(&ideal).get("timed_bus").is_none());
+}
+
 /// The `<text>` elements' contents of an SVG, trimmed, after checking that it is one `<svg>`
 /// element (a cheap well-formedness check: no XML parser among the dependencies).
 fn svg_texts(svg: &str) -> Vec<String> {

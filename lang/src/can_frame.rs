@@ -1,6 +1,7 @@
 //! CAN frames as the bus carries them: their data lengths, classic and CAN FD, and their
 //! transmission times with worst-case bit stuffing (what `pabctl check`'s response times and
-//! HBBA's bus costs count).
+//! HBBA's bus costs count), and one frame's bits as it is actually sent, with the stuff bits its
+//! own bits need ([`transmitted`]: what the simulator's timed bus counts).
 //!
 //! # Data lengths
 //!
@@ -139,6 +140,169 @@ pub fn fd_frame_bits(length: u8, extended: bool) -> FdBits {
     FdBits {
         nominal: arbitration + stuff_nominal + tail,
         data: dynamic + (stuff_all - stuff_nominal) + 4 + crc + fixed_stuff + 1,
+    }
+}
+
+/// The intermission: the 3 recessive nominal bits after a frame's EOF, before the next frame's
+/// SOF may start (ISO 11898-1:2015, 10.4.5). Every count of this module includes it; a receiver
+/// has the frame before it ([`Transmitted::to_end_of_frame`]).
+pub const INTERMISSION_BITS: u64 = 3;
+
+/// The bits one frame takes on the bus as a transmitter sends it ([`transmitted`]): its own bits
+/// and the stuff bits that these very bits need, by phase, the intermission included.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Transmitted {
+    /// Sent at the nominal rate: a classic frame's every bit; a CAN FD frame's SOF to BRS with
+    /// their stuff bits, ACK, EOF and the intermission (and every bit without bit-rate switching).
+    pub nominal: u64,
+    /// Sent at the data rate: a CAN FD frame with bit-rate switching, from ESI to the CRC
+    /// delimiter ([`FdBits::data`]'s fields). 0 for any other frame.
+    pub data: u64,
+    /// Of these, the stuff bits (dynamic, and a CAN FD frame's fixed ones in its CRC field).
+    pub stuff: u64,
+}
+
+impl Transmitted {
+    /// How long the frame occupies the bus, in the units of `base`, the intermission included:
+    /// when the next frame may start.
+    pub fn time(&self, base: &TimeBase) -> u64 {
+        self.nominal * base.nominal + self.data * base.data
+    }
+
+    /// How long until its EOF has ended, in the units of `base`: when the receivers have the
+    /// frame (the intermission that follows belongs to the bus, not to the frame).
+    pub fn to_end_of_frame(&self, base: &TimeBase) -> u64 {
+        self.time(base) - INTERMISSION_BITS * base.nominal
+    }
+}
+
+/// The CAN CRC-15 (ISO 11898-1, polynomial x^15 + x^14 + x^10 + x^8 + x^7 + x^4 + x^3 + 1,
+/// 0x4599, initial value 0) of `bits`, most significant first: a classic frame's CRC over its
+/// unstuffed SOF, arbitration, control and data fields.
+pub fn crc15(bits: impl IntoIterator<Item = bool>) -> u16 {
+    let mut crc: u16 = 0;
+    for bit in bits {
+        let feedback = bit ^ (crc >> 14 & 1 == 1);
+        crc = (crc << 1) & 0x7FFF;
+        if feedback {
+            crc ^= 0x4599;
+        }
+    }
+    crc
+}
+
+/// `frame` built bit by bit as a transmitter sends it (ISO 11898-1:2015: a classic frame's base
+/// or extended format, data or remote; a CAN FD frame's FD base or extended format, with or
+/// without bit-rate switching: the fields of the module's table), its dynamic stuff bits
+/// inserted where its own bits need them (after every 5 equal bits, the stuff bit starting the
+/// next run: from SOF to the end of the CRC sequence in a classic frame, whose CRC-15 is computed
+/// here as its receivers check it; from SOF to the end of the data field in a CAN FD frame), and
+/// a CAN FD frame's fixed stuff bits. A CAN FD frame's stuff count and CRC do not change how many
+/// bits it takes (their stuffing is fixed), so they are not computed. A stuff bit due right after
+/// a CAN FD frame's data field is counted besides the first fixed stuff bit, as
+/// [`fd_frame_bits`] counts it: at most one bit too many.
+///
+/// What the simulator's timed bus counts for each frame (`pabctl sim --timed-bus`); the tests
+/// compare it with [`frame_bits`] and [`fd_frame_bits`], the worst cases, which it never exceeds.
+pub fn transmitted(frame: &pab_core::Frame) -> Transmitted {
+    fn push(fields: &mut Vec<(bool, bool)>, value: u64, count: u32, data_phase: bool) {
+        for i in (0..count).rev() {
+            fields.push(((value >> i) & 1 == 1, data_phase));
+        }
+    }
+    let (id, extended) = frame.raw_id();
+    let fd = frame.is_fd();
+    let brs = fd && frame.is_brs();
+    // (value, sent in the data phase), SOF to the last dynamically stuffed bit.
+    let mut fields: Vec<(bool, bool)> = Vec::with_capacity(160 + 8 * FD_DATA_LEN);
+    push(&mut fields, 0, 1, false); // SOF, dominant
+    let base = if extended { id >> 18 } else { id };
+    push(&mut fields, u64::from(base), 11, false);
+    if extended {
+        push(&mut fields, 1, 1, false); // SRR, recessive
+        push(&mut fields, 1, 1, false); // IDE, recessive: extended
+        push(&mut fields, u64::from(id & 0x3FFFF), 18, false);
+    }
+    if fd {
+        push(&mut fields, 0, 1, false); // RRS: an FD frame has no remote form
+        if !extended {
+            push(&mut fields, 0, 1, false); // IDE, dominant: base format
+        }
+        push(&mut fields, 1, 1, false); // FDF, recessive: an FD frame
+        push(&mut fields, 0, 1, false); // res
+        push(&mut fields, u64::from(brs), 1, false); // BRS
+        push(&mut fields, 0, 1, brs); // ESI: error active
+        let length = frame.payload().len();
+        let code = pab_core::frame::FD_LENGTHS
+            .iter()
+            .position(|&l| usize::from(l) == length)
+            .unwrap_or(15);
+        push(&mut fields, code as u64, 4, brs);
+    } else {
+        push(&mut fields, u64::from(frame.is_remote()), 1, false); // RTR
+        // Extended format: r1, r0; base format: IDE (dominant), r0. Dominant all.
+        push(&mut fields, 0, 2, false);
+        push(
+            &mut fields,
+            embedded_can::Frame::dlc(frame) as u64,
+            4,
+            false,
+        );
+    }
+    for &byte in frame.payload() {
+        push(&mut fields, u64::from(byte), 8, brs);
+    }
+    if !fd {
+        let crc = crc15(fields.iter().map(|&(bit, _)| bit));
+        push(&mut fields, u64::from(crc), 15, false);
+    }
+    // Dynamic stuffing: a stuff bit is sent in the phase the bus is in after the bit before it
+    // (after BRS, the last nominal bit of a switching frame: the data phase).
+    let (mut nominal, mut data, mut stuff) = (0u64, 0u64, 0u64);
+    let mut run: (Option<bool>, u32) = (None, 0);
+    for (index, &(bit, data_phase)) in fields.iter().enumerate() {
+        if data_phase {
+            data += 1;
+        } else {
+            nominal += 1;
+        }
+        run = if run.0 == Some(bit) {
+            (run.0, run.1 + 1)
+        } else {
+            (Some(bit), 1)
+        };
+        if run.1 == 5 {
+            let after_switch = data_phase || fields.get(index + 1).is_some_and(|f| f.1);
+            if after_switch {
+                data += 1;
+            } else {
+                nominal += 1;
+            }
+            stuff += 1;
+            run = (Some(!bit), 1);
+        }
+    }
+    if fd {
+        let crc: u64 = if frame.payload().len() <= 16 { 17 } else { 21 };
+        // One fixed stuff bit before the stuff count, then one after every 4 bits of it and CRC.
+        let fixed = (4 + crc).div_ceil(4);
+        // Stuff count, CRC, fixed stuff bits, CRC delimiter: the data phase (module docs).
+        let field = 4 + crc + fixed + 1;
+        if brs {
+            data += field;
+        } else {
+            nominal += field;
+        }
+        stuff += fixed;
+    } else {
+        nominal += 1; // CRC delimiter
+    }
+    // ACK slot and delimiter, EOF, intermission.
+    nominal += 2 + 7 + INTERMISSION_BITS;
+    Transmitted {
+        nominal,
+        data,
+        stuff,
     }
 }
 
@@ -345,79 +509,135 @@ mod tests {
         );
     }
 
-    /// A CAN FD frame built bit by bit as a transmitter sends it (the fields of the module's
-    /// table with their values, dynamic stuffing from SOF to the end of the data field, the
-    /// fixed stuff bits of the CRC field), each bit with its phase: (nominal bits, data bits).
-    /// The stuff count's and the CRC's values do not change the count (their stuffing is
-    /// fixed): zeros stand for them.
-    fn transmitted(id: u32, extended: bool, data: &[u8]) -> (u64, u64) {
-        let mut fields: Vec<(bool, bool)> = Vec::new(); // (bit, data phase)
-        let mut push = |value: u64, bits: u32, data_phase: bool| {
-            for i in (0..bits).rev() {
-                fields.push(((value >> i) & 1 == 1, data_phase));
+    /// A CAN FD frame with bit-rate switching as [`transmitted`] builds it, bit by bit: (nominal
+    /// bits, data bits).
+    fn fd_transmitted(id: u32, extended: bool, data: &[u8]) -> (u64, u64) {
+        let frame = pab_core::Frame::fd(pab_core::frame::raw_id(id, extended).unwrap(), data, true)
+            .unwrap();
+        let bits = transmitted(&frame);
+        (bits.nominal, bits.data)
+    }
+
+    /// CRC-15/CAN's check value (the CRC of the ASCII bytes "123456789"): 0x059E.
+    #[test]
+    fn the_crc_is_can_s() {
+        let bits = b"123456789"
+            .iter()
+            .flat_map(|&byte| (0..8).rev().map(move |i| byte >> i & 1 == 1));
+        assert_eq!(crc15(bits), 0x059E);
+    }
+
+    /// Frames whose stuffing can be counted by hand.
+    #[test]
+    fn frames_built_bit_by_bit_by_hand() {
+        let standard =
+            |id: u16| embedded_can::Id::Standard(embedded_can::StandardId::new(id).unwrap());
+        // Standard id 0, no data: SOF, identifier, RTR, IDE, r0 and DLC are 19 dominant bits,
+        // and their CRC-15 is 0: 34 dominant bits, a stuff bit after every 5 of them (each
+        // stuff bit ends the run): 6, then 13 fixed-form bits with the intermission.
+        let zero = pab_core::Frame::data(standard(0), &[]).unwrap();
+        assert_eq!(
+            transmitted(&zero),
+            Transmitted {
+                nominal: 34 + 6 + 13,
+                data: 0,
+                stuff: 6
             }
-        };
-        push(0, 1, false); // SOF, dominant
-        if extended {
-            push(u64::from(id >> 18), 11, false);
-            push(1, 1, false); // SRR
-            push(1, 1, false); // IDE
-            push(u64::from(id & 0x3FFFF), 18, false);
-            push(0, 1, false); // RRS
-        } else {
-            push(u64::from(id), 11, false);
-            push(0, 1, false); // RRS
-            push(0, 1, false); // IDE
+        );
+        // Without stuff bits a classic frame is 47 + 8s bits (67 + 8s extended), intermission
+        // included; a remote frame has no data field, whatever its DLC.
+        let mut state = 0x1234_5678_9ABC_DEF1u64;
+        for _ in 0..500 {
+            let s = (next(&mut state) % 9) as usize;
+            let data: Vec<u8> = (0..s).map(|_| next(&mut state) as u8).collect();
+            let id = next(&mut state) as u32;
+            let std = pab_core::Frame::data(standard((id & 0x7FF) as u16), &data).unwrap();
+            let bits = transmitted(&std);
+            assert_eq!(bits.nominal - bits.stuff, 47 + 8 * s as u64, "{std:?}");
+            assert_eq!(bits.data, 0);
+            let ext = pab_core::Frame::with_raw_id(id & 0x1FFF_FFFF, true, &data).unwrap();
+            let bits = transmitted(&ext);
+            assert_eq!(bits.nominal - bits.stuff, 67 + 8 * s as u64, "{ext:?}");
+            let remote = <pab_core::Frame as embedded_can::Frame>::new_remote(
+                pab_core::frame::raw_id(id & 0x1FFF_FFFF, true).unwrap(),
+                s,
+            )
+            .unwrap();
+            let bits = transmitted(&remote);
+            assert_eq!(bits.nominal - bits.stuff, 67, "{remote:?}");
         }
-        push(1, 1, false); // FDF
-        push(0, 1, false); // res
-        push(1, 1, false); // BRS: switches
-        push(0, 1, true); // ESI: error active
-        let dlc = match data.len() {
-            n @ 0..=8 => n as u64,
-            12 => 9,
-            16 => 10,
-            20 => 11,
-            24 => 12,
-            32 => 13,
-            48 => 14,
-            _ => 15,
-        };
-        push(dlc, 4, true);
-        for &byte in data {
-            push(u64::from(byte), 8, true);
-        }
-        // Dynamic stuffing; a stuff bit is sent in the phase the bus is in after the bit before
-        // it (after BRS: the data phase).
-        let (mut nominal, mut data_bits) = (0u64, 0u64);
-        let mut count = |data_phase: bool| {
-            if data_phase {
-                data_bits += 1;
-            } else {
-                nominal += 1;
+        // A CAN FD frame without bit-rate switching: the same bits as with it, all nominal.
+        let data = [0x0F; 12];
+        let id = standard(0x141);
+        let switching = transmitted(&pab_core::Frame::fd(id, &data, true).unwrap());
+        let plain = transmitted(&pab_core::Frame::fd(id, &data, false).unwrap());
+        assert_eq!(plain.data, 0);
+        assert_eq!(plain.nominal, switching.nominal + switching.data);
+        assert_eq!(plain.stuff, switching.stuff);
+        // Its 32 bits of CRC field with 7 fixed stuff bits (CRC-21 above 16 bytes) and 6 below.
+        let long = transmitted(&pab_core::Frame::fd(id, &[0x55; 20], true).unwrap());
+        let short = transmitted(&pab_core::Frame::fd(id, &[0x55; 16], true).unwrap());
+        // 0x55 never runs 5 equal bits: no dynamic stuff bit in the data, only in the header.
+        assert_eq!(long.data - short.data, 32 + 4 + 1);
+        assert_eq!(long.stuff - short.stuff, 1);
+        // The time on a 500 kbit/s, 2 Mbit/s bus, and until the end of its EOF.
+        let base = TimeBase::new(500_000, Some(2_000_000));
+        assert_eq!(
+            switching.time(&base),
+            switching.nominal * 4 + switching.data
+        );
+        assert_eq!(
+            switching.to_end_of_frame(&base),
+            switching.time(&base) - 3 * 4
+        );
+    }
+
+    /// Classic frames, built bit by bit with their CRC, never exceed Davis et al.'s bound
+    /// ([`frame_bits`]), and the patterns that stuff the most come near it.
+    #[test]
+    fn classic_frames_built_bit_by_bit_stay_within_the_bound() {
+        let mut state = 0x0DDB_1A5E_5BAD_5EEDu64;
+        for length in 0..=8usize {
+            for extended in [false, true] {
+                let bound = frame_bits(length as u8, extended);
+                let mut worst = 0;
+                let mut check = |id: u32, data: &[u8]| {
+                    let id = pab_core::frame::raw_id(
+                        id & if extended { 0x1FFF_FFFF } else { 0x7FF },
+                        extended,
+                    )
+                    .unwrap();
+                    let frame = pab_core::Frame::data(id, data).unwrap();
+                    let bits = transmitted(&frame);
+                    assert_eq!(bits.data, 0);
+                    assert!(bits.nominal <= bound, "{frame:?}: {bits:?} > {bound}");
+                    worst = worst.max(bits.nominal);
+                };
+                for _ in 0..2000 {
+                    let id = next(&mut state) as u32;
+                    let data: Vec<u8> = (0..length).map(|_| next(&mut state) as u8).collect();
+                    check(id, &data);
+                }
+                for shift in 0..8u32 {
+                    for &pattern in &[0x0F0F_0F0Fu32, 0xF0F0_F0F0, 0x8787_8787, 0x7878_7878] {
+                        let rotated = pattern.rotate_left(shift);
+                        let data: Vec<u8> = (0..length)
+                            .map(|i| rotated.rotate_left(8 * i as u32) as u8)
+                            .collect();
+                        check(rotated, &data);
+                        check(0, &data);
+                    }
+                }
+                // The CRC's 15 bits follow from the others, and the extended format's fixed
+                // SRR, IDE (recessive), RTR, r1 and r0 (dominant) break the densest runs: the
+                // worst frames found come within 7 bits of the bound (2 to 5 in the base
+                // format), which takes every bit at its worst.
+                assert!(
+                    bound - worst <= 7,
+                    "{length} bytes, extended {extended}: the worst frame found has {worst} bits, the bound {bound}"
+                );
             }
-        };
-        let mut run: (Option<bool>, u32) = (None, 0);
-        for (index, &(bit, data_phase)) in fields.iter().enumerate() {
-            count(data_phase);
-            run = if run.0 == Some(bit) {
-                (run.0, run.1 + 1)
-            } else {
-                (Some(bit), 1)
-            };
-            if run.1 == 5 {
-                // The stuff bit: after BRS (the last nominal field bit), in the data phase.
-                let after_brs = !data_phase && fields.get(index + 1).is_some_and(|f| f.1);
-                count(data_phase || after_brs);
-                run = (Some(!bit), 1);
-            }
         }
-        let crc: u64 = if data.len() <= 16 { 17 } else { 21 };
-        // Stuff count, CRC, fixed stuff bits, CRC delimiter: data phase.
-        data_bits += 4 + crc + (4 + crc).div_ceil(4) + 1;
-        // ACK slot and delimiter, EOF, intermission.
-        nominal += 12;
-        (nominal, data_bits)
     }
 
     /// A small deterministic generator (xorshift), for the frames below.
@@ -442,7 +662,7 @@ mod tests {
                 let bound = fd_frame_bits(length as u8, extended);
                 let mut worst = (0, 0);
                 let mut check = |id: u32, data: &[u8]| {
-                    let (n, d) = transmitted(id, extended, data);
+                    let (n, d) = fd_transmitted(id, extended, data);
                     assert!(
                         n <= bound.nominal && d <= bound.data,
                         "id {id:#x} {data:02x?}: {n} nominal, {d} data > {bound:?}"

@@ -30,6 +30,13 @@
 //! ([`pab_core::value_port`]): its trace rows mark `delivered` on the connection whose frame was
 //! handed over, and its timeline follows the output's connection.
 //!
+//! With [`Options::timed_bus`] the bus takes time instead ([`timed`]): each frame occupies it for
+//! its transmission time at the network's `[bus]` rates, the bus starts the waiting frame that
+//! wins arbitration whenever it is free, and every node receives a frame when it has ended;
+//! [`Outcome::timed`] holds each frame's queueing, start and end, so its latency, which
+//! [`latency`] compares with the bounds of `pabctl check`. The ideal bus stays the default: with
+//! the option off, nothing of the timed bus runs.
+//!
 //! [`run`] is the same bus fed with any timed frames: a capture's, for `pabctl replay`
 //! (see [`crate::replay`]); what the nodes send is dropped there (the capture is the bus). With
 //! [`Options::records`] it also writes every verdict in the record format of
@@ -48,11 +55,13 @@ use station::Station;
 
 mod dynamics;
 pub mod intention;
+pub mod latency;
 pub mod plant;
 mod report;
 mod run;
 pub mod schema;
 mod station;
+pub mod timed;
 
 pub use dynamics::{DynamicsRow, write_csv as write_dynamics_csv};
 pub use intention::IntentionRun;
@@ -72,6 +81,10 @@ pub struct Options {
     pub records: bool,
     /// Step the `[dynamics.*]` groups and record their states ([`Outcome::dynamics`]).
     pub dynamics: bool,
+    /// Carry the frames on a timed bus at the network's `[bus]` rates ([`timed`]) instead of the
+    /// ideal one, and record each frame's latency ([`Outcome::timed`]). Refused without a
+    /// `[bus]`, and in a replay (its frames are the capture's, timed by its own bus).
+    pub timed_bus: bool,
 }
 
 /// A frame on the simulated bus and when it is sent.
@@ -140,8 +153,12 @@ pub struct Outcome {
     pub intention: Option<IntentionRun>,
     /// Every frame on the simulated bus in the order it carried them: the events' (with the
     /// scripted desires to the intention node) and what the nodes sent (none in a replay,
-    /// [`run`]: its bus is the capture). `--candump` writes it.
+    /// [`run`]: its bus is the capture). `--candump` writes it. On the timed bus, each at the
+    /// microsecond the nodes received it.
     pub bus: Vec<BusFrame>,
+    /// What the timed bus did: every frame's queueing, start and end (with
+    /// [`Options::timed_bus`] only).
+    pub timed: Option<timed::TimedRun>,
 }
 
 /// A change of the nodes that hold a BLE group's task.
@@ -257,6 +274,24 @@ fn run_stopping(
     progress: &mut dyn FnMut(usize),
 ) -> Result<Outcome, SimError> {
     let broadcast = intention.is_some();
+    let timed = if options.timed_bus {
+        if !broadcast {
+            return Err(SimError(
+                "the timed bus carries a simulation's frames; a replay's are the capture's, already timed by the bus they were captured on".into(),
+            ));
+        }
+        let Some(bus) = &network.bus else {
+            return Err(SimError(
+                "the timed bus needs the bus's bit rate: the network has no [bus] (add `[bus]` with `bitrate = 500000`, and `data_bitrate` for CAN FD)".into(),
+            ));
+        };
+        Some(timed::TimedBus::new(timed::Clock::new(
+            bus.bitrate,
+            bus.data_bitrate,
+        )))
+    } else {
+        None
+    };
     let intent = match intention.and_then(Option::as_ref) {
         Some(setup) => Some(station::IntentStation::new(setup)?),
         None => None,
@@ -326,6 +361,7 @@ fn run_stopping(
         sent: Vec::new(),
         bus: Vec::new(),
         intent,
+        timed,
     };
     let fed = run.go(frames, until_us, progress)?;
     let records = run.finish_records(fed);
@@ -359,6 +395,7 @@ fn run_stopping(
         sent: run.sent,
         intention: run.intent.map(|intent| intent.run),
         bus: run.bus,
+        timed: run.timed.map(timed::TimedBus::finish),
     })
 }
 
@@ -495,5 +532,97 @@ mod tests {
             Some(&[0x34, 0x12][..]),
             "{first:?}"
         );
+    }
+
+    /// On the timed bus two frames queued at once go out lower identifier first, back to back;
+    /// every node receives each at the microsecond its EOF ends (rounded up), and a gateway's
+    /// re-published frame is queued then, behind nothing: the second event frame is already on
+    /// the bus, so it waits for it.
+    #[test]
+    fn the_timed_bus_delivers_each_frame_when_it_ends() {
+        let text = "[bus]\nbitrate = 500000\n[nodes.hand]\nid = 2\n\
+                    [topics.grasp]\ncan_id = 0x120\n[topics.release]\ncan_id = 0x110\n\
+                    [ports.\"hand.command\"]\nrepublish = { can_id = 0x300 }\n\
+                    [connections.G]\ntopic = \"grasp\"\nport = \"hand.command\"\nst = 1.0\ntc = 1.0\n\
+                    [connections.R]\ntopic = \"release\"\nport = \"hand.command\"\nst = 1.0\ntc = 1.0\n\
+                    rule = \"false\"\n\
+                    [[events]]\ntopic = \"grasp\"\nat = [0.5]\n\
+                    [[events]]\ntopic = \"release\"\nat = [0.5]\n";
+        let network = Network::parse(Source::new("net.toml", text)).unwrap();
+        let compiled = crate::compile::compile(&network).unwrap();
+        let options = Options {
+            timed_bus: true,
+            ..Options::default()
+        };
+        let outcome = simulate(&network, &compiled, &options).unwrap();
+        let run = outcome.timed.as_ref().unwrap();
+        let clock = run.clock;
+        let at = |id: u16| {
+            run.transmissions
+                .iter()
+                .find(|t| {
+                    t.frame.id()
+                        == embedded_can::Id::Standard(embedded_can::StandardId::new(id).unwrap())
+                })
+                .unwrap_or_else(|| panic!("no frame {id:#x}: {:?}", run.transmissions))
+        };
+        let (release, grasp, republished) = (at(0x110), at(0x120), at(0x300));
+        assert_eq!(release.start, clock.at_us(500_000));
+        assert_eq!(grasp.start, release.end);
+        assert_eq!(release.sender, timed::Sender::Scenario);
+        // Its bits as sent: 500 kbit/s, 2 µs a bit, 1 µs units; delivered at its EOF's end.
+        let bits = crate::can_frame::transmitted(&release.frame);
+        assert_eq!(release.end - release.start, u128::from(bits.nominal) * 2);
+        assert_eq!(release.end_of_frame, release.end - 6);
+        assert_eq!(release.delivered_us, clock.ceil_us(release.end_of_frame));
+        // The gateway re-publishes grasp's frame when it has it, and that waits for nothing.
+        assert_eq!(republished.queued_us, grasp.delivered_us);
+        assert_eq!(republished.sender, timed::Sender::Node(0));
+        assert_eq!(
+            republished.start,
+            grasp.end.max(clock.at_us(grasp.delivered_us))
+        );
+        assert!(release.wait(&clock) == 0 && grasp.wait(&clock) == release.end - release.start);
+        // The trace and the candump log see the frames when the nodes received them.
+        let row = outcome.rows.iter().find(|r| r.delivered).unwrap();
+        assert_eq!(row.t_us, grasp.delivered_us);
+        assert!(
+            outcome
+                .bus
+                .iter()
+                .any(|f| f.t_us == republished.delivered_us && f.frame == republished.frame)
+        );
+        // The ideal bus, for comparison: everything at 0.5 s.
+        let ideal = simulate(&network, &compiled, &Options::default()).unwrap();
+        assert!(ideal.timed.is_none());
+        assert_eq!(
+            ideal.rows.iter().find(|r| r.delivered).unwrap().t_us,
+            500_000
+        );
+    }
+
+    #[test]
+    fn the_timed_bus_needs_a_bus_and_a_simulation() {
+        let text = include_str!("../../examples/first-network.toml");
+        let network = Network::parse(Source::new("net.toml", text)).unwrap();
+        let compiled = crate::compile::compile(&network).unwrap();
+        let options = Options {
+            timed_bus: true,
+            ..Options::default()
+        };
+        let error = simulate(&network, &compiled, &options).unwrap_err();
+        assert!(
+            error
+                .0
+                .starts_with("the timed bus needs the bus's bit rate: the network has no [bus]"),
+            "{error}"
+        );
+        let network = Network::parse(Source::new(
+            "net.toml",
+            format!("[bus]\nbitrate = 500000\n{text}"),
+        ))
+        .unwrap();
+        let error = run(&network, &compiled, &[], 1_000_000, &options, &mut |_| {}).unwrap_err();
+        assert!(error.0.contains("a replay's are the capture's"), "{error}");
     }
 }

@@ -18,3 +18,4 @@ mod subsumption;
 mod take_and_return;
 mod take_and_return_dynamics;
 mod test_files;
+mod timed_bus;

@@ -88,6 +88,7 @@ pub fn run(
         samples: plot_path.is_some(),
         records: records_path.is_some(),
         dynamics: false,
+        timed_bus: false,
     };
     let bar = progress_bar(feed.frames.len() as u64, "replaying {pos}/{len} frames");
     let outcome = sim::run(

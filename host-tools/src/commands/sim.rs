@@ -1,5 +1,6 @@
 //! `pabctl sim`: the network on a simulated bus, its report and the files it writes (trace, plot,
-//! candump log, dynamics trace); then the schema server's part of the run.
+//! candump log, dynamics trace), with `--timed-bus` the latencies against the bounds; then the
+//! schema server's part of the run.
 
 use std::path::Path;
 
@@ -15,6 +16,8 @@ use crate::output::{eprintln_line, plural, println_line, refuse_unwritable, writ
 
 /// The ports' part of `pabctl sim`. It returns whether the file has a schema server and no port,
 /// for then `--plot` is the schema server's to draw.
+// One argument per option of the command line, as `main` hands them over.
+#[allow(clippy::too_many_arguments)]
 pub fn run(
     path: &Path,
     until: Option<f64>,
@@ -22,6 +25,7 @@ pub fn run(
     plot_path: Option<&Path>,
     candump_path: Option<&Path>,
     dynamics_path: Option<&Path>,
+    timed_bus: bool,
     json: bool,
 ) -> Result<bool, Failure> {
     // With --json, standard output is the JSON's alone.
@@ -42,6 +46,15 @@ pub fn run(
             .into(),
         ));
     }
+    if timed_bus && network.bus.is_none() {
+        return Err(Failure::Input(
+            Diagnostic::file(
+                path,
+                "--timed-bus: the network has no [bus], so no bit rate to time its frames at (add `[bus]` with `bitrate = 500000`, and `data_bitrate` for CAN FD)",
+            )
+            .into(),
+        ));
+    }
     let schema_only = network.ports.is_empty() && network.client.is_some();
     let nodes = compiled(&network, None)?;
     let options = Options {
@@ -50,6 +63,7 @@ pub fn run(
         records: false,
         // The plot draws the dynamics groups' lanes.
         dynamics: dynamics_path.is_some() || plot_path.is_some(),
+        timed_bus,
     };
     let outcome = sim::simulate(&network, &nodes, &options)
         .map_err(|error| Failure::Input(Diagnostic::file(path, error.to_string()).into()))?;
@@ -62,6 +76,20 @@ pub fn run(
         sim::seconds_text(outcome.until_us)
     ));
     report_and_trace(&network, &outcome, trace, say)?;
+    // The latencies against the bounds, at the file's rates; their failure waits for the files
+    // and the JSON, as a verdict does.
+    let mut late = Vec::new();
+    let comparison = match &outcome.timed {
+        Some(run) => {
+            let timing = pab_lang::check::bus::timing(&network);
+            let comparison = sim::latency::compare(&network, &timing, run)
+                .map_err(|error| Failure::Input(Diagnostic::file(path, error).into()))?;
+            say(comparison.table(&timing).trim_end().to_string());
+            late = comparison.errors(&network, &timing);
+            Some((comparison, timing))
+        }
+        None => None,
+    };
     if let Some(plot_path) = plot_path.filter(|_| !schema_only) {
         let title = path
             .file_name()
@@ -98,7 +126,14 @@ pub fn run(
         ));
     }
     if json {
-        println!("{}", pabctl::json::sim(path, &network, &outcome));
+        let mut value = pabctl::json::sim(path, &network, &outcome);
+        if let Some((comparison, timing)) = &comparison {
+            value["timed_bus"] = pabctl::json::timed_bus(comparison, timing);
+        }
+        println!("{value}");
+    }
+    if !late.is_empty() {
+        return Err(Failure::Latencies(late));
     }
     Ok(schema_only)
 }

@@ -21,7 +21,8 @@
 //!   period describes it instead;
 //! - the **protocol's own frames** whose rate the network and docs/can-protocol.md determine, at
 //!   the most their nodes send: each node's heartbeat group (Heartbeat, TableStatus, Traffic,
-//!   Errors) at the nodes' default heartbeat period; each dynamics group's Gates, one per step
+//!   Errors, and FilterStatus on a node with HBBA filters) at the nodes' default heartbeat
+//!   period; each dynamics group's Gates, one per step
 //!   at most (a change at every step), at least every 100 ms; each BLE group member's claim once
 //!   per group period; a schema server's SchemaState every 100 ms, and its drive's attractor,
 //!   attractor rotation and impedance frames every loop period (the impedance, "on change and
@@ -35,7 +36,9 @@
 //!
 //! Everything else the protocol sends on events whose rate the network does not say (faults,
 //! schema transfers and answers, HBBA's traffic, the diagnostic stream, identity, configuration,
-//! firmware updates, seals) is listed as not analysed, with the reason.
+//! firmware updates, seals) is listed as not analysed, with the reason; so is the identity each
+//! node announces once at start-up, which is not periodic. The simulator's timed bus
+//! (`pabctl sim --timed-bus`) shows what those frames do to the others.
 
 use std::ops::Range;
 
@@ -99,6 +102,18 @@ pub struct BusStream {
     /// A gateway's feeding topics (indices into the network's topics): its jitter is theirs
     /// to arrive, found by the analysis.
     pub feeders: Vec<usize>,
+    /// A BLE claim's stream: the claims of this node in this group, whatever the eligibility
+    /// their identifiers carry (every other stream's frames are those on [`BusStream::id`]).
+    pub claim: Option<ClaimOf>,
+}
+
+/// Whose claims a BLE claim stream is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ClaimOf {
+    /// The node, by index into the network's nodes.
+    pub node: usize,
+    /// The group, by index into the network's groups.
+    pub group: usize,
 }
 
 impl BusStream {
@@ -127,6 +142,7 @@ impl BusStream {
             deadline_ns: period_ns,
             span,
             feeders: Vec::new(),
+            claim: None,
         }
     }
 }
@@ -204,6 +220,7 @@ pub fn streams(network: &Network) -> Streams {
                 deadline_ns: timing.deadline_ns,
                 span: timing.span.clone(),
                 feeders: Vec::new(),
+                claim: None,
             },
         );
     }
@@ -266,6 +283,7 @@ pub fn streams(network: &Network) -> Streams {
             deadline_ns: period_ns,
             span: port.span.clone(),
             feeders,
+            claim: None,
         };
         if port.value.is_some() {
             // A value port's output changes on every frame of a contributor and when one ages
@@ -289,16 +307,30 @@ pub fn streams(network: &Network) -> Streams {
             push(&mut out, gateway(name, period_ns, feeders));
         }
     }
-    for node in &network.nodes {
+    for (node_index, node) in network.nodes.iter().enumerate() {
         let config =
             pab_app::Config::new(node.id).unwrap_or_else(|_| pab_app::Config::unassigned());
         let period_ns = config.heartbeat_period_us * 1000;
-        for service in [
+        // A node whose table has HBBA filters (a strategy filters one of its connections) ends
+        // its heartbeat group with FilterStatus.
+        let filters = network.hbba.as_ref().is_some_and(|hbba| {
+            hbba.strategies.iter().flat_map(|s| &s.filters).any(|f| {
+                network
+                    .connections
+                    .get(f.connection)
+                    .and_then(|c| network.ports.get(c.port))
+                    .is_some_and(|p| p.node == node_index)
+            })
+        });
+        let group = [
             Service::Heartbeat,
             Service::TableStatus,
             Service::Traffic,
             Service::Errors,
-        ] {
+        ]
+        .into_iter()
+        .chain(filters.then_some(Service::FilterStatus));
+        for service in group {
             let id = protocol_id(service, node.id, BROADCAST);
             push(
                 &mut out,
@@ -331,24 +363,26 @@ pub fn streams(network: &Network) -> Streams {
             ),
         );
     }
-    for group in &network.groups {
+    for (group_index, group) in network.groups.iter().enumerate() {
         for member in &group.members {
             let Some(node) = network.nodes.get(member.node) else {
                 continue;
             };
             let id = CLAIM_BASE | 0xFFFF << 7 | u32::from(node.id);
             let period_ns = u64::from(group.period_us) * 1000;
-            push(
-                &mut out,
-                BusStream::protocol(
-                    format!("{}: claim of {}", node.name, group.name),
-                    (id, true),
-                    CLAIM_BASE,
-                    pab_core::ble::PAYLOAD_LEN,
-                    period_ns,
-                    group.span.clone(),
-                ),
+            let mut stream = BusStream::protocol(
+                format!("{}: claim of {}", node.name, group.name),
+                (id, true),
+                CLAIM_BASE,
+                pab_core::ble::PAYLOAD_LEN,
+                period_ns,
+                group.span.clone(),
             );
+            stream.claim = Some(ClaimOf {
+                node: member.node,
+                group: group_index,
+            });
+            push(&mut out, stream);
         }
     }
     for board in &network.schema_boards {
@@ -414,7 +448,12 @@ pub fn streams(network: &Network) -> Streams {
             reason: "on events: at most one per code per 100 ms and node, but how many codes at once is not determinable".into(),
         });
         out.unanalysed.push(Unanalysed {
-            name: "Diagnostic stream, identity, configuration, firmware update".into(),
+            name: "Identity".into(),
+            reason: "announced once at start-up (6 frames a node at priority 4), not periodic"
+                .into(),
+        });
+        out.unanalysed.push(Unanalysed {
+            name: "Diagnostic stream, identity on request, configuration, firmware update".into(),
             reason: "switched on or sent at an operator's request".into(),
         });
     }
@@ -426,7 +465,7 @@ pub fn streams(network: &Network) -> Streams {
     }
     if network.hbba.is_some() {
         out.unanalysed.push(Unanalysed {
-            name: "Desire, Intention, FilterProfile, FilterSet, FilterStatus, Exploitation".into(),
+            name: "Desire, Intention, FilterProfile, FilterSet, FilterStatus answering them, Exploitation".into(),
             reason:
                 "HBBA's traffic follows desires and solves, whose rate the network does not say"
                     .into(),
@@ -439,6 +478,11 @@ pub fn streams(network: &Network) -> Streams {
 /// One stream's result at a bit rate.
 #[derive(Clone, Debug)]
 pub struct Row {
+    /// T as analysed, in the analysis's time units (rounded down).
+    pub period: u64,
+    /// J as analysed, in the analysis's time units (rounded up; a gateway's: found by the
+    /// analysis).
+    pub jitter: u64,
     /// C, ns (rounded up).
     pub c_ns: u64,
     /// C in the analysis's time units.
@@ -625,6 +669,8 @@ pub fn analyse_at(streams: &Streams, bitrate: u32, data_bitrate: Option<u32>) ->
                 response
             };
             Row {
+                period: stream.period,
+                jitter: stream.jitter,
                 c_ns: nanoseconds(stream.bits, per_second),
                 c: stream.bits,
                 // As written, but a gateway's, which the analysis found.

@@ -9,6 +9,11 @@
 //! what the nodes send (its bus is the capture) and otherwise runs the same way, which is how
 //! `pab_app::replay::feed` runs a node, so the two record the same verdicts.
 //!
+//! On the timed bus ([`super::timed`]) nothing reaches the nodes when it is sent: the given
+//! frames of an instant and what the nodes send are queued, and each instant begins with the bus:
+//! the frame whose EOF has ended goes to every node but its sender (their answers are queued
+//! then), and the next frame starts if its start has passed.
+//!
 //! The observation only reads the nodes: a port's selection when an activity may lapse (a
 //! microsecond after τ has passed since a connection's last accepted frame), every port and BLE
 //! group after the instant's work, the stimulation samples for plots.
@@ -22,6 +27,7 @@ use pab_core::protocol::{self, FrameKind, Message};
 use pab_core::{Arbiter, Frame, Instant};
 
 use super::station::{IntentStation, Observer, Station};
+use super::timed::{Sender, TimedBus, Transmission};
 use super::{BusFrame, Change, DynamicsRow, Holding, Options, SimError, TraceRow};
 use crate::network::{Kind, Network};
 use crate::series::Sample;
@@ -57,6 +63,8 @@ pub(super) struct Run<'a> {
     pub bus: Vec<BusFrame>,
     /// HBBA's intention node (with `[hbba]`, in a simulation; never in a replay).
     pub intent: Option<IntentStation<'a>>,
+    /// The timed bus, with [`Options::timed_bus`]; the ideal bus without.
+    pub timed: Option<TimedBus>,
 }
 
 impl Run<'_> {
@@ -94,6 +102,7 @@ impl Run<'_> {
             let next_wake = self.wakes.peek().map(|Reverse((t, _))| *t);
             let next_sample = self.options.samples.then_some(next_grid);
             let next_halt = halts.peek().map(|(t, _)| *t);
+            let next_on_bus = self.timed.as_ref().and_then(TimedBus::next_us);
             // A deadline already past (the node was busy then) is served now.
             let next_poll = self
                 .stations
@@ -101,7 +110,7 @@ impl Run<'_> {
                 .filter_map(Station::due)
                 .chain(self.intent.as_ref().and_then(IntentStation::due))
                 .min();
-            let Some(next) = [next_frame, next_wake, next_sample, next_halt]
+            let Some(next) = [next_frame, next_wake, next_sample, next_halt, next_on_bus]
                 .into_iter()
                 .flatten()
                 .chain(next_poll.map(|t| t.max(now)))
@@ -119,7 +128,23 @@ impl Run<'_> {
                 self.sample_all(now);
                 next_grid = next_grid.saturating_add(grid);
             }
+            if let Some(delivered) = self.timed.as_mut().and_then(|bus| bus.deliver(now)) {
+                if delivered.sender == Sender::Scenario {
+                    sent += 1;
+                    if sent.is_multiple_of(65_536) {
+                        progress(sent);
+                    }
+                }
+                self.deliver(&delivered, now);
+            }
+            if let Some(bus) = self.timed.as_mut() {
+                bus.start(now);
+            }
             while let Some(frame) = pending.next_if(|frame| frame.t_us == now) {
+                if let Some(bus) = self.timed.as_mut() {
+                    bus.queue(now, Sender::Scenario, frame.frame);
+                    continue;
+                }
                 for station in 0..self.stations.len() {
                     self.feed(station, &frame.frame, now);
                 }
@@ -228,8 +253,20 @@ impl Run<'_> {
     }
 
     /// The frames the nodes sent by `now` on the bus, lower identifier first, each heard by
-    /// every other running node; their answers follow, round after round.
+    /// every other running node; their answers follow, round after round. On the timed bus they
+    /// are queued instead, and carried later.
     fn exchange(&mut self, now_us: u64) -> Result<(), SimError> {
+        if let Some(bus) = self.timed.as_mut() {
+            for (sender, frame) in std::mem::take(&mut self.outgoing) {
+                let sender = if sender == INTENT {
+                    Sender::Intention
+                } else {
+                    Sender::Node(sender)
+                };
+                bus.queue(now_us, sender, frame);
+            }
+            return Ok(());
+        }
         for _ in 0..MAX_ROUNDS {
             if self.outgoing.is_empty() {
                 return Ok(());
@@ -262,6 +299,28 @@ impl Run<'_> {
             "at {} s the nodes were still answering each other after {MAX_ROUNDS} rounds",
             super::seconds_text(now_us)
         )))
+    }
+
+    /// The timed bus's frame `delivered`, at `now`, the microsecond its EOF ended in: to every
+    /// running node but its sender, and to the intention node unless it sent it.
+    fn deliver(&mut self, delivered: &Transmission, now_us: u64) {
+        let frame = delivered.frame;
+        let carried = BusFrame {
+            t_us: now_us,
+            frame,
+        };
+        if delivered.sender != Sender::Scenario {
+            self.sent.push(carried);
+        }
+        self.bus.push(carried);
+        for station in 0..self.stations.len() {
+            if delivered.sender != Sender::Node(station) {
+                self.feed(station, &frame, now_us);
+            }
+        }
+        if delivered.sender != Sender::Intention {
+            self.feed_intent(&frame, now_us);
+        }
     }
 
     /// What station `station` sent, taken from it: on the bus next ([`Run::exchange`]). A node
@@ -413,6 +472,9 @@ impl Run<'_> {
     /// not sent yet stays unsent.
     fn halt(&mut self, station: usize, t_us: u64) {
         self.outgoing.retain(|(sender, _)| *sender != station);
+        if let Some(bus) = self.timed.as_mut() {
+            bus.drop_from(Sender::Node(station));
+        }
         for port in self.ports_of(station) {
             self.note(port, t_us, None);
         }
