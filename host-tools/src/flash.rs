@@ -625,6 +625,11 @@ impl Flash<'_> {
         }
         let node = self.node;
         Outcome::NoAnswer(match error {
+            TxError::Timeout if self.bus.framing() == crate::bus::Framing::Fd => format!(
+                "no flow control from node {node} for {what} in CAN FD frames within 1 s (is it \
+                 on the bus? `pabctl nodes`; a node built without CAN FD, a board, ignores them: \
+                 flash without --fd)"
+            ),
             TxError::Timeout => format!(
                 "no flow control from node {node} for {what} within 1 s (is it on the bus? \
                  `pabctl nodes`)"

@@ -515,6 +515,11 @@ fn transfer_failed(
         return Ok(refused(status));
     }
     let why = match error {
+        TxError::Timeout if bus.framing() == crate::bus::Framing::Fd => format!(
+            "no flow control from node {node} within 1 s to the image's CAN FD frames (is it on \
+             the bus? `pabctl nodes`; a node built without CAN FD, a board, ignores them: push \
+             without --fd)"
+        ),
         TxError::Timeout => format!(
             "no flow control from node {node} within 1 s (is it on the bus? `pabctl nodes`)"
         ),

@@ -149,6 +149,31 @@ fn a_push_in_can_fd_frames_reaches_every_node_in_fewer_frames() {
     assert!(transfer_frames > compiled.len() * 2, "{transfer_frames}");
 }
 
+/// A CAN FD push nobody answers says what a classic node does with CAN FD frames.
+#[test]
+fn an_unanswered_can_fd_push_says_a_classic_node_ignores_it() {
+    let (_, compiled) = take_and_return();
+    let hub = MemoryHub::new();
+    let mut tool = hub.connect().with_framing(pabctl::bus::Framing::Fd);
+    let node = &compiled[0];
+    let outcome = push::push(
+        &mut tool,
+        node.id,
+        &node.image,
+        &header(&node.image),
+        Timeouts::default(),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let Outcome::NoAnswer(why) = outcome else {
+        panic!("{outcome:?}");
+    };
+    assert!(
+        why.contains("CAN FD") && why.contains("without --fd"),
+        "{why}"
+    );
+}
+
 #[test]
 fn refusals_and_silence_are_reported_with_their_reason() {
     // The arm runs version 2 of its table.

@@ -129,3 +129,25 @@ impl Bus for SocketCanBus {
         self.framing
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// This machine's kernel may have no SocketCAN: the MTU is read from any interface's sysfs
+    /// entry, and an interface that does not exist has none.
+    #[test]
+    fn the_mtu_comes_from_sysfs() {
+        assert!(mtu("lo").is_some_and(|mtu| mtu > 0));
+        assert_eq!(mtu("no-such-can-interface"), None);
+    }
+
+    #[test]
+    fn a_classic_interface_is_named_with_what_to_do() {
+        let why = classic_only("vcan7");
+        assert!(why.contains("MTU 16"), "{why}");
+        assert!(why.contains("ip link set vcan7 mtu 72"), "{why}");
+        assert!(why.contains("fd on"), "{why}");
+        assert!(why.contains("without --fd"), "{why}");
+    }
+}
