@@ -1,6 +1,6 @@
 //! ISO 15765-2 (ISO-TP) transport: messages of any length over classic CAN's 8-byte frames and,
 //! by ISO 15765-2:2016, over CAN FD frames of up to 64 bytes ([`fd`]'s codec, [`FdSender`], and
-//! with the feature `fd` [`Receiver::on_fd_frame`]).
+//! with the feature `fd` `Receiver::on_fd_frame`).
 //!
 //! Table images (up to 32 KiB) travel from the workstation to the nodes with ISO-TP, because
 //! python `can-isotp`, Linux's `can-isotp` sockets and Wireshark already speak it. This module is

@@ -2,7 +2,7 @@
 //!
 //! With the feature `fd`, one receiver takes both kinds of transfer (ISO 15765-2:2016): classic
 //! ISO-TP from classic frames ([`Receiver::on_frame`]) and CAN FD ISO-TP from CAN FD frames
-//! ([`Receiver::on_fd_frame`]). A reception is of the kind of its First Frame, whose length is the
+//! (`Receiver::on_fd_frame`). A reception is of the kind of its First Frame, whose length is the
 //! sender's TX_DL (the receiver's RX_DL); a Consecutive Frame of the other kind is ignored, as the
 //! standard ignores a frame of an invalid length, and a Single or First Frame of either kind
 //! starts a new message.
@@ -104,7 +104,7 @@ pub enum Ignored {
     /// A Flow Control: a receiver sends those, it does not take them.
     FlowControl,
     /// A Consecutive Frame of the other kind than the reception's First Frame: a classic frame
-    /// during a CAN FD reception, or a CAN FD frame during a classic one ([`Receiver::on_fd_frame`],
+    /// during a CAN FD reception, or a CAN FD frame during a classic one (`Receiver::on_fd_frame`,
     /// feature `fd`).
     OtherFormat,
     /// A CAN FD Consecutive Frame longer than RX_DL (the First Frame's length), or shorter and not
