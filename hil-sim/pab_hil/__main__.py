@@ -64,8 +64,9 @@ def main(argv: list[str] | None = None) -> int:
     suite = commands.add_parser(
         "suite",
         help="run the HIL pytest suite on vcan0, or in a micro-VM where the kernel has no vcan",
-        description="Picks where the suite runs and says which: an existing vcan0; a vcan0 it "
-        "creates (root, kernel with vcan); else a QEMU micro-VM with the distribution's kernel. "
+        description="Picks where the suite runs and says which: an existing vcan0 and vcan1 "
+        "(MTU 72: the CAN FD tests' bus); ones it creates (root, kernel with vcan); else a QEMU "
+        "micro-VM with the distribution's kernel, which has both. "
         "Extra arguments go to pytest. Exits with pytest's status.",
         epilog="environment:\n"
         "  PAB_HIL_ACCEL=auto|kvm|tcg  the micro-VM's accelerator (default auto: KVM if /dev/kvm\n"
@@ -78,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     suite.add_argument("--out", type=Path, default=DEFAULT_OUT,
                        help=f"results directory (default: {DEFAULT_OUT})")
     suite.add_argument("--way", choices=["auto", "host", "vm"], default="auto",
-                       help="force the host's vcan0 or the micro-VM (default: auto)")
+                       help="force the host's vcan0 and vcan1 or the micro-VM (default: auto)")
     # A guard against a hung job, not a budget: the suite takes about 6 minutes on a quiet 2-core
     # machine under software emulation and about 9 beside two busy processes.
     suite.add_argument("--timeout", type=float, default=1800.0,
@@ -194,13 +195,15 @@ def run_suite(args) -> int:
     extra = [a for a in args.pytest_args if a != "--"]
     way = args.way
     if way == "auto":
-        way = "host" if _host_vcan("vcan0") else "vm"
-    elif way == "host" and not _host_vcan("vcan0"):
-        print("run-hil: no vcan0 on this machine and none can be created", file=sys.stderr)
+        way = "host" if _host_vcan("vcan0") and _host_vcan(FD_IFACE, CANFD_MTU) else "vm"
+    elif way == "host" and not (_host_vcan("vcan0") and _host_vcan(FD_IFACE, CANFD_MTU)):
+        print(f"run-hil: no vcan0 and {FD_IFACE} (MTU {CANFD_MTU}) on this machine and none can "
+              "be made", file=sys.stderr)
         return 2
     # --durations=0: every test's time in the log, to watch the suite's growth against CI's budget.
     pytest = [sys.executable, "-m", "pytest", str(REPO / "hil-sim" / "tests"),
-              "--iface", "vcan0", "--hil-out", str(out), "-ra", "--durations=0",
+              "--iface", "vcan0", "--fd-iface", FD_IFACE, "--hil-out", str(out), "-ra",
+              "--durations=0",
               "--durations-min=1", *extra]
     if args.command:
         # The venv's python first on PATH, so `python -m pab_hil ...` works as typed.
@@ -316,6 +319,7 @@ def _run_where(args, way: str, command: str, out: Path) -> tuple[int, str]:
             f"export {board.UART_ENV}=/dev/ttyS1 {board.CONTROL_ENV}=/dev/ttyS2",
             f"cd {shlex.quote(str(REPO))}",
             "ip link show vcan0 | head -1",
+            f"ip link show {FD_IFACE} | head -1",
             command + (" --color=no" if not args.command else ""),
             "",
         ])
@@ -331,9 +335,24 @@ def _run_where(args, way: str, command: str, out: Path) -> tuple[int, str]:
     return status, way_text
 
 
-def _host_vcan(name: str) -> bool:
-    """Whether `name` exists, creating it (root, kernel with vcan) if it can."""
-    if Path(f"/sys/class/net/{name}").exists():
+#: The CAN FD tests' bus (MTU 72), beside the classic vcan0: `--fd-iface` of the suite.
+FD_IFACE = "vcan1"
+CANFD_MTU = 72
+
+
+def _host_vcan(name: str, mtu: int | None = None) -> bool:
+    """Whether `name` exists (with MTU `mtu`, if given), creating it (root, kernel with vcan) if
+    it can."""
+    path = Path(f"/sys/class/net/{name}")
+    if path.exists():
+        if mtu is None or int((path / "mtu").read_text()) == mtu:
+            return True
+        if os.geteuid() != 0:
+            return False
+        subprocess.run(["ip", "link", "set", "down", name], check=True)
+        subprocess.run(["ip", "link", "set", name, "mtu", str(mtu)], check=True)
+        subprocess.run(["ip", "link", "set", "up", name], check=True)
+        print(f"run-hil: set {name}'s MTU to {mtu}")
         return True
     if os.geteuid() != 0 or shutil.which("ip") is None:
         return False
@@ -346,8 +365,10 @@ def _host_vcan(name: str) -> bool:
                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     if added.returncode != 0:
         return False
+    if mtu is not None:
+        subprocess.run(["ip", "link", "set", name, "mtu", str(mtu)], check=True)
     subprocess.run(["ip", "link", "set", "up", name], check=True)
-    print(f"run-hil: created {name}")
+    print(f"run-hil: created {name}" + (f" (MTU {mtu})" if mtu is not None else ""))
     return True
 
 

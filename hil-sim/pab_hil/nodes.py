@@ -206,10 +206,16 @@ class PushResult:
 
     def transfers(self) -> dict[str, tuple[int, float]]:
         """Per node pabctl reached: (bytes, seconds from the first frame to the last), from its
-        lines "NAME  node N  LEN bytes in MS ms  ok: ..."."""
-        found = re.finditer(r"^\s*(\S+)\s+node\s+\d+\s+(\d+) bytes in (\d+) ms", self.output,
-                            re.MULTILINE)
-        return {m.group(1): (int(m.group(2)), int(m.group(3)) / 1000) for m in found}
+        lines "NAME  node N  LEN bytes in MS ms (F classic CAN frames)  ok: ..."."""
+        return {name: (length, seconds) for name, (length, seconds, _, _) in self.pushes().items()}
+
+    def pushes(self) -> dict[str, tuple[int, float, int, str]]:
+        """Per node pabctl reached: (bytes, seconds from the first frame to the last, the frames
+        it sent, "classic CAN" or "CAN FD")."""
+        found = re.finditer(r"^\s*(\S+)\s+node\s+\d+\s+(\d+) bytes in (\d+) ms "
+                            r"\((\d+) (classic CAN|CAN FD) frames?\)", self.output, re.MULTILINE)
+        return {m.group(1): (int(m.group(2)), int(m.group(3)) / 1000, int(m.group(4)), m.group(5))
+                for m in found}
 
 
 def push(
@@ -219,10 +225,14 @@ def push(
     table_version: int | None = None,
     timeout: float = 120.0,
     key: Path | None = None,
+    fd: bool = False,
 ) -> PushResult:
     """`pabctl push`: the real path a table takes to a node (ISO-TP, then the node's checks);
-    with `key` (a key file), the key holder's authenticated push."""
+    with `key` (a key file), the key holder's authenticated push; with `fd`, in CAN FD frames
+    (`--fd`: ISO-TP on CAN FD, 64-byte frames with the bit-rate switch)."""
     command = [str(binary("pabctl")), "push", str(network), "--iface", iface]
+    if fd:
+        command.append("--fd")
     if node is not None:
         command += ["--node", node]
     if key is not None:

@@ -117,7 +117,10 @@ class Listening:
     """The harness's socket: the observer on python-can's Notifier thread, and a way to send."""
 
     def __init__(self, iface: str, observer: Observer) -> None:
-        self.bus = can.Bus(interface="socketcan", channel=iface, can_filters=FILTERS)
+        # CAN FD frames too (CAN_RAW_FD_FRAMES): on a CAN FD bus a gateway re-publishes a CAN FD
+        # topic's frame as CAN FD, which a classic socket would never see. Classic frames come
+        # as before, on either kind of interface.
+        self.bus = can.Bus(interface="socketcan", channel=iface, can_filters=FILTERS, fd=True)
         # The default buffer (~270 frames): in a flood, this thread (slower than the bus under
         # emulation) loses some of the re-publications and status frames that pass its filters,
         # rather than falling seconds behind the bus, which the closed loop could not afford.

@@ -46,6 +46,7 @@ class Session:
         loss: Loss | None = None,
         board_elf: Path | None = None,
         board_boot: "BehindBootloader | None" = None,
+        fd: bool = False,
     ) -> None:
         self.iface = iface
         self.out_dir = out_dir
@@ -62,6 +63,7 @@ class Session:
         self.behaviours: BehaviourProcesses | None = None
         self.recorder: Recorder | None = None
         self.pushed: PushResult | None = None  # pabctl push's result, once started
+        self.fd = fd  # the tables pushed in CAN FD frames (pabctl push --fd)
         self.listening: Listening | None = None
         self.observer = Observer(self.world)
         self._stop = threading.Event()
@@ -89,11 +91,12 @@ class Session:
         self.progress(f"nodes started on {self.iface}: " + ", ".join(
             f"{name} (id {node.node_id}, pid {node.pid})" for name, node in self.nodes.by_name.items()
         ))
-        result = self.pushed = push(self.network, self.iface)
+        result = self.pushed = push(self.network, self.iface, fd=self.fd)
         (self.out_dir / "push.txt").write_text(result.output)
         if not result.ok:
             raise ScenarioError(f"pabctl push failed (status {result.returncode}):\n{result.output}")
-        self.progress(f"tables pushed with pabctl push {self.network.name}")
+        self.progress(f"tables pushed with pabctl push {self.network.name}"
+                      + (" --fd" if self.fd else ""))
         self.behaviours = BehaviourProcesses(self.world, self.iface, self.behaviour_names,
                                              loss=self.loss)
         self.world.set_person(self.person)

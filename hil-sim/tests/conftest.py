@@ -56,6 +56,8 @@ def pytest_runtest_makereport(item, call):
 def pytest_addoption(parser):
     parser.addoption("--iface", default=os.environ.get("PAB_HIL_IFACE", "vcan0"),
                      help="SocketCAN interface for the HIL tests (default: vcan0)")
+    parser.addoption("--fd-iface", default=os.environ.get("PAB_HIL_FD_IFACE", "vcan1"),
+                     help="SocketCAN interface with MTU 72 for the CAN FD tests (default: vcan1)")
     parser.addoption("--hil-out", default=str(REPO / "target" / "hil"),
                      help="directory for logs, plots and figures (default: target/hil)")
 
@@ -66,6 +68,21 @@ def iface(request) -> str:
     if not Path(f"/sys/class/net/{name}").exists():
         pytest.fail(f"no CAN interface {name!r} on this machine: run the suite with "
                     "hil-sim/run-hil (it makes one, in a micro-VM if need be)")
+    return name
+
+
+@pytest.fixture(scope="session")
+def fd_iface(request) -> str:
+    """The CAN FD tests' bus: an interface that carries CAN FD frames (MTU 72)."""
+    name = request.config.getoption("--fd-iface")
+    mtu = Path(f"/sys/class/net/{name}/mtu")
+    if not mtu.exists():
+        pytest.fail(f"no CAN interface {name!r} on this machine: run the suite with "
+                    "hil-sim/run-hil (it makes one with MTU 72, in a micro-VM if need be)")
+    if int(mtu.read_text()) != 72:
+        pytest.fail(f"{name} carries classic CAN only (MTU {mtu.read_text().strip()}): the CAN FD "
+                    f"tests need MTU 72 (`ip link set {name} down; ip link set {name} mtu 72; "
+                    f"ip link set {name} up`)")
     return name
 
 

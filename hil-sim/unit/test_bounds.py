@@ -9,8 +9,8 @@ from pab_hil import bounds
 from pab_hil.nodes import PushResult, transfer_budget
 
 PUSH = """\
-       arm  node  10  516 bytes in 84 ms  ok: version 1 running, stored
-      hand  node  11  1204 bytes in 1312 ms  ok: version 1 running, stored
+       arm  node  10  516 bytes in 84 ms (9 CAN FD frames)  ok: runs version 1 (stored)
+      hand  node  11  1204 bytes in 1312 ms (173 classic CAN frames)  ok: runs version 1 (stored)
       gaze  node  12  80 bytes  FAILED: no answer
 """
 
@@ -18,6 +18,8 @@ PUSH = """\
 def test_push_times_per_node_from_pabctls_lines():
     # A node pabctl reached no further than the transfer's start has no time: none listed.
     assert PushResult(0, PUSH).transfers() == {"arm": (516, 0.084), "hand": (1204, 1.312)}
+    assert PushResult(0, PUSH).pushes() == {"arm": (516, 0.084, 9, "CAN FD"),
+                                            "hand": (1204, 1.312, 173, "classic CAN")}
     assert PushResult(0, "").transfers() == {}
 
 

@@ -368,6 +368,11 @@ is reported with the reason, and the command fails (exit status 4) after trying 
         /// version reset; version 0 stays refused).
         #[arg(long, requires = "key")]
         replace: bool,
+        /// Send the transfer in CAN FD frames (ISO-TP on CAN FD: 64-byte frames with the
+        /// bit-rate switch, 63 bytes of the message a frame) instead of classic ones: for nodes
+        /// built with CAN FD (pab-node) on an interface that carries CAN FD frames (MTU 72).
+        #[arg(long)]
+        fd: bool,
     },
     /// Run the simulated robot of a schema server's board on a live bus.
     #[command(long_about = "\
@@ -421,6 +426,11 @@ not sent here.")]
         /// Receipt that verifies. Needed by a board with a key, refused by one without.
         #[arg(long, value_name = "FILE")]
         key: Option<PathBuf>,
+        /// Send the transfer in CAN FD frames (ISO-TP on CAN FD: 64-byte frames with the
+        /// bit-rate switch, 63 bytes of the message a frame) instead of classic ones: for nodes
+        /// built with CAN FD (pab-node) on an interface that carries CAN FD frames (MTU 72).
+        #[arg(long)]
+        fd: bool,
     },
     /// Tighten a live schema server's safety limits, or set them back to its table's.
     #[command(long_about = "\
@@ -451,6 +461,11 @@ pabctl limits arm.toml --dry-run --joint elbow=-45:90")]
         /// Print the limits and check them; send nothing.
         #[arg(long)]
         dry_run: bool,
+        /// Send the transfer in CAN FD frames (ISO-TP on CAN FD: 64-byte frames with the
+        /// bit-rate switch, 63 bytes of the message a frame) instead of classic ones: for nodes
+        /// built with CAN FD (pab-node) on an interface that carries CAN FD frames (MTU 72).
+        #[arg(long)]
+        fd: bool,
     },
     /// Create a node key file (32 hexadecimal characters, mode 0600), or with --signing a
     /// firmware signing key.
@@ -567,6 +582,11 @@ Examples:
         /// How long to wait for a node to come back after its restart into the bootloader.
         #[arg(long, value_name = "SECONDS", default_value = "30", value_parser = args::seconds)]
         restart_timeout: f64,
+        /// Send the update's messages in CAN FD frames (ISO-TP on CAN FD: 64-byte frames with the
+        /// bit-rate switch, 63 bytes of the message a frame) instead of classic ones: for nodes
+        /// built with CAN FD (pab-node) on an interface that carries CAN FD frames (MTU 72).
+        #[arg(long)]
+        fd: bool,
     },
     /// Write a starter network file: the tutorial's, or one of the examples.
     #[command(long_about = "\

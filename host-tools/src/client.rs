@@ -21,15 +21,16 @@ use std::io;
 use std::time::{Duration, Instant};
 
 use pab_core::auth::Authenticator;
-use pab_core::isotp::{FlowControlEffect, Sender, TxConfig, TxEvent};
+use pab_core::isotp::{FlowControlEffect, TxEvent};
 use pab_core::protocol::{
     self, BROADCAST, Message, OPEN_SCHEMA, SchemaAck, SchemaChannel, SchemaOutcome, SchemaState,
-    SchemaTransition, TransferOpen,
+    SchemaTransition, Service, TransferOpen,
 };
 use pab_core::schema::{Action, Channel, Gripper, Limits, MAX_ENCODED, Pose, Schema, build};
 
 use crate::bus::Bus;
 use crate::push;
+use crate::transfer::TransferSender;
 
 /// Why a call failed.
 #[derive(Debug)]
@@ -205,15 +206,12 @@ impl<'b> Client<'b> {
         let clock = |now: Instant| {
             pab_core::Instant::from_micros(now.duration_since(start).as_micros() as u64)
         };
-        let mut sender =
-            Sender::new(&message, TxConfig::default()).map_err(|_| ClientError::TooLarge)?;
+        let framing = self.bus.framing();
+        let mut sender = TransferSender::new(&message, Service::SchemaTransfer, self.node, framing)
+            .map_err(|_| ClientError::TooLarge)?;
         loop {
             match sender.poll(clock(Instant::now())) {
-                TxEvent::Send(data) => {
-                    let frame = Message::SchemaTransfer { data, len: 8 }
-                        .to_frame(protocol::TOOL, self.node);
-                    self.bus.send(&frame)?;
-                }
+                TxEvent::Send(frame) => self.bus.send(&frame)?,
                 TxEvent::WaitUntil(until) => {
                     let wait = Duration::from_micros(
                         until.micros_since(clock(Instant::now())).unwrap_or(0),

@@ -22,7 +22,7 @@ use std::time::{Duration, Instant};
 use pab_core::auth::Authenticator;
 use pab_core::crc32::{Crc32, crc32};
 use pab_core::identity::Firmware;
-use pab_core::isotp::{FlowControlEffect, Sender, TxConfig, TxError, TxEvent};
+use pab_core::isotp::{FlowControlEffect, TxError, TxEvent};
 use pab_core::protocol::{
     self, FaultCode, Message, OPEN_UPDATE, Service, TransferOpen, UpdateStatus, UpdateStatusCode,
 };
@@ -31,6 +31,7 @@ use pab_core::update::{MANIFEST_LEN, SignedImage, UpdateRefusal};
 
 use crate::bus::Bus;
 use crate::push::{Challenged, Refusals, challenge, no_challenge_reason};
+use crate::transfer::TransferSender;
 
 /// How long to wait at each stage, and how often to try again.
 #[derive(Clone, Copy, Debug)]
@@ -569,21 +570,19 @@ impl Flash<'_> {
                 u64::try_from(clock.elapsed().as_micros()).unwrap_or(u64::MAX),
             )
         };
-        let mut sender = match Sender::new(message, TxConfig::default()) {
-            Ok(sender) => sender,
-            Err(error) => {
-                return Ok(Some(Outcome::Failed(format!(
-                    "cannot send {what}: {error:?}"
-                ))));
-            }
-        };
+        let framing = self.bus.framing();
+        let mut sender =
+            match TransferSender::new(message, Service::UpdateTransfer, self.node, framing) {
+                Ok(sender) => sender,
+                Err(error) => {
+                    return Ok(Some(Outcome::Failed(format!(
+                        "cannot send {what}: {error:?}"
+                    ))));
+                }
+            };
         loop {
             match sender.poll(now()) {
-                TxEvent::Send(data) => {
-                    let frame = Message::UpdateTransfer { data, len: 8 }
-                        .to_frame(protocol::TOOL, self.node);
-                    self.bus.send(&frame)?;
-                }
+                TxEvent::Send(frame) => self.bus.send(&frame)?,
                 TxEvent::WaitUntil(until) => {
                     let wait = Duration::from_micros(until.micros_since(now()).unwrap_or(0));
                     let Some(frame) = self.bus.receive(wait)? else {
@@ -626,6 +625,11 @@ impl Flash<'_> {
         }
         let node = self.node;
         Outcome::NoAnswer(match error {
+            TxError::Timeout if self.bus.framing() == crate::bus::Framing::Fd => format!(
+                "no flow control from node {node} for {what} in CAN FD frames within 1 s (is it \
+                 on the bus? `pabctl nodes`; a node built without CAN FD, a board, ignores them: \
+                 flash without --fd)"
+            ),
             TxError::Timeout => format!(
                 "no flow control from node {node} for {what} within 1 s (is it on the bus? \
                  `pabctl nodes`)"

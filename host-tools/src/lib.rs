@@ -7,7 +7,8 @@
 //! simulated robot in front of its board ([`plant`]). Key files ([`keys`]) and the command
 //! line's numbers ([`args`]) are here too, `pabctl solve`'s report of HBBA's intention solver
 //! ([`solve`]), firmware signing keys and signed images ([`signing`]), and a signed image's way to a node
-//! over the bus ([`flash`]).
+//! over the bus ([`flash`]). Every transfer to a node (table, schema, firmware) goes through
+//! [`transfer`], in classic or CAN FD frames as its bus says ([`bus::Framing`]).
 //!
 //! The `pabctl` command itself is the binary's: `main.rs` and the modules it declares beside
 //! these (`cli.rs`, `commands/`, `failure.rs`, `output.rs`).
@@ -28,3 +29,4 @@ pub mod push;
 pub mod signing;
 pub mod solve;
 pub mod starter;
+pub mod transfer;

@@ -104,6 +104,7 @@ fn main() -> ExitCode {
             table_version,
             key,
             replace,
+            fd,
         } => commands::push::run(
             &network,
             &iface,
@@ -111,6 +112,7 @@ fn main() -> ExitCode {
             table_version,
             key.as_deref(),
             replace,
+            commands::framing(fd),
         ),
         Command::Plant {
             network,
@@ -125,12 +127,14 @@ fn main() -> ExitCode {
             timeout,
             trace,
             key,
+            fd,
         } => commands::schema_server::run(
             &network,
             &iface,
             timeout,
             trace.as_deref(),
             key.as_deref(),
+            commands::framing(fd),
         ),
         Command::Limits {
             network,
@@ -138,9 +142,16 @@ fn main() -> ExitCode {
             key,
             overrides,
             dry_run,
+            fd,
         } => {
             let iface = if dry_run { None } else { iface };
-            commands::schema_server::limits(&network, iface.as_deref(), key.as_deref(), &overrides)
+            commands::schema_server::limits(
+                &network,
+                iface.as_deref(),
+                key.as_deref(),
+                &overrides,
+                commands::framing(fd),
+            )
         }
         Command::Init { file, example } => commands::init::run(&file, example.as_deref()),
         Command::Keygen { output, signing } => {
@@ -178,6 +189,7 @@ fn main() -> ExitCode {
             network,
             key,
             restart_timeout,
+            fd,
         } => commands::flash::run(
             &firmware,
             &iface,
@@ -185,6 +197,7 @@ fn main() -> ExitCode {
             network.as_deref(),
             key.as_deref(),
             restart_timeout,
+            commands::framing(fd),
         ),
         Command::Keypage {
             key,

@@ -17,12 +17,13 @@ use std::time::{Duration, Instant};
 use pab_core::Frame;
 use pab_core::auth::Authenticator;
 use pab_core::image::Header;
-use pab_core::isotp::{FlowControlEffect, Sender, TxConfig, TxError, TxEvent};
+use pab_core::isotp::{FlowControlEffect, TxError, TxEvent};
 use pab_core::protocol::{
-    self, AuthFailure, FaultCode, Message, OPEN_REPLACE, TransferOpen, TransferStatusCode,
+    self, AuthFailure, FaultCode, Message, OPEN_REPLACE, Service, TransferOpen, TransferStatusCode,
 };
 
 use crate::bus::Bus;
+use crate::transfer::TransferSender;
 
 /// How long to wait at each stage.
 #[derive(Clone, Copy, Debug)]
@@ -126,7 +127,8 @@ pub struct Credentials {
 }
 
 /// Pushes `image` (whose header is `header`) to node `node`, reporting progress as
-/// `(bytes sent, total)`.
+/// `(bytes sent, total)` after each frame sent (so the calls count the frames), in the frames of
+/// the bus's [`Framing`](crate::bus::Framing).
 pub fn push(
     bus: &mut dyn Bus,
     node: u8,
@@ -265,6 +267,10 @@ impl Bus for Refusals<'_> {
         self.bus.send(frame)
     }
 
+    fn framing(&self) -> crate::bus::Framing {
+        self.bus.framing()
+    }
+
     fn receive(&mut self, timeout: Duration) -> std::io::Result<Option<Frame>> {
         let frame = self.bus.receive(timeout)?;
         if let Some(Ok((id, Message::Fault(fault)))) = frame.as_ref().map(Message::decode)
@@ -385,7 +391,8 @@ fn push_steps(
     }
     let image = &message[..];
     let clock = Clock::new();
-    let mut sender = match Sender::new(image, TxConfig::default()) {
+    let framing = bus.framing();
+    let mut sender = match TransferSender::new(image, Service::TableTransfer, node, framing) {
         Ok(sender) => sender,
         Err(error) => {
             return Ok(Outcome::NoAnswer(format!(
@@ -398,8 +405,7 @@ fn push_steps(
     loop {
         let event = sender.poll(clock.now());
         match event {
-            TxEvent::Send(data) => {
-                let frame = Message::TableTransfer { data, len: 8 }.to_frame(protocol::TOOL, node);
+            TxEvent::Send(frame) => {
                 bus.send(&frame)?;
                 let (sent, total) = sender.progress();
                 progress(sent, total);
@@ -509,6 +515,11 @@ fn transfer_failed(
         return Ok(refused(status));
     }
     let why = match error {
+        TxError::Timeout if bus.framing() == crate::bus::Framing::Fd => format!(
+            "no flow control from node {node} within 1 s to the image's CAN FD frames (is it on \
+             the bus? `pabctl nodes`; a node built without CAN FD, a board, ignores them: push \
+             without --fd)"
+        ),
         TxError::Timeout => format!(
             "no flow control from node {node} within 1 s (is it on the bus? `pabctl nodes`)"
         ),

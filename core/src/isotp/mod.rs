@@ -1,5 +1,6 @@
-//! ISO 15765-2 (ISO-TP) transport for classic CAN: messages of any length over 8-byte frames;
-//! [`fd`], the frame codec's CAN FD forms (frames of up to 64 bytes), which no transfer uses yet.
+//! ISO 15765-2 (ISO-TP) transport: messages of any length over classic CAN's 8-byte frames and,
+//! by ISO 15765-2:2016, over CAN FD frames of up to 64 bytes ([`fd`]'s codec, [`FdSender`], and
+//! with the feature `fd` `Receiver::on_fd_frame`).
 //!
 //! Table images (up to 32 KiB) travel from the workstation to the nodes with ISO-TP, because
 //! python `can-isotp`, Linux's `can-isotp` sockets and Wireshark already speak it. This module is
@@ -11,7 +12,8 @@
 //! - Time: there is no clock here. Every call takes `now` ([`Instant`], µs); the state machines
 //!   tell the caller when they next need attention ([`Receiver::deadline`],
 //!   [`TxEvent::WaitUntil`]). Comparisons are wrap-safe.
-//! - Transmission: frames to send are returned as `[u8; 8]`, always padded to 8 bytes.
+//! - Transmission: frames to send are returned as `[u8; 8]`, always padded to 8 bytes; on CAN FD
+//!   as an [`fd::FdFrame`] of a CAN FD length, 8 bytes at least.
 //!
 //! Layers: [`pci`] is the pure frame codec (also for decoding captures); [`Receiver`] reassembles
 //! (the node's side), [`Sender`] segments (the workstation's side). Both handle one message at a
@@ -31,7 +33,7 @@ mod tx;
 
 pub use pci::{FlowStatus, FrameError, Pci, StMin};
 pub use rx::{Ignored, Receiver, Refusal, RxConfig, RxError, RxEvent, RxOutcome};
-pub use tx::{FlowControlEffect, Sender, TxConfig, TxError, TxEvent, TxSetupError};
+pub use tx::{FdSender, FlowControlEffect, Sender, TxConfig, TxError, TxEvent, TxSetupError};
 
 use crate::time::Instant;
 

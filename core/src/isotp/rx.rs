@@ -1,4 +1,11 @@
 //! The receiving side: frames in, Flow Controls and whole messages out.
+//!
+//! With the feature `fd`, one receiver takes both kinds of transfer (ISO 15765-2:2016): classic
+//! ISO-TP from classic frames ([`Receiver::on_frame`]) and CAN FD ISO-TP from CAN FD frames
+//! (`Receiver::on_fd_frame`). A reception is of the kind of its First Frame, whose length is the
+//! sender's TX_DL (the receiver's RX_DL); a Consecutive Frame of the other kind is ignored, as the
+//! standard ignores a frame of an invalid length, and a Single or First Frame of either kind
+//! starts a new message.
 
 use super::pci::{self, FRAME_LEN, FlowStatus, FrameError, Pci, StMin};
 use super::{deadline_after, expired};
@@ -96,6 +103,18 @@ pub enum Ignored {
     },
     /// A Flow Control: a receiver sends those, it does not take them.
     FlowControl,
+    /// A Consecutive Frame of the other kind than the reception's First Frame: a classic frame
+    /// during a CAN FD reception, or a CAN FD frame during a classic one (`Receiver::on_fd_frame`,
+    /// feature `fd`).
+    OtherFormat,
+    /// A CAN FD Consecutive Frame longer than RX_DL (the First Frame's length), or shorter and not
+    /// the last of its message (feature `fd`).
+    FdLength {
+        /// RX_DL: the First Frame's length.
+        rx_dl: usize,
+        /// The frame's length.
+        got: usize,
+    },
 }
 
 /// What the caller must do about the frame just passed to [`Receiver::on_frame`].
@@ -151,6 +170,9 @@ enum State {
         block_left: Option<u8>,
         /// N_Cr expires at this instant.
         deadline: Instant,
+        /// RX_DL of a CAN FD reception (its First Frame's length, 8..=64); 0 for a classic one.
+        #[cfg(feature = "fd")]
+        rx_dl: u8,
     },
 }
 
@@ -209,6 +231,34 @@ impl<const N: usize> Receiver<N> {
     /// then handled as above.
     pub fn on_frame(&mut self, data: &[u8], now: Instant) -> RxOutcome<'_> {
         self.core.on_frame(&mut self.buffer, data, now)
+    }
+
+    /// Handles one received CAN FD frame's data field (a CAN FD length, up to 64 bytes), as
+    /// [`Receiver::on_frame`] does a classic one, by ISO 15765-2:2016 (feature `fd`):
+    ///
+    /// - The frame decodes with [`fd::decode`](super::fd::decode): an escaped Single Frame, a
+    ///   First Frame of any TX_DL, the escaped First Frame above 4095 bytes.
+    /// - A First Frame's length is RX_DL for its reception: every Consecutive Frame but the last
+    ///   must be RX_DL long, and none longer (others are ignored, [`Ignored::FdLength`]); each
+    ///   carries RX_DL − 1 bytes.
+    /// - A classic frame's Consecutive Frame during a CAN FD reception, and a CAN FD one during a
+    ///   classic reception, are ignored ([`Ignored::OtherFormat`]): the sender then fails on its
+    ///   next Flow Control wait or the next frame in sequence ends the reception.
+    ///
+    /// The Flow Controls it hands out are the classic ones (3 bytes, padded to 8): the caller
+    /// sends them in a CAN FD frame, the kind of the frame that asked for them.
+    #[cfg(feature = "fd")]
+    pub fn on_fd_frame(&mut self, data: &[u8], now: Instant) -> RxOutcome<'_> {
+        self.core.on_fd_frame(&mut self.buffer, data, now)
+    }
+
+    /// Whether the reception in progress is a CAN FD one (`None` when idle; feature `fd`).
+    #[cfg(feature = "fd")]
+    pub fn is_fd(&self) -> Option<bool> {
+        match self.core.state {
+            State::Receiving { rx_dl, .. } => Some(rx_dl != 0),
+            State::Idle => None,
+        }
     }
 
     /// Aborts the reception in progress if N_Cr has expired at `now` (then `Some(Timeout)`).
@@ -302,10 +352,55 @@ impl Core {
             }
             Ok((Pci::First { len }, payload)) => {
                 aborted = aborted.or(self.interrupt());
-                self.first(buffer, len, payload, now)
+                self.first(
+                    buffer,
+                    len,
+                    payload,
+                    #[cfg(feature = "fd")]
+                    0,
+                    now,
+                )
             }
             Ok((Pci::Consecutive { sn }, payload)) => {
-                let (error, event) = self.consecutive(buffer, sn, payload, now);
+                let (error, event) = self.consecutive(
+                    buffer,
+                    sn,
+                    payload,
+                    #[cfg(feature = "fd")]
+                    0,
+                    now,
+                );
+                aborted = aborted.or(error);
+                event
+            }
+        };
+        RxOutcome { aborted, event }
+    }
+
+    /// [`Core::on_frame`] for a CAN FD frame: its decoder, and its length as RX_DL.
+    #[cfg(feature = "fd")]
+    fn on_fd_frame<'b>(
+        &mut self,
+        buffer: &'b mut [u8],
+        data: &[u8],
+        now: Instant,
+    ) -> RxOutcome<'b> {
+        let mut aborted = self.poll(now);
+        // A CAN FD length (fd::decode refuses any other): at most 64, so it fits.
+        let dl = u8::try_from(data.len()).unwrap_or(u8::MAX);
+        let event = match super::fd::decode(data) {
+            Err(error) => RxEvent::Ignored(Ignored::Malformed(error)),
+            Ok((Pci::FlowControl { .. }, _)) => RxEvent::Ignored(Ignored::FlowControl),
+            Ok((Pci::Single { len }, payload)) => {
+                aborted = aborted.or(self.interrupt());
+                single(buffer, len, payload)
+            }
+            Ok((Pci::First { len }, payload)) => {
+                aborted = aborted.or(self.interrupt());
+                self.first(buffer, len, payload, dl, now)
+            }
+            Ok((Pci::Consecutive { sn }, payload)) => {
+                let (error, event) = self.consecutive(buffer, sn, payload, dl, now);
                 aborted = aborted.or(error);
                 event
             }
@@ -323,6 +418,7 @@ impl Core {
         buffer: &'b mut [u8],
         len: u32,
         payload: &[u8],
+        #[cfg(feature = "fd")] rx_dl: u8,
         now: Instant,
     ) -> RxEvent<'b> {
         let total = usize::try_from(len)
@@ -345,6 +441,8 @@ impl Core {
             block_left: self.fresh_block(),
             // N_Cr runs from the Flow Control's transmission, which the caller does right away.
             deadline: deadline_after(now, self.config.n_cr_micros),
+            #[cfg(feature = "fd")]
+            rx_dl,
         };
         RxEvent::SendFlowControl(self.flow_control(FlowStatus::ContinueToSend))
     }
@@ -354,6 +452,7 @@ impl Core {
         buffer: &'b mut [u8],
         sn: u8,
         payload: &[u8],
+        #[cfg(feature = "fd")] frame_dl: u8,
         now: Instant,
     ) -> (Option<RxError>, RxEvent<'b>) {
         let State::Receiving {
@@ -361,11 +460,22 @@ impl Core {
             received,
             next_sn,
             block_left,
+            #[cfg(feature = "fd")]
+            rx_dl,
             ..
         } = self.state
         else {
             return (None, RxEvent::Ignored(Ignored::UnexpectedConsecutive));
         };
+        // Before the sequence number: a frame of the wrong kind or length is ignored (as the
+        // standard ignores a frame of an invalid length), never taken as a lost frame.
+        #[cfg(feature = "fd")]
+        let per_frame = match fd_consecutive_len(rx_dl, frame_dl, total.saturating_sub(received)) {
+            Ok(per_frame) => per_frame,
+            Err(ignored) => return (None, RxEvent::Ignored(ignored)),
+        };
+        #[cfg(not(feature = "fd"))]
+        let per_frame = pci::CONSECUTIVE_DATA_LEN;
         if sn != next_sn {
             // N_WRONG_SN: the standard aborts; the rest of the message's frames will be ignored as
             // unexpected, and the sender notices at its next Flow Control wait (N_Bs) if BS > 0.
@@ -379,7 +489,7 @@ impl Core {
             );
         }
         let remaining = total.saturating_sub(received);
-        let needed = remaining.min(pci::CONSECUTIVE_DATA_LEN);
+        let needed = remaining.min(per_frame);
         // Bytes after `needed` in the last frame are padding. A frame with fewer bytes than needed
         // is ignored (invalid length); the next one then has an unexpected SN and aborts.
         // Both sides are cut to exactly `needed` bytes, so the copy's length check folds away
@@ -424,6 +534,8 @@ impl Core {
             next_sn: next_sn.wrapping_add(1) & 0x0F,
             block_left,
             deadline: deadline_after(now, self.config.n_cr_micros),
+            #[cfg(feature = "fd")]
+            rx_dl,
         };
         (None, event)
     }
@@ -460,6 +572,30 @@ impl Core {
         let was_receiving = matches!(self.state, State::Receiving { .. });
         self.state = State::Idle;
         was_receiving
+    }
+}
+
+/// The payload bytes a full Consecutive Frame of the reception carries (7 on classic CAN, RX_DL −
+/// 1 on CAN FD), or why a Consecutive Frame of length `frame_dl` (0: a classic frame) is ignored
+/// by a reception of RX_DL `rx_dl` (0: a classic reception) with `remaining` bytes to come: of
+/// the other kind; longer than RX_DL; shorter and not the last (the Linux kernel's checks).
+#[cfg(feature = "fd")]
+fn fd_consecutive_len(rx_dl: u8, frame_dl: u8, remaining: usize) -> Result<usize, Ignored> {
+    match (rx_dl, frame_dl) {
+        (0, 0) => Ok(pci::CONSECUTIVE_DATA_LEN),
+        (0, _) | (_, 0) => Err(Ignored::OtherFormat),
+        (rx_dl, frame_dl) => {
+            let per_frame = usize::from(rx_dl).saturating_sub(1);
+            let last = remaining <= per_frame;
+            if frame_dl > rx_dl || (frame_dl < rx_dl && !last) {
+                Err(Ignored::FdLength {
+                    rx_dl: usize::from(rx_dl),
+                    got: usize::from(frame_dl),
+                })
+            } else {
+                Ok(per_frame)
+            }
+        }
     }
 }
 

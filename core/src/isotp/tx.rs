@@ -1,5 +1,10 @@
 //! The sending side: a borrowed payload in, frames out, paced by the receiver's Flow Controls.
+//!
+//! One state machine for both kinds of frame: [`Sender`] hands out classic CAN's 8-byte frames,
+//! [`FdSender`] CAN FD frames of up to TX_DL bytes (ISO 15765-2:2016); at TX_DL 8 the two send
+//! the same bytes.
 
+use super::fd::{self, FdFrame, TxDl};
 use super::pci::{self, FRAME_LEN, FlowStatus, Pci};
 use super::{deadline_after, expired};
 use crate::time::Instant;
@@ -97,12 +102,13 @@ impl core::fmt::Display for TxError {
 
 impl core::error::Error for TxError {}
 
-/// What the caller must do next for a [`Sender`].
+/// What the caller must do next for a [`Sender`] (frames of 8 bytes) or an [`FdSender`] (`F`:
+/// [`FdFrame`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum TxEvent {
+pub enum TxEvent<F = [u8; FRAME_LEN]> {
     /// Transmit this frame now, then poll again.
-    Send([u8; FRAME_LEN]),
+    Send(F),
     /// Nothing to send before this instant: STmin pacing, or the N_Bs deadline while waiting for
     /// a Flow Control (deliver it with [`Sender::on_flow_control`] when it comes). Poll again then.
     WaitUntil(Instant),
@@ -161,6 +167,8 @@ enum State {
 pub struct Sender<'a> {
     payload: &'a [u8],
     config: TxConfig,
+    /// The length of full frames: 8 for [`Sender`] itself, TX_DL for an [`FdSender`].
+    tx_dl: TxDl,
     /// Payload bytes handed out so far.
     sent: usize,
     /// The sequence number of the next Consecutive Frame.
@@ -183,6 +191,7 @@ impl<'a> Sender<'a> {
         Ok(Sender {
             payload,
             config,
+            tx_dl: TxDl::CLASSIC,
             sent: 0,
             // The First Frame is segment 0; Consecutive Frames start at 1.
             sn: 1,
@@ -197,6 +206,23 @@ impl<'a> Sender<'a> {
     /// N_Bs expires); `Done` once every byte has been handed out; `Failed` after N_Bs expired,
     /// an Overflow, too many WAITs or an invalid flow status. `Done` and `Failed` are final.
     pub fn poll(&mut self, now: Instant) -> TxEvent {
+        match self.step(now) {
+            // Always 8 bytes at TX_DL 8 (`new`'s): the classic frame, byte for byte.
+            TxEvent::Send(frame) => TxEvent::Send(
+                frame
+                    .as_bytes()
+                    .first_chunk::<FRAME_LEN>()
+                    .copied()
+                    .unwrap_or([self.config.padding; FRAME_LEN]),
+            ),
+            TxEvent::WaitUntil(at) => TxEvent::WaitUntil(at),
+            TxEvent::Done => TxEvent::Done,
+            TxEvent::Failed(error) => TxEvent::Failed(error),
+        }
+    }
+
+    /// [`Sender::poll`] with frames of up to TX_DL bytes.
+    fn step(&mut self, now: Instant) -> TxEvent<FdFrame> {
         match self.state {
             State::Start => self.start(now),
             State::AwaitFlowControl { deadline, .. } => {
@@ -219,20 +245,21 @@ impl<'a> Sender<'a> {
         }
     }
 
-    fn fail(&mut self, error: TxError) -> TxEvent {
+    fn fail(&mut self, error: TxError) -> TxEvent<FdFrame> {
         self.state = State::Failed(error);
         TxEvent::Failed(error)
     }
 
-    fn start(&mut self, now: Instant) -> TxEvent {
-        if let Ok(frame) = pci::encode_single(self.payload, self.config.padding) {
+    fn start(&mut self, now: Instant) -> TxEvent<FdFrame> {
+        if let Ok(frame) = fd::encode_single(self.payload, self.tx_dl, self.config.padding) {
             self.sent = self.payload.len();
             self.state = State::Done;
             return TxEvent::Send(frame);
         }
-        // `new` checked that the length fits in u32, and it is over 7 here.
+        // `new` checked that the length fits in u32, and it is over what a Single Frame carries
+        // here.
         let len = u32::try_from(self.payload.len()).unwrap_or(u32::MAX);
-        match pci::encode_first(len, self.payload) {
+        match fd::encode_first(len, self.payload, self.tx_dl) {
             Ok((frame, carried)) => {
                 self.sent = carried;
                 self.await_flow_control(now, 0);
@@ -250,10 +277,18 @@ impl<'a> Sender<'a> {
         };
     }
 
-    fn consecutive(&mut self, block_left: Option<u8>, st_min_micros: u32, now: Instant) -> TxEvent {
+    fn consecutive(
+        &mut self,
+        block_left: Option<u8>,
+        st_min_micros: u32,
+        now: Instant,
+    ) -> TxEvent<FdFrame> {
         let rest = self.payload.get(self.sent..).unwrap_or(&[]);
-        let data = rest.get(..pci::CONSECUTIVE_DATA_LEN).unwrap_or(rest);
-        let Ok(frame) = pci::encode_consecutive(self.sn, data, self.config.padding) else {
+        let data = rest
+            .get(..self.tx_dl.consecutive_data_len())
+            .unwrap_or(rest);
+        let Ok(frame) = fd::encode_consecutive(self.sn, data, self.tx_dl, self.config.padding)
+        else {
             // Only an empty `data`, which `Done` prevents.
             self.state = State::Done;
             return TxEvent::Done;
@@ -338,5 +373,53 @@ impl<'a> Sender<'a> {
     /// The payload being sent.
     pub fn payload(&self) -> &'a [u8] {
         self.payload
+    }
+}
+
+/// Segments one message into CAN FD frames of TX_DL bytes (ISO 15765-2:2016): [`Sender`]'s state
+/// machine (the same Flow Control handling, N_Bs, STmin and WAITs), with frames of up to 64
+/// bytes. Single Frames of up to TX_DL − 2 bytes use the escape, longer messages a First Frame
+/// of TX_DL bytes, then Consecutive Frames of TX_DL bytes but the last, padded to the smallest
+/// CAN FD length that holds it (and 8 at least). The caller sends each frame as a CAN FD frame.
+///
+/// Memory: [`Sender`]'s. Each call copies at most one frame (65 bytes). Never panics.
+#[derive(Clone, Debug)]
+pub struct FdSender<'a>(Sender<'a>);
+
+impl<'a> FdSender<'a> {
+    /// A sender of `payload` in frames of `tx_dl` bytes. Fails as [`Sender::new`].
+    pub fn new(payload: &'a [u8], config: TxConfig, tx_dl: TxDl) -> Result<Self, TxSetupError> {
+        let mut sender = Sender::new(payload, config)?;
+        sender.tx_dl = tx_dl;
+        Ok(FdSender(sender))
+    }
+
+    /// The next step at `now`, as [`Sender::poll`]: `Send` hands out a CAN FD frame's data field
+    /// (8 to TX_DL bytes, a valid CAN FD length).
+    pub fn poll(&mut self, now: Instant) -> TxEvent<FdFrame> {
+        self.0.step(now)
+    }
+
+    /// Takes a frame from the receiver, received at `now`, as [`Sender::on_flow_control`] (a Flow
+    /// Control's fields are its first 3 bytes, whatever the frame's length).
+    pub fn on_flow_control(&mut self, data: &[u8], now: Instant) -> FlowControlEffect {
+        // A Flow Control in a CAN FD frame may be longer than 8 bytes; its fields are the first 3.
+        let data = data.get(..FRAME_LEN).unwrap_or(data);
+        self.0.on_flow_control(data, now)
+    }
+
+    /// `(payload bytes handed out, payload length)`.
+    pub fn progress(&self) -> (usize, usize) {
+        self.0.progress()
+    }
+
+    /// The payload being sent.
+    pub fn payload(&self) -> &'a [u8] {
+        self.0.payload()
+    }
+
+    /// TX_DL, the length of its full frames.
+    pub fn tx_dl(&self) -> TxDl {
+        self.0.tx_dl
     }
 }

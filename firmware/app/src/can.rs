@@ -11,6 +11,12 @@
 //! waits there misses its deadlines on a quiet bus (no heartbeat, no fed watchdog). A driver
 //! that offers only the blocking trait usually has a non-blocking read underneath: implement
 //! [`embedded_can::nb::Can`] over that.
+//!
+//! The adapter is classic CAN: `embedded-can` 0.4's frame trait has no CAN FD (no FDF, no
+//! bit-rate switch). A frame of more than 8 bytes read through it becomes a CAN FD frame without
+//! the bit-rate switch, one of 8 bytes or fewer a classic one, and every frame is written with
+//! the trait's `new`. A node on a CAN FD bus writes a [`CanBus`] of its own that keeps the kind
+//! of each frame, as `pab-node`'s socket does (`firmware/linux/src/socket_bus.rs`).
 
 use core::future::poll_fn;
 use core::task::Poll;

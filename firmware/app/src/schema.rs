@@ -17,7 +17,7 @@ use pab_core::protocol::{
 };
 
 use crate::auth::Guard;
-use crate::node::{earlier, transfer_deadline};
+use crate::node::{Wire, earlier, transfer_deadline};
 use pab_core::auth;
 
 /// What a node with a key contributes to a schema transfer: its guard (the key), its id, and
@@ -45,7 +45,7 @@ const REPORT_PERIOD_US: u64 = 100_000;
 
 /// What the runtime asks the node to send or raise.
 pub enum Out {
-    /// A frame on the drive's identifiers.
+    /// A frame sent as it is: the drive's, or (CAN FD) a transfer's flow control.
     Drive(Frame),
     /// A frame of our protocol, to a destination (0xFF: all).
     Protocol(Message, u8),
@@ -159,10 +159,11 @@ impl SchemaRuntime {
     /// One ISO-TP frame of a SchemaTransfer from `source`. On a node with a key (`keys`), the
     /// node admitted the frame, a first frame with its open's nonce, and the message is checked
     /// against its MAC before anything in it is read; after the SchemaAck a Receipt confirms it.
-    pub fn on_transfer_frame(
+    pub(crate) fn on_transfer_frame(
         &mut self,
         source: u8,
         data: &[u8],
+        wire: Wire,
         now: Instant,
         keys: Keys<'_>,
         out: &mut impl FnMut(Out),
@@ -176,7 +177,7 @@ impl SchemaRuntime {
         if self.sender.is_some_and(|(s, _)| s != source) && self.receiver.in_progress().is_some() {
             return;
         }
-        let outcome = self.receiver.on_frame(data, now);
+        let outcome = wire.receive(&mut self.receiver, data, now);
         let aborted = outcome.aborted.is_some();
         // The flow control to send and the answer (outcome, channel, id) of a refused or
         // complete message, sent after the match: one copy of each frame's construction.
@@ -252,7 +253,7 @@ impl SchemaRuntime {
                 let length = self.receiver.message_len().unwrap_or(0);
                 self.sender = Some((source, transfer_deadline(now, length)));
             }
-            out(Out::Protocol(transfer(fc), source));
+            out(flow_control_out(fc, source, wire, keys.node));
         }
         if let Some((outcome, channel, id)) = answer {
             let ack = self.answer(source, outcome, channel, id, out);
@@ -386,6 +387,18 @@ fn set_limits(server: &mut Server, bytes: &[u8]) -> Result<(), SchemaOutcome> {
     server
         .set_limits(limits)
         .map_err(|r| SchemaOutcome::from(&r))
+}
+
+/// A flow control to `source`, in the kind of frame its transfer came in (`wire`): a CAN FD one as
+/// the frame itself (`node`: this node, its source).
+#[cfg_attr(not(feature = "fd"), allow(unused_variables))]
+#[inline(always)]
+fn flow_control_out(fc: [u8; 8], source: u8, wire: Wire, node: u8) -> Out {
+    #[cfg(feature = "fd")]
+    if let Some(frame) = transfer(fc).report_frame(node, source) {
+        return Out::Drive(wire.answer(frame));
+    }
+    Out::Protocol(transfer(fc), source)
 }
 
 fn transfer(flow_control: [u8; 8]) -> Message {

@@ -22,6 +22,10 @@ mod runner;
 mod sealed;
 mod swap;
 mod transfer;
+// Transfers in CAN FD frames: only with the feature (the Linux node enables it, so the
+// workspace's `cargo test` runs these).
+#[cfg(feature = "fd")]
+mod transfer_fd;
 #[cfg(feature = "update")]
 mod update;
 

@@ -175,6 +175,62 @@ fn a_pushed_table_is_stored_in_flash_and_the_node_boots_with_it() {
     });
 }
 
+/// The same through the async runner on the test bus, the table in CAN FD frames (TX_DL 64,
+/// bit-rate switch, feature `fd`): stored in flash, and every flow control the node sent a CAN
+/// FD frame with the bit-rate switch.
+#[cfg(feature = "fd")]
+#[test]
+fn a_table_pushed_in_can_fd_frames_is_stored_and_answered_in_can_fd() {
+    use pab_core::isotp::FdSender;
+    use pab_core::isotp::fd::TxDl;
+    let ids: Vec<u32> = (0..30).map(|k| 0x120 + k).collect();
+    let v1 = image(&priority_table(&ids, None), Harness::NODE_ID, 1);
+    let pushed = v1.clone();
+    let flash = with_running_node(Flash::new(), |mut tool| async move {
+        let transfer_id = Message::TableTransfer {
+            data: [0; 8],
+            len: 8,
+        }
+        .to_frame(protocol::TOOL, Harness::NODE_ID)
+        .id();
+        let mut sender = FdSender::new(&pushed, TxConfig::default(), TxDl::MAX).unwrap();
+        let mut flow_controls = Vec::new();
+        let status = loop {
+            match sender.poll(now()) {
+                TxEvent::Send(data) => {
+                    tool.send(&Frame::fd(transfer_id, data.as_bytes(), true).unwrap());
+                }
+                TxEvent::WaitUntil(_) => {
+                    // The flow control's frame itself, to see its kind.
+                    let frame = tool.receive().await.unwrap();
+                    if let Ok((id, Message::TableTransfer { .. })) = Message::decode(&frame)
+                        && id.destination == protocol::TOOL
+                    {
+                        flow_controls.push(frame);
+                        sender.on_flow_control(frame.payload(), now());
+                    }
+                }
+                TxEvent::Done => {
+                    break loop {
+                        if let (_, Message::TransferStatus(status)) = next_message(&mut tool).await
+                        {
+                            break status;
+                        }
+                    };
+                }
+                TxEvent::Failed(error) => panic!("transfer failed: {error:?}"),
+            }
+        };
+        assert_eq!(status.status, TransferStatusCode::Applied, "{status:?}");
+        // 608 bytes: a First Frame of 62, then 9 of 63: two blocks, two flow controls.
+        assert_eq!(flow_controls.len(), 2, "{flow_controls:?}");
+        assert!(flow_controls.iter().all(|f| f.is_fd() && f.is_brs()));
+    });
+    let mut reopened = store(flash);
+    let mut buf = vec![0u8; 8192];
+    assert_eq!(reopened.load(&mut buf).unwrap(), Some(&v1[..]));
+}
+
 #[test]
 fn the_node_reads_and_answers_frames_while_a_table_is_saved() {
     // Each page erase runs in the background for 30 checks of the flash: some 30 ms at the

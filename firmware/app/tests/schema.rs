@@ -276,3 +276,66 @@ fn the_state_is_streamed_every_100_ms() {
     assert!(states.last().unwrap().1.armed);
     let _ = Frame::empty();
 }
+
+/// A schema in CAN FD frames, at TX_DL 16 (a First Frame, Consecutive Frames and a flow control)
+/// and 64 (one escaped Single Frame): accepted as a classic transfer is, the flow control a CAN FD
+/// frame with the transfer's bit-rate switch.
+#[cfg(feature = "fd")]
+#[test]
+fn a_schema_in_can_fd_frames_is_accepted_and_its_flow_control_is_can_fd() {
+    use pab_core::isotp::fd::TxDl;
+    use pab_core::isotp::{FdSender, TxConfig, TxEvent};
+    use pab_core::protocol::{Message, TOOL};
+    use pab_core::{Frame, Instant};
+    for (tx, id) in [(16, 7), (64, 8)] {
+        let mut h = booted();
+        report(&mut h, [1000, 0, 0]);
+        h.advance_to(h.now + 5_000);
+        let mut message = vec![0];
+        let mut buf = [0u8; 300];
+        let schema = build::move_to(id, [1000 + 50, 0, 0, 0, 0, 0], 1000);
+        message.extend_from_slice(postcard::to_slice(&schema, &mut buf).unwrap());
+        let since = h.now;
+        let transfer_id = Message::SchemaTransfer {
+            data: [0; 8],
+            len: 8,
+        }
+        .to_frame(TOOL, Harness::NODE_ID)
+        .id();
+        let mut sender =
+            FdSender::new(&message, TxConfig::default(), TxDl::new(tx).unwrap()).unwrap();
+        let mut seen = h.sent.len();
+        let mut flow_controls = Vec::new();
+        for _ in 0..100 {
+            match sender.poll(Instant::from_micros(h.now)) {
+                TxEvent::Send(data) => {
+                    h.feed(&Frame::fd(transfer_id, data.as_bytes(), true).unwrap());
+                    h.advance_to(h.now + 100);
+                }
+                TxEvent::WaitUntil(until) => {
+                    while seen < h.sent.len() {
+                        let (_, frame) = h.sent[seen];
+                        seen += 1;
+                        if let Ok((fc_id, Message::SchemaTransfer { .. })) = Message::decode(&frame)
+                            && fc_id.destination == TOOL
+                        {
+                            flow_controls.push(frame);
+                            sender.on_flow_control(frame.payload(), Instant::from_micros(h.now));
+                        }
+                    }
+                    h.advance_to(until.as_micros().min(h.now + 100).max(h.now + 1));
+                }
+                TxEvent::Done | TxEvent::Failed(_) => break,
+            }
+        }
+        let ack = acks(&h, since).pop().expect("a SchemaAck");
+        assert_eq!(ack.outcome, SchemaOutcome::Accepted, "TX_DL {tx}");
+        assert_eq!(ack.id, id);
+        assert_eq!(
+            flow_controls.is_empty(),
+            message.len() <= tx - 2,
+            "TX_DL {tx}"
+        );
+        assert!(flow_controls.iter().all(|f| f.is_fd() && f.is_brs()));
+    }
+}

@@ -290,3 +290,41 @@ fn the_bootloaders_verdict_is_reported_at_start() {
         );
     }
 }
+
+/// An update in CAN FD frames (TX_DL 64): the same answers as a classic one, each message's flow
+/// control a CAN FD frame, and the image in the slot.
+#[cfg(feature = "fd")]
+#[test]
+fn an_update_in_can_fd_frames_goes_into_the_slot() {
+    use pab_core::isotp::fd::TxDl;
+    let image = image(2500);
+    let mut h = harness(|_| {});
+    let send_fd = |h: &mut Harness, message: &[u8]| {
+        let from = h.now;
+        let (end, flow_controls) =
+            h.push_fd_with(message, protocol::TOOL, TxDl::MAX, |_, _, f| Some(f));
+        assert_eq!(end, TxEvent::Done);
+        assert!(flow_controls.iter().all(|f| f.is_fd() && f.is_brs()));
+        answers(h, from)
+    };
+    let manifest = manifest("fw-test", "1.3.0", image.len());
+    assert_eq!(
+        send_fd(&mut h, &session::begin(&manifest)),
+        [status(UpdateStatusCode::Ready, 0, CHUNK as u32)]
+    );
+    let mut offset = 0;
+    for chunk in image.chunks(CHUNK) {
+        let mut message = session::chunk_head(offset as u32).to_vec();
+        message.extend_from_slice(chunk);
+        offset += chunk.len();
+        assert_eq!(
+            send_fd(&mut h, &message),
+            [status(
+                UpdateStatusCode::Ack,
+                offset as u32,
+                crc32(&image[..offset])
+            )]
+        );
+    }
+    assert_eq!(&h.update_slot[..2500], &image[..]);
+}

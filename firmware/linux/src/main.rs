@@ -24,6 +24,11 @@ use pab_node::socket_bus::SocketBus;
 /// stream. It accepts new tables from `pabctl push` over ISO-TP and stores them in --store so it
 /// boots with the latest one.
 ///
+/// Its socket takes CAN FD frames as well as classic ones: on an interface with MTU 72 (a vcan:
+/// `sudo ip link set vcan0 down; sudo ip link set vcan0 mtu 72; sudo ip link set vcan0 up`) it
+/// takes tables pushed in CAN FD frames (`pabctl push --fd`), answering in CAN FD, and arbitrates
+/// CAN FD topics; on a classic interface (MTU 16) it runs classic as before.
+///
 /// Example, three nodes on a virtual bus:
 ///
 ///   sudo modprobe vcan; sudo ip link add dev vcan0 type vcan; sudo ip link set up vcan0
@@ -171,9 +176,14 @@ fn start(args: Args) -> anyhow::Result<std::convert::Infallible> {
     }
     let uid_text: String = uid.iter().take(8).map(|b| format!("{b:02x}")).collect();
     log::info!(
-        "node {} (uid {uid_text}) on {} (heartbeat every {} ms, store {})",
+        "node {} (uid {uid_text}) on {} ({}; heartbeat every {} ms, store {})",
         node_id.map_or("unassigned".to_string(), |id| id.to_string()),
         args.iface,
+        if bus.carries_fd() {
+            "classic and CAN FD frames"
+        } else {
+            "classic CAN only: MTU 16"
+        },
         args.heartbeat_ms,
         args.store
             .as_ref()

@@ -125,6 +125,10 @@ pub const TARGETS: &[Target] = &[
         name: "isotp_fd",
         check: isotp_fd::check,
     },
+    Target {
+        name: "node_fd",
+        check: node::check_fd,
+    },
 ];
 
 /// The target named `name`. Panics for an unknown name (a fuzz target's file and its entry in

@@ -28,12 +28,21 @@
 //! - **The node boots with a stored image exactly when a transfer of it would be applied.**
 //! - **Everything the node sends decodes** and comes from its id; `Step::Store` never comes while
 //!   a store is still owed.
+//!
+//! The target `node_fd` ([`check_fd`]) runs the same script on the node built with the feature
+//! `fd`, and makes it CAN FD's too: transfers in CAN FD frames of any TX_DL (with or without the
+//! bit-rate switch) or classic ones, a transfer's frame changed into the other kind (a classic
+//! consecutive frame in a CAN FD transfer, or the reverse), and frames of up to 64 bytes on the
+//! topics and the protocol's identifiers. On top of the properties above: every flow control the
+//! node answers an untampered transfer with is of that transfer's kind (a CAN FD one with its
+//! bit-rate switch for a CAN FD transfer, a classic one for a classic transfer).
 
 use arbitrary::{Result, Unstructured};
 use embedded_can::{ExtendedId, Id, StandardId};
 use pab_app::{BusError, Config, Node, Recipient, Step};
 use pab_core::image::{self, LoadError, Loaded};
-use pab_core::isotp::{Sender, TxConfig, TxEvent};
+use pab_core::isotp::fd::TxDl;
+use pab_core::isotp::{FdSender, Sender, TxConfig, TxEvent};
 use pab_core::protocol::{
     self, FrameId, FrameKind, Message, Service, TransferStatus, TransferStatusCode,
 };
@@ -52,7 +61,34 @@ pub const NODE_ID: u8 = 5;
 
 /// Runs the fuzzer's script against one node.
 pub fn check(data: &[u8]) {
-    let _ = run(&mut Unstructured::new(data));
+    let _ = run(&mut Unstructured::new(data), false);
+}
+
+/// Runs the fuzzer's script against one node, with CAN FD transfers and frames among the
+/// classic ones (the target `node_fd`).
+pub fn check_fd(data: &[u8]) {
+    let _ = run(&mut Unstructured::new(data), true);
+}
+
+/// How a push sends its frames: classic ISO-TP, or CAN FD frames of TX_DL bytes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Framing {
+    Classic,
+    Fd { tx_dl: TxDl, brs: bool },
+}
+
+/// What a push does to one of its frames.
+#[derive(Clone, Debug)]
+enum Tamper {
+    /// Not sent.
+    Drop,
+    /// Sent as a classic frame with these bytes.
+    Bytes([u8; 8]),
+    /// The same bytes in the other kind of frame: a CAN FD frame's first 8 bytes as a classic
+    /// frame, a classic frame's as a CAN FD one.
+    OtherKind,
+    /// Sent as a CAN FD frame with these bytes (padded to a CAN FD length).
+    FdBytes(Vec<u8>),
 }
 
 /// The examples' images, for this node, version 1 (their tables as `pabctl compile` wrote them).
@@ -132,8 +168,9 @@ struct World {
     store_pending: bool,
     /// Transfer statuses the node sent, with their destination.
     statuses: Vec<(u8, TransferStatus)>,
-    /// ISO-TP frames (flow controls) the node sent, with their destination.
-    flow_controls: Vec<(u8, [u8; 8])>,
+    /// ISO-TP frames (flow controls) the node sent: their destination, bytes, and whether
+    /// the frame was CAN FD and had its bit-rate switch.
+    flow_controls: Vec<(u8, [u8; 8], bool, bool)>,
 }
 
 fn running_key(node: &TestNode) -> Option<(u32, u32)> {
@@ -220,7 +257,8 @@ impl World {
                 Message::TransferStatus(status) => self.statuses.push((id.destination, status)),
                 Message::TableTransfer { data, len } => {
                     assert_eq!(len, 8, "flow controls are padded");
-                    self.flow_controls.push((id.destination, data));
+                    self.flow_controls
+                        .push((id.destination, data, frame.is_fd(), frame.is_brs()));
                 }
                 Message::Gates(gates) => {
                     let runs = self
@@ -439,33 +477,69 @@ impl World {
         step
     }
 
-    /// Pushes `bytes` from `source` with pab-core's ISO-TP sender, delivering the node's flow
-    /// controls; `tamper`: (frame index, replacement bytes or none to drop it).
+    /// Pushes `bytes` from `source` with pab-core's ISO-TP sender (classic, or CAN FD by
+    /// `framing`), delivering the node's flow controls; `tamper`: a frame index and what is done
+    /// to that frame.
     fn push(
         &mut self,
         u: &mut Unstructured<'_>,
         bytes: &[u8],
         source: u8,
-        tamper: Option<(usize, Option<[u8; 8]>)>,
+        tamper: Option<(usize, Tamper)>,
+        framing: Framing,
     ) -> Result<()> {
-        let Ok(mut sender) = Sender::new(bytes, TxConfig::default()) else {
+        enum Either<'a> {
+            Classic(Sender<'a>),
+            Fd(FdSender<'a>),
+        }
+        let sender = match framing {
+            Framing::Classic => Sender::new(bytes, TxConfig::default()).map(Either::Classic),
+            Framing::Fd { tx_dl, .. } => {
+                FdSender::new(bytes, TxConfig::default(), tx_dl).map(Either::Fd)
+            }
+        };
+        let Ok(mut sender) = sender else {
             return Ok(());
         };
+        let brs = matches!(framing, Framing::Fd { brs: true, .. });
+        let transfer_id = Message::TableTransfer {
+            data: [0; 8],
+            len: 8,
+        }
+        .to_frame(source, NODE_ID)
+        .id();
         let running = running_key(&self.node);
         let answers = self.statuses.len();
+        let flow_controls = self.flow_controls.len();
         let mut index = 0;
         let mut seen = self.flow_controls.len();
         for _ in 0..10_000 {
-            match sender.poll(self.at()) {
-                TxEvent::Send(data) => {
-                    let data = match tamper {
-                        Some((at, replacement)) if at == index => replacement,
-                        _ => Some(data),
+            let event = match &mut sender {
+                Either::Classic(sender) => match sender.poll(self.at()) {
+                    TxEvent::Send(data) => TxEvent::Send(Frame::data(transfer_id, &data)),
+                    TxEvent::WaitUntil(at) => TxEvent::WaitUntil(at),
+                    TxEvent::Done => TxEvent::Done,
+                    TxEvent::Failed(error) => TxEvent::Failed(error),
+                },
+                Either::Fd(sender) => match sender.poll(self.at()) {
+                    TxEvent::Send(data) => {
+                        TxEvent::Send(Frame::fd(transfer_id, data.as_bytes(), brs))
+                    }
+                    TxEvent::WaitUntil(at) => TxEvent::WaitUntil(at),
+                    TxEvent::Done => TxEvent::Done,
+                    TxEvent::Failed(error) => TxEvent::Failed(error),
+                },
+            };
+            match event {
+                TxEvent::Send(frame) => {
+                    let frame = match &tamper {
+                        Some((at, change)) if *at == index => {
+                            frame.and_then(|frame| tampered(&frame, change, brs))
+                        }
+                        _ => frame,
                     };
                     index += 1;
-                    if let Some(data) = data {
-                        let frame =
-                            Message::TableTransfer { data, len: 8 }.to_frame(source, NODE_ID);
+                    if let Some(frame) = frame {
                         self.feed(u, &frame)?;
                     }
                     self.advance(self.now.wrapping_add(100));
@@ -473,11 +547,14 @@ impl World {
                 TxEvent::WaitUntil(until) => {
                     let next = self.flow_controls[seen..]
                         .iter()
-                        .position(|(to, _)| *to == source);
+                        .position(|(to, ..)| *to == source);
                     if let Some(offset) = next {
-                        let (_, fc) = self.flow_controls[seen + offset];
+                        let (_, fc, ..) = self.flow_controls[seen + offset];
                         seen += offset + 1;
-                        sender.on_flow_control(&fc, self.at());
+                        match &mut sender {
+                            Either::Classic(sender) => sender.on_flow_control(&fc, self.at()),
+                            Either::Fd(sender) => sender.on_flow_control(&fc, self.at()),
+                        };
                     } else {
                         let wait = until.as_micros().wrapping_sub(self.now).clamp(1, 2_000_000);
                         self.advance(self.now.wrapping_add(wait));
@@ -488,6 +565,20 @@ impl World {
         }
         if tamper.is_some() {
             return Ok(());
+        }
+        // An untampered transfer's flow controls are of its kind (a node answers in the kind of
+        // frame the transfer came in).
+        if source == protocol::TOOL {
+            let fd = framing != Framing::Classic;
+            for (to, fc, is_fd, is_brs) in &self.flow_controls[flow_controls..] {
+                if *to == source && fc[0] & 0xF0 == 0x30 {
+                    assert_eq!(
+                        (*is_fd, *is_brs),
+                        (fd, brs),
+                        "a flow control of another kind than its {framing:?} transfer"
+                    );
+                }
+            }
         }
         // The node's last answer to this source during the push, unless it was busy with another
         // transfer, or a store it still owes.
@@ -522,6 +613,21 @@ impl World {
             bytes.len()
         );
         Ok(())
+    }
+}
+
+/// `frame` (a transfer's, CAN FD with `brs` or classic) changed as `change` says; `None`:
+/// dropped.
+fn tampered(frame: &Frame, change: &Tamper, brs: bool) -> Option<Frame> {
+    match change {
+        Tamper::Drop => None,
+        Tamper::Bytes(data) => Frame::data(frame.id(), data),
+        Tamper::OtherKind if frame.is_fd() => {
+            let data = frame.payload();
+            Frame::data(frame.id(), data.get(..8).unwrap_or(data))
+        }
+        Tamper::OtherKind => Frame::fd(frame.id(), frame.payload(), brs),
+        Tamper::FdBytes(data) => Frame::fd(frame.id(), data, brs),
     }
 }
 
@@ -582,6 +688,38 @@ pub(crate) fn any_id(u: &mut Unstructured<'_>) -> Result<Id> {
 pub(crate) fn payload(u: &mut Unstructured<'_>) -> Result<Vec<u8>> {
     let len = u.int_in_range(0..=8)?;
     (0..len).map(|_| u.arbitrary()).collect()
+}
+
+/// Up to 64 bytes, for a CAN FD frame (padded to a CAN FD length by `Frame::fd`).
+fn fd_payload(u: &mut Unstructured<'_>) -> Result<Vec<u8>> {
+    let len = u.int_in_range(0..=64)?;
+    (0..len).map(|_| u.arbitrary()).collect()
+}
+
+/// `frame` as a CAN FD frame of the same identifier now and then, with a longer payload from the
+/// input or its own (the target `node_fd`).
+fn maybe_fd(u: &mut Unstructured<'_>, frame: Frame) -> Result<Frame> {
+    if !u.ratio(1u8, 3)? {
+        return Ok(frame);
+    }
+    let data = if u.arbitrary()? {
+        fd_payload(u)?
+    } else {
+        frame.payload().to_vec()
+    };
+    Ok(Frame::fd(frame.id(), &data, u.arbitrary()?).unwrap_or(frame))
+}
+
+/// A transfer's framing: classic a quarter of the time, else CAN FD at any TX_DL.
+fn framing(u: &mut Unstructured<'_>) -> Result<Framing> {
+    if u.ratio(1u8, 4)? {
+        return Ok(Framing::Classic);
+    }
+    let tx_dl = *u.choose(&[8usize, 12, 16, 20, 24, 32, 48, 64])?;
+    Ok(Framing::Fd {
+        tx_dl: TxDl::new(tx_dl).unwrap_or(TxDl::MAX),
+        brs: u.ratio(3u8, 4)?,
+    })
 }
 
 /// A frame of our protocol: any service, mostly to this node or everyone, any priority.
@@ -657,7 +795,7 @@ fn gates_frame(u: &mut Unstructured<'_>, shadow: Option<&Shadow>) -> Result<Fram
     Ok(Message::Gates(gates).to_frame(owner, protocol::BROADCAST))
 }
 
-fn run(u: &mut Unstructured<'_>) -> Result<()> {
+fn run(u: &mut Unstructured<'_>, fd: bool) -> Result<()> {
     let config = Config::new(NODE_ID).expect("node 5 is valid");
     let now: u64 = if u.ratio(1u8, 4)? { u.arbitrary()? } else { 0 };
     let mut node = TestNode::new(config, Instant::from_micros(now));
@@ -708,25 +846,22 @@ fn run(u: &mut Unstructured<'_>) -> Result<()> {
         match u.int_in_range(0u8..=15)? {
             0..=6 => {
                 let id = any_id(u)?;
-                // A CAN FD frame one time in four (the checks build pab-core with `fd`): the
-                // node arbitrates it as a classic one, its fields read up to byte 64.
-                let frame = if u.ratio(1u8, 4)? {
-                    let len = u.int_in_range(0..=pab_core::frame::FD_DATA_LEN)?;
-                    let data: Vec<u8> = (0..len).map(|_| u.arbitrary()).collect::<Result<_>>()?;
-                    Frame::fd(id, &data, u.arbitrary()?)
-                        .unwrap_or_else(|| unreachable!("at most 64 bytes"))
-                } else {
-                    let data = payload(u)?;
-                    Frame::data(id, &data).unwrap_or_else(|| unreachable!("8 bytes"))
-                };
+                let data = payload(u)?;
+                let mut frame = Frame::data(id, &data).unwrap_or_else(|| unreachable!("8 bytes"));
+                if fd {
+                    frame = maybe_fd(u, frame)?;
+                }
                 world.feed(u, &frame)?;
             }
             7..=8 => {
-                let frame = if u.ratio(1u8, 3)? {
+                let mut frame = if u.ratio(1u8, 3)? {
                     gates_frame(u, world.shadow.as_ref())?
                 } else {
                     protocol_frame(u)?
                 };
+                if fd {
+                    frame = maybe_fd(u, frame)?;
+                }
                 world.feed(u, &frame)?;
             }
             9..=10 => {
@@ -740,18 +875,28 @@ fn run(u: &mut Unstructured<'_>) -> Result<()> {
                     0 => u.arbitrary()?,
                     _ => protocol::TOOL,
                 };
+                let framing = if fd { framing(u)? } else { Framing::Classic };
                 let tamper = if u.ratio(1u8, 8)? {
                     let at = u.int_in_range(0..=bytes.len() / 7)?;
-                    let replacement = if u.arbitrary()? {
-                        Some(u.arbitrary()?)
+                    let change = if !fd {
+                        if u.arbitrary()? {
+                            Tamper::Bytes(u.arbitrary()?)
+                        } else {
+                            Tamper::Drop
+                        }
                     } else {
-                        None
+                        match u.int_in_range(0u8..=3)? {
+                            0 => Tamper::Drop,
+                            1 => Tamper::Bytes(u.arbitrary()?),
+                            2 => Tamper::OtherKind,
+                            _ => Tamper::FdBytes(fd_payload(u)?),
+                        }
                     };
-                    Some((at, replacement))
+                    Some((at, change))
                 } else {
                     None
                 };
-                world.push(u, &bytes, source, tamper)?;
+                world.push(u, &bytes, source, tamper, framing)?;
             }
             13 => {
                 let error = match u.int_in_range(0u8..=5)? {

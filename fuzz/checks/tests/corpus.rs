@@ -78,7 +78,8 @@ fn every_target_has_a_replay_test() {
             "update",
             "update_session",
             "node_update",
-            "isotp_fd"
+            "isotp_fd",
+            "node_fd"
         ]
     );
 }
@@ -181,4 +182,9 @@ fn node_update() {
 #[test]
 fn isotp_fd() {
     replay("isotp_fd");
+}
+
+#[test]
+fn node_fd() {
+    replay("node_fd");
 }

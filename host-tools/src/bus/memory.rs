@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use pab_core::Frame;
 
-use super::Bus;
+use super::{Bus, Framing};
 
 /// The stations of a hub: a key and the way into its inbox.
 type Stations = Vec<(usize, Sender<Frame>)>;
@@ -25,6 +25,7 @@ pub struct MemoryBus {
     key: usize,
     hub: MemoryHub,
     inbox: Receiver<Frame>,
+    framing: Framing,
 }
 
 impl MemoryHub {
@@ -46,6 +47,7 @@ impl MemoryHub {
             key,
             hub: self.clone(),
             inbox,
+            framing: Framing::Classic,
         }
     }
 
@@ -60,6 +62,13 @@ impl MemoryHub {
 }
 
 impl MemoryBus {
+    /// The same station, the tools' transfers through it framed as `framing` says (the bus
+    /// carries CAN FD frames as it carries classic ones).
+    pub fn with_framing(mut self, framing: Framing) -> MemoryBus {
+        self.framing = framing;
+        self
+    }
+
     /// The next frame if one is waiting, without blocking.
     pub fn try_receive(&mut self) -> Option<Frame> {
         self.inbox.try_recv().ok()
@@ -70,6 +79,10 @@ impl Bus for MemoryBus {
     fn send(&mut self, frame: &Frame) -> io::Result<()> {
         self.hub.broadcast(self.key, frame);
         Ok(())
+    }
+
+    fn framing(&self) -> Framing {
+        self.framing
     }
 
     fn receive(&mut self, timeout: Duration) -> io::Result<Option<Frame>> {

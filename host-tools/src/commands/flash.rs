@@ -9,7 +9,7 @@ use pab_lang::diagnostic::Diagnostic;
 use pab_lang::network::Network;
 use pabctl::flash;
 
-use super::{bus_failure, open_bus, read_key};
+use super::{bus_failure, open_bus_with, read_key};
 use crate::failure::Failure;
 use crate::output::plural;
 
@@ -23,6 +23,7 @@ pub fn run(
     network: Option<&Path>,
     key: Option<&Path>,
     restart_timeout: f64,
+    framing: pabctl::bus::Framing,
 ) -> Result<(), Failure> {
     // Everything is read and checked before the bus is opened.
     pab_lang::input::regular_file(firmware, "signed firmware image", MAX_IMAGE)
@@ -41,7 +42,7 @@ pub fn run(
     };
     let total = signed.image().len();
     let target = flash::firmware_text(&signed.trailer.firmware);
-    let mut bus = open_bus(iface)?;
+    let mut bus = open_bus_with(iface, framing)?;
     let mut failures = 0;
     let mut stopped = None;
     for (index, (id, name)) in targets.iter().enumerate() {

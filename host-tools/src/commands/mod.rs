@@ -27,7 +27,21 @@ use pabctl::bus::{self, Bus};
 use crate::failure::Failure;
 
 pub fn open_bus(iface: &str) -> Result<Box<dyn Bus>, Failure> {
-    bus::open(iface).map_err(|error| Failure::Bus(error.to_string()))
+    open_bus_with(iface, bus::Framing::Classic)
+}
+
+/// [`open_bus`], its transfers framed as `framing` says (`--fd`).
+pub fn open_bus_with(iface: &str, framing: bus::Framing) -> Result<Box<dyn Bus>, Failure> {
+    bus::open_with(iface, framing).map_err(|error| Failure::Bus(error.to_string()))
+}
+
+/// The transfers' framing `--fd` asks for.
+pub fn framing(fd: bool) -> bus::Framing {
+    if fd {
+        bus::Framing::Fd
+    } else {
+        bus::Framing::Classic
+    }
 }
 
 pub fn bus_failure(iface: &str) -> impl Fn(io::Error) -> Failure + '_ {

@@ -10,7 +10,7 @@ use pab_lang::network::Network;
 use pabctl::push;
 
 use super::compile::compiled;
-use super::{bus_failure, open_bus, read_key};
+use super::{bus_failure, open_bus_with, read_key};
 use crate::failure::Failure;
 use crate::output::plural;
 
@@ -21,6 +21,7 @@ pub fn run(
     table_version: Option<u32>,
     key: Option<&Path>,
     replace: bool,
+    framing: pabctl::bus::Framing,
 ) -> Result<(), Failure> {
     let network = Network::load(path)?;
     let credentials = match key {
@@ -47,7 +48,7 @@ pub fn run(
         }
         None => nodes.iter().collect(),
     };
-    let mut bus = open_bus(iface)?;
+    let mut bus = open_bus_with(iface, framing)?;
     let mut failures = 0;
     for node in selected {
         let header = pab_core::image::read_header(&node.image)
@@ -75,12 +76,15 @@ pub fn run(
             node.id, header.table_version
         ));
         // The transfer's time, first frame to last (what the node's time budget for a transfer
-        // counts: 1 s + 10 ms per consecutive frame), not the wait for its answer.
+        // counts: 1 s + 10 ms per consecutive frame), not the wait for its answer; and its
+        // frames (the push reports progress once a frame).
         let mut first_frame: Option<Instant> = None;
         let mut transferred: Option<Duration> = None;
+        let mut frames = 0usize;
         let mut progress = |sent: usize, total: usize| {
             let now = Instant::now();
             let started = *first_frame.get_or_insert(now);
+            frames += 1;
             if sent >= total {
                 transferred = Some(now - started);
             }
@@ -108,7 +112,14 @@ pub fn run(
         .map_err(bus_failure(iface))?;
         bar.finish_and_clear();
         let mark = if outcome.is_success() { "ok" } else { "FAILED" };
-        let took = transferred.map_or(String::new(), |d| format!(" in {} ms", d.as_millis()));
+        let took = transferred.map_or(String::new(), |d| {
+            format!(
+                " in {} ms ({frames} {} frame{})",
+                d.as_millis(),
+                framing.name(),
+                plural(frames)
+            )
+        });
         println!(
             "{:>10}  node {:>3}  {} bytes{took}  {mark}: {outcome}",
             node.name,

@@ -109,6 +109,7 @@ pub fn run(
     timeout: f64,
     trace_path: Option<&Path>,
     key: Option<&Path>,
+    framing: bus::Framing,
 ) -> Result<(), Failure> {
     let key = key.map(read_key).transpose()?;
     let network = Network::load(path)?;
@@ -117,7 +118,7 @@ pub fn run(
         .nodes
         .get(board.node)
         .ok_or_else(|| Failure::Input(Diagnostic::file(path, "no such node").into()))?;
-    let mut bus = bus::open(iface).map_err(|e| Failure::Bus(e.to_string()))?;
+    let mut bus = bus::open_with(iface, framing).map_err(|e| Failure::Bus(e.to_string()))?;
     let mut arm = match key {
         Some(key) => pabctl::client::Client::with_key(bus.as_mut(), node.id, key),
         None => pabctl::client::Client::new(bus.as_mut(), node.id),
@@ -177,6 +178,7 @@ pub fn limits(
     iface: Option<&str>,
     key: Option<&Path>,
     overrides: &pabctl::limits::Overrides,
+    framing: bus::Framing,
 ) -> Result<(), Failure> {
     let key = key.map(read_key).transpose()?;
     let network = Network::load(path)?;
@@ -205,7 +207,7 @@ pub fn limits(
         );
         return Ok(());
     };
-    let mut bus = bus::open(iface).map_err(|e| Failure::Bus(e.to_string()))?;
+    let mut bus = bus::open_with(iface, framing).map_err(|e| Failure::Bus(e.to_string()))?;
     let mut client = match key {
         Some(key) => pabctl::client::Client::with_key(bus.as_mut(), node.id, key),
         None => pabctl::client::Client::new(bus.as_mut(), node.id),

@@ -113,6 +113,85 @@ pub struct Counters {
     pub lost: u32,
 }
 
+/// The kind of frame a transfer's frame came in (ISO 15765-2:2016): a node built with the
+/// feature `fd` takes classic ISO-TP from classic frames and CAN FD ISO-TP from CAN FD frames,
+/// and answers each transfer's flow control in the kind of frame the transfer came in (a Linux
+/// ISO-TP socket on CAN FD takes only CAN FD frames). Without the feature every frame is classic
+/// and this is empty: the boards' transfer code is what it was.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Wire {
+    /// A CAN FD frame.
+    #[cfg(feature = "fd")]
+    fd: bool,
+    /// Its bit-rate switch: the flow control keeps it.
+    #[cfg(feature = "fd")]
+    brs: bool,
+}
+
+impl Wire {
+    /// The kind of `frame`.
+    #[inline(always)]
+    #[cfg_attr(not(feature = "fd"), allow(unused_variables))]
+    pub(crate) fn of(frame: &Frame) -> Wire {
+        Wire {
+            #[cfg(feature = "fd")]
+            fd: frame.is_fd(),
+            #[cfg(feature = "fd")]
+            brs: frame.is_brs(),
+        }
+    }
+
+    /// The data field a transfer frame carries: the decoded message's bytes (up to 8), or a CAN
+    /// FD frame's whole payload (up to 64).
+    #[inline(always)]
+    #[cfg_attr(not(feature = "fd"), allow(unused_variables))]
+    pub(crate) fn data<'f>(self, frame: &'f Frame, data: &'f [u8]) -> &'f [u8] {
+        #[cfg(feature = "fd")]
+        if self.fd {
+            return frame.payload();
+        }
+        data
+    }
+
+    /// `data` into `receiver`, by the rules of its kind.
+    #[inline(always)]
+    pub(crate) fn receive<'r, const N: usize>(
+        self,
+        receiver: &'r mut isotp::Receiver<N>,
+        data: &[u8],
+        now: Instant,
+    ) -> isotp::RxOutcome<'r> {
+        #[cfg(feature = "fd")]
+        if self.fd {
+            return receiver.on_fd_frame(data, now);
+        }
+        receiver.on_frame(data, now)
+    }
+
+    /// `data`'s protocol control information, by the codec of its kind.
+    #[inline(always)]
+    pub(crate) fn decode(self, data: &[u8]) -> Result<(Pci, &[u8]), isotp::FrameError> {
+        #[cfg(feature = "fd")]
+        if self.fd {
+            return isotp::fd::decode(data);
+        }
+        isotp::pci::decode(data)
+    }
+
+    /// `frame` (a classic flow control) as this kind sends it: a CAN FD frame of the same
+    /// identifier and bytes, with the bit-rate switch of the frame it answers.
+    #[cfg(feature = "fd")]
+    #[inline(always)]
+    pub(crate) fn answer(self, frame: Frame) -> Frame {
+        if self.fd
+            && let Some(fd) = Frame::fd(frame.id(), frame.payload(), self.brs)
+        {
+            return fd;
+        }
+        frame
+    }
+}
+
 /// What a transfer frame asks of the node, detached from the receiver's borrow.
 enum Event {
     Nothing,
@@ -976,13 +1055,15 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             // Transfers are point to point: a broadcast transfer would make every node answer
             // flow control at once.
             Message::TableTransfer { data, len } if id.destination == node_id => {
-                let data = data.get(..usize::from(len)).unwrap_or(&data);
-                self.on_transfer_frame(id, data, now)
+                let wire = Wire::of(frame);
+                let data = wire.data(frame, data.get(..usize::from(len)).unwrap_or(&data));
+                self.on_transfer_frame(id, data, wire, now)
             }
             #[cfg(feature = "update")]
             Message::UpdateTransfer { data, len } if id.destination == node_id => {
-                let data = data.get(..usize::from(len)).unwrap_or(&data);
-                self.on_update_frame(id, data, now)
+                let wire = Wire::of(frame);
+                let data = wire.data(frame, data.get(..usize::from(len)).unwrap_or(&data));
+                self.on_update_frame(id, data, wire, now)
             }
             // HBBA's filter commands: applied and answered with FilterStatus, or refused aloud
             // (never dropped unseen), so that the intention node learns whether its intention is
@@ -1055,8 +1136,9 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             // Point to point, as table transfers.
             #[cfg(feature = "schema")]
             Message::SchemaTransfer { data, len } if id.destination == node_id => {
-                let data = data.get(..usize::from(len)).unwrap_or(&data);
-                self.on_schema_transfer(id, data, now);
+                let wire = Wire::of(frame);
+                let data = wire.data(frame, data.get(..usize::from(len)).unwrap_or(&data));
+                self.on_schema_transfer(id, data, wire, now);
                 Step::Continue
             }
             _ => Step::Continue,
@@ -1085,13 +1167,13 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// with a key, as a table's: only from the tool, a first frame only after a TransferOpen
     /// for a schema ([`protocol::OPEN_SCHEMA`]) of its length, consecutive frames in sequence.
     #[cfg(feature = "schema")]
-    fn on_schema_transfer(&mut self, id: FrameId, data: &[u8], now: Instant) {
+    fn on_schema_transfer(&mut self, id: FrameId, data: &[u8], wire: Wire, now: Instant) {
         let source = id.source;
         let mut opened = None;
         if self.guard.is_keyed() && self.schema.is_some() {
             let next = self.schema.as_ref().and_then(|r| r.next_sequence_number());
             let admitted = if source == protocol::TOOL {
-                self.admit_keyed(data, next, true, now)
+                self.admit_keyed(data, wire, next, true, now)
             } else {
                 Err(AuthFailure::NotTool)
             };
@@ -1108,6 +1190,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             Some(runtime) => runtime.on_transfer_frame(
                 source,
                 data,
+                wire,
                 now,
                 Keys {
                     guard: &self.guard,
@@ -1118,7 +1201,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             ),
             // Only a message's first frame is answered: a multi-frame one gets no flow control.
             None if matches!(
-                pab_core::isotp::pci::decode(data),
+                wire.decode(data),
                 Ok((Pci::Single { .. } | Pci::First { .. }, _))
             ) =>
             {

@@ -106,11 +106,14 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     pub(super) fn admit_keyed(
         &mut self,
         data: &[u8],
+        wire: Wire,
         next: Option<u8>,
         schema: bool,
         now: Instant,
     ) -> Result<Option<Opened>, AuthFailure> {
-        match isotp::pci::decode(data) {
+        // By the codec of the frame's kind: a CAN FD first frame that the classic codec calls
+        // malformed must still need its open.
+        match wire.decode(data) {
             Ok((Pci::First { len }, _)) => self.take_open(usize::try_from(len).ok(), schema, now),
             Ok((Pci::Single { len }, _)) => self.take_open(Some(usize::from(len)), schema, now),
             Ok((Pci::Consecutive { sn }, _)) if next.is_some_and(|next| next != sn) => {
@@ -147,7 +150,13 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         Ok(Some(opened))
     }
 
-    pub(super) fn on_transfer_frame(&mut self, id: FrameId, data: &[u8], now: Instant) -> Step {
+    pub(super) fn on_transfer_frame(
+        &mut self,
+        id: FrameId,
+        data: &[u8],
+        wire: Wire,
+        now: Instant,
+    ) -> Step {
         let source = id.source;
         if let Some(reason) = self.guard.locked() {
             let _ = reason;
@@ -165,7 +174,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             return Step::Continue;
         }
         let opened = if self.guard.is_keyed() {
-            match self.admit_keyed(data, self.receiver.next_sequence_number(), false, now) {
+            match self.admit_keyed(data, wire, self.receiver.next_sequence_number(), false, now) {
                 Ok(opened) => opened,
                 Err(failure) => {
                     self.unauthenticated(failure, id);
@@ -175,7 +184,7 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         } else {
             None
         };
-        let outcome = self.receiver.on_frame(data, now);
+        let outcome = wire.receive(&mut self.receiver, data, now);
         // A reception this frame ended (wrong sequence number, or a new First Frame that
         // interrupted it, or N_Cr passed): the sender of that reception learns why.
         let aborted = outcome.aborted;
@@ -211,12 +220,12 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
                         deadline: transfer_deadline(now, length),
                     });
                 }
-                self.send_transfer(source, flow_control);
+                self.send_transfer(source, flow_control, wire);
                 Step::Continue
             }
             Event::Refused(flow_control) => {
                 if let Some(flow_control) = flow_control {
-                    self.send_transfer(source, flow_control);
+                    self.send_transfer(source, flow_control, wire);
                 }
                 self.incoming = None;
                 self.refuse(source, TransferStatusCode::TooLarge, 0, nonce);
@@ -389,9 +398,21 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         }
     }
 
+    /// A flow control to `destination`, in the kind of frame its transfer came in (`wire`).
     #[inline(never)]
-    pub(super) fn send_transfer(&mut self, destination: u8, data: [u8; 8]) {
-        self.send(Message::TableTransfer { data, len: 8 }, destination);
+    pub(super) fn send_transfer(&mut self, destination: u8, data: [u8; 8], wire: Wire) {
+        #[cfg(feature = "fd")]
+        {
+            let message = Message::TableTransfer { data, len: 8 };
+            if let Some(frame) = message.report_frame(self.config.node_id, destination) {
+                self.queue(wire.answer(frame));
+            }
+        }
+        #[cfg(not(feature = "fd"))]
+        {
+            let _ = wire;
+            self.send(Message::TableTransfer { data, len: 8 }, destination);
+        }
     }
 }
 

@@ -108,7 +108,13 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     }
 
     /// An UpdateTransfer frame from `id.source`.
-    pub(super) fn on_update_frame(&mut self, id: FrameId, data: &[u8], now: Instant) -> Step {
+    pub(super) fn on_update_frame(
+        &mut self,
+        id: FrameId,
+        data: &[u8],
+        wire: Wire,
+        now: Instant,
+    ) -> Step {
         let source = id.source;
         if self.guard.locked().is_some() {
             self.unauthenticated(AuthFailure::Locked, id);
@@ -123,32 +129,20 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             return Step::Continue;
         }
         if self.guard.is_keyed()
-            && let Err(failure) = self.admit_update(data, now)
+            && let Err(failure) = self.admit_update(data, wire, now)
         {
             self.unauthenticated(failure, id);
             return Step::Continue;
         }
-        let outcome = self.update.receiver.on_frame(data, now);
+        let outcome = wire.receive(&mut self.update.receiver, data, now);
         match outcome.event {
             RxEvent::SendFlowControl(flow_control) => {
-                self.send(
-                    Message::UpdateTransfer {
-                        data: flow_control,
-                        len: 8,
-                    },
-                    source,
-                );
+                self.send_update_flow_control(source, flow_control, wire);
                 Step::Continue
             }
             RxEvent::Refused { flow_control, .. } => {
                 if let Some(flow_control) = flow_control {
-                    self.send(
-                        Message::UpdateTransfer {
-                            data: flow_control,
-                            len: 8,
-                        },
-                        source,
-                    );
+                    self.send_update_flow_control(source, flow_control, wire);
                 }
                 Step::Continue
             }
@@ -164,8 +158,8 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
     /// frame only with an open for an update of its length, a consecutive frame only in
     /// sequence. Chunks and commits need no open of their own: the session the open began
     /// admits them, and the bootloader's signature check whatever they carry.
-    fn admit_update(&mut self, data: &[u8], now: Instant) -> Result<(), AuthFailure> {
-        let first_len = match isotp::pci::decode(data) {
+    fn admit_update(&mut self, data: &[u8], wire: Wire, now: Instant) -> Result<(), AuthFailure> {
+        let first_len = match wire.decode(data) {
             Ok((Pci::First { len }, _)) => usize::try_from(len).ok(),
             Ok((Pci::Single { len }, _)) => Some(usize::from(len)),
             Ok((Pci::Consecutive { sn }, _)) => {
@@ -194,6 +188,22 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
         let _ = open;
         self.opened = None;
         Ok(())
+    }
+
+    /// An update's flow control to `destination`, in the kind of frame its transfer came in.
+    // Inlined: without the feature `fd`, the two sends the receiver's events made before.
+    #[inline(always)]
+    fn send_update_flow_control(&mut self, destination: u8, data: [u8; 8], wire: Wire) {
+        let message = Message::UpdateTransfer { data, len: 8 };
+        #[cfg(feature = "fd")]
+        if let Some(frame) = message.report_frame(self.config.node_id, destination) {
+            self.queue(wire.answer(frame));
+        }
+        #[cfg(not(feature = "fd"))]
+        {
+            let _ = wire;
+            self.send(message, destination);
+        }
     }
 
     /// A complete update message of `len` bytes in the receiver's buffer.

@@ -368,6 +368,61 @@ impl Harness {
         self.push_with(bytes, protocol::TOOL, |_, _, data| Some(data))
     }
 
+    /// [`Harness::push_with`] in CAN FD frames of `tx_dl` bytes with the bit-rate switch, by
+    /// pab-core's [`FdSender`](pab_core::isotp::FdSender): `tamper(harness, index, frame)` may
+    /// change the frame (its kind too) or drop it. The node's flow controls are taken whatever
+    /// their kind, and kept in `flow_controls` as they came.
+    #[cfg(feature = "fd")]
+    pub fn push_fd_with(
+        &mut self,
+        bytes: &[u8],
+        source: u8,
+        tx_dl: pab_core::isotp::fd::TxDl,
+        mut tamper: impl FnMut(&mut Harness, usize, Frame) -> Option<Frame>,
+    ) -> (TxEvent<pab_core::isotp::fd::FdFrame>, Vec<Frame>) {
+        let mut sender = pab_core::isotp::FdSender::new(bytes, TxConfig::default(), tx_dl).unwrap();
+        let id = self
+            .channel
+            .message([0; 8])
+            .to_frame(source, Self::NODE_ID)
+            .id();
+        let mut index = 0;
+        let mut seen = self.sent.len();
+        let mut flow_controls = Vec::new();
+        loop {
+            let event = sender.poll(Instant::from_micros(self.now));
+            match event {
+                TxEvent::Send(data) => {
+                    let frame = Frame::fd(id, data.as_bytes(), true).unwrap();
+                    if let Some(frame) = tamper(self, index, frame) {
+                        self.feed(&frame);
+                    }
+                    index += 1;
+                    self.advance_to(self.now + 100);
+                }
+                TxEvent::WaitUntil(until) => {
+                    let mut delivered = false;
+                    while seen < self.sent.len() {
+                        let (_, frame) = self.sent[seen];
+                        seen += 1;
+                        if let Ok((id, message)) = Message::decode(&frame)
+                            && self.channel.flow_control(&message).is_some()
+                            && id.destination == source
+                        {
+                            flow_controls.push(frame);
+                            sender.on_flow_control(frame.payload(), Instant::from_micros(self.now));
+                            delivered = true;
+                        }
+                    }
+                    if !delivered {
+                        self.advance_to(until.as_micros().max(self.now + 1));
+                    }
+                }
+                TxEvent::Done | TxEvent::Failed(_) => return (event, flow_controls),
+            }
+        }
+    }
+
     pub fn running_version(&self) -> Option<u32> {
         self.node
             .running()
