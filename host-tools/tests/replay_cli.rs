@@ -297,3 +297,36 @@ fn a_can_fd_capture_is_replayed_with_the_verdicts_of_its_classic_twin() {
     assert!(stderr.contains("classic frames only"), "{stderr}");
     assert!(!job.exists());
 }
+
+#[test]
+fn a_capture_of_the_hil_suite_s_can_fd_bus_is_replayed() {
+    // hil-sim's Take and Return on a CAN FD vcan (test_can_fd.py), its tables pushed in CAN FD
+    // frames: candump -L wrote them `ID##5...` (BRS, and the FDF flag Linux 6.1 sets).
+    let capture = "host-tools/tests/fixtures/take-and-return-fd-hil.log";
+    let log = std::fs::read_to_string(path(capture)).unwrap();
+    assert!(log.lines().filter(|line| line.contains("##5")).count() >= 10);
+    let dir = tempfile::tempdir().unwrap();
+    let records = dir.path().join("records.txt");
+    let output = pabctl(&[
+        "replay",
+        &path(NETWORK),
+        &path(capture),
+        "--records",
+        records.to_str().unwrap(),
+    ]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let stdout = text(&output.stdout);
+    for expected in [
+        "4360 frames over 20.243304 s on vcan1",
+        "430 replayed on 3 nodes, 3930 of the pab protocol not fed",
+        "150 frames match no topic: 0x200 ×62, 0x201 ×44, 0x202 ×44",
+        "C14 (rest_pose)",
+    ] {
+        assert!(
+            stdout.contains(expected),
+            "missing {expected:?} in:\n{stdout}"
+        );
+    }
+    let records = std::fs::read_to_string(&records).unwrap();
+    assert!(records.contains("# end: 430 frames,"), "{records}");
+}
