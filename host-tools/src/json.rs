@@ -153,12 +153,29 @@ pub fn bus(timing: &pab_lang::check::bus::Timing, errors: &[Diagnostic]) -> Valu
 }
 
 /// `pabctl compile --json`: per image written, its node, node id, file, size, table version,
-/// ports, connections, decision nodes and the mechanisms it needs (`needs`, feature names).
-pub fn compiled(output: &Path, nodes: &[CompiledNode], table_version: u32) -> Value {
+/// ports, connections, decision nodes, the mechanisms it needs (`needs`, feature names) and its
+/// push's frames on the bus (`push`: `classic` and `fd`, each `frames`, `flow_controls`,
+/// `seconds`; `bitrate`, `data_bitrate`).
+pub fn compiled(
+    output: &Path,
+    nodes: &[CompiledNode],
+    table_version: u32,
+    rates: &pab_lang::push_frames::PushRates,
+    pushes: &[pab_lang::push_frames::Push],
+) -> Value {
+    let (classic_base, fd_base) = (rates.classic_base(), rates.fd_base());
+    let frames = |p: &pab_lang::push_frames::PushFrames, base: &pab_lang::can_frame::TimeBase| {
+        json!({
+            "frames": p.frames,
+            "flow_controls": p.flow_controls,
+            "seconds": p.seconds(base),
+        })
+    };
     Value::Array(
         nodes
             .iter()
-            .map(|node| {
+            .zip(pushes)
+            .map(|(node, push)| {
                 json!({
                     "node": node.name,
                     "id": node.id,
@@ -169,6 +186,12 @@ pub fn compiled(output: &Path, nodes: &[CompiledNode], table_version: u32) -> Va
                     "connections": node.connections,
                     "decision_nodes": node.decision_nodes,
                     "needs": crate::identity::mechanisms(&node.image).unwrap_or_default(),
+                    "push": {
+                        "bitrate": rates.bitrate,
+                        "data_bitrate": rates.data_bitrate,
+                        "classic": frames(&push.classic, &classic_base),
+                        "fd": frames(&push.fd, &fd_base),
+                    },
                 })
             })
             .collect(),

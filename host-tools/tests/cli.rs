@@ -1437,7 +1437,39 @@ fn compile_json_lists_each_image_as_written() {
             "{image}"
         );
         assert_eq!(image["table_version"], 1);
+        // The push's frames, counted through the core's ISO-TP: fewer in CAN FD, in less bus
+        // time, at the network's 500 kbit/s and (no data rate on this classic bus) 2 Mbit/s.
+        let push = &image["push"];
+        assert_eq!(
+            (push["bitrate"].as_u64(), push["data_bitrate"].as_u64()),
+            (Some(500_000), Some(2_000_000))
+        );
+        let (classic, fd) = (&push["classic"], &push["fd"]);
+        let bytes = image["bytes"].as_u64().unwrap();
+        assert_eq!(
+            classic["frames"].as_u64().unwrap(),
+            1 + (bytes - 6).div_ceil(7),
+            "{image}"
+        );
+        assert_eq!(
+            fd["frames"].as_u64().unwrap(),
+            1 + (bytes - 62).div_ceil(63),
+            "{image}"
+        );
+        assert!(fd["seconds"].as_f64().unwrap() * 4.0 < classic["seconds"].as_f64().unwrap());
     }
+    // The text says the same.
+    let output = pabctl(&[
+        "compile",
+        &example("take-and-return.toml"),
+        "-o",
+        &out.display().to_string(),
+    ]);
+    let said = text(&output.stdout);
+    assert!(
+        said.contains("  push: 28 classic CAN frames + 4 flow controls, 9.00 ms of bus at 500 kbit/s; CAN FD: 4 frames + 1 flow control, 1.51 ms at 500 kbit/s / 2 Mbit/s\n"),
+        "{said}"
+    );
 }
 
 #[test]

@@ -31,6 +31,7 @@ pub mod diagnostic;
 pub mod input;
 pub mod kinds;
 pub mod network;
+pub mod push_frames;
 pub mod replay;
 pub mod rule;
 pub mod series;

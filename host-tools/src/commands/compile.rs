@@ -6,6 +6,7 @@ use std::path::Path;
 
 use pab_lang::compile::{self, CompiledNode};
 use pab_lang::network::Network;
+use pab_lang::push_frames::PushRates;
 
 use crate::failure::Failure;
 use crate::output::{eprintln_line, plural, println_line, write_atomically};
@@ -33,6 +34,8 @@ pub fn run(
     fs::create_dir_all(output)
         .map_err(|error| Failure::Output(format!("cannot create {}: {error}", output.display())))?;
     let say = if json { eprintln_line } else { println_line };
+    let rates = PushRates::of(&network);
+    let mut pushes = Vec::new();
     for node in &nodes {
         let file = output.join(format!("{}.pab", node.name));
         write_atomically(&file, &node.image)?;
@@ -58,6 +61,11 @@ pub fn run(
                 needs.join(", ")
             },
         ));
+        let push = rates
+            .push(&node.image, node.id)
+            .map_err(|why| Failure::Output(format!("{}: {why}", file.display())))?;
+        say(format!("  {}", rates.describe(&push)));
+        pushes.push(push);
     }
     // HBBA's intention node loads its setup as a board loads its table: pab-intent reads this
     // file, not the network.
@@ -84,7 +92,10 @@ pub fn run(
     }
     if json {
         let version = table_version.unwrap_or(network.version);
-        println!("{}", pabctl::json::compiled(output, &nodes, version));
+        println!(
+            "{}",
+            pabctl::json::compiled(output, &nodes, version, &rates, &pushes)
+        );
     }
     Ok(())
 }
