@@ -2,7 +2,7 @@
 //! (`pabctl check`; the analysis is [`crate::check::response`]'s, docs/response-times.md the model).
 //!
 //! On a CAN FD bus (`[bus] data_bitrate`) the analysis counts time in the units of
-//! [`TimeBase`], in which both the nominal and the data-phase bit are whole: each frame's C is
+//! [`TimeBase`](crate::can_frame::TimeBase), in which both the nominal and the data-phase bit are whole: each frame's C is
 //! exact, classic frames' bits at the nominal rate and CAN FD frames' data phase at the data rate
 //! ([`crate::can_frame`]). On a classic bus the unit is the bit time, as it always was.
 //!
