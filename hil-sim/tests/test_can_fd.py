@@ -15,7 +15,7 @@ from pab_hil.observe import Recorder
 from pab_hil.person import TakeAndReturn
 from pab_hil.scenario import Session
 
-from test_take_and_return import arm_latency, latency_figure, run_a_to_f
+from test_take_and_return import arm_latency, latency_figure, run_a_to_f, within_bounds
 
 
 def fd_frames(length: int) -> int:
@@ -98,6 +98,10 @@ def test_take_and_return_on_can_fd_with_the_tables_pushed_in_can_fd_frames(
         "table_bytes": sum(length for length, *_ in pushes.values()),
         "push_frames": sum(frames for _, _, frames, _ in pushes.values()),
     })
+    # Against the CAN FD network's bounds (500 kbit/s, 2 Mbit/s data phase): the same nodes and
+    # topics, and two CAN FD topics the scenario does not send.
+    figures("take-and-return-can-fd-timed-bus",
+            within_bounds(TAKE_AND_RETURN.with_name("take-and-return-fd.toml"), session, out_dir))
 
 
 ROUNDS = 3

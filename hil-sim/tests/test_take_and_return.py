@@ -10,6 +10,7 @@ from pab_hil.board import BoardNode
 from pab_hil.nodes import NODE_IDS, TAKE_AND_RETURN
 from pab_hil.person import TakeAndReturn
 from pab_hil.phases import driver
+from pab_hil.response_times import timed_replay
 
 ARM = NODE_IDS["arm"]
 
@@ -52,6 +53,21 @@ def latency_figure(latency: analysis.Latency) -> dict:
     }
 
 
+def within_bounds(network, session, out_dir) -> dict:
+    """The capture's frames, each queued at its timestamp on a bus at the network's bit rate
+    (`pabctl replay --timed-bus`): every analysed stream the nodes and behaviours sent has
+    latencies compared with its bound R from `pabctl check`, and all are within it. Returns the
+    figure."""
+    replay = timed_replay(network, session.log_path, out_dir)
+    assert replay.returncode == 0, replay.output[-4000:]
+    streams = replay.streams_with_frames()
+    # 8 topics, 3 gateways and 3 nodes' heartbeat groups of 4 frames.
+    assert len(streams) == 23, [s["name"] for s in streams]
+    outside = [s for s in streams if s["verdict"] != "within" or not s["compared"]]
+    assert not outside, (outside, replay.output[-4000:])
+    return replay.figure()
+
+
 def test_phases_a_to_f_end_with_the_object_handed_to_the_person(session_for, out_dir, figures):
     person = TakeAndReturn()
     session = session_for(person)
@@ -71,6 +87,7 @@ def test_phases_a_to_f_end_with_the_object_handed_to_the_person(session_for, out
         "seconds": round(duration, 1),
         "frames_per_s": round(len(messages) / duration),
     })
+    figures("take-and-return-timed-bus", within_bounds(TAKE_AND_RETURN, session, out_dir))
 
 
 def test_take_and_return_with_the_arm_node_on_the_emulated_cortex_m4(

@@ -304,7 +304,19 @@ that board is a classic CAN node, so a capture with CAN FD frames is refused the
       --bin pab-an386-replay -- -append \"job.bin board.txt\"
   cmp sim.txt board.txt
 
-Exit status: 0 replayed; 1 the rules are inconsistent; 2 the network or the capture cannot be \
+--timed-bus carries every frame of the capture (the pab protocol's too) again, on the bus of \
+`pabctl sim --timed-bus` at the file's [bus] rates: each frame is queued at its timestamp and \
+takes the bus for its actual bits, one frame at a time, lowest identifier first. Then it prints, \
+per stream of `pabctl check`'s table, the worst latency beside the bound R, as `sim --timed-bus` \
+does; a latency above R fails the command (exit status 1). It checks the analysis against the \
+release times of real nodes (their periods, their jitter, their bursts): a capture from Linux's \
+vcan, where a frame takes no time, stamps each frame when its sender wrote it, so its times are \
+the release times; frames that came faster than their stream's period and jitter allow are \
+outside the analysis and shown, not compared. Refused without [bus] (exit status 2). For example:
+  pabctl replay examples/take-and-return.toml host-tools/tests/fixtures/take-and-return-hil.log --timed-bus
+
+Exit status: 0 replayed; 1 the rules are inconsistent, or with --timed-bus a latency exceeds its \
+bound; 2 the network or the capture cannot be \
 read or is invalid; 3 an output cannot be written.")]
     #[command(after_help = "\
 Examples:
@@ -331,6 +343,11 @@ Examples:
         /// (pab-an386-replay), which writes the same records.
         #[arg(long, value_name = "FILE")]
         board_job: Option<PathBuf>,
+        /// Carry the capture's frames, each queued at its timestamp, on a bus that takes time at
+        /// the file's [bus] rates, and compare each stream's worst latency with its bound from
+        /// `pabctl check` (exit status 1 above it).
+        #[arg(long)]
+        timed_bus: bool,
         /// Also print the replay's summary as one JSON object on standard output
         /// (docs/pabctl.md, "JSON output"); the text goes to standard error.
         #[arg(long)]

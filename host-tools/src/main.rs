@@ -87,6 +87,7 @@ fn main() -> ExitCode {
             plot,
             records,
             board_job,
+            timed_bus,
             json,
         } => commands::replay::run(
             &network,
@@ -95,6 +96,7 @@ fn main() -> ExitCode {
             plot.as_deref(),
             records.as_deref(),
             board_job.as_deref(),
+            timed_bus,
             json,
         ),
         Command::Push {

@@ -330,3 +330,129 @@ fn a_capture_of_the_hil_suite_s_can_fd_bus_is_replayed() {
     let records = std::fs::read_to_string(&records).unwrap();
     assert!(records.contains("# end: 430 frames,"), "{records}");
 }
+
+/// `network` as the HIL suite runs it (`hil-sim/pab_hil/response_times.py`): its nodes beat every
+/// 250 ms (`pab-node --heartbeat-ms 250`) and its behaviours, Python processes, wake up to 20 ms
+/// late for their periods.
+fn as_the_hil_runs(network: &str, dir: &Path) -> String {
+    let mut text = std::fs::read_to_string(root().join(network)).unwrap();
+    for (name, _) in [("arm", 1), ("hand", 2), ("gaze", 3)] {
+        let header = format!("[nodes.{name}]");
+        let at = text.find(&header).unwrap() + header.len();
+        let end = at + text[at..].find('\n').unwrap();
+        text.insert_str(end + 1, "heartbeat = 0.25\n");
+    }
+    let text = text.replace("\nperiod = ", "\njitter = 0.02\nperiod = ");
+    let path = dir.join("as-run.toml");
+    std::fs::write(&path, text).unwrap();
+    path.display().to_string()
+}
+
+/// The JSON's `timed_bus` streams that carried frames: (name, frames, compared, verdict).
+fn timed_streams(json: &serde_json::Value) -> Vec<(String, u64, u64, String)> {
+    json["timed_bus"]["streams"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|s| s["frames"].as_u64().unwrap() > 0)
+        .map(|s| {
+            (
+                s["name"].as_str().unwrap().to_string(),
+                s["frames"].as_u64().unwrap(),
+                s["compared"].as_u64().unwrap(),
+                s["verdict"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect()
+}
+
+/// The HIL suite's captures, classic and CAN FD, each frame queued at its timestamp on a bus at
+/// the network's rates: every analysed stream is compared, within its bound. As the suite runs
+/// the network (250 ms heartbeats, publishers' jitter) most of the frames are compared; with the
+/// file as it is (1 s heartbeats, no jitter) the heartbeats come four times too often and most
+/// are outside the analysis, reported and not compared.
+#[test]
+fn the_hil_suite_s_captures_keep_their_bounds_on_the_timed_bus() {
+    let dir = tempfile::tempdir().unwrap();
+    for (network, log, carried, compared_at_least) in [
+        (NETWORK, HIL_LOG, 4790, 1000),
+        (
+            "examples/take-and-return-fd.toml",
+            "host-tools/tests/fixtures/take-and-return-fd-hil.log",
+            4360,
+            900,
+        ),
+    ] {
+        let as_run = as_the_hil_runs(network, dir.path());
+        let output = pabctl(&["replay", &as_run, &path(log), "--timed-bus", "--json"]);
+        let stderr = text(&output.stderr);
+        assert_eq!(output.status.code(), Some(0), "{stderr}");
+        let json: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+        assert_eq!(json["timed_bus"]["carried"], carried);
+        assert_eq!(json["timed_bus"]["unsent"], 0);
+        assert_eq!(json["timed_bus"]["holds"], true);
+        let streams = timed_streams(&json);
+        assert_eq!(streams.len(), 23, "{streams:?}");
+        assert!(
+            streams
+                .iter()
+                .all(|(_, _, compared, verdict)| *compared > 0 && verdict == "within"),
+            "{streams:?}"
+        );
+        let compared: u64 = streams.iter().map(|s| s.2).sum();
+        assert!(compared >= compared_at_least, "{compared}: {streams:?}");
+        assert!(
+            stderr.contains(&format!(
+                "every compared latency within its bound: 23 streams, {compared} frames"
+            )),
+            "{stderr}"
+        );
+
+        // The file as it is: its heartbeat groups at 1 s, a quarter of the capture's.
+        let output = pabctl(&[
+            "replay",
+            &path(network),
+            &path(log),
+            "--timed-bus",
+            "--json",
+        ]);
+        assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+        let json: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+        let heartbeat = json["timed_bus"]["streams"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s["name"] == "arm: Heartbeat")
+            .unwrap();
+        let frames = heartbeat["frames"].as_u64().unwrap();
+        let beyond = heartbeat["beyond_period"]["frames"].as_u64().unwrap();
+        assert!(beyond * 2 > frames, "{heartbeat}");
+        assert!(
+            heartbeat["beyond_period"]["detail"]
+                .as_str()
+                .unwrap()
+                .contains("less than 1 × 1 s − 0 ms"),
+            "{heartbeat}"
+        );
+    }
+}
+
+/// Without [bus] there is no bit rate to carry the frames at: refused, nothing replayed.
+#[test]
+fn timed_bus_needs_the_network_s_bus() {
+    let output = pabctl(&[
+        "replay",
+        &path("examples/figure-1.toml"),
+        &path(HIL_LOG),
+        "--timed-bus",
+    ]);
+    assert_eq!(output.status.code(), Some(2));
+    let stderr = text(&output.stderr);
+    assert!(
+        stderr.contains(
+            "--timed-bus: the network has no [bus], so no bit rate to time the capture's frames at"
+        ),
+        "{stderr}"
+    );
+    assert!(output.stdout.is_empty());
+}

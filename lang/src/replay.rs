@@ -146,9 +146,11 @@ pub fn node_records(
     let mut out = String::new();
     let _ = replay::records::write_preamble(&mut out);
     let mut nodes = Vec::new();
-    for (id, image) in images(network, compiled)? {
-        let config =
-            pab_app::Config::new(id).map_err(|error| ReplayError(format!("node {id}: {error}")))?;
+    for (network_node, (id, image)) in network.nodes.iter().zip(images(network, compiled)?) {
+        let config = network_node.config();
+        config
+            .validate()
+            .map_err(|error| ReplayError(format!("node {id}: {error}")))?;
         let mut node = Box::new(FullNode::new(config, Instant::from_micros(0)));
         let buffer = node.boot_buffer();
         let Some(room) = buffer.get_mut(..image.len()) else {

@@ -319,8 +319,7 @@ fn run_stopping(
             .min();
         stations.push(Station::boot(
             node_index,
-            node.id,
-            &node.name,
+            node,
             &table.image,
             stop_us,
             &mut records,

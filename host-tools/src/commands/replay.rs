@@ -8,6 +8,7 @@ use pab_lang::candump;
 use pab_lang::diagnostic::{Diagnostic, Diagnostics};
 use pab_lang::network::Network;
 use pab_lang::replay::{self, Feed};
+use pab_lang::sim::timed::{self, Clock};
 use pab_lang::sim::{self, Options};
 use pabctl::plot;
 
@@ -18,6 +19,8 @@ use crate::output::{
     eprintln_line, plural, println_line, progress_bar, refuse_unwritable, write_atomically,
 };
 
+// One argument per option of the command line, as `main` hands them over (as `sim::run`).
+#[allow(clippy::too_many_arguments)]
 pub fn run(
     path: &Path,
     capture_path: &Path,
@@ -25,6 +28,7 @@ pub fn run(
     plot_path: Option<&Path>,
     records_path: Option<&Path>,
     job_path: Option<&Path>,
+    timed_bus: bool,
     json: bool,
 ) -> Result<(), Failure> {
     // With --json, standard output is the JSON's alone.
@@ -72,6 +76,19 @@ pub fn run(
         ("--board-job", job_path, false),
     ])?;
     let network = Network::load(path)?;
+    let clock = match (&network.bus, timed_bus) {
+        (Some(bus), true) => Some(Clock::new(bus.bitrate, bus.data_bitrate)),
+        (None, true) => {
+            return Err(Failure::Input(
+                Diagnostic::file(
+                    path,
+                    "--timed-bus: the network has no [bus], so no bit rate to time the capture's frames at (add `[bus]` with `bitrate = 500000`, and `data_bitrate` for CAN FD)",
+                )
+                .into(),
+            ));
+        }
+        (_, false) => None,
+    };
     let nodes = compiled(&network, None)?;
     let size = fs::metadata(capture_path).map_or(0, |m| m.len());
     let bar = progress_bar(size, "reading {bytes}/{total_bytes}");
@@ -79,6 +96,16 @@ pub fn run(
     bar.finish_and_clear();
     let mut capture = capture?;
     let feed = Feed::from_capture(&capture);
+    // Every frame, the protocol's too: they all take the bus.
+    let timed = clock.map(|clock| {
+        let mut frames: Vec<(u64, pab_core::Frame)> = capture
+            .frames
+            .iter()
+            .map(|c| (c.t_us.saturating_sub(feed.first_us), c.frame))
+            .collect();
+        frames.sort_by_key(|(t_us, _)| *t_us);
+        timed::carry(clock, &frames)
+    });
     // The feed holds what is replayed; the frames as read are no longer needed.
     let captured = capture.frames.len();
     capture.frames = Vec::new();
@@ -158,6 +185,20 @@ pub fn run(
         ));
     }
     report_and_trace(&network, &outcome, trace, say)?;
+    // The latencies against the bounds; their failure waits for the files and the JSON, as a
+    // verdict does.
+    let mut late = Vec::new();
+    let comparison = match &timed {
+        Some(run) => {
+            let timing = pab_lang::check::bus::timing(&network);
+            let comparison = sim::latency::compare(&network, &timing, run)
+                .map_err(|error| Failure::Input(Diagnostic::file(path, error).into()))?;
+            say(comparison.table(&timing).trim_end().to_string());
+            late = comparison.errors(&network, &timing);
+            Some((comparison, timing))
+        }
+        None => None,
+    };
     if let Some(records_path) = records_path {
         write_atomically(records_path, outcome.records.as_bytes())?;
         say(format!("records: {}", records_path.display()));
@@ -197,7 +238,13 @@ pub fn run(
             })
             .collect::<Vec<_>>()
             .into();
+        if let Some((comparison, timing)) = &comparison {
+            found["timed_bus"] = pabctl::json::timed_bus(comparison, timing);
+        }
         println!("{found}");
+    }
+    if !late.is_empty() {
+        return Err(Failure::Latencies(late));
     }
     Ok(())
 }

@@ -308,9 +308,7 @@ pub fn streams(network: &Network) -> Streams {
         }
     }
     for (node_index, node) in network.nodes.iter().enumerate() {
-        let config =
-            pab_app::Config::new(node.id).unwrap_or_else(|_| pab_app::Config::unassigned());
-        let period_ns = config.heartbeat_period_us * 1000;
+        let period_ns = node.config().heartbeat_period_us * 1000;
         // A node whose table has HBBA filters (a strategy filters one of its connections) ends
         // its heartbeat group with FilterStatus.
         let filters = network.hbba.as_ref().is_some_and(|hbba| {
@@ -1026,6 +1024,37 @@ mod tests {
             .zip(&analysis.rows)
             .find(|(s, _)| s.name == name)
             .unwrap_or_else(|| panic!("no stream {name}"))
+    }
+
+    /// A node's `heartbeat` is the period its heartbeat group is analysed at (and only its
+    /// own); a period its configuration refuses is refused at the key.
+    #[test]
+    fn a_node_s_heartbeat_sets_its_heartbeat_group_s_period() {
+        let text = TAKE_AND_RETURN.replace("id = 2\n", "id = 2\nheartbeat = 0.25\n");
+        let network = parse(&text);
+        assert_eq!(network.nodes[1].heartbeat_us, 250_000);
+        assert_eq!(network.nodes[1].config().heartbeat_period_us, 250_000);
+        assert_eq!(network.nodes[0].config().heartbeat_period_us, 1_000_000);
+        let timing = timing(&network);
+        for service in ["Heartbeat", "TableStatus", "Traffic", "Errors"] {
+            let (hand, _) = row(&timing, &format!("hand: {service}"));
+            assert_eq!(hand.period_ns, 250_000_000, "{service}");
+            let (arm, _) = row(&timing, &format!("arm: {service}"));
+            assert_eq!(arm.period_ns, 1_000_000_000, "{service}");
+        }
+        for bad in ["0.001", "3601", "-1", "nan"] {
+            let text = TAKE_AND_RETURN.replace("id = 2\n", &format!("id = 2\nheartbeat = {bad}\n"));
+            let found = Network::parse(Source::new("net.toml", &text))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                found.contains(&format!(
+                    "error: heartbeat = {}: seconds between the node's heartbeats, 0.01 to 3600",
+                    bad.parse::<f64>().unwrap()
+                )),
+                "{bad}: {found}"
+            );
+        }
     }
 
     #[test]

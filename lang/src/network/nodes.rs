@@ -23,6 +23,10 @@ pub(super) struct RawNode {
     /// board's SLCAN): refused on a CAN FD bus (`[bus] data_bitrate`), where a classic
     /// controller destroys every FD frame with an error frame.
     fd: Option<Spanned<bool>>,
+    /// Optional, default 1: seconds between the node's heartbeats, 0.01 to 3600 (whole
+    /// microseconds), as its configuration sets them (`pab-node --heartbeat-ms`). `pabctl check`
+    /// analyses its heartbeat group at this period, and the simulator's node beats at it.
+    heartbeat: Option<Spanned<f64>>,
 }
 
 /// A node: a controller board or its Linux stand-in.
@@ -38,6 +42,8 @@ pub struct Node {
     pub description: Option<String>,
     /// Its controller handles CAN FD frames (`fd`, default true).
     pub fd: bool,
+    /// Time between its heartbeats, µs (`heartbeat`, default the node's: 1 s).
+    pub heartbeat_us: u64,
     /// Where it is defined.
     pub span: Range<usize>,
 }
@@ -87,15 +93,58 @@ impl Builder<'_> {
                     ),
                 );
             }
+            let Some(heartbeat_us) = self.heartbeat(id, node.get_ref().heartbeat.as_ref()) else {
+                continue;
+            };
             nodes.push(Node {
                 name: name.get_ref().clone(),
                 id,
                 ports: Vec::new(),
                 description,
                 fd: fd.is_none_or(|fd| *fd.get_ref()),
+                heartbeat_us,
                 span: node.span(),
             });
         }
         nodes
+    }
+
+    /// A node's `heartbeat`, in µs: the node's default without one, `None` after reporting a
+    /// value its configuration refuses (`pab_app::Config::validate` says what a node takes).
+    fn heartbeat(&mut self, id: u8, written: Option<&Spanned<f64>>) -> Option<u64> {
+        let default = pab_app::Config::unassigned().heartbeat_period_us;
+        let Some(written) = written else {
+            return Some(default);
+        };
+        let seconds = *written.get_ref();
+        let us = (seconds * 1e6).round();
+        let mut config = pab_app::Config::unassigned();
+        config.node_id = id;
+        if seconds.is_finite() && (0.0..=u64::MAX as f64).contains(&us) {
+            config.heartbeat_period_us = us as u64;
+            if config.validate().is_ok() {
+                return Some(config.heartbeat_period_us);
+            }
+        }
+        self.error(
+            written.span(),
+            format!(
+                "heartbeat = {seconds}: seconds between the node's heartbeats, 0.01 to 3600 (what a node's configuration takes; default {} s)",
+                default as f64 / 1e6
+            ),
+        );
+        None
+    }
+}
+
+impl Node {
+    /// The node's configuration as the network file says it (its id, its `heartbeat`), the
+    /// rest the node's defaults: what the simulator's and the replay's nodes run with, and
+    /// what `pabctl check` analyses.
+    pub fn config(&self) -> pab_app::Config {
+        let mut config =
+            pab_app::Config::new(self.id).unwrap_or_else(|_| pab_app::Config::unassigned());
+        config.heartbeat_period_us = self.heartbeat_us;
+        config
     }
 }

@@ -501,7 +501,7 @@ pub fn run(
         .get(board.node)
         .ok_or_else(|| SimError("the schema server's node is not in the file".into()))?;
     let mut records = String::new();
-    let station = Station::boot(board.node, node.id, &node.name, image, None, &mut records)?;
+    let station = Station::boot(board.node, node, image, None, &mut records)?;
     if station.app.schema().is_none() {
         return Err(SimError(format!(
             "node `{}`: its table runs no schema server",

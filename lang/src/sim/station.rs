@@ -32,17 +32,19 @@ pub(super) struct Station {
 }
 
 impl Station {
-    /// Node `id` (index `node` in the network) booted at time 0 from `image`, its `# node`
-    /// record line written to `records`.
+    /// Node `node` of `network` booted at time 0 from `image` with its configuration
+    /// ([`crate::network::Node::config`]), its `# node` record line written to `records`.
     pub fn boot(
         node: usize,
-        id: u8,
-        name: &str,
+        network_node: &crate::network::Node,
         image: &[u8],
         stop_us: Option<u64>,
         records: &mut String,
     ) -> Result<Station, SimError> {
-        let config = pab_app::Config::new(id)
+        let (id, name) = (network_node.id, network_node.name.as_str());
+        let config = network_node.config();
+        config
+            .validate()
             .map_err(|error| SimError(format!("node `{name}`: {error}")))?;
         let mut app = Box::new(FullNode::new(config, Instant::from_micros(0)));
         let buffer = app.boot_buffer();

@@ -276,6 +276,36 @@ impl TimedBus {
     }
 }
 
+/// A capture's frames on the timed bus (`pabctl replay --timed-bus`): each frame of `frames`
+/// (µs, in time order; a frame's time is when its sender queued it) waits for the bus from its
+/// time, and the bus carries them all, as [`TimedBus`] carries a simulation's. Nothing answers
+/// them: the capture already holds what the nodes sent in answer, at the times they sent it.
+///
+/// The times are taken as queueing times, which is what a capture from a bus that takes no time
+/// (Linux's `vcan`) records: there a frame's timestamp is when its sender wrote it. A capture from
+/// a real bus stamps each frame when it ended, after its wait for the bus; carried again, it is
+/// queued later than it was sent, so its latencies here are those of a bus that released the
+/// frames at those instants.
+///
+/// Cost: each start scans the waiting frames, so a burst of n frames queued at once takes
+/// O(n²); a capture's bursts are a node's heartbeat group or a transfer's block.
+pub fn carry(clock: Clock, frames: &[(u64, Frame)]) -> TimedRun {
+    let mut bus = TimedBus::new(clock);
+    let mut pending = frames.iter().peekable();
+    loop {
+        let next_frame = pending.peek().map(|(t_us, _)| *t_us);
+        let Some(now) = [next_frame, bus.next_us()].into_iter().flatten().min() else {
+            break;
+        };
+        bus.deliver(now);
+        bus.start(now);
+        while let Some((t_us, frame)) = pending.next_if(|(t_us, _)| *t_us <= now) {
+            bus.queue(*t_us, Sender::Scenario, *frame);
+        }
+    }
+    bus.finish()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -346,5 +376,35 @@ mod tests {
         let run = bus.finish();
         assert_eq!(run.transmissions.len(), 2);
         assert_eq!(run.unsent.len(), 2);
+    }
+
+    /// A capture's frames carried again: frames waiting when the bus frees go out in arbitration
+    /// order, back to back (0x200, queued while 0x100 was on the bus, before 0x300, which
+    /// waited longer), and nothing is left waiting.
+    #[test]
+    fn a_capture_is_carried_whole() {
+        let clock = Clock::new(500_000, None);
+        let frames = [
+            (0, frame(0x300, 8)),
+            (0, frame(0x100, 8)),
+            (1, frame(0x200, 2)),
+            (5_000, frame(0x400, 0)),
+        ];
+        let run = carry(clock, &frames);
+        assert!(run.unsent.is_empty());
+        let order: Vec<Frame> = run.transmissions.iter().map(|t| t.frame).collect();
+        assert_eq!(
+            order,
+            [
+                frame(0x100, 8),
+                frame(0x200, 2),
+                frame(0x300, 8),
+                frame(0x400, 0)
+            ]
+        );
+        assert_eq!(run.transmissions[1].start, run.transmissions[0].end);
+        assert_eq!(run.transmissions[2].start, run.transmissions[1].end);
+        // 0x400 found the bus idle: no wait.
+        assert_eq!(run.transmissions[3].wait(&clock), 0);
     }
 }
