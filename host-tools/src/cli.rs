@@ -388,6 +388,7 @@ is reported with the reason, and the command fails (exit status 4) after trying 
         /// Send the transfer in CAN FD frames (ISO-TP on CAN FD: 64-byte frames with the
         /// bit-rate switch, 63 bytes of the message a frame) instead of classic ones: for nodes
         /// built with CAN FD (pab-node) on an interface that carries CAN FD frames (MTU 72).
+        /// Without it, the transfer is CAN FD when the file's bus is ([bus] data_bitrate).
         #[arg(long)]
         fd: bool,
     },
@@ -446,6 +447,7 @@ not sent here.")]
         /// Send the transfer in CAN FD frames (ISO-TP on CAN FD: 64-byte frames with the
         /// bit-rate switch, 63 bytes of the message a frame) instead of classic ones: for nodes
         /// built with CAN FD (pab-node) on an interface that carries CAN FD frames (MTU 72).
+        /// Without it, the transfer is CAN FD when the file's bus is ([bus] data_bitrate).
         #[arg(long)]
         fd: bool,
     },
@@ -481,6 +483,7 @@ pabctl limits arm.toml --dry-run --joint elbow=-45:90")]
         /// Send the transfer in CAN FD frames (ISO-TP on CAN FD: 64-byte frames with the
         /// bit-rate switch, 63 bytes of the message a frame) instead of classic ones: for nodes
         /// built with CAN FD (pab-node) on an interface that carries CAN FD frames (MTU 72).
+        /// Without it, the transfer is CAN FD when the file's bus is ([bus] data_bitrate).
         #[arg(long)]
         fd: bool,
     },

@@ -48,6 +48,7 @@ pub fn run(
         }
         None => nodes.iter().collect(),
     };
+    let framing = super::framing_on(&network, framing);
     let mut bus = open_bus_with(iface, framing)?;
     let mut failures = 0;
     for node in selected {

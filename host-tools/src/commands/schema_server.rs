@@ -118,6 +118,7 @@ pub fn run(
         .nodes
         .get(board.node)
         .ok_or_else(|| Failure::Input(Diagnostic::file(path, "no such node").into()))?;
+    let framing = super::framing_on(&network, framing);
     let mut bus = bus::open_with(iface, framing).map_err(|e| Failure::Bus(e.to_string()))?;
     let mut arm = match key {
         Some(key) => pabctl::client::Client::with_key(bus.as_mut(), node.id, key),
@@ -207,6 +208,7 @@ pub fn limits(
         );
         return Ok(());
     };
+    let framing = super::framing_on(&network, framing);
     let mut bus = bus::open_with(iface, framing).map_err(|e| Failure::Bus(e.to_string()))?;
     let mut client = match key {
         Some(key) => pabctl::client::Client::with_key(bus.as_mut(), node.id, key),
