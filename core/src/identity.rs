@@ -42,11 +42,12 @@ pub const UID_LEN: usize = 12;
 pub const PROVISIONAL_BASE: u8 = 0x80;
 
 /// The feature bits of [`Identity::features`], and their names (what `pabctl nodes` prints).
-pub const FEATURES: [(u16, &str); 4] = [
+pub const FEATURES: [(u16, &str); 5] = [
     (Identity::FEATURE_BLE, "ble"),
     (Identity::FEATURE_DYNAMICS, "dynamics"),
     (Identity::FEATURE_FILTERS, "filters"),
     (Identity::FEATURE_SCHEMA, "schema"),
+    (Identity::FEATURE_FD, "fd"),
 ];
 
 /// The six frames of an identity, in the order a node sends them.
@@ -224,6 +225,9 @@ impl Identity {
     pub const FEATURE_FILTERS: u16 = 1 << 2;
     /// Feature: the schema server.
     pub const FEATURE_SCHEMA: u16 = 1 << 3;
+    /// Feature: CAN FD. It takes CAN FD frames, and its transfers (tables, schemas, updates) in
+    /// CAN FD frames as well as classic ones. Without it, a CAN FD transfer to it is lost.
+    pub const FEATURE_FD: u16 = 1 << 4;
 
     /// Flag: the node takes only authenticated configuration.
     pub const FLAG_KEYED: u8 = 1 << 0;
@@ -240,7 +244,7 @@ impl Identity {
     /// Every flag bit defined.
     const FLAGS: u8 = 0x1F;
     /// Every feature bit defined.
-    const FEATURES: u16 = 0x0F;
+    const FEATURES: u16 = 0x1F;
 
     /// Whether the node has a key (or is locked).
     pub const fn keyed(&self) -> bool {
@@ -459,6 +463,15 @@ mod tests {
         assert!(!Identity::part_is_valid(IdentityPart::Capacity, &capacity));
         let mut features = identity.payload(IdentityPart::Features);
         features[4] = 0x80;
+        assert!(!Identity::part_is_valid(IdentityPart::Features, &features));
+        // Feature bits 0-4 are defined (4: CAN FD), 5-15 reserved.
+        let mut features = identity.payload(IdentityPart::Features);
+        features[2] = 0x1F;
+        assert!(Identity::part_is_valid(IdentityPart::Features, &features));
+        features[2] = 0x20;
+        assert!(!Identity::part_is_valid(IdentityPart::Features, &features));
+        features[2] = 0;
+        features[3] = 0x01;
         assert!(!Identity::part_is_valid(IdentityPart::Features, &features));
         assert!(!Identity::part_is_valid(
             IdentityPart::Name,

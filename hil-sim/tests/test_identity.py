@@ -38,7 +38,7 @@ def test_an_unassigned_node_is_listed_by_uid_assigned_an_id_and_keeps_it(iface, 
         assert spare["state"] is None, "an unassigned node sends no heartbeat"
         assert spare["firmware"]["name"] == "pab-node"
         assert len(spare["uid"]) == 16 and spare["uid"] == (tmp_path / "spare" / "uid").read_text().strip()
-        assert {"ble", "dynamics", "filters", "schema"} <= set(spare["features"]), spare
+        assert {"ble", "dynamics", "filters", "schema", "fd"} <= set(spare["features"]), spare
         assert spare["keyed"] is False and spare["protocol"] == 1
         uid = spare["uid"]
 

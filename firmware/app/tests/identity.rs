@@ -112,6 +112,12 @@ fn a_node_answers_who_it_is_and_announces_it_at_start() {
         cfg!(feature = "dynamics"),
         "{features:?}"
     );
+    // CAN FD is said as it is built: the boards' classic builds without, pab-node with.
+    assert_eq!(
+        features.contains(&"fd"),
+        cfg!(feature = "fd"),
+        "{features:?}"
+    );
     assert_eq!(identity.flags, 0, "unkeyed, assigned, no trial");
     assert_eq!(identity.bitrate_kbps, 500);
     // A broadcast request is answered too; a second one within 20 ms is not (six frames per

@@ -56,7 +56,7 @@ pub fn run(
             .map_err(|error| Failure::Output(format!("compiled image is invalid: {error}")))?;
         // Who the node is, before anything is sent: a table it cannot load is refused here,
         // in one line, rather than by the node after the whole transfer.
-        if let Some(why) = loadable(bus.as_mut(), node).map_err(bus_failure(iface))? {
+        if let Some(why) = loadable(bus.as_mut(), node, framing).map_err(bus_failure(iface))? {
             println!(
                 "{:>10}  node {:>3}  {} bytes  FAILED: not sent: {why}",
                 node.name,
@@ -145,6 +145,7 @@ pub fn run(
 fn loadable(
     bus: &mut dyn pabctl::bus::Bus,
     node: &CompiledNode,
+    framing: pabctl::bus::Framing,
 ) -> std::io::Result<Option<String>> {
     let Some(identity) =
         pabctl::identity::request(bus, node.id, pabctl::identity::ANSWER_TIMEOUT)?.remove(&node.id)
@@ -158,6 +159,19 @@ fn loadable(
         );
         return Ok(None);
     };
+    // A firmware built without CAN FD loses every CAN FD frame of the transfer: the push
+    // would only time out.
+    if framing == pabctl::bus::Framing::Fd
+        && identity.features & pab_core::identity::Identity::FEATURE_FD == 0
+    {
+        return Ok(Some(format!(
+            "its firmware takes classic CAN frames only (built without CAN FD), and the transfer \
+             is in CAN FD frames (--fd, or the network's data_bitrate) (node {}: {} {})",
+            node.id,
+            identity.firmware.name_str().unwrap_or("?"),
+            pabctl::observe::version_text(&identity)
+        )));
+    }
     Ok(match pabctl::identity::Needs::of_image(&node.image) {
         Ok(needs) => needs.refusal(&identity).map(|why| {
             format!(

@@ -171,6 +171,10 @@ impl<const P: usize, const C: usize, const N: usize, const IMG: usize> Node<P, C
             Identity::FEATURE_SCHEMA
         } else {
             0
+        } | if cfg!(feature = "fd") {
+            Identity::FEATURE_FD
+        } else {
+            0
         };
         let format = u8::try_from(image::FORMAT_VERSION).unwrap_or(u8::MAX);
         let clamp = |n: usize| u16::try_from(n).unwrap_or(u16::MAX);
