@@ -71,6 +71,29 @@ def replayed_deliveries(lines: list[str], out: Path) -> list[bytes]:
     return delivered
 
 
+def judged_when_read(lines: list[str], payload: bytes, out: Path) -> bool:
+    """Whether a frame the node re-published and the replay did not deliver is explained by when
+    the node read it. The replay judges each frame at the kernel's timestamp; the node judges it
+    when its process reads it, later (milliseconds under TCG). A frame stamped just before a
+    suppressing connection's activity lapses is judged by the node after the lapse, and goes
+    through (seen once: a Rest Arm frame 3 ms before Face Detector's τ ran out, re-published 5 ms
+    after its stamp). Replayed at the instant the node re-published it, the latest it can have
+    read it, the frame must then be delivered."""
+    data = payload.hex().upper()
+    stamp = lambda line: line[:line.index(")") + 1]  # noqa: E731
+    topic = [i for i, line in enumerate(lines)
+             if _LINE.match(line).group(4).upper() == data
+             and int(_LINE.match(line).group(3), 16) != w.ARM_TARGET_ID]
+    published = [line for line in lines
+                 if int(_LINE.match(line).group(3), 16) == w.ARM_TARGET_ID
+                 and _LINE.match(line).group(4).upper() == data]
+    if len(topic) != 1 or len(published) != 1:
+        return False
+    moved = list(lines)
+    moved[topic[0]] = stamp(published[0]) + lines[topic[0]][len(stamp(lines[topic[0]])):]
+    return payload in replayed_deliveries(moved, out)
+
+
 def test_take_and_return_with_10_percent_of_behaviour_frames_lost_and_the_arm_node_restarted(
         session_for, out_dir, figures):
     started = time.monotonic()
@@ -135,17 +158,26 @@ def test_take_and_return_with_10_percent_of_behaviour_frames_lost_and_the_arm_no
     # sequence number): the kernel queues each process's frames on the CPU it runs on, so the
     # capture may show two frames of different senders swapped. Before the kill, the node may
     # have read a frame and not yet re-published it when it was killed.
+    # A frame the node re-published and the replay did not deliver must be one the node judged
+    # after an activity lapsed that the replay, at the kernel's stamp, still saw (at most one on
+    # each side of the restart, and proven by replaying it when the node re-published it).
     unexplained_before = Counter(live_before) - Counter(replay_before)
-    assert not unexplained_before, f"re-published, not delivered by the replay: {unexplained_before}"
+    assert sum(unexplained_before.values()) <= 1 and all(
+        judged_when_read(before, payload, out_dir / "before-kill-as-read")
+        for payload in unexplained_before), \
+        f"re-published, not delivered by the replay: {unexplained_before}"
     assert len(replay_before) - len(live_before) <= 1, (len(replay_before), len(live_before))
     unexplained_after = Counter(live_after) - Counter(replay_after)
-    assert not unexplained_after, f"re-published, not delivered by the replay: {unexplained_after}"
+    assert sum(unexplained_after.values()) <= 1 and all(
+        judged_when_read(after, payload, out_dir / "after-restart-as-read")
+        for payload in unexplained_after), \
+        f"re-published, not delivered by the replay: {unexplained_after}"
     # The replay may deliver one frame more than the node re-published: the node stamps a frame
     # when its process reads it, the replay uses the capture's kernel timestamps, so a frame at
     # the edge of an activity's end can be judged on either side of it (seen once in a quiet
     # fresh-clone run: a Rest Arm frame 8 ms after a τ boundary), and the session stops the node
-    # at the end, maybe with a frame read and not yet re-published. Never the other way: every
-    # frame the node re-published is one the replay delivers.
+    # at the end, maybe with a frame read and not yet re-published. The other way is checked
+    # above: a frame judged by the node after a lapse (judged_when_read).
     missing_after = Counter(replay_after) - Counter(live_after)
     assert sum(missing_after.values()) <= 1, (
         f"delivered by the replay, not re-published: {missing_after}")
