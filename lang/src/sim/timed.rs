@@ -278,7 +278,7 @@ impl TimedBus {
 
 /// A capture's frames on the timed bus (`pabctl replay --timed-bus`): each frame of `frames`
 /// (µs, in time order; a frame's time is when its sender queued it) waits for the bus from its
-/// time, and the bus carries them all, as [`TimedBus`] carries a simulation's. Nothing answers
+/// time, and the bus carries them all, as it carries a simulation's. Nothing answers
 /// them: the capture already holds what the nodes sent in answer, at the times they sent it.
 ///
 /// The times are taken as queueing times, which is what a capture from a bus that takes no time
