@@ -1621,7 +1621,7 @@ fn sim_timed_bus_needs_a_bus_and_adds_its_json_only_when_asked() {
         .find(|s| s["name"] == "gaze: Errors")
         .unwrap();
     assert_eq!(errors["behind"]["frames"], 1);
-    assert_eq!(errors["behind"]["worst_latency_s"], 0.009484);
+    assert_eq!(errors["behind"]["worst_latency_s"], 0.009478);
     assert_eq!(bus["unmatched"].as_array().unwrap().len(), 18);
     // The table went to standard error with the rest of the text.
     assert!(text(&timed.stderr).contains("every compared latency within its bound: 23 streams"));

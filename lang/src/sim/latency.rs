@@ -793,7 +793,7 @@ mod tests {
             ),
             "{table}"
         );
-        assert!(table.contains("gaze: Errors: 1 frame not compared (the first queued at 0.000000 s, the longest latency 9.484 ms): it waited behind frames the analysis does not count: arm: Identity, hand: Identity, gaze: Identity and 15 more"), "{table}");
+        assert!(table.contains("gaze: Errors: 1 frame not compared (the first queued at 0.000000 s, the longest latency 9.478 ms): it waited behind frames the analysis does not count: arm: Identity, hand: Identity, gaze: Identity and 15 more"), "{table}");
     }
 
     /// A bound made smaller than a measured latency is reported, at the stream's line: the

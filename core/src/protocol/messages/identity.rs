@@ -242,7 +242,13 @@ pub const IDENTITY_FEATURES_LAYOUT: Layout = Layout::fixed(
         Field::new("dynamics", 17, 1, "1: competitive dynamics compiled in"),
         Field::new("filters", 18, 1, "1: HBBA's message filters compiled in"),
         Field::new("schema", 19, 1, "1: the schema server compiled in"),
-        Field::reserved("reserved_features", 20, 12),
+        Field::new(
+            "fd",
+            20,
+            1,
+            "1: CAN FD compiled in (takes CAN FD frames and transfers)",
+        ),
+        Field::reserved("reserved_features", 21, 11),
         Field::new("keyed", 32, 1, "1: takes only authenticated configuration"),
         Field::new(
             "locked",

@@ -219,6 +219,7 @@ fn view(message: &Message) -> Option<Vec<(&'static str, u64)>> {
                     ("dynamics", feature(1)),
                     ("filters", feature(2)),
                     ("schema", feature(3)),
+                    ("fd", feature(4)),
                     ("reserved_features", 0),
                     ("keyed", bit(0)),
                     ("locked", bit(1)),
