@@ -25,6 +25,8 @@ ARM = NODE_IDS["arm"]
 ARM_TARGET_PORT = 0  # arm.target, the arm node's only port
 SEED = int(os.environ.get("PAB_HIL_SEED", "20261123"))
 LOSS = Loss(rate=0.10, seed=SEED)
+# The topics of the arm node's connections.
+ARM_TOPICS = {b.OBJECT_POS, b.FACE_POS, b.REST_POSE, b.GRASP_CMD, b.RELEASE_CMD, b.GRASPED}
 _LINE = re.compile(r"^\((\d+)\.(\d{6})\) \S+ ([0-9A-Fa-f]+)#([0-9A-Fa-f]*)")
 
 
@@ -80,18 +82,28 @@ def judged_when_read(lines: list[str], payload: bytes, out: Path) -> bool:
     after its stamp). Replayed at the instant the node re-published it, the latest it can have
     read it, the frame must then be delivered."""
     data = payload.hex().upper()
-    stamp = lambda line: line[:line.index(")") + 1]  # noqa: E731
-    topic = [i for i, line in enumerate(lines)
-             if _LINE.match(line).group(4).upper() == data
-             and int(_LINE.match(line).group(3), 16) != w.ARM_TARGET_ID]
-    published = [line for line in lines
-                 if int(_LINE.match(line).group(3), 16) == w.ARM_TARGET_ID
-                 and _LINE.match(line).group(4).upper() == data]
+    carrying = [(i, match) for i, match in enumerate(map(_LINE.match, lines))
+                if match.group(4).upper() == data]
+    topic = [(i, m) for i, m in carrying if int(m.group(3), 16) in ARM_TOPICS]
+    published = [m for _, m in carrying if int(m.group(3), 16) == w.ARM_TARGET_ID]
     if len(topic) != 1 or len(published) != 1:
         return False
+    (index, read), = topic
+    stamp_end = read.end(2) + 1  # past "(seconds.micros)"
     moved = list(lines)
-    moved[topic[0]] = stamp(published[0]) + lines[topic[0]][len(stamp(lines[topic[0]])):]
+    moved[index] = published[0].string[:stamp_end] + lines[index][stamp_end:]
     return payload in replayed_deliveries(moved, out)
+
+
+def assert_replay_explains(live: list[bytes], replayed: list[bytes], lines: list[str],
+                           out: Path) -> None:
+    """Every frame the node re-published is one the replay delivers, but at most one frame the
+    node judged after an activity lapsed that the replay, at the kernel's stamp, still saw
+    (proven by replaying it when the node re-published it: judged_when_read)."""
+    unexplained = Counter(live) - Counter(replayed)
+    assert sum(unexplained.values()) <= 1 and all(
+        judged_when_read(lines, payload, out) for payload in unexplained), \
+        f"re-published, not delivered by the replay: {unexplained}"
 
 
 def test_take_and_return_with_10_percent_of_behaviour_frames_lost_and_the_arm_node_restarted(
@@ -141,10 +153,9 @@ def test_take_and_return_with_10_percent_of_behaviour_frames_lost_and_the_arm_no
                     if ident == heartbeat_id and _micros(line) > killed_us)
     # The pause held: no frame on the arm's topics from the new process's start to its first
     # heartbeat, so the process read every arm frame after that heartbeat and none before.
-    arm_topics = {b.OBJECT_POS, b.FACE_POS, b.REST_POSE, b.GRASP_CMD, b.RELEASE_CMD, b.GRASPED}
     starting_us = round(starting_at * 1_000_000)
     assert not [line for line, ident in zip(lines, ids)
-                if ident in arm_topics and starting_us <= _micros(line) < reborn_us], "pause broken"
+                if ident in ARM_TOPICS and starting_us <= _micros(line) < reborn_us], "pause broken"
     before = [line for line in lines if _micros(line) < killed_us]
     after = [line for line in lines if _micros(line) >= reborn_us]
     # What the arm node re-published, before the kill and after the restart.
@@ -158,26 +169,15 @@ def test_take_and_return_with_10_percent_of_behaviour_frames_lost_and_the_arm_no
     # sequence number): the kernel queues each process's frames on the CPU it runs on, so the
     # capture may show two frames of different senders swapped. Before the kill, the node may
     # have read a frame and not yet re-published it when it was killed.
-    # A frame the node re-published and the replay did not deliver must be one the node judged
-    # after an activity lapsed that the replay, at the kernel's stamp, still saw (at most one on
-    # each side of the restart, and proven by replaying it when the node re-published it).
-    unexplained_before = Counter(live_before) - Counter(replay_before)
-    assert sum(unexplained_before.values()) <= 1 and all(
-        judged_when_read(before, payload, out_dir / "before-kill-as-read")
-        for payload in unexplained_before), \
-        f"re-published, not delivered by the replay: {unexplained_before}"
+    assert_replay_explains(live_before, replay_before, before, out_dir / "before-kill-as-read")
     assert len(replay_before) - len(live_before) <= 1, (len(replay_before), len(live_before))
-    unexplained_after = Counter(live_after) - Counter(replay_after)
-    assert sum(unexplained_after.values()) <= 1 and all(
-        judged_when_read(after, payload, out_dir / "after-restart-as-read")
-        for payload in unexplained_after), \
-        f"re-published, not delivered by the replay: {unexplained_after}"
+    assert_replay_explains(live_after, replay_after, after, out_dir / "after-restart-as-read")
     # The replay may deliver one frame more than the node re-published: the node stamps a frame
     # when its process reads it, the replay uses the capture's kernel timestamps, so a frame at
     # the edge of an activity's end can be judged on either side of it (seen once in a quiet
     # fresh-clone run: a Rest Arm frame 8 ms after a τ boundary), and the session stops the node
     # at the end, maybe with a frame read and not yet re-published. The other way is checked
-    # above: a frame judged by the node after a lapse (judged_when_read).
+    # above (assert_replay_explains).
     missing_after = Counter(replay_after) - Counter(live_after)
     assert sum(missing_after.values()) <= 1, (
         f"delivered by the replay, not re-published: {missing_after}")
